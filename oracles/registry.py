@@ -1,0 +1,65 @@
+"""Find oracles by name.
+
+Built-in oracles are listed here by import path, so that asking for the
+sphere never imports CasADi. Other packages add oracles through the entry-point
+group ``reach.oracles``; each entry point names a factory that takes the
+spec's params as keyword arguments and returns an :class:`~oracles.protocol.Oracle`.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+from importlib.metadata import entry_points
+from typing import Any
+
+from oracles.protocol import Oracle, OracleSpec
+from reach.errors import OracleError
+
+ENTRY_POINT_GROUP = "reach.oracles"
+
+BUILTIN: dict[str, str] = {
+    "circle": "oracles.shapes:circle",
+    "sphere": "oracles.shapes:sphere",
+    "ball": "oracles.shapes:Ball",
+    "box": "oracles.shapes:BoxOracle",
+    "torus": "oracles.shapes:Torus",
+    "union": "oracles.shapes:union",
+    "intersection": "oracles.shapes:intersection",
+    "difference": "oracles.shapes:difference",
+    "casadi-ik": "oracles.ik:CasadiIK",
+    "dls": "oracles.dls:DLSIK",
+}
+
+
+def _load(target: str) -> Callable[..., Oracle]:
+    module, _, attr = target.partition(":")
+    return getattr(importlib.import_module(module), attr)  # type: ignore[no-any-return]
+
+
+def available() -> list[str]:
+    """Names of every oracle: built-in ones and those from entry points."""
+    names = set(BUILTIN)
+    names.update(ep.name for ep in entry_points(group=ENTRY_POINT_GROUP))
+    return sorted(names)
+
+
+def factory(name: str) -> Callable[..., Oracle]:
+    """The factory registered under name."""
+    if name in BUILTIN:
+        return _load(BUILTIN[name])
+    for ep in entry_points(group=ENTRY_POINT_GROUP):
+        if ep.name == name:
+            return ep.load()  # type: ignore[no-any-return]
+    raise OracleError(f"unknown oracle {name!r}; available: {', '.join(available())}")
+
+
+def create(spec: OracleSpec | dict[str, Any]) -> Oracle:
+    """Build the oracle a spec describes."""
+    if isinstance(spec, dict):
+        spec = OracleSpec.from_dict(spec)
+    make = factory(spec.name)
+    try:
+        return make(**spec.params)
+    except TypeError as exc:
+        raise OracleError(f"oracle {spec.name!r}: bad parameters {sorted(spec.params)}: {exc}") from exc

@@ -1,0 +1,193 @@
+"""Build configurations: YAML files validated into frozen specs.
+
+A configuration names the box B0, the depths, the default oracle and the
+strategies. Example (``configs/sphere.yaml``)::
+
+    name: sphere
+    box: {min: [-1.0, -1.0, -1.0], max: [1.0, 1.0, 1.0]}   # metres
+    depth: {min: 2, max: 7}
+    oracle: {name: sphere, params: {center: [0, 0, 0], radius: 1.0}}
+    strategies:
+      - {name: sphere, effector: point, priority: 1}
+
+Strategies are tried in increasing ``priority`` (1 first); the default is
+their order in the file. A strategy's ``oracle.params`` are merged over the
+default oracle's params, and its ``oracle.name`` replaces the default's.
+
+Every error names the file and the dotted key, and says what was expected.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from oracles.protocol import OracleSpec
+from reach.errors import ConfigError, TreeError
+from reach.tree import MAX_DEPTH, Box
+
+TOP_KEYS = {"name", "description", "box", "depth", "oracle", "strategies", "build"}
+STRATEGY_KEYS = {"name", "effector", "priority", "oracle", "description"}
+BUILD_KEYS = {"chunk_size"}
+
+
+@dataclass(frozen=True)
+class StrategySpec:
+    """One way to reach: an effector, a priority and the oracle that decides.
+
+    Attributes:
+        name: Unique name; the tree file is ``<name>.npz``.
+        effector: What reaches (a frame name such as ``right_hand``).
+        priority: Rank among strategies of the same effector; lower is tried first.
+        oracle: The oracle deciding reachability for this strategy.
+    """
+
+    name: str
+    effector: str
+    priority: int
+    oracle: OracleSpec
+    description: str = ""
+
+
+@dataclass(frozen=True)
+class Config:
+    """A validated build configuration."""
+
+    name: str
+    source: str
+    box: Box
+    d_min: int
+    d_max: int
+    strategies: tuple[StrategySpec, ...]
+    chunk_size: int = 2048
+    raw: dict[str, Any] = field(default_factory=dict, compare=False)
+
+    def strategy(self, name: str) -> StrategySpec:
+        for s in self.strategies:
+            if s.name == name:
+                return s
+        raise ConfigError(self.source, "strategies", f"no strategy {name!r}; known: {[s.name for s in self.strategies]}")
+
+
+class _Checker:
+    """Type checks that name the file and key."""
+
+    def __init__(self, source: str) -> None:
+        self.source = source
+
+    def fail(self, key: str, reason: str) -> ConfigError:
+        return ConfigError(self.source, key, reason)
+
+    def mapping(self, value: Any, key: str, allowed: set[str], required: set[str] = frozenset()) -> dict[str, Any]:  # type: ignore[assignment]
+        if not isinstance(value, Mapping):
+            raise self.fail(key, f"expected a mapping, got {type(value).__name__}")
+        prefix = f"{key}." if key else ""
+        for k in value:
+            if k not in allowed:
+                raise self.fail(f"{prefix}{k}", f"unknown key; allowed: {', '.join(sorted(allowed))}")
+        for k in sorted(required):
+            if k not in value:
+                raise self.fail(f"{prefix}{k}", "required key is missing")
+        return dict(value)
+
+    def integer(self, value: Any, key: str, lo: int, hi: int) -> int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise self.fail(key, f"expected an integer, got {value!r}")
+        if not lo <= value <= hi:
+            raise self.fail(key, f"expected an integer in [{lo}, {hi}], got {value}")
+        return value
+
+    def string(self, value: Any, key: str) -> str:
+        if not isinstance(value, str) or not value.strip():
+            raise self.fail(key, f"expected a non-empty string, got {value!r}")
+        return value
+
+    def vector(self, value: Any, key: str) -> list[float]:
+        if not isinstance(value, list) or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+            raise self.fail(key, f"expected a list of numbers [m], got {value!r}")
+        return [float(v) for v in value]
+
+
+def _oracle(check: _Checker, value: Any, key: str, base: OracleSpec | None) -> OracleSpec:
+    spec = check.mapping(value, key, {"name", "params"}, set() if base else {"name"})
+    params = spec.get("params", {})
+    if not isinstance(params, Mapping):
+        raise check.fail(f"{key}.params", f"expected a mapping, got {type(params).__name__}")
+    name = check.string(spec["name"], f"{key}.name") if "name" in spec else base.name  # type: ignore[union-attr]
+    merged = {**(base.params if base and base.name == name else {}), **params}
+    return OracleSpec(name, merged)
+
+
+def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atlas") -> Config:
+    """Validate a parsed YAML document into a :class:`Config`."""
+    check = _Checker(source)
+    top = check.mapping(data, "", TOP_KEYS, {"box", "depth", "oracle", "strategies"})
+    name = check.string(top.get("name", default_name), "name")
+    box_raw = check.mapping(top["box"], "box", {"min", "max"}, {"min", "max"})
+    lo, hi = check.vector(box_raw["min"], "box.min"), check.vector(box_raw["max"], "box.max")
+    if len(lo) not in (2, 3) or len(lo) != len(hi):
+        raise check.fail("box", f"min and max must both have 2 or 3 coordinates, got {len(lo)} and {len(hi)}")
+    try:
+        box = Box(lo, hi)  # type: ignore[arg-type]
+    except TreeError as exc:
+        raise check.fail("box", str(exc)) from exc
+    depth = check.mapping(top["depth"], "depth", {"min", "max"}, {"min", "max"})
+    d_max = check.integer(depth["max"], "depth.max", 0, MAX_DEPTH)
+    d_min = check.integer(depth["min"], "depth.min", 0, MAX_DEPTH)
+    if d_min > d_max:
+        raise check.fail("depth.min", f"D_min ({d_min}) must not exceed D_max ({d_max})")
+    default = _oracle(check, top["oracle"], "oracle", None)
+    raw_strategies = top["strategies"]
+    if not isinstance(raw_strategies, list) or not raw_strategies:
+        raise check.fail("strategies", "expected a non-empty list of strategies")
+    strategies = []
+    seen: set[str] = set()
+    for i, item in enumerate(raw_strategies):
+        key = f"strategies[{i}]"
+        s = check.mapping(item, key, STRATEGY_KEYS, {"name"})
+        sname = check.string(s["name"], f"{key}.name")
+        if sname in seen:
+            raise check.fail(f"{key}.name", f"duplicate strategy name {sname!r}")
+        if not sname.replace("_", "").replace("-", "").isalnum():
+            raise check.fail(f"{key}.name", f"use letters, digits, '-' and '_' only (it names a file), got {sname!r}")
+        seen.add(sname)
+        effector = check.string(s.get("effector", "point"), f"{key}.effector")
+        priority = check.integer(s.get("priority", i + 1), f"{key}.priority", 0, 10**6)
+        oracle = _oracle(check, s["oracle"], f"{key}.oracle", default) if "oracle" in s else default
+        strategies.append(StrategySpec(sname, effector, priority, oracle, str(s.get("description", ""))))
+    build = check.mapping(top.get("build", {}), "build", BUILD_KEYS)
+    chunk = check.integer(build.get("chunk_size", 2048), "build.chunk_size", 1, 10**7)
+    _check_oracles(check, strategies, box.dim)
+    strategies.sort(key=lambda s: s.priority)
+    return Config(name, source, box, d_min, d_max, tuple(strategies), chunk, dict(top))
+
+
+def _check_oracles(check: _Checker, strategies: list[StrategySpec], dim: int) -> None:
+    """Build each distinct oracle once so that bad params fail at load time, naming the key."""
+    from reach.errors import ReachError
+
+    for i, s in enumerate(strategies):
+        try:
+            oracle = s.oracle.create()
+        except ReachError as exc:
+            raise check.fail(f"strategies[{i}].oracle", str(exc)) from exc
+        if oracle.dim != dim:
+            raise check.fail("box", f"box is {dim}-D but strategy {s.name!r} uses a {oracle.dim}-D oracle")
+
+
+def load_config(path: str | Path) -> Config:
+    """Read and validate a YAML configuration file."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ConfigError(path, "", f"cannot read: {exc.strerror or exc}") from exc
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(path, "", f"not valid YAML: {exc}") from exc
+    return parse_config(data, str(path), path.stem)

@@ -1,0 +1,199 @@
+"""Trees and atlases on disk.
+
+A tree is one ``.npz`` file (a zip of ``.npy`` arrays, read with
+``allow_pickle=False``) holding the node arrays, the vertex table and a
+``meta`` array of UTF-8 JSON. An atlas is a folder with one tree per strategy
+and a ``manifest.json``.
+
+Every failure to read names the file and what is wrong with it; a numpy or
+zip traceback never reaches the user, and nothing is ever unpickled.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from reach.errors import StoreError, TreeError
+from reach.tree import FINAL, PARENT, Box, VATree, VertexTable, bfs_children
+
+TREE_FORMAT = "reach.vatree"
+TREE_VERSION = 1
+ATLAS_FORMAT = "reach.atlas"
+ATLAS_VERSION = 1
+MANIFEST = "manifest.json"
+
+
+def _atomic_write(path: Path, write: Any) -> None:
+    """Write through a temporary file so a killed process never leaves half a file."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    with open(tmp, "wb") as fh:
+        write(fh)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+def save_tree(tree: VATree, path: str | Path) -> Path:
+    """Write a tree to path (``.npz``); returns the path."""
+    path = Path(path)
+    meta = {
+        **tree.meta,
+        "format": TREE_FORMAT,
+        "version": TREE_VERSION,
+        "box": tree.box.to_dict(),
+        "d_min": tree.d_min,
+        "d_max": tree.d_max,
+        "posture_names": list(tree.vertices.posture_names),
+    }
+    arrays = {
+        "meta": np.frombuffer(json.dumps(meta, sort_keys=True).encode(), np.uint8),
+        "depth": tree.depth.astype(np.uint8),
+        "corner": tree.corner.astype(np.int64),
+        "kind": tree.kind.astype(np.uint8),
+        "vertex_keys": tree.vertices.keys.astype(np.int64),
+        "vertex_reachable": tree.vertices.reachable.astype(bool),
+        "vertex_residual": tree.vertices.residual.astype(float),
+    }
+    if tree.vertices.posture is not None:
+        arrays["vertex_posture"] = tree.vertices.posture.astype(float)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    _atomic_write(path, lambda fh: np.savez_compressed(fh, **arrays))
+    return path
+
+
+def _read_arrays(path: Path) -> dict[str, np.ndarray]:
+    if not path.is_file():
+        raise StoreError(path, "no such tree file")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            return {name: data[name] for name in data.files}
+    except (zipfile.BadZipFile, EOFError) as exc:
+        raise StoreError(path, f"not a readable tree file (truncated or corrupt zip: {exc})") from exc
+    except ValueError as exc:
+        raise StoreError(path, f"corrupt or unsafe array data ({exc})") from exc
+    except OSError as exc:
+        raise StoreError(path, f"cannot read: {exc}") from exc
+    except Exception as exc:  # zlib.error, struct.error and friends from a damaged member
+        raise StoreError(path, f"corrupt tree file ({type(exc).__name__}: {exc})") from exc
+
+
+def _field(path: Path, arrays: dict[str, np.ndarray], name: str, dtype: Any, ndim: int) -> np.ndarray:
+    if name not in arrays:
+        raise StoreError(path, f"missing array {name!r}")
+    arr = arrays[name]
+    if arr.ndim != ndim or not np.can_cast(arr.dtype, dtype, casting="same_kind"):
+        raise StoreError(path, f"array {name!r} has dtype {arr.dtype} and {arr.ndim} dimensions, expected {np.dtype(dtype)} with {ndim}")
+    return arr.astype(dtype, copy=False)
+
+
+def load_tree(path: str | Path) -> VATree:
+    """Read a tree written by :func:`save_tree`.
+
+    Raises:
+        StoreError: The file is missing, truncated, corrupt, inconsistent or
+            of another format version.
+    """
+    path = Path(path)
+    arrays = _read_arrays(path)
+    raw = _field(path, arrays, "meta", np.uint8, 1)
+    try:
+        meta = json.loads(raw.tobytes().decode())
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise StoreError(path, f"metadata is not valid JSON ({exc})") from exc
+    if not isinstance(meta, dict) or meta.get("format") != TREE_FORMAT:
+        raise StoreError(path, f"not a reach tree (format {meta.get('format') if isinstance(meta, dict) else None!r}, expected {TREE_FORMAT!r})")
+    if meta.get("version") != TREE_VERSION:
+        raise StoreError(path, f"tree format version {meta.get('version')!r}, this reach reads version {TREE_VERSION}; rebuild the tree")
+    try:
+        box = Box(np.asarray(meta["box"]["min"], float), np.asarray(meta["box"]["max"], float))
+        d_min, d_max = int(meta["d_min"]), int(meta["d_max"])
+        names = tuple(str(n) for n in meta.get("posture_names", []))
+    except (KeyError, TypeError, ValueError, TreeError) as exc:
+        raise StoreError(path, f"metadata lacks a valid box or depths ({exc})") from exc
+    depth = _field(path, arrays, "depth", np.uint8, 1)
+    corner = _field(path, arrays, "corner", np.int64, 2)
+    kind = _field(path, arrays, "kind", np.uint8, 1)
+    keys = _field(path, arrays, "vertex_keys", np.int64, 1)
+    reach_ = _field(path, arrays, "vertex_reachable", bool, 1)
+    residual = _field(path, arrays, "vertex_residual", float, 1)
+    posture = _field(path, arrays, "vertex_posture", float, 2) if "vertex_posture" in arrays else None
+    n, dim = kind.shape[0], box.dim
+    problems = []
+    if n == 0 or depth.shape != (n,) or corner.shape != (n, dim):
+        problems.append(f"node arrays disagree: {n} kinds, {depth.shape[0]} depths, corners {corner.shape}")
+    elif kind.max() > FINAL or depth.max() > d_max or n != 1 + np.count_nonzero(kind == PARENT) * (1 << dim):
+        problems.append("node kinds, depths or parent count are inconsistent")
+    if not (keys.shape == reach_.shape == residual.shape) or (keys.size > 1 and np.any(np.diff(keys) <= 0)):
+        problems.append("vertex table arrays disagree in length or keys are not sorted")
+    if posture is not None and posture.shape != (keys.shape[0], len(names)):
+        problems.append(f"postures {posture.shape} do not match {keys.shape[0]} vertices x {len(names)} names")
+    if problems:
+        raise StoreError(path, "; ".join(problems))
+    meta = {k: v for k, v in meta.items() if k not in ("format", "version", "box", "d_min", "d_max", "posture_names")}
+    vertices = VertexTable(keys, reach_, residual, posture, names)
+    return VATree(box, d_min, d_max, depth, corner, kind, bfs_children(kind, dim), vertices, meta)
+
+
+@dataclass
+class Atlas:
+    """The trees of every strategy of a config, with its manifest.
+
+    Attributes:
+        path: The atlas folder.
+        manifest: The parsed ``manifest.json``.
+        trees: Strategy name -> tree, in priority order.
+    """
+
+    path: Path
+    manifest: dict[str, Any]
+    trees: dict[str, VATree]
+
+    @property
+    def strategies(self) -> list[dict[str, Any]]:
+        """Manifest entries of the strategies, in priority order."""
+        return list(self.manifest["strategies"])
+
+
+def write_manifest(folder: str | Path, manifest: dict[str, Any]) -> Path:
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    body = {**manifest, "format": ATLAS_FORMAT, "version": ATLAS_VERSION}
+    path = folder / MANIFEST
+    _atomic_write(path, lambda fh: fh.write(json.dumps(body, indent=2, sort_keys=True).encode()))
+    return path
+
+
+def read_manifest(folder: str | Path) -> dict[str, Any]:
+    folder = Path(folder)
+    path = folder / MANIFEST
+    if not folder.is_dir():
+        raise StoreError(folder, "no such atlas folder (expected the output of 'reach build')")
+    if not path.is_file():
+        raise StoreError(path, "missing; this folder is not an atlas written by 'reach build'")
+    try:
+        manifest = json.loads(path.read_text())
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise StoreError(path, f"not valid JSON ({exc})") from exc
+    if not isinstance(manifest, dict) or manifest.get("format") != ATLAS_FORMAT:
+        raise StoreError(path, f"not a reach atlas manifest (expected format {ATLAS_FORMAT!r})")
+    if manifest.get("version") != ATLAS_VERSION:
+        raise StoreError(path, f"atlas version {manifest.get('version')!r}, this reach reads version {ATLAS_VERSION}")
+    strategies = manifest.get("strategies")
+    if not isinstance(strategies, list) or not all(isinstance(s, dict) and "name" in s and "file" in s for s in strategies):
+        raise StoreError(path, "'strategies' must be a list of objects with 'name' and 'file'")
+    return manifest
+
+
+def load_atlas(folder: str | Path) -> Atlas:
+    """Read an atlas folder: its manifest and every strategy's tree."""
+    folder = Path(folder)
+    manifest = read_manifest(folder)
+    trees = {s["name"]: load_tree(folder / s["file"]) for s in manifest["strategies"]}
+    return Atlas(folder, manifest, trees)
