@@ -71,6 +71,8 @@ def save_tree(tree: VATree, path: str | Path) -> Path:
 def _read_arrays(path: Path) -> dict[str, np.ndarray]:
     if not path.is_file():
         raise StoreError(path, "no such tree file")
+    if not zipfile.is_zipfile(path):
+        raise StoreError(path, "not a readable tree file (not an .npz zip archive; truncated or corrupt?)")
     try:
         with np.load(path, allow_pickle=False) as data:
             return {name: data[name] for name in data.files}

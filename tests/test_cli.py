@@ -1,0 +1,80 @@
+"""The reach command line, end to end."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import reach
+from reach.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_every_name_in_all_exists():
+    for name in reach.__all__:
+        assert getattr(reach, name) is not None
+
+
+@pytest.mark.parametrize("command", [[], ["build"], ["info"], ["query"]])
+def test_help_on_every_command(command):
+    out = subprocess.run([sys.executable, "-m", "reach.cli", *command, "--help"], capture_output=True, text=True, check=True)
+    assert "usage: reach" in out.stdout
+
+
+@pytest.fixture(scope="module")
+def figure2_atlas(tmp_path_factory):
+    out = tmp_path_factory.mktemp("atlas") / "fig2"
+    assert main(["build", str(ROOT / "configs" / "paper_figure2.yaml"), "-o", str(out), "--quiet"]) == 0
+    return out
+
+
+def test_build_writes_trees_and_manifest(figure2_atlas):
+    assert (figure2_atlas / "manifest.json").is_file()
+    assert (figure2_atlas / "circle.npz").is_file()
+    manifest = json.loads((figure2_atlas / "manifest.json").read_text())
+    assert manifest["strategies"][0]["name"] == "circle" and "numpy" in manifest["versions"]
+
+
+def test_info_json_has_the_documented_keys(figure2_atlas, capsys):
+    assert main(["info", str(figure2_atlas), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    s = info["strategies"]["circle"]
+    assert s["nodes"]["3"] == {"outer": 4, "inner": 16, "parent": 0, "final": 28}
+    assert s["oracle_calls"] == 73
+    assert s["lattice_vertices"] == 9**2
+    assert s["volume"]["inner"] <= 3.141592653589793 <= s["volume"]["inner"] + s["volume"]["boundary"]
+    assert s["extent"] == {"min": [-1.0, -1.0], "max": [1.0, 1.0]}
+
+
+def test_query_json(figure2_atlas, capsys):
+    assert main(["query", str(figure2_atlas), "0.1", "0.2", "--json"]) == 0
+    answer = json.loads(capsys.readouterr().out)["answers"][0]
+    assert answer["strategy"] == "circle" and answer["reachable"] is True
+    assert main(["query", str(figure2_atlas), "0.99", "0.99", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["answers"][0]["reachable"] is False
+
+
+def test_query_text(figure2_atlas, capsys):
+    assert main(["query", str(figure2_atlas), "0", "0"]) == 0
+    assert "reachable with strategy circle" in capsys.readouterr().out
+
+
+def test_errors_exit_2_with_one_line(tmp_path, capsys):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("box: {min: [0, 0], max: [1, 1]}\ndepth: {min: 3, max: 1}\noracle: {name: circle}\nstrategies: [{name: a}]\n")
+    assert main(["build", str(bad), "-o", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("reach: error: ") and "bad.yaml: depth.min" in err
+    assert main(["info", str(tmp_path / "absent")]) == 2
+    assert "no such atlas folder" in capsys.readouterr().err
+    assert main(["query", str(tmp_path / "absent"), "0", "0"]) == 2
+
+
+def test_unknown_effector_is_an_error(figure2_atlas, capsys):
+    assert main(["query", str(figure2_atlas), "0", "0", "--effector", "left_hand"]) == 2
+    assert "unknown effector 'left_hand'; this atlas has point" in capsys.readouterr().err

@@ -1,0 +1,91 @@
+"""Configuration validation: every error names the file and the key."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+
+from reach.config import load_config
+from reach.errors import ConfigError
+
+ROOT = Path(__file__).resolve().parents[1]
+GOOD = {
+    "name": "t",
+    "box": {"min": [-1, -1, -1], "max": [1, 1, 1]},
+    "depth": {"min": 1, "max": 4},
+    "oracle": {"name": "sphere", "params": {"radius": 0.5}},
+    "strategies": [{"name": "a", "effector": "point"}],
+}
+
+
+def write(tmp_path, data, name="c.yaml"):
+    path = tmp_path / name
+    path.write_text(yaml.safe_dump(data) if not isinstance(data, str) else data)
+    return path
+
+
+def mutate(**changes):
+    data = yaml.safe_load(yaml.safe_dump(GOOD))
+    for dotted, value in changes.items():
+        *parents, last = dotted.split("__")
+        node = data
+        for p in parents:
+            node = node[int(p)] if isinstance(node, list) else node[p]
+        if value is ...:
+            del node[last]
+        else:
+            node[last] = value
+    return data
+
+
+@pytest.mark.parametrize("name", ["sphere.yaml", "paper_figure2.yaml"])
+def test_shipped_configs_load(name):
+    config = load_config(ROOT / "configs" / name)
+    assert config.strategies and config.d_min <= config.d_max
+
+
+def test_good_config_and_priority_order(tmp_path):
+    data = mutate(strategies=[{"name": "late", "priority": 5}, {"name": "early", "priority": 1, "oracle": {"params": {"radius": 0.2}}}])
+    config = load_config(write(tmp_path, data))
+    assert [s.name for s in config.strategies] == ["early", "late"]
+    assert config.strategies[0].oracle.params == {"radius": 0.2}
+    assert config.strategies[1].oracle.params == {"radius": 0.5}
+
+
+@pytest.mark.parametrize(
+    ("changes", "key", "message"),
+    [
+        ({"colour": "red"}, "colour", "unknown key"),
+        ({"depth__max": "seven"}, "depth.max", "expected an integer"),
+        ({"depth__min": 5, "depth__max": 3}, "depth.min", r"D_min \(5\) must not exceed D_max \(3\)"),
+        ({"depth__max": 40}, "depth.max", r"in \[0, 20\]"),
+        ({"box__max": [1, -1, 1]}, "box", "empty"),
+        ({"box__max": [1, 1]}, "box", "2 or 3 coordinates"),
+        ({"box__min": "low"}, "box.min", "list of numbers"),
+        ({"oracle__name": "teapot"}, "strategies[0].oracle", "unknown oracle 'teapot'"),
+        ({"oracle__params": {"radius": -1}}, "strategies[0].oracle", "radius must be a positive number"),
+        ({"oracle__name": "circle", "oracle__params": {}}, "box", "box is 3-D but strategy 'a' uses a 2-D oracle"),
+        ({"strategies": []}, "strategies", "non-empty list"),
+        ({"strategies": [{"name": "a"}, {"name": "a"}]}, "strategies[1].name", "duplicate"),
+        ({"strategies": [{"name": "../x"}]}, "strategies[0].name", "names a file"),
+        ({"strategies": [{"name": "a", "speed": 3}]}, "strategies[0].speed", "unknown key"),
+        ({"box": ...}, "box", "required key is missing"),
+    ],
+)
+def test_errors_name_file_and_key(tmp_path, changes, key, message):
+    path = write(tmp_path, mutate(**changes))
+    with pytest.raises(ConfigError, match=message) as info:
+        load_config(path)
+    assert info.value.key == key
+    assert str(path) in str(info.value) and key in str(info.value)
+
+
+def test_not_yaml_and_not_a_mapping(tmp_path):
+    with pytest.raises(ConfigError, match="not valid YAML"):
+        load_config(write(tmp_path, "box: [unclosed"))
+    with pytest.raises(ConfigError, match="expected a mapping, got list"):
+        load_config(write(tmp_path, "- 1\n- 2\n"))
+    with pytest.raises(ConfigError, match="cannot read"):
+        load_config(tmp_path / "absent.yaml")

@@ -1,0 +1,79 @@
+"""Oracle registry and analytic shapes."""
+
+from __future__ import annotations
+
+from importlib.metadata import EntryPoint
+
+import numpy as np
+import pytest
+
+import oracles.registry as registry
+from oracles.protocol import OracleSpec, Verdicts
+from oracles.shapes import BoxOracle, Torus
+from reach.errors import OracleError
+
+
+def ring_factory(radius: float = 1.0):
+    """An entry-point oracle defined outside the built-in list."""
+    return Torus(major=radius, minor=radius / 4)
+
+
+def test_builtins_are_listed():
+    names = registry.available()
+    for n in ("circle", "sphere", "box", "torus", "union", "intersection", "difference"):
+        assert n in names
+
+
+def test_unknown_oracle_lists_the_known_ones():
+    with pytest.raises(OracleError, match=r"unknown oracle 'nope'; available: .*sphere"):
+        registry.create(OracleSpec("nope"))
+
+
+def test_bad_params_are_named():
+    with pytest.raises(OracleError, match=r"oracle 'sphere': bad parameters \['colour'\]"):
+        registry.create(OracleSpec("sphere", {"colour": "red"}))
+
+
+def test_entry_points_extend_the_registry(monkeypatch):
+    ep = EntryPoint(name="test-ring", value="tests.test_oracles:ring_factory", group=registry.ENTRY_POINT_GROUP)
+    monkeypatch.setattr(registry, "entry_points", lambda group: [ep] if group == registry.ENTRY_POINT_GROUP else [])
+    assert "test-ring" in registry.available()
+    oracle = registry.create(OracleSpec("test-ring", {"radius": 0.8}))
+    assert isinstance(oracle, Torus) and oracle.major == 0.8
+
+
+def test_box_oracle_verdicts_and_residuals():
+    box = BoxOracle([0, 0, 0], [1, 2, 3])
+    v = box.evaluate(np.array([[0.5, 1, 1], [2, 1, 1], [1, 2, 3], [-3, -4, 1]]))
+    assert v.reachable.tolist() == [True, False, True, False]
+    assert np.allclose(v.residual, [0, 1, 0, 5])
+
+
+def test_combinations():
+    spec = {"oracles": [{"name": "sphere", "params": {"radius": 1.0}}, {"name": "sphere", "params": {"radius": 0.5}}]}
+    pts = np.array([[0.0, 0, 0], [0.75, 0, 0], [2.0, 0, 0]])
+    assert registry.create(OracleSpec("union", spec)).evaluate(pts).reachable.tolist() == [True, True, False]
+    assert registry.create(OracleSpec("intersection", spec)).evaluate(pts).reachable.tolist() == [True, False, False]
+    shell = registry.create(OracleSpec("difference", spec)).evaluate(pts)
+    assert shell.reachable.tolist() == [False, True, False]
+    assert shell.residual[1] == 0.0
+
+
+def test_combination_refuses_mixed_dimensions():
+    spec = {"oracles": [{"name": "sphere"}, {"name": "circle"}]}
+    with pytest.raises(OracleError, match="different dimensions"):
+        registry.create(OracleSpec("union", spec))
+
+
+def test_torus_rejects_minor_above_major_and_points_of_wrong_shape():
+    with pytest.raises(OracleError, match="minor radius"):
+        Torus(major=0.2, minor=0.5)
+    with pytest.raises(OracleError, match=r"shape \(N, 3\)"):
+        Torus().evaluate(np.zeros((3, 2)))
+
+
+def test_verdicts_concatenate():
+    a = Verdicts(np.array([True]), np.array([0.0]), np.array([[1.0, 2.0]]))
+    b = Verdicts(np.array([False]), np.array([0.5]), np.array([[3.0, 4.0]]))
+    c = Verdicts.concatenate([a, b])
+    assert c.reachable.tolist() == [True, False] and c.posture.shape == (2, 2)

@@ -1,0 +1,121 @@
+"""Saving and loading trees: round trips and clear errors on bad files."""
+
+from __future__ import annotations
+
+import json
+import zipfile
+
+import numpy as np
+import pytest
+
+from reach.errors import StoreError
+from reach.store import load_atlas, load_tree, save_tree
+
+
+def test_round_trip_keeps_every_array_and_the_metadata(unit_sphere_tree, tmp_path):
+    unit_sphere_tree.meta["name"] = "ball"
+    path = save_tree(unit_sphere_tree, tmp_path / "ball.npz")
+    back = load_tree(path)
+    for name in ("depth", "corner", "kind", "child"):
+        assert np.array_equal(getattr(back, name), getattr(unit_sphere_tree, name)), name
+    assert np.array_equal(back.vertices.keys, unit_sphere_tree.vertices.keys)
+    assert np.array_equal(back.vertices.reachable, unit_sphere_tree.vertices.reachable)
+    assert back.box == unit_sphere_tree.box and (back.d_min, back.d_max) == (2, 6)
+    assert back.meta["name"] == "ball" and back.meta["build"]["oracle_calls"] == unit_sphere_tree.oracle_calls
+    pts = np.random.default_rng(0).uniform(-1, 1, (1000, 3))
+    assert np.array_equal(back.classify(pts), unit_sphere_tree.classify(pts))
+
+
+def test_postures_round_trip(tmp_path):
+    from reach.tree import Box, VATree, VertexTable, bfs_children
+
+    kind = np.array([1], np.uint8)
+    table = VertexTable(np.array([0, 3]), np.array([True, False]), np.array([0.0, 0.2]), np.array([[0.1, 0.2], [0.3, 0.4]]), ("a", "b"))
+    tree = VATree(Box([0, 0], [1, 1]), 0, 1, np.zeros(1, np.uint8), np.zeros((1, 2), np.int64), kind, bfs_children(kind, 2), table)
+    back = load_tree(save_tree(tree, tmp_path / "p.npz"))
+    assert back.vertices.posture_names == ("a", "b")
+    assert np.array_equal(back.vertices.posture, table.posture)
+
+
+def test_missing_file_is_named(tmp_path):
+    with pytest.raises(StoreError, match=r"nope\.npz: no such tree file"):
+        load_tree(tmp_path / "nope.npz")
+
+
+def test_truncated_file_is_a_clear_error(unit_sphere_tree, tmp_path):
+    path = save_tree(unit_sphere_tree, tmp_path / "t.npz")
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+    with pytest.raises(StoreError, match=r"t\.npz: .*(truncated|corrupt)"):
+        load_tree(path)
+
+
+def test_flipped_bytes_are_a_clear_error(unit_sphere_tree, tmp_path):
+    path = save_tree(unit_sphere_tree, tmp_path / "c.npz")
+    data = bytearray(path.read_bytes())
+    for i in range(200, len(data) - 200, 97):
+        data[i] ^= 0xFF
+    path.write_bytes(bytes(data))
+    with pytest.raises(StoreError, match=r"c\.npz"):
+        load_tree(path)
+
+
+def test_garbage_file_is_a_clear_error(tmp_path):
+    path = tmp_path / "g.npz"
+    path.write_text("this is not a tree")
+    with pytest.raises(StoreError, match=r"g\.npz: not a readable tree file"):
+        load_tree(path)
+
+
+def _rewrite(path, **changes):
+    with np.load(path, allow_pickle=False) as data:
+        arrays = {k: data[k] for k in data.files}
+    meta = json.loads(arrays["meta"].tobytes())
+    for k, v in changes.items():
+        if k == "drop":
+            arrays.pop(v)
+        elif k.startswith("array_"):
+            arrays[k[6:]] = v
+        else:
+            meta[k] = v
+    arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
+    np.savez(path, **arrays)
+
+
+def test_other_format_version_is_refused(unit_sphere_tree, tmp_path):
+    path = save_tree(unit_sphere_tree, tmp_path / "v.npz")
+    _rewrite(path, version=99)
+    with pytest.raises(StoreError, match=r"v\.npz: tree format version 99, this reach reads version 1"):
+        load_tree(path)
+
+
+def test_missing_array_is_named(unit_sphere_tree, tmp_path):
+    path = save_tree(unit_sphere_tree, tmp_path / "m.npz")
+    _rewrite(path, drop="kind")
+    with pytest.raises(StoreError, match="missing array 'kind'"):
+        load_tree(path)
+
+
+def test_inconsistent_arrays_are_refused(unit_sphere_tree, tmp_path):
+    path = save_tree(unit_sphere_tree, tmp_path / "i.npz")
+    _rewrite(path, array_kind=unit_sphere_tree.kind[:-8])
+    with pytest.raises(StoreError, match="node arrays disagree"):
+        load_tree(path)
+
+
+def test_pickled_object_arrays_are_never_loaded(unit_sphere_tree, tmp_path):
+    path = save_tree(unit_sphere_tree, tmp_path / "o.npz")
+    with zipfile.ZipFile(path, "a") as zf, zf.open("evil.npy", "w") as fh:
+        np.save(fh, np.array([{"x": 1}], dtype=object), allow_pickle=True)
+    with pytest.raises(StoreError, match=r"o\.npz: corrupt or unsafe"):
+        load_tree(path)
+
+
+def test_atlas_without_manifest_is_named(tmp_path):
+    with pytest.raises(StoreError, match="manifest.json: missing"):
+        load_atlas(tmp_path)
+    with pytest.raises(StoreError, match="no such atlas folder"):
+        load_atlas(tmp_path / "absent")
+    (tmp_path / "manifest.json").write_text("{not json")
+    with pytest.raises(StoreError, match="manifest.json: not valid JSON"):
+        load_atlas(tmp_path)

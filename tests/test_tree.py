@@ -1,0 +1,224 @@
+"""The VATree: the paper's worked example, analytic volumes, queries and booleans."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from oracles.protocol import OracleSpec
+from oracles.shapes import Ball, Torus, circle, sphere
+from reach.build import build_tree
+from reach.errors import TreeError
+from reach.tree import FINAL, INNER, OUTER, PARENT, Box, Lattice
+
+SQUARE = Box([-1.0, -1.0], [1.0, 1.0])
+CUBE = Box([-1.0, -1.0, -1.0], [1.0, 1.0, 1.0])
+
+
+def test_paper_figure2_counts_per_depth_and_type():
+    # Circle inscribed in B0, D_min 1, D_max 3, as in the paper's Figure 2.
+    # The text's depth-2 counts (4 inner, 12 parent) hold. At depth 3 the text
+    # says 28 outer; the geometry gives 28 final, 16 inner and 4 outer: each
+    # of the 12 depth-2 parents has 4 children, and only the 4 corner-most
+    # children (one per B0 corner) lie wholly outside the circle.
+    tree = build_tree(circle(radius=1.0), SQUARE, 1, 3)
+    counts = tree.node_counts()
+    assert counts[0] == {"outer": 0, "inner": 0, "parent": 1, "final": 0}
+    assert counts[1] == {"outer": 0, "inner": 0, "parent": 4, "final": 0}
+    assert counts[2] == {"outer": 0, "inner": 4, "parent": 12, "final": 0}
+    assert counts[3] == {"outer": 4, "inner": 16, "parent": 0, "final": 28}
+
+
+def test_paper_figure2_no_oracle_call_below_dmin_or_for_depth1_labels(counting):
+    oracle = counting(circle(radius=1.0))
+    tree = build_tree(oracle, SQUARE, 1, 3)
+    # Depth 0 is below D_min: the root is a parent without any call.
+    # Depth 1 asks for the 3x3 vertices; depth 2 adds the 16 new ones of the
+    # 5x5 grid; depth 3 adds the new vertices of the 48 children of 12 parents.
+    sizes = [len(a) for a in oracle.asked]
+    assert sizes[0] == 9 and sizes[1] == 25 - 9
+    assert tree.oracle_calls == oracle.calls == 73
+
+
+def test_every_distinct_vertex_is_asked_once(counting):
+    oracle = counting(sphere(center=(0.1, -0.2, 0.05), radius=0.8))
+    tree = build_tree(oracle, CUBE, 2, 5, chunk_size=300)
+    asked = np.concatenate(oracle.asked)
+    lat = Lattice(CUBE, 5)
+    keys = lat.keys(np.rint((asked - CUBE.lo) / lat.resolution).astype(np.int64))
+    assert np.unique(keys).size == keys.size  # never twice
+    # Independent truth: the union of the vertices of every node at depth >= D_min.
+    expected = set()
+    for d in range(2, 6):
+        sel = tree.depth == d
+        expected.update(lat.node_vertex_keys(tree.corner[sel], d).ravel().tolist())
+    assert set(keys.tolist()) == expected
+    assert tree.oracle_calls == len(expected)
+    assert tree.oracle_calls < lat.vertex_count
+
+
+@pytest.mark.parametrize("d_max", [4, 5, 6, 7])
+def test_sphere_volume_is_bracketed(d_max):
+    tree = build_tree(sphere(radius=1.0), CUBE, 2, d_max)
+    true = 4.0 / 3.0 * np.pi
+    assert tree.volume(INNER) <= true <= tree.volume(INNER) + tree.volume(FINAL)
+
+
+def test_sphere_volume_converges_as_dmax_grows():
+    true = 4.0 / 3.0 * np.pi
+    gaps, errors = [], []
+    for d_max in (4, 5, 6, 7):
+        tree = build_tree(sphere(radius=1.0), CUBE, 2, d_max)
+        gaps.append(tree.volume(FINAL))
+        errors.append(true - tree.volume(INNER))
+    assert all(b < a for a, b in zip(gaps, gaps[1:], strict=False))
+    assert all(b < a for a, b in zip(errors, errors[1:], strict=False))
+    # The boundary shell halves with each depth (surface x cell edge).
+    assert 0.4 < gaps[-1] / gaps[-2] < 0.6
+    assert errors[-1] / true < 0.05
+
+
+def test_circle_area_is_bracketed_in_2d():
+    tree = build_tree(circle(center=(0.2, 0.1), radius=0.7), SQUARE, 1, 8)
+    true = np.pi * 0.7**2
+    assert tree.volume(INNER) <= true <= tree.volume(INNER) + tree.volume(FINAL)
+    assert tree.volume(FINAL) < 0.05 * true
+
+
+def test_torus_volume_is_bracketed():
+    torus = Torus(major=0.6, minor=0.25)
+    tree = build_tree(torus, Box([-0.9, -0.9, -0.3], [0.9, 0.9, 0.3]), 2, 6)
+    assert tree.volume(INNER) <= torus.volume <= tree.volume(INNER) + tree.volume(FINAL)
+
+
+def test_dmin_finds_a_small_sphere_in_a_large_box():
+    # Figure 1(c): every vertex of a coarse tree misses a small volume.
+    small = sphere(center=(0.3, 0.3, 0.3), radius=0.12)
+    missed = build_tree(small, CUBE, 0, 6)
+    assert missed.volume(INNER) == 0.0 and len(missed) == 1 and missed.kind[0] == OUTER
+    found = build_tree(small, CUBE, 3, 6)
+    true = 4.0 / 3.0 * np.pi * 0.12**3
+    assert found.volume(INNER) > 0.0
+    assert found.volume(INNER) <= true <= found.volume(INNER) + found.volume(FINAL)
+
+
+def test_classify_points_outside_the_box_are_outer(unit_sphere_tree):
+    pts = np.array([[0.0, 0.0, 0.0], [5.0, 0.0, 0.0], [0.0, -1.0001, 0.0], [np.nan, 0, 0]])
+    assert unit_sphere_tree.classify(pts).tolist() == [INNER, OUTER, OUTER, OUTER]
+
+
+def test_classify_point_on_the_upper_face_is_in_the_last_cell():
+    tree = build_tree(Ball([1.0, 1.0], 0.5), SQUARE, 1, 4)
+    assert tree.classify(np.array([[1.0, 1.0]]))[0] == INNER
+
+
+def test_classify_never_returns_parent_and_matches_truth_off_the_boundary(unit_sphere_tree):
+    rng = np.random.default_rng(1)
+    pts = rng.uniform(-1.2, 1.2, size=(100_000, 3))
+    kinds = unit_sphere_tree.classify(pts)
+    assert not np.any(kinds == PARENT)
+    r = np.linalg.norm(pts, axis=1)
+    assert np.all(r[kinds == INNER] <= 1.0)
+    assert np.all(r[kinds == OUTER] > 1.0 - 1e-12)
+
+
+def test_classify_agrees_with_a_plain_descent(unit_sphere_tree):
+    # The dense lookup table is an optimisation: a naive per-point walk is the truth.
+    tree = unit_sphere_tree
+    rng = np.random.default_rng(2)
+    pts = rng.uniform(-1, 1, size=(300, 3))
+    cells, _ = tree.lattice.cell_of(pts)
+    expected = []
+    for c in cells:
+        node, depth = 0, 0
+        while tree.kind[node] == PARENT:
+            bits = sum(((int(c[i]) >> (tree.d_max - depth - 1)) & 1) << i for i in range(3))
+            node, depth = int(tree.child[node]) + bits, depth + 1
+        expected.append(node)
+    assert tree.locate(pts).tolist() == expected
+
+
+def test_contains_policies_are_nested_and_vertex_is_most_accurate(unit_sphere_tree):
+    rng = np.random.default_rng(3)
+    pts = rng.uniform(-1.1, 1.1, size=(200_000, 3))
+    cons = unit_sphere_tree.contains(pts, "conservative")
+    opt = unit_sphere_tree.contains(pts, "optimistic")
+    vert = unit_sphere_tree.contains(pts, "vertex")
+    assert np.all(cons <= vert) and np.all(vert <= opt)
+    truth = np.linalg.norm(pts, axis=1) <= 1.0
+    assert np.all(truth <= opt) and np.all(cons <= truth)
+    assert np.mean(vert != truth) < min(np.mean(cons != truth), np.mean(opt != truth))
+
+
+def test_contains_rejects_unknown_policy_and_bad_shapes(unit_sphere_tree):
+    with pytest.raises(TreeError, match="unknown policy 'maybe'"):
+        unit_sphere_tree.contains(np.zeros((1, 3)), "maybe")  # type: ignore[arg-type]
+    with pytest.raises(TreeError, match=r"shape \(N, 3\)"):
+        unit_sphere_tree.classify(np.zeros((4, 2)))
+
+
+def test_extent_bounds_the_inner_and_final_cells():
+    tree = build_tree(sphere(center=(0.2, 0.0, -0.1), radius=0.5), CUBE, 2, 6)
+    lo, hi = tree.extent()
+    res = tree.lattice.resolution
+    assert np.all(lo <= np.array([-0.3, -0.5, -0.6]) + 1e-12) and np.all(lo >= np.array([-0.3, -0.5, -0.6]) - res)
+    assert np.all(hi >= np.array([0.7, 0.5, 0.4]) - 1e-12) and np.all(hi <= np.array([0.7, 0.5, 0.4]) + res)
+
+
+def _lens(r: float, d: float) -> float:
+    return np.pi * (4 * r + d) * (2 * r - d) ** 2 / 12.0
+
+
+@pytest.fixture(scope="module")
+def two_balls():
+    a = build_tree(sphere(center=(-0.25, 0, 0), radius=0.6), CUBE, 2, 6)
+    b = build_tree(sphere(center=(0.25, 0, 0), radius=0.6), CUBE, 2, 6)
+    return a, b
+
+
+def test_booleans_bracket_analytic_volumes(two_balls):
+    a, b = two_balls
+    ball, lens = 4 / 3 * np.pi * 0.6**3, _lens(0.6, 0.5)
+    truth = {"intersection": lens, "union": 2 * ball - lens, "difference": ball - lens}
+    for mode, true in truth.items():
+        t = getattr(a, mode)(b)
+        assert t.volume(INNER) <= true <= t.volume(INNER) + t.volume(FINAL), mode
+
+
+def test_booleans_agree_pointwise_with_their_operands(two_balls):
+    a, b = two_balls
+    pts = np.random.default_rng(4).uniform(-1, 1, size=(50_000, 3))
+    ka, kb = a.classify(pts), b.classify(pts)
+    assert np.array_equal(a.intersection(b).classify(pts) == INNER, (ka == INNER) & (kb == INNER))
+    assert np.array_equal(a.union(b).classify(pts) == OUTER, (ka == OUTER) & (kb == OUTER))
+    assert np.array_equal(a.difference(b).classify(pts) == INNER, (ka == INNER) & (kb == OUTER))
+    assert np.array_equal(a.union(b).contains(pts, "vertex"), a.contains(pts, "vertex") | b.contains(pts, "vertex"))
+
+
+def test_booleans_refuse_different_lattices(two_balls):
+    a, _ = two_balls
+    other = build_tree(sphere(radius=0.5), CUBE, 2, 5)
+    with pytest.raises(TreeError, match="same B0 and D_max"):
+        a.union(other)
+
+
+def test_box_validation():
+    with pytest.raises(TreeError, match="empty"):
+        Box([0, 0, 0], [1, 0, 1])
+    with pytest.raises(TreeError, match="2 or 3 coordinates"):
+        Box([0, 0, 0], [1, 1])
+
+
+def test_build_refuses_bad_depths_and_dimension_mismatch():
+    with pytest.raises(TreeError, match="must not exceed"):
+        build_tree(sphere(), CUBE, 5, 3)
+    with pytest.raises(TreeError, match="2-D but B0 is 3-D"):
+        build_tree(circle(), CUBE, 1, 3)
+
+
+def test_build_is_deterministic():
+    spec = OracleSpec("torus", {"major": 0.6, "minor": 0.2})
+    t1 = build_tree(spec, CUBE, 2, 5)
+    t2 = build_tree(spec, CUBE, 2, 5, chunk_size=17)
+    assert np.array_equal(t1.kind, t2.kind) and np.array_equal(t1.corner, t2.corner)
+    assert np.array_equal(t1.vertices.keys, t2.vertices.keys)
