@@ -1,0 +1,149 @@
+"""Symbolic kinematics for CasADi, generated from a Pinocchio model.
+
+The PyPI build of Pinocchio has no ``pinocchio.casadi``, so this module
+rebuilds forward kinematics symbolically from the model's own data: joint
+placements, joint types and axes, frame placements, link masses and centres
+of mass. Tests compare it with Pinocchio's numeric ``framesForwardKinematics``
+and ``centerOfMass`` at random configurations.
+
+Joint types covered (everything Pinocchio's URDF parser yields, plus the
+free flyer we add as root): revolute about x, y, z or any axis (bounded, and
+unbounded with (cos, sin) coordinates), prismatic along x, y, z or any axis,
+free flyer (x, y, z, qx, qy, qz, qw), planar (x, y, cos, sin), spherical
+(quaternion), spherical ZYX, translation.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import casadi as ca
+import numpy as np
+import pinocchio as pin
+
+from reach.errors import ModelError
+
+SE3 = tuple[ca.SX, ca.SX]  # (rotation 3x3, translation 3x1)
+
+
+def _rot(axis: np.ndarray, c: ca.SX, s: ca.SX) -> ca.SX:
+    """Rotation matrix about a unit axis from cos and sin (Rodrigues)."""
+    x, y, z = (float(a) for a in axis)
+    k = ca.SX(np.array([[0, -z, y], [z, 0, -x], [-y, x, 0]]))
+    return ca.SX.eye(3) + s * k + (1 - c) * (k @ k)
+
+
+def _quat(qx: ca.SX, qy: ca.SX, qz: ca.SX, qw: ca.SX) -> ca.SX:
+    """Rotation matrix of a unit quaternion (Pinocchio order x, y, z, w)."""
+    return ca.vertcat(
+        ca.horzcat(1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qz * qw), 2 * (qx * qz + qy * qw)),
+        ca.horzcat(2 * (qx * qy + qz * qw), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qx * qw)),
+        ca.horzcat(2 * (qx * qz - qy * qw), 2 * (qy * qz + qx * qw), 1 - 2 * (qx * qx + qy * qy)),
+    )
+
+
+_AXES = {"X": np.array([1.0, 0, 0]), "Y": np.array([0, 1.0, 0]), "Z": np.array([0, 0, 1.0])}
+
+
+def _axis(joint: pin.JointModel, angular: bool) -> np.ndarray:
+    """Axis of a one-axis joint, read from its motion subspace (not every binding exposes .axis)."""
+    data = joint.createData()
+    joint.calc(data, _neutral(joint))
+    s = np.asarray(data.S).reshape(6, -1)[:, 0]
+    return s[3:] if angular else s[:3]
+
+
+def _neutral(joint: pin.JointModel) -> np.ndarray:
+    model = pin.Model()
+    model.addJoint(0, joint, pin.SE3.Identity(), "j")
+    return pin.neutral(model)
+
+
+def joint_motion(joint: pin.JointModel, q: ca.SX) -> SE3:
+    """Placement of a joint's child frame relative to its parent frame at q (the joint's own coordinates)."""
+    kind = joint.shortname()
+    zero = ca.SX.zeros(3, 1)
+    if kind in ("JointModelRX", "JointModelRY", "JointModelRZ"):
+        return _rot(_AXES[kind[-1]], ca.cos(q[0]), ca.sin(q[0])), zero
+    if kind == "JointModelRevoluteUnaligned":
+        return _rot(_axis(joint, True), ca.cos(q[0]), ca.sin(q[0])), zero
+    if kind in ("JointModelRUBX", "JointModelRUBY", "JointModelRUBZ"):
+        return _rot(_AXES[kind[-1]], q[0], q[1]), zero
+    if kind == "JointModelRevoluteUnboundedUnaligned":
+        return _rot(_axis(joint, True), q[0], q[1]), zero
+    if kind in ("JointModelPX", "JointModelPY", "JointModelPZ"):
+        return ca.SX.eye(3), ca.SX(_AXES[kind[-1]]) * q[0]
+    if kind == "JointModelPrismaticUnaligned":
+        return ca.SX.eye(3), ca.SX(_axis(joint, False)) * q[0]
+    if kind == "JointModelFreeFlyer":
+        return _quat(q[3], q[4], q[5], q[6]), q[0:3]
+    if kind == "JointModelSpherical":
+        return _quat(q[0], q[1], q[2], q[3]), zero
+    if kind == "JointModelTranslation":
+        return ca.SX.eye(3), q[0:3]
+    if kind == "JointModelPlanar":
+        return _rot(_AXES["Z"], q[2], q[3]), ca.vertcat(q[0], q[1], 0)
+    if kind == "JointModelSphericalZYX":
+        rz = _rot(_AXES["Z"], ca.cos(q[0]), ca.sin(q[0]))
+        ry = _rot(_AXES["Y"], ca.cos(q[1]), ca.sin(q[1]))
+        rx = _rot(_AXES["X"], ca.cos(q[2]), ca.sin(q[2]))
+        return rz @ ry @ rx, zero
+    raise ModelError(f"joint type {kind} is not supported by the symbolic kinematics")
+
+
+def _compose(a: SE3, b: SE3) -> SE3:
+    return a[0] @ b[0], a[0] @ b[1] + a[1]
+
+
+def _const(m: pin.SE3) -> SE3:
+    return ca.SX(np.asarray(m.rotation)), ca.SX(np.asarray(m.translation).reshape(3, 1))
+
+
+class SymbolicKinematics:
+    """Forward kinematics of a Pinocchio model as CasADi expressions of q.
+
+    Attributes:
+        q: The (nq, 1) CasADi symbol.
+        placements: World placement (R, p) of every joint, index = joint id.
+    """
+
+    def __init__(self, model: pin.Model, q: ca.SX | None = None) -> None:
+        self.model = model
+        self.q = ca.SX.sym("q", model.nq) if q is None else q
+        self.placements: list[SE3] = [(ca.SX.eye(3), ca.SX.zeros(3, 1))]
+        for j in range(1, model.njoints):
+            jm = model.joints[j]
+            local = joint_motion(jm, self.q[jm.idx_q : jm.idx_q + jm.nq])
+            parent = self.placements[model.parents[j]]
+            self.placements.append(_compose(_compose(parent, _const(model.jointPlacements[j])), local))
+
+    def frame(self, name: str) -> SE3:
+        """World placement (R, p) of a frame."""
+        if not self.model.existFrame(name):
+            raise ModelError(f"no frame {name!r} in the model")
+        f = self.model.frames[self.model.getFrameId(name)]
+        return _compose(self.placements[f.parentJoint], _const(f.placement))
+
+    def center_of_mass(self) -> ca.SX:
+        """World position of the centre of mass (3, 1)."""
+        total = ca.SX.zeros(3, 1)
+        mass = 0.0
+        for j in range(1, self.model.njoints):
+            inertia = self.model.inertias[j]
+            if inertia.mass <= 0.0:
+                continue
+            rot, pos = self.placements[j]
+            total += inertia.mass * (rot @ ca.SX(np.asarray(inertia.lever).reshape(3, 1)) + pos)
+            mass += inertia.mass
+        if mass <= 0.0:
+            raise ModelError("the model has no mass; the centre of mass is undefined")
+        return total / mass
+
+    def function(self, frames: Sequence[str], com: bool = True) -> ca.Function:
+        """A CasADi Function q -> (frame positions 3xK, frame rotations 3x3K, com 3x1)."""
+        placed = [self.frame(n) for n in frames]
+        pos = ca.horzcat(*[p for _, p in placed]) if placed else ca.SX.zeros(3, 0)
+        rot = ca.horzcat(*[r for r, _ in placed]) if placed else ca.SX.zeros(3, 0)
+        outs = [pos, rot] + ([self.center_of_mass()] if com else [])
+        names = ["positions", "rotations"] + (["com"] if com else [])
+        return ca.Function("forward_kinematics", [self.q], outs, ["q"], names)
