@@ -1,0 +1,186 @@
+"""Inverse-kinematics oracles: the paper's ``isPointInside`` for a body.
+
+:class:`IKOracle` holds what both IK oracles share: building the body,
+strategy and problem from a serialisable spec, the pre-filter, warm starts
+and seeded restarts, and the verdict. A point is reachable only if an
+independent Pinocchio forward-kinematics check of the returned posture puts
+the effector within the strategy's tolerance (default 5 mm) of the goal and
+every hard task holds; a solver's status is never trusted.
+
+:class:`CasadiIK` (registry name ``casadi-ik``) is the reference engine: a
+lexicographic sequence of nonlinear programs solved by IPOPT on the CasADi
+kinematics. Stage 1 minimises the squared reach error under the hard tasks
+(contacts, heels, balance polygon) as constraints and joint limits as
+bounds. Each following soft task (gaze, then comfort, by priority) is
+minimised with every earlier objective constrained to stay at its optimum,
+so a lower task never degrades a higher one.
+"""
+
+from __future__ import annotations
+
+import zlib
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from oracles.body import load_body
+from oracles.kinematics import SymbolicKinematics
+from oracles.problem import Check, ReachProblem
+from oracles.protocol import Verdicts, check_points
+from oracles.strategy import parse_strategy
+
+# Slack [objective units] by which a later stage may move an earlier objective.
+STAGE_SLACK = {"reach": 1e-10, "gaze": 1e-6, "comfort": 1e-6}
+
+
+class IKOracle:
+    """Shared driver of the IK oracles; subclasses implement :meth:`solve`.
+
+    Args:
+        body: Body spec (see :func:`oracles.body.load_body`).
+        effector: Frame that reaches.
+        joints: Active joints (names or glob patterns; ``root`` frees the base).
+        tasks: Task list (see :mod:`oracles.strategy`).
+        restarts: Seeded random restarts after the hint and the reference.
+        seed: Seed of the restarts; each goal derives its own stream from it.
+    """
+
+    dim = 3
+
+    def __init__(self, body: dict[str, Any], effector: str, joints: list[str], tasks: list[dict[str, Any]] | None = None, restarts: int = 3, seed: int = 0) -> None:
+        self.body = load_body(body)
+        self.strategy = parse_strategy(self.body, effector, joints, tasks)
+        self.problem = ReachProblem(self.body, self.strategy)
+        self.posture_names = tuple(self.body.q_names)
+        self.restarts = int(restarts)
+        self.seed = int(seed)
+        self._data = self.body.model.createData()
+        self.stats = {"points": 0, "prefiltered": 0, "solves": 0, "reachable": 0}
+
+    def solve(self, goal: np.ndarray, x0: np.ndarray) -> np.ndarray:
+        """A configuration q that tries to put the effector at goal, starting from x0."""
+        raise NotImplementedError  # engines implement solve or solve_batch
+
+    def solve_batch(self, goals: np.ndarray, x0: np.ndarray) -> np.ndarray:
+        """Configurations (N, nq) for goals (N, 3) from starts (N, nx); engines may batch."""
+        return np.array([self.solve(g, x) for g, x in zip(goals, x0, strict=True)])
+
+    def starts(self, goal: np.ndarray, hint: np.ndarray | None) -> list[np.ndarray]:
+        """Initial postures: the hint, the reference, then seeded random ones."""
+        out = []
+        if hint is not None and np.all(np.isfinite(hint)):
+            out.append(self.problem.x_of_q(hint))
+        out.append(self.problem.x_ref.copy())
+        rng = np.random.default_rng([self.seed, zlib.crc32(np.round(goal, 9).tobytes())])
+        out += [self.problem.random_x(rng) for _ in range(self.restarts)]
+        return out
+
+    def evaluate(self, points: np.ndarray, hints: np.ndarray | None = None) -> Verdicts:
+        """Verdicts for goals [m]: rounds of solves from each point's next start until reachable."""
+        pts = check_points(points, 3)
+        n = len(pts)
+        self.stats["points"] += n
+        residual = np.array([self.problem.prefilter(g) for g in pts])
+        prefiltered = residual > self.strategy.tolerance
+        self.stats["prefiltered"] += int(prefiltered.sum())
+        reach = np.zeros(n, bool)
+        hard = prefiltered.copy()  # a pre-filtered point keeps the reference posture, which is valid
+        posture = np.tile(self.body.q_ref, (n, 1))
+        residual[~prefiltered] = np.inf
+        starts = [self.starts(g, None if hints is None else hints[i]) if not prefiltered[i] else [] for i, g in enumerate(pts)]
+        for r in range(max(len(s) for s in starts) if n else 0):
+            todo = np.array([i for i in range(n) if not reach[i] and len(starts[i]) > r], dtype=int)
+            if todo.size == 0:
+                break
+            self.stats["solves"] += int(todo.size)
+            q = self.solve_batch(pts[todo], np.array([starts[i][r] for i in todo]))
+            for k, i in enumerate(todo):
+                check = self.problem.check(q[k], pts[i], self._data)
+                if (check.hard_ok, -check.residual) > (bool(hard[i]), -residual[i]):
+                    hard[i], residual[i], posture[i] = check.hard_ok, check.residual, q[k]
+                reach[i] = check.reachable
+        self.stats["reachable"] += int(reach.sum())
+        return Verdicts(reach, residual, posture)
+
+
+class CasadiIK(IKOracle):
+    """Lexicographic IPOPT solves on CasADi kinematics (registry name ``casadi-ik``).
+
+    Args:
+        max_iter: IPOPT iteration cap per stage.
+        (others as :class:`IKOracle`)
+    """
+
+    def __init__(self, *args: Any, max_iter: int = 200, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        p, s = self.problem, self.strategy
+        x, goal = p.x_sym, ca.SX.sym("goal", 3)
+        kin = SymbolicKinematics(self.body.model, p.q_sym)
+        eff = kin.frame(s.effector)[1]
+        objectives = {"reach": ca.sumsqr(eff - goal)}
+        if s.gaze is not None:
+            rot, pos = kin.frame(s.gaze)
+            to_goal = goal - pos
+            objectives["gaze"] = 1.0 - ca.dot(rot[:, 0], to_goal) / (ca.norm_2(to_goal) + 1e-9)
+        if s.comfort > 0:
+            span = p.upper - p.lower
+            objectives["comfort"] = s.comfort * ca.sumsqr((x - p.x_ref) / span) / max(p.nx, 1)
+        self.order = [t for t in s.order if t in objectives]
+        self.objectives = objectives
+        g, lbg, ubg = self._hard_constraints(kin)
+        opts = {"ipopt.print_level": 0, "print_time": 0, "ipopt.sb": "yes", "ipopt.max_iter": int(max_iter), "ipopt.tol": 1e-10, "ipopt.acceptable_tol": 1e-8}
+        self.stages = []
+        for k, task in enumerate(self.order):
+            earlier = [objectives[t] for t in self.order[:k]]
+            nlp = {"x": x, "p": goal, "f": objectives[task], "g": ca.vertcat(g, *earlier)}
+            solver = ca.nlpsol(f"stage_{task}", "ipopt", nlp, opts)
+            self.stages.append(solver)
+        self.lbg, self.ubg = np.asarray(lbg, float), np.asarray(ubg, float)
+        self._objective_fns = {t: ca.Function(t, [x, goal], [f]) for t, f in objectives.items()}
+
+    def _hard_constraints(self, kin: SymbolicKinematics) -> tuple[ca.SX, list[float], list[float]]:
+        p, s = self.problem, self.strategy
+        rows, lo, hi = [], [], []
+
+        def add(expr: ca.SX, lower: float, upper: float) -> None:
+            rows.append(expr)
+            lo.extend([lower] * expr.numel())
+            hi.extend([upper] * expr.numel())
+
+        for c, ref in zip(s.contacts, p.contact_ref, strict=True):
+            rot, pos = kin.frame(c.frame)
+            add(pos - ref.translation.reshape(3, 1), 0.0, 0.0)
+            if c.mode == "fixed":
+                rel = ca.SX(ref.rotation.T) @ rot
+                add(ca.vertcat(rel[2, 1] - rel[1, 2], rel[0, 2] - rel[2, 0], rel[1, 0] - rel[0, 1]), 0.0, 0.0)
+            else:
+                axis = ref.rotation @ np.asarray(c.axis)
+                b1 = np.cross(axis, [0.0, 0.0, 1.0] if abs(axis[2]) < 0.9 else [1.0, 0.0, 0.0])
+                b1 /= np.linalg.norm(b1)
+                b2 = np.cross(axis, b1)
+                w = rot @ ca.SX(np.asarray(c.axis))
+                add(ca.vertcat(ca.dot(w, ca.SX(b1)), ca.dot(w, ca.SX(b2))), 0.0, 0.0)
+        for f in s.above_floor:
+            add(kin.frame(f)[1][2], 0.0, np.inf)
+        if p.polygon is not None:
+            com = kin.center_of_mass()
+            add(ca.SX(p.polygon[:, :2]) @ com[:2] + ca.SX(p.polygon[:, 2]), -np.inf, 0.0)
+        g = ca.vertcat(*rows) if rows else ca.SX.zeros(0, 1)
+        return g, lo, hi
+
+    def solve(self, goal: np.ndarray, x0: np.ndarray) -> np.ndarray:
+        x = np.clip(x0, self.problem.lower, self.problem.upper)
+        optimum: list[float] = []
+        for k, (task, solver) in enumerate(zip(self.order, self.stages, strict=True)):
+            ubg = np.concatenate([self.ubg, [opt + STAGE_SLACK[t] for t, opt in zip(self.order[:k], optimum, strict=False)]])
+            lbg = np.concatenate([self.lbg, np.full(k, -np.inf)])
+            sol = solver(x0=x, p=goal, lbx=self.problem.lower, ubx=self.problem.upper, lbg=lbg, ubg=ubg)
+            x_new = np.asarray(sol["x"]).ravel()
+            if k > 0 and not solver.stats()["success"]:
+                break  # keep the posture of the higher-priority stage
+            x = x_new
+            optimum.append(float(self._objective_fns[task](x, goal)))
+            if k == 0 and optimum[0] > self.strategy.tolerance**2:
+                break  # unreachable: lower tasks cannot change the verdict
+        return self.problem.q_of_x(x)
