@@ -12,8 +12,9 @@ violated rows), then reach, gaze and comfort in their priority order. Joint
 limits are enforced by clamping: a joint that a step would push past its
 limit is fixed there and the step recomputed without it.
 
-The whole batch is iterated at once: Pinocchio computes each point's
-kinematics, numpy solves every point's stacked least squares in one call.
+As in ``casadi-ik`` the soft tasks are lexicographic: the stack down to the
+reach task is iterated first; the lower tasks (gaze, comfort) are added
+afterwards, and their result is kept only if the verdict still holds.
 Verdicts follow the same Pinocchio check as ``casadi-ik``.
 """
 
@@ -45,12 +46,14 @@ class DLSIK(IKOracle):
         max_iter: Iterations per solve.
         damping: Damping lambda of the pseudo-inverses.
         max_step: Largest step norm per iteration [rad, m].
+        max_reach_step: Largest reach error pursued per iteration [m].
         (others as :class:`~oracles.ik.IKOracle`)
     """
 
-    def __init__(self, *args: Any, max_iter: int = 150, damping: float = 0.02, max_step: float = 0.3, **kwargs: Any) -> None:
+    def __init__(self, *args: Any, max_iter: int = 150, damping: float = 0.02, max_step: float = 0.3, max_reach_step: float = 0.05, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         self.max_iter, self.damping, self.max_step = int(max_iter), float(damping), float(max_step)
+        self.max_reach_step = float(max_reach_step)
         model = self.body.model
         p = self.problem
         # Velocity columns of the active coordinates, in the order of x.
@@ -62,10 +65,12 @@ class DLSIK(IKOracle):
         self.qhi = model.upperPositionLimit[self.qidx]
         self.jcols = np.arange(6 if self.strategy.floating else 0, len(cols))  # joint columns within x
         self.fid = {n: self.body.frame_id(n) for n in {self.strategy.effector, *(c.frame for c in self.strategy.contacts), *self.strategy.above_floor, *([self.strategy.gaze] if self.strategy.gaze else [])}}
+        self.has_hard = bool(self.strategy.contacts or self.strategy.above_floor or p.polygon is not None)
+        self.reach_level = self.strategy.order.index("reach")
         self.unbounded = np.array([model.joints[j].nq == 2 for j in p.joint_ids], dtype=bool)
 
-    def _kinematics(self, q: np.ndarray, goal: np.ndarray) -> list[list[tuple[np.ndarray, np.ndarray]]]:
-        """Per point, the (jacobian, error) of each priority level, columns restricted to x."""
+    def _kinematics(self, q: np.ndarray, goal: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+        """The (jacobian, error) of each priority level at q, columns restricted to x."""
         model, data, s, p = self.body.model, self._data, self.strategy, self.problem
         pin.computeJointJacobians(model, data, q)
         pin.updateFramePlacements(model, data)
@@ -107,7 +112,10 @@ class DLSIK(IKOracle):
             levels.append((np.vstack(hard_j), np.concatenate(hard_e)))
         for task in s.order:
             if task == "reach":
-                levels.append((jac(s.effector)[:3], goal - data.oMf[self.fid[s.effector]].translation))
+                err = goal - data.oMf[self.fid[s.effector]].translation
+                dist = np.linalg.norm(err)
+                # Clamp the target distance, so that a far goal does not drag the posture off the hard tasks.
+                levels.append((jac(s.effector)[:3], err * min(1.0, self.max_reach_step / dist) if dist > 0 else err))
             elif task == "gaze" and s.gaze is not None:
                 eye = data.oMf[self.fid[s.gaze]]
                 d, u = eye.rotation[:, 0], goal - eye.translation
@@ -116,7 +124,7 @@ class DLSIK(IKOracle):
                 eye_x = np.zeros((self.jcols.size, self.cols.size))
                 eye_x[np.arange(self.jcols.size), self.jcols] = 1.0
                 levels.append((0.1 * eye_x, 0.1 * (p.x_ref[self.jcols] - q[self.qidx])))
-        return [levels]
+        return levels
 
     def _step(self, levels: list[tuple[np.ndarray, np.ndarray]], free: np.ndarray) -> np.ndarray:
         """Task-priority step for one point, columns outside free held at zero."""
@@ -131,34 +139,39 @@ class DLSIK(IKOracle):
             proj = proj - np.linalg.pinv(jp[0], rcond=1e-8) @ jp[0]
         return dq
 
-    def solve_batch(self, goals: np.ndarray, x0: np.ndarray) -> np.ndarray:
-        model, p, s = self.body.model, self.problem, self.strategy
-        qs = np.array([p.q_of_x(x) for x in x0])
-        tol = 0.05 * s.tolerance
-        for i, goal in enumerate(goals):
-            q = qs[i]
-            for _ in range(self.max_iter):
-                levels = self._kinematics(q, goal)[0]
-                err = max((np.abs(e).max() if e.size else 0.0) for _, e in levels[: 1 + bool(s.contacts or s.above_floor or p.polygon is not None)])
-                if err < tol and len(levels) <= 2:
+    def _iterate(self, q: np.ndarray, goal: np.ndarray, soft: int, max_iter: int) -> np.ndarray:
+        """Iterate the stack truncated after the first soft levels; returns q."""
+        model, p = self.body.model, self.problem
+        tol = 0.05 * self.strategy.tolerance
+        n_hard = int(self.has_hard)
+        bounded = ~self.unbounded
+        for _ in range(max_iter):
+            levels = self._kinematics(q, goal)[: n_hard + soft]
+            err = max((float(np.abs(e).max()) if e.size else 0.0) for _, e in levels[: n_hard + self.reach_level + 1])
+            free = np.ones(self.cols.size, bool)
+            for _ in range(self.cols.size):  # clamping loop: fix joints a step would push past their limits
+                dq = self._step(levels, free)
+                norm = np.linalg.norm(dq)
+                if norm > self.max_step:
+                    dq *= self.max_step / norm
+                target = q[self.qidx] + dq[self.jcols]
+                over = ((target < self.qlo) | (target > self.qhi)) & bounded & free[self.jcols]
+                if not over.any():
                     break
-                free = np.ones(self.cols.size, bool)
-                for _ in range(3):  # clamping loop: fix joints a step would push past their limits
-                    dq = self._step(levels, free)
-                    norm = np.linalg.norm(dq)
-                    if norm > self.max_step:
-                        dq *= self.max_step / norm
-                    target = q[self.qidx] + dq[self.jcols]
-                    over = ((target < self.qlo) | (target > self.qhi)) & ~self.unbounded & free[self.jcols]
-                    if not over.any():
-                        break
-                    free[self.jcols[over]] = False
-                if err < tol and np.linalg.norm(dq) < 1e-6:
-                    break  # hard tasks and reach hold; lower tasks have settled
-                v = np.zeros(model.nv)
-                v[self.cols] = dq
-                q = pin.integrate(model, q, v)
-                bounded = ~self.unbounded
-                q[self.qidx[bounded]] = np.clip(q[self.qidx[bounded]], self.qlo[bounded], self.qhi[bounded])
-            qs[i] = q
-        return qs
+                free[self.jcols[over]] = False
+            if err < tol and (soft == self.reach_level + 1 or np.linalg.norm(dq) < 1e-6):
+                break  # hard tasks and reach hold (and lower tasks have settled)
+            v = np.zeros(model.nv)
+            v[self.cols] = dq
+            q = pin.integrate(model, q, v)
+            q[self.qidx[bounded]] = np.clip(q[self.qidx[bounded]], self.qlo[bounded], self.qhi[bounded])
+        return q
+
+    def solve(self, goal: np.ndarray, x0: np.ndarray) -> np.ndarray:
+        """Lexicographic like casadi-ik: first the tasks down to reach, then the lower ones."""
+        q = self._iterate(self.problem.q_of_x(x0), goal, self.reach_level + 1, self.max_iter)
+        if len(self.strategy.order) > self.reach_level + 1 and self.problem.check(q, goal, self._data).reachable:
+            refined = self._iterate(q.copy(), goal, len(self.strategy.order), self.max_iter // 3)
+            if self.problem.check(refined, goal, self._data).reachable:
+                q = refined  # the lower tasks never cost the verdict
+        return q
