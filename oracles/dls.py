@@ -141,7 +141,7 @@ class DLSIK(IKOracle):
 
     def _iterate(self, q: np.ndarray, goal: np.ndarray, soft: int, max_iter: int) -> np.ndarray:
         """Iterate the stack truncated after the first soft levels; returns q."""
-        model, p = self.body.model, self.problem
+        model, _p = self.body.model, self.problem
         tol = 0.05 * self.strategy.tolerance
         n_hard = int(self.has_hard)
         bounded = ~self.unbounded
@@ -170,7 +170,7 @@ class DLSIK(IKOracle):
     def solve(self, goal: np.ndarray, x0: np.ndarray) -> np.ndarray:
         """Lexicographic like casadi-ik: first the tasks down to reach, then the lower ones."""
         q = self._iterate(self.problem.q_of_x(x0), goal, self.reach_level + 1, self.max_iter)
-        if len(self.strategy.order) > self.reach_level + 1 and self.problem.check(q, goal, self._data).reachable:
+        if self.secondary and len(self.strategy.order) > self.reach_level + 1 and self.problem.check(q, goal, self._data).reachable:
             refined = self._iterate(q.copy(), goal, len(self.strategy.order), self.max_iter // 3)
             if self.problem.check(refined, goal, self._data).reachable:
                 q = refined  # the lower tasks never cost the verdict

@@ -26,12 +26,13 @@ import numpy as np
 
 from oracles.body import load_body
 from oracles.kinematics import SymbolicKinematics
-from oracles.problem import Check, ReachProblem
+from oracles.problem import ReachProblem
 from oracles.protocol import Verdicts, check_points
 from oracles.strategy import parse_strategy
 
-# Slack [objective units] by which a later stage may move an earlier objective.
-STAGE_SLACK = {"reach": 1e-10, "gaze": 1e-6, "comfort": 1e-6}
+# Slack by which a later stage may move an earlier objective: reach [m per
+# axis], gaze [1 - cos of the gaze error], comfort [objective units].
+STAGE_SLACK = {"reach": 1e-6, "gaze": 1e-4, "comfort": 1e-6}
 
 
 class IKOracle:
@@ -44,12 +45,19 @@ class IKOracle:
         tasks: Task list (see :mod:`oracles.strategy`).
         restarts: Seeded random restarts after the hint and the reference.
         seed: Seed of the restarts; each goal derives its own stream from it.
+        secondary: Also solve the tasks below reach (gaze, comfort). They
+            never change a verdict, so builds may skip them for speed and
+            leave them to the selector's refinement at query time.
     """
 
     dim = 3
 
-    def __init__(self, body: dict[str, Any], effector: str, joints: list[str], tasks: list[dict[str, Any]] | None = None, restarts: int = 3, seed: int = 0) -> None:
+    def __init__(
+        self, body: dict[str, Any], effector: str, joints: list[str], tasks: list[dict[str, Any]] | None = None,
+        restarts: int = 3, seed: int = 0, secondary: bool = True,
+    ) -> None:
         self.body = load_body(body)
+        self.secondary = bool(secondary)
         self.strategy = parse_strategy(self.body, effector, joints, tasks)
         self.problem = ReachProblem(self.body, self.strategy)
         self.posture_names = tuple(self.body.q_names)
@@ -127,15 +135,20 @@ class CasadiIK(IKOracle):
             span = p.upper - p.lower
             objectives["comfort"] = s.comfort * ca.sumsqr((x - p.x_ref) / span) / max(p.nx, 1)
         self.order = [t for t in s.order if t in objectives]
+        if not self.secondary:
+            self.order = self.order[: self.order.index("reach") + 1]
         self.objectives = objectives
         g, lbg, ubg = self._hard_constraints(kin)
         opts = {"ipopt.print_level": 0, "print_time": 0, "ipopt.sb": "yes", "ipopt.max_iter": int(max_iter), "ipopt.tol": 1e-10, "ipopt.acceptable_tol": 1e-8}
         self.stages = []
         for k, task in enumerate(self.order):
-            earlier = [objectives[t] for t in self.order[:k]]
+            # Earlier objectives become constraints. Reach is held per axis
+            # (|e_i| <= bound): a bound on its square would have a zero
+            # gradient at the optimum, which interior-point solvers handle badly.
+            earlier = [eff - goal if t == "reach" else objectives[t] for t in self.order[:k]]
             nlp = {"x": x, "p": goal, "f": objectives[task], "g": ca.vertcat(g, *earlier)}
-            solver = ca.nlpsol(f"stage_{task}", "ipopt", nlp, opts)
-            self.stages.append(solver)
+            stage_opts = {**opts, "ipopt.max_iter": int(max_iter) if k == 0 else max(20, int(max_iter) // 4)}
+            self.stages.append(ca.nlpsol(f"stage_{task}", "ipopt", nlp, stage_opts))
         self.lbg, self.ubg = np.asarray(lbg, float), np.asarray(ubg, float)
         self._objective_fns = {t: ca.Function(t, [x, goal], [f]) for t, f in objectives.items()}
 
@@ -169,18 +182,34 @@ class CasadiIK(IKOracle):
         g = ca.vertcat(*rows) if rows else ca.SX.zeros(0, 1)
         return g, lo, hi
 
+    def _stage_bounds(self, k: int, optimum: list[float]) -> tuple[np.ndarray, np.ndarray]:
+        lo, hi = [self.lbg], [self.ubg]
+        for t, opt in zip(self.order[:k], optimum, strict=False):
+            if t == "reach":
+                b = np.sqrt(max(opt, 0.0)) + STAGE_SLACK["reach"]
+                lo.append(np.full(3, -b))
+                hi.append(np.full(3, b))
+            else:
+                lo.append([-np.inf])
+                hi.append([opt + STAGE_SLACK[t]])
+        return np.concatenate(lo), np.concatenate(hi)
+
     def solve(self, goal: np.ndarray, x0: np.ndarray) -> np.ndarray:
-        x = np.clip(x0, self.problem.lower, self.problem.upper)
+        p = self.problem
+        x = np.clip(x0, p.lower, p.upper)
         optimum: list[float] = []
         for k, (task, solver) in enumerate(zip(self.order, self.stages, strict=True)):
-            ubg = np.concatenate([self.ubg, [opt + STAGE_SLACK[t] for t, opt in zip(self.order[:k], optimum, strict=False)]])
-            lbg = np.concatenate([self.lbg, np.full(k, -np.inf)])
-            sol = solver(x0=x, p=goal, lbx=self.problem.lower, ubx=self.problem.upper, lbg=lbg, ubg=ubg)
-            x_new = np.asarray(sol["x"]).ravel()
-            if k > 0 and not solver.stats()["success"]:
-                break  # keep the posture of the higher-priority stage
+            lbg, ubg = self._stage_bounds(k, optimum)
+            sol = solver(x0=x, p=goal, lbx=p.lower, ubx=p.upper, lbg=lbg, ubg=ubg)
+            x_new = np.clip(np.asarray(sol["x"]).ravel(), p.lower, p.upper)
+            if k > 0:
+                # A lower stage is kept only if it honours every constraint,
+                # whatever the solver's status (it may stop at its iteration cap).
+                gval = np.asarray(sol["g"]).ravel()
+                if np.any(gval < lbg - 1e-7) or np.any(gval > ubg + 1e-7):
+                    break
             x = x_new
             optimum.append(float(self._objective_fns[task](x, goal)))
             if k == 0 and optimum[0] > self.strategy.tolerance**2:
                 break  # unreachable: lower tasks cannot change the verdict
-        return self.problem.q_of_x(x)
+        return p.q_of_x(x)

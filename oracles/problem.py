@@ -49,7 +49,6 @@ class ReachProblem:
         self.strategy = strategy
         model = body.model
         self.effector_id = body.frame_id(strategy.effector)
-        x = []
         lo: list[float] = []
         hi: list[float] = []
         self.x_names: list[str] = []

@@ -75,6 +75,49 @@ def cmd_query(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_model(args: argparse.Namespace) -> int:
+    from oracles.body import human_body, load_body, urdf_body
+
+    spec = args.spec
+    if spec == "human":
+        body = human_body(args.sex, args.stature, args.percentile, args.mass)
+    elif spec.endswith((".yaml", ".yml")):
+        import yaml
+
+        try:
+            data = yaml.safe_load(Path(spec).read_text())
+        except (OSError, yaml.YAMLError) as exc:
+            raise ReachError(f"{spec}: cannot read the config ({exc})") from exc
+        if not isinstance(data, dict) or "body" not in data:
+            raise ReachError(f"{spec}: body: the config names no body")
+        body = load_body(data["body"])
+    else:
+        body = urdf_body(spec)
+    frames = {name: pos.round(6).tolist() for name, pos in body.frame_positions().items()}
+    info: dict[str, Any] = {
+        "source": body.source,
+        "hash": body.hash,
+        "mass": body.mass,
+        "nq": int(body.model.nq),
+        "joints": [{"name": n, "lower": lo, "upper": hi} for n, lo, hi in body.limits()],
+        "frames": frames,
+        "center_of_mass": body.center_of_mass().round(6).tolist(),
+        "units": {"length": "m", "angle": "rad", "mass": "kg"},
+        "world_frame": "z up, x forward, y left",
+    }
+    if body.anthropometry is not None:
+        info["stature"] = body.anthropometry.stature
+        info["sex"] = body.anthropometry.sex
+    if args.json:
+        _print_json(info)
+        return 0
+    print(f"{body.source}: {len(info['joints'])} joints, mass {info['mass']:.2f} kg" + (f", stature {info['stature']:.4f} m" if "stature" in info else ""))
+    for j in info["joints"]:
+        print(f"  {j['name']:<28} [{j['lower']:+.4f}, {j['upper']:+.4f}]")
+    print(f"  centre of mass {info['center_of_mass']}")
+    return 0
+
+
 def make_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="reach",
@@ -102,6 +145,18 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--policy", default="vertex", choices=["conservative", "optimistic", "vertex"], help="how boundary cells answer (default: vertex)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_query)
+
+    p = sub.add_parser(
+        "model", help="describe a body", description="Describe a body: its joints and ranges [rad], mass [kg], stature [m] and frame positions [m] in the reference posture (world frame: z up, x forward, y left)."
+    )
+    p.add_argument("spec", help="a config file (its body), a URDF file, or 'human'")
+    p.add_argument("--sex", default="male", choices=["male", "female"], help="for 'human' (default male)")
+    group = p.add_mutually_exclusive_group()
+    group.add_argument("--percentile", type=float, help="for 'human': stature percentile of ANSUR II (default 50)")
+    group.add_argument("--stature", type=float, help="for 'human': stature [m]")
+    p.add_argument("--mass", type=float, help="for 'human': body mass [kg] (default: ANSUR II mean at constant BMI)")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.set_defaults(func=cmd_model)
     return parser
 
 

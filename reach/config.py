@@ -1,7 +1,9 @@
 """Build configurations: YAML files validated into frozen specs.
 
 A configuration names the box B0, the depths, the default oracle and the
-strategies. Example (``configs/sphere.yaml``)::
+strategies, and for bodies the body (see :func:`oracles.body.load_body`) and
+each strategy's ``joints`` and ``tasks`` (see :mod:`oracles.strategy`).
+Example (``configs/sphere.yaml``)::
 
     name: sphere
     box: {min: [-1.0, -1.0, -1.0], max: [1.0, 1.0, 1.0]}   # metres
@@ -30,8 +32,8 @@ from oracles.protocol import OracleSpec
 from reach.errors import ConfigError, TreeError
 from reach.tree import MAX_DEPTH, Box
 
-TOP_KEYS = {"name", "description", "box", "depth", "oracle", "strategies", "build"}
-STRATEGY_KEYS = {"name", "effector", "priority", "oracle", "description"}
+TOP_KEYS = {"name", "description", "body", "box", "depth", "oracle", "strategies", "build"}
+STRATEGY_KEYS = {"name", "effector", "priority", "oracle", "description", "joints", "tasks"}
 BUILD_KEYS = {"chunk_size"}
 
 
@@ -158,6 +160,13 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
         effector = check.string(s.get("effector", "point"), f"{key}.effector")
         priority = check.integer(s.get("priority", i + 1), f"{key}.priority", 0, 10**6)
         oracle = _oracle(check, s["oracle"], f"{key}.oracle", default) if "oracle" in s else default
+        if "joints" in s or "tasks" in s or "body" in top:
+            # A body strategy: the IK oracle receives the body, the effector, the joints and the tasks.
+            if "body" not in top:
+                raise check.fail(f"{key}.joints", "joints and tasks need a top-level 'body'")
+            if "joints" not in s:
+                raise check.fail(f"{key}.joints", "required key is missing (the joints this strategy may move)")
+            oracle = OracleSpec(oracle.name, {**oracle.params, "body": top["body"], "effector": effector, "joints": s["joints"], "tasks": s.get("tasks")})
         strategies.append(StrategySpec(sname, effector, priority, oracle, str(s.get("description", ""))))
     build = check.mapping(top.get("build", {}), "build", BUILD_KEYS)
     chunk = check.integer(build.get("chunk_size", 2048), "build.chunk_size", 1, 10**7)

@@ -1,0 +1,180 @@
+"""IK oracles: verdicts checked by independent forward kinematics, known points, priorities."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from oracles.dls import DLSIK
+from oracles.ik import CasadiIK
+from oracles.protocol import OracleSpec
+from reach.config import load_config
+from reach.errors import ModelError
+
+ROOT = Path(__file__).resolve().parents[1]
+HUMAN = {"human": {"sex": "male", "percentile": 50}}
+ARM = ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"]
+UPPER = [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*", "neck_*"]
+WHOLE = [*UPPER, "root", "*_hip_*", "*_ankle_*"]
+CROUCH = [*WHOLE, "*_knee_*"]
+PLANTED = [{"type": "reach"}, {"type": "feet", "heels": "down"}, {"type": "balance", "margin": 0.02}]
+
+
+@pytest.fixture(scope="module")
+def arm():
+    return CasadiIK(HUMAN, "right_hand", ARM, restarts=2)
+
+
+@pytest.fixture(scope="module")
+def whole():
+    return CasadiIK(HUMAN, "right_hand", WHOLE, PLANTED, restarts=1)
+
+
+@pytest.fixture(scope="module")
+def crouch():
+    return CasadiIK(HUMAN, "right_hand", CROUCH, PLANTED, restarts=1)
+
+
+def _independent_fk(oracle, q: np.ndarray) -> dict[str, np.ndarray]:
+    """Pinocchio forward kinematics, without any of the oracle's machinery."""
+    model = oracle.body.model
+    data = model.createData()
+    pin.framesForwardKinematics(model, data, q)
+    return {str(f.name): data.oMf[i].translation.copy() for i, f in enumerate(model.frames)}, pin.centerOfMass(model, data, q)
+
+
+def _assert_reachable_verdicts_hold(oracle, points, verdicts):
+    model, ref = oracle.body.model, oracle.body.q_ref
+    frames_ref, _ = _independent_fk(oracle, ref)
+    for goal, ok, q in zip(points, verdicts.reachable, verdicts.posture, strict=True):
+        if not ok:
+            continue
+        frames, com = _independent_fk(oracle, q)
+        assert np.linalg.norm(frames[oracle.strategy.effector] - goal) <= 0.005
+        assert np.all(q[7:] >= model.lowerPositionLimit[7:] - 1e-6) and np.all(q[7:] <= model.upperPositionLimit[7:] + 1e-6)
+        for c in oracle.strategy.contacts:
+            assert np.linalg.norm(frames[c.frame] - frames_ref[c.frame]) <= 1e-4
+        if oracle.problem.polygon is not None:
+            assert np.all(oracle.problem.polygon[:, :2] @ com[:2] + oracle.problem.polygon[:, 2] <= 1e-5)
+
+
+def test_every_reachable_arm_verdict_holds_under_independent_fk(arm):
+    pts = np.random.default_rng(0).uniform([-0.4, -0.9, 0.6], [0.8, 0.4, 2.1], (40, 3))
+    v = arm.evaluate(pts)
+    assert 5 < v.reachable.sum() < 40
+    _assert_reachable_verdicts_hold(arm, pts, v)
+    # and unreachable ones are honestly far: their best attempt misses by more than the tolerance
+    assert np.all(v.residual[~v.reachable] > 0.005)
+
+
+def test_whole_body_postures_keep_feet_balance_and_limits(whole):
+    pts = np.random.default_rng(1).uniform([-0.3, -0.8, 0.2], [0.9, 0.3, 2.0], (12, 3))
+    v = whole.evaluate(pts)
+    assert v.reachable.sum() >= 4
+    _assert_reachable_verdicts_hold(whole, pts, v)
+
+
+def test_known_points_for_the_arm(arm):
+    v = arm.evaluate(np.array([
+        [0.45, -0.2, 1.25],   # in front at chest height
+        [0.0, -0.2, 2.5],     # 2.5 m up
+        [-0.4, -0.4, 1.46],   # behind the back, above the shoulder: beyond shoulder extension
+        [-0.2, 0.4, 1.46],    # behind the left shoulder
+        [0.35, -0.15, 0.05],  # the floor in front of the feet
+    ]))
+    assert v.reachable.tolist() == [True, False, False, False, False]
+
+
+def test_floor_in_front_needs_crouch_not_arm(arm, crouch):
+    floor = np.array([[0.35, -0.15, 0.05]])
+    assert not arm.evaluate(floor).reachable[0]
+    v = crouch.evaluate(floor)
+    assert v.reachable[0]
+    _assert_reachable_verdicts_hold(crouch, floor, v)
+
+
+def test_prefilter_skips_the_solver_for_far_goals(arm):
+    before = dict(arm.stats)
+    v = arm.evaluate(np.array([[3.0, 0.0, 1.0]]))
+    assert not v.reachable[0] and v.residual[0] > 2.0
+    assert arm.stats["solves"] == before["solves"] and arm.stats["prefiltered"] == before["prefiltered"] + 1
+
+
+def test_warm_start_hint_needs_one_solve(arm):
+    goal = np.array([[0.4, -0.3, 1.1]])
+    first = arm.evaluate(goal)
+    before = arm.stats["solves"]
+    again = arm.evaluate(goal + 0.01, first.posture)
+    assert again.reachable[0] and arm.stats["solves"] == before + 1
+
+
+def test_determinism():
+    pts = np.random.default_rng(2).uniform([-0.2, -0.8, 0.8], [0.7, 0.2, 1.9], (8, 3))
+    a = CasadiIK(HUMAN, "right_hand", ARM, seed=7).evaluate(pts)
+    b = CasadiIK(HUMAN, "right_hand", ARM, seed=7).evaluate(pts)
+    assert np.array_equal(a.reachable, b.reachable) and np.array_equal(a.posture, b.posture)
+
+
+def test_gaze_aims_the_eyes_without_degrading_reach():
+    goal = np.array([[0.5, -0.3, 1.0]])
+    plain = CasadiIK(HUMAN, "right_hand", UPPER, [{"type": "reach"}]).evaluate(goal)
+    gazing = CasadiIK(HUMAN, "right_hand", UPPER, [{"type": "reach"}, {"type": "gaze", "frame": "eyes"}, {"type": "comfort"}])
+    v = gazing.evaluate(goal)
+    assert plain.reachable[0] and v.reachable[0]
+    model = gazing.body.model
+    data = model.createData()
+    pin.framesForwardKinematics(model, data, v.posture[0])
+    eye = data.oMf[model.getFrameId("eyes")]
+    to_goal = (goal[0] - eye.translation) / np.linalg.norm(goal[0] - eye.translation)
+    assert np.degrees(np.arccos(np.clip(eye.rotation[:, 0] @ to_goal, -1, 1))) < 2.0
+    assert v.residual[0] <= 1e-4  # the reach task kept its optimum
+
+
+def test_dls_agrees_with_casadi_and_holds_under_fk():
+    pts = np.random.default_rng(3).uniform([-0.4, -0.9, 0.6], [0.8, 0.4, 2.1], (40, 3))
+    c = CasadiIK(HUMAN, "right_hand", UPPER, [{"type": "reach"}], restarts=2)
+    d = DLSIK(HUMAN, "right_hand", UPPER, [{"type": "reach"}], restarts=2)
+    vc, vd = c.evaluate(pts), d.evaluate(pts)
+    _assert_reachable_verdicts_hold(d, pts, vd)
+    assert np.mean(vc.reachable == vd.reachable) >= 0.95
+
+
+def test_ik_on_a_urdf_robot():
+    body = {"urdf": str(ROOT / "tests" / "data" / "ur5.urdf")}
+    oracle = CasadiIK(body, "ee_link", ["*_joint"], restarts=2)
+    pts = np.array([[0.4, 0.2, 0.3], [0.0, 0.5, 0.6], [2.0, 0.0, 0.0]])
+    v = oracle.evaluate(pts)
+    assert v.reachable.tolist() == [True, True, False]
+    _assert_reachable_verdicts_hold(oracle, pts, v)
+
+
+def test_shipped_human_strategies_load():
+    config = load_config(ROOT / "configs" / "human.yaml")
+    names = {s.name for s in config.strategies}
+    for side in ("right", "left"):
+        assert {f"{side}_arm", f"{side}_upper_body", f"{side}_whole_body", f"{side}_crouch", f"{side}_tiptoe"} <= names
+    assert "right_foot" in names
+
+
+@pytest.mark.parametrize(
+    ("joints", "tasks", "message"),
+    [
+        (["right_tail_*"], None, "no joint matches 'right_tail_\\*'"),
+        (ARM, [{"type": "gaze"}], "needs a reach task"),
+        (ARM, [{"type": "reach"}, {"type": "dance"}], r"tasks\[1\]: expected a mapping with type"),
+        (ARM, [{"type": "reach", "speed": 2}], r"tasks\[0\]: unknown keys \['speed'\]"),
+        (ARM, [{"type": "reach"}, {"type": "feet", "heels": "up"}], r"tasks\[1\]\.heels: expected 'down' or 'rise'"),
+        (ARM, [{"type": "reach"}, {"type": "balance"}], "balance needs a support polygon"),
+    ],
+)
+def test_strategy_errors_name_the_task(joints, tasks, message):
+    with pytest.raises(ModelError, match=message):
+        CasadiIK(HUMAN, "right_hand", joints, tasks)
+
+
+def test_unknown_effector_lists_frames():
+    with pytest.raises(ModelError, match="no frame 'right_claw'"):
+        OracleSpec("casadi-ik", {"body": HUMAN, "effector": "right_claw", "joints": ARM}).create()
