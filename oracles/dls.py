@@ -20,6 +20,7 @@ Verdicts follow the same Pinocchio check as ``casadi-ik``.
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 import numpy as np
@@ -146,6 +147,8 @@ class DLSIK(IKOracle):
         n_hard = int(self.has_hard)
         bounded = ~self.unbounded
         for _ in range(max_iter):
+            if time.perf_counter() > self._deadline:
+                break
             levels = self._kinematics(q, goal)[: n_hard + soft]
             err = max((float(np.abs(e).max()) if e.size else 0.0) for _, e in levels[: n_hard + self.reach_level + 1])
             free = np.ones(self.cols.size, bool)

@@ -18,6 +18,7 @@ so a lower task never degrades a higher one.
 
 from __future__ import annotations
 
+import time
 import zlib
 from typing import Any
 
@@ -48,16 +49,20 @@ class IKOracle:
         secondary: Also solve the tasks below reach (gaze, comfort). They
             never change a verdict, so builds may skip them for speed and
             leave them to the selector's refinement at query time.
+        max_seconds: Time budget [s] of one ``evaluate`` call (used by the
+            selector's refinement); None for no limit.
     """
 
     dim = 3
 
     def __init__(
         self, body: dict[str, Any], effector: str, joints: list[str], tasks: list[dict[str, Any]] | None = None,
-        restarts: int = 3, seed: int = 0, secondary: bool = True,
+        restarts: int = 3, seed: int = 0, secondary: bool = True, max_seconds: float | None = None,
     ) -> None:
         self.body = load_body(body)
         self.secondary = bool(secondary)
+        self.max_seconds = None if max_seconds is None else float(max_seconds)
+        self._deadline = np.inf
         self.strategy = parse_strategy(self.body, effector, joints, tasks)
         self.problem = ReachProblem(self.body, self.strategy)
         self.posture_names = tuple(self.body.q_names)
@@ -89,6 +94,7 @@ class IKOracle:
         pts = check_points(points, 3)
         n = len(pts)
         self.stats["points"] += n
+        self._deadline = np.inf if self.max_seconds is None else time.perf_counter() + self.max_seconds
         residual = np.array([self.problem.prefilter(g) for g in pts])
         prefiltered = residual > self.strategy.tolerance
         self.stats["prefiltered"] += int(prefiltered.sum())
@@ -99,7 +105,7 @@ class IKOracle:
         starts = [self.starts(g, None if hints is None else hints[i]) if not prefiltered[i] else [] for i, g in enumerate(pts)]
         for r in range(max(len(s) for s in starts) if n else 0):
             todo = np.array([i for i in range(n) if not reach[i] and len(starts[i]) > r], dtype=int)
-            if todo.size == 0:
+            if todo.size == 0 or time.perf_counter() > self._deadline:
                 break
             self.stats["solves"] += int(todo.size)
             q = self.solve_batch(pts[todo], np.array([starts[i][r] for i in todo]))
@@ -139,7 +145,7 @@ class CasadiIK(IKOracle):
             self.order = self.order[: self.order.index("reach") + 1]
         self.objectives = objectives
         g, lbg, ubg = self._hard_constraints(kin)
-        opts = {"ipopt.print_level": 0, "print_time": 0, "ipopt.sb": "yes", "ipopt.max_iter": int(max_iter), "ipopt.tol": 1e-10, "ipopt.acceptable_tol": 1e-8}
+        opts = {**({"ipopt.max_wall_time": self.max_seconds} if self.max_seconds else {}), "ipopt.print_level": 0, "print_time": 0, "ipopt.sb": "yes", "ipopt.max_iter": int(max_iter), "ipopt.tol": 1e-10, "ipopt.acceptable_tol": 1e-8}
         self.stages = []
         for k, task in enumerate(self.order):
             # Earlier objectives become constraints. Reach is held per axis

@@ -55,6 +55,9 @@ def build_atlas(
         ex: Executor = executor_factory(s.oracle) if executor_factory else InlineExecutor(s.oracle, config.chunk_size)
         try:
             meta = {"name": s.name, "effector": s.effector, "priority": s.priority, "oracle": s.oracle.to_dict()}
+            body = getattr(getattr(ex, "oracle", None), "body", None)
+            if body is not None:
+                meta["model_hash"] = body.hash
             tree = build_tree(s.oracle, config.box, config.d_min, config.d_max, executor=ex, progress=progress, meta=meta)
         finally:
             ex.close()

@@ -64,7 +64,7 @@ def cmd_query(args: argparse.Namespace) -> int:
     effectors = [args.effector] if args.effector else selector.effectors
     answers = [selector.select(e, goal) for e in effectors]
     if args.json:
-        _print_json({"answers": [a.__dict__ for a in answers]})
+        _print_json({"answers": [a.to_dict() for a in answers]})
         return 0
     for a in answers:
         if a.reachable:

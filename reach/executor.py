@@ -78,6 +78,7 @@ class ProcessExecutor:
         import json
 
         local = spec.create()
+        self.oracle = local  # for metadata (model hash); work runs in the pool
         self.spec = spec
         self.key = json.dumps(spec.to_dict(), sort_keys=True)
         self.dim = local.dim

@@ -1,14 +1,19 @@
-"""The paper's priority mechanism: which strategy reaches a goal.
+"""The paper's priority mechanism: which strategy reaches a goal, and how.
 
 For an effector and a goal, the strategies of that effector are tried in
-priority order; the first whose tree holds the goal is chosen. The posture is
-the one stored at the nearest reachable vertex of that tree.
+priority order; the first whose tree holds the goal is chosen (the boundary
+policy is configurable). The posture starts from the one stored at the
+nearest reachable vertex of that tree, then is refined by the strategy's own
+IK at the exact goal within a time budget: the paper's "additional inverse
+kinematics simulation". If refinement fails or runs out of time, the answer
+keeps the stored posture and says so.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass
+from typing import Any
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -16,6 +21,13 @@ from scipy.spatial import cKDTree
 from reach.errors import ReachError
 from reach.store import Atlas
 from reach.tree import POLICIES, Policy, VATree
+
+# Outcomes of refinement, in Answer.refined.
+REFINED = "ok"  # the IK reached the exact goal; posture and residual are its own
+FAILED = "failed"  # the IK did not reach it; posture is the stored one
+TIMEOUT = "timeout"  # the budget ran out; posture is the stored one
+SKIPPED = "skipped"  # refinement was not asked for
+UNAVAILABLE = "unavailable"  # the strategy's oracle stores no postures (analytic shapes)
 
 
 @dataclass(frozen=True)
@@ -28,9 +40,11 @@ class Answer:
         strategy: The chosen strategy, or None when none reaches.
         reachable: Whether any strategy reaches the goal.
         alternatives: Other strategies that also reach it, in priority order.
-        posture: Joint name -> value [rad or m] from the nearest stored
-            reachable vertex, or None when the oracle stores no postures.
-        residual: Residual [m] stored with that vertex.
+        posture: Joint name -> angle [rad] (or length [m] for prisms), or None.
+        root: Pose of a floating base, ``{"position": [x, y, z], "quaternion":
+            [qx, qy, qz, qw]}`` [m], or None.
+        residual: Effector-to-goal distance [m] of that posture, or None.
+        refined: One of ``ok``, ``failed``, ``timeout``, ``skipped``, ``unavailable``.
         seconds: Time spent answering [s].
     """
 
@@ -40,59 +54,148 @@ class Answer:
     reachable: bool
     alternatives: tuple[str, ...] = ()
     posture: dict[str, float] | None = None
+    root: dict[str, list[float]] | None = None
     residual: float | None = None
+    refined: str = SKIPPED
     seconds: float = 0.0
-    kinds: dict[str, str] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        out = asdict(self)
+        out["goal"] = list(self.goal)
+        out["alternatives"] = list(self.alternatives)
+        return out
+
+
+def split_posture(names: tuple[str, ...], q: np.ndarray) -> tuple[dict[str, float], dict[str, list[float]] | None]:
+    """Joint name -> value, and the root pose when the names carry one."""
+    joints = {n: float(v) for n, v in zip(names, q, strict=True) if not n.startswith("root_")}
+    if "root_x" not in names:
+        return joints, None
+    i = names.index("root_x")
+    return joints, {"position": [float(v) for v in q[i : i + 3]], "quaternion": [float(v) for v in q[i + 3 : i + 7]]}
 
 
 class Selector:
-    """Answers goals from an atlas; builds per-tree lookup structures once."""
+    """Answers goals from an atlas; per-tree lookup structures are built once.
 
-    def __init__(self, atlas: Atlas, policy: Policy = "vertex") -> None:
+    Args:
+        atlas: The loaded atlas.
+        policy: How boundary cells answer (see :meth:`VATree.contains`).
+        refine: Refine postures by IK at the exact goal by default.
+        budget: Time budget of one refinement [s].
+    """
+
+    def __init__(self, atlas: Atlas, policy: Policy = "vertex", refine: bool = True, budget: float = 0.02) -> None:
         if policy not in POLICIES:
             raise ReachError(f"unknown policy {policy!r}; expected one of {', '.join(POLICIES)}")
         self.atlas = atlas
         self.policy = policy
+        self.refine = refine
+        self.budget = budget
         self.order = [(s["name"], s["effector"]) for s in sorted(atlas.strategies, key=lambda s: s["priority"])]
+        self._by_effector: dict[str, list[str]] = {}
+        for name, effector in self.order:
+            self._by_effector.setdefault(effector, []).append(name)
         self._kd: dict[str, tuple[cKDTree, np.ndarray] | None] = {}
+        self._oracles: dict[str, Any] = {}
+        for tree in atlas.trees.values():
+            tree.classify(np.zeros((1, tree.dim)))  # build lookup tables now, not on the first request
 
     @property
     def effectors(self) -> list[str]:
-        return sorted({e for _, e in self.order})
+        return sorted(self._by_effector)
 
     def strategies_for(self, effector: str) -> list[str]:
-        names = [n for n, e in self.order if e == effector]
+        names = self._by_effector.get(effector)
         if not names:
             raise ReachError(f"unknown effector {effector!r}; this atlas has {', '.join(self.effectors)}")
         return names
 
-    def _nearest(self, name: str, tree: VATree, goal: np.ndarray) -> tuple[dict[str, float] | None, float | None]:
+    def _stored(self, name: str, tree: VATree, goals: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """Rows of the nearest reachable stored vertices, or None without postures."""
         if name not in self._kd:
             v = tree.vertices
             ok = np.nonzero(v.reachable)[0]
             self._kd[name] = None
             if v.posture is not None and ok.size:
-                pts = tree.lattice.points(tree.lattice.coords(v.keys[ok]))
-                self._kd[name] = (cKDTree(pts), ok)
+                self._kd[name] = (cKDTree(tree.lattice.points(tree.lattice.coords(v.keys[ok]))), ok)
         found = self._kd[name]
         if found is None:
-            return None, None
+            return None
         kd, rows = found
-        _, i = kd.query(goal)
-        row = rows[int(i)]
-        posture = tree.vertices.posture[row]  # type: ignore[index]
-        return dict(zip(tree.vertices.posture_names, map(float, posture), strict=True)), float(tree.vertices.residual[row])
+        _, i = kd.query(goals)
+        return rows[np.asarray(i)], tree.vertices.residual[rows[np.asarray(i)]]
 
-    def select(self, effector: str, goal: np.ndarray) -> Answer:
-        """Choose a strategy for one goal [m]."""
+    def _oracle(self, name: str) -> Any:
+        """The strategy's IK oracle for refinement, built once from the tree's own spec."""
+        if name not in self._oracles:
+            from oracles.protocol import OracleSpec
+
+            meta = self.atlas.trees[name].meta
+            spec = OracleSpec.from_dict(meta["oracle"])
+            oracle = OracleSpec(spec.name, {**spec.params, "restarts": 0, "secondary": True, "max_seconds": self.budget}).create()
+            stored_hash = meta.get("model_hash")
+            body = getattr(oracle, "body", None)
+            if stored_hash and body is not None and body.hash != stored_hash:
+                raise ReachError(f"{self.atlas.path}: strategy {name!r} was built for model {stored_hash}, but its body now builds model {body.hash}; rebuild the atlas")
+            self._oracles[name] = oracle
+        return self._oracles[name]
+
+    def select_many(self, effector: str, goals: np.ndarray, refine: bool | None = None) -> list[Answer]:
+        """Answers for goals (N, d) [m], one tree lookup per strategy for the whole batch."""
         t0 = time.perf_counter()
-        g = np.asarray(goal, dtype=float).reshape(1, -1)
+        g = np.asarray(goals, dtype=float)
         names = self.strategies_for(effector)
-        hits = [n for n in names if bool(self.atlas.trees[n].contains(g, self.policy)[0])]
-        posture = residual = None
-        if hits:
-            posture, residual = self._nearest(hits[0], self.atlas.trees[hits[0]], g[0])
-        return Answer(
-            effector, tuple(map(float, g[0])), hits[0] if hits else None, bool(hits), tuple(hits[1:]),
-            posture, residual, time.perf_counter() - t0,
-        )
+        dim = self.atlas.trees[names[0]].dim
+        if g.ndim != 2 or g.shape[1] != dim:
+            raise ReachError(f"goals must have {dim} coordinates each, got shape {list(g.shape)}")
+        hits = np.stack([self.atlas.trees[n].contains(g, self.policy) for n in names])
+        refine = self.refine if refine is None else refine
+        chosen = np.where(hits.any(axis=0), hits.argmax(axis=0), -1)
+        stored: dict[int, tuple[np.ndarray, np.ndarray] | None] = {}
+        for k in np.unique(chosen[chosen >= 0]):
+            sel = np.nonzero(chosen == k)[0]
+            found = self._stored(names[k], self.atlas.trees[names[k]], g[sel])
+            stored[int(k)] = None if found is None else (sel, *found)  # type: ignore[assignment]
+        answers = []
+        for i in range(len(g)):
+            ti = time.perf_counter()
+            k = int(chosen[i])
+            if k < 0:
+                answers.append(Answer(effector, tuple(map(float, g[i])), None, False))
+                continue
+            name, tree = names[k], self.atlas.trees[names[k]]
+            alternatives = tuple(names[j] for j in range(len(names)) if hits[j, i] and j != k)
+            posture = root = residual = None
+            outcome = UNAVAILABLE
+            entry = stored[k]
+            if entry is not None:
+                sel, rows, res = entry  # type: ignore[misc]
+                j = int(np.searchsorted(sel, i))
+                q = tree.vertices.posture[rows[j]]  # type: ignore[index]
+                residual = float(np.linalg.norm(g[i] - self._effector_position(name, q))) if refine else float(res[j])
+                outcome = SKIPPED
+                if refine:
+                    q, residual, outcome = self._refine(name, g[i], q, residual)
+                posture, root = split_posture(tree.vertices.posture_names, q)
+            answers.append(Answer(
+                effector, tuple(map(float, g[i])), name, True, alternatives, posture, root, residual, outcome,
+                time.perf_counter() - ti if len(g) > 1 else time.perf_counter() - t0,
+            ))
+        return answers
+
+    def _effector_position(self, name: str, q: np.ndarray) -> np.ndarray:
+        oracle = self._oracle(name)
+        return oracle.body.frame_positions(q, [oracle.strategy.effector])[oracle.strategy.effector]  # type: ignore[no-any-return]
+
+    def _refine(self, name: str, goal: np.ndarray, q: np.ndarray, residual: float) -> tuple[np.ndarray, float, str]:
+        oracle = self._oracle(name)
+        t0 = time.perf_counter()
+        v = oracle.evaluate(goal[None], q[None])
+        if v.reachable[0]:
+            return v.posture[0], float(v.residual[0]), REFINED
+        return q, residual, TIMEOUT if time.perf_counter() - t0 >= self.budget else FAILED
+
+    def select(self, effector: str, goal: np.ndarray, refine: bool | None = None) -> Answer:
+        """Choose a strategy for one goal [m]."""
+        return self.select_many(effector, np.asarray(goal, dtype=float).reshape(1, -1), refine)[0]

@@ -1,0 +1,135 @@
+"""The wire protocol of ``reach serve``: constants, request parsing, replies.
+
+Transport: ZeroMQ. Requests go to a ROUTER socket, so REQ and DEALER clients
+are both served; each request is one frame of UTF-8 JSON (after the
+envelope: ``[identity, "", payload]`` for REQ, ``[identity, payload]`` or
+``[identity, "", payload]`` for DEALER). Every choice is also published on a
+PUB socket as ``[effector, json]``. docs/protocol.md is the full reference.
+
+Units: metres and radians; goals are in the atlas's world frame (for the
+generated human: z up, x forward, y left, origin on the floor between the
+ankles). Nothing received is ever unpickled.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from typing import Any
+
+VERSION = 1
+DEFAULT_BIND = "tcp://127.0.0.1:5555"
+DEFAULT_PUB = "tcp://127.0.0.1:5556"
+MAX_MESSAGE_BYTES = 1 << 20  # a request larger than this is refused unread
+MAX_BATCH = 10_000  # goals per query
+POLL_MS = 100  # server poll timeout: how often it checks for a stop request
+PUB_HWM = 1000  # messages queued per subscriber before the PUB socket drops
+
+OPS = ("query", "strategies", "health", "reload")
+
+# Error codes, in replies' "error": {"code": ..., "message": ...}.
+BAD_FRAMES = "bad_frames"  # wrong number of frames or an empty payload
+TOO_LARGE = "too_large"  # message or batch over the limits
+BAD_JSON = "bad_json"  # not UTF-8 JSON, or NaN/Infinity literals
+BAD_REQUEST = "bad_request"  # not an object, missing or ill-typed fields
+UNKNOWN_OP = "unknown_op"
+UNKNOWN_EFFECTOR = "unknown_effector"
+RELOAD_FAILED = "reload_failed"
+INTERNAL = "internal"  # a bug: the server logs it and keeps serving
+
+
+class ProtocolError(Exception):
+    """A request the server refuses, with the code and message of the reply."""
+
+    def __init__(self, code: str, message: str, request_id: Any = None) -> None:
+        super().__init__(message)
+        self.code = code
+        self.message = message
+        self.request_id = request_id
+
+
+@dataclass(frozen=True)
+class Request:
+    """A parsed request. ``goals`` is (N, d) for queries; ``single`` says whether ``goal`` was used."""
+
+    op: str
+    id: Any = None
+    effector: str | None = None
+    goals: list[list[float]] | None = None
+    single: bool = True
+    refine: bool | None = None
+    path: str | None = None
+
+
+def _reject_constant(name: str) -> float:
+    raise ValueError(f"{name} is not allowed")
+
+
+def _number_list(value: Any, field: str, request_id: Any) -> list[float]:
+    if not isinstance(value, list) or not value or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+        raise ProtocolError(BAD_REQUEST, f"'{field}' must be a list of numbers [m], got {json.dumps(value)[:80]}", request_id)
+    if not all(math.isfinite(v) for v in value):
+        raise ProtocolError(BAD_REQUEST, f"'{field}' must hold finite numbers", request_id)
+    return [float(v) for v in value]
+
+
+def parse_request(payload: bytes) -> Request:
+    """Parse and validate one request payload; raises ProtocolError."""
+    if len(payload) > MAX_MESSAGE_BYTES:
+        raise ProtocolError(TOO_LARGE, f"request of {len(payload)} bytes; the limit is {MAX_MESSAGE_BYTES}")
+    if not payload:
+        raise ProtocolError(BAD_FRAMES, "empty request frame")
+    try:
+        data = json.loads(payload.decode("utf-8"), parse_constant=_reject_constant)
+    except (UnicodeDecodeError, ValueError) as exc:
+        raise ProtocolError(BAD_JSON, f"request is not UTF-8 JSON: {exc}") from None
+    if not isinstance(data, dict):
+        raise ProtocolError(BAD_REQUEST, f"request must be a JSON object, got {type(data).__name__}")
+    rid = data.get("id")
+    if (rid is not None and not isinstance(rid, (str, int))) or isinstance(rid, bool):
+        raise ProtocolError(BAD_REQUEST, "'id' must be a string or an integer", None)
+    op = data.get("op")
+    if not isinstance(op, str):
+        raise ProtocolError(BAD_REQUEST, "'op' must be a string naming the operation", rid)
+    if op not in OPS:
+        raise ProtocolError(UNKNOWN_OP, f"unknown op {op!r}; ops are {', '.join(OPS)}", rid)
+    allowed = {"query": {"op", "id", "effector", "goal", "goals", "refine"}, "reload": {"op", "id", "path"}}.get(op, {"op", "id"})
+    extra = sorted(set(data) - allowed)
+    if extra:
+        raise ProtocolError(BAD_REQUEST, f"unknown fields {extra} for op {op!r}; allowed: {sorted(allowed)}", rid)
+    if op == "reload":
+        path = data.get("path")
+        if path is not None and not isinstance(path, str):
+            raise ProtocolError(BAD_REQUEST, "'path' must be a string", rid)
+        return Request(op, rid, path=path)
+    if op != "query":
+        return Request(op, rid)
+    effector = data.get("effector")
+    if not isinstance(effector, str) or not effector:
+        raise ProtocolError(BAD_REQUEST, "'effector' must be a non-empty string", rid)
+    refine = data.get("refine")
+    if refine is not None and not isinstance(refine, bool):
+        raise ProtocolError(BAD_REQUEST, "'refine' must be true or false", rid)
+    if ("goal" in data) == ("goals" in data):
+        raise ProtocolError(BAD_REQUEST, "give exactly one of 'goal' ([x, y, z]) or 'goals' ([[x, y, z], ...])", rid)
+    if "goal" in data:
+        return Request(op, rid, effector, [_number_list(data["goal"], "goal", rid)], True, refine)
+    goals = data["goals"]
+    if not isinstance(goals, list) or not goals:
+        raise ProtocolError(BAD_REQUEST, "'goals' must be a non-empty list of [x, y, z]", rid)
+    if len(goals) > MAX_BATCH:
+        raise ProtocolError(TOO_LARGE, f"{len(goals)} goals; the limit is {MAX_BATCH} per request", rid)
+    parsed = [_number_list(g, f"goals[{i}]", rid) for i, g in enumerate(goals)]
+    if len({len(g) for g in parsed}) != 1:
+        raise ProtocolError(BAD_REQUEST, "every goal must have the same number of coordinates", rid)
+    return Request(op, rid, effector, parsed, False, refine)
+
+
+def encode(data: dict[str, Any]) -> bytes:
+    """UTF-8 JSON of a reply (strict: no NaN)."""
+    return json.dumps(data, allow_nan=False, separators=(",", ":")).encode()
+
+
+def error_reply(code: str, message: str, request_id: Any = None) -> bytes:
+    return encode({"id": request_id, "ok": False, "error": {"code": code, "message": message}})
