@@ -55,23 +55,63 @@ def cmd_info(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_query(args: argparse.Namespace) -> int:
-    from reach.select import Selector
-    from reach.store import load_atlas
+def _goal(values: list[str], with_atlas: bool) -> tuple[str | None, list[float]]:
+    expected = "ATLAS X Y [Z]" if with_atlas else "X Y [Z] (with --connect)"
+    need = (3, 4) if with_atlas else (2, 3)
+    if len(values) not in need:
+        raise ReachError(f"query takes {expected}, got {len(values)} values")
+    atlas = values[0] if with_atlas else None
+    coords = values[1:] if with_atlas else values
+    try:
+        return atlas, [float(v) for v in coords]
+    except ValueError as exc:
+        raise ReachError(f"goal coordinates must be numbers in metres ({exc})") from exc
 
-    goal = np.array([args.x, args.y] + ([args.z] if args.z is not None else []), dtype=float)
-    selector = Selector(load_atlas(args.atlas), policy=args.policy)
-    effectors = [args.effector] if args.effector else selector.effectors
-    answers = [selector.select(e, goal) for e in effectors]
+
+def cmd_query(args: argparse.Namespace) -> int:
+    atlas, goal = _goal(args.values, args.connect is None)
+    refine = None if args.refine is None else args.refine == "on"
+    if args.connect:
+        from reach.client import Client
+
+        with Client(args.connect, timeout=args.timeout, curve_server_key=args.curve_server_key) as client:
+            effectors = [args.effector] if args.effector else client.strategies()["effectors"]
+            answers = [client.query(e, goal, refine) for e in effectors]
+        for a in answers:
+            a.pop("ok", None), a.pop("id", None)
+    else:
+        from reach.select import Selector
+        from reach.store import load_atlas
+
+        selector = Selector(load_atlas(atlas), policy=args.policy, refine=refine is not False)  # type: ignore[arg-type]
+        effectors = [args.effector] if args.effector else selector.effectors
+        answers = [selector.select(e, np.array(goal)).to_dict() for e in effectors]
     if args.json:
-        _print_json({"answers": [a.to_dict() for a in answers]})
+        _print_json({"answers": answers})
         return 0
     for a in answers:
-        if a.reachable:
-            also = f" (also: {', '.join(a.alternatives)})" if a.alternatives else ""
-            print(f"{a.effector}: goal {list(a.goal)} reachable with strategy {a.strategy}{also}")
+        if a["reachable"]:
+            also = f" (also: {', '.join(a['alternatives'])})" if a["alternatives"] else ""
+            print(f"{a['effector']}: goal {a['goal']} reachable with strategy {a['strategy']}{also}")
+            if a.get("posture"):
+                moved = {k: round(v, 4) for k, v in a["posture"].items() if abs(v) > 1e-9}
+                print(f"  posture [rad] (refined: {a['refined']}, residual {a['residual']:.2e} m): {moved}")
         else:
-            print(f"{a.effector}: goal {list(a.goal)} not reachable by any strategy")
+            print(f"{a['effector']}: goal {a['goal']} not reachable by any strategy")
+    return 0
+
+
+def cmd_serve(args: argparse.Namespace) -> int:
+    import logging
+
+    from reach.server import Server
+
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    server = Server(args.atlas, args.bind, None if args.pub == "none" else args.pub, policy=args.policy,
+                    refine=not args.no_refine, budget=args.budget_ms / 1000.0, curve_secret=args.curve_secret_key)
+    print(f"serving {args.atlas} on {server.endpoint}" + (f", publishing on {server.pub_endpoint}" if server.pub_endpoint else ""), flush=True)
+    server.serve_forever()
+    print("server stopped", flush=True)
     return 0
 
 
@@ -136,15 +176,33 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_info)
 
-    p = sub.add_parser("query", help="which strategy reaches a goal", description="Ask an atlas which strategy reaches the goal X Y [Z] (metres, atlas world frame), by priority.")
-    p.add_argument("atlas", help="atlas folder written by 'reach build'")
-    p.add_argument("x", type=float, help="goal x [m]")
-    p.add_argument("y", type=float, help="goal y [m]")
-    p.add_argument("z", type=float, nargs="?", help="goal z [m] (3-D atlases)")
+    p = sub.add_parser(
+        "query", help="which strategy reaches a goal",
+        description="Ask which strategy reaches the goal X Y [Z] (metres, atlas world frame), by priority: "
+        "'reach query ATLAS X Y [Z]' reads the atlas, 'reach query --connect ADDR X Y [Z]' asks a running server.",
+    )
+    p.add_argument("values", nargs="+", metavar="ATLAS X Y [Z]", help="atlas folder (omitted with --connect) and goal [m]")
+    p.add_argument("--connect", metavar="ADDR", help="ask the server at ADDR (e.g. tcp://127.0.0.1:5555) instead of reading an atlas")
     p.add_argument("--effector", help="effector to ask about (default: every effector of the atlas)")
     p.add_argument("--policy", default="vertex", choices=["conservative", "optimistic", "vertex"], help="how boundary cells answer (default: vertex)")
+    p.add_argument("--refine", choices=["on", "off"], help="refine the posture by IK at the exact goal (default: on)")
+    p.add_argument("--timeout", type=int, default=2500, help="with --connect: ms to wait for each reply (default 2500)")
+    p.add_argument("--curve-server-key", metavar="FILE", help="with --connect: the server's CURVE public-key file")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_query)
+
+    p = sub.add_parser(
+        "serve", help="answer queries over ZeroMQ",
+        description="Serve an atlas: JSON requests on a ROUTER socket (REQ or DEALER clients), every choice published on a PUB socket. See docs/protocol.md.",
+    )
+    p.add_argument("atlas", help="atlas folder written by 'reach build'")
+    p.add_argument("--bind", default="tcp://127.0.0.1:5555", help="request address (default tcp://127.0.0.1:5555)")
+    p.add_argument("--pub", default="tcp://127.0.0.1:5556", help="publishing address, or 'none' (default tcp://127.0.0.1:5556)")
+    p.add_argument("--policy", default="vertex", choices=["conservative", "optimistic", "vertex"], help="how boundary cells answer (default: vertex)")
+    p.add_argument("--no-refine", action="store_true", help="answer with stored postures; no IK refinement unless a request asks")
+    p.add_argument("--budget-ms", type=float, default=20.0, help="time budget of one IK refinement [ms] (default 20)")
+    p.add_argument("--curve-secret-key", metavar="FILE", help="encrypt with CURVE, using this server secret-key file (zmq.auth.create_certificates)")
+    p.set_defaults(func=cmd_serve)
 
     p = sub.add_parser(
         "model", help="describe a body", description="Describe a body: its joints and ranges [rad], mass [kg], stature [m] and frame positions [m] in the reference posture (world frame: z up, x forward, y left)."

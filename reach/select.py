@@ -170,10 +170,11 @@ class Selector:
             outcome = UNAVAILABLE
             entry = stored[k]
             if entry is not None:
-                sel, rows, res = entry  # type: ignore[misc]
+                sel, rows, _ = entry  # type: ignore[misc]
                 j = int(np.searchsorted(sel, i))
                 q = tree.vertices.posture[rows[j]]  # type: ignore[index]
-                residual = float(np.linalg.norm(g[i] - self._effector_position(name, q))) if refine else float(res[j])
+                # The stored residual is the vertex's own; what matters is the distance to this goal.
+                residual = float(np.linalg.norm(g[i] - self._effector_position(name, q)))
                 outcome = SKIPPED
                 if refine:
                     q, residual, outcome = self._refine(name, g[i], q, residual)

@@ -20,7 +20,7 @@ def test_every_name_in_all_exists():
         assert getattr(reach, name) is not None
 
 
-@pytest.mark.parametrize("command", [[], ["build"], ["info"], ["query"]])
+@pytest.mark.parametrize("command", [[], ["build"], ["info"], ["query"], ["model"], ["serve"]])
 def test_help_on_every_command(command):
     out = subprocess.run([sys.executable, "-m", "reach.cli", *command, "--help"], capture_output=True, text=True, check=True)
     assert "usage: reach" in out.stdout
@@ -73,6 +73,8 @@ def test_errors_exit_2_with_one_line(tmp_path, capsys):
     assert main(["info", str(tmp_path / "absent")]) == 2
     assert "no such atlas folder" in capsys.readouterr().err
     assert main(["query", str(tmp_path / "absent"), "0", "0"]) == 2
+    assert main(["query", str(tmp_path / "absent"), "zero", "0"]) == 2
+    assert "goal coordinates must be numbers" in capsys.readouterr().err
 
 
 def test_unknown_effector_is_an_error(figure2_atlas, capsys):

@@ -1,0 +1,116 @@
+"""A Python client of ``reach serve``: REQ with timeouts and reconnection.
+
+The Lazy Pirate pattern (zguide, ``lpclient.py``): each request waits at most
+``timeout`` ms; on a timeout the socket is closed with linger 0, reopened and
+the request sent again, up to ``retries`` times. Replies carry the request's
+id, which is checked, so a late reply to an abandoned request is never taken
+for the current one.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+from pathlib import Path
+from typing import Any
+
+import zmq
+import zmq.auth
+
+from reach import protocol as P
+from reach.errors import ReachError
+
+REQUEST_TIMEOUT_MS = 2500
+REQUEST_RETRIES = 3
+
+
+class ServerError(ReachError):
+    """The server answered with an error reply."""
+
+    def __init__(self, code: str, message: str) -> None:
+        super().__init__(f"{code}: {message}")
+        self.code, self.message = code, message
+
+
+class ServerUnavailable(ReachError):
+    """No reply after every retry."""
+
+
+class Client:
+    """Talks to a reach server.
+
+    Args:
+        address: The server's request address, e.g. ``tcp://127.0.0.1:5555``.
+        timeout: Milliseconds to wait for each reply.
+        retries: Attempts before giving up.
+        curve_server_key: Path of the server's public-key file, for CURVE.
+    """
+
+    def __init__(self, address: str = P.DEFAULT_BIND, timeout: int = REQUEST_TIMEOUT_MS, retries: int = REQUEST_RETRIES,
+                 curve_server_key: str | Path | None = None, context: zmq.Context | None = None) -> None:
+        self.address, self.timeout, self.retries = address, timeout, retries
+        self.context = context or zmq.Context.instance()
+        self.curve = None
+        if curve_server_key:
+            server_public, _ = zmq.auth.load_certificate(str(curve_server_key))
+            client_public, client_secret = zmq.curve_keypair()
+            self.curve = (server_public, client_public, client_secret)
+        self._ids = itertools.count(1)
+        self.socket = self._connect()
+
+    def _connect(self) -> zmq.Socket:
+        sock = self.context.socket(zmq.REQ)
+        sock.setsockopt(zmq.LINGER, 0)
+        if self.curve:
+            sock.curve_serverkey, sock.curve_publickey, sock.curve_secretkey = self.curve
+        sock.connect(self.address)
+        return sock
+
+    def close(self) -> None:
+        self.socket.close(linger=0)
+
+    def __enter__(self) -> Client:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def call(self, op: str, **fields: Any) -> dict[str, Any]:
+        """Send one request and return the reply's fields; raises ServerError or ServerUnavailable."""
+        rid = next(self._ids)
+        payload = json.dumps({"op": op, "id": rid, **fields}).encode()
+        for _ in range(self.retries):
+            self.socket.send(payload)
+            if self.socket.poll(self.timeout, zmq.POLLIN):
+                reply = json.loads(self.socket.recv())
+                if reply.get("id") != rid:
+                    raise ServerError("bad_id", f"reply to request {reply.get('id')!r} while waiting for {rid}")
+                if not reply.get("ok"):
+                    err = reply.get("error", {})
+                    raise ServerError(err.get("code", "?"), err.get("message", ""))
+                return dict(reply)
+            # No reply in time: the REQ socket is stuck; rebuild it and resend.
+            self.socket.close(linger=0)
+            self.socket = self._connect()
+        raise ServerUnavailable(f"no reply from {self.address} after {self.retries} attempts of {self.timeout} ms")
+
+    def query(self, effector: str, goal: list[float], refine: bool | None = None) -> dict[str, Any]:
+        fields: dict[str, Any] = {"effector": effector, "goal": [float(v) for v in goal]}
+        if refine is not None:
+            fields["refine"] = refine
+        return self.call("query", **fields)
+
+    def query_many(self, effector: str, goals: list[list[float]], refine: bool | None = None) -> list[dict[str, Any]]:
+        fields: dict[str, Any] = {"effector": effector, "goals": [[float(v) for v in g] for g in goals]}
+        if refine is not None:
+            fields["refine"] = refine
+        return list(self.call("query", **fields)["answers"])
+
+    def strategies(self) -> dict[str, Any]:
+        return self.call("strategies")
+
+    def health(self) -> dict[str, Any]:
+        return self.call("health")
+
+    def reload(self, path: str | None = None) -> dict[str, Any]:
+        return self.call("reload", **({"path": path} if path else {}))

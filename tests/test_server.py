@@ -1,0 +1,316 @@
+"""The ZeroMQ server, end to end over loopback: answers, errors, publishing, robustness."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+import zmq
+import zmq.auth
+
+from reach import protocol as P
+from reach.atlas import build_atlas
+from reach.cli import main
+from reach.client import Client, ServerError, ServerUnavailable
+from reach.config import parse_config
+from reach.server import Server
+
+RECV_MS = 5000
+
+
+def _atlas(tmp_path_factory, name, data):
+    out = tmp_path_factory.mktemp(name) / name
+    build_atlas(parse_config(data, name, name), out)
+    return out
+
+
+@pytest.fixture(scope="module")
+def balls(tmp_path_factory):
+    # Two strategies for one effector: a small ball (priority 1) inside a large one (priority 2).
+    return _atlas(tmp_path_factory, "balls", {
+        "box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 2, "max": 5},
+        "oracle": {"name": "sphere", "params": {"radius": 0.9}},
+        "strategies": [
+            {"name": "near", "effector": "point", "priority": 1, "oracle": {"params": {"radius": 0.4}}},
+            {"name": "far", "effector": "point", "priority": 2},
+        ],
+    })
+
+
+@pytest.fixture(scope="module")
+def cube(tmp_path_factory):
+    return _atlas(tmp_path_factory, "cube", {
+        "box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 1, "max": 3},
+        "oracle": {"name": "box", "params": {"min": [-0.5, -0.5, -0.5], "max": [0.5, 0.5, 0.5]}},
+        "strategies": [{"name": "cube", "effector": "tool"}],
+    })
+
+
+class Running:
+    """A server on a random loopback port, in a thread."""
+
+    def __init__(self, atlas, **kwargs):
+        self.server = Server(atlas, "tcp://127.0.0.1:*", "tcp://127.0.0.1:*", **kwargs)
+        self.thread = threading.Thread(target=self.server.serve_forever, daemon=True)
+        self.thread.start()
+
+    def stop(self):
+        self.server.stop()
+        self.thread.join(timeout=5)
+        assert not self.thread.is_alive()
+
+
+@pytest.fixture
+def running(balls):
+    r = Running(balls)
+    yield r
+    r.stop()
+
+
+@pytest.fixture
+def dealer(running):
+    sock = zmq.Context.instance().socket(zmq.DEALER)
+    sock.setsockopt(zmq.LINGER, 0)
+    sock.setsockopt(zmq.RCVTIMEO, RECV_MS)
+    sock.connect(running.server.endpoint)
+    yield sock
+    sock.close(linger=0)
+
+
+def ask(sock, *frames):
+    sock.send_multipart([b"", *frames])
+    reply = sock.recv_multipart()
+    assert reply[0] == b""
+    return json.loads(reply[-1])
+
+
+def test_query_follows_priorities(running):
+    with Client(running.server.endpoint) as c:
+        inner = c.query("point", [0.1, 0.0, 0.0])
+        assert inner["ok"] and inner["strategy"] == "near" and inner["alternatives"] == ["far"]
+        outer = c.query("point", [0.7, 0.0, 0.0])
+        assert outer["strategy"] == "far" and outer["alternatives"] == []
+        none = c.query("point", [0.95, 0.95, 0.0])
+        assert none["strategy"] is None and none["reachable"] is False
+        assert inner["refined"] == "unavailable" and inner["posture"] is None
+
+
+def test_batch_query_matches_geometry(running):
+    goals = np.random.default_rng(0).uniform(-1, 1, (500, 3))
+    with Client(running.server.endpoint) as c:
+        answers = c.query_many("point", goals.tolist())
+    r = np.linalg.norm(goals, axis=1)
+    got = np.array([a["reachable"] for a in answers])
+    clear = np.abs(r - 0.9) > 0.07  # away from the boundary cells (edge 6.25 cm)
+    assert np.array_equal(got[clear], (r <= 0.9)[clear])
+    near = np.array([a["strategy"] == "near" for a in answers])
+    assert np.all(near[r < 0.33]) and not np.any(near[r > 0.47])
+
+
+def test_health_and_strategies(running):
+    with Client(running.server.endpoint) as c:
+        h = c.health()
+        assert h["status"] == "serving" and h["protocol"] == P.VERSION and h["strategies"] == 2
+        s = c.strategies()
+        assert [x["name"] for x in s["strategies"]] == ["near", "far"] and s["effectors"] == ["point"]
+
+
+@pytest.mark.parametrize(
+    ("payload", "code"),
+    [
+        (b"not json", P.BAD_JSON),
+        (b"\xff\xfe", P.BAD_JSON),
+        (b"[1, 2]", P.BAD_REQUEST),
+        (b'{"op": 3}', P.BAD_REQUEST),
+        (b'{"op": "query", "effector": "point", "goal": "here"}', P.BAD_REQUEST),
+        (b'{"op": "query", "effector": "point", "goal": [0, "a", 0]}', P.BAD_REQUEST),
+        (b'{"op": "query", "effector": 7, "goal": [0, 0, 0]}', P.BAD_REQUEST),
+        (b'{"op": "query", "effector": "point", "goal": [NaN, 0, 0]}', P.BAD_JSON),
+        (b'{"op": "query", "effector": "point", "goal": [Infinity, 0, 0]}', P.BAD_JSON),
+        (b'{"op": "query", "effector": "point", "goal": [1e999, 0, 0]}', P.BAD_REQUEST),
+        (b'{"op": "query", "effector": "point", "goal": [0, 0]}', P.BAD_REQUEST),
+        (b'{"op": "query", "effector": "point"}', P.BAD_REQUEST),
+        (b'{"op": "query", "effector": "point", "goal": [0, 0, 0], "goals": [[0, 0, 0]]}', P.BAD_REQUEST),
+        (b'{"op": "query", "effector": "point", "goal": [0, 0, 0], "colour": 1}', P.BAD_REQUEST),
+        (b'{"op": "query", "effector": "point", "goal": [0, 0, 0], "id": true}', P.BAD_REQUEST),
+        (b'{"op": "fly"}', P.UNKNOWN_OP),
+        (b'{"op": "query", "effector": "left_hand", "goal": [0, 0, 0]}', P.UNKNOWN_EFFECTOR),
+        (b'{"op": "reload", "path": "/nonexistent/atlas"}', P.RELOAD_FAILED),
+    ],
+)
+def test_malformed_requests_get_structured_errors_and_the_server_lives(dealer, payload, code):
+    reply = ask(dealer, payload)
+    assert reply["ok"] is False and reply["error"]["code"] == code and reply["error"]["message"]
+    health = ask(dealer, b'{"op": "health", "id": 9}')
+    assert health["ok"] is True and health["id"] == 9 and health["errors"] >= 1
+
+
+def test_error_replies_echo_the_id(dealer):
+    reply = ask(dealer, b'{"op": "query", "id": "abc", "effector": "point", "goal": [0, 0]}')
+    assert reply["id"] == "abc" and reply["ok"] is False
+
+
+def test_oversized_batch_and_message(dealer):
+    goals = [[0.0, 0.0, 0.0]] * (P.MAX_BATCH + 1)
+    reply = ask(dealer, json.dumps({"op": "query", "effector": "point", "goals": goals}).encode())
+    assert reply["error"]["code"] == P.TOO_LARGE
+    reply = ask(dealer, b" " * (P.MAX_MESSAGE_BYTES + 1))
+    assert reply["error"]["code"] == P.TOO_LARGE
+    assert ask(dealer, b'{"op": "health"}')["ok"]
+
+
+def test_extra_and_empty_frames(dealer):
+    assert ask(dealer, b'{"op": "health"}', b"extra")["error"]["code"] == P.BAD_FRAMES
+    dealer.send_multipart([b""])  # a lone empty frame: no payload at all
+    assert json.loads(dealer.recv_multipart()[-1])["error"]["code"] == P.BAD_FRAMES
+    assert ask(dealer, b"")["error"]["code"] == P.BAD_FRAMES
+    dealer.send_multipart([b'{"op": "health"}'])  # a DEALER without delimiter is served too
+    assert json.loads(dealer.recv_multipart()[-1])["ok"]
+
+
+def test_every_choice_is_published(running):
+    ctx = zmq.Context.instance()
+    sub = ctx.socket(zmq.SUB)
+    sub.setsockopt(zmq.LINGER, 0)
+    sub.setsockopt(zmq.RCVTIMEO, RECV_MS)
+    sub.setsockopt(zmq.SUBSCRIBE, b"point")
+    sub.connect(running.server.pub_endpoint)
+    try:
+        with Client(running.server.endpoint) as c:
+            deadline = time.monotonic() + 5
+            while True:  # the slow-joiner: publish until the subscription has reached the server
+                c.query("point", [0.1, 0.0, 0.0])
+                if sub.poll(100) or time.monotonic() > deadline:
+                    break
+            topic, body = sub.recv_multipart()
+        msg = json.loads(body)
+        assert topic == b"point" and msg["strategy"] == "near" and msg["goal"] == [0.1, 0.0, 0.0]
+    finally:
+        sub.close(linger=0)
+
+
+def test_a_slow_subscriber_never_blocks_replies(running):
+    sub = zmq.Context.instance().socket(zmq.SUB)
+    sub.setsockopt(zmq.LINGER, 0)
+    sub.setsockopt(zmq.RCVHWM, 1)
+    sub.setsockopt(zmq.SUBSCRIBE, b"")
+    sub.connect(running.server.pub_endpoint)  # and never reads
+    try:
+        with Client(running.server.endpoint, timeout=2000, retries=1) as c:
+            for _ in range(20):
+                answers = c.query_many("point", [[0.1, 0.0, 0.0]] * 200)
+                assert len(answers) == 200
+    finally:
+        sub.close(linger=0)
+
+
+def test_reload_hot_swaps_the_atlas(running, cube):
+    with Client(running.server.endpoint) as c:
+        assert c.reload(str(cube))["strategies"] == 1
+        assert c.query("tool", [0.0, 0.0, 0.0])["strategy"] == "cube"
+        with pytest.raises(ServerError, match="unknown_effector"):
+            c.query("point", [0.0, 0.0, 0.0])
+        with pytest.raises(ServerError, match="reload_failed"):
+            c.reload("/nonexistent")
+        assert c.query("tool", [0.0, 0.0, 0.0])["ok"]  # the old atlas is kept
+
+
+def test_lazy_pirate_gives_up_then_survives_a_server_restart(balls):
+    ctx = zmq.Context.instance()
+    probe = ctx.socket(zmq.ROUTER)
+    probe.bind("tcp://127.0.0.1:*")
+    address = probe.getsockopt(zmq.LAST_ENDPOINT).decode()
+    probe.close(linger=0)  # a port with nothing behind it
+    with Client(address, timeout=150, retries=2) as c:
+        with pytest.raises(ServerUnavailable, match="after 2 attempts"):
+            c.health()
+        first = Server(balls, address, None)
+        t = threading.Thread(target=first.serve_forever, daemon=True)
+        t.start()
+        assert c.health()["ok"]
+        first.stop()
+        t.join(5)
+        second = Server(balls, address, None)
+        t = threading.Thread(target=second.serve_forever, daemon=True)
+        t.start()
+        c.timeout, c.retries = 1000, 5
+        assert c.query("point", [0.0, 0.0, 0.0])["strategy"] == "near"
+        second.stop()
+        t.join(5)
+
+
+def test_curve_encryption(balls, tmp_path):
+    server_public, server_secret = zmq.auth.create_certificates(str(tmp_path), "server")
+    r = Running(balls, curve_secret=server_secret)
+    try:
+        with Client(r.server.endpoint, curve_server_key=server_public) as c:
+            assert c.query("point", [0.0, 0.0, 0.0])["ok"]
+        with Client(r.server.endpoint, timeout=300, retries=1) as plain, pytest.raises(ServerUnavailable):
+            plain.health()  # no key: the handshake fails, nothing is answered
+    finally:
+        r.stop()
+
+
+def test_sigterm_stops_the_server_cleanly(balls):
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "reach.cli", "serve", str(balls), "--bind", "tcp://127.0.0.1:*", "--pub", "none"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    try:
+        line = proc.stdout.readline()
+        assert line.startswith("serving")
+        address = line.split(" on ")[1].strip().rstrip(",")
+        with Client(address) as c:
+            assert c.health()["ok"]
+        proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=10)
+        assert proc.returncode == 0 and "server stopped" in out
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+
+
+def test_cli_query_connect(running, capsys):
+    assert main(["query", "--connect", running.server.endpoint, "0.1", "0", "0", "--json"]) == 0
+    answer = json.loads(capsys.readouterr().out)["answers"][0]
+    assert answer["strategy"] == "near" and answer["effector"] == "point"
+
+
+HUMAN = {
+    "body": {"human": {"sex": "male", "percentile": 50}},
+    "box": {"min": [-0.5, -1.0, 0.6], "max": [0.9, 0.4, 2.1]}, "depth": {"min": 1, "max": 3},
+    "oracle": {"name": "casadi-ik", "params": {"restarts": 1, "secondary": False}},
+    "strategies": [{"name": "right_arm", "effector": "right_hand",
+                    "joints": ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"], "tasks": [{"type": "reach"}]}],
+}
+
+
+def test_human_posture_is_refined_at_the_exact_goal(tmp_path_factory):
+    atlas = _atlas(tmp_path_factory, "human", HUMAN)
+    r = Running(atlas, budget=0.5)
+    try:
+        with Client(r.server.endpoint) as c:
+            goal = [0.4, -0.3, 1.2]
+            a = c.query("right_hand", goal)
+            stored = c.query("right_hand", goal, refine=False)
+    finally:
+        r.stop()
+    assert a["strategy"] == "right_arm" and a["refined"] == "ok" and stored["refined"] == "skipped"
+    assert set(a["root"]) == {"position", "quaternion"} and "right_elbow_flexion" in a["posture"]
+    # Independent check: Pinocchio forward kinematics of the returned joint values.
+    from oracles.body import human_body
+
+    body = human_body()
+    q = body.q_ref.copy()
+    q[:3], q[3:7] = a["root"]["position"], a["root"]["quaternion"]
+    for name, value in a["posture"].items():
+        q[body.model.joints[body.joint_id(name)].idx_q] = value
+    hand = body.frame_positions(q, ["right_hand"])["right_hand"]
+    assert np.linalg.norm(hand - goal) <= 0.005 and a["residual"] <= 0.005
+    assert stored["residual"] > a["residual"]  # the stored vertex posture is a cell away
