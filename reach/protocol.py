@@ -131,5 +131,18 @@ def encode(data: dict[str, Any]) -> bytes:
     return json.dumps(data, allow_nan=False, separators=(",", ":")).encode()
 
 
+def ok_reply(body: bytes, request_id: Any) -> bytes:
+    """The reply to a request whose result is the already encoded JSON object body.
+
+    Splicing saves encoding the same answer twice (once published, once replied).
+    """
+    head = b'{"id":' + encode_value(request_id) + b',"ok":true'
+    return head + (b"," + body[1:] if body != b"{}" else b"}")
+
+
+def encode_value(value: Any) -> bytes:
+    return json.dumps(value, allow_nan=False).encode()
+
+
 def error_reply(code: str, message: str, request_id: Any = None) -> bytes:
     return encode({"id": request_id, "ok": False, "error": {"code": code, "message": message}})

@@ -12,7 +12,7 @@ keeps the stored posture and says so.
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -60,10 +60,12 @@ class Answer:
     seconds: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
-        out = asdict(self)
-        out["goal"] = list(self.goal)
-        out["alternatives"] = list(self.alternatives)
-        return out
+        # By hand rather than dataclasses.asdict, whose deep copies cost more than the lookup.
+        return {
+            "effector": self.effector, "goal": list(self.goal), "strategy": self.strategy, "reachable": self.reachable,
+            "alternatives": list(self.alternatives), "posture": self.posture, "root": self.root,
+            "residual": self.residual, "refined": self.refined, "seconds": self.seconds,
+        }
 
 
 def split_posture(names: tuple[str, ...], q: np.ndarray) -> tuple[dict[str, float], dict[str, list[float]] | None]:
@@ -98,6 +100,7 @@ class Selector:
             self._by_effector.setdefault(effector, []).append(name)
         self._kd: dict[str, tuple[cKDTree, np.ndarray] | None] = {}
         self._oracles: dict[str, Any] = {}
+        self._fk: dict[str, Any] = {}
         for tree in atlas.trees.values():
             tree.classify(np.zeros((1, tree.dim)))  # build lookup tables now, not on the first request
 
@@ -186,8 +189,15 @@ class Selector:
         return answers
 
     def _effector_position(self, name: str, q: np.ndarray) -> np.ndarray:
+        """Effector position [m] at q, by Pinocchio with a per-strategy cached data."""
+        import pinocchio as pin
+
         oracle = self._oracle(name)
-        return oracle.body.frame_positions(q, [oracle.strategy.effector])[oracle.strategy.effector]  # type: ignore[no-any-return]
+        if name not in self._fk:
+            self._fk[name] = (oracle.body.model.createData(), oracle.body.frame_id(oracle.strategy.effector))
+        data, fid = self._fk[name]
+        pin.forwardKinematics(oracle.body.model, data, q)
+        return pin.updateFramePlacement(oracle.body.model, data, fid).translation.copy()  # type: ignore[no-any-return]
 
     def _refine(self, name: str, goal: np.ndarray, q: np.ndarray, residual: float) -> tuple[np.ndarray, float, str]:
         oracle = self._oracle(name)

@@ -135,7 +135,7 @@ class Server:
         try:
             req = P.parse_request(payload)
             rid = req.id
-            return P.encode({"id": rid, "ok": True, **self.dispatch(req)})
+            return P.ok_reply(self.dispatch(req), rid)
         except P.ProtocolError as exc:
             self.errors += 1
             return P.error_reply(exc.code, exc.message, exc.request_id if exc.request_id is not None else rid)
@@ -148,7 +148,18 @@ class Server:
             log.exception("internal error")
             return P.error_reply(P.INTERNAL, f"{type(exc).__name__}: {exc}", rid)
 
-    def dispatch(self, req: P.Request) -> dict[str, Any]:
+    def dispatch(self, req: P.Request) -> bytes:
+        """The encoded result object of a valid request."""
+        if req.op == "query":
+            assert req.effector is not None and req.goals is not None
+            answers = self.selector.select_many(req.effector, np.array(req.goals), req.refine)
+            bodies = [P.encode(a.to_dict()) for a in answers]
+            self.publish(req.effector, bodies)
+            return bodies[0] if req.single else b'{"answers":[' + b",".join(bodies) + b"]}"
+        return P.encode(self.control(req))
+
+    def control(self, req: P.Request) -> dict[str, Any]:
+        """Results of the health, strategies and reload ops."""
         if req.op == "health":
             return {
                 "status": "serving", "protocol": P.VERSION, "atlas": str(self.atlas_path), "strategies": len(self.selector.order),
@@ -168,19 +179,16 @@ class Server:
                 raise P.ProtocolError(P.RELOAD_FAILED, f"kept the current atlas: {exc}", req.id) from None
             self.selector, self.atlas_path = selector, path
             return {"atlas": str(path), "strategies": len(selector.order)}
-        assert req.op == "query" and req.effector is not None and req.goals is not None
-        answers = self.selector.select_many(req.effector, np.array(req.goals), req.refine)
-        out = [a.to_dict() for a in answers]
-        self.publish(req.effector, out)
-        return out[0] if req.single else {"answers": out}
+        raise P.ProtocolError(P.UNKNOWN_OP, f"unknown op {req.op!r}", req.id)
 
-    def publish(self, effector: str, answers: list[dict[str, Any]]) -> None:
-        """Publish each choice; a slow subscriber costs a dropped message, never a blocked reply."""
+    def publish(self, effector: str, bodies: list[bytes]) -> None:
+        """Publish each encoded choice; a slow subscriber costs a dropped message, never a blocked reply."""
         if self.publisher is None:
             return
-        for a in answers:
+        topic = effector.encode()
+        for body in bodies:
             try:
-                self.publisher.send_multipart([effector.encode(), P.encode({"effector": effector, **a})], zmq.NOBLOCK)
+                self.publisher.send_multipart([topic, body], zmq.NOBLOCK)
             except zmq.Again:
                 pass
 

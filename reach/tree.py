@@ -283,6 +283,8 @@ class VATree:
         pts = np.asarray(points, dtype=float)
         if pts.ndim != 2 or pts.shape[1] != self.dim:
             raise TreeError(f"points must have shape (N, {self.dim}), got {pts.shape}")
+        if pts.shape[0] == 1:
+            return np.array([self._locate_one(pts[0].tolist())], np.int64)
         cells, inside = self.lattice.cell_of(pts)
         level, table = self._lookup_table()
         shift = self.d_max - level
@@ -290,6 +292,24 @@ class VATree:
         active = np.nonzero(self.kind[node] == PARENT)[0]
         node = self._descend(cells, node, active, level)
         node[~inside] = -1
+        return node
+
+    def _locate_one(self, point: list[float]) -> int:
+        """locate() for a single point in plain Python: a server's per-request path,
+        where numpy's per-call overhead would dominate."""
+        lo, size, n = self.box.lo.tolist(), self.box.size.tolist(), 1 << self.d_max
+        cell = []
+        for p, a, w in zip(point, lo, size, strict=True):
+            rel = (p - a) / w
+            if not 0.0 <= rel <= 1.0:  # also false for NaN
+                return -1
+            cell.append(min(int(rel * n), n - 1))
+        kind, child = self.kind, self.child
+        node, depth = 0, 0
+        while kind[node] == PARENT:
+            shift = self.d_max - depth - 1
+            node = int(child[node]) + sum(((c >> shift) & 1) << i for i, c in enumerate(cell))
+            depth += 1
         return node
 
     def _descend(self, cells: np.ndarray, node: np.ndarray, active: np.ndarray, depth: int) -> np.ndarray:

@@ -1,0 +1,152 @@
+"""Server benchmarks; prints JSON lines.
+
+* Round-trip latency (median, p99) of single-goal queries from one REQ
+  client: with the stored posture (``refine: false``) and with IK refinement.
+* The same for a bare pyzmq ROUTER echo server answering with a message of
+  the size of the server's reply: the floor on this machine.
+* Throughput with 1, 4 and 16 concurrent clients (stored postures).
+
+The atlas is a small human atlas (right arm and upper body, D_max 3) built
+in a temporary folder. Servers run in their own processes.
+
+Run: ``.venv/bin/python bench/server.py [--requests N]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import zmq
+
+from reach.atlas import build_atlas
+from reach.config import parse_config
+
+ARM = ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"]
+CONFIG = {
+    "body": {"human": {"sex": "male", "percentile": 50}},
+    "box": {"min": [-0.5, -1.0, 0.6], "max": [0.9, 0.4, 2.1]}, "depth": {"min": 1, "max": 3},
+    "oracle": {"name": "casadi-ik", "params": {"restarts": 1, "secondary": False}},
+    "strategies": [
+        {"name": "right_arm", "effector": "right_hand", "priority": 1, "joints": ARM, "tasks": [{"type": "reach"}]},
+        {"name": "right_upper_body", "effector": "right_hand", "priority": 2,
+         "joints": [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*", "neck_*"], "tasks": [{"type": "reach"}]},
+    ],
+}
+
+ECHO = """
+import sys, zmq
+ctx = zmq.Context(); s = ctx.socket(zmq.ROUTER); s.bind("tcp://127.0.0.1:*")
+print(s.getsockopt(zmq.LAST_ENDPOINT).decode(), flush=True)
+reply = b"x" * int(sys.argv[1])
+while True:
+    frames = s.recv_multipart()
+    s.send_multipart(frames[:-1] + [reply])
+"""
+
+
+def emit(**fields: object) -> None:
+    print(json.dumps(fields), flush=True)
+
+
+def start(cmd: list[str]) -> tuple[subprocess.Popen, str]:
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+    line = proc.stdout.readline()  # type: ignore[union-attr]
+    address = line.split(" on ")[1].split(",")[0].strip() if " on " in line else line.strip()
+    return proc, address
+
+
+def latencies(address: str, payloads: list[bytes]) -> np.ndarray:
+    sock = zmq.Context.instance().socket(zmq.REQ)
+    sock.setsockopt(zmq.LINGER, 0)
+    sock.connect(address)
+    for p in payloads[:50]:  # warm up
+        sock.send(p)
+        sock.recv()
+    out = []
+    for p in payloads:
+        t0 = time.perf_counter()
+        sock.send(p)
+        sock.recv()
+        out.append(time.perf_counter() - t0)
+    sock.close()
+    return np.array(out)
+
+
+def throughput(address: str, payloads: list[bytes], clients: int, seconds: float = 3.0) -> float:
+    counts = [0] * clients
+    stop = time.perf_counter() + seconds
+
+    def run(k: int) -> None:
+        sock = zmq.Context.instance().socket(zmq.REQ)
+        sock.setsockopt(zmq.LINGER, 0)
+        sock.connect(address)
+        i = 0
+        while time.perf_counter() < stop:
+            sock.send(payloads[i % len(payloads)])
+            sock.recv()
+            i += 1
+        counts[k] = i
+        sock.close()
+
+    threads = [threading.Thread(target=run, args=(k,)) for k in range(clients)]
+    t0 = time.perf_counter()
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    return sum(counts) / (time.perf_counter() - t0)
+
+
+def stats(name: str, lat: np.ndarray, **extra: object) -> dict[str, float]:
+    med, p99 = float(np.median(lat)) * 1e3, float(np.percentile(lat, 99)) * 1e3
+    emit(bench="latency", case=name, requests=len(lat), median_ms=round(med, 4), p99_ms=round(p99, 4), **extra)
+    return {"median": med, "p99": p99}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--requests", type=int, default=3000)
+    args = parser.parse_args()
+    emit(bench="machine", python=platform.python_version(), processor=platform.processor() or platform.machine(), pyzmq=zmq.__version__)
+    with tempfile.TemporaryDirectory() as tmp:
+        atlas = Path(tmp) / "atlas"
+        build_atlas(parse_config(CONFIG, "bench", "bench"), atlas)
+        rng = np.random.default_rng(0)
+        goals = rng.uniform([0.1, -0.6, 0.9], [0.6, 0.0, 1.6], (args.requests, 3))
+        stored = [json.dumps({"op": "query", "id": i, "effector": "right_hand", "goal": g.tolist(), "refine": False}).encode() for i, g in enumerate(goals)]
+        refined = [json.dumps({"op": "query", "id": i, "effector": "right_hand", "goal": g.tolist(), "refine": True}).encode() for i, g in enumerate(goals)]
+        server, address = start([sys.executable, "-m", "reach.cli", "serve", str(atlas), "--bind", "tcp://127.0.0.1:*", "--pub", "tcp://127.0.0.1:*", "--budget-ms", "20"])
+        try:
+            sock = zmq.Context.instance().socket(zmq.REQ)
+            sock.connect(address)
+            sock.send(stored[0])
+            reply_size = len(sock.recv())
+            sock.close()
+            s = stats("stored_posture", latencies(address, stored), request_bytes=len(stored[0]), reply_bytes=reply_size)
+            r = stats("refined", latencies(address, refined[: max(200, args.requests // 5)]))
+            for n in (1, 4, 16):
+                emit(bench="throughput", clients=n, requests_per_s=round(throughput(address, stored, n)))
+        finally:
+            server.terminate()
+            server.wait()
+        echo, echo_address = start([sys.executable, "-c", ECHO, str(reply_size)])
+        try:
+            e = stats("echo", latencies(echo_address, stored), reply_bytes=reply_size)
+            emit(bench="throughput", clients=1, case="echo", requests_per_s=round(throughput(echo_address, stored, 1)))
+        finally:
+            echo.terminate()
+            echo.wait()
+        emit(bench="goals", stored_p99_over_echo_p99=round(s["p99"] / e["p99"], 3), stored_p99_ms=round(s["p99"], 4), refined_p99_ms=round(r["p99"], 4))
+
+
+if __name__ == "__main__":
+    main()
