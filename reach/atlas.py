@@ -1,22 +1,34 @@
 """Atlases: one tree per strategy of a configuration, built and summarised.
 
 ``build_atlas`` runs Algorithm 1 for every strategy of a config and writes
-the trees and the manifest; ``summary`` is what ``reach info`` prints.
+the trees and the manifest. It checkpoints each strategy after every depth
+(``OUT/.partial/<name>.npz``), so a killed build resumes where it stopped
+(``resume=True``); finished trees whose fingerprint matches are kept.
+A strategy with ``mirror_of`` is derived by mirroring when the body passes
+the symmetry check (:mod:`reach.mirror`), unless ``mirror=False``.
+``summary`` is what ``reach info`` prints.
 """
 
 from __future__ import annotations
 
+import hashlib
+import json
 import platform
 import time
+from collections.abc import Callable
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
+from oracles.protocol import OracleSpec
 from reach.build import build_tree
-from reach.config import Config
+from reach.config import Config, StrategySpec
+from reach.errors import ModelError, StoreError
 from reach.executor import Executor, InlineExecutor
-from reach.store import Atlas, load_atlas, save_tree, write_manifest
+from reach.store import Atlas, load_atlas, load_state, load_tree, save_state, save_tree, write_manifest
 from reach.tree import FINAL, INNER, VATree
+
+PARTIAL = ".partial"
 
 
 def package_versions() -> dict[str, str]:
@@ -29,13 +41,41 @@ def package_versions() -> dict[str, str]:
     return out
 
 
+def fingerprint(config: Config, strategy: StrategySpec) -> str:
+    """Identifies what a strategy's tree depends on: its oracle, B0 and depths."""
+    text = json.dumps({"oracle": strategy.oracle.to_dict(), "box": config.box.to_dict(), "depth": [config.d_min, config.d_max]}, sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def _mirror_source(config: Config, s: StrategySpec, built: dict[str, VATree], log: Callable[[str], None]) -> tuple[VATree, Any] | None:
+    """The source tree and mirror map if s may be derived by mirroring, else None (with the reason logged)."""
+    from reach.mirror import MirrorMap
+
+    if s.mirror_of is None or s.mirror_of not in built:
+        return None
+    source = built[s.mirror_of]
+    oracle = OracleSpec.from_dict(source.meta["oracle"]).create()
+    body = getattr(oracle, "body", None)
+    if body is None:
+        log(f"{s.name}: built, not mirrored: its oracle has no body whose symmetry could be checked")
+        return None
+    try:
+        mirror = MirrorMap(body)
+    except ModelError as exc:
+        log(f"{s.name}: built, not mirrored: {exc}")
+        return None
+    return source, mirror
+
+
 def build_atlas(
     config: Config,
     out: str | Path,
     *,
-    executor_factory: Any = None,
+    executor_factory: Callable[[OracleSpec], Executor] | None = None,
     progress: bool = False,
-    log: Any = None,
+    log: Callable[[str], None] | None = None,
+    resume: bool = False,
+    mirror: bool = True,
 ) -> Atlas:
     """Build every strategy's tree of a config into the folder out.
 
@@ -45,37 +85,81 @@ def build_atlas(
         executor_factory: Called with an OracleSpec, returns an Executor;
             inline by default.
         progress: Show progress bars.
-        log: Optional callable receiving one line of text per strategy.
+        log: Receives one line of text per strategy.
+        resume: Keep finished trees and continue from checkpoints.
+        mirror: Derive ``mirror_of`` strategies by mirroring when allowed.
     """
+    from reach.mirror import MirrorOracle
+
+    say = log or (lambda _line: None)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     entries = []
+    built: dict[str, VATree] = {}
     t0 = time.perf_counter()
-    for s in config.strategies:
-        ex: Executor = executor_factory(s.oracle) if executor_factory else InlineExecutor(s.oracle, config.chunk_size)
-        try:
-            meta = {"name": s.name, "effector": s.effector, "priority": s.priority, "oracle": s.oracle.to_dict()}
-            body = getattr(getattr(ex, "oracle", None), "body", None)
-            if body is not None:
-                meta["model_hash"] = body.hash
-            tree = build_tree(s.oracle, config.box, config.d_min, config.d_max, executor=ex, progress=progress, meta=meta)
-        finally:
-            ex.close()
-        save_tree(tree, out / f"{s.name}.npz")
-        if log:
+    # Mirror sources first, so that their trees exist when their images are made.
+    order = sorted(config.strategies, key=lambda s: s.mirror_of is not None)
+    for s in order:
+        path, partial = out / f"{s.name}.npz", out / PARTIAL / f"{s.name}.npz"
+        fp = fingerprint(config, s)
+        meta: dict[str, Any] = {"name": s.name, "effector": s.effector, "priority": s.priority, "oracle": s.oracle.to_dict(), "fingerprint": fp}
+        tree = None
+        if resume and path.is_file():
+            try:
+                old = load_tree(path)
+                if old.meta.get("fingerprint") == fp:
+                    tree = old
+                    say(f"{s.name}: kept the finished tree")
+            except StoreError as exc:
+                say(f"{s.name}: rebuilding ({exc})")
+        source = _mirror_source(config, s, built, say) if tree is None and mirror else None
+        if tree is None and source is not None:
+            tree = build_tree(MirrorOracle(*source), config.box, config.d_min, config.d_max, meta={**meta, "mirrored_from": s.mirror_of})
+            tree.meta["build"]["mirrored_from"] = s.mirror_of
+            tree.meta["build"]["ik_calls"] = 0
+            if "model_hash" in source[0].meta:
+                tree.meta["model_hash"] = source[0].meta["model_hash"]
+            say(f"{s.name}: mirrored from {s.mirror_of} ({len(tree)} nodes, no oracle call)")
+        if tree is None:
+            tree = _build_one(config, s, meta, partial, fp, executor_factory, progress, resume)
             b = tree.meta["build"]
-            log(f"{s.name}: {b['oracle_calls']} oracle calls, {len(tree)} nodes, inner volume {tree.volume(INNER):.6g}, {b['seconds']:.2f} s")
-        entries.append({"name": s.name, "effector": s.effector, "priority": s.priority, "file": f"{s.name}.npz", "oracle": s.oracle.to_dict()})
+            say(f"{s.name}: {b['oracle_calls']} oracle calls, {len(tree)} nodes, inner volume {tree.volume(INNER):.6g}, {b['seconds']:.2f} s")
+        save_tree(tree, path)
+        partial.unlink(missing_ok=True)
+        built[s.name] = tree
+        entries.append({"name": s.name, "effector": s.effector, "priority": s.priority, "file": path.name, "oracle": s.oracle.to_dict(), "fingerprint": fp})
+    entries.sort(key=lambda e: (e["priority"], e["name"]))
     manifest = {
         "name": config.name,
         "config": config.raw,
         "source": config.source,
         "strategies": entries,
+        "model_hashes": sorted({t.meta["model_hash"] for t in built.values() if "model_hash" in t.meta}),
         "versions": package_versions(),
         "build_seconds": time.perf_counter() - t0,
     }
     write_manifest(out, manifest)
+    if (out / PARTIAL).is_dir() and not any((out / PARTIAL).iterdir()):
+        (out / PARTIAL).rmdir()
     return load_atlas(out)
+
+
+def _build_one(
+    config: Config, s: StrategySpec, meta: dict[str, Any], partial: Path, fp: str,
+    executor_factory: Callable[[OracleSpec], Executor] | None, progress: bool, resume: bool,
+) -> VATree:
+    state = load_state(partial, fp) if resume and partial.is_file() else None
+    ex: Executor = executor_factory(s.oracle) if executor_factory else InlineExecutor(s.oracle, config.chunk_size)
+    try:
+        body = getattr(getattr(ex, "oracle", None), "body", None)
+        if body is not None:
+            meta["model_hash"] = body.hash
+        return build_tree(
+            s.oracle, config.box, config.d_min, config.d_max, executor=ex, progress=s.name if progress else False, meta=meta, state=state,
+            on_level=lambda st: save_state(st, partial, fp),
+        )
+    finally:
+        ex.close()
 
 
 def tree_summary(tree: VATree) -> dict[str, Any]:
@@ -94,6 +178,7 @@ def tree_summary(tree: VATree) -> dict[str, Any]:
         "depth": {"min": tree.d_min, "max": tree.d_max},
         "resolution": tree.lattice.resolution.tolist(),
         "build_seconds": build.get("seconds"),
+        "mirrored_from": build.get("mirrored_from"),
     }
 
 
@@ -104,3 +189,4 @@ def summary(atlas: Atlas) -> dict[str, Any]:
         "path": str(atlas.path),
         "strategies": {name: tree_summary(tree) for name, tree in atlas.trees.items()},
     }
+

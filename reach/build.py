@@ -88,7 +88,7 @@ def build_level(state: BuildState, lattice: Lattice, d_min: int, executor: Execu
             hints = warm_hints(table, lattice, pts)
             if progress is not None:
                 progress.reset(total=n_new)
-                progress.set_description(f"depth {d}")
+                progress.set_description(f"{getattr(progress, 'label', '')} depth {d}".strip())
             verdicts = executor.evaluate(pts, hints, progress.update if progress is not None else None)
             table = table.merged(new, verdicts.reachable, verdicts.residual, verdicts.posture)
         inside = table.reachable[table.index(vkeys)]
@@ -125,7 +125,7 @@ def build_tree(
     *,
     executor: Executor | None = None,
     chunk_size: int = 2048,
-    progress: bool = False,
+    progress: bool | str = False,
     meta: dict[str, Any] | None = None,
     state: BuildState | None = None,
     on_level: LevelCallback | None = None,
@@ -139,7 +139,7 @@ def build_tree(
         d_max: Maximum depth; its cells are the surface resolution.
         executor: Who runs the oracle; inline in this process by default.
         chunk_size: Points per oracle call for the default executor.
-        progress: Show a progress bar per depth.
+        progress: Show a progress bar per depth (a string labels it).
         meta: Metadata stored with the tree.
         state: A checkpointed state to resume from.
         on_level: Called with the state after each depth (for checkpoints).
@@ -161,6 +161,7 @@ def build_tree(
         from tqdm import tqdm
 
         bar = tqdm(total=0, unit="vertex", leave=False, dynamic_ncols=True)
+        bar.label = progress if isinstance(progress, str) else ""
     try:
         while state.frontier.shape[0]:
             state = build_level(state, lattice, d_min, ex, bar)

@@ -28,10 +28,38 @@ def cmd_build(args: argparse.Namespace) -> int:
 
     config = load_config(args.config)
     out = Path(args.output) if args.output else Path("out") / config.name
-    print(f"building {len(config.strategies)} strateg{'y' if len(config.strategies) == 1 else 'ies'} of {config.source} into {out}")
-    build_atlas(config, out, progress=not args.quiet, log=print)
+    factory, client, how = _executor_factory(args, config.chunk_size)
+    print(f"building {len(config.strategies)} strateg{'y' if len(config.strategies) == 1 else 'ies'} of {config.source} into {out} ({how})", flush=True)
+    try:
+        build_atlas(config, out, executor_factory=factory, progress=not args.quiet, log=lambda line: print(line, flush=True),
+                    resume=args.resume, mirror=not args.no_mirror)
+    finally:
+        if client is not None:
+            client.close()
     print(f"atlas written to {out}")
     return 0
+
+
+def _executor_factory(args: argparse.Namespace, chunk_size: int) -> tuple[Any, Any, str]:
+    """The executor factory the build options ask for, the Dask client if any, and a description."""
+    import os
+
+    from reach.executor import DaskExecutor, InlineExecutor, ProcessExecutor
+
+    workers = args.workers or os.cpu_count() or 1
+    if args.scheduler or args.dask:
+        from distributed import Client, LocalCluster
+
+        if args.scheduler:
+            client = Client(args.scheduler)
+            how = f"Dask scheduler {args.scheduler}"
+        else:
+            client = Client(LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None))
+            how = f"Dask LocalCluster, {workers} workers"
+        return (lambda spec: DaskExecutor(spec, client, chunk_size)), client, how
+    if workers == 1:
+        return (lambda spec: InlineExecutor(spec, chunk_size)), None, "inline"
+    return (lambda spec: ProcessExecutor(spec, workers, chunk_size)), None, f"{workers} processes"
 
 
 def cmd_info(args: argparse.Namespace) -> int:
@@ -169,6 +197,11 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("config", help="YAML configuration, e.g. configs/sphere.yaml")
     p.add_argument("-o", "--output", help="output folder (default: out/<config name>)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bars")
+    p.add_argument("-j", "--workers", type=int, help="worker processes (default: all cores; 1 runs inline)")
+    p.add_argument("--dask", action="store_true", help="run on a Dask LocalCluster of --workers processes")
+    p.add_argument("--scheduler", metavar="ADDR", help="run on the Dask cluster at ADDR, e.g. tcp://10.0.0.5:8786")
+    p.add_argument("--resume", action="store_true", help="keep finished trees and continue interrupted ones from their last depth")
+    p.add_argument("--no-mirror", action="store_true", help="build both sides instead of mirroring 'mirror_of' strategies")
     p.set_defaults(func=cmd_build)
 
     p = sub.add_parser("info", help="summarise an atlas", description="Print node counts, volumes, extents and oracle calls of every strategy of an atlas.")

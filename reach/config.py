@@ -33,7 +33,7 @@ from reach.errors import ConfigError, TreeError
 from reach.tree import MAX_DEPTH, Box
 
 TOP_KEYS = {"name", "description", "body", "box", "depth", "oracle", "strategies", "build"}
-STRATEGY_KEYS = {"name", "effector", "priority", "oracle", "description", "joints", "tasks"}
+STRATEGY_KEYS = {"name", "effector", "priority", "oracle", "description", "joints", "tasks", "mirror_of"}
 BUILD_KEYS = {"chunk_size"}
 
 
@@ -46,6 +46,8 @@ class StrategySpec:
         effector: What reaches (a frame name such as ``right_hand``).
         priority: Rank among strategies of the same effector; lower is tried first.
         oracle: The oracle deciding reachability for this strategy.
+        mirror_of: A strategy whose tree, mirrored about y = 0, may stand for
+            this one's when the body is mirror-symmetric.
     """
 
     name: str
@@ -53,6 +55,7 @@ class StrategySpec:
     priority: int
     oracle: OracleSpec
     description: str = ""
+    mirror_of: str | None = None
 
 
 @dataclass(frozen=True)
@@ -167,9 +170,16 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
             if "joints" not in s:
                 raise check.fail(f"{key}.joints", "required key is missing (the joints this strategy may move)")
             oracle = OracleSpec(oracle.name, {**oracle.params, "body": top["body"], "effector": effector, "joints": s["joints"], "tasks": s.get("tasks")})
-        strategies.append(StrategySpec(sname, effector, priority, oracle, str(s.get("description", ""))))
+        mirror_of = check.string(s["mirror_of"], f"{key}.mirror_of") if "mirror_of" in s else None
+        strategies.append(StrategySpec(sname, effector, priority, oracle, str(s.get("description", "")), mirror_of))
     build = check.mapping(top.get("build", {}), "build", BUILD_KEYS)
     chunk = check.integer(build.get("chunk_size", 2048), "build.chunk_size", 1, 10**7)
+    names = {s.name for s in strategies}
+    for i, s in enumerate(strategies):
+        if s.mirror_of is not None and (s.mirror_of not in names or s.mirror_of == s.name):
+            raise check.fail(f"strategies[{i}].mirror_of", f"expected the name of another strategy, got {s.mirror_of!r}")
+        if s.mirror_of is not None and box.dim == 3 and box.lo[1] != -box.hi[1]:
+            raise check.fail(f"strategies[{i}].mirror_of", f"mirroring needs a box symmetric about y = 0, got y in [{box.lo[1]}, {box.hi[1]}]")
     _check_oracles(check, strategies, box.dim)
     strategies.sort(key=lambda s: s.priority)
     return Config(name, source, box, d_min, d_max, tuple(strategies), chunk, dict(top))

@@ -8,9 +8,12 @@ so heavy solver objects are never pickled per task.
 
 from __future__ import annotations
 
+import json
+import os
+import threading
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -60,38 +63,45 @@ class InlineExecutor:
         pass
 
 
-# One oracle per worker process, built on first use from its spec.
+# One oracle per worker process, built on first use from its spec: the cache
+# lives in each worker process (a pool process or a Dask worker), never in
+# the process that builds the tree. The lock serialises threads of one worker.
 _WORKER_ORACLES: dict[str, Oracle] = {}
+_WORKER_LOCK = threading.Lock()
 
 
 def _worker_evaluate(spec: OracleSpec, key: str, points: np.ndarray, hints: np.ndarray | None) -> Verdicts:
-    oracle = _WORKER_ORACLES.get(key)
-    if oracle is None:
-        oracle = _WORKER_ORACLES[key] = spec.create()
-    return oracle.evaluate(points, hints)
+    with _WORKER_LOCK:
+        oracle = _WORKER_ORACLES.get(key)
+        if oracle is None:
+            oracle = _WORKER_ORACLES[key] = spec.create()
+        return oracle.evaluate(points, hints)
 
 
-class ProcessExecutor:
-    """Runs chunks on a pool of local processes."""
+class _Pooled:
+    """Shared plumbing of executors that send chunks to workers by spec."""
 
-    def __init__(self, spec: OracleSpec, workers: int, chunk_size: int = 512) -> None:
-        import json
+    workers: int = 1
 
+    def __init__(self, spec: OracleSpec, chunk_size: int) -> None:
         local = spec.create()
-        self.oracle = local  # for metadata (model hash); work runs in the pool
+        self.oracle = local  # for metadata (model hash); the work runs on the workers
         self.spec = spec
         self.key = json.dumps(spec.to_dict(), sort_keys=True)
         self.dim = local.dim
         self.posture_names = tuple(local.posture_names)
         self.chunk_size = chunk_size
-        self.pool = ProcessPoolExecutor(max_workers=workers)
+
+    def submit(self, points: np.ndarray, hints: np.ndarray | None) -> tuple[list[slice], list[Any]]:
+        raise NotImplementedError  # each pool submits its own way
+
+    def slices(self, n: int) -> list[slice]:
+        """Chunks of at most chunk_size, and at least four per worker when the batch allows."""
+        size = max(1, min(self.chunk_size, -(-n // (4 * max(self.workers, 1)))))
+        return list(chunks(n, size))
 
     def evaluate(self, points: np.ndarray, hints: np.ndarray | None, progress: Progress | None = None) -> Verdicts:
-        slices = list(chunks(points.shape[0], self.chunk_size))
-        futures = [
-            self.pool.submit(_worker_evaluate, self.spec, self.key, points[sl], None if hints is None else hints[sl])
-            for sl in slices
-        ]
+        slices, futures = self.submit(points, hints)
         parts = []
         for sl, fut in zip(slices, futures, strict=True):
             parts.append(check_verdicts(fut.result(), sl.stop - sl.start, len(self.posture_names)))
@@ -99,5 +109,44 @@ class ProcessExecutor:
                 progress(sl.stop - sl.start)
         return Verdicts.concatenate(parts)
 
+
+class ProcessExecutor(_Pooled):
+    """Runs chunks on a pool of local processes (``--workers N``)."""
+
+    def __init__(self, spec: OracleSpec, workers: int | None = None, chunk_size: int = 2048) -> None:
+        super().__init__(spec, chunk_size)
+        self.workers = workers or os.cpu_count() or 1
+        self.pool = ProcessPoolExecutor(max_workers=self.workers)
+
+    def submit(self, points: np.ndarray, hints: np.ndarray | None) -> tuple[list[slice], list[Any]]:
+        slices = self.slices(points.shape[0])
+        return slices, [
+            self.pool.submit(_worker_evaluate, self.spec, self.key, points[sl], None if hints is None else hints[sl]) for sl in slices
+        ]
+
     def close(self) -> None:
         self.pool.shutdown()
+
+
+class DaskExecutor(_Pooled):
+    """Runs chunks on a Dask cluster through a ``distributed.Client``.
+
+    Each task carries the oracle's small spec; every worker process builds the
+    oracle once and keeps it for the following chunks.
+    """
+
+    def __init__(self, spec: OracleSpec, client: Any, chunk_size: int = 2048) -> None:
+        super().__init__(spec, chunk_size)
+        self.client = client
+        self.workers = max(1, len(client.scheduler_info().get("workers", {})))
+
+    def submit(self, points: np.ndarray, hints: np.ndarray | None) -> tuple[list[slice], list[Any]]:
+        slices = self.slices(points.shape[0])
+        futures = self.client.map(
+            _worker_evaluate, [self.spec] * len(slices), [self.key] * len(slices), [points[sl] for sl in slices],
+            [None if hints is None else hints[sl] for sl in slices], pure=False,
+        )
+        return slices, futures
+
+    def close(self) -> None:
+        pass  # the client belongs to whoever made it

@@ -199,3 +199,53 @@ def load_atlas(folder: str | Path) -> Atlas:
     manifest = read_manifest(folder)
     trees = {s["name"]: load_tree(folder / s["file"]) for s in manifest["strategies"]}
     return Atlas(folder, manifest, trees)
+
+
+STATE_FORMAT = "reach.buildstate"
+
+
+def save_state(state: Any, path: str | Path, fingerprint: str) -> Path:
+    """Checkpoint a build after a depth (see :class:`reach.build.BuildState`)."""
+    path = Path(path)
+    v = state.vertices
+    meta = {"format": STATE_FORMAT, "version": TREE_VERSION, "depth": state.depth, "levels": state.levels,
+            "fingerprint": fingerprint, "posture_names": list(v.posture_names), "sizes": [int(k.shape[0]) for k in state.kinds]}
+    arrays = {
+        "meta": np.frombuffer(json.dumps(meta).encode(), np.uint8),
+        "frontier": state.frontier.astype(np.int64),
+        "kinds": np.concatenate(state.kinds).astype(np.uint8) if state.kinds else np.zeros(0, np.uint8),
+        "corners": np.concatenate(state.corners).astype(np.int64) if state.corners else np.zeros((0, state.frontier.shape[1]), np.int64),
+        "vertex_keys": v.keys, "vertex_reachable": v.reachable, "vertex_residual": v.residual,
+    }
+    if v.posture is not None:
+        arrays["vertex_posture"] = v.posture
+    path.parent.mkdir(parents=True, exist_ok=True)
+    _atomic_write(path, lambda fh: np.savez(fh, **arrays))
+    return path
+
+
+def load_state(path: str | Path, fingerprint: str) -> Any:
+    """A checkpoint written by :func:`save_state`, or None if it belongs to another build."""
+    from reach.build import BuildState
+
+    path = Path(path)
+    arrays = _read_arrays(path)
+    try:
+        meta = json.loads(_field(path, arrays, "meta", np.uint8, 1).tobytes())
+    except json.JSONDecodeError as exc:
+        raise StoreError(path, f"checkpoint metadata is not JSON ({exc})") from exc
+    if meta.get("format") != STATE_FORMAT or meta.get("version") != TREE_VERSION:
+        raise StoreError(path, "not a reach build checkpoint of this version; delete it or build without --resume")
+    if meta.get("fingerprint") != fingerprint:
+        return None
+    sizes = meta["sizes"]
+    bounds = np.cumsum([0, *sizes])
+    kinds = _field(path, arrays, "kinds", np.uint8, 1)
+    corners = _field(path, arrays, "corners", np.int64, 2)
+    posture = arrays.get("vertex_posture")
+    table = VertexTable(arrays["vertex_keys"], arrays["vertex_reachable"], arrays["vertex_residual"], posture, tuple(meta["posture_names"]))
+    return BuildState(
+        int(meta["depth"]), _field(path, arrays, "frontier", np.int64, 2),
+        [kinds[a:b] for a, b in zip(bounds, bounds[1:], strict=False)], [corners[a:b] for a, b in zip(bounds, bounds[1:], strict=False)],
+        table, list(meta["levels"]),
+    )
