@@ -150,12 +150,9 @@ def cmd_model(args: argparse.Namespace) -> int:
     if spec == "human":
         body = human_body(args.sex, args.stature, args.percentile, args.mass)
     elif spec.endswith((".yaml", ".yml")):
-        import yaml
+        from reach.config import read_yaml
 
-        try:
-            data = yaml.safe_load(Path(spec).read_text())
-        except (OSError, yaml.YAMLError) as exc:
-            raise ReachError(f"{spec}: cannot read the config ({exc})") from exc
+        data = read_yaml(Path(spec))
         if not isinstance(data, dict) or "body" not in data:
             raise ReachError(f"{spec}: body: the config names no body")
         body = load_body(data["body"])
@@ -183,6 +180,46 @@ def cmd_model(args: argparse.Namespace) -> int:
     for j in info["joints"]:
         print(f"  {j['name']:<28} [{j['lower']:+.4f}, {j['upper']:+.4f}]")
     print(f"  centre of mass {info['center_of_mass']}")
+    return 0
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    from reach.report import markdown, report
+    from reach.store import load_atlas
+
+    atlas = load_atlas(args.atlas)
+    names = args.strategies.split(",") if args.strategies else None
+    if names:
+        unknown = [n for n in names if n not in atlas.trees]
+        if unknown:
+            raise ReachError(f"unknown strategies {unknown}; the atlas has {', '.join(atlas.trees)}")
+    tables = report(atlas, args.output, args.level, names)
+    print(markdown(tables, str(atlas.manifest.get("name", atlas.path))))
+    print("figures: " + ", ".join(tables["figures"]))
+    return 0
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from reach.export import export_mesh
+    from reach.store import load_atlas
+
+    atlas = load_atlas(args.atlas)
+    if args.strategy not in atlas.trees:
+        raise ReachError(f"unknown strategy {args.strategy!r}; the atlas has {', '.join(atlas.trees)}")
+    path = export_mesh(atlas.trees[args.strategy], args.output, args.level)
+    print(f"wrote {path}")
+    return 0
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    from reach.evaluate import evaluate, load_targets, text_table
+    from reach.store import load_atlas
+
+    results = evaluate([load_atlas(a) for a in args.atlas], load_targets(args.targets), args.effector, args.policy)
+    if args.json:
+        _print_json(results)
+    else:
+        print(text_table(results))
     return 0
 
 
@@ -236,6 +273,28 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--budget-ms", type=float, default=20.0, help="time budget of one IK refinement [ms] (default 20)")
     p.add_argument("--curve-secret-key", metavar="FILE", help="encrypt with CURVE, using this server secret-key file (zmq.auth.create_certificates)")
     p.set_defaults(func=cmd_serve)
+
+    p = sub.add_parser("report", help="tables and figures comparing strategies", description="Write report.md, report.json and PNG figures (boxes, colours as the paper's Figure 8, overlay as Figure 11, slices) of an atlas into DIR.")
+    p.add_argument("atlas", help="atlas folder written by 'reach build'")
+    p.add_argument("-o", "--output", required=True, metavar="DIR", help="folder for the report")
+    p.add_argument("--strategies", help="comma-separated strategies for the figures (default: all)")
+    p.add_argument("--level", type=int, default=5, help="figure grid: 2**LEVEL cells per axis (default 5)")
+    p.set_defaults(func=cmd_report)
+
+    p = sub.add_parser("export", help="mesh of a strategy's volume", description="Write the surface of a strategy's reachable volume (marching cubes) as STL or PLY, in metres.")
+    p.add_argument("atlas", help="atlas folder written by 'reach build'")
+    p.add_argument("strategy", help="strategy name")
+    p.add_argument("-o", "--output", required=True, metavar="FILE", help="FILE.stl or FILE.ply")
+    p.add_argument("--level", type=int, help="lattice depth to sample (default: D_max)")
+    p.set_defaults(func=cmd_export)
+
+    p = sub.add_parser("evaluate", help="which strategy reaches each target, per atlas", description="For each target of a CSV (name, x, y, z [m], optional effector), which strategy each atlas chooses; several atlases give a population table.")
+    p.add_argument("atlas", nargs="+", help="atlas folders")
+    p.add_argument("--targets", required=True, help="CSV file with name, x, y, z[, effector]")
+    p.add_argument("--effector", help="effector for targets without one")
+    p.add_argument("--policy", default="vertex", choices=["conservative", "optimistic", "vertex"], help="how boundary cells answer (default: vertex)")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser(
         "model", help="describe a body", description="Describe a body: its joints and ranges [rad], mass [kg], stature [m] and frame positions [m] in the reference posture (world frame: z up, x forward, y left)."

@@ -32,7 +32,7 @@ from oracles.protocol import OracleSpec
 from reach.errors import ConfigError, TreeError
 from reach.tree import MAX_DEPTH, Box
 
-TOP_KEYS = {"name", "description", "body", "box", "depth", "oracle", "strategies", "build"}
+TOP_KEYS = {"name", "description", "base", "body", "box", "depth", "oracle", "strategies", "build"}
 STRATEGY_KEYS = {"name", "effector", "priority", "oracle", "description", "joints", "tasks", "mirror_of"}
 BUILD_KEYS = {"chunk_size"}
 
@@ -198,9 +198,19 @@ def _check_oracles(check: _Checker, strategies: list[StrategySpec], dim: int) ->
             raise check.fail("box", f"box is {dim}-D but strategy {s.name!r} uses a {oracle.dim}-D oracle")
 
 
-def load_config(path: str | Path) -> Config:
-    """Read and validate a YAML configuration file."""
-    path = Path(path)
+def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    """Mappings merge key by key; anything else in over replaces base."""
+    out = dict(base)
+    for k, v in over.items():
+        out[k] = _merge(out[k], v) if isinstance(v, Mapping) and isinstance(out.get(k), Mapping) else v
+    return out
+
+
+def read_yaml(path: Path, seen: tuple[Path, ...] = ()) -> Any:
+    """A config document, with its ``base`` (a config it extends) merged under it.
+
+    Relative paths (``base``, ``body.urdf``) are relative to the file naming them.
+    """
     try:
         text = path.read_text()
     except OSError as exc:
@@ -209,4 +219,26 @@ def load_config(path: str | Path) -> Config:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         raise ConfigError(path, "", f"not valid YAML: {exc}") from exc
-    return parse_config(data, str(path), path.stem)
+    if not isinstance(data, Mapping):
+        return data
+    data = dict(data)
+    body = data.get("body")
+    if isinstance(body, Mapping) and isinstance(body.get("urdf"), str) and not Path(body["urdf"]).is_absolute():
+        data["body"] = {**body, "urdf": str((path.parent / body["urdf"]).resolve())}
+    if "base" in data:
+        if not isinstance(data["base"], str):
+            raise ConfigError(path, "base", f"expected the path of a config to extend, got {data['base']!r}")
+        base_path = (path.parent / data.pop("base")).resolve()
+        if base_path in seen:
+            raise ConfigError(path, "base", f"{base_path} extends itself")
+        base = read_yaml(base_path, (*seen, path.resolve()))
+        if not isinstance(base, Mapping):
+            raise ConfigError(base_path, "", "expected a mapping")
+        data = _merge({k: v for k, v in base.items() if k != "name"}, data)
+    return data
+
+
+def load_config(path: str | Path) -> Config:
+    """Read and validate a YAML configuration file."""
+    path = Path(path)
+    return parse_config(read_yaml(path), str(path), path.stem)

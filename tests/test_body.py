@@ -125,7 +125,7 @@ def test_range_override_errors_name_the_joint():
 
 
 def test_a_urdf_we_did_not_generate_loads_with_a_floating_root():
-    body = urdf_body(HERE / "data" / "ur5.urdf")
+    body = urdf_body(HERE.parent / "configs" / "urdf" / "ur5.urdf")
     assert body.joint_names[:2] == ["shoulder_pan_joint", "shoulder_lift_joint"]
     assert body.mass == pytest.approx(4.0 + 3.7 + 8.393 + 2.275 + 1.219 * 2 + 0.1879)  # root link included
     assert body.model.names[1] == "root"
@@ -159,5 +159,5 @@ def test_reach_model_json(capsys):
     assert {"name", "lower", "upper"} == set(info["joints"][0])
     assert set(info["frames"]) >= {"right_hand", "left_hand", "right_foot", "eyes", "right_shoulder"}
     assert info["mass"] > 40
-    assert main(["model", str(HERE / "data" / "ur5.urdf"), "--json"]) == 0
+    assert main(["model", str(HERE.parent / "configs" / "urdf" / "ur5.urdf"), "--json"]) == 0
     assert "ee_link" in json.loads(capsys.readouterr().out)["frames"]

@@ -143,7 +143,7 @@ def test_dls_agrees_with_casadi_and_holds_under_fk():
 
 
 def test_ik_on_a_urdf_robot():
-    body = {"urdf": str(ROOT / "tests" / "data" / "ur5.urdf")}
+    body = {"urdf": str(ROOT / "configs" / "urdf" / "ur5.urdf")}
     oracle = CasadiIK(body, "ee_link", ["*_joint"], restarts=2)
     pts = np.array([[0.4, 0.2, 0.3], [0.0, 0.5, 0.6], [2.0, 0.0, 0.0]])
     v = oracle.evaluate(pts)

@@ -1,0 +1,89 @@
+"""Evaluating a layout: which strategy reaches each target, for one body or a population.
+
+Targets come from a CSV file with a header and the columns ``name, x, y, z``
+[m, atlas world frame] and optionally ``effector`` (else the one given on the
+command line). For each atlas and target the priority mechanism gives the
+chosen strategy (or none) and the other strategies that reach it. Given
+several atlases (say a 5th-percentile woman, a 50th- and a 95th-percentile
+man), the population table shows, per target, the strategy each body uses:
+the ergonomics question the paper opens with (front-panel controls in a car).
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from reach.errors import ConfigError
+from reach.select import Selector
+from reach.store import Atlas
+
+
+@dataclass(frozen=True)
+class Target:
+    name: str
+    point: tuple[float, float, float]
+    effector: str | None = None
+
+
+def load_targets(path: str | Path) -> list[Target]:
+    """Read targets; errors name the file, the row and the column."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ConfigError(path, "", f"cannot read: {exc.strerror or exc}") from exc
+    rows = list(csv.DictReader(text.splitlines()))
+    need = {"name", "x", "y", "z"}
+    if not rows or not need <= set(rows[0]):
+        raise ConfigError(path, "header", f"expected the columns name, x, y, z (and optionally effector), got {sorted(rows[0]) if rows else 'nothing'}")
+    out = []
+    for i, row in enumerate(rows, start=2):
+        try:
+            point = (float(row["x"]), float(row["y"]), float(row["z"]))
+        except (TypeError, ValueError):
+            raise ConfigError(path, f"row {i}", f"x, y and z must be numbers in metres, got {row.get('x')!r}, {row.get('y')!r}, {row.get('z')!r}") from None
+        if not all(np.isfinite(point)):
+            raise ConfigError(path, f"row {i}", "x, y and z must be finite")
+        out.append(Target(row["name"], point, (row.get("effector") or "").strip() or None))
+    return out
+
+
+def evaluate(atlases: list[Atlas], targets: list[Target], effector: str | None = None, policy: str = "vertex") -> dict[str, Any]:
+    """Per atlas and target: the chosen strategy, the alternatives; and a summary."""
+    results: dict[str, Any] = {"atlases": [], "targets": [t.name for t in targets]}
+    for atlas in atlases:
+        selector = Selector(atlas, policy, refine=False)  # type: ignore[arg-type]
+        rows = []
+        for t in targets:
+            eff = t.effector or effector or (selector.effectors[0] if len(selector.effectors) == 1 else None)
+            if eff is None:
+                raise ConfigError("targets", t.name, f"no effector: give an effector column or --effector (one of {', '.join(selector.effectors)})")
+            a = selector.select(eff, np.array(t.point), refine=False)
+            rows.append({"target": t.name, "effector": eff, "point": list(t.point), "strategy": a.strategy, "reachable": a.reachable,
+                         "also": list(a.alternatives)})
+        reached = sum(r["reachable"] for r in rows)
+        by_strategy: dict[str, int] = {}
+        for r in rows:
+            key = r["strategy"] or "none"
+            by_strategy[key] = by_strategy.get(key, 0) + 1
+        results["atlases"].append({"atlas": str(atlas.path), "name": atlas.manifest.get("name"), "rows": rows,
+                                   "summary": {"targets": len(rows), "reachable": reached, "unreachable": len(rows) - reached, "by_strategy": by_strategy}})
+    return results
+
+
+def text_table(results: dict[str, Any]) -> str:
+    """The population table: one row per target, one column per atlas."""
+    names = [a["name"] or Path(a["atlas"]).name for a in results["atlases"]]
+    width = max([len("target"), *map(len, results["targets"])])
+    cols = [max(len(n), *(len(r["strategy"] or "none") for r in a["rows"])) for n, a in zip(names, results["atlases"], strict=True)]
+    lines = ["  ".join(["target".ljust(width), *(n.ljust(c) for n, c in zip(names, cols, strict=True))])]
+    for i, t in enumerate(results["targets"]):
+        cells = [(a["rows"][i]["strategy"] or "none").ljust(c) for a, c in zip(results["atlases"], cols, strict=True)]
+        lines.append("  ".join([t.ljust(width), *cells]))
+    lines.append("  ".join(["reachable".ljust(width), *(f"{a['summary']['reachable']}/{a['summary']['targets']}".ljust(c) for a, c in zip(results["atlases"], cols, strict=True))]))
+    return "\n".join(lines)
