@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
 
-.PHONY: run test lint bench clean
+.PHONY: run sphere test lint bench clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -11,11 +11,21 @@ $(VENV)/.installed: pyproject.toml
 	$(PY) -m pip install --quiet -e '.[test]'
 	touch $@
 
+# The main job: the demo human atlas (8 strategies), its report and sample
+# queries. --resume keeps trees already built by an earlier run.
 run: $(VENV)/.installed
+	$(VENV)/bin/reach build configs/demo.yaml -o out/demo --resume
+	$(VENV)/bin/reach info out/demo
+	$(VENV)/bin/reach report out/demo -o out/demo/report
+	$(VENV)/bin/reach query out/demo 0.45 -0.25 1.20 --effector right_hand
+	$(VENV)/bin/reach query out/demo 0.35 -0.15 0.05 --effector right_hand
+	$(VENV)/bin/reach evaluate out/demo --targets configs/targets/workstation.csv
+
+# The analytic example of the VATree core: a unit sphere.
+sphere: $(VENV)/.installed
 	$(VENV)/bin/reach build configs/sphere.yaml -o out/sphere
 	$(VENV)/bin/reach info out/sphere
 	$(VENV)/bin/reach query out/sphere 0.5 0.2 -0.3
-	$(VENV)/bin/reach query out/sphere 0.9 0.9 0.0
 
 lint: $(VENV)/.installed
 	$(VENV)/bin/ruff check reach oracles tests bench
@@ -25,6 +35,9 @@ test: lint
 
 bench: $(VENV)/.installed
 	$(PY) bench/tree.py
+	$(PY) bench/ik.py
+	$(PY) bench/server.py
+	$(PY) bench/build.py
 
 clean:
 	rm -rf $(VENV) out

@@ -126,7 +126,7 @@ class CasadiIK(IKOracle):
         (others as :class:`IKOracle`)
     """
 
-    def __init__(self, *args: Any, max_iter: int = 200, **kwargs: Any) -> None:
+    def __init__(self, *args: Any, max_iter: int = 60, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         p, s = self.problem, self.strategy
         x, goal = p.x_sym, ca.SX.sym("goal", 3)
@@ -145,7 +145,7 @@ class CasadiIK(IKOracle):
             self.order = self.order[: self.order.index("reach") + 1]
         self.objectives = objectives
         g, lbg, ubg = self._hard_constraints(kin)
-        opts = {**({"ipopt.max_wall_time": self.max_seconds} if self.max_seconds else {}), "ipopt.print_level": 0, "print_time": 0, "ipopt.sb": "yes", "ipopt.max_iter": int(max_iter), "ipopt.tol": 1e-10, "ipopt.acceptable_tol": 1e-8}
+        opts = {**({"ipopt.max_wall_time": self.max_seconds} if self.max_seconds else {}), "ipopt.print_level": 0, "print_time": 0, "ipopt.sb": "yes", "ipopt.max_iter": int(max_iter), "ipopt.tol": 1e-6, "ipopt.acceptable_tol": 1e-4}
         self.stages = []
         for k, task in enumerate(self.order):
             # Earlier objectives become constraints. Reach is held per axis

@@ -86,6 +86,20 @@ def _read_arrays(path: Path) -> dict[str, np.ndarray]:
         raise StoreError(path, f"corrupt tree file ({type(exc).__name__}: {exc})") from exc
 
 
+def _header(path: Path, raw: bytes, fmt: str, version: int, what: str) -> dict[str, Any]:
+    """Parse JSON metadata and check its format and version, or raise a StoreError naming the file."""
+    try:
+        meta = json.loads(raw.decode())
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise StoreError(path, f"metadata is not valid JSON ({exc})") from exc
+    if not isinstance(meta, dict) or meta.get("format") != fmt:
+        found = meta.get("format") if isinstance(meta, dict) else None
+        raise StoreError(path, f"not a reach {what} (format {found!r}, expected {fmt!r})")
+    if meta.get("version") != version:
+        raise StoreError(path, f"{what} format version {meta.get('version')!r}, this reach reads version {version}; rebuild it")
+    return meta
+
+
 def _field(path: Path, arrays: dict[str, np.ndarray], name: str, dtype: Any, ndim: int) -> np.ndarray:
     if name not in arrays:
         raise StoreError(path, f"missing array {name!r}")
@@ -104,15 +118,7 @@ def load_tree(path: str | Path) -> VATree:
     """
     path = Path(path)
     arrays = _read_arrays(path)
-    raw = _field(path, arrays, "meta", np.uint8, 1)
-    try:
-        meta = json.loads(raw.tobytes().decode())
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise StoreError(path, f"metadata is not valid JSON ({exc})") from exc
-    if not isinstance(meta, dict) or meta.get("format") != TREE_FORMAT:
-        raise StoreError(path, f"not a reach tree (format {meta.get('format') if isinstance(meta, dict) else None!r}, expected {TREE_FORMAT!r})")
-    if meta.get("version") != TREE_VERSION:
-        raise StoreError(path, f"tree format version {meta.get('version')!r}, this reach reads version {TREE_VERSION}; rebuild the tree")
+    meta = _header(path, _field(path, arrays, "meta", np.uint8, 1).tobytes(), TREE_FORMAT, TREE_VERSION, "tree")
     try:
         box = Box(np.asarray(meta["box"]["min"], float), np.asarray(meta["box"]["max"], float))
         d_min, d_max = int(meta["d_min"]), int(meta["d_max"])
@@ -179,14 +185,7 @@ def read_manifest(folder: str | Path) -> dict[str, Any]:
         raise StoreError(folder, "no such atlas folder (expected the output of 'reach build')")
     if not path.is_file():
         raise StoreError(path, "missing; this folder is not an atlas written by 'reach build'")
-    try:
-        manifest = json.loads(path.read_text())
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise StoreError(path, f"not valid JSON ({exc})") from exc
-    if not isinstance(manifest, dict) or manifest.get("format") != ATLAS_FORMAT:
-        raise StoreError(path, f"not a reach atlas manifest (expected format {ATLAS_FORMAT!r})")
-    if manifest.get("version") != ATLAS_VERSION:
-        raise StoreError(path, f"atlas version {manifest.get('version')!r}, this reach reads version {ATLAS_VERSION}")
+    manifest = _header(path, path.read_bytes(), ATLAS_FORMAT, ATLAS_VERSION, "atlas")
     strategies = manifest.get("strategies")
     if not isinstance(strategies, list) or not all(isinstance(s, dict) and "name" in s and "file" in s for s in strategies):
         raise StoreError(path, "'strategies' must be a list of objects with 'name' and 'file'")
@@ -230,12 +229,7 @@ def load_state(path: str | Path, fingerprint: str) -> Any:
 
     path = Path(path)
     arrays = _read_arrays(path)
-    try:
-        meta = json.loads(_field(path, arrays, "meta", np.uint8, 1).tobytes())
-    except json.JSONDecodeError as exc:
-        raise StoreError(path, f"checkpoint metadata is not JSON ({exc})") from exc
-    if meta.get("format") != STATE_FORMAT or meta.get("version") != TREE_VERSION:
-        raise StoreError(path, "not a reach build checkpoint of this version; delete it or build without --resume")
+    meta = _header(path, _field(path, arrays, "meta", np.uint8, 1).tobytes(), STATE_FORMAT, TREE_VERSION, "build checkpoint")
     if meta.get("fingerprint") != fingerprint:
         return None
     sizes = meta["sizes"]

@@ -117,5 +117,5 @@ def test_atlas_without_manifest_is_named(tmp_path):
     with pytest.raises(StoreError, match="no such atlas folder"):
         load_atlas(tmp_path / "absent")
     (tmp_path / "manifest.json").write_text("{not json")
-    with pytest.raises(StoreError, match="manifest.json: not valid JSON"):
+    with pytest.raises(StoreError, match="manifest.json: metadata is not valid JSON"):
         load_atlas(tmp_path)
