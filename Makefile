@@ -28,7 +28,7 @@ sphere: $(VENV)/.installed
 	$(VENV)/bin/reach query out/sphere 0.5 0.2 -0.3
 
 lint: $(VENV)/.installed
-	$(VENV)/bin/ruff check reach oracles tests bench
+	$(VENV)/bin/ruff check reach oracles ros_bridge tests bench
 
 test: lint
 	$(PY) -m pytest -q

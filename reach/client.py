@@ -109,6 +109,10 @@ class Client:
     def strategies(self) -> dict[str, Any]:
         return self.call("strategies")
 
+    def cells(self, strategy: str | None = None, level: int = 4) -> dict[str, Any]:
+        """Centres [m] and size of each strategy's reachable cells on a 2**level grid."""
+        return dict(self.call("cells", level=level, **({"strategy": strategy} if strategy else {}))["cells"])
+
     def health(self) -> dict[str, Any]:
         return self.call("health")
 

@@ -26,7 +26,8 @@ MAX_BATCH = 10_000  # goals per query
 POLL_MS = 100  # server poll timeout: how often it checks for a stop request
 PUB_HWM = 1000  # messages queued per subscriber before the PUB socket drops
 
-OPS = ("query", "strategies", "health", "reload")
+OPS = ("query", "strategies", "cells", "health", "reload")
+MAX_CELLS_LEVEL = 6  # "cells" rasterises at most 2**6 cells per axis
 
 # Error codes, in replies' "error": {"code": ..., "message": ...}.
 BAD_FRAMES = "bad_frames"  # wrong number of frames or an empty payload
@@ -35,6 +36,7 @@ BAD_JSON = "bad_json"  # not UTF-8 JSON, or NaN/Infinity literals
 BAD_REQUEST = "bad_request"  # not an object, missing or ill-typed fields
 UNKNOWN_OP = "unknown_op"
 UNKNOWN_EFFECTOR = "unknown_effector"
+UNKNOWN_STRATEGY = "unknown_strategy"
 RELOAD_FAILED = "reload_failed"
 INTERNAL = "internal"  # a bug: the server logs it and keeps serving
 
@@ -60,6 +62,8 @@ class Request:
     single: bool = True
     refine: bool | None = None
     path: str | None = None
+    level: int = 4
+    strategy: str | None = None
 
 
 def _reject_constant(name: str) -> float:
@@ -94,7 +98,8 @@ def parse_request(payload: bytes) -> Request:
         raise ProtocolError(BAD_REQUEST, "'op' must be a string naming the operation", rid)
     if op not in OPS:
         raise ProtocolError(UNKNOWN_OP, f"unknown op {op!r}; ops are {', '.join(OPS)}", rid)
-    allowed = {"query": {"op", "id", "effector", "goal", "goals", "refine"}, "reload": {"op", "id", "path"}}.get(op, {"op", "id"})
+    allowed = {"query": {"op", "id", "effector", "goal", "goals", "refine"}, "reload": {"op", "id", "path"},
+               "cells": {"op", "id", "strategy", "level"}}.get(op, {"op", "id"})
     extra = sorted(set(data) - allowed)
     if extra:
         raise ProtocolError(BAD_REQUEST, f"unknown fields {extra} for op {op!r}; allowed: {sorted(allowed)}", rid)
@@ -103,6 +108,14 @@ def parse_request(payload: bytes) -> Request:
         if path is not None and not isinstance(path, str):
             raise ProtocolError(BAD_REQUEST, "'path' must be a string", rid)
         return Request(op, rid, path=path)
+    if op == "cells":
+        level = data.get("level", 4)
+        if isinstance(level, bool) or not isinstance(level, int) or not 1 <= level <= MAX_CELLS_LEVEL:
+            raise ProtocolError(BAD_REQUEST, f"'level' must be an integer in [1, {MAX_CELLS_LEVEL}]", rid)
+        strategy = data.get("strategy")
+        if strategy is not None and not isinstance(strategy, str):
+            raise ProtocolError(BAD_REQUEST, "'strategy' must be a string", rid)
+        return Request(op, rid, level=level, strategy=strategy)
     if op != "query":
         return Request(op, rid)
     effector = data.get("effector")

@@ -171,6 +171,8 @@ class Server:
                  "box": self.selector.atlas.trees[n].box.to_dict(), "d_max": self.selector.atlas.trees[n].d_max}
                 for n, e in self.selector.order
             ], "effectors": self.selector.effectors, "frame": "world: z up, x forward, y left; metres, radians"}
+        if req.op == "cells":
+            return self.cells(req)
         if req.op == "reload":
             path = Path(req.path) if req.path else self.atlas_path
             try:
@@ -180,6 +182,24 @@ class Server:
             self.selector, self.atlas_path = selector, path
             return {"atlas": str(path), "strategies": len(selector.order)}
         raise P.ProtocolError(P.UNKNOWN_OP, f"unknown op {req.op!r}", req.id)
+
+    def cells(self, req: P.Request) -> dict[str, Any]:
+        """Centres of the reachable cells of each strategy on a regular grid (for markers in RViz)."""
+        from reach.report import raster
+
+        trees = self.selector.atlas.trees
+        names = [req.strategy] if req.strategy else list(trees)
+        if req.strategy and req.strategy not in trees:
+            raise P.ProtocolError(P.UNKNOWN_STRATEGY, f"unknown strategy {req.strategy!r}; the atlas has {', '.join(trees)}", req.id)
+        out = {}
+        for name in names:
+            tree = trees[name]
+            level = min(req.level, tree.d_max)
+            occ, edges = raster(tree, level)
+            centres = np.stack(np.meshgrid(*[0.5 * (e[1:] + e[:-1]) for e in edges], indexing="ij"), axis=-1)[occ]
+            out[name] = {"effector": tree.meta.get("effector"), "priority": tree.meta.get("priority"),
+                         "size": (tree.box.size / (1 << level)).tolist(), "centres": np.round(centres, 6).tolist()}
+        return {"cells": out, "level": req.level}
 
     def publish(self, effector: str, bodies: list[bytes]) -> None:
         """Publish each encoded choice; a slow subscriber costs a dropped message, never a blocked reply."""

@@ -210,6 +210,19 @@ def test_a_slow_subscriber_never_blocks_replies(running):
         sub.close(linger=0)
 
 
+def test_cells_of_the_volumes(running):
+    with Client(running.server.endpoint) as c:
+        cells = c.cells(level=3)
+        assert set(cells) == {"near", "far"}
+        centres = np.array(cells["far"]["centres"])
+        assert np.all(np.linalg.norm(centres, axis=1) < 0.9 + 0.25) and cells["far"]["size"] == [0.25, 0.25, 0.25]
+        assert len(cells["near"]["centres"]) < len(centres)
+        with pytest.raises(ServerError, match="unknown_strategy"):
+            c.cells("middle")
+        with pytest.raises(ServerError, match="bad_request"):
+            c.cells(level=9)
+
+
 def test_reload_hot_swaps_the_atlas(running, cube):
     with Client(running.server.endpoint) as c:
         assert c.reload(str(cube))["strategies"] == 1

@@ -1,0 +1,191 @@
+"""The reach bridge node: goals in on ROS topics, the selector's answers out.
+
+Design: three layers, of which only the last knows ROS, so that a ROS 2
+(rclpy) version swaps that layer alone.
+
+1. ``reach.client.Client`` talks to the server (Lazy Pirate REQ, timeouts,
+   reconnection) and a ZeroMQ SUB socket receives the server's stream of
+   choices. Neither imports ROS.
+2. ``Relay`` turns answers into plain values (strategy name, joint names and
+   positions, reachable) and remembers which it has published, so a choice
+   that arrives both as a reply and on the server's stream is published once.
+3. ``Bridge`` is the ROS 1 node: parameters, subscribers, publishers, timers.
+
+Topics, for each effector E (the server's effectors, or ``~effectors``):
+
+* in: ``<prefix>/E/goal`` (geometry_msgs/PointStamped). The header's frame
+  must be ``~frame``; another frame is logged as an error and ignored.
+* out: ``<prefix>/E/strategy`` (std_msgs/String; empty when none reaches),
+  ``<prefix>/E/posture`` (sensor_msgs/JointState: the model's joint names,
+  radians), ``<prefix>/E/reachable`` (std_msgs/Bool).
+* out, latched: ``<prefix>/markers`` (visualization_msgs/MarkerArray): each
+  strategy's reachable cells as a cube list, one colour per strategy.
+
+Choices other clients cause (the server's PUB stream) are relayed to the
+same topics. If the server is down, goals get an error in the log and the
+node keeps running; markers are retried until they are published.
+
+Parameters (private, with defaults): ``~server`` (tcp://127.0.0.1:5555),
+``~pub`` (tcp://127.0.0.1:5556; empty to not relay), ``~frame`` (world),
+``~prefix`` (/reach), ``~effectors`` (all the server has), ``~timeout_ms``
+(2500), ``~retries`` (3), ``~marker_level`` (4: 2**4 cells per axis),
+``~relay_hz`` (100: how often the stream is polled), ``~marker_retry_s`` (2).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections import deque
+from typing import Any
+
+import zmq
+
+from reach.client import Client, ServerError, ServerUnavailable
+
+COLOURS = [(0.84, 0.15, 0.16), (0.17, 0.63, 0.17), (0.12, 0.47, 0.71), (1.0, 0.5, 0.05), (0.58, 0.4, 0.74), (0.55, 0.34, 0.29), (0.89, 0.47, 0.76), (0.09, 0.75, 0.81)]
+
+
+class Relay:
+    """ROS-free core: answers to plain values, with duplicate suppression."""
+
+    def __init__(self, memory: int = 256) -> None:
+        self.recent: deque[tuple[str, tuple[float, ...], str | None]] = deque(maxlen=memory)
+
+    @staticmethod
+    def values(answer: dict[str, Any]) -> tuple[str, list[str], list[float], bool]:
+        posture = answer.get("posture") or {}
+        names = sorted(posture)
+        return answer.get("strategy") or "", names, [float(posture[n]) for n in names], bool(answer.get("reachable"))
+
+    def fresh(self, answer: dict[str, Any]) -> bool:
+        """True the first time a choice is seen (by effector, goal and strategy)."""
+        key = (str(answer.get("effector")), tuple(round(float(v), 9) for v in answer.get("goal", [])), answer.get("strategy"))
+        if key in self.recent:
+            return False
+        self.recent.append(key)
+        return True
+
+
+class Bridge:
+    """The ROS 1 node (rospy)."""
+
+    def __init__(self) -> None:
+        import rospy
+        from geometry_msgs.msg import PointStamped
+        from sensor_msgs.msg import JointState
+        from std_msgs.msg import Bool, String
+        from visualization_msgs.msg import MarkerArray
+
+        self.rospy = rospy
+        self.msgs = {"JointState": JointState, "String": String, "Bool": Bool}
+        p = rospy.get_param
+        self.server = p("~server", "tcp://127.0.0.1:5555")
+        self.pub_address = p("~pub", "tcp://127.0.0.1:5556")
+        self.frame = p("~frame", "world")
+        self.prefix = p("~prefix", "/reach").rstrip("/")
+        self.marker_level = int(p("~marker_level", 4))
+        self.client = Client(self.server, timeout=int(p("~timeout_ms", 2500)), retries=int(p("~retries", 3)))
+        self.relay = Relay()
+        effectors = p("~effectors", [])
+        while not effectors and not rospy.is_shutdown():
+            try:
+                effectors = self.client.strategies()["effectors"]
+            except (ServerUnavailable, ServerError) as exc:
+                rospy.logerr("reach bridge: cannot list effectors from %s (%s); retrying", self.server, exc)
+                time.sleep(1.0)
+        self.pubs: dict[str, dict[str, Any]] = {}
+        for e in effectors:
+            self.pubs[e] = {
+                "strategy": rospy.Publisher(f"{self.prefix}/{e}/strategy", String, queue_size=10),
+                "posture": rospy.Publisher(f"{self.prefix}/{e}/posture", JointState, queue_size=10),
+                "reachable": rospy.Publisher(f"{self.prefix}/{e}/reachable", Bool, queue_size=10),
+            }
+            rospy.Subscriber(f"{self.prefix}/{e}/goal", PointStamped, self.on_goal, callback_args=e, queue_size=10)
+        self.markers = rospy.Publisher(f"{self.prefix}/markers", MarkerArray, queue_size=1, latch=True)
+        self.markers_done = False
+        rospy.Timer(rospy.Duration(float(p("~marker_retry_s", 2.0))), self.publish_markers)
+        self.sub = None
+        if self.pub_address:
+            self.sub = zmq.Context.instance().socket(zmq.SUB)
+            self.sub.setsockopt(zmq.LINGER, 0)
+            self.sub.setsockopt(zmq.SUBSCRIBE, b"")
+            self.sub.connect(self.pub_address)
+            rospy.Timer(rospy.Duration(1.0 / float(p("~relay_hz", 100.0))), self.relay_stream)
+        rospy.loginfo("reach bridge: server %s, effectors %s, frame %s", self.server, ", ".join(effectors), self.frame)
+
+    def on_goal(self, msg: Any, effector: str) -> None:
+        rospy = self.rospy
+        frame = msg.header.frame_id
+        if frame != self.frame:
+            rospy.logerr("reach bridge: goal for %s in frame %r ignored; goals must be in frame %r", effector, frame, self.frame)
+            return
+        goal = [msg.point.x, msg.point.y, msg.point.z]
+        try:
+            answer = self.client.query(effector, goal)
+        except ServerError as exc:
+            rospy.logerr("reach bridge: server refused goal %s for %s: %s", goal, effector, exc)
+            return
+        except ServerUnavailable as exc:
+            rospy.logerr("reach bridge: %s", exc)
+            return
+        self.publish(effector, answer)
+
+    def publish(self, effector: str, answer: dict[str, Any]) -> None:
+        if effector not in self.pubs or not self.relay.fresh(answer):
+            return
+        strategy, names, positions, reachable = self.relay.values(answer)
+        state = self.msgs["JointState"]()
+        state.header.stamp = self.rospy.Time.now()
+        state.header.frame_id = self.frame
+        state.name, state.position = names, positions
+        self.pubs[effector]["strategy"].publish(self.msgs["String"](data=strategy))
+        self.pubs[effector]["posture"].publish(state)
+        self.pubs[effector]["reachable"].publish(self.msgs["Bool"](data=reachable))
+
+    def relay_stream(self, _event: Any = None) -> None:
+        """Publish what the server's stream carried since the last poll."""
+        while self.sub is not None:
+            try:
+                topic, body = self.sub.recv_multipart(zmq.NOBLOCK)
+            except zmq.Again:
+                return
+            try:
+                self.publish(topic.decode(), json.loads(body))
+            except (ValueError, UnicodeDecodeError) as exc:
+                self.rospy.logwarn("reach bridge: unreadable message on the stream: %s", exc)
+
+    def publish_markers(self, _event: Any = None) -> None:
+        if self.markers_done:
+            return
+        from geometry_msgs.msg import Point
+        from visualization_msgs.msg import Marker, MarkerArray
+
+        try:
+            cells = self.client.cells(level=self.marker_level)
+        except (ServerUnavailable, ServerError) as exc:
+            self.rospy.logwarn("reach bridge: markers not yet available: %s", exc)
+            return
+        array = MarkerArray()
+        for k, (name, c) in enumerate(sorted(cells.items(), key=lambda kv: (kv[1].get("priority") or 0, kv[0]))):
+            m = Marker()
+            m.header.frame_id = self.frame
+            m.header.stamp = self.rospy.Time.now()
+            m.ns, m.id, m.type, m.action = name, k, Marker.CUBE_LIST, Marker.ADD
+            m.pose.orientation.w = 1.0
+            m.scale.x, m.scale.y, m.scale.z = c["size"]
+            r, g, b = COLOURS[k % len(COLOURS)]
+            m.color.r, m.color.g, m.color.b, m.color.a = r, g, b, 0.4
+            m.points = [Point(x=x, y=y, z=z) for x, y, z in c["centres"]]
+            array.markers.append(m)
+        self.markers.publish(array)
+        self.markers_done = True
+        self.rospy.loginfo("reach bridge: published markers of %d strategies", len(array.markers))
+
+
+def main() -> None:
+    import rospy
+
+    rospy.init_node("reach_bridge")
+    Bridge()
+    rospy.spin()
