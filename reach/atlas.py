@@ -43,7 +43,8 @@ def package_versions() -> dict[str, str]:
 
 def fingerprint(config: Config, strategy: StrategySpec) -> str:
     """Identifies what a strategy's tree depends on: its oracle, B0 and depths."""
-    text = json.dumps({"oracle": strategy.oracle.to_dict(), "box": config.box.to_dict(), "depth": [config.d_min, config.d_max]}, sort_keys=True)
+    text = json.dumps({"oracle": strategy.oracle.to_dict(), "box": config.box.to_dict(), "depth": [config.d_min, config.d_max],
+                       "refine": config.refine.to_dict()}, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
@@ -156,7 +157,7 @@ def _build_one(
             meta["model_hash"] = body.hash
         return build_tree(
             s.oracle, config.box, config.d_min, config.d_max, executor=ex, progress=s.name if progress else False, meta=meta, state=state,
-            on_level=lambda st: save_state(st, partial, fp),
+            on_level=lambda st: save_state(st, partial, fp), refine=config.refine,
         )
     finally:
         ex.close()

@@ -70,36 +70,131 @@ def warm_hints(table: VertexTable, lattice: Lattice, points: np.ndarray) -> np.n
     return hints
 
 
-def build_level(state: BuildState, lattice: Lattice, d_min: int, executor: Executor, progress: Any = None) -> BuildState:
+@dataclass(frozen=True)
+class Refine:
+    """Build-time refinements of the vertex rule (all off by default: the paper's Algorithm 1).
+
+    Attributes:
+        centres: Before labelling a cell inner (above D_max), probe its centre;
+            a failing probe makes it a parent, subdivided like a boundary cell.
+            The centre is a vertex of the next depth, so a split cell's
+            children reuse the verdict.
+        faces: Also probe the centres of the cell's faces.
+        isolated: Retry an unreachable vertex whose lattice neighbours at the
+            same spacing were all found reachable, warm-started from each
+            neighbour's posture (oracles with postures only).
+    """
+
+    centres: bool = False
+    faces: bool = False
+    isolated: bool = False
+
+    def to_dict(self) -> dict[str, bool]:
+        return {"centres": self.centres, "faces": self.faces, "isolated": self.isolated}
+
+
+def _evaluate(keys: np.ndarray, table: VertexTable, lattice: Lattice, executor: Executor, progress: Any, label: str) -> VertexTable:
+    """Ask the oracle about keys not yet in the table (one batch); return the grown table."""
+    new = np.unique(keys)
+    new = new[table.index(new) < 0]
+    if new.size == 0:
+        return table
+    pts = lattice.points(lattice.coords(new))
+    if progress is not None:
+        progress.reset(total=int(new.size))
+        progress.set_description(f"{getattr(progress, 'label', '')} {label}".strip())
+    verdicts = executor.evaluate(pts, warm_hints(table, lattice, pts), progress.update if progress is not None else None)
+    return table.merged(new, verdicts.reachable, verdicts.residual, verdicts.posture)
+
+
+def _retry_isolated(keys: np.ndarray, table: VertexTable, lattice: Lattice, step: int, executor: Executor) -> tuple[VertexTable, int]:
+    """Retry unreachable keys whose evaluated neighbours at distance step are all reachable."""
+    if table.posture is None or keys.size == 0:
+        return table, 0
+    rows = table.index(keys)
+    lonely = keys[~table.reachable[rows]]
+    if lonely.size == 0:
+        return table, 0
+    coords = lattice.coords(lonely)
+    offsets = np.concatenate([np.eye(lattice.dim, dtype=np.int64), -np.eye(lattice.dim, dtype=np.int64)]) * step
+    nb = coords[:, None, :] + offsets[None]
+    valid = np.all((nb >= 0) & (nb <= lattice.cells), axis=2)
+    nrow = np.where(valid, table.index(lattice.keys(np.clip(nb, 0, lattice.cells))), -1)
+    known = nrow >= 0
+    ok = np.where(known, table.reachable[np.maximum(nrow, 0)], False)
+    isolated = (known.sum(axis=1) >= lattice.dim + 1) & (ok == known).all(axis=1)
+    calls = 0
+    todo = np.nonzero(isolated)[0]
+    for k in range(offsets.shape[0]):  # one round per neighbour posture, while points stay unreachable
+        todo = todo[known[todo, k]]
+        if todo.size == 0:
+            break
+        pts = lattice.points(coords[todo])
+        v = executor.evaluate(pts, table.posture[nrow[todo, k]], None)
+        calls += int(todo.size)
+        fixed = v.reachable
+        if fixed.any():
+            r = table.index(lonely[todo[fixed]])
+            table.reachable[r] = True
+            table.residual[r] = v.residual[fixed]
+            table.posture[r] = v.posture[fixed]  # type: ignore[index]
+        todo = todo[~fixed]
+    return table, calls
+
+
+def build_level(
+    state: BuildState, lattice: Lattice, d_min: int, executor: Executor, progress: Any = None, refine: Refine | None = None,
+) -> BuildState:
     """Process the frontier at state.depth; return the state for the next depth."""
     d, frontier = state.depth, state.frontier
     t0 = time.perf_counter()
-    n_new = 0
     table = state.vertices
+    before = len(table)
+    retried = probed = 0
     if d < d_min:
         kinds = np.full(frontier.shape[0], PARENT, np.uint8)
     else:
         vkeys = lattice.node_vertex_keys(frontier, d)
-        uniq = np.unique(vkeys)
-        new = uniq[table.index(uniq) < 0]
-        n_new = int(new.size)
-        if n_new:
-            pts = lattice.points(lattice.coords(new))
-            hints = warm_hints(table, lattice, pts)
-            if progress is not None:
-                progress.reset(total=n_new)
-                progress.set_description(f"{getattr(progress, 'label', '')} depth {d}".strip())
-            verdicts = executor.evaluate(pts, hints, progress.update if progress is not None else None)
-            table = table.merged(new, verdicts.reachable, verdicts.residual, verdicts.posture)
+        table = _evaluate(vkeys, table, lattice, executor, progress, f"depth {d}")
+        if refine and refine.isolated:
+            table, retried = _retry_isolated(np.unique(vkeys), table, lattice, 1 << (lattice.d_max - d), executor)
         inside = table.reachable[table.index(vkeys)]
         n_in = inside.sum(axis=1)
         kinds = np.where(n_in == inside.shape[1], INNER, np.where(n_in == 0, OUTER, np.where(d == lattice.d_max, FINAL, PARENT)))
         kinds = kinds.astype(np.uint8)
+        if refine and (refine.centres or refine.faces) and d < lattice.d_max:
+            kinds, table, probed = _probe_inner(frontier, kinds, d, table, lattice, executor, progress, refine)
     par = frontier[kinds == PARENT]
     step = 1 << (lattice.d_max - d - 1) if d < lattice.d_max else 0
     nxt = (par[:, None, :] + corner_offsets(lattice.dim)[None] * step).reshape(-1, lattice.dim)
-    level = {"depth": d, "nodes": int(frontier.shape[0]), "new_vertices": n_new, "seconds": time.perf_counter() - t0}
+    level = {"depth": d, "nodes": int(frontier.shape[0]), "new_vertices": len(table) - before, "probe_vertices": probed,
+             "retried": retried, "seconds": time.perf_counter() - t0}
     return BuildState(d + 1, nxt, [*state.kinds, kinds], [*state.corners, frontier], table, [*state.levels, level])
+
+
+def _probe_inner(
+    frontier: np.ndarray, kinds: np.ndarray, d: int, table: VertexTable, lattice: Lattice, executor: Executor, progress: Any, refine: Refine,
+) -> tuple[np.ndarray, VertexTable, int]:
+    """Downgrade to parent the inner cells whose centre (or face-centre) probes fail."""
+    inner = np.nonzero(kinds == INNER)[0]
+    if inner.size == 0:
+        return kinds, table, 0
+    half = 1 << (lattice.d_max - d - 1)
+    points = [np.full((1, lattice.dim), half, np.int64)] if refine.centres else []
+    if refine.faces:
+        for axis in range(lattice.dim):
+            for side in (0, 2 * half):
+                p = np.full((1, lattice.dim), half, np.int64)
+                p[0, axis] = side
+                points.append(p)
+    offsets = np.concatenate(points)
+    pkeys = lattice.keys(frontier[inner][:, None, :] + offsets[None])
+    before = len(table)
+    table = _evaluate(pkeys, table, lattice, executor, progress, f"depth {d} probes")
+    failed = ~table.reachable[table.index(pkeys)].all(axis=1)
+    kinds = kinds.copy()
+    kinds[inner[failed]] = PARENT
+    return kinds, table, len(table) - before
 
 
 def assemble(state: BuildState, box: Box, d_min: int, d_max: int, meta: dict[str, Any]) -> VATree:
@@ -109,7 +204,9 @@ def assemble(state: BuildState, box: Box, d_min: int, d_max: int, meta: dict[str
     meta = dict(meta)
     meta["build"] = {
         **meta.get("build", {}),
-        "oracle_calls": len(state.vertices),
+        # Each distinct vertex once, plus the retries of isolated vertices.
+        "oracle_calls": len(state.vertices) + sum(int(lv.get("retried", 0)) for lv in state.levels),
+        "distinct_vertices": len(state.vertices),
         "lattice_vertices": Lattice(box, d_max).vertex_count,
         "levels": state.levels,
         "seconds": float(sum(lv["seconds"] for lv in state.levels)),
@@ -129,6 +226,7 @@ def build_tree(
     meta: dict[str, Any] | None = None,
     state: BuildState | None = None,
     on_level: LevelCallback | None = None,
+    refine: Refine | None = None,
 ) -> VATree:
     """Build a VATree (Algorithm 1).
 
@@ -143,6 +241,7 @@ def build_tree(
         meta: Metadata stored with the tree.
         state: A checkpointed state to resume from.
         on_level: Called with the state after each depth (for checkpoints).
+        refine: Build-time refinements of the vertex rule (see :class:`Refine`).
 
     Returns:
         The tree, with the oracle-call count and per-depth statistics in
@@ -164,7 +263,7 @@ def build_tree(
         bar.label = progress if isinstance(progress, str) else ""
     try:
         while state.frontier.shape[0]:
-            state = build_level(state, lattice, d_min, ex, bar)
+            state = build_level(state, lattice, d_min, ex, bar, refine)
             if on_level is not None:
                 on_level(state)
     finally:
@@ -173,6 +272,8 @@ def build_tree(
         if own:
             ex.close()
     meta = dict(meta or {})
+    if refine is not None:
+        meta.setdefault("build", {})["refine"] = refine.to_dict()
     if isinstance(oracle, OracleSpec):
         meta.setdefault("oracle", oracle.to_dict())
     return assemble(state, box, d_min, d_max, meta)

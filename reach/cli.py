@@ -27,6 +27,13 @@ def cmd_build(args: argparse.Namespace) -> int:
     from reach.config import load_config
 
     config = load_config(args.config)
+    if args.refine_centres or args.refine_faces or args.retry_isolated:
+        import dataclasses
+
+        from reach.build import Refine
+
+        r = config.refine
+        config = dataclasses.replace(config, refine=Refine(r.centres or args.refine_centres, r.faces or args.refine_faces, r.isolated or args.retry_isolated))
     out = Path(args.output) if args.output else Path("out") / config.name
     factory, client, how = _executor_factory(args, config.chunk_size)
     print(f"building {len(config.strategies)} strateg{'y' if len(config.strategies) == 1 else 'ies'} of {config.source} into {out} ({how})", flush=True)
@@ -223,6 +230,26 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_audit(args: argparse.Namespace) -> int:
+    from reach.audit import audit
+    from reach.store import load_atlas
+
+    atlas = load_atlas(args.atlas)
+    names = args.strategies.split(",") if args.strategies else None
+    if names and any(n not in atlas.trees for n in names):
+        raise ReachError(f"unknown strategies {[n for n in names if n not in atlas.trees]}; the atlas has {', '.join(atlas.trees)}")
+    result = audit(atlas, args.samples, args.policy, args.seed, args.restarts, names)
+    if args.json:
+        _print_json(result)
+        return 0
+    print(f"audit of {atlas.path}: {args.samples} probes per strategy, policy {args.policy}, seed {args.seed}")
+    print(f"{'strategy':<22} {'false reachable':>22} {'false unreachable':>22}")
+    for name, r in result["strategies"].items():
+        fr, fu = r["false_reachable_ci95"], r["false_unreachable_ci95"]
+        print(f"{name:<22} {100 * r['false_reachable']:>6.2f} % [{100 * fr[0]:.1f}, {100 * fr[1]:.1f}]  {100 * r['false_unreachable']:>6.2f} % [{100 * fu[0]:.1f}, {100 * fu[1]:.1f}]")
+    return 0
+
+
 def make_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="reach",
@@ -239,6 +266,9 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--scheduler", metavar="ADDR", help="run on the Dask cluster at ADDR, e.g. tcp://10.0.0.5:8786")
     p.add_argument("--resume", action="store_true", help="keep finished trees and continue interrupted ones from their last depth")
     p.add_argument("--no-mirror", action="store_true", help="build both sides instead of mirroring 'mirror_of' strategies")
+    p.add_argument("--refine-centres", action="store_true", help="probe the centre of each would-be inner cell; split it if the probe fails")
+    p.add_argument("--refine-faces", action="store_true", help="also probe the centres of its faces")
+    p.add_argument("--retry-isolated", action="store_true", help="retry unreachable vertices whose neighbours are all reachable, from their postures")
     p.set_defaults(func=cmd_build)
 
     p = sub.add_parser("info", help="summarise an atlas", description="Print node counts, volumes, extents and oracle calls of every strategy of an atlas.")
@@ -295,6 +325,16 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--policy", default="vertex", choices=["conservative", "optimistic", "vertex"], help="how boundary cells answer (default: vertex)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("audit", help="check a tree's verdicts against direct IK", description="Draw seeded random probes in the inner, boundary and outer cells of each strategy, check each by direct IK with extra restarts, and report false-reachable and false-unreachable rates with 95 %% confidence intervals.")
+    p.add_argument("atlas", help="atlas folder written by 'reach build'")
+    p.add_argument("--samples", type=int, default=300, help="probes per strategy, split over the three cell types (default 300)")
+    p.add_argument("--strategies", help="comma-separated strategies (default: all)")
+    p.add_argument("--policy", default="vertex", choices=["conservative", "optimistic", "vertex"], help="how boundary cells answer (default: vertex)")
+    p.add_argument("--restarts", type=int, default=6, help="restarts of the direct IK (default 6)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the probes (default 0)")
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.set_defaults(func=cmd_audit)
 
     p = sub.add_parser(
         "model", help="describe a body", description="Describe a body: its joints and ranges [rad], mass [kg], stature [m] and frame positions [m] in the reference posture (world frame: z up, x forward, y left)."

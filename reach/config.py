@@ -29,12 +29,14 @@ from typing import Any
 import yaml
 
 from oracles.protocol import OracleSpec
+from reach.build import Refine
 from reach.errors import ConfigError, TreeError
 from reach.tree import MAX_DEPTH, Box
 
 TOP_KEYS = {"name", "description", "base", "body", "box", "depth", "oracle", "strategies", "build"}
 STRATEGY_KEYS = {"name", "effector", "priority", "oracle", "description", "joints", "tasks", "mirror_of"}
-BUILD_KEYS = {"chunk_size"}
+BUILD_KEYS = {"chunk_size", "refine"}
+REFINE_KEYS = {"centres", "faces", "isolated"}
 
 
 @dataclass(frozen=True)
@@ -69,6 +71,7 @@ class Config:
     d_max: int
     strategies: tuple[StrategySpec, ...]
     chunk_size: int = 2048
+    refine: Refine = field(default_factory=Refine)
     raw: dict[str, Any] = field(default_factory=dict, compare=False)
 
     def strategy(self, name: str) -> StrategySpec:
@@ -174,6 +177,11 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
         strategies.append(StrategySpec(sname, effector, priority, oracle, str(s.get("description", "")), mirror_of))
     build = check.mapping(top.get("build", {}), "build", BUILD_KEYS)
     chunk = check.integer(build.get("chunk_size", 2048), "build.chunk_size", 1, 10**7)
+    refine_raw = check.mapping(build.get("refine", {}), "build.refine", REFINE_KEYS)
+    for k, v in refine_raw.items():
+        if not isinstance(v, bool):
+            raise check.fail(f"build.refine.{k}", f"expected true or false, got {v!r}")
+    refine = Refine(**refine_raw)
     names = {s.name for s in strategies}
     for i, s in enumerate(strategies):
         if s.mirror_of is not None and (s.mirror_of not in names or s.mirror_of == s.name):
@@ -182,7 +190,7 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
             raise check.fail(f"strategies[{i}].mirror_of", f"mirroring needs a box symmetric about y = 0, got y in [{box.lo[1]}, {box.hi[1]}]")
     _check_oracles(check, strategies, box.dim)
     strategies.sort(key=lambda s: s.priority)
-    return Config(name, source, box, d_min, d_max, tuple(strategies), chunk, dict(top))
+    return Config(name, source, box, d_min, d_max, tuple(strategies), chunk, refine, dict(top))
 
 
 def _check_oracles(check: _Checker, strategies: list[StrategySpec], dim: int) -> None:

@@ -1,0 +1,108 @@
+"""Auditing a tree against direct IK: how often does the vertex rule lie?
+
+The paper assumes a box is reachable when its vertices are. ``audit`` draws
+seeded random probes inside a tree's inner, final and outer cells (cells
+picked in proportion to their volume, points uniform inside them), asks the
+tree (with a boundary policy) and asks the strategy's own oracle directly
+(with extra restarts), and reports per strategy, per cell type and per depth:
+
+* the false-reachable rate: of the probes the tree calls reachable, the
+  fraction the oracle cannot reach;
+* the false-unreachable rate: of the probes the tree calls unreachable, the
+  fraction the oracle reaches;
+
+each with a 95 % Wilson confidence interval. Overall rates weight each cell
+type by its volume, so they estimate the rates over the whole box.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from oracles.protocol import OracleSpec
+from reach.store import Atlas
+from reach.tree import FINAL, INNER, KIND_NAMES, OUTER, Policy, VATree
+
+Z95 = 1.959963984540054
+
+
+def wilson(k: int, n: int) -> tuple[float, float]:
+    """95 % Wilson score interval of a proportion k/n."""
+    if n == 0:
+        return (0.0, 1.0)
+    p = k / n
+    den = 1 + Z95**2 / n
+    centre = (p + Z95**2 / (2 * n)) / den
+    half = Z95 * math.sqrt(p * (1 - p) / n + Z95**2 / (4 * n * n)) / den
+    return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+def probes(tree: VATree, kind: int, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """n points uniform over the cells of one kind, and the depth of each point's cell."""
+    sel = np.nonzero(tree.kind == kind)[0]
+    if sel.size == 0 or n == 0:
+        return np.zeros((0, tree.dim)), np.zeros(0, int)
+    vol = tree.cell_size(tree.depth[sel]).prod(axis=1)
+    pick = sel[rng.choice(sel.size, size=n, p=vol / vol.sum())]
+    lo = tree.lattice.points(tree.corner[pick])
+    return lo + rng.random((n, tree.dim)) * tree.cell_size(tree.depth[pick]), tree.depth[pick].astype(int)
+
+
+def _rate(bad: np.ndarray, said: np.ndarray) -> dict[str, Any]:
+    k, n = int(np.sum(bad & said)), int(np.sum(said))
+    lo, hi = wilson(k, n)
+    return {"rate": k / n if n else 0.0, "errors": k, "of": n, "ci95": [lo, hi]}
+
+
+def audit_tree(tree: VATree, oracle: Any, samples: int = 300, policy: Policy = "vertex", seed: int = 0) -> dict[str, Any]:
+    """Audit one tree against an oracle (see the module docstring)."""
+    rng = np.random.default_rng(seed)
+    per_kind = {k: samples // 3 for k in (INNER, FINAL, OUTER)}
+    points, kinds, depths = [], [], []
+    for k, n in per_kind.items():
+        p, d = probes(tree, k, n, rng)
+        points.append(p)
+        kinds.append(np.full(len(p), k))
+        depths.append(d)
+    pts, kind, depth = np.concatenate(points), np.concatenate(kinds), np.concatenate(depths)
+    said = tree.contains(pts, policy)
+    truth = oracle.evaluate(pts).reachable
+    out: dict[str, Any] = {"probes": int(len(pts)), "policy": policy, "by_type": {}, "by_depth": {}}
+    weights = np.zeros(len(pts))
+    for k in (INNER, FINAL, OUTER):
+        m = kind == k
+        out["by_type"][KIND_NAMES[k]] = {"probes": int(m.sum()), "volume": tree.volume(k),
+                                         "false_reachable": _rate(~truth[m], said[m]), "false_unreachable": _rate(truth[m], ~said[m])}
+        if m.any():
+            weights[m] = tree.volume(k) / m.sum()
+    for d in np.unique(depth):
+        m = depth == d
+        out["by_depth"][str(int(d))] = {"probes": int(m.sum()), "false_reachable": _rate(~truth[m], said[m]), "false_unreachable": _rate(truth[m], ~said[m])}
+    yes, no = said, ~said
+    fr = float(np.sum(weights * (yes & ~truth)) / max(np.sum(weights * yes), 1e-300))
+    fu = float(np.sum(weights * (no & truth)) / max(np.sum(weights * no), 1e-300))
+    raw_fr, raw_fu = _rate(~truth, yes), _rate(truth, no)
+    out.update(false_reachable=fr, false_unreachable=fu, false_reachable_ci95=raw_fr["ci95"], false_unreachable_ci95=raw_fu["ci95"],
+               counts={"false_reachable": raw_fr, "false_unreachable": raw_fu})
+    return out
+
+
+def audit_oracle(tree: VATree, restarts: int) -> Any:
+    """The strategy's own oracle, rebuilt from the tree's spec with extra restarts where it takes them."""
+    spec = OracleSpec.from_dict(tree.meta["oracle"])
+    params = dict(spec.params)
+    if "restarts" in params or spec.name in ("casadi-ik", "dls"):
+        params["restarts"] = max(int(params.get("restarts", 0)), restarts)
+    return OracleSpec(spec.name, params).create()
+
+
+def audit(atlas: Atlas, samples: int = 300, policy: Policy = "vertex", seed: int = 0, restarts: int = 6, names: list[str] | None = None) -> dict[str, Any]:
+    """Audit every (or the named) strategy of an atlas."""
+    result = {}
+    for name in names or list(atlas.trees):
+        tree = atlas.trees[name]
+        result[name] = audit_tree(tree, audit_oracle(tree, restarts), samples, policy, seed)
+    return {"strategies": result, "samples_per_strategy": samples, "policy": policy, "seed": seed}

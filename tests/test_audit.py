@@ -1,0 +1,133 @@
+"""Accuracy: the audit against exact geometry, and refinements that close holes the vertex rule misses."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+from oracles.protocol import OracleSpec
+from reach.atlas import build_atlas
+from reach.audit import audit_tree, wilson
+from reach.build import Refine, build_tree
+from reach.cli import main
+from reach.config import parse_config
+from reach.tree import INNER, Box
+
+CUBE = Box([-1, -1, -1], [1, 1, 1])
+HOLE_CENTRE, HOLE_R = (0.25, 0.25, 0.25), 0.2
+# A ball with a hollow smaller than a depth-2 cell (0.5 m): no vertex of the
+# depth-2 lattice lies in it, so the plain rule calls its cell inner.
+HOLLOW = OracleSpec("difference", {"oracles": [
+    {"name": "sphere", "params": {"radius": 0.9}},
+    {"name": "sphere", "params": {"center": list(HOLE_CENTRE), "radius": HOLE_R}},
+]})
+
+
+def hole_volume() -> float:
+    return 4 / 3 * np.pi * HOLE_R**3
+
+
+def test_plain_rule_misses_the_hole_and_the_audit_reports_it():
+    tree = build_tree(HOLLOW, CUBE, 2, 4)
+    assert tree.classify(np.array([HOLE_CENTRE]))[0] == INNER  # the vertex rule's blind spot
+    result = audit_tree(tree, HOLLOW.create(), samples=3000, policy="conservative", seed=1)
+    # Exact geometry: with the conservative policy the tree says yes on its
+    # inner cells, and the only false yes is the hollow, wholly inside them.
+    truth = hole_volume() / tree.volume(INNER)
+    inner = result["by_type"]["inner"]["false_reachable"]
+    assert inner["errors"] > 0
+    assert inner["ci95"][0] <= truth <= inner["ci95"][1]
+    # False no: the part of the ball in the cells that say no (final and outer), over their volume.
+    ball = 4 / 3 * np.pi * 0.9**3
+    truth_fu = (ball - tree.volume(INNER)) / (CUBE.volume - tree.volume(INNER))
+    final = result["by_type"]["final"]["false_unreachable"]
+    assert final["errors"] > 0
+    assert abs(result["false_unreachable"] - truth_fu) < 0.03
+
+
+def test_centre_probes_find_the_hole(counting):
+    plain = counting(HOLLOW.create())
+    refined_oracle = counting(HOLLOW.create())
+    plain_tree = build_tree(plain, CUBE, 2, 4)
+    tree = build_tree(refined_oracle, CUBE, 2, 4, refine=Refine(centres=True))
+    assert tree.classify(np.array([HOLE_CENTRE]))[0] != INNER
+    assert tree.volume(INNER) < plain_tree.volume(INNER)
+    # The inner volume no longer contains the hollow: probes inside it are never inner.
+    pts = np.array(HOLE_CENTRE) + np.random.default_rng(0).normal(scale=HOLE_R / 3, size=(2000, 3))
+    pts = pts[np.linalg.norm(pts - HOLE_CENTRE, axis=1) < HOLE_R * 0.9]
+    assert not np.any(tree.classify(pts) == INNER)
+    assert refined_oracle.calls <= 1.3 * plain.calls
+    assert tree.meta["build"]["refine"] == {"centres": True, "faces": False, "isolated": False}
+
+
+def test_audit_rates_match_exact_geometry_for_a_ball():
+    ball = OracleSpec("sphere", {"radius": 0.8})
+    tree = build_tree(ball, CUBE, 2, 4)
+    result = audit_tree(tree, ball.create(), samples=3000, policy="optimistic", seed=2)
+    # Optimistic: inner and final cells say yes; false yes = final-cell volume outside the ball.
+    truth = (tree.volume(INNER) + tree.volume(3) - 4 / 3 * np.pi * 0.8**3) / (tree.volume(INNER) + tree.volume(3))
+    fr = result["counts"]["false_reachable"]
+    lo, hi = wilson(fr["errors"], fr["of"])
+    # The probe mix is stratified; compare the volume-weighted estimate with a generous interval.
+    assert abs(result["false_reachable"] - truth) < 3 * (hi - lo)
+    assert result["false_unreachable"] == 0.0  # outer cells lie wholly outside a convex ball
+
+
+def test_isolated_vertices_are_retried_from_their_neighbours(tmp_path):
+    # A human arm: a few unreachable vertices surrounded by reachable ones get a second chance.
+    data = {
+        "name": "iso", "body": {"human": {"sex": "male", "percentile": 50}},
+        "box": {"min": [-0.6, -1.0, 0.5], "max": [0.9, 1.0, 2.1]}, "depth": {"min": 1, "max": 3},
+        "oracle": {"name": "casadi-ik", "params": {"restarts": 0, "secondary": False}},
+        "build": {"refine": {"isolated": True}},
+        "strategies": [{"name": "right_arm", "effector": "right_hand",
+                        "joints": ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"], "tasks": [{"type": "reach"}]}],
+    }
+    tree = build_atlas(parse_config(data, "iso", "iso"), tmp_path / "iso").trees["right_arm"]
+    b = tree.meta["build"]
+    assert b["refine"]["isolated"] is True
+    assert b["oracle_calls"] == b["distinct_vertices"] + sum(lv["retried"] for lv in b["levels"])
+
+
+def test_reach_audit_cli_json(tmp_path, capsys):
+    data = {"name": "hollow", "box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 2, "max": 4},
+            "oracle": HOLLOW.to_dict(), "strategies": [{"name": "hollow", "effector": "point"}]}
+    build_atlas(parse_config(data, "hollow", "hollow"), tmp_path / "a")
+    assert main(["audit", str(tmp_path / "a"), "--samples", "300", "--json"]) == 0
+    r = json.loads(capsys.readouterr().out)["strategies"]["hollow"]
+    assert {"false_reachable", "false_unreachable", "probes"} <= set(r) and r["probes"] == 300
+    assert set(r["by_type"]) == {"inner", "final", "outer"} and r["by_depth"]
+    assert main(["audit", str(tmp_path / "a"), "--samples", "60"]) == 0
+    assert "false reachable" in capsys.readouterr().out
+
+
+class StubbornBall:
+    """A ball oracle with postures that fails one vertex the first time it is asked: an IK local minimum in miniature."""
+
+    dim = 3
+    posture_names = ("x",)
+
+    def __init__(self, trap):
+        self.ball = OracleSpec("sphere", {"radius": 0.9}).create()
+        self.trap = np.asarray(trap)
+        self.asked = 0
+
+    def evaluate(self, points, hints=None):
+        v = self.ball.evaluate(points)
+        trapped = np.all(np.isclose(points, self.trap), axis=1)
+        reach = v.reachable & ~(trapped & (self.asked == 0))
+        self.asked += int(trapped.sum())
+        return type(v)(reach, v.residual, points[:, :1].copy())
+
+
+def test_retry_turns_an_isolated_failure_into_a_verdict():
+    trap = (0.5, 0.25, 0.25)  # a depth-3 vertex inside the ball whose depth-3 neighbours are all inside
+    plain = build_tree(StubbornBall(trap), CUBE, 2, 4)
+    fixed = build_tree(StubbornBall(trap), CUBE, 2, 4, refine=Refine(isolated=True))
+    key = plain.lattice.keys(np.rint((np.array([trap]) - CUBE.lo) / plain.lattice.resolution).astype(np.int64))
+    assert plain.vertices.index(key)[0] >= 0 and fixed.vertices.index(key)[0] >= 0
+    assert not plain.vertices.reachable[plain.vertices.index(key)][0]
+    assert fixed.vertices.reachable[fixed.vertices.index(key)][0]
+    assert sum(lv["retried"] for lv in fixed.meta["build"]["levels"]) == 1
+    assert fixed.volume(INNER) > plain.volume(INNER)
