@@ -54,10 +54,10 @@ def main() -> None:
             emit(
                 bench="build", config=config.name, strategy=name, d_max=tree.d_max, oracle_calls=b["oracle_calls"],
                 mirrored_from=b.get("mirrored_from"), seconds=round(b["seconds"], 2),
-                vertices_per_s=round(b["oracle_calls"] / b["seconds"], 1) if b["seconds"] else None,
+                vertices_per_s=round(b["oracle_calls"] / b["seconds"], 1) if b["seconds"] and b["oracle_calls"] else None,
                 full_lattice=tree.lattice.vertex_count, final_cell_vertices=int(final),
-                calls_over_full=round(b["oracle_calls"] / tree.lattice.vertex_count, 4),
-                calls_over_final=round(b["oracle_calls"] / max(final, 1), 3),
+                calls_over_full=round(b.get("lookups", b["oracle_calls"]) / tree.lattice.vertex_count, 4),
+                calls_over_final=round(b.get("lookups", b["oracle_calls"]) / max(final, 1), 3),
             )
         emit(bench="atlas", config=config.name, workers=workers, wall_s=round(total, 1))
     if args.skip_dask:

@@ -116,8 +116,8 @@ def build_atlas(
         source = _mirror_source(config, s, built, say) if tree is None and mirror else None
         if tree is None and source is not None:
             tree = build_tree(MirrorOracle(*source), config.box, config.d_min, config.d_max, meta={**meta, "mirrored_from": s.mirror_of})
-            tree.meta["build"]["mirrored_from"] = s.mirror_of
-            tree.meta["build"]["ik_calls"] = 0
+            # The mirror oracle only looks verdicts up: no oracle call is made.
+            tree.meta["build"].update(mirrored_from=s.mirror_of, lookups=tree.meta["build"]["oracle_calls"], oracle_calls=0)
             if "model_hash" in source[0].meta:
                 tree.meta["model_hash"] = source[0].meta["model_hash"]
             say(f"{s.name}: mirrored from {s.mirror_of} ({len(tree)} nodes, no oracle call)")

@@ -95,6 +95,7 @@ def test_mirrored_left_matches_a_built_left(both_sides):
     assert any("left_arm: mirrored from right_arm" in line for line in lines)
     m, b = mirrored.trees["left_arm"], built.trees["left_arm"]
     assert m.meta["build"]["mirrored_from"] == "right_arm" and "mirrored_from" not in b.meta["build"]
+    assert m.oracle_calls == 0 and m.meta["build"]["lookups"] == len(m.vertices)
     # Same lattice, verdicts from independent IK solves: they agree but for a few boundary vertices.
     common = np.intersect1d(m.vertices.keys, b.vertices.keys)
     agree = np.mean(m.vertices.reachable[m.vertices.index(common)] == b.vertices.reachable[b.vertices.index(common)])
