@@ -6,11 +6,17 @@ each strategy's ``joints`` and ``tasks`` (see :mod:`oracles.strategy`).
 Example (``configs/sphere.yaml``)::
 
     name: sphere
-    box: {min: [-1.0, -1.0, -1.0], max: [1.0, 1.0, 1.0]}   # metres
+    box: {min: [-1.0, -1.0, -1.0], max: [1.0, 1.0, 1.0]}   # metres, or: box: auto
     depth: {min: 2, max: 7}
     oracle: {name: sphere, params: {center: [0, 0, 0], radius: 1.0}}
     strategies:
       - {name: sphere, effector: point, priority: 1}
+
+``box: auto`` (or ``box: {auto: {margin: 0.05, floor: true}}``) derives B0
+from the body's size: the union of every strategy's reach bound (a ball
+about its fixed anchor: the first moving joint, or a planted foot), plus the
+margin [m], cut at the floor z = 0, and symmetric about y = 0 when a strategy
+is mirrored.
 
 Strategies are tried in increasing ``priority`` (1 first); the default is
 their order in the file. A strategy's ``oracle.params`` are merged over the
@@ -26,6 +32,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 from oracles.protocol import OracleSpec
@@ -135,14 +142,18 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
     check = _Checker(source)
     top = check.mapping(data, "", TOP_KEYS, {"box", "depth", "oracle", "strategies"})
     name = check.string(top.get("name", default_name), "name")
-    box_raw = check.mapping(top["box"], "box", {"min", "max"}, {"min", "max"})
-    lo, hi = check.vector(box_raw["min"], "box.min"), check.vector(box_raw["max"], "box.max")
-    if len(lo) not in (2, 3) or len(lo) != len(hi):
-        raise check.fail("box", f"min and max must both have 2 or 3 coordinates, got {len(lo)} and {len(hi)}")
-    try:
-        box = Box(lo, hi)  # type: ignore[arg-type]
-    except TreeError as exc:
-        raise check.fail("box", str(exc)) from exc
+    auto = _auto_box(check, top["box"])
+    if auto is None:
+        box_raw = check.mapping(top["box"], "box", {"min", "max"}, {"min", "max"})
+        lo, hi = check.vector(box_raw["min"], "box.min"), check.vector(box_raw["max"], "box.max")
+        if len(lo) not in (2, 3) or len(lo) != len(hi):
+            raise check.fail("box", f"min and max must both have 2 or 3 coordinates, got {len(lo)} and {len(hi)}")
+        try:
+            box = Box(lo, hi)  # type: ignore[arg-type]
+        except TreeError as exc:
+            raise check.fail("box", str(exc)) from exc
+    else:
+        box = Box([-1.0, -1.0, -1.0], [1.0, 1.0, 1.0])  # a stand-in until the oracles give the real one
     depth = check.mapping(top["depth"], "depth", {"min", "max"}, {"min", "max"})
     d_max = check.integer(depth["max"], "depth.max", 0, MAX_DEPTH)
     d_min = check.integer(depth["min"], "depth.min", 0, MAX_DEPTH)
@@ -182,21 +193,24 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
         if not isinstance(v, bool):
             raise check.fail(f"build.refine.{k}", f"expected true or false, got {v!r}")
     refine = Refine(**refine_raw)
+    oracles = _check_oracles(check, strategies, box.dim)
+    if auto is not None:
+        box = _derive_box(check, oracles, auto, any(s.mirror_of for s in strategies))
     names = {s.name for s in strategies}
     for i, s in enumerate(strategies):
         if s.mirror_of is not None and (s.mirror_of not in names or s.mirror_of == s.name):
             raise check.fail(f"strategies[{i}].mirror_of", f"expected the name of another strategy, got {s.mirror_of!r}")
         if s.mirror_of is not None and box.dim == 3 and box.lo[1] != -box.hi[1]:
             raise check.fail(f"strategies[{i}].mirror_of", f"mirroring needs a box symmetric about y = 0, got y in [{box.lo[1]}, {box.hi[1]}]")
-    _check_oracles(check, strategies, box.dim)
     strategies.sort(key=lambda s: s.priority)
     return Config(name, source, box, d_min, d_max, tuple(strategies), chunk, refine, dict(top))
 
 
-def _check_oracles(check: _Checker, strategies: list[StrategySpec], dim: int) -> None:
-    """Build each distinct oracle once so that bad params fail at load time, naming the key."""
+def _check_oracles(check: _Checker, strategies: list[StrategySpec], dim: int) -> list[Any]:
+    """Build each oracle once so that bad params fail at load time, naming the key."""
     from reach.errors import ReachError
 
+    out = []
     for i, s in enumerate(strategies):
         try:
             oracle = s.oracle.create()
@@ -204,6 +218,43 @@ def _check_oracles(check: _Checker, strategies: list[StrategySpec], dim: int) ->
             raise check.fail(f"strategies[{i}].oracle", str(exc)) from exc
         if oracle.dim != dim:
             raise check.fail("box", f"box is {dim}-D but strategy {s.name!r} uses a {oracle.dim}-D oracle")
+        out.append(oracle)
+    return out
+
+
+def _auto_box(check: _Checker, value: Any) -> dict[str, Any] | None:
+    """Options of a derived box (``box: auto`` or ``box: {auto: {margin: m, floor: true}}``), or None for a given one."""
+    if value == "auto":
+        return {"margin": 0.05, "floor": True}
+    if isinstance(value, Mapping) and "auto" in value:
+        check.mapping(value, "box", {"auto"})
+        opts = check.mapping(value["auto"] if value["auto"] is not True else {}, "box.auto", {"margin", "floor"})
+        margin = opts.get("margin", 0.05)
+        if isinstance(margin, bool) or not isinstance(margin, (int, float)) or not 0 <= margin <= 2:
+            raise check.fail("box.auto.margin", f"expected a number of metres in [0, 2], got {margin!r}")
+        if not isinstance(opts.get("floor", True), bool):
+            raise check.fail("box.auto.floor", f"expected true or false, got {opts['floor']!r}")
+        return {"margin": float(margin), "floor": opts.get("floor", True)}
+    return None
+
+
+def _derive_box(check: _Checker, oracles: list[Any], auto: dict[str, Any], symmetric: bool) -> Box:
+    """B0 from the bodies' size: the union of every strategy's reach bound (a ball about its fixed anchor)."""
+    lows, highs = [], []
+    for o in oracles:
+        problem = getattr(o, "problem", None)
+        if problem is None or problem.anchor is None or not np.isfinite(problem.max_reach):
+            raise check.fail("box", "box: auto needs body strategies whose reach is bounded (a fixed root, or feet on the floor); give box.min and box.max")
+        lows.append(problem.anchor - problem.max_reach)
+        highs.append(problem.anchor + problem.max_reach)
+    lo = np.min(lows, axis=0) - auto["margin"]
+    hi = np.max(highs, axis=0) + auto["margin"]
+    if auto["floor"]:
+        lo[2] = max(lo[2], 0.0)  # the floor of the world frame: nothing reaches below it
+    if symmetric:
+        half = max(-lo[1], hi[1])
+        lo[1], hi[1] = -half, half
+    return Box(np.round(lo, 4), np.round(hi, 4))
 
 
 def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:

@@ -4,10 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
-from reach.config import load_config
+from reach.config import load_config, parse_config
 from reach.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -89,3 +90,26 @@ def test_not_yaml_and_not_a_mapping(tmp_path):
         load_config(write(tmp_path, "- 1\n- 2\n"))
     with pytest.raises(ConfigError, match="cannot read"):
         load_config(tmp_path / "absent.yaml")
+
+
+def test_box_auto_is_derived_from_the_body():
+    data = {
+        "body": {"human": {"sex": "male", "percentile": 50}}, "box": {"auto": {"margin": 0.1}}, "depth": {"min": 1, "max": 3},
+        "oracle": {"name": "casadi-ik"},
+        "strategies": [{"name": "arm", "effector": "right_hand", "joints": ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"]}],
+    }
+    config = parse_config(data, "auto", "auto")
+    from oracles.body import human_body
+
+    body = human_body()
+    shoulder = body.frame_positions(names=["right_shoulder"])["right_shoulder"]
+    arm = np.linalg.norm(body.frame_positions(names=["right_hand"])["right_hand"] - shoulder)
+    bound = config.strategies[0].oracle.create().problem.max_reach
+    assert arm <= bound <= arm + 0.03  # the chain's stretched length, about the shoulder
+    assert np.allclose(config.box.lo, shoulder - bound - 0.1, atol=1e-3) and np.allclose(config.box.hi, shoulder + bound + 0.1, atol=1e-3)
+    data["box"] = "auto"
+    data["oracle"] = {"name": "sphere"}
+    data["strategies"] = [{"name": "ball", "effector": "point"}]
+    del data["body"]
+    with pytest.raises(ConfigError, match="box: auto needs body strategies"):
+        parse_config(data, "auto", "auto")
