@@ -29,6 +29,7 @@ sphere: $(VENV)/.installed
 
 lint: $(VENV)/.installed
 	$(VENV)/bin/ruff check reach oracles ros_bridge tests bench
+	$(VENV)/bin/mypy
 
 test: lint
 	$(PY) -m pytest -q

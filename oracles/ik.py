@@ -145,7 +145,7 @@ class CasadiIK(IKOracle):
             self.order = self.order[: self.order.index("reach") + 1]
         self.objectives = objectives
         g, lbg, ubg = self._hard_constraints(kin)
-        opts = {**({"ipopt.max_wall_time": self.max_seconds} if self.max_seconds else {}), "ipopt.print_level": 0, "print_time": 0, "ipopt.sb": "yes", "ipopt.max_iter": int(max_iter), "ipopt.tol": 1e-6, "ipopt.acceptable_tol": 1e-4}
+        opts: dict[str, Any] = {**({"ipopt.max_wall_time": self.max_seconds} if self.max_seconds else {}), "ipopt.print_level": 0, "print_time": 0, "ipopt.sb": "yes", "ipopt.max_iter": int(max_iter), "ipopt.tol": 1e-6, "ipopt.acceptable_tol": 1e-4}
         self.stages = []
         for k, task in enumerate(self.order):
             # Earlier objectives become constraints. Reach is held per axis
@@ -189,7 +189,8 @@ class CasadiIK(IKOracle):
         return g, lo, hi
 
     def _stage_bounds(self, k: int, optimum: list[float]) -> tuple[np.ndarray, np.ndarray]:
-        lo, hi = [self.lbg], [self.ubg]
+        lo: list[Any] = [self.lbg]
+        hi: list[Any] = [self.ubg]
         for t, opt in zip(self.order[:k], optimum, strict=False):
             if t == "reach":
                 b = np.sqrt(max(opt, 0.0)) + STAGE_SLACK["reach"]

@@ -151,7 +151,7 @@ class Combination:
         else:
             ok = inside[0] & ~inside[1:].any(axis=0)
             residual = np.where(ok, 0.0, res[0])
-        return Verdicts(ok, np.where(ok, 0.0, residual), None)
+        return Verdicts(np.asarray(ok), np.where(ok, 0.0, residual), None)
 
 
 def _parts(oracles: list[dict[str, Any]]) -> list[Oracle]:

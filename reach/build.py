@@ -26,7 +26,7 @@ from reach.errors import TreeError
 from reach.executor import Executor, InlineExecutor
 from reach.tree import FINAL, INNER, OUTER, PARENT, Box, Lattice, VATree, VertexTable, bfs_children, corner_offsets
 
-LevelCallback = Callable[["BuildState"], None]
+LevelCallback = Callable[["BuildState"], object]
 
 
 @dataclass

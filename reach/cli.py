@@ -111,9 +111,8 @@ def cmd_query(args: argparse.Namespace) -> int:
 
         with Client(args.connect, timeout=args.timeout, curve_server_key=args.curve_server_key) as client:
             effectors = [args.effector] if args.effector else client.strategies()["effectors"]
-            answers = [client.query(e, goal, refine) for e in effectors]
-        for a in answers:
-            a.pop("ok", None), a.pop("id", None)
+            # The reply's envelope fields are not part of the answer.
+            answers = [{k: v for k, v in client.query(e, goal, refine).items() if k not in ("ok", "id")} for e in effectors]
     else:
         from reach.select import Selector
         from reach.store import load_atlas

@@ -149,11 +149,11 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
         if len(lo) not in (2, 3) or len(lo) != len(hi):
             raise check.fail("box", f"min and max must both have 2 or 3 coordinates, got {len(lo)} and {len(hi)}")
         try:
-            box = Box(lo, hi)  # type: ignore[arg-type]
+            box = Box(np.array(lo), np.array(hi))
         except TreeError as exc:
             raise check.fail("box", str(exc)) from exc
     else:
-        box = Box([-1.0, -1.0, -1.0], [1.0, 1.0, 1.0])  # a stand-in until the oracles give the real one
+        box = Box(-np.ones(3), np.ones(3))  # a stand-in until the oracles give the real one
     depth = check.mapping(top["depth"], "depth", {"min", "max"}, {"min", "max"})
     d_max = check.integer(depth["max"], "depth.max", 0, MAX_DEPTH)
     d_min = check.integer(depth["min"], "depth.min", 0, MAX_DEPTH)
@@ -195,14 +195,14 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
     refine = Refine(**refine_raw)
     oracles = _check_oracles(check, strategies, box.dim)
     if auto is not None:
-        box = _derive_box(check, oracles, auto, any(s.mirror_of for s in strategies))
-    names = {s.name for s in strategies}
-    for i, s in enumerate(strategies):
-        if s.mirror_of is not None and (s.mirror_of not in names or s.mirror_of == s.name):
-            raise check.fail(f"strategies[{i}].mirror_of", f"expected the name of another strategy, got {s.mirror_of!r}")
-        if s.mirror_of is not None and box.dim == 3 and box.lo[1] != -box.hi[1]:
+        box = _derive_box(check, oracles, auto, any(spec.mirror_of for spec in strategies))
+    names = {spec.name for spec in strategies}
+    for i, spec in enumerate(strategies):
+        if spec.mirror_of is not None and (spec.mirror_of not in names or spec.mirror_of == spec.name):
+            raise check.fail(f"strategies[{i}].mirror_of", f"expected the name of another strategy, got {spec.mirror_of!r}")
+        if spec.mirror_of is not None and box.dim == 3 and box.lo[1] != -box.hi[1]:
             raise check.fail(f"strategies[{i}].mirror_of", f"mirroring needs a box symmetric about y = 0, got y in [{box.lo[1]}, {box.hi[1]}]")
-    strategies.sort(key=lambda s: s.priority)
+    strategies.sort(key=lambda spec: spec.priority)
     return Config(name, source, box, d_min, d_max, tuple(strategies), chunk, refine, dict(top))
 
 
@@ -257,7 +257,7 @@ def _derive_box(check: _Checker, oracles: list[Any], auto: dict[str, Any], symme
     return Box(np.round(lo, 4), np.round(hi, 4))
 
 
-def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+def _merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
     """Mappings merge key by key; anything else in over replaces base."""
     out = dict(base)
     for k, v in over.items():

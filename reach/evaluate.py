@@ -58,7 +58,7 @@ def evaluate(atlases: list[Atlas], targets: list[Target], effector: str | None =
     results: dict[str, Any] = {"atlases": [], "targets": [t.name for t in targets]}
     for atlas in atlases:
         selector = Selector(atlas, policy, refine=False)  # type: ignore[arg-type]
-        rows = []
+        rows: list[dict[str, Any]] = []
         for t in targets:
             eff = t.effector or effector or (selector.effectors[0] if len(selector.effectors) == 1 else None)
             if eff is None:

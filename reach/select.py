@@ -77,6 +77,10 @@ def split_posture(names: tuple[str, ...], q: np.ndarray) -> tuple[dict[str, floa
     return joints, {"position": [float(v) for v in q[i : i + 3]], "quaternion": [float(v) for v in q[i + 3 : i + 7]]}
 
 
+class UnknownEffector(ReachError):
+    """A goal was asked for an effector that no strategy of the atlas moves."""
+
+
 class Selector:
     """Answers goals from an atlas; per-tree lookup structures are built once.
 
@@ -111,7 +115,7 @@ class Selector:
     def strategies_for(self, effector: str) -> list[str]:
         names = self._by_effector.get(effector)
         if not names:
-            raise ReachError(f"unknown effector {effector!r}; this atlas has {', '.join(self.effectors)}")
+            raise UnknownEffector(f"unknown effector {effector!r}; this atlas has {', '.join(self.effectors)}")
         return names
 
     def _stored(self, name: str, tree: VATree, goals: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:

@@ -27,7 +27,7 @@ import zmq.auth
 
 from reach import protocol as P
 from reach.errors import ReachError
-from reach.select import Selector
+from reach.select import Selector, UnknownEffector
 from reach.store import load_atlas
 
 log = logging.getLogger("reach.server")
@@ -141,8 +141,7 @@ class Server:
             return P.error_reply(exc.code, exc.message, exc.request_id if exc.request_id is not None else rid)
         except ReachError as exc:
             self.errors += 1
-            code = P.UNKNOWN_EFFECTOR if "unknown effector" in str(exc) else P.BAD_REQUEST
-            return P.error_reply(code, str(exc), rid)
+            return P.error_reply(P.UNKNOWN_EFFECTOR if isinstance(exc, UnknownEffector) else P.BAD_REQUEST, str(exc), rid)
         except Exception as exc:  # a bug must not stop the server
             self.errors += 1
             log.exception("internal error")

@@ -52,7 +52,7 @@ def save_tree(tree: VATree, path: str | Path) -> Path:
         "d_max": tree.d_max,
         "posture_names": list(tree.vertices.posture_names),
     }
-    arrays = {
+    arrays: dict[str, np.ndarray] = {
         "meta": np.frombuffer(json.dumps(meta, sort_keys=True).encode(), np.uint8),
         "depth": tree.depth.astype(np.uint8),
         "corner": tree.corner.astype(np.int64),
@@ -64,7 +64,7 @@ def save_tree(tree: VATree, path: str | Path) -> Path:
     if tree.vertices.posture is not None:
         arrays["vertex_posture"] = tree.vertices.posture.astype(float)
     path.parent.mkdir(parents=True, exist_ok=True)
-    _atomic_write(path, lambda fh: np.savez_compressed(fh, **arrays))
+    _atomic_write(path, lambda fh: np.savez_compressed(fh, **arrays))  # type: ignore[arg-type]
     return path
 
 
