@@ -126,3 +126,18 @@ def test_asymmetric_body_is_built_not_mirrored(tmp_path):
     atlas = build_atlas(parse_config(data, "asym", "asym"), tmp_path / "asym", log=lines.append)
     assert any("left_arm: built, not mirrored: human: joint ranges are not mirror-symmetric" in line for line in lines)
     assert "mirrored_from" not in atlas.trees["left_arm"].meta["build"]
+
+
+def test_mirror_oracle_refuses_a_lopsided_box_and_unknown_vertices():
+    from oracles.protocol import OracleSpec
+    from reach.build import build_tree
+    from reach.errors import OracleError
+    from reach.mirror import MirrorOracle
+    from reach.tree import Box
+
+    tree = build_tree(OracleSpec("sphere", {"radius": 0.5}), Box([-1, -0.5, -1], [1, 1, 1]), 1, 2)
+    with pytest.raises(OracleError, match="symmetric about y = 0"):
+        MirrorOracle(tree, None)
+    sym = build_tree(OracleSpec("sphere", {"radius": 0.5}), Box([-1, -1, -1], [1, 1, 1]), 1, 3)
+    with pytest.raises(OracleError, match="never evaluated in the source tree"):
+        MirrorOracle(sym, None).evaluate(np.array([[0.75, 0.75, 0.75]]))  # inside an outer depth-2 cell

@@ -90,3 +90,49 @@ def test_config_base_inheritance_and_relative_urdf():
     assert female.strategies[0].oracle.params["body"] == {"human": {"sex": "female", "percentile": 5}}
     ur5 = load_config(ROOT / "configs" / "ur5.yaml")
     assert Path(ur5.strategies[0].oracle.params["body"]["urdf"]).is_file()
+
+
+def test_unknown_strategy_names_are_errors(balls, tmp_path, capsys):
+    assert main(["report", str(balls.path), "-o", str(tmp_path / "r"), "--strategies", "small,tiny"]) == 2
+    assert "unknown strategies ['tiny']" in capsys.readouterr().err
+    assert main(["export", str(balls.path), "tiny", "-o", str(tmp_path / "t.stl")]) == 2
+    assert "unknown strategy 'tiny'" in capsys.readouterr().err
+    assert main(["audit", str(balls.path), "--strategies", "tiny"]) == 2
+    assert "unknown strategies ['tiny']" in capsys.readouterr().err
+
+
+def test_targets_without_an_effector_are_refused(tmp_path):
+    from reach.store import Atlas
+
+    two = Atlas(Path("two"), {"strategies": [{"name": "a", "effector": "left", "priority": 1, "file": "a"},
+                                              {"name": "b", "effector": "right", "priority": 1, "file": "b"}]}, {})
+    targets = tmp_path / "t.csv"
+    targets.write_text("name,x,y,z\nknob,0,0,0\n")
+    with pytest.raises(ConfigError, match="no effector: give an effector column or --effector"):
+        evaluate([two], load_targets(targets))
+
+
+@pytest.mark.parametrize(
+    ("doc", "key", "message"),
+    [
+        ("base: 3\n", "base", "expected the path of a config to extend"),
+        ("base: loop.yaml\n", "base", "extends itself"),
+    ],
+)
+def test_config_base_errors(tmp_path, doc, key, message):
+    path = tmp_path / "loop.yaml"
+    path.write_text(doc)
+    with pytest.raises(ConfigError, match=message) as info:
+        load_config(path)
+    assert info.value.key == key
+
+
+def test_mirror_config_errors():
+    base = {"box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 1, "max": 2}, "oracle": {"name": "sphere"}}
+    with pytest.raises(ConfigError, match=r"strategies\[0\]\.mirror_of: expected the name of another strategy"):
+        parse_config({**base, "strategies": [{"name": "a", "mirror_of": "a"}]}, "m", "m")
+    lopsided = {**base, "box": {"min": [-1, -0.5, -1], "max": [1, 1, 1]}}
+    with pytest.raises(ConfigError, match="mirroring needs a box symmetric about y = 0"):
+        parse_config({**lopsided, "strategies": [{"name": "a"}, {"name": "b", "mirror_of": "a"}]}, "m", "m")
+    with pytest.raises(ConfigError, match=r"box\.auto\.margin: expected a number of metres"):
+        parse_config({**base, "box": {"auto": {"margin": "wide"}}, "strategies": [{"name": "a"}]}, "m", "m")
