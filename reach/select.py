@@ -108,6 +108,14 @@ class Selector:
         for tree in atlas.trees.values():
             tree.classify(np.zeros((1, tree.dim)))  # build lookup tables now, not on the first request
 
+    def warm_up(self) -> Selector:
+        """Build every strategy's refinement oracle and posture index now, not on the first request."""
+        for name, tree in self.atlas.trees.items():
+            if tree.vertices.posture is not None:
+                self._oracle(name)
+                self._stored(name, tree, tree.box.lo[None])
+        return self
+
     @property
     def effectors(self) -> list[str]:
         return sorted(self._by_effector)

@@ -53,7 +53,7 @@ class Server:
     ) -> None:
         self.atlas_path = Path(atlas)
         self.policy, self.refine, self.budget = policy, refine, budget
-        self.selector = Selector(load_atlas(self.atlas_path), policy, refine, budget)  # type: ignore[arg-type]
+        self.selector = Selector(load_atlas(self.atlas_path), policy, refine, budget).warm_up()  # type: ignore[arg-type]
         self.context = context or zmq.Context.instance()
         self.router = self.context.socket(zmq.ROUTER)
         self.router.setsockopt(zmq.LINGER, 0)
@@ -175,7 +175,7 @@ class Server:
         if req.op == "reload":
             path = Path(req.path) if req.path else self.atlas_path
             try:
-                selector = Selector(load_atlas(path), self.policy, self.refine, self.budget)  # type: ignore[arg-type]
+                selector = Selector(load_atlas(path), self.policy, self.refine, self.budget).warm_up()  # type: ignore[arg-type]
             except ReachError as exc:
                 raise P.ProtocolError(P.RELOAD_FAILED, f"kept the current atlas: {exc}", req.id) from None
             self.selector, self.atlas_path = selector, path
