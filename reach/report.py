@@ -102,7 +102,7 @@ def _axes3d(fig: Any, pos: int, title: str, tree: VATree) -> Any:
     return ax
 
 
-def figures(atlas: Atlas, out: Path, level: int = 5, names: list[str] | None = None) -> list[Path]:
+def figures(atlas: Atlas, out: Path, level: int = 4, names: list[str] | None = None) -> list[Path]:
     """Write the PNG figures; returns their paths."""
     import matplotlib
 
@@ -200,7 +200,7 @@ def _save(fig: Any, path: Path) -> Path:
     return path
 
 
-def report(atlas: Atlas, out: str | Path, level: int = 5, names: list[str] | None = None) -> dict[str, Any]:
+def report(atlas: Atlas, out: str | Path, level: int = 4, names: list[str] | None = None) -> dict[str, Any]:
     """Write the tables and figures into out; returns the tables with the figure paths."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)

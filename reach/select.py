@@ -102,9 +102,8 @@ class Selector:
         self._by_effector: dict[str, list[str]] = {}
         for name, effector in self.order:
             self._by_effector.setdefault(effector, []).append(name)
-        self._kd: dict[str, tuple[cKDTree, np.ndarray] | None] = {}
+        self._kd: dict[str, tuple[cKDTree, np.ndarray, np.ndarray] | None] = {}
         self._oracles: dict[str, Any] = {}
-        self._fk: dict[str, Any] = {}
         for tree in atlas.trees.values():
             tree.classify(np.zeros((1, tree.dim)))  # build lookup tables now, not on the first request
 
@@ -127,19 +126,37 @@ class Selector:
         return names
 
     def _stored(self, name: str, tree: VATree, goals: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """Rows of the nearest reachable stored vertices, or None without postures."""
+        """Rows of the nearest reachable stored vertices and where their postures put the effector [m].
+
+        The index and the effector positions are computed once per strategy
+        (at warm-up for a server), so a request costs one k-d tree query.
+        """
         if name not in self._kd:
             v = tree.vertices
             ok = np.nonzero(v.reachable)[0]
             self._kd[name] = None
             if v.posture is not None and ok.size:
-                self._kd[name] = (cKDTree(tree.lattice.points(tree.lattice.coords(v.keys[ok]))), ok)
+                self._kd[name] = (cKDTree(tree.lattice.points(tree.lattice.coords(v.keys[ok]))), ok, self._effector_positions(name, v.posture[ok]))
         found = self._kd[name]
         if found is None:
             return None
-        kd, rows = found
+        kd, rows, effector = found
         _, i = kd.query(goals)
-        return rows[np.asarray(i)], tree.vertices.residual[rows[np.asarray(i)]]
+        i = np.asarray(i)
+        return rows[i], effector[i]
+
+    def _effector_positions(self, name: str, postures: np.ndarray) -> np.ndarray:
+        """Effector positions [m] of postures (n, nq), by Pinocchio."""
+        import pinocchio as pin
+
+        oracle = self._oracle(name)
+        model = oracle.body.model
+        data, fid = model.createData(), oracle.body.frame_id(oracle.strategy.effector)
+        out = np.empty((len(postures), 3))
+        for k, q in enumerate(postures):
+            pin.forwardKinematics(model, data, q)
+            out[k] = pin.updateFramePlacement(model, data, fid).translation
+        return out
 
     def _oracle(self, name: str) -> Any:
         """The strategy's IK oracle for refinement, built once from the tree's own spec."""
@@ -185,11 +202,11 @@ class Selector:
             outcome = UNAVAILABLE
             entry = stored[k]
             if entry is not None:
-                sel, rows, _ = entry  # type: ignore[misc]
+                sel, rows, effector = entry  # type: ignore[misc]
                 j = int(np.searchsorted(sel, i))
                 q = tree.vertices.posture[rows[j]]  # type: ignore[index]
                 # The stored residual is the vertex's own; what matters is the distance to this goal.
-                residual = float(np.linalg.norm(g[i] - self._effector_position(name, q)))
+                residual = float(np.linalg.norm(g[i] - effector[j]))
                 outcome = SKIPPED
                 if refine:
                     q, residual, outcome = self._refine(name, g[i], q, residual)
@@ -199,17 +216,6 @@ class Selector:
                 time.perf_counter() - ti if len(g) > 1 else time.perf_counter() - t0,
             ))
         return answers
-
-    def _effector_position(self, name: str, q: np.ndarray) -> np.ndarray:
-        """Effector position [m] at q, by Pinocchio with a per-strategy cached data."""
-        import pinocchio as pin
-
-        oracle = self._oracle(name)
-        if name not in self._fk:
-            self._fk[name] = (oracle.body.model.createData(), oracle.body.frame_id(oracle.strategy.effector))
-        data, fid = self._fk[name]
-        pin.forwardKinematics(oracle.body.model, data, q)
-        return pin.updateFramePlacement(oracle.body.model, data, fid).translation.copy()  # type: ignore[no-any-return]
 
     def _refine(self, name: str, goal: np.ndarray, q: np.ndarray, residual: float) -> tuple[np.ndarray, float, str]:
         oracle = self._oracle(name)
