@@ -202,11 +202,11 @@ class Selector:
             outcome = UNAVAILABLE
             entry = stored[k]
             if entry is not None:
-                sel, rows, effector = entry  # type: ignore[misc]
+                sel, rows, reached = entry  # type: ignore[misc]
                 j = int(np.searchsorted(sel, i))
                 q = tree.vertices.posture[rows[j]]  # type: ignore[index]
                 # The stored residual is the vertex's own; what matters is the distance to this goal.
-                residual = float(np.linalg.norm(g[i] - effector[j]))
+                residual = float(np.linalg.norm(g[i] - reached[j]))
                 outcome = SKIPPED
                 if refine:
                     q, residual, outcome = self._refine(name, g[i], q, residual)
