@@ -11,8 +11,10 @@ keeps the stored posture and says so.
 
 from __future__ import annotations
 
+import json
 import time
-from dataclasses import dataclass
+from collections import OrderedDict
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -28,6 +30,7 @@ FAILED = "failed"  # the IK did not reach it; posture is the stored one
 TIMEOUT = "timeout"  # the budget ran out; posture is the stored one
 SKIPPED = "skipped"  # refinement was not asked for
 UNAVAILABLE = "unavailable"  # the strategy's oracle stores no postures (analytic shapes)
+POSTURE_CACHE = 4096  # stored postures kept encoded, most recently used first
 
 
 @dataclass(frozen=True)
@@ -58,6 +61,14 @@ class Answer:
     residual: float | None = None
     refined: str = SKIPPED
     seconds: float = 0.0
+    posture_json: bytes | None = field(default=None, repr=False, compare=False)
+
+    def to_json(self) -> bytes:
+        """UTF-8 JSON of to_dict(), reusing the posture's cached encoding when there is one."""
+        if self.posture_json is None:
+            return json.dumps(self.to_dict(), allow_nan=False, separators=(",", ":")).encode()
+        head = {k: v for k, v in self.to_dict().items() if k not in ("posture", "root")}
+        return json.dumps(head, allow_nan=False, separators=(",", ":")).encode()[:-1] + b"," + self.posture_json + b"}"
 
     def to_dict(self) -> dict[str, Any]:
         # By hand rather than dataclasses.asdict, whose deep copies cost more than the lookup.
@@ -104,6 +115,7 @@ class Selector:
             self._by_effector.setdefault(effector, []).append(name)
         self._kd: dict[str, tuple[cKDTree, np.ndarray, np.ndarray] | None] = {}
         self._oracles: dict[str, Any] = {}
+        self._postures: OrderedDict[tuple[str, int], tuple[dict[str, float], dict[str, list[float]] | None, bytes]] = OrderedDict()
         for tree in atlas.trees.values():
             tree.classify(np.zeros((1, tree.dim)))  # build lookup tables now, not on the first request
 
@@ -136,14 +148,39 @@ class Selector:
             ok = np.nonzero(v.reachable)[0]
             self._kd[name] = None
             if v.posture is not None and ok.size:
-                self._kd[name] = (cKDTree(tree.lattice.points(tree.lattice.coords(v.keys[ok]))), ok, self._effector_positions(name, v.posture[ok]))
+                reached = np.full((len(v), 3), np.nan)
+                reached[ok] = self._effector_positions(name, v.posture[ok])
+                self._kd[name] = (cKDTree(tree.lattice.points(tree.lattice.coords(v.keys[ok]))), ok, reached)
         found = self._kd[name]
         if found is None:
             return None
-        kd, rows, effector = found
+        kd, rows, reached = found
         _, i = kd.query(goals)
         i = np.asarray(i)
-        return rows[i], effector[i]
+        return rows[i], reached[rows[i]]
+
+    def _nearest_row(self, name: str, tree: VATree, goal: list[float]) -> tuple[int, np.ndarray] | None:
+        """The nearest reachable stored vertex of one goal: its row and effector position.
+
+        Usually the lattice vertex nearest to the goal is reachable and found
+        by one lookup; otherwise the k-d tree answers.
+        """
+        if name not in self._kd:
+            self._stored(name, tree, np.asarray([goal]))
+        found = self._kd[name]
+        if found is None:
+            return None
+        reached = found[2]
+        lat = tree.lattice
+        key = 0
+        for p, lo, res, stride in zip(goal, tree.box.lo.tolist(), lat.resolution.tolist(), lat.strides.tolist(), strict=True):
+            key += min(max(round((p - lo) / res), 0), lat.cells) * stride
+        keys = tree.vertices.keys
+        row = int(np.searchsorted(keys, key))
+        if row < keys.shape[0] and keys[row] == key and tree.vertices.reachable[row]:
+            return row, reached[row]
+        rows, eff = self._stored(name, tree, np.asarray([goal]))  # type: ignore[misc]
+        return int(rows[0]), eff[0]
 
     def _effector_positions(self, name: str, postures: np.ndarray) -> np.ndarray:
         """Effector positions [m] of postures (n, nq), by Pinocchio."""
@@ -181,8 +218,10 @@ class Selector:
         dim = self.atlas.trees[names[0]].dim
         if g.ndim != 2 or g.shape[1] != dim:
             raise ReachError(f"goals must have {dim} coordinates each, got shape {list(g.shape)}")
-        hits = np.stack([self.atlas.trees[n].contains(g, self.policy) for n in names])
         refine = self.refine if refine is None else refine
+        if len(g) == 1:
+            return [self._select_one(effector, names, g[0], refine, t0)]
+        hits = np.stack([self.atlas.trees[n].contains(g, self.policy) for n in names])
         chosen = np.where(hits.any(axis=0), hits.argmax(axis=0), -1)
         stored: dict[int, tuple[np.ndarray, np.ndarray] | None] = {}
         for k in np.unique(chosen[chosen >= 0]):
@@ -210,12 +249,56 @@ class Selector:
                 outcome = SKIPPED
                 if refine:
                     q, residual, outcome = self._refine(name, g[i], q, residual)
-                posture, root = split_posture(tree.vertices.posture_names, q)
+                if outcome == SKIPPED or outcome != REFINED:
+                    posture, root, fragment = self._stored_posture(name, tree, int(rows[j]))
+                else:
+                    posture, root = split_posture(tree.vertices.posture_names, q)
+                    fragment = None
             answers.append(Answer(
                 effector, tuple(map(float, g[i])), name, True, alternatives, posture, root, residual, outcome,
-                time.perf_counter() - ti if len(g) > 1 else time.perf_counter() - t0,
+                time.perf_counter() - ti if len(g) > 1 else time.perf_counter() - t0, fragment if posture is not None else None,
             ))
         return answers
+
+    def _select_one(self, effector: str, names: list[str], goal: np.ndarray, refine: bool, t0: float) -> Answer:
+        """select_many for one goal, in plain Python: the server's per-request path."""
+        point = goal.tolist()
+        hits = [n for n in names if self.atlas.trees[n]._contains_one(point, self.policy)]
+        if not hits:
+            return Answer(effector, tuple(point), None, False, seconds=time.perf_counter() - t0)
+        name, tree = hits[0], self.atlas.trees[hits[0]]
+        posture = root = residual = fragment = None
+        outcome = UNAVAILABLE
+        nearest = self._nearest_row(name, tree, point)
+        if nearest is not None:
+            row, reached = nearest
+            # The stored residual is the vertex's own; what matters is the distance to this goal.
+            residual = float(np.linalg.norm(goal - reached))
+            outcome = SKIPPED
+            if refine:
+                q, residual, outcome = self._refine(name, goal, tree.vertices.posture[row], residual)  # type: ignore[index]
+            if outcome == REFINED:
+                posture, root = split_posture(tree.vertices.posture_names, q)
+            else:
+                posture, root, fragment = self._stored_posture(name, tree, row)
+        return Answer(effector, tuple(point), name, True, tuple(hits[1:]), posture, root, residual, outcome, time.perf_counter() - t0, fragment)
+
+    def _stored_posture(self, name: str, tree: VATree, row: int) -> tuple[dict[str, float], dict[str, list[float]] | None, bytes]:
+        """The stored posture of a vertex as dicts and as encoded JSON, from a bounded cache.
+
+        The dicts are shared between answers: treat them as read-only.
+        """
+        key = (name, row)
+        hit = self._postures.get(key)
+        if hit is None:
+            posture, root = split_posture(tree.vertices.posture_names, tree.vertices.posture[row])  # type: ignore[index]
+            fragment = json.dumps({"posture": posture, "root": root}, separators=(",", ":")).encode()[1:-1]
+            hit = self._postures[key] = (posture, root, fragment)
+            if len(self._postures) > POSTURE_CACHE:
+                self._postures.popitem(last=False)
+        else:
+            self._postures.move_to_end(key)
+        return hit
 
     def _refine(self, name: str, goal: np.ndarray, q: np.ndarray, residual: float) -> tuple[np.ndarray, float, str]:
         oracle = self._oracle(name)

@@ -365,6 +365,8 @@ class VATree:
         if policy not in POLICIES:
             raise TreeError(f"unknown policy {policy!r}; expected one of {', '.join(POLICIES)}")
         pts = np.asarray(points, dtype=float)
+        if pts.ndim == 2 and pts.shape == (1, self.dim):
+            return np.array([self._contains_one(pts[0].tolist(), policy)])
         kinds = self.classify(pts)
         result = kinds == INNER
         if policy == "optimistic":
@@ -374,6 +376,23 @@ class VATree:
             if fin.size:
                 result[fin] = self.nearest_vertex_verdict(pts[fin])
         return result
+
+    def _contains_one(self, point: list[float], policy: Policy) -> bool:
+        """contains() for one point in plain Python (the server's per-request path)."""
+        node = self._locate_one(point)
+        kind = OUTER if node < 0 else int(self.kind[node])
+        if kind != FINAL or policy == "conservative":
+            return kind == INNER
+        if policy == "optimistic":
+            return True
+        lat = self.lattice
+        n = lat.cells
+        key = 0
+        for p, lo, res, stride in zip(point, self.box.lo.tolist(), lat.resolution.tolist(), lat.strides.tolist(), strict=True):
+            key += min(max(round((p - lo) / res), 0), n) * stride
+        keys = self.vertices.keys
+        row = int(np.searchsorted(keys, key))
+        return bool(row < keys.shape[0] and keys[row] == key and self.vertices.reachable[row])
 
     def nearest_vertex_verdict(self, points: np.ndarray) -> np.ndarray:
         """Verdict of the finest-lattice vertex nearest to each point (False if never evaluated)."""
