@@ -3,7 +3,8 @@
 * Round-trip latency (median, p99) of single-goal queries from one REQ
   client: with the stored posture (``refine: false``) and with IK refinement.
 * The same for a bare pyzmq ROUTER echo server answering with a message of
-  the size of the server's reply: the floor on this machine.
+  the size of the server's reply: the floor on this machine. Requests to the
+  two alternate, so that both see the same machine noise.
 * Throughput with 1, 4 and 16 concurrent clients (stored postures).
 
 The atlas is a small human atlas (right arm and upper body, D_max 3) built
@@ -64,21 +65,28 @@ def start(cmd: list[str]) -> tuple[subprocess.Popen, str]:
     return proc, address
 
 
-def latencies(address: str, payloads: list[bytes]) -> np.ndarray:
-    sock = zmq.Context.instance().socket(zmq.REQ)
-    sock.setsockopt(zmq.LINGER, 0)
-    sock.connect(address)
+def latencies(addresses: list[str], payloads: list[bytes]) -> list[np.ndarray]:
+    """Round trips to each address, interleaved request by request so that all see the same machine noise."""
+    socks = []
+    for address in addresses:
+        sock = zmq.Context.instance().socket(zmq.REQ)
+        sock.setsockopt(zmq.LINGER, 0)
+        sock.connect(address)
+        socks.append(sock)
     for p in payloads[:50]:  # warm up
-        sock.send(p)
-        sock.recv()
-    out = []
+        for sock in socks:
+            sock.send(p)
+            sock.recv()
+    out: list[list[float]] = [[] for _ in socks]
     for p in payloads:
-        t0 = time.perf_counter()
-        sock.send(p)
-        sock.recv()
-        out.append(time.perf_counter() - t0)
-    sock.close()
-    return np.array(out)
+        for sock, times in zip(socks, out, strict=True):
+            t0 = time.perf_counter()
+            sock.send(p)
+            sock.recv()
+            times.append(time.perf_counter() - t0)
+    for sock in socks:
+        sock.close()
+    return [np.array(t) for t in out]
 
 
 def throughput(address: str, payloads: list[bytes], clients: int, seconds: float = 3.0) -> float:
@@ -125,26 +133,26 @@ def main() -> None:
         stored = [json.dumps({"op": "query", "id": i, "effector": "right_hand", "goal": g.tolist(), "refine": False}).encode() for i, g in enumerate(goals)]
         refined = [json.dumps({"op": "query", "id": i, "effector": "right_hand", "goal": g.tolist(), "refine": True}).encode() for i, g in enumerate(goals)]
         server, address = start([sys.executable, "-m", "reach.cli", "serve", str(atlas), "--bind", "tcp://127.0.0.1:*", "--pub", "tcp://127.0.0.1:*", "--budget-ms", "20"])
+        echo = None
         try:
             sock = zmq.Context.instance().socket(zmq.REQ)
             sock.connect(address)
             sock.send(stored[0])
             reply_size = len(sock.recv())
             sock.close()
-            s = stats("stored_posture", latencies(address, stored), request_bytes=len(stored[0]), reply_bytes=reply_size)
-            r = stats("refined", latencies(address, refined[: max(200, args.requests // 5)]))
+            echo, echo_address = start([sys.executable, "-c", ECHO, str(reply_size)])
+            lat, lat_echo = latencies([address, echo_address], stored)
+            s = stats("stored_posture", lat, request_bytes=len(stored[0]), reply_bytes=reply_size)
+            e = stats("echo", lat_echo, reply_bytes=reply_size)
+            r = stats("refined", latencies([address], refined[: max(200, args.requests // 5)])[0])
             for n in (1, 4, 16):
                 emit(bench="throughput", clients=n, requests_per_s=round(throughput(address, stored, n)))
-        finally:
-            server.terminate()
-            server.wait()
-        echo, echo_address = start([sys.executable, "-c", ECHO, str(reply_size)])
-        try:
-            e = stats("echo", latencies(echo_address, stored), reply_bytes=reply_size)
             emit(bench="throughput", clients=1, case="echo", requests_per_s=round(throughput(echo_address, stored, 1)))
         finally:
-            echo.terminate()
-            echo.wait()
+            for proc in (server, echo):
+                if proc is not None:
+                    proc.terminate()
+                    proc.wait()
         emit(bench="goals", stored_p99_over_echo_p99=round(s["p99"] / e["p99"], 3), stored_p99_ms=round(s["p99"], 4), refined_p99_ms=round(r["p99"], 4))
 
 
