@@ -223,53 +223,31 @@ class Selector:
             return [self._select_one(effector, names, g[0], refine, t0)]
         hits = np.stack([self.atlas.trees[n].contains(g, self.policy) for n in names])
         chosen = np.where(hits.any(axis=0), hits.argmax(axis=0), -1)
-        stored: dict[int, tuple[np.ndarray, np.ndarray] | None] = {}
-        for k in np.unique(chosen[chosen >= 0]):
+        nearest: dict[int, tuple[int, np.ndarray] | None] = {}
+        for k in np.unique(chosen[chosen >= 0]):  # one k-d tree query per chosen strategy
             sel = np.nonzero(chosen == k)[0]
             found = self._stored(names[k], self.atlas.trees[names[k]], g[sel])
-            stored[int(k)] = None if found is None else (sel, *found)  # type: ignore[assignment]
-        answers = []
-        for i in range(len(g)):
-            ti = time.perf_counter()
-            k = int(chosen[i])
-            if k < 0:
-                answers.append(Answer(effector, tuple(map(float, g[i])), None, False))
-                continue
-            name, tree = names[k], self.atlas.trees[names[k]]
-            alternatives = tuple(names[j] for j in range(len(names)) if hits[j, i] and j != k)
-            posture = root = residual = None
-            outcome = UNAVAILABLE
-            entry = stored[k]
-            if entry is not None:
-                sel, rows, reached = entry  # type: ignore[misc]
-                j = int(np.searchsorted(sel, i))
-                q = tree.vertices.posture[rows[j]]  # type: ignore[index]
-                # The stored residual is the vertex's own; what matters is the distance to this goal.
-                residual = float(np.linalg.norm(g[i] - reached[j]))
-                outcome = SKIPPED
-                if refine:
-                    q, residual, outcome = self._refine(name, g[i], q, residual)
-                if outcome == SKIPPED or outcome != REFINED:
-                    posture, root, fragment = self._stored_posture(name, tree, int(rows[j]))
-                else:
-                    posture, root = split_posture(tree.vertices.posture_names, q)
-                    fragment = None
-            answers.append(Answer(
-                effector, tuple(map(float, g[i])), name, True, alternatives, posture, root, residual, outcome,
-                time.perf_counter() - ti if len(g) > 1 else time.perf_counter() - t0, fragment if posture is not None else None,
-            ))
-        return answers
+            for m, i in enumerate(sel):
+                nearest[int(i)] = None if found is None else (int(found[0][m]), found[1][m])
+        return [
+            self._answer(effector, g[i], [n for j, n in enumerate(names) if hits[j, i]], nearest.get(i), refine, time.perf_counter())
+            for i in range(len(g))
+        ]
 
     def _select_one(self, effector: str, names: list[str], goal: np.ndarray, refine: bool, t0: float) -> Answer:
         """select_many for one goal, in plain Python: the server's per-request path."""
         point = goal.tolist()
         hits = [n for n in names if self.atlas.trees[n]._contains_one(point, self.policy)]
+        nearest = self._nearest_row(hits[0], self.atlas.trees[hits[0]], point) if hits else None
+        return self._answer(effector, goal, hits, nearest, refine, t0)
+
+    def _answer(self, effector: str, goal: np.ndarray, hits: list[str], nearest: tuple[int, np.ndarray] | None, refine: bool, t0: float) -> Answer:
+        """The answer for one goal, given the strategies that hold it (by priority) and the chosen one's nearest stored vertex."""
         if not hits:
-            return Answer(effector, tuple(point), None, False, seconds=time.perf_counter() - t0)
+            return Answer(effector, tuple(goal.tolist()), None, False, seconds=time.perf_counter() - t0)
         name, tree = hits[0], self.atlas.trees[hits[0]]
         posture = root = residual = fragment = None
         outcome = UNAVAILABLE
-        nearest = self._nearest_row(name, tree, point)
         if nearest is not None:
             row, reached = nearest
             # The stored residual is the vertex's own; what matters is the distance to this goal.
@@ -281,7 +259,7 @@ class Selector:
                 posture, root = split_posture(tree.vertices.posture_names, q)
             else:
                 posture, root, fragment = self._stored_posture(name, tree, row)
-        return Answer(effector, tuple(point), name, True, tuple(hits[1:]), posture, root, residual, outcome, time.perf_counter() - t0, fragment)
+        return Answer(effector, tuple(goal.tolist()), name, True, tuple(hits[1:]), posture, root, residual, outcome, time.perf_counter() - t0, fragment)
 
     def _stored_posture(self, name: str, tree: VATree, row: int) -> tuple[dict[str, float], dict[str, list[float]] | None, bytes]:
         """The stored posture of a vertex as dicts and as encoded JSON, from a bounded cache.
