@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import time
 import zlib
+from abc import ABC, abstractmethod
 from typing import Any
 
 import casadi as ca
@@ -36,7 +37,7 @@ from oracles.strategy import parse_strategy
 STAGE_SLACK = {"reach": 1e-6, "gaze": 1e-4, "comfort": 1e-6}
 
 
-class IKOracle:
+class IKOracle(ABC):
     """Shared driver of the IK oracles; subclasses implement :meth:`solve`.
 
     Args:
@@ -71,9 +72,9 @@ class IKOracle:
         self._data = self.body.model.createData()
         self.stats = {"points": 0, "prefiltered": 0, "solves": 0, "reachable": 0}
 
+    @abstractmethod
     def solve(self, goal: np.ndarray, x0: np.ndarray) -> np.ndarray:
         """A configuration q that tries to put the effector at goal, starting from x0."""
-        raise NotImplementedError  # engines implement solve or solve_batch
 
     def solve_batch(self, goals: np.ndarray, x0: np.ndarray) -> np.ndarray:
         """Configurations (N, nq) for goals (N, 3) from starts (N, nx); engines may batch."""

@@ -7,6 +7,7 @@ point to the volume, 0 inside. None returns postures.
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from typing import Any
 
@@ -32,14 +33,15 @@ def _positive(name: str, value: Any) -> float:
     return v
 
 
-class _Analytic:
+class _Analytic(ABC):
     """Shared verdict plumbing: subclasses give the distance to the volume."""
 
     dim: int
     posture_names: tuple[str, ...] = ()
 
+    @abstractmethod
     def distance(self, points: np.ndarray) -> np.ndarray:
-        raise NotImplementedError  # abstract: each shape defines its distance
+        """Signed distance [m] of each point to the volume's surface (negative inside)."""
 
     def evaluate(self, points: np.ndarray, hints: np.ndarray | None = None) -> Verdicts:
         pts = check_points(points, self.dim)

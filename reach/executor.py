@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import os
 import threading
+from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any, Protocol
@@ -78,7 +79,7 @@ def _worker_evaluate(spec: OracleSpec, key: str, points: np.ndarray, hints: np.n
         return oracle.evaluate(points, hints)
 
 
-class _Pooled:
+class _Pooled(ABC):
     """Shared plumbing of executors that send chunks to workers by spec."""
 
     workers: int = 1
@@ -92,8 +93,9 @@ class _Pooled:
         self.posture_names = tuple(local.posture_names)
         self.chunk_size = chunk_size
 
+    @abstractmethod
     def submit(self, points: np.ndarray, hints: np.ndarray | None) -> tuple[list[slice], list[Any]]:
-        raise NotImplementedError  # each pool submits its own way
+        """Send a batch's chunks to the workers: the slices and their futures, in order."""
 
     def slices(self, n: int) -> list[slice]:
         """Chunks of at most chunk_size, and at least four per worker when the batch allows."""
