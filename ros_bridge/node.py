@@ -7,8 +7,8 @@ Design: three layers, of which only the last knows ROS, so that a ROS 2
    reconnection) and a ZeroMQ SUB socket receives the server's stream of
    choices. Neither imports ROS.
 2. ``Relay`` turns answers into plain values (strategy name, joint names and
-   positions, reachable) and remembers which it has published, so a choice
-   that arrives both as a reply and on the server's stream is published once.
+   positions, reachable) and recognises the stream's copy of an answer the
+   bridge already published from its reply, so each choice is published once.
 3. ``Bridge`` is the ROS 1 node: parameters, subscribers, publishers, timers.
 
 Topics, for each effector E (the server's effectors, or ``~effectors``):
@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import json
 import time
-from collections import deque
+from collections import Counter, deque
 from typing import Any
 
 import zmq
@@ -47,10 +47,21 @@ COLOURS = [(0.84, 0.15, 0.16), (0.17, 0.63, 0.17), (0.12, 0.47, 0.71), (1.0, 0.5
 
 
 class Relay:
-    """ROS-free core: answers to plain values, with duplicate suppression."""
+    """ROS-free core: answers to plain values, and recognising the stream's echo of our own replies.
 
-    def __init__(self, memory: int = 256) -> None:
-        self.recent: deque[tuple[str, tuple[float, ...], str | None]] = deque(maxlen=memory)
+    The server publishes every choice, including those the bridge asked for
+    and has already published from the reply; each of those is expected once
+    on the stream and skipped there. Everything else on the stream is relayed.
+    """
+
+    def __init__(self, memory: int = 1024) -> None:
+        self.expected: Counter[tuple[str, tuple[float, ...], str | None]] = Counter()
+        self.order: deque[tuple[str, tuple[float, ...], str | None]] = deque()
+        self.memory = memory
+
+    @staticmethod
+    def key(answer: dict[str, Any]) -> tuple[str, tuple[float, ...], str | None]:
+        return str(answer.get("effector")), tuple(round(float(v), 9) for v in answer.get("goal", [])), answer.get("strategy")
 
     @staticmethod
     def values(answer: dict[str, Any]) -> tuple[str, list[str], list[float], bool]:
@@ -58,12 +69,25 @@ class Relay:
         names = sorted(posture)
         return answer.get("strategy") or "", names, [float(posture[n]) for n in names], bool(answer.get("reachable"))
 
-    def fresh(self, answer: dict[str, Any]) -> bool:
-        """True the first time a choice is seen (by effector, goal and strategy)."""
-        key = (str(answer.get("effector")), tuple(round(float(v), 9) for v in answer.get("goal", [])), answer.get("strategy"))
-        if key in self.recent:
+    def replied(self, answer: dict[str, Any]) -> None:
+        """Note that this answer came as a reply and was published: its echo on the stream is to be skipped."""
+        k = self.key(answer)
+        self.expected[k] += 1
+        self.order.append(k)
+        if len(self.order) > self.memory:  # echoes that never came (a lossy or absent stream) are forgotten
+            old = self.order.popleft()
+            self.expected[old] -= 1
+            if self.expected[old] <= 0:
+                del self.expected[old]
+
+    def is_echo(self, answer: dict[str, Any]) -> bool:
+        """True (once) for the stream's copy of an answer already published from a reply."""
+        k = self.key(answer)
+        if self.expected.get(k, 0) <= 0:
             return False
-        self.recent.append(key)
+        self.expected[k] -= 1
+        if self.expected[k] == 0:
+            del self.expected[k]
         return True
 
 
@@ -130,9 +154,10 @@ class Bridge:
             rospy.logerr("reach bridge: %s", exc)
             return
         self.publish(effector, answer)
+        self.relay.replied(answer)
 
     def publish(self, effector: str, answer: dict[str, Any]) -> None:
-        if effector not in self.pubs or not self.relay.fresh(answer):
+        if effector not in self.pubs:
             return
         strategy, names, positions, reachable = self.relay.values(answer)
         state = self.msgs["JointState"]()
@@ -151,7 +176,9 @@ class Bridge:
             except zmq.Again:
                 return
             try:
-                self.publish(topic.decode(), json.loads(body))
+                answer = json.loads(body)
+                if not self.relay.is_echo(answer):
+                    self.publish(topic.decode(), answer)
             except (ValueError, UnicodeDecodeError) as exc:
                 self.rospy.logwarn("reach bridge: unreadable message on the stream: %s", exc)
 

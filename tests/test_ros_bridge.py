@@ -121,6 +121,8 @@ def test_goal_gives_strategy_and_joint_state(ros):
     got = ros.helper("goal", "right_hand", "0.4", "-0.3", "1.2", "world")
     assert got["strategy"] == "right_arm" and got["reachable"] is True
     assert "right_elbow_flexion" in got["names"] and len(got["names"]) == len(got["positions"])
+    again = ros.helper("goal", "right_hand", "0.4", "-0.3", "1.2", "world")  # the same goal twice is answered twice
+    assert again["strategy"] == "right_arm"
     far = ros.helper("goal", "right_hand", "0.8", "0.3", "2.0", "world")
     assert far["strategy"] == "" and far["reachable"] is False
 
@@ -164,3 +166,4 @@ def test_bridge_survives_a_server_restart(ros):
     ros.server = ros.start_server()
     got = ros.helper("goal", "right_hand", "0.42", "-0.3", "1.15", "world")
     assert got["strategy"] == "right_arm"
+
