@@ -94,6 +94,17 @@ def _side_frames(body: Body, foot: str, parts: list[str]) -> list[str]:
     return names if all(body.model.existFrame(n) for n in names) else [foot]
 
 
+def _moves(body: Body, frame: str, active: set[str]) -> bool:
+    """Whether any active joint lies between the world and a frame."""
+    model = body.model
+    j = int(model.frames[body.frame_id(frame)].parentJoint)
+    while j > 0:
+        if str(model.names[j]) in active:
+            return True
+        j = int(model.parents[j])
+    return False
+
+
 def _number(value: Any, where: str, lo: float, hi: float) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not lo <= value <= hi:
         raise ModelError(f"{where}: expected a number in [{lo}, {hi}], got {value!r}")
@@ -174,9 +185,10 @@ def parse_strategy(body: Body, effector: str, joints: list[str], tasks: list[dic
         raise ModelError("tasks: a strategy needs a reach task")
     if margin is not None and len(set(support)) < 3:
         raise ModelError("balance needs a support polygon: give a feet or contacts task, or balance.support with 3 frames or more")
-    if contacts and ROOT not in ordered:
-        # With a locked root the feet are already fixed; contacts only matter when the base floats.
-        contacts = []
+    # A contact no active joint can move holds by itself; as a constraint it
+    # would only be a constant (and degenerate for the solver), so it is dropped.
+    contacts = [c for c in contacts if _moves(body, c.frame, set(ordered))]
+    above = [f for f in above if _moves(body, f, set(ordered))]
     order = tuple(sorted(priorities, key=lambda k: (priorities[k], SOFT_TASKS.index(k))))
     return Strategy(
         effector, ordered, tuple(contacts), tuple(dict.fromkeys(above)), tuple(dict.fromkeys(support)),

@@ -178,3 +178,16 @@ def test_strategy_errors_name_the_task(joints, tasks, message):
 def test_unknown_effector_lists_frames():
     with pytest.raises(ModelError, match="no frame 'right_claw'"):
         OracleSpec("casadi-ik", {"body": HUMAN, "effector": "right_claw", "joints": ARM}).create()
+
+
+def test_contacts_are_kept_only_where_an_active_joint_can_move_them():
+    from oracles.body import human_body
+    from oracles.strategy import parse_strategy
+
+    body = human_body()
+    feet = [{"type": "reach"}, {"type": "feet", "heels": "down"}]
+    legs = parse_strategy(body, "right_hand", [*ARM, "right_hip_*", "right_knee_*"], feet)
+    assert [c.frame for c in legs.contacts] == ["right_foot"]  # the left foot cannot move: no constraint needed
+    floating = parse_strategy(body, "right_hand", WHOLE, feet)
+    assert [c.frame for c in floating.contacts] == ["right_foot", "left_foot"]
+    assert parse_strategy(body, "right_hand", ARM, feet).contacts == ()
