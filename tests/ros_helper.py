@@ -33,12 +33,15 @@ def goal(effector: str, x: float, y: float, z: float, frame: str, timeout: float
                 done.set()
         return cb
 
-    rospy.Subscriber(f"/reach/{effector}/strategy", String, keep("strategy"))
-    rospy.Subscriber(f"/reach/{effector}/posture", JointState, keep("posture"))
-    rospy.Subscriber(f"/reach/{effector}/reachable", Bool, keep("reachable"))
+    subs = [
+        rospy.Subscriber(f"/reach/{effector}/strategy", String, keep("strategy")),
+        rospy.Subscriber(f"/reach/{effector}/posture", JointState, keep("posture")),
+        rospy.Subscriber(f"/reach/{effector}/reachable", Bool, keep("reachable")),
+    ]
     pub = rospy.Publisher(f"/reach/{effector}/goal", PointStamped, queue_size=1, latch=True)
+    # Publish only once the bridge hears us and we hear it, or its answers could be missed.
     deadline = rospy.Time.now() + rospy.Duration(TIMEOUT)
-    while pub.get_num_connections() == 0 and rospy.Time.now() < deadline:
+    while (pub.get_num_connections() == 0 or any(s.get_num_connections() == 0 for s in subs)) and rospy.Time.now() < deadline:
         rospy.sleep(0.05)
     msg = PointStamped()
     msg.header.frame_id = frame

@@ -61,7 +61,7 @@ class Ros:
         self.server = self.start_server()
         self.bridge_log = open(tmp / "bridge.log", "w")
         self.bridge = subprocess.Popen(
-            [SYSTEM_PYTHON, "-m", "ros_bridge", f"_server:={self.req}", f"_pub:={self.pub}", "_frame:=world", "_timeout_ms:=1000", "_retries:=2", "_marker_level:=3"],
+            [SYSTEM_PYTHON, "-m", "ros_bridge", f"_server:={self.req}", f"_pub:={self.pub}", "_frame:=world", "_timeout_ms:=5000", "_retries:=2", "_marker_level:=3"],
             env=self.env, stdout=self.bridge_log, stderr=subprocess.STDOUT,
         )
 
