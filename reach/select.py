@@ -171,13 +171,8 @@ class Selector:
         if found is None:
             return None
         reached = found[2]
-        lat = tree.lattice
-        key = 0
-        for p, lo, res, stride in zip(goal, tree.box.lo.tolist(), lat.resolution.tolist(), lat.strides.tolist(), strict=True):
-            key += min(max(round((p - lo) / res), 0), lat.cells) * stride
-        keys = tree.vertices.keys
-        row = int(np.searchsorted(keys, key))
-        if row < keys.shape[0] and keys[row] == key and tree.vertices.reachable[row]:
+        row = tree.nearest_vertex_row(goal)
+        if row >= 0 and tree.vertices.reachable[row]:
             return row, reached[row]
         rows, eff = self._stored(name, tree, np.asarray([goal]))  # type: ignore[misc]
         return int(rows[0]), eff[0]

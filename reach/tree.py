@@ -385,14 +385,18 @@ class VATree:
             return kind == INNER
         if policy == "optimistic":
             return True
+        row = self.nearest_vertex_row(point)
+        return bool(row >= 0 and self.vertices.reachable[row])
+
+    def nearest_vertex_row(self, point: list[float]) -> int:
+        """Vertex-table row of the finest-lattice vertex nearest to one point, -1 if never evaluated (plain Python)."""
         lat = self.lattice
-        n = lat.cells
         key = 0
         for p, lo, res, stride in zip(point, self.box.lo.tolist(), lat.resolution.tolist(), lat.strides.tolist(), strict=True):
-            key += min(max(round((p - lo) / res), 0), n) * stride
+            key += min(max(round((p - lo) / res), 0), lat.cells) * stride
         keys = self.vertices.keys
         row = int(np.searchsorted(keys, key))
-        return bool(row < keys.shape[0] and keys[row] == key and self.vertices.reachable[row])
+        return row if row < keys.shape[0] and keys[row] == key else -1
 
     def nearest_vertex_verdict(self, points: np.ndarray) -> np.ndarray:
         """Verdict of the finest-lattice vertex nearest to each point (False if never evaluated)."""

@@ -222,3 +222,13 @@ def test_build_is_deterministic():
     t2 = build_tree(spec, CUBE, 2, 5, chunk_size=17)
     assert np.array_equal(t1.kind, t2.kind) and np.array_equal(t1.corner, t2.corner)
     assert np.array_equal(t1.vertices.keys, t2.vertices.keys)
+
+
+def test_single_point_path_agrees_with_the_batch_path(unit_sphere_tree):
+    # contains() of one point takes a plain-Python path; the vectorised path is the reference.
+    pts = np.random.default_rng(5).uniform(-1.1, 1.1, size=(400, 3))
+    for policy in ("conservative", "optimistic", "vertex"):
+        batch = unit_sphere_tree.contains(pts, policy)
+        single = np.array([unit_sphere_tree.contains(p[None], policy)[0] for p in pts])
+        assert np.array_equal(batch, single), policy
+    assert unit_sphere_tree.locate(pts[:1])[0] == unit_sphere_tree.locate(pts)[0]
