@@ -20,6 +20,7 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
+from oracles.body import load_body
 from oracles.protocol import OracleSpec
 from reach.build import build_tree
 from reach.config import Config, StrategySpec
@@ -55,13 +56,13 @@ def _mirror_source(config: Config, s: StrategySpec, built: dict[str, VATree], lo
     if s.mirror_of is None or s.mirror_of not in built:
         return None
     source = built[s.mirror_of]
-    oracle = OracleSpec.from_dict(source.meta["oracle"]).create()
-    body = getattr(oracle, "body", None)
-    if body is None:
+    # Only the body is needed: loading it spares building the oracle's solvers.
+    body_spec = OracleSpec.from_dict(source.meta["oracle"]).params.get("body")
+    if body_spec is None:
         log(f"{s.name}: built, not mirrored: its oracle has no body whose symmetry could be checked")
         return None
     try:
-        mirror = MirrorMap(body)
+        mirror = MirrorMap(load_body(body_spec))
     except ModelError as exc:
         log(f"{s.name}: built, not mirrored: {exc}")
         return None
