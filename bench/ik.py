@@ -1,7 +1,7 @@
 """IK oracle benchmarks; prints JSON lines.
 
 For each strategy of configs/human.yaml (right side and the foot) and each
-oracle (casadi-ik, dls): time per verdict, median and p90, cold (no hint)
+engine (casadi-ik with fatrop, casadi-ik with IPOPT, dls): time per verdict, median and p90, cold (no hint)
 and warm-started as in a build (hint: the posture found for a goal 2 cm away,
 about one D_max cell of the default atlas); the success rate against the
 best-known answer (reachable if any oracle with 6 restarts reaches it: every
@@ -25,6 +25,8 @@ from oracles.protocol import OracleSpec
 from reach.config import load_config
 
 ROOT = Path(__file__).resolve().parents[1]
+# Engines by label: registry name and parameters over the strategy's own.
+ENGINES = {"casadi-ik": ("casadi-ik", {"solver": "fatrop"}), "casadi-ik/ipopt": ("casadi-ik", {"solver": "ipopt"}), "dls": ("dls", {})}
 STRATEGIES = ["right_arm", "right_upper_body", "right_whole_body", "right_crouch", "right_tiptoe", "right_foot"]
 
 
@@ -57,16 +59,16 @@ def main() -> None:
         goals = rng.uniform(lo, hi, (args.points, 3))
         near = goals + rng.normal(size=goals.shape) * (0.02 / np.sqrt(3))
         verdicts = {}
-        for oracle_name in ("casadi-ik", "dls"):
-            oracle = OracleSpec(oracle_name, {**spec.params}).create()
+        for label, (oracle_name, extra) in ENGINES.items():
+            oracle = OracleSpec(oracle_name, {**spec.params, **extra}).create()
             _, _, posture = timed(oracle, near)  # postures of the neighbours, the build's hints
             cold, reach, _ = timed(oracle, goals)
             warm, reach_warm, _ = timed(oracle, goals, posture)
             # Points the pre-filter rejects cost microseconds; the solver's cost shows on the others.
             solved = np.array([oracle.problem.prefilter(g) <= oracle.strategy.tolerance for g in goals])
-            verdicts[oracle_name] = reach | reach_warm
+            verdicts[label] = reach | reach_warm
             emit(
-                bench="ik", strategy=name, oracle=oracle_name, points=len(goals),
+                bench="ik", strategy=name, oracle=label, points=len(goals),
                 cold_median_ms=round(1e3 * float(np.median(cold)), 3), cold_p90_ms=round(1e3 * float(np.percentile(cold, 90)), 3),
                 warm_median_ms=round(1e3 * float(np.median(warm)), 3), warm_p90_ms=round(1e3 * float(np.percentile(warm, 90)), 3),
                 solved_points=int(solved.sum()),
@@ -75,13 +77,14 @@ def main() -> None:
                 reachable=int(reach.sum()),
             )
         best = np.zeros(len(goals), bool)
-        for oracle_name in ("casadi-ik", "dls"):
-            strong = OracleSpec(oracle_name, {**spec.params, "restarts": 6}).create()
+        for oracle_name, extra in ENGINES.values():
+            strong = OracleSpec(oracle_name, {**spec.params, **extra, "restarts": 6, "give_up": None}).create()
             best |= strong.evaluate(goals).reachable
         for oracle_name, found in verdicts.items():
             emit(bench="success", strategy=name, oracle=oracle_name, best_known_reachable=int(best.sum()),
                  found=int((found & best).sum()), success_rate=round(float((found & best).sum() / max(best.sum(), 1)), 4))
-        emit(bench="agreement", strategy=name, agree=round(float(np.mean(verdicts["casadi-ik"] == verdicts["dls"])), 4))
+        for a, b in (("casadi-ik", "casadi-ik/ipopt"), ("casadi-ik", "dls")):
+            emit(bench="agreement", strategy=name, pair=[a, b], agree=round(float(np.mean(verdicts[a] == verdicts[b])), 4))
 
 
 if __name__ == "__main__":

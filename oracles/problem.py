@@ -182,6 +182,11 @@ class ReachProblem:
             return 0.0
         return max(0.0, float(np.linalg.norm(goal - self.anchor)) - self.max_reach)
 
+    def effector_distance(self, q: np.ndarray, goal: np.ndarray, data: pin.Data) -> float:
+        """Distance [m] from the effector at posture q to goal."""
+        pin.framesForwardKinematics(self.body.model, data, q)
+        return float(np.linalg.norm(data.oMf[self.effector_id].translation - goal))
+
     # -- the verdict -------------------------------------------------------
     def check(self, q: np.ndarray, goal: np.ndarray, data: pin.Data | None = None) -> Check:
         """Independent Pinocchio check of a posture: residual and hard tasks."""

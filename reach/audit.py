@@ -4,7 +4,8 @@ The paper assumes a box is reachable when its vertices are. ``audit`` draws
 seeded random probes inside a tree's inner, final and outer cells (cells
 picked in proportion to their volume, points uniform inside them), asks the
 tree (with a boundary policy) and asks the strategy's own oracle directly
-(with extra restarts), and reports per strategy, per cell type and per depth:
+(the referee: extra restarts, every start tried, IPOPT for casadi-ik), and
+reports per strategy, per cell type and per depth:
 
 * the false-reachable rate: of the probes the tree calls reachable, the
   fraction the oracle cannot reach;
@@ -111,11 +112,18 @@ def audit_tree(tree: VATree, oracle: Any, samples: int = 300, policy: Policy = "
 
 
 def audit_oracle(tree: VATree, restarts: int) -> Any:
-    """The strategy's own oracle, rebuilt from the tree's spec with extra restarts where it takes them."""
+    """The referee: the strategy's own oracle, rebuilt from the tree's spec, made thorough.
+
+    IK oracles get extra restarts and try every start (no give-up); casadi-ik
+    solves with IPOPT, its reference solver, whatever solver built the tree.
+    """
     spec = OracleSpec.from_dict(tree.meta["oracle"])
     params = dict(spec.params)
     if "restarts" in params or spec.name in ("casadi-ik", "dls"):
         params["restarts"] = max(int(params.get("restarts", 0)), restarts)
+        params["give_up"] = None
+    if spec.name == "casadi-ik":
+        params["solver"] = "ipopt"
     return OracleSpec(spec.name, params).create()
 
 
