@@ -12,7 +12,7 @@ from oracles.dls import DLSIK
 from oracles.ik import CasadiIK
 from oracles.protocol import OracleSpec
 from reach.config import load_config
-from reach.errors import ModelError
+from reach.errors import ModelError, OracleError
 
 ROOT = Path(__file__).resolve().parents[1]
 HUMAN = {"human": {"sex": "male", "percentile": 50}}
@@ -191,3 +191,43 @@ def test_contacts_are_kept_only_where_an_active_joint_can_move_them():
     floating = parse_strategy(body, "right_hand", WHOLE, feet)
     assert [c.frame for c in floating.contacts] == ["right_foot", "left_foot"]
     assert parse_strategy(body, "right_hand", ARM, feet).contacts == ()
+
+
+def test_give_up_skips_restarts_after_a_decisive_warm_solve():
+    # Behind and across the body at shoulder height the arm's joint limits
+    # end the volume about 0.4 m left of the shoulder; this goal is beyond.
+    thorough = CasadiIK(HUMAN, "right_hand", ARM, restarts=2, give_up=None)
+    hasty = CasadiIK(HUMAN, "right_hand", ARM, restarts=2)  # give_up 1 cm
+    goal = (thorough.problem.anchor + [-0.1, 0.5, 0.0])[None]
+    assert thorough.problem.prefilter(goal[0]) == 0.0  # the solver, not the pre-filter, decides
+    best = thorough.evaluate(goal)
+    assert not best.reachable[0] and best.residual[0] > 0.01
+    assert thorough.stats["solves"] == 3  # reference and two restarts
+    hint = best.posture  # its effector is within NEAR_HINT of the goal: a decisive warm start
+    warm = hasty.evaluate(goal, hint)
+    assert not warm.reachable[0] and hasty.stats["solves"] == 1
+    thorough.evaluate(goal, hint)
+    assert thorough.stats["solves"] == 3 + 4  # the hint, then every other start
+
+
+def test_give_up_never_cuts_cold_starts_short():
+    # From the reference posture this goal's first solve ends about 0.3 m
+    # away; a random restart reaches it.
+    hasty = CasadiIK(HUMAN, "right_hand", ARM, restarts=2)
+    goal = (hasty.problem.anchor + [-0.2, 0.3, 0.3])[None]
+    v = hasty.evaluate(goal)
+    assert v.reachable[0] and hasty.stats["solves"] >= 2
+    _assert_reachable_verdicts_hold(hasty, goal, v)
+
+
+def test_fatrop_and_ipopt_agree_on_whole_body_verdicts():
+    goals = np.random.default_rng(5).uniform([-0.8, -1.2, 0.0], [1.2, 0.6, 2.4], (16, 3))
+    fatrop = CasadiIK(HUMAN, "right_hand", WHOLE, PLANTED, restarts=1, solver="fatrop").evaluate(goals)
+    ipopt = CasadiIK(HUMAN, "right_hand", WHOLE, PLANTED, restarts=1, solver="ipopt").evaluate(goals)
+    assert 4 <= fatrop.reachable.sum() <= 12  # a mix of both verdicts
+    assert np.sum(fatrop.reachable != ipopt.reachable) <= 1
+
+
+def test_unknown_solver_is_refused():
+    with pytest.raises(OracleError, match="solver must be one of"):
+        CasadiIK(HUMAN, "right_hand", ARM, solver="snopt")
