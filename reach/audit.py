@@ -19,11 +19,13 @@ type by its volume, so they estimate the rates over the whole box.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
-from oracles.protocol import OracleSpec
+from oracles.protocol import Oracle, OracleSpec
+from reach.executor import Executor, InlineExecutor
 from reach.store import Atlas
 from reach.tree import FINAL, INNER, KIND_NAMES, OUTER, Policy, VATree
 
@@ -83,8 +85,8 @@ def _stratified(kind: np.ndarray, said: np.ndarray, wrong: np.ndarray, tree: VAT
     return float(w @ rates), [float(w @ los), float(w @ his)]
 
 
-def audit_tree(tree: VATree, oracle: Any, samples: int = 300, policy: Policy = "vertex", seed: int = 0) -> dict[str, Any]:
-    """Audit one tree against an oracle (see the module docstring)."""
+def audit_tree(tree: VATree, referee: Oracle | Executor, samples: int = 300, policy: Policy = "vertex", seed: int = 0) -> dict[str, Any]:
+    """Audit one tree against a referee, an oracle or an executor running one (see the module docstring)."""
     rng = np.random.default_rng(seed)
     per_kind = {k: samples // 3 for k in (INNER, FINAL, OUTER)}
     points, kinds, depths = [], [], []
@@ -95,7 +97,7 @@ def audit_tree(tree: VATree, oracle: Any, samples: int = 300, policy: Policy = "
         depths.append(d)
     pts, kind, depth = np.concatenate(points), np.concatenate(kinds), np.concatenate(depths)
     said = tree.contains(pts, policy)
-    truth = oracle.evaluate(pts).reachable
+    truth = referee.evaluate(pts, None).reachable
     out: dict[str, Any] = {"probes": int(len(pts)), "policy": policy, "by_type": {}, "by_depth": {}}
     for k in (INNER, FINAL, OUTER):
         m = kind == k
@@ -111,8 +113,8 @@ def audit_tree(tree: VATree, oracle: Any, samples: int = 300, policy: Policy = "
     return out
 
 
-def audit_oracle(tree: VATree, restarts: int) -> Any:
-    """The referee: the strategy's own oracle, rebuilt from the tree's spec, made thorough.
+def referee_spec(tree: VATree, restarts: int) -> OracleSpec:
+    """The referee: the strategy's own oracle, from the tree's spec, made thorough.
 
     IK oracles get extra restarts and try every start (no give-up); casadi-ik
     solves with IPOPT, its reference solver, whatever solver built the tree.
@@ -124,13 +126,22 @@ def audit_oracle(tree: VATree, restarts: int) -> Any:
         params["give_up"] = None
     if spec.name == "casadi-ik":
         params["solver"] = "ipopt"
-    return OracleSpec(spec.name, params).create()
+    return OracleSpec(spec.name, params)
 
 
-def audit(atlas: Atlas, samples: int = 300, policy: Policy = "vertex", seed: int = 0, restarts: int = 6, names: list[str] | None = None) -> dict[str, Any]:
-    """Audit every (or the named) strategy of an atlas."""
+def audit(
+    atlas: Atlas, samples: int = 300, policy: Policy = "vertex", seed: int = 0, restarts: int = 6, names: list[str] | None = None,
+    executor_factory: Callable[[OracleSpec], Executor] | None = None,
+) -> dict[str, Any]:
+    """Audit every (or the named) strategy of an atlas; the referee runs in this process or on the executors made by executor_factory."""
     result = {}
     for name in names or list(atlas.trees):
         tree = atlas.trees[name]
-        result[name] = audit_tree(tree, audit_oracle(tree, restarts), samples, policy, seed)
+        spec = referee_spec(tree, restarts)
+        # Small chunks: a few hundred probes still spread over every worker.
+        referee = executor_factory(spec) if executor_factory else InlineExecutor(spec, chunk_size=16)
+        try:
+            result[name] = audit_tree(tree, referee, samples, policy, seed)
+        finally:
+            referee.close()
     return {"strategies": result, "samples_per_strategy": samples, "policy": policy, "seed": seed}

@@ -8,7 +8,7 @@ import numpy as np
 
 from oracles.protocol import OracleSpec
 from reach.atlas import build_atlas
-from reach.audit import audit_oracle, audit_tree, wilson
+from reach.audit import audit_tree, referee_spec, wilson
 from reach.build import Refine, build_tree
 from reach.cli import main
 from reach.config import parse_config
@@ -89,7 +89,7 @@ def test_isolated_vertices_are_retried_from_their_neighbours(tmp_path):
     assert b["refine"]["isolated"] is True
     assert b["oracle_calls"] == b["distinct_vertices"] + sum(lv["retried"] for lv in b["levels"])
     # The audit's referee is thorough whatever built the tree: IPOPT, more restarts, every start tried.
-    referee = audit_oracle(tree, 6)
+    referee = referee_spec(tree, 6).create()
     assert (referee.solver, referee.restarts, referee.give_up) == ("ipopt", 6, np.inf)
 
 
