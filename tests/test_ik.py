@@ -197,7 +197,7 @@ def test_give_up_skips_restarts_after_a_decisive_warm_solve():
     # Behind and across the body at shoulder height the arm's joint limits
     # end the volume about 0.4 m left of the shoulder; this goal is beyond.
     thorough = CasadiIK(HUMAN, "right_hand", ARM, restarts=2, give_up=None)
-    hasty = CasadiIK(HUMAN, "right_hand", ARM, restarts=2)  # give_up 1 cm
+    hasty = CasadiIK(HUMAN, "right_hand", ARM, restarts=2)  # gives up after any failed decisive warm start
     goal = (thorough.problem.anchor + [-0.1, 0.5, 0.0])[None]
     assert thorough.problem.prefilter(goal[0]) == 0.0  # the solver, not the pre-filter, decides
     best = thorough.evaluate(goal)
