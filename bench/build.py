@@ -7,7 +7,8 @@
 * The Dask speed-up: one strategy built on a LocalCluster of 1 and of 2
   workers.
 
-Run: ``.venv/bin/python bench/build.py [--config configs/default.yaml] [--skip-dask]``.
+Run: ``.venv/bin/python bench/build.py [--config configs/default.yaml] [--skip-dask]``,
+or ``bench/build.py --atlas out/default`` for the figures of an atlas already built.
 """
 
 from __future__ import annotations
@@ -25,7 +26,8 @@ import numpy as np
 from reach.atlas import build_atlas
 from reach.config import load_config, parse_config, read_yaml
 from reach.executor import DaskExecutor, ProcessExecutor
-from reach.tree import FINAL
+from reach.store import load_atlas
+from reach.tree import FINAL, VATree
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -34,31 +36,43 @@ def emit(**fields: object) -> None:
     print(json.dumps(fields), flush=True)
 
 
+def emit_trees(config: str, trees: dict[str, VATree]) -> None:
+    for name, tree in trees.items():
+        b = tree.meta["build"]
+        final = np.unique(tree.lattice.node_vertex_keys(tree.corner[tree.kind == FINAL], tree.d_max)).size
+        emit(
+            bench="build", config=config, strategy=name, d_max=tree.d_max, oracle_calls=b["oracle_calls"],
+            mirrored_from=b.get("mirrored_from"), seconds=round(b["seconds"], 2),
+            vertices_per_s=round(b["oracle_calls"] / b["seconds"], 1) if b["seconds"] and b["oracle_calls"] and not b.get("mirrored_from") else None,
+            full_lattice=tree.lattice.vertex_count, final_cell_vertices=int(final),
+            calls_over_full=round(b.get("lookups", b["oracle_calls"]) / tree.lattice.vertex_count, 4),
+            calls_over_final=round(b.get("lookups", b["oracle_calls"]) / max(final, 1), 3),
+        )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--config", default=str(ROOT / "configs" / "demo.yaml"))
+    parser.add_argument("--atlas", help="report on this atlas folder instead of building --config (and skip Dask)")
     parser.add_argument("--skip-dask", action="store_true")
     parser.add_argument("--dask-strategy", default="right_upper_body")
     parser.add_argument("--dask-depth", type=int, default=4)
     args = parser.parse_args()
     workers = os.cpu_count() or 1
     emit(bench="machine", python=platform.python_version(), processor=platform.processor() or platform.machine(), cores=workers)
+    if args.atlas:
+        # Figures of an atlas built earlier (e.g. by `reach build`), read from its trees and manifest.
+        atlas = load_atlas(args.atlas)
+        name = str(atlas.manifest.get("name", args.atlas))
+        emit_trees(name, atlas.trees)
+        emit(bench="atlas", config=name, wall_s=round(float(atlas.manifest.get("build_seconds", float("nan"))), 1), from_manifest=True)
+        return
     config = load_config(args.config)
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
-        atlas = build_atlas(config, Path(tmp) / "atlas", executor_factory=lambda s: ProcessExecutor(s, workers, config.chunk_size))
+        built = build_atlas(config, Path(tmp) / "atlas", executor_factory=lambda s: ProcessExecutor(s, workers, config.chunk_size))
         total = time.perf_counter() - t0
-        for name, tree in atlas.trees.items():
-            b = tree.meta["build"]
-            final = np.unique(tree.lattice.node_vertex_keys(tree.corner[tree.kind == FINAL], tree.d_max)).size
-            emit(
-                bench="build", config=config.name, strategy=name, d_max=tree.d_max, oracle_calls=b["oracle_calls"],
-                mirrored_from=b.get("mirrored_from"), seconds=round(b["seconds"], 2),
-                vertices_per_s=round(b["oracle_calls"] / b["seconds"], 1) if b["seconds"] and b["oracle_calls"] else None,
-                full_lattice=tree.lattice.vertex_count, final_cell_vertices=int(final),
-                calls_over_full=round(b.get("lookups", b["oracle_calls"]) / tree.lattice.vertex_count, 4),
-                calls_over_final=round(b.get("lookups", b["oracle_calls"]) / max(final, 1), 3),
-            )
+        emit_trees(config.name, built.trees)
         emit(bench="atlas", config=config.name, workers=workers, wall_s=round(total, 1))
     if args.skip_dask:
         return
