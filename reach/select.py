@@ -198,8 +198,10 @@ class Selector:
             meta = self.atlas.trees[name].meta
             spec = OracleSpec.from_dict(meta["oracle"])
             # The hint and the reference posture, both tried (no give-up): the
-            # tree already says reachable, and the budget bounds the time.
-            oracle = OracleSpec(spec.name, {**spec.params, "restarts": 0, "give_up": None, "secondary": True, "max_seconds": self.budget}).create()
+            # tree already says reachable, and the budget bounds the time. No
+            # jit: compiling costs seconds, more than a server's few solves gain.
+            no_jit = {"jit": False} if "jit" in spec.params else {}
+            oracle = OracleSpec(spec.name, {**spec.params, "restarts": 0, "give_up": None, "secondary": True, "max_seconds": self.budget, **no_jit}).create()
             stored_hash = meta.get("model_hash")
             body = getattr(oracle, "body", None)
             if stored_hash and body is not None and body.hash != stored_hash:
