@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -231,3 +233,23 @@ def test_fatrop_and_ipopt_agree_on_whole_body_verdicts():
 def test_unknown_solver_is_refused():
     with pytest.raises(OracleError, match="solver must be one of"):
         CasadiIK(HUMAN, "right_hand", ARM, solver="snopt")
+
+
+@pytest.mark.skipif(shutil.which("gcc") is None and not os.environ.get("CI"), reason="no gcc here (CI installs it)")
+def test_jit_compiles_the_same_problem():
+    goals = np.random.default_rng(6).uniform([-0.4, -1.0, 0.6], [0.9, 0.4, 2.1], (12, 3))
+    compiled = CasadiIK(HUMAN, "right_hand", UPPER, [{"type": "reach"}], jit=True)
+    interpreted = CasadiIK(HUMAN, "right_hand", UPPER, [{"type": "reach"}], jit=False)
+    assert compiled.jit and not interpreted.jit
+    a, b = compiled.evaluate(goals), interpreted.evaluate(goals)
+    assert 3 <= a.reachable.sum() <= 10 and np.array_equal(a.reachable, b.reachable)
+    _assert_reachable_verdicts_hold(compiled, goals, a)
+
+
+def test_jit_without_a_compiler(monkeypatch):
+    monkeypatch.setattr("oracles.ik.COMPILER", "no-such-compiler")
+    assert not CasadiIK(HUMAN, "right_hand", ARM, jit="auto").jit  # falls back to the interpreter
+    with pytest.raises(OracleError, match="jit"):
+        CasadiIK(HUMAN, "right_hand", ARM, jit=True)
+    with pytest.raises(OracleError, match="jit must be"):
+        CasadiIK(HUMAN, "right_hand", ARM, jit="yes")
