@@ -1,7 +1,8 @@
 """IK oracle benchmarks; prints JSON lines.
 
 For each strategy of configs/human.yaml (right side and the foot) and each
-engine (casadi-ik with fatrop, casadi-ik with IPOPT, dls): time per verdict, median and p90, cold (no hint)
+engine (casadi-ik with fatrop, compiled and interpreted; casadi-ik with
+IPOPT; dls): time per verdict, median and p90, cold (no hint)
 and warm-started as in a build (hint: the posture found for a goal 2 cm away,
 about one D_max cell of the default atlas); the success rate against the
 best-known answer (reachable if any oracle with 6 restarts reaches it: every
@@ -26,7 +27,9 @@ from reach.config import load_config
 
 ROOT = Path(__file__).resolve().parents[1]
 # Engines by label: registry name and parameters over the strategy's own.
-ENGINES = {"casadi-ik": ("casadi-ik", {"solver": "fatrop"}), "casadi-ik/ipopt": ("casadi-ik", {"solver": "ipopt"}), "dls": ("dls", {})}
+# The strategy's own "jit" is replaced by each engine's (dls takes none).
+ENGINES = {"casadi-ik": ("casadi-ik", {"solver": "fatrop", "jit": "auto"}), "casadi-ik/ipopt": ("casadi-ik", {"solver": "ipopt", "jit": "auto"}),
+           "casadi-ik/interpreted": ("casadi-ik", {"solver": "fatrop", "jit": False}), "dls": ("dls", {})}
 STRATEGIES = ["right_arm", "right_upper_body", "right_whole_body", "right_crouch", "right_tiptoe", "right_foot"]
 
 
@@ -55,12 +58,13 @@ def main() -> None:
     rng = np.random.default_rng(0)
     for name in STRATEGIES:
         spec = config.strategy(name).oracle
+        params = {k: v for k, v in spec.params.items() if k != "jit"}
         lo, hi = (np.array([-0.4, -0.9, 0.6]), np.array([0.9, 0.4, 2.1])) if "foot" not in name else (np.array([-0.5, -0.7, 0.0]), np.array([0.8, 0.2, 1.2]))
         goals = rng.uniform(lo, hi, (args.points, 3))
         near = goals + rng.normal(size=goals.shape) * (0.02 / np.sqrt(3))
         verdicts = {}
         for label, (oracle_name, extra) in ENGINES.items():
-            oracle = OracleSpec(oracle_name, {**spec.params, **extra}).create()
+            oracle = OracleSpec(oracle_name, {**params, **extra}).create()
             _, _, posture = timed(oracle, near)  # postures of the neighbours, the build's hints
             cold, reach, _ = timed(oracle, goals)
             warm, reach_warm, _ = timed(oracle, goals, posture)
@@ -78,7 +82,7 @@ def main() -> None:
             )
         best = np.zeros(len(goals), bool)
         for oracle_name, extra in ENGINES.values():
-            strong = OracleSpec(oracle_name, {**spec.params, **extra, "restarts": 6, "give_up": None}).create()
+            strong = OracleSpec(oracle_name, {**params, **extra, "restarts": 6, "give_up": None}).create()
             best |= strong.evaluate(goals).reachable
         for oracle_name, found in verdicts.items():
             emit(bench="success", strategy=name, oracle=oracle_name, best_known_reachable=int(best.sum()),
