@@ -8,11 +8,11 @@
 * ``strategy_<name>.png``: one strategy drawn as boxes;
 * ``figure8.png``: several strategies in colours, each cell in the colour of
   the first strategy (by priority) that holds it;
-* ``figure11.png``: an overlay, one strategy as boxes, one as dots, one as a
-  wireframe;
+* ``figure11.png``: an overlay of one effector's strategies by priority
+  (e.g. arm only as boxes, upper body as dots, whole body as a wireframe);
 * ``slices.png``: horizontal and sagittal slices through every strategy.
 
-Figures rasterise the trees on a regular grid of cells (at most 2**5 per
+Figures rasterise the trees on a regular grid of cells (at most 2**4 per
 axis by default), each cell decided at its centre with the ``vertex`` policy.
 """
 
@@ -102,6 +102,22 @@ def _axes3d(fig: Any, pos: int, title: str, tree: VATree) -> Any:
     return ax
 
 
+def overlay_names(trees: dict[str, VATree]) -> list[str]:
+    """Up to three strategies for Figure 11: the paper's nesting of one effector's strategies.
+
+    The effector of the first strategy; its strategies by priority, one per
+    priority (e.g. arm only, upper body, whole body for one hand).
+    """
+    names = list(trees)
+    effector = trees[names[0]].meta.get("effector")
+    mine = sorted((n for n in names if trees[n].meta.get("effector") == effector), key=lambda n: trees[n].meta.get("priority", 0))
+    out: list[str] = []
+    for n in mine:
+        if not out or trees[n].meta.get("priority") != trees[out[-1]].meta.get("priority"):
+            out.append(n)
+    return out[:3]
+
+
 def figures(atlas: Atlas, out: Path, level: int = 4, names: list[str] | None = None) -> list[Path]:
     """Write the PNG figures; returns their paths."""
     import matplotlib
@@ -138,9 +154,10 @@ def figures(atlas: Atlas, out: Path, level: int = 4, names: list[str] | None = N
     ax.legend(handles=[plt.Rectangle((0, 0), 1, 1, color=COLOURS[names.index(n) % len(COLOURS)]) for n in ordered], labels=ordered, fontsize=7, loc="upper left")
     written.append(_save(fig, out / "figure8.png"))
     # Figure 11: boxes, dots and a wireframe together.
+    overlay = overlay_names(trees)
     fig = plt.figure(figsize=(7, 7))
-    ax = _axes3d(fig, 111, "Overlay: " + ", ".join(f"{n} ({s})" for n, s in zip(names[:3], ("boxes", "dots", "wireframe"), strict=False)), first)
-    for k, n in enumerate(names[:3]):
+    ax = _axes3d(fig, 111, "Overlay: " + ", ".join(f"{n} ({s})" for n, s in zip(overlay, ("boxes", "dots", "wireframe"), strict=False)), first)
+    for k, n in enumerate(overlay):
         occ, edges = grids[n]
         colour = COLOURS[k % len(COLOURS)]
         if k == 0:

@@ -136,3 +136,20 @@ def test_mirror_config_errors():
         parse_config({**lopsided, "strategies": [{"name": "a"}, {"name": "b", "mirror_of": "a"}]}, "m", "m")
     with pytest.raises(ConfigError, match=r"box\.auto\.margin: expected a number of metres"):
         parse_config({**base, "box": {"auto": {"margin": "wide"}}, "strategies": [{"name": "a"}]}, "m", "m")
+
+
+def test_figure11_overlays_one_effectors_strategies_by_priority():
+    from types import SimpleNamespace
+
+    from reach.report import overlay_names
+
+    def tree(effector, priority):
+        return SimpleNamespace(meta={"effector": effector, "priority": priority})
+
+    # Atlas order is by priority, so the two arms come first; the overlay
+    # nests one hand's arm, upper body and whole body, as the paper's Figure 11.
+    trees = {"left_arm": tree("left_hand", 1), "right_arm": tree("right_hand", 1), "left_upper": tree("left_hand", 2),
+             "right_upper": tree("right_hand", 2), "right_whole": tree("right_hand", 3), "left_whole": tree("left_hand", 3),
+             "left_crouch": tree("left_hand", 4)}
+    assert overlay_names(trees) == ["left_arm", "left_upper", "left_whole"]
+    assert overlay_names({"a": tree("p", 1), "b": tree("p", 1)}) == ["a"]
