@@ -253,3 +253,15 @@ def test_jit_without_a_compiler(monkeypatch):
         CasadiIK(HUMAN, "right_hand", ARM, jit=True)
     with pytest.raises(OracleError, match="jit must be"):
         CasadiIK(HUMAN, "right_hand", ARM, jit="yes")
+
+
+def test_rescues_are_random_restarts_after_giving_up():
+    thorough = CasadiIK(HUMAN, "right_hand", ARM, restarts=2, give_up=None)
+    goal = (thorough.problem.anchor + [-0.1, 0.5, 0.0])[None]
+    hint = thorough.evaluate(goal).posture  # as in test_give_up_...: a decisive, failing warm start
+    rescuing = CasadiIK(HUMAN, "right_hand", ARM, restarts=2, rescues=1)
+    assert not rescuing.evaluate(goal, hint).reachable[0]
+    assert rescuing.stats["solves"] == 2  # the hint, then one random restart (no reference start)
+    near_miss = CasadiIK(HUMAN, "right_hand", ARM, restarts=2, give_up=1.0)  # every failure counts as a near miss
+    near_miss.evaluate(goal, hint)
+    assert near_miss.stats["solves"] == 4  # the hint, the reference and both restarts
