@@ -18,11 +18,15 @@ so a lower task never degrades a higher one.
 
 from __future__ import annotations
 
+import os
 import shutil
+import tempfile
 import time
 import warnings
 import zlib
 from abc import ABC, abstractmethod
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import casadi as ca
@@ -152,6 +156,24 @@ class IKOracle(ABC):
         return Verdicts(reach, residual, posture)
 
 
+@contextmanager
+def _scratch_directory() -> Iterator[None]:
+    """Work in a fresh temporary directory, removed afterwards.
+
+    CasADi's jit writes its C source and shared library into the working
+    directory and removes them only when the solver is destroyed, which a
+    worker process ended with its pool never does: builds left them behind.
+    """
+    home = os.getcwd()
+    scratch = tempfile.mkdtemp(prefix="reach-jit-")
+    os.chdir(scratch)
+    try:
+        yield
+    finally:
+        os.chdir(home)
+        shutil.rmtree(scratch, ignore_errors=True)
+
+
 class CasadiIK(IKOracle):
     """Lexicographic NLP solves on CasADi kinematics (registry name ``casadi-ik``).
 
@@ -220,7 +242,11 @@ class CasadiIK(IKOracle):
     def _nlpsol(self, name: str, solver: str, nlp: dict[str, Any], opts: dict[str, Any], jit: bool | str) -> ca.Function:
         if self.jit:
             try:
-                return ca.nlpsol(name, solver, nlp, {**opts, "jit": True, "compiler": "shell", "jit_options": {"compiler": COMPILER, "flags": ["-O1"], "verbose": False}})
+                # No cleanup by CasADi: the scratch directory goes as a whole
+                # (the library stays loaded once unlinked).
+                compiled: dict[str, Any] = {"jit": True, "jit_cleanup": False, "compiler": "shell", "jit_options": {"compiler": COMPILER, "flags": ["-O1"], "verbose": False, "cleanup": False}}
+                with _scratch_directory():
+                    return ca.nlpsol(name, solver, nlp, {**opts, **compiled})
             except RuntimeError as exc:
                 if jit is True:
                     raise OracleError(f"casadi-ik: jit compilation with {COMPILER} failed ({str(exc).strip().splitlines()[-1]}); set jit: false") from exc

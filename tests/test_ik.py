@@ -265,3 +265,11 @@ def test_rescues_are_random_restarts_after_giving_up():
     near_miss = CasadiIK(HUMAN, "right_hand", ARM, restarts=2, give_up=1.0)  # every failure counts as a near miss
     near_miss.evaluate(goal, hint)
     assert near_miss.stats["solves"] == 4  # the hint, the reference and both restarts
+
+
+@pytest.mark.skipif(shutil.which("gcc") is None and not os.environ.get("CI"), reason="no gcc here (CI installs it)")
+def test_jit_leaves_no_files_behind(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    oracle = CasadiIK(HUMAN, "right_hand", ARM, jit=True)
+    assert oracle.jit and oracle.evaluate(np.array([[0.4, -0.3, 1.1]])).reachable[0]
+    assert os.getcwd() == str(tmp_path) and list(tmp_path.iterdir()) == []
