@@ -9,9 +9,9 @@ every hard task holds; a solver's status is never trusted.
 
 :class:`CasadiIK` (registry name ``casadi-ik``) is the reference engine: a
 lexicographic sequence of nonlinear programs solved by an interior-point
-method (fatrop by default, or IPOPT) on the CasADi kinematics. Stage 1 minimises the squared reach error under the hard tasks
-(contacts, heels, balance polygon) as constraints and joint limits as
-bounds. Each following soft task (gaze, then comfort, by priority) is
+method (fatrop by default, or IPOPT) on the CasADi kinematics. Stage 1
+minimises the squared reach error under the hard tasks (contacts, heels,
+balance polygon) as constraints and joint limits as bounds. Each following soft task (gaze, then comfort, by priority) is
 minimised with every earlier objective constrained to stay at its optimum,
 so a lower task never degrades a higher one.
 """
@@ -92,6 +92,8 @@ class IKOracle(ABC):
         self._deadline = np.inf
         self.give_up = np.inf if give_up is None else float(give_up)
         self.rescues = int(rescues)
+        if int(restarts) < 0 or self.rescues < 0 or self.give_up < 0:
+            raise OracleError(f"restarts, rescues and give_up must not be negative, got {restarts}, {rescues}, {give_up}")
         self.strategy = parse_strategy(self.body, effector, joints, tasks)
         self.problem = ReachProblem(self.body, self.strategy)
         self.posture_names = tuple(self.body.q_names)

@@ -143,8 +143,7 @@ def audit(
     for name in names or list(atlas.trees):
         tree = atlas.trees[name]
         spec = referee_spec(tree, restarts)
-        # Small chunks: a few hundred probes still spread over every worker.
-        referee = executor_factory(spec) if executor_factory else InlineExecutor(spec, chunk_size=16)
+        referee = executor_factory(spec) if executor_factory else InlineExecutor(spec)
         try:
             result[name] = audit_tree(tree, referee, samples, policy, seed)
         finally:

@@ -273,3 +273,9 @@ def test_jit_leaves_no_files_behind(tmp_path, monkeypatch):
     oracle = CasadiIK(HUMAN, "right_hand", ARM, jit=True)
     assert oracle.jit and oracle.evaluate(np.array([[0.4, -0.3, 1.1]])).reachable[0]
     assert os.getcwd() == str(tmp_path) and list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("params", [{"rescues": -1}, {"restarts": -2}, {"give_up": -0.01}])
+def test_negative_search_parameters_are_refused(params):
+    with pytest.raises(OracleError, match="must not be negative"):
+        CasadiIK(HUMAN, "right_hand", ARM, **params)
