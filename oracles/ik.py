@@ -234,10 +234,8 @@ class CasadiIK(IKOracle):
             nlp = {"x": x, "p": goal, "f": objectives[task], "g": ca.vertcat(g, *earlier)}
             # The later stages hold the earlier optima within a hair's
             # breadth, which IPOPT handles and fatrop often does not.
-            if k == 0:
-                self.stages.append(self._nlpsol(f"stage_{task}", solver, nlp, self._options(solver, int(max_iter)), jit))
-            else:
-                self.stages.append(self._nlpsol(f"stage_{task}", "ipopt", nlp, self._options("ipopt", max(20, int(max_iter) // 4)), jit))
+            engine, iters = (solver, int(max_iter)) if k == 0 else ("ipopt", max(20, int(max_iter) // 4))
+            self.stages.append(self._nlpsol(f"stage_{task}", engine, nlp, self._options(engine, iters), jit))
         self.lbg, self.ubg = np.asarray(lbg, float), np.asarray(ubg, float)
         self._objective_fns = {t: ca.Function(t, [x, goal], [f]) for t, f in objectives.items()}
 
@@ -250,16 +248,17 @@ class CasadiIK(IKOracle):
                 with _scratch_directory():
                     return ca.nlpsol(name, solver, nlp, {**opts, **compiled})
             except RuntimeError as exc:
+                reason = str(exc).strip().splitlines()[-1]
                 if jit is True:
-                    raise OracleError(f"casadi-ik: jit compilation with {COMPILER} failed ({str(exc).strip().splitlines()[-1]}); set jit: false") from exc
-                warnings.warn(f"casadi-ik: jit compilation failed, using CasADi's interpreter ({str(exc).strip().splitlines()[-1]})", stacklevel=2)
+                    raise OracleError(f"casadi-ik: jit compilation with {COMPILER} failed ({reason}); set jit: false") from exc
+                warnings.warn(f"casadi-ik: jit compilation failed, using CasADi's interpreter ({reason})", stacklevel=2)
                 self.jit = False
         return ca.nlpsol(name, solver, nlp, opts)
 
     def _options(self, solver: str, max_iter: int) -> dict[str, Any]:
         if solver == "fatrop":
-            # No structure detection: the problem is one stage, not an optimal-control horizon.
-            # A small initial barrier parameter suits warm starts, which
+            # No structure detection: the problem is one stage, not an
+            # optimal-control horizon. A small initial barrier parameter suits warm starts, which
             # most build solves are: about 35 % fewer iterations from a
             # neighbour's posture on the D_max 7 whole-body tree, same verdicts.
             return {"print_time": 0, "structure_detection": "none", "fatrop.print_level": 0, "fatrop.tol": 1e-6, "fatrop.mu_init": 1e-4, "fatrop.max_iter": max_iter}

@@ -192,8 +192,7 @@ class ReachProblem:
         """Independent Pinocchio check of a posture: residual and hard tasks."""
         model = self.body.model
         data = model.createData() if data is None else data
-        pin.framesForwardKinematics(model, data, q)
-        residual = float(np.linalg.norm(data.oMf[self.effector_id].translation - goal))
+        residual = self.effector_distance(q, goal, data)  # leaves data's frames at q for the hard tasks
         ok = bool(np.all(q[7:] >= model.lowerPositionLimit[7:] - LIMIT_TOL) and np.all(q[7:] <= model.upperPositionLimit[7:] + LIMIT_TOL))
         for c, ref in zip(self.strategy.contacts, self.contact_ref, strict=True):
             cur = data.oMf[self.body.frame_id(c.frame)]
