@@ -103,6 +103,23 @@ class Body:
         data = self.model.createData()
         return np.array(pin.centerOfMass(self.model, data, self.q_ref if q is None else q))
 
+    def describe(self) -> dict[str, Any]:
+        """What ``reach model`` prints: source, hash, mass [kg], joints and ranges [rad, m], frames [m], centre of mass [m]."""
+        info: dict[str, Any] = {
+            "source": self.source,
+            "hash": self.hash,
+            "mass": self.mass,
+            "nq": int(self.model.nq),
+            "joints": [{"name": n, "lower": lo, "upper": hi} for n, lo, hi in self.limits()],
+            "frames": {name: pos.round(6).tolist() for name, pos in self.frame_positions().items()},
+            "center_of_mass": self.center_of_mass().round(6).tolist(),
+            "units": {"length": "m", "angle": "rad", "mass": "kg"},
+        }
+        if self.anthropometry is not None:
+            info["stature"] = self.anthropometry.stature
+            info["sex"] = self.anthropometry.sex
+        return info
+
     def limits(self) -> list[tuple[str, float, float]]:
         """(name, lower, upper) of every joint coordinate after the root."""
         out = []

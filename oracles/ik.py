@@ -35,13 +35,11 @@ import numpy as np
 from oracles.body import load_body
 from oracles.kinematics import SymbolicKinematics
 from oracles.problem import ReachProblem
-from oracles.protocol import Verdicts, check_points
+from oracles.protocol import OracleSpec, Purpose, Verdicts, check_points, check_purpose
 from oracles.strategy import parse_strategy
+from oracles.tasks import Symbolic
 from reach.errors import OracleError
 
-# Slack by which a later stage may move an earlier objective: reach [m per
-# axis], gaze [1 - cos of the gaze error], comfort [objective units].
-STAGE_SLACK = {"reach": 1e-6, "gaze": 1e-4, "comfort": 1e-6}
 NEAR_HINT = 0.1  # [m] a hint whose effector is this close to the goal makes its warm solve decisive (see give_up)
 SOLVERS = ("fatrop", "ipopt")
 COMPILER = "gcc"  # the C compiler of jit: CasADi's shell compiler calls it
@@ -80,12 +78,17 @@ class IKOracle(ABC):
     """
 
     dim = 3
+    name: str  # the registry name
 
     def __init__(
         self, body: dict[str, Any], effector: str, joints: list[str], tasks: list[dict[str, Any]] | None = None,
         restarts: int = 3, seed: int = 0, secondary: bool = True, max_seconds: float | None = None,
         give_up: float | None = 0.0, rescues: int = 0,
     ) -> None:
+        self.params: dict[str, Any] = {
+            "body": body, "effector": effector, "joints": joints, "tasks": tasks, "restarts": restarts, "seed": seed,
+            "secondary": secondary, "max_seconds": max_seconds, "give_up": give_up, "rescues": rescues,
+        }
         self.body = load_body(body)
         self.secondary = bool(secondary)
         self.max_seconds = None if max_seconds is None else float(max_seconds)
@@ -101,6 +104,58 @@ class IKOracle(ABC):
         self.seed = int(seed)
         self._data = self.body.model.createData()
         self.stats = {"points": 0, "prefiltered": 0, "solves": 0, "reachable": 0}
+
+    # -- optional capabilities of the oracle protocol ----------------------
+    @property
+    def spec(self) -> OracleSpec:
+        """The spec that rebuilds this oracle in another process."""
+        return OracleSpec(self.name, dict(self.params))
+
+    @property
+    def model_hash(self) -> str:
+        return self.body.hash
+
+    def effector_positions(self, postures: np.ndarray) -> np.ndarray:
+        """Effector positions [m] (N, 3) of postures (N, nq), by Pinocchio."""
+        import pinocchio as pin
+
+        model, data, fid = self.body.model, self._data, self.problem.effector_id
+        out = np.empty((len(postures), 3))
+        for k, q in enumerate(postures):
+            pin.forwardKinematics(model, data, q)
+            out[k] = pin.updateFramePlacement(model, data, fid).translation
+        return out
+
+    def reach_bound(self) -> tuple[np.ndarray, float] | None:
+        """A fixed point and the most the effector can be from it [m], or None when unbounded."""
+        p = self.problem
+        if p.anchor is None or not np.isfinite(p.max_reach):
+            return None
+        return p.anchor.copy(), float(p.max_reach)
+
+    def variant(self, purpose: Purpose, *, budget: float | None = None, restarts: int = 6) -> IKOracle:
+        """This oracle set up for a purpose (see :class:`oracles.protocol.Tunable`)."""
+        check_purpose(purpose)
+        if purpose == "refine":
+            # The hint and the reference posture, both tried (no give-up): the
+            # tree already says reachable, and the budget bounds the time.
+            over: dict[str, Any] = {"restarts": 0, "give_up": None, "secondary": True, "max_seconds": budget}
+        else:
+            over = {"restarts": max(int(self.params["restarts"]), int(restarts)), "give_up": None}
+        return type(self)(**{**self.params, **over, **self.variant_params(purpose)})
+
+    def variant_params(self, purpose: Purpose) -> dict[str, Any]:
+        """Engine parameters of a purpose's variant (none by default)."""
+        return {}
+
+    def mirror(self) -> Any:
+        """The map of postures to their mirror images about y = 0 (raises ModelError for an asymmetric body)."""
+        from oracles.mirror import MirrorMap
+
+        return MirrorMap(self.body).mirror_q
+
+    def prepare(self) -> None:  # noqa: B027 - engines without solvers to build need nothing
+        """Build the solvers now rather than on the first evaluate."""
 
     @abstractmethod
     def solve(self, goal: np.ndarray, x0: np.ndarray) -> np.ndarray:
@@ -179,6 +234,11 @@ def _scratch_directory() -> Iterator[None]:
 class CasadiIK(IKOracle):
     """Lexicographic NLP solves on CasADi kinematics (registry name ``casadi-ik``).
 
+    Nothing is built at construction: the programs (and their jit
+    compilation) are built on the first :meth:`solve`, once per oracle, so
+    loading a config or building an oracle in a process that never solves
+    (a build's parent, a config check) costs no compilation.
+
     Args:
         max_iter: Iteration cap per stage.
         solver: ``fatrop`` (default) or ``ipopt``, both interior-point
@@ -200,46 +260,52 @@ class CasadiIK(IKOracle):
         (others as :class:`IKOracle`)
     """
 
+    name = "casadi-ik"
+
     def __init__(self, *args: Any, max_iter: int = 60, solver: str = "fatrop", jit: bool | str = False, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         if solver not in SOLVERS:
             raise OracleError(f"casadi-ik: solver must be one of {sorted(SOLVERS)}, got {solver!r}")
         if jit not in (True, False, "auto"):
             raise OracleError(f"casadi-ik: jit must be true, false or 'auto', got {jit!r}")
+        has_compiler = shutil.which(COMPILER) is not None
+        if jit is True and not has_compiler:
+            raise OracleError(f"casadi-ik: jit needs the C compiler {COMPILER} on the PATH; install it or set jit: false")
+        self.params.update(max_iter=max_iter, solver=solver, jit=jit)
         self.solver = solver
-        self.jit = jit is True or (jit == "auto" and shutil.which(COMPILER) is not None)
-        p, s = self.problem, self.strategy
+        self.max_iter = int(max_iter)
+        self.jit = jit is True or (jit == "auto" and has_compiler)
+        soft = self.strategy.soft
+        reach = soft.index(self.strategy.reach)
+        self.order = list(soft if self.secondary else soft[: reach + 1])
+        self.stages: list[ca.Function] = []  # built on the first solve
+
+    def variant_params(self, purpose: Purpose) -> dict[str, Any]:
+        # A refinement never compiles (seconds, more than a server's few
+        # solves gain); the referee solves with IPOPT, the reference solver.
+        return {"jit": False} if purpose == "refine" else {"solver": "ipopt"}
+
+    def _build(self) -> None:
+        """The lexicographic stages: each soft task minimised with the earlier ones held."""
+        p = self.problem
         x, goal = p.x_sym, ca.SX.sym("goal", 3)
-        kin = SymbolicKinematics(self.body.model, p.q_sym)
-        eff = kin.frame(s.effector)[1]
-        objectives = {"reach": ca.sumsqr(eff - goal)}
-        if s.gaze is not None:
-            rot, pos = kin.frame(s.gaze)
-            to_goal = goal - pos
-            objectives["gaze"] = 1.0 - ca.dot(rot[:, 0], to_goal) / (ca.norm_2(to_goal) + 1e-9)
-        if s.comfort > 0:
-            span = p.upper - p.lower
-            objectives["comfort"] = s.comfort * ca.sumsqr((x - p.x_ref) / span) / max(p.nx, 1)
-        self.order = [t for t in s.order if t in objectives]
-        if not self.secondary:
-            self.order = self.order[: self.order.index("reach") + 1]
-        self.objectives = objectives
-        g, lbg, ubg = self._hard_constraints(kin)
-        self.stages = []
+        sym = Symbolic(SymbolicKinematics(self.body.model, p.q_sym), x, goal, p.x_ref, p.upper - p.lower)
+        rows = [c for t in self.strategy.hard for c in t.constraints(sym)]
+        g = ca.vertcat(*[c.expr for c in rows]) if rows else ca.SX.zeros(0, 1)
+        self.lbg = np.array([c.lower for c in rows for _ in range(c.expr.numel())], float)
+        self.ubg = np.array([c.upper for c in rows for _ in range(c.expr.numel())], float)
+        stages = []
         for k, task in enumerate(self.order):
-            # Earlier objectives become constraints. Reach is held per axis
-            # (|e_i| <= bound): a bound on its square would have a zero
-            # gradient at the optimum, which interior-point solvers handle badly.
-            earlier = [eff - goal if t == "reach" else objectives[t] for t in self.order[:k]]
-            nlp = {"x": x, "p": goal, "f": objectives[task], "g": ca.vertcat(g, *earlier)}
+            earlier = [t.held(sym) for t in self.order[:k]]
+            nlp = {"x": x, "p": goal, "f": task.objective(sym), "g": ca.vertcat(g, *earlier)}
             # The later stages hold the earlier optima within a hair's
             # breadth, which IPOPT handles and fatrop often does not.
-            engine, iters = (solver, int(max_iter)) if k == 0 else ("ipopt", max(20, int(max_iter) // 4))
-            self.stages.append(self._nlpsol(f"stage_{task}", engine, nlp, self._options(engine, iters), jit))
-        self.lbg, self.ubg = np.asarray(lbg, float), np.asarray(ubg, float)
-        self._objective_fns = {t: ca.Function(t, [x, goal], [f]) for t, f in objectives.items()}
+            engine, iters = (self.solver, self.max_iter) if k == 0 else ("ipopt", max(20, self.max_iter // 4))
+            stages.append(self._nlpsol(f"stage_{task.type}", engine, nlp, self._options(engine, iters)))
+        self._objective_fns = [ca.Function(t.type, [x, goal], [t.objective(sym)]) for t in self.order]
+        self.stages = stages
 
-    def _nlpsol(self, name: str, solver: str, nlp: dict[str, Any], opts: dict[str, Any], jit: bool | str) -> ca.Function:
+    def _nlpsol(self, name: str, solver: str, nlp: dict[str, Any], opts: dict[str, Any]) -> ca.Function:
         if self.jit:
             try:
                 # No cleanup by CasADi: the scratch directory goes as a whole
@@ -249,7 +315,7 @@ class CasadiIK(IKOracle):
                     return ca.nlpsol(name, solver, nlp, {**opts, **compiled})
             except RuntimeError as exc:
                 reason = str(exc).strip().splitlines()[-1]
-                if jit is True:
+                if self.params["jit"] is True:
                     raise OracleError(f"casadi-ik: jit compilation with {COMPILER} failed ({reason}); set jit: false") from exc
                 warnings.warn(f"casadi-ik: jit compilation failed, using CasADi's interpreter ({reason})", stacklevel=2)
                 self.jit = False
@@ -265,50 +331,21 @@ class CasadiIK(IKOracle):
         budget = {"ipopt.max_wall_time": self.max_seconds} if self.max_seconds else {}
         return {**budget, "print_time": 0, "ipopt.print_level": 0, "ipopt.sb": "yes", "ipopt.max_iter": max_iter, "ipopt.tol": 1e-6, "ipopt.acceptable_tol": 1e-4}
 
-    def _hard_constraints(self, kin: SymbolicKinematics) -> tuple[ca.SX, list[float], list[float]]:
-        p, s = self.problem, self.strategy
-        rows, lo, hi = [], [], []
-
-        def add(expr: ca.SX, lower: float, upper: float) -> None:
-            rows.append(expr)
-            lo.extend([lower] * expr.numel())
-            hi.extend([upper] * expr.numel())
-
-        for c, ref in zip(s.contacts, p.contact_ref, strict=True):
-            rot, pos = kin.frame(c.frame)
-            add(pos - ref.translation.reshape(3, 1), 0.0, 0.0)
-            if c.mode == "fixed":
-                rel = ca.SX(ref.rotation.T) @ rot
-                add(ca.vertcat(rel[2, 1] - rel[1, 2], rel[0, 2] - rel[2, 0], rel[1, 0] - rel[0, 1]), 0.0, 0.0)
-            else:
-                axis = ref.rotation @ np.asarray(c.axis)
-                b1 = np.cross(axis, [0.0, 0.0, 1.0] if abs(axis[2]) < 0.9 else [1.0, 0.0, 0.0])
-                b1 /= np.linalg.norm(b1)
-                b2 = np.cross(axis, b1)
-                w = rot @ ca.SX(np.asarray(c.axis))
-                add(ca.vertcat(ca.dot(w, ca.SX(b1)), ca.dot(w, ca.SX(b2))), 0.0, 0.0)
-        for f in s.above_floor:
-            add(kin.frame(f)[1][2], 0.0, np.inf)
-        if p.polygon is not None:
-            com = kin.center_of_mass()
-            add(ca.SX(p.polygon[:, :2]) @ com[:2] + ca.SX(p.polygon[:, 2]), -np.inf, 0.0)
-        g = ca.vertcat(*rows) if rows else ca.SX.zeros(0, 1)
-        return g, lo, hi
-
     def _stage_bounds(self, k: int, optimum: list[float]) -> tuple[np.ndarray, np.ndarray]:
         lo: list[Any] = [self.lbg]
         hi: list[Any] = [self.ubg]
         for t, opt in zip(self.order[:k], optimum, strict=False):
-            if t == "reach":
-                b = np.sqrt(max(opt, 0.0)) + STAGE_SLACK["reach"]
-                lo.append(np.full(3, -b))
-                hi.append(np.full(3, b))
-            else:
-                lo.append([-np.inf])
-                hi.append([opt + STAGE_SLACK[t]])
+            a, b = t.held_bounds(opt)
+            lo.append(a)
+            hi.append(b)
         return np.concatenate(lo), np.concatenate(hi)
 
+    def prepare(self) -> None:
+        if not self.stages:
+            self._build()
+
     def solve(self, goal: np.ndarray, x0: np.ndarray) -> np.ndarray:
+        self.prepare()
         p = self.problem
         x = np.clip(x0, p.lower, p.upper)
         optimum: list[float] = []
@@ -326,7 +363,7 @@ class CasadiIK(IKOracle):
                 if np.any(gval < lbg - 1e-7) or np.any(gval > ubg + 1e-7):
                     break
             x = x_new
-            optimum.append(float(self._objective_fns[task](x, goal)))
-            if k == 0 and optimum[0] > self.strategy.tolerance**2:
-                break  # unreachable: lower tasks cannot change the verdict
+            optimum.append(float(self._objective_fns[k](x, goal)))
+            if not task.attained(optimum[-1]):
+                break  # e.g. unreachable: lower tasks cannot change the verdict
         return p.q_of_x(x)

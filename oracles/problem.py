@@ -13,17 +13,13 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 import pinocchio as pin
-from scipy.spatial import ConvexHull
 
 from oracles.body import ROOT, Body
 from oracles.strategy import Strategy
+from oracles.tasks import Numeric, Reference
 from reach.errors import ModelError
 
-# Verdict tolerances of the hard tasks.
-CONTACT_TOL = 1e-4  # [m] contact position drift
-ANGLE_TOL = 1e-3  # [rad] contact orientation drift
-LIMIT_TOL = 1e-6  # [rad or m] joint limit overshoot
-BALANCE_TOL = 1e-5  # [m] CoM beyond the shrunk polygon
+LIMIT_TOL = 1e-6  # [rad or m] joint limit overshoot the verdict accepts
 
 
 @dataclass(frozen=True)
@@ -31,7 +27,7 @@ class Check:
     """Outcome of the Pinocchio check of one posture."""
 
     residual: float  # [m] effector to goal
-    hard_ok: bool  # contacts, floor, balance and limits hold
+    hard_ok: bool  # joint limits and every hard task hold
     reachable: bool
 
 
@@ -93,20 +89,12 @@ class ReachProblem:
         self.x_sym, self.q_sym = xs, q
         self._q_of_x = ca.Function("q_of_x", [xs], [q], ["x"], ["q"])
         self.x_ref = self.x_of_q(body.q_ref)
-        # Reference placements of contacts, and the support polygon.
+        # Tasks record what they hold at the reference posture.
         data = model.createData()
         pin.framesForwardKinematics(model, data, body.q_ref)
-        self.contact_ref = [data.oMf[body.frame_id(c.frame)].copy() for c in strategy.contacts]
-        self.polygon: np.ndarray | None = None
-        if strategy.margin is not None:
-            pts = np.array([data.oMf[body.frame_id(f)].translation[:2] for f in strategy.support])
-            try:
-                hull = ConvexHull(pts)
-            except Exception as exc:  # scipy's QhullError for degenerate supports
-                raise ModelError(f"support frames {list(strategy.support)} do not span a polygon ({exc})") from exc
-            # Rows (a_x, a_y, c): a . p + c + margin <= 0 inside the shrunk polygon.
-            self.polygon = hull.equations.copy()
-            self.polygon[:, 2] += strategy.margin
+        reference = Reference(body, data)
+        for task in strategy.tasks:
+            task.bind(reference)
         self.anchor, self.max_reach = self._reach_bound(data)
 
     # -- coordinates -------------------------------------------------------
@@ -162,15 +150,15 @@ class ReachProblem:
             first = chain[0]
             below = list(reversed(up[: up.index(first) + 1]))
             return origin[first].copy(), length([origin[j] for j in below] + [eff])
-        if not self.strategy.contacts:
+        if not self.strategy.held_frames:
             return None, np.inf
         best = (None, np.inf)
-        for c in self.strategy.contacts:
-            cf = model.frames[self.body.frame_id(c.frame)]
+        for held in self.strategy.held_frames:
+            cf = model.frames[self.body.frame_id(held)]
             a, b = path_up(cf.parentJoint), up
             common = next(j for j in a if j in b)
             joints = a[: a.index(common) + 1] + list(reversed(b[: b.index(common)]))
-            start = data.oMf[self.body.frame_id(c.frame)].translation
+            start = data.oMf[self.body.frame_id(held)].translation
             total = length([start] + [origin[j] for j in joints] + [eff])
             if total < best[1]:
                 best = (start.copy(), total)
@@ -188,23 +176,16 @@ class ReachProblem:
         return float(np.linalg.norm(data.oMf[self.effector_id].translation - goal))
 
     # -- the verdict -------------------------------------------------------
+    def within_limits(self, q: np.ndarray) -> bool:
+        model = self.body.model
+        return bool(np.all(q[7:] >= model.lowerPositionLimit[7:] - LIMIT_TOL) and np.all(q[7:] <= model.upperPositionLimit[7:] + LIMIT_TOL))
+
     def check(self, q: np.ndarray, goal: np.ndarray, data: pin.Data | None = None) -> Check:
-        """Independent Pinocchio check of a posture: residual and hard tasks."""
+        """Independent Pinocchio check of a posture: each task's own check, and the joint limits."""
         model = self.body.model
         data = model.createData() if data is None else data
-        residual = self.effector_distance(q, goal, data)  # leaves data's frames at q for the hard tasks
-        ok = bool(np.all(q[7:] >= model.lowerPositionLimit[7:] - LIMIT_TOL) and np.all(q[7:] <= model.upperPositionLimit[7:] + LIMIT_TOL))
-        for c, ref in zip(self.strategy.contacts, self.contact_ref, strict=True):
-            cur = data.oMf[self.body.frame_id(c.frame)]
-            ok &= bool(np.linalg.norm(cur.translation - ref.translation) <= CONTACT_TOL)
-            if c.mode == "fixed":
-                ok &= bool(np.linalg.norm(pin.log3(ref.rotation.T @ cur.rotation)) <= ANGLE_TOL)
-            else:
-                axis = np.asarray(c.axis)
-                ok &= bool(np.linalg.norm(cur.rotation @ axis - ref.rotation @ axis) <= ANGLE_TOL)
-        for f in self.strategy.above_floor:
-            ok &= bool(data.oMf[self.body.frame_id(f)].translation[2] >= -CONTACT_TOL)
-        if self.polygon is not None:
-            com = pin.centerOfMass(model, data, q, False)
-            ok &= bool(np.all(self.polygon[:, :2] @ com[:2] + self.polygon[:, 2] <= BALANCE_TOL))
-        return Check(residual, ok, ok and residual <= self.strategy.tolerance)
+        pin.framesForwardKinematics(model, data, q)
+        num = Numeric(model, data, q, np.asarray(goal, float))
+        residual = self.strategy.reach.residual(num)
+        hard_ok = self.within_limits(q) and all(t.holds(num) for t in self.strategy.hard)
+        return Check(residual, hard_ok, hard_ok and all(t.holds(num) for t in self.strategy.soft))

@@ -1,17 +1,36 @@
-"""The oracle protocol: what the tree builder asks and what it gets back.
+"""The oracle protocol: everything ``reach`` may ask of an oracle.
 
 An oracle answers, for a batch of points, whether each is inside the volume
 (reachable), how far from it the best attempt ended (the residual, metres),
-and, for oracles that find one, the posture that reaches it.
+and, for oracles that find one, the posture that reaches it
+(:class:`Oracle`). The builder never shows an oracle the tree; it only
+sends batches of points with optional warm-start postures (hints).
 
-The builder never shows an oracle the tree; it only sends batches of points
-with optional warm-start postures (hints).
+Oracles may also offer optional capabilities, each a protocol of its own;
+``reach`` checks for them with ``isinstance`` and does without when absent:
+
+* :class:`Specified`: the spec that rebuilds the oracle in another process;
+* :class:`ModelHashed`: a hash of the body model, stored with trees;
+* :class:`EffectorPositions`: where postures put the effector (the
+  selector's nearest-posture index);
+* :class:`ReachBound`: a ball that holds every reachable point (``box: auto``);
+* :class:`Tunable`: a variant set up for a purpose, ``"refine"`` (the
+  selector's quick solve at the exact goal, secondary tasks on, within a
+  time budget) or ``"referee"`` (the audit's thorough solve);
+* :class:`Preparable`: build now what the first evaluate would build;
+* :class:`Mirrorable`: the map of postures to their mirror images about
+  y = 0, for deriving left-side trees from right-side ones.
+
+``reach`` asks nothing else: not an oracle's parameters, registry names or
+internals, so a third-party oracle registered through the ``reach.oracles``
+entry point works everywhere a built-in one does.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, NamedTuple, Protocol, runtime_checkable
+from typing import Any, Literal, NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -72,6 +91,90 @@ class Oracle(Protocol):
             The verdicts, one per point, in order.
         """
         ...
+
+
+Purpose = Literal["refine", "referee"]
+PURPOSES: tuple[str, ...] = ("refine", "referee")
+
+
+def check_purpose(purpose: str) -> None:
+    if purpose not in PURPOSES:
+        raise OracleError(f"unknown oracle purpose {purpose!r}; expected one of {', '.join(PURPOSES)}")
+
+
+@runtime_checkable
+class Specified(Protocol):
+    """An oracle that knows the spec rebuilding it (workers receive specs, never oracles)."""
+
+    @property
+    def spec(self) -> OracleSpec: ...
+
+
+@runtime_checkable
+class ModelHashed(Protocol):
+    """An oracle on a body model; the hash identifies the model in stored trees."""
+
+    @property
+    def model_hash(self) -> str: ...
+
+
+@runtime_checkable
+class EffectorPositions(Protocol):
+    """An oracle whose postures can be mapped to effector positions."""
+
+    def effector_positions(self, postures: np.ndarray) -> np.ndarray:
+        """(N, dim) effector positions [m] of (N, nq) postures."""
+        ...
+
+
+@runtime_checkable
+class ReachBound(Protocol):
+    """An oracle that bounds its volume by a ball."""
+
+    def reach_bound(self) -> tuple[np.ndarray, float] | None:
+        """(centre [m], radius [m]) of a ball holding every reachable point, or None when unbounded."""
+        ...
+
+
+@runtime_checkable
+class Tunable(Protocol):
+    """An oracle that can be set up for a purpose.
+
+    ``variant("refine", budget=s)``: fast, secondary tasks on, at most
+    ``budget`` seconds per ``evaluate``. ``variant("referee", restarts=n)``:
+    thorough, every start tried, at least ``n`` random restarts. Variants
+    are :class:`Specified` when their oracle is.
+    """
+
+    def variant(self, purpose: Purpose, *, budget: float | None = None, restarts: int = 6) -> Oracle: ...
+
+
+@runtime_checkable
+class Preparable(Protocol):
+    """An oracle that builds heavy structures (solvers, compiled code) on its first evaluate."""
+
+    def prepare(self) -> None:
+        """Build them now (a server does at load), so that no request pays for them."""
+        ...
+
+
+@runtime_checkable
+class Mirrorable(Protocol):
+    """An oracle whose body may be mirror-symmetric about y = 0."""
+
+    def mirror(self) -> Callable[[np.ndarray], np.ndarray]:
+        """The map of (..., nq) postures to their mirror images; raises ModelError when the body is not symmetric."""
+        ...
+
+
+def body_params(body: Any, effector: str, joints: Any, tasks: Any) -> dict[str, Any]:
+    """The params a config gives a body strategy's oracle, over the oracle's own.
+
+    Every body oracle's factory (``casadi-ik``, ``dls``, or a third party's)
+    takes these keyword arguments: the body spec (:func:`oracles.body.load_body`),
+    the effector frame, the active joints and the task list (:mod:`oracles.strategy`).
+    """
+    return {"body": body, "effector": effector, "joints": joints, "tasks": tasks}
 
 
 @dataclass(frozen=True)

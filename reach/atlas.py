@@ -20,8 +20,7 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
-from oracles.body import load_body
-from oracles.protocol import OracleSpec
+from oracles.protocol import Mirrorable, ModelHashed, OracleSpec
 from reach.build import build_tree
 from reach.config import Config, StrategySpec
 from reach.errors import ModelError, StoreError
@@ -50,19 +49,16 @@ def fingerprint(config: Config, strategy: StrategySpec) -> str:
 
 
 def _mirror_source(config: Config, s: StrategySpec, built: dict[str, VATree], log: Callable[[str], None]) -> tuple[VATree, Any] | None:
-    """The source tree and mirror map if s may be derived by mirroring, else None (with the reason logged)."""
-    from reach.mirror import MirrorMap
-
+    """The source tree and posture mirror if s may be derived by mirroring, else None (with the reason logged)."""
     if s.mirror_of is None or s.mirror_of not in built:
         return None
     source = built[s.mirror_of]
-    # Only the body is needed: loading it spares building the oracle's solvers.
-    body_spec = OracleSpec.from_dict(source.meta["oracle"]).params.get("body")
-    if body_spec is None:
+    oracle = OracleSpec.from_dict(source.meta["oracle"]).create()  # builds no solver
+    if not isinstance(oracle, Mirrorable):
         log(f"{s.name}: built, not mirrored: its oracle has no body whose symmetry could be checked")
         return None
     try:
-        mirror = MirrorMap(load_body(body_spec))
+        mirror = oracle.mirror()
     except ModelError as exc:
         log(f"{s.name}: built, not mirrored: {exc}")
         return None
@@ -153,9 +149,8 @@ def _build_one(
     state = load_state(partial, fp) if resume and partial.is_file() else None
     ex: Executor = executor_factory(s.oracle) if executor_factory else InlineExecutor(s.oracle, config.chunk_size)
     try:
-        body = getattr(getattr(ex, "oracle", None), "body", None)
-        if body is not None:
-            meta["model_hash"] = body.hash
+        if isinstance(ex.oracle, ModelHashed):
+            meta["model_hash"] = ex.oracle.model_hash
         return build_tree(
             s.oracle, config.box, config.d_min, config.d_max, executor=ex, progress=s.name if progress else False, meta=meta, state=state,
             on_level=lambda st: save_state(st, partial, fp), refine=config.refine,

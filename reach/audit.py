@@ -4,8 +4,8 @@ The paper assumes a box is reachable when its vertices are. ``audit`` draws
 seeded random probes inside a tree's inner, final and outer cells (cells
 picked in proportion to their volume, points uniform inside them), asks the
 tree (with a boundary policy) and asks the strategy's own oracle directly
-(the referee: warm-started from the tree's nearest reachable posture, extra
-restarts, every start tried, IPOPT for casadi-ik), and
+(the referee: its ``variant("referee")``, warm-started from the tree's
+nearest reachable posture), and
 reports per strategy, per cell type and per depth:
 
 * the false-reachable rate: of the probes the tree calls reachable, the
@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from oracles.protocol import Oracle, OracleSpec
+from oracles.protocol import Oracle, OracleSpec, Specified, Tunable
 from reach.build import warm_hints
 from reach.executor import Executor, InlineExecutor
 from reach.store import Atlas
@@ -118,20 +118,16 @@ def audit_tree(tree: VATree, referee: Oracle | Executor, samples: int = 300, pol
     return out
 
 
-def referee_spec(tree: VATree, restarts: int) -> OracleSpec:
+def referee(tree: VATree, restarts: int) -> Oracle:
     """The referee: the strategy's own oracle, from the tree's spec, made thorough.
 
-    IK oracles get extra restarts and try every start (no give-up); casadi-ik
-    solves with IPOPT, its reference solver, whatever solver built the tree.
+    A :class:`~oracles.protocol.Tunable` oracle gives its ``"referee"``
+    variant (for the IK oracles: at least ``restarts`` random restarts, every
+    start tried, IPOPT for casadi-ik whatever solver built the tree); any
+    other oracle referees as it built the tree.
     """
-    spec = OracleSpec.from_dict(tree.meta["oracle"])
-    params = dict(spec.params)
-    if "restarts" in params or spec.name in ("casadi-ik", "dls"):
-        params["restarts"] = max(int(params.get("restarts", 0)), restarts)
-        params["give_up"] = None
-    if spec.name == "casadi-ik":
-        params["solver"] = "ipopt"
-    return OracleSpec(spec.name, params)
+    oracle = OracleSpec.from_dict(tree.meta["oracle"]).create()
+    return oracle.variant("referee", restarts=restarts) if isinstance(oracle, Tunable) else oracle
 
 
 def audit(
@@ -142,10 +138,11 @@ def audit(
     result = {}
     for name in names or list(atlas.trees):
         tree = atlas.trees[name]
-        spec = referee_spec(tree, restarts)
-        referee = executor_factory(spec) if executor_factory else InlineExecutor(spec)
+        judge = referee(tree, restarts)
+        # Executors rebuild the referee from its spec in their workers.
+        runner = executor_factory(judge.spec) if executor_factory and isinstance(judge, Specified) else InlineExecutor(judge)
         try:
-            result[name] = audit_tree(tree, referee, samples, policy, seed)
+            result[name] = audit_tree(tree, runner, samples, policy, seed)
         finally:
-            referee.close()
+            runner.close()
     return {"strategies": result, "samples_per_strategy": samples, "policy": policy, "seed": seed}

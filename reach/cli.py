@@ -15,7 +15,10 @@ from typing import Any
 
 import numpy as np
 
+from reach import protocol as P
 from reach.errors import ReachError
+from reach.select import REFINE_BUDGET
+from reach.tree import DEFAULT_POLICY, POLICIES
 
 
 def _print_json(data: Any) -> None:
@@ -164,21 +167,7 @@ def cmd_model(args: argparse.Namespace) -> int:
         body = load_body(data["body"])
     else:
         body = urdf_body(spec)
-    frames = {name: pos.round(6).tolist() for name, pos in body.frame_positions().items()}
-    info: dict[str, Any] = {
-        "source": body.source,
-        "hash": body.hash,
-        "mass": body.mass,
-        "nq": int(body.model.nq),
-        "joints": [{"name": n, "lower": lo, "upper": hi} for n, lo, hi in body.limits()],
-        "frames": frames,
-        "center_of_mass": body.center_of_mass().round(6).tolist(),
-        "units": {"length": "m", "angle": "rad", "mass": "kg"},
-        "world_frame": "z up, x forward, y left",
-    }
-    if body.anthropometry is not None:
-        info["stature"] = body.anthropometry.stature
-        info["sex"] = body.anthropometry.sex
+    info = {**body.describe(), "world_frame": P.WORLD_AXES}
     if args.json:
         _print_json(info)
         return 0
@@ -291,9 +280,9 @@ def make_parser() -> argparse.ArgumentParser:
         "'reach query ATLAS X Y [Z]' reads the atlas, 'reach query --connect ADDR X Y [Z]' asks a running server.",
     )
     p.add_argument("values", nargs="+", metavar="ATLAS X Y [Z]", help="atlas folder (omitted with --connect) and goal [m]")
-    p.add_argument("--connect", metavar="ADDR", help="ask the server at ADDR (e.g. tcp://127.0.0.1:5555) instead of reading an atlas")
+    p.add_argument("--connect", metavar="ADDR", help=f"ask the server at ADDR (e.g. {P.DEFAULT_BIND}) instead of reading an atlas")
     p.add_argument("--effector", help="effector to ask about (default: every effector of the atlas)")
-    p.add_argument("--policy", default="vertex", choices=["conservative", "optimistic", "vertex"], help="how boundary cells answer (default: vertex)")
+    p.add_argument("--policy", default=DEFAULT_POLICY, choices=POLICIES, help=f"how boundary cells answer (default: {DEFAULT_POLICY})")
     p.add_argument("--refine", choices=["on", "off"], help="refine the posture by IK at the exact goal (default: on)")
     p.add_argument("--timeout", type=int, default=2500, help="with --connect: ms to wait for each reply (default 2500)")
     p.add_argument("--curve-server-key", metavar="FILE", help="with --connect: the server's CURVE public-key file")
@@ -305,11 +294,11 @@ def make_parser() -> argparse.ArgumentParser:
         description="Serve an atlas: JSON requests on a ROUTER socket (REQ or DEALER clients), every choice published on a PUB socket. See docs/protocol.md.",
     )
     p.add_argument("atlas", help="atlas folder written by 'reach build'")
-    p.add_argument("--bind", default="tcp://127.0.0.1:5555", help="request address (default tcp://127.0.0.1:5555)")
-    p.add_argument("--pub", default="tcp://127.0.0.1:5556", help="publishing address, or 'none' (default tcp://127.0.0.1:5556)")
-    p.add_argument("--policy", default="vertex", choices=["conservative", "optimistic", "vertex"], help="how boundary cells answer (default: vertex)")
+    p.add_argument("--bind", default=P.DEFAULT_BIND, help=f"request address (default {P.DEFAULT_BIND})")
+    p.add_argument("--pub", default=P.DEFAULT_PUB, help=f"publishing address, or 'none' (default {P.DEFAULT_PUB})")
+    p.add_argument("--policy", default=DEFAULT_POLICY, choices=POLICIES, help=f"how boundary cells answer (default: {DEFAULT_POLICY})")
     p.add_argument("--no-refine", action="store_true", help="answer with stored postures; no IK refinement unless a request asks")
-    p.add_argument("--budget-ms", type=float, default=20.0, help="time budget of one IK refinement [ms] (default 20)")
+    p.add_argument("--budget-ms", type=float, default=REFINE_BUDGET * 1000, help=f"time budget of one IK refinement [ms] (default {REFINE_BUDGET * 1000:g})")
     p.add_argument("--curve-secret-key", metavar="FILE", help="encrypt with CURVE, using this server secret-key file (zmq.auth.create_certificates)")
     p.set_defaults(func=cmd_serve)
 
@@ -331,7 +320,7 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("atlas", nargs="+", help="atlas folders")
     p.add_argument("--targets", required=True, help="CSV file with name, x, y, z[, effector]")
     p.add_argument("--effector", help="effector for targets without one")
-    p.add_argument("--policy", default="vertex", choices=["conservative", "optimistic", "vertex"], help="how boundary cells answer (default: vertex)")
+    p.add_argument("--policy", default=DEFAULT_POLICY, choices=POLICIES, help=f"how boundary cells answer (default: {DEFAULT_POLICY})")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_evaluate)
 
@@ -339,7 +328,7 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("atlas", help="atlas folder written by 'reach build'")
     p.add_argument("--samples", type=int, default=300, help="probes per strategy, split over the three cell types (default 300)")
     p.add_argument("--strategies", help="comma-separated strategies (default: all)")
-    p.add_argument("--policy", default="vertex", choices=["conservative", "optimistic", "vertex"], help="how boundary cells answer (default: vertex)")
+    p.add_argument("--policy", default=DEFAULT_POLICY, choices=POLICIES, help=f"how boundary cells answer (default: {DEFAULT_POLICY})")
     p.add_argument("--restarts", type=int, default=6, help="restarts of the direct IK (default 6)")
     p.add_argument("--seed", type=int, default=0, help="seed of the probes (default 0)")
     p.add_argument("--json", action="store_true", help="machine-readable output")

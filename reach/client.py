@@ -18,22 +18,12 @@ import zmq
 import zmq.auth
 
 from reach import protocol as P
-from reach.errors import ReachError
+from reach.errors import ServerError, ServerUnavailable
 
 REQUEST_TIMEOUT_MS = 2500
 REQUEST_RETRIES = 3
 
-
-class ServerError(ReachError):
-    """The server answered with an error reply."""
-
-    def __init__(self, code: str, message: str) -> None:
-        super().__init__(f"{code}: {message}")
-        self.code, self.message = code, message
-
-
-class ServerUnavailable(ReachError):
-    """No reply after every retry."""
+__all__ = ["Client", "ServerError", "ServerUnavailable"]
 
 
 class Client:
@@ -92,7 +82,7 @@ class Client:
             # No reply in time: the REQ socket is stuck; rebuild it and resend.
             self.socket.close(linger=0)
             self.socket = self._connect()
-        raise ServerUnavailable(f"no reply from {self.address} after {self.retries} attempts of {self.timeout} ms")
+        raise ServerUnavailable(self.address, self.retries, self.timeout)
 
     def query(self, effector: str, goal: list[float], refine: bool | None = None) -> dict[str, Any]:
         fields: dict[str, Any] = {"effector": effector, "goal": [float(v) for v in goal]}

@@ -35,9 +35,9 @@ from typing import Any
 import numpy as np
 import yaml
 
-from oracles.protocol import OracleSpec
+from oracles.protocol import Oracle, OracleSpec, ReachBound, body_params
 from reach.build import Refine
-from reach.errors import ConfigError, TreeError
+from reach.errors import ConfigError, ReachError, TreeError
 from reach.tree import MAX_DEPTH, Box
 
 TOP_KEYS = {"name", "description", "base", "body", "box", "depth", "oracle", "strategies", "build"}
@@ -183,7 +183,7 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
                 raise check.fail(f"{key}.joints", "joints and tasks need a top-level 'body'")
             if "joints" not in s:
                 raise check.fail(f"{key}.joints", "required key is missing (the joints this strategy may move)")
-            oracle = OracleSpec(oracle.name, {**oracle.params, "body": top["body"], "effector": effector, "joints": s["joints"], "tasks": s.get("tasks")})
+            oracle = OracleSpec(oracle.name, {**oracle.params, **body_params(top["body"], effector, s["joints"], s.get("tasks"))})
         mirror_of = check.string(s["mirror_of"], f"{key}.mirror_of") if "mirror_of" in s else None
         strategies.append(StrategySpec(sname, effector, priority, oracle, str(s.get("description", "")), mirror_of))
     build = check.mapping(top.get("build", {}), "build", BUILD_KEYS)
@@ -206,10 +206,12 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
     return Config(name, source, box, d_min, d_max, tuple(strategies), chunk, refine, dict(top))
 
 
-def _check_oracles(check: _Checker, strategies: list[StrategySpec], dim: int) -> list[Any]:
-    """Build each oracle once so that bad params fail at load time, naming the key."""
-    from reach.errors import ReachError
+def _check_oracles(check: _Checker, strategies: list[StrategySpec], dim: int) -> list[Oracle]:
+    """Build each oracle once so that bad params fail at load time, naming the key.
 
+    Building an oracle validates it (a body oracle builds its body and
+    parses its tasks) but solves and compiles nothing.
+    """
     out = []
     for i, s in enumerate(strategies):
         try:
@@ -238,15 +240,16 @@ def _auto_box(check: _Checker, value: Any) -> dict[str, Any] | None:
     return None
 
 
-def _derive_box(check: _Checker, oracles: list[Any], auto: dict[str, Any], symmetric: bool) -> Box:
+def _derive_box(check: _Checker, oracles: list[Oracle], auto: dict[str, Any], symmetric: bool) -> Box:
     """B0 from the bodies' size: the union of every strategy's reach bound (a ball about its fixed anchor)."""
     lows, highs = [], []
     for o in oracles:
-        problem = getattr(o, "problem", None)
-        if problem is None or problem.anchor is None or not np.isfinite(problem.max_reach):
+        bound = o.reach_bound() if isinstance(o, ReachBound) else None
+        if bound is None:
             raise check.fail("box", "box: auto needs body strategies whose reach is bounded (a fixed root, or feet on the floor); give box.min and box.max")
-        lows.append(problem.anchor - problem.max_reach)
-        highs.append(problem.anchor + problem.max_reach)
+        centre, radius = bound
+        lows.append(centre - radius)
+        highs.append(centre + radius)
     lo = np.min(lows, axis=0) - auto["margin"]
     hi = np.max(highs, axis=0) + auto["margin"]
     if auto["floor"]:

@@ -30,8 +30,15 @@ def chunks(n: int, size: int) -> Iterator[slice]:
 
 
 class Executor(Protocol):
-    """Runs an oracle on batches."""
+    """Runs an oracle on batches.
 
+    Attributes:
+        oracle: An oracle of the executor's spec in this process, for what
+            the caller may ask of it (capabilities such as ``model_hash``);
+            pooled executors run the batches on their workers' own oracles.
+    """
+
+    oracle: Oracle
     dim: int
     posture_names: tuple[str, ...]
 
@@ -85,8 +92,8 @@ class _Pooled(ABC):
     workers: int = 1
 
     def __init__(self, spec: OracleSpec, chunk_size: int) -> None:
-        local = spec.create()
-        self.oracle = local  # for metadata (model hash); the work runs on the workers
+        local = spec.create()  # cheap: oracles build their solvers on the first evaluate
+        self.oracle = local
         self.spec = spec
         self.key = json.dumps(spec.to_dict(), sort_keys=True)
         self.dim = local.dim

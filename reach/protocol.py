@@ -18,9 +18,15 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+from reach.errors import ProtocolError
+
 VERSION = 1
 DEFAULT_BIND = "tcp://127.0.0.1:5555"
 DEFAULT_PUB = "tcp://127.0.0.1:5556"
+# The frame of every goal and posture: for the generated human, z up, x
+# forward, y to the body's left, origin on the floor midway between the ankles.
+WORLD_FRAME = "world"
+WORLD_AXES = "z up, x forward, y left; origin on the floor midway between the ankles (generated human)"
 MAX_MESSAGE_BYTES = 1 << 20  # a request larger than this is refused unread
 MAX_BATCH = 10_000  # goals per query
 POLL_MS = 100  # server poll timeout: how often it checks for a stop request
@@ -39,16 +45,6 @@ UNKNOWN_EFFECTOR = "unknown_effector"
 UNKNOWN_STRATEGY = "unknown_strategy"
 RELOAD_FAILED = "reload_failed"
 INTERNAL = "internal"  # a bug: the server logs it and keeps serving
-
-
-class ProtocolError(Exception):
-    """A request the server refuses, with the code and message of the reply."""
-
-    def __init__(self, code: str, message: str, request_id: Any = None) -> None:
-        super().__init__(message)
-        self.code = code
-        self.message = message
-        self.request_id = request_id
 
 
 @dataclass(frozen=True)

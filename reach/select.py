@@ -20,9 +20,10 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
-from reach.errors import ReachError
+from oracles.protocol import EffectorPositions, ModelHashed, Oracle, OracleSpec, Preparable, Tunable
+from reach.errors import InputError, ModelMismatch, UnknownEffector, UnknownPolicy
 from reach.store import Atlas
-from reach.tree import POLICIES, Policy, VATree
+from reach.tree import DEFAULT_POLICY, POLICIES, Policy, VATree
 
 # Outcomes of refinement, in Answer.refined.
 REFINED = "ok"  # the IK reached the exact goal; posture and residual are its own
@@ -31,6 +32,7 @@ TIMEOUT = "timeout"  # the budget ran out; posture is the stored one
 SKIPPED = "skipped"  # refinement was not asked for
 UNAVAILABLE = "unavailable"  # the strategy's oracle stores no postures (analytic shapes)
 POSTURE_CACHE = 4096  # stored postures kept encoded, most recently used first
+REFINE_BUDGET = 0.02  # [s] default time budget of one refinement (a frame at 50 Hz)
 
 
 @dataclass(frozen=True)
@@ -88,10 +90,6 @@ def split_posture(names: tuple[str, ...], q: np.ndarray) -> tuple[dict[str, floa
     return joints, {"position": [float(v) for v in q[i : i + 3]], "quaternion": [float(v) for v in q[i + 3 : i + 7]]}
 
 
-class UnknownEffector(ReachError):
-    """A goal was asked for an effector that no strategy of the atlas moves."""
-
-
 class Selector:
     """Answers goals from an atlas; per-tree lookup structures are built once.
 
@@ -102,9 +100,9 @@ class Selector:
         budget: Time budget of one refinement [s].
     """
 
-    def __init__(self, atlas: Atlas, policy: Policy = "vertex", refine: bool = True, budget: float = 0.02) -> None:
+    def __init__(self, atlas: Atlas, policy: Policy = DEFAULT_POLICY, refine: bool = True, budget: float = REFINE_BUDGET) -> None:
         if policy not in POLICIES:
-            raise ReachError(f"unknown policy {policy!r}; expected one of {', '.join(POLICIES)}")
+            raise UnknownPolicy(policy, POLICIES)
         self.atlas = atlas
         self.policy = policy
         self.refine = refine
@@ -114,16 +112,18 @@ class Selector:
         for name, effector in self.order:
             self._by_effector.setdefault(effector, []).append(name)
         self._kd: dict[str, tuple[cKDTree, np.ndarray, np.ndarray] | None] = {}
-        self._oracles: dict[str, Any] = {}
+        self._oracles: dict[str, Oracle] = {}
         self._postures: OrderedDict[tuple[str, int], tuple[dict[str, float], dict[str, list[float]] | None, bytes]] = OrderedDict()
         for tree in atlas.trees.values():
-            tree.classify(np.zeros((1, tree.dim)))  # build lookup tables now, not on the first request
+            tree.prepare()  # the batch lookup table now, not on the first batch
 
     def warm_up(self) -> Selector:
-        """Build every strategy's refinement oracle and posture index now, not on the first request."""
+        """Build every strategy's refinement oracle (with its solvers) and posture index now, not on the first request."""
         for name, tree in self.atlas.trees.items():
             if tree.vertices.posture is not None:
-                self._oracle(name)
+                oracle = self._oracle(name)
+                if isinstance(oracle, Preparable):
+                    oracle.prepare()
                 self._stored(name, tree, tree.box.lo[None])
         return self
 
@@ -134,7 +134,7 @@ class Selector:
     def strategies_for(self, effector: str) -> list[str]:
         names = self._by_effector.get(effector)
         if not names:
-            raise UnknownEffector(f"unknown effector {effector!r}; this atlas has {', '.join(self.effectors)}")
+            raise UnknownEffector(effector, self.effectors)
         return names
 
     def _stored(self, name: str, tree: VATree, goals: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
@@ -178,35 +178,21 @@ class Selector:
         return int(rows[0]), eff[0]
 
     def _effector_positions(self, name: str, postures: np.ndarray) -> np.ndarray:
-        """Effector positions [m] of postures (n, nq), by Pinocchio."""
-        import pinocchio as pin
-
+        """Effector positions [m] of postures (n, nq); NaN when the oracle cannot tell (no posture is then used)."""
         oracle = self._oracle(name)
-        model = oracle.body.model
-        data, fid = model.createData(), oracle.body.frame_id(oracle.strategy.effector)
-        out = np.empty((len(postures), 3))
-        for k, q in enumerate(postures):
-            pin.forwardKinematics(model, data, q)
-            out[k] = pin.updateFramePlacement(model, data, fid).translation
-        return out
+        if isinstance(oracle, EffectorPositions):
+            return np.asarray(oracle.effector_positions(postures), dtype=float)
+        return np.full((len(postures), self.atlas.trees[name].dim), np.nan)
 
-    def _oracle(self, name: str) -> Any:
-        """The strategy's IK oracle for refinement, built once from the tree's own spec."""
+    def _oracle(self, name: str) -> Oracle:
+        """The strategy's oracle for refinement (its ``"refine"`` variant), built once from the tree's own spec."""
         if name not in self._oracles:
-            from oracles.protocol import OracleSpec
-
             meta = self.atlas.trees[name].meta
-            spec = OracleSpec.from_dict(meta["oracle"])
-            # The hint and the reference posture, both tried (no give-up): the
-            # tree already says reachable, and the budget bounds the time. No
-            # jit: compiling costs seconds, more than a server's few solves gain.
-            no_jit = {"jit": False} if "jit" in spec.params else {}
-            oracle = OracleSpec(spec.name, {**spec.params, "restarts": 0, "give_up": None, "secondary": True, "max_seconds": self.budget, **no_jit}).create()
+            oracle = OracleSpec.from_dict(meta["oracle"]).create()
             stored_hash = meta.get("model_hash")
-            body = getattr(oracle, "body", None)
-            if stored_hash and body is not None and body.hash != stored_hash:
-                raise ReachError(f"{self.atlas.path}: strategy {name!r} was built for model {stored_hash}, but its body now builds model {body.hash}; rebuild the atlas")
-            self._oracles[name] = oracle
+            if stored_hash and isinstance(oracle, ModelHashed) and oracle.model_hash != stored_hash:
+                raise ModelMismatch(self.atlas.path, name, stored_hash, oracle.model_hash)
+            self._oracles[name] = oracle.variant("refine", budget=self.budget) if isinstance(oracle, Tunable) else oracle
         return self._oracles[name]
 
     def select_many(self, effector: str, goals: np.ndarray, refine: bool | None = None) -> list[Answer]:
@@ -216,7 +202,7 @@ class Selector:
         names = self.strategies_for(effector)
         dim = self.atlas.trees[names[0]].dim
         if g.ndim != 2 or g.shape[1] != dim:
-            raise ReachError(f"goals must have {dim} coordinates each, got shape {list(g.shape)}")
+            raise InputError("goals", f"expected {dim} coordinates [m] each, got shape {list(g.shape)}")
         refine = self.refine if refine is None else refine
         if len(g) == 1:
             return [self._select_one(effector, names, g[0], refine, t0)]
@@ -249,8 +235,10 @@ class Selector:
         outcome = UNAVAILABLE
         if nearest is not None:
             row, reached = nearest
-            # The stored residual is the vertex's own; what matters is the distance to this goal.
-            residual = float(np.linalg.norm(goal - reached))
+            # The stored residual is the vertex's own; what matters is the distance to this goal
+            # (unknown when the oracle cannot place its effector).
+            gap = float(np.linalg.norm(goal - reached))
+            residual = gap if np.isfinite(gap) else None
             outcome = SKIPPED
             if refine:
                 q, residual, outcome = self._refine(name, goal, tree.vertices.posture[row], residual)  # type: ignore[index]
@@ -277,11 +265,11 @@ class Selector:
             self._postures.move_to_end(key)
         return hit
 
-    def _refine(self, name: str, goal: np.ndarray, q: np.ndarray, residual: float) -> tuple[np.ndarray, float, str]:
+    def _refine(self, name: str, goal: np.ndarray, q: np.ndarray, residual: float | None) -> tuple[np.ndarray, float | None, str]:
         oracle = self._oracle(name)
         t0 = time.perf_counter()
         v = oracle.evaluate(goal[None], q[None])
-        if v.reachable[0]:
+        if v.reachable[0] and v.posture is not None:
             return v.posture[0], float(v.residual[0]), REFINED
         return q, residual, TIMEOUT if time.perf_counter() - t0 >= self.budget else FAILED
 

@@ -27,9 +27,10 @@ import zmq
 import zmq.auth
 
 from reach import protocol as P
-from reach.errors import ReachError
-from reach.select import Selector, UnknownEffector
+from reach.errors import ReachError, UnknownEffector, UnknownStrategy
+from reach.select import REFINE_BUDGET, Selector
 from reach.store import load_atlas
+from reach.tree import DEFAULT_POLICY
 
 log = logging.getLogger("reach.server")
 
@@ -49,8 +50,8 @@ class Server:
     """
 
     def __init__(
-        self, atlas: str | Path, bind: str = P.DEFAULT_BIND, pub: str | None = P.DEFAULT_PUB, *, policy: str = "vertex",
-        refine: bool = True, budget: float = 0.02, curve_secret: str | Path | None = None, context: zmq.Context | None = None,
+        self, atlas: str | Path, bind: str = P.DEFAULT_BIND, pub: str | None = P.DEFAULT_PUB, *, policy: str = DEFAULT_POLICY,
+        refine: bool = True, budget: float = REFINE_BUDGET, curve_secret: str | Path | None = None, context: zmq.Context | None = None,
     ) -> None:
         self.atlas_path = Path(atlas)
         self.policy, self.refine, self.budget = policy, refine, budget
@@ -192,7 +193,7 @@ class Server:
         trees = self.selector.atlas.trees
         names = [req.strategy] if req.strategy else list(trees)
         if req.strategy and req.strategy not in trees:
-            raise P.ProtocolError(P.UNKNOWN_STRATEGY, f"unknown strategy {req.strategy!r}; the atlas has {', '.join(trees)}", req.id)
+            raise P.ProtocolError(P.UNKNOWN_STRATEGY, str(UnknownStrategy(req.strategy, list(trees))), req.id)
         out = {}
         for name in names:
             tree = trees[name]
@@ -213,10 +214,3 @@ class Server:
                 self.publisher.send_multipart([topic, body], zmq.NOBLOCK)
             except zmq.Again:
                 pass
-
-
-def main(argv: list[str] | None = None) -> int:
-    """Entry point used by ``reach serve``."""
-    from reach.cli import main as cli_main
-
-    return cli_main(["serve", *(argv or [])])

@@ -8,7 +8,7 @@ import numpy as np
 
 from oracles.protocol import OracleSpec
 from reach.atlas import build_atlas
-from reach.audit import audit_tree, referee_spec, wilson
+from reach.audit import audit_tree, referee, wilson
 from reach.build import Refine, build_tree
 from reach.cli import main
 from reach.config import parse_config
@@ -89,8 +89,8 @@ def test_isolated_vertices_are_retried_from_their_neighbours(tmp_path):
     assert b["refine"]["isolated"] is True
     assert b["oracle_calls"] == b["distinct_vertices"] + sum(lv["retried"] for lv in b["levels"])
     # The audit's referee is thorough whatever built the tree: IPOPT, more restarts, every start tried.
-    referee = referee_spec(tree, 6).create()
-    assert (referee.solver, referee.restarts, referee.give_up) == ("ipopt", 6, np.inf)
+    judge = referee(tree, 6)
+    assert (judge.solver, judge.restarts, judge.give_up) == ("ipopt", 6, np.inf)
 
 
 def test_reach_audit_cli_json(tmp_path, capsys):

@@ -104,7 +104,7 @@ def test_box_auto_is_derived_from_the_body():
     body = human_body()
     shoulder = body.frame_positions(names=["right_shoulder"])["right_shoulder"]
     arm = np.linalg.norm(body.frame_positions(names=["right_hand"])["right_hand"] - shoulder)
-    bound = config.strategies[0].oracle.create().problem.max_reach
+    bound = config.strategies[0].oracle.create().reach_bound()[1]
     assert arm <= bound <= arm + 0.03  # the chain's stretched length, about the shoulder
     assert np.allclose(config.box.lo, shoulder - bound - 0.1, atol=1e-3) and np.allclose(config.box.hi, shoulder + bound + 0.1, atol=1e-3)
     data["box"] = "auto"

@@ -1,0 +1,57 @@
+"""Tasks: one class per module, registered here by its config ``type``.
+
+A new task is one new module with a :class:`~oracles.tasks.base.HardTask`
+or :class:`~oracles.tasks.base.SoftTask` subclass, plus one line in
+``TASKS``. :func:`table` writes the README's task table from the classes.
+"""
+
+from __future__ import annotations
+
+from oracles.tasks.balance import BalanceTask
+from oracles.tasks.base import Constraint, HardTask, Numeric, Reference, Row, Scope, SoftTask, Symbolic, Task
+from oracles.tasks.comfort import ComfortTask
+from oracles.tasks.contacts import Contact, ContactsTask
+from oracles.tasks.feet import FeetTask
+from oracles.tasks.gaze import GazeTask
+from oracles.tasks.reach import ReachTask
+
+TASKS: dict[str, type[Task]] = {
+    ReachTask.type: ReachTask,
+    FeetTask.type: FeetTask,
+    ContactsTask.type: ContactsTask,
+    BalanceTask.type: BalanceTask,
+    GazeTask.type: GazeTask,
+    ComfortTask.type: ComfortTask,
+}
+
+
+def table() -> str:
+    """The README's task table (Markdown), from the registered classes."""
+    lines = ["| task | kind | keys | meaning |", "| --- | --- | --- | --- |"]
+    for name, cls in TASKS.items():
+        kind = f"soft, priority {cls.default_priority}" if issubclass(cls, SoftTask) else "hard"
+        keys = ", ".join(f"`{k}`" for k in sorted(cls.allowed_keys() - {"type"}))
+        lines.append(f"| `{name}` | {kind} | {keys or '-'} | {cls.summary} |")
+    return "\n".join(lines)
+
+
+__all__ = [
+    "TASKS",
+    "BalanceTask",
+    "ComfortTask",
+    "Constraint",
+    "Contact",
+    "ContactsTask",
+    "FeetTask",
+    "GazeTask",
+    "HardTask",
+    "Numeric",
+    "ReachTask",
+    "Reference",
+    "Row",
+    "Scope",
+    "SoftTask",
+    "Symbolic",
+    "Task",
+    "table",
+]

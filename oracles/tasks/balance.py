@@ -1,0 +1,73 @@
+"""Balance: ``{type: balance, margin: 0.02, support: [...]}``.
+
+The centre of mass's ground projection stays inside the support polygon
+shrunk by ``margin`` [m]. The polygon is the convex hull of the reference
+ground positions of ``support`` frames, by default those the strategy's
+feet or contacts tasks name.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any, ClassVar
+
+import casadi as ca
+import numpy as np
+import pinocchio as pin
+from scipy.spatial import ConvexHull
+
+from oracles.tasks.base import Constraint, HardTask, Numeric, Reference, Row, Scope, Symbolic, Task, frames, number
+from oracles.tasks.contacts import BUFFER, INSIDE
+from reach.errors import ModelError, TaskError
+
+BALANCE_TOL = 1e-5  # [m] CoM beyond the shrunk polygon that the verdict accepts
+
+
+@dataclass
+class BalanceTask(HardTask):
+    """Keep the centre of mass over the shrunk support polygon."""
+
+    type: ClassVar[str] = "balance"
+    keys: ClassVar[frozenset[str]] = frozenset({"margin", "support"})
+    summary: ClassVar[str] = "the centre of mass's ground projection inside the support polygon of the feet, shrunk by `margin` [m]"
+
+    margin: float = 0.02
+    polygon_frames: tuple[str, ...] = ()
+    #: Rows (a_x, a_y, c): a . p + c <= 0 inside the shrunk polygon.
+    polygon: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)), init=False, repr=False, compare=False)
+
+    @classmethod
+    def parse(cls, raw: dict[str, Any], where: str, scope: Scope) -> BalanceTask:
+        margin = number(raw.get("margin", 0.02), f"{where}.margin", 0.0, 0.5)
+        given = frames(scope, raw["support"], f"{where}.support") if "support" in raw else ()
+        return cls(margin, given)
+
+    def resolve(self, tasks: Sequence[Task], where: str) -> BalanceTask:
+        support = self.polygon_frames or tuple(dict.fromkeys(f for t in tasks for f in t.support))
+        if len(set(support)) < 3:
+            raise TaskError(where, "balance needs a support polygon: give a feet or contacts task, or balance.support with 3 frames or more")
+        return replace(self, polygon_frames=support)
+
+    def bind(self, reference: Reference) -> None:
+        pts = np.array([reference.placement(f).translation[:2] for f in self.polygon_frames])
+        try:
+            hull = ConvexHull(pts)
+        except Exception as exc:  # scipy's QhullError for degenerate supports
+            raise ModelError(f"support frames {list(self.polygon_frames)} do not span a polygon ({exc})") from exc
+        self.polygon = hull.equations.copy()
+        self.polygon[:, 2] += self.margin
+
+    def constraints(self, sym: Symbolic) -> list[Constraint]:
+        com = sym.kin.center_of_mass()
+        return [Constraint(ca.SX(self.polygon[:, :2]) @ com[:2] + ca.SX(self.polygon[:, 2]), -np.inf, 0.0)]
+
+    def rows(self, num: Numeric) -> list[Row]:
+        jcom = pin.jacobianCenterOfMass(num.model, num.data, num.q, False)[:2, num.columns]
+        com = num.data.com[0][:2]
+        viol = self.polygon[:, :2] @ com + self.polygon[:, 2]
+        return [Row(self.polygon[row, None, :2] @ jcom, np.array([min(0.0, -viol[row] - INSIDE)])) for row in np.nonzero(viol > -BUFFER)[0]]
+
+    def holds(self, num: Numeric) -> bool:
+        com = pin.centerOfMass(num.model, num.data, num.q, False)
+        return bool(np.all(self.polygon[:, :2] @ com[:2] + self.polygon[:, 2] <= BALANCE_TOL))

@@ -1,0 +1,269 @@
+"""The abstract task, and the contexts in which engines and the verdict use it.
+
+A task is one thing a strategy asks of a posture: the effector at the goal,
+the feet held, the centre of mass over them, the eyes on the goal... Each
+task is one class (one module of :mod:`oracles.tasks`) that owns
+
+* its config keys, their validation and error messages (:meth:`Task.parse`);
+* whether it is hard (a constraint no other task may violate) or soft (an
+  objective, solved lexicographically by ``priority``);
+* its CasADi expression, for ``casadi-ik`` (:meth:`HardTask.constraints`,
+  :meth:`SoftTask.objective`);
+* its numeric residual and Jacobian, for ``dls`` (:meth:`HardTask.rows`,
+  :meth:`SoftTask.level`);
+* its independent check, for the verdict (:meth:`Task.holds`).
+
+Engines and the verdict compose tasks; they hold no task-specific branch.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any, ClassVar, NamedTuple
+
+import casadi as ca
+import numpy as np
+import pinocchio as pin
+
+from oracles.body import Body
+from oracles.kinematics import SymbolicKinematics
+from reach.errors import TaskError
+
+
+class Constraint(NamedTuple):
+    """Rows ``lower <= expr <= upper`` of a nonlinear program (bounds apply to every row)."""
+
+    expr: ca.SX
+    lower: float
+    upper: float
+
+
+class Row(NamedTuple):
+    """A task level of damped least squares: Jacobian (m, n_x) and error (m,) to close."""
+
+    jacobian: np.ndarray
+    error: np.ndarray
+
+
+@dataclass(frozen=True)
+class Scope:
+    """What a task may look at while it is parsed: the body, the strategy's effector and its active joints."""
+
+    body: Body
+    effector: str
+    active: frozenset[str]
+
+    def moves(self, frame: str) -> bool:
+        """Whether any active joint lies between the world and a frame."""
+        model = self.body.model
+        j = int(model.frames[self.body.frame_id(frame)].parentJoint)
+        while j > 0:
+            if str(model.names[j]) in self.active:
+                return True
+            j = int(model.parents[j])
+        return False
+
+
+@dataclass(frozen=True)
+class Reference:
+    """The body at its reference posture, for tasks that hold something where it stands."""
+
+    body: Body
+    data: pin.Data  # frames placed at body.q_ref
+
+    def placement(self, frame: str) -> pin.SE3:
+        return self.data.oMf[self.body.frame_id(frame)].copy()
+
+
+@dataclass(frozen=True)
+class Symbolic:
+    """The symbols of ``casadi-ik``'s programs.
+
+    Attributes:
+        kin: Kinematics of the posture q(x).
+        x: Active coordinates (n_x,).
+        goal: The goal [m] (3,), a parameter of the program.
+        x_ref: Reference values of x.
+        span: Range (upper - lower) of each coordinate of x.
+    """
+
+    kin: SymbolicKinematics
+    x: ca.SX
+    goal: ca.SX
+    x_ref: np.ndarray
+    span: np.ndarray
+
+
+@dataclass
+class Numeric:
+    """A posture evaluated by Pinocchio, for ``dls`` and for the verdict.
+
+    ``data`` holds frame placements at ``q``. For ``dls`` it also holds joint
+    Jacobians, and ``jacobian(frame_id)`` gives a frame's (6, n_x) Jacobian
+    (world-aligned, columns of the active coordinates); ``x_of_joints`` maps
+    the joint columns of x to their configuration indices.
+    """
+
+    model: pin.Model
+    data: pin.Data
+    q: np.ndarray
+    goal: np.ndarray
+    jacobian: Callable[[int], np.ndarray] | None = None
+    columns: np.ndarray | None = None  # velocity indices of x's coordinates
+    joint_columns: np.ndarray | None = None  # positions within x of the joint coordinates
+    joint_q: np.ndarray | None = None  # configuration indices of those joints
+    x_ref: np.ndarray | None = None
+    max_reach_step: float = np.inf  # [m] largest reach error pursued per iteration
+
+    def frame(self, frame_id: int) -> pin.SE3:
+        return self.data.oMf[frame_id]
+
+
+# -- parsing helpers, shared by every task's parse ---------------------------
+
+def number(value: Any, where: str, lo: float, hi: float) -> float:
+    """A number in [lo, hi], or a TaskError naming the key."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not lo <= value <= hi:
+        raise TaskError(where, f"expected a number in [{lo}, {hi}], got {value!r}")
+    return float(value)
+
+
+def frames(scope: Scope, value: Any, where: str) -> tuple[str, ...]:
+    """A list of the body's frame names, or an error naming the key."""
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        raise TaskError(where, f"expected a list of frame names, got {value!r}")
+    for name in value:
+        if not scope.body.model.existFrame(name):
+            known = sorted({str(f.name) for f in scope.body.model.frames} - {"universe"})
+            raise TaskError(where, f"{scope.body.source}: no frame {name!r}; frames are: {', '.join(known)}")
+    return tuple(value)
+
+
+def frame(scope: Scope, value: Any, where: str) -> str:
+    """One frame name of the body."""
+    if not isinstance(value, str):
+        raise TaskError(where, f"expected a frame name, got {value!r}")
+    return frames(scope, [value], where)[0]
+
+
+def matching(names: Sequence[str], pattern: str) -> list[str]:
+    return [n for n in names if fnmatch.fnmatchcase(n, pattern)]
+
+
+# -- the tasks ---------------------------------------------------------------
+
+class Task(ABC):
+    """One requirement on a posture (see the module docstring).
+
+    Class attributes:
+        type: The config's ``type`` that selects this class.
+        keys: Config keys besides ``type`` (and ``priority`` for soft tasks).
+        hard: Whether it is a constraint (True) or an objective (False).
+        summary: One line for the README's task table.
+    """
+
+    type: ClassVar[str]
+    keys: ClassVar[frozenset[str]] = frozenset()
+    hard: ClassVar[bool]
+    summary: ClassVar[str]
+
+    #: Frames held where they stand at the reference posture (anchors of the reach pre-filter).
+    held_frames: tuple[str, ...] = ()
+    #: Frames whose reference ground positions span a support polygon.
+    support: tuple[str, ...] = ()
+
+    @property
+    def inert(self) -> bool:
+        """Whether the task, as configured, asks nothing (e.g. a zero weight); the strategy drops it."""
+        return False
+
+    @classmethod
+    def allowed_keys(cls) -> frozenset[str]:
+        return cls.keys | {"type"}
+
+    @classmethod
+    @abstractmethod
+    def parse(cls, raw: dict[str, Any], where: str, scope: Scope) -> Task:
+        """Build the task from its config mapping (keys already checked); errors name ``where``."""
+
+    def resolve(self, tasks: Sequence[Task], where: str) -> Task:
+        """Settle what depends on the strategy's other tasks (e.g. a support polygon); default: nothing."""
+        return self
+
+    def bind(self, reference: Reference) -> None:  # noqa: B027 - most tasks need no reference
+        """Record what the task holds at the reference posture (called once per problem)."""
+
+    @abstractmethod
+    def holds(self, num: Numeric) -> bool:
+        """The independent check of the verdict, on Pinocchio's evaluation of a posture."""
+
+
+class HardTask(Task):
+    """A constraint: no soft task may trade it away."""
+
+    hard = True
+
+    @abstractmethod
+    def constraints(self, sym: Symbolic) -> list[Constraint]:
+        """The task as constraint rows of ``casadi-ik``'s programs."""
+
+    @abstractmethod
+    def rows(self, num: Numeric) -> list[Row]:
+        """The task's rows of damped least squares now (inequalities only when active)."""
+
+
+class SoftTask(Task):
+    """An objective, minimised lexicographically below the tasks of higher priority.
+
+    Class attributes:
+        default_priority: Priority when the config gives none; ties break on it.
+        slack: How much a later stage may degrade this task's optimum.
+    """
+
+    hard = False
+    default_priority: ClassVar[int]
+    slack: ClassVar[float]
+    priority: float
+
+    @classmethod
+    def allowed_keys(cls) -> frozenset[str]:
+        return cls.keys | {"type", "priority"}
+
+    @classmethod
+    def priority_of(cls, raw: dict[str, Any], where: str) -> float:
+        """The config's ``priority`` (lower first), or the class's default."""
+        return number(raw.get("priority", cls.default_priority), f"{where}.priority", 0, 100)
+
+    @abstractmethod
+    def objective(self, sym: Symbolic) -> ca.SX:
+        """The scalar objective of this task's stage."""
+
+    def held(self, sym: Symbolic) -> ca.SX:
+        """What later stages constrain to keep this task's optimum (default: the objective)."""
+        return self.objective(sym)
+
+    def held_bounds(self, optimum: float) -> tuple[np.ndarray, np.ndarray]:
+        """Bounds of :meth:`held` in later stages, given this stage's optimum."""
+        return np.array([-np.inf]), np.array([optimum + self.slack])
+
+    def attained(self, optimum: float) -> bool:
+        """Whether lower stages can still matter after this optimum (default: yes)."""
+        return True
+
+    @abstractmethod
+    def level(self, num: Numeric) -> Row | None:
+        """The task's level of damped least squares, or None when it asks nothing."""
+
+    def holds(self, num: Numeric) -> bool:
+        """Soft tasks below reach never decide a verdict."""
+        return True
+
+
+def perpendicular_basis(axis: np.ndarray) -> np.ndarray:
+    """(2, 3) orthonormal rows spanning the plane normal to a unit axis."""
+    b1 = np.cross(axis, [0.0, 0.0, 1.0] if abs(axis[2]) < 0.9 else [1.0, 0.0, 0.0])
+    b1 /= np.linalg.norm(b1)
+    return np.stack([b1, np.cross(axis, b1)])
