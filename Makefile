@@ -35,6 +35,7 @@ test: lint
 	$(PY) -m pytest -q
 
 bench: $(VENV)/.installed
+	$(PY) bench/config.py
 	$(PY) bench/tree.py
 	$(PY) bench/ik.py
 	$(PY) bench/server.py

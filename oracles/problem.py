@@ -2,8 +2,11 @@
 
 It fixes the active coordinates ``x`` (the root's position [m] and roll,
 pitch, yaw [rad] when the base floats, then one angle [rad] or length [m] per
-active joint), their bounds, the map ``x -> q``, the support polygon, and the
-verdict: an independent Pinocchio forward-kinematics check of a posture.
+active joint), their bounds, the map ``x -> q``, the reach pre-filter, and
+the verdict: an independent Pinocchio forward-kinematics check of a posture,
+by each task's own check and the joint limits. It binds the strategy's
+tasks to the body's reference posture (contacts held where they stand, the
+support polygon).
 """
 
 from __future__ import annotations

@@ -123,8 +123,8 @@ def referee(tree: VATree, restarts: int) -> Oracle:
 
     A :class:`~oracles.protocol.Tunable` oracle gives its ``"referee"``
     variant (for the IK oracles: at least ``restarts`` random restarts, every
-    start tried, IPOPT for casadi-ik whatever solver built the tree); any
-    other oracle referees as it built the tree.
+    start tried, the reference NLP solver whatever solver built the tree);
+    any other oracle referees as it built the tree.
     """
     oracle = OracleSpec.from_dict(tree.meta["oracle"]).create()
     return oracle.variant("referee", restarts=restarts) if isinstance(oracle, Tunable) else oracle

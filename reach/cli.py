@@ -183,11 +183,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     from reach.store import load_atlas
 
     atlas = load_atlas(args.atlas)
-    names = args.strategies.split(",") if args.strategies else None
-    if names:
-        unknown = [n for n in names if n not in atlas.trees]
-        if unknown:
-            raise ReachError(f"unknown strategies {unknown}; the atlas has {', '.join(atlas.trees)}")
+    names = atlas.select(args.strategies.split(",")) if args.strategies else None
     tables = report(atlas, args.output, args.level, names)
     print(markdown(tables, str(atlas.manifest.get("name", atlas.path))))
     print("figures: " + ", ".join(tables["figures"]))
@@ -199,9 +195,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     from reach.store import load_atlas
 
     atlas = load_atlas(args.atlas)
-    if args.strategy not in atlas.trees:
-        raise ReachError(f"unknown strategy {args.strategy!r}; the atlas has {', '.join(atlas.trees)}")
-    path = export_mesh(atlas.trees[args.strategy], args.output, args.level)
+    path = export_mesh(atlas.tree(args.strategy), args.output, args.level)
     print(f"wrote {path}")
     return 0
 
@@ -223,9 +217,7 @@ def cmd_audit(args: argparse.Namespace) -> int:
     from reach.store import load_atlas
 
     atlas = load_atlas(args.atlas)
-    names = args.strategies.split(",") if args.strategies else None
-    if names and any(n not in atlas.trees for n in names):
-        raise ReachError(f"unknown strategies {[n for n in names if n not in atlas.trees]}; the atlas has {', '.join(atlas.trees)}")
+    names = atlas.select(args.strategies.split(",")) if args.strategies else None
     # Small chunks: a few hundred probes per strategy still spread over every worker.
     factory, client, how = _executor_factory(args, chunk_size=16)
     try:

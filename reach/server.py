@@ -145,7 +145,8 @@ class Server:
             return P.error_reply(exc.code, exc.message, exc.request_id if exc.request_id is not None else rid)
         except ReachError as exc:
             self.errors += 1
-            return P.error_reply(P.UNKNOWN_EFFECTOR if isinstance(exc, UnknownEffector) else P.BAD_REQUEST, str(exc), rid)
+            code = P.UNKNOWN_EFFECTOR if isinstance(exc, UnknownEffector) else P.UNKNOWN_STRATEGY if isinstance(exc, UnknownStrategy) else P.BAD_REQUEST
+            return P.error_reply(code, str(exc), rid)
         except Exception as exc:  # a bug must not stop the server
             self.errors += 1
             log.exception("internal error")
@@ -190,12 +191,10 @@ class Server:
         """Centres of the reachable cells of each strategy on a regular grid (for markers in RViz)."""
         from reach.report import raster
 
-        trees = self.selector.atlas.trees
-        names = [req.strategy] if req.strategy else list(trees)
-        if req.strategy and req.strategy not in trees:
-            raise P.ProtocolError(P.UNKNOWN_STRATEGY, str(UnknownStrategy(req.strategy, list(trees))), req.id)
+        atlas = self.selector.atlas
+        trees = atlas.trees
         out = {}
-        for name in names:
+        for name in atlas.select([req.strategy] if req.strategy else None):
             tree = trees[name]
             level = min(req.level, tree.d_max)
             occ, edges = raster(tree, level)

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from reach.errors import StoreError, TreeError
+from reach.errors import StoreError, TreeError, UnknownStrategy
 from reach.tree import FINAL, PARENT, Box, VATree, VertexTable, bfs_children
 
 TREE_FORMAT = "reach.vatree"
@@ -168,6 +168,20 @@ class Atlas:
         """Manifest entries of the strategies, in priority order."""
         return list(self.manifest["strategies"])
 
+    def tree(self, name: str) -> VATree:
+        """The tree of a strategy; UnknownStrategy names the ones there are."""
+        if name not in self.trees:
+            raise UnknownStrategy(name, list(self.trees))
+        return self.trees[name]
+
+    def select(self, names: list[str] | None) -> list[str]:
+        """The names asked for (every strategy for None), each checked to exist."""
+        if not names:
+            return list(self.trees)
+        for n in names:
+            self.tree(n)
+        return list(names)
+
 
 def write_manifest(folder: str | Path, manifest: dict[str, Any]) -> Path:
     folder = Path(folder)
@@ -232,14 +246,26 @@ def load_state(path: str | Path, fingerprint: str) -> Any:
     meta = _header(path, _field(path, arrays, "meta", np.uint8, 1).tobytes(), STATE_FORMAT, TREE_VERSION, "build checkpoint")
     if meta.get("fingerprint") != fingerprint:
         return None
-    sizes = meta["sizes"]
-    bounds = np.cumsum([0, *sizes])
+    try:
+        sizes = [int(k) for k in meta["sizes"]]
+        depth = int(meta["depth"])
+        names = tuple(str(n) for n in meta["posture_names"])
+        levels = list(meta["levels"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise StoreError(path, f"checkpoint metadata lacks valid sizes, depth, posture names or levels ({exc})") from exc
     kinds = _field(path, arrays, "kinds", np.uint8, 1)
     corners = _field(path, arrays, "corners", np.int64, 2)
-    posture = arrays.get("vertex_posture")
-    table = VertexTable(arrays["vertex_keys"], arrays["vertex_reachable"], arrays["vertex_residual"], posture, tuple(meta["posture_names"]))
+    keys = _field(path, arrays, "vertex_keys", np.int64, 1)
+    reachable = _field(path, arrays, "vertex_reachable", bool, 1)
+    residual = _field(path, arrays, "vertex_residual", float, 1)
+    posture = _field(path, arrays, "vertex_posture", float, 2) if "vertex_posture" in arrays else None
+    if any(k < 0 for k in sizes) or sum(sizes) != kinds.shape[0] or corners.shape[0] != kinds.shape[0]:
+        raise StoreError(path, f"checkpoint sizes {sizes} do not match {kinds.shape[0]} kinds and {corners.shape[0]} corners")
+    if not keys.shape == reachable.shape == residual.shape or (posture is not None and posture.shape != (keys.shape[0], len(names))):
+        raise StoreError(path, "checkpoint vertex arrays disagree in length")
+    bounds = np.cumsum([0, *sizes])
     return BuildState(
-        int(meta["depth"]), _field(path, arrays, "frontier", np.int64, 2),
+        depth, _field(path, arrays, "frontier", np.int64, 2),
         [kinds[a:b] for a, b in zip(bounds, bounds[1:], strict=False)], [corners[a:b] for a, b in zip(bounds, bounds[1:], strict=False)],
-        table, list(meta["levels"]),
+        VertexTable(keys, reachable, residual, posture, names), levels,
     )

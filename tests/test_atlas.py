@@ -11,46 +11,13 @@ import time
 import numpy as np
 import pytest
 import yaml
+from helpers import ARM, LEFT_ARM, human_config, same_tree
 
 from reach.atlas import build_atlas
 from reach.config import load_config, parse_config
-from reach.executor import DaskExecutor, InlineExecutor, ProcessExecutor
 from reach.store import load_atlas
 
-ARM = ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"]
-LEFT_ARM = [j.replace("right_", "left_") for j in ARM]
-
-
-def human_config(d_max=3, strategies=None, name="arm"):
-    return {
-        "name": name,
-        "body": {"human": {"sex": "male", "percentile": 50}},
-        "box": {"min": [-0.6, -1.0, 0.5], "max": [0.9, 1.0, 2.1]}, "depth": {"min": 1, "max": d_max},
-        "oracle": {"name": "casadi-ik", "params": {"restarts": 1, "secondary": False}},
-        "strategies": strategies or [{"name": "right_arm", "effector": "right_hand", "joints": ARM, "tasks": [{"type": "reach"}]}],
-    }
-
-
-def same_tree(a, b):
-    assert np.array_equal(a.kind, b.kind) and np.array_equal(a.corner, b.corner) and np.array_equal(a.depth, b.depth)
-    assert np.array_equal(a.vertices.keys, b.vertices.keys)
-    assert np.array_equal(a.vertices.reachable, b.vertices.reachable)
-    if a.vertices.posture is not None:
-        assert np.allclose(a.vertices.posture, b.vertices.posture, atol=1e-9)
-
-
-def test_every_executor_gives_the_same_tree(tmp_path):
-    from distributed import Client, LocalCluster
-
-    config = parse_config(human_config(d_max=2), "arm", "arm")
-    inline = build_atlas(config, tmp_path / "inline", executor_factory=lambda s: InlineExecutor(s, 7)).trees["right_arm"]
-    procs = build_atlas(config, tmp_path / "procs", executor_factory=lambda s: ProcessExecutor(s, 2, 13)).trees["right_arm"]
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, Client(cluster) as client:
-        dask = build_atlas(config, tmp_path / "dask", executor_factory=lambda s: DaskExecutor(s, client, 11)).trees["right_arm"]
-    same_tree(inline, procs)
-    same_tree(inline, dask)
-    assert inline.oracle_calls == len(inline.vertices) > 50
-
+pytestmark = pytest.mark.slow  # builds human atlases, kills and resumes a build
 
 def test_killed_build_resumes_to_the_same_tree(tmp_path):
     cfg = tmp_path / "arm.yaml"

@@ -17,6 +17,8 @@ from reach.executor import ProcessExecutor
 from reach.report import extents
 from reach.tree import FINAL, INNER
 
+pytestmark = pytest.mark.slow  # builds a human atlas (D_max 4-5) once for the module
+
 ROOT = Path(__file__).resolve().parents[1]
 
 

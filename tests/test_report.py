@@ -94,11 +94,11 @@ def test_config_base_inheritance_and_relative_urdf():
 
 def test_unknown_strategy_names_are_errors(balls, tmp_path, capsys):
     assert main(["report", str(balls.path), "-o", str(tmp_path / "r"), "--strategies", "small,tiny"]) == 2
-    assert "unknown strategies ['tiny']" in capsys.readouterr().err
+    assert "unknown strategy 'tiny'; the atlas has" in capsys.readouterr().err
     assert main(["export", str(balls.path), "tiny", "-o", str(tmp_path / "t.stl")]) == 2
     assert "unknown strategy 'tiny'" in capsys.readouterr().err
     assert main(["audit", str(balls.path), "--strategies", "tiny"]) == 2
-    assert "unknown strategies ['tiny']" in capsys.readouterr().err
+    assert "unknown strategy 'tiny'; the atlas has" in capsys.readouterr().err
 
 
 def test_targets_without_an_effector_are_refused(tmp_path):

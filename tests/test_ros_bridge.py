@@ -37,7 +37,10 @@ def ros_missing() -> str | None:
 _missing = ros_missing()
 if _missing and os.environ.get("CI") == "true":
     raise RuntimeError(f"ROS is required in CI but {_missing}; .ci/run must install it ({INSTALL})")
-pytestmark = pytest.mark.skipif(_missing is not None, reason=f"ROS 1 not available ({_missing}); install it with: {INSTALL}")
+pytestmark = [
+    pytest.mark.slow,  # starts roscore, the server and the bridge
+    pytest.mark.skipif(_missing is not None, reason=f"ROS 1 not available ({_missing}); install it with: {INSTALL}"),
+]
 
 
 def free_port() -> int:

@@ -119,3 +119,42 @@ def test_atlas_without_manifest_is_named(tmp_path):
     (tmp_path / "manifest.json").write_text("{not json")
     with pytest.raises(StoreError, match="manifest.json: metadata is not valid JSON"):
         load_atlas(tmp_path)
+
+
+def _checkpoint(tmp_path):
+    from reach.build import BuildState
+    from reach.store import save_state
+    from reach.tree import VertexTable
+
+    state = BuildState(2, np.zeros((4, 3), np.int64), [np.array([3], np.uint8), np.zeros(8, np.uint8)],
+                       [np.zeros((1, 3), np.int64), np.zeros((8, 3), np.int64)],
+                       VertexTable(np.array([1, 5]), np.array([True, False]), np.zeros(2), np.ones((2, 2)), ("a", "b")), [{"depth": 0}])
+    return save_state(state, tmp_path / "s.npz", "fp")
+
+
+def test_checkpoint_round_trip(tmp_path):
+    from reach.store import load_state
+
+    state = load_state(_checkpoint(tmp_path), "fp")
+    assert state.depth == 2 and [k.size for k in state.kinds] == [1, 8] and state.vertices.posture_names == ("a", "b")
+    assert load_state(tmp_path / "s.npz", "other") is None  # another build's checkpoint is ignored
+
+
+@pytest.mark.parametrize(("field", "value", "message"), [
+    ("sizes", [1, 7], r"checkpoint sizes \[1, 7\] do not match 9 kinds"),
+    ("sizes", "many", "checkpoint metadata lacks valid sizes"),
+    ("posture_names", ["a"], "checkpoint vertex arrays disagree"),
+    ("depth", None, "checkpoint metadata lacks valid sizes, depth"),
+])
+def test_corrupt_checkpoint_metadata_is_a_clear_error(tmp_path, field, value, message):
+    from reach.store import load_state
+
+    path = _checkpoint(tmp_path)
+    with np.load(path) as npz:
+        arrays = {k: npz[k] for k in npz.files}
+    meta = json.loads(arrays["meta"].tobytes())
+    meta[field] = value
+    arrays["meta"] = np.frombuffer(json.dumps(meta).encode(), np.uint8)
+    np.savez(path, **arrays)
+    with pytest.raises(StoreError, match=message):
+        load_state(path, "fp")

@@ -5,56 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from oracles.protocol import OracleSpec
 from oracles.shapes import Ball, Torus, circle, sphere
 from reach.build import build_tree
 from reach.errors import TreeError
-from reach.tree import FINAL, INNER, OUTER, PARENT, Box, Lattice
+from reach.tree import FINAL, INNER, OUTER, PARENT, Box
 
 SQUARE = Box([-1.0, -1.0], [1.0, 1.0])
 CUBE = Box([-1.0, -1.0, -1.0], [1.0, 1.0, 1.0])
-
-
-def test_paper_figure2_counts_per_depth_and_type():
-    # Circle inscribed in B0, D_min 1, D_max 3, as in the paper's Figure 2.
-    # The text's depth-2 counts (4 inner, 12 parent) hold. At depth 3 the text
-    # says 28 outer; the geometry gives 28 final, 16 inner and 4 outer: each
-    # of the 12 depth-2 parents has 4 children, and only the 4 corner-most
-    # children (one per B0 corner) lie wholly outside the circle.
-    tree = build_tree(circle(radius=1.0), SQUARE, 1, 3)
-    counts = tree.node_counts()
-    assert counts[0] == {"outer": 0, "inner": 0, "parent": 1, "final": 0}
-    assert counts[1] == {"outer": 0, "inner": 0, "parent": 4, "final": 0}
-    assert counts[2] == {"outer": 0, "inner": 4, "parent": 12, "final": 0}
-    assert counts[3] == {"outer": 4, "inner": 16, "parent": 0, "final": 28}
-
-
-def test_paper_figure2_no_oracle_call_below_dmin_or_for_depth1_labels(counting):
-    oracle = counting(circle(radius=1.0))
-    tree = build_tree(oracle, SQUARE, 1, 3)
-    # Depth 0 is below D_min: the root is a parent without any call.
-    # Depth 1 asks for the 3x3 vertices; depth 2 adds the 16 new ones of the
-    # 5x5 grid; depth 3 adds the new vertices of the 48 children of 12 parents.
-    sizes = [len(a) for a in oracle.asked]
-    assert sizes[0] == 9 and sizes[1] == 25 - 9
-    assert tree.oracle_calls == oracle.calls == 73
-
-
-def test_every_distinct_vertex_is_asked_once(counting):
-    oracle = counting(sphere(center=(0.1, -0.2, 0.05), radius=0.8))
-    tree = build_tree(oracle, CUBE, 2, 5, chunk_size=300)
-    asked = np.concatenate(oracle.asked)
-    lat = Lattice(CUBE, 5)
-    keys = lat.keys(np.rint((asked - CUBE.lo) / lat.resolution).astype(np.int64))
-    assert np.unique(keys).size == keys.size  # never twice
-    # Independent truth: the union of the vertices of every node at depth >= D_min.
-    expected = set()
-    for d in range(2, 6):
-        sel = tree.depth == d
-        expected.update(lat.node_vertex_keys(tree.corner[sel], d).ravel().tolist())
-    assert set(keys.tolist()) == expected
-    assert tree.oracle_calls == len(expected)
-    assert tree.oracle_calls < lat.vertex_count
 
 
 @pytest.mark.parametrize("d_max", [4, 5, 6, 7])
@@ -89,17 +46,6 @@ def test_torus_volume_is_bracketed():
     torus = Torus(major=0.6, minor=0.25)
     tree = build_tree(torus, Box([-0.9, -0.9, -0.3], [0.9, 0.9, 0.3]), 2, 6)
     assert tree.volume(INNER) <= torus.volume <= tree.volume(INNER) + tree.volume(FINAL)
-
-
-def test_dmin_finds_a_small_sphere_in_a_large_box():
-    # Figure 1(c): every vertex of a coarse tree misses a small volume.
-    small = sphere(center=(0.3, 0.3, 0.3), radius=0.12)
-    missed = build_tree(small, CUBE, 0, 6)
-    assert missed.volume(INNER) == 0.0 and len(missed) == 1 and missed.kind[0] == OUTER
-    found = build_tree(small, CUBE, 3, 6)
-    true = 4.0 / 3.0 * np.pi * 0.12**3
-    assert found.volume(INNER) > 0.0
-    assert found.volume(INNER) <= true <= found.volume(INNER) + found.volume(FINAL)
 
 
 def test_classify_points_outside_the_box_are_outer(unit_sphere_tree):
@@ -207,21 +153,6 @@ def test_box_validation():
         Box([0, 0, 0], [1, 0, 1])
     with pytest.raises(TreeError, match="2 or 3 coordinates"):
         Box([0, 0, 0], [1, 1])
-
-
-def test_build_refuses_bad_depths_and_dimension_mismatch():
-    with pytest.raises(TreeError, match="must not exceed"):
-        build_tree(sphere(), CUBE, 5, 3)
-    with pytest.raises(TreeError, match="2-D but B0 is 3-D"):
-        build_tree(circle(), CUBE, 1, 3)
-
-
-def test_build_is_deterministic():
-    spec = OracleSpec("torus", {"major": 0.6, "minor": 0.2})
-    t1 = build_tree(spec, CUBE, 2, 5)
-    t2 = build_tree(spec, CUBE, 2, 5, chunk_size=17)
-    assert np.array_equal(t1.kind, t2.kind) and np.array_equal(t1.corner, t2.corner)
-    assert np.array_equal(t1.vertices.keys, t2.vertices.keys)
 
 
 def test_single_point_path_agrees_with_the_batch_path(unit_sphere_tree):

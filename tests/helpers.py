@@ -1,0 +1,87 @@
+"""Helpers shared by test modules (not a test module itself)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+HUMAN = {"human": {"sex": "male", "percentile": 50}}
+ARM = ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"]
+LEFT_ARM = [j.replace("right_", "left_") for j in ARM]
+
+
+def human_config(d_max=3, strategies=None, name="arm"):
+    return {
+        "name": name,
+        "body": dict(HUMAN),
+        "box": {"min": [-0.6, -1.0, 0.5], "max": [0.9, 1.0, 2.1]}, "depth": {"min": 1, "max": d_max},
+        "oracle": {"name": "casadi-ik", "params": {"restarts": 1, "secondary": False}},
+        "strategies": strategies or [{"name": "right_arm", "effector": "right_hand", "joints": ARM, "tasks": [{"type": "reach"}]}],
+    }
+
+
+def same_tree(a, b):
+    assert np.array_equal(a.kind, b.kind) and np.array_equal(a.corner, b.corner) and np.array_equal(a.depth, b.depth)
+    assert np.array_equal(a.vertices.keys, b.vertices.keys)
+    assert np.array_equal(a.vertices.reachable, b.vertices.reachable)
+    if a.vertices.posture is not None:
+        assert np.allclose(a.vertices.posture, b.vertices.posture, atol=1e-9)
+
+
+class TwoLinkArm:
+    """A third-party oracle, as a plug-in would register it: an analytic two-link arm with postures.
+
+    The shoulder is at ``shoulder`` [m]; the upper arm (``upper`` m) points
+    by ``yaw`` and ``pitch``; the forearm (``fore`` m) bends by ``elbow`` in
+    the vertical plane of the upper arm. Its volume is the spherical shell
+    ``|upper - fore| <= r <= upper + fore`` about the shoulder, solved in
+    closed form. It offers the optional capabilities of
+    :mod:`oracles.protocol` by their declared names only.
+    """
+
+    dim = 3
+    posture_names = ("yaw", "pitch", "elbow")
+
+    def __init__(self, upper: float = 0.3, fore: float = 0.25, shoulder: tuple[float, float, float] = (0.0, 0.0, 1.0), refine: bool = False) -> None:
+        self.upper, self.fore = float(upper), float(fore)
+        self.shoulder = np.asarray(shoulder, float)
+        self.refining = bool(refine)
+        self.solved = 0
+
+    # -- the Oracle protocol
+    def evaluate(self, points: np.ndarray, hints: np.ndarray | None = None):  # noqa: ANN201
+        from oracles.protocol import Verdicts
+
+        p = np.asarray(points, float) - self.shoulder
+        self.solved += len(p)
+        r = np.clip(np.linalg.norm(p, axis=1), abs(self.upper - self.fore) + 1e-12, self.upper + self.fore)
+        elbow = np.arccos(np.clip((r**2 - self.upper**2 - self.fore**2) / (2 * self.upper * self.fore), -1.0, 1.0))
+        beta = np.arctan2(self.fore * np.sin(elbow), self.upper + self.fore * np.cos(elbow))
+        pitch = np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1])) - beta
+        posture = np.stack([np.arctan2(p[:, 1], p[:, 0]), pitch, elbow], axis=1)
+        residual = np.linalg.norm(self.effector_positions(posture) - np.asarray(points, float), axis=1)
+        return Verdicts(residual <= 1e-6, residual, posture)
+
+    # -- optional capabilities
+    @property
+    def spec(self):  # noqa: ANN201
+        from oracles.protocol import OracleSpec
+
+        return OracleSpec("two-link-arm", {"upper": self.upper, "fore": self.fore, "shoulder": self.shoulder.tolist(), "refine": self.refining})
+
+    def effector_positions(self, postures: np.ndarray) -> np.ndarray:
+        yaw, pitch, elbow = np.asarray(postures, float).T
+        u = np.stack([np.cos(pitch) * np.cos(yaw), np.cos(pitch) * np.sin(yaw), np.sin(pitch)], axis=1)
+        w = np.stack([-np.sin(pitch) * np.cos(yaw), -np.sin(pitch) * np.sin(yaw), np.cos(pitch)], axis=1)
+        fore = np.cos(elbow)[:, None] * u + np.sin(elbow)[:, None] * w
+        return self.shoulder + self.upper * u + self.fore * fore
+
+    def reach_bound(self) -> tuple[np.ndarray, float]:
+        return self.shoulder.copy(), self.upper + self.fore
+
+    def variant(self, purpose: str, *, budget: float | None = None, restarts: int = 6) -> TwoLinkArm:
+        return TwoLinkArm(self.upper, self.fore, tuple(self.shoulder), refine=purpose == "refine")
+
+
+def two_link_arm(**params) -> TwoLinkArm:  # noqa: ANN003
+    """The plug-in's factory, named by its entry point."""
+    return TwoLinkArm(**params)

@@ -1,0 +1,142 @@
+"""The oracle protocol (oracles.protocol): a third-party oracle works everywhere a built-in one does.
+
+The plug-in is an analytic two-link arm with postures (tests/helpers.py),
+registered through the ``reach.oracles`` entry point. Its volume is a
+spherical shell, so every answer has an exact truth.
+"""
+
+from __future__ import annotations
+
+import threading
+from importlib.metadata import EntryPoint
+
+import numpy as np
+import pytest
+from helpers import ARM, HUMAN, TwoLinkArm
+
+from oracles import registry
+from oracles.protocol import (
+    EffectorPositions,
+    Mirrorable,
+    ModelHashed,
+    OracleSpec,
+    Preparable,
+    ReachBound,
+    Specified,
+    Tunable,
+    Verdicts,
+    check_verdicts,
+)
+from reach.atlas import build_atlas
+from reach.audit import audit
+from reach.client import Client
+from reach.config import parse_config
+from reach.errors import OracleError
+from reach.select import REFINED, Selector
+from reach.server import Server
+from reach.tree import INNER
+
+SHOULDER = np.array([0.0, 0.0, 1.0])
+UPPER, FORE = 0.3, 0.25
+
+
+@pytest.fixture
+def plugin(monkeypatch):
+    ep = EntryPoint(name="two-link-arm", value="helpers:two_link_arm", group=registry.ENTRY_POINT_GROUP)
+    monkeypatch.setattr(registry, "entry_points", lambda group: [ep] if group == registry.ENTRY_POINT_GROUP else [])
+
+
+@pytest.fixture
+def arm_atlas(plugin, tmp_path):
+    config = parse_config({
+        "name": "plugin", "box": "auto" if False else {"min": [-0.6, -0.6, 0.4], "max": [0.6, 0.6, 1.6]},
+        "depth": {"min": 2, "max": 5}, "oracle": {"name": "two-link-arm", "params": {"upper": UPPER, "fore": FORE}},
+        "strategies": [{"name": "arm", "effector": "hand"}],
+    }, "plugin", "plugin")
+    return build_atlas(config, tmp_path / "plugin")
+
+
+def shell(points: np.ndarray) -> np.ndarray:
+    r = np.linalg.norm(points - SHOULDER, axis=1)
+    return (r >= UPPER - FORE) & (r <= UPPER + FORE)
+
+
+def test_the_plugin_declares_the_optional_capabilities(plugin):
+    arm = registry.create(OracleSpec("two-link-arm", {}))
+    for capability in (Specified, EffectorPositions, ReachBound, Tunable):
+        assert isinstance(arm, capability), capability.__name__
+    assert not isinstance(arm, ModelHashed) and not isinstance(arm, Mirrorable)
+
+
+def test_builtin_body_oracles_declare_every_capability():
+    oracle = OracleSpec("casadi-ik", {"body": HUMAN, "effector": "right_hand", "joints": ARM}).create()
+    for capability in (Specified, ModelHashed, EffectorPositions, ReachBound, Tunable, Preparable, Mirrorable):
+        assert isinstance(oracle, capability), capability.__name__
+    refine = oracle.variant("refine", budget=0.01)
+    assert refine.spec.params["max_seconds"] == 0.01 and refine.spec.params["jit"] is False
+    referee = oracle.variant("referee", restarts=9)
+    assert referee.spec.params["restarts"] == 9 and referee.spec.params["solver"] == "ipopt"
+    with pytest.raises(OracleError, match="unknown oracle purpose 'fast'"):
+        oracle.variant("fast")  # type: ignore[arg-type]
+    assert not oracle.stages  # none of this built a solver
+
+
+def test_a_plugin_tree_matches_its_exact_shell(arm_atlas):
+    tree = arm_atlas.trees["arm"]
+    v = tree.vertices
+    pts = tree.lattice.points(tree.lattice.coords(v.keys))
+    assert np.array_equal(v.reachable, shell(pts))
+    assert v.posture is not None and v.posture.shape == (len(v), 3)
+    exact = 4 / 3 * np.pi * ((UPPER + FORE) ** 3 - (UPPER - FORE) ** 3)
+    assert tree.volume(INNER) <= exact <= tree.volume(INNER) + tree.volume(3)
+
+
+def test_a_plugin_answers_with_postures_that_reach(arm_atlas):
+    selector = Selector(arm_atlas).warm_up()
+    goals = SHOULDER + np.array([[0.3, 0.1, 0.0], [0.0, -0.2, 0.3], [0.05, 0.0, 0.0], [0.6, 0.0, 0.0]])
+    answers = selector.select_many("hand", goals)
+    assert [a.reachable for a in answers] == [True, True, False, False]
+    arm = TwoLinkArm(UPPER, FORE)
+    for a, g in zip(answers[:2], goals[:2], strict=True):
+        assert a.refined == REFINED and a.residual <= 1e-6
+        q = np.array([a.posture[n] for n in TwoLinkArm.posture_names])
+        assert np.linalg.norm(arm.effector_positions(q[None])[0] - g) <= 1e-6  # independent forward kinematics
+    assert selector._oracle("arm").refining  # the refine variant answered
+
+
+def test_a_plugin_is_audited_exactly(arm_atlas):
+    result = audit(arm_atlas, samples=300)["strategies"]["arm"]
+    assert result["probes"] == 300
+    # The plugin's referee is exact: every error is a boundary cell's, and the inner cells never lie.
+    assert result["by_type"]["inner"]["false_reachable"]["errors"] == 0
+    assert result["by_type"]["outer"]["false_unreachable"]["errors"] == 0
+
+
+def test_a_plugin_is_served(arm_atlas):
+    server = Server(arm_atlas.path, "tcp://127.0.0.1:*", None)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        with Client(server.endpoint, timeout=5000) as client:
+            reply = client.query("hand", (SHOULDER + [0.3, 0.1, 0.0]).tolist())
+        assert reply["reachable"] and reply["strategy"] == "arm" and set(reply["posture"]) == {"yaw", "pitch", "elbow"}
+        assert reply["refined"] == REFINED
+    finally:
+        server.stop()
+        thread.join(timeout=5)
+
+
+def test_box_auto_uses_the_plugins_reach_bound(plugin):
+    config = parse_config({
+        "box": "auto", "depth": {"min": 1, "max": 2}, "oracle": {"name": "two-link-arm", "params": {}},
+        "strategies": [{"name": "arm", "effector": "hand"}],
+    })
+    assert np.allclose(config.box.lo, SHOULDER - (UPPER + FORE) - 0.05) or config.box.lo[2] == 0.0
+    assert np.allclose(config.box.hi, SHOULDER + UPPER + FORE + 0.05)
+
+
+def test_check_verdicts_names_the_shapes():
+    with pytest.raises(OracleError, match="declares 2 posture names but returned no postures"):
+        check_verdicts(Verdicts(np.ones(3, bool), np.zeros(3), None), 3, 2)
+    with pytest.raises(OracleError, match=r"returned postures \(3, 1\), expected \(3, 2\)"):
+        check_verdicts(Verdicts(np.ones(3, bool), np.zeros(3), np.zeros((3, 1))), 3, 2)

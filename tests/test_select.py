@@ -1,0 +1,116 @@
+"""The selector (reach.select): priorities, policies, refinement, errors, determinism, JSON answers."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from helpers import human_config
+
+from oracles.body import human_body
+from reach.atlas import build_atlas
+from reach.config import parse_config
+from reach.errors import InputError, ModelMismatch, UnknownEffector, UnknownPolicy
+from reach.select import REFINED, SKIPPED, UNAVAILABLE, Selector
+
+
+@pytest.fixture(scope="module")
+def balls(tmp_path_factory):
+    # A small ball (priority 1) inside a large one (priority 2), both for the effector "point".
+    return build_atlas(parse_config({
+        "box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 2, "max": 5},
+        "oracle": {"name": "sphere", "params": {"radius": 0.9}},
+        "strategies": [
+            {"name": "near", "effector": "point", "priority": 1, "oracle": {"params": {"radius": 0.4}}},
+            {"name": "far", "effector": "point", "priority": 2},
+        ],
+    }, "balls", "balls"), tmp_path_factory.mktemp("balls") / "balls")
+
+
+@pytest.fixture(scope="module")
+def arm(tmp_path_factory):
+    return build_atlas(parse_config(human_config(d_max=3), "arm", "arm"), tmp_path_factory.mktemp("arm") / "arm")
+
+
+def hand_of(answer, body) -> np.ndarray:
+    """Independent forward kinematics of an answer's joint values."""
+    q = body.q_ref.copy()
+    q[:3], q[3:7] = answer.root["position"], answer.root["quaternion"]
+    for name, value in answer.posture.items():
+        q[body.model.joints[body.joint_id(name)].idx_q] = value
+    return body.frame_positions(q, ["right_hand"])["right_hand"]
+
+
+def test_first_strategy_by_priority_with_the_others_as_alternatives(balls):
+    s = Selector(balls)
+    inner, outer, none = s.select_many("point", np.array([[0.1, 0, 0], [0.7, 0, 0], [0.95, 0.95, 0]]))
+    assert (inner.strategy, inner.alternatives) == ("near", ("far",))
+    assert (outer.strategy, outer.alternatives) == ("far", ())
+    assert none.strategy is None and not none.reachable and none.posture is None
+    assert inner.refined == UNAVAILABLE and inner.residual is None  # analytic shapes store no postures
+
+
+def test_single_goals_agree_with_the_batch(balls):
+    goals = np.random.default_rng(1).uniform(-1, 1, (200, 3))
+    s = Selector(balls)
+    batch = s.select_many("point", goals)
+    for g, b in zip(goals, batch, strict=True):
+        one = s.select("point", g)
+        assert (one.strategy, one.alternatives, one.reachable) == (b.strategy, b.alternatives, b.reachable)
+
+
+def test_policies_are_nested(balls):
+    goals = np.random.default_rng(2).uniform(-1, 1, (500, 3))
+    reach = {p: np.array([a.reachable for a in Selector(balls, policy=p).select_many("point", goals)])
+             for p in ("conservative", "vertex", "optimistic")}
+    assert np.all(reach["conservative"] <= reach["vertex"]) and np.all(reach["vertex"] <= reach["optimistic"])
+
+
+def test_errors_keep_their_fields(balls):
+    s = Selector(balls)
+    with pytest.raises(UnknownEffector, match="unknown effector 'hand'; this atlas has point") as err:
+        s.select("hand", [0, 0, 0])
+    assert err.value.name == "hand" and err.value.known == ["point"]
+    with pytest.raises(InputError, match=r"goals: expected 3 coordinates \[m\] each, got shape \[1, 2\]") as bad:
+        s.select("point", [0, 0])
+    assert bad.value.field == "goals"
+    with pytest.raises(UnknownPolicy, match="unknown policy 'maybe'"):
+        Selector(balls, policy="maybe")  # type: ignore[arg-type]
+
+
+def test_refined_postures_reach_the_exact_goal_under_independent_fk(arm):
+    s = Selector(arm, budget=0.5).warm_up()
+    body = human_body()
+    goal = np.array([0.4, -0.3, 1.2])
+    refined = s.select("right_hand", goal)
+    stored = s.select("right_hand", goal, refine=False)
+    assert refined.refined == REFINED and stored.refined == SKIPPED
+    assert np.linalg.norm(hand_of(refined, body) - goal) <= 0.005 and refined.residual <= 0.005
+    # The stored posture is the nearest reachable vertex's; its residual is the hand's true distance to the goal.
+    assert abs(np.linalg.norm(hand_of(stored, body) - goal) - stored.residual) < 1e-9
+
+
+def test_the_same_request_gives_the_same_answer(arm):
+    goals = np.random.default_rng(3).uniform([0.1, -0.6, 0.8], [0.6, 0.0, 1.6], (6, 3))
+    a = Selector(arm, budget=0.5).select_many("right_hand", goals)
+    b = Selector(arm, budget=0.5).select_many("right_hand", goals)
+    assert [x.to_dict() | {"seconds": 0} for x in a] == [y.to_dict() | {"seconds": 0} for y in b]
+
+
+def test_answers_are_strict_json(arm):
+    for answer in Selector(arm).select_many("right_hand", np.array([[0.4, -0.3, 1.2], [3.0, 0.0, 1.0]])):
+        data = json.loads(answer.to_json(), parse_constant=lambda c: pytest.fail(f"non-JSON constant {c}"))
+        assert data == json.loads(json.dumps(answer.to_dict()))
+
+
+def test_a_tree_of_another_model_is_refused(arm):
+    tree = arm.trees["right_arm"]
+    saved = tree.meta["model_hash"]
+    tree.meta["model_hash"] = "0123456789abcdef"
+    try:
+        with pytest.raises(ModelMismatch, match="was built for model 0123456789abcdef") as err:
+            Selector(arm).warm_up()
+        assert err.value.strategy == "right_arm" and err.value.current == saved
+    finally:
+        tree.meta["model_hash"] = saved

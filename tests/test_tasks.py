@@ -1,0 +1,167 @@
+"""Tasks (oracles.tasks): the registry, each task's CasADi expression against Pinocchio, its dls Jacobian against
+finite differences, its verdict check, and the README's table."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+import pinocchio as pin
+import pytest
+from helpers import ARM
+
+from oracles.body import human_body
+from oracles.kinematics import SymbolicKinematics
+from oracles.problem import ReachProblem
+from oracles.strategy import parse_strategy
+from oracles.tasks import TASKS, HardTask, Numeric, SoftTask, Symbolic, table
+from oracles.tasks.base import perpendicular_basis
+from reach.errors import TaskError
+
+ROOT = Path(__file__).resolve().parents[1]
+WHOLE = [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*", "neck_*", "root", "*_hip_*", "*_ankle_*", "*_knee_*"]
+ALL = [{"type": "reach"}, {"type": "feet", "heels": "down"}, {"type": "balance", "margin": 0.01}, {"type": "gaze"}, {"type": "comfort"}]
+
+
+@pytest.fixture(scope="module")
+def problem():
+    body = human_body()
+    return ReachProblem(body, parse_strategy(body, "right_hand", WHOLE, ALL))
+
+
+def numeric(problem, q, goal, data=None):
+    model = problem.body.model
+    data = data or model.createData()
+    pin.computeJointJacobians(model, data, q)
+    pin.updateFramePlacements(model, data)
+    cols = np.array(list(range(6)) + [model.joints[j].idx_v for j in problem.joint_ids])
+    lwa = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+    return Numeric(model, data, q, goal, lambda fid: pin.getFrameJacobian(model, data, fid, lwa)[:, cols], cols,
+                   np.arange(6, cols.size), np.array([model.joints[j].idx_q for j in problem.joint_ids]), problem.x_ref, np.inf)
+
+
+def random_x(problem, seed):
+    rng = np.random.default_rng(seed)
+    x = problem.x_ref + rng.normal(scale=0.05, size=problem.nx)
+    return np.clip(x, problem.lower, problem.upper)
+
+
+def test_the_readme_table_is_the_registered_tasks():
+    assert table() in (ROOT / "README.md").read_text()
+
+
+def test_every_task_is_registered_under_its_own_type():
+    for name, cls in TASKS.items():
+        assert cls.type == name and cls.summary and issubclass(cls, (HardTask, SoftTask))
+        assert "type" in cls.allowed_keys() and (not issubclass(cls, SoftTask) or "priority" in cls.allowed_keys())
+
+
+def test_soft_objectives_in_casadi_match_pinocchio(problem):
+    s = problem.strategy
+    goal_v = np.array([0.5, -0.3, 1.1])
+    goal = ca.SX.sym("goal", 3)
+    sym = Symbolic(SymbolicKinematics(problem.body.model, problem.q_sym), problem.x_sym, goal, problem.x_ref, problem.upper - problem.lower)
+    for seed in range(3):
+        x = random_x(problem, seed)
+        q = problem.q_of_x(x)
+        num = numeric(problem, q, goal_v)
+        values = {t.type: float(ca.Function("f", [problem.x_sym, goal], [t.objective(sym)])(x, goal_v)) for t in s.soft}
+        assert values["reach"] == pytest.approx(s.reach.residual(num) ** 2, rel=1e-9, abs=1e-12)
+        eye = num.frame(problem.body.frame_id("eyes"))
+        to_goal = goal_v - eye.translation
+        assert values["gaze"] == pytest.approx(1 - eye.rotation[:, 0] @ to_goal / (np.linalg.norm(to_goal) + 1e-9), abs=1e-9)
+        span = problem.upper - problem.lower
+        assert values["comfort"] == pytest.approx(np.mean(((x - problem.x_ref) / span) ** 2), rel=1e-9)
+
+
+def test_hard_constraints_in_casadi_hold_at_the_reference_and_agree_with_the_checks(problem):
+    goal = ca.SX.sym("goal", 3)
+    sym = Symbolic(SymbolicKinematics(problem.body.model, problem.q_sym), problem.x_sym, goal, problem.x_ref, problem.upper - problem.lower)
+    for task in problem.strategy.hard:
+        rows = task.constraints(sym)
+        g = ca.Function("g", [problem.x_sym, goal], [ca.vertcat(*[r.expr for r in rows])])
+        lo = np.concatenate([np.full(r.expr.numel(), r.lower) for r in rows])
+        hi = np.concatenate([np.full(r.expr.numel(), r.upper) for r in rows])
+        at_ref = np.asarray(g(problem.x_ref, np.zeros(3))).ravel()
+        assert np.all(at_ref >= lo - 1e-9) and np.all(at_ref <= hi + 1e-9), task.type
+        assert task.holds(numeric(problem, problem.body.q_ref, np.zeros(3))), task.type
+        # Lifting the whole body 5 cm breaks the feet (and no other) constraint, in CasADi and in the check alike.
+        lifted = problem.x_ref.copy()
+        lifted[2] += 0.05
+        g_lift = np.asarray(g(lifted, np.zeros(3))).ravel()
+        broken = bool(np.any(g_lift < lo - 1e-6) or np.any(g_lift > hi + 1e-6))
+        assert broken == (task.type == "feet")
+        assert task.holds(numeric(problem, problem.q_of_x(lifted), np.zeros(3))) == (not broken), task.type
+
+
+def test_dls_jacobians_match_finite_differences(problem):
+    goal = np.array([0.5, -0.3, 1.1])
+    model = problem.body.model
+    x = random_x(problem, 7)
+    q = problem.q_of_x(x)
+    num = numeric(problem, q, goal)
+    reach_row = problem.strategy.reach.level(num)
+    eps = 1e-6
+    fid = problem.body.frame_id("right_hand")
+    for k in range(num.columns.size):
+        v = np.zeros(model.nv)
+        v[num.columns[k]] = eps
+        data = model.createData()
+        pin.framesForwardKinematics(model, data, pin.integrate(model, q, v))
+        fd = (data.oMf[fid].translation - num.frame(fid).translation) / eps
+        # The reach row's error is goal - hand, so its Jacobian is the hand's.
+        assert np.allclose(reach_row.jacobian[:, k], fd, atol=1e-4), k
+    feet = problem.strategy.task("feet")
+    rows = feet.rows(num)
+    fd_rows = []
+    for k in range(num.columns.size):
+        v = np.zeros(model.nv)
+        v[num.columns[k]] = eps
+        moved = numeric(problem, pin.integrate(model, q, v), goal)
+        # Each position row's error is ref - current: its derivative is minus the Jacobian column.
+        fd_rows.append(-(feet.rows(moved)[0].error - rows[0].error) / eps)
+    assert np.allclose(rows[0].jacobian, np.array(fd_rows).T, atol=1e-4)
+
+
+def test_perpendicular_basis_is_orthonormal_and_normal_to_the_axis():
+    for axis in (np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0]), np.array([1.0, 2.0, -0.5]) / np.linalg.norm([1.0, 2.0, -0.5])):
+        b = perpendicular_basis(axis)
+        assert np.allclose(b @ b.T, np.eye(2)) and np.allclose(b @ axis, 0.0)
+
+
+@pytest.mark.parametrize(
+    ("tasks", "message"),
+    [
+        ([{"type": "reach"}, {"type": "gaze", "frame": 3}], r"tasks\[1\]\.frame: expected a frame name, got 3"),
+        ([{"type": "reach"}, {"type": "gaze", "frame": "third_eye"}], r"tasks\[1\]\.frame: human: no frame 'third_eye'"),
+        ([{"type": "reach"}, {"type": "reach"}], r"tasks\[1\]: a second reach task"),
+        ([{"type": "reach", "tolerance": 2}], r"tasks\[0\]\.tolerance: expected a number in \[1e-06, 1.0\], got 2"),
+        ([{"type": "reach", "priority": "high"}], r"tasks\[0\]\.priority: expected a number"),
+        ([{"type": "reach"}, {"type": "contacts", "fixed": "right_foot"}], r"tasks\[1\]\.fixed: expected a list of frame names"),
+        ([{"type": "reach"}, {"type": "balance", "support": ["right_foot", "left_foot"]}], r"tasks\[1\]: balance needs a support polygon"),
+    ],
+)
+def test_task_errors_name_the_key(tasks, message):
+    with pytest.raises(TaskError, match=message) as err:
+        parse_strategy(human_body(), "right_hand", WHOLE, tasks)
+    assert re.match(r"tasks(\[\d\])?", err.value.key)
+
+
+def test_priorities_order_the_soft_tasks_and_a_zero_weight_drops_comfort():
+    body = human_body()
+    s = parse_strategy(body, "right_hand", WHOLE, [{"type": "comfort", "priority": 0}, {"type": "gaze"}, {"type": "reach"}])
+    assert [t.type for t in s.soft] == ["comfort", "reach", "gaze"]
+    s = parse_strategy(body, "right_hand", WHOLE, [{"type": "reach"}, {"type": "comfort", "weight": 0}])
+    assert [t.type for t in s.tasks] == ["reach"]
+
+
+def test_rising_heels_are_hinged_and_kept_above_the_floor():
+    body = human_body()
+    tiptoe = parse_strategy(body, "right_hand", WHOLE, [{"type": "reach"}, {"type": "feet", "heels": "rise"}, {"type": "balance"}])
+    problem = ReachProblem(body, tiptoe)
+    feet = problem.strategy.task("feet")
+    assert [c.mode for c in feet.contacts] == ["hinge", "hinge"] and feet.above_floor == ("right_heel", "left_heel")
+    balance = problem.strategy.task("balance")
+    assert set(balance.polygon_frames) == {f"{s}_{p}" for s in ("right", "left") for p in ("ball_inner", "ball_outer", "toe_inner", "toe_outer")}
