@@ -29,7 +29,7 @@ All lengths here are metres, angles radians, masses kilograms.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from statistics import NormalDist
 from typing import Literal
 
@@ -76,6 +76,25 @@ ANSUR_STATURE = {"male": (1756.3, 68.6), "female": (1628.5, 64.2)}
 ANSUR_MASS = {"male": 85.5, "female": 67.8}
 # ANSUR II thumb-tip reach, mean and SD [mm] (the validation target).
 ANSUR_THUMBTIP_REACH = {"male": (811.9, 43.7), "female": (744.0, 42.8)}
+
+# ANSUR II (Gordon et al. 2014), summary statistics: means [mm] of the
+# breadths, depths and circumferences that size the collision capsules
+# (oracles.collision). Values rounded to the millimetre; they scale with
+# stature like the lengths (isometric scaling).
+ANSUR_GIRTHS: dict[str, dict[str, float]] = {
+    "male": {
+        "chest_breadth": 332.0, "chest_depth": 255.0, "waist_breadth": 320.0, "waist_depth": 235.0,
+        "hip_breadth": 357.0, "biceps_circumference_flexed": 357.0, "forearm_circumference_flexed": 309.0,
+        "wrist_circumference": 175.0, "thigh_circumference": 626.0, "calf_circumference": 394.0,
+        "head_breadth": 156.0, "head_length": 200.0, "neck_circumference": 398.0, "hand_breadth": 89.0,
+    },
+    "female": {
+        "chest_breadth": 299.0, "chest_depth": 238.0, "waist_breadth": 296.0, "waist_depth": 213.0,
+        "hip_breadth": 354.0, "biceps_circumference_flexed": 310.0, "forearm_circumference_flexed": 257.0,
+        "wrist_circumference": 152.0, "thigh_circumference": 612.0, "calf_circumference": 364.0,
+        "head_breadth": 148.0, "head_length": 189.0, "neck_circumference": 331.0, "hand_breadth": 78.0,
+    },
+}
 
 # Drillis & Contini (1966) / Winter (2009) Fig. 4.1: fractions of stature H.
 ANKLE_HEIGHT = 0.039  # floor to lateral malleolus
@@ -150,6 +169,7 @@ class Anthropometry:
     lengths: dict[str, float]
     masses: dict[str, float]
     com: dict[str, float]
+    girths: dict[str, float] = field(default_factory=dict)  # ANSUR_GIRTHS scaled [m]
 
     @property
     def ankle_height(self) -> float:
@@ -202,4 +222,5 @@ def anthropometry(sex: Sex = "male", stature: float | None = None, percentile: f
     total = sum(v[1] for v in table.values()) + sum(table[k][1] for k in ("upper_arm", "forearm", "hand", "thigh", "shank", "foot"))
     masses = {k: mass * v[1] / total for k, v in table.items()}
     com = {k: v[2] / 100.0 for k, v in table.items()}
-    return Anthropometry(sex, stature, mass, lengths, masses, com)
+    girths = {k: v / 1000.0 * stature / mean_h for k, v in ANSUR_GIRTHS[sex].items()}
+    return Anthropometry(sex, stature, mass, lengths, masses, com, girths)

@@ -22,6 +22,7 @@ import fnmatch
 import hashlib
 import json
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -29,7 +30,8 @@ import numpy as np
 import pinocchio as pin
 
 from oracles.anthropometry import Anthropometry, anthropometry
-from oracles.human import human_urdf, root_height
+from oracles.collision import Capsule, CollisionModel, urdf_capsules
+from oracles.human import human_capsules, human_urdf, root_height
 from reach.errors import ModelError
 
 ROOT = "root"
@@ -54,6 +56,12 @@ class Body:
     spec: dict[str, Any]
     urdf: str
     anthropometry: Anthropometry | None = None
+    capsules: tuple[Capsule, ...] = ()
+
+    @cached_property
+    def collision(self) -> CollisionModel:
+        """The capsules placed on the model's joints, with coal geometry (built once)."""
+        return CollisionModel(self.model, self.capsules, self.source)
 
     @property
     def joint_names(self) -> list[str]:
@@ -158,7 +166,7 @@ def _apply_ranges(model: pin.Model, ranges: dict[str, Any], source: str) -> None
                 raise ModelError(f"{source}: ranges.{pattern}: expected [lower, upper] in radians or {{scale: f}} with 0 < f <= 1, got {value!r}")
 
 
-def _finish(model: pin.Model, urdf: str, source: str, spec: dict[str, Any], root: np.ndarray, anthro: Anthropometry | None = None) -> Body:
+def _finish(model: pin.Model, urdf: str, source: str, spec: dict[str, Any], root: np.ndarray, capsules: list[Capsule], anthro: Anthropometry | None = None) -> Body:
     _apply_ranges(model, dict(spec.get("ranges", {})), source)
     # The free flyer's translation has no meaningful limits; bound it so
     # that random configurations and solvers stay finite.
@@ -169,7 +177,7 @@ def _finish(model: pin.Model, urdf: str, source: str, spec: dict[str, Any], root
     q = pin.neutral(model)
     q[:3] = root
     q[7:] = np.clip(q[7:], model.lowerPositionLimit[7:], model.upperPositionLimit[7:])
-    return Body(model, q, source, spec, urdf, anthro)
+    return Body(model, q, source, spec, urdf, anthro, tuple(capsules))
 
 
 def human_body(sex: str = "male", stature: float | None = None, percentile: float | None = None, mass: float | None = None, ranges: dict[str, Any] | None = None) -> Body:
@@ -181,11 +189,13 @@ def human_body(sex: str = "male", stature: float | None = None, percentile: floa
         spec["ranges"] = ranges
     urdf = human_urdf(anthro)
     model = _parse(urdf, "human")
-    return _finish(model, urdf, "human", spec, np.array([0.0, 0.0, root_height(anthro)]), anthro)
+    return _finish(model, urdf, "human", spec, np.array([0.0, 0.0, root_height(anthro)]), human_capsules(anthro), anthro)
 
 
-def urdf_body(path: str | Path, root_position: list[float] | None = None, ranges: dict[str, Any] | None = None) -> Body:
-    """Any URDF, with a floating root at root_position [m]."""
+def urdf_body(path: str | Path, root_position: list[float] | None = None, ranges: dict[str, Any] | None = None,
+              package_dirs: list[str] | None = None) -> Body:
+    """Any URDF, with a floating root at root_position [m]; its collision geometry becomes capsules
+    (meshes found by ``package://`` in package_dirs, or relative to the URDF's folder)."""
     path = Path(path)
     try:
         urdf = path.read_text()
@@ -196,13 +206,16 @@ def urdf_body(path: str | Path, root_position: list[float] | None = None, ranges
         spec["root_position"] = list(root_position)
     if ranges:
         spec["ranges"] = ranges
+    if package_dirs:
+        spec["package_dirs"] = list(package_dirs)
     root = np.zeros(3) if root_position is None else np.asarray(root_position, float)
     if root.shape != (3,):
         raise ModelError(f"{path}: root_position must be [x, y, z] in metres, got {root_position!r}")
-    return _finish(_parse(urdf, str(path)), urdf, str(path), spec, root)
+    capsules = urdf_capsules(urdf, str(path), path.parent, package_dirs or ())
+    return _finish(_parse(urdf, str(path)), urdf, str(path), spec, root, capsules)
 
 
-BODY_KEYS = {"human", "urdf", "root_position", "ranges"}
+BODY_KEYS = {"human", "urdf", "root_position", "ranges", "package_dirs"}
 HUMAN_KEYS = {"sex", "stature", "percentile", "mass"}
 
 
@@ -221,4 +234,7 @@ def load_body(spec: dict[str, Any]) -> Body:
         if not isinstance(human, dict) or set(human) - HUMAN_KEYS:
             raise ModelError(f"body spec: human takes {sorted(HUMAN_KEYS)}, got {human!r}")
         return human_body(ranges=ranges, **human)
-    return urdf_body(spec["urdf"], spec.get("root_position"), ranges)
+    dirs = spec.get("package_dirs")
+    if dirs is not None and (not isinstance(dirs, list) or not all(isinstance(d, str) for d in dirs)):
+        raise ModelError(f"body spec: package_dirs must be a list of folders, got {dirs!r}")
+    return urdf_body(spec["urdf"], spec.get("root_position"), ranges, dirs)

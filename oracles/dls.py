@@ -78,7 +78,9 @@ class DLSIK(IKOracle):
         pin.updateFramePlacements(model, data)
         num = Numeric(
             model, data, q, goal, lambda fid: pin.getFrameJacobian(model, data, fid, LWA)[:, self.cols],
+            lambda joint: pin.getJointJacobian(model, data, joint, LWA)[:, self.cols],
             self.cols, self.jcols, self.qidx, self.problem.x_ref, self.max_reach_step,
+            start=self._start, start_weight=0.0 if self._start is None else 1.0,
         )
         hard = [row for t in self.strategy.hard for row in t.rows(num)]
         levels = [Row(np.vstack([r.jacobian for r in hard]), np.concatenate([r.error for r in hard]))] if hard else []

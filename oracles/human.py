@@ -20,11 +20,20 @@ centres; ``back`` on the back of the shoulders, on the mid-sagittal plane.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from xml.sax.saxutils import quoteattr
 
 from oracles import anthropometry as A
 from oracles.anthropometry import Anthropometry
+from oracles.collision import CAPSULE_PREFIX, Capsule
+
+# Radii of limb capsules: a circumference's radius C / (2 pi), reduced where
+# the circumference is the segment's largest (thigh at the gluteal furrow,
+# flexed biceps, calf) so that the capsule fits the segment's mean girth.
+# Modelling choices, not table values.
+TAPER = {"upper_arm": 0.9, "thigh": 0.8, "shank": 0.85}
+HAND_RADIUS = 0.3  # fist radius as a fraction of hand breadth (modelling choice)
 
 
 @dataclass
@@ -35,9 +44,12 @@ class _Urdf:
     parts: list[str] = field(default_factory=list)
     frames: dict[str, tuple[str, tuple[float, float, float]]] = field(default_factory=dict)
 
+    capsules: dict[str, list[Capsule]] = field(default_factory=dict)
+
     def link(self, name: str, mass: float = 0.0, com: tuple[float, float, float] = (0, 0, 0), length: float = 0.1) -> None:
+        collisions = "".join(self.collision(c) for c in self.capsules.get(name, []))
         if mass <= 0.0:
-            self.parts.append(f"<link name={quoteattr(name)}/>")
+            self.parts.append(f"<link name={quoteattr(name)}>{collisions}</link>" if collisions else f"<link name={quoteattr(name)}/>")
             return
         # Inertia of a solid cylinder of radius 0.15 L along z: an
         # approximation; static reach depends on masses and CoMs only.
@@ -46,7 +58,7 @@ class _Urdf:
         izz = mass * r * r / 2.0
         self.parts.append(
             f'<link name={quoteattr(name)}><inertial><origin xyz="{_v(com)}" rpy="0 0 0"/><mass value="{mass:.6f}"/>'
-            f'<inertia ixx="{ixx:.6g}" iyy="{ixx:.6g}" izz="{izz:.6g}" ixy="0" ixz="0" iyz="0"/></inertial></link>'
+            f'<inertia ixx="{ixx:.6g}" iyy="{ixx:.6g}" izz="{izz:.6g}" ixy="0" ixz="0" iyz="0"/></inertial>{collisions}</link>'
         )
 
     def revolute(self, name: str, parent: str, child: str, xyz: tuple[float, float, float], axis: tuple[float, float, float]) -> None:
@@ -76,6 +88,21 @@ class _Urdf:
             f'<child link={quoteattr(name)}/><origin xyz="{_v(xyz)}" rpy="0 0 0"/></joint>'
         )
 
+    @staticmethod
+    def collision(capsule: Capsule) -> str:
+        """A capsule as a URDF collision cylinder named capsule_<name> (URDF has no capsule)."""
+        a, b = capsule.a, capsule.b
+        d = [b[i] - a[i] for i in range(3)]
+        length = sum(v * v for v in d) ** 0.5
+        mid = (0.5 * (a[0] + b[0]), 0.5 * (a[1] + b[1]), 0.5 * (a[2] + b[2]))
+        # Orientation taking z onto the axis: pitch about y, then yaw about z.
+        yaw = math.atan2(d[1], d[0]) if abs(d[0]) + abs(d[1]) > 1e-12 else 0.0
+        pitch = math.atan2((d[0] ** 2 + d[1] ** 2) ** 0.5, d[2])
+        return (
+            f'<collision name={quoteattr(CAPSULE_PREFIX + capsule.name)}><origin xyz="{_v(mid)}" rpy="0 {pitch:.9f} {yaw:.9f}"/>'
+            f'<geometry><cylinder radius="{capsule.radius:.9f}" length="{length:.9f}"/></geometry></collision>'
+        )
+
     def xml(self) -> str:
         body = "\n  ".join(self.parts)
         return f'<?xml version="1.0"?>\n<robot name={quoteattr(self.name)}>\n  {body}\n</robot>\n'
@@ -96,6 +123,8 @@ def human_urdf(body: Anthropometry, name: str = "human") -> str:
     """URDF text of the generated human (see the module docstring for frames)."""
     H, L, M, C = body.stature, body.lengths, body.masses, body.com
     u = _Urdf(name)
+    for c in human_capsules(body):
+        u.capsules.setdefault(c.link, []).append(c)
     ankle_z = body.ankle_height
     hip_z = ankle_z + L["shank"] + L["thigh"]
     sjc_from_xyph = L["upper_trunk"] - A.SHOULDER_BELOW_CERV * H
@@ -158,6 +187,60 @@ def human_urdf(body: Anthropometry, name: str = "human") -> str:
             u.frame(f"{p}{where}_inner", f"{p}sole", (x, -s * w, -ankle_z))
             u.frame(f"{p}{where}_outer", f"{p}sole", (x, s * w, -ankle_z))
     return u.xml()
+
+
+def human_capsules(body: Anthropometry) -> list[Capsule]:
+    """One capsule per segment, in its link's frame (the reference posture's axes: z up, x forward, y left).
+
+    Sizes (ANSUR II girths, :data:`oracles.anthropometry.ANSUR_GIRTHS`):
+    the trunk's three parts are horizontal capsules across the body, of
+    radius half the depth and total width the breadth (chest, waist; the
+    pelvis takes the waist's, its bony width below the hips' soft tissue),
+    set back so the thorax's back lies on the ``back`` frame; the head a
+    capsule front to back of radius half the head breadth and length the
+    head length, over a neck of the neck circumference; the limbs capsules
+    along their segments of radius C / (2 pi) (see ``TAPER``); the hand a
+    fist from the wrist past the grip centre; the foot a capsule heel to toe
+    resting on the sole.
+    """
+    H, L, G = body.stature, body.lengths, body.girths
+    two_pi = 2.0 * math.pi
+    out: list[Capsule] = []
+
+    def across(name: str, link: str, z: float, breadth: float, depth: float, x: float = 0.0) -> None:
+        r = 0.5 * depth
+        half = max(0.5 * breadth - r, 0.0)
+        out.append(Capsule(name, link, (x, -half, z), (x, half, z), r))
+
+    across("pelvis", "pelvis", 0.35 * L["lower_trunk"], G["waist_breadth"], G["waist_depth"])
+    across("abdomen", "abdomen", 0.5 * L["middle_trunk"], G["waist_breadth"], G["waist_depth"])
+    back = -A.SHOULDER_BACK_DEPTH * H
+    across("thorax", "thorax", 0.5 * L["upper_trunk"], G["chest_breadth"], G["chest_depth"], back + 0.5 * G["chest_depth"])
+    r_head = 0.5 * G["head_breadth"]
+    head_half = max(0.5 * G["head_length"] - r_head, 0.0)
+    z_head = L["head"] - r_head
+    out.append(Capsule("head", "head", (-head_half, 0.0, z_head), (head_half, 0.0, z_head), r_head))
+    r_neck = G["neck_circumference"] / two_pi
+    out.append(Capsule("neck", "head", (0.0, 0.0, 0.0), (0.0, 0.0, max(z_head - r_head, 0.0)), r_neck))
+    ankle_z = body.ankle_height
+    for side, s in (("right", -1.0), ("left", 1.0)):
+        p = f"{side}_"
+        r_arm = TAPER["upper_arm"] * G["biceps_circumference_flexed"] / two_pi
+        out.append(Capsule(f"{p}upper_arm", f"{p}upper_arm", (0.0, 0.0, 0.0), (0.0, 0.0, -L["upper_arm"]), r_arm))
+        r_fore = 0.5 * (G["forearm_circumference_flexed"] + G["wrist_circumference"]) / two_pi
+        out.append(Capsule(f"{p}forearm", f"{p}forearm", (0.0, 0.0, 0.0), (0.0, 0.0, -L["forearm"]), r_fore))
+        r_hand = HAND_RADIUS * G["hand_breadth"]
+        grip_y = -s * A.GRIP_PALMAR * L["hand"]
+        out.append(Capsule(f"{p}hand", f"{p}palm", (0.0, 0.5 * grip_y, -r_hand), (0.0, grip_y, -(A.GRIP_ALONG + 0.2) * L["hand"]), r_hand))
+        r_thigh = TAPER["thigh"] * G["thigh_circumference"] / two_pi
+        out.append(Capsule(f"{p}thigh", f"{p}thigh", (0.0, 0.0, 0.0), (0.0, 0.0, -L["thigh"]), r_thigh))
+        r_shank = TAPER["shank"] * G["calf_circumference"] / two_pi
+        out.append(Capsule(f"{p}shank", f"{p}shank", (0.0, 0.0, 0.0), (0.0, 0.0, -L["shank"]), r_shank))
+        r_foot = 0.5 * ankle_z
+        heel_x = -A.ANKLE_FROM_HEEL * L["foot"]
+        z = -ankle_z + r_foot
+        out.append(Capsule(f"{p}foot", f"{p}sole", (heel_x + r_foot, 0.0, z), (heel_x + L["foot"] - r_foot, 0.0, z), r_foot))
+    return out
 
 
 def root_height(body: Anthropometry) -> float:

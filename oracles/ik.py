@@ -103,6 +103,7 @@ class IKOracle(ABC):
         self.restarts = int(restarts)
         self.seed = int(seed)
         self._data = self.body.model.createData()
+        self._start: np.ndarray | None = None  # the current posture as x, during evaluate_from
         self.stats = {"points": 0, "prefiltered": 0, "solves": 0, "reachable": 0}
 
     # -- optional capabilities of the oracle protocol ----------------------
@@ -153,6 +154,18 @@ class IKOracle(ABC):
         from oracles.mirror import MirrorMap
 
         return MirrorMap(self.body).mirror_q
+
+    def evaluate_from(self, points: np.ndarray, current: np.ndarray) -> Verdicts:
+        """Verdicts for goals reached from the character's current posture (nq,): warm-started from it,
+        with the posture task's small cost on displacement from it (see :class:`oracles.protocol.Continuing`)."""
+        current = np.asarray(current, float)
+        if current.shape != (len(self.posture_names),):
+            raise OracleError(f"current posture has shape {current.shape}, expected ({len(self.posture_names)},)")
+        self._start = self.problem.x_of_q(current)
+        try:
+            return self.evaluate(points, np.tile(current, (len(np.atleast_2d(points)), 1)))
+        finally:
+            self._start = None
 
     def prepare(self) -> None:  # noqa: B027 - engines without solvers to build need nothing
         """Build the solvers now rather than on the first evaluate."""
@@ -289,7 +302,9 @@ class CasadiIK(IKOracle):
         """The lexicographic stages: each soft task minimised with the earlier ones held."""
         p = self.problem
         x, goal = p.x_sym, ca.SX.sym("goal", 3)
-        sym = Symbolic(SymbolicKinematics(self.body.model, p.q_sym), x, goal, p.x_ref, p.upper - p.lower)
+        start, weight = ca.SX.sym("start", p.nx), ca.SX.sym("start_weight", 1)
+        sym = Symbolic(SymbolicKinematics(self.body.model, p.q_sym), x, goal, p.x_ref, p.upper - p.lower, tuple(p.x_names), p.lower, start, weight)
+        params = ca.vertcat(goal, start, weight)
         rows = [c for t in self.strategy.hard for c in t.constraints(sym)]
         g = ca.vertcat(*[c.expr for c in rows]) if rows else ca.SX.zeros(0, 1)
         self.lbg = np.array([c.lower for c in rows for _ in range(c.expr.numel())], float)
@@ -297,12 +312,12 @@ class CasadiIK(IKOracle):
         stages = []
         for k, task in enumerate(self.order):
             earlier = [t.held(sym) for t in self.order[:k]]
-            nlp = {"x": x, "p": goal, "f": task.objective(sym), "g": ca.vertcat(g, *earlier)}
+            nlp = {"x": x, "p": params, "f": task.objective(sym), "g": ca.vertcat(g, *earlier)}
             # The later stages hold the earlier optima within a hair's
             # breadth, which IPOPT handles and fatrop often does not.
             engine, iters = (self.solver, self.max_iter) if k == 0 else ("ipopt", max(20, self.max_iter // 4))
             stages.append(self._nlpsol(f"stage_{task.type}", engine, nlp, self._options(engine, iters)))
-        self._objective_fns = [ca.Function(t.type, [x, goal], [t.objective(sym)]) for t in self.order]
+        self._objective_fns = [ca.Function(t.type, [x, params], [t.objective(sym)]) for t in self.order]
         self.stages = stages
 
     def _nlpsol(self, name: str, solver: str, nlp: dict[str, Any], opts: dict[str, Any]) -> ca.Function:
@@ -348,11 +363,12 @@ class CasadiIK(IKOracle):
         self.prepare()
         p = self.problem
         x = np.clip(x0, p.lower, p.upper)
+        params = np.concatenate([goal, self._start if self._start is not None else x, [0.0 if self._start is None else 1.0]])
         optimum: list[float] = []
         for k, (task, solver) in enumerate(zip(self.order, self.stages, strict=True)):
             lbg, ubg = self._stage_bounds(k, optimum)
             try:
-                sol = solver(x0=x, p=goal, lbx=p.lower, ubx=p.upper, lbg=lbg, ubg=ubg)
+                sol = solver(x0=x, p=params, lbx=p.lower, ubx=p.upper, lbg=lbg, ubg=ubg)
             except RuntimeError:
                 break  # a numerical failure of the solver: keep the last posture; the check decides
             x_new = np.clip(np.asarray(sol["x"]).ravel(), p.lower, p.upper)
@@ -363,7 +379,7 @@ class CasadiIK(IKOracle):
                 if np.any(gval < lbg - 1e-7) or np.any(gval > ubg + 1e-7):
                     break
             x = x_new
-            optimum.append(float(self._objective_fns[k](x, goal)))
+            optimum.append(float(self._objective_fns[k](x, params)))
             if not task.attained(optimum[-1]):
                 break  # e.g. unreachable: lower tasks cannot change the verdict
         return p.q_of_x(x)

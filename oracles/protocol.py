@@ -17,6 +17,7 @@ Oracles may also offer optional capabilities, each a protocol of its own;
 * :class:`Tunable`: a variant set up for a purpose, ``"refine"`` (the
   selector's quick solve at the exact goal, secondary tasks on, within a
   time budget) or ``"referee"`` (the audit's thorough solve);
+* :class:`Continuing`: answers from the character's current posture;
 * :class:`Preparable`: build now what the first evaluate would build;
 * :class:`Mirrorable`: the map of postures to their mirror images about
   y = 0, for deriving left-side trees from right-side ones.
@@ -147,6 +148,15 @@ class Tunable(Protocol):
     """
 
     def variant(self, purpose: Purpose, *, budget: float | None = None, restarts: int = 6) -> Oracle: ...
+
+
+@runtime_checkable
+class Continuing(Protocol):
+    """An oracle that answers from the character's current posture (continuity between answers)."""
+
+    def evaluate_from(self, points: np.ndarray, current: np.ndarray) -> Verdicts:
+        """Verdicts for goals, warm-started from ``current`` (nq,) with a small cost on displacement from it."""
+        ...
 
 
 @runtime_checkable

@@ -11,16 +11,26 @@ from oracles.tasks.balance import BalanceTask
 from oracles.tasks.base import Constraint, HardTask, Numeric, Reference, Row, Scope, SoftTask, Symbolic, Task
 from oracles.tasks.comfort import ComfortTask
 from oracles.tasks.contacts import Contact, ContactsTask
+from oracles.tasks.coupling import CouplingTask
 from oracles.tasks.feet import FeetTask
+from oracles.tasks.floor import FloorTask
 from oracles.tasks.gaze import GazeTask
+from oracles.tasks.obstacles import ObstaclesTask
+from oracles.tasks.posture import PostureTask
 from oracles.tasks.reach import ReachTask
+from oracles.tasks.self_collision import SelfCollisionTask
 
 TASKS: dict[str, type[Task]] = {
     ReachTask.type: ReachTask,
     FeetTask.type: FeetTask,
     ContactsTask.type: ContactsTask,
     BalanceTask.type: BalanceTask,
+    SelfCollisionTask.type: SelfCollisionTask,
+    FloorTask.type: FloorTask,
+    ObstaclesTask.type: ObstaclesTask,
+    CouplingTask.type: CouplingTask,
     GazeTask.type: GazeTask,
+    PostureTask.type: PostureTask,
     ComfortTask.type: ComfortTask,
 }
 
@@ -42,14 +52,19 @@ __all__ = [
     "Constraint",
     "Contact",
     "ContactsTask",
+    "CouplingTask",
     "FeetTask",
+    "FloorTask",
     "GazeTask",
     "HardTask",
     "Numeric",
+    "ObstaclesTask",
+    "PostureTask",
     "ReachTask",
     "Reference",
     "Row",
     "Scope",
+    "SelfCollisionTask",
     "SoftTask",
     "Symbolic",
     "Task",

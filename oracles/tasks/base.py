@@ -58,13 +58,7 @@ class Scope:
 
     def moves(self, frame: str) -> bool:
         """Whether any active joint lies between the world and a frame."""
-        model = self.body.model
-        j = int(model.frames[self.body.frame_id(frame)].parentJoint)
-        while j > 0:
-            if str(model.names[j]) in self.active:
-                return True
-            j = int(model.parents[j])
-        return False
+        return moved(self.body.model, int(self.body.model.frames[self.body.frame_id(frame)].parentJoint), self.active)
 
 
 @dataclass(frozen=True)
@@ -88,6 +82,10 @@ class Symbolic:
         goal: The goal [m] (3,), a parameter of the program.
         x_ref: Reference values of x.
         span: Range (upper - lower) of each coordinate of x.
+        names: Name of each coordinate of x (joint names; ``root_x`` ... ``root_yaw``).
+        lower: Lower bound of each coordinate of x.
+        start: The character's current posture as x (n_x,), a parameter (continuity).
+        start_weight: Weight of the displacement from ``start``, a parameter (0 without one).
     """
 
     kin: SymbolicKinematics
@@ -95,6 +93,10 @@ class Symbolic:
     goal: ca.SX
     x_ref: np.ndarray
     span: np.ndarray
+    names: tuple[str, ...] = ()
+    lower: np.ndarray | None = None
+    start: ca.SX | None = None
+    start_weight: ca.SX | None = None
 
 
 @dataclass
@@ -112,14 +114,57 @@ class Numeric:
     q: np.ndarray
     goal: np.ndarray
     jacobian: Callable[[int], np.ndarray] | None = None
+    joint_jacobian: Callable[[int], np.ndarray] | None = None  # a joint's (6, n_x) Jacobian at its origin, world-aligned
     columns: np.ndarray | None = None  # velocity indices of x's coordinates
     joint_columns: np.ndarray | None = None  # positions within x of the joint coordinates
     joint_q: np.ndarray | None = None  # configuration indices of those joints
     x_ref: np.ndarray | None = None
     max_reach_step: float = np.inf  # [m] largest reach error pursued per iteration
+    x: np.ndarray | None = None  # the active coordinates of q
+    span: np.ndarray | None = None
+    start: np.ndarray | None = None  # the character's current posture as x, when a query gives one
+    start_weight: float = 0.0
 
     def frame(self, frame_id: int) -> pin.SE3:
         return self.data.oMf[frame_id]
+
+    def point_jacobian(self, joint: int, point: np.ndarray) -> np.ndarray:
+        """(3, n_x) Jacobian of a world point [m] fixed to a joint."""
+        assert self.joint_jacobian is not None
+        jac = self.joint_jacobian(joint)
+        r = point - self.data.oMi[joint].translation
+        return jac[:3] - pin.skew(r) @ jac[3:]  # type: ignore[no-any-return]
+
+
+def world_point(sym: Symbolic, joint: int, local: np.ndarray) -> ca.SX:
+    """A point fixed to a joint (local coordinates [m]) in the world, as a CasADi expression."""
+    rot, pos = sym.kin.placements[joint]
+    return rot @ ca.SX(np.asarray(local, float).reshape(3, 1)) + pos
+
+
+def relative_motion(model: pin.Model, a: int, b: int, active: frozenset[str]) -> bool:
+    """Whether an active joint moves joint a relative to joint b (one lies on the tree path between them)."""
+    def up(j: int) -> list[int]:
+        out = [j]
+        while out[-1] != 0:
+            out.append(int(model.parents[out[-1]]))
+        return out
+
+    pa, pb = up(a), up(b)
+    common = next(j for j in pa if j in pb)
+    path = pa[: pa.index(common)] + pb[: pb.index(common)]
+    names = {str(model.names[j]) for j in path}
+    return bool(names & active)
+
+
+def moved(model: pin.Model, joint: int, active: frozenset[str]) -> bool:
+    """Whether an active joint moves a joint in the world."""
+    j = joint
+    while j > 0:
+        if str(model.names[j]) in active:
+            return True
+        j = int(model.parents[j])
+    return False
 
 
 # -- parsing helpers, shared by every task's parse ---------------------------

@@ -1,0 +1,242 @@
+"""Collision geometry of a body: one capsule (a sphere-swept segment) per segment.
+
+A capsule is a segment ``a``-``b`` fixed to a link, swept by a sphere of
+``radius`` [m]. The generated human's capsules are sized from anthropometric
+tables (:func:`oracles.human.human_capsules`) and written into its URDF as
+``<collision>`` cylinders named ``capsule_<name>`` (URDF has no capsule
+primitive; such a cylinder is read back as the capsule of the same axis and
+radius). A URDF body's own ``<collision>`` elements become capsules:
+cylinders and spheres as they are (a cylinder as the capsule of its axis and
+radius, which encloses it), boxes by the capsule along their longest axis
+that encloses them, meshes by a capsule fitted to the mesh (principal axis,
+radius of the farthest vertex; trimesh reads the file). Mesh paths
+``package://PKG/...`` are resolved against ``package_dirs`` (each a folder
+holding package ``PKG``) and plain relative paths against the URDF's folder.
+
+:class:`CollisionModel` turns capsules into what the tasks need: end points
+in their parent joint's frame, Pinocchio/coal geometry for the independent
+check (``pinocchio.computeDistances``), and pairs.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import math
+import xml.etree.ElementTree as ET
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import coal
+import numpy as np
+import pinocchio as pin
+
+from reach.errors import ModelError
+
+CAPSULE_PREFIX = "capsule_"
+
+
+@dataclass(frozen=True)
+class Capsule:
+    """A segment a-b [m] in a link's frame, swept by a sphere of radius [m]."""
+
+    name: str
+    link: str
+    a: tuple[float, float, float]
+    b: tuple[float, float, float]
+    radius: float
+
+    @property
+    def length(self) -> float:
+        return float(np.linalg.norm(np.subtract(self.b, self.a)))
+
+    def samples(self, spacing: float | None = None) -> np.ndarray:
+        """Centres (n, 3) of spheres of the capsule's radius along its axis, at most ``spacing`` apart (default: the radius).
+
+        Their union lies inside the capsule and misses at most
+        ``radius - sqrt(radius^2 - (spacing/2)^2)`` (13 % of the radius) of its surface.
+        """
+        step = self.radius if spacing is None else spacing
+        n = max(2, math.ceil(self.length / step) + 1) if self.length > 0 else 1
+        t = np.linspace(0.0, 1.0, n)[:, None]
+        return np.asarray(self.a) + t * (np.asarray(self.b) - np.asarray(self.a))  # type: ignore[no-any-return]
+
+
+def _axis_frame(a: np.ndarray, b: np.ndarray) -> pin.SE3:
+    """The placement whose z axis runs from a to b, centred between them (coal's capsules lie along z)."""
+    d = b - a
+    n = np.linalg.norm(d)
+    z = d / n if n > 1e-12 else np.array([0.0, 0.0, 1.0])
+    x = np.cross([0.0, 1.0, 0.0] if abs(z[1]) < 0.9 else [1.0, 0.0, 0.0], z)
+    x /= np.linalg.norm(x)
+    return pin.SE3(np.column_stack([x, np.cross(z, x), z]), 0.5 * (a + b))
+
+
+@dataclass(frozen=True)
+class Placed:
+    """A capsule attached to a joint: end points [m] in the joint's frame."""
+
+    capsule: Capsule
+    joint: int
+    a: np.ndarray
+    b: np.ndarray
+
+    @property
+    def name(self) -> str:
+        return self.capsule.name
+
+    @property
+    def radius(self) -> float:
+        return self.capsule.radius
+
+
+class CollisionModel:
+    """Capsules of a body placed on its joints, with coal geometry for the independent check."""
+
+    def __init__(self, model: pin.Model, capsules: Sequence[Capsule], source: str = "body") -> None:
+        self.model = model
+        self.placed: list[Placed] = []
+        for c in capsules:
+            if not model.existFrame(c.link):
+                raise ModelError(f"{source}: capsule {c.name!r} is on link {c.link!r}, which the model does not have")
+            frame = model.frames[model.getFrameId(c.link)]
+            m = frame.placement
+            self.placed.append(Placed(c, int(frame.parentJoint), m.act(np.asarray(c.a, float)), m.act(np.asarray(c.b, float))))
+        self.index = {p.name: i for i, p in enumerate(self.placed)}
+        self.geometry = pin.GeometryModel()
+        for p in self.placed:
+            shape = coal.Capsule(p.radius, float(np.linalg.norm(p.b - p.a)))
+            self.geometry.addGeometryObject(pin.GeometryObject(p.name, p.joint, _axis_frame(p.a, p.b), shape))
+
+    def names(self, patterns: Sequence[str]) -> list[str]:
+        """Capsule names matching glob patterns; an unknown pattern is an error naming the capsules."""
+        out = []
+        for pattern in patterns:
+            hits = [n for n in self.index if fnmatch.fnmatchcase(n, pattern)]
+            if not hits:
+                raise ModelError(f"no capsule matches {pattern!r}; capsules are: {', '.join(self.index)}")
+            out += hits
+        return out
+
+    def world(self, data: pin.Data, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """World end points of capsule i (data holds joint placements)."""
+        p = self.placed[i]
+        m = data.oMi[p.joint]
+        return m.act(p.a), m.act(p.b)
+
+    def distances(self, q: np.ndarray, pairs: Sequence[tuple[int, int]]) -> np.ndarray:
+        """Coal's distances [m] between capsule pairs at q (negative: penetration depth)."""
+        if not pairs:
+            return np.zeros(0)
+        geom = pin.GeometryModel()
+        for o in self.geometry.geometryObjects:
+            geom.addGeometryObject(o)
+        for i, j in pairs:
+            geom.addCollisionPair(pin.CollisionPair(i, j))
+        data, gdata = self.model.createData(), pin.GeometryData(geom)
+        pin.computeDistances(self.model, data, geom, gdata, q)
+        return np.array([r.min_distance for r in gdata.distanceResults])
+
+
+def nearest_points(p: np.ndarray, q: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """Nearest points of segments p-q and a-b, and their distance [m] (our own computation, tested against coal)."""
+    d1, d2, r = q - p, b - a, p - a
+    aa, ee, f = d1 @ d1, d2 @ d2, d2 @ r
+    c, bb = d1 @ r, d1 @ d2
+    den = aa * ee - bb * bb
+    s = float(np.clip((bb * f - c * ee) / den, 0.0, 1.0)) if den > 1e-15 and aa > 1e-15 else 0.0
+    t = (bb * s + f) / ee if ee > 1e-15 else 0.0
+    if t < 0.0 or t > 1.0:
+        t = float(np.clip(t, 0.0, 1.0))
+        s = float(np.clip((t * bb - c) / aa, 0.0, 1.0)) if aa > 1e-15 else 0.0
+    x, y = p + s * d1, a + t * d2
+    return x, y, float(np.linalg.norm(x - y))
+
+
+# -- capsules from a URDF's own collision elements -----------------------------
+
+def _resolve(filename: str, urdf_dir: Path | None, package_dirs: Sequence[str | Path], source: str) -> Path:
+    if filename.startswith("package://"):
+        rest = filename[len("package://"):]
+        for root in package_dirs:
+            candidate = Path(root) / rest
+            if candidate.is_file():
+                return candidate
+        raise ModelError(f"{source}: mesh {filename!r} not found in package_dirs {[str(d) for d in package_dirs]}")
+    path = Path(filename.removeprefix("file://"))
+    if not path.is_absolute() and urdf_dir is not None:
+        path = urdf_dir / path
+    if not path.is_file():
+        raise ModelError(f"{source}: mesh {filename!r} not found (looked for {path})")
+    return path
+
+
+def _mesh_capsule(path: Path, scale: np.ndarray, source: str) -> tuple[np.ndarray, np.ndarray, float]:
+    import trimesh
+
+    try:
+        mesh = trimesh.load(path, force="mesh")
+    except Exception as exc:  # trimesh raises many types for unreadable files
+        raise ModelError(f"{source}: cannot read mesh {path} ({exc})") from exc
+    v = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), dtype=np.float64) * scale
+    if v.shape[0] == 0:
+        raise ModelError(f"{source}: mesh {path} has no vertices")
+    centre = v.mean(axis=0)
+    axis = np.linalg.svd(v - centre, full_matrices=False)[2][0]
+    t = (v - centre) @ axis
+    radial = np.linalg.norm((v - centre) - np.outer(t, axis), axis=1)
+    radius = float(radial.max())
+    # The shortest axis whose hemispherical caps still cover every vertex.
+    inner = np.sqrt(np.maximum(radius**2 - radial**2, 0.0))
+    lo, hi = float(np.min(t + inner)), float(np.max(t - inner))
+    if lo > hi:
+        lo = hi = 0.5 * (lo + hi)
+    return centre + lo * axis, centre + hi * axis, radius
+
+
+def urdf_capsules(urdf: str, source: str, urdf_dir: Path | None = None, package_dirs: Sequence[str | Path] = ()) -> list[Capsule]:
+    """Capsules of a URDF's ``<collision>`` elements (see the module docstring)."""
+    try:
+        root = ET.fromstring(urdf)
+    except ET.ParseError as exc:
+        raise ModelError(f"{source}: not valid XML ({exc})") from exc
+    out: list[Capsule] = []
+    for link in root.iter("link"):
+        lname = link.get("name", "")
+        for k, col in enumerate(link.findall("collision")):
+            name = col.get("name") or f"{lname}_{k}"
+            origin = col.find("origin")
+            xyz = np.array([float(v) for v in (origin.get("xyz", "0 0 0") if origin is not None else "0 0 0").split()])
+            rpy = np.array([float(v) for v in (origin.get("rpy", "0 0 0") if origin is not None else "0 0 0").split()])
+            placement = pin.SE3(pin.rpy.rpyToMatrix(*rpy), xyz)
+            geom = col.find("geometry")
+            shape = None if geom is None else next(iter(geom), None)
+            if shape is None:
+                raise ModelError(f"{source}: link {lname!r}: collision {name!r} has no geometry")
+            where = f"{source}: link {lname!r}: collision {name!r}"
+            try:
+                if shape.tag == "cylinder":
+                    r, half = float(shape.get("radius", "")), 0.5 * float(shape.get("length", ""))
+                    a, b = np.array([0, 0, -half]), np.array([0, 0, half])
+                    name = name.removeprefix(CAPSULE_PREFIX) if name.startswith(CAPSULE_PREFIX) else name
+                elif shape.tag == "sphere":
+                    r = float(shape.get("radius", ""))
+                    a = b = np.zeros(3)
+                elif shape.tag == "box":
+                    size = np.array([float(v) for v in shape.get("size", "").split()])
+                    long = int(np.argmax(size))
+                    others = np.delete(size, long)
+                    r = 0.5 * float(np.linalg.norm(others))
+                    a, b = np.zeros(3), np.zeros(3)
+                    a[long], b[long] = -0.5 * size[long], 0.5 * size[long]
+                elif shape.tag == "mesh":
+                    scale = np.array([float(v) for v in shape.get("scale", "1 1 1").split()])
+                    a, b, r = _mesh_capsule(_resolve(shape.get("filename", ""), urdf_dir, package_dirs, where), scale, where)
+                else:
+                    raise ModelError(f"{where}: unsupported geometry <{shape.tag}>")
+            except ValueError as exc:
+                raise ModelError(f"{where}: malformed <{shape.tag}> ({exc})") from exc
+            if not r > 0:
+                raise ModelError(f"{where}: the radius must be positive, got {r}")
+            out.append(Capsule(name, lname, tuple(placement.act(a)), tuple(placement.act(b)), float(r)))  # type: ignore[arg-type]
+    return out

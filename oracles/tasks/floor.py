@@ -1,0 +1,74 @@
+"""The floor: ``{type: floor, exclude: ["*_foot"]}``.
+
+No body point below z = 0 but the soles: every collision capsule that an
+active joint moves keeps both end points at least its radius above the
+floor, so its lowest point stays on or above it. ``exclude`` names capsules
+(glob patterns) that may touch the floor; by default the feet, which stand
+on it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import casadi as ca
+import numpy as np
+
+from oracles.collision import CollisionModel
+from oracles.tasks.base import Constraint, HardTask, Numeric, Reference, Row, Scope, Symbolic, moved, world_point
+from oracles.tasks.contacts import BUFFER, CONTACT_TOL, INSIDE
+from reach.errors import TaskError
+
+FEET = ["*_foot"]
+
+
+@dataclass
+class FloorTask(HardTask):
+    """Keep every moving segment above the floor z = 0."""
+
+    type: ClassVar[str] = "floor"
+    keys: ClassVar[frozenset[str]] = frozenset({"exclude"})
+    summary: ClassVar[str] = "no body point below the floor z = 0 but the feet (`exclude`: capsules that may touch it)"
+
+    capsules: tuple[int, ...] = ()
+    _model: CollisionModel | None = field(default=None, repr=False, compare=False)
+
+    @classmethod
+    def parse(cls, raw: dict[str, Any], where: str, scope: Scope) -> FloorTask:
+        model = scope.body.collision
+        exclude = raw.get("exclude", FEET if any(n.endswith("_foot") for n in model.index) else [])
+        if not isinstance(exclude, list) or not all(isinstance(e, str) for e in exclude):
+            raise TaskError(f"{where}.exclude", f"expected a list of capsule names or patterns, got {exclude!r}")
+        try:
+            skip = set(model.names(exclude))
+        except Exception as exc:
+            raise TaskError(f"{where}.exclude", str(exc)) from exc
+        keep = [i for i, p in enumerate(model.placed) if p.name not in skip and moved(scope.body.model, p.joint, scope.active)]
+        return cls(tuple(keep))
+
+    def bind(self, reference: Reference) -> None:
+        self._model = reference.body.collision
+
+    def constraints(self, sym: Symbolic) -> list[Constraint]:
+        assert self._model is not None
+        out = []
+        for i in self.capsules:
+            p = self._model.placed[i]
+            z = [world_point(sym, p.joint, e)[2] for e in (p.a, p.b)]
+            out.append(Constraint(ca.vertcat(*z), p.radius, np.inf))
+        return out
+
+    def rows(self, num: Numeric) -> list[Row]:
+        assert self._model is not None
+        out = []
+        for i in self.capsules:
+            p = self._model.placed[i]
+            for end in self._model.world(num.data, i):
+                if end[2] - p.radius < BUFFER:
+                    out.append(Row(num.point_jacobian(p.joint, end)[2:3], np.array([max(0.0, p.radius + INSIDE - end[2])])))
+        return out
+
+    def holds(self, num: Numeric) -> bool:
+        assert self._model is not None
+        return all(min(e[2] for e in self._model.world(num.data, i)) - self._model.placed[i].radius >= -CONTACT_TOL for i in self.capsules)

@@ -1,0 +1,165 @@
+"""Static boxes in the world: ``{type: obstacles, boxes: [{min: [x, y, z], max: [x, y, z]}], margin: 0.01}``.
+
+A table, a wall, a shelf: axis-aligned boxes [m] in the world frame that
+every collision capsule moved by an active joint keeps ``margin`` [m] away
+from (spheres along the capsule's axis kept out of the box grown by their
+radius). A capsule already closer at the reference posture (a robot's base
+link on its table) keeps its reference clearance instead. The verdict is
+coal's distance between the capsules and the boxes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import casadi as ca
+import coal
+import numpy as np
+import pinocchio as pin
+
+from oracles.collision import CollisionModel
+from oracles.tasks.base import (
+    Constraint,
+    HardTask,
+    Numeric,
+    Reference,
+    Row,
+    Scope,
+    Symbolic,
+    moved,
+    number,
+    world_point,
+)
+from oracles.tasks.contacts import BUFFER, INSIDE
+from oracles.tasks.self_collision import CHECK_TOL, MARGIN
+from reach.errors import TaskError
+
+
+@dataclass(frozen=True)
+class Box:
+    """An axis-aligned box [m] in the world frame."""
+
+    lo: tuple[float, float, float]
+    hi: tuple[float, float, float]
+
+    @property
+    def centre(self) -> np.ndarray:
+        return 0.5 * (np.asarray(self.lo) + np.asarray(self.hi))
+
+    @property
+    def half(self) -> np.ndarray:
+        return 0.5 * (np.asarray(self.hi) - np.asarray(self.lo))
+
+    def outside(self, p: np.ndarray) -> tuple[float, np.ndarray]:
+        """Distance [m] of a point outside the box (0 inside) and the direction away from it."""
+        d = np.abs(p - self.centre) - self.half
+        out = np.maximum(d, 0.0) * np.sign(p - self.centre)
+        n = float(np.linalg.norm(out))
+        return n, out / n if n > 0 else np.zeros(3)
+
+
+@dataclass(frozen=True)
+class Guard:
+    """A capsule kept from a box by ``clearance`` [m]; ``floor`` is the least coal distance the verdict accepts."""
+
+    capsule: int
+    box: int
+    clearance: float
+    floor: float
+
+
+def _box(value: Any, where: str) -> Box:
+    if not isinstance(value, dict) or set(value) != {"min", "max"}:
+        raise TaskError(where, f"expected {{min: [x, y, z], max: [x, y, z]}} in metres, got {value!r}")
+    lo, hi = value["min"], value["max"]
+    for key, v in (("min", lo), ("max", hi)):
+        if not isinstance(v, list) or len(v) != 3 or not all(isinstance(c, (int, float)) and not isinstance(c, bool) for c in v):
+            raise TaskError(f"{where}.{key}", f"expected [x, y, z] in metres, got {v!r}")
+    if not all(a < b for a, b in zip(lo, hi, strict=True)):
+        raise TaskError(where, f"min must be below max on every axis, got {lo} and {hi}")
+    return Box(tuple(float(c) for c in lo), tuple(float(c) for c in hi))  # type: ignore[arg-type]
+
+
+@dataclass
+class ObstaclesTask(HardTask):
+    """Keep every moving segment out of static boxes."""
+
+    type: ClassVar[str] = "obstacles"
+    keys: ClassVar[frozenset[str]] = frozenset({"boxes", "margin"})
+    summary: ClassVar[str] = "every moving segment `margin` [m] (default 1 cm) away from static `boxes` (a table, a wall, a shelf)"
+
+    boxes: tuple[Box, ...] = ()
+    margin: float = MARGIN
+    guards: tuple[Guard, ...] = ()
+    _model: CollisionModel | None = field(default=None, repr=False, compare=False)
+
+    @classmethod
+    def parse(cls, raw: dict[str, Any], where: str, scope: Scope) -> ObstaclesTask:
+        boxes_raw = raw.get("boxes")
+        if not isinstance(boxes_raw, list) or not boxes_raw:
+            raise TaskError(f"{where}.boxes", f"expected a non-empty list of boxes, got {boxes_raw!r}")
+        boxes = tuple(_box(b, f"{where}.boxes[{k}]") for k, b in enumerate(boxes_raw))
+        margin = number(raw.get("margin", MARGIN), f"{where}.margin", 0.0, 0.2)
+        model = scope.body.collision
+        if not model.placed:
+            raise TaskError(where, f"{scope.body.source}: the body has no collision geometry")
+        task = cls(boxes, margin)
+        guards = []
+        for i, p in enumerate(model.placed):
+            if not moved(scope.body.model, p.joint, scope.active):
+                continue
+            sag = p.radius - float(np.sqrt(max(p.radius**2 - (0.5 * p.radius) ** 2, 0.0)))
+            for k in range(len(boxes)):
+                d = task.distance(model, scope.body.q_ref, i, k)
+                clearance = margin if d >= margin + sag else min(margin, d - sag)
+                guards.append(Guard(i, k, clearance, min(0.0, clearance - sag) - CHECK_TOL))
+        task.guards = tuple(guards)
+        return task
+
+    def bind(self, reference: Reference) -> None:
+        self._model = reference.body.collision
+
+    def distance(self, model: CollisionModel, q: np.ndarray, capsule: int, box: int) -> float:
+        """Coal's distance [m] between a capsule at q and a box."""
+        data = model.model.createData()
+        pin.forwardKinematics(model.model, data, q)
+        obj = model.geometry.geometryObjects[capsule]
+        placement = data.oMi[obj.parentJoint] * obj.placement
+        b = self.boxes[box]
+        request, result = coal.DistanceRequest(), coal.DistanceResult()
+        return float(coal.distance(obj.geometry, coal.Transform3s(placement.rotation, placement.translation),
+                                   coal.Box(*(2 * b.half)), coal.Transform3s(np.eye(3), b.centre), request, result))
+
+    def constraints(self, sym: Symbolic) -> list[Constraint]:
+        assert self._model is not None
+        out = []
+        for g in self.guards:
+            p, box = self._model.placed[g.capsule], self.boxes[g.box]
+            reach = p.radius + g.clearance
+            m = np.linspace(0.0, 1.0, len(p.capsule.samples()))[:, None]
+            rows = []
+            for c in p.a + m * (p.b - p.a):
+                d = ca.fmax(ca.fabs(world_point(sym, p.joint, c) - ca.SX(box.centre.reshape(3, 1))) - ca.SX(box.half.reshape(3, 1)), 0.0)
+                rows.append(ca.sumsqr(d))
+            out.append(Constraint(ca.vertcat(*rows), reach * abs(reach), np.inf))
+        return out
+
+    def rows(self, num: Numeric) -> list[Row]:
+        assert self._model is not None
+        out = []
+        for g in self.guards:
+            p, box = self._model.placed[g.capsule], self.boxes[g.box]
+            m = np.linspace(0.0, 1.0, len(p.capsule.samples()))
+            a, b = self._model.world(num.data, g.capsule)
+            for t in m:
+                c = a + t * (b - a)
+                gap, n = box.outside(c)
+                gap -= p.radius
+                if gap < g.clearance + BUFFER and np.any(n):
+                    out.append(Row((n @ num.point_jacobian(p.joint, c))[None], np.array([max(0.0, g.clearance + INSIDE - gap)])))
+        return out
+
+    def holds(self, num: Numeric) -> bool:
+        assert self._model is not None
+        return all(self.distance(self._model, num.q, g.capsule, g.box) >= g.floor for g in self.guards)

@@ -1,0 +1,141 @@
+"""A natural posture: ``{type: posture, weights: {pattern: w}, energy: 1.0, limits: 1.0, start: 0.1, priority: 3}``.
+
+Among the postures that reach (and look at) the goal, prefer the one a
+person would take. The objective follows the optimisation-based posture
+prediction of Marler, Yang, Abdel-Malek and co-workers (the Santos digital
+human: Yang, J., Marler, R.T., Kim, H., Arora, J., Abdel-Malek, K. (2004),
+*Multi-objective optimization for upper body posture prediction*, AIAA
+2004-4506; Marler, R.T., Arora, J.S., Yang, J., Kim, H.J., Abdel-Malek, K.
+(2009), *Use of multi-objective optimization for digital human posture
+prediction*, Engineering Optimization 41(10), 925-943), whose terms are
+summed here:
+
+* **joint displacement** from the neutral (reference) posture, each joint's
+  displacement normalised by its range, times a per-joint weight
+  (``weights``: joint name or glob pattern -> weight; defaults in
+  ``WEIGHTS``): the spine and the shoulder girdle weigh more than the arm,
+  as in Yang et al., who weight the spine's joints above the arm's;
+* **potential energy** of lifting (``energy``): each segment's rise of its
+  centre of mass above its reference height, squared, weighted by its mass
+  share (segments lowered cost nothing), so that lifting an elbow costs and
+  an idle arm hangs;
+* **discomfort near joint limits** (``limits``): the eighth power of each
+  joint's normalised distance from mid-range, negligible in mid-range and
+  steep in the last 10 % of the range, as Marler et al.'s discomfort term;
+* **continuity** (``start``): with the character's current posture given
+  (a query's ``from``), the range-normalised displacement from it, so that
+  the answer stays near where the character is.
+
+The weights are modelling choices in that family's spirit, not values from a
+table; Zhang, Kuo and Chaffin (1998, J. Biomech. 31(11)) report under 5 deg
+RMS error for seated reaches with weighted joint effort, which is the
+accuracy such objectives reach when tuned to data. ``bench/posture.py``
+measures what these weights give (elbow height, joints near limits,
+continuity).
+"""
+
+from __future__ import annotations
+
+import fnmatch
+from dataclasses import dataclass, field
+from typing import Any, ClassVar
+
+import casadi as ca
+import numpy as np
+
+from oracles.tasks.base import Numeric, Reference, Row, Scope, SoftTask, Symbolic, number
+from reach.errors import TaskError
+
+# Per-joint weights of the displacement term, first matching pattern wins
+# (modelling choices; see the module docstring).
+WEIGHTS: dict[str, float] = {
+    "lumbar_*": 4.0, "thoracic_*": 4.0, "neck_*": 1.0, "*_clavicle_*": 3.0,
+    "*_shoulder_*": 1.0, "*_elbow_*": 0.5, "*_forearm_*": 0.3, "*_wrist_*": 0.5,
+    "*_hip_*": 2.0, "*_knee_*": 1.0, "*_ankle_*": 2.0,
+    "root_roll": 3.0, "root_pitch": 3.0, "root_yaw": 1.0, "root_x": 0.0, "root_y": 0.0, "root_z": 0.0,
+}
+ENERGY_SCALE = 0.1  # [m] a segment's rise that costs as much as its mass share
+LIMIT_POWER = 8
+DLS_GAIN = 0.1
+
+
+@dataclass
+class PostureTask(SoftTask):
+    """Prefer a natural posture (see the module docstring)."""
+
+    type: ClassVar[str] = "posture"
+    keys: ClassVar[frozenset[str]] = frozenset({"weights", "energy", "limits", "start"})
+    summary: ClassVar[str] = ("a natural posture: weighted joint displacement, the energy of lifting segments, discomfort near joint limits, "
+                              "and nearness to the character's current posture (`weights`, `energy`, `limits`, `start`)")
+    default_priority: ClassVar[int] = 3
+    slack: ClassVar[float] = 1e-6
+
+    weights: dict[str, float] = field(default_factory=dict)
+    energy: float = 1.0
+    limits: float = 1.0
+    start: float = 0.1
+    priority: float = 3.0
+    _segments: list[tuple[int, np.ndarray, float, float]] = field(default_factory=list, init=False, repr=False, compare=False)
+
+    @classmethod
+    def parse(cls, raw: dict[str, Any], where: str, scope: Scope) -> PostureTask:
+        given = raw.get("weights", {})
+        if not isinstance(given, dict) or not all(isinstance(k, str) for k in given):
+            raise TaskError(f"{where}.weights", f"expected a mapping of joint name or pattern to weight, got {given!r}")
+        weights = {k: number(v, f"{where}.weights.{k}", 0.0, 1e3) for k, v in given.items()}
+        return cls(
+            {**weights, **{k: v for k, v in WEIGHTS.items() if k not in weights}},
+            number(raw.get("energy", 1.0), f"{where}.energy", 0.0, 1e3),
+            number(raw.get("limits", 1.0), f"{where}.limits", 0.0, 1e3),
+            number(raw.get("start", 0.1), f"{where}.start", 0.0, 1e3),
+            cls.priority_of(raw, where),
+        )
+
+    def weight(self, name: str) -> float:
+        return next((w for p, w in self.weights.items() if fnmatch.fnmatchcase(name, p)), 1.0)
+
+    def bind(self, reference: Reference) -> None:
+        """Each massive link: joint, centre of mass in the joint frame, mass share, reference height."""
+        model, data = reference.body.model, reference.data
+        total = sum(float(model.inertias[j].mass) for j in range(1, model.njoints))
+        self._segments = []
+        for j in range(1, model.njoints):
+            inertia = model.inertias[j]
+            if inertia.mass > 0:
+                lever = np.asarray(inertia.lever, float)
+                z0 = float(data.oMi[j].act(lever)[2])
+                self._segments.append((j, lever, float(inertia.mass) / total, z0))
+
+    def objective(self, sym: Symbolic) -> ca.SX:
+        w = np.array([self.weight(n) for n in sym.names]) if sym.names else np.ones(sym.x.numel())
+        norm = (sym.x - sym.x_ref) / sym.span
+        f = ca.dot(ca.SX(w), norm**2)
+        if self.energy > 0:
+            rises = []
+            for j, lever, share, z0 in self._segments:
+                rot, pos = sym.kin.placements[j]
+                z = (rot @ ca.SX(lever.reshape(3, 1)) + pos)[2]
+                rise = (z - z0) / ENERGY_SCALE
+                # A smooth max(rise, 0): only lifting costs.
+                rises.append(share * (0.5 * (rise + ca.sqrt(rise**2 + 1e-4))) ** 2)
+            f += self.energy * ca.sum1(ca.vertcat(*rises))
+        if self.limits > 0 and sym.lower is not None:
+            joint = np.array([not n.startswith("root_") for n in sym.names]) if sym.names else np.ones(sym.x.numel(), bool)
+            mid = sym.lower + 0.5 * sym.span
+            dist = (sym.x - mid) / (0.5 * sym.span)
+            f += self.limits * ca.dot(ca.SX(joint.astype(float)), dist**LIMIT_POWER) / max(int(joint.sum()), 1)
+        if self.start > 0 and sym.start is not None and sym.start_weight is not None:
+            f += self.start * sym.start_weight * ca.sumsqr((sym.x - sym.start) / sym.span)
+        return f
+
+    def level(self, num: Numeric) -> Row:
+        # dls approximates the task by its displacement terms: a pull towards the
+        # neutral posture (and the start, when given), weighted per joint.
+        assert num.columns is not None and num.joint_columns is not None and num.joint_q is not None and num.x_ref is not None
+        target = num.x_ref[num.joint_columns]
+        if num.start is not None and num.start_weight > 0:
+            a = self.start * num.start_weight
+            target = (target + a * num.start[num.joint_columns]) / (1 + a)
+        select = np.zeros((num.joint_columns.size, num.columns.size))
+        select[np.arange(num.joint_columns.size), num.joint_columns] = 1.0
+        return Row(DLS_GAIN * select, DLS_GAIN * (target - num.q[num.joint_q]))
