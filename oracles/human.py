@@ -32,7 +32,7 @@ from oracles.collision import CAPSULE_PREFIX, Capsule
 # the circumference is the segment's largest (thigh at the gluteal furrow,
 # flexed biceps, calf) so that the capsule fits the segment's mean girth.
 # Modelling choices, not table values.
-TAPER = {"upper_arm": 0.9, "thigh": 0.8, "shank": 0.85}
+TAPER = {"upper_arm": 0.9, "thigh": 0.7, "shank": 0.85}
 HAND_RADIUS = 0.3  # fist radius as a fraction of hand breadth (modelling choice)
 
 

@@ -253,7 +253,12 @@ class CasadiIK(IKOracle):
     (a build's parent, a config check) costs no compilation.
 
     Args:
-        max_iter: Iteration cap per stage.
+        max_iter: Iteration cap of the reach stage.
+        secondary_iter: Iteration cap of each lower stage (gaze, posture).
+            Each starts from a posture that reaches, usually a neighbour's
+            natural one in a build, and a lower stage that stops at its cap
+            keeps its last iterate when it honours every constraint (else the
+            stage above's posture): a cap trades naturalness for time.
         solver: ``fatrop`` (default) or ``ipopt``, both interior-point
             solvers shipped with CasADi. On the whole-body problem fatrop
             takes about half IPOPT's time per solve for the same verdicts
@@ -275,7 +280,7 @@ class CasadiIK(IKOracle):
 
     name = "casadi-ik"
 
-    def __init__(self, *args: Any, max_iter: int = 60, solver: str = "fatrop", jit: bool | str = False, **kwargs: Any) -> None:
+    def __init__(self, *args: Any, max_iter: int = 60, solver: str = "fatrop", jit: bool | str = False, secondary_iter: int = 15, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         if solver not in SOLVERS:
             raise OracleError(f"casadi-ik: solver must be one of {sorted(SOLVERS)}, got {solver!r}")
@@ -284,7 +289,8 @@ class CasadiIK(IKOracle):
         has_compiler = shutil.which(COMPILER) is not None
         if jit is True and not has_compiler:
             raise OracleError(f"casadi-ik: jit needs the C compiler {COMPILER} on the PATH; install it or set jit: false")
-        self.params.update(max_iter=max_iter, solver=solver, jit=jit)
+        self.params.update(max_iter=max_iter, solver=solver, jit=jit, secondary_iter=secondary_iter)
+        self.secondary_iter = int(secondary_iter)
         self.solver = solver
         self.max_iter = int(max_iter)
         self.jit = jit is True or (jit == "auto" and has_compiler)
@@ -292,6 +298,8 @@ class CasadiIK(IKOracle):
         reach = soft.index(self.strategy.reach)
         self.order = list(soft if self.secondary else soft[: reach + 1])
         self.stages: list[ca.Function] = []  # built on the first solve
+        self.guarded: list[ca.Function] = []  # the same with the lazy hard tasks' rows
+        self.lazy = [t for t in self.strategy.hard if t.lazy]
 
     def variant_params(self, purpose: Purpose) -> dict[str, Any]:
         # A refinement never compiles (seconds, more than a server's few
@@ -305,23 +313,30 @@ class CasadiIK(IKOracle):
         start, weight = ca.SX.sym("start", p.nx), ca.SX.sym("start_weight", 1)
         sym = Symbolic(SymbolicKinematics(self.body.model, p.q_sym), x, goal, p.x_ref, p.upper - p.lower, tuple(p.x_names), p.lower, start, weight)
         params = ca.vertcat(goal, start, weight)
-        rows = [c for t in self.strategy.hard for c in t.constraints(sym)]
-        g = ca.vertcat(*[c.expr for c in rows]) if rows else ca.SX.zeros(0, 1)
-        self.lbg = np.array([c.lower for c in rows for _ in range(c.expr.numel())], float)
-        self.ubg = np.array([c.upper for c in rows for _ in range(c.expr.numel())], float)
-        stages = []
-        for k, task in enumerate(self.order):
-            earlier = [t.held(sym) for t in self.order[:k]]
-            nlp = {"x": x, "p": params, "f": task.objective(sym), "g": ca.vertcat(g, *earlier)}
-            # The later stages hold the earlier optima within a hair's
-            # breadth, which IPOPT handles and fatrop often does not.
-            engine, iters = (self.solver, self.max_iter) if k == 0 else ("ipopt", max(20, self.max_iter // 4))
-            stages.append(self._nlpsol(f"stage_{task.type}", engine, nlp, self._options(engine, iters)))
+        eager = [c for t in self.strategy.hard if not t.lazy for c in t.constraints(sym)]
+        lazy = [c for t in self.strategy.hard if t.lazy for c in t.constraints(sym)]
+        # Two programs per stage when some hard task is lazy: without its rows
+        # (tried first), and with every row (when the first breaks it).
+        variants = [("", eager)] + ([("_guarded", eager + lazy)] if lazy else [])
+        self.bounds = []
+        for suffix, rows in variants:
+            g = ca.vertcat(*[c.expr for c in rows]) if rows else ca.SX.zeros(0, 1)
+            lbg = np.array([c.lower for c in rows for _ in range(c.expr.numel())], float)
+            ubg = np.array([c.upper for c in rows for _ in range(c.expr.numel())], float)
+            stages = []
+            for k, task in enumerate(self.order):
+                earlier = [t.held(sym) for t in self.order[:k]]
+                nlp = {"x": x, "p": params, "f": task.objective(sym), "g": ca.vertcat(g, *earlier)}
+                engine, iters = self.solver, (self.max_iter if k == 0 else self.secondary_iter)
+                # The guarded programs are interpreted: they are solved seldom,
+                # and compiling their many collision rows takes minutes.
+                stages.append(self._nlpsol(f"stage_{task.type}{suffix}", engine, nlp, self._options(engine, iters), compile_=not suffix))
+            self.bounds.append((lbg, ubg))
+            (self.stages if not suffix else self.guarded).extend(stages)
         self._objective_fns = [ca.Function(t.type, [x, params], [t.objective(sym)]) for t in self.order]
-        self.stages = stages
 
-    def _nlpsol(self, name: str, solver: str, nlp: dict[str, Any], opts: dict[str, Any]) -> ca.Function:
-        if self.jit:
+    def _nlpsol(self, name: str, solver: str, nlp: dict[str, Any], opts: dict[str, Any], compile_: bool = True) -> ca.Function:
+        if self.jit and compile_:
             try:
                 # No cleanup by CasADi: the scratch directory goes as a whole
                 # (the library stays loaded once unlinked).
@@ -346,14 +361,42 @@ class CasadiIK(IKOracle):
         budget = {"ipopt.max_wall_time": self.max_seconds} if self.max_seconds else {}
         return {**budget, "print_time": 0, "ipopt.print_level": 0, "ipopt.sb": "yes", "ipopt.max_iter": max_iter, "ipopt.tol": 1e-6, "ipopt.acceptable_tol": 1e-4}
 
-    def _stage_bounds(self, k: int, optimum: list[float]) -> tuple[np.ndarray, np.ndarray]:
-        lo: list[Any] = [self.lbg]
-        hi: list[Any] = [self.ubg]
+    def _stage_bounds(self, k: int, optimum: list[float], guarded: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        lbg, ubg = self.bounds[int(guarded)]
+        lo: list[Any] = [lbg]
+        hi: list[Any] = [ubg]
         for t, opt in zip(self.order[:k], optimum, strict=False):
             a, b = t.held_bounds(opt)
             lo.append(a)
             hi.append(b)
         return np.concatenate(lo), np.concatenate(hi)
+
+    def _stage(self, k: int, x: np.ndarray, params: np.ndarray, optimum: list[float], guarded: bool) -> np.ndarray | None:
+        """Stage k's solution from x, or None when the solver fails or (below the first stage) breaks a constraint."""
+        p = self.problem
+        lbg, ubg = self._stage_bounds(k, optimum, guarded)
+        try:
+            sol = (self.guarded if guarded else self.stages)[k](x0=x, p=params, lbx=p.lower, ubx=p.upper, lbg=lbg, ubg=ubg)
+        except RuntimeError:
+            return None  # a numerical failure of the solver
+        if k > 0:
+            # A lower stage is kept only if it honours every constraint,
+            # whatever the solver's status (it may stop at its iteration cap).
+            gval = np.asarray(sol["g"]).ravel()
+            if np.any(gval < lbg - 1e-7) or np.any(gval > ubg + 1e-7):
+                return None
+        return np.clip(np.asarray(sol["x"]).ravel(), p.lower, p.upper)
+
+    def _lazy_hold(self, x: np.ndarray) -> bool:
+        """Whether the lazy hard tasks hold at x (Pinocchio's evaluation)."""
+        import pinocchio as pin
+
+        from oracles.tasks import Numeric
+
+        q = self.problem.q_of_x(x)
+        pin.framesForwardKinematics(self.body.model, self._data, q)
+        num = Numeric(self.body.model, self._data, q, np.zeros(3))
+        return all(t.holds(num) for t in self.lazy)
 
     def prepare(self) -> None:
         if not self.stages:
@@ -365,19 +408,13 @@ class CasadiIK(IKOracle):
         x = np.clip(x0, p.lower, p.upper)
         params = np.concatenate([goal, self._start if self._start is not None else x, [0.0 if self._start is None else 1.0]])
         optimum: list[float] = []
-        for k, (task, solver) in enumerate(zip(self.order, self.stages, strict=True)):
-            lbg, ubg = self._stage_bounds(k, optimum)
-            try:
-                sol = solver(x0=x, p=params, lbx=p.lower, ubx=p.upper, lbg=lbg, ubg=ubg)
-            except RuntimeError:
-                break  # a numerical failure of the solver: keep the last posture; the check decides
-            x_new = np.clip(np.asarray(sol["x"]).ravel(), p.lower, p.upper)
-            if k > 0:
-                # A lower stage is kept only if it honours every constraint,
-                # whatever the solver's status (it may stop at its iteration cap).
-                gval = np.asarray(sol["g"]).ravel()
-                if np.any(gval < lbg - 1e-7) or np.any(gval > ubg + 1e-7):
-                    break
+        for k, task in enumerate(self.order):
+            x_new = self._stage(k, x, params, optimum, guarded=False)
+            if x_new is not None and self.lazy and not self._lazy_hold(x_new):
+                x_new = self._stage(k, x, params, optimum, guarded=True)
+                self.stats["guarded"] = self.stats.get("guarded", 0) + 1
+            if x_new is None:
+                break  # keep the last posture; the check decides
             x = x_new
             optimum.append(float(self._objective_fns[k](x, params)))
             if not task.attained(optimum[-1]):

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from reach import protocol as P
-from reach.errors import ReachError
+from reach.errors import InputError, ReachError
 from reach.select import REFINE_BUDGET
 from reach.tree import DEFAULT_POLICY, POLICIES
 
@@ -109,20 +109,21 @@ def _goal(values: list[str], with_atlas: bool) -> tuple[str | None, list[float]]
 def cmd_query(args: argparse.Namespace) -> int:
     atlas, goal = _goal(args.values, args.connect is None)
     refine = None if args.refine is None else args.refine == "on"
+    start = _start(args.start)
     if args.connect:
         from reach.client import Client
 
         with Client(args.connect, timeout=args.timeout, curve_server_key=args.curve_server_key) as client:
             effectors = [args.effector] if args.effector else client.strategies()["effectors"]
             # The reply's envelope fields are not part of the answer.
-            answers = [{k: v for k, v in client.query(e, goal, refine).items() if k not in ("ok", "id")} for e in effectors]
+            answers = [{k: v for k, v in client.query(e, goal, refine, start).items() if k not in ("ok", "id")} for e in effectors]
     else:
         from reach.select import Selector
         from reach.store import load_atlas
 
         selector = Selector(load_atlas(atlas), policy=args.policy, refine=refine is not False)  # type: ignore[arg-type]
         effectors = [args.effector] if args.effector else selector.effectors
-        answers = [selector.select(e, np.array(goal)).to_dict() for e in effectors]
+        answers = [selector.select(e, np.array(goal), start=start).to_dict() for e in effectors]
     if args.json:
         _print_json({"answers": answers})
         return 0
@@ -136,6 +137,20 @@ def cmd_query(args: argparse.Namespace) -> int:
         else:
             print(f"{a['effector']}: goal {a['goal']} not reachable by any strategy")
     return 0
+
+
+def _start(value: str | None) -> dict[str, float] | None:
+    """--from: a JSON object of joint name -> value, or a file holding one."""
+    if value is None:
+        return None
+    text = Path(value).read_text() if not value.lstrip().startswith("{") and Path(value).is_file() else value
+    try:
+        data = json.loads(text)
+    except ValueError as exc:
+        raise InputError("--from", f"expected a JSON object of joint name -> value [rad or m] or a file holding one ({exc})") from exc
+    if not isinstance(data, dict) or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in data.values()):
+        raise InputError("--from", f"expected a JSON object of joint name -> number, got {text[:80]!r}")
+    return {str(k): float(v) for k, v in data.items()}
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
@@ -276,6 +291,9 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--effector", help="effector to ask about (default: every effector of the atlas)")
     p.add_argument("--policy", default=DEFAULT_POLICY, choices=POLICIES, help=f"how boundary cells answer (default: {DEFAULT_POLICY})")
     p.add_argument("--refine", choices=["on", "off"], help="refine the posture by IK at the exact goal (default: on)")
+    p.add_argument("--from", dest="start", metavar="POSTURE",
+                   help="the character's current posture, a JSON object of joint name -> value [rad or m] (or a file holding one): "
+                        "the answer is the natural posture reached from it")
     p.add_argument("--timeout", type=int, default=2500, help="with --connect: ms to wait for each reply (default 2500)")
     p.add_argument("--curve-server-key", metavar="FILE", help="with --connect: the server's CURVE public-key file")
     p.add_argument("--json", action="store_true", help="machine-readable output")

@@ -84,17 +84,22 @@ class Client:
             self.socket = self._connect()
         raise ServerUnavailable(self.address, self.retries, self.timeout)
 
-    def query(self, effector: str, goal: list[float], refine: bool | None = None) -> dict[str, Any]:
-        fields: dict[str, Any] = {"effector": effector, "goal": [float(v) for v in goal]}
-        if refine is not None:
-            fields["refine"] = refine
-        return self.call("query", **fields)
+    def query(self, effector: str, goal: list[float], refine: bool | None = None, start: dict[str, float] | None = None) -> dict[str, Any]:
+        """One goal [m]; ``start`` is the character's current posture (joint name -> rad or m), the query's ``from``."""
+        return self.call("query", **self._fields(effector, refine, start), goal=[float(v) for v in goal])
 
-    def query_many(self, effector: str, goals: list[list[float]], refine: bool | None = None) -> list[dict[str, Any]]:
-        fields: dict[str, Any] = {"effector": effector, "goals": [[float(v) for v in g] for g in goals]}
+    def query_many(self, effector: str, goals: list[list[float]], refine: bool | None = None,
+                   start: dict[str, float] | None = None) -> list[dict[str, Any]]:
+        return list(self.call("query", **self._fields(effector, refine, start), goals=[[float(v) for v in g] for g in goals])["answers"])
+
+    @staticmethod
+    def _fields(effector: str, refine: bool | None, start: dict[str, float] | None) -> dict[str, Any]:
+        fields: dict[str, Any] = {"effector": effector}
         if refine is not None:
             fields["refine"] = refine
-        return list(self.call("query", **fields)["answers"])
+        if start is not None:
+            fields["from"] = {str(k): float(v) for k, v in start.items()}
+        return fields
 
     def strategies(self) -> dict[str, Any]:
         return self.call("strategies")

@@ -60,6 +60,7 @@ class Request:
     path: str | None = None
     level: int = 4
     strategy: str | None = None
+    start: dict[str, float] | None = None  # the query's "from": the character's current posture
 
 
 def _reject_constant(name: str) -> float:
@@ -94,7 +95,7 @@ def parse_request(payload: bytes) -> Request:
         raise ProtocolError(BAD_REQUEST, "'op' must be a string naming the operation", rid)
     if op not in OPS:
         raise ProtocolError(UNKNOWN_OP, f"unknown op {op!r}; ops are {', '.join(OPS)}", rid)
-    allowed = {"query": {"op", "id", "effector", "goal", "goals", "refine"}, "reload": {"op", "id", "path"},
+    allowed = {"query": {"op", "id", "effector", "goal", "goals", "refine", "from"}, "reload": {"op", "id", "path"},
                "cells": {"op", "id", "strategy", "level"}}.get(op, {"op", "id"})
     extra = sorted(set(data) - allowed)
     if extra:
@@ -122,8 +123,14 @@ def parse_request(payload: bytes) -> Request:
         raise ProtocolError(BAD_REQUEST, "'refine' must be true or false", rid)
     if ("goal" in data) == ("goals" in data):
         raise ProtocolError(BAD_REQUEST, "give exactly one of 'goal' ([x, y, z]) or 'goals' ([[x, y, z], ...])", rid)
+    start = None
+    if "from" in data:
+        given = data["from"]
+        if not isinstance(given, dict) or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in given.values()):
+            raise ProtocolError(BAD_REQUEST, "'from' must be an object of joint name -> finite number [rad or m]", rid)
+        start = {str(k): float(v) for k, v in given.items()}
     if "goal" in data:
-        return Request(op, rid, effector, [_number_list(data["goal"], "goal", rid)], True, refine)
+        return Request(op, rid, effector, [_number_list(data["goal"], "goal", rid)], True, refine, start=start)
     goals = data["goals"]
     if not isinstance(goals, list) or not goals:
         raise ProtocolError(BAD_REQUEST, "'goals' must be a non-empty list of [x, y, z]", rid)
@@ -132,7 +139,7 @@ def parse_request(payload: bytes) -> Request:
     parsed = [_number_list(g, f"goals[{i}]", rid) for i, g in enumerate(goals)]
     if len({len(g) for g in parsed}) != 1:
         raise ProtocolError(BAD_REQUEST, "every goal must have the same number of coordinates", rid)
-    return Request(op, rid, effector, parsed, False, refine)
+    return Request(op, rid, effector, parsed, False, refine, start=start)
 
 
 def encode(data: dict[str, Any]) -> bytes:

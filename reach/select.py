@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
-from oracles.protocol import EffectorPositions, ModelHashed, Oracle, OracleSpec, Preparable, Tunable
+from oracles.protocol import Continuing, EffectorPositions, ModelHashed, Oracle, OracleSpec, Preparable, Tunable
 from reach.errors import InputError, ModelMismatch, UnknownEffector, UnknownPolicy
 from reach.store import Atlas
 from reach.tree import DEFAULT_POLICY, POLICIES, Policy, VATree
@@ -113,6 +113,7 @@ class Selector:
             self._by_effector.setdefault(effector, []).append(name)
         self._kd: dict[str, tuple[cKDTree, np.ndarray, np.ndarray] | None] = {}
         self._oracles: dict[str, Oracle] = {}
+        self._start: dict[str, float] | None = None  # the current request's "from"
         self._postures: OrderedDict[tuple[str, int], tuple[dict[str, float], dict[str, list[float]] | None, bytes]] = OrderedDict()
         for tree in atlas.trees.values():
             tree.prepare()  # the batch lookup table now, not on the first batch
@@ -195,8 +196,15 @@ class Selector:
             self._oracles[name] = oracle.variant("refine", budget=self.budget) if isinstance(oracle, Tunable) else oracle
         return self._oracles[name]
 
-    def select_many(self, effector: str, goals: np.ndarray, refine: bool | None = None) -> list[Answer]:
-        """Answers for goals (N, d) [m], one tree lookup per strategy for the whole batch."""
+    def select_many(self, effector: str, goals: np.ndarray, refine: bool | None = None, start: dict[str, float] | None = None) -> list[Answer]:
+        """Answers for goals (N, d) [m], one tree lookup per strategy for the whole batch.
+
+        ``start`` is the character's current posture (joint name -> rad or m;
+        ``root_x`` ... ``root_qw`` for a floating base), a query's ``from``:
+        refinement then starts from it, with a small cost on displacement from
+        it, so that the answer is the natural posture reached from there.
+        Joints it omits keep the stored posture's values.
+        """
         t0 = time.perf_counter()
         g = np.asarray(goals, dtype=float)
         names = self.strategies_for(effector)
@@ -204,6 +212,7 @@ class Selector:
         if g.ndim != 2 or g.shape[1] != dim:
             raise InputError("goals", f"expected {dim} coordinates [m] each, got shape {list(g.shape)}")
         refine = self.refine if refine is None else refine
+        self._start = start
         if len(g) == 1:
             return [self._select_one(effector, names, g[0], refine, t0)]
         hits = np.stack([self.atlas.trees[n].contains(g, self.policy) for n in names])
@@ -265,14 +274,32 @@ class Selector:
             self._postures.move_to_end(key)
         return hit
 
+    def _start_posture(self, tree: VATree, stored: np.ndarray) -> np.ndarray | None:
+        """The query's ``from`` as a full posture: the stored one with the given joints replaced."""
+        if self._start is None:
+            return None
+        names = tree.vertices.posture_names
+        unknown = sorted(set(self._start) - set(names))
+        if unknown:
+            raise InputError("from", f"unknown joints {unknown[:5]}; the posture's names are {', '.join(names)}")
+        q = stored.copy()
+        for k, n in enumerate(names):
+            if n in self._start:
+                q[k] = self._start[n]
+        return q
+
     def _refine(self, name: str, goal: np.ndarray, q: np.ndarray, residual: float | None) -> tuple[np.ndarray, float | None, str]:
         oracle = self._oracle(name)
         t0 = time.perf_counter()
-        v = oracle.evaluate(goal[None], q[None])
+        start = self._start_posture(self.atlas.trees[name], q)
+        if start is not None and isinstance(oracle, Continuing):
+            v = oracle.evaluate_from(goal[None], start)
+        else:
+            v = oracle.evaluate(goal[None], (q if start is None else start)[None])
         if v.reachable[0] and v.posture is not None:
             return v.posture[0], float(v.residual[0]), REFINED
         return q, residual, TIMEOUT if time.perf_counter() - t0 >= self.budget else FAILED
 
-    def select(self, effector: str, goal: np.ndarray, refine: bool | None = None) -> Answer:
-        """Choose a strategy for one goal [m]."""
-        return self.select_many(effector, np.asarray(goal, dtype=float).reshape(1, -1), refine)[0]
+    def select(self, effector: str, goal: np.ndarray, refine: bool | None = None, start: dict[str, float] | None = None) -> Answer:
+        """Choose a strategy for one goal [m] (``start``: see :meth:`select_many`)."""
+        return self.select_many(effector, np.asarray(goal, dtype=float).reshape(1, -1), refine, start)[0]

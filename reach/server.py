@@ -156,7 +156,7 @@ class Server:
         """The encoded result object of a valid request."""
         if req.op == "query":
             assert req.effector is not None and req.goals is not None
-            answers = self.selector.select_many(req.effector, np.array(req.goals), req.refine)
+            answers = self.selector.select_many(req.effector, np.array(req.goals), req.refine, start=req.start)
             bodies = [a.to_json() for a in answers]
             self.publish(req.effector, bodies)
             return bodies[0] if req.single else b'{"answers":[' + b",".join(bodies) + b"]}"

@@ -6,7 +6,7 @@ import json
 
 import numpy as np
 import pytest
-from helpers import human_config
+from helpers import ARM, human_config
 
 from oracles.body import human_body
 from reach.atlas import build_atlas
@@ -28,9 +28,13 @@ def balls(tmp_path_factory):
     }, "balls", "balls"), tmp_path_factory.mktemp("balls") / "balls")
 
 
+NATURAL_ARM = [{"name": "right_arm", "effector": "right_hand", "joints": ARM,
+                "tasks": [{"type": "reach"}, {"type": "self_collision"}, {"type": "posture"}]}]
+
+
 @pytest.fixture(scope="module")
 def arm(tmp_path_factory):
-    return build_atlas(parse_config(human_config(d_max=3), "arm", "arm"), tmp_path_factory.mktemp("arm") / "arm")
+    return build_atlas(parse_config(human_config(d_max=3, strategies=NATURAL_ARM), "arm", "arm"), tmp_path_factory.mktemp("arm") / "arm")
 
 
 def hand_of(answer, body) -> np.ndarray:
@@ -114,3 +118,29 @@ def test_a_tree_of_another_model_is_refused(arm):
         assert err.value.strategy == "right_arm" and err.value.current == saved
     finally:
         tree.meta["model_hash"] = saved
+
+
+def test_answers_from_the_current_posture_are_continuous_along_a_line(arm):
+    # Walk a line of goals 1 cm apart, each asked from the previous answer: no joint jumps.
+    s = Selector(arm, budget=0.5)
+    line = np.stack([np.linspace(0.25, 0.55, 31), np.full(31, -0.3), np.full(31, 1.2)], axis=1)
+    previous = s.select("right_hand", line[0])
+    worst = 0.0
+    for goal in line[1:]:
+        start = {**previous.posture, **dict(zip(("root_x", "root_y", "root_z"), previous.root["position"], strict=True)),
+                 **dict(zip(("root_qx", "root_qy", "root_qz", "root_qw"), previous.root["quaternion"], strict=True))}
+        answer = s.select("right_hand", goal, start=start)
+        assert answer.refined == REFINED
+        worst = max(worst, max(abs(answer.posture[k] - previous.posture[k]) for k in answer.posture))
+        previous = answer
+    assert np.degrees(worst) < 10.0
+
+
+def test_the_same_request_from_a_posture_gives_the_same_answer(arm):
+    s = Selector(arm, budget=0.5)
+    start = {"right_shoulder_flexion": 0.6, "right_elbow_flexion": 0.8}
+    a = s.select("right_hand", [0.4, -0.3, 1.2], start=start)
+    b = Selector(arm, budget=0.5).select("right_hand", [0.4, -0.3, 1.2], start=start)
+    assert a.posture == b.posture and a.refined == REFINED
+    with pytest.raises(InputError, match=r"from: unknown joints \['right_tail'\]"):
+        s.select("right_hand", [0.4, -0.3, 1.2], start={"right_tail": 1.0})

@@ -38,8 +38,9 @@ def numeric(problem, q, goal, data=None):
     pin.updateFramePlacements(model, data)
     cols = np.array(list(range(6)) + [model.joints[j].idx_v for j in problem.joint_ids])
     lwa = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
-    return Numeric(model, data, q, goal, lambda fid: pin.getFrameJacobian(model, data, fid, lwa)[:, cols], cols,
-                   np.arange(6, cols.size), np.array([model.joints[j].idx_q for j in problem.joint_ids]), problem.x_ref, np.inf)
+    return Numeric(model, data, q, goal, jacobian=lambda fid: pin.getFrameJacobian(model, data, fid, lwa)[:, cols],
+                   joint_jacobian=lambda j: pin.getJointJacobian(model, data, j, lwa)[:, cols], columns=cols,
+                   joint_columns=np.arange(6, cols.size), joint_q=np.array([model.joints[j].idx_q for j in problem.joint_ids]), x_ref=problem.x_ref)
 
 
 def random_x(problem, seed):
@@ -165,3 +166,75 @@ def test_rising_heels_are_hinged_and_kept_above_the_floor():
     assert [c.mode for c in feet.contacts] == ["hinge", "hinge"] and feet.above_floor == ("right_heel", "left_heel")
     balance = problem.strategy.task("balance")
     assert set(balance.polygon_frames) == {f"{s}_{p}" for s in ("right", "left") for p in ("ball_inner", "ball_outer", "toe_inner", "toe_outer")}
+
+
+def test_the_hamstrings_couple_hip_flexion_to_the_knee():
+    body = human_body()
+    s = parse_strategy(body, "right_hand", WHOLE, [{"type": "reach"}, {"type": "coupling"}])
+    problem = ReachProblem(body, s)
+    coupling = s.task("coupling")
+    assert {r.joint for r in coupling.rules} == {"right_hip_flexion", "left_hip_flexion"}
+    hip, knee = (body.model.joints[body.joint_id(n)].idx_q for n in ("right_hip_flexion", "right_knee_flexion"))
+
+    def holds(hip_deg: float, knee_deg: float) -> bool:
+        q = body.q_ref.copy()
+        q[hip], q[knee] = np.radians(hip_deg), np.radians(knee_deg)
+        return coupling.holds(numeric(problem, q, np.zeros(3)))
+
+    # Straight-leg raise about 80 deg (Magee 2014); with the knee bent 90 deg the full 120 deg.
+    assert holds(79.0, 0.0) and not holds(81.0, 0.0)
+    assert holds(119.0, 90.0) and not holds(110.0, 60.0) and holds(105.0, 60.0)
+
+
+def test_the_coupling_holds_in_the_solvers_postures():
+    from oracles.ik import CasadiIK
+
+    straight = [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*", "root", "*_hip_*", "*_ankle_*"]
+    tasks = [{"type": "reach"}, {"type": "feet"}, {"type": "balance"}, {"type": "coupling"}]
+    oracle = CasadiIK({"human": {"sex": "male", "percentile": 50}}, "right_hand", straight, tasks, restarts=2)
+    hip = oracle.body.model.joints[oracle.body.joint_id("right_hip_flexion")].idx_q
+    goals = np.array([[0.35, -0.2, 0.35], [0.45, -0.2, 0.5], [0.3, -0.3, 0.6]])
+    v = oracle.evaluate(goals)
+    assert v.reachable.any()
+    for q, ok in zip(v.posture, v.reachable, strict=True):
+        if ok:
+            assert q[hip] <= np.radians(80.0) + 1e-6  # knees straight: the hamstrings' limit
+
+
+def test_collision_and_floor_rows_match_finite_differences():
+    body = human_body()
+    s = parse_strategy(body, "right_hand", WHOLE, [{"type": "reach"}, {"type": "self_collision", "margin": 0.2}, {"type": "floor"}])
+    problem = ReachProblem(body, s)
+    model = body.model
+    q = problem.q_of_x(random_x(problem, 3))
+    num = numeric(problem, q, np.zeros(3))
+    task = s.task("self_collision")
+    rows = task.rows(num)  # a 0.2 m margin makes many pairs active
+    assert len(rows) > 5
+    eps = 1e-6
+    from oracles.collision import nearest_points
+
+    def gaps(qq):
+        data = model.createData()
+        pin.forwardKinematics(model, data, qq)
+        out = []
+        for p in task.pairs:
+            a, b = body.collision.world(data, p.first)
+            c, d = body.collision.world(data, p.second)
+            out.append(nearest_points(a, b, c, d)[2])
+        return np.array(out)
+
+    base = gaps(q)
+    active = [k for k, p in enumerate(task.pairs)
+              if base[k] - body.collision.placed[p.first].radius - body.collision.placed[p.second].radius < p.clearance + 0.005]
+    fd = np.zeros((len(active), num.columns.size))
+    for k in range(num.columns.size):
+        v = np.zeros(model.nv)
+        v[num.columns[k]] = eps
+        fd[:, k] = (gaps(pin.integrate(model, q, v))[active] - base[active]) / eps
+    assert np.allclose(np.vstack([r.jacobian for r in rows]), fd, atol=1e-4)
+    floor = s.task("floor")
+    low = q.copy()
+    low[2] -= 0.45  # sink the body so that some segment nears the floor
+    frows = floor.rows(numeric(problem, low, np.zeros(3)))
+    assert frows and all(r.error[0] >= 0 for r in frows)

@@ -247,9 +247,16 @@ class Task(ABC):
 
 
 class HardTask(Task):
-    """A constraint: no soft task may trade it away."""
+    """A constraint: no soft task may trade it away.
+
+    Class attributes:
+        lazy: Many rows that rarely bind (collisions): ``casadi-ik`` solves
+            without them first and again with them only when that posture
+            breaks the task.
+    """
 
     hard = True
+    lazy: ClassVar[bool] = False
 
     @abstractmethod
     def constraints(self, sym: Symbolic) -> list[Constraint]:

@@ -86,6 +86,7 @@ class ObstaclesTask(HardTask):
     """Keep every moving segment out of static boxes."""
 
     type: ClassVar[str] = "obstacles"
+    lazy: ClassVar[bool] = True
     keys: ClassVar[frozenset[str]] = frozenset({"boxes", "margin"})
     summary: ClassVar[str] = "every moving segment `margin` [m] (default 1 cm) away from static `boxes` (a table, a wall, a shelf)"
 

@@ -16,9 +16,12 @@ summed here:
   ``WEIGHTS``): the spine and the shoulder girdle weigh more than the arm,
   as in Yang et al., who weight the spine's joints above the arm's;
 * **potential energy** of lifting (``energy``): each segment's rise of its
-  centre of mass above its reference height, squared, weighted by its mass
-  share (segments lowered cost nothing), so that lifting an elbow costs and
-  an idle arm hangs;
+  centre of mass, relative to the root joint of its limb (the shoulder
+  girdle for an arm, the hip for a leg, the neck for the head), above its
+  height there at the reference posture, squared and weighted by its mass
+  share (segments lowered cost nothing): lifting an elbow costs, and an
+  idle arm hangs under gravity however the trunk leans rather than keeping
+  its angles to the trunk;
 * **discomfort near joint limits** (``limits``): the eighth power of each
   joint's normalised distance from mid-range, negligible in mid-range and
   steep in the last 10 % of the range, as Marler et al.'s discomfort term;
@@ -55,6 +58,7 @@ WEIGHTS: dict[str, float] = {
     "root_roll": 3.0, "root_pitch": 3.0, "root_yaw": 1.0, "root_x": 0.0, "root_y": 0.0, "root_z": 0.0,
 }
 ENERGY_SCALE = 0.1  # [m] a segment's rise that costs as much as its mass share
+ENERGY = 5.0  # default weight of the energy term: an idle arm left at 60 deg from hanging costs ten times its shoulder's displacement
 LIMIT_POWER = 8
 DLS_GAIN = 0.1
 
@@ -71,11 +75,11 @@ class PostureTask(SoftTask):
     slack: ClassVar[float] = 1e-6
 
     weights: dict[str, float] = field(default_factory=dict)
-    energy: float = 1.0
+    energy: float = ENERGY
     limits: float = 1.0
     start: float = 0.1
     priority: float = 3.0
-    _segments: list[tuple[int, np.ndarray, float, float]] = field(default_factory=list, init=False, repr=False, compare=False)
+    _segments: list[tuple[int, np.ndarray, float, int, float]] = field(default_factory=list, init=False, repr=False, compare=False)
 
     @classmethod
     def parse(cls, raw: dict[str, Any], where: str, scope: Scope) -> PostureTask:
@@ -85,7 +89,7 @@ class PostureTask(SoftTask):
         weights = {k: number(v, f"{where}.weights.{k}", 0.0, 1e3) for k, v in given.items()}
         return cls(
             {**weights, **{k: v for k, v in WEIGHTS.items() if k not in weights}},
-            number(raw.get("energy", 1.0), f"{where}.energy", 0.0, 1e3),
+            number(raw.get("energy", ENERGY), f"{where}.energy", 0.0, 1e3),
             number(raw.get("limits", 1.0), f"{where}.limits", 0.0, 1e3),
             number(raw.get("start", 0.1), f"{where}.start", 0.0, 1e3),
             cls.priority_of(raw, where),
@@ -95,16 +99,23 @@ class PostureTask(SoftTask):
         return next((w for p, w in self.weights.items() if fnmatch.fnmatchcase(name, p)), 1.0)
 
     def bind(self, reference: Reference) -> None:
-        """Each massive link: joint, centre of mass in the joint frame, mass share, reference height."""
+        """Each massive link: joint, centre of mass in the joint frame, mass share, limb root joint, reference rise."""
         model, data = reference.body.model, reference.data
         total = sum(float(model.inertias[j].mass) for j in range(1, model.njoints))
+        children: dict[int, int] = {}
+        for j in range(1, model.njoints):
+            children[int(model.parents[j])] = children.get(int(model.parents[j]), 0) + 1
         self._segments = []
         for j in range(1, model.njoints):
             inertia = model.inertias[j]
             if inertia.mass > 0:
+                # The limb's root: the nearest ancestor joint (or itself) whose parent branches (the trunk).
+                root = j
+                while root > 1 and children.get(int(model.parents[root]), 0) < 2:
+                    root = int(model.parents[root])
                 lever = np.asarray(inertia.lever, float)
-                z0 = float(data.oMi[j].act(lever)[2])
-                self._segments.append((j, lever, float(inertia.mass) / total, z0))
+                rise0 = float(data.oMi[j].act(lever)[2] - data.oMi[root].translation[2])
+                self._segments.append((j, lever, float(inertia.mass) / total, root, rise0))
 
     def objective(self, sym: Symbolic) -> ca.SX:
         w = np.array([self.weight(n) for n in sym.names]) if sym.names else np.ones(sym.x.numel())
@@ -112,10 +123,10 @@ class PostureTask(SoftTask):
         f = ca.dot(ca.SX(w), norm**2)
         if self.energy > 0:
             rises = []
-            for j, lever, share, z0 in self._segments:
+            for j, lever, share, root, rise0 in self._segments:
                 rot, pos = sym.kin.placements[j]
-                z = (rot @ ca.SX(lever.reshape(3, 1)) + pos)[2]
-                rise = (z - z0) / ENERGY_SCALE
+                z = (rot @ ca.SX(lever.reshape(3, 1)) + pos)[2] - sym.kin.placements[root][1][2]
+                rise = (z - rise0) / ENERGY_SCALE
                 # A smooth max(rise, 0): only lifting costs.
                 rises.append(share * (0.5 * (rise + ca.sqrt(rise**2 + 1e-4))) ** 2)
             f += self.energy * ca.sum1(ca.vertcat(*rises))

@@ -48,7 +48,11 @@ class ReachTask(SoftTask):
         return sym.kin.frame(self.effector)[1] - sym.goal
 
     def held_bounds(self, optimum: float) -> tuple[np.ndarray, np.ndarray]:
-        b = np.sqrt(max(optimum, 0.0)) + self.slack
+        # Lower tasks may trade reach error up to half the tolerance (per axis
+        # tolerance / (2 sqrt 3), so the distance stays within tolerance / 2):
+        # a hair's-breadth hold makes the lower programs hard to solve, and
+        # millimetres of reach are worth a natural posture.
+        b = max(np.sqrt(max(optimum, 0.0)) + self.slack, self.tolerance / (2.0 * np.sqrt(3.0)))
         return np.full(3, -b), np.full(3, b)
 
     def attained(self, optimum: float) -> bool:

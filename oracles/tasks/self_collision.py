@@ -8,19 +8,25 @@ Every pair of the body's collision capsules (:mod:`oracles.collision`) keeps
   shoulder girdle);
 * pairs that no active joint moves relative to each other (their distance
   is a constant);
-* pairs the config excludes (``exclude``, capsule names or glob patterns).
+* pairs the config excludes (``exclude``, capsule names or glob patterns),
+  or that involve none of the capsules ``only`` names (when given: e.g. the
+  reaching hand and forearm, the segments that pass through the trunk in
+  whole-body reaches; each pair costs solver time).
 
 A pair already closer than the margin at the reference posture (the hanging
 forearm against the waist) keeps its reference clearance instead: it may not
 come closer than it stands, so the hand still cannot pass through the trunk.
 These pairs are listed by ``reach model``.
 
-In ``casadi-ik`` each pair is a set of smooth constraints: spheres of one
-capsule's radius along its axis (:meth:`~oracles.collision.Capsule.samples`),
-each kept from the other capsule's segment. In ``dls`` the pairs closer than
-the margin plus a buffer become inequality rows along the line of their
-nearest points. The verdict is coal's (``pinocchio.computeDistances`` on the
-capsules): no pair closer than its clearance less the sampling's sag.
+In ``casadi-ik`` each pair is one constraint row: the squared distance of
+the two capsules' segments (a piecewise-smooth closed form) at least the sum
+of their radii and the clearance, squared. The task is *lazy*: the engine
+first solves without it and adds it only when that posture collides (most
+postures do not), so the pairs cost time only where they matter. In ``dls``
+the pairs closer than the margin plus a buffer become inequality rows along
+the line of their nearest points. The verdict is coal's
+(``pinocchio.computeDistances`` on the capsules): no pair closer than its
+clearance (0 for most pairs), within 0.1 mm.
 """
 
 from __future__ import annotations
@@ -50,20 +56,20 @@ from reach.errors import TaskError
 
 MARGIN = 0.01  # [m] default clearance between segments
 CHECK_TOL = 1e-4  # [m] the verdict's tolerance on coal's distance
+# [m] how much deeper than at the reference posture the verdict lets a pair in
+# contact there go (soft tissue): the hanging hand against the thigh may
+# press a little, not pass through.
+CONTACT_GIVE = 0.01
 
 
 @dataclass(frozen=True)
 class Pair:
-    """Two capsules kept apart: ``sampled``'s spheres from ``other``'s segment, by ``clearance`` [m]."""
+    """Two capsules (indices in the collision model) kept ``clearance`` [m] apart."""
 
-    sampled: int
-    other: int
+    first: int
+    second: int
     clearance: float
     floor: float  # [m] the least coal distance the verdict accepts
-
-
-def _sag(radius: float, spacing: float) -> float:
-    return radius - float(np.sqrt(max(radius**2 - (0.5 * spacing) ** 2, 0.0)))
 
 
 def _adjacent(model: pin.Model, bearing: set[int], a: int, b: int) -> bool:
@@ -79,11 +85,26 @@ def _adjacent(model: pin.Model, bearing: set[int], a: int, b: int) -> bool:
     return False
 
 
-def segment_point_sq(p: ca.SX, a: ca.SX, b: ca.SX) -> ca.SX:
-    """Squared distance from point p to segment a-b (C1: the clamp's kinks vanish in the square)."""
-    d = b - a
-    t = ca.fmin(ca.fmax(ca.dot(p - a, d) / (ca.dot(d, d) + 1e-12), 0.0), 1.0)
-    return ca.sumsqr(p - (a + t * d))
+def _clamp(v: ca.SX) -> ca.SX:
+    return ca.fmin(ca.fmax(v, 0.0), 1.0)
+
+
+def segment_segment_sq(p: ca.SX, q: ca.SX, a: ca.SX, b: ca.SX) -> ca.SX:
+    """Squared distance between segments p-q and a-b, as one CasADi expression.
+
+    The clamped closed form of :func:`oracles.collision.nearest_points`
+    (Ericson, *Real-Time Collision Detection*, 2005, 5.1.9): piecewise
+    smooth, continuous, and one constraint row per pair of capsules.
+    """
+    d1, d2, r = q - p, b - a, p - a
+    aa, ee, f = ca.dot(d1, d1) + 1e-12, ca.dot(d2, d2) + 1e-12, ca.dot(d2, r)
+    c, bb = ca.dot(d1, r), ca.dot(d1, d2)
+    den = aa * ee - bb * bb
+    s = _clamp((bb * f - c * ee) / (den + 1e-12))
+    t = (bb * s + f) / ee
+    s = ca.if_else(t < 0, _clamp(-c / aa), ca.if_else(t > 1, _clamp((bb - c) / aa), s))
+    t = _clamp(t)
+    return ca.sumsqr((p + s * d1) - (a + t * d2))
 
 
 @dataclass
@@ -91,7 +112,8 @@ class SelfCollisionTask(HardTask):
     """Keep every non-adjacent pair of segments apart (see the module docstring)."""
 
     type: ClassVar[str] = "self_collision"
-    keys: ClassVar[frozenset[str]] = frozenset({"margin", "exclude"})
+    lazy: ClassVar[bool] = True
+    keys: ClassVar[frozenset[str]] = frozenset({"margin", "exclude", "only"})
     summary: ClassVar[str] = "no two non-adjacent segments' capsules closer than `margin` [m] (default 1 cm); `exclude` more pairs"
 
     margin: float = MARGIN
@@ -114,6 +136,13 @@ class SelfCollisionTask(HardTask):
                 excluded.update(frozenset((x, y)) for x in model.names([a]) for y in model.names([b]))
         except Exception as exc:
             raise TaskError(f"{where}.exclude", str(exc)) from exc
+        only_raw = raw.get("only")
+        if only_raw is not None and (not isinstance(only_raw, list) or not all(isinstance(n, str) for n in only_raw)):
+            raise TaskError(f"{where}.only", f"expected a list of capsule names or patterns, got {only_raw!r}")
+        try:
+            only = set(model.names(only_raw)) if only_raw is not None else None
+        except Exception as exc:
+            raise TaskError(f"{where}.only", str(exc)) from exc
         pm = scope.body.model
         bearing = {p.joint for p in model.placed}
         candidates = []
@@ -122,19 +151,17 @@ class SelfCollisionTask(HardTask):
                 pj = model.placed[j]
                 if frozenset((pi.name, pj.name)) in excluded or _adjacent(pm, bearing, pi.joint, pj.joint):
                     continue
+                if only is not None and pi.name not in only and pj.name not in only:
+                    continue
                 if relative_motion(pm, pi.joint, pj.joint, scope.active):
                     candidates.append((i, j))
         ref = model.distances(scope.body.q_ref, candidates)
         pairs, close = [], []
         for (i, j), d in zip(candidates, ref, strict=True):
-            # Sample the capsule that needs fewer spheres.
-            si, sj = model.placed[i].capsule.samples(), model.placed[j].capsule.samples()
-            s, o = (i, j) if len(si) <= len(sj) else (j, i)
-            sag = _sag(model.placed[s].radius, model.placed[s].capsule.length / max(len(model.placed[s].capsule.samples()) - 1, 1))
-            clearance = margin if d >= margin + sag else min(margin, float(d) - sag)
-            if d < margin + sag:
+            clearance = margin if d >= margin else float(d)
+            if d < margin:
                 close.append((model.placed[i].name, model.placed[j].name, round(float(d), 4)))
-            pairs.append(Pair(s, o, clearance, min(0.0, clearance - sag) - CHECK_TOL))
+            pairs.append(Pair(i, j, clearance, clearance - CHECK_TOL if d >= margin else min(0.0, clearance) - CONTACT_GIVE))
         return cls(margin, tuple(pairs), tuple(close))
 
     def bind(self, reference: Reference) -> None:
@@ -142,30 +169,27 @@ class SelfCollisionTask(HardTask):
 
     def constraints(self, sym: Symbolic) -> list[Constraint]:
         assert self._model is not None
-        out = []
+        rows, lo = [], []
         for pair in self.pairs:
-            s, o = self._model.placed[pair.sampled], self._model.placed[pair.other]
+            s, o = self._model.placed[pair.first], self._model.placed[pair.second]
             a, b = world_point(sym, o.joint, o.a), world_point(sym, o.joint, o.b)
             reach = s.radius + o.radius + pair.clearance
-            # The sphere centres, in the sampled capsule's joint frame.
-            m = np.linspace(0.0, 1.0, len(s.capsule.samples()))[:, None]
-            centres = s.a + m * (s.b - s.a)
-            rows = [segment_point_sq(world_point(sym, s.joint, c), a, b) for c in centres]
-            out.append(Constraint(ca.vertcat(*rows), reach * abs(reach), np.inf))
-        return out
+            rows.append(segment_segment_sq(world_point(sym, s.joint, s.a), world_point(sym, s.joint, s.b), a, b))
+            lo.append(reach * abs(reach))
+        return [Constraint(row, bound, np.inf) for row, bound in zip(rows, lo, strict=True)]
 
     def distances(self, q: np.ndarray) -> np.ndarray:
         """Coal's distance [m] of every pair at q."""
         assert self._model is not None
-        return self._model.distances(q, [(p.sampled, p.other) for p in self.pairs])
+        return self._model.distances(q, [(p.first, p.second) for p in self.pairs])
 
     def rows(self, num: Numeric) -> list[Row]:
         assert self._model is not None
         out = []
         for pair in self.pairs:
-            s, o = self._model.placed[pair.sampled], self._model.placed[pair.other]
-            pa, pb = self._model.world(num.data, pair.sampled)
-            qa, qb = self._model.world(num.data, pair.other)
+            s, o = self._model.placed[pair.first], self._model.placed[pair.second]
+            pa, pb = self._model.world(num.data, pair.first)
+            qa, qb = self._model.world(num.data, pair.second)
             ps, po, gap = nearest_points(pa, pb, qa, qb)
             gap -= s.radius + o.radius
             if gap >= pair.clearance + BUFFER:

@@ -1,0 +1,172 @@
+"""How human are the answers? The figures of the issue "Human answers", measured on an atlas.
+
+Usage: python bench/posture.py ATLAS [--goals 200] [--pairs 100]
+
+Prints JSON lines:
+
+* ``inside_body``: per strategy, the share of its inner volume inside the
+  capsules of the body that the strategy does not move, at the reference
+  posture (points drawn uniformly in the inner cells);
+* ``stored_collisions``: per strategy, the share of stored reachable
+  postures (up to 500) that coal finds in collision (any pair of the
+  self-collision task closer than it accepts);
+* ``elbow``: of the right_arm answers for goals in front (x >= 0.25 m) and
+  below the right shoulder, the share with the elbow above the shoulder;
+* ``near_limits``: the share of right-hand answers with an arm joint within
+  5 deg of a limit;
+* ``neighbours``: over pairs of goals 1 cm apart answered by the same
+  strategy, the 99th percentile and maximum of the largest joint change
+  [deg], asked independently and asked with the first answer as ``from``;
+* ``lowest``: the lowest reachable grip-centre height [m] of the whole body
+  and of crouch in front of the feet (0.1 <= x <= 0.5 m, |y| <= 0.3 m).
+
+Goals are drawn with a fixed seed, so figures are repeatable.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+from pathlib import Path
+
+import numpy as np
+
+from oracles.body import load_body
+from oracles.problem import ReachProblem
+from oracles.protocol import OracleSpec
+from oracles.strategy import parse_strategy
+from oracles.tasks.base import moved
+from reach.select import Selector
+from reach.store import load_atlas
+from reach.tree import INNER
+
+ARM_JOINTS = ("shoulder", "elbow", "forearm", "wrist")
+
+
+def emit(**fields: object) -> None:
+    print(json.dumps(fields), flush=True)
+
+
+def inside_capsules(body, q, capsules: list[int], points: np.ndarray) -> np.ndarray:  # noqa: ANN001
+    import pinocchio as pin
+
+    model = body.collision
+    data = body.model.createData()
+    pin.forwardKinematics(body.model, data, q)
+    inside = np.zeros(len(points), bool)
+    for i in capsules:
+        a, b = model.world(data, i)
+        d = b - a
+        t = np.clip(((points - a) @ d) / max(d @ d, 1e-12), 0.0, 1.0)
+        inside |= np.linalg.norm(points - (a + t[:, None] * d), axis=1) <= model.placed[i].radius
+    return inside
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("atlas")
+    parser.add_argument("--goals", type=int, default=200)
+    parser.add_argument("--pairs", type=int, default=100)
+    parser.add_argument("--budget", type=float, default=0.5, help="refinement budget [s] (generous: figures, not latency)")
+    args = parser.parse_args()
+    atlas = load_atlas(args.atlas)
+    emit(bench="machine", python=platform.python_version(), processor=platform.processor() or platform.machine(), atlas=str(Path(args.atlas)))
+    rng = np.random.default_rng(0)
+    specs = {name: OracleSpec.from_dict(tree.meta["oracle"]) for name, tree in atlas.trees.items()}
+    body = load_body(next(iter(specs.values())).params["body"])
+    for name, tree in atlas.trees.items():
+        p = specs[name].params
+        strategy = parse_strategy(body, p["effector"], p["joints"], [{"type": "reach"}, {"type": "self_collision"}])
+        ReachProblem(body, strategy)
+        active = frozenset(strategy.joints)
+        static = [i for i, c in enumerate(body.collision.placed) if not moved(body.model, c.joint, active)]
+        sel = np.nonzero(tree.kind == INNER)[0]
+        vol = tree.cell_size(tree.depth[sel]).prod(axis=1)
+        pick = sel[rng.choice(sel.size, size=20000, p=vol / vol.sum())]
+        pts = tree.lattice.points(tree.corner[pick]) + rng.random((20000, 3)) * tree.cell_size(tree.depth[pick])
+        share = float(inside_capsules(body, body.q_ref, static, pts).mean()) if static else None
+        task = strategy.task("self_collision")
+        ok = np.nonzero(tree.vertices.reachable)[0]
+        rows = rng.choice(ok, size=min(500, ok.size), replace=False)
+        floors = np.array([pr.floor for pr in task.pairs])
+        colliding = [bool(np.any(task.distances(q) < floors)) for q in tree.vertices.posture[rows]] if task.pairs else [False]
+        emit(bench="inside_body", strategy=name, static_capsules=len(static), share=share)
+        emit(bench="stored_collisions", strategy=name, postures=int(rows.size), share=float(np.mean(colliding)))
+
+    selector = Selector(atlas, budget=args.budget).warm_up()
+    tree_names = list(atlas.trees["right_arm"].vertices.posture_names)
+    shoulder_z = body.frame_positions(names=["right_shoulder"])["right_shoulder"][2]
+    goals = rng.uniform([0.1, -0.6, 0.6], [0.7, 0.1, 1.8], (args.goals, 3))
+    answers = selector.select_many("right_hand", goals)
+    elbow_high, front_low, near = 0, 0, 0
+    arm_idx = [k for k, n in enumerate(tree_names) if n.startswith("right_") and any(j in n for j in ARM_JOINTS)]
+    lo, hi = body.model.lowerPositionLimit, body.model.upperPositionLimit
+    answered = 0
+    for g, a in zip(goals, answers, strict=True):
+        if not a.reachable or a.posture is None:
+            continue
+        answered += 1
+        q = posture_vector(body, a)
+        if any(q[k] - lo[k] < np.radians(5) or hi[k] - q[k] < np.radians(5) for k in arm_idx):
+            near += 1
+        if a.strategy == "right_arm" and g[0] >= 0.25 and g[2] < shoulder_z:
+            front_low += 1
+            frames = body.frame_positions(q, ["right_shoulder"])
+            elbow = elbow_position(body, q)
+            elbow_high += int(elbow[2] > frames["right_shoulder"][2])
+    emit(bench="elbow", goals_in_front_below_shoulder=front_low, elbow_above_shoulder=elbow_high, share=elbow_high / max(front_low, 1))
+    emit(bench="near_limits", answers=answered, within_5deg=near, share=near / max(answered, 1))
+
+    base = rng.uniform([0.1, -0.6, 0.7], [0.6, 0.0, 1.7], (args.pairs, 3))
+    step = rng.normal(size=base.shape)
+    step *= 0.01 / np.linalg.norm(step, axis=1, keepdims=True)
+    for mode in ("independent", "from"):
+        changes = []
+        for g, s in zip(base, step, strict=True):
+            a = selector.select("right_hand", g)
+            b = selector.select("right_hand", g + s, start=_joints(a) if mode == "from" else None)
+            if a.reachable and b.reachable and a.strategy == b.strategy and a.posture and b.posture:
+                changes.append(max(abs(a.posture[k] - b.posture[k]) for k in a.posture))
+        c = np.degrees(changes) if changes else np.zeros(1)
+        emit(bench="neighbours", mode=mode, pairs=len(changes), p99_deg=round(float(np.percentile(c, 99)), 2), max_deg=round(float(c.max()), 2),
+             over_10deg=int(np.sum(c > 10)), median_deg=round(float(np.median(c)), 3))
+
+    for name in ("right_whole_body", "right_crouch"):
+        if name not in atlas.trees:
+            continue
+        tree = atlas.trees[name]
+        v = tree.vertices
+        pts = tree.lattice.points(tree.lattice.coords(v.keys))
+        front = v.reachable & (pts[:, 0] >= 0.1) & (pts[:, 0] <= 0.5) & (np.abs(pts[:, 1]) <= 0.3)
+        emit(bench="lowest", strategy=name, lowest_reachable_z=float(pts[front, 2].min()) if front.any() else None,
+             resolution=tree.lattice.resolution.tolist())
+
+
+def _joints(answer) -> dict[str, float]:  # noqa: ANN001
+    out = dict(answer.posture)
+    if answer.root:
+        out.update(zip(("root_x", "root_y", "root_z"), answer.root["position"], strict=True))
+        out.update(zip(("root_qx", "root_qy", "root_qz", "root_qw"), answer.root["quaternion"], strict=True))
+    return out
+
+
+def posture_vector(body, answer) -> np.ndarray:  # noqa: ANN001
+    q = body.q_ref.copy()
+    if answer.root:
+        q[:3], q[3:7] = answer.root["position"], answer.root["quaternion"]
+    for name, value in answer.posture.items():
+        q[body.model.joints[body.joint_id(name)].idx_q] = value
+    return q
+
+
+def elbow_position(body, q: np.ndarray) -> np.ndarray:  # noqa: ANN001
+    import pinocchio as pin
+
+    data = body.model.createData()
+    pin.forwardKinematics(body.model, data, q)
+    return np.asarray(data.oMi[body.joint_id("right_elbow_flexion")].translation)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,94 @@
+"""Draw answer postures as capsules, front and side views: docs/figures/postures.png.
+
+Usage: python docs/postures.py ATLAS [-o docs/figures/postures.png]
+
+Asks the atlas's selector (refinement on, a generous budget) for a dozen
+goals of the right hand around the body, and draws each answer's posture
+with the body's collision capsules: front view (y, z) above, side view
+(x, z) below, the goal as a red cross, the strategy's name in the title.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pinocchio as pin  # noqa: E402
+
+from oracles.body import load_body  # noqa: E402
+from oracles.protocol import OracleSpec  # noqa: E402
+from reach.select import Selector  # noqa: E402
+from reach.store import load_atlas  # noqa: E402
+
+GOALS = [
+    (0.45, -0.25, 1.25), (0.35, -0.30, 0.95), (0.40, -0.20, 0.75), (0.30, -0.45, 1.45),
+    (0.20, -0.60, 1.10), (0.55, -0.10, 1.50), (0.10, -0.30, 1.90), (0.60, -0.20, 1.00),
+    (0.40, 0.10, 1.10), (0.45, -0.20, 0.40), (0.35, -0.15, 0.10), (0.70, -0.30, 0.60),
+]
+
+
+def posture(body, answer) -> np.ndarray:  # noqa: ANN001
+    q = body.q_ref.copy()
+    if answer.root:
+        q[:3], q[3:7] = answer.root["position"], answer.root["quaternion"]
+    for name, value in answer.posture.items():
+        q[body.model.joints[body.joint_id(name)].idx_q] = value
+    return q
+
+
+def draw(ax, body, q: np.ndarray, axes: tuple[int, int]) -> None:  # noqa: ANN001
+    data = body.model.createData()
+    pin.forwardKinematics(body.model, data, q)
+    model = body.collision
+    # Points per metre of the plot, for capsule widths drawn to scale.
+    scale = 72 * ax.figure.get_size_inches()[1] / 4 / 2.2
+    order = sorted(range(len(model.placed)), key=lambda i: model.world(data, i)[0][0 if axes == (1, 2) else 1])
+    for i in order:
+        a, b = model.world(data, i)
+        name = model.placed[i].name
+        colour = "#c44e52" if name.startswith("right_") else "#4c72b0" if name.startswith("left_") else "#8c8c8c"
+        ax.plot([a[axes[0]], b[axes[0]]], [a[axes[1]], b[axes[1]]], color=colour, lw=2 * model.placed[i].radius * scale,
+                solid_capstyle="round", alpha=0.85)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("atlas")
+    parser.add_argument("-o", "--output", default="docs/figures/postures.png")
+    args = parser.parse_args()
+    atlas = load_atlas(args.atlas)
+    body = load_body(OracleSpec.from_dict(next(iter(atlas.trees.values())).meta["oracle"]).params["body"])
+    selector = Selector(atlas, budget=0.5).warm_up()
+    fig, axs = plt.subplots(2, len(GOALS), figsize=(2.0 * len(GOALS), 8.5))
+    for k, goal in enumerate(GOALS):
+        a = selector.select("right_hand", np.array(goal))
+        for row, axes in enumerate(((1, 2), (0, 2))):
+            ax = axs[row, k]
+            ax.axhline(0.0, color="#444", lw=0.8)
+            if a.reachable and a.posture:
+                draw(ax, body, posture(body, a), axes)
+            ax.plot(goal[axes[0]], goal[axes[1]], "x", color="red", ms=9, mew=2.5)
+            ax.set_xlim(-0.7, 0.7) if axes[0] == 1 else ax.set_xlim(-0.5, 0.9)
+            ax.set_ylim(-0.05, 2.15)
+            ax.set_aspect("equal")
+            ax.set_xticks([])
+            ax.set_yticks([] if k else [0, 0.5, 1.0, 1.5, 2.0])
+            if axes[0] == 1:
+                ax.invert_xaxis()  # the front view: the body's right on the left of the picture, as facing it
+        title = f"{a.strategy or 'unreachable'}\n{a.refined}" if a.reachable else "unreachable"
+        axs[0, k].set_title(f"({goal[0]:.2f}, {goal[1]:.2f}, {goal[2]:.2f})\n{title}", fontsize=8)
+    axs[0, 0].set_ylabel("front view (y, z) [m]")
+    axs[1, 0].set_ylabel("side view (x, z) [m]")
+    fig.tight_layout()
+    Path(args.output).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(args.output, dpi=80)
+    print(f"wrote {args.output}")
+
+
+if __name__ == "__main__":
+    main()

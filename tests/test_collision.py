@@ -1,0 +1,188 @@
+"""Collision geometry (oracles.collision) and the tasks built on it: our distances against coal's, the human's
+URDF collision elements read back by an independent parser, URDF primitives and meshes, the pairs checked."""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+
+import casadi as ca
+import coal
+import numpy as np
+import pytest
+
+from oracles.body import human_body, urdf_body
+from oracles.collision import Capsule, nearest_points
+from oracles.problem import ReachProblem
+from oracles.strategy import parse_strategy
+from oracles.tasks.self_collision import segment_segment_sq
+from reach.errors import ModelError
+
+from helpers import ARM
+
+
+def coal_capsule_distance(a0, a1, ra, b0, b1, rb) -> float:
+    """Coal's distance between two capsules given by their end points."""
+    def placed(p, q, r):
+        d = q - p
+        n = np.linalg.norm(d)
+        z = d / n
+        x = np.cross([0.0, 1.0, 0.0] if abs(z[1]) < 0.9 else [1.0, 0.0, 0.0], z)
+        x /= np.linalg.norm(x)
+        return coal.Capsule(r, n), coal.Transform3s(np.column_stack([x, np.cross(z, x), z]), 0.5 * (p + q))
+
+    (ga, ta), (gb, tb) = placed(a0, a1, ra), placed(b0, b1, rb)
+    return float(coal.distance(ga, ta, gb, tb, coal.DistanceRequest(), coal.DistanceResult()))
+
+
+def test_our_segment_distances_agree_with_coal():
+    rng = np.random.default_rng(0)
+    seg = ca.SX.sym("s", 12)
+    f = ca.Function("d2", [seg], [segment_segment_sq(seg[0:3], seg[3:6], seg[6:9], seg[9:12])])
+    for _ in range(300):
+        p = rng.uniform(-0.5, 0.5, (4, 3))
+        if rng.random() < 0.2:  # parallel segments, the degenerate case
+            p[3] = p[2] + (p[1] - p[0]) * rng.uniform(0.2, 2.0)
+        ra, rb = rng.uniform(0.01, 0.1, 2)
+        ours = nearest_points(p[0], p[1], p[2], p[3])[2]
+        symbolic = float(np.sqrt(float(f(p.ravel()))))
+        truth = coal_capsule_distance(p[0], p[1], ra, p[2], p[3], rb)
+        assert ours - ra - rb == pytest.approx(truth, abs=1e-6)
+        assert symbolic - ra - rb == pytest.approx(truth, abs=1e-6)
+
+
+def test_the_humans_urdf_collision_elements_are_its_capsules():
+    body = human_body()
+    root = ET.fromstring(body.urdf)  # an independent reading of the file we write
+    found = {}
+    for link in root.iter("link"):
+        for col in link.findall("collision"):
+            cyl = col.find("geometry/cylinder")
+            found[col.get("name")] = (link.get("name"), float(cyl.get("radius")), float(cyl.get("length")))
+    assert len(found) == len(body.capsules) == 17
+    for c in body.capsules:
+        link, radius, length = found[f"capsule_{c.name}"]
+        assert link == c.link and radius == pytest.approx(c.radius, abs=1e-9) and length == pytest.approx(c.length, abs=1e-9)
+    # Sizes from the tables: the forearm thinner than the upper arm, the thorax the widest.
+    r = {c.name: c.radius for c in body.capsules}
+    assert r["right_hand"] < r["right_forearm"] < r["right_upper_arm"] < r["right_thigh"] < r["thorax"]
+
+
+def test_coal_agrees_with_our_distances_on_the_human():
+    body = human_body()
+    model = body.collision
+    rng = np.random.default_rng(1)
+    pairs = [(i, j) for i in range(len(model.placed)) for j in range(i + 1, len(model.placed))]
+    for _ in range(3):
+        q = body.q_ref.copy()
+        q[7:] = rng.uniform(body.model.lowerPositionLimit[7:], body.model.upperPositionLimit[7:])
+        coal_d = model.distances(q, pairs)
+        data = body.model.createData()
+        import pinocchio as pin
+
+        pin.forwardKinematics(body.model, data, q)
+        for (i, j), d in zip(pairs, coal_d, strict=True):
+            (a, b), (c, e) = model.world(data, i), model.world(data, j)
+            ours = nearest_points(a, b, c, e)[2] - model.placed[i].radius - model.placed[j].radius
+            assert ours == pytest.approx(d, abs=1e-6)
+
+
+def test_pairs_skip_adjacent_and_rigidly_joined_segments():
+    body = human_body()
+    s = parse_strategy(body, "right_hand", ARM, [{"type": "reach"}, {"type": "self_collision"}])
+    task = s.task("self_collision")
+    names = {frozenset((body.collision.placed[p.first].name, body.collision.placed[p.second].name)) for p in task.pairs}
+    assert frozenset(("right_hand", "thorax")) in names and frozenset(("right_hand", "head")) in names
+    assert frozenset(("right_upper_arm", "thorax")) not in names  # adjacent across the shoulder girdle
+    assert frozenset(("right_forearm", "right_upper_arm")) not in names  # adjacent at the elbow
+    assert frozenset(("left_thigh", "thorax")) not in names  # nothing the arm moves
+    close = {frozenset(c[:2]) for c in task.at_reference}
+    assert frozenset(("right_hand", "right_thigh")) in close  # the hanging hand touches the thigh: keeps its clearance
+    pair = next(p for p in task.pairs if {body.collision.placed[p.first].name, body.collision.placed[p.second].name} == {"right_hand", "right_thigh"})
+    assert pair.clearance < 0
+
+
+def test_urdf_primitives_and_meshes_become_capsules(tmp_path):
+    import trimesh
+
+    mesh_dir = tmp_path / "pkg" / "meshes"
+    mesh_dir.mkdir(parents=True)
+    trimesh.creation.cylinder(radius=0.05, height=0.4).export(mesh_dir / "rod.stl")
+    urdf = tmp_path / "robot.urdf"
+    urdf.write_text("""<?xml version="1.0"?><robot name="r">
+      <link name="base"><collision><geometry><box size="0.2 0.1 0.6"/></geometry></collision></link>
+      <link name="arm"><collision><origin xyz="0 0 0.2"/><geometry><cylinder radius="0.04" length="0.3"/></geometry></collision>
+        <collision><geometry><sphere radius="0.07"/></geometry></collision>
+        <collision><geometry><mesh filename="package://pkg/meshes/rod.stl"/></geometry></collision></link>
+      <joint name="j" type="revolute"><parent link="base"/><child link="arm"/><origin xyz="0 0 0.3"/><axis xyz="0 1 0"/>
+        <limit lower="-1" upper="1" effort="1" velocity="1"/></joint></robot>""")
+    body = urdf_body(urdf, package_dirs=[str(tmp_path)])
+    caps = {c.name: c for c in body.capsules}
+    box = caps["base_0"]
+    assert box.radius == pytest.approx(0.5 * np.hypot(0.2, 0.1)) and box.length == pytest.approx(0.6)
+    assert caps["arm_0"].radius == 0.04 and np.allclose(caps["arm_0"].a, [0, 0, 0.05]) and np.allclose(caps["arm_0"].b, [0, 0, 0.35])
+    assert caps["arm_1"].length == 0.0 and caps["arm_1"].radius == 0.07
+    rod = caps["arm_2"]
+    # The rim of a cylinder needs the whole axis: the caps then enclose its flat ends.
+    assert rod.radius == pytest.approx(0.05, rel=0.02) and rod.length == pytest.approx(0.4, abs=0.01)
+    with pytest.raises(ModelError, match=r"mesh 'package://pkg/meshes/rod.stl' not found in package_dirs"):
+        urdf_body(urdf)
+
+
+def test_a_capsule_on_an_unknown_link_is_named():
+    from oracles.collision import CollisionModel
+
+    body = human_body()
+    with pytest.raises(ModelError, match="capsule 'tail' is on link 'tail_link'"):
+        CollisionModel(body.model, [Capsule("tail", "tail_link", (0, 0, 0), (0, 0, 1), 0.1)])
+
+
+def test_self_collision_rows_agree_with_coal_at_random_postures():
+    body = human_body()
+    s = parse_strategy(body, "right_hand", ARM, [{"type": "reach"}, {"type": "self_collision"}])
+    problem = ReachProblem(body, s)
+    task = s.task("self_collision")
+    from oracles.kinematics import SymbolicKinematics
+    from oracles.tasks import Symbolic
+
+    goal = ca.SX.sym("goal", 3)
+    sym = Symbolic(SymbolicKinematics(body.model, problem.q_sym), problem.x_sym, goal, problem.x_ref, problem.upper - problem.lower)
+    rows = task.constraints(sym)
+    g = ca.Function("g", [problem.x_sym], [ca.vertcat(*[r.expr for r in rows])])
+    rng = np.random.default_rng(2)
+    m = body.collision
+    for _ in range(5):
+        x = rng.uniform(problem.lower, problem.upper)
+        q = problem.q_of_x(x)
+        d2 = np.asarray(g(x)).ravel()
+        coal_d = task.distances(q)
+        for pair, sq, d in zip(task.pairs, d2, coal_d, strict=True):
+            assert np.sqrt(sq) - m.placed[pair.first].radius - m.placed[pair.second].radius == pytest.approx(d, abs=1e-6)
+
+
+def test_a_robot_on_a_table_no_longer_reaches_through_it():
+    from pathlib import Path
+
+    from oracles.ik import CasadiIK
+
+    ur5 = {"urdf": str(Path(__file__).resolve().parents[1] / "configs" / "urdf" / "ur5.urdf")}
+    table = {"type": "obstacles", "boxes": [{"min": [-1.0, -1.0, -0.8], "max": [1.0, 1.0, -0.001]}]}
+    free = CasadiIK(ur5, "ee_link", ["*_joint"], [{"type": "reach"}], restarts=2)
+    guarded = CasadiIK(ur5, "ee_link", ["*_joint"], [{"type": "reach"}, table], restarts=2)
+    below, above = np.array([[0.4, 0.2, -0.3]]), np.array([[0.4, 0.2, 0.3]])
+    assert free.evaluate(below).reachable[0]  # through the table top
+    assert not guarded.evaluate(below).reachable[0]
+    v = guarded.evaluate(above)
+    assert v.reachable[0]
+    task = guarded.strategy.task("obstacles")
+    for g in task.guards:  # coal: every link clears the table top (or keeps its mounting clearance)
+        assert task.distance(guarded.body.collision, v.posture[0], g.capsule, g.box) >= g.floor
+
+
+def test_obstacle_errors_name_the_key():
+    from reach.errors import TaskError
+
+    body = human_body()
+    with pytest.raises(TaskError, match=r"tasks\[1\]\.boxes\[0\]: min must be below max"):
+        parse_strategy(body, "right_hand", ARM, [{"type": "reach"}, {"type": "obstacles", "boxes": [{"min": [0, 0, 1], "max": [1, 1, 0]}]}])
+    with pytest.raises(TaskError, match=r"tasks\[1\]\.boxes: expected a non-empty list"):
+        parse_strategy(body, "right_hand", ARM, [{"type": "reach"}, {"type": "obstacles"}])
