@@ -121,6 +121,8 @@ class Body:
             "joints": [{"name": n, "lower": lo, "upper": hi} for n, lo, hi in self.limits()],
             "frames": {name: pos.round(6).tolist() for name, pos in self.frame_positions().items()},
             "center_of_mass": self.center_of_mass().round(6).tolist(),
+            "capsules": [{"name": c.name, "link": c.link, "radius": round(c.radius, 6), "length": round(c.length, 6),
+                          "a": [round(float(v), 6) for v in c.a], "b": [round(float(v), 6) for v in c.b]} for c in self.capsules],
             "units": {"length": "m", "angle": "rad", "mass": "kg"},
         }
         if self.anthropometry is not None:

@@ -199,7 +199,7 @@ def urdf_capsules(urdf: str, source: str, urdf_dir: Path | None = None, package_
     try:
         root = ET.fromstring(urdf)
     except ET.ParseError as exc:
-        raise ModelError(f"{source}: not valid XML ({exc})") from exc
+        raise ModelError(f"{source}: not a valid URDF (not well-formed XML: {exc})") from exc
     out: list[Capsule] = []
     for link in root.iter("link"):
         lname = link.get("name", "")

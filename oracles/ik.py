@@ -42,6 +42,7 @@ from reach.errors import OracleError
 
 NEAR_HINT = 0.1  # [m] a hint whose effector is this close to the goal makes its warm solve decisive (see give_up)
 SOLVERS = ("fatrop", "ipopt")
+REFINE_SECONDARY_ITER = 40  # iteration cap of the lower stages when refining an answer
 COMPILER = "gcc"  # the C compiler of jit: CasADi's shell compiler calls it
 
 
@@ -75,6 +76,12 @@ class IKOracle(ABC):
             give_up 0 builds it in 187 s with 2.0 % false unreachable,
             give_up 0.01 in 259 s with 1.8 %, rescues 1 in 436 s with 1.1 %.
         rescues: Random restarts still tried after giving up (see give_up).
+        prefer: Try every start even after one reaches, and keep the
+            reaching posture the lower tasks like best (:meth:`preference`):
+            a warm start can sit in a poor basin of the posture task (an
+            elbow raised where it could hang), which the reference start
+            escapes. The selector's refinement asks for it; builds do not
+            (it doubles their solves).
     """
 
     dim = 3
@@ -83,12 +90,13 @@ class IKOracle(ABC):
     def __init__(
         self, body: dict[str, Any], effector: str, joints: list[str], tasks: list[dict[str, Any]] | None = None,
         restarts: int = 3, seed: int = 0, secondary: bool = True, max_seconds: float | None = None,
-        give_up: float | None = 0.0, rescues: int = 0,
+        give_up: float | None = 0.0, rescues: int = 0, prefer: bool = False,
     ) -> None:
         self.params: dict[str, Any] = {
             "body": body, "effector": effector, "joints": joints, "tasks": tasks, "restarts": restarts, "seed": seed,
-            "secondary": secondary, "max_seconds": max_seconds, "give_up": give_up, "rescues": rescues,
+            "secondary": secondary, "max_seconds": max_seconds, "give_up": give_up, "rescues": rescues, "prefer": prefer,
         }
+        self.prefer = bool(prefer)
         self.body = load_body(body)
         self.secondary = bool(secondary)
         self.max_seconds = None if max_seconds is None else float(max_seconds)
@@ -134,13 +142,17 @@ class IKOracle(ABC):
             return None
         return p.anchor.copy(), float(p.max_reach)
 
+    def describe(self) -> dict[str, Any]:
+        """The strategy as parsed: effector, active joints and tasks (``reach model CONFIG``)."""
+        return {"effector": self.strategy.effector, "joints": list(self.strategy.joints), "tasks": [t.describe() for t in self.strategy.tasks]}
+
     def variant(self, purpose: Purpose, *, budget: float | None = None, restarts: int = 6) -> IKOracle:
         """This oracle set up for a purpose (see :class:`oracles.protocol.Tunable`)."""
         check_purpose(purpose)
         if purpose == "refine":
             # The hint and the reference posture, both tried (no give-up): the
             # tree already says reachable, and the budget bounds the time.
-            over: dict[str, Any] = {"restarts": 0, "give_up": None, "secondary": True, "max_seconds": budget}
+            over: dict[str, Any] = {"restarts": 0, "give_up": None, "secondary": True, "max_seconds": budget, "prefer": True}
         else:
             over = {"restarts": max(int(self.params["restarts"]), int(restarts)), "give_up": None}
         return type(self)(**{**self.params, **over, **self.variant_params(purpose)})
@@ -174,6 +186,10 @@ class IKOracle(ABC):
     def solve(self, goal: np.ndarray, x0: np.ndarray) -> np.ndarray:
         """A configuration q that tries to put the effector at goal, starting from x0."""
 
+    def preference(self, q: np.ndarray, goal: np.ndarray) -> float:
+        """How much the lower tasks dislike a posture (lower is better; 0 when the engine cannot tell)."""
+        return 0.0
+
     def solve_batch(self, goals: np.ndarray, x0: np.ndarray) -> np.ndarray:
         """Configurations (N, nq) for goals (N, 3) from starts (N, nx); engines may batch."""
         return np.array([self.solve(g, x) for g, x in zip(goals, x0, strict=True)])
@@ -203,6 +219,7 @@ class IKOracle(ABC):
         posture = np.tile(self.body.q_ref, (n, 1))
         residual[~prefiltered] = np.inf
         starts = [self.starts(g, None if hints is None else hints[i]) if not prefiltered[i] else [] for i, g in enumerate(pts)]
+        preferred = np.full(n, np.inf)  # with prefer: the lower tasks' objective of the kept posture
         decisive = np.zeros(n, bool)  # the first start is a warm start from a nearby hint
         if hints is not None and np.isfinite(self.give_up):
             for i in np.nonzero(~prefiltered & np.all(np.isfinite(hints), axis=1))[0]:
@@ -215,6 +232,14 @@ class IKOracle(ABC):
             q = self.solve_batch(pts[todo], np.array([starts[i][r] for i in todo]))
             for k, i in enumerate(todo):
                 check = self.problem.check(q[k], pts[i], self._data)
+                if self.prefer and check.reachable:
+                    liked = self.preference(q[k], pts[i])
+                    if not reach[i] or liked < preferred[i]:
+                        residual[i], posture[i], preferred[i], hard[i] = check.residual, q[k], liked, True
+                    reach[i] = True
+                    continue  # every start is tried; the best liked reaching posture is kept
+                if self.prefer and reach[i]:
+                    continue  # a start that fails never replaces one that reached
                 if (check.hard_ok, -check.residual) > (bool(hard[i]), -residual[i]):
                     hard[i], residual[i], posture[i] = check.hard_ok, check.residual, q[k]
                 reach[i] = check.reachable
@@ -303,8 +328,9 @@ class CasadiIK(IKOracle):
 
     def variant_params(self, purpose: Purpose) -> dict[str, Any]:
         # A refinement never compiles (seconds, more than a server's few
-        # solves gain); the referee solves with IPOPT, the reference solver.
-        return {"jit": False} if purpose == "refine" else {"solver": "ipopt"}
+        # solves gain) and lets the lower stages converge (its budget bounds
+        # the time); the referee solves with IPOPT, the reference solver.
+        return {"jit": False, "secondary_iter": REFINE_SECONDARY_ITER} if purpose == "refine" else {"solver": "ipopt"}
 
     def _build(self) -> None:
         """The lexicographic stages: each soft task minimised with the earlier ones held."""
@@ -386,6 +412,15 @@ class CasadiIK(IKOracle):
             if np.any(gval < lbg - 1e-7) or np.any(gval > ubg + 1e-7):
                 return None
         return np.clip(np.asarray(sol["x"]).ravel(), p.lower, p.upper)
+
+    def preference(self, q: np.ndarray, goal: np.ndarray) -> float:
+        """The lowest stage's objective at q (the posture task's, in the shipped strategies)."""
+        self.prepare()
+        if len(self.order) < 2:
+            return 0.0
+        x = self.problem.x_of_q(q)
+        params = np.concatenate([goal, self._start if self._start is not None else x, [0.0 if self._start is None else 1.0]])
+        return float(self._objective_fns[-1](x, params))
 
     def _lazy_hold(self, x: np.ndarray) -> bool:
         """Whether the lazy hard tasks hold at x (Pinocchio's evaluation)."""

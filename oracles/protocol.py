@@ -17,6 +17,7 @@ Oracles may also offer optional capabilities, each a protocol of its own;
 * :class:`Tunable`: a variant set up for a purpose, ``"refine"`` (the
   selector's quick solve at the exact goal, secondary tasks on, within a
   time budget) or ``"referee"`` (the audit's thorough solve);
+* :class:`Described`: what the oracle checks, for ``reach model``;
 * :class:`Continuing`: answers from the character's current posture;
 * :class:`Preparable`: build now what the first evaluate would build;
 * :class:`Mirrorable`: the map of postures to their mirror images about
@@ -148,6 +149,15 @@ class Tunable(Protocol):
     """
 
     def variant(self, purpose: Purpose, *, budget: float | None = None, restarts: int = 6) -> Oracle: ...
+
+
+@runtime_checkable
+class Described(Protocol):
+    """An oracle that can say what it checks (``reach model CONFIG`` prints it)."""
+
+    def describe(self) -> dict[str, Any]:
+        """A JSON-compatible description: for body oracles the effector, joints and tasks with their pairs."""
+        ...
 
 
 @runtime_checkable

@@ -169,20 +169,26 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
 def cmd_model(args: argparse.Namespace) -> int:
     from oracles.body import human_body, load_body, urdf_body
+    from oracles.protocol import Described
 
     spec = args.spec
+    strategies: dict[str, Any] = {}
     if spec == "human":
         body = human_body(args.sex, args.stature, args.percentile, args.mass)
     elif spec.endswith((".yaml", ".yml")):
-        from reach.config import read_yaml
+        from reach.config import load_config, read_yaml
 
         data = read_yaml(Path(spec))
         if not isinstance(data, dict) or "body" not in data:
             raise ReachError(f"{spec}: body: the config names no body")
         body = load_body(data["body"])
+        for s in load_config(spec).strategies:
+            oracle = s.oracle.create()
+            if isinstance(oracle, Described):
+                strategies[s.name] = oracle.describe()
     else:
         body = urdf_body(spec)
-    info = {**body.describe(), "world_frame": P.WORLD_AXES}
+    info = {**body.describe(), "world_frame": P.WORLD_AXES, **({"strategies": strategies} if strategies else {})}
     if args.json:
         _print_json(info)
         return 0
@@ -190,6 +196,14 @@ def cmd_model(args: argparse.Namespace) -> int:
     for j in info["joints"]:
         print(f"  {j['name']:<28} [{j['lower']:+.4f}, {j['upper']:+.4f}]")
     print(f"  centre of mass {info['center_of_mass']}")
+    print(f"  {len(info['capsules'])} collision capsules [m]:")
+    for c in info["capsules"]:
+        print(f"    {c['name']:<20} on {c['link']:<16} radius {c['radius']:.4f} length {c['length']:.4f}")
+    for name, d in strategies.items():
+        for t in d["tasks"]:
+            if isinstance(t.get("pairs"), list):
+                close = ", ".join(f"{a}-{b} ({dist:+.3f} m)" for (a, b), dist in ((c["pair"], c["distance"]) for c in t["at_reference"]))
+                print(f"  {name}: {len(t['pairs'])} pairs checked; closer than the margin at the reference (keep that clearance): {close or 'none'}")
     return 0
 
 

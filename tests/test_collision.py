@@ -9,6 +9,7 @@ import casadi as ca
 import coal
 import numpy as np
 import pytest
+from helpers import ARM
 
 from oracles.body import human_body, urdf_body
 from oracles.collision import Capsule, nearest_points
@@ -16,8 +17,6 @@ from oracles.problem import ReachProblem
 from oracles.strategy import parse_strategy
 from oracles.tasks.self_collision import segment_segment_sq
 from reach.errors import ModelError
-
-from helpers import ARM
 
 
 def coal_capsule_distance(a0, a1, ra, b0, b1, rb) -> float:

@@ -133,7 +133,8 @@ def test_gaze_aims_the_eyes_without_degrading_reach():
     eye = data.oMf[model.getFrameId("eyes")]
     to_goal = (goal[0] - eye.translation) / np.linalg.norm(goal[0] - eye.translation)
     assert np.degrees(np.arccos(np.clip(eye.rotation[:, 0] @ to_goal, -1, 1))) < 2.0
-    assert v.residual[0] <= 1e-4  # the reach task kept its optimum
+    # The reach task kept its verdict: lower stages may trade at most half the tolerance (ReachTask.held_bounds).
+    assert v.residual[0] <= 0.5 * 0.005 + 1e-9
 
 
 def test_dls_agrees_with_casadi_and_holds_under_fk():

@@ -245,6 +245,10 @@ class Task(ABC):
     def holds(self, num: Numeric) -> bool:
         """The independent check of the verdict, on Pinocchio's evaluation of a posture."""
 
+    def describe(self) -> dict[str, Any]:
+        """What ``reach model`` prints of the task (JSON-compatible)."""
+        return {"type": self.type, "hard": self.hard}
+
 
 class HardTask(Task):
     """A constraint: no soft task may trade it away.

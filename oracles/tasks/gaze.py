@@ -23,7 +23,7 @@ class GazeTask(SoftTask):
     keys: ClassVar[frozenset[str]] = frozenset({"frame"})
     summary: ClassVar[str] = "the x axis of `frame` (default the `eyes`) at the goal"
     default_priority: ClassVar[int] = 2
-    slack: ClassVar[float] = 1e-3  # [1 - cos of the gaze error]: about 2.6 deg from a perfect aim
+    slack: ClassVar[float] = 1e-4  # [1 - cos of the gaze error]: about 0.8 deg from a perfect aim
 
     frame: str
     priority: float = 2.0

@@ -59,6 +59,10 @@ WEIGHTS: dict[str, float] = {
 }
 ENERGY_SCALE = 0.1  # [m] a segment's rise that costs as much as its mass share
 ENERGY = 5.0  # default weight of the energy term: an idle arm left at 60 deg from hanging costs ten times its shoulder's displacement
+# Default weight of the displacement from the character's current posture: a
+# 10 deg change of one joint then costs about as much as a 2 cm rise of the
+# forearm, so that 1-cm goal steps move the joints by degrees, not tens of them.
+START = 5.0
 LIMIT_POWER = 8
 DLS_GAIN = 0.1
 
@@ -77,7 +81,7 @@ class PostureTask(SoftTask):
     weights: dict[str, float] = field(default_factory=dict)
     energy: float = ENERGY
     limits: float = 1.0
-    start: float = 0.1
+    start: float = START
     priority: float = 3.0
     _segments: list[tuple[int, np.ndarray, float, int, float]] = field(default_factory=list, init=False, repr=False, compare=False)
 
@@ -91,7 +95,7 @@ class PostureTask(SoftTask):
             {**weights, **{k: v for k, v in WEIGHTS.items() if k not in weights}},
             number(raw.get("energy", ENERGY), f"{where}.energy", 0.0, 1e3),
             number(raw.get("limits", 1.0), f"{where}.limits", 0.0, 1e3),
-            number(raw.get("start", 0.1), f"{where}.start", 0.0, 1e3),
+            number(raw.get("start", START), f"{where}.start", 0.0, 1e3),
             cls.priority_of(raw, where),
         )
 

@@ -167,6 +167,14 @@ class SelfCollisionTask(HardTask):
     def bind(self, reference: Reference) -> None:
         self._model = reference.body.collision
 
+    def describe(self) -> dict[str, Any]:
+        names = [p.name for p in self._model.placed] if self._model else []
+        return {
+            **super().describe(), "margin": self.margin,
+            "pairs": [[names[p.first], names[p.second]] for p in self.pairs] if names else len(self.pairs),
+            "at_reference": [{"pair": [a, b], "distance": d} for a, b, d in self.at_reference],
+        }
+
     def constraints(self, sym: Symbolic) -> list[Constraint]:
         assert self._model is not None
         rows, lo = [], []
