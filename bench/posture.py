@@ -18,7 +18,9 @@ Prints JSON lines:
   strategy, the 99th percentile and maximum of the largest joint change
   [deg], asked independently and asked with the first answer as ``from``;
 * ``lowest``: the lowest reachable grip-centre height [m] of the whole body
-  and of crouch in front of the feet (0.1 <= x <= 0.5 m, |y| <= 0.3 m).
+  and of crouch in front of the feet: the lowest reachable vertex
+  (0.1 <= x <= 0.5 m, |y| <= 0.3 m), and, independent of the resolution, the
+  height found by bisection with the strategy's referee at three points.
 
 Goals are drawn with a fixed seed, so figures are repeatable.
 """
@@ -42,6 +44,7 @@ from reach.store import load_atlas
 from reach.tree import INNER
 
 ARM_JOINTS = ("shoulder", "elbow", "forearm", "wrist")
+LOW_POINTS = ((0.25, -0.15), (0.35, -0.2), (0.5, -0.2), (0.6, -0.2), (0.7, -0.2))  # [m] in front of the feet
 
 
 def emit(**fields: object) -> None:
@@ -139,8 +142,21 @@ def main() -> None:
         v = tree.vertices
         pts = tree.lattice.points(tree.lattice.coords(v.keys))
         front = v.reachable & (pts[:, 0] >= 0.1) & (pts[:, 0] <= 0.5) & (np.abs(pts[:, 1]) <= 0.3)
-        emit(bench="lowest", strategy=name, lowest_reachable_z=float(pts[front, 2].min()) if front.any() else None,
-             resolution=tree.lattice.resolution.tolist())
+        # Independent of the tree's resolution: bisect the height at points in
+        # front of the feet with the strategy's thorough referee.
+        referee = OracleSpec.from_dict(tree.meta["oracle"]).create().variant("referee", restarts=6)  # type: ignore[attr-defined]
+        lowest = []
+        for x, y in LOW_POINTS:
+            lo, hi = 0.0, 0.6
+            if referee.evaluate(np.array([[x, y, lo]])).reachable[0]:
+                lowest.append(0.0)
+                continue
+            while hi - lo > 0.005:
+                mid = 0.5 * (lo + hi)
+                lo, hi = (lo, mid) if referee.evaluate(np.array([[x, y, mid]])).reachable[0] else (mid, hi)
+            lowest.append(round(hi, 3))
+        emit(bench="lowest", strategy=name, lowest_vertex_z=float(pts[front, 2].min()) if front.any() else None,
+             resolution=tree.lattice.resolution.tolist(), lowest_by_ik_z=lowest, at_xy=[list(p) for p in LOW_POINTS])
 
 
 def _joints(answer) -> dict[str, float]:  # noqa: ANN001
