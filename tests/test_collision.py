@@ -185,3 +185,39 @@ def test_obstacle_errors_name_the_key():
         parse_strategy(body, "right_hand", ARM, [{"type": "reach"}, {"type": "obstacles", "boxes": [{"min": [0, 0, 1], "max": [1, 1, 0]}]}])
     with pytest.raises(TaskError, match=r"tasks\[1\]\.boxes: expected a non-empty list"):
         parse_strategy(body, "right_hand", ARM, [{"type": "reach"}, {"type": "obstacles"}])
+
+
+def test_reachable_arm_verdicts_are_collision_free_by_an_independent_coal_check():
+    """Capsules read from the URDF text with ElementTree, placed with Pinocchio's frames, measured by coal."""
+    import pinocchio as pin
+
+    from oracles.ik import CasadiIK
+
+    oracle = CasadiIK({"human": {"sex": "male", "percentile": 50}}, "right_hand", ARM, [{"type": "reach"}, {"type": "self_collision"}], restarts=2)
+    body, task = oracle.body, oracle.strategy.task("self_collision")
+    shapes = {}
+    for link in ET.fromstring(body.urdf).iter("link"):
+        for col in link.findall("collision"):
+            origin, cyl = col.find("origin"), col.find("geometry/cylinder")
+            rpy = [float(v) for v in origin.get("rpy").split()]
+            local = pin.SE3(pin.rpy.rpyToMatrix(*rpy), np.array([float(v) for v in origin.get("xyz").split()]))
+            shapes[col.get("name").removeprefix("capsule_")] = (link.get("name"), local, coal.Capsule(float(cyl.get("radius")), float(cyl.get("length"))))
+    goals = np.random.default_rng(4).uniform([-0.3, -0.6, 0.7], [0.5, 0.4, 1.6], (30, 3))
+    v = oracle.evaluate(goals)
+    assert 8 <= v.reachable.sum()
+    names = [p.name for p in body.collision.placed]
+    for q, ok in zip(v.posture, v.reachable, strict=True):
+        if not ok:
+            continue
+        data = body.model.createData()
+        pin.framesForwardKinematics(body.model, data, q)
+
+        def placed(name):
+            link, local, shape = shapes[name]
+            m = data.oMf[body.model.getFrameId(link)] * local
+            return shape, coal.Transform3s(m.rotation, m.translation)
+
+        for pair in task.pairs:
+            (ga, ta), (gb, tb) = placed(names[pair.first]), placed(names[pair.second])
+            d = coal.distance(ga, ta, gb, tb, coal.DistanceRequest(), coal.DistanceResult())
+            assert d >= pair.floor, (names[pair.first], names[pair.second], d)

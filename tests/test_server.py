@@ -139,6 +139,8 @@ def test_health_and_strategies(running):
         (b'{"op": "query", "effector": "point", "goal": [0, 0, 0], "goals": [[0, 0, 0]]}', P.BAD_REQUEST),
         (b'{"op": "query", "effector": "point", "goal": [0, 0, 0], "colour": 1}', P.BAD_REQUEST),
         (b'{"op": "query", "effector": "point", "goal": [0, 0, 0], "id": true}', P.BAD_REQUEST),
+        (b'{"op": "query", "effector": "point", "goal": [0, 0, 0], "from": [0.1, 0.2]}', P.BAD_REQUEST),
+        (b'{"op": "query", "effector": "point", "goal": [0, 0, 0], "from": {"right_elbow_flexion": "bent"}}', P.BAD_REQUEST),
         (b'{"op": "fly"}', P.UNKNOWN_OP),
         (b'{"op": "query", "effector": "left_hand", "goal": [0, 0, 0]}', P.UNKNOWN_EFFECTOR),
         (b'{"op": "reload", "path": "/nonexistent/atlas"}', P.RELOAD_FAILED),
@@ -312,6 +314,9 @@ def test_human_posture_is_refined_at_the_exact_goal(tmp_path_factory):
             goal = [0.4, -0.3, 1.2]
             a = c.query("right_hand", goal)
             stored = c.query("right_hand", goal, refine=False)
+            again = c.query("right_hand", goal, start=a["posture"])  # from the answer itself: the same posture back
+            with pytest.raises(ServerError, match="bad_request: from: unknown joints"):
+                c.query("right_hand", goal, start={"right_tail": 1.0})
     finally:
         r.stop()
     assert a["strategy"] == "right_arm" and a["refined"] == "ok" and stored["refined"] == "skipped"
@@ -327,3 +332,4 @@ def test_human_posture_is_refined_at_the_exact_goal(tmp_path_factory):
     hand = body.frame_positions(q, ["right_hand"])["right_hand"]
     assert np.linalg.norm(hand - goal) <= 0.005 and a["residual"] <= 0.005
     assert stored["residual"] > a["residual"]  # the stored vertex posture is a cell away
+    assert again["refined"] == "ok" and max(abs(again["posture"][k] - v) for k, v in a["posture"].items()) < np.radians(1.0)
