@@ -110,7 +110,7 @@ def main() -> None:
         if not a.reachable or a.posture is None:
             continue
         answered += 1
-        q = posture_vector(body, a)
+        q = body.configuration(a.posture, a.root)
         if any(q[k] - lo[k] < np.radians(5) or hi[k] - q[k] < np.radians(5) for k in arm_idx):
             near += 1
         if a.strategy == "right_arm" and g[0] >= 0.25 and g[2] < shoulder_z:
@@ -165,15 +165,6 @@ def _joints(answer) -> dict[str, float]:  # noqa: ANN001
         out.update(zip(("root_x", "root_y", "root_z"), answer.root["position"], strict=True))
         out.update(zip(("root_qx", "root_qy", "root_qz", "root_qw"), answer.root["quaternion"], strict=True))
     return out
-
-
-def posture_vector(body, answer) -> np.ndarray:  # noqa: ANN001
-    q = body.q_ref.copy()
-    if answer.root:
-        q[:3], q[3:7] = answer.root["position"], answer.root["quaternion"]
-    for name, value in answer.posture.items():
-        q[body.model.joints[body.joint_id(name)].idx_q] = value
-    return q
 
 
 def elbow_position(body, q: np.ndarray) -> np.ndarray:  # noqa: ANN001

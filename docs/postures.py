@@ -32,15 +32,6 @@ GOALS = [
 ]
 
 
-def posture(body, answer) -> np.ndarray:  # noqa: ANN001
-    q = body.q_ref.copy()
-    if answer.root:
-        q[:3], q[3:7] = answer.root["position"], answer.root["quaternion"]
-    for name, value in answer.posture.items():
-        q[body.model.joints[body.joint_id(name)].idx_q] = value
-    return q
-
-
 def draw(ax, body, q: np.ndarray, axes: tuple[int, int]) -> None:  # noqa: ANN001
     data = body.model.createData()
     pin.forwardKinematics(body.model, data, q)
@@ -71,7 +62,7 @@ def main() -> None:
             ax = axs[row, k]
             ax.axhline(0.0, color="#444", lw=0.8)
             if a.reachable and a.posture:
-                draw(ax, body, posture(body, a), axes)
+                draw(ax, body, body.configuration(a.posture, a.root), axes)
             ax.plot(goal[axes[0]], goal[axes[1]], "x", color="red", ms=9, mew=2.5)
             ax.set_xlim(-0.7, 0.7) if axes[0] == 1 else ax.set_xlim(-0.5, 0.9)
             ax.set_ylim(-0.05, 2.15)

@@ -99,6 +99,16 @@ class Body:
             raise ModelError(f"{self.source}: no joint {name!r}; joints are: {', '.join(self.joint_names)}")
         return int(self.model.getJointId(name))
 
+    def configuration(self, joints: dict[str, float], root: dict[str, list[float]] | None = None) -> np.ndarray:
+        """The configuration q of an answer's posture: joint name -> value [rad or m] and the root pose
+        (``{"position": [x, y, z], "quaternion": [qx, qy, qz, qw]}``); the rest at the reference."""
+        q = self.q_ref.copy()
+        if root:
+            q[:3], q[3:7] = root["position"], root["quaternion"]
+        for name, value in joints.items():
+            q[self.model.joints[self.joint_id(name)].idx_q] = value
+        return q
+
     def frame_positions(self, q: np.ndarray | None = None, names: list[str] | None = None) -> dict[str, np.ndarray]:
         """World positions [m] of frames at configuration q (reference by default)."""
         data = self.model.createData()
