@@ -195,11 +195,20 @@ class IKOracle(ABC):
         return np.array([self.solve(g, x) for g, x in zip(goals, x0, strict=True)])
 
     def starts(self, goal: np.ndarray, hint: np.ndarray | None) -> list[np.ndarray]:
-        """Initial postures: the hint, the reference, then seeded random ones."""
+        """Initial postures: the hint, the reference, then seeded random ones.
+
+        With ``prefer`` and no current posture (a refinement without
+        ``from``), the reference comes first: the posture task's natural
+        basin is usually the one reached from it, and a time budget may cut
+        the second start; the hint still rescues a goal the reference misses.
+        """
         out = []
         if hint is not None and np.all(np.isfinite(hint)):
             out.append(self.problem.x_of_q(hint))
-        out.append(self.problem.x_ref.copy())
+        if self.prefer and self._start is None:
+            out.insert(0, self.problem.x_ref.copy())
+        else:
+            out.append(self.problem.x_ref.copy())
         rng = np.random.default_rng([self.seed, zlib.crc32(np.round(goal, 9).tobytes())])
         out += [self.problem.random_x(rng) for _ in range(self.restarts)]
         return out

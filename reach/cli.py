@@ -383,6 +383,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("reach: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        # The reader went away (``reach info ... | head``): not an error of ours.
+        # Point stdout at /dev/null so that Python's exit flush does not raise again.
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
 
 
 if __name__ == "__main__":
