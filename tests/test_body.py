@@ -161,3 +161,15 @@ def test_reach_model_json(capsys):
     assert info["mass"] > 40
     assert main(["model", str(HERE.parent / "configs" / "urdf" / "ur5.urdf"), "--json"]) == 0
     assert "ee_link" in json.loads(capsys.readouterr().out)["frames"]
+
+
+def test_reach_model_lists_the_capsules_and_each_strategys_pairs(capsys):
+    assert main(["model", str(HERE.parent / "configs" / "demo.yaml"), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert len(info["capsules"]) == 17 and {"name", "link", "radius", "length", "a", "b"} == set(info["capsules"][0])
+    arm = next(t for t in info["strategies"]["right_arm"]["tasks"] if t["type"] == "self_collision")
+    assert ["right_hand", "thorax"] in [sorted(p) for p in arm["pairs"]]
+    assert any(c["pair"] == ["right_hand", "right_thigh"] for c in arm["at_reference"])
+    assert main(["model", str(HERE.parent / "configs" / "demo.yaml")]) == 0
+    text = capsys.readouterr().out
+    assert "17 collision capsules" in text and "right_arm: 42 pairs checked" in text
