@@ -8,17 +8,22 @@ A strategy is parsed from a config mapping::
       - {type: reach}                       # the goal, the verdict's task
       - {type: feet, heels: down}           # feet planted (hard)
       - {type: balance, margin: 0.02}       # CoM over the support polygon (hard)
+      - {type: self_collision}              # no segment through another (hard)
+      - {type: floor}                       # nothing below z = 0 but the feet (hard)
+      - {type: coupling}                    # the hamstrings' hip limit (hard)
       - {type: gaze, frame: eyes}           # look at the goal
-      - {type: comfort, weight: 1.0}        # stay near the reference posture
+      - {type: posture}                     # a natural posture
 
 ``joints`` are joint names or glob patterns; ``root`` frees the floating
 base. Joints not named are locked at the reference posture. Each task type
 is a class of :mod:`oracles.tasks`, which owns its keys.
 
 Priorities (Baerlocher & Boulic 1998): the hard tasks (feet, balance,
-joint limits) are constraints that no other task may violate; the soft tasks
-(reach, gaze, comfort) are solved lexicographically in increasing
-``priority`` (defaults 1, 2, 3), each never degrading the ones before it.
+collisions, couplings, joint limits) are constraints that no other task may
+violate; the soft tasks (reach, gaze, posture or comfort) are solved
+lexicographically in increasing ``priority`` (defaults 1, 2, 3), each never
+degrading the ones before it beyond its hold (reach keeps half its
+tolerance).
 """
 
 from __future__ import annotations
