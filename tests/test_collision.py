@@ -212,7 +212,7 @@ def test_reachable_arm_verdicts_are_collision_free_by_an_independent_coal_check(
         data = body.model.createData()
         pin.framesForwardKinematics(body.model, data, q)
 
-        def placed(name):
+        def placed(name, data=data):
             link, local, shape = shapes[name]
             m = data.oMf[body.model.getFrameId(link)] * local
             return shape, coal.Transform3s(m.rotation, m.translation)
