@@ -154,7 +154,8 @@ class IKOracle(ABC):
             # tree already says reachable, and the budget bounds the time.
             over: dict[str, Any] = {"restarts": 0, "give_up": None, "secondary": True, "max_seconds": budget, "prefer": True}
         else:
-            over = {"restarts": max(int(self.params["restarts"]), int(restarts)), "give_up": None}
+            # A verdict only: the lower tasks never change one.
+            over = {"restarts": max(int(self.params["restarts"]), int(restarts)), "give_up": None, "secondary": False}
         return type(self)(**{**self.params, **over, **self.variant_params(purpose)})
 
     def variant_params(self, purpose: Purpose) -> dict[str, Any]:
