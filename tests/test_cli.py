@@ -80,3 +80,10 @@ def test_errors_exit_2_with_one_line(tmp_path, capsys):
 def test_unknown_effector_is_an_error(figure2_atlas, capsys):
     assert main(["query", str(figure2_atlas), "0", "0", "--effector", "left_hand"]) == 2
     assert "unknown effector 'left_hand'; this atlas has point" in capsys.readouterr().err
+
+
+def test_query_from_must_be_a_json_object(figure2_atlas, capsys):
+    assert main(["query", str(figure2_atlas), "0.1", "0.1", "--from", "[1, 2]"]) == 2
+    assert "--from: expected a JSON object of joint name -> number" in capsys.readouterr().err
+    assert main(["query", str(figure2_atlas), "0.1", "0.1", "--from", "{not json"]) == 2
+    assert "--from: expected a JSON object" in capsys.readouterr().err

@@ -142,6 +142,14 @@ def test_perpendicular_basis_is_orthonormal_and_normal_to_the_axis():
         ([{"type": "reach", "priority": "high"}], r"tasks\[0\]\.priority: expected a number"),
         ([{"type": "reach"}, {"type": "contacts", "fixed": "right_foot"}], r"tasks\[1\]\.fixed: expected a list of frame names"),
         ([{"type": "reach"}, {"type": "balance", "support": ["right_foot", "left_foot"]}], r"tasks\[1\]: balance needs a support polygon"),
+        ([{"type": "reach"}, {"type": "coupling", "rules": [{"joint": "*_hip_flexion"}]}], r"tasks\[1\]\.rules\[0\]: expected \{joint: name"),
+        ([{"type": "reach"}, {"type": "coupling", "rules": [{"joint": "tail", "by": "x", "limit": 1, "slope": 0}]}],
+         r"tasks\[1\]\.rules\[0\]\.joint: no joint matches 'tail'"),
+        ([{"type": "reach"}, {"type": "self_collision", "exclude": ["right_hand"]}], r"tasks\[1\]\.exclude: expected a list of \[capsule, capsule\] pairs"),
+        ([{"type": "reach"}, {"type": "self_collision", "exclude": [["right_hand", "tail"]]}], r"tasks\[1\]\.exclude: no capsule matches 'tail'"),
+        ([{"type": "reach"}, {"type": "self_collision", "only": ["wing"]}], r"tasks\[1\]\.only: no capsule matches 'wing'"),
+        ([{"type": "reach"}, {"type": "floor", "exclude": "feet"}], r"tasks\[1\]\.exclude: expected a list of capsule names"),
+        ([{"type": "reach"}, {"type": "posture", "weights": {"*_elbow_*": -1}}], r"tasks\[1\]\.weights\.\*_elbow_\*: expected a number in \[0.0, 1000.0\]"),
     ],
 )
 def test_task_errors_name_the_key(tasks, message):
@@ -238,3 +246,12 @@ def test_collision_and_floor_rows_match_finite_differences():
     low[2] -= 0.45  # sink the body so that some segment nears the floor
     frows = floor.rows(numeric(problem, low, np.zeros(3)))
     assert frows and all(r.error[0] >= 0 for r in frows)
+
+
+def test_evaluate_from_refuses_a_posture_of_the_wrong_size():
+    from oracles.ik import CasadiIK
+    from reach.errors import OracleError
+
+    oracle = CasadiIK({"human": {"sex": "male", "percentile": 50}}, "right_hand", ARM)
+    with pytest.raises(OracleError, match=r"current posture has shape \(3,\), expected \(43,\)"):
+        oracle.evaluate_from(np.array([[0.4, -0.3, 1.2]]), np.zeros(3))
