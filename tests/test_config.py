@@ -113,3 +113,19 @@ def test_box_auto_is_derived_from_the_body():
     del data["body"]
     with pytest.raises(ConfigError, match="box: auto needs body strategies"):
         parse_config(data, "auto", "auto")
+
+
+def test_a_duplicate_key_is_refused_with_its_line(tmp_path):
+    path = tmp_path / "dup.yaml"
+    path.write_text("name: a\nbox: auto\nname: b\n")
+    with pytest.raises(ConfigError, match=r"dup\.yaml: name: duplicate key \(line 3\); give each key once"):
+        load_config(path)
+
+
+def test_a_tab_gives_one_line_naming_the_place(tmp_path):
+    path = tmp_path / "tab.yaml"
+    path.write_text("name: a\nbox:\n\tmin: [0, 0, 0]\n")
+    with pytest.raises(ConfigError) as err:
+        load_config(path)
+    message = str(err.value)
+    assert "\n" not in message and "at line 3, column 1 (YAML indents with spaces, not tabs)" in message
