@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from reach.errors import StoreError, TreeError, UnknownStrategy
-from reach.tree import FINAL, PARENT, Box, VATree, VertexTable, bfs_children
+from reach.tree import FINAL, MAX_DEPTH, PARENT, Box, VATree, VertexTable, bfs_children
 
 TREE_FORMAT = "reach.vatree"
 TREE_VERSION = 1
@@ -125,6 +125,8 @@ def load_tree(path: str | Path) -> VATree:
         names = tuple(str(n) for n in meta.get("posture_names", []))
     except (KeyError, TypeError, ValueError, TreeError) as exc:
         raise StoreError(path, f"metadata lacks a valid box or depths ({exc})") from exc
+    if not 0 <= d_min <= d_max <= MAX_DEPTH:
+        raise StoreError(path, f"depths D_min {d_min}, D_max {d_max} are outside 0 <= D_min <= D_max <= {MAX_DEPTH}")
     depth = _field(path, arrays, "depth", np.uint8, 1)
     corner = _field(path, arrays, "corner", np.int64, 2)
     kind = _field(path, arrays, "kind", np.uint8, 1)
@@ -142,6 +144,8 @@ def load_tree(path: str | Path) -> VATree:
         problems.append("vertex table arrays disagree in length or keys are not sorted")
     if posture is not None and posture.shape != (keys.shape[0], len(names)):
         problems.append(f"postures {posture.shape} do not match {keys.shape[0]} vertices x {len(names)} names")
+    elif posture is not None and not np.all(np.isfinite(posture)):
+        problems.append(f"{int(np.sum(~np.all(np.isfinite(posture), axis=1)))} stored postures hold NaN or infinite values")
     if problems:
         raise StoreError(path, "; ".join(problems))
     meta = {k: v for k, v in meta.items() if k not in ("format", "version", "box", "d_min", "d_max", "posture_names")}

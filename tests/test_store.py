@@ -158,3 +158,20 @@ def test_corrupt_checkpoint_metadata_is_a_clear_error(tmp_path, field, value, me
     np.savez(path, **arrays)
     with pytest.raises(StoreError, match=message):
         load_state(path, "fp")
+
+
+def test_an_impossible_depth_names_the_file(unit_sphere_tree, tmp_path):
+    path = save_tree(unit_sphere_tree, tmp_path / "d.npz")
+    _rewrite(path, d_max=40)
+    with pytest.raises(StoreError, match=r"d\.npz: depths D_min 2, D_max 40 are outside"):
+        load_tree(path)
+
+
+def test_nan_postures_are_refused(tmp_path):
+    from reach.tree import Box, VATree, VertexTable, bfs_children
+
+    kind = np.array([1], np.uint8)
+    table = VertexTable(np.array([0, 3]), np.array([True, False]), np.array([0.0, 0.2]), np.array([[0.1, np.nan], [0.3, 0.4]]), ("a", "b"))
+    tree = VATree(Box([0, 0], [1, 1]), 0, 1, np.zeros(1, np.uint8), np.zeros((1, 2), np.int64), kind, bfs_children(kind, 2), table)
+    with pytest.raises(StoreError, match="1 stored postures hold NaN or infinite values"):
+        load_tree(save_tree(tree, tmp_path / "nan.npz"))
