@@ -70,9 +70,13 @@ def _reject_constant(name: str) -> float:
 def _number_list(value: Any, field: str, request_id: Any) -> list[float]:
     if not isinstance(value, list) or not value or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
         raise ProtocolError(BAD_REQUEST, f"'{field}' must be a list of numbers [m], got {json.dumps(value)[:80]}", request_id)
-    if not all(math.isfinite(v) for v in value):
+    try:
+        out = [float(v) for v in value]
+    except OverflowError:  # an integer beyond a double's range
+        out = [math.inf]
+    if not all(math.isfinite(v) for v in out):
         raise ProtocolError(BAD_REQUEST, f"'{field}' must hold finite numbers", request_id)
-    return [float(v) for v in value]
+    return out
 
 
 def parse_request(payload: bytes) -> Request:
@@ -85,11 +89,15 @@ def parse_request(payload: bytes) -> Request:
         data = json.loads(payload.decode("utf-8"), parse_constant=_reject_constant)
     except (UnicodeDecodeError, ValueError) as exc:
         raise ProtocolError(BAD_JSON, f"request is not UTF-8 JSON: {exc}") from None
+    except RecursionError:
+        raise ProtocolError(BAD_JSON, "request JSON is nested too deeply") from None
     if not isinstance(data, dict):
         raise ProtocolError(BAD_REQUEST, f"request must be a JSON object, got {type(data).__name__}")
     rid = data.get("id")
     if (rid is not None and not isinstance(rid, (str, int))) or isinstance(rid, bool):
-        raise ProtocolError(BAD_REQUEST, "'id' must be a string or an integer", None)
+        # Echo a scalar id back all the same, so that the client can match the error to its request.
+        echo = rid if isinstance(rid, (bool, float)) and math.isfinite(rid) else None
+        raise ProtocolError(BAD_REQUEST, "'id' must be a string or an integer", echo)
     op = data.get("op")
     if not isinstance(op, str):
         raise ProtocolError(BAD_REQUEST, "'op' must be a string naming the operation", rid)

@@ -156,6 +156,17 @@ def test_malformed_requests_get_structured_errors_and_the_server_lives(dealer, p
 def test_error_replies_echo_the_id(dealer):
     reply = ask(dealer, b'{"op": "query", "id": "abc", "effector": "point", "goal": [0, 0]}')
     assert reply["id"] == "abc" and reply["ok"] is False
+    for raw, echoed in ((b"17.0", 17.0), (b"1e2", 100.0)):  # an ill-typed but scalar id is still echoed
+        reply = ask(dealer, b'{"op": "health", "id": ' + raw + b"}")
+        assert reply["ok"] is False and reply["error"]["code"] == P.BAD_REQUEST and reply["id"] == echoed
+
+
+def test_huge_numbers_and_deep_nesting_are_refused_not_internal(dealer, running):
+    huge = ask(dealer, b'{"op": "query", "id": 1, "effector": "point", "goal": [' + b"9" * 400 + b", 0, 0]}")
+    assert huge["error"]["code"] == P.BAD_REQUEST and "finite" in huge["error"]["message"] and huge["id"] == 1
+    deep = ask(dealer, b"[" * 50_000 + b"]" * 50_000)
+    assert deep["error"]["code"] == P.BAD_JSON and "nested too deeply" in deep["error"]["message"]
+    assert ask(dealer, b'{"op": "health"}')["status"] == "serving"
 
 
 def test_oversized_batch_and_message(dealer):
