@@ -25,7 +25,7 @@ from reach.build import build_tree
 from reach.config import Config, StrategySpec
 from reach.errors import ModelError, StoreError
 from reach.executor import Executor, InlineExecutor
-from reach.store import Atlas, load_atlas, load_state, load_tree, save_state, save_tree, write_manifest
+from reach.store import Atlas, build_lock, load_atlas, load_state, load_tree, save_state, save_tree, write_manifest
 from reach.tree import FINAL, INNER, VATree
 
 PARTIAL = ".partial"
@@ -87,11 +87,19 @@ def build_atlas(
         resume: Keep finished trees and continue from checkpoints.
         mirror: Derive ``mirror_of`` strategies by mirroring when allowed.
     """
-    from reach.mirror import MirrorOracle
-
     say = log or (lambda _line: None)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    with build_lock(out):
+        return _build_locked(config, out, executor_factory, progress, say, resume, mirror)
+
+
+def _build_locked(
+    config: Config, out: Path, executor_factory: Callable[[OracleSpec], Executor] | None, progress: bool,
+    say: Callable[[str], None], resume: bool, mirror: bool,
+) -> Atlas:
+    """build_atlas's work, with the folder locked."""
+    from reach.mirror import MirrorOracle
     entries = []
     built: dict[str, VATree] = {}
     t0 = time.perf_counter()

@@ -14,6 +14,8 @@ from __future__ import annotations
 import json
 import os
 import zipfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -218,6 +220,38 @@ def load_atlas(folder: str | Path) -> Atlas:
     return Atlas(folder, manifest, trees)
 
 
+LOCK = ".lock"
+
+
+@contextmanager
+def build_lock(folder: str | Path) -> Iterator[None]:
+    """Hold the atlas folder's build lock: a second build into the same folder is refused, not interleaved.
+
+    An advisory ``flock`` on ``FOLDER/.lock``: the operating system releases
+    it when the holder exits, even when killed, so no stale lock remains.
+    """
+    import fcntl
+
+    path = Path(folder) / LOCK
+    fh = path.open("a+")
+    try:
+        fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        fh.seek(0)
+        holder = fh.read().strip() or "another process"
+        fh.close()
+        raise StoreError(folder, f"another build is writing into this folder ({holder}); wait for it or choose another output folder") from None
+    try:
+        fh.seek(0)
+        fh.truncate()
+        fh.write(f"pid {os.getpid()}")
+        fh.flush()
+        yield
+    finally:
+        fcntl.flock(fh, fcntl.LOCK_UN)
+        fh.close()
+
+
 STATE_FORMAT = "reach.buildstate"
 
 
@@ -237,7 +271,7 @@ def save_state(state: Any, path: str | Path, fingerprint: str) -> Path:
     if v.posture is not None:
         arrays["vertex_posture"] = v.posture
     path.parent.mkdir(parents=True, exist_ok=True)
-    _atomic_write(path, lambda fh: np.savez(fh, **arrays))
+    _atomic_write(path, lambda fh: np.savez_compressed(fh, **arrays))  # type: ignore[arg-type]
     return path
 
 

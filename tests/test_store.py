@@ -175,3 +175,16 @@ def test_nan_postures_are_refused(tmp_path):
     tree = VATree(Box([0, 0], [1, 1]), 0, 1, np.zeros(1, np.uint8), np.zeros((1, 2), np.int64), kind, bfs_children(kind, 2), table)
     with pytest.raises(StoreError, match="1 stored postures hold NaN or infinite values"):
         load_tree(save_tree(tree, tmp_path / "nan.npz"))
+
+
+def test_two_builds_into_one_folder_are_refused(tmp_path):
+    from reach.atlas import build_atlas
+    from reach.config import parse_config
+    from reach.store import build_lock
+
+    config = parse_config({"box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 1, "max": 3},
+                           "oracle": {"name": "sphere", "params": {"radius": 0.9}}, "strategies": [{"name": "ball"}]})
+    (tmp_path / "out").mkdir()
+    with build_lock(tmp_path / "out"), pytest.raises(StoreError, match=r"another build is writing into this folder \(pid \d+\)"):
+        build_atlas(config, tmp_path / "out")
+    assert build_atlas(config, tmp_path / "out").trees["ball"].volume() > 0  # released: the next build runs
