@@ -216,7 +216,15 @@ def load_atlas(folder: str | Path) -> Atlas:
     """Read an atlas folder: its manifest and every strategy's tree."""
     folder = Path(folder)
     manifest = read_manifest(folder)
-    trees = {s["name"]: load_tree(folder / s["file"]) for s in manifest["strategies"]}
+    trees = {}
+    for s in manifest["strategies"]:
+        path = folder / s["file"]
+        tree = load_tree(path)
+        # A tree file copied over another's would otherwise be served under the wrong name.
+        for key in ("name", "effector", "fingerprint"):
+            if key in s and key in tree.meta and tree.meta[key] != s[key]:
+                raise StoreError(path, f"holds the tree of {key} {tree.meta[key]!r}, but the manifest lists it for {s[key]!r}; rebuild the atlas")
+        trees[s["name"]] = tree
     return Atlas(folder, manifest, trees)
 
 

@@ -188,3 +188,18 @@ def test_two_builds_into_one_folder_are_refused(tmp_path):
     with build_lock(tmp_path / "out"), pytest.raises(StoreError, match=r"another build is writing into this folder \(pid \d+\)"):
         build_atlas(config, tmp_path / "out")
     assert build_atlas(config, tmp_path / "out").trees["ball"].volume() > 0  # released: the next build runs
+
+
+def test_a_tree_copied_over_another_is_refused(tmp_path):
+    import shutil
+
+    from reach.atlas import build_atlas
+    from reach.config import parse_config
+
+    config = parse_config({"box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 1, "max": 2},
+                           "oracle": {"name": "sphere", "params": {"radius": 0.9}},
+                           "strategies": [{"name": "right", "effector": "a"}, {"name": "left", "effector": "b"}]})
+    build_atlas(config, tmp_path / "out")
+    shutil.copy(tmp_path / "out" / "left.npz", tmp_path / "out" / "right.npz")
+    with pytest.raises(StoreError, match=r"right\.npz: holds the tree of name 'left', but the manifest lists it for 'right'"):
+        load_atlas(tmp_path / "out")
