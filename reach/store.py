@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from reach.errors import StoreError, TreeError, UnknownStrategy
-from reach.tree import FINAL, MAX_DEPTH, PARENT, Box, VATree, VertexTable, bfs_children
+from reach.tree import FINAL, INNER, MAX_DEPTH, OUTER, PARENT, Box, Lattice, VATree, VertexTable, bfs_children
 
 TREE_FORMAT = "reach.vatree"
 TREE_VERSION = 1
@@ -152,7 +152,23 @@ def load_tree(path: str | Path) -> VATree:
         raise StoreError(path, "; ".join(problems))
     meta = {k: v for k, v in meta.items() if k not in ("format", "version", "box", "d_min", "d_max", "posture_names")}
     vertices = VertexTable(keys, reach_, residual, posture, names)
+    wrong = _labels_contradicting_verdicts(Lattice(box, d_max), depth, corner, kind, vertices)
+    if wrong:
+        raise StoreError(path, f"{wrong} inner or outer cells contradict their vertices' verdicts (inverted verdicts or shifted corners?)")
     return VATree(box, d_min, d_max, depth, corner, kind, bfs_children(kind, dim), vertices, meta)
+
+
+def _labels_contradicting_verdicts(lattice: Lattice, depth: np.ndarray, corner: np.ndarray, kind: np.ndarray, vertices: VertexTable) -> int:
+    """How many inner cells have a vertex not reachable (or never evaluated), and outer cells one reachable."""
+    wrong = 0
+    for label, want in ((INNER, True), (OUTER, False)):
+        sel = np.nonzero(kind == label)[0]
+        for d in np.unique(depth[sel]):
+            cells = sel[depth[sel] == d]
+            rows = vertices.index(lattice.node_vertex_keys(corner[cells], int(d)))
+            ok = (rows >= 0) & (vertices.reachable[np.maximum(rows, 0)] == want)
+            wrong += int(np.sum(~ok.all(axis=1)))
+    return wrong
 
 
 @dataclass

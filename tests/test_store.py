@@ -29,7 +29,7 @@ def test_round_trip_keeps_every_array_and_the_metadata(unit_sphere_tree, tmp_pat
 def test_postures_round_trip(tmp_path):
     from reach.tree import Box, VATree, VertexTable, bfs_children
 
-    kind = np.array([1], np.uint8)
+    kind = np.array([3], np.uint8)  # a boundary root: its vertices disagree
     table = VertexTable(np.array([0, 3]), np.array([True, False]), np.array([0.0, 0.2]), np.array([[0.1, 0.2], [0.3, 0.4]]), ("a", "b"))
     tree = VATree(Box([0, 0], [1, 1]), 0, 1, np.zeros(1, np.uint8), np.zeros((1, 2), np.int64), kind, bfs_children(kind, 2), table)
     back = load_tree(save_tree(tree, tmp_path / "p.npz"))
@@ -203,3 +203,14 @@ def test_a_tree_copied_over_another_is_refused(tmp_path):
     shutil.copy(tmp_path / "out" / "left.npz", tmp_path / "out" / "right.npz")
     with pytest.raises(StoreError, match=r"right\.npz: holds the tree of name 'left', but the manifest lists it for 'right'"):
         load_atlas(tmp_path / "out")
+
+
+@pytest.mark.parametrize("change", ["invert", "shift"])
+def test_verdicts_contradicting_the_labels_are_refused(unit_sphere_tree, tmp_path, change):
+    path = save_tree(unit_sphere_tree, tmp_path / "t.npz")
+    if change == "invert":
+        _rewrite(path, array_vertex_reachable=~unit_sphere_tree.vertices.reachable)
+    else:
+        _rewrite(path, array_corner=unit_sphere_tree.corner + 1)
+    with pytest.raises(StoreError, match=r"t\.npz: \d+ inner or outer cells contradict their vertices' verdicts"):
+        load_tree(path)
