@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 import threading
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterator
@@ -71,6 +72,25 @@ class InlineExecutor:
         pass
 
 
+PR_SET_PDEATHSIG = 1  # Linux prctl option: the signal a process gets when its parent dies
+
+
+def _die_with_parent() -> None:
+    """Worker initializer: the kernel ends this worker when the build's process dies, even by SIGKILL,
+    so that a killed build leaves no process behind (Linux; elsewhere a no-op)."""
+    if not sys.platform.startswith("linux"):
+        return
+    import ctypes
+    import signal
+
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
+    except (OSError, AttributeError):
+        return
+    if os.getppid() == 1:  # the parent died before the request took effect
+        os._exit(1)
+
+
 # One oracle per worker process, built on first use from its spec: the cache
 # lives in each worker process (a pool process or a Dask worker), never in
 # the process that builds the tree. The lock serialises threads of one worker.
@@ -125,7 +145,7 @@ class ProcessExecutor(_Pooled):
     def __init__(self, spec: OracleSpec, workers: int | None = None, chunk_size: int = 2048) -> None:
         super().__init__(spec, chunk_size)
         self.workers = workers or os.cpu_count() or 1
-        self.pool = ProcessPoolExecutor(max_workers=self.workers)
+        self.pool = ProcessPoolExecutor(max_workers=self.workers, initializer=_die_with_parent)
 
     def submit(self, points: np.ndarray, hints: np.ndarray | None) -> tuple[list[slice], list[Any]]:
         slices = self.slices(points.shape[0])

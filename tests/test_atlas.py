@@ -7,6 +7,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,6 +19,28 @@ from reach.config import load_config, parse_config
 from reach.store import load_atlas
 
 pytestmark = pytest.mark.slow  # builds human atlases, kills and resumes a build
+
+def _children(pid: int) -> list[int]:
+    """PIDs whose parent is pid (from /proc)."""
+    out = []
+    for status in Path("/proc").glob("[0-9]*/status"):
+        try:
+            fields = dict(line.split(":\t", 1) for line in status.read_text().splitlines() if ":\t" in line)
+        except OSError:
+            continue
+        if fields.get("PPid", "").strip() == str(pid):
+            out.append(int(status.parent.name))
+    return out
+
+
+def _alive(pid: int) -> bool:
+    """Running, not gone nor a zombie waiting to be reaped."""
+    try:
+        state = next(line for line in Path(f"/proc/{pid}/status").read_text().splitlines() if line.startswith("State:"))
+    except (OSError, StopIteration):
+        return False
+    return "Z" not in state.split()[1]
+
 
 def test_killed_build_resumes_to_the_same_tree(tmp_path):
     cfg = tmp_path / "arm.yaml"
@@ -114,3 +137,26 @@ def test_mirror_oracle_refuses_a_lopsided_box_and_unknown_vertices():
     sym = build_tree(OracleSpec("sphere", {"radius": 0.5}), Box([-1, -1, -1], [1, 1, 1]), 1, 3)
     with pytest.raises(OracleError, match="never evaluated in the source tree"):
         MirrorOracle(sym, None).evaluate(np.array([[0.75, 0.75, 0.75]]))  # inside an outer depth-2 cell
+
+
+@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
+def test_a_killed_build_leaves_no_worker_behind(tmp_path, sig):
+    cfg = tmp_path / "arm.yaml"
+    cfg.write_text(yaml.safe_dump(human_config(d_max=5)))
+    out = tmp_path / "out"
+    proc = subprocess.Popen([sys.executable, "-m", "reach.cli", "build", str(cfg), "-o", str(out), "-q", "-j", "2"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 120
+    workers: list[int] = []
+    while len(workers) < 2 and time.monotonic() < deadline and proc.poll() is None:
+        time.sleep(0.02)  # the pool starts its workers with the first batch
+        workers = _children(proc.pid)
+    assert proc.poll() is None, "the build finished before it could be killed"
+    assert len(workers) >= 2, "the build runs its worker processes"
+    time.sleep(0.3)  # let them take work
+    os.kill(proc.pid, sig)
+    proc.wait(timeout=30)
+    deadline = time.monotonic() + 10
+    while any(_alive(w) for w in workers) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not any(_alive(w) for w in workers), "a worker outlived the killed build"
