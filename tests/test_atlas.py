@@ -159,4 +159,7 @@ def test_a_killed_build_leaves_no_worker_behind(tmp_path, sig):
     deadline = time.monotonic() + 10
     while any(_alive(w) for w in workers) and time.monotonic() < deadline:
         time.sleep(0.05)
-    assert not any(_alive(w) for w in workers), "a worker outlived the killed build"
+    survivors = [w for w in workers if _alive(w)]
+    for w in survivors:  # a failing run must not leave them behind either
+        os.kill(w, signal.SIGKILL)
+    assert not survivors, "a worker outlived the killed build"
