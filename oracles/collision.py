@@ -103,6 +103,7 @@ class CollisionModel:
             m = frame.placement
             self.placed.append(Placed(c, int(frame.parentJoint), m.act(np.asarray(c.a, float)), m.act(np.asarray(c.b, float))))
         self.index = {p.name: i for i, p in enumerate(self.placed)}
+        self._checks: dict[tuple[tuple[int, int], ...], tuple[pin.GeometryModel, pin.GeometryData, pin.Data]] = {}
         self.geometry = pin.GeometryModel()
         for p in self.placed:
             shape = coal.Capsule(p.radius, float(np.linalg.norm(p.b - p.a)))
@@ -128,12 +129,15 @@ class CollisionModel:
         """Coal's distances [m] between capsule pairs at q (negative: penetration depth)."""
         if not pairs:
             return np.zeros(0)
-        geom = pin.GeometryModel()
-        for o in self.geometry.geometryObjects:
-            geom.addGeometryObject(o)
-        for i, j in pairs:
-            geom.addCollisionPair(pin.CollisionPair(i, j))
-        data, gdata = self.model.createData(), pin.GeometryData(geom)
+        key = tuple(pairs)
+        if key not in self._checks:  # built once per pair set: the verdict asks at every solve
+            geom = pin.GeometryModel()
+            for o in self.geometry.geometryObjects:
+                geom.addGeometryObject(o)
+            for i, j in pairs:
+                geom.addCollisionPair(pin.CollisionPair(i, j))
+            self._checks[key] = (geom, pin.GeometryData(geom), self.model.createData())
+        geom, gdata, data = self._checks[key]
         pin.computeDistances(self.model, data, geom, gdata, q)
         return np.array([r.min_distance for r in gdata.distanceResults])
 

@@ -113,7 +113,6 @@ class Selector:
             self._by_effector.setdefault(effector, []).append(name)
         self._kd: dict[str, tuple[cKDTree, np.ndarray, np.ndarray] | None] = {}
         self._oracles: dict[str, Oracle] = {}
-        self._start: dict[str, float] | None = None  # the current request's "from"
         self._postures: OrderedDict[tuple[str, int], tuple[dict[str, float], dict[str, list[float]] | None, bytes]] = OrderedDict()
         for tree in atlas.trees.values():
             tree.prepare()  # the batch lookup table now, not on the first batch
@@ -212,9 +211,8 @@ class Selector:
         if g.ndim != 2 or g.shape[1] != dim:
             raise InputError("goals", f"expected {dim} coordinates [m] each, got shape {list(g.shape)}")
         refine = self.refine if refine is None else refine
-        self._start = start
         if len(g) == 1:
-            return [self._select_one(effector, names, g[0], refine, t0)]
+            return [self._select_one(effector, names, g[0], refine, t0, start)]
         hits = np.stack([self.atlas.trees[n].contains(g, self.policy) for n in names])
         chosen = np.where(hits.any(axis=0), hits.argmax(axis=0), -1)
         nearest: dict[int, tuple[int, np.ndarray] | None] = {}
@@ -224,18 +222,19 @@ class Selector:
             for m, i in enumerate(sel):
                 nearest[int(i)] = None if found is None else (int(found[0][m]), found[1][m])
         return [
-            self._answer(effector, g[i], [n for j, n in enumerate(names) if hits[j, i]], nearest.get(i), refine, time.perf_counter())
+            self._answer(effector, g[i], [n for j, n in enumerate(names) if hits[j, i]], nearest.get(i), refine, time.perf_counter(), start)
             for i in range(len(g))
         ]
 
-    def _select_one(self, effector: str, names: list[str], goal: np.ndarray, refine: bool, t0: float) -> Answer:
+    def _select_one(self, effector: str, names: list[str], goal: np.ndarray, refine: bool, t0: float, start: dict[str, float] | None) -> Answer:
         """select_many for one goal, in plain Python: the server's per-request path."""
         point = goal.tolist()
         hits = [n for n in names if self.atlas.trees[n]._contains_one(point, self.policy)]
         nearest = self._nearest_row(hits[0], self.atlas.trees[hits[0]], point) if hits else None
-        return self._answer(effector, goal, hits, nearest, refine, t0)
+        return self._answer(effector, goal, hits, nearest, refine, t0, start)
 
-    def _answer(self, effector: str, goal: np.ndarray, hits: list[str], nearest: tuple[int, np.ndarray] | None, refine: bool, t0: float) -> Answer:
+    def _answer(self, effector: str, goal: np.ndarray, hits: list[str], nearest: tuple[int, np.ndarray] | None, refine: bool, t0: float,
+                start: dict[str, float] | None = None) -> Answer:
         """The answer for one goal, given the strategies that hold it (by priority) and the chosen one's nearest stored vertex."""
         if not hits:
             return Answer(effector, tuple(goal.tolist()), None, False, seconds=time.perf_counter() - t0)
@@ -250,7 +249,7 @@ class Selector:
             residual = gap if np.isfinite(gap) else None
             outcome = SKIPPED
             if refine:
-                q, residual, outcome = self._refine(name, goal, tree.vertices.posture[row], residual)  # type: ignore[index]
+                q, residual, outcome = self._refine(name, goal, tree.vertices.posture[row], residual, start)  # type: ignore[index]
             if outcome == REFINED:
                 posture, root = split_posture(tree.vertices.posture_names, q)
             else:
@@ -274,24 +273,26 @@ class Selector:
             self._postures.move_to_end(key)
         return hit
 
-    def _start_posture(self, tree: VATree, stored: np.ndarray) -> np.ndarray | None:
+    @staticmethod
+    def _start_posture(tree: VATree, stored: np.ndarray, start: dict[str, float] | None) -> np.ndarray | None:
         """The query's ``from`` as a full posture: the stored one with the given joints replaced."""
-        if self._start is None:
+        if start is None:
             return None
         names = tree.vertices.posture_names
-        unknown = sorted(set(self._start) - set(names))
+        unknown = sorted(set(start) - set(names))
         if unknown:
             raise InputError("from", f"unknown joints {unknown[:5]}; the posture's names are {', '.join(names)}")
         q = stored.copy()
         for k, n in enumerate(names):
-            if n in self._start:
-                q[k] = self._start[n]
+            if n in start:
+                q[k] = start[n]
         return q
 
-    def _refine(self, name: str, goal: np.ndarray, q: np.ndarray, residual: float | None) -> tuple[np.ndarray, float | None, str]:
+    def _refine(self, name: str, goal: np.ndarray, q: np.ndarray, residual: float | None,
+                start_joints: dict[str, float] | None = None) -> tuple[np.ndarray, float | None, str]:
         oracle = self._oracle(name)
         t0 = time.perf_counter()
-        start = self._start_posture(self.atlas.trees[name], q)
+        start = self._start_posture(self.atlas.trees[name], q, start_joints)
         if start is not None and isinstance(oracle, Continuing):
             v = oracle.evaluate_from(goal[None], start)
         else:

@@ -121,10 +121,11 @@ class ObstaclesTask(HardTask):
     def bind(self, reference: Reference) -> None:
         self._model = reference.body.collision
 
-    def distance(self, model: CollisionModel, q: np.ndarray, capsule: int, box: int) -> float:
-        """Coal's distance [m] between a capsule at q and a box."""
-        data = model.model.createData()
-        pin.forwardKinematics(model.model, data, q)
+    def distance(self, model: CollisionModel, q: np.ndarray, capsule: int, box: int, data: pin.Data | None = None) -> float:
+        """Coal's distance [m] between a capsule at q and a box (``data``: joint placements at q already computed)."""
+        if data is None:
+            data = model.model.createData()
+            pin.forwardKinematics(model.model, data, q)
         obj = model.geometry.geometryObjects[capsule]
         placement = data.oMi[obj.parentJoint] * obj.placement
         b = self.boxes[box]
@@ -163,4 +164,5 @@ class ObstaclesTask(HardTask):
 
     def holds(self, num: Numeric) -> bool:
         assert self._model is not None
-        return all(self.distance(self._model, num.q, g.capsule, g.box) >= g.floor for g in self.guards)
+        # num.data holds the joint placements at num.q: one forward kinematics for every guard.
+        return all(self.distance(self._model, num.q, g.capsule, g.box, num.data) >= g.floor for g in self.guards)

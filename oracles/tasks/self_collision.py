@@ -120,6 +120,7 @@ class SelfCollisionTask(HardTask):
     pairs: tuple[Pair, ...] = ()
     at_reference: tuple[tuple[str, str, float], ...] = ()  # pairs closer than the margin at the reference: names, distance [m]
     _model: CollisionModel | None = field(default=None, repr=False, compare=False)
+    _floors: np.ndarray = field(default_factory=lambda: np.zeros(0), init=False, repr=False, compare=False)
 
     @classmethod
     def parse(cls, raw: dict[str, Any], where: str, scope: Scope) -> SelfCollisionTask:
@@ -166,6 +167,7 @@ class SelfCollisionTask(HardTask):
 
     def bind(self, reference: Reference) -> None:
         self._model = reference.body.collision
+        self._floors = np.array([p.floor for p in self.pairs])
 
     def describe(self) -> dict[str, Any]:
         names = [p.name for p in self._model.placed] if self._model else []
@@ -210,4 +212,4 @@ class SelfCollisionTask(HardTask):
     def holds(self, num: Numeric) -> bool:
         if not self.pairs:
             return True
-        return bool(np.all(self.distances(num.q) >= np.array([p.floor for p in self.pairs])))
+        return bool(np.all(self.distances(num.q) >= self._floors))
