@@ -31,13 +31,14 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
+import pinocchio as pin
 
 from oracles.body import load_body
 from oracles.kinematics import SymbolicKinematics
 from oracles.problem import ReachProblem
 from oracles.protocol import OracleSpec, Purpose, Verdicts, check_points, check_purpose
 from oracles.strategy import parse_strategy
-from oracles.tasks import Symbolic
+from oracles.tasks import Numeric, Symbolic
 from reach.errors import OracleError
 
 NEAR_HINT = 0.1  # [m] a hint whose effector is this close to the goal makes its warm solve decisive (see give_up)
@@ -112,7 +113,7 @@ class IKOracle(ABC):
         self.seed = int(seed)
         self._data = self.body.model.createData()
         self._start: np.ndarray | None = None  # the current posture as x, during evaluate_from
-        self.stats = {"points": 0, "prefiltered": 0, "solves": 0, "reachable": 0}
+        self.stats = {"points": 0, "prefiltered": 0, "solves": 0, "reachable": 0, "guarded": 0}
 
     # -- optional capabilities of the oracle protocol ----------------------
     @property
@@ -126,8 +127,6 @@ class IKOracle(ABC):
 
     def effector_positions(self, postures: np.ndarray) -> np.ndarray:
         """Effector positions [m] (N, 3) of postures (N, nq), by Pinocchio."""
-        import pinocchio as pin
-
         model, data, fid = self.body.model, self._data, self.problem.effector_id
         out = np.empty((len(postures), 3))
         for k, q in enumerate(postures):
@@ -434,10 +433,6 @@ class CasadiIK(IKOracle):
 
     def _lazy_hold(self, x: np.ndarray) -> bool:
         """Whether the lazy hard tasks hold at x (Pinocchio's evaluation)."""
-        import pinocchio as pin
-
-        from oracles.tasks import Numeric
-
         q = self.problem.q_of_x(x)
         pin.framesForwardKinematics(self.body.model, self._data, q)
         num = Numeric(self.body.model, self._data, q, np.zeros(3))
@@ -457,7 +452,7 @@ class CasadiIK(IKOracle):
             x_new = self._stage(k, x, params, optimum, guarded=False)
             if x_new is not None and self.lazy and not self._lazy_hold(x_new):
                 x_new = self._stage(k, x, params, optimum, guarded=True)
-                self.stats["guarded"] = self.stats.get("guarded", 0) + 1
+                self.stats["guarded"] += 1
             if x_new is None:
                 break  # keep the last posture; the check decides
             x = x_new
