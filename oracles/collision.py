@@ -148,11 +148,14 @@ def nearest_points(p: np.ndarray, q: np.ndarray, a: np.ndarray, b: np.ndarray) -
     aa, ee, f = d1 @ d1, d2 @ d2, d2 @ r
     c, bb = d1 @ r, d1 @ d2
     den = aa * ee - bb * bb
-    s = float(np.clip((bb * f - c * ee) / den, 0.0, 1.0)) if den > 1e-15 and aa > 1e-15 else 0.0
-    t = (bb * s + f) / ee if ee > 1e-15 else 0.0
-    if t < 0.0 or t > 1.0:
-        t = float(np.clip(t, 0.0, 1.0))
-        s = float(np.clip((t * bb - c) / aa, 0.0, 1.0)) if aa > 1e-15 else 0.0
+    if ee <= 1e-15:  # a-b is a point (a sphere): project it on p-q
+        s, t = (float(np.clip(-c / aa, 0.0, 1.0)) if aa > 1e-15 else 0.0), 0.0
+    else:
+        s = float(np.clip((bb * f - c * ee) / den, 0.0, 1.0)) if den > 1e-15 and aa > 1e-15 else 0.0
+        t = (bb * s + f) / ee
+        if t < 0.0 or t > 1.0:
+            t = float(np.clip(t, 0.0, 1.0))
+            s = float(np.clip((t * bb - c) / aa, 0.0, 1.0)) if aa > 1e-15 else 0.0
     x, y = p + s * d1, a + t * d2
     return x, y, float(np.linalg.norm(x - y))
 

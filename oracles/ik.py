@@ -18,15 +18,11 @@ so a lower task never degrades a higher one.
 
 from __future__ import annotations
 
-import os
 import shutil
-import tempfile
 import time
 import warnings
 import zlib
 from abc import ABC, abstractmethod
-from collections.abc import Iterator
-from contextlib import contextmanager
 from typing import Any
 
 import casadi as ca
@@ -34,6 +30,7 @@ import numpy as np
 import pinocchio as pin
 
 from oracles.body import load_body
+from oracles.jit import COMPILER, compiled_nlpsol
 from oracles.kinematics import SymbolicKinematics
 from oracles.problem import ReachProblem
 from oracles.protocol import OracleSpec, Purpose, Verdicts, check_points, check_purpose
@@ -44,7 +41,15 @@ from reach.errors import OracleError
 NEAR_HINT = 0.1  # [m] a hint whose effector is this close to the goal makes its warm solve decisive (see give_up)
 SOLVERS = ("fatrop", "ipopt")
 REFINE_SECONDARY_ITER = 40  # iteration cap of the lower stages when refining an answer
-COMPILER = "gcc"  # the C compiler of jit: CasADi's shell compiler calls it
+# Lazy tasks' cuts (see oracles.tasks.base.HardTask): how many one program
+# holds, how many rounds of cutting a stage may take, how near its bound a row
+# is cut [m], and how far inside its bound a cut puts it [m] (the rows are
+# curved; a cut exactly on the bound lands just short of it).
+CUT_SLOTS = 16
+CUT_ROUNDS = 4
+CUT_WITHIN = 0.02
+CUT_INSIDE = 0.002
+UNUSED = -1.0  # an unused cut slot's lower bound: 0 >= -1
 
 
 class IKOracle(ABC):
@@ -113,7 +118,7 @@ class IKOracle(ABC):
         self.seed = int(seed)
         self._data = self.body.model.createData()
         self._start: np.ndarray | None = None  # the current posture as x, during evaluate_from
-        self.stats = {"points": 0, "prefiltered": 0, "solves": 0, "reachable": 0, "guarded": 0}
+        self.stats = {"points": 0, "prefiltered": 0, "solves": 0, "reachable": 0, "cut_rounds": 0}
 
     # -- optional capabilities of the oracle protocol ----------------------
     @property
@@ -140,6 +145,11 @@ class IKOracle(ABC):
         if p.anchor is None or not np.isfinite(p.max_reach):
             return None
         return p.anchor.copy(), float(p.max_reach)
+
+    def keep_out(self) -> np.ndarray:
+        """Capsules (K, 7) that hold no reachable point: the static segments the effector may not enter."""
+        out = [c for t in self.strategy.hard for c in t.keep_out()]
+        return np.array(out, float).reshape(-1, 7)
 
     def describe(self) -> dict[str, Any]:
         """The strategy as parsed: effector, active joints and tasks (``reach model CONFIG``)."""
@@ -260,22 +270,20 @@ class IKOracle(ABC):
         return Verdicts(reach, residual, posture)
 
 
-@contextmanager
-def _scratch_directory() -> Iterator[None]:
-    """Work in a fresh temporary directory, removed afterwards.
+class _Cuts:
+    """The cut slots of one solve: rows ``matrix @ x >= lower``; once full, a new cut replaces the oldest."""
 
-    CasADi's jit writes its C source and shared library into the working
-    directory and removes them only when the solver is destroyed, which a
-    worker process ended with its pool never does: builds left them behind.
-    """
-    home = os.getcwd()
-    scratch = tempfile.mkdtemp(prefix="reach-jit-")
-    os.chdir(scratch)
-    try:
-        yield
-    finally:
-        os.chdir(home)
-        shutil.rmtree(scratch, ignore_errors=True)
+    def __init__(self, slots: int, nx: int) -> None:
+        self.matrix = np.zeros((slots, nx))
+        self.lower = np.full(slots, UNUSED)
+        self.count = 0
+
+    def add(self, row: np.ndarray, lower: float) -> None:
+        if not len(self.lower):
+            return
+        k = self.count % len(self.lower)
+        self.matrix[k], self.lower[k] = row, lower
+        self.count += 1
 
 
 class CasadiIK(IKOracle):
@@ -297,17 +305,17 @@ class CasadiIK(IKOracle):
             solvers shipped with CasADi. On the whole-body problem fatrop
             takes about half IPOPT's time per solve for the same verdicts
             (IPOPT's per-iteration overhead dominates a 30-variable
-            problem). It solves the reach stage; the lower stages (gaze,
-            comfort) always use IPOPT. IPOPT is the referee of ``reach audit``.
+            problem). IPOPT is the referee of ``reach audit``.
         jit: Compile the problem's functions (objective, constraints and
             their derivatives) to machine code with the system's C compiler
             (``gcc``) instead of running CasADi's interpreter: ``auto``
             compiles when ``gcc`` is on the PATH and falls back to the
             interpreter if it fails, ``true`` requires it, ``false`` (the
-            default) never does. Compiling takes 0.3-4 s per oracle (once per
-            worker and strategy); a whole-body solve then takes about 45 % of
-            its interpreted time, for the same verdicts. Builds gain; a
-            one-off query does not, hence the default; the configs shipped
+            default) never does. Compiling takes 0.3-4 s per program the
+            first time; the libraries are then kept on disk and shared by
+            every process (:mod:`oracles.jit`). A whole-body solve takes about
+            45 % of its interpreted time, for the same verdicts. Builds gain;
+            a one-off query does not, hence the default; the configs shipped
             here ask for ``auto``.
         (others as :class:`IKOracle`)
     """
@@ -332,7 +340,8 @@ class CasadiIK(IKOracle):
         reach = soft.index(self.strategy.reach)
         self.order = list(soft if self.secondary else soft[: reach + 1])
         self.stages: list[ca.Function] = []  # built on the first solve
-        self.guarded: list[ca.Function] = []  # the same with the lazy hard tasks' rows
+        self.cut_stages: list[ca.Function] = []  # the same with cut rows, built on the first cut
+        self.bounds: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # row bounds by number of cut slots
         self.lazy = [t for t in self.strategy.hard if t.lazy]
 
     def variant_params(self, purpose: Purpose) -> dict[str, Any]:
@@ -341,45 +350,38 @@ class CasadiIK(IKOracle):
         # the time); the referee solves with IPOPT, the reference solver.
         return {"jit": False, "secondary_iter": REFINE_SECONDARY_ITER} if purpose == "refine" else {"solver": "ipopt"}
 
-    def _build(self) -> None:
-        """The lexicographic stages: each soft task minimised with the earlier ones held."""
+    def _build(self, slots: int = 0) -> list[ca.Function]:
+        """The lexicographic stages: each soft task minimised with the earlier ones held, and ``slots`` cut rows."""
         p = self.problem
         x, goal = p.x_sym, ca.SX.sym("goal", 3)
         start, weight = ca.SX.sym("start", p.nx), ca.SX.sym("start_weight", 1)
         sym = Symbolic(SymbolicKinematics(self.body.model, p.q_sym), x, goal, p.x_ref, p.upper - p.lower, tuple(p.x_names), p.lower, start, weight)
         params = ca.vertcat(goal, start, weight)
-        eager = [c for t in self.strategy.hard if not t.lazy for c in t.constraints(sym)]
-        lazy = [c for t in self.strategy.hard if t.lazy for c in t.constraints(sym)]
-        # Two programs per stage when some hard task is lazy: without its rows
-        # (tried first), and with every row (when the first breaks it).
-        variants = [("", eager)] + ([("_guarded", eager + lazy)] if lazy else [])
-        self.bounds = []
-        for suffix, rows in variants:
-            g = ca.vertcat(*[c.expr for c in rows]) if rows else ca.SX.zeros(0, 1)
-            lbg = np.array([c.lower for c in rows for _ in range(c.expr.numel())], float)
-            ubg = np.array([c.upper for c in rows for _ in range(c.expr.numel())], float)
-            stages = []
-            for k, task in enumerate(self.order):
-                earlier = [t.held(sym) for t in self.order[:k]]
-                nlp = {"x": x, "p": params, "f": task.objective(sym), "g": ca.vertcat(g, *earlier)}
-                engine, iters = self.solver, (self.max_iter if k == 0 else self.secondary_iter)
-                # The guarded programs are interpreted: they are solved seldom,
-                # and compiling their many collision rows takes minutes.
-                stages.append(self._nlpsol(f"stage_{task.type}{suffix}", engine, nlp, self._options(engine, iters), compile_=not suffix))
-            self.bounds.append((lbg, ubg))
-            (self.stages if not suffix else self.guarded).extend(stages)
+        rows = [c for t in self.strategy.hard for c in t.constraints(sym)]
+        # The lazy tasks' cuts: linear rows whose coefficients are parameters,
+        # so they add nothing to the second derivatives. An unused slot is
+        # 0 >= -1: fatrop mishandles rows free on both sides (it ran past its
+        # iteration cap).
+        cut = ca.SX.sym("cut", slots, p.nx)
+        g = ca.vertcat(*[c.expr for c in rows], cut @ x) if rows or slots else ca.SX.zeros(0, 1)
+        lbg = np.array([c.lower for c in rows for _ in range(c.expr.numel())] + [UNUSED] * slots, float)
+        ubg = np.array([c.upper for c in rows for _ in range(c.expr.numel())] + [np.inf] * slots, float)
+        self.bounds[slots] = (lbg, ubg)
+        stages = []
+        for k, task in enumerate(self.order):
+            earlier = [t.held(sym) for t in self.order[:k]]
+            nlp = {"x": x, "p": ca.vertcat(params, ca.vec(cut)), "f": task.objective(sym), "g": ca.vertcat(g, *earlier)}
+            iters = self.max_iter if k == 0 else self.secondary_iter
+            stages.append(self._nlpsol(f"stage_{task.type}{'_cut' if slots else ''}", self.solver, nlp, self._options(self.solver, iters)))
         self._objective_fns = [ca.Function(t.type, [x, params], [t.objective(sym)]) for t in self.order]
+        return stages
 
-    def _nlpsol(self, name: str, solver: str, nlp: dict[str, Any], opts: dict[str, Any], compile_: bool = True) -> ca.Function:
-        if self.jit and compile_:
+    def _nlpsol(self, name: str, solver: str, nlp: dict[str, Any], opts: dict[str, Any]) -> ca.Function:
+        if self.jit:
             try:
-                # No cleanup by CasADi: the scratch directory goes as a whole
-                # (the library stays loaded once unlinked).
-                compiled: dict[str, Any] = {"jit": True, "jit_cleanup": False, "compiler": "shell", "jit_options": {"compiler": COMPILER, "flags": ["-O1"], "verbose": False, "cleanup": False}}
-                with _scratch_directory():
-                    return ca.nlpsol(name, solver, nlp, {**opts, **compiled})
+                return compiled_nlpsol(name, solver, nlp, opts)
             except RuntimeError as exc:
-                reason = str(exc).strip().splitlines()[-1]
+                reason = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
                 if self.params["jit"] is True:
                     raise OracleError(f"casadi-ik: jit compilation with {COMPILER} failed ({reason}); set jit: false") from exc
                 warnings.warn(f"casadi-ik: jit compilation failed, using CasADi's interpreter ({reason})", stacklevel=2)
@@ -396,31 +398,57 @@ class CasadiIK(IKOracle):
         budget = {"ipopt.max_wall_time": self.max_seconds} if self.max_seconds else {}
         return {**budget, "print_time": 0, "ipopt.print_level": 0, "ipopt.sb": "yes", "ipopt.max_iter": max_iter, "ipopt.tol": 1e-6, "ipopt.acceptable_tol": 1e-4}
 
-    def _stage_bounds(self, k: int, optimum: list[float], guarded: bool = False) -> tuple[np.ndarray, np.ndarray]:
-        lbg, ubg = self.bounds[int(guarded)]
-        lo: list[Any] = [lbg]
-        hi: list[Any] = [ubg]
+    def _stage(self, k: int, x: np.ndarray, params: np.ndarray, optimum: list[float], cuts: _Cuts | None) -> np.ndarray | None:
+        """Stage k's solution from x, or None when the solver fails or (below the first stage) breaks a constraint."""
+        p = self.problem
+        slots = CUT_SLOTS if cuts is not None else 0
+        if cuts is not None and not self.cut_stages:
+            self.cut_stages = self._build(CUT_SLOTS)  # on the first collision: many problems never need them
+        lbg, ubg = self.bounds[slots]
+        lo, hi = [lbg], [ubg]
+        if cuts is not None:
+            lo[0] = lbg.copy()
+            lo[0][len(lbg) - slots :] = cuts.lower
         for t, opt in zip(self.order[:k], optimum, strict=False):
             a, b = t.held_bounds(opt)
             lo.append(a)
             hi.append(b)
-        return np.concatenate(lo), np.concatenate(hi)
-
-    def _stage(self, k: int, x: np.ndarray, params: np.ndarray, optimum: list[float], guarded: bool) -> np.ndarray | None:
-        """Stage k's solution from x, or None when the solver fails or (below the first stage) breaks a constraint."""
-        p = self.problem
-        lbg, ubg = self._stage_bounds(k, optimum, guarded)
+        low, high = np.concatenate(lo), np.concatenate(hi)
         try:
-            sol = (self.guarded if guarded else self.stages)[k](x0=x, p=params, lbx=p.lower, ubx=p.upper, lbg=lbg, ubg=ubg)
+            if cuts is None:
+                sol = self.stages[k](x0=x, p=params, lbx=p.lower, ubx=p.upper, lbg=low, ubg=high)
+            else:
+                sol = self.cut_stages[k](x0=x, p=np.concatenate([params, cuts.matrix.ravel(order="F")]), lbx=p.lower, ubx=p.upper, lbg=low, ubg=high)
         except RuntimeError:
             return None  # a numerical failure of the solver
         if k > 0:
             # A lower stage is kept only if it honours every constraint,
             # whatever the solver's status (it may stop at its iteration cap).
             gval = np.asarray(sol["g"]).ravel()
-            if np.any(gval < lbg - 1e-7) or np.any(gval > ubg + 1e-7):
+            if np.any(gval < low - 1e-7) or np.any(gval > high + 1e-7):
                 return None
         return np.clip(np.asarray(sol["x"]).ravel(), p.lower, p.upper)
+
+    def _cut_stage(self, k: int, x: np.ndarray, params: np.ndarray, optimum: list[float], cuts: _Cuts) -> np.ndarray | None:
+        """Stage k with the lazy tasks: while its posture breaks one, cut the near rows there and solve again."""
+        for rounds in range(CUT_ROUNDS + 1):
+            x_new = self._stage(k, x, params, optimum, cuts if cuts.count else None)
+            if x_new is None or not self.lazy:
+                return x_new
+            q = self.problem.q_of_x(x_new)
+            pin.framesForwardKinematics(self.body.model, self._data, q)
+            if all(t.holds(Numeric(self.body.model, self._data, q, np.zeros(3))) for t in self.lazy):
+                return x_new
+            if rounds == CUT_ROUNDS:
+                break
+            self.stats["cut_rounds"] += 1
+            num = self.problem.numeric_x(q, self._data)
+            for t in self.lazy:
+                for c in t.cuts(num, CUT_WITHIN):
+                    cuts.add(c.jacobian, c.need + CUT_INSIDE - c.gap + float(c.jacobian @ x_new))
+        # Still broken: the reach stage's posture goes to the verdict (which
+        # refuses it); a lower stage's is dropped for the stage above's.
+        return x_new if k == 0 else None
 
     def preference(self, q: np.ndarray, goal: np.ndarray) -> float:
         """The lowest stage's objective at q (the posture task's, in the shipped strategies)."""
@@ -431,16 +459,9 @@ class CasadiIK(IKOracle):
         params = np.concatenate([goal, self._start if self._start is not None else x, [0.0 if self._start is None else 1.0]])
         return float(self._objective_fns[-1](x, params))
 
-    def _lazy_hold(self, x: np.ndarray) -> bool:
-        """Whether the lazy hard tasks hold at x (Pinocchio's evaluation)."""
-        q = self.problem.q_of_x(x)
-        pin.framesForwardKinematics(self.body.model, self._data, q)
-        num = Numeric(self.body.model, self._data, q, np.zeros(3))
-        return all(t.holds(num) for t in self.lazy)
-
     def prepare(self) -> None:
         if not self.stages:
-            self._build()
+            self.stages = self._build()
 
     def solve(self, goal: np.ndarray, x0: np.ndarray) -> np.ndarray:
         self.prepare()
@@ -448,11 +469,9 @@ class CasadiIK(IKOracle):
         x = np.clip(x0, p.lower, p.upper)
         params = np.concatenate([goal, self._start if self._start is not None else x, [0.0 if self._start is None else 1.0]])
         optimum: list[float] = []
+        cuts = _Cuts(CUT_SLOTS, p.nx)  # kept from stage to stage: they describe the same neighbourhood
         for k, task in enumerate(self.order):
-            x_new = self._stage(k, x, params, optimum, guarded=False)
-            if x_new is not None and self.lazy and not self._lazy_hold(x_new):
-                x_new = self._stage(k, x, params, optimum, guarded=True)
-                self.stats["guarded"] += 1
+            x_new = self._cut_stage(k, x, params, optimum, cuts)
             if x_new is None:
                 break  # keep the last posture; the check decides
             x = x_new

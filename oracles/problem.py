@@ -114,6 +114,30 @@ class ReachProblem:
             x.append(np.arctan2(q[jm.idx_q + 1], q[jm.idx_q]) if jm.nq == 2 else q[jm.idx_q])
         return np.clip(np.array(x, dtype=float), self.lower, self.upper)
 
+    def numeric_x(self, q: np.ndarray, data: pin.Data) -> Numeric:
+        """Pinocchio's evaluation of q with Jacobians over x (not over velocities), for linearising in x.
+
+        A floating root's velocity is (linear, angular) in its own frame;
+        x holds its world position and roll, pitch, yaw, so those columns
+        are mapped through the root's rotation and the rpy Jacobian.
+        """
+        model = self.body.model
+        pin.computeJointJacobians(model, data, q)
+        pin.updateFramePlacements(model, data)
+        cols = [model.joints[j].idx_v for j in self.joint_ids]
+        if self.strategy.floating:
+            rot = pin.Quaternion(np.asarray(q[3:7])).normalized().toRotationMatrix()
+            root = np.zeros((6, 6))
+            root[:3, :3] = rot.T
+            root[3:, 3:] = pin.rpy.computeRpyJacobian(pin.rpy.matrixToRpy(rot), pin.LOCAL)
+
+        def joint_jacobian(joint: int) -> np.ndarray:
+            jac = pin.getJointJacobian(model, data, joint, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+            out = jac[:, cols]
+            return np.hstack([jac[:, :6] @ root, out]) if self.strategy.floating else out
+
+        return Numeric(model, data, q, np.zeros(3), joint_jacobian=joint_jacobian)
+
     def random_x(self, rng: np.random.Generator) -> np.ndarray:
         """A random posture near the reference: joints uniform in their ranges, root unmoved."""
         x = rng.uniform(self.lower, self.upper)

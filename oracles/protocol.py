@@ -14,6 +14,8 @@ Oracles may also offer optional capabilities, each a protocol of its own;
 * :class:`EffectorPositions`: where postures put the effector (the
   selector's nearest-posture index);
 * :class:`ReachBound`: a ball that holds every reachable point (``box: auto``);
+* :class:`KeepOut`: capsules no reachable point lies in (the static parts of
+  the body), so that the builder never labels a cell that meets them inner;
 * :class:`Tunable`: a variant set up for a purpose, ``"refine"`` (the
   selector's quick solve at the exact goal, secondary tasks on, within a
   time budget) or ``"referee"`` (the audit's thorough solve);
@@ -135,6 +137,15 @@ class ReachBound(Protocol):
 
     def reach_bound(self) -> tuple[np.ndarray, float] | None:
         """(centre [m], radius [m]) of a ball holding every reachable point, or None when unbounded."""
+        ...
+
+
+@runtime_checkable
+class KeepOut(Protocol):
+    """An oracle that knows regions its volume never enters."""
+
+    def keep_out(self) -> np.ndarray:
+        """Capsules (K, 7): end points a, b [m] and radius [m], world frame, that hold no reachable point."""
         ...
 
 

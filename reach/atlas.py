@@ -20,7 +20,9 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
-from oracles.protocol import Mirrorable, ModelHashed, OracleSpec
+import numpy as np
+
+from oracles.protocol import KeepOut, Mirrorable, ModelHashed, OracleSpec
 from reach.build import build_tree
 from reach.config import Config, StrategySpec
 from reach.errors import ModelError, StoreError
@@ -120,7 +122,8 @@ def _build_locked(
                 say(f"{s.name}: rebuilding ({exc})")
         source = _mirror_source(config, s, built, say) if tree is None and mirror else None
         if tree is None and source is not None:
-            tree = build_tree(MirrorOracle(*source), config.box, config.d_min, config.d_max, meta={**meta, "mirrored_from": s.mirror_of})
+            tree = build_tree(MirrorOracle(*source), config.box, config.d_min, config.d_max, meta={**meta, "mirrored_from": s.mirror_of},
+                              keep_out=_keep_out(s.oracle.create()))
             # The mirror oracle only looks verdicts up: no oracle call is made.
             tree.meta["build"].update(mirrored_from=s.mirror_of, lookups=tree.meta["build"]["oracle_calls"], oracle_calls=0)
             if "model_hash" in source[0].meta:
@@ -161,10 +164,15 @@ def _build_one(
             meta["model_hash"] = ex.oracle.model_hash
         return build_tree(
             s.oracle, config.box, config.d_min, config.d_max, executor=ex, progress=s.name if progress else False, meta=meta, state=state,
-            on_level=lambda st: save_state(st, partial, fp), refine=config.refine,
+            on_level=lambda st: save_state(st, partial, fp), refine=config.refine, keep_out=_keep_out(ex.oracle),
         )
     finally:
         ex.close()
+
+
+def _keep_out(oracle: object) -> np.ndarray | None:
+    """The oracle's keep-out capsules (see :class:`oracles.protocol.KeepOut`), or None."""
+    return oracle.keep_out() if isinstance(oracle, KeepOut) else None
 
 
 def tree_summary(tree: VATree) -> dict[str, Any]:

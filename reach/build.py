@@ -142,10 +142,34 @@ def _retry_isolated(keys: np.ndarray, table: VertexTable, lattice: Lattice, step
     return table, calls
 
 
+def meets(lo: np.ndarray, hi: np.ndarray, capsules: np.ndarray) -> np.ndarray:
+    """Which boxes (n, 3) [m] may meet any capsule (K, 7: a, b, radius [m]); errs towards meeting.
+
+    The capsule's axis is sampled at spacing h, so a box within radius + h/2
+    of the nearest sample may meet it, and one farther does not.
+    """
+    out = np.zeros(len(lo), bool)
+    for cap in capsules:
+        a, b, r = cap[:3], cap[3:6], float(cap[6])
+        h = max(0.5 * min(r, float(np.min(hi[0] - lo[0])) if len(lo) else r), 1e-3)
+        n = int(np.ceil(np.linalg.norm(b - a) / h)) + 1
+        pts = a + np.linspace(0.0, 1.0, n)[:, None] * (b - a)
+        gap = np.maximum(np.maximum(lo[:, None, :] - pts[None], pts[None] - hi[:, None, :]), 0.0)
+        out |= np.linalg.norm(gap, axis=2).min(axis=1) <= r + 0.5 * h
+    return out
+
+
 def build_level(
     state: BuildState, lattice: Lattice, d_min: int, executor: Executor, progress: Any = None, refine: Refine | None = None,
+    keep_out: np.ndarray | None = None,
 ) -> BuildState:
-    """Process the frontier at state.depth; return the state for the next depth."""
+    """Process the frontier at state.depth; return the state for the next depth.
+
+    A would-be inner cell that meets a ``keep_out`` capsule (a region the
+    oracle knows holds no reachable point, as the static parts of the body
+    for an arm) is mixed instead: subdivided, or final at D_max. Its corners
+    alone would paint the body reachable between them.
+    """
     d, frontier = state.depth, state.frontier
     t0 = time.perf_counter()
     table = state.vertices
@@ -162,6 +186,11 @@ def build_level(
         n_in = inside.sum(axis=1)
         kinds = np.where(n_in == inside.shape[1], INNER, np.where(n_in == 0, OUTER, np.where(d == lattice.d_max, FINAL, PARENT)))
         kinds = kinds.astype(np.uint8)
+        if keep_out is not None and len(keep_out) and lattice.dim == 3:
+            inner = np.nonzero(kinds == INNER)[0]
+            size = lattice.resolution * (1 << (lattice.d_max - d))
+            lo = lattice.points(frontier[inner])
+            kinds[inner[meets(lo, lo + size, keep_out)]] = FINAL if d == lattice.d_max else PARENT
         if refine and (refine.centres or refine.faces) and d < lattice.d_max:
             kinds, table, probed = _probe_inner(frontier, kinds, d, table, lattice, executor, progress, refine)
     par = frontier[kinds == PARENT]
@@ -227,6 +256,7 @@ def build_tree(
     state: BuildState | None = None,
     on_level: LevelCallback | None = None,
     refine: Refine | None = None,
+    keep_out: np.ndarray | None = None,
 ) -> VATree:
     """Build a VATree (Algorithm 1).
 
@@ -242,6 +272,7 @@ def build_tree(
         state: A checkpointed state to resume from.
         on_level: Called with the state after each depth (for checkpoints).
         refine: Build-time refinements of the vertex rule (see :class:`Refine`).
+        keep_out: Capsules (K, 7) that hold no reachable point (see :func:`build_level`).
 
     Returns:
         The tree, with the oracle-call count and per-depth statistics in
@@ -263,7 +294,7 @@ def build_tree(
         bar.label = progress if isinstance(progress, str) else ""
     try:
         while state.frontier.shape[0]:
-            state = build_level(state, lattice, d_min, ex, bar, refine)
+            state = build_level(state, lattice, d_min, ex, bar, refine, keep_out)
             if on_level is not None:
                 on_level(state)
     finally:

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import xml.etree.ElementTree as ET
 
-import casadi as ca
 import coal
 import numpy as np
 import pytest
@@ -15,7 +14,6 @@ from oracles.body import human_body, urdf_body
 from oracles.collision import Capsule, nearest_points
 from oracles.problem import ReachProblem
 from oracles.strategy import parse_strategy
-from oracles.tasks.self_collision import segment_segment_sq
 from reach.errors import ModelError
 
 
@@ -24,6 +22,8 @@ def coal_capsule_distance(a0, a1, ra, b0, b1, rb) -> float:
     def placed(p, q, r):
         d = q - p
         n = np.linalg.norm(d)
+        if n < 1e-12:
+            return coal.Sphere(r), coal.Transform3s(np.eye(3), p)
         z = d / n
         x = np.cross([0.0, 1.0, 0.0] if abs(z[1]) < 0.9 else [1.0, 0.0, 0.0], z)
         x /= np.linalg.norm(x)
@@ -35,18 +35,16 @@ def coal_capsule_distance(a0, a1, ra, b0, b1, rb) -> float:
 
 def test_our_segment_distances_agree_with_coal():
     rng = np.random.default_rng(0)
-    seg = ca.SX.sym("s", 12)
-    f = ca.Function("d2", [seg], [segment_segment_sq(seg[0:3], seg[3:6], seg[6:9], seg[9:12])])
     for _ in range(300):
         p = rng.uniform(-0.5, 0.5, (4, 3))
         if rng.random() < 0.2:  # parallel segments, the degenerate case
             p[3] = p[2] + (p[1] - p[0]) * rng.uniform(0.2, 2.0)
+        elif rng.random() < 0.1:  # a sphere
+            p[3] = p[2]
         ra, rb = rng.uniform(0.01, 0.1, 2)
         ours = nearest_points(p[0], p[1], p[2], p[3])[2]
-        symbolic = float(np.sqrt(float(f(p.ravel()))))
         truth = coal_capsule_distance(p[0], p[1], ra, p[2], p[3], rb)
         assert ours - ra - rb == pytest.approx(truth, abs=1e-6)
-        assert symbolic - ra - rb == pytest.approx(truth, abs=1e-6)
 
 
 def test_the_humans_urdf_collision_elements_are_its_capsules():
@@ -135,27 +133,31 @@ def test_a_capsule_on_an_unknown_link_is_named():
         CollisionModel(body.model, [Capsule("tail", "tail_link", (0, 0, 0), (0, 0, 1), 0.1)])
 
 
-def test_self_collision_rows_agree_with_coal_at_random_postures():
+def test_self_collision_cuts_agree_with_coal_in_distance_and_gradient():
+    """The cuts casadi-ik solves with: each pair's gap is coal's distance, and its gradient over x (a floating
+    root's rpy included) predicts coal's distance at a nearby posture."""
     body = human_body()
-    s = parse_strategy(body, "right_hand", ARM, [{"type": "reach"}, {"type": "self_collision"}])
+    joints = ["root", "*_hip_*", "*_knee_*", "lumbar_*", "thoracic_*", *ARM, "left_shoulder_*", "left_elbow_*"]
+    s = parse_strategy(body, "right_hand", joints, [{"type": "reach"}, {"type": "self_collision"}])
     problem = ReachProblem(body, s)
     task = s.task("self_collision")
-    from oracles.kinematics import SymbolicKinematics
-    from oracles.tasks import Symbolic
-
-    goal = ca.SX.sym("goal", 3)
-    sym = Symbolic(SymbolicKinematics(body.model, problem.q_sym), problem.x_sym, goal, problem.x_ref, problem.upper - problem.lower)
-    rows = task.constraints(sym)
-    g = ca.Function("g", [problem.x_sym], [ca.vertcat(*[r.expr for r in rows])])
     rng = np.random.default_rng(2)
-    m = body.collision
+    checked = 0
     for _ in range(5):
-        x = rng.uniform(problem.lower, problem.upper)
+        x = problem.x_ref + rng.normal(size=problem.nx) * 0.3
+        x = np.clip(x, problem.lower, problem.upper)
         q = problem.q_of_x(x)
-        d2 = np.asarray(g(x)).ravel()
+        cuts = task.cuts(problem.numeric_x(q, body.model.createData()), np.inf)
+        assert len(cuts) == len(task.pairs)
         coal_d = task.distances(q)
-        for pair, sq, d in zip(task.pairs, d2, coal_d, strict=True):
-            assert np.sqrt(sq) - m.placed[pair.first].radius - m.placed[pair.second].radius == pytest.approx(d, abs=1e-6)
+        step = rng.normal(size=problem.nx) * 1e-4
+        coal_next = task.distances(problem.q_of_x(x + step))
+        for cut, d, d_next in zip(cuts, coal_d, coal_next, strict=True):
+            assert cut.gap == pytest.approx(d, abs=1e-6)
+            if d > 1e-3:  # away from contact, where the distance is smooth
+                assert cut.gap + cut.jacobian @ step == pytest.approx(d_next, abs=2e-7)
+                checked += 1
+    assert checked > 100
 
 
 def test_a_robot_on_a_table_no_longer_reaches_through_it():
@@ -221,3 +223,17 @@ def test_reachable_arm_verdicts_are_collision_free_by_an_independent_coal_check(
             (ga, ta), (gb, tb) = placed(names[pair.first]), placed(names[pair.second])
             d = coal.distance(ga, ta, gb, tb, coal.DistanceRequest(), coal.DistanceResult())
             assert d >= pair.floor, (names[pair.first], names[pair.second], d)
+
+
+def test_the_arms_keep_out_is_the_static_body_and_unreachable():
+    from oracles.ik import CasadiIK
+
+    oracle = CasadiIK({"human": {}}, "right_hand", ARM, [{"type": "reach"}, {"type": "self_collision"}], restarts=3, give_up=None)
+    task = oracle.strategy.task("self_collision")
+    names = {oracle.body.collision.placed[i].name for i in task.static}
+    assert {"thorax", "abdomen", "pelvis", "head", "left_upper_arm"} <= names
+    assert "right_thigh" not in names  # the hanging hand touches it at the reference posture
+    capsules = oracle.keep_out()
+    assert capsules.shape == (len(names), 7)
+    centres = 0.5 * (capsules[:, :3] + capsules[:, 3:6])
+    assert not oracle.evaluate(centres).reachable.any()

@@ -248,6 +248,33 @@ def test_jit_compiles_the_same_problem():
     _assert_reachable_verdicts_hold(compiled, goals, a)
 
 
+@pytest.mark.skipif(shutil.which("gcc") is None and not os.environ.get("CI"), reason="no gcc here (CI installs it)")
+def test_compiled_programs_are_cached_on_disk_and_shared(tmp_path, monkeypatch):
+    monkeypatch.setenv("REACH_JIT_CACHE", str(tmp_path / "jit"))
+    goals = np.array([[0.4, -0.3, 1.1], [0.2, -0.5, 0.9], [1.5, 0.0, 1.0]])
+    first = CasadiIK(HUMAN, "right_hand", ARM, [{"type": "reach"}, {"type": "posture"}], jit=True)
+    a = first.evaluate(goals)
+    libraries = sorted((tmp_path / "jit").glob("*.so"))
+    assert len(libraries) == 2  # one per stage: reach, posture
+    stamps = [lib.stat().st_mtime_ns for lib in libraries]
+    second = CasadiIK(HUMAN, "right_hand", ARM, [{"type": "reach"}, {"type": "posture"}], jit=True)
+    b = second.evaluate(goals)
+    assert sorted((tmp_path / "jit").glob("*.so")) == libraries and [lib.stat().st_mtime_ns for lib in libraries] == stamps
+    assert np.array_equal(a.reachable, b.reachable) and np.array_equal(a.posture, b.posture)
+    assert a.reachable.tolist() == [True, True, False]
+
+
+def test_a_failing_compiler_falls_back_to_the_interpreter(tmp_path, monkeypatch):
+    monkeypatch.setenv("REACH_JIT_CACHE", str(tmp_path / "jit"))
+    monkeypatch.setattr("oracles.jit.COMPILER", "false")  # runs, and fails
+    oracle = CasadiIK(HUMAN, "right_hand", ARM, jit="auto")
+    with pytest.warns(UserWarning, match="jit compilation failed"):
+        assert oracle.evaluate(np.array([[0.4, -0.3, 1.1]])).reachable[0]
+    assert not oracle.jit
+    with pytest.raises(OracleError, match="jit compilation with"):
+        CasadiIK(HUMAN, "right_hand", ARM, jit=True).prepare()
+
+
 def test_jit_without_a_compiler(monkeypatch):
     monkeypatch.setattr("oracles.ik.COMPILER", "no-such-compiler")
     assert not CasadiIK(HUMAN, "right_hand", ARM, jit="auto").jit  # falls back to the interpreter

@@ -8,7 +8,7 @@ or :class:`~oracles.tasks.base.SoftTask` subclass, plus one line in
 from __future__ import annotations
 
 from oracles.tasks.balance import BalanceTask
-from oracles.tasks.base import Constraint, HardTask, Numeric, Reference, Row, Scope, SoftTask, Symbolic, Task
+from oracles.tasks.base import Constraint, Cut, HardTask, Numeric, Reference, Row, Scope, SoftTask, Symbolic, Task
 from oracles.tasks.comfort import ComfortTask
 from oracles.tasks.contacts import Contact, ContactsTask
 from oracles.tasks.coupling import CouplingTask
@@ -53,6 +53,7 @@ __all__ = [
     "Contact",
     "ContactsTask",
     "CouplingTask",
+    "Cut",
     "FeetTask",
     "FloorTask",
     "GazeTask",

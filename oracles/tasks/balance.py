@@ -17,8 +17,20 @@ import numpy as np
 import pinocchio as pin
 from scipy.spatial import ConvexHull
 
-from oracles.tasks.base import Constraint, HardTask, Numeric, Reference, Row, Scope, Symbolic, Task, frames, number
-from oracles.tasks.contacts import BUFFER, INSIDE
+from oracles.tasks.base import (
+    BUFFER,
+    INSIDE,
+    Constraint,
+    HardTask,
+    Numeric,
+    Reference,
+    Row,
+    Scope,
+    Symbolic,
+    Task,
+    frames,
+    number,
+)
 from reach.errors import ModelError, TaskError
 
 BALANCE_TOL = 1e-5  # [m] CoM beyond the shrunk polygon that the verdict accepts

@@ -32,6 +32,9 @@ from oracles.body import Body
 from oracles.kinematics import SymbolicKinematics
 from reach.errors import TaskError
 
+BUFFER = 0.005  # [m] dls: distance from an inequality's bound at which its row becomes active
+INSIDE = 1e-4  # [m] dls: how far inside its bound a violated row is pushed
+
 
 class Constraint(NamedTuple):
     """Rows ``lower <= expr <= upper`` of a nonlinear program (bounds apply to every row)."""
@@ -46,6 +49,24 @@ class Row(NamedTuple):
 
     jacobian: np.ndarray
     error: np.ndarray
+
+
+class Cut(NamedTuple):
+    """One inequality of a lazy task linearised at a posture: ``gap + jacobian @ dx >= need``.
+
+    ``gap`` [m] is the distance now (coal's closed form, ours), ``jacobian``
+    (n_x,) its gradient over the active coordinates, ``need`` [m] the least
+    distance the task allows.
+    """
+
+    jacobian: np.ndarray
+    gap: float
+    need: float
+
+
+def rows_of_cuts(cuts: Sequence[Cut]) -> list[Row]:
+    """The ``dls`` rows of a lazy task: each cut within ``BUFFER`` of its bound, pushed ``INSIDE`` it."""
+    return [Row(c.jacobian[None], np.array([max(0.0, c.need + INSIDE - c.gap)])) for c in cuts if c.gap < c.need + BUFFER]
 
 
 @dataclass(frozen=True)
@@ -254,9 +275,16 @@ class HardTask(Task):
     """A constraint: no soft task may trade it away.
 
     Class attributes:
-        lazy: Many rows that rarely bind (collisions): ``casadi-ik`` solves
-            without them first and again with them only when that posture
-            breaks the task.
+        lazy: Many rows that rarely bind (collisions between any two
+            segments): the task gives no rows to ``casadi-ik``'s programs
+            (:meth:`constraints` is empty) but linearises its near and broken
+            rows at a posture (:meth:`cuts`); the engine solves without them
+            and, when that posture breaks the task, again with the cuts, as
+            sequential convex optimisation does (Schulman et al., "Motion
+            planning with sequential convex optimization and convex collision
+            checking", IJRR 2014). Exact closed-form collision rows made each
+            program's second derivatives 8 MB of C (46 s to compile per stage)
+            or 17 ms per evaluation interpreted.
     """
 
     hard = True
@@ -264,11 +292,19 @@ class HardTask(Task):
 
     @abstractmethod
     def constraints(self, sym: Symbolic) -> list[Constraint]:
-        """The task as constraint rows of ``casadi-ik``'s programs."""
+        """The task as constraint rows of ``casadi-ik``'s programs (none for a lazy task)."""
 
     @abstractmethod
     def rows(self, num: Numeric) -> list[Row]:
         """The task's rows of damped least squares now (inequalities only when active)."""
+
+    def cuts(self, num: Numeric, within: float) -> list[Cut]:
+        """A lazy task's inequalities within ``within`` [m] of their bound at ``num.q``, linearised there."""
+        return []
+
+    def keep_out(self) -> list[np.ndarray]:
+        """Capsules (a, b [m], radius [m]; world frame) the task keeps every reachable point out of."""
+        return []
 
 
 class SoftTask(Task):

@@ -18,6 +18,8 @@ import numpy as np
 import pinocchio as pin
 
 from oracles.tasks.base import (
+    BUFFER,
+    INSIDE,
     Constraint,
     HardTask,
     Numeric,
@@ -31,8 +33,6 @@ from oracles.tasks.base import (
 
 CONTACT_TOL = 1e-4  # [m] contact position drift the verdict accepts
 ANGLE_TOL = 1e-3  # [rad] contact orientation drift the verdict accepts
-BUFFER = 0.005  # [m] dls: distance from an inequality's bound at which its row becomes active
-INSIDE = 1e-4  # [m] dls: how far inside its bound a violated row is pushed
 
 
 @dataclass(frozen=True)

@@ -29,8 +29,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from oracles.tasks.base import Constraint, HardTask, Numeric, Row, Scope, Symbolic, matching, number
-from oracles.tasks.contacts import BUFFER, INSIDE
+from oracles.tasks.base import BUFFER, INSIDE, Constraint, HardTask, Numeric, Row, Scope, Symbolic, matching, number
 from reach.errors import TaskError
 
 LIMIT_TOL = 1e-6  # [rad] overshoot the verdict accepts

@@ -16,8 +16,20 @@ import casadi as ca
 import numpy as np
 
 from oracles.collision import CollisionModel
-from oracles.tasks.base import Constraint, HardTask, Numeric, Reference, Row, Scope, Symbolic, moved, world_point
-from oracles.tasks.contacts import BUFFER, CONTACT_TOL, INSIDE
+from oracles.tasks.base import (
+    BUFFER,
+    INSIDE,
+    Constraint,
+    HardTask,
+    Numeric,
+    Reference,
+    Row,
+    Scope,
+    Symbolic,
+    moved,
+    world_point,
+)
+from oracles.tasks.contacts import CONTACT_TOL
 from reach.errors import TaskError
 
 FEET = ["*_foot"]

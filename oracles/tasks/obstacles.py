@@ -3,7 +3,7 @@
 A table, a wall, a shelf: axis-aligned boxes [m] in the world frame that
 every collision capsule moved by an active joint keeps ``margin`` [m] away
 from (spheres along the capsule's axis kept out of the box grown by their
-radius). A capsule already closer at the reference posture (a robot's base
+radius; a lazy task, see :class:`~oracles.tasks.base.HardTask`). A capsule already closer at the reference posture (a robot's base
 link on its table) keeps its reference clearance instead. The verdict is
 coal's distance between the capsules and the boxes.
 """
@@ -13,14 +13,15 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
-import casadi as ca
 import coal
 import numpy as np
 import pinocchio as pin
 
 from oracles.collision import CollisionModel
 from oracles.tasks.base import (
+    BUFFER,
     Constraint,
+    Cut,
     HardTask,
     Numeric,
     Reference,
@@ -29,9 +30,8 @@ from oracles.tasks.base import (
     Symbolic,
     moved,
     number,
-    world_point,
+    rows_of_cuts,
 )
-from oracles.tasks.contacts import BUFFER, INSIDE
 from oracles.tasks.self_collision import CHECK_TOL, MARGIN
 from reach.errors import TaskError
 
@@ -52,11 +52,15 @@ class Box:
         return 0.5 * (np.asarray(self.hi) - np.asarray(self.lo))
 
     def outside(self, p: np.ndarray) -> tuple[float, np.ndarray]:
-        """Distance [m] of a point outside the box (0 inside) and the direction away from it."""
+        """Signed distance [m] of a point to the box (negative inside) and the direction away from it."""
+        side = np.where(p >= self.centre, 1.0, -1.0)
         d = np.abs(p - self.centre) - self.half
-        out = np.maximum(d, 0.0) * np.sign(p - self.centre)
+        if np.all(d <= 0):  # inside: out through the nearest face
+            k = int(np.argmax(d))
+            return float(d[k]), side[k] * np.eye(3)[k]
+        out = np.maximum(d, 0.0) * side
         n = float(np.linalg.norm(out))
-        return n, out / n if n > 0 else np.zeros(3)
+        return n, out / n
 
 
 @dataclass(frozen=True)
@@ -134,33 +138,23 @@ class ObstaclesTask(HardTask):
                                    coal.Box(*(2 * b.half)), coal.Transform3s(np.eye(3), b.centre), request, result))
 
     def constraints(self, sym: Symbolic) -> list[Constraint]:
+        return []  # lazy: see cuts
+
+    def cuts(self, num: Numeric, within: float) -> list[Cut]:
         assert self._model is not None
         out = []
         for g in self.guards:
             p, box = self._model.placed[g.capsule], self.boxes[g.box]
-            reach = p.radius + g.clearance
-            m = np.linspace(0.0, 1.0, len(p.capsule.samples()))[:, None]
-            rows = []
-            for c in p.a + m * (p.b - p.a):
-                d = ca.fmax(ca.fabs(world_point(sym, p.joint, c) - ca.SX(box.centre.reshape(3, 1))) - ca.SX(box.half.reshape(3, 1)), 0.0)
-                rows.append(ca.sumsqr(d))
-            out.append(Constraint(ca.vertcat(*rows), reach * abs(reach), np.inf))
+            a, b = self._model.world(num.data, g.capsule)
+            for t in np.linspace(0.0, 1.0, len(p.capsule.samples())):
+                c = a + t * (b - a)
+                gap, n = box.outside(c)
+                if gap - p.radius < g.clearance + within:
+                    out.append(Cut(n @ num.point_jacobian(p.joint, c), gap - p.radius, g.clearance))
         return out
 
     def rows(self, num: Numeric) -> list[Row]:
-        assert self._model is not None
-        out = []
-        for g in self.guards:
-            p, box = self._model.placed[g.capsule], self.boxes[g.box]
-            m = np.linspace(0.0, 1.0, len(p.capsule.samples()))
-            a, b = self._model.world(num.data, g.capsule)
-            for t in m:
-                c = a + t * (b - a)
-                gap, n = box.outside(c)
-                gap -= p.radius
-                if gap < g.clearance + BUFFER and np.any(n):
-                    out.append(Row((n @ num.point_jacobian(p.joint, c))[None], np.array([max(0.0, g.clearance + INSIDE - gap)])))
-        return out
+        return rows_of_cuts(self.cuts(num, BUFFER))
 
     def holds(self, num: Numeric) -> bool:
         assert self._model is not None

@@ -18,13 +18,15 @@ forearm against the waist) keeps its reference clearance instead: it may not
 come closer than it stands, so the hand still cannot pass through the trunk.
 These pairs are listed by ``reach model``.
 
-In ``casadi-ik`` each pair is one constraint row: the squared distance of
-the two capsules' segments (a piecewise-smooth closed form) at least the sum
-of their radii and the clearance, squared. The task is *lazy*: the engine
-first solves without it and adds it only when that posture collides (most
-postures do not), so the pairs cost time only where they matter. In ``dls``
-the pairs closer than the margin plus a buffer become inequality rows along
-the line of their nearest points. The verdict is coal's
+The task is *lazy* (see :class:`~oracles.tasks.base.HardTask`): a pair's
+distance is the closed form of the nearest points of the two capsules'
+segments (:func:`oracles.collision.nearest_points`) less their radii, and its
+gradient the difference of the two nearest points' Jacobians along the line
+between them. ``casadi-ik`` solves without the pairs, and when the posture
+collides, again with the near and colliding pairs linearised at it, until it
+does not (most postures never collide, and any number of pairs costs the
+programs nothing). In ``dls`` the pairs closer than the margin plus a buffer
+become inequality rows along the same line. The verdict is coal's
 (``pinocchio.computeDistances`` on the capsules): no pair closer than its
 clearance (0 for most pairs), within 0.1 mm.
 """
@@ -34,24 +36,25 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
-import casadi as ca
 import numpy as np
 import pinocchio as pin
 
 from oracles.collision import CollisionModel, nearest_points
 from oracles.tasks.base import (
+    BUFFER,
     Constraint,
+    Cut,
     HardTask,
     Numeric,
     Reference,
     Row,
     Scope,
     Symbolic,
+    moved,
     number,
     relative_motion,
-    world_point,
+    rows_of_cuts,
 )
-from oracles.tasks.contacts import BUFFER, INSIDE
 from reach.errors import TaskError
 
 MARGIN = 0.01  # [m] default clearance between segments
@@ -85,26 +88,29 @@ def _adjacent(model: pin.Model, bearing: set[int], a: int, b: int) -> bool:
     return False
 
 
-def _clamp(v: ca.SX) -> ca.SX:
-    return ca.fmin(ca.fmax(v, 0.0), 1.0)
+def _keep_out(scope: Scope, model: CollisionModel, pairs: list[Pair]) -> tuple[int, ...]:
+    """Capsules that no active joint moves and that a capsule holding the effector point is kept from.
 
-
-def segment_segment_sq(p: ca.SX, q: ca.SX, a: ca.SX, b: ca.SX) -> ca.SX:
-    """Squared distance between segments p-q and a-b, as one CasADi expression.
-
-    The clamped closed form of :func:`oracles.collision.nearest_points`
-    (Ericson, *Real-Time Collision Detection*, 2005, 5.1.9): piecewise
-    smooth, continuous, and one constraint row per pair of capsules.
+    The effector point lies inside its capsule, ``inside`` [m] from its
+    surface; a point of a static capsule is then unreachable whenever the two
+    may not overlap by ``inside`` (the pair's least accepted distance, its
+    floor, above ``-inside``).
     """
-    d1, d2, r = q - p, b - a, p - a
-    aa, ee, f = ca.dot(d1, d1) + 1e-12, ca.dot(d2, d2) + 1e-12, ca.dot(d2, r)
-    c, bb = ca.dot(d1, r), ca.dot(d1, d2)
-    den = aa * ee - bb * bb
-    s = _clamp((bb * f - c * ee) / (den + 1e-12))
-    t = (bb * s + f) / ee
-    s = ca.if_else(t < 0, _clamp(-c / aa), ca.if_else(t > 1, _clamp((bb - c) / aa), s))
-    t = _clamp(t)
-    return ca.sumsqr((p + s * d1) - (a + t * d2))
+    pm, data = scope.body.model, scope.body.model.createData()
+    pin.framesForwardKinematics(pm, data, scope.body.q_ref)
+    fid = scope.body.frame_id(scope.effector)
+    point = data.oMf[fid].translation
+    depth = {}
+    for i, p in enumerate(model.placed):
+        if p.joint == int(pm.frames[fid].parentJoint):
+            a, b = model.world(data, i)
+            depth[i] = p.radius - nearest_points(a, b, point, point)[2]
+    out = set()
+    for pair in pairs:
+        for e, other in ((pair.first, pair.second), (pair.second, pair.first)):
+            if depth.get(e, -1.0) > 0 and pair.floor > -depth[e] and not moved(pm, model.placed[other].joint, scope.active):
+                out.add(other)
+    return tuple(sorted(out))
 
 
 @dataclass
@@ -119,8 +125,10 @@ class SelfCollisionTask(HardTask):
     margin: float = MARGIN
     pairs: tuple[Pair, ...] = ()
     at_reference: tuple[tuple[str, str, float], ...] = ()  # pairs closer than the margin at the reference: names, distance [m]
+    static: tuple[int, ...] = ()  # capsules that no active joint moves and the effector may not enter (see keep_out)
     _model: CollisionModel | None = field(default=None, repr=False, compare=False)
     _floors: np.ndarray = field(default_factory=lambda: np.zeros(0), init=False, repr=False, compare=False)
+    _reference: Reference | None = field(default=None, init=False, repr=False, compare=False)
 
     @classmethod
     def parse(cls, raw: dict[str, Any], where: str, scope: Scope) -> SelfCollisionTask:
@@ -163,10 +171,11 @@ class SelfCollisionTask(HardTask):
             if d < margin:
                 close.append((model.placed[i].name, model.placed[j].name, round(float(d), 4)))
             pairs.append(Pair(i, j, clearance, clearance - CHECK_TOL if d >= margin else min(0.0, clearance) - CONTACT_GIVE))
-        return cls(margin, tuple(pairs), tuple(close))
+        return cls(margin, tuple(pairs), tuple(close), _keep_out(scope, model, pairs))
 
     def bind(self, reference: Reference) -> None:
         self._model = reference.body.collision
+        self._reference = reference
         self._floors = np.array([p.floor for p in self.pairs])
 
     def describe(self) -> dict[str, Any]:
@@ -178,22 +187,20 @@ class SelfCollisionTask(HardTask):
         }
 
     def constraints(self, sym: Symbolic) -> list[Constraint]:
-        assert self._model is not None
-        rows, lo = [], []
-        for pair in self.pairs:
-            s, o = self._model.placed[pair.first], self._model.placed[pair.second]
-            a, b = world_point(sym, o.joint, o.a), world_point(sym, o.joint, o.b)
-            reach = s.radius + o.radius + pair.clearance
-            rows.append(segment_segment_sq(world_point(sym, s.joint, s.a), world_point(sym, s.joint, s.b), a, b))
-            lo.append(reach * abs(reach))
-        return [Constraint(row, bound, np.inf) for row, bound in zip(rows, lo, strict=True)]
+        return []  # lazy: see cuts
+
+    def keep_out(self) -> list[np.ndarray]:
+        """The static capsules the effector may not enter, where they stand: a, b [m], radius [m]."""
+        assert self._model is not None and self._reference is not None
+        data = self._reference.data
+        return [np.concatenate([*self._model.world(data, i), [self._model.placed[i].radius]]) for i in self.static]
 
     def distances(self, q: np.ndarray) -> np.ndarray:
         """Coal's distance [m] of every pair at q."""
         assert self._model is not None
         return self._model.distances(q, [(p.first, p.second) for p in self.pairs])
 
-    def rows(self, num: Numeric) -> list[Row]:
+    def cuts(self, num: Numeric, within: float) -> list[Cut]:
         assert self._model is not None
         out = []
         for pair in self.pairs:
@@ -202,12 +209,16 @@ class SelfCollisionTask(HardTask):
             qa, qb = self._model.world(num.data, pair.second)
             ps, po, gap = nearest_points(pa, pb, qa, qb)
             gap -= s.radius + o.radius
-            if gap >= pair.clearance + BUFFER:
+            if gap >= pair.clearance + within:
                 continue
-            n = (ps - po) / max(np.linalg.norm(ps - po), 1e-9)
-            jac = n @ (num.point_jacobian(s.joint, ps) - num.point_jacobian(o.joint, po))
-            out.append(Row(jac[None], np.array([max(0.0, pair.clearance + INSIDE - gap)])))
+            # Crossing axes (gap = -radii) have no nearest direction: push along the first capsule's normal.
+            n = ps - po if np.linalg.norm(ps - po) > 1e-9 else np.cross(pb - pa, qb - qa)
+            n = n / max(float(np.linalg.norm(n)), 1e-12)
+            out.append(Cut(n @ (num.point_jacobian(s.joint, ps) - num.point_jacobian(o.joint, po)), float(gap), pair.clearance))
         return out
+
+    def rows(self, num: Numeric) -> list[Row]:
+        return rows_of_cuts(self.cuts(num, BUFFER))
 
     def holds(self, num: Numeric) -> bool:
         if not self.pairs:
