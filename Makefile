@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
 
-.PHONY: run sphere test lint bench clean
+.PHONY: run sphere view test lint bench clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -20,6 +20,12 @@ run: $(VENV)/.installed
 	$(VENV)/bin/reach query out/demo 0.45 -0.25 1.20 --effector right_hand
 	$(VENV)/bin/reach query out/demo 0.35 -0.15 0.05 --effector right_hand
 	$(VENV)/bin/reach evaluate out/demo --targets configs/targets/workstation.csv
+
+# The interactive 3-D view of the demo atlas (built by `make run`), in the browser.
+view: $(VENV)/.installed
+	$(VENV)/bin/pip install --quiet -e '.[view]'
+	$(VENV)/bin/reach build configs/demo.yaml -o out/demo --resume
+	$(VENV)/bin/reach view out/demo
 
 # The analytic example of the VATree core: a unit sphere.
 sphere: $(VENV)/.installed

@@ -146,6 +146,15 @@ class IKOracle(ABC):
             return None
         return p.anchor.copy(), float(p.max_reach)
 
+    def reference_posture(self) -> np.ndarray:
+        return self.body.q_ref.copy()
+
+    def shape(self, posture: np.ndarray) -> tuple[list[str], np.ndarray]:
+        """The body's capsules (K, 7) at a posture, world frame (see :class:`oracles.protocol.Shaped`)."""
+        model, data, col = self.body.model, self.body.model.createData(), self.body.collision
+        pin.forwardKinematics(model, data, np.asarray(posture, float))
+        return [p.name for p in col.placed], np.array([[*np.concatenate(col.world(data, i)), p.radius] for i, p in enumerate(col.placed)]).reshape(-1, 7)
+
     def keep_out(self) -> np.ndarray:
         """Capsules (K, 7) that hold no reachable point: the static segments the effector may not enter."""
         out = [c for t in self.strategy.hard for c in t.keep_out()]
@@ -263,7 +272,10 @@ class IKOracle(ABC):
                     hard[i], residual[i], posture[i] = check.hard_ok, check.residual, q[k]
                 reach[i] = check.reachable
                 done[i] = check.reachable
-                if not done[i] and r == 0 and decisive[i] and check.hard_ok and check.residual > self.give_up:
+                # A posture that misses by more than give_up with the engine's
+                # own rows held: the lazy ones are only cut once a stage
+                # reaches (cutting cannot bring a goal nearer), so they do not count.
+                if not done[i] and r == 0 and decisive[i] and check.eager_ok and check.residual > self.give_up:
                     # Given up: no reference start, only the first `rescues` random ones.
                     starts[i] = [starts[i][0], *starts[i][2 : 2 + self.rescues]]
         self.stats["reachable"] += int(reach.sum())
@@ -433,8 +445,9 @@ class CasadiIK(IKOracle):
         """Stage k with the lazy tasks: while its posture breaks one, cut the near rows there and solve again."""
         for rounds in range(CUT_ROUNDS + 1):
             x_new = self._stage(k, x, params, optimum, cuts if cuts.count else None)
-            if x_new is None or not self.lazy:
-                return x_new
+            reach = self.order[k] is self.strategy.reach
+            if x_new is None or not self.lazy or (reach and not self.strategy.reach.attained(float(self._objective_fns[k](x_new, params)))):
+                return x_new  # a reach stage that misses the goal is not worth cutting: its verdict is no
             q = self.problem.q_of_x(x_new)
             pin.framesForwardKinematics(self.body.model, self._data, q)
             if all(t.holds(Numeric(self.body.model, self._data, q, np.zeros(3))) for t in self.lazy):
@@ -448,7 +461,7 @@ class CasadiIK(IKOracle):
                     cuts.add(c.jacobian, c.need + CUT_INSIDE - c.gap + float(c.jacobian @ x_new))
         # Still broken: the reach stage's posture goes to the verdict (which
         # refuses it); a lower stage's is dropped for the stage above's.
-        return x_new if k == 0 else None
+        return x_new if self.order[k] is self.strategy.reach else None
 
     def preference(self, q: np.ndarray, goal: np.ndarray) -> float:
         """The lowest stage's objective at q (the posture task's, in the shipped strategies)."""

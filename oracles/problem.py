@@ -32,6 +32,7 @@ class Check:
     residual: float  # [m] effector to goal
     hard_ok: bool  # joint limits and every hard task hold
     reachable: bool
+    eager_ok: bool = True  # joint limits and the hard tasks that are not lazy hold
 
 
 def _rpy_quat(r: ca.SX, p: ca.SX, y: ca.SX) -> ca.SX:
@@ -214,5 +215,6 @@ class ReachProblem:
         pin.framesForwardKinematics(model, data, q)
         num = Numeric(model, data, q, np.asarray(goal, float))
         residual = self.strategy.reach.residual(num)
-        hard_ok = self.within_limits(q) and all(t.holds(num) for t in self.strategy.hard)
-        return Check(residual, hard_ok, hard_ok and all(t.holds(num) for t in self.strategy.soft))
+        eager_ok = self.within_limits(q) and all(t.holds(num) for t in self.strategy.hard if not t.lazy)
+        hard_ok = eager_ok and all(t.holds(num) for t in self.strategy.hard if t.lazy)
+        return Check(residual, hard_ok, hard_ok and all(t.holds(num) for t in self.strategy.soft), eager_ok)

@@ -14,6 +14,7 @@ Oracles may also offer optional capabilities, each a protocol of its own;
 * :class:`EffectorPositions`: where postures put the effector (the
   selector's nearest-posture index);
 * :class:`ReachBound`: a ball that holds every reachable point (``box: auto``);
+* :class:`Shaped`: the body's capsules at a posture, to draw it (``reach view``);
 * :class:`KeepOut`: capsules no reachable point lies in (the static parts of
   the body), so that the builder never labels a cell that meets them inner;
 * :class:`Tunable`: a variant set up for a purpose, ``"refine"`` (the
@@ -137,6 +138,21 @@ class ReachBound(Protocol):
 
     def reach_bound(self) -> tuple[np.ndarray, float] | None:
         """(centre [m], radius [m]) of a ball holding every reachable point, or None when unbounded."""
+        ...
+
+
+@runtime_checkable
+class Shaped(Protocol):
+    """An oracle whose body can be drawn."""
+
+    posture_names: tuple[str, ...]
+
+    def reference_posture(self) -> np.ndarray:
+        """The body's reference posture (nq,), in the order of ``posture_names``."""
+        ...
+
+    def shape(self, posture: np.ndarray) -> tuple[list[str], np.ndarray]:
+        """Names and capsules (K, 7: end points a, b [m], radius [m]; world frame) of the body at a posture (nq,)."""
         ...
 
 

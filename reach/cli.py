@@ -167,6 +167,28 @@ def cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_view(args: argparse.Namespace) -> int:
+    import time
+
+    from reach.store import load_atlas
+
+    try:
+        from reach.view import Viewer
+    except ImportError as exc:  # viser is an extra
+        raise ReachError(f"reach view needs viser: pip install 'reach[view]' ({exc})") from exc
+    viewer = Viewer([load_atlas(a) for a in args.atlas], host=args.host, port=args.port, connect=args.connect,
+                    spacing=args.spacing, policy=args.policy, refine=not args.no_refine)
+    print(f"viewing {', '.join(args.atlas)} at {viewer.url} (Ctrl-C to stop)", flush=True)
+    try:
+        while True:
+            time.sleep(3600)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        viewer.close()
+    return 0
+
+
 def cmd_model(args: argparse.Namespace) -> int:
     from oracles.body import human_body, load_body, urdf_body
     from oracles.protocol import Described
@@ -325,6 +347,20 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--budget-ms", type=float, default=REFINE_BUDGET * 1000, help=f"time budget of one IK refinement [ms] (default {REFINE_BUDGET * 1000:g})")
     p.add_argument("--curve-secret-key", metavar="FILE", help="encrypt with CURVE, using this server secret-key file (zmq.auth.create_certificates)")
     p.set_defaults(func=cmd_serve)
+
+    p = sub.add_parser(
+        "view", help="interactive 3-D view in the browser",
+        description="Serve a 3-D view of one or more atlases (viser): volumes per strategy, the body, and a goal to drag whose answer "
+                    "(strategy, posture) is shown. Open the printed address in a browser; the page works offline.",
+    )
+    p.add_argument("atlas", nargs="+", help="atlas folder(s); several stand side by side (a population study)")
+    p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1: this machine only)")
+    p.add_argument("--port", type=int, default=8080, help="port (default 8080; the next free one if taken)")
+    p.add_argument("--connect", metavar="ADDR", help="take answers from a running 'reach serve' at ADDR, e.g. tcp://127.0.0.1:5555")
+    p.add_argument("--spacing", type=float, default=1.5, help="distance between atlases along y [m] (default 1.5)")
+    p.add_argument("--policy", default=DEFAULT_POLICY, choices=POLICIES, help=f"how boundary cells answer (default: {DEFAULT_POLICY})")
+    p.add_argument("--no-refine", action="store_true", help="show stored postures; no IK refinement")
+    p.set_defaults(func=cmd_view)
 
     p = sub.add_parser("report", help="tables and figures comparing strategies", description="Write report.md, report.json and PNG figures (boxes, colours as the paper's Figure 8, overlay as Figure 11, slices) of an atlas into DIR.")
     p.add_argument("atlas", help="atlas folder written by 'reach build'")

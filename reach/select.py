@@ -90,6 +90,20 @@ def split_posture(names: tuple[str, ...], q: np.ndarray) -> tuple[dict[str, floa
     return joints, {"position": [float(v) for v in q[i : i + 3]], "quaternion": [float(v) for v in q[i + 3 : i + 7]]}
 
 
+def posture_vector(names: tuple[str, ...], reference: np.ndarray, joints: dict[str, float] | None, root: dict[str, list[float]] | None) -> np.ndarray:
+    """The inverse of :func:`split_posture`: a posture (nq,) from an answer's joints and root, ``reference`` elsewhere."""
+    q = np.array(reference, float)
+    index = {n: k for k, n in enumerate(names)}
+    for n, v in (joints or {}).items():
+        if n not in index:
+            raise InputError("posture", f"unknown joint {n!r}")
+        q[index[n]] = v
+    if root is not None and "root_x" in index:
+        i = index["root_x"]
+        q[i : i + 3], q[i + 3 : i + 7] = root["position"], root["quaternion"]
+    return q
+
+
 class Selector:
     """Answers goals from an atlas; per-tree lookup structures are built once.
 

@@ -1,0 +1,344 @@
+"""``reach view``: an atlas and its answers in the browser, on viser.
+
+viser serves a three.js page from the Python process (its client ships in
+the wheel: the page works offline). The scene, in the atlas's world frame
+(z up, x forward, metres):
+
+* each strategy's volume, one layer per strategy in priority order, coloured
+  by strategy: inner cells, boundary (final) cells or both, drawn as boxes
+  (the paper's Figure 10), dots or wireframe (Figure 11), one instanced
+  mesh per layer; optionally only the cells a higher-priority strategy does
+  not already hold (Figure 8's "first strategy by priority"), and only those
+  a slice plane cuts;
+* the body, drawn from its collision capsules, in the reference posture and
+  then in each answer's posture;
+* a goal to drag (a transform gizmo) or to type; every move asks the
+  selector (or a running ``reach serve``, ``--connect``), and the panel shows
+  the strategy, its colour, the alternatives, whether the posture was
+  refined and its residual, or that the goal is unreachable.
+
+Several atlases (a population study) stand side by side, ``spacing`` metres
+apart along y, each with its own colours. :class:`Viewer` is also the
+Python API the tests drive.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from oracles.protocol import OracleSpec, Shaped
+from reach.errors import InputError
+from reach.select import Selector, posture_vector
+from reach.store import Atlas
+from reach.tree import DEFAULT_POLICY, FINAL, INNER, POLICIES, VATree
+
+# Strategy colours (RGB), in priority order: matplotlib's tab10, the report's palette.
+PALETTE = np.array([(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
+                    (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207)], np.uint8)
+BODY = (230, 200, 170)  # skin
+UNREACHABLE = (200, 0, 0)
+BOUNDARY_SHADE = 0.75  # boundary (final) cells are drawn this much darker than inner ones
+STYLES = ("boxes", "dots", "wireframe")
+CELLS = ("inner", "boundary", "both")
+SLICE_AXES = ("none", "x", "y", "z")
+
+
+def cube() -> tuple[np.ndarray, np.ndarray]:
+    """A unit cube centred on the origin: vertices (8, 3) and triangles (12, 3)."""
+    v = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)], np.float32)
+    f = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                  [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]], np.uint32)
+    return v, f
+
+
+def quaternion_z_to(axis: np.ndarray) -> np.ndarray:
+    """(w, x, y, z) of the rotation taking +z to a unit axis."""
+    z = np.array([0.0, 0.0, 1.0])
+    c = float(np.dot(z, axis))
+    if c < -1.0 + 1e-9:
+        return np.array([0.0, 1.0, 0.0, 0.0])
+    v = np.cross(z, axis)
+    q = np.array([1.0 + c, *v])
+    return q / np.linalg.norm(q)  # type: ignore[no-any-return]
+
+
+@dataclass
+class Cells:
+    """The cells of one tree to draw: centres and edges [m], and which are inner."""
+
+    centre: np.ndarray
+    size: np.ndarray
+    inner: np.ndarray
+
+    @classmethod
+    def of(cls, tree: VATree) -> Cells:
+        rows = np.nonzero((tree.kind == INNER) | (tree.kind == FINAL))[0]
+        size = tree.cell_size(tree.depth[rows])
+        lo = tree.lattice.points(tree.corner[rows])
+        return cls(lo + 0.5 * size, size, tree.kind[rows] == INNER)
+
+    def select(self, mask: np.ndarray) -> Cells:
+        return Cells(self.centre[mask], self.size[mask], self.inner[mask])
+
+
+@dataclass
+class Scene:
+    """One atlas in the view: its selector (or server), trees, colours, body and offset."""
+
+    atlas: Atlas
+    offset: np.ndarray
+    colours: np.ndarray  # (strategies, 3)
+    cells: dict[str, Cells] = field(default_factory=dict)
+    covered: dict[str, np.ndarray] = field(default_factory=dict)  # cells a higher-priority strategy holds
+    shaper: Any = None
+    capsules: list[Any] = field(default_factory=list)
+
+
+class Viewer:
+    """The viewer's state and its viser scene (see the module docstring).
+
+    Args:
+        atlases: One or more atlases (side by side).
+        host, port: Where the page is served (127.0.0.1 by default: not on the network).
+        connect: A running ``reach serve`` request address to take answers from
+            (the atlases still give the volumes and the body).
+        spacing: Distance [m] between atlases along y.
+        policy: The selector's policy for boundary cells.
+        refine: Refine answers by IK at the exact goal (the selector's default).
+    """
+
+    def __init__(self, atlases: Sequence[Atlas], host: str = "127.0.0.1", port: int = 8080, connect: str | None = None,
+                 spacing: float = 1.5, policy: str = DEFAULT_POLICY, refine: bool = True) -> None:
+        import viser  # the optional dependency: pip install 'reach[view]'
+
+        if not atlases:
+            raise InputError("atlas", "at least one atlas is needed")
+        if policy not in POLICIES:
+            raise InputError("policy", f"expected one of {', '.join(POLICIES)}, got {policy!r}")
+        self.server = viser.ViserServer(host=host, port=port, verbose=False)
+        self.host, self.port = host, self.server.get_port()
+        self.refine, self.policy = refine, policy
+        self.client = None
+        if connect is not None:
+            from reach.client import Client
+
+            self.client = Client(connect)
+        self._lock = threading.Lock()
+        self.scenes: list[Scene] = []
+        for k, atlas in enumerate(atlases):
+            names = list(atlas.trees)
+            # Atlas k takes every k-th colour family: a darker shade for the second atlas, and so on.
+            colours = (PALETTE[np.arange(len(names)) % len(PALETTE)] * (1.0 - 0.35 * k)).astype(np.uint8)
+            scene = Scene(atlas, np.array([0.0, spacing * k, 0.0]), colours)
+            scene.cells = {n: Cells.of(t) for n, t in atlas.trees.items()}
+            self.scenes.append(scene)
+        self.selectors = [Selector(s.atlas, policy=policy, refine=refine) for s in self.scenes]  # type: ignore[arg-type]
+        effectors = self.selectors[0].effectors
+        self.effector = "right_hand" if "right_hand" in effectors else effectors[0]
+        self.answers: list[dict[str, Any]] = []
+        self.goal = np.array([0.45, -0.25, 1.2])
+        self._gui()
+        for k, scene in enumerate(self.scenes):
+            self._body(k, scene)
+        self.draw()
+        self.set_goal(self.goal)
+
+    # -- the page -----------------------------------------------------------
+    @property
+    def url(self) -> str:
+        return f"http://{self.host}:{self.port}"
+
+    def _gui(self) -> None:
+        gui = self.server.gui
+        with gui.add_folder("Goal"):
+            self.effector_box = gui.add_dropdown("effector", self.selectors[0].effectors, initial_value=self.effector)
+            self.goal_box = gui.add_vector3("goal [m]", tuple(self.goal), step=0.01)
+            self.policy_box = gui.add_dropdown("policy", list(POLICIES), initial_value=self.policy, disabled=self.client is not None,
+                                               hint="the server's own policy applies with --connect" if self.client else None)
+            self.answer_box = gui.add_markdown("")
+        with gui.add_folder("Volumes"):
+            self.style_box = gui.add_dropdown("style", list(STYLES), initial_value="boxes")
+            self.cells_box = gui.add_dropdown("cells", list(CELLS), initial_value="boundary")
+            self.first_box = gui.add_checkbox("first strategy by priority", False, hint="each cell in the colour of the first strategy that holds it (the paper's Figure 8)")
+            self.slice_axis = gui.add_dropdown("slice axis", list(SLICE_AXES), initial_value="none")
+            lo, hi = self.scenes[0].atlas.trees[next(iter(self.scenes[0].atlas.trees))].box.lo, self.scenes[0].atlas.trees[next(iter(self.scenes[0].atlas.trees))].box.hi
+            self.slice_at = gui.add_slider("slice at [m]", float(lo.min()), float(hi.max()), 0.01, 1.0)
+            self.layer_boxes: dict[tuple[int, str], Any] = {}
+            for k, scene in enumerate(self.scenes):
+                label = scene.atlas.manifest.get("name", f"atlas {k}")
+                gui.add_markdown(f"**{label}**")
+                first = next((n for n, t in scene.atlas.trees.items() if t.meta.get("effector") == self.effector), None)
+                for i, name in enumerate(scene.atlas.trees):
+                    r, g, b = (int(c) for c in scene.colours[i])
+                    box = gui.add_checkbox(name, name == first, hint=f"colour rgb({r}, {g}, {b})")
+                    box.on_update(lambda _e: self.draw())
+                    self.layer_boxes[(k, name)] = box
+        for handle in (self.style_box, self.cells_box, self.first_box, self.slice_axis, self.slice_at):
+            handle.on_update(lambda _e: self.draw())
+        self.goal_box.on_update(lambda e: self._from_panel())
+        self.effector_box.on_update(lambda e: self.set_effector(self.effector_box.value))
+        self.policy_box.on_update(lambda e: self.set_policy(self.policy_box.value))
+        self.gizmo = self.server.scene.add_transform_controls("/goal", scale=0.25, disable_rotations=True, position=tuple(self.goal))
+        self.goal_marker = self.server.scene.add_icosphere("/goal/marker", radius=0.025, color=(20, 20, 20))
+        self.gizmo.on_update(lambda _e: self._from_gizmo())
+        self.server.scene.add_grid("/floor", width=3.0, height=3.0 + self.scenes[-1].offset[1], cell_size=0.25,
+                                   position=(0.2, 0.5 * self.scenes[-1].offset[1], 0.0))
+        camera = self.server.initial_camera
+        camera.up = (0.0, 0.0, 1.0)
+        camera.look_at = (0.2, 0.5 * self.scenes[-1].offset[1], 1.0)
+        camera.position = (2.8, -2.4 + 0.5 * self.scenes[-1].offset[1], 2.0)
+
+    def _body(self, k: int, scene: Scene) -> None:
+        """The body's capsules, one mesh each, moved to postures by their transforms."""
+        import trimesh
+
+        spec = next(iter(scene.atlas.trees.values())).meta["oracle"]
+        shaper = OracleSpec.from_dict(spec).create()
+        if not isinstance(shaper, Shaped):
+            return  # an oracle without a body to draw
+        scene.shaper = shaper
+        names, caps = shaper.shape(shaper.reference_posture())
+        for name, cap in zip(names, caps, strict=True):
+            length = float(np.linalg.norm(cap[3:6] - cap[:3]))
+            mesh = trimesh.creation.capsule(height=max(length, 1e-6), radius=float(cap[6]), count=[12, 12])
+            scene.capsules.append(self.server.scene.add_mesh_simple(
+                f"/atlas{k}/body/{name}", np.asarray(mesh.vertices, np.float32), np.asarray(mesh.faces, np.uint32), color=BODY))
+        self._pose(scene, caps)
+
+    def _pose(self, scene: Scene, caps: np.ndarray) -> None:
+        for handle, cap in zip(scene.capsules, caps, strict=True):
+            axis = cap[3:6] - cap[:3]
+            n = float(np.linalg.norm(axis))
+            handle.position = tuple(0.5 * (cap[:3] + cap[3:6]) + scene.offset)
+            handle.wxyz = tuple(quaternion_z_to(axis / n) if n > 1e-9 else np.array([1.0, 0.0, 0.0, 0.0]))
+
+    # -- volumes --------------------------------------------------------------
+    def _covered(self, scene: Scene, name: str) -> np.ndarray:
+        """Which of a strategy's cells a strategy of higher priority (same effector) already holds."""
+        if name not in scene.covered:
+            trees = scene.atlas.trees
+            effector = trees[name].meta.get("effector")
+            higher = [n for n in trees if n != name and trees[n].meta.get("effector") == effector
+                      and (trees[n].meta.get("priority", 0), n) < (trees[name].meta.get("priority", 0), name)]
+            centres = scene.cells[name].centre
+            mask = np.zeros(len(centres), bool)
+            for n in higher:
+                mask |= trees[n].contains(centres, self.policy)  # type: ignore[arg-type]
+            scene.covered[name] = mask
+        return scene.covered[name]
+
+    def visible_cells(self, k: int, name: str) -> Cells:
+        """The cells of a layer that the panel's settings show."""
+        scene = self.scenes[k]
+        cells = scene.cells[name]
+        mask = np.ones(len(cells.centre), bool)
+        if self.cells_box.value == "inner":
+            mask &= cells.inner
+        elif self.cells_box.value == "boundary":
+            mask &= ~cells.inner
+        if self.first_box.value:
+            mask &= ~self._covered(scene, name)
+        axis = SLICE_AXES.index(self.slice_axis.value) - 1
+        if axis >= 0:
+            at = float(self.slice_at.value)
+            mask &= np.abs(cells.centre[:, axis] - at) <= 0.5 * cells.size[:, axis]
+        return cells.select(mask)
+
+    def draw(self) -> None:
+        """Redraw every layer from the panel's settings."""
+        with self._lock:
+            vertices, faces = cube()
+            for k, scene in enumerate(self.scenes):
+                for i, name in enumerate(scene.atlas.trees):
+                    path = f"/atlas{k}/volumes/{name}"
+                    self.server.scene.remove_by_name(path)
+                    if not self.layer_boxes[(k, name)].value:
+                        continue
+                    cells = self.visible_cells(k, name)
+                    if not len(cells.centre):
+                        continue
+                    centre = (cells.centre + scene.offset).astype(np.float32)
+                    colour = np.tile(scene.colours[i], (len(centre), 1))
+                    colour[~cells.inner] = (colour[~cells.inner] * BOUNDARY_SHADE).astype(np.uint8)
+                    if self.style_box.value == "dots":
+                        self.server.scene.add_point_cloud(path, centre, colour, point_size=float(cells.size.min()) * 0.5, point_shape="circle", point_shading="flat")
+                    else:
+                        self.server.scene.add_batched_meshes_simple(
+                            path, vertices, faces, np.tile([1.0, 0.0, 0.0, 0.0], (len(centre), 1)), centre,
+                            batched_scales=(cells.size * 0.96).astype(np.float32), batched_colors=colour,
+                            wireframe=self.style_box.value == "wireframe", opacity=0.3 if self.style_box.value == "boxes" else None,
+                            cast_shadow=False, receive_shadow=False)
+
+    def show_strategy(self, name: str, visible: bool, atlas: int = 0) -> None:
+        """Show or hide a strategy's layer (as its panel checkbox does)."""
+        self.layer_boxes[(atlas, name)].value = visible
+        self.draw()
+
+    # -- answers --------------------------------------------------------------
+    def _from_gizmo(self) -> None:
+        self.set_goal(np.array(self.gizmo.position))
+
+    def _from_panel(self) -> None:
+        goal = np.array(self.goal_box.value, float)
+        if not np.allclose(goal, self.goal):
+            self.set_goal(goal)
+
+    def set_effector(self, effector: str) -> None:
+        self.effector = effector
+        self.set_goal(self.goal)
+
+    def set_policy(self, policy: str) -> None:
+        self.policy = policy
+        self.selectors = [Selector(s.atlas, policy=policy, refine=self.refine) for s in self.scenes]  # type: ignore[arg-type]
+        for s in self.scenes:
+            s.covered.clear()
+        self.draw()
+        self.set_goal(self.goal)
+
+    def answer(self, k: int, goal: np.ndarray) -> dict[str, Any]:
+        """Atlas k's answer for a goal [m] in its own frame: the selector's, or the server's with ``connect``."""
+        if self.client is not None:
+            reply = self.client.query(self.effector, [float(v) for v in goal], self.refine)
+            return {k: v for k, v in reply.items() if k not in ("id", "ok")}
+        return self.selectors[k].select(self.effector, goal).to_dict()
+
+    def set_goal(self, goal: np.ndarray) -> list[dict[str, Any]]:
+        """Move the goal [m, world frame of the first atlas]: answer it for every atlas and show the answers."""
+        goal = np.asarray(goal, float).reshape(3)
+        self.goal = goal
+        self.answers = [self.answer(k, goal) for k in range(len(self.scenes))]
+        if not np.allclose(self.gizmo.position, goal):
+            self.gizmo.position = tuple(goal)
+        if not np.allclose(self.goal_box.value, goal):
+            self.goal_box.value = (float(goal[0]), float(goal[1]), float(goal[2]))  # type: ignore[misc]  # settable at run time
+        lines = []
+        for k, (scene, a) in enumerate(zip(self.scenes, self.answers, strict=True)):
+            label = scene.atlas.manifest.get("name", f"atlas {k}")
+            if not a["reachable"]:
+                lines.append(f"**{label}**: unreachable")
+                if k == 0:
+                    self.goal_marker.color = UNREACHABLE
+                continue
+            names = list(scene.atlas.trees)
+            r, g, b = (int(c) for c in scene.colours[names.index(a["strategy"])])
+            alt = ", ".join(a["alternatives"]) or "none"
+            residual = "n/a" if a["residual"] is None else f"{1000 * a['residual']:.1f} mm"
+            lines.append(f"**{label}**: <span style='color: rgb({r},{g},{b})'>&#9632;</span> **{a['strategy']}**  \n"
+                         f"alternatives: {alt}  \nrefined: {a['refined']}, residual {residual}")
+            if k == 0:
+                self.goal_marker.color = (r, g, b)
+            if scene.shaper is not None and a["posture"] is not None:
+                q = posture_vector(scene.shaper.posture_names, scene.shaper.reference_posture(), a["posture"], a["root"])
+                self._pose(scene, scene.shaper.shape(q)[1])
+        self.answer_box.content = "\n\n".join(lines)
+        return self.answers
+
+    def close(self) -> None:
+        self.server.stop()
+        if self.client is not None:
+            self.client.close()

@@ -1,0 +1,237 @@
+"""The viewer (reach.view): its answers against the selector's and a server's, and the page in a real browser.
+
+The browser tests drive Debian's Chromium headless through Selenium and
+assert on the screenshots' pixels. Without Chromium they skip, saying how to
+install it; in CI (CI=true) a missing browser fails.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from reach.atlas import build_atlas
+from reach.config import parse_config
+from reach.select import Selector
+from reach.store import load_atlas
+
+viser = pytest.importorskip("viser", reason="the viewer needs viser: pip install 'reach[view]'")
+from reach.view import BOUNDARY_SHADE, PALETTE, Viewer  # noqa: E402
+
+ARM = ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"]
+CONFIG = {
+    "body": {"human": {"sex": "male", "percentile": 50}},
+    "box": {"min": [-0.5, -1.0, 0.6], "max": [0.9, 0.4, 2.1]}, "depth": {"min": 2, "max": 4},
+    "oracle": {"name": "casadi-ik", "params": {"restarts": 1, "secondary": False}},
+    "strategies": [
+        {"name": "right_arm", "effector": "right_hand", "priority": 1, "joints": ARM, "tasks": [{"type": "reach"}, {"type": "self_collision"}]},
+        {"name": "right_upper_body", "effector": "right_hand", "priority": 2, "joints": [*ARM, "lumbar_*", "thoracic_*"],
+         "tasks": [{"type": "reach"}, {"type": "self_collision"}]},
+    ],
+}
+CHROMIUM, DRIVER = "/usr/bin/chromium", "/usr/bin/chromedriver"
+INSTALL = "apt-get install chromium chromium-driver"
+_missing = None if os.path.exists(CHROMIUM) and os.path.exists(DRIVER) else f"{CHROMIUM} or {DRIVER} not found"
+if _missing and os.environ.get("CI") == "true":
+    raise RuntimeError(f"Chromium is required in CI but {_missing}; .ci/run must install it ({INSTALL})")
+browser_only = pytest.mark.skipif(_missing is not None, reason=f"no browser ({_missing}); install it with: {INSTALL}")
+GOALS = np.array([[0.45, -0.25, 1.2], [0.3, -0.55, 0.9], [0.1, -0.9, 1.9], [0.85, 0.35, 0.65]])
+
+
+@pytest.fixture(scope="module")
+def atlas(tmp_path_factory):
+    out = tmp_path_factory.mktemp("view") / "view"
+    build_atlas(parse_config(CONFIG, "view", "view"), out)
+    return load_atlas(out)
+
+
+@pytest.fixture
+def viewer(atlas):
+    v = Viewer([atlas], port=_free_port(), refine=False)
+    yield v
+    v.close()
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _same(a: dict, b: dict) -> bool:
+    return {k: v for k, v in a.items() if k != "seconds"} == {k: v for k, v in b.items() if k != "seconds"}
+
+
+def test_the_answer_shown_is_the_selectors(viewer, atlas):
+    selector = Selector(atlas, refine=False)
+    seen = set()
+    for goal in GOALS:
+        shown = viewer.set_goal(goal)[0]
+        assert _same(shown, selector.select("right_hand", goal).to_dict())
+        seen.add(shown["strategy"])
+        assert (viewer.answer_box.content.count("unreachable") == 1) == (not shown["reachable"])
+        if shown["reachable"]:
+            assert f"**{shown['strategy']}**" in viewer.answer_box.content
+    assert {"right_arm", "right_upper_body", None} <= seen  # the goals were chosen to show all three
+
+
+def test_the_body_takes_the_answers_posture(viewer):
+    """The drawn hand capsule ends where the answer's posture puts it: an independent forward kinematics."""
+    import pinocchio as pin
+
+    from oracles.body import human_body
+    from reach.select import posture_vector
+
+    answer = viewer.set_goal(GOALS[0])[0]
+    scene = viewer.scenes[0]
+    body = human_body()
+    q = posture_vector(scene.shaper.posture_names, body.q_ref, answer["posture"], answer["root"])
+    data = body.model.createData()
+    pin.framesForwardKinematics(body.model, data, q)
+    hand = scene.capsules[[p.name for p in body.collision.placed].index("right_hand")]
+    a, b = body.collision.world(data, body.collision.index["right_hand"])
+    assert np.allclose(hand.position, 0.5 * (a + b), atol=1e-6)
+    grip = data.oMf[body.frame_id("right_hand")].translation
+    assert np.linalg.norm(grip - GOALS[0]) == pytest.approx(answer["residual"], abs=1e-6)  # the stored posture of a nearby vertex
+
+
+def test_layers_slices_and_first_by_priority_choose_cells(viewer, atlas):
+    arm = viewer.scenes[0].cells["right_arm"]
+    viewer.cells_box.value = "both"
+    assert len(viewer.visible_cells(0, "right_arm").centre) == len(arm.centre)
+    viewer.cells_box.value = "inner"
+    assert viewer.visible_cells(0, "right_arm").inner.all()
+    viewer.first_box.value = True
+    upper = viewer.visible_cells(0, "right_upper_body")
+    assert 0 < len(upper.centre) < int(viewer.scenes[0].cells["right_upper_body"].inner.sum())
+    assert not atlas.trees["right_arm"].contains(upper.centre, "vertex").any()
+    viewer.first_box.value = False
+    viewer.slice_axis.value, viewer.slice_at.value = "z", 1.2
+    cut = viewer.visible_cells(0, "right_arm")
+    assert len(cut.centre) and np.all(np.abs(cut.centre[:, 2] - 1.2) <= cut.size[:, 2] / 2)
+
+
+def test_the_viewer_over_a_server_shows_the_servers_answers(atlas):
+    from reach.server import Server
+
+    server = Server(atlas.path, "tcp://127.0.0.1:*", None, refine=False)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    v = Viewer([atlas], port=_free_port(), connect=server.endpoint, refine=False)
+    try:
+        selector = Selector(atlas, refine=False)
+        for goal in GOALS[:2]:
+            assert _same(v.set_goal(goal)[0], selector.select("right_hand", goal).to_dict())
+    finally:
+        v.close()
+        server.stop()
+        thread.join(timeout=5)
+
+
+def test_two_atlases_stand_side_by_side(atlas):
+    v = Viewer([atlas, atlas], port=_free_port(), refine=False, spacing=1.5)
+    try:
+        answers = v.set_goal(GOALS[0])
+        assert _same(answers[0], answers[1])
+        a, b = (np.array(s.capsules[0].position) for s in v.scenes)
+        assert np.allclose(b - a, [0.0, 1.5, 0.0])
+        assert not np.array_equal(v.scenes[0].colours, v.scenes[1].colours)
+    finally:
+        v.close()
+
+
+# -- in a real browser --------------------------------------------------------
+@pytest.fixture
+def browser():
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    opts = webdriver.ChromeOptions()
+    opts.binary_location = CHROMIUM
+    # As the machine's notes say: no background networking (the network is closed), software WebGL.
+    for flag in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
+                 "--disable-component-update", "--disable-sync", "--window-size=1200,800", "--use-angle=swiftshader",
+                 "--enable-unsafe-swiftshader", f"--user-data-dir={_profile()}"):
+        opts.add_argument(flag)
+    driver = webdriver.Chrome(service=Service(DRIVER), options=opts)
+    yield driver
+    driver.quit()
+
+
+def _profile() -> str:
+    import tempfile
+
+    return tempfile.mkdtemp(prefix="reach-chromium-")
+
+
+def _shot(driver, name: str, settle: float = 2.5) -> np.ndarray:
+    """A screenshot as an (h, w, 3) array; kept as NAME.png in $REACH_SHOTS when set, to look at."""
+    from PIL import Image
+
+    time.sleep(settle)  # the page applies the scene's messages and renders
+    png = driver.get_screenshot_as_png()
+    if os.environ.get("REACH_SHOTS"):
+        os.makedirs(os.environ["REACH_SHOTS"], exist_ok=True)
+        with open(os.path.join(os.environ["REACH_SHOTS"], f"{name}.png"), "wb") as f:
+            f.write(png)
+    return np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(int)
+
+
+def _pixels_near(image: np.ndarray, rgb, tol: int = 40) -> int:
+    return int((np.abs(image[:, :, :760] - np.asarray(rgb)).max(axis=2) <= tol).sum())  # the scene, left of the panel
+
+
+def _wait_for_page(driver, viewer, timeout: float = 30.0) -> None:
+    driver.get(viewer.url)
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout:
+        if "Volumes" in driver.find_element("tag name", "body").text:
+            return
+        time.sleep(0.3)
+    raise AssertionError(f"the viewer's page did not load from {viewer.url}")
+
+
+@browser_only
+def test_the_page_draws_strategy_colours_and_layers_toggle(viewer, browser):
+    viewer.style_box.value = "dots"  # opaque, unshaded: the strategy colours as they are
+    viewer.show_strategy("right_upper_body", True)
+    _wait_for_page(browser, viewer)
+    both = _shot(browser, "layers_both")
+    arm, upper = PALETTE[0] * BOUNDARY_SHADE, PALETTE[1] * BOUNDARY_SHADE  # boundary cells, as drawn
+    assert _pixels_near(both, arm) > 500 and _pixels_near(both, upper) > 500
+    viewer.show_strategy("right_upper_body", False)
+    alone = _shot(browser, "layers_arm")
+    assert _pixels_near(alone, upper) < 0.05 * _pixels_near(both, upper)
+    assert _pixels_near(alone, arm) > 500
+
+
+@browser_only
+def test_moving_the_goal_moves_the_drawn_arm_and_names_the_strategy(viewer, browser):
+    viewer.show_strategy("right_arm", False)  # the body alone
+    viewer.set_goal(GOALS[0])
+    _wait_for_page(browser, viewer)
+    before = _shot(browser, "goal_before")
+    text = browser.find_element("tag name", "body").text
+    assert "right_arm" in text
+    viewer.set_goal(GOALS[2])  # reached only by bending the trunk
+    after = _shot(browser, "goal_after")
+    assert "right_upper_body" in browser.find_element("tag name", "body").text
+    changed = np.abs(after[:, :760] - before[:, :760]).max(axis=2) > 30
+    assert changed.sum() > 300  # the body moved on screen
+    ys, xs = np.nonzero(changed)
+    assert xs.max() - xs.min() < 600  # where the body is, not the whole scene
+
+
+def test_view_command_needs_an_atlas(tmp_path, capsys):
+    from reach.cli import main
+
+    assert main(["view", str(tmp_path / "none")]) != 0
+    assert "none" in capsys.readouterr().err
+
