@@ -32,7 +32,10 @@ MAX_BATCH = 10_000  # goals per query
 POLL_MS = 100  # server poll timeout: how often it checks for a stop request
 PUB_HWM = 1000  # messages queued per subscriber before the PUB socket drops
 
-OPS = ("query", "strategies", "cells", "health", "reload")
+OPS = ("query", "strategies", "cells", "health", "reload", "hello")
+MAX_ID = 2**53  # the largest integer id (doubles hold every integer up to it; JavaScript clients too)
+MAX_DEADLINE = 3600.0  # [s] the longest deadline a request may give
+MAX_TAG = 256  # characters of a client's tag
 MAX_CELLS_LEVEL = 6  # "cells" rasterises at most 2**6 cells per axis
 
 # Error codes, in replies' "error": {"code": ..., "message": ...}.
@@ -61,6 +64,8 @@ class Request:
     level: int = 4
     strategy: str | None = None
     start: dict[str, float] | None = None  # the query's "from": the character's current posture
+    deadline: float | None = None  # [s] from receipt, for the whole request
+    tag: str | None = None  # the client's own label, echoed on PUB
 
 
 def _reject_constant(name: str) -> float:
@@ -94,17 +99,19 @@ def parse_request(payload: bytes) -> Request:
     if not isinstance(data, dict):
         raise ProtocolError(BAD_REQUEST, f"request must be a JSON object, got {type(data).__name__}")
     rid = data.get("id")
-    if (rid is not None and not isinstance(rid, (str, int))) or isinstance(rid, bool):
-        # Echo a scalar id back all the same, so that the client can match the error to its request.
-        echo = rid if isinstance(rid, (bool, float)) and math.isfinite(rid) else None
-        raise ProtocolError(BAD_REQUEST, "'id' must be a string or an integer", echo)
+    if isinstance(rid, int) and not isinstance(rid, bool) and abs(rid) > MAX_ID:
+        # Echoed as a string: the client can still match the error to its request.
+        raise ProtocolError(BAD_REQUEST, "an integer 'id' must be at most 2^53 in magnitude; use a string", str(rid))
+    if rid is not None and (isinstance(rid, bool) or not isinstance(rid, (str, int, float))):
+        echo = rid if isinstance(rid, bool) else None
+        raise ProtocolError(BAD_REQUEST, "'id' must be a JSON string or number", echo)
     op = data.get("op")
     if not isinstance(op, str):
         raise ProtocolError(BAD_REQUEST, "'op' must be a string naming the operation", rid)
     if op not in OPS:
         raise ProtocolError(UNKNOWN_OP, f"unknown op {op!r}; ops are {', '.join(OPS)}", rid)
-    allowed = {"query": {"op", "id", "effector", "goal", "goals", "refine", "from"}, "reload": {"op", "id", "path"},
-               "cells": {"op", "id", "strategy", "level"}}.get(op, {"op", "id"})
+    allowed = {"query": {"op", "id", "effector", "goal", "goals", "refine", "from", "deadline", "tag"}, "reload": {"op", "id", "path"},
+               "cells": {"op", "id", "strategy", "level"}, "hello": {"op", "id", "tag"}}.get(op, {"op", "id"})
     extra = sorted(set(data) - allowed)
     if extra:
         raise ProtocolError(BAD_REQUEST, f"unknown fields {extra} for op {op!r}; allowed: {sorted(allowed)}", rid)
@@ -121,8 +128,16 @@ def parse_request(payload: bytes) -> Request:
         if strategy is not None and not isinstance(strategy, str):
             raise ProtocolError(BAD_REQUEST, "'strategy' must be a string", rid)
         return Request(op, rid, level=level, strategy=strategy)
+    tag = data.get("tag")
+    if tag is not None and (not isinstance(tag, str) or len(tag) > MAX_TAG):
+        raise ProtocolError(BAD_REQUEST, f"'tag' must be a string of at most {MAX_TAG} characters", rid)
+    if op == "hello":
+        return Request(op, rid, tag=tag)
     if op != "query":
         return Request(op, rid)
+    deadline = data.get("deadline")
+    if deadline is not None and (isinstance(deadline, bool) or not isinstance(deadline, (int, float)) or not 0 < deadline <= MAX_DEADLINE):
+        raise ProtocolError(BAD_REQUEST, f"'deadline' must be a number of seconds in (0, {MAX_DEADLINE:g}]", rid)
     effector = data.get("effector")
     if not isinstance(effector, str) or not effector:
         raise ProtocolError(BAD_REQUEST, "'effector' must be a non-empty string", rid)
@@ -138,7 +153,7 @@ def parse_request(payload: bytes) -> Request:
             raise ProtocolError(BAD_REQUEST, "'from' must be an object of joint name -> finite number [rad or m]", rid)
         start = {str(k): float(v) for k, v in given.items()}
     if "goal" in data:
-        return Request(op, rid, effector, [_number_list(data["goal"], "goal", rid)], True, refine, start=start)
+        return Request(op, rid, effector, [_number_list(data["goal"], "goal", rid)], True, refine, start=start, deadline=deadline, tag=tag)
     goals = data["goals"]
     if not isinstance(goals, list) or not goals:
         raise ProtocolError(BAD_REQUEST, "'goals' must be a non-empty list of [x, y, z]", rid)
@@ -147,7 +162,7 @@ def parse_request(payload: bytes) -> Request:
     parsed = [_number_list(g, f"goals[{i}]", rid) for i, g in enumerate(goals)]
     if len({len(g) for g in parsed}) != 1:
         raise ProtocolError(BAD_REQUEST, "every goal must have the same number of coordinates", rid)
-    return Request(op, rid, effector, parsed, False, refine, start=start)
+    return Request(op, rid, effector, parsed, False, refine, start=start, deadline=deadline, tag=tag)
 
 
 def encode(data: dict[str, Any]) -> bytes:

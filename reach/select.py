@@ -31,6 +31,7 @@ FAILED = "failed"  # the IK did not reach it; posture is the stored one
 TIMEOUT = "timeout"  # the budget ran out; posture is the stored one
 SKIPPED = "skipped"  # refinement was not asked for
 UNAVAILABLE = "unavailable"  # the strategy's oracle stores no postures (analytic shapes)
+NONE = "none"  # no strategy reaches the goal: there is no posture to refine
 POSTURE_CACHE = 4096  # stored postures kept encoded, most recently used first
 REFINE_BUDGET = 0.02  # [s] default time budget of one refinement (a frame at 50 Hz)
 
@@ -49,7 +50,7 @@ class Answer:
         root: Pose of a floating base, ``{"position": [x, y, z], "quaternion":
             [qx, qy, qz, qw]}`` [m], or None.
         residual: Effector-to-goal distance [m] of that posture, or None.
-        refined: One of ``ok``, ``failed``, ``timeout``, ``skipped``, ``unavailable``.
+        refined: One of ``ok``, ``failed``, ``timeout``, ``skipped``, ``unavailable``, or ``none`` for an unreachable goal.
         seconds: Time spent answering [s].
     """
 
@@ -251,7 +252,7 @@ class Selector:
                 start: dict[str, float] | None = None) -> Answer:
         """The answer for one goal, given the strategies that hold it (by priority) and the chosen one's nearest stored vertex."""
         if not hits:
-            return Answer(effector, tuple(goal.tolist()), None, False, seconds=time.perf_counter() - t0)
+            return Answer(effector, tuple(goal.tolist()), None, False, refined=NONE, seconds=time.perf_counter() - t0)
         name, tree = hits[0], self.atlas.trees[hits[0]]
         posture = root = residual = fragment = None
         outcome = UNAVAILABLE

@@ -1,11 +1,22 @@
 """``reach serve``: the real-time strategy selector over ZeroMQ.
 
 One ROUTER socket answers requests (REQ and DEALER clients alike); one PUB
-socket publishes every choice, topic = the effector. One poll loop with a
-timeout; nothing a client sends can stop it: every malformed request gets a
-structured error reply (see :mod:`reach.protocol` and docs/protocol.md), and
-an unexpected exception becomes an ``internal`` error reply. SIGINT and
-SIGTERM stop the loop cleanly when the server runs in the main thread.
+socket publishes every choice, topic = the effector, with the request's id
+and tag. One poll loop with a timeout; nothing a client sends can stop it:
+every malformed request gets a structured error reply (see
+:mod:`reach.protocol` and docs/protocol.md), and an unexpected exception
+becomes an ``internal`` error reply. SIGINT and SIGTERM stop the loop
+cleanly when the server runs in the main thread.
+
+With ``workers`` > 0 the loop is a load-balancing broker (zguide, chapter
+3): it answers ``health``, ``strategies``, ``cells`` and stored-posture
+queries itself, at once, and hands every query that needs IK refinement to
+worker processes (:mod:`reach.workers`), split into chunks; it works on
+many requests concurrently. A request's ``deadline`` (or a default of the
+budget per goal plus 5 s) bounds it: when it passes, the goals not yet
+refined keep their stored postures, marked ``timeout``, the reply goes, and
+the request's queued work is dropped. A resend of a pending request (same
+client, same id) is answered once.
 
 Binds to 127.0.0.1 by default. With a CURVE secret-key file (as written by
 ``zmq.auth.create_certificates``) both sockets encrypt, and clients must
@@ -14,11 +25,14 @@ know the server's public key.
 
 from __future__ import annotations
 
+import dataclasses
 import gc
 import logging
+import math
 import signal
 import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -28,11 +42,26 @@ import zmq.auth
 
 from reach import protocol as P
 from reach.errors import ReachError, UnknownEffector, UnknownStrategy
-from reach.select import REFINE_BUDGET, Selector
+from reach.select import FAILED, REFINE_BUDGET, SKIPPED, TIMEOUT, Selector
 from reach.store import load_atlas
 from reach.tree import DEFAULT_POLICY
+from reach.workers import EXPIRED, Pool, Task
 
 log = logging.getLogger("reach.server")
+CHUNK = 32  # goals per worker task at most: a batch spreads over the workers, and a deadline cuts it finely
+SLACK = 5.0  # [s] a request's default deadline: the budget per goal, plus this
+
+
+@dataclass
+class Pending:
+    """A query the workers are refining."""
+
+    envelope: list[bytes]
+    request: P.Request
+    key: tuple[bytes, bytes] | None  # (client, id): a resend of it is not computed again
+    deadline: float
+    parts: list[list[bytes] | None]
+    bounds: list[tuple[int, int]]
 
 
 class Server:
@@ -44,14 +73,16 @@ class Server:
         pub: Address of the publishing socket, or None for none.
         policy: Boundary-cell policy of the selector.
         refine: Refine postures by IK unless a request says otherwise.
-        budget: Time budget of one refinement [s].
+        budget: Time budget of one refinement [s] (per goal).
         curve_secret: Path of the server's CURVE secret-key file, or None.
         context: A zmq context (a new one by default).
+        workers: Refinement worker processes; 0 refines in the request loop.
     """
 
     def __init__(
         self, atlas: str | Path, bind: str = P.DEFAULT_BIND, pub: str | None = P.DEFAULT_PUB, *, policy: str = DEFAULT_POLICY,
         refine: bool = True, budget: float = REFINE_BUDGET, curve_secret: str | Path | None = None, context: zmq.Context | None = None,
+        workers: int = 0,
     ) -> None:
         self.atlas_path = Path(atlas)
         self.policy, self.refine, self.budget = policy, refine, budget
@@ -82,6 +113,11 @@ class Server:
         self.started = time.monotonic()
         self.requests = 0
         self.errors = 0
+        self.resends = 0
+        self.pending: dict[int, Pending] = {}
+        self.by_key: dict[tuple[bytes, bytes], int] = {}
+        self._seq = 0
+        self.pool = Pool(self.context, self.atlas_path, policy, budget, int(workers)) if workers > 0 else None
 
     # -- lifecycle ---------------------------------------------------------
     def stop(self) -> None:
@@ -89,6 +125,8 @@ class Server:
         self._stop.set()
 
     def close(self) -> None:
+        if self.pool is not None:
+            self.pool.close()
         self.router.close(linger=0)
         if self.publisher is not None:
             self.publisher.close(linger=0)
@@ -102,18 +140,49 @@ class Server:
         # garbage collector's scans, which otherwise show in the latency tail.
         gc.collect()
         gc.freeze()
-        # A blocking receive with a timeout wakes fastest; the timeout lets the
-        # loop see a stop request within POLL_MS.
-        self.router.setsockopt(zmq.RCVTIMEO, P.POLL_MS)
         try:
-            while not self._stop.is_set():
-                try:
-                    frames = self.router.recv_multipart()
-                except zmq.Again:
-                    continue
-                self.handle(frames)
+            if self.pool is None:
+                # A blocking receive with a timeout wakes fastest; the timeout lets the
+                # loop see a stop request within POLL_MS.
+                self.router.setsockopt(zmq.RCVTIMEO, P.POLL_MS)
+                while not self._stop.is_set():
+                    try:
+                        frames = self.router.recv_multipart()
+                    except zmq.Again:
+                        continue
+                    self.handle(frames)
+            else:
+                self._broker()
         finally:
             self.close()
+
+    def _broker(self) -> None:
+        """The loop with workers: clients in front, workers behind, deadlines in between."""
+        assert self.pool is not None
+        poller = zmq.Poller()
+        poller.register(self.router, zmq.POLLIN)
+        backend = None
+        while not self._stop.is_set():
+            if backend is not self.pool.backend:  # a reload replaced the workers
+                if backend is not None:
+                    poller.unregister(backend)
+                backend = self.pool.backend
+                poller.register(backend, zmq.POLLIN)
+            soonest = min((p.deadline for p in self.pending.values()), default=math.inf)
+            wait = max(0.0, min(P.POLL_MS / 1000.0, soonest - time.monotonic()))
+            events = dict(poller.poll(int(math.ceil(wait * 1000))))
+            while backend in events and backend.poll(0):  # everything the workers have sent
+                got = self.pool.receive()
+                if got is not None:
+                    self._finished(*got)
+            if self.router in events:
+                for _ in range(64):  # a burst, then the workers' turn
+                    try:
+                        frames = self.router.recv_multipart(zmq.NOBLOCK)
+                    except zmq.Again:
+                        break
+                    self.handle(frames)
+            self._expire()
 
     # -- one request -------------------------------------------------------
     def handle(self, frames: list[bytes]) -> None:
@@ -125,20 +194,26 @@ class Server:
             rest = rest[1:]
         self.requests += 1
         if len(rest) != 1:
-            reply = P.error_reply(P.BAD_FRAMES, f"expected one payload frame after the envelope, got {len(rest)}")
+            reply: bytes | None = P.error_reply(P.BAD_FRAMES, f"expected one payload frame after the envelope, got {len(rest)}")
         else:
-            reply = self.respond(rest[0])
+            reply = self.respond(rest[0], envelope)
+        if reply is not None:
+            self._send(envelope, reply)
+
+    def _send(self, envelope: list[bytes], reply: bytes) -> None:
         try:
             self.router.send_multipart([*envelope, reply], zmq.NOBLOCK)
         except zmq.ZMQError as exc:  # the peer vanished, or its queue is full
             log.warning("reply dropped: %s", exc)
 
-    def respond(self, payload: bytes) -> bytes:
-        """The reply to one payload."""
+    def respond(self, payload: bytes, envelope: list[bytes] | None = None) -> bytes | None:
+        """The reply to one payload, or None when the workers will answer it."""
         rid = None
         try:
             req = P.parse_request(payload)
             rid = req.id
+            if envelope is not None and self._deferred(req, envelope):
+                return None
             return P.ok_reply(self.dispatch(req), rid)
         except P.ProtocolError as exc:
             self.errors += 1
@@ -157,10 +232,81 @@ class Server:
         if req.op == "query":
             assert req.effector is not None and req.goals is not None
             answers = self.selector.select_many(req.effector, np.array(req.goals), req.refine, start=req.start)
-            bodies = [a.to_json() for a in answers]
-            self.publish(req.effector, bodies)
-            return bodies[0] if req.single else b'{"answers":[' + b",".join(bodies) + b"]}"
+            return self._result(req, [a.to_json() for a in answers])
+        if req.op == "hello":
+            self._publish(b"hello", [b"{}"], req)
+            return P.encode({"published": self.publisher is not None})
         return P.encode(self.control(req))
+
+    def _result(self, req: P.Request, bodies: list[bytes]) -> bytes:
+        assert req.effector is not None
+        self._publish(req.effector.encode(), bodies, req)
+        return bodies[0] if req.single else b'{"answers":[' + b",".join(bodies) + b"]}"
+
+    # -- with workers ----------------------------------------------------------
+    def _deferred(self, req: P.Request, envelope: list[bytes]) -> bool:
+        """Hand a query that needs refinement to the workers; False when the loop answers it itself."""
+        if self.pool is None or req.op != "query" or not (self.refine if req.refine is None else req.refine):
+            return False
+        assert req.effector is not None and req.goals is not None
+        self.selector.strategies_for(req.effector)  # an unknown effector is answered at once
+        key = (envelope[0], P.encode_value(req.id)) if req.id is not None else None
+        if key is not None and key in self.by_key:
+            self.resends += 1  # a resend of a request being worked on: answered once
+            return True
+        n = len(req.goals)
+        size = max(1, min(CHUNK, math.ceil(n / max(1, self.pool.size))))
+        bounds = [(a, min(n, a + size)) for a in range(0, n, size)]
+        deadline = time.monotonic() + (req.deadline if req.deadline is not None else n * self.budget + SLACK)
+        self._seq += 1
+        self.pending[self._seq] = Pending(envelope, req, key, deadline, [None] * len(bounds), bounds)
+        if key is not None:
+            self.by_key[key] = self._seq
+        for part, (a, b) in enumerate(bounds):
+            self.pool.submit(Task(self._seq, part, req.effector, req.goals[a:b], req.start, deadline))
+        return True
+
+    def _stored(self, req: P.Request, a: int, b: int, outcome: str) -> list[bytes]:
+        """The stored answers of goals a..b, marked with why they were not refined."""
+        assert req.effector is not None and req.goals is not None
+        answers = self.selector.select_many(req.effector, np.array(req.goals[a:b]), False, start=req.start)
+        return [dataclasses.replace(x, refined=outcome).to_json() if x.refined == SKIPPED else x.to_json() for x in answers]
+
+    def _finished(self, task: Task, frames: list[bytes]) -> None:
+        pending = self.pending.get(task.request)
+        if pending is None:
+            return  # answered already (its deadline passed)
+        a, b = pending.bounds[task.part]
+        if frames == [EXPIRED]:
+            frames = self._stored(pending.request, a, b, TIMEOUT)
+        elif len(frames) != b - a:
+            log.error("worker failed: %s", b"".join(frames)[:500].decode(errors="replace"))
+            frames = self._stored(pending.request, a, b, FAILED)
+        pending.parts[task.part] = frames
+        if all(p is not None for p in pending.parts):
+            self._reply(task.request)
+
+    def _expire(self) -> None:
+        now = time.monotonic()
+        for seq in [s for s, p in self.pending.items() if p.deadline <= now]:
+            pending = self.pending[seq]
+            assert self.pool is not None
+            self.pool.cancel(seq)
+            for part, (a, b) in enumerate(pending.bounds):
+                if pending.parts[part] is None:
+                    pending.parts[part] = self._stored(pending.request, a, b, TIMEOUT)
+            self._reply(seq)
+
+    def _reply(self, seq: int) -> None:
+        pending = self.pending.pop(seq)
+        if pending.key is not None:
+            self.by_key.pop(pending.key, None)
+        bodies = [body for part in pending.parts if part is not None for body in part]
+        try:
+            self._send(pending.envelope, P.ok_reply(self._result(pending.request, bodies), pending.request.id))
+        except Exception:  # a bug must not stop the server
+            log.exception("internal error")
+            self._send(pending.envelope, P.error_reply(P.INTERNAL, "the reply could not be made", pending.request.id))
 
     def control(self, req: P.Request) -> dict[str, Any]:
         """Results of the health, strategies and reload ops."""
@@ -168,6 +314,7 @@ class Server:
             return {
                 "status": "serving", "protocol": P.VERSION, "atlas": str(self.atlas_path), "strategies": len(self.selector.order),
                 "uptime": time.monotonic() - self.started, "requests": self.requests, "errors": self.errors,
+                "workers": 0 if self.pool is None else self.pool.size, "pending": len(self.pending), "resends": self.resends,
             }
         if req.op == "strategies":
             return {"strategies": [
@@ -184,6 +331,13 @@ class Server:
             except ReachError as exc:
                 raise P.ProtocolError(P.RELOAD_FAILED, f"kept the current atlas: {exc}", req.id) from None
             self.selector, self.atlas_path = selector, path
+            if self.pool is not None:
+                # The workers hold the old atlas: answer their requests from the store, and start new ones.
+                for seq in list(self.pending):
+                    self.pending[seq].deadline = 0.0
+                self._expire()
+                self.pool.close()
+                self.pool = Pool(self.context, path, self.policy, self.budget, self.pool.size)
             return {"atlas": str(path), "strategies": len(selector.order)}
         raise P.ProtocolError(P.UNKNOWN_OP, f"unknown op {req.op!r}", req.id)
 
@@ -203,13 +357,13 @@ class Server:
                          "size": (tree.box.size / (1 << level)).tolist(), "centres": np.round(centres, 6).tolist()}
         return {"cells": out, "level": req.level}
 
-    def publish(self, effector: str, bodies: list[bytes]) -> None:
-        """Publish each encoded choice; a slow subscriber costs a dropped message, never a blocked reply."""
+    def _publish(self, topic: bytes, bodies: list[bytes], req: P.Request) -> None:
+        """Publish each encoded choice with the request's id and tag; a slow subscriber costs a dropped message, never a blocked reply."""
         if self.publisher is None:
             return
-        topic = effector.encode()
+        head = b'{"id":' + P.encode_value(req.id) + b',"tag":' + P.encode_value(req.tag)
         for body in bodies:
             try:
-                self.publisher.send_multipart([topic, body], zmq.NOBLOCK)
+                self.publisher.send_multipart([topic, head + (b"," + body[1:] if body != b"{}" else b"}")], zmq.NOBLOCK)
             except zmq.Again:
                 pass

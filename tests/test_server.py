@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -156,9 +157,14 @@ def test_malformed_requests_get_structured_errors_and_the_server_lives(dealer, p
 def test_error_replies_echo_the_id(dealer):
     reply = ask(dealer, b'{"op": "query", "id": "abc", "effector": "point", "goal": [0, 0]}')
     assert reply["id"] == "abc" and reply["ok"] is False
-    for raw, echoed in ((b"17.0", 17.0), (b"1e2", 100.0)):  # an ill-typed but scalar id is still echoed
+    for raw, echoed in ((b"17.0", 17.0), (b"1e2", 100.0), (b'"x"', "x"), (b"-3", -3)):  # any JSON string or number
         reply = ask(dealer, b'{"op": "health", "id": ' + raw + b"}")
-        assert reply["ok"] is False and reply["error"]["code"] == P.BAD_REQUEST and reply["id"] == echoed
+        assert reply["ok"] is True and reply["id"] == echoed
+    big = str(2**53 + 1).encode()
+    reply = ask(dealer, b'{"op": "health", "id": ' + big + b"}")  # beyond 2^53: refused, echoed as a string
+    assert reply["ok"] is False and reply["error"]["code"] == P.BAD_REQUEST and reply["id"] == big.decode()
+    reply = ask(dealer, b'{"op": "health", "id": true}')
+    assert reply["ok"] is False and reply["id"] is True
 
 
 def test_huge_numbers_and_deep_nesting_are_refused_not_internal(dealer, running):
@@ -345,3 +351,142 @@ def test_human_posture_is_refined_at_the_exact_goal(tmp_path_factory):
     assert stored["residual"] > a["residual"]  # the stored vertex posture is a cell away
     # This strategy has no posture task to pin its null space, so the solver may drift a little within the tolerance.
     assert again["refined"] == "ok" and max(abs(again["posture"][k] - v) for k, v in a["posture"].items()) < np.radians(5.0)
+
+
+# -- refinement in worker processes --------------------------------------------
+@pytest.fixture(scope="module")
+def human(tmp_path_factory):
+    return _atlas(tmp_path_factory, "human_workers", HUMAN)
+
+
+def _dealer(endpoint):
+    sock = zmq.Context.instance().socket(zmq.DEALER)
+    sock.setsockopt(zmq.LINGER, 0)
+    sock.connect(endpoint)
+    return sock
+
+
+def _pending_health(client):
+    """Health once the server holds a pending request (the batch and this client's requests race)."""
+    for _ in range(200):
+        health = client.health()
+        if health["pending"]:
+            return health
+        time.sleep(0.02)
+    return health
+
+
+GOALS = np.random.default_rng(4).uniform([0.1, -0.7, 0.8], [0.6, 0.0, 1.6], (60, 3)).round(4).tolist()
+
+
+def test_the_loop_answers_while_workers_refine(human):
+    r = Running(human, budget=0.5, workers=2)
+    batch = _dealer(r.server.endpoint)
+    try:
+        batch.send_multipart([b"", json.dumps({"op": "query", "id": "batch", "effector": "right_hand", "goals": GOALS}).encode()])
+        with Client(r.server.endpoint) as c:
+            health = _pending_health(c)  # answered by the loop while the batch is with the workers
+            stored = c.query("right_hand", GOALS[0], refine=False)
+        assert health["workers"] == 2 and health["pending"] == 1 and stored["refined"] == "skipped"
+        assert batch.poll(60_000)
+        reply = json.loads(batch.recv_multipart()[-1])
+    finally:
+        batch.close(linger=0)
+        r.stop()
+    answers = reply["answers"]
+    assert reply["id"] == "batch" and len(answers) == len(GOALS) and [a["goal"] for a in answers] == GOALS  # in order
+    outcomes = [a["refined"] for a in answers]
+    assert set(outcomes) <= {"ok", "failed", "timeout", "none"} and outcomes.count("ok") > len(GOALS) // 2
+
+
+def test_a_deadline_answers_with_stored_postures_marked_timeout(human):
+    r = Running(human, budget=0.5, workers=1)
+    try:
+        with Client(r.server.endpoint) as c:
+            reply = c.call("query", effector="right_hand", goals=GOALS, deadline=0.05)
+            health = c.health()
+    finally:
+        r.stop()
+    outcomes = [a["refined"] for a in reply["answers"]]
+    assert outcomes.count("timeout") > len(GOALS) // 2  # one worker, still starting or on its first chunk
+    stored = [a for a in reply["answers"] if a["refined"] == "timeout"]
+    assert all(a["posture"] is not None and a["strategy"] == "right_arm" for a in stored)
+    assert health["pending"] == 0
+
+
+def test_a_resend_of_a_pending_request_is_answered_once(human):
+    r = Running(human, budget=0.5, workers=1)
+    sock = _dealer(r.server.endpoint)
+    try:
+        request = json.dumps({"op": "query", "id": 7, "effector": "right_hand", "goals": GOALS[:8]}).encode()
+        sock.send_multipart([b"", request])
+        sock.send_multipart([b"", request])  # a Lazy Pirate's resend
+        assert sock.poll(60_000)
+        first = json.loads(sock.recv_multipart()[-1])
+        assert not sock.poll(1500)  # no second reply
+        with Client(r.server.endpoint) as c:
+            assert c.health()["resends"] == 1
+    finally:
+        sock.close(linger=0)
+        r.stop()
+    assert first["id"] == 7 and len(first["answers"]) == 8
+
+
+def test_published_choices_carry_id_and_tag_and_hello_syncs(human):
+    r = Running(human, budget=0.5, workers=1)
+    sub = zmq.Context.instance().socket(zmq.SUB)
+    sub.setsockopt(zmq.LINGER, 0)
+    sub.setsockopt(zmq.SUBSCRIBE, b"")
+    sub.connect(r.server.pub_endpoint)
+    try:
+        with Client(r.server.endpoint) as c:
+            for _ in range(100):  # the slow joiner: hello until the subscription is through
+                c.call("hello", tag="me")
+                if sub.poll(100):
+                    break
+            topic, body = sub.recv_multipart()
+            assert topic == b"hello" and json.loads(body)["tag"] == "me"
+            while sub.poll(200):
+                sub.recv_multipart()
+            c.call("query", effector="right_hand", goal=GOALS[0], tag="character-3")
+            assert sub.poll(60_000)
+            topic, body = sub.recv_multipart()
+    finally:
+        sub.close(linger=0)
+        r.stop()
+    msg = json.loads(body)
+    assert topic == b"right_hand" and msg["tag"] == "character-3" and isinstance(msg["id"], int) and msg["goal"] == GOALS[0]
+
+
+def test_sigterm_under_a_refined_batch_stops_the_server_and_its_workers(human):
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "reach.cli", "serve", str(human), "--bind", "tcp://127.0.0.1:*", "--pub", "none", "--workers", "2", "--budget-ms", "500"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    sock = None
+    try:
+        line = proc.stdout.readline()
+        address = line.split(" on ")[1].strip().rstrip(",")
+        sock = _dealer(address)
+        sock.send_multipart([b"", json.dumps({"op": "query", "effector": "right_hand", "goals": GOALS * 20}).encode()])
+        with Client(address) as c:
+            assert _pending_health(c)["pending"] == 1
+        workers = [int(p) for p in open(f"/proc/{proc.pid}/task/{proc.pid}/children").read().split()]
+        assert len(workers) >= 2
+        proc.send_signal(signal.SIGTERM)
+        out, _ = proc.communicate(timeout=10)
+        assert proc.returncode == 0 and "server stopped" in out
+        time.sleep(0.5)
+        alive = []
+        for pid in workers:
+            try:
+                if open(f"/proc/{pid}/stat").read().split()[2] != "Z":  # a zombie has ended; only its exit status waits
+                    alive.append(pid)
+            except FileNotFoundError:
+                pass
+        assert alive == []
+    finally:
+        if sock is not None:
+            sock.close(linger=0)
+        if proc.poll() is None:
+            proc.kill()

@@ -1,0 +1,154 @@
+"""The server's refinement workers: processes behind a ROUTER socket (zguide's load-balancing broker).
+
+Refining a posture by IK takes milliseconds to the budget's end; the
+server's request loop must not wait for it. Each worker process loads the
+atlas and holds its own oracles (their "refine" variants); it connects a
+DEALER to the broker's back-end ROUTER, says it is ready, and then answers
+one task at a time: a chunk of a query's goals, with the query's effector,
+``from`` and deadline. The broker (:class:`Pool`, in the server's loop) keeps
+a queue of tasks and the ready workers, least recently used first, and
+hands each task to a ready worker as soon as there is one.
+
+Tasks are JSON, results are the answers' own JSON: nothing is pickled. A
+worker dies with the server (the parent-death signal), and one whose task's
+deadline has passed before it starts answers ``expired`` at once.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing as mp
+import os
+import signal
+import tempfile
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import zmq
+
+READY = b"READY"
+EXPIRED = b"expired"
+FAILED = b"failed:"
+
+
+@dataclass
+class Task:
+    """A chunk of one request's goals."""
+
+    request: int  # the server's sequence number of the request
+    part: int  # which chunk of it
+    effector: str
+    goals: list[list[float]]
+    start: dict[str, float] | None
+    deadline: float  # time.monotonic() after which the work is abandoned
+
+    def encode(self) -> bytes:
+        return json.dumps({"effector": self.effector, "goals": self.goals, "from": self.start, "deadline": self.deadline}).encode()
+
+
+@dataclass
+class Pool:
+    """The broker's side of the workers: their processes, the back-end socket, the task queue."""
+
+    context: zmq.Context
+    atlas: Path
+    policy: str
+    budget: float
+    size: int
+    backend: Any = None
+    processes: list[Any] = field(default_factory=list)
+    idle: deque[bytes] = field(default_factory=deque)
+    queue: deque[Task] = field(default_factory=deque)
+    busy: dict[bytes, Task] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self._folder = tempfile.mkdtemp(prefix="reach-serve-")
+        address = f"ipc://{self._folder}/refine"
+        self.backend = self.context.socket(zmq.ROUTER)
+        self.backend.setsockopt(zmq.LINGER, 0)
+        self.backend.bind(address)
+        spawn = mp.get_context("spawn")  # a fresh interpreter: no copy of the server's sockets
+        for _ in range(self.size):
+            p = spawn.Process(target=work, args=(address, str(self.atlas), self.policy, self.budget), daemon=True)
+            p.start()
+            self.processes.append(p)
+
+    def submit(self, task: Task) -> None:
+        self.queue.append(task)
+        self.dispatch()
+
+    def cancel(self, request: int) -> None:
+        """Drop the queued tasks of a request (tasks already in a worker finish and are ignored)."""
+        self.queue = deque(t for t in self.queue if t.request != request)
+
+    def dispatch(self) -> None:
+        now = time.monotonic()
+        while self.idle and self.queue:
+            task = self.queue.popleft()
+            if task.deadline < now:
+                continue  # abandoned: the request has been answered already
+            worker = self.idle.popleft()
+            self.busy[worker] = task
+            self.backend.send_multipart([worker, task.encode()])
+
+    def receive(self) -> tuple[Task, list[bytes]] | None:
+        """One message from a worker: the finished task and its result frames (None for a worker saying it is ready).
+
+        The result is one answer's JSON per goal, or one frame ``expired`` or ``failed: ...``.
+        """
+        worker, *payload = self.backend.recv_multipart()
+        self.idle.append(worker)
+        task = self.busy.pop(worker, None)
+        self.dispatch()
+        if payload == [READY] or task is None:
+            return None
+        return task, payload
+
+    @property
+    def ready(self) -> int:
+        return len(self.idle) + len(self.busy)
+
+    def close(self) -> None:
+        """Stop the workers at once (they hold nothing worth saving) and close the socket."""
+        for p in self.processes:
+            if p.is_alive():
+                p.kill()
+        for p in self.processes:
+            p.join(timeout=1.0)
+        self.backend.close(linger=0)
+        try:
+            os.unlink(os.path.join(self._folder, "refine"))
+            os.rmdir(self._folder)
+        except OSError:
+            pass
+
+
+def work(address: str, atlas: str, policy: str, budget: float) -> None:
+    """A worker process: refine the tasks the broker sends until it dies with the server."""
+    from reach.executor import _die_with_parent
+    from reach.select import Selector
+    from reach.store import load_atlas
+
+    _die_with_parent()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group; the server decides
+    selector = Selector(load_atlas(atlas), policy, True, budget).warm_up()  # type: ignore[arg-type]
+    import numpy as np
+
+    sock = zmq.Context().socket(zmq.DEALER)
+    sock.setsockopt(zmq.LINGER, 0)
+    sock.connect(address)
+    sock.send(READY)
+    while True:
+        payload = sock.recv()
+        job = json.loads(payload)
+        if time.monotonic() > job["deadline"]:
+            sock.send(EXPIRED)
+            continue
+        try:
+            answers = selector.select_many(job["effector"], np.array(job["goals"]), True, start=job["from"])
+            sock.send_multipart([a.to_json() for a in answers])
+        except Exception as exc:  # noqa: BLE001 - reported to the broker, which answers with stored postures
+            sock.send(FAILED + f"{type(exc).__name__}: {exc}".encode())
