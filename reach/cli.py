@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -159,8 +160,6 @@ def cmd_serve(args: argparse.Namespace) -> int:
     from reach.server import Server
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    import os
-
     workers = (os.cpu_count() or 1) if args.workers is None else args.workers
     if workers < 0:
         raise InputError("--workers", f"expected 0 or more worker processes, got {workers}")
@@ -169,6 +168,20 @@ def cmd_serve(args: argparse.Namespace) -> int:
     print(f"serving {args.atlas} on {server.endpoint}" + (f", publishing on {server.pub_endpoint}" if server.pub_endpoint else ""), flush=True)
     server.serve_forever()
     print("server stopped", flush=True)
+    return 0
+
+
+def cmd_keys(args: argparse.Namespace) -> int:
+    import zmq.auth
+
+    folder = Path(args.folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    for suffix in ("key", "key_secret"):
+        if (folder / f"{args.name}.{suffix}").exists():
+            raise InputError(str(folder / f"{args.name}.{suffix}"), "exists; choose another --name or folder (keys are never overwritten)")
+    public, secret = zmq.auth.create_certificates(str(folder), args.name)
+    os.chmod(secret, 0o600)
+    print(f"public key: {public}\nsecret key: {secret} (keep it private; reach serve --curve-secret-key {secret})")
     return 0
 
 
@@ -353,6 +366,11 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--curve-secret-key", metavar="FILE", help="encrypt with CURVE, using this server secret-key file (zmq.auth.create_certificates)")
     p.add_argument("--workers", type=int, metavar="N", help="refinement worker processes (default: all cores; 0 refines in the request loop)")
     p.set_defaults(func=cmd_serve)
+
+    p = sub.add_parser("keys", help="write a CURVE key pair", description="Write a CURVE key pair (ZeroMQ certificate files NAME.key and NAME.key_secret) for 'reach serve --curve-secret-key' and its clients. See docs/protocol.md.")
+    p.add_argument("folder", help="folder to write the two files into")
+    p.add_argument("--name", default="server", help="base name of the files (default: server)")
+    p.set_defaults(func=cmd_keys)
 
     p = sub.add_parser(
         "view", help="interactive 3-D view in the browser",

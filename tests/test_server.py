@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
 import sys
@@ -490,3 +489,24 @@ def test_sigterm_under_a_refined_batch_stops_the_server_and_its_workers(human):
             sock.close(linger=0)
         if proc.poll() is None:
             proc.kill()
+
+
+def test_reach_keys_writes_a_pair_the_server_and_clients_use(tmp_path, balls, capsys):
+    assert main(["keys", str(tmp_path / "keys")]) == 0
+    public, secret = zmq.auth.load_certificate(str(tmp_path / "keys" / "server.key_secret"))
+    assert len(public) == 40 and secret is not None and len(secret) == 40
+    assert (tmp_path / "keys" / "server.key_secret").stat().st_mode & 0o077 == 0  # private
+    assert main(["keys", str(tmp_path / "keys")]) == 2  # never overwritten
+    assert "exists" in capsys.readouterr().err
+    r = Running(balls, curve_secret=tmp_path / "keys" / "server.key_secret")
+    try:
+        sock = zmq.Context.instance().socket(zmq.REQ)
+        sock.setsockopt(zmq.LINGER, 0)
+        sock.curve_serverkey = public
+        sock.curve_publickey, sock.curve_secretkey = zmq.curve_keypair()
+        sock.connect(r.server.endpoint)
+        sock.send(b'{"op": "health", "id": 1}')
+        assert sock.poll(RECV_MS) and json.loads(sock.recv())["ok"]
+        sock.close(linger=0)
+    finally:
+        r.stop()
