@@ -110,7 +110,7 @@ def _build_locked(
     for s in order:
         path, partial = out / f"{s.name}.npz", out / PARTIAL / f"{s.name}.npz"
         fp = fingerprint(config, s)
-        meta: dict[str, Any] = {"name": s.name, "effector": s.effector, "priority": s.priority, "oracle": s.oracle.to_dict(), "fingerprint": fp}
+        meta: dict[str, Any] = {"name": s.name, "atlas": config.name, "effector": s.effector, "priority": s.priority, "oracle": s.oracle.to_dict(), "fingerprint": fp}
         tree = None
         if resume and path.is_file():
             try:
@@ -136,7 +136,8 @@ def _build_locked(
         save_tree(tree, path)
         partial.unlink(missing_ok=True)
         built[s.name] = tree
-        entries.append({"name": s.name, "effector": s.effector, "priority": s.priority, "file": path.name, "oracle": s.oracle.to_dict(), "fingerprint": fp})
+        entries.append({"name": s.name, "effector": s.effector, "priority": s.priority, "file": path.name, "oracle": s.oracle.to_dict(), "fingerprint": fp,
+                        "digest": tree.meta["digest"]})
     entries.sort(key=lambda e: (e["priority"], e["name"]))
     manifest = {
         "name": config.name,

@@ -23,7 +23,9 @@ from reach.tree import DEFAULT_POLICY, POLICIES
 
 
 def _print_json(data: Any) -> None:
-    print(json.dumps(data, indent=2, sort_keys=True))
+    from reach.protocol import finite
+
+    print(json.dumps(finite(data), indent=2, sort_keys=True, allow_nan=False))
 
 
 def cmd_build(args: argparse.Namespace) -> int:

@@ -165,6 +165,17 @@ def parse_request(payload: bytes) -> Request:
     return Request(op, rid, effector, parsed, False, refine, start=start, deadline=deadline, tag=tag)
 
 
+def finite(data: Any) -> Any:
+    """A JSON-compatible value with every NaN or infinite float replaced by null: JSON has no such numbers."""
+    if isinstance(data, float):
+        return data if math.isfinite(data) else None
+    if isinstance(data, dict):
+        return {k: finite(v) for k, v in data.items()}
+    if isinstance(data, (list, tuple)):
+        return [finite(v) for v in data]
+    return data
+
+
 def encode(data: dict[str, Any]) -> bytes:
     """UTF-8 JSON of a reply (strict: no NaN)."""
     return json.dumps(data, allow_nan=False, separators=(",", ":")).encode()

@@ -224,5 +224,7 @@ def report(atlas: Atlas, out: str | Path, level: int = 4, names: list[str] | Non
     t = tables(atlas)
     (out / "report.md").write_text(markdown(t, str(atlas.manifest.get("name", atlas.path))))
     t["figures"] = [str(p) for p in figures(atlas, out, level, names)]
-    (out / "report.json").write_text(json.dumps(t, indent=2))
+    from reach.protocol import finite
+
+    (out / "report.json").write_text(json.dumps(finite(t), indent=2, allow_nan=False))
     return t

@@ -11,6 +11,7 @@ zip traceback never reaches the user, and nothing is ever unpickled.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import zipfile
@@ -42,8 +43,18 @@ def _atomic_write(path: Path, write: Any) -> None:
     os.replace(tmp, path)
 
 
+def digest(arrays: dict[str, np.ndarray]) -> str:
+    """SHA-256 of a tree's arrays (every one but ``meta``: names, dtypes, shapes and bytes), in hex."""
+    h = hashlib.sha256()
+    for name in sorted(k for k in arrays if k != "meta"):
+        a = np.ascontiguousarray(arrays[name])
+        h.update(f"{name}:{a.dtype.str}:{a.shape};".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
 def save_tree(tree: VATree, path: str | Path) -> Path:
-    """Write a tree to path (``.npz``); returns the path."""
+    """Write a tree to path (``.npz``), with the digest of its arrays in its metadata; returns the path."""
     path = Path(path)
     meta = {
         **tree.meta,
@@ -55,7 +66,6 @@ def save_tree(tree: VATree, path: str | Path) -> Path:
         "posture_names": list(tree.vertices.posture_names),
     }
     arrays: dict[str, np.ndarray] = {
-        "meta": np.frombuffer(json.dumps(meta, sort_keys=True).encode(), np.uint8),
         "depth": tree.depth.astype(np.uint8),
         "corner": tree.corner.astype(np.int64),
         "kind": tree.kind.astype(np.uint8),
@@ -65,6 +75,8 @@ def save_tree(tree: VATree, path: str | Path) -> Path:
     }
     if tree.vertices.posture is not None:
         arrays["vertex_posture"] = tree.vertices.posture.astype(float)
+    meta["digest"] = tree.meta["digest"] = digest(arrays)
+    arrays["meta"] = np.frombuffer(json.dumps(meta, sort_keys=True).encode(), np.uint8)
     path.parent.mkdir(parents=True, exist_ok=True)
     _atomic_write(path, lambda fh: np.savez_compressed(fh, **arrays))  # type: ignore[arg-type]
     return path
@@ -150,6 +162,8 @@ def load_tree(path: str | Path) -> VATree:
         problems.append(f"{int(np.sum(~np.all(np.isfinite(posture), axis=1)))} stored postures hold NaN or infinite values")
     if problems:
         raise StoreError(path, "; ".join(problems))
+    if "digest" in meta and meta["digest"] != digest({k: v for k, v in arrays.items() if k != "meta"}):
+        raise StoreError(path, "its arrays do not match the digest in its metadata (altered after it was written?); rebuild it")
     meta = {k: v for k, v in meta.items() if k not in ("format", "version", "box", "d_min", "d_max", "posture_names")}
     vertices = VertexTable(keys, reach_, residual, posture, names)
     wrong = _labels_contradicting_verdicts(Lattice(box, d_max), depth, corner, kind, vertices)
@@ -237,7 +251,7 @@ def load_atlas(folder: str | Path) -> Atlas:
         path = folder / s["file"]
         tree = load_tree(path)
         # A tree file copied over another's would otherwise be served under the wrong name.
-        for key in ("name", "effector", "fingerprint"):
+        for key in ("name", "effector", "fingerprint", "digest"):
             if key in s and key in tree.meta and tree.meta[key] != s[key]:
                 raise StoreError(path, f"holds the tree of {key} {tree.meta[key]!r}, but the manifest lists it for {s[key]!r}; rebuild the atlas")
         trees[s["name"]] = tree

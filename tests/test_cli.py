@@ -87,3 +87,13 @@ def test_query_from_must_be_a_json_object(figure2_atlas, capsys):
     assert "--from: expected a JSON object of joint name -> number" in capsys.readouterr().err
     assert main(["query", str(figure2_atlas), "0.1", "0.1", "--from", "{not json"]) == 2
     assert "--from: expected a JSON object" in capsys.readouterr().err
+
+
+def test_json_output_never_holds_nan():
+    import json as _json
+
+    from reach.protocol import finite
+
+    data = {"a": float("nan"), "b": [1.0, float("inf"), {"c": -float("inf")}], "d": "x", "e": 2}
+    text = _json.dumps(finite(data), allow_nan=False)  # raises on any NaN left
+    assert _json.loads(text) == {"a": None, "b": [1.0, None, {"c": None}], "d": "x", "e": 2}

@@ -67,10 +67,13 @@ def test_garbage_file_is_a_clear_error(tmp_path):
         load_tree(path)
 
 
-def _rewrite(path, **changes):
+def _rewrite(path, keep_digest=False, **changes):
+    """Change a tree file's arrays or metadata; without keep_digest, as a writer that records no digest would."""
     with np.load(path, allow_pickle=False) as data:
         arrays = {k: data[k] for k in data.files}
     meta = json.loads(arrays["meta"].tobytes())
+    if not keep_digest:
+        meta.pop("digest", None)
     for k, v in changes.items():
         if k == "drop":
             arrays.pop(v)
@@ -203,6 +206,31 @@ def test_a_tree_copied_over_another_is_refused(tmp_path):
     shutil.copy(tmp_path / "out" / "left.npz", tmp_path / "out" / "right.npz")
     with pytest.raises(StoreError, match=r"right\.npz: holds the tree of name 'left', but the manifest lists it for 'right'"):
         load_atlas(tmp_path / "out")
+
+
+def test_arrays_altered_after_writing_are_refused_by_their_digest(unit_sphere_tree, tmp_path):
+    path = save_tree(unit_sphere_tree, tmp_path / "a.npz")
+    residual = unit_sphere_tree.vertices.residual.copy()
+    residual[3] += 0.01  # a change no structural check can see
+    _rewrite(path, keep_digest=True, array_vertex_residual=residual)
+    with pytest.raises(StoreError, match=r"a\.npz: its arrays do not match the digest"):
+        load_tree(path)
+
+
+def test_a_tree_replaced_by_another_build_of_the_same_strategy_is_refused(tmp_path):
+    from reach.atlas import build_atlas
+    from reach.config import parse_config
+
+    raw = {"box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 1, "max": 2},
+           "oracle": {"name": "sphere", "params": {"radius": 0.9}}, "strategies": [{"name": "ball"}]}
+    build_atlas(parse_config(raw), tmp_path / "a")
+    build_atlas(parse_config({**raw, "depth": {"min": 1, "max": 3}}), tmp_path / "b")
+    assert load_atlas(tmp_path / "a").manifest["strategies"][0]["digest"] == load_atlas(tmp_path / "a").trees["ball"].meta["digest"]
+    import shutil
+
+    shutil.copy(tmp_path / "b" / "ball.npz", tmp_path / "a" / "ball.npz")
+    with pytest.raises(StoreError, match=r"ball\.npz: holds the tree of (fingerprint|digest)"):
+        load_atlas(tmp_path / "a")
 
 
 @pytest.mark.parametrize("change", ["invert", "shift"])
