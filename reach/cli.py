@@ -42,6 +42,11 @@ def cmd_build(args: argparse.Namespace) -> int:
         config = dataclasses.replace(config, refine=Refine(r.centres or args.refine_centres, r.faces or args.refine_faces, r.isolated or args.retry_isolated))
     out = Path(args.output) if args.output else Path("out") / config.name
     factory, client, how = _executor_factory(args, config.chunk_size)
+    import signal
+    import threading
+
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, _terminated)  # as Ctrl-C: the checkpoints stay, a message, status 143
     print(f"building {len(config.strategies)} strateg{'y' if len(config.strategies) == 1 else 'ies'} of {config.source} into {out} ({how})", flush=True)
     try:
         build_atlas(config, out, executor_factory=factory, progress=not args.quiet, log=lambda line: print(line, flush=True),
@@ -51,6 +56,14 @@ def cmd_build(args: argparse.Namespace) -> int:
             client.close()
     print(f"atlas written to {out}")
     return 0
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, handled as SIGINT is."""
+
+
+def _terminated(signum: int, frame: Any) -> None:
+    raise Terminated
 
 
 def _executor_factory(args: argparse.Namespace, chunk_size: int) -> tuple[Any, Any, str]:
@@ -442,8 +455,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ReachError as exc:
         print(f"reach: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("reach: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as exc:
+        # A build keeps its checkpoint of the last finished depth: --resume goes on from there.
+        hint = "; run the same build with --resume to go on from its last finished depth" if args.func is cmd_build else ""
+        if isinstance(exc, Terminated):
+            print(f"reach: terminated{hint}", file=sys.stderr)
+            return 143
+        print(f"reach: interrupted{hint}", file=sys.stderr)
         return 130
     except BrokenPipeError:
         # The reader went away (``reach info ... | head``): not an error of ours.

@@ -50,6 +50,7 @@ from reach.workers import EXPIRED, Pool, Task
 log = logging.getLogger("reach.server")
 CHUNK = 32  # goals per worker task at most: a batch spreads over the workers, and a deadline cuts it finely
 SLACK = 5.0  # [s] a request's default deadline: the budget per goal, plus this
+LOG_EVERY = 60.0  # [s] an identical internal error's traceback is logged at most this often
 
 
 @dataclass
@@ -114,6 +115,7 @@ class Server:
         self.requests = 0
         self.errors = 0
         self.resends = 0
+        self._logged: dict[str, float] = {}
         self.pending: dict[int, Pending] = {}
         self.by_key: dict[tuple[bytes, bytes], int] = {}
         self._seq = 0
@@ -224,7 +226,7 @@ class Server:
             return P.error_reply(code, str(exc), rid)
         except Exception as exc:  # a bug must not stop the server
             self.errors += 1
-            log.exception("internal error")
+            self._log_internal(exc)
             return P.error_reply(P.INTERNAL, f"{type(exc).__name__}: {exc}", rid)
 
     def dispatch(self, req: P.Request) -> bytes:
@@ -304,9 +306,17 @@ class Server:
         bodies = [body for part in pending.parts if part is not None for body in part]
         try:
             self._send(pending.envelope, P.ok_reply(self._result(pending.request, bodies), pending.request.id))
-        except Exception:  # a bug must not stop the server
-            log.exception("internal error")
+        except Exception as exc:  # a bug must not stop the server
+            self._log_internal(exc)
             self._send(pending.envelope, P.error_reply(P.INTERNAL, "the reply could not be made", pending.request.id))
+
+    def _log_internal(self, exc: Exception) -> None:
+        """Log a bug's traceback, each distinct one at most once a minute (a client repeating a request must not flood the log)."""
+        key = f"{type(exc).__name__}: {exc}"[:300]
+        now = time.monotonic()
+        if now - self._logged.get(key, -math.inf) >= LOG_EVERY:
+            self._logged[key] = now
+            log.error("internal error", exc_info=exc)
 
     def control(self, req: P.Request) -> dict[str, Any]:
         """Results of the health, strategies and reload ops."""

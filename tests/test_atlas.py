@@ -145,7 +145,7 @@ def test_a_killed_build_leaves_no_worker_behind(tmp_path, sig):
     cfg.write_text(yaml.safe_dump(human_config(d_max=5)))
     out = tmp_path / "out"
     proc = subprocess.Popen([sys.executable, "-m", "reach.cli", "build", str(cfg), "-o", str(out), "-q", "-j", "2"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 120
     workers: list[int] = []
     while len(workers) < 2 and time.monotonic() < deadline and proc.poll() is None:
@@ -155,7 +155,9 @@ def test_a_killed_build_leaves_no_worker_behind(tmp_path, sig):
     assert len(workers) >= 2, "the build runs its worker processes"
     time.sleep(0.3)  # let them take work
     os.kill(proc.pid, sig)
-    proc.wait(timeout=30)
+    _, err = proc.communicate(timeout=30)
+    if sig == signal.SIGTERM:  # as Ctrl-C: a message and a documented status
+        assert proc.returncode == 143 and "reach: terminated; run the same build with --resume" in err
     deadline = time.monotonic() + 10
     while any(_alive(w) for w in workers) and time.monotonic() < deadline:
         time.sleep(0.05)

@@ -510,3 +510,15 @@ def test_reach_keys_writes_a_pair_the_server_and_clients_use(tmp_path, balls, ca
         sock.close(linger=0)
     finally:
         r.stop()
+
+
+def test_an_internal_error_is_logged_once_a_minute(running, dealer, caplog, monkeypatch):
+    def broken(req):
+        raise RuntimeError("a bug")
+
+    monkeypatch.setattr(running.server, "control", broken)
+    with caplog.at_level("ERROR", logger="reach.server"):
+        for _ in range(5):
+            reply = ask(dealer, b'{"op": "health", "id": 3}')
+            assert reply["error"]["code"] == P.INTERNAL and reply["id"] == 3
+    assert sum("internal error" in r.message for r in caplog.records) == 1
