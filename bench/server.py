@@ -6,6 +6,11 @@
   the size of the server's reply: the floor on this machine. Requests to the
   two alternate, so that both see the same machine noise.
 * Throughput with 1, 4 and 16 concurrent clients (stored postures).
+* With refinement workers (``--workers``): the stored-posture p99 while 2
+  clients ask for refined postures; ``health`` behind a 2,000-goal refined
+  batch; refined throughput with 1 and 2 workers; a 10,000-goal refined
+  batch; the time SIGTERM takes to stop a server in the middle of a refined
+  batch.
 
 The atlas is a small human atlas (right arm and upper body, D_max 3) built
 in a temporary folder. Servers run in their own processes.
@@ -154,6 +159,100 @@ def main() -> None:
                     proc.terminate()
                     proc.wait()
         emit(bench="goals", stored_p99_over_echo_p99=round(s["p99"] / e["p99"], 3), stored_p99_ms=round(s["p99"], 4), refined_p99_ms=round(r["p99"], 4))
+        workers_bench(atlas, goals, stored)
+
+
+def serve(atlas: Path, workers: int) -> tuple[subprocess.Popen, str]:
+    return start([sys.executable, "-m", "reach.cli", "serve", str(atlas), "--bind", "tcp://127.0.0.1:*", "--pub", "none",
+                  "--budget-ms", "20", "--workers", str(workers)])
+
+
+def _ready(address: str) -> None:
+    """Wait until every worker has loaded the atlas: a refined query answers ok."""
+    sock = zmq.Context.instance().socket(zmq.REQ)
+    sock.connect(address)
+    for _ in range(4):
+        sock.send(json.dumps({"op": "query", "effector": "right_hand", "goals": [[0.4, -0.3, 1.2]] * 8}).encode())
+        sock.recv()
+    sock.close(linger=0)
+
+
+def _batch(address: str, goals: np.ndarray) -> zmq.Socket:
+    sock = zmq.Context.instance().socket(zmq.DEALER)
+    sock.setsockopt(zmq.LINGER, 0)
+    sock.connect(address)
+    sock.send_multipart([b"", json.dumps({"op": "query", "id": "batch", "effector": "right_hand", "goals": goals.tolist(), "deadline": 3600}).encode()])
+    return sock
+
+
+def workers_bench(atlas: Path, goals: np.ndarray, stored: list[bytes]) -> None:
+    health = json.dumps({"op": "health"}).encode()
+    server, address = serve(atlas, 2)
+    try:
+        _ready(address)
+        alone = latencies([address], stored[:1000])[0]
+        stop = threading.Event()
+
+        def refine_forever(k: int) -> None:
+            sock = zmq.Context.instance().socket(zmq.REQ)
+            sock.setsockopt(zmq.LINGER, 0)
+            sock.connect(address)
+            i = k
+            while not stop.is_set():
+                sock.send(json.dumps({"op": "query", "effector": "right_hand", "goal": goals[i % len(goals)].tolist()}).encode())
+                sock.recv()
+                i += 2
+            sock.close()
+
+        threads = [threading.Thread(target=refine_forever, args=(k,)) for k in range(2)]
+        for t in threads:
+            t.start()
+        loaded = latencies([address], stored[:1000])[0]
+        stop.set()
+        for t in threads:
+            t.join()
+        a, b = stats("stored_alone_workers", alone), stats("stored_while_2_clients_refine", loaded)
+        emit(bench="goals", mixed_p99_ms=round(b["p99"], 4), mixed_over_alone_p99=round(b["p99"] / a["p99"], 3))
+        big = _batch(address, np.tile(goals, (1 + 2000 // len(goals), 1))[:2000])
+        time.sleep(0.2)
+        behind = latencies([address], [health] * 50)[0]
+        stats("health_behind_2000_goal_refined_batch", behind)
+        big.poll(600_000)
+        big.close(linger=0)
+        t0 = time.perf_counter()
+        huge = _batch(address, np.tile(goals, (1 + 10_000 // len(goals), 1))[:10_000])
+        huge.poll(600_000)
+        reply = json.loads(huge.recv_multipart()[-1])
+        huge.close(linger=0)
+        outcomes = [x["refined"] for x in reply["answers"]]
+        emit(bench="batch", goals=10_000, workers=2, seconds=round(time.perf_counter() - t0, 2),
+             refined_ok=outcomes.count("ok"), other={k: outcomes.count(k) for k in set(outcomes) - {"ok"}})
+        big = _batch(address, np.tile(goals, (1 + 2000 // len(goals), 1))[:2000])
+        time.sleep(0.5)
+        t0 = time.perf_counter()
+        server.send_signal(15)
+        server.wait(timeout=30)
+        emit(bench="sigterm_under_refined_batch", seconds=round(time.perf_counter() - t0, 3), status=server.returncode)
+        big.close(linger=0)
+    finally:
+        if server.poll() is None:
+            server.kill()
+    rates = {}
+    for n in (1, 2):
+        server, address = serve(atlas, n)
+        try:
+            _ready(address)
+            t0 = time.perf_counter()
+            sock = _batch(address, goals[:1000])
+            sock.poll(600_000)
+            sock.recv_multipart()
+            sock.close(linger=0)
+            rates[n] = 1000 / (time.perf_counter() - t0)
+            emit(bench="refined_throughput", workers=n, goals_per_s=round(rates[n], 1))
+        finally:
+            server.terminate()
+            server.wait()
+    emit(bench="goals", refined_throughput_2_over_1=round(rates[2] / rates[1], 3))
 
 
 if __name__ == "__main__":

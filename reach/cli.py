@@ -326,6 +326,10 @@ def _add_executor_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scheduler", metavar="ADDR", help="run on the Dask cluster at ADDR, e.g. tcp://10.0.0.5:8786")
 
 
+def _policy_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--policy", default=DEFAULT_POLICY, choices=POLICIES, help=f"how boundary cells answer (default: {DEFAULT_POLICY})")
+
+
 def make_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="reach",
@@ -358,7 +362,7 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("values", nargs="+", metavar="ATLAS X Y [Z]", help="atlas folder (omitted with --connect) and goal [m]")
     p.add_argument("--connect", metavar="ADDR", help=f"ask the server at ADDR (e.g. {P.DEFAULT_BIND}) instead of reading an atlas")
     p.add_argument("--effector", help="effector to ask about (default: every effector of the atlas)")
-    p.add_argument("--policy", default=DEFAULT_POLICY, choices=POLICIES, help=f"how boundary cells answer (default: {DEFAULT_POLICY})")
+    _policy_option(p)
     p.add_argument("--refine", choices=["on", "off"], help="refine the posture by IK at the exact goal (default: on)")
     p.add_argument("--from", dest="start", metavar="POSTURE",
                    help="the character's current posture, a JSON object of joint name -> value [rad or m] (or a file holding one): "
@@ -375,7 +379,7 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("atlas", help="atlas folder written by 'reach build'")
     p.add_argument("--bind", default=P.DEFAULT_BIND, help=f"request address (default {P.DEFAULT_BIND})")
     p.add_argument("--pub", default=P.DEFAULT_PUB, help=f"publishing address, or 'none' (default {P.DEFAULT_PUB})")
-    p.add_argument("--policy", default=DEFAULT_POLICY, choices=POLICIES, help=f"how boundary cells answer (default: {DEFAULT_POLICY})")
+    _policy_option(p)
     p.add_argument("--no-refine", action="store_true", help="answer with stored postures; no IK refinement unless a request asks")
     p.add_argument("--budget-ms", type=float, default=REFINE_BUDGET * 1000, help=f"time budget of one IK refinement [ms] (default {REFINE_BUDGET * 1000:g})")
     p.add_argument("--curve-secret-key", metavar="FILE", help="encrypt with CURVE, using this server secret-key file (zmq.auth.create_certificates)")
@@ -397,7 +401,7 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--port", type=int, default=8080, help="port (default 8080; the next free one if taken)")
     p.add_argument("--connect", metavar="ADDR", help="take answers from a running 'reach serve' at ADDR, e.g. tcp://127.0.0.1:5555")
     p.add_argument("--spacing", type=float, default=1.5, help="distance between atlases along y [m] (default 1.5)")
-    p.add_argument("--policy", default=DEFAULT_POLICY, choices=POLICIES, help=f"how boundary cells answer (default: {DEFAULT_POLICY})")
+    _policy_option(p)
     p.add_argument("--no-refine", action="store_true", help="show stored postures; no IK refinement")
     p.set_defaults(func=cmd_view)
 
@@ -419,7 +423,7 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("atlas", nargs="+", help="atlas folders")
     p.add_argument("--targets", required=True, help="CSV file with name, x, y, z[, effector]")
     p.add_argument("--effector", help="effector for targets without one")
-    p.add_argument("--policy", default=DEFAULT_POLICY, choices=POLICIES, help=f"how boundary cells answer (default: {DEFAULT_POLICY})")
+    _policy_option(p)
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_evaluate)
 
@@ -427,7 +431,7 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("atlas", help="atlas folder written by 'reach build'")
     p.add_argument("--samples", type=int, default=300, help="probes per strategy, split over the three cell types (default 300)")
     p.add_argument("--strategies", help="comma-separated strategies (default: all)")
-    p.add_argument("--policy", default=DEFAULT_POLICY, choices=POLICIES, help=f"how boundary cells answer (default: {DEFAULT_POLICY})")
+    _policy_option(p)
     p.add_argument("--restarts", type=int, default=6, help="restarts of the direct IK (default 6)")
     p.add_argument("--seed", type=int, default=0, help="seed of the probes (default 0)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
