@@ -41,6 +41,7 @@ from reach.errors import OracleError
 NEAR_HINT = 0.1  # [m] a hint whose effector is this close to the goal makes its warm solve decisive (see give_up)
 SOLVERS = ("fatrop", "ipopt")
 REFINE_SECONDARY_ITER = 40  # iteration cap of the lower stages when refining an answer
+PREFER = False  # whether a refinement tries every start and keeps the best-liked (see IKOracle)
 # Lazy tasks' cuts (see oracles.tasks.base.HardTask): how many one program
 # holds, how many rounds of cutting a stage may take, how near its bound a row
 # is cut [m], and how far inside its bound a cut puts it [m] (the rows are
@@ -86,8 +87,14 @@ class IKOracle(ABC):
             reaching posture the lower tasks like best (:meth:`preference`):
             a warm start can sit in a poor basin of the posture task (an
             elbow raised where it could hang), which the reference start
-            escapes. The selector's refinement asks for it; builds do not
-            (it doubles their solves).
+            escapes. Builds do not (it doubles their solves).
+        reference_first: Without a current posture (``evaluate_from``),
+            try the reference posture before the hint. The selector's
+            refinement asks for it: the reference start's basin is the
+            natural one (an arm hanging, not an elbow raised), and goals
+            near each other solved from one start get postures near each
+            other, where hints from different stored vertices can settle in
+            different basins (measured: see the README's continuity figures).
     """
 
     dim = 3
@@ -96,13 +103,15 @@ class IKOracle(ABC):
     def __init__(
         self, body: dict[str, Any], effector: str, joints: list[str], tasks: list[dict[str, Any]] | None = None,
         restarts: int = 3, seed: int = 0, secondary: bool = True, max_seconds: float | None = None,
-        give_up: float | None = 0.0, rescues: int = 0, prefer: bool = False,
+        give_up: float | None = 0.0, rescues: int = 0, prefer: bool = False, reference_first: bool = False,
     ) -> None:
         self.params: dict[str, Any] = {
             "body": body, "effector": effector, "joints": joints, "tasks": tasks, "restarts": restarts, "seed": seed,
             "secondary": secondary, "max_seconds": max_seconds, "give_up": give_up, "rescues": rescues, "prefer": prefer,
+            "reference_first": reference_first,
         }
         self.prefer = bool(prefer)
+        self.reference_first = bool(reference_first)
         self.body = load_body(body)
         self.secondary = bool(secondary)
         self.max_seconds = None if max_seconds is None else float(max_seconds)
@@ -170,7 +179,7 @@ class IKOracle(ABC):
         if purpose == "refine":
             # The hint and the reference posture, both tried (no give-up): the
             # tree already says reachable, and the budget bounds the time.
-            over: dict[str, Any] = {"restarts": 0, "give_up": None, "secondary": True, "max_seconds": budget, "prefer": True}
+            over: dict[str, Any] = {"restarts": 0, "give_up": None, "secondary": True, "max_seconds": budget, "prefer": PREFER, "reference_first": True}
         else:
             # A verdict only: the lower tasks never change one.
             over = {"restarts": max(int(self.params["restarts"]), int(restarts)), "give_up": None, "secondary": False}
@@ -216,15 +225,14 @@ class IKOracle(ABC):
     def starts(self, goal: np.ndarray, hint: np.ndarray | None) -> list[np.ndarray]:
         """Initial postures: the hint, the reference, then seeded random ones.
 
-        With ``prefer`` and no current posture (a refinement without
-        ``from``), the reference comes first: the posture task's natural
-        basin is usually the one reached from it, and a time budget may cut
-        the second start; the hint still rescues a goal the reference misses.
+        With ``reference_first`` and no current posture (a refinement
+        without ``from``), the reference comes first (see the class); the
+        hint still rescues a goal the reference misses.
         """
         out = []
         if hint is not None and np.all(np.isfinite(hint)):
             out.append(self.problem.x_of_q(hint))
-        if self.prefer and self._start is None:
+        if self.reference_first and self._start is None:
             out.insert(0, self.problem.x_ref.copy())
         else:
             out.append(self.problem.x_ref.copy())

@@ -308,3 +308,15 @@ def test_jit_leaves_no_files_behind(tmp_path, monkeypatch):
 def test_negative_search_parameters_are_refused(params):
     with pytest.raises(OracleError, match="must not be negative"):
         CasadiIK(HUMAN, "right_hand", ARM, **params)
+
+
+def test_refinement_starts_from_the_reference_unless_a_current_posture_is_given():
+    oracle = CasadiIK(HUMAN, "right_hand", ARM)
+    refine = oracle.variant("refine", budget=0.5)
+    goal = np.array([0.4, -0.3, 1.1])
+    hint = oracle.evaluate(goal[None]).posture[0]
+    x_hint = oracle.problem.x_of_q(hint)
+    assert np.allclose(oracle.starts(goal, hint)[0], x_hint)  # builds: the neighbour's posture first
+    assert np.allclose(refine.starts(goal, hint)[0], refine.problem.x_ref)  # queries: the reference first
+    refine._start = x_hint  # as evaluate_from sets it: the current posture first, for continuity
+    assert np.allclose(refine.starts(goal, hint)[0], x_hint)
