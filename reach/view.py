@@ -188,10 +188,13 @@ class Viewer:
         self.gizmo.on_update(lambda _e: self._from_gizmo())
         self.server.scene.add_grid("/floor", width=3.0, height=3.0 + self.scenes[-1].offset[1], cell_size=0.25,
                                    position=(0.2, 0.5 * self.scenes[-1].offset[1], 0.0))
-        camera = self.server.initial_camera
-        camera.up = (0.0, 0.0, 1.0)
-        camera.look_at = (0.2, 0.5 * self.scenes[-1].offset[1], 1.0)
-        camera.position = (2.8, -2.4 + 0.5 * self.scenes[-1].offset[1], 2.0)
+        middle = 0.5 * self.scenes[-1].offset[1]
+
+        @self.server.on_client_connect
+        def _camera(client: Any) -> None:  # in front of the body, to its right, looking at the chest
+            client.camera.up_direction = (0.0, 0.0, 1.0)
+            client.camera.position = (2.2, -1.9 + middle, 1.7)
+            client.camera.look_at = (0.2, middle, 1.0)
 
     def _body(self, k: int, scene: Scene) -> None:
         """The body's capsules, one mesh each, moved to postures by their transforms."""
