@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import uuid
 from pathlib import Path
 from typing import Any
 
@@ -46,11 +47,17 @@ class Client:
             client_public, client_secret = zmq.curve_keypair()
             self.curve = (server_public, client_public, client_secret)
         self._ids = itertools.count(1)
+        # One routing identity for every socket this client opens: a resend
+        # after a timeout then reaches the server as the same client (which
+        # hands the identity over to the new connection), so a request still
+        # being worked on is answered once, not computed again.
+        self.identity = b"reach-" + uuid.uuid4().hex.encode()
         self.socket = self._connect()
 
     def _connect(self) -> zmq.Socket:
         sock = self.context.socket(zmq.REQ)
         sock.setsockopt(zmq.LINGER, 0)
+        sock.setsockopt(zmq.ROUTING_ID, self.identity)
         if self.curve:
             sock.curve_serverkey, sock.curve_publickey, sock.curve_secretkey = self.curve
         sock.connect(self.address)

@@ -94,6 +94,8 @@ class Server:
         # A hard cap far above the protocol limit: larger requests still get a
         # too_large reply; only absurd ones drop the connection.
         self.router.setsockopt(zmq.MAXMSGSIZE, 64 * P.MAX_MESSAGE_BYTES)
+        # A client that reconnects under its identity (a Lazy Pirate resend) takes it over.
+        self.router.setsockopt(zmq.ROUTER_HANDOVER, 1)
         self.publisher = self.context.socket(zmq.PUB) if pub else None
         sockets = [self.router] + ([self.publisher] if self.publisher else [])
         if curve_secret:

@@ -522,3 +522,18 @@ def test_an_internal_error_is_logged_once_a_minute(running, dealer, caplog, monk
             reply = ask(dealer, b'{"op": "health", "id": 3}')
             assert reply["error"]["code"] == P.INTERNAL and reply["id"] == 3
     assert sum("internal error" in r.message for r in caplog.records) == 1
+
+
+def test_a_lazy_pirate_resend_of_a_slow_request_is_computed_once(human):
+    r = Running(human, budget=0.5, workers=1)
+    try:
+        with Client(r.server.endpoint, timeout=300, retries=40) as c:  # gives up waiting after 0.3 s, reconnects, resends
+            reply = c.call("query", effector="right_hand", goals=GOALS)
+            first = c.socket
+        with Client(r.server.endpoint) as c:
+            health = c.health()
+    finally:
+        r.stop()
+    assert len(reply["answers"]) == len(GOALS) and first is not None
+    assert health["resends"] >= 1  # the resends found the first copy at work and waited for its reply
+    assert health["pending"] == 0
