@@ -378,6 +378,7 @@ def _pending_health(client):
 GOALS = np.random.default_rng(4).uniform([0.1, -0.7, 0.8], [0.6, 0.0, 1.6], (60, 3)).round(4).tolist()
 
 
+@pytest.mark.slow
 def test_the_loop_answers_while_workers_refine(human):
     r = Running(human, budget=0.5, workers=2)
     batch = _dealer(r.server.endpoint)
@@ -398,6 +399,7 @@ def test_the_loop_answers_while_workers_refine(human):
     assert set(outcomes) <= {"ok", "failed", "timeout", "none"} and outcomes.count("ok") > len(GOALS) // 2
 
 
+@pytest.mark.slow
 def test_a_deadline_answers_with_stored_postures_marked_timeout(human):
     r = Running(human, budget=0.5, workers=1)
     try:
@@ -413,6 +415,7 @@ def test_a_deadline_answers_with_stored_postures_marked_timeout(human):
     assert health["pending"] == 0
 
 
+@pytest.mark.slow
 def test_a_resend_of_a_pending_request_is_answered_once(human):
     r = Running(human, budget=0.5, workers=1)
     sock = _dealer(r.server.endpoint)
@@ -431,6 +434,7 @@ def test_a_resend_of_a_pending_request_is_answered_once(human):
     assert first["id"] == 7 and len(first["answers"]) == 8
 
 
+@pytest.mark.slow
 def test_published_choices_carry_id_and_tag_and_hello_syncs(human):
     r = Running(human, budget=0.5, workers=1)
     sub = zmq.Context.instance().socket(zmq.SUB)
@@ -457,6 +461,7 @@ def test_published_choices_carry_id_and_tag_and_hello_syncs(human):
     assert topic == b"right_hand" and msg["tag"] == "character-3" and isinstance(msg["id"], int) and msg["goal"] == GOALS[0]
 
 
+@pytest.mark.slow
 def test_sigterm_under_a_refined_batch_stops_the_server_and_its_workers(human):
     proc = subprocess.Popen(
         [sys.executable, "-m", "reach.cli", "serve", str(human), "--bind", "tcp://127.0.0.1:*", "--pub", "none", "--workers", "2", "--budget-ms", "500"],
@@ -524,6 +529,7 @@ def test_an_internal_error_is_logged_once_a_minute(running, dealer, caplog, monk
     assert sum("internal error" in r.message for r in caplog.records) == 1
 
 
+@pytest.mark.slow
 def test_a_lazy_pirate_resend_of_a_slow_request_is_computed_once(human):
     r = Running(human, budget=0.5, workers=1)
     try:

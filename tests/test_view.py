@@ -21,6 +21,7 @@ from reach.select import Selector
 from reach.store import load_atlas
 
 viser = pytest.importorskip("viser", reason="the viewer needs viser: pip install 'reach[view]'")
+pytestmark = pytest.mark.slow  # builds a body atlas, starts browsers
 from reach.view import BOUNDARY_SHADE, PALETTE, Viewer  # noqa: E402
 
 ARM = ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"]
