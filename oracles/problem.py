@@ -23,6 +23,7 @@ from oracles.tasks import Numeric, Reference
 from reach.errors import ModelError
 
 LIMIT_TOL = 1e-6  # [rad or m] joint limit overshoot the verdict accepts
+READY = 0.3  # how far the ready start moves each joint from the reference towards its range's middle (a modelling choice)
 
 
 @dataclass(frozen=True)
@@ -93,6 +94,11 @@ class ReachProblem:
         self.x_sym, self.q_sym = xs, q
         self._q_of_x = ca.Function("q_of_x", [xs], [q], ["x"], ["q"])
         self.x_ref = self.x_of_q(body.q_ref)
+        # A start for refinements: the reference with every joint READY of the
+        # way to the middle of its range (the root where it stands).
+        self.x_ready = self.x_ref.copy()
+        k = 6 if strategy.floating else 0
+        self.x_ready[k:] += READY * (0.5 * (self.lower[k:] + self.upper[k:]) - self.x_ref[k:])
         # Tasks record what they hold at the reference posture.
         data = model.createData()
         pin.framesForwardKinematics(model, data, body.q_ref)

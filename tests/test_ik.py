@@ -317,6 +317,9 @@ def test_refinement_starts_from_the_reference_unless_a_current_posture_is_given(
     hint = oracle.evaluate(goal[None]).posture[0]
     x_hint = oracle.problem.x_of_q(hint)
     assert np.allclose(oracle.starts(goal, hint)[0], x_hint)  # builds: the neighbour's posture first
-    assert np.allclose(refine.starts(goal, hint)[0], refine.problem.x_ref)  # queries: the reference first
+    starts = refine.starts(goal, hint)
+    assert np.allclose(starts[0], refine.problem.x_ref) and np.allclose(starts[1], refine.problem.x_ready)  # queries: reference, ready
+    elbow = refine.problem.x_names.index("right_elbow_flexion")
+    assert refine.problem.x_ref[elbow] == 0.0 < refine.problem.x_ready[elbow]  # off the straight elbow
     refine._start = x_hint  # as evaluate_from sets it: the current posture first, for continuity
     assert np.allclose(refine.starts(goal, hint)[0], x_hint)
