@@ -129,6 +129,7 @@ class Viewer:
 
             self.client = Client(connect)
         self._lock = threading.Lock()
+        self._drawn: dict[tuple[int, str], tuple[tuple[Any, ...], Any]] = {}  # layer -> (the settings it was drawn with, its handle)
         self.scenes: list[Scene] = []
         for k, atlas in enumerate(atlases):
             names = list(atlas.trees)
@@ -252,30 +253,45 @@ class Viewer:
             mask &= np.abs(cells.centre[:, axis] - at) <= 0.5 * cells.size[:, axis]
         return cells.select(mask)
 
+    def _settings(self) -> tuple[Any, ...]:
+        return (self.style_box.value, self.cells_box.value, self.first_box.value, self.slice_axis.value, self.slice_at.value, self.policy)
+
     def draw(self) -> None:
-        """Redraw every layer from the panel's settings."""
+        """Bring every layer in line with the panel: a layer drawn with today's settings is only shown or
+        hidden (nothing is sent again); one drawn with others, or never, is sent anew."""
         with self._lock:
-            vertices, faces = cube()
+            settings = self._settings()
             for k, scene in enumerate(self.scenes):
                 for i, name in enumerate(scene.atlas.trees):
+                    visible = bool(self.layer_boxes[(k, name)].value)
+                    drawn = self._drawn.get((k, name))
+                    if drawn is not None and drawn[0] == settings:
+                        if drawn[1] is not None:
+                            drawn[1].visible = visible
+                        continue
                     path = f"/atlas{k}/volumes/{name}"
                     self.server.scene.remove_by_name(path)
-                    if not self.layer_boxes[(k, name)].value:
-                        continue
-                    cells = self.visible_cells(k, name)
-                    if not len(cells.centre):
-                        continue
-                    centre = (cells.centre + scene.offset).astype(np.float32)
-                    colour = np.tile(scene.colours[i], (len(centre), 1))
-                    colour[~cells.inner] = (colour[~cells.inner] * BOUNDARY_SHADE).astype(np.uint8)
-                    if self.style_box.value == "dots":
-                        self.server.scene.add_point_cloud(path, centre, colour, point_size=float(cells.size.min()) * 0.5, point_shape="circle", point_shading="flat")
-                    else:
-                        self.server.scene.add_batched_meshes_simple(
-                            path, vertices, faces, np.tile([1.0, 0.0, 0.0, 0.0], (len(centre), 1)), centre,
-                            batched_scales=(cells.size * 0.96).astype(np.float32), batched_colors=colour,
-                            wireframe=self.style_box.value == "wireframe", opacity=0.3 if self.style_box.value == "boxes" else None,
-                            cast_shadow=False, receive_shadow=False)
+                    self._drawn.pop((k, name), None)
+                    if visible:
+                        self._drawn[(k, name)] = (settings, self._layer(k, i, name, path))
+
+    def _layer(self, k: int, i: int, name: str, path: str) -> Any:
+        """Send one layer to the page: one instanced mesh (or point cloud) of its visible cells; None when it has none."""
+        scene = self.scenes[k]
+        cells = self.visible_cells(k, name)
+        if not len(cells.centre):
+            return None
+        centre = (cells.centre + scene.offset).astype(np.float32)
+        colour = np.tile(scene.colours[i], (len(centre), 1))
+        colour[~cells.inner] = (colour[~cells.inner] * BOUNDARY_SHADE).astype(np.uint8)
+        if self.style_box.value == "dots":
+            return self.server.scene.add_point_cloud(path, centre, colour, point_size=float(cells.size.min()) * 0.5, point_shape="circle", point_shading="flat")
+        vertices, faces = cube()
+        return self.server.scene.add_batched_meshes_simple(
+            path, vertices, faces, np.tile([1.0, 0.0, 0.0, 0.0], (len(centre), 1)), centre,
+            batched_scales=(cells.size * 0.96).astype(np.float32), batched_colors=colour,
+            wireframe=self.style_box.value == "wireframe", opacity=0.3 if self.style_box.value == "boxes" else None,
+            cast_shadow=False, receive_shadow=False)
 
     def show_strategy(self, name: str, visible: bool, atlas: int = 0) -> None:
         """Show or hide a strategy's layer (as its panel checkbox does)."""

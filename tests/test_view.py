@@ -119,6 +119,18 @@ def test_layers_slices_and_first_by_priority_choose_cells(viewer, atlas):
     assert len(cut.centre) and np.all(np.abs(cut.centre[:, 2] - 1.2) <= cut.size[:, 2] / 2)
 
 
+def test_toggling_a_layer_sends_nothing_again(viewer):
+    viewer.show_strategy("right_upper_body", True)
+    handle = viewer._drawn[(0, "right_upper_body")][1]
+    viewer.show_strategy("right_upper_body", False)
+    assert viewer._drawn[(0, "right_upper_body")][1] is handle and handle.visible is False  # hidden, kept
+    viewer.show_strategy("right_upper_body", True)
+    assert viewer._drawn[(0, "right_upper_body")][1] is handle and handle.visible is True
+    viewer.style_box.value = "dots"
+    viewer.draw()
+    assert viewer._drawn[(0, "right_upper_body")][1] is not handle  # other settings: drawn anew
+
+
 def test_the_viewer_over_a_server_shows_the_servers_answers(atlas):
     from reach.server import Server
 
