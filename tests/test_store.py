@@ -242,3 +242,19 @@ def test_verdicts_contradicting_the_labels_are_refused(unit_sphere_tree, tmp_pat
         _rewrite(path, array_corner=unit_sphere_tree.corner + 1)
     with pytest.raises(StoreError, match=r"t\.npz: \d+ inner or outer cells contradict their vertices' verdicts"):
         load_tree(path)
+
+
+def test_a_checkpoint_is_at_most_one_and_a_half_times_the_tree(tmp_path):
+    """The last checkpoint of a build holds what the tree holds: compressed alike, it is no bigger (it was 8x)."""
+    from helpers import TwoLinkArm
+
+    from reach.build import build_tree
+    from reach.store import save_state
+    from reach.tree import Box
+
+    states = []
+    tree = build_tree(TwoLinkArm(), Box([-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]), 2, 5, on_level=states.append)
+    assert tree.vertices.posture is not None  # postures are most of the bytes
+    final = save_tree(tree, tmp_path / "tree.npz").stat().st_size
+    checkpoint = save_state(states[-1], tmp_path / "state.npz", "fp").stat().st_size
+    assert checkpoint <= 1.5 * final
