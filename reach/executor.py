@@ -75,7 +75,7 @@ class InlineExecutor:
 PR_SET_PDEATHSIG = 1  # Linux prctl option: the signal a process gets when its parent dies
 
 
-def _die_with_parent() -> None:
+def die_with_parent() -> None:
     """Worker initializer: the kernel ends this worker when the build's process dies, even by SIGKILL,
     so that a killed build leaves no process behind (Linux; elsewhere a no-op)."""
     if not sys.platform.startswith("linux"):
@@ -145,7 +145,7 @@ class ProcessExecutor(_Pooled):
     def __init__(self, spec: OracleSpec, workers: int | None = None, chunk_size: int = 2048) -> None:
         super().__init__(spec, chunk_size)
         self.workers = workers or os.cpu_count() or 1
-        self.pool = ProcessPoolExecutor(max_workers=self.workers, initializer=_die_with_parent)
+        self.pool = ProcessPoolExecutor(max_workers=self.workers, initializer=die_with_parent)
 
     def submit(self, points: np.ndarray, hints: np.ndarray | None) -> tuple[list[slice], list[Any]]:
         slices = self.slices(points.shape[0])

@@ -133,11 +133,11 @@ class Pool:
 
 def work(address: str, atlas: str, policy: str, budget: float) -> None:
     """A worker process: refine the tasks the broker sends until it dies with the server."""
-    from reach.executor import _die_with_parent
+    from reach.executor import die_with_parent
     from reach.select import Selector
     from reach.store import load_atlas
 
-    _die_with_parent()
+    die_with_parent()
     try:
         os.sched_setscheduler(0, os.SCHED_IDLE, os.sched_param(0))  # type: ignore[attr-defined]
     except (AttributeError, OSError):
