@@ -76,8 +76,8 @@ PR_SET_PDEATHSIG = 1  # Linux prctl option: the signal a process gets when its p
 
 
 def die_with_parent() -> None:
-    """Worker initializer: the kernel ends this worker when the build's process dies, even by SIGKILL,
-    so that a killed build leaves no process behind (Linux; elsewhere a no-op)."""
+    """Worker initializer: the kernel ends this worker when its parent (a build, a server) dies, even by
+    SIGKILL, so that a killed parent leaves no process behind (Linux; elsewhere a no-op)."""
     if not sys.platform.startswith("linux"):
         return
     import ctypes
