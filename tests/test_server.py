@@ -543,3 +543,17 @@ def test_a_lazy_pirate_resend_of_a_slow_request_is_computed_once(human):
     assert len(reply["answers"]) == len(GOALS) and first is not None
     assert health["resends"] >= 1  # the resends found the first copy at work and waited for its reply
     assert health["pending"] == 0
+
+
+@pytest.mark.slow
+def test_reload_with_workers_restarts_them_on_the_new_atlas(human):
+    r = Running(human, budget=0.5, workers=1)
+    try:
+        with Client(r.server.endpoint, timeout=20_000) as c:
+            before = c.query("right_hand", GOALS[0])
+            assert c.call("reload")["strategies"] == 1
+            after = c.query("right_hand", GOALS[0])
+            assert c.health()["workers"] == 1
+    finally:
+        r.stop()
+    assert before["refined"] == after["refined"] == "ok" and before["posture"] == after["posture"]
