@@ -46,11 +46,14 @@ from reach.select import FAILED, REFINE_BUDGET, SKIPPED, TIMEOUT, Selector
 from reach.store import load_atlas
 from reach.tree import DEFAULT_POLICY
 from reach.workers import EXPIRED, Pool, Task
+from reach.workers import FAILED as WORKER_FAILED
 
 log = logging.getLogger("reach.server")
 CHUNK = 32  # goals per worker task at most: a batch spreads over the workers, and a deadline cuts it finely
 SLACK = 5.0  # [s] a request's default deadline: the budget per goal, plus this
 LOG_EVERY = 60.0  # [s] an identical internal error's traceback is logged at most this often
+REVIVE_EVERY = 0.5  # [s] how often the loop looks for dead workers
+FAILED_TASK = WORKER_FAILED + b" the worker died"
 
 
 @dataclass
@@ -166,6 +169,7 @@ class Server:
         poller = zmq.Poller()
         poller.register(self.router, zmq.POLLIN)
         backend = None
+        next_check = time.monotonic() + REVIVE_EVERY
         while not self._stop.is_set():
             if backend is not self.pool.backend:  # a reload replaced the workers
                 if backend is not None:
@@ -186,6 +190,11 @@ class Server:
                     except zmq.Again:
                         break
                     self.handle(frames)
+            if time.monotonic() >= next_check:
+                next_check = time.monotonic() + REVIVE_EVERY
+                for task in self.pool.revive():  # a crashed worker's chunk is answered from the store
+                    log.error("a refinement worker died; restarted it")
+                    self._finished(task, [FAILED_TASK])
             self._expire()
 
     # -- one request -------------------------------------------------------
@@ -283,7 +292,7 @@ class Server:
         a, b = pending.bounds[task.part]
         if frames == [EXPIRED]:
             frames = self._stored(pending.request, a, b, TIMEOUT)
-        elif len(frames) != b - a:
+        elif len(frames) != b - a or not frames[0].startswith(b"{"):  # a worker's failure, not answers
             log.error("worker failed: %s", b"".join(frames)[:500].decode(errors="replace"))
             frames = self._stored(pending.request, a, b, FAILED)
         pending.parts[task.part] = frames
@@ -327,6 +336,7 @@ class Server:
                 "status": "serving", "protocol": P.VERSION, "atlas": str(self.atlas_path), "strategies": len(self.selector.order),
                 "uptime": time.monotonic() - self.started, "requests": self.requests, "errors": self.errors,
                 "workers": 0 if self.pool is None else self.pool.size, "pending": len(self.pending), "resends": self.resends,
+            "worker_restarts": 0 if self.pool is None else self.pool.restarts,
             }
         if req.op == "strategies":
             return {"strategies": [

@@ -71,15 +71,34 @@ class Pool:
 
     def __post_init__(self) -> None:
         self._folder = tempfile.mkdtemp(prefix="reach-serve-")
-        address = f"ipc://{self._folder}/refine"
+        self._address = f"ipc://{self._folder}/refine"
         self.backend = self.context.socket(zmq.ROUTER)
         self.backend.setsockopt(zmq.LINGER, 0)
-        self.backend.bind(address)
-        spawn = mp.get_context("spawn")  # a fresh interpreter: no copy of the server's sockets
-        for _ in range(self.size):
-            p = spawn.Process(target=work, args=(address, str(self.atlas), self.policy, self.budget), daemon=True)
-            p.start()
-            self.processes.append(p)
+        self.backend.bind(self._address)
+        self.restarts = 0
+        for k in range(self.size):
+            self.processes.append(self._start(k))
+
+    def _start(self, k: int) -> Any:
+        """Worker k, a fresh interpreter (no copy of the server's sockets), known to the broker as ``w<k>``."""
+        p = mp.get_context("spawn").Process(target=work, args=(self._address, str(self.atlas), self.policy, self.budget, f"w{k}".encode()), daemon=True)
+        p.start()
+        return p
+
+    def revive(self) -> list[Task]:
+        """Replace the workers that died (a crash must not shrink the pool); returns the tasks they held."""
+        lost = []
+        for k, p in enumerate(self.processes):
+            if p.is_alive():
+                continue
+            identity = f"w{k}".encode()
+            if identity in self.busy:
+                lost.append(self.busy.pop(identity))
+            self.idle = deque(w for w in self.idle if w != identity)
+            p.join(timeout=0)
+            self.processes[k] = self._start(k)
+            self.restarts += 1
+        return lost
 
     def submit(self, task: Task) -> None:
         self.queue.append(task)
@@ -131,7 +150,7 @@ class Pool:
             pass
 
 
-def work(address: str, atlas: str, policy: str, budget: float) -> None:
+def work(address: str, atlas: str, policy: str, budget: float, identity: bytes) -> None:
     """A worker process: refine the tasks the broker sends until it dies with the server."""
     from reach.executor import die_with_parent
     from reach.select import Selector
@@ -148,6 +167,7 @@ def work(address: str, atlas: str, policy: str, budget: float) -> None:
 
     sock = zmq.Context().socket(zmq.DEALER)
     sock.setsockopt(zmq.LINGER, 0)
+    sock.setsockopt(zmq.ROUTING_ID, identity)
     sock.connect(address)
     sock.send(READY)
     while True:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
 import sys
@@ -557,3 +558,20 @@ def test_reload_with_workers_restarts_them_on_the_new_atlas(human):
     finally:
         r.stop()
     assert before["refined"] == after["refined"] == "ok" and before["posture"] == after["posture"]
+
+
+@pytest.mark.slow
+def test_a_crashed_worker_is_replaced_and_its_work_answered(human):
+    r = Running(human, budget=0.5, workers=1)
+    try:
+        with Client(r.server.endpoint, timeout=20_000) as c:
+            assert c.query("right_hand", GOALS[0])["refined"] == "ok"  # the worker is up
+            pid = r.server.pool.processes[0].pid
+            os.kill(pid, signal.SIGKILL)  # as a crash in native code would
+            again = c.query("right_hand", GOALS[0])  # answered: from the store if the dead worker held it, else by its successor
+            later = c.query("right_hand", GOALS[0])
+            health = c.health()
+    finally:
+        r.stop()
+    assert again["strategy"] == "right_arm" and again["refined"] in ("ok", "failed")
+    assert later["refined"] == "ok" and health["worker_restarts"] == 1 and r.server.pool is not None
