@@ -97,3 +97,10 @@ def test_json_output_never_holds_nan():
     data = {"a": float("nan"), "b": [1.0, float("inf"), {"c": -float("inf")}], "d": "x", "e": 2}
     text = _json.dumps(finite(data), allow_nan=False)  # raises on any NaN left
     assert _json.loads(text) == {"a": None, "b": [1.0, None, {"c": None}], "d": "x", "e": 2}
+
+
+def test_serve_refuses_a_negative_worker_count(tmp_path, capsys):
+    from reach.cli import main
+
+    assert main(["serve", str(tmp_path), "--workers", "-1"]) == 2
+    assert "--workers: expected 0 or more worker processes, got -1" in capsys.readouterr().err

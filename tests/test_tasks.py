@@ -137,6 +137,7 @@ def test_perpendicular_basis_is_orthonormal_and_normal_to_the_axis():
     [
         ([{"type": "reach"}, {"type": "gaze", "frame": 3}], r"tasks\[1\]\.frame: expected a frame name, got 3"),
         ([{"type": "reach"}, {"type": "gaze", "frame": "third_eye"}], r"tasks\[1\]\.frame: human: no frame 'third_eye'"),
+        ([{"type": "reach"}, {"type": "gaze", "cone": 90}], r"tasks\[1\]\.cone: expected a number in \[0.0, 60.0\], got 90"),
         ([{"type": "reach"}, {"type": "reach"}], r"tasks\[1\]: a second reach task"),
         ([{"type": "reach", "tolerance": 2}], r"tasks\[0\]\.tolerance: expected a number in \[1e-06, 1.0\], got 2"),
         ([{"type": "reach", "priority": "high"}], r"tasks\[0\]\.priority: expected a number"),
