@@ -179,17 +179,17 @@ class Server:
             soonest = min((p.deadline for p in self.pending.values()), default=math.inf)
             wait = max(0.0, min(P.POLL_MS / 1000.0, soonest - time.monotonic()))
             events = dict(poller.poll(int(math.ceil(wait * 1000))))
-            while backend in events and backend.poll(0):  # everything the workers have sent
-                got = self.pool.receive()
-                if got is not None:
-                    self._finished(*got)
             if self.router in events:
-                for _ in range(64):  # a burst, then the workers' turn
+                for _ in range(64):  # clients first: a stored answer never waits behind workers' results
                     try:
                         frames = self.router.recv_multipart(zmq.NOBLOCK)
                     except zmq.Again:
                         break
                     self.handle(frames)
+            while backend in events and backend.poll(0):  # everything the workers have sent
+                got = self.pool.receive()
+                if got is not None:
+                    self._finished(*got)
             if time.monotonic() >= next_check:
                 next_check = time.monotonic() + REVIVE_EVERY
                 for task in self.pool.revive():  # a crashed worker's chunk is answered from the store
