@@ -184,6 +184,7 @@ class SelfCollisionTask(HardTask):
             **super().describe(), "margin": self.margin,
             "pairs": [[names[p.first], names[p.second]] for p in self.pairs] if names else len(self.pairs),
             "at_reference": [{"pair": [a, b], "distance": d} for a, b, d in self.at_reference],
+            "keep_out": [names[i] for i in self.static] if names else len(self.static),
         }
 
     def constraints(self, sym: Symbolic) -> list[Constraint]:
