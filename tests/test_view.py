@@ -248,3 +248,17 @@ def test_view_command_needs_an_atlas(tmp_path, capsys):
     assert main(["view", str(tmp_path / "none")]) != 0
     assert "none" in capsys.readouterr().err
 
+
+
+def test_an_analytic_atlas_is_viewed_without_a_body(tmp_path):
+    raw = {"box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 1, "max": 3},
+           "oracle": {"name": "sphere", "params": {"radius": 0.9}}, "strategies": [{"name": "ball", "effector": "point"}]}
+    build_atlas(parse_config(raw, "ball", "ball"), tmp_path / "ball")
+    v = Viewer([load_atlas(tmp_path / "ball")], port=_free_port())
+    try:
+        assert v.scenes[0].shaper is None and v.scenes[0].capsules == []
+        inside, outside = v.set_goal(np.array([0.3, 0.0, 0.0]))[0], v.set_goal(np.array([0.99, 0.99, 0.0]))[0]
+        assert inside["strategy"] == "ball" and inside["refined"] == "unavailable"
+        assert not outside["reachable"] and "unreachable" in v.answer_box.content
+    finally:
+        v.close()
