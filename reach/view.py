@@ -185,7 +185,10 @@ class Viewer:
         self.effector_box.on_update(lambda e: self.set_effector(self.effector_box.value))
         self.policy_box.on_update(lambda e: self.set_policy(self.policy_box.value))
         self.gizmo = self.server.scene.add_transform_controls("/goal", scale=0.25, disable_rotations=True, position=tuple(self.goal))
-        self.goal_marker = self.server.scene.add_icosphere("/goal/marker", radius=0.025, color=(20, 20, 20))
+        # One marker per atlas: the gizmo's own for the first, the same goal beside each other body.
+        self.goal_markers = [self.server.scene.add_icosphere("/goal/marker", radius=0.025, color=(20, 20, 20))]
+        self.goal_markers += [self.server.scene.add_icosphere(f"/atlas{k}/goal", radius=0.025, color=(20, 20, 20))
+                              for k in range(1, len(self.scenes))]
         self.gizmo.on_update(lambda _e: self._from_gizmo())
         self.server.scene.add_grid("/floor", width=3.0, height=3.0 + self.scenes[-1].offset[1], cell_size=0.25,
                                    position=(0.2, 0.5 * self.scenes[-1].offset[1], 0.0))
@@ -338,10 +341,11 @@ class Viewer:
         lines = []
         for k, (scene, a) in enumerate(zip(self.scenes, self.answers, strict=True)):
             label = scene.atlas.manifest.get("name", f"atlas {k}")
+            if k:
+                self.goal_markers[k].position = tuple(goal + scene.offset)
             if not a["reachable"]:
                 lines.append(f"**{label}**: unreachable")
-                if k == 0:
-                    self.goal_marker.color = UNREACHABLE
+                self.goal_markers[k].color = UNREACHABLE
                 continue
             names = list(scene.atlas.trees)
             r, g, b = (int(c) for c in scene.colours[names.index(a["strategy"])])
@@ -349,8 +353,7 @@ class Viewer:
             residual = "n/a" if a["residual"] is None else f"{1000 * a['residual']:.1f} mm"
             lines.append(f"**{label}**: <span style='color: rgb({r},{g},{b})'>&#9632;</span> **{a['strategy']}**  \n"
                          f"alternatives: {alt}  \nrefined: {a['refined']}, residual {residual}")
-            if k == 0:
-                self.goal_marker.color = (r, g, b)
+            self.goal_markers[k].color = (r, g, b)
             if scene.shaper is not None and a["posture"] is not None:
                 q = posture_vector(scene.shaper.posture_names, scene.shaper.reference_posture(), a["posture"], a["root"])
                 self._pose(scene, scene.shaper.shape(q)[1])

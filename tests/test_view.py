@@ -155,6 +155,7 @@ def test_two_atlases_stand_side_by_side(atlas):
         assert _same(answers[0], answers[1])
         a, b = (np.array(s.capsules[0].position) for s in v.scenes)
         assert np.allclose(b - a, [0.0, 1.5, 0.0])
+        assert np.allclose(v.goal_markers[1].position, GOALS[0] + [0.0, 1.5, 0.0])  # the goal beside the second body too
         assert not np.array_equal(v.scenes[0].colours, v.scenes[1].colours)
     finally:
         v.close()
