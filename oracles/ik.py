@@ -459,17 +459,23 @@ class CasadiIK(IKOracle):
                 return None
         return np.clip(np.asarray(sol["x"]).ravel(), p.lower, p.upper)
 
-    def _cut_stage(self, k: int, x: np.ndarray, params: np.ndarray, optimum: list[float], cuts: _Cuts) -> np.ndarray | None:
-        """Stage k with the lazy tasks: while its posture breaks one, cut the near rows there and solve again."""
+    def _cut_stage(self, k: int, x: np.ndarray, params: np.ndarray, optimum: list[float], cuts: _Cuts) -> tuple[np.ndarray, float] | None:
+        """Stage k with the lazy tasks: while its posture breaks one, cut the near rows there and solve again.
+
+        Returns the posture and the stage's objective there, or None when the stage gives no posture.
+        """
+        task = self.order[k]
         for rounds in range(CUT_ROUNDS + 1):
             x_new = self._stage(k, x, params, optimum, cuts if cuts.count else None)
-            reach = self.order[k] is self.strategy.reach
-            if x_new is None or not self.lazy or (reach and not self.strategy.reach.attained(float(self._objective_fns[k](x_new, params)))):
-                return x_new  # a reach stage that misses the goal is not worth cutting: its verdict is no
+            if x_new is None:
+                return None
+            value = float(self._objective_fns[k](x_new, params))
+            if not self.lazy or (task is self.strategy.reach and not task.attained(value)):
+                return x_new, value  # a reach stage that misses the goal is not worth cutting: its verdict is no
             q = self.problem.q_of_x(x_new)
             pin.framesForwardKinematics(self.body.model, self._data, q)
             if all(t.holds(Numeric(self.body.model, self._data, q, np.zeros(3))) for t in self.lazy):
-                return x_new
+                return x_new, value
             if rounds == CUT_ROUNDS:
                 break
             self.stats["cut_rounds"] += 1
@@ -479,7 +485,13 @@ class CasadiIK(IKOracle):
                     cuts.add(c.jacobian, c.need + CUT_INSIDE - c.gap + float(c.jacobian @ x_new))
         # Still broken: the reach stage's posture goes to the verdict (which
         # refuses it); a lower stage's is dropped for the stage above's.
-        return x_new if self.order[k] is self.strategy.reach else None
+        assert x_new is not None
+        return (x_new, value) if task is self.strategy.reach else None
+
+    def _params(self, goal: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """The programs' parameters: the goal, the current posture (x itself without one) and its weight."""
+        start = self._start if self._start is not None else x
+        return np.concatenate([goal, start, [0.0 if self._start is None else 1.0]])
 
     def preference(self, q: np.ndarray, goal: np.ndarray) -> float:
         """The lowest stage's objective at q (the posture task's, in the shipped strategies)."""
@@ -487,8 +499,7 @@ class CasadiIK(IKOracle):
         if len(self.order) < 2:
             return 0.0
         x = self.problem.x_of_q(q)
-        params = np.concatenate([goal, self._start if self._start is not None else x, [0.0 if self._start is None else 1.0]])
-        return float(self._objective_fns[-1](x, params))
+        return float(self._objective_fns[-1](x, self._params(goal, x)))
 
     def prepare(self) -> None:
         if not self.stages:
@@ -498,15 +509,15 @@ class CasadiIK(IKOracle):
         self.prepare()
         p = self.problem
         x = np.clip(x0, p.lower, p.upper)
-        params = np.concatenate([goal, self._start if self._start is not None else x, [0.0 if self._start is None else 1.0]])
+        params = self._params(goal, x)
         optimum: list[float] = []
         cuts = _Cuts(CUT_SLOTS, p.nx)  # kept from stage to stage: they describe the same neighbourhood
         for k, task in enumerate(self.order):
-            x_new = self._cut_stage(k, x, params, optimum, cuts)
-            if x_new is None:
+            stage = self._cut_stage(k, x, params, optimum, cuts)
+            if stage is None:
                 break  # keep the last posture; the check decides
-            x = x_new
-            optimum.append(float(self._objective_fns[k](x, params)))
-            if not task.attained(optimum[-1]):
+            x, value = stage
+            optimum.append(value)
+            if not task.attained(value):
                 break  # e.g. unreachable: lower tasks cannot change the verdict
         return p.q_of_x(x)

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from oracles.protocol import OracleSpec, Shaped
 from reach.errors import InputError
@@ -57,14 +58,10 @@ def cube() -> tuple[np.ndarray, np.ndarray]:
 
 
 def quaternion_z_to(axis: np.ndarray) -> np.ndarray:
-    """(w, x, y, z) of the rotation taking +z to a unit axis."""
-    z = np.array([0.0, 0.0, 1.0])
-    c = float(np.dot(z, axis))
-    if c < -1.0 + 1e-9:
-        return np.array([0.0, 1.0, 0.0, 0.0])
-    v = np.cross(z, axis)
-    q = np.array([1.0 + c, *v])
-    return q / np.linalg.norm(q)  # type: ignore[no-any-return]
+    """(w, x, y, z) of the smallest rotation taking +z to a unit axis (a capsule mesh is built along z)."""
+    rotation, _ = Rotation.align_vectors(np.asarray(axis, float)[None], [[0.0, 0.0, 1.0]])
+    x, y, z, w = rotation.as_quat()
+    return np.array([w, x, y, z])
 
 
 @dataclass

@@ -99,6 +99,8 @@ def test_the_body_takes_the_answers_posture(viewer):
     hand = scene.capsules[[p.name for p in body.collision.placed].index("right_hand")]
     a, b = body.collision.world(data, body.collision.index["right_hand"])
     assert np.allclose(hand.position, 0.5 * (a + b), atol=1e-6)
+    w, x, y, z = hand.wxyz  # the mesh is built along +z: its rotation takes +z onto the capsule's axis
+    assert np.allclose(pin.Quaternion(w, x, y, z).toRotationMatrix()[:, 2], (b - a) / np.linalg.norm(b - a), atol=1e-6)
     grip = data.oMf[body.frame_id("right_hand")].translation
     assert np.linalg.norm(grip - GOALS[0]) == pytest.approx(answer["residual"], abs=1e-6)  # the stored posture of a nearby vertex
 
