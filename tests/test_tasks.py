@@ -195,6 +195,51 @@ def test_the_hamstrings_couple_hip_flexion_to_the_knee():
     assert holds(119.0, 90.0) and not holds(110.0, 60.0) and holds(105.0, 60.0)
 
 
+def test_hip_and_lumbar_flexion_share_a_limit_with_the_knees_straight():
+    body = human_body()
+    s = parse_strategy(body, "right_hand", WHOLE, [{"type": "reach"}, {"type": "coupling"}])
+    problem = ReachProblem(body, s)
+    coupling = s.task("coupling")
+    summed = [r for r in coupling.rules if len(r.joints) > 1]
+    assert {r.joints for r in summed} == {(f"{side}_hip_flexion", "lumbar_flexion") for side in ("right", "left")}
+    idx = {n: body.model.joints[body.joint_id(n)].idx_q for n in ("right_hip_flexion", "lumbar_flexion", "right_knee_flexion")}
+
+    def holds(hip: float, lumbar: float, knee: float) -> bool:
+        q = body.q_ref.copy()
+        q[idx["right_hip_flexion"]], q[idx["lumbar_flexion"]], q[idx["right_knee_flexion"]] = np.radians([hip, lumbar, knee])
+        return coupling.holds(numeric(problem, q, np.zeros(3)))
+
+    # Knees straight: 90 deg between them, however split; bent 90 deg: each joint's own range.
+    assert holds(80.0, 9.0, 0.0) and holds(30.0, 59.0, 0.0) and not holds(80.0, 12.0, 0.0) and not holds(40.0, 55.0, 0.0)
+    assert holds(119.0, 59.0, 90.0) and not holds(100.0, 40.0, 45.0) and holds(90.0, 40.0, 45.0)
+    # The same rule by hand, on a list of joints, and its errors.
+    rule = {"joint": ["*_hip_flexion", "lumbar_flexion"], "by": "*_knee_flexion", "limit": 1.0, "slope": 0.5}
+    mine = parse_strategy(body, "right_hand", WHOLE, [{"type": "reach"}, {"type": "coupling", "rules": [rule]}]).task("coupling")
+    assert sorted(r.joints for r in mine.rules) == [("left_hip_flexion", "lumbar_flexion"), ("right_hip_flexion", "lumbar_flexion")]
+    with pytest.raises(TaskError, match=r"rules\[0\]\.joint: .*no joint 'tail'"):
+        parse_strategy(body, "right_hand", WHOLE, [{"type": "reach"}, {"type": "coupling", "rules": [{**rule, "joint": ["*_hip_flexion", "tail"]}]}])
+    with pytest.raises(TaskError, match=r"rules\[0\]: expected"):
+        parse_strategy(body, "right_hand", WHOLE, [{"type": "reach"}, {"type": "coupling", "rules": [{**rule, "joint": []}]}])
+
+
+@pytest.mark.slow
+def test_a_crouch_reaches_lower_than_the_straight_legged_whole_body():
+    from oracles.ik import CasadiIK
+
+    straight = [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*", "root", "*_hip_*", "*_ankle_*"]
+    tasks = [{"type": "reach"}, {"type": "feet"}, {"type": "balance"}, {"type": "floor"}, {"type": "coupling"}]
+    body = {"human": {"sex": "male", "percentile": 50}}
+    whole = CasadiIK(body, "right_hand", straight, tasks, restarts=4, give_up=None)
+    crouch = CasadiIK(body, "right_hand", [*straight, "*_knee_*"], tasks, restarts=4, give_up=None)
+    # In front of the feet: the straight-legged stoop ends with the fist's
+    # grip centre about 7 cm above the floor (the open hand's fingertips at
+    # it); bending the knees lays the fist on the floor.
+    low = np.array([[0.35, -0.2, 0.04], [0.45, -0.2, 0.04]])
+    assert not whole.evaluate(low).reachable.any()
+    assert crouch.evaluate(low).reachable.all()
+    assert whole.evaluate(low + [0.0, 0.0, 0.05]).reachable.all()
+
+
 def test_the_coupling_holds_in_the_solvers_postures():
     from oracles.ik import CasadiIK
 
