@@ -166,6 +166,11 @@ class IKOracle(ABC):
         pin.forwardKinematics(model, data, np.asarray(posture, float))
         return [p.name for p in col.placed], np.array([[*np.concatenate(col.world(data, i)), p.radius] for i, p in enumerate(col.placed)]).reshape(-1, 7)
 
+    def verify(self, points: np.ndarray, postures: np.ndarray) -> np.ndarray:
+        """The verdict's own check (Pinocchio forward kinematics, every hard task) of postures found elsewhere."""
+        pts = check_points(points, 3)
+        return np.array([self.problem.check(np.asarray(q, float), g, self._data).reachable for g, q in zip(pts, postures, strict=True)], bool)
+
     def keep_out(self) -> np.ndarray:
         """Capsules (K, 7) that hold no reachable point: the static segments the effector may not enter."""
         out = [c for t in self.strategy.hard for c in t.keep_out()]

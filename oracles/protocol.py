@@ -166,6 +166,15 @@ class KeepOut(Protocol):
 
 
 @runtime_checkable
+class Verifying(Protocol):
+    """An oracle that can check a posture found elsewhere (by another strategy's oracle on the same body)."""
+
+    def verify(self, points: np.ndarray, postures: np.ndarray) -> np.ndarray:
+        """Whether each posture (N, nq) puts the effector on its point (N, 3) with every hard task of this oracle held."""
+        ...
+
+
+@runtime_checkable
 class Tunable(Protocol):
     """An oracle that can be set up for a purpose.
 

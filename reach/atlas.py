@@ -5,7 +5,11 @@ the trees and the manifest. It checkpoints each strategy after every depth
 (``OUT/.partial/<name>.npz``), so a killed build resumes where it stopped
 (``resume=True``); finished trees whose fingerprint matches are kept.
 A strategy with ``mirror_of`` is derived by mirroring when the body passes
-the symmetry check (:mod:`reach.mirror`), unless ``mirror=False``.
+the symmetry check (:mod:`reach.mirror`), unless ``mirror=False``. A
+strategy built after a *sub-strategy* (same body and effector, a subset of
+its joints; the crouch after the whole body) inherits that tree's reachable
+vertices once its own oracle has verified their postures
+(:class:`reach.build.Inherited`), unless ``inherit=False``.
 ``summary`` is what ``reach info`` prints.
 """
 
@@ -22,8 +26,8 @@ from typing import Any
 
 import numpy as np
 
-from oracles.protocol import KeepOut, Mirrorable, ModelHashed, OracleSpec
-from reach.build import build_tree
+from oracles.protocol import Described, KeepOut, Mirrorable, ModelHashed, OracleSpec, Verifying
+from reach.build import Inherited, build_tree
 from reach.config import Config, StrategySpec
 from reach.errors import ModelError, StoreError
 from reach.executor import Executor, InlineExecutor
@@ -48,6 +52,26 @@ def fingerprint(config: Config, strategy: StrategySpec) -> str:
     text = json.dumps({"oracle": strategy.oracle.to_dict(), "box": config.box.to_dict(), "depth": [config.d_min, config.d_max],
                        "refine": config.refine.to_dict()}, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def sub_strategies(config: Config, order: list[StrategySpec]) -> dict[str, str]:
+    """For each strategy, the sub-strategy it inherits from, if any: built before it, on the same body and
+    effector, with a subset of its active joints (the largest such subset; the earliest among equals)."""
+    seen: dict[str, tuple[str, str, frozenset[str], tuple[str, ...]]] = {}
+    for s in order:
+        oracle = s.oracle.create()  # builds no solver
+        if isinstance(oracle, Described) and isinstance(oracle, ModelHashed):
+            seen[s.name] = (oracle.model_hash, s.effector, frozenset(oracle.describe()["joints"]), tuple(oracle.posture_names))
+    out: dict[str, str] = {}
+    for k, s in enumerate(order):
+        if s.name not in seen:
+            continue
+        body, effector, joints, names = seen[s.name]
+        subs = [t.name for t in order[:k] if t.name in seen and seen[t.name][:2] == (body, effector) and seen[t.name][3] == names
+                and seen[t.name][2] < joints]
+        if subs:
+            out[s.name] = max(subs, key=lambda n: (len(seen[n][2]), -subs.index(n)))
+    return out
 
 
 def _mirror_source(config: Config, s: StrategySpec, built: dict[str, VATree], log: Callable[[str], None]) -> tuple[VATree, Any] | None:
@@ -76,6 +100,7 @@ def build_atlas(
     log: Callable[[str], None] | None = None,
     resume: bool = False,
     mirror: bool = True,
+    inherit: bool = True,
 ) -> Atlas:
     """Build every strategy's tree of a config into the folder out.
 
@@ -88,17 +113,18 @@ def build_atlas(
         log: Receives one line of text per strategy.
         resume: Keep finished trees and continue from checkpoints.
         mirror: Derive ``mirror_of`` strategies by mirroring when allowed.
+        inherit: Let a strategy inherit a sub-strategy's reachable vertices (see :func:`sub_strategies`).
     """
     say = log or (lambda _line: None)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     with build_lock(out):
-        return _build_locked(config, out, executor_factory, progress, say, resume, mirror)
+        return _build_locked(config, out, executor_factory, progress, say, resume, mirror, inherit)
 
 
 def _build_locked(
     config: Config, out: Path, executor_factory: Callable[[OracleSpec], Executor] | None, progress: bool,
-    say: Callable[[str], None], resume: bool, mirror: bool,
+    say: Callable[[str], None], resume: bool, mirror: bool, inherit: bool,
 ) -> Atlas:
     """build_atlas's work, with the folder locked."""
     from reach.mirror import MirrorOracle
@@ -107,9 +133,14 @@ def _build_locked(
     t0 = time.perf_counter()
     # Mirror sources first, so that their trees exist when their images are made.
     order = sorted(config.strategies, key=lambda s: s.mirror_of is not None)
+    subs = sub_strategies(config, order) if inherit else {}
+    prints: dict[str, str] = {}
     for s in order:
         path, partial = out / f"{s.name}.npz", out / PARTIAL / f"{s.name}.npz"
         fp = fingerprint(config, s)
+        if s.name in subs:  # the tree depends on its sub-strategy's too
+            fp = hashlib.sha256(f"{fp} {prints[subs[s.name]]}".encode()).hexdigest()[:16]
+        prints[s.name] = fp
         meta: dict[str, Any] = {"name": s.name, "atlas": config.name, "effector": s.effector, "priority": s.priority, "oracle": s.oracle.to_dict(), "fingerprint": fp}
         tree = None
         if resume and path.is_file():
@@ -130,9 +161,12 @@ def _build_locked(
                 tree.meta["model_hash"] = source[0].meta["model_hash"]
             say(f"{s.name}: mirrored from {s.mirror_of} ({len(tree)} nodes, no oracle call)")
         if tree is None:
-            tree = _build_one(config, s, meta, partial, fp, executor_factory, progress, resume)
+            sub = subs.get(s.name)
+            parent = (sub, built[sub]) if sub is not None and sub in built else None
+            tree = _build_one(config, s, meta, partial, fp, executor_factory, progress, resume, parent)
             b = tree.meta["build"]
-            say(f"{s.name}: {b['oracle_calls']} oracle calls, {len(tree)} nodes, inner volume {tree.volume(INNER):.6g}, {b['seconds']:.2f} s")
+            also = f", {b['inherited']} reachable vertices inherited from {sub}" if parent is not None else ""
+            say(f"{s.name}: {b['oracle_calls']} oracle calls{also}, {len(tree)} nodes, inner volume {tree.volume(INNER):.6g}, {b['seconds']:.2f} s")
         save_tree(tree, path)
         partial.unlink(missing_ok=True)
         built[s.name] = tree
@@ -156,16 +190,20 @@ def _build_locked(
 
 def _build_one(
     config: Config, s: StrategySpec, meta: dict[str, Any], partial: Path, fp: str,
-    executor_factory: Callable[[OracleSpec], Executor] | None, progress: bool, resume: bool,
+    executor_factory: Callable[[OracleSpec], Executor] | None, progress: bool, resume: bool, parent: tuple[str, VATree] | None = None,
 ) -> VATree:
     state = load_state(partial, fp) if resume and partial.is_file() else None
     ex: Executor = executor_factory(s.oracle) if executor_factory else InlineExecutor(s.oracle, config.chunk_size)
     try:
         if isinstance(ex.oracle, ModelHashed):
             meta["model_hash"] = ex.oracle.model_hash
+        inherit = None
+        if parent is not None and isinstance(ex.oracle, Verifying):
+            inherit = Inherited(parent[0], parent[1].vertices, ex.oracle.verify)
+            meta["inherited_from"] = parent[0]
         return build_tree(
             s.oracle, config.box, config.d_min, config.d_max, executor=ex, progress=s.name if progress else False, meta=meta, state=state,
-            on_level=lambda st: save_state(st, partial, fp), refine=config.refine, keep_out=_keep_out(ex.oracle),
+            on_level=lambda st: save_state(st, partial, fp), refine=config.refine, keep_out=_keep_out(ex.oracle), inherit=inherit,
         )
     finally:
         ex.close()

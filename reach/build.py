@@ -9,6 +9,12 @@ each node is labelled inner (all vertices inside), outer (none), final
 
 Each new vertex receives a warm-start hint: the posture of the nearest
 reachable vertex evaluated at an earlier depth.
+
+A build may inherit from a finished tree of a *sub-strategy* on the same
+lattice (:class:`Inherited`: the same body and effector, fewer joints): a
+vertex it found reachable is reachable here too, by the same posture, once
+this strategy's oracle has checked that posture against its own hard tasks
+(:class:`oracles.protocol.Verifying`); only the other vertices are solved.
 """
 
 from __future__ import annotations
@@ -71,6 +77,35 @@ def warm_hints(table: VertexTable, lattice: Lattice, points: np.ndarray) -> np.n
 
 
 @dataclass(frozen=True)
+class Inherited:
+    """Reachable vertices of a sub-strategy's tree, and this strategy's check of a posture.
+
+    Attributes:
+        source: The sub-strategy's name (for the build's statistics).
+        table: Its tree's vertex table (same lattice and posture names).
+        verify: ``verify(points, postures) -> bool array``: this strategy's
+            own check that a posture reaches its point with every hard task held.
+    """
+
+    source: str
+    table: VertexTable
+    verify: Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+    def take(self, keys: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Which keys are inherited (mask), and their residuals and postures."""
+        rows = self.table.index(keys)
+        cand = np.nonzero(rows >= 0)[0]
+        cand = cand[self.table.reachable[rows[cand]]]
+        mask = np.zeros(len(keys), bool)
+        if cand.size and self.table.posture is not None:
+            ok = np.asarray(self.verify(points[cand], self.table.posture[rows[cand]]), bool)
+            mask[cand[ok]] = True
+        rows = rows[mask]
+        posture = self.table.posture[rows] if self.table.posture is not None else np.zeros((0, 0))
+        return mask, self.table.residual[rows], posture
+
+
+@dataclass(frozen=True)
 class Refine:
     """Build-time refinements of the vertex rule (all off by default: the paper's Algorithm 1).
 
@@ -93,18 +128,29 @@ class Refine:
         return {"centres": self.centres, "faces": self.faces, "isolated": self.isolated}
 
 
-def _evaluate(keys: np.ndarray, table: VertexTable, lattice: Lattice, executor: Executor, progress: Any, label: str) -> VertexTable:
-    """Ask the oracle about keys not yet in the table (one batch); return the grown table."""
+def _evaluate(
+    keys: np.ndarray, table: VertexTable, lattice: Lattice, executor: Executor, progress: Any, label: str, inherit: Inherited | None = None,
+) -> tuple[VertexTable, int]:
+    """Ask the oracle about keys not yet in the table (one batch), after those inherited; the grown table and how many were inherited."""
     new = np.unique(keys)
     new = new[table.index(new) < 0]
     if new.size == 0:
-        return table
+        return table, 0
     pts = lattice.points(lattice.coords(new))
+    taken = 0
+    if inherit is not None:
+        mask, residual, posture = inherit.take(new, pts)
+        taken = int(mask.sum())
+        if taken:
+            table = table.merged(new[mask], np.ones(taken, bool), residual, posture)
+            new, pts = new[~mask], pts[~mask]
+            if new.size == 0:
+                return table, taken
     if progress is not None:
         progress.reset(total=int(new.size))
         progress.set_description(f"{getattr(progress, 'label', '')} {label}".strip())
     verdicts = executor.evaluate(pts, warm_hints(table, lattice, pts), progress.update if progress is not None else None)
-    return table.merged(new, verdicts.reachable, verdicts.residual, verdicts.posture)
+    return table.merged(new, verdicts.reachable, verdicts.residual, verdicts.posture), taken
 
 
 def _retry_isolated(keys: np.ndarray, table: VertexTable, lattice: Lattice, step: int, executor: Executor) -> tuple[VertexTable, int]:
@@ -161,7 +207,7 @@ def meets(lo: np.ndarray, hi: np.ndarray, capsules: np.ndarray) -> np.ndarray:
 
 def build_level(
     state: BuildState, lattice: Lattice, d_min: int, executor: Executor, progress: Any = None, refine: Refine | None = None,
-    keep_out: np.ndarray | None = None,
+    keep_out: np.ndarray | None = None, inherit: Inherited | None = None,
 ) -> BuildState:
     """Process the frontier at state.depth; return the state for the next depth.
 
@@ -174,12 +220,12 @@ def build_level(
     t0 = time.perf_counter()
     table = state.vertices
     before = len(table)
-    retried = probed = 0
+    retried = probed = inherited = 0
     if d < d_min:
         kinds = np.full(frontier.shape[0], PARENT, np.uint8)
     else:
         vkeys = lattice.node_vertex_keys(frontier, d)
-        table = _evaluate(vkeys, table, lattice, executor, progress, f"depth {d}")
+        table, inherited = _evaluate(vkeys, table, lattice, executor, progress, f"depth {d}", inherit)
         if refine and refine.isolated:
             table, retried = _retry_isolated(np.unique(vkeys), table, lattice, 1 << (lattice.d_max - d), executor)
         inside = table.reachable[table.index(vkeys)]
@@ -192,22 +238,24 @@ def build_level(
             lo = lattice.points(frontier[inner])
             kinds[inner[meets(lo, lo + size, keep_out)]] = FINAL if d == lattice.d_max else PARENT
         if refine and (refine.centres or refine.faces) and d < lattice.d_max:
-            kinds, table, probed = _probe_inner(frontier, kinds, d, table, lattice, executor, progress, refine)
+            kinds, table, probed, taken = _probe_inner(frontier, kinds, d, table, lattice, executor, progress, refine, inherit)
+            inherited += taken
     par = frontier[kinds == PARENT]
     step = 1 << (lattice.d_max - d - 1) if d < lattice.d_max else 0
     nxt = (par[:, None, :] + corner_offsets(lattice.dim)[None] * step).reshape(-1, lattice.dim)
     level = {"depth": d, "nodes": int(frontier.shape[0]), "new_vertices": len(table) - before, "probe_vertices": probed,
-             "retried": retried, "seconds": time.perf_counter() - t0}
+             "retried": retried, "inherited": inherited, "seconds": time.perf_counter() - t0}
     return BuildState(d + 1, nxt, [*state.kinds, kinds], [*state.corners, frontier], table, [*state.levels, level])
 
 
 def _probe_inner(
     frontier: np.ndarray, kinds: np.ndarray, d: int, table: VertexTable, lattice: Lattice, executor: Executor, progress: Any, refine: Refine,
-) -> tuple[np.ndarray, VertexTable, int]:
+    inherit: Inherited | None = None,
+) -> tuple[np.ndarray, VertexTable, int, int]:
     """Downgrade to parent the inner cells whose centre (or face-centre) probes fail."""
     inner = np.nonzero(kinds == INNER)[0]
     if inner.size == 0:
-        return kinds, table, 0
+        return kinds, table, 0, 0
     half = 1 << (lattice.d_max - d - 1)
     points = [np.full((1, lattice.dim), half, np.int64)] if refine.centres else []
     if refine.faces:
@@ -219,11 +267,11 @@ def _probe_inner(
     offsets = np.concatenate(points)
     pkeys = lattice.keys(frontier[inner][:, None, :] + offsets[None])
     before = len(table)
-    table = _evaluate(pkeys, table, lattice, executor, progress, f"depth {d} probes")
+    table, taken = _evaluate(pkeys, table, lattice, executor, progress, f"depth {d} probes", inherit)
     failed = ~table.reachable[table.index(pkeys)].all(axis=1)
     kinds = kinds.copy()
     kinds[inner[failed]] = PARENT
-    return kinds, table, len(table) - before
+    return kinds, table, len(table) - before, taken
 
 
 def assemble(state: BuildState, box: Box, d_min: int, d_max: int, meta: dict[str, Any]) -> VATree:
@@ -233,8 +281,9 @@ def assemble(state: BuildState, box: Box, d_min: int, d_max: int, meta: dict[str
     meta = dict(meta)
     meta["build"] = {
         **meta.get("build", {}),
-        # Each distinct vertex once, plus the retries of isolated vertices.
-        "oracle_calls": len(state.vertices) + sum(int(lv.get("retried", 0)) for lv in state.levels),
+        # Each distinct vertex once, plus the retries of isolated vertices, less those inherited.
+        "oracle_calls": len(state.vertices) + sum(int(lv.get("retried", 0)) - int(lv.get("inherited", 0)) for lv in state.levels),
+        "inherited": sum(int(lv.get("inherited", 0)) for lv in state.levels),
         "distinct_vertices": len(state.vertices),
         "lattice_vertices": Lattice(box, d_max).vertex_count,
         "levels": state.levels,
@@ -257,6 +306,7 @@ def build_tree(
     on_level: LevelCallback | None = None,
     refine: Refine | None = None,
     keep_out: np.ndarray | None = None,
+    inherit: Inherited | None = None,
 ) -> VATree:
     """Build a VATree (Algorithm 1).
 
@@ -273,6 +323,7 @@ def build_tree(
         on_level: Called with the state after each depth (for checkpoints).
         refine: Build-time refinements of the vertex rule (see :class:`Refine`).
         keep_out: Capsules (K, 7) that hold no reachable point (see :func:`build_level`).
+        inherit: A sub-strategy's reachable vertices (see :class:`Inherited`).
 
     Returns:
         The tree, with the oracle-call count and per-depth statistics in
@@ -294,7 +345,7 @@ def build_tree(
         bar.label = progress if isinstance(progress, str) else ""
     try:
         while state.frontier.shape[0]:
-            state = build_level(state, lattice, d_min, ex, bar, refine, keep_out)
+            state = build_level(state, lattice, d_min, ex, bar, refine, keep_out, inherit)
             if on_level is not None:
                 on_level(state)
     finally:

@@ -50,7 +50,8 @@ def cmd_build(args: argparse.Namespace) -> int:
     print(f"building {len(config.strategies)} strateg{'y' if len(config.strategies) == 1 else 'ies'} of {config.source} into {out} ({how})", flush=True)
     try:
         build_atlas(config, out, executor_factory=factory, progress=not args.quiet, log=lambda line: print(line, flush=True),
-                    resume=args.resume, mirror=not args.no_mirror)
+                    resume=args.resume, mirror=not args.no_mirror,
+                    inherit=not args.no_inherit)
     finally:
         if client is not None:
             client.close()
@@ -344,6 +345,8 @@ def make_parser() -> argparse.ArgumentParser:
     _add_executor_arguments(p)
     p.add_argument("--resume", action="store_true", help="keep finished trees and continue interrupted ones from their last depth")
     p.add_argument("--no-mirror", action="store_true", help="build both sides instead of mirroring 'mirror_of' strategies")
+    p.add_argument("--no-inherit", action="store_true",
+                   help="solve every vertex, instead of taking a sub-strategy's verified reachable vertices (the crouch the whole body's)")
     p.add_argument("--refine-centres", action="store_true", help="probe the centre of each would-be inner cell; split it if the probe fails")
     p.add_argument("--refine-faces", action="store_true", help="also probe the centres of its faces")
     p.add_argument("--retry-isolated", action="store_true", help="retry unreachable vertices whose neighbours are all reachable, from their postures")

@@ -165,3 +165,48 @@ def test_a_killed_build_leaves_no_worker_behind(tmp_path, sig):
     for w in survivors:  # a failing run must not leave them behind either
         os.kill(w, signal.SIGKILL)
     assert not survivors, "a worker outlived the killed build"
+
+
+def test_sub_strategies_of_the_demo_atlas():
+    from reach.atlas import sub_strategies
+
+    config = load_config(Path(__file__).parent.parent / "configs" / "demo.yaml")
+    order = sorted(config.strategies, key=lambda s: s.mirror_of is not None)
+    assert sub_strategies(config, order) == {
+        f"{side}_{big}": f"{side}_{small}"
+        for side in ("right", "left")
+        for big, small in (("upper_body", "arm"), ("whole_body", "upper_body"), ("crouch", "whole_body"))
+    }
+
+
+def test_a_crouch_inherits_the_whole_bodys_verified_postures(tmp_path):
+    from oracles.protocol import OracleSpec
+
+    whole = [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*", "root", "*_hip_*", "*_ankle_*"]
+    tasks = [{"type": "reach"}, {"type": "feet"}, {"type": "balance"}, {"type": "floor"}, {"type": "coupling"}]
+    strategies = [
+        {"name": "whole", "effector": "right_hand", "joints": whole, "tasks": tasks},
+        {"name": "crouch", "effector": "right_hand", "joints": [*whole, "*_knee_*"], "tasks": tasks},
+    ]
+    data = human_config(d_max=3, strategies=strategies, name="inherit")
+    data["box"] = {"min": [-0.2, -0.9, 0.0], "max": [1.0, 0.3, 1.8]}
+    config = parse_config(data, "inherit", "inherit")
+    lines: list[str] = []
+    atlas = build_atlas(config, tmp_path / "a", log=lines.append)
+    w, c = atlas.tree("whole"), atlas.tree("crouch")
+    b = c.meta["build"]
+    assert c.meta["inherited_from"] == "whole" and b["inherited"] > 0
+    assert b["oracle_calls"] == b["distinct_vertices"] - b["inherited"]
+    assert any(f"{b['inherited']} reachable vertices inherited from whole" in line for line in lines)
+    # The whole body's reachable vertices (those the crouch's tree has) are the
+    # crouch's, by the same postures, which the crouch's own oracle accepts.
+    rows = c.vertices.index(w.vertices.keys[w.vertices.reachable])
+    rows = rows[rows >= 0]
+    assert rows.size >= b["inherited"] and c.vertices.reachable[rows].all()
+    crouch = OracleSpec.from_dict(c.meta["oracle"]).create()
+    pts = c.lattice.points(c.lattice.coords(c.vertices.keys[rows]))
+    assert crouch.verify(pts, c.vertices.posture[rows]).all()
+    assert crouch.effector_positions(c.vertices.posture[rows]) == pytest.approx(pts, abs=0.006)
+    # Without inheritance every vertex is solved.
+    alone = build_atlas(config, tmp_path / "b", inherit=False).tree("crouch")
+    assert alone.meta["build"]["oracle_calls"] == len(alone.vertices) > b["oracle_calls"]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from helpers import TwoLinkArm
+from helpers import TwoLinkArm, same_tree
 
 from oracles.protocol import OracleSpec
 from oracles.shapes import circle, sphere
@@ -167,3 +167,34 @@ def test_no_inner_cell_meets_a_keep_out_capsule():
     assert inner_meeting(kept) == 0
     assert kept.volume(INNER) < plain.volume(INNER)
     assert kept.volume(INNER) + kept.volume(FINAL) >= plain.volume(INNER)  # nothing reachable is lost: it is final instead
+
+
+def test_a_build_inherits_only_the_verified_reachable_vertices_of_a_sub_strategy():
+    from reach.build import Inherited
+    from reach.tree import VertexTable
+
+    arm = TwoLinkArm(shoulder=(0.0, 0.0, 0.0))
+    plain = build_tree(arm, CUBE, 2, 4)
+    checks = []
+
+    def verify(points: np.ndarray, postures: np.ndarray) -> np.ndarray:
+        checks.append(len(points))
+        return np.linalg.norm(arm.effector_positions(postures) - points, axis=1) <= 1e-6
+
+    v = plain.vertices
+    heir = TwoLinkArm(shoulder=(0.0, 0.0, 0.0))
+    tree = build_tree(heir, CUBE, 2, 4, inherit=Inherited("arm", v, verify))
+    same_tree(tree, plain)
+    # Only the unreachable vertices were solved; the reachable ones were checked, not solved.
+    assert heir.solved == int((~v.reachable).sum()) == tree.oracle_calls
+    assert tree.meta["build"]["inherited"] == int(v.reachable.sum()) == sum(checks)
+    # A source that claims every vertex reachable: its postures of the unreachable ones miss, and are solved again.
+    liar = VertexTable(v.keys, np.ones_like(v.reachable), v.residual, v.posture, v.posture_names)
+    third = TwoLinkArm(shoulder=(0.0, 0.0, 0.0))
+    same_tree(build_tree(third, CUBE, 2, 4, inherit=Inherited("liar", liar, verify)), plain)
+    assert third.solved == heir.solved
+    # A smaller arm's postures put the hand short of this arm's vertices: nothing inherited, all solved.
+    short = build_tree(TwoLinkArm(upper=0.25, fore=0.2, shoulder=(0.0, 0.0, 0.0)), CUBE, 2, 4)
+    fourth = TwoLinkArm(shoulder=(0.0, 0.0, 0.0))
+    same_tree(build_tree(fourth, CUBE, 2, 4, inherit=Inherited("short", short.vertices, verify)), plain)
+    assert fourth.solved == len(v)
