@@ -129,10 +129,10 @@ class DLSIK(IKOracle):
             q[self.qidx[bounded]] = np.clip(q[self.qidx[bounded]], self.qlo[bounded], self.qhi[bounded])
         return q
 
-    def solve(self, goal: np.ndarray, x0: np.ndarray) -> np.ndarray:
+    def solve(self, goal: np.ndarray, x0: np.ndarray, lower: bool = True) -> np.ndarray:
         """Lexicographic like casadi-ik: first the tasks down to reach, then the lower ones."""
         q = self._iterate(self.problem.q_of_x(x0), goal, self.reach_level + 1, self.max_iter)
-        if self.secondary and len(self.soft) > self.reach_level + 1 and self.problem.check(q, goal, self._data).reachable:
+        if lower and self.secondary and len(self.soft) > self.reach_level + 1 and self.problem.check(q, goal, self._data).reachable:
             refined = self._iterate(q.copy(), goal, len(self.soft), self.max_iter // 3)
             if self.problem.check(refined, goal, self._data).reachable:
                 q = refined  # the lower tasks never cost the verdict

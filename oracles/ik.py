@@ -83,6 +83,14 @@ class IKOracle(ABC):
             give_up 0 builds it in 187 s with 2.0 % false unreachable,
             give_up 0.01 in 259 s with 1.8 %, rescues 1 in 436 s with 1.1 %.
         rescues: Random restarts still tried after giving up (see give_up).
+        settle: Distance [m]: a warm start from a hint whose effector lies
+            within it of the goal solves the reach stage alone, and keeps the
+            hint's lower-task choices (a neighbouring vertex's natural posture
+            moved the last centimetres). 0 (the default) always solves the
+            lower stages. The shipped configs take 0.03 m: at D_max 7 a new
+            vertex lies 1.6-3.2 cm from the nearest vertex of the depth
+            above, whose stored posture is natural; at coarser depths every
+            vertex is solved in full.
         prefer: Try every start even after one reaches, and keep the
             reaching posture the lower tasks like best (:meth:`preference`):
             a warm start can sit in a poor basin of the posture task (an
@@ -105,12 +113,12 @@ class IKOracle(ABC):
     def __init__(
         self, body: dict[str, Any], effector: str, joints: list[str], tasks: list[dict[str, Any]] | None = None,
         restarts: int = 3, seed: int = 0, secondary: bool = True, max_seconds: float | None = None,
-        give_up: float | None = 0.0, rescues: int = 0, prefer: bool = False, reference_first: bool = False,
+        give_up: float | None = 0.0, rescues: int = 0, prefer: bool = False, reference_first: bool = False, settle: float = 0.0,
     ) -> None:
         self.params: dict[str, Any] = {
             "body": body, "effector": effector, "joints": joints, "tasks": tasks, "restarts": restarts, "seed": seed,
             "secondary": secondary, "max_seconds": max_seconds, "give_up": give_up, "rescues": rescues, "prefer": prefer,
-            "reference_first": reference_first,
+            "reference_first": reference_first, "settle": settle,
         }
         self.prefer = bool(prefer)
         self.reference_first = bool(reference_first)
@@ -120,8 +128,9 @@ class IKOracle(ABC):
         self._deadline = np.inf
         self.give_up = np.inf if give_up is None else float(give_up)
         self.rescues = int(rescues)
-        if int(restarts) < 0 or self.rescues < 0 or self.give_up < 0:
-            raise OracleError(f"restarts, rescues and give_up must not be negative, got {restarts}, {rescues}, {give_up}")
+        self.settle = float(settle)
+        if int(restarts) < 0 or self.rescues < 0 or self.give_up < 0 or not self.settle >= 0:
+            raise OracleError(f"restarts, rescues, give_up and settle must not be negative, got {restarts}, {rescues}, {give_up}, {settle}")
         self.strategy = parse_strategy(self.body, effector, joints, tasks)
         self.problem = ReachProblem(self.body, self.strategy)
         self.posture_names = tuple(self.body.q_names)
@@ -218,16 +227,17 @@ class IKOracle(ABC):
         """Build the solvers now rather than on the first evaluate."""
 
     @abstractmethod
-    def solve(self, goal: np.ndarray, x0: np.ndarray) -> np.ndarray:
-        """A configuration q that tries to put the effector at goal, starting from x0."""
+    def solve(self, goal: np.ndarray, x0: np.ndarray, lower: bool = True) -> np.ndarray:
+        """A configuration q that tries to put the effector at goal, starting from x0 (with the lower tasks, or reach alone)."""
 
     def preference(self, q: np.ndarray, goal: np.ndarray) -> float:
         """How much the lower tasks dislike a posture (lower is better; 0 when the engine cannot tell)."""
         return 0.0
 
-    def solve_batch(self, goals: np.ndarray, x0: np.ndarray) -> np.ndarray:
-        """Configurations (N, nq) for goals (N, 3) from starts (N, nx); engines may batch."""
-        return np.array([self.solve(g, x) for g, x in zip(goals, x0, strict=True)])
+    def solve_batch(self, goals: np.ndarray, x0: np.ndarray, lower: np.ndarray | None = None) -> np.ndarray:
+        """Configurations (N, nq) for goals (N, 3) from starts (N, nx), with the lower tasks where lower (N,) is true; engines may batch."""
+        flags = np.ones(len(goals), bool) if lower is None else lower
+        return np.array([self.solve(g, x, bool(f)) for g, x, f in zip(goals, x0, flags, strict=True)])
 
     def starts(self, goal: np.ndarray, hint: np.ndarray | None) -> list[np.ndarray]:
         """Initial postures: the hint, the reference, then seeded random ones.
@@ -272,15 +282,19 @@ class IKOracle(ABC):
         starts = [self.starts(g, None if hints is None else hints[i]) if not prefiltered[i] else [] for i, g in enumerate(pts)]
         preferred = np.full(n, np.inf)  # with prefer: the lower tasks' objective of the kept posture
         decisive = np.zeros(n, bool)  # the first start is a warm start from a nearby hint
-        if hints is not None and np.isfinite(self.give_up):
+        settled = np.zeros(n, bool)  # ... so near that it solves the reach stage alone (see settle)
+        hint_first = not (self.reference_first and self._start is None)
+        if hints is not None and (np.isfinite(self.give_up) or (self.settle > 0 and hint_first)):
             for i in np.nonzero(~prefiltered & np.all(np.isfinite(hints), axis=1))[0]:
-                decisive[i] = self.problem.effector_distance(hints[i], pts[i], self._data) <= NEAR_HINT
+                gap = self.problem.effector_distance(hints[i], pts[i], self._data)
+                decisive[i] = np.isfinite(self.give_up) and gap <= NEAR_HINT
+                settled[i] = hint_first and gap <= self.settle
         for r in range(max(len(s) for s in starts) if n else 0):
             todo = np.array([i for i in range(n) if not done[i] and len(starts[i]) > r], dtype=int)
             if todo.size == 0 or time.perf_counter() > self._deadline:
                 break
             self.stats["solves"] += int(todo.size)
-            q = self.solve_batch(pts[todo], np.array([starts[i][r] for i in todo]))
+            q = self.solve_batch(pts[todo], np.array([starts[i][r] for i in todo]), ~settled[todo] if r == 0 else None)
             for k, i in enumerate(todo):
                 check = self.problem.check(q[k], pts[i], self._data)
                 if self.prefer and check.reachable:
@@ -510,7 +524,7 @@ class CasadiIK(IKOracle):
         if not self.stages:
             self.stages = self._build()
 
-    def solve(self, goal: np.ndarray, x0: np.ndarray) -> np.ndarray:
+    def solve(self, goal: np.ndarray, x0: np.ndarray, lower: bool = True) -> np.ndarray:
         self.prepare()
         p = self.problem
         x = np.clip(x0, p.lower, p.upper)
@@ -523,6 +537,6 @@ class CasadiIK(IKOracle):
                 break  # keep the last posture; the check decides
             x, value = stage
             optimum.append(value)
-            if not task.attained(value):
+            if not task.attained(value) or (not lower and task is self.strategy.reach):
                 break  # e.g. unreachable: lower tasks cannot change the verdict
         return p.q_of_x(x)
