@@ -92,9 +92,10 @@ class IKOracle(ABC):
             depth alone. Measured on the default atlas: the whole body's
             D_max vertices cost 4.5 ms instead of 5.95 and their postures
             are about as liked (median), but 1-cm neighbours answered by the
-            selector jumped more (p99 14.3 deg independently and 12.6 deg
-            with ``from``, against 8.5 and 7.9): the stored postures are its
-            warm starts. The shipped configs therefore do not settle.
+            selector with ``from`` jumped more (``bench/posture.py``, same
+            98 pairs: p99 13.3 deg, 3 pairs over 10 deg, against 8.8 deg and
+            1 pair): the stored postures are its warm starts. The shipped
+            configs therefore do not settle.
         prefer: Try every start even after one reaches, and keep the
             reaching posture the lower tasks like best (:meth:`preference`):
             a warm start can sit in a poor basin of the posture task (an
