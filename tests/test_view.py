@@ -200,6 +200,15 @@ def _shot(driver, name: str, settle: float = 2.5) -> np.ndarray:
     return np.asarray(Image.open(io.BytesIO(png)).convert("RGB")).astype(int)
 
 
+def _shot_until(driver, name: str, done, timeout: float = 30.0) -> np.ndarray:
+    """Screenshots until done(image) holds or timeout [s] passes (a loaded machine renders late); the last one."""
+    t0 = time.monotonic()
+    image = _shot(driver, name)
+    while not done(image) and time.monotonic() - t0 < timeout:
+        image = _shot(driver, name, settle=1.0)
+    return image
+
+
 def _pixels_near(image: np.ndarray, rgb, tol: int = 40) -> int:
     return int((np.abs(image[:, :, :760] - np.asarray(rgb)).max(axis=2) <= tol).sum())  # the scene, left of the panel
 
@@ -219,11 +228,11 @@ def test_the_page_draws_strategy_colours_and_layers_toggle(viewer, browser):
     viewer.style_box.value = "dots"  # opaque, unshaded: the strategy colours as they are
     viewer.show_strategy("right_upper_body", True)
     _wait_for_page(browser, viewer)
-    both = _shot(browser, "layers_both")
     arm, upper = PALETTE[0] * BOUNDARY_SHADE, PALETTE[1] * BOUNDARY_SHADE  # boundary cells, as drawn
+    both = _shot_until(browser, "layers_both", lambda im: _pixels_near(im, arm) > 500 and _pixels_near(im, upper) > 500)
     assert _pixels_near(both, arm) > 500 and _pixels_near(both, upper) > 500
     viewer.show_strategy("right_upper_body", False)
-    alone = _shot(browser, "layers_arm")
+    alone = _shot_until(browser, "layers_arm", lambda im: _pixels_near(im, upper) < 0.05 * _pixels_near(both, upper))
     assert _pixels_near(alone, upper) < 0.05 * _pixels_near(both, upper)
     assert _pixels_near(alone, arm) > 500
 
@@ -237,7 +246,7 @@ def test_moving_the_goal_moves_the_drawn_arm_and_names_the_strategy(viewer, brow
     text = browser.find_element("tag name", "body").text
     assert "right_arm" in text
     viewer.set_goal(GOALS[2])  # reached only by bending the trunk
-    after = _shot(browser, "goal_after")
+    after = _shot_until(browser, "goal_after", lambda im: (np.abs(im[:, :760] - before[:, :760]).max(axis=2) > 30).sum() > 300)
     assert "right_upper_body" in browser.find_element("tag name", "body").text
     changed = np.abs(after[:, :760] - before[:, :760]).max(axis=2) > 30
     assert changed.sum() > 300  # the body moved on screen
