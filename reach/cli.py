@@ -21,6 +21,8 @@ from reach.errors import InputError, ReachError
 from reach.select import REFINE_BUDGET
 from reach.tree import DEFAULT_POLICY, POLICIES
 
+QUERY_BUDGET = 1.0  # [s] default refinement budget of a local `reach query`: one question, no frame to keep
+
 
 def _print_json(data: Any) -> None:
     from reach.protocol import finite
@@ -138,7 +140,7 @@ def cmd_query(args: argparse.Namespace) -> int:
         from reach.select import Selector
         from reach.store import load_atlas
 
-        selector = Selector(load_atlas(atlas), policy=args.policy, refine=refine is not False)  # type: ignore[arg-type]
+        selector = Selector(load_atlas(atlas), policy=args.policy, refine=refine is not False, budget=args.budget_ms / 1000.0)  # type: ignore[arg-type]
         effectors = [args.effector] if args.effector else selector.effectors
         answers = [selector.select(e, np.array(goal), start=start).to_dict() for e in effectors]
     if args.json:
@@ -370,6 +372,9 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--from", dest="start", metavar="POSTURE",
                    help="the character's current posture, a JSON object of joint name -> value [rad or m] (or a file holding one): "
                         "the answer is the natural posture reached from it")
+    p.add_argument("--budget-ms", type=float, default=QUERY_BUDGET * 1000,
+                   help=f"reading an atlas: time budget of the IK refinement [ms] (default {QUERY_BUDGET * 1000:g}: a one-off question "
+                        f"lets it converge; a server's default is {REFINE_BUDGET * 1000:g}, a frame)")
     p.add_argument("--timeout", type=int, default=2500, help="with --connect: ms to wait for each reply (default 2500)")
     p.add_argument("--curve-server-key", metavar="FILE", help="with --connect: the server's CURVE public-key file")
     p.add_argument("--json", action="store_true", help="machine-readable output")

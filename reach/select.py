@@ -265,11 +265,36 @@ class Selector:
             outcome = SKIPPED
             if refine:
                 q, residual, outcome = self._refine(name, goal, tree.vertices.posture[row], residual, start)  # type: ignore[index]
+                if outcome == FAILED:
+                    # The IK says this strategy does not reach the exact goal
+                    # (its tree said so from a coarse cell): the next strategy
+                    # by priority that does answers; else this one's stored posture.
+                    found = self._next_reaching(goal, hits[1:], start)
+                    if found is not None:
+                        alt, q, residual = found
+                        posture, root = split_posture(self.atlas.trees[alt].vertices.posture_names, q)
+                        rest = tuple(hits[hits.index(alt) + 1 :])
+                        return Answer(effector, tuple(goal.tolist()), alt, True, rest, posture, root, residual, REFINED, time.perf_counter() - t0)
             if outcome == REFINED:
                 posture, root = split_posture(tree.vertices.posture_names, q)
             else:
                 posture, root, fragment = self._stored_posture(name, tree, row)
         return Answer(effector, tuple(goal.tolist()), name, True, tuple(hits[1:]), posture, root, residual, outcome, time.perf_counter() - t0, fragment)
+
+    def _next_reaching(self, goal: np.ndarray, names: list[str], start: dict[str, float] | None) -> tuple[str, np.ndarray, float | None] | None:
+        """The first of names (by priority) whose refinement reaches the goal: its name, posture and residual; None if none does."""
+        point = goal.tolist()
+        for name in names:
+            tree = self.atlas.trees[name]
+            nearest = self._nearest_row(name, tree, point)
+            if nearest is None:
+                continue
+            q, residual, outcome = self._refine(name, goal, tree.vertices.posture[nearest[0]], None, start)  # type: ignore[index]
+            if outcome == REFINED:
+                return name, q, residual
+            if outcome == TIMEOUT:
+                return None  # out of time: no further strategy is tried
+        return None
 
     def _stored_posture(self, name: str, tree: VATree, row: int) -> tuple[dict[str, float], dict[str, list[float]] | None, bytes]:
         """The stored posture of a vertex as dicts and as encoded JSON, from a bounded cache.

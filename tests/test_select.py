@@ -144,3 +144,24 @@ def test_the_same_request_from_a_posture_gives_the_same_answer(arm):
     assert a.posture == b.posture and a.refined == REFINED
     with pytest.raises(InputError, match=r"from: unknown joints \['right_tail'\]"):
         s.select("right_hand", [0.4, -0.3, 1.2], start={"right_tail": 1.0})
+
+
+def test_a_strategy_whose_ik_misses_the_exact_goal_gives_way_to_the_next(tmp_path):
+    # A coarse arm tree (optimistic policy: boundary cells hold) claims a goal
+    # 10 cm beyond the arm's reach; its refinement fails, and the upper body,
+    # next by priority, reaches it by leaning.
+    upper = [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*"]
+    strategies = [{"name": "arm", "effector": "right_hand", "priority": 1, "joints": ARM, "tasks": [{"type": "reach"}, {"type": "self_collision"}]},
+                  {"name": "upper", "effector": "right_hand", "priority": 2, "joints": upper, "tasks": [{"type": "reach"}, {"type": "self_collision"}]}]
+    atlas = build_atlas(parse_config(human_config(d_max=2, strategies=strategies, name="coarse"), "coarse", "coarse"), tmp_path / "coarse")
+    body = human_body()
+    shoulder = body.frame_positions(names=["right_shoulder"])["right_shoulder"]
+    s = Selector(atlas, policy="optimistic", budget=2.0).warm_up()
+    goal = shoulder + [0.75, 0.0, 0.0]
+    stored = s.select("right_hand", goal, refine=False)
+    assert stored.strategy == "arm" and stored.alternatives == ("upper",)  # what the trees say
+    answer = s.select("right_hand", goal)
+    assert answer.strategy == "upper" and answer.refined == REFINED and answer.alternatives == ()
+    assert np.linalg.norm(hand_of(answer, body) - goal) <= 0.005
+    # A goal the arm does reach keeps the arm.
+    assert s.select("right_hand", shoulder + [0.45, 0.0, -0.1]).strategy == "arm"
