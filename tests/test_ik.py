@@ -364,3 +364,15 @@ def test_a_settled_warm_start_solves_reach_alone_and_keeps_the_hints_choices(mon
     assert settled.evaluate(far[None], natural).reachable[0] and 1 in stages  # 6 cm: every stage
     stages.clear()
     assert settled.evaluate(near[None]).reachable[0] and 1 in stages  # no hint: every stage
+
+
+def test_verify_checks_a_posture_found_elsewhere_against_this_strategys_tasks():
+    arm = CasadiIK(HUMAN, "right_hand", ARM, [{"type": "reach"}, {"type": "self_collision"}])
+    q = arm.reference_posture()
+    here = arm.effector_positions(q[None])
+    assert arm.verify(here, q[None]).all()  # the reference reaches its own hand position
+    assert not arm.verify(here + [0.0, 0.0, 0.05], q[None]).any()  # 5 cm off: the tolerance is 5 mm
+    # The arm swung across the body: the hand is where the posture puts it, but through the trunk.
+    through = q.copy()
+    through[arm.body.model.joints[arm.body.joint_id("right_shoulder_abduction")].idx_q] = -0.5
+    assert not arm.verify(arm.effector_positions(through[None]), through[None]).any()

@@ -27,6 +27,7 @@ from oracles.protocol import (
     Specified,
     Tunable,
     Verdicts,
+    Verifying,
     check_verdicts,
 )
 from reach.atlas import build_atlas
@@ -72,7 +73,7 @@ def test_the_plugin_declares_the_optional_capabilities(plugin):
 
 def test_builtin_body_oracles_declare_every_capability():
     oracle = OracleSpec("casadi-ik", {"body": HUMAN, "effector": "right_hand", "joints": ARM}).create()
-    for capability in (Specified, ModelHashed, EffectorPositions, ReachBound, Tunable, Preparable, Mirrorable, Continuing, Described):
+    for capability in (Specified, ModelHashed, EffectorPositions, ReachBound, Tunable, Preparable, Mirrorable, Continuing, Described, Verifying):
         assert isinstance(oracle, capability), capability.__name__
     refine = oracle.variant("refine", budget=0.01)
     assert refine.spec.params["max_seconds"] == 0.01 and refine.spec.params["jit"] is False
