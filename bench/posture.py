@@ -16,7 +16,8 @@ Prints JSON lines:
   5 deg of a limit;
 * ``neighbours``: over pairs of goals 1 cm apart answered by the same
   strategy, the 99th percentile and maximum of the largest joint change
-  [deg], asked independently and asked with the first answer as ``from``;
+  [deg], asked independently and asked with the first answer as ``from``,
+  in front of the chest and low in front (where the trunk strategies answer);
 * ``lowest``: the lowest reachable grip-centre height [m] of the whole body
   and of crouch in front of the feet: the lowest reachable vertex
   (0.1 <= x <= 0.5 m, |y| <= 0.3 m), and, independent of the resolution, the
@@ -124,20 +125,25 @@ def main() -> None:
     emit(bench="elbow", goals_in_front_below_shoulder=front_low, elbow_above_shoulder=elbow_high, share=elbow_high / max(front_low, 1))
     emit(bench="near_limits", answers=answered, within_5deg=near, share=near / max(answered, 1))
 
-    pairs = np.random.default_rng(2)
-    base = pairs.uniform([0.1, -0.6, 0.7], [0.6, 0.0, 1.7], (args.pairs, 3))
-    step = pairs.normal(size=base.shape)
-    step *= 0.01 / np.linalg.norm(step, axis=1, keepdims=True)
-    for mode in ("independent", "from"):
-        changes = []
-        for g, s in zip(base, step, strict=True):
-            a = selector.select("right_hand", g)
-            b = selector.select("right_hand", g + s, start=_joints(a) if mode == "from" else None)
-            if a.reachable and b.reachable and a.strategy == b.strategy and a.posture and b.posture:
-                changes.append(max(abs(a.posture[k] - b.posture[k]) for k in a.posture))
-        c = np.degrees(changes) if changes else np.zeros(1)
-        emit(bench="neighbours", mode=mode, pairs=len(changes), p99_deg=round(float(np.percentile(c, 99)), 2), max_deg=round(float(c.max()), 2),
-             over_10deg=int(np.sum(c > 10)), median_deg=round(float(np.median(c)), 3))
+    # Goals in front of the chest (mostly the arm and the upper body), and low
+    # in front (the upper body, the whole body and the crouch).
+    for region, seed, lo, hi in (("front", 2, [0.1, -0.6, 0.7], [0.6, 0.0, 1.7]), ("low", 3, [0.2, -0.5, 0.1], [0.7, 0.1, 0.7])):
+        pairs = np.random.default_rng(seed)
+        base = pairs.uniform(lo, hi, (args.pairs, 3))
+        step = pairs.normal(size=base.shape)
+        step *= 0.01 / np.linalg.norm(step, axis=1, keepdims=True)
+        for mode in ("independent", "from"):
+            changes, used = [], set()
+            for g, s in zip(base, step, strict=True):
+                a = selector.select("right_hand", g)
+                b = selector.select("right_hand", g + s, start=_joints(a) if mode == "from" else None)
+                if a.reachable and b.reachable and a.strategy == b.strategy and a.posture and b.posture:
+                    changes.append(max(abs(a.posture[k] - b.posture[k]) for k in a.posture))
+                    used.add(a.strategy)
+            c = np.degrees(changes) if changes else np.zeros(1)
+            emit(bench="neighbours", region=region, mode=mode, pairs=len(changes), strategies=sorted(used),
+                 p99_deg=round(float(np.percentile(c, 99)), 2), max_deg=round(float(c.max()), 2),
+                 over_10deg=int(np.sum(c > 10)), median_deg=round(float(np.median(c)), 3))
 
     for name in ("right_whole_body", "right_crouch"):
         if name not in atlas.trees:
