@@ -231,6 +231,8 @@ def tree_summary(tree: VATree) -> dict[str, Any]:
         "resolution": tree.lattice.resolution.tolist(),
         "build_seconds": build.get("seconds"),
         "mirrored_from": build.get("mirrored_from"),
+        "inherited_from": tree.meta.get("inherited_from"),
+        "inherited_vertices": int(build.get("inherited", 0)),
     }
 
 

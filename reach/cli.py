@@ -106,6 +106,7 @@ def cmd_info(args: argparse.Namespace) -> int:
             f"  {name} (effector {s['effector']}, priority {s['priority']}): "
             f"inner volume {s['volume']['inner']:.6g}, boundary {s['volume']['boundary']:.6g}, "
             + (f"mirrored from {s['mirrored_from']} (no oracle call)" if s["mirrored_from"] else f"{s['oracle_calls']} oracle calls of {s['lattice_vertices']} lattice vertices")
+            + (f", {s['inherited_vertices']} reachable vertices inherited from {s['inherited_from']}" if s.get("inherited_from") else "")
         )
         if ext:
             print(f"    extent min {np.round(ext['min'], 4).tolist()} max {np.round(ext['max'], 4).tolist()}")

@@ -198,6 +198,11 @@ def test_a_crouch_inherits_the_whole_bodys_verified_postures(tmp_path):
     assert c.meta["inherited_from"] == "whole" and b["inherited"] > 0
     assert b["oracle_calls"] == b["distinct_vertices"] - b["inherited"]
     assert any(f"{b['inherited']} reachable vertices inherited from whole" in line for line in lines)
+    from reach.atlas import summary
+
+    info = summary(atlas)["strategies"]
+    assert info["crouch"]["inherited_from"] == "whole" and info["crouch"]["inherited_vertices"] == b["inherited"]
+    assert info["whole"]["inherited_from"] is None and info["whole"]["inherited_vertices"] == 0
     # The whole body's reachable vertices (those the crouch's tree has) are the
     # crouch's, by the same postures, which the crouch's own oracle accepts.
     rows = c.vertices.index(w.vertices.keys[w.vertices.reachable])
