@@ -54,7 +54,7 @@ def fingerprint(config: Config, strategy: StrategySpec) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-def sub_strategies(config: Config, order: list[StrategySpec]) -> dict[str, str]:
+def sub_strategies(order: list[StrategySpec]) -> dict[str, str]:
     """For each strategy, the sub-strategy it inherits from, if any: built before it, on the same body and
     effector, with a subset of its active joints (the largest such subset; the earliest among equals)."""
     seen: dict[str, tuple[str, str, frozenset[str], tuple[str, ...]]] = {}
@@ -133,7 +133,7 @@ def _build_locked(
     t0 = time.perf_counter()
     # Mirror sources first, so that their trees exist when their images are made.
     order = sorted(config.strategies, key=lambda s: s.mirror_of is not None)
-    subs = sub_strategies(config, order) if inherit else {}
+    subs = sub_strategies(order) if inherit else {}
     prints: dict[str, str] = {}
     for s in order:
         path, partial = out / f"{s.name}.npz", out / PARTIAL / f"{s.name}.npz"
@@ -165,7 +165,7 @@ def _build_locked(
             parent = (sub, built[sub]) if sub is not None and sub in built else None
             tree = _build_one(config, s, meta, partial, fp, executor_factory, progress, resume, parent)
             b = tree.meta["build"]
-            also = f", {b['inherited']} reachable vertices inherited from {sub}" if parent is not None else ""
+            also = f", {b['inherited']} reachable vertices inherited from {sub}" if "inherited_from" in tree.meta else ""
             say(f"{s.name}: {b['oracle_calls']} oracle calls{also}, {len(tree)} nodes, inner volume {tree.volume(INNER):.6g}, {b['seconds']:.2f} s")
         save_tree(tree, path)
         partial.unlink(missing_ok=True)

@@ -271,10 +271,8 @@ class Selector:
                     # by priority that does answers; else this one's stored posture.
                     found = self._next_reaching(goal, hits[1:], start)
                     if found is not None:
-                        alt, q, residual = found
-                        posture, root = split_posture(self.atlas.trees[alt].vertices.posture_names, q)
-                        rest = tuple(hits[hits.index(alt) + 1 :])
-                        return Answer(effector, tuple(goal.tolist()), alt, True, rest, posture, root, residual, REFINED, time.perf_counter() - t0)
+                        name, q, residual = found
+                        tree, hits, outcome = self.atlas.trees[name], hits[hits.index(name) :], REFINED
             if outcome == REFINED:
                 posture, root = split_posture(tree.vertices.posture_names, q)
             else:

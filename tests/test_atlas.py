@@ -172,7 +172,7 @@ def test_sub_strategies_of_the_demo_atlas():
 
     config = load_config(Path(__file__).parent.parent / "configs" / "demo.yaml")
     order = sorted(config.strategies, key=lambda s: s.mirror_of is not None)
-    assert sub_strategies(config, order) == {
+    assert sub_strategies(order) == {
         f"{side}_{big}": f"{side}_{small}"
         for side in ("right", "left")
         for big, small in (("upper_body", "arm"), ("whole_body", "upper_body"), ("crouch", "whole_body"))
