@@ -91,6 +91,16 @@ def die_with_parent() -> None:
         os._exit(1)
 
 
+def build_worker() -> None:
+    """A build's pool worker: dies with its parent; Ctrl-C (which reaches the whole group) is the
+    parent's to handle, and SIGTERM ends the worker at once (a group's SIGTERM stops the build, not only its parent)."""
+    import signal
+
+    die_with_parent()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # the parent's handler, inherited by fork, would only fail the chunk
+
+
 # One oracle per worker process, built on first use from its spec: the cache
 # lives in each worker process (a pool process or a Dask worker), never in
 # the process that builds the tree. The lock serialises threads of one worker.
@@ -145,7 +155,7 @@ class ProcessExecutor(_Pooled):
     def __init__(self, spec: OracleSpec, workers: int | None = None, chunk_size: int = 2048) -> None:
         super().__init__(spec, chunk_size)
         self.workers = workers or os.cpu_count() or 1
-        self.pool = ProcessPoolExecutor(max_workers=self.workers, initializer=die_with_parent)
+        self.pool = ProcessPoolExecutor(max_workers=self.workers, initializer=build_worker)
 
     def submit(self, points: np.ndarray, hints: np.ndarray | None) -> tuple[list[slice], list[Any]]:
         slices = self.slices(points.shape[0])
@@ -154,7 +164,9 @@ class ProcessExecutor(_Pooled):
         ]
 
     def close(self) -> None:
-        self.pool.shutdown()
+        # After a normal batch nothing is pending; after an interrupt the chunks not yet started are dropped
+        # (the checkpoints keep what was done) instead of computed.
+        self.pool.shutdown(cancel_futures=True)
 
 
 class DaskExecutor(_Pooled):

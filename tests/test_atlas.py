@@ -139,13 +139,14 @@ def test_mirror_oracle_refuses_a_lopsided_box_and_unknown_vertices():
         MirrorOracle(sym, None).evaluate(np.array([[0.75, 0.75, 0.75]]))  # inside an outer depth-2 cell
 
 
-@pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
-def test_a_killed_build_leaves_no_worker_behind(tmp_path, sig):
+@pytest.mark.parametrize(("sig", "group"), [(signal.SIGKILL, False), (signal.SIGTERM, False), (signal.SIGTERM, True)])
+def test_a_killed_build_leaves_no_worker_behind(tmp_path, sig, group):
     cfg = tmp_path / "arm.yaml"
     cfg.write_text(yaml.safe_dump(human_config(d_max=5)))
     out = tmp_path / "out"
+    # group: the signal reaches the build and its workers, as `kill -- -PGID` or a job control's stop sends it.
     proc = subprocess.Popen([sys.executable, "-m", "reach.cli", "build", str(cfg), "-o", str(out), "-q", "-j", "2"],
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=group)
     deadline = time.monotonic() + 120
     workers: list[int] = []
     while len(workers) < 2 and time.monotonic() < deadline and proc.poll() is None:
@@ -154,7 +155,10 @@ def test_a_killed_build_leaves_no_worker_behind(tmp_path, sig):
     assert proc.poll() is None, "the build finished before it could be killed"
     assert len(workers) >= 2, "the build runs its worker processes"
     time.sleep(0.3)  # let them take work
-    os.kill(proc.pid, sig)
+    if group:
+        os.killpg(proc.pid, sig)
+    else:
+        os.kill(proc.pid, sig)
     _, err = proc.communicate(timeout=30)
     if sig == signal.SIGTERM:  # as Ctrl-C: a message and a documented status
         assert proc.returncode == 143 and "reach: terminated; run the same build with --resume" in err

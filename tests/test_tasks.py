@@ -151,6 +151,9 @@ def test_perpendicular_basis_is_orthonormal_and_normal_to_the_axis():
         ([{"type": "reach"}, {"type": "self_collision", "only": ["wing"]}], r"tasks\[1\]\.only: no capsule matches 'wing'"),
         ([{"type": "reach"}, {"type": "floor", "exclude": "feet"}], r"tasks\[1\]\.exclude: expected a list of capsule names"),
         ([{"type": "reach"}, {"type": "posture", "weights": {"*_elbow_*": -1}}], r"tasks\[1\]\.weights\.\*_elbow_\*: expected a number in \[0.0, 1000.0\]"),
+        ([{"type": "reach"}, {"type": "hang", "frames": ["left_shoulder"]}], r"tasks\[1\]\.frames: expected at least two frames"),
+        ([{"type": "reach"}, {"type": "hang", "frames": ["left_shoulder", "paw"]}], r"tasks\[1\]\.frames: human: no frame 'paw'"),
+        ([{"type": "reach"}, {"type": "hang", "cone": 120}], r"tasks\[1\]\.cone: expected a number in \[0.0, 90.0\], got 120"),
     ],
 )
 def test_task_errors_name_the_key(tasks, message):
@@ -292,6 +295,68 @@ def test_collision_and_floor_rows_match_finite_differences():
     low[2] -= 0.45  # sink the body so that some segment nears the floor
     frows = floor.rows(numeric(problem, low, np.zeros(3)))
     assert frows and all(r.error[0] >= 0 for r in frows)
+
+
+IDLE_ARM = ["left_shoulder_flexion", "left_shoulder_abduction", "left_elbow_flexion"]
+
+
+def test_the_idle_arm_hangs_by_default_and_only_when_it_moves():
+    body = human_body()
+    hang = parse_strategy(body, "right_hand", [*WHOLE, *IDLE_ARM], [{"type": "reach"}, {"type": "hang"}]).task("hang")
+    assert hang.chains == (("left_shoulder", "left_elbow_flexion", "left_wrist_flexion"),)
+    # The arm that reaches, or an idle arm whose joints are locked, is no chain: the task is dropped.
+    assert [t.type for t in parse_strategy(body, "right_hand", WHOLE, [{"type": "reach"}, {"type": "hang"}]).tasks] == ["reach"]
+
+
+def test_the_hang_row_agrees_with_casadi_pinocchio_and_finite_differences():
+    body = human_body()
+    s = parse_strategy(body, "right_hand", [*WHOLE, *IDLE_ARM], [{"type": "reach"}, {"type": "hang", "cone": 30}])
+    problem = ReachProblem(body, s)
+    task, model = s.task("hang"), body.model
+    goal = ca.SX.sym("goal", 3)
+    sym = Symbolic(SymbolicKinematics(model, problem.q_sym), problem.x_sym, goal, problem.x_ref, problem.upper - problem.lower)
+    g = ca.Function("g", [problem.x_sym], [ca.vertcat(*[c.expr for c in task.constraints(sym)])])
+    flexion = problem.x_names.index("left_shoulder_flexion")
+    for angle, holds in ((0.0, True), (25.0, True), (35.0, False), (-35.0, False), (150.0, False)):
+        x = problem.x_ref.copy()
+        x[flexion] = np.radians(angle)  # the elbow straight: the whole arm at this angle from straight down
+        q = problem.q_of_x(x)
+        num = numeric(problem, q, np.zeros(3))
+        # Independently: the upper arm's angle from straight down, by Pinocchio's frames.
+        data = model.createData()
+        pin.framesForwardKinematics(model, data, q)
+        d = data.oMf[body.frame_id("left_elbow_flexion")].translation - data.oMf[body.frame_id("left_shoulder")].translation
+        assert np.degrees(np.arccos(-d[2] / np.linalg.norm(d))) == pytest.approx(abs(angle), abs=1.0)
+        assert task.holds(num) == holds
+        assert bool(np.all(np.asarray(g(x)).ravel() >= -1e-9)) == holds
+    x = problem.x_ref.copy()
+    x[flexion] = np.radians(29.0)  # near the 30 deg cone: the rows are active
+    q = problem.q_of_x(x)
+    rows = task.rows(numeric(problem, q, np.zeros(3)))
+    assert rows
+    jac = np.asarray(ca.Function("j", [problem.x_sym], [ca.jacobian(g(problem.x_sym), problem.x_sym)])(x))
+    assert np.allclose(rows[0].jacobian[0, 6:], jac[0, 6:], atol=1e-6)
+
+
+@pytest.mark.slow
+def test_a_low_reach_keeps_the_idle_arm_hanging():
+    from oracles.ik import CasadiIK
+
+    joints = [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*", "root", "*_hip_*", "*_ankle_*", *IDLE_ARM]
+    tasks = [{"type": "reach"}, {"type": "feet"}, {"type": "balance", "margin": 0.02}, {"type": "floor"}, {"type": "coupling"}, {"type": "hang"}]
+    oracle = CasadiIK({"human": {"sex": "male", "percentile": 50}}, "right_hand", joints, tasks, restarts=2)
+    model = oracle.body.model
+    # The lower edge of the straight-legged stoop in front, where the free
+    # arm was thrown behind the back as a counterweight.
+    goals = np.array([[0.4, -0.08, 0.16], [0.4, -0.08, 0.17], [0.35, -0.15, 0.12]])
+    v = oracle.evaluate(goals)
+    assert v.reachable.any()
+    for q, ok in zip(v.posture, v.reachable, strict=True):
+        if ok:
+            data = model.createData()
+            pin.framesForwardKinematics(model, data, q)
+            z = [data.oMf[oracle.body.frame_id(n)].translation[2] for n in ("left_shoulder", "left_elbow_flexion", "left_wrist_flexion")]
+            assert z[0] > z[1] > z[2]
 
 
 def test_evaluate_from_refuses_a_posture_of_the_wrong_size():

@@ -15,6 +15,7 @@ from oracles.tasks.coupling import CouplingTask
 from oracles.tasks.feet import FeetTask
 from oracles.tasks.floor import FloorTask
 from oracles.tasks.gaze import GazeTask
+from oracles.tasks.hang import HangTask
 from oracles.tasks.obstacles import ObstaclesTask
 from oracles.tasks.posture import PostureTask
 from oracles.tasks.reach import ReachTask
@@ -29,6 +30,7 @@ TASKS: dict[str, type[Task]] = {
     FloorTask.type: FloorTask,
     ObstaclesTask.type: ObstaclesTask,
     CouplingTask.type: CouplingTask,
+    HangTask.type: HangTask,
     GazeTask.type: GazeTask,
     PostureTask.type: PostureTask,
     ComfortTask.type: ComfortTask,
@@ -57,6 +59,7 @@ __all__ = [
     "FeetTask",
     "FloorTask",
     "GazeTask",
+    "HangTask",
     "HardTask",
     "Numeric",
     "ObstaclesTask",
