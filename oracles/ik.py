@@ -143,7 +143,7 @@ class IKOracle(ABC):
         self.seed = int(seed)
         self._data = self.body.model.createData()
         self._start: np.ndarray | None = None  # the current posture as x, during evaluate_from
-        self.stats = {"points": 0, "prefiltered": 0, "solves": 0, "reachable": 0, "cut_rounds": 0, "skipped": 0}
+        self.stats = {"points": 0, "prefiltered": 0, "solves": 0, "reachable": 0, "cut_rounds": 0}
 
     # -- optional capabilities of the oracle protocol ----------------------
     @property
@@ -537,14 +537,6 @@ class CasadiIK(IKOracle):
         optimum: list[float] = []
         cuts = _Cuts(CUT_SLOTS, p.nx)  # kept from stage to stage: they describe the same neighbourhood
         for k, task in enumerate(self.order):
-            if 0 < k < len(self.order) - 1:
-                value = float(self._objective_fns[k](x, params))
-                if task.settled(value):
-                    # Its optimum would hold the stages below to the same bounds: the
-                    # solve could only move the posture they start from. Measured: see solve_skips.
-                    self.stats["skipped"] += 1
-                    optimum.append(value)
-                    continue
             stage = self._cut_stage(k, x, params, optimum, cuts)
             if stage is None:
                 break  # keep the last posture; the check decides

@@ -345,11 +345,6 @@ class SoftTask(Task):
         """Whether lower stages can still matter after this optimum (default: yes)."""
         return True
 
-    def settled(self, value: float) -> bool:
-        """Whether a posture where the objective is ``value`` already gives the lower stages
-        the bounds this task's optimum would (:meth:`held_bounds`): its stage may then be skipped."""
-        return False
-
     @abstractmethod
     def level(self, num: Numeric) -> Row | None:
         """The task's level of damped least squares, or None when it asks nothing."""

@@ -64,10 +64,6 @@ class GazeTask(SoftTask):
         """Lower stages keep the line of sight within the cone (or the stage's optimum, if wider)."""
         return np.array([-np.inf]), np.array([max(optimum, 1.0 - math.cos(self.cone)) + self.slack])
 
-    def settled(self, value: float) -> bool:
-        # Within the cone the bound is the cone's, whatever the stage would reach.
-        return value <= 1.0 - math.cos(self.cone)
-
     def level(self, num: Numeric) -> Row:
         assert num.jacobian is not None
         eye = num.frame(self._id)
