@@ -295,6 +295,32 @@ def test_collision_and_floor_rows_match_finite_differences():
     low[2] -= 0.45  # sink the body so that some segment nears the floor
     frows = floor.rows(numeric(problem, low, np.zeros(3)))
     assert frows and all(r.error[0] >= 0 for r in frows)
+    # The floor is lazy but for the hand (the effector's capsule, constraint rows): the other
+    # segments' cuts are their near end points' heights, linearised (against finite differences).
+    assert [body.collision.placed[i].name for i in floor.eager] == ["right_hand"]
+    lazy = [i for i in floor.capsules if i not in floor.eager]
+    cuts = floor.cuts(numeric(problem, low, np.zeros(3)), 0.05)
+    assert cuts
+
+    def ends(qq):
+        data = _placed(model, qq)
+        return np.array([e[2] for i in lazy for e in body.collision.world(data, i)])
+
+    radii = np.repeat([body.collision.placed[i].radius for i in lazy], 2)
+    near = np.nonzero(ends(low) - radii < 0.05)[0]
+    base = ends(low)[near]
+    assert np.allclose([c.gap for c in cuts], base) and np.allclose([c.need for c in cuts], radii[near])
+    for k in range(num.columns.size):
+        v = np.zeros(model.nv)
+        v[num.columns[k]] = eps
+        moved = ends(pin.integrate(model, low, v))[near]
+        assert np.allclose([c.jacobian[k] for c in cuts], (moved - base) / eps, atol=1e-4), k
+
+
+def _placed(model, q):
+    data = model.createData()
+    pin.forwardKinematics(model, data, q)
+    return data
 
 
 IDLE_ARM = ["left_shoulder_flexion", "left_shoulder_abduction", "left_elbow_flexion"]

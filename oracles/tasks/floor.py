@@ -5,6 +5,17 @@ active joint moves keeps both end points at least its radius above the
 floor, so its lowest point stays on or above it. ``exclude`` names capsules
 (glob patterns) that may touch the floor; by default the feet, which stand
 on it.
+
+The task is *lazy* (see :class:`~oracles.tasks.base.HardTask`) but for the
+effector's own segment: ``casadi-ik``'s programs hold the effector's
+capsule (the hand, for a floor goal) as constraint rows, and the other
+segments only by cuts, when a posture puts one through the floor. The 30
+rows of the human's whole body (two per moving capsule) bind only for goals
+near the floor, yet as constraints of every program they cost about a third
+of a whole-body solve (replayed D_max 7 vertices: 10.1 ms against 7.0 ms per
+goal, with as many iterations). The effector's rows stay exact: for a goal
+at the floor, cuts on the hand, which turns about the goal, chased a 3 mm
+overshoot from end to end and missed reachable goals.
 """
 
 from __future__ import annotations
@@ -20,6 +31,7 @@ from oracles.tasks.base import (
     BUFFER,
     INSIDE,
     Constraint,
+    Cut,
     HardTask,
     Numeric,
     Reference,
@@ -40,10 +52,12 @@ class FloorTask(HardTask):
     """Keep every moving segment above the floor z = 0."""
 
     type: ClassVar[str] = "floor"
+    lazy: ClassVar[bool] = True
     keys: ClassVar[frozenset[str]] = frozenset({"exclude"})
     summary: ClassVar[str] = "no body point below the floor z = 0 but the feet (`exclude`: capsules that may touch it)"
 
     capsules: tuple[int, ...] = ()
+    eager: tuple[int, ...] = ()  # the effector's capsules: constraint rows, not cuts
     _model: CollisionModel | None = field(default=None, repr=False, compare=False)
 
     @classmethod
@@ -57,7 +71,8 @@ class FloorTask(HardTask):
         except Exception as exc:
             raise TaskError(f"{where}.exclude", str(exc)) from exc
         keep = [i for i, p in enumerate(model.placed) if p.name not in skip and moved(scope.body.model, p.joint, scope.active)]
-        return cls(tuple(keep))
+        effector = int(scope.body.model.frames[scope.body.frame_id(scope.effector)].parentJoint)
+        return cls(tuple(keep), tuple(i for i in keep if model.placed[i].joint == effector))
 
     def bind(self, reference: Reference) -> None:
         self._model = reference.body.collision
@@ -65,10 +80,22 @@ class FloorTask(HardTask):
     def constraints(self, sym: Symbolic) -> list[Constraint]:
         assert self._model is not None
         out = []
-        for i in self.capsules:
+        for i in self.eager:
             p = self._model.placed[i]
             z = [world_point(sym, p.joint, e)[2] for e in (p.a, p.b)]
             out.append(Constraint(ca.vertcat(*z), p.radius, np.inf))
+        return out
+
+    def cuts(self, num: Numeric, within: float) -> list[Cut]:
+        assert self._model is not None
+        out = []
+        for i in self.capsules:
+            if i in self.eager:
+                continue
+            p = self._model.placed[i]
+            for end in self._model.world(num.data, i):
+                if end[2] - p.radius < within:
+                    out.append(Cut(num.point_jacobian(p.joint, end)[2], float(end[2]), p.radius))
         return out
 
     def rows(self, num: Numeric) -> list[Row]:
