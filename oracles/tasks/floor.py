@@ -11,9 +11,10 @@ effector's own segment: ``casadi-ik``'s programs hold the effector's
 capsule (the hand, for a floor goal) as constraint rows, and the other
 segments only by cuts, when a posture puts one through the floor. The 30
 rows of the human's whole body (two per moving capsule) bind only for goals
-near the floor, yet as constraints of every program they cost about a third
-of a whole-body solve (replayed D_max 7 vertices: 10.1 ms against 7.0 ms per
-goal, with as many iterations). The effector's rows stay exact: for a goal
+near the floor, yet as constraints of every program they cost each fatrop
+iteration (replayed D_max 7 whole-body vertices, one process: 4.96 against
+4.49 ms per goal, the reach stage 2.69 against 2.21 ms, same verdicts).
+The effector's rows stay exact: for a goal
 at the floor, cuts on the hand, which turns about the goal, chased a 3 mm
 overshoot from end to end and missed reachable goals.
 """
