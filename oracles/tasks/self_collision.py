@@ -59,6 +59,7 @@ from reach.errors import TaskError
 
 MARGIN = 0.01  # [m] default clearance between segments
 CHECK_TOL = 1e-4  # [m] the verdict's tolerance on coal's distance
+SCREEN = 1e-4  # [m] coal may place a pair this much farther than our nearest points and still be cut
 # [m] how much deeper than at the reference posture the verdict lets a pair in
 # contact there go (soft tissue): the hanging hand against the thigh may
 # press a little, not pass through.
@@ -204,7 +205,10 @@ class SelfCollisionTask(HardTask):
     def cuts(self, num: Numeric, within: float) -> list[Cut]:
         assert self._model is not None
         out = []
-        for pair in self.pairs:
+        # Coal screens every pair in one call (about 60 us for the whole body's 119);
+        # our nearest points, in Python, then serve only the near ones (3 ms for all).
+        near = self.distances(num.q) < np.array([p.clearance for p in self.pairs]) + within + SCREEN
+        for pair in (p for p, close in zip(self.pairs, near, strict=True) if close):
             s, o = self._model.placed[pair.first], self._model.placed[pair.second]
             pa, pb = self._model.world(num.data, pair.first)
             qa, qb = self._model.world(num.data, pair.second)
