@@ -1,6 +1,6 @@
 """Draw answer postures as capsules, front and side views: docs/figures/postures.png.
 
-Usage: python docs/postures.py ATLAS [-o docs/figures/postures.png]
+Usage: python docs/postures.py ATLAS [-o docs/figures/postures.png] [--goals "X,Y,Z;X,Y,Z"]
 
 Asks the atlas's selector (refinement on, a generous budget) for a dozen
 goals of the right hand around the body, and draws each answer's posture
@@ -47,16 +47,29 @@ def draw(ax, body, q: np.ndarray, axes: tuple[int, int]) -> None:  # noqa: ANN00
                 solid_capstyle="round", alpha=0.85)
 
 
+def _goals(text: str) -> list[tuple[float, ...]]:
+    try:
+        goals = [tuple(float(v) for v in part.split(",")) for part in text.split(";") if part.strip()]
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"expected X,Y,Z;X,Y,Z... in metres, got {text!r}") from exc
+    if not goals or any(len(g) != 3 for g in goals):
+        raise argparse.ArgumentTypeError(f"expected X,Y,Z;X,Y,Z... in metres, got {text!r}")
+    return goals
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("atlas")
     parser.add_argument("-o", "--output", default="docs/figures/postures.png")
+    parser.add_argument("--goals", type=_goals, default=GOALS, metavar="X,Y,Z;X,Y,Z...",
+                        help="goals [m] of the right hand, world frame, ';'-separated (default: the README's twelve)")
     args = parser.parse_args()
+    goals = args.goals
     atlas = load_atlas(args.atlas)
     body = load_body(OracleSpec.from_dict(next(iter(atlas.trees.values())).meta["oracle"]).params["body"])
     selector = Selector(atlas, budget=0.5).warm_up()
-    fig, axs = plt.subplots(2, len(GOALS), figsize=(2.0 * len(GOALS), 8.5))
-    for k, goal in enumerate(GOALS):
+    fig, axs = plt.subplots(2, len(goals), figsize=(2.0 * len(goals), 8.5), squeeze=False)
+    for k, goal in enumerate(goals):
         a = selector.select("right_hand", np.array(goal))
         for row, axes in enumerate(((1, 2), (0, 2))):
             ax = axs[row, k]
