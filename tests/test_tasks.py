@@ -334,6 +334,17 @@ def test_the_idle_arm_hangs_by_default_and_only_when_it_moves():
     assert [t.type for t in parse_strategy(body, "right_hand", WHOLE, [{"type": "reach"}, {"type": "hang"}]).tasks] == ["reach"]
 
 
+def test_a_robot_hangs_only_the_frames_it_names():
+    from oracles.body import urdf_body
+
+    ur5 = urdf_body(ROOT / "configs" / "urdf" / "ur5.urdf")
+    joints = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint"]
+    with pytest.raises(TaskError, match=r"tasks\[1\]\.frames: .*no human arm .* give the chain's frames"):
+        parse_strategy(ur5, "ee_link", joints, [{"type": "reach"}, {"type": "hang"}])
+    hang = parse_strategy(ur5, "ee_link", joints, [{"type": "reach"}, {"type": "hang", "frames": ["upper_arm_link", "forearm_link"]}]).task("hang")
+    assert hang.chains == (("upper_arm_link", "forearm_link"),)
+
+
 def test_the_hang_row_agrees_with_casadi_pinocchio_and_finite_differences():
     body = human_body()
     s = parse_strategy(body, "right_hand", [*WHOLE, *IDLE_ARM], [{"type": "reach"}, {"type": "hang", "cone": 30}])

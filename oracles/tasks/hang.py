@@ -4,7 +4,8 @@ Each frame of a chain lies below the one before it, within ``cone`` deg
 (as gaze's cone) of straight down: ``z[k-1] - z[k] >= cos(cone) * |p[k] - p[k-1]|``. Without
 ``frames``, the generated human's arms that do not carry the effector and
 whose own joints move (``*_shoulder``, ``*_elbow_flexion``,
-``*_wrist_flexion``) are chains, so one task list serves both hands.
+``*_wrist_flexion``) are chains, so one task list serves both hands; a body
+without such arms (a URDF robot) must name its chain, top first.
 
 Why: a strategy frees the idle arm's shoulder and elbow so that it hangs
 under gravity when the trunk leans (the posture task's potential energy).
@@ -74,10 +75,13 @@ class HangTask(HardTask):
                 raise TaskError(f"{where}.frames", f"expected at least two frames (a chain, top first), got {list(chain)!r}")
             return cls((chain,), cone)
         model = scope.body.model
+        arms = [tuple(n.format(side=side) for n in HUMAN_ARM) for side in ("left", "right")]
+        if not any(all(model.existFrame(n) for n in arm) for arm in arms):
+            raise TaskError(f"{where}.frames", f"{scope.body.source}: no human arm ({', '.join(HUMAN_ARM)}) to hang by default; "
+                            "give the chain's frames, top first")
         chains = []
-        for side in ("left", "right"):
-            chain = tuple(n.format(side=side) for n in HUMAN_ARM)
-            if not all(model.existFrame(n) for n in chain) or scope.effector.startswith(side):
+        for chain in arms:
+            if not all(model.existFrame(n) for n in chain) or scope.effector.startswith(chain[0].split("_")[0]):
                 continue
             top, bottom = (int(model.frames[model.getFrameId(n)].parentJoint) for n in (chain[0], chain[-1]))
             if relative_motion(model, top, bottom, scope.active):
