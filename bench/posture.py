@@ -14,6 +14,9 @@ Prints JSON lines:
   below the right shoulder, the share with the elbow above the shoulder;
 * ``near_limits``: the share of right-hand answers with an arm joint within
   5 deg of a limit;
+* ``near_limits_spine_low``: of answers to goals low in front (z 0.1-0.7 m,
+  where the trunk strategies answer), the share with a lumbar, thoracic or
+  neck joint within 5 deg of a limit;
 * ``neighbours``: over pairs of goals 1 cm apart answered by the same
   strategy, the 99th percentile and maximum of the largest joint change
   [deg], asked independently and asked with the first answer as ``from``,
@@ -45,6 +48,7 @@ from reach.select import Selector
 from reach.store import load_atlas
 from reach.tree import INNER
 
+SPINE = ("lumbar_", "thoracic_", "neck_")  # the trunk and neck joints of the generated human
 ARM_JOINTS = ("shoulder", "elbow", "forearm", "wrist")
 LOW_POINTS = ((0.25, -0.15), (0.35, -0.2), (0.5, -0.2), (0.6, -0.2), (0.7, -0.2))  # [m] in front of the feet
 
@@ -124,6 +128,17 @@ def main() -> None:
             elbow_high += int(elbow[2] > frames["right_shoulder"][2])
     emit(bench="elbow", goals_in_front_below_shoulder=front_low, elbow_above_shoulder=elbow_high, share=elbow_high / max(front_low, 1))
     emit(bench="near_limits", answers=answered, within_5deg=near, share=near / max(answered, 1))
+    # Low in front the trunk strategies answer, and at the edges of their
+    # volumes the spine bends and twists to its limits (README, "Found and left").
+    low = np.random.default_rng(4).uniform([0.2, -0.5, 0.1], [0.7, 0.1, 0.7], (args.goals, 3))
+    spine_idx = [k for k, n in enumerate(tree_names) if n.startswith(SPINE)]
+    spine, low_answered = 0, 0
+    for a in selector.select_many("right_hand", low):
+        if a.reachable and a.posture is not None:
+            low_answered += 1
+            q = body.configuration(a.posture, a.root)
+            spine += int(any(q[k] - lo[k] < np.radians(5) or hi[k] - q[k] < np.radians(5) for k in spine_idx))
+    emit(bench="near_limits_spine_low", answers=low_answered, within_5deg=spine, share=spine / max(low_answered, 1))
 
     # Goals in front of the chest (mostly the arm and the upper body), and low
     # in front (the upper body, the whole body and the crouch).
