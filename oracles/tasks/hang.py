@@ -99,14 +99,11 @@ class HangTask(HardTask):
         return [(a, b) for ids in self._ids for a, b in zip(ids, ids[1:], strict=False)]
 
     def constraints(self, sym: Symbolic) -> list[Constraint]:
-        c = math.cos(self.cone)
         out = []
-        names = [n for chain in self.chains for n in chain]
-        ids = [i for chain in self._ids for i in chain]
-        where = dict(zip(ids, names, strict=True))
-        for a, b in self._links():
-            pa, pb = sym.kin.frame(where[a])[1], sym.kin.frame(where[b])[1]
-            out.append(Constraint(pa[2] - pb[2] - c * ca.norm_2(pb - pa), 0.0, np.inf))
+        for chain in self.chains:
+            for a, b in zip(chain, chain[1:], strict=False):
+                pa, pb = sym.kin.frame(a)[1], sym.kin.frame(b)[1]
+                out.append(Constraint(pa[2] - pb[2] - math.cos(self.cone) * ca.norm_2(pb - pa), 0.0, np.inf))
         return out
 
     def _slack(self, num: Numeric, a: int, b: int) -> tuple[float, np.ndarray]:
@@ -128,4 +125,4 @@ class HangTask(HardTask):
         return all(self._slack(num, a, b)[0] >= -HOLD_TOL for a, b in self._links())
 
     def describe(self) -> dict[str, Any]:
-        return {**super().describe(), "chains": [list(c) for c in self.chains], "cone": self.cone}
+        return {**super().describe(), "chains": [list(c) for c in self.chains], "cone_deg": round(math.degrees(self.cone), 3)}
