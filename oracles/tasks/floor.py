@@ -14,9 +14,9 @@ rows of the human's whole body (two per moving capsule) bind only for goals
 near the floor, yet as constraints of every program they cost each fatrop
 iteration (replayed D_max 7 whole-body vertices, one process: 4.96 against
 4.49 ms per goal, the reach stage 2.69 against 2.21 ms, same verdicts).
-The effector's rows stay exact: for a goal
-at the floor, cuts on the hand, which turns about the goal, chased a 3 mm
-overshoot from end to end and missed reachable goals.
+The effector's rows stay exact: for a goal at the floor, cuts on the hand,
+which turns about the goal, chased a 3 mm overshoot from end to end and
+missed reachable goals.
 """
 
 from __future__ import annotations
