@@ -50,6 +50,9 @@ from reach.tree import INNER
 
 SPINE = ("lumbar_", "thoracic_", "neck_")  # the trunk and neck joints of the generated human
 ARM_JOINTS = ("shoulder", "elbow", "forearm", "wrist")
+FRONT_BOX = ([0.1, -0.6, 0.7], [0.6, 0.0, 1.7])  # [m] goals in front of the chest (the arm and the upper body answer)
+LOW_BOX = ([0.2, -0.5, 0.1], [0.7, 0.1, 0.7])  # [m] goals low in front (the trunk strategies answer)
+NEAR_LIMIT = np.radians(5.0)  # [rad] a joint this close to a limit counts as at it
 LOW_POINTS = ((0.25, -0.15), (0.35, -0.2), (0.5, -0.2), (0.6, -0.2), (0.7, -0.2))  # [m] in front of the feet
 
 
@@ -112,14 +115,18 @@ def main() -> None:
     answers = selector.select_many("right_hand", goals)
     elbow_high, front_low, near = 0, 0, 0
     arm_idx = [k for k, n in enumerate(tree_names) if n.startswith("right_") and any(j in n for j in ARM_JOINTS)]
-    lo, hi = body.model.lowerPositionLimit, body.model.upperPositionLimit
+    lower, upper = body.model.lowerPositionLimit, body.model.upperPositionLimit
+
+    def near_limit(q: np.ndarray, idx: list[int]) -> bool:
+        return any(q[k] - lower[k] < NEAR_LIMIT or upper[k] - q[k] < NEAR_LIMIT for k in idx)
+
     answered = 0
     for g, a in zip(goals, answers, strict=True):
         if not a.reachable or a.posture is None:
             continue
         answered += 1
         q = body.configuration(a.posture, a.root)
-        if any(q[k] - lo[k] < np.radians(5) or hi[k] - q[k] < np.radians(5) for k in arm_idx):
+        if near_limit(q, arm_idx):
             near += 1
         if a.strategy == "right_arm" and g[0] >= 0.25 and g[2] < shoulder_z:
             front_low += 1
@@ -130,21 +137,21 @@ def main() -> None:
     emit(bench="near_limits", answers=answered, within_5deg=near, share=near / max(answered, 1))
     # Low in front the trunk strategies answer, and at the edges of their
     # volumes the spine bends and twists to its limits (README, "Found and left").
-    low = np.random.default_rng(4).uniform([0.2, -0.5, 0.1], [0.7, 0.1, 0.7], (args.goals, 3))
+    low = np.random.default_rng(4).uniform(*LOW_BOX, (args.goals, 3))
     spine_idx = [k for k, n in enumerate(tree_names) if n.startswith(SPINE)]
     spine, low_answered = 0, 0
     for a in selector.select_many("right_hand", low):
         if a.reachable and a.posture is not None:
             low_answered += 1
             q = body.configuration(a.posture, a.root)
-            spine += int(any(q[k] - lo[k] < np.radians(5) or hi[k] - q[k] < np.radians(5) for k in spine_idx))
+            spine += int(near_limit(q, spine_idx))
     emit(bench="near_limits_spine_low", answers=low_answered, within_5deg=spine, share=spine / max(low_answered, 1))
 
     # Goals in front of the chest (mostly the arm and the upper body), and low
     # in front (the upper body, the whole body and the crouch).
-    for region, seed, lo, hi in (("front", 2, [0.1, -0.6, 0.7], [0.6, 0.0, 1.7]), ("low", 3, [0.2, -0.5, 0.1], [0.7, 0.1, 0.7])):
+    for region, seed, box in (("front", 2, FRONT_BOX), ("low", 3, LOW_BOX)):
         pairs = np.random.default_rng(seed)
-        base = pairs.uniform(lo, hi, (args.pairs, 3))
+        base = pairs.uniform(*box, (args.pairs, 3))
         step = pairs.normal(size=base.shape)
         step *= 0.01 / np.linalg.norm(step, axis=1, keepdims=True)
         for mode in ("independent", "from"):
