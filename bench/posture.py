@@ -1,6 +1,6 @@
 """How human are the answers? The figures of the issue "Human answers", measured on an atlas.
 
-Usage: python bench/posture.py ATLAS [--goals 200] [--pairs 100]
+Usage: python bench/posture.py ATLAS [--goals 200] [--pairs 100] [--handover-deg 5]
 
 Prints JSON lines:
 
@@ -21,12 +21,14 @@ Prints JSON lines:
   strategy, the 99th percentile and maximum of the largest joint change
   [deg], asked independently and asked with the first answer as ``from``,
   in front of the chest and low in front (where the trunk strategies answer);
+  and how many pairs the selector answered with two strategies (a jump too);
 * ``lowest``: the lowest reachable grip-centre height [m] of the whole body
   and of crouch in front of the feet: the lowest reachable vertex
   (0.1 <= x <= 0.5 m, |y| <= 0.3 m), and, independent of the resolution, the
   height found by bisection with the strategy's referee at three points.
 
-Goals are drawn with fixed seeds, one stream per measure, so figures are repeatable and
+The selector hands goals over as a server does (``--handover-deg``, default
+5; 0 for the paper's plain priority). Goals are drawn with fixed seeds, one stream per measure, so figures are repeatable and
 every atlas is measured on the same goals.
 """
 
@@ -34,6 +36,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import platform
 from pathlib import Path
 
@@ -44,7 +47,7 @@ from oracles.problem import ReachProblem
 from oracles.protocol import OracleSpec
 from oracles.strategy import parse_strategy
 from oracles.tasks.base import moved
-from reach.select import Selector
+from reach.select import HANDOVER, Selector
 from reach.store import load_atlas
 from reach.tree import INNER
 
@@ -81,9 +84,11 @@ def main() -> None:
     parser.add_argument("--goals", type=int, default=200)
     parser.add_argument("--pairs", type=int, default=100)
     parser.add_argument("--budget", type=float, default=0.5, help="refinement budget [s] (generous: figures, not latency)")
+    parser.add_argument("--handover-deg", type=float, default=math.degrees(HANDOVER), help="the selector's handover margin [deg]")
     args = parser.parse_args()
     atlas = load_atlas(args.atlas)
-    emit(bench="machine", python=platform.python_version(), processor=platform.processor() or platform.machine(), atlas=str(Path(args.atlas)))
+    emit(bench="machine", python=platform.python_version(), processor=platform.processor() or platform.machine(), atlas=str(Path(args.atlas)),
+         handover_deg=args.handover_deg)
     rng = np.random.default_rng(0)
     specs = {name: OracleSpec.from_dict(tree.meta["oracle"]) for name, tree in atlas.trees.items()}
     body = load_body(next(iter(specs.values())).params["body"])
@@ -106,7 +111,7 @@ def main() -> None:
         emit(bench="inside_body", strategy=name, static_capsules=len(static), share=share)
         emit(bench="stored_collisions", strategy=name, postures=int(rows.size), share=float(np.mean(colliding)))
 
-    selector = Selector(atlas, budget=args.budget).warm_up()
+    selector = Selector(atlas, budget=args.budget, handover=math.radians(args.handover_deg)).warm_up()
     tree_names = list(atlas.trees["right_arm"].vertices.posture_names)
     shoulder_z = body.frame_positions(names=["right_shoulder"])["right_shoulder"][2]
     # Each measure draws from its own stream: the goals do not depend on how
@@ -155,17 +160,18 @@ def main() -> None:
         step = pairs.normal(size=base.shape)
         step *= 0.01 / np.linalg.norm(step, axis=1, keepdims=True)
         for mode in ("independent", "from"):
-            changes, used = [], set()
+            changes, used, switches = [], set(), 0
             for g, s in zip(base, step, strict=True):
                 a = selector.select("right_hand", g)
                 b = selector.select("right_hand", g + s, start=_joints(a) if mode == "from" else None)
                 if a.reachable and b.reachable and a.strategy == b.strategy and a.posture and b.posture:
                     changes.append(max(abs(a.posture[k] - b.posture[k]) for k in a.posture))
                     used.add(a.strategy)
+                switches += int(a.reachable and b.reachable and a.strategy != b.strategy)  # a change of strategy: a jump of its own
             c = np.degrees(changes) if changes else np.zeros(1)
             emit(bench="neighbours", region=region, mode=mode, pairs=len(changes), strategies=sorted(used),
                  p99_deg=round(float(np.percentile(c, 99)), 2), max_deg=round(float(c.max()), 2),
-                 over_10deg=int(np.sum(c > 10)), median_deg=round(float(np.median(c)), 3))
+                 over_10deg=int(np.sum(c > 10)), median_deg=round(float(np.median(c)), 3), strategy_switches=switches)
 
     for name in ("right_whole_body", "right_crouch"):
         if name not in atlas.trees:

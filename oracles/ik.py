@@ -185,6 +185,10 @@ class IKOracle(ABC):
         pts = check_points(points, 3)
         return np.array([self.problem.check(np.asarray(q, float), g, self._data).reachable for g, q in zip(pts, postures, strict=True)], bool)
 
+    def limits_near(self, posture: np.ndarray, margin: float) -> list[str]:
+        """The joint limits a posture comes within margin [rad or m] of (see :meth:`ReachProblem.limits_near`)."""
+        return self.problem.limits_near(np.asarray(posture, float), float(margin))
+
     def keep_out(self) -> np.ndarray:
         """Capsules (K, 7) that hold no reachable point: the static segments the effector may not enter."""
         out = [c for t in self.strategy.hard for c in t.keep_out()]

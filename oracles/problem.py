@@ -52,6 +52,7 @@ class ReachProblem:
         self.effector_id = body.frame_id(strategy.effector)
         lo: list[float] = []
         hi: list[float] = []
+        limited: list[bool] = []  # whether a coordinate has a joint range (not the root, not an unbounded revolute)
         self.x_names: list[str] = []
         self.joint_ids: list[int] = []
         for name in strategy.joints:
@@ -60,6 +61,7 @@ class ReachProblem:
                 p0 = body.q_ref[:3]
                 lo += [*(p0 - 1.5), -np.pi / 2, -np.pi / 2, -np.pi]
                 hi += [*(p0 + 1.5), np.pi / 2, np.pi / 2, np.pi]
+                limited += [False] * 6
                 continue
             j = body.joint_id(name)
             jm = model.joints[j]
@@ -67,6 +69,7 @@ class ReachProblem:
                 raise ModelError(f"{body.source}: joint {name!r} has {jm.nv} degrees of freedom; only the root and one-axis joints can be active")
             self.joint_ids.append(j)
             self.x_names.append(name)
+            limited.append(jm.nq == 1)
             if jm.nq == 2:  # unbounded revolute, stored as (cos, sin)
                 lo.append(-2 * np.pi)
                 hi.append(2 * np.pi)
@@ -74,6 +77,7 @@ class ReachProblem:
                 lo.append(float(model.lowerPositionLimit[jm.idx_q]))
                 hi.append(float(model.upperPositionLimit[jm.idx_q]))
         self.lower, self.upper = np.array(lo), np.array(hi)
+        self.limited = np.array(limited, bool)
         self.nx = len(self.x_names)
         # Symbolic x -> q: locked coordinates keep their reference values.
         xs = ca.SX.sym("x", self.nx)
@@ -208,6 +212,22 @@ class ReachProblem:
         """Distance [m] from the effector at posture q to goal."""
         pin.framesForwardKinematics(self.body.model, data, q)
         return float(np.linalg.norm(data.oMf[self.effector_id].translation - goal))
+
+    def limits_near(self, q: np.ndarray, margin: float) -> list[str]:
+        """The limits q comes within ``margin`` [rad or m] of: active joints' range ends (``name (lower)``,
+        ``name (upper)``) and the hard tasks' coupled limits; not those the reference posture rests at
+        (a straight knee stands at the end of its range)."""
+        x = self.x_of_q(q)
+        out = []
+        for k in np.nonzero(self.limited)[0]:
+            for end, gap, rest in (("lower", x[k] - self.lower[k], self.x_ref[k] - self.lower[k]),
+                                   ("upper", self.upper[k] - x[k], self.upper[k] - self.x_ref[k])):
+                if gap < margin <= rest:
+                    out.append(f"{self.x_names[k]} ({end})")
+        for t in self.strategy.hard:
+            rest_slacks = t.limit_slacks(self.body.q_ref)
+            out += [name for name, slack in t.limit_slacks(q).items() if slack < margin <= rest_slacks[name]]
+        return out
 
     # -- the verdict -------------------------------------------------------
     def within_limits(self, q: np.ndarray) -> bool:

@@ -24,7 +24,10 @@ Oracles may also offer optional capabilities, each a protocol of its own;
 * :class:`Continuing`: answers from the character's current posture;
 * :class:`Preparable`: build now what the first evaluate would build;
 * :class:`Mirrorable`: the map of postures to their mirror images about
-  y = 0, for deriving left-side trees from right-side ones.
+  y = 0, for deriving left-side trees from right-side ones;
+* :class:`Limited`: the joint limits a posture comes near, so that the
+  selector may hand a goal over to the next strategy rather than answer
+  with a body bent to its limits.
 
 ``reach`` asks nothing else: not an oracle's parameters, registry names or
 internals, so a third-party oracle registered through the ``reach.oracles``
@@ -220,6 +223,16 @@ class Mirrorable(Protocol):
 
     def mirror(self) -> Callable[[np.ndarray], np.ndarray]:
         """The map of (..., nq) postures to their mirror images; raises ModelError when the body is not symmetric."""
+        ...
+
+
+@runtime_checkable
+class Limited(Protocol):
+    """An oracle whose postures have joint limits (ranges, and limits coupled between joints)."""
+
+    def limits_near(self, posture: np.ndarray, margin: float) -> list[str]:
+        """The limits (active joints' range ends, coupled limits) the posture (nq,) comes within ``margin``
+        [rad or m] of, by name; not those the reference posture rests at."""
         ...
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 from collections.abc import Sequence
@@ -18,7 +19,7 @@ import numpy as np
 
 from reach import protocol as P
 from reach.errors import InputError, ReachError
-from reach.select import REFINE_BUDGET
+from reach.select import HANDOVER, REFINE_BUDGET
 from reach.tree import DEFAULT_POLICY, POLICIES
 
 QUERY_BUDGET = 1.0  # [s] default refinement budget of a local `reach query`: one question, no frame to keep
@@ -141,7 +142,8 @@ def cmd_query(args: argparse.Namespace) -> int:
         from reach.select import Selector
         from reach.store import load_atlas
 
-        selector = Selector(load_atlas(atlas), policy=args.policy, refine=refine is not False, budget=args.budget_ms / 1000.0)  # type: ignore[arg-type]
+        selector = Selector(load_atlas(atlas), policy=args.policy, refine=refine is not False, budget=args.budget_ms / 1000.0,  # type: ignore[arg-type]
+                            handover=_handover(args))
         effectors = [args.effector] if args.effector else selector.effectors
         answers = [selector.select(e, np.array(goal), start=start).to_dict() for e in effectors]
     if args.json:
@@ -183,7 +185,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
     if workers < 0:
         raise InputError("--workers", f"expected 0 or more worker processes, got {workers}")
     server = Server(args.atlas, args.bind, None if args.pub == "none" else args.pub, policy=args.policy,
-                    refine=not args.no_refine, budget=args.budget_ms / 1000.0, curve_secret=args.curve_secret_key, workers=workers)
+                    refine=not args.no_refine, budget=args.budget_ms / 1000.0, curve_secret=args.curve_secret_key, workers=workers,
+                    handover=_handover(args))
     print(f"serving {args.atlas} on {server.endpoint}" + (f", publishing on {server.pub_endpoint}" if server.pub_endpoint else ""), flush=True)
     server.serve_forever()
     print("server stopped", flush=True)
@@ -330,6 +333,18 @@ def _add_executor_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scheduler", metavar="ADDR", help="run on the Dask cluster at ADDR, e.g. tcp://10.0.0.5:8786")
 
 
+def _handover_option(p: argparse.ArgumentParser, where: str = "") -> None:
+    p.add_argument("--handover-deg", type=float, default=math.degrees(HANDOVER), metavar="DEG",
+                   help=f"{where}a strategy whose posture has joints within DEG of their limits hands the goal to the next that "
+                        f"reaches it with fewer (default {math.degrees(HANDOVER):g}; 0: the paper's plain priority)")
+
+
+def _handover(args: argparse.Namespace) -> float:
+    if not (math.isfinite(args.handover_deg) and args.handover_deg >= 0):
+        raise InputError("--handover-deg", f"expected 0 or more degrees, got {args.handover_deg}")
+    return math.radians(args.handover_deg)
+
+
 def _policy_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--policy", default=DEFAULT_POLICY, choices=POLICIES, help=f"how boundary cells answer (default: {DEFAULT_POLICY})")
 
@@ -376,6 +391,7 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--budget-ms", type=float, default=QUERY_BUDGET * 1000,
                    help=f"reading an atlas: time budget of the IK refinement [ms] (default {QUERY_BUDGET * 1000:g}: a one-off question "
                         f"lets it converge; a server's default is {REFINE_BUDGET * 1000:g}, a frame)")
+    _handover_option(p, "reading an atlas: ")
     p.add_argument("--timeout", type=int, default=2500, help="with --connect: ms to wait for each reply (default 2500)")
     p.add_argument("--curve-server-key", metavar="FILE", help="with --connect: the server's CURVE public-key file")
     p.add_argument("--json", action="store_true", help="machine-readable output")
@@ -393,6 +409,7 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--budget-ms", type=float, default=REFINE_BUDGET * 1000, help=f"time budget of one IK refinement [ms] (default {REFINE_BUDGET * 1000:g})")
     p.add_argument("--curve-secret-key", metavar="FILE", help="encrypt with CURVE, using this server secret-key file (zmq.auth.create_certificates)")
     p.add_argument("--workers", type=int, metavar="N", help="refinement worker processes (default: all cores; 0 refines in the request loop)")
+    _handover_option(p)
     p.set_defaults(func=cmd_serve)
 
     p = sub.add_parser("keys", help="write a CURVE key pair", description="Write a CURVE key pair (ZeroMQ certificate files NAME.key and NAME.key_secret) for 'reach serve --curve-secret-key' and its clients. See docs/protocol.md.")

@@ -7,11 +7,30 @@ nearest reachable vertex of that tree, then is refined by the strategy's own
 IK at the exact goal within a time budget: the paper's "additional inverse
 kinematics simulation". If refinement fails or runs out of time, the answer
 keeps the stored posture and says so.
+
+**Handover.** A strategy that reaches a goal only with joints at (within
+``handover``, default 5 deg, of) the end of their range or a coupled limit
+passes the goal to the next strategy by priority that reaches it with fewer
+joints at their limits; if none does, it answers itself. Limits the
+reference posture rests at do not count (a straight knee stands at the end
+of its range). This is the
+paper's own future work ("the high-level library could exploit low level
+information (i.e. joint level) that would drive the human to do the
+reaching with another strategy", section 6): without it the upper body,
+first by priority, answered goals at knee height with the lumbar spine at
+its 60 deg limit and the neck fully flexed, the pelvis upright, where a
+person bends at the hips (forward bending is lumbar and hip flexion
+together, the lumbar spine leading only at its start: the lumbopelvic
+rhythm, reviewed by Vazirian, Van Dillen & Bazrgari 2016, Int Musculoskelet
+Med 38:51-58). 5 deg is the margin the project's posture figures count as
+"at a limit" (``bench/posture.py``), a modelling choice. ``handover=0``
+keeps the paper's plain priority.
 """
 
 from __future__ import annotations
 
 import json
+import math
 import time
 from collections import OrderedDict
 from dataclasses import dataclass, field
@@ -20,7 +39,16 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
-from oracles.protocol import Continuing, EffectorPositions, ModelHashed, Oracle, OracleSpec, Preparable, Tunable
+from oracles.protocol import (
+    Continuing,
+    EffectorPositions,
+    Limited,
+    ModelHashed,
+    Oracle,
+    OracleSpec,
+    Preparable,
+    Tunable,
+)
 from reach.errors import InputError, ModelMismatch, UnknownEffector, UnknownPolicy
 from reach.store import Atlas
 from reach.tree import DEFAULT_POLICY, POLICIES, Policy, VATree
@@ -34,6 +62,7 @@ UNAVAILABLE = "unavailable"  # the strategy's oracle stores no postures (analyti
 NONE = "none"  # no strategy reaches the goal: there is no posture to refine
 POSTURE_CACHE = 4096  # stored postures kept encoded, most recently used first
 REFINE_BUDGET = 0.02  # [s] default time budget of one refinement (a frame at 50 Hz)
+HANDOVER = math.radians(5.0)  # [rad] a joint this near a limit passes the goal on (see the module docstring)
 
 
 @dataclass(frozen=True)
@@ -45,7 +74,9 @@ class Answer:
         goal: The goal [m] in the atlas's world frame.
         strategy: The chosen strategy, or None when none reaches.
         reachable: Whether any strategy reaches the goal.
-        alternatives: Other strategies that also reach it, in priority order.
+        alternatives: Other strategies that also reach it, in priority order
+            (one before the chosen strategy was passed over: its posture had
+            more joints at their limits; see the module docstring).
         posture: Joint name -> angle [rad] (or length [m] for prisms), or None.
         root: Pose of a floating base, ``{"position": [x, y, z], "quaternion":
             [qx, qy, qz, qw]}`` [m], or None.
@@ -113,11 +144,18 @@ class Selector:
         policy: How boundary cells answer (see :meth:`VATree.contains`).
         refine: Refine postures by IK at the exact goal by default.
         budget: Time budget of one refinement [s].
+        handover: [rad] A posture with joints this near their limits passes
+            the goal to the next strategy that reaches it with fewer (see the
+            module docstring); 0 keeps the plain priority.
     """
 
-    def __init__(self, atlas: Atlas, policy: Policy = DEFAULT_POLICY, refine: bool = True, budget: float = REFINE_BUDGET) -> None:
+    def __init__(self, atlas: Atlas, policy: Policy = DEFAULT_POLICY, refine: bool = True, budget: float = REFINE_BUDGET,
+                 handover: float = HANDOVER) -> None:
         if policy not in POLICIES:
             raise UnknownPolicy(policy, POLICIES)
+        if not (math.isfinite(handover) and handover >= 0):
+            raise InputError("handover", f"expected a margin of 0 rad or more, got {handover!r}")
+        self.handover = float(handover)
         self.atlas = atlas
         self.policy = policy
         self.refine = refine
@@ -256,42 +294,66 @@ class Selector:
         name, tree = hits[0], self.atlas.trees[hits[0]]
         posture = root = residual = fragment = None
         outcome = UNAVAILABLE
+        others = hits[1:]
         if nearest is not None:
             row, reached = nearest
             # The stored residual is the vertex's own; what matters is the distance to this goal
             # (unknown when the oracle cannot place its effector).
             gap = float(np.linalg.norm(goal - reached))
             residual = gap if np.isfinite(gap) else None
-            outcome = SKIPPED
+            q, outcome = tree.vertices.posture[row], SKIPPED  # type: ignore[index]
             if refine:
-                q, residual, outcome = self._refine(name, goal, tree.vertices.posture[row], residual, start)  # type: ignore[index]
-                if outcome == FAILED:
-                    # The IK says this strategy does not reach the exact goal
-                    # (its tree said so from a coarse cell): the next strategy
-                    # by priority that does answers; else this one's stored posture.
-                    found = self._next_reaching(goal, hits[1:], start)
-                    if found is not None:
-                        name, q, residual = found
-                        tree, hits, outcome = self.atlas.trees[name], hits[hits.index(name) :], REFINED
+                q, residual, outcome = self._refine(name, goal, q, residual, start)
+            found = None
+            if outcome == FAILED:
+                # The IK says this strategy does not reach the exact goal (its
+                # tree said so from a coarse cell): the next strategy by
+                # priority that does answers; else this one's stored posture.
+                found = self._first_answer(goal, others, refine, start)
+                if found is not None:
+                    others = others[others.index(found[0]) + 1 :]
+            elif self.handover and others and outcome in (REFINED, SKIPPED) and (strain := self._strain(name, q)):
+                found = self._first_answer(goal, others, refine, start, below=strain)
+                if found is not None:
+                    others = [h for h in hits if h != found[0]]  # the strategy passed over stays an alternative
+            if found is not None:
+                name, q, residual, outcome, row = found
+                tree = self.atlas.trees[name]
             if outcome == REFINED:
                 posture, root = split_posture(tree.vertices.posture_names, q)
             else:
                 posture, root, fragment = self._stored_posture(name, tree, row)
-        return Answer(effector, tuple(goal.tolist()), name, True, tuple(hits[1:]), posture, root, residual, outcome, time.perf_counter() - t0, fragment)
+        return Answer(effector, tuple(goal.tolist()), name, True, tuple(others), posture, root, residual, outcome, time.perf_counter() - t0, fragment)
 
-    def _next_reaching(self, goal: np.ndarray, names: list[str], start: dict[str, float] | None) -> tuple[str, np.ndarray, float | None] | None:
-        """The first of names (by priority) whose refinement reaches the goal: its name, posture and residual; None if none does."""
+    def _strain(self, name: str, q: np.ndarray) -> int:
+        """How many joint limits a posture of a strategy comes within ``handover`` of (0 when its oracle cannot tell)."""
+        oracle = self._oracle(name)
+        return len(oracle.limits_near(q, self.handover)) if isinstance(oracle, Limited) else 0
+
+    def _first_answer(self, goal: np.ndarray, names: list[str], refine: bool, start: dict[str, float] | None,
+                      below: int | None = None) -> tuple[str, np.ndarray, float | None, str, int] | None:
+        """The first of names (by priority) whose refinement reaches the goal (without refinement: whose tree
+        holds a posture) and, given ``below``, with fewer joints near their limits: its name, posture,
+        residual, refinement outcome and nearest stored row; None if none does or the time runs out."""
         point = goal.tolist()
         for name in names:
             tree = self.atlas.trees[name]
             nearest = self._nearest_row(name, tree, point)
             if nearest is None:
                 continue
-            q, residual, outcome = self._refine(name, goal, tree.vertices.posture[nearest[0]], None, start)  # type: ignore[index]
-            if outcome == REFINED:
-                return name, q, residual
-            if outcome == TIMEOUT:
-                return None  # out of time: no further strategy is tried
+            row, reached = nearest
+            q: np.ndarray = tree.vertices.posture[row]  # type: ignore[index]
+            gap = float(np.linalg.norm(goal - reached))
+            residual: float | None = gap if np.isfinite(gap) else None
+            outcome = SKIPPED
+            if refine:
+                q, residual, outcome = self._refine(name, goal, q, None, start)
+                if outcome == TIMEOUT:
+                    return None  # out of time: no further strategy is tried
+                if outcome != REFINED:
+                    continue
+            if below is None or self._strain(name, q) < below:
+                return name, q, residual, outcome, row
         return None
 
     def _stored_posture(self, name: str, tree: VATree, row: int) -> tuple[dict[str, float], dict[str, list[float]] | None, bytes]:

@@ -42,7 +42,7 @@ import zmq.auth
 
 from reach import protocol as P
 from reach.errors import ReachError, UnknownEffector, UnknownStrategy
-from reach.select import FAILED, REFINE_BUDGET, SKIPPED, TIMEOUT, Selector
+from reach.select import FAILED, HANDOVER, REFINE_BUDGET, SKIPPED, TIMEOUT, Selector
 from reach.store import load_atlas
 from reach.tree import DEFAULT_POLICY
 from reach.workers import EXPIRED, Pool, Task
@@ -78,6 +78,8 @@ class Server:
         policy: Boundary-cell policy of the selector.
         refine: Refine postures by IK unless a request says otherwise.
         budget: Time budget of one refinement [s] (per goal).
+        handover: [rad] A strategy whose posture has joints this near their
+            limits hands the goal over (see :mod:`reach.select`); 0: plain priority.
         curve_secret: Path of the server's CURVE secret-key file, or None.
         context: A zmq context (a new one by default).
         workers: Refinement worker processes; 0 refines in the request loop.
@@ -86,11 +88,11 @@ class Server:
     def __init__(
         self, atlas: str | Path, bind: str = P.DEFAULT_BIND, pub: str | None = P.DEFAULT_PUB, *, policy: str = DEFAULT_POLICY,
         refine: bool = True, budget: float = REFINE_BUDGET, curve_secret: str | Path | None = None, context: zmq.Context | None = None,
-        workers: int = 0,
+        workers: int = 0, handover: float = HANDOVER,
     ) -> None:
         self.atlas_path = Path(atlas)
-        self.policy, self.refine, self.budget = policy, refine, budget
-        self.selector = Selector(load_atlas(self.atlas_path), policy, refine, budget).warm_up()  # type: ignore[arg-type]
+        self.policy, self.refine, self.budget, self.handover = policy, refine, budget, handover
+        self.selector = Selector(load_atlas(self.atlas_path), policy, refine, budget, handover).warm_up()  # type: ignore[arg-type]
         self.context = context or zmq.Context.instance()
         self.router = self.context.socket(zmq.ROUTER)
         self.router.setsockopt(zmq.LINGER, 0)
@@ -124,7 +126,7 @@ class Server:
         self.pending: dict[int, Pending] = {}
         self.by_key: dict[tuple[bytes, bytes], int] = {}
         self._seq = 0
-        self.pool = Pool(self.context, self.atlas_path, policy, budget, int(workers)) if workers > 0 else None
+        self.pool = Pool(self.context, self.atlas_path, policy, budget, int(workers), handover) if workers > 0 else None
 
     # -- lifecycle ---------------------------------------------------------
     def stop(self) -> None:
@@ -349,7 +351,7 @@ class Server:
         if req.op == "reload":
             path = Path(req.path) if req.path else self.atlas_path
             try:
-                selector = Selector(load_atlas(path), self.policy, self.refine, self.budget).warm_up()  # type: ignore[arg-type]
+                selector = Selector(load_atlas(path), self.policy, self.refine, self.budget, self.handover).warm_up()  # type: ignore[arg-type]
             except ReachError as exc:
                 raise P.ProtocolError(P.RELOAD_FAILED, f"kept the current atlas: {exc}", req.id) from None
             self.selector, self.atlas_path = selector, path
@@ -359,7 +361,7 @@ class Server:
                     self.pending[seq].deadline = 0.0
                 self._expire()
                 self.pool.close()
-                self.pool = Pool(self.context, path, self.policy, self.budget, self.pool.size)
+                self.pool = Pool(self.context, path, self.policy, self.budget, self.pool.size, self.handover)
             return {"atlas": str(path), "strategies": len(selector.order)}
         raise P.ProtocolError(P.UNKNOWN_OP, f"unknown op {req.op!r}", req.id)
 

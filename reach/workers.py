@@ -63,6 +63,7 @@ class Pool:
     policy: str
     budget: float
     size: int
+    handover: float = 0.0  # [rad] the selector's (see reach.select)
     backend: Any = None
     processes: list[Any] = field(default_factory=list)
     idle: deque[bytes] = field(default_factory=deque)
@@ -81,7 +82,7 @@ class Pool:
 
     def _start(self, k: int) -> Any:
         """Worker k, a fresh interpreter (no copy of the server's sockets), known to the broker as ``w<k>``."""
-        p = mp.get_context("spawn").Process(target=work, args=(self._address, str(self.atlas), self.policy, self.budget, f"w{k}".encode()), daemon=True)
+        p = mp.get_context("spawn").Process(target=work, args=(self._address, str(self.atlas), self.policy, self.budget, self.handover, f"w{k}".encode()), daemon=True)
         p.start()
         return p
 
@@ -150,7 +151,7 @@ class Pool:
             pass
 
 
-def work(address: str, atlas: str, policy: str, budget: float, identity: bytes) -> None:
+def work(address: str, atlas: str, policy: str, budget: float, handover: float, identity: bytes) -> None:
     """A worker process: refine the tasks the broker sends until it dies with the server."""
     from reach.executor import die_with_parent
     from reach.select import Selector
@@ -162,7 +163,7 @@ def work(address: str, atlas: str, policy: str, budget: float, identity: bytes) 
     except (AttributeError, OSError):
         os.nice(NICE)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group; the server decides
-    selector = Selector(load_atlas(atlas), policy, True, budget).warm_up()  # type: ignore[arg-type]
+    selector = Selector(load_atlas(atlas), policy, True, budget, handover).warm_up()  # type: ignore[arg-type]
     import numpy as np
 
     sock = zmq.Context().socket(zmq.DEALER)

@@ -165,3 +165,35 @@ def test_a_strategy_whose_ik_misses_the_exact_goal_gives_way_to_the_next(tmp_pat
     assert np.linalg.norm(hand_of(answer, body) - goal) <= 0.005
     # A goal the arm does reach keeps the arm.
     assert s.select("right_hand", shoulder + [0.45, 0.0, -0.1]).strategy == "arm"
+
+
+def test_a_strategy_at_its_joint_limits_hands_the_goal_to_the_next(tmp_path):
+    # The upper body (pelvis fixed) reaches a goal low in front only by
+    # pressing the shoulder down to the end of its range; the whole body
+    # bends at the hips instead, clear of every limit (the paper's future
+    # work, section 6: joint-level information drives the choice of strategy).
+    upper = [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*"]
+    natural = [{"type": "reach"}, {"type": "self_collision"}, {"type": "posture"}]
+    strategies = [
+        {"name": "upper", "effector": "right_hand", "priority": 1, "joints": upper, "tasks": natural},
+        {"name": "whole", "effector": "right_hand", "priority": 2, "joints": [*upper, "root", "*_hip_*", "*_ankle_*"],
+         "tasks": [*natural, {"type": "feet", "heels": "down"}, {"type": "balance"}, {"type": "coupling"}]},
+    ]
+    atlas = build_atlas(parse_config(human_config(d_max=2, strategies=strategies, name="bend"), "bend", "bend"), tmp_path / "bend")
+    body = human_body()
+    low, chest = [0.35, -0.2, 0.6], [0.35, -0.25, 1.1]
+    plain = Selector(atlas, policy="optimistic", budget=2.0, handover=0.0).warm_up()
+    first = plain.select("right_hand", low)
+    assert first.strategy == "upper" and first.refined == REFINED  # the paper's plain priority
+    strained = plain._oracle("upper").limits_near(body.configuration(first.posture, first.root), np.radians(5.0))
+    assert strained  # the precondition: without it this test could not fail
+    s = Selector(atlas, policy="optimistic", budget=2.0).warm_up()
+    answer = s.select("right_hand", low)
+    assert answer.strategy == "whole" and answer.alternatives == ("upper",) and answer.refined == REFINED
+    assert len(s._oracle("whole").limits_near(body.configuration(answer.posture, answer.root), np.radians(5.0))) < len(strained)
+    assert np.linalg.norm(hand_of(answer, body) - low) <= 0.005
+    assert s.select("right_hand", low).posture == answer.posture  # the same request, the same answer
+    # A goal at chest height, which the upper body reaches clear of its limits, stays with it.
+    assert s.select("right_hand", chest).strategy == "upper"
+    with pytest.raises(InputError, match="handover"):
+        Selector(atlas, handover=-1.0)

@@ -225,6 +225,31 @@ def test_hip_and_lumbar_flexion_share_a_limit_with_the_knees_straight():
         parse_strategy(body, "right_hand", WHOLE, [{"type": "reach"}, {"type": "coupling", "rules": [{**rule, "joint": []}]}])
 
 
+def test_limits_near_counts_range_ends_and_coupled_limits_but_not_the_ends_the_body_rests_at():
+    body = human_body()
+    problem = ReachProblem(body, parse_strategy(body, "right_hand", WHOLE, [{"type": "reach"}, {"type": "coupling"}]))
+    idx = {n: body.model.joints[body.joint_id(n)].idx_q for n in ("lumbar_flexion", "right_knee_flexion", "right_hip_flexion", "neck_flexion")}
+    margin = np.radians(5.0)
+    # At the reference the knees stand straight, at the end of their range: that is rest, not strain.
+    assert body.model.lowerPositionLimit[idx["right_knee_flexion"]] == body.q_ref[idx["right_knee_flexion"]]
+    assert problem.limits_near(body.q_ref, margin) == []
+
+    def near(**deg: float) -> list[str]:
+        q = body.q_ref.copy()
+        for name, value in deg.items():
+            q[idx[name]] = np.radians(value)
+        return problem.limits_near(q, margin)
+
+    # The lumbar spine's own range is 60 deg of flexion (anthropometry.py).
+    assert near(lumbar_flexion=57.0) == ["lumbar_flexion (upper)"] and near(lumbar_flexion=54.0) == []
+    assert near(neck_flexion=-44.0) == ["neck_flexion (lower)"]
+    # Hamstrings: 80 deg of hip flexion with the knee straight, more with it bent.
+    assert near(right_hip_flexion=77.0) == ["right_hip_flexion"]
+    assert near(right_hip_flexion=77.0, right_knee_flexion=30.0) == []
+    # Hip and lumbar flexion share 90 deg with the knees straight.
+    assert near(right_hip_flexion=40.0, lumbar_flexion=47.0) == ["right_hip_flexion + lumbar_flexion"]
+
+
 @pytest.mark.slow
 def test_a_crouch_reaches_lower_than_the_straight_legged_whole_body():
     from oracles.ik import CasadiIK

@@ -306,6 +306,10 @@ class HardTask(Task):
         """Capsules (a, b [m], radius [m]; world frame) the task keeps every reachable point out of."""
         return []
 
+    def limit_slacks(self, q: np.ndarray) -> dict[str, float]:
+        """How far [rad or m] configuration q keeps from each joint limit this task sets, by the limit's name (none: empty)."""
+        return {}
+
 
 class SoftTask(Task):
     """An objective, minimised lexicographically below the tasks of higher priority.

@@ -146,5 +146,8 @@ class CouplingTask(HardTask):
                 out.append(Row(jac, np.array([max(0.0, INSIDE - slack)])))
         return out
 
+    def limit_slacks(self, q: np.ndarray) -> dict[str, float]:
+        return {" + ".join(r.joints): float(r.limit + r.slope * q[r.iby] - sum(q[i] for i in r.iq)) for r in self.rules}
+
     def holds(self, num: Numeric) -> bool:
         return all(sum(num.q[i] for i in r.iq) - r.slope * num.q[r.iby] <= r.limit + LIMIT_TOL for r in self.rules)
