@@ -153,6 +153,8 @@ def cmd_query(args: argparse.Namespace) -> int:
         if a["reachable"]:
             also = f" (also: {', '.join(a['alternatives'])})" if a["alternatives"] else ""
             print(f"{a['effector']}: goal {a['goal']} reachable with strategy {a['strategy']}{also}")
+            if a.get("handover"):
+                print(f"  handed over by {a['handover']['from']}, whose posture came near these limits: {', '.join(a['handover']['limits'])}")
             if a.get("posture"):
                 moved = {k: round(v, 4) for k, v in a["posture"].items() if abs(v) > 1e-9}
                 print(f"  posture [rad] (refined: {a['refined']}, residual {a['residual']:.2e} m): {moved}")

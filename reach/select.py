@@ -83,6 +83,9 @@ class Answer:
         residual: Effector-to-goal distance [m] of that posture, or None.
         refined: One of ``ok``, ``failed``, ``timeout``, ``skipped``, ``unavailable``, or ``none`` for an unreachable goal.
         seconds: Time spent answering [s].
+        handover: When a strategy of higher priority passed the goal over,
+            ``{"from": its name, "limits": the limits its posture came
+            near}`` (see the module docstring); else None.
     """
 
     effector: str
@@ -95,6 +98,7 @@ class Answer:
     residual: float | None = None
     refined: str = SKIPPED
     seconds: float = 0.0
+    handover: dict[str, Any] | None = None
     posture_json: bytes | None = field(default=None, repr=False, compare=False)
 
     def to_json(self) -> bytes:
@@ -109,7 +113,7 @@ class Answer:
         return {
             "effector": self.effector, "goal": list(self.goal), "strategy": self.strategy, "reachable": self.reachable,
             "alternatives": list(self.alternatives), "posture": self.posture, "root": self.root,
-            "residual": self.residual, "refined": self.refined, "seconds": self.seconds,
+            "residual": self.residual, "refined": self.refined, "seconds": self.seconds, "handover": self.handover,
         }
 
 
@@ -293,6 +297,7 @@ class Selector:
             return Answer(effector, tuple(goal.tolist()), None, False, refined=NONE, seconds=time.perf_counter() - t0)
         name, tree = hits[0], self.atlas.trees[hits[0]]
         posture = root = residual = fragment = None
+        handover: dict[str, Any] | None = None
         outcome = UNAVAILABLE
         others = hits[1:]
         if nearest is not None:
@@ -312,10 +317,11 @@ class Selector:
                 found = self._first_answer(goal, others, refine, start)
                 if found is not None:
                     others = others[others.index(found[0]) + 1 :]
-            elif self.handover and others and outcome in (REFINED, SKIPPED) and (strain := self._strain(name, q)):
-                found = self._first_answer(goal, others, refine, start, below=strain)
+            elif self.handover and others and outcome in (REFINED, SKIPPED) and (limits := self._limits(name, q)):
+                found = self._first_answer(goal, others, refine, start, below=len(limits))
                 if found is not None:
                     others = [h for h in hits if h != found[0]]  # the strategy passed over stays an alternative
+                    handover = {"from": name, "limits": limits}
             if found is not None:
                 name, q, residual, outcome, row = found
                 tree = self.atlas.trees[name]
@@ -323,12 +329,13 @@ class Selector:
                 posture, root = split_posture(tree.vertices.posture_names, q)
             else:
                 posture, root, fragment = self._stored_posture(name, tree, row)
-        return Answer(effector, tuple(goal.tolist()), name, True, tuple(others), posture, root, residual, outcome, time.perf_counter() - t0, fragment)
+        return Answer(effector, tuple(goal.tolist()), name, True, tuple(others), posture, root, residual, outcome, time.perf_counter() - t0,
+                      handover, fragment)
 
-    def _strain(self, name: str, q: np.ndarray) -> int:
-        """How many joint limits a posture of a strategy comes within ``handover`` of (0 when its oracle cannot tell)."""
+    def _limits(self, name: str, q: np.ndarray) -> list[str]:
+        """The joint limits a posture of a strategy comes within ``handover`` of (none when its oracle cannot tell)."""
         oracle = self._oracle(name)
-        return len(oracle.limits_near(q, self.handover)) if isinstance(oracle, Limited) else 0
+        return list(oracle.limits_near(q, self.handover)) if isinstance(oracle, Limited) else []
 
     def _first_answer(self, goal: np.ndarray, names: list[str], refine: bool, start: dict[str, float] | None,
                       below: int | None = None) -> tuple[str, np.ndarray, float | None, str, int] | None:
@@ -352,7 +359,7 @@ class Selector:
                     return None  # out of time: no further strategy is tried
                 if outcome != REFINED:
                     continue
-            if below is None or self._strain(name, q) < below:
+            if below is None or len(self._limits(name, q)) < below:
                 return name, q, residual, outcome, row
         return None
 

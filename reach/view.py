@@ -15,7 +15,8 @@ the wheel: the page works offline). The scene, in the atlas's world frame
 * a goal to drag (a transform gizmo) or to type; every move asks the
   selector (or a running ``reach serve``, ``--connect``), and the panel shows
   the strategy, its colour, the alternatives, whether the posture was
-  refined and its residual, or that the goal is unreachable.
+  refined and its residual, the strategy that handed the goal over and the
+  limits its posture came near, or that the goal is unreachable.
 
 Several atlases (a population study) stand side by side, ``spacing`` metres
 apart along y, each with its own colours. :class:`Viewer` is also the
@@ -348,8 +349,9 @@ class Viewer:
             r, g, b = (int(c) for c in scene.colours[names.index(a["strategy"])])
             alt = ", ".join(a["alternatives"]) or "none"
             residual = "n/a" if a["residual"] is None else f"{1000 * a['residual']:.1f} mm"
+            passed = f"  \nhanded over by {a['handover']['from']} (at its limits: {', '.join(a['handover']['limits'])})" if a.get("handover") else ""
             lines.append(f"**{label}**: <span style='color: rgb({r},{g},{b})'>&#9632;</span> **{a['strategy']}**  \n"
-                         f"alternatives: {alt}  \nrefined: {a['refined']}, residual {residual}")
+                         f"alternatives: {alt}  \nrefined: {a['refined']}, residual {residual}{passed}")
             self.goal_markers[k].color = (r, g, b)
             if scene.shaper is not None and a["posture"] is not None:
                 q = posture_vector(scene.shaper.posture_names, scene.shaper.reference_posture(), a["posture"], a["root"])

@@ -190,6 +190,8 @@ def test_a_strategy_at_its_joint_limits_hands_the_goal_to_the_next(tmp_path):
     s = Selector(atlas, policy="optimistic", budget=2.0).warm_up()
     answer = s.select("right_hand", low)
     assert answer.strategy == "whole" and answer.alternatives == ("upper",) and answer.refined == REFINED
+    assert answer.handover == {"from": "upper", "limits": strained} and first.handover is None
+    assert json.loads(answer.to_json())["handover"] == {"from": "upper", "limits": strained}
     assert len(s._oracle("whole").limits_near(body.configuration(answer.posture, answer.root), np.radians(5.0))) < len(strained)
     assert np.linalg.norm(hand_of(answer, body) - low) <= 0.005
     assert s.select("right_hand", low).posture == answer.posture  # the same request, the same answer
