@@ -10,6 +10,7 @@ from helpers import ARM, human_config
 
 from oracles.body import human_body
 from reach.atlas import build_atlas
+from reach.cli import main
 from reach.config import parse_config
 from reach.errors import InputError, ModelMismatch, UnknownEffector, UnknownPolicy
 from reach.select import REFINED, SKIPPED, UNAVAILABLE, Selector
@@ -167,7 +168,7 @@ def test_a_strategy_whose_ik_misses_the_exact_goal_gives_way_to_the_next(tmp_pat
     assert s.select("right_hand", shoulder + [0.45, 0.0, -0.1]).strategy == "arm"
 
 
-def test_a_strategy_at_its_joint_limits_hands_the_goal_to_the_next(tmp_path):
+def test_a_strategy_at_its_joint_limits_hands_the_goal_to_the_next(tmp_path, capsys):
     # The upper body (pelvis fixed) reaches a goal low in front only by
     # pressing the shoulder down to the end of its range; the whole body
     # bends at the hips instead, clear of every limit (the paper's future
@@ -199,3 +200,12 @@ def test_a_strategy_at_its_joint_limits_hands_the_goal_to_the_next(tmp_path):
     assert s.select("right_hand", chest).strategy == "upper"
     with pytest.raises(InputError, match="handover"):
         Selector(atlas, handover=-1.0)
+    # The command line says who handed the goal over, and --handover-deg 0 keeps the plain priority.
+    query = ["query", str(tmp_path / "bend"), *map(str, low), "--effector", "right_hand", "--policy", "optimistic"]
+    assert main(query) == 0
+    out = capsys.readouterr().out
+    assert "strategy whole" in out and f"handed over by upper, whose posture came near these limits: {', '.join(strained)}" in out
+    assert main([*query, "--handover-deg", "0"]) == 0
+    out = capsys.readouterr().out
+    assert "strategy upper" in out and "handed over" not in out
+    assert main([*query, "--handover-deg", "-5"]) == 2 and "--handover-deg: expected 0 or more degrees" in capsys.readouterr().err
