@@ -62,7 +62,8 @@ def main() -> None:
     parser.add_argument("atlas")
     parser.add_argument("-o", "--output", default="docs/figures/postures.png")
     parser.add_argument("--goals", type=_goals, default=GOALS, metavar="X,Y,Z;X,Y,Z...",
-                        help="goals [m] of the right hand, world frame, ';'-separated (default: the README's twelve)")
+                        help="goals [m] of the right hand, world frame, ';'-separated (default: the README's twelve); "
+                             "write --goals=... when the first value is negative")
     args = parser.parse_args()
     goals = args.goals
     atlas = load_atlas(args.atlas)
