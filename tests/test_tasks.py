@@ -72,7 +72,9 @@ def test_soft_objectives_in_casadi_match_pinocchio(problem):
         assert values["reach"] == pytest.approx(s.reach.residual(num) ** 2, rel=1e-9, abs=1e-12)
         eye = num.frame(problem.body.frame_id("eyes"))
         to_goal = goal_v - eye.translation
-        assert values["gaze"] == pytest.approx(1 - eye.rotation[:, 0] @ to_goal / (np.linalg.norm(to_goal) + 1e-9), abs=1e-9)
+        # The line of sight: the eyes' x axis turned 15 deg down about their y axis (z up).
+        sight = eye.rotation @ pin.utils.rotate("y", np.radians(15.0)) @ np.array([1.0, 0.0, 0.0])
+        assert values["gaze"] == pytest.approx(1 - sight @ to_goal / (np.linalg.norm(to_goal) + 1e-9), abs=1e-9)
         span = problem.upper - problem.lower
         assert values["comfort"] == pytest.approx(np.mean(((x - problem.x_ref) / span) ** 2), rel=1e-9)
 
@@ -138,6 +140,7 @@ def test_perpendicular_basis_is_orthonormal_and_normal_to_the_axis():
         ([{"type": "reach"}, {"type": "gaze", "frame": 3}], r"tasks\[1\]\.frame: expected a frame name, got 3"),
         ([{"type": "reach"}, {"type": "gaze", "frame": "third_eye"}], r"tasks\[1\]\.frame: human: no frame 'third_eye'"),
         ([{"type": "reach"}, {"type": "gaze", "cone": 90}], r"tasks\[1\]\.cone: expected a number in \[0.0, 60.0\], got 90"),
+        ([{"type": "reach"}, {"type": "gaze", "down": "low"}], r"tasks\[1\]\.down: expected a number in \[-45.0, 60.0\], got 'low'"),
         ([{"type": "reach"}, {"type": "reach"}], r"tasks\[1\]: a second reach task"),
         ([{"type": "reach", "tolerance": 2}], r"tasks\[0\]\.tolerance: expected a number in \[1e-06, 1.0\], got 2"),
         ([{"type": "reach", "priority": "high"}], r"tasks\[0\]\.priority: expected a number"),
