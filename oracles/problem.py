@@ -110,6 +110,8 @@ class ReachProblem:
         for task in strategy.tasks:
             task.bind(reference)
         self.anchor, self.max_reach = self._reach_bound(data)
+        # The hard tasks' coupled limits at the reference posture: those it rests at are not strain (limits_near).
+        self._rest_slacks = [t.limit_slacks(body.q_ref) for t in strategy.hard]
 
     # -- coordinates -------------------------------------------------------
     def q_of_x(self, x: np.ndarray) -> np.ndarray:
@@ -224,8 +226,7 @@ class ReachProblem:
                                    ("upper", self.upper[k] - x[k], self.upper[k] - self.x_ref[k])):
                 if gap < margin <= rest:
                     out.append(f"{self.x_names[k]} ({end})")
-        for t in self.strategy.hard:
-            rest_slacks = t.limit_slacks(self.body.q_ref)
+        for t, rest_slacks in zip(self.strategy.hard, self._rest_slacks, strict=True):
             out += [name for name, slack in t.limit_slacks(q).items() if slack < margin <= rest_slacks[name]]
         return out
 

@@ -63,7 +63,7 @@ class Pool:
     policy: str
     budget: float
     size: int
-    handover: float = 0.0  # [rad] the selector's (see reach.select)
+    handover: float  # [rad] the selector's (see reach.select)
     backend: Any = None
     processes: list[Any] = field(default_factory=list)
     idle: deque[bytes] = field(default_factory=deque)
