@@ -431,7 +431,7 @@ class CasadiIK(IKOracle):
             nlp = {"x": x, "p": ca.vertcat(params, ca.vec(cut)), "f": task.objective(sym), "g": ca.vertcat(g, *earlier)}
             iters = self.max_iter if k == 0 else self.secondary_iter
             stages.append(self._nlpsol(f"stage_{task.type}{'_cut' if slots else ''}", self.solver, nlp, self._options(self.solver, iters)))
-        self._objective_fns = [ca.Function(t.type, [x, params], [t.objective(sym)]) for t in self.order]
+        self._objective_fns = [ca.Function(t.type, [x, params], [t.measure(sym)]) for t in self.order]
         return stages
 
     def _nlpsol(self, name: str, solver: str, nlp: dict[str, Any], opts: dict[str, Any]) -> ca.Function:

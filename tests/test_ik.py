@@ -338,6 +338,28 @@ def test_refinement_starts_from_the_reference_unless_a_current_posture_is_given(
     assert np.allclose(refine.starts(goal, hint)[0], x_hint)
 
 
+def test_with_a_current_posture_the_reach_stage_moves_it_the_least(monkeypatch):
+    import oracles.tasks.reach as reach_task
+
+    # The demo atlas's crouch and two goals 1 cm apart low beside the right
+    # foot, where the reach-only stage from the first answer wandered into
+    # another posture (bench/posture.py, low in front, pair 197).
+    spec = load_config(ROOT / "configs" / "demo.yaml").strategy("right_crouch").oracle
+    first, second = np.array([[0.4081, -0.4621, 0.1155]]), np.array([[0.3989, -0.4585, 0.1135]])
+
+    def change(proximal: float) -> float:
+        monkeypatch.setattr(reach_task, "PROXIMAL", proximal)
+        refine = OracleSpec(spec.name, {**spec.params, "jit": False}).create().variant("refine", budget=None)
+        a = refine.evaluate(first)
+        b = refine.evaluate_from(second, a.posture[0])
+        assert a.reachable[0] and b.reachable[0]
+        _assert_reachable_verdicts_hold(refine, second, b)
+        return float(np.degrees(np.abs(b.posture[0, 7:] - a.posture[0, 7:]).max()))
+
+    assert change(reach_task.PROXIMAL) < 5.0
+    assert change(0.0) > 10.0  # without the term: the jump the term removes
+
+
 def test_a_settled_warm_start_solves_reach_alone_and_keeps_the_hints_choices(monkeypatch):
     tasks = [{"type": "reach"}, {"type": "posture"}]
     full = CasadiIK(HUMAN, "right_hand", ARM, tasks, restarts=0)

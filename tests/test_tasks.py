@@ -79,6 +79,25 @@ def test_soft_objectives_in_casadi_match_pinocchio(problem):
         assert values["comfort"] == pytest.approx(np.mean(((x - problem.x_ref) / span) ** 2), rel=1e-9)
 
 
+def test_the_reach_stage_measures_the_distance_alone_when_it_pulls_towards_a_current_posture(problem):
+    from oracles.tasks.reach import PROXIMAL
+
+    goal_v = np.array([0.5, -0.3, 1.1])
+    goal, start, weight = ca.SX.sym("goal", 3), ca.SX.sym("start", problem.nx), ca.SX.sym("w", 1)
+    span = problem.upper - problem.lower
+    sym = Symbolic(SymbolicKinematics(problem.body.model, problem.q_sym), problem.x_sym, goal, problem.x_ref, span,
+                   tuple(problem.x_names), problem.lower, start, weight)
+    reach = problem.strategy.reach
+    f = ca.Function("f", [problem.x_sym, goal, start, weight], [reach.objective(sym), reach.measure(sym)])
+    x, current = random_x(problem, 1), random_x(problem, 2)
+    distance = reach.residual(numeric(problem, problem.q_of_x(x), goal_v))
+    objective, measure = (float(v) for v in f(x, goal_v, current, 1.0))
+    # The optimum later stages hold (and the verdict's attained) is the squared distance, without the pull.
+    assert measure == pytest.approx(distance**2, rel=1e-9)
+    assert objective - measure == pytest.approx(PROXIMAL * np.sum(((x - current) / span) ** 2), rel=1e-9)
+    assert float(f(x, goal_v, current, 0.0)[0]) == pytest.approx(measure, rel=1e-12)  # builds: no current posture
+
+
 def test_hard_constraints_in_casadi_hold_at_the_reference_and_agree_with_the_checks(problem):
     goal = ca.SX.sym("goal", 3)
     sym = Symbolic(SymbolicKinematics(problem.body.model, problem.q_sym), problem.x_sym, goal, problem.x_ref, problem.upper - problem.lower)
@@ -188,7 +207,7 @@ def test_the_hamstrings_couple_hip_flexion_to_the_knee():
     s = parse_strategy(body, "right_hand", WHOLE, [{"type": "reach"}, {"type": "coupling"}])
     problem = ReachProblem(body, s)
     coupling = s.task("coupling")
-    assert {r.joint for r in coupling.rules} == {"right_hip_flexion", "left_hip_flexion"}
+    assert {r.joint for r in coupling.rules} == {"right_hip_flexion", "left_hip_flexion", "right_shoulder_abduction"}
     hip, knee = (body.model.joints[body.joint_id(n)].idx_q for n in ("right_hip_flexion", "right_knee_flexion"))
 
     def holds(hip_deg: float, knee_deg: float) -> bool:
@@ -199,6 +218,40 @@ def test_the_hamstrings_couple_hip_flexion_to_the_knee():
     # Straight-leg raise about 80 deg (Magee 2014); with the knee bent 90 deg the full 120 deg.
     assert holds(79.0, 0.0) and not holds(81.0, 0.0)
     assert holds(119.0, 90.0) and not holds(110.0, 60.0) and holds(105.0, 60.0)
+
+
+def test_the_shoulder_coupling_keeps_one_of_the_two_postures_that_point_the_humerus_alike():
+    body = human_body()
+    s = parse_strategy(body, "right_hand", ARM, [{"type": "reach"}, {"type": "coupling"}])
+    problem = ReachProblem(body, s)
+    coupling = s.task("coupling")
+    # The arm alone: the hip rules have nothing to move and are left out.
+    assert [(r.joints, r.by) for r in coupling.rules] == [(("right_shoulder_abduction",), "right_shoulder_flexion")]
+    idx = {n: body.model.joints[body.joint_id(n)].idx_q for n in ("right_shoulder_flexion", "right_shoulder_abduction")}
+
+    def posture(flexion: float, abduction: float) -> np.ndarray:
+        q = body.q_ref.copy()
+        q[idx["right_shoulder_flexion"]], q[idx["right_shoulder_abduction"]] = np.radians([flexion, abduction])
+        return q
+
+    def holds(flexion: float, abduction: float) -> bool:
+        return coupling.holds(numeric(problem, posture(flexion, abduction), np.zeros(3)))
+
+    def elbow(q: np.ndarray) -> np.ndarray:
+        data = body.model.createData()
+        pin.forwardKinematics(body.model, data, q)
+        return data.oMi[body.joint_id("right_elbow_flexion")].translation.copy()
+
+    # Flexion f with abduction a and f - 180 with 180 - a put the elbow at the
+    # same point (Pinocchio): the rule keeps the flexed arm, not the extended one swung past the side.
+    for f, a in ((120.0, 40.0), (150.0, 10.0), (130.0, 60.0)):
+        assert np.allclose(elbow(posture(f, a)), elbow(posture(f - 180.0, 180.0 - a)), atol=1e-9)
+        assert holds(f, a) and not holds(f - 180.0, 180.0 - a)
+    # Near the overhead pole both stay (the arm raised by flexion or by abduction: Codman's paradox).
+    assert holds(170.0, 60.0) and holds(-10.0, 120.0)
+    # Every flexed arm keeps its full abduction; the clinical ends stay; an extended arm is abducted less.
+    assert holds(0.0, 179.0) and holds(179.0, 179.0) and holds(-60.0, -30.0) and holds(-60.0, 59.0)
+    assert holds(-45.0, 89.0) and not holds(-45.0, 91.0) and not holds(-57.0, 140.0)
 
 
 def test_hip_and_lumbar_flexion_share_a_limit_with_the_knees_straight():

@@ -337,6 +337,15 @@ class SoftTask(Task):
     def objective(self, sym: Symbolic) -> ca.SX:
         """The scalar objective of this task's stage."""
 
+    def measure(self, sym: Symbolic) -> ca.SX:
+        """The value a stage's optimum is: what :meth:`held_bounds` and :meth:`attained` judge.
+
+        The objective by default; a task whose objective also steers the
+        solver (a term that only picks among equally good postures) measures
+        without it.
+        """
+        return self.objective(sym)
+
     def held(self, sym: Symbolic) -> ca.SX:
         """What later stages constrain to keep this task's optimum (default: the objective)."""
         return self.objective(sym)

@@ -38,9 +38,32 @@ Without ``rules`` the task applies the couplings of the generated human:
   joints' own ranges (120 + 60) apply again. A crouch therefore reaches
   lower than the straight-legged whole body, as people do.
 
-No other coupling changed a reach volume noticeably enough to model here
-(shoulder abduction with rotation mostly changes how the hand is turned,
-not where it is).
+* **Shoulder: no abduction past the frontal plane with the arm extended.**
+  The shoulder is three revolute joints (flexion, abduction, rotation; an
+  Euler sequence), which reach most humerus directions twice: flexion
+  ``f`` and abduction ``a`` point the arm as ``f - 180 deg`` and
+  ``180 deg - a`` do, the humerus turned half a turn about its own axis.
+  Where the ranges allow both (flexion 120-180 deg), the second is an
+  extended arm swung up past the side (say flexion -57 deg, abduction
+  140 deg for an arm hanging forward), which no person takes: the clinical
+  ranges are measured with abduction in the frontal plane and extension
+  with the arm at the side (AAOS 1965, via Norkin & White 2016, the
+  model's ranges: ``oracles/anthropometry.py``), the humerus's axial
+  rotation is about 160 deg in all (-90 to 70 deg here) and is itself
+  limited by the arm's direction (Wang, X. et al. (1998), *Three-dimensional
+  modelling of the motion range of axial rotation of the upper arm*,
+  J Biomech 31(10), 899-908). Builds and answers took that second posture:
+  2-4 % of the stored postures of the trunk strategies (default atlas,
+  session 8), and two goals 1 cm apart flipped the shoulder by 165 deg.
+  The rule: abduction <= 180 deg + 2 x flexion, which leaves every flexed
+  arm its full range and an extended one abduction up to 180 deg + 2 x
+  flexion (90 deg at 45 deg of extension, 60 deg at the full 60); near the
+  overhead pole, where both postures are real (the arm raised to vertical
+  by flexion or by abduction: Codman's paradox), a little extension with
+  high abduction remains. The slope is a modelling choice, not a measured
+  value.
+
+No other coupling changed a reach volume noticeably enough to model here.
 """
 
 from __future__ import annotations
@@ -58,6 +81,9 @@ LIMIT_TOL = 1e-6  # [rad] overshoot the verdict accepts
 HAMSTRINGS = {"joint": "*_hip_flexion", "by": "*_knee_flexion", "limit": math.radians(80.0), "slope": 40.0 / 90.0}
 # Calibrated on the 50th-percentile man (see the module docstring).
 LUMBOPELVIC = {"joint": ["*_hip_flexion", "lumbar_flexion"], "by": "*_knee_flexion", "limit": math.radians(90.0), "slope": 1.0}
+# A modelling choice against the Euler sequence's second cover (see the module docstring).
+SHOULDER = {"joint": "*_shoulder_abduction", "by": "*_shoulder_flexion", "limit": math.pi, "slope": 2.0}
+DEFAULT_RULES = [HAMSTRINGS, LUMBOPELVIC, SHOULDER]
 
 
 @dataclass(frozen=True)
@@ -84,13 +110,14 @@ class CouplingTask(HardTask):
     type: ClassVar[str] = "coupling"
     keys: ClassVar[frozenset[str]] = frozenset({"rules"})
     summary: ClassVar[str] = ("coupled joint limits, sum(q[joints]) <= limit + slope q[by]; by default the hamstrings' "
-                               "(hip flexion 80 deg, hip + lumbar flexion 90 deg, with the knee straight)")
+                               "(hip flexion 80 deg, hip + lumbar flexion 90 deg, with the knee straight) and the shoulder's "
+                               "(abduction <= 180 deg + 2 flexion: no extended arm swung up past the side)")
 
     rules: tuple[Rule, ...] = ()
 
     @classmethod
     def parse(cls, raw: dict[str, Any], where: str, scope: Scope) -> CouplingTask:
-        given = raw.get("rules", [HAMSTRINGS, LUMBOPELVIC])
+        given = raw.get("rules", DEFAULT_RULES)
         if not isinstance(given, list):
             raise TaskError(f"{where}.rules", f"expected a list of {{joint, by, limit, slope}}, got {given!r}")
         names = scope.body.joint_names
