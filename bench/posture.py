@@ -167,7 +167,7 @@ def main() -> None:
             changes, used, switches = [], set(), 0
             for g, s in zip(base, step, strict=True):
                 a = selector.select("right_hand", g)
-                b = selector.select("right_hand", g + s, start=_joints(a) if mode == "from" else None)
+                b = selector.select("right_hand", g + s, start=a.as_start() if mode == "from" else None)
                 if a.reachable and b.reachable and a.strategy == b.strategy and a.posture and b.posture:
                     changes.append(max(abs(a.posture[k] - b.posture[k]) for k in a.posture))
                     used.add(a.strategy)
@@ -199,14 +199,6 @@ def main() -> None:
             lowest.append(round(hi, 3))
         emit(bench="lowest", strategy=name, lowest_vertex_z=float(pts[front, 2].min()) if front.any() else None,
              resolution=tree.lattice.resolution.tolist(), lowest_by_ik_z=lowest, at_xy=[list(p) for p in LOW_POINTS])
-
-
-def _joints(answer) -> dict[str, float]:  # noqa: ANN001
-    out = dict(answer.posture)
-    if answer.root:
-        out.update(zip(("root_x", "root_y", "root_z"), answer.root["position"], strict=True))
-        out.update(zip(("root_qx", "root_qy", "root_qz", "root_qw"), answer.root["quaternion"], strict=True))
-    return out
 
 
 def elbow_position(body, q: np.ndarray) -> np.ndarray:  # noqa: ANN001

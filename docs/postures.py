@@ -64,14 +64,19 @@ def main() -> None:
     parser.add_argument("--goals", type=_goals, default=GOALS, metavar="X,Y,Z;X,Y,Z...",
                         help="goals [m] of the right hand, world frame, ';'-separated (default: the README's twelve); "
                              "write --goals=... when the first value is negative")
+    parser.add_argument("--chain", action="store_true",
+                        help="ask each goal with the previous answer as the current posture (`from`), as an animation does")
     args = parser.parse_args()
     goals = args.goals
     atlas = load_atlas(args.atlas)
     body = load_body(OracleSpec.from_dict(next(iter(atlas.trees.values())).meta["oracle"]).params["body"])
     selector = Selector(atlas, budget=0.5).warm_up()
     fig, axs = plt.subplots(2, len(goals), figsize=(2.0 * len(goals), 8.5), squeeze=False)
+    start: dict[str, float] | None = None
     for k, goal in enumerate(goals):
-        a = selector.select("right_hand", np.array(goal))
+        a = selector.select("right_hand", np.array(goal), start=start)
+        if args.chain and a.reachable and a.posture:
+            start = a.as_start()
         for row, axes in enumerate(((1, 2), (0, 2))):
             ax = axs[row, k]
             ax.axhline(0.0, color="#444", lw=0.8)

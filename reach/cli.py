@@ -268,6 +268,9 @@ def cmd_model(args: argparse.Namespace) -> int:
             if isinstance(t.get("pairs"), list):
                 close = ", ".join(f"{a}-{b} ({dist:+.3f} m)" for (a, b), dist in ((c["pair"], c["distance"]) for c in t["at_reference"]))
                 print(f"  {name}: {len(t['pairs'])} pairs checked; closer than the margin at the reference (keep that clearance): {close or 'none'}")
+            if isinstance(t.get("rules"), list) and t["rules"]:
+                rules = "; ".join(f"{' + '.join(r['joints'])} <= {r['limit']:.4f} {'-' if r['slope'] < 0 else '+'} {abs(r['slope']):.4f} x {r['by']}" for r in t["rules"])
+                print(f"  {name}: coupled limits [rad]: {rules}")
     return 0
 
 

@@ -108,6 +108,17 @@ class Answer:
         head = {k: v for k, v in self.to_dict().items() if k not in ("posture", "root")}
         return json.dumps(head, allow_nan=False, separators=(",", ":")).encode()[:-1] + b"," + self.posture_json + b"}"
 
+    def as_start(self) -> dict[str, float] | None:
+        """This answer's posture as the next query's ``from``: joint values and,
+        for a floating base, ``root_x`` ... ``root_qw``; None when it has no posture."""
+        if self.posture is None:
+            return None
+        start = dict(self.posture)
+        if self.root is not None:
+            start.update(zip(("root_x", "root_y", "root_z"), self.root["position"], strict=True))
+            start.update(zip(("root_qx", "root_qy", "root_qz", "root_qw"), self.root["quaternion"], strict=True))
+        return start
+
     def to_dict(self) -> dict[str, Any]:
         # By hand rather than dataclasses.asdict, whose deep copies cost more than the lookup.
         return {

@@ -173,3 +173,7 @@ def test_reach_model_lists_the_capsules_and_each_strategys_pairs(capsys):
     assert main(["model", str(HERE.parent / "configs" / "demo.yaml")]) == 0
     text = capsys.readouterr().out
     assert "17 collision capsules" in text and "right_arm: 42 pairs checked" in text
+    # The coupled limits each strategy applies (the arm: the shoulder's rule alone).
+    coupling = next(t for t in info["strategies"]["right_arm"]["tasks"] if t["type"] == "coupling")
+    assert coupling["rules"] == [{"joints": ["right_shoulder_abduction"], "by": "right_shoulder_flexion", "limit": pytest.approx(np.pi), "slope": 2.0}]
+    assert "right_arm: coupled limits [rad]: right_shoulder_abduction <= 3.1416 + 2.0000 x right_shoulder_flexion" in text

@@ -128,9 +128,7 @@ def test_answers_from_the_current_posture_are_continuous_along_a_line(arm):
     previous = s.select("right_hand", line[0])
     worst = 0.0
     for goal in line[1:]:
-        start = {**previous.posture, **dict(zip(("root_x", "root_y", "root_z"), previous.root["position"], strict=True)),
-                 **dict(zip(("root_qx", "root_qy", "root_qz", "root_qw"), previous.root["quaternion"], strict=True))}
-        answer = s.select("right_hand", goal, start=start)
+        answer = s.select("right_hand", goal, start=previous.as_start())
         assert answer.refined == REFINED
         worst = max(worst, max(abs(answer.posture[k] - previous.posture[k]) for k in answer.posture))
         previous = answer

@@ -178,3 +178,6 @@ class CouplingTask(HardTask):
 
     def holds(self, num: Numeric) -> bool:
         return all(sum(num.q[i] for i in r.iq) - r.slope * num.q[r.iby] <= r.limit + LIMIT_TOL for r in self.rules)
+
+    def describe(self) -> dict[str, Any]:
+        return {**super().describe(), "rules": [{"joints": list(r.joints), "by": r.by, "limit": r.limit, "slope": r.slope} for r in self.rules]}
