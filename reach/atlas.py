@@ -149,6 +149,9 @@ def _build_locked(
                 if old.meta.get("fingerprint") == fp:
                     tree = old
                     say(f"{s.name}: kept the finished tree")
+                else:
+                    # The strategy, its oracle, the body or a sub-strategy it inherits from changed.
+                    say(f"{s.name}: rebuilding (the config changed since {path.name} was built)")
             except StoreError as exc:
                 say(f"{s.name}: rebuilding ({exc})")
         source = _mirror_source(config, s, built, say) if tree is None and mirror else None

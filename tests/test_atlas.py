@@ -64,6 +64,12 @@ def test_killed_build_resumes_to_the_same_tree(tmp_path):
     assert not partial.exists()
     again = subprocess.run([*cmd, "--resume"], capture_output=True, text=True, timeout=300)
     assert "kept the finished tree" in again.stdout
+    # A changed strategy is rebuilt, and the build says why.
+    cfg.write_text(yaml.safe_dump(human_config(d_max=3)))
+    changed = subprocess.run([*cmd, "--resume"], capture_output=True, text=True, timeout=300)
+    assert changed.returncode == 0, changed.stderr
+    assert "right_arm: rebuilding (the config changed since right_arm.npz was built)" in changed.stdout
+    assert load_atlas(out).trees["right_arm"].d_max == 3
 
 
 @pytest.fixture(scope="module")
