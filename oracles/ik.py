@@ -264,8 +264,8 @@ class IKOracle(ABC):
         joint within 5 deg of a limit fell from 4.5 % to 1 %.
         """
         out = []
-        if hint is not None and np.all(np.isfinite(hint)):
-            out.append(self.problem.x_of_q(hint))
+        seeds = np.zeros((0, 0)) if hint is None else np.atleast_2d(hint)  # one hint, or several (evaluate_seeded)
+        out += [self.problem.x_of_q(h) for h in seeds if np.all(np.isfinite(h))]
         if self.reference_first and self._start is None:
             out[:0] = [self.problem.x_ref.copy(), self.problem.x_ready.copy()]
         else:
@@ -274,9 +274,21 @@ class IKOracle(ABC):
         out += [self.problem.random_x(rng) for _ in range(self.restarts)]
         return out
 
+    def evaluate_seeded(self, points: np.ndarray, seeds: np.ndarray) -> Verdicts:
+        """Verdicts for goals [m] with several warm starts each (see :class:`oracles.protocol.Preferring`)."""
+        seeds = np.asarray(seeds, float)
+        n = len(check_points(points, 3))
+        if seeds.ndim != 3 or seeds.shape[0] != n or seeds.shape[2] != len(self.posture_names):
+            raise OracleError(f"seeds have shape {seeds.shape}, expected ({n}, k, {len(self.posture_names)})")
+        return self.evaluate(points, seeds)
+
     def evaluate(self, points: np.ndarray, hints: np.ndarray | None = None) -> Verdicts:
-        """Verdicts for goals [m]: rounds of solves from each point's next start until reachable."""
+        """Verdicts for goals [m]: rounds of solves from each point's next start until reachable.
+
+        ``hints`` is (N, nq), or (N, k, nq) from :meth:`evaluate_seeded`: the
+        first of a point's seeds stands for the neighbour's posture below."""
         pts = check_points(points, 3)
+        hints = None if hints is None else np.asarray(hints, float)
         n = len(pts)
         self.stats["points"] += n
         self._deadline = np.inf if self.max_seconds is None else time.perf_counter() + self.max_seconds
@@ -293,9 +305,10 @@ class IKOracle(ABC):
         decisive = np.zeros(n, bool)  # the first start is a warm start from a nearby hint
         settled = np.zeros(n, bool)  # ... so near that it solves the reach stage alone (see settle)
         hint_first = not (self.reference_first and self._start is None)
-        if hints is not None and (np.isfinite(self.give_up) or (self.settle > 0 and hint_first)):
-            for i in np.nonzero(~prefiltered & np.all(np.isfinite(hints), axis=1))[0]:
-                gap = self.problem.effector_distance(hints[i], pts[i], self._data)
+        first = None if hints is None else (hints[:, 0] if hints.ndim == 3 else hints)
+        if first is not None and (np.isfinite(self.give_up) or (self.settle > 0 and hint_first)):
+            for i in np.nonzero(~prefiltered & np.all(np.isfinite(first), axis=1))[0]:
+                gap = self.problem.effector_distance(first[i], pts[i], self._data)
                 decisive[i] = np.isfinite(self.give_up) and gap <= NEAR_HINT
                 settled[i] = hint_first and gap <= self.settle
         for r in range(max(len(s) for s in starts) if n else 0):

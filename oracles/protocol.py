@@ -236,6 +236,19 @@ class Limited(Protocol):
         ...
 
 
+@runtime_checkable
+class Preferring(Protocol):
+    """An oracle that ranks reaching postures by its lower tasks and refines from several warm starts per point."""
+
+    def preference(self, posture: np.ndarray, goal: np.ndarray) -> float:
+        """How much the lower tasks dislike a posture (nq,) for a goal [m] (lower is better)."""
+        ...
+
+    def evaluate_seeded(self, points: np.ndarray, seeds: np.ndarray) -> Verdicts:
+        """Verdicts with several warm starts per point: ``seeds`` (N, k, nq), tried in order (NaN rows skipped)."""
+        ...
+
+
 def body_params(body: Any, effector: str, joints: Any, tasks: Any) -> dict[str, Any]:
     """The params a config gives a body strategy's oracle, over the oracle's own.
 

@@ -338,6 +338,19 @@ def test_refinement_starts_from_the_reference_unless_a_current_posture_is_given(
     assert np.allclose(refine.starts(goal, hint)[0], x_hint)
 
 
+def test_seeded_refinement_tries_every_seed_and_refuses_a_wrong_shape():
+    refine = CasadiIK(HUMAN, "right_hand", ARM).variant("refine", budget=None)
+    goal = np.array([[0.4, -0.3, 1.1]])
+    nq = len(refine.posture_names)
+    ref = refine.body.q_ref
+    seeds = np.stack([ref, np.full(nq, np.nan), ref])[None]  # a NaN row is skipped
+    v = refine.evaluate_seeded(goal, seeds)
+    assert v.reachable[0] and refine.stats["solves"] == 4  # the reference, the ready posture and both seeds
+    _assert_reachable_verdicts_hold(refine, goal, v)
+    with pytest.raises(OracleError, match=r"seeds have shape \(1, 3\), expected \(1, k, "):
+        refine.evaluate_seeded(goal, ref[None, :3])
+
+
 def test_with_a_current_posture_the_reach_stage_moves_it_the_least(monkeypatch):
     import oracles.tasks.reach as reach_task
 

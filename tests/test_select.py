@@ -13,7 +13,7 @@ from reach.atlas import build_atlas
 from reach.cli import main
 from reach.config import parse_config
 from reach.errors import InputError, ModelMismatch, UnknownEffector, UnknownPolicy
-from reach.select import REFINED, SKIPPED, UNAVAILABLE, Selector
+from reach.select import REFINED, SEEDS, SKIPPED, UNAVAILABLE, Selector
 
 
 @pytest.fixture(scope="module")
@@ -207,3 +207,32 @@ def test_a_strategy_at_its_joint_limits_hands_the_goal_to_the_next(tmp_path, cap
     out = capsys.readouterr().out
     assert "strategy upper" in out and "handed over" not in out
     assert main([*query, "--handover-deg", "-5"]) == 2 and "--handover-deg: expected 0 or more degrees" in capsys.readouterr().err
+
+
+def test_refinement_also_starts_from_the_best_liked_stored_posture_nearby(arm, monkeypatch):
+    name, goal = "right_arm", np.array([0.45, -0.3, 1.2])
+    tree = arm.trees[name]
+    s = Selector(arm, budget=0.5)
+    assert s.select("right_hand", goal).refined == REFINED  # builds the index and the oracle
+    oracle = s._oracle(name)
+    row = s._nearest_row(name, tree, goal.tolist())[0]  # the stored posture the answer starts from
+    kd, rows, _ = s._kd[name]
+    _, near = kd.query(goal, k=SEEDS)
+    postures = tree.vertices.posture
+    saved = postures[row].copy()
+    worse = saved.copy()
+    worse[list(tree.vertices.posture_names).index("right_shoulder_abduction")] = 2.5  # the arm raised sideways
+    postures[row] = worse
+    try:
+        best = s._best_liked(name, oracle, goal, worse)
+        liked = {int(r): oracle.preference(postures[r], goal) for r in rows[near]}
+        assert best is not None and oracle.preference(best, goal) == pytest.approx(min(liked.values()))
+        assert s._best_liked(name, oracle, goal, best) is None  # the nearest already the best liked: no extra start
+        seeded: list[tuple[int, ...]] = []
+        real = type(oracle).evaluate_seeded
+        monkeypatch.setattr(type(oracle), "evaluate_seeded", lambda self, p, seeds: seeded.append(seeds.shape) or real(self, p, seeds))
+        answer = Selector(arm, budget=0.5).select("right_hand", goal)
+        assert answer.refined == REFINED and seeded == [(1, 2, len(tree.vertices.posture_names))]
+        assert np.linalg.norm(hand_of(answer, human_body()) - goal) <= 0.005
+    finally:
+        postures[row] = saved
