@@ -27,7 +27,10 @@ Oracles may also offer optional capabilities, each a protocol of its own;
   y = 0, for deriving left-side trees from right-side ones;
 * :class:`Limited`: the joint limits a posture comes near, so that the
   selector may hand a goal over to the next strategy rather than answer
-  with a body bent to its limits.
+  with a body bent to its limits;
+* :class:`Preferring`: how much the lower tasks like a posture, and a
+  refinement from several warm starts, so that the selector may also start
+  from the best-liked stored posture near the goal.
 
 ``reach`` asks nothing else: not an oracle's parameters, registry names or
 internals, so a third-party oracle registered through the ``reach.oracles``

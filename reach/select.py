@@ -432,7 +432,7 @@ class Selector:
 
     def _best_liked(self, name: str, oracle: Preferring, goal: np.ndarray, q: np.ndarray) -> np.ndarray | None:
         """The stored posture the oracle likes best among the ``SEEDS`` reachable vertices nearest the goal,
-        None when that is ``q`` itself (see ``SEEDS``)."""
+        None when that is ``q`` itself or the oracle likes them all alike (it cannot tell; see ``SEEDS``)."""
         found = self._kd.get(name)
         if found is None:
             return None
@@ -441,7 +441,10 @@ class Selector:
         postures = self.atlas.trees[name].vertices.posture
         assert postures is not None  # a tree with a k-d index stores postures
         candidates = [postures[rows[i]] for i in np.atleast_1d(near)]
-        best = candidates[int(np.argmin([oracle.preference(c, goal) for c in candidates]))]
+        liked = [oracle.preference(c, goal) for c in candidates]
+        if min(liked) == max(liked):
+            return None  # no preference: another start would only cost a solve
+        best = candidates[int(np.argmin(liked))]
         return None if np.array_equal(best, q) else best
 
     def select(self, effector: str, goal: np.ndarray, refine: bool | None = None, start: dict[str, float] | None = None) -> Answer:

@@ -228,6 +228,9 @@ def test_refinement_also_starts_from_the_best_liked_stored_posture_nearby(arm, m
         liked = {int(r): oracle.preference(postures[r], goal) for r in rows[near]}
         assert best is not None and oracle.preference(best, goal) == pytest.approx(min(liked.values()))
         assert s._best_liked(name, oracle, goal, best) is None  # the nearest already the best liked: no extra start
+        monkeypatch.setattr(type(oracle), "preference", lambda self, posture, goal: 0.0)  # an engine that cannot tell
+        assert s._best_liked(name, oracle, goal, worse) is None
+        monkeypatch.undo()
         seeded: list[tuple[int, ...]] = []
         real = type(oracle).evaluate_seeded
         monkeypatch.setattr(type(oracle), "evaluate_seeded", lambda self, p, seeds: seeded.append(seeds.shape) or real(self, p, seeds))
