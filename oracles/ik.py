@@ -84,18 +84,18 @@ class IKOracle(ABC):
             give_up 0.01 in 259 s with 1.8 %, rescues 1 in 436 s with 1.1 %.
         rescues: Random restarts still tried after giving up (see give_up).
         settle: Distance [m]: a warm start from a hint whose effector lies
-            within it of the goal solves the reach stage alone, and keeps the
-            hint's lower-task choices (a neighbouring vertex's natural posture
-            moved the last centimetres). 0 (the default) always solves the
-            lower stages. At D_max 7 a new vertex lies 1.6-3.2 cm from the
-            nearest vertex of the depth above, so 0.03 m settles the finest
-            depth alone. Measured on the default atlas: the whole body's
-            D_max vertices cost 4.5 ms instead of 5.95 and their postures
-            are about as liked (median), but 1-cm neighbours answered by the
-            selector with ``from`` jumped more (``bench/posture.py``, same
-            98 pairs: p99 13.3 deg, 3 pairs over 10 deg, against 8.8 deg and
-            1 pair): the stored postures are its warm starts. The shipped
-            configs therefore do not settle.
+            within it of the goal solves the reach stage alone, pulled
+            towards the hint by the reach task's proximal term (as a query's
+            ``from`` is), so that it keeps the hint's lower-task choices: a
+            neighbouring vertex's natural posture moved the least that
+            reaches. 0 (the default) always solves the lower stages. A new
+            vertex of depth D lies within half a cell diagonal of depth D-1
+            of a vertex of that depth (3.1 cm at D_max 7 over the default
+            box, 6.2 cm at depth 6). Without the pull the reach-only steps
+            wandered along the goal's null space, and 1-cm neighbours
+            answered by the selector with ``from`` jumped more (p99 13.3
+            against 8.8 deg on 98 pairs): the stored postures are its warm
+            starts. See configs/default.yaml for what settling costs and saves.
         prefer: Try every start even after one reaches, and keep the
             reaching posture the lower tasks like best (:meth:`preference`):
             a warm start can sit in a poor basin of the posture task (an
@@ -529,10 +529,10 @@ class CasadiIK(IKOracle):
         assert x_new is not None
         return (x_new, value) if task is self.strategy.reach else None
 
-    def _params(self, goal: np.ndarray, x: np.ndarray) -> np.ndarray:
-        """The programs' parameters: the goal, the current posture (x itself without one) and its weight."""
+    def _params(self, goal: np.ndarray, x: np.ndarray, pull: bool = False) -> np.ndarray:
+        """The programs' parameters: the goal, the current posture (x itself without one) and its weight (0 unless pulled)."""
         start = self._start if self._start is not None else x
-        return np.concatenate([goal, start, [0.0 if self._start is None else 1.0]])
+        return np.concatenate([goal, start, [0.0 if self._start is None and not pull else 1.0]])
 
     def preference(self, q: np.ndarray, goal: np.ndarray) -> float:
         """The lowest stage's objective at q (the posture task's, in the shipped strategies)."""
@@ -550,7 +550,7 @@ class CasadiIK(IKOracle):
         self.prepare()
         p = self.problem
         x = np.clip(x0, p.lower, p.upper)
-        params = self._params(goal, x)
+        params = self._params(goal, x, pull=not lower)  # settling: the start moved the least (see settle)
         optimum: list[float] = []
         cuts = _Cuts(CUT_SLOTS, p.nx)  # kept from stage to stage: they describe the same neighbourhood
         for k, task in enumerate(self.order):
