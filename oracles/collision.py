@@ -104,6 +104,9 @@ class CollisionModel:
             self.placed.append(Placed(c, int(frame.parentJoint), m.act(np.asarray(c.a, float)), m.act(np.asarray(c.b, float))))
         self.index = {p.name: i for i, p in enumerate(self.placed)}
         self._checks: dict[tuple[tuple[int, int], ...], tuple[pin.GeometryModel, pin.GeometryData, pin.Data]] = {}
+        # The last answer per pair set: an IK engine's cut loop and the verdict's
+        # independent check ask about the same posture one after the other.
+        self._last: dict[tuple[tuple[int, int], ...], tuple[bytes, np.ndarray]] = {}
         self.geometry = pin.GeometryModel()
         for p in self.placed:
             shape = coal.Capsule(p.radius, float(np.linalg.norm(p.b - p.a)))
@@ -129,7 +132,11 @@ class CollisionModel:
         """Coal's distances [m] between capsule pairs at q (negative: penetration depth)."""
         if not pairs:
             return np.zeros(0)
-        key = tuple(pairs)
+        key = pairs if isinstance(pairs, tuple) else tuple(pairs)
+        q = np.asarray(q, float)
+        last = self._last.get(key)
+        if last is not None and last[0] == q.tobytes():
+            return last[1].copy()
         if key not in self._checks:  # built once per pair set: the verdict asks at every solve
             geom = pin.GeometryModel()
             for o in self.geometry.geometryObjects:
@@ -139,7 +146,9 @@ class CollisionModel:
             self._checks[key] = (geom, pin.GeometryData(geom), self.model.createData())
         geom, gdata, data = self._checks[key]
         pin.computeDistances(self.model, data, geom, gdata, q)
-        return np.array([r.min_distance for r in gdata.distanceResults])
+        out = np.array([r.min_distance for r in gdata.distanceResults])
+        self._last[key] = (q.tobytes(), out)
+        return out.copy()
 
 
 def nearest_points(p: np.ndarray, q: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:

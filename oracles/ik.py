@@ -32,14 +32,20 @@ import pinocchio as pin
 from oracles.body import load_body
 from oracles.jit import COMPILER, compiled_nlpsol
 from oracles.kinematics import SymbolicKinematics
-from oracles.problem import ReachProblem
+from oracles.problem import Check, ReachProblem
 from oracles.protocol import OracleSpec, Purpose, Verdicts, check_points, check_purpose
 from oracles.strategy import parse_strategy
 from oracles.tasks import Numeric, Symbolic
 from reach.errors import OracleError
 
-NEAR_HINT = 0.1  # [m] a hint whose effector is this close to the goal makes its warm solve decisive (see give_up)
+NEAR_HINT = 0.1  # [m] default of `decisive`: a hint this close to the goal makes its failed warm solve decisive (see give_up)
 SOLVERS = ("fatrop", "ipopt")
+# fatrop's initial barrier parameter for a settled reach stage (see IKOracle's
+# settle): from a neighbour's posture a few centimetres off, a smaller barrier
+# leaves the start less; measured on 300 replayed D_max vertices of the default
+# atlas, 1e-6 took 17 % fewer iterations than 1e-4 on the whole body and 24 %
+# on the crouch, same verdicts, while for the unsettled stages it took more.
+SETTLE_MU = 1e-6
 REFINE_SECONDARY_ITER = 40  # iteration cap of the lower stages when refining an answer
 PREFER = True  # a refinement tries every start and keeps the best-liked: measured, fewer raised elbows and jumps (README)
 # Lazy tasks' cuts (see oracles.tasks.base.HardTask): how many one program
@@ -69,7 +75,7 @@ class IKOracle(ABC):
         max_seconds: Time budget [s] of one ``evaluate`` call (used by the
             selector's refinement); None for no limit.
         give_up: Distance [m]: when a warm start from a nearby hint (a
-            posture whose effector lies within ``NEAR_HINT`` of the goal, as
+            posture whose effector lies within ``decisive`` of the goal, as
             a neighbouring vertex's posture in a build) fails and ends, with
             the hard tasks held, farther than this from the goal, the
             reference start is skipped and only ``rescues`` random restarts
@@ -83,6 +89,16 @@ class IKOracle(ABC):
             give_up 0 builds it in 187 s with 2.0 % false unreachable,
             give_up 0.01 in 259 s with 1.8 %, rescues 1 in 436 s with 1.1 %.
         rescues: Random restarts still tried after giving up (see give_up).
+        decisive: Distance [m] within which a hint's failed warm solve may
+            give up (see give_up; default ``NEAR_HINT``). configs/default.yaml
+            sets 0.2, which covers its depth 5 (hints 6-12 cm off): there
+            the reference and random restarts after a failed warm solve
+            changed none of 300 replayed verdicts per strategy (whole body,
+            crouch, upper body) and cost 21-46 % of the depth's time. Not
+            for the arms, whose warm solves from 10-20 cm off miss goals the
+            reference posture reaches (default atlas: arm volume 3 % smaller
+            with 0.2), nor for a coarse tree's finest depth (the demo's
+            whole body lost 1 % of its volume).
         settle: Distance [m]: a warm start from a hint whose effector lies
             within it of the goal solves the reach stage alone, pulled
             towards the hint by the reach task's proximal term (as a query's
@@ -95,7 +111,9 @@ class IKOracle(ABC):
             wandered along the goal's null space, and 1-cm neighbours
             answered by the selector with ``from`` jumped more (p99 13.3
             against 8.8 deg on 98 pairs): the stored postures are its warm
-            starts. See configs/default.yaml for what settling costs and saves.
+            starts. With fatrop, the settled reach stage starts with a smaller
+            barrier parameter (``SETTLE_MU``): its start is already near the
+            solution. See configs/default.yaml for what settling costs and saves.
         prefer: Try every start even after one reaches, and keep the
             reaching posture the lower tasks like best (:meth:`preference`):
             a warm start can sit in a poor basin of the posture task (an
@@ -119,11 +137,12 @@ class IKOracle(ABC):
         self, body: dict[str, Any], effector: str, joints: list[str], tasks: list[dict[str, Any]] | None = None,
         restarts: int = 3, seed: int = 0, secondary: bool = True, max_seconds: float | None = None,
         give_up: float | None = 0.0, rescues: int = 0, prefer: bool = False, reference_first: bool = False, settle: float = 0.0,
+        decisive: float = NEAR_HINT,
     ) -> None:
         self.params: dict[str, Any] = {
             "body": body, "effector": effector, "joints": joints, "tasks": tasks, "restarts": restarts, "seed": seed,
             "secondary": secondary, "max_seconds": max_seconds, "give_up": give_up, "rescues": rescues, "prefer": prefer,
-            "reference_first": reference_first, "settle": settle,
+            "reference_first": reference_first, "settle": settle, "decisive": decisive,
         }
         self.prefer = bool(prefer)
         self.reference_first = bool(reference_first)
@@ -134,8 +153,10 @@ class IKOracle(ABC):
         self.give_up = np.inf if give_up is None else float(give_up)
         self.rescues = int(rescues)
         self.settle = float(settle)
-        if int(restarts) < 0 or self.rescues < 0 or self.give_up < 0 or not self.settle >= 0:
-            raise OracleError(f"restarts, rescues, give_up and settle must not be negative, got {restarts}, {rescues}, {give_up}, {settle}")
+        self.decisive = float(decisive)
+        if int(restarts) < 0 or self.rescues < 0 or self.give_up < 0 or not self.settle >= 0 or not self.decisive >= 0:
+            raise OracleError(
+                f"restarts, rescues, give_up, settle and decisive must not be negative, got {restarts}, {rescues}, {give_up}, {settle}, {decisive}")
         self.strategy = parse_strategy(self.body, effector, joints, tasks)
         self.problem = ReachProblem(self.body, self.strategy)
         self.posture_names = tuple(self.body.q_names)
@@ -297,7 +318,7 @@ class IKOracle(ABC):
         self.stats["prefiltered"] += int(prefiltered.sum())
         reach = np.zeros(n, bool)
         done = np.zeros(n, bool)  # reached, or given up
-        hard = prefiltered.copy()  # a pre-filtered point keeps the reference posture, which is valid
+        kept: list[Check | None] = [None] * n  # the check of the posture kept so far (a pre-filtered point keeps the reference)
         posture = np.tile(self.body.q_ref, (n, 1))
         residual[~prefiltered] = np.inf
         starts = [self.starts(g, None if hints is None else hints[i]) if not prefiltered[i] else [] for i, g in enumerate(pts)]
@@ -309,7 +330,7 @@ class IKOracle(ABC):
         if first is not None and (np.isfinite(self.give_up) or (self.settle > 0 and hint_first)):
             for i in np.nonzero(~prefiltered & np.all(np.isfinite(first), axis=1))[0]:
                 gap = self.problem.effector_distance(first[i], pts[i], self._data)
-                decisive[i] = np.isfinite(self.give_up) and gap <= NEAR_HINT
+                decisive[i] = np.isfinite(self.give_up) and gap <= self.decisive
                 settled[i] = hint_first and gap <= self.settle
         for r in range(max(len(s) for s in starts) if n else 0):
             todo = np.array([i for i in range(n) if not done[i] and len(starts[i]) > r], dtype=int)
@@ -322,13 +343,14 @@ class IKOracle(ABC):
                 if self.prefer and check.reachable:
                     liked = self.preference(q[k], pts[i])
                     if not reach[i] or liked < preferred[i]:
-                        residual[i], posture[i], preferred[i], hard[i] = check.residual, q[k], liked, True
+                        residual[i], posture[i], preferred[i], kept[i] = check.residual, q[k], liked, check
                     reach[i] = True
                     continue  # every start is tried; the best liked reaching posture is kept
                 if self.prefer and reach[i]:
                     continue  # a start that fails never replaces one that reached
-                if (check.hard_ok, -check.residual) > (bool(hard[i]), -residual[i]):
-                    hard[i], residual[i], posture[i] = check.hard_ok, check.residual, q[k]
+                before = kept[i]  # hard_ok is asked only between two postures that both fail
+                if before is None or (check.hard_ok, -check.residual) > (before.hard_ok, -before.residual):
+                    kept[i], residual[i], posture[i] = check, check.residual, q[k]
                 reach[i] = check.reachable
                 done[i] = check.reachable
                 # A posture that misses by more than give_up with the engine's
@@ -412,6 +434,7 @@ class CasadiIK(IKOracle):
         self.order = list(soft if self.secondary else soft[: reach + 1])
         self.stages: list[ca.Function] = []  # built on the first solve
         self.cut_stages: list[ca.Function] = []  # the same with cut rows, built on the first cut
+        self.settling: dict[int, ca.Function] = {}  # the settled reach stage (see settle), by cut slots
         self.bounds: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # row bounds by number of cut slots
         self.lazy = [t for t in self.strategy.hard if t.lazy]
 
@@ -444,6 +467,9 @@ class CasadiIK(IKOracle):
             nlp = {"x": x, "p": ca.vertcat(params, ca.vec(cut)), "f": task.objective(sym), "g": ca.vertcat(g, *earlier)}
             iters = self.max_iter if k == 0 else self.secondary_iter
             stages.append(self._nlpsol(f"stage_{task.type}{'_cut' if slots else ''}", self.solver, nlp, self._options(self.solver, iters)))
+            if k == 0 and self.settle > 0 and self.solver == "fatrop":
+                opts = {**self._options(self.solver, iters), "fatrop.mu_init": SETTLE_MU}
+                self.settling[slots] = self._nlpsol(f"stage_{task.type}_settle{'_cut' if slots else ''}", self.solver, nlp, opts)
         self._objective_fns = [ca.Function(t.type, [x, params], [t.measure(sym)]) for t in self.order]
         return stages
 
@@ -469,8 +495,9 @@ class CasadiIK(IKOracle):
         budget = {"ipopt.max_wall_time": self.max_seconds} if self.max_seconds else {}
         return {**budget, "print_time": 0, "ipopt.print_level": 0, "ipopt.sb": "yes", "ipopt.max_iter": max_iter, "ipopt.tol": 1e-6, "ipopt.acceptable_tol": 1e-4}
 
-    def _stage(self, k: int, x: np.ndarray, params: np.ndarray, optimum: list[float], cuts: _Cuts | None) -> np.ndarray | None:
-        """Stage k's solution from x, or None when the solver fails or (below the first stage) breaks a constraint."""
+    def _stage(self, k: int, x: np.ndarray, params: np.ndarray, optimum: list[float], cuts: _Cuts | None, settled: bool = False) -> np.ndarray | None:
+        """Stage k's solution from x (settled: the reach stage of a settled start), or None when the solver
+        fails or (below the first stage) breaks a constraint."""
         p = self.problem
         slots = CUT_SLOTS if cuts is not None else 0
         if cuts is not None and not self.cut_stages:
@@ -485,11 +512,14 @@ class CasadiIK(IKOracle):
             lo.append(a)
             hi.append(b)
         low, high = np.concatenate(lo), np.concatenate(hi)
+        program = (self.stages if cuts is None else self.cut_stages)[k]
+        if settled and k == 0:
+            program = self.settling.get(slots, program)
         try:
             if cuts is None:
-                sol = self.stages[k](x0=x, p=params, lbx=p.lower, ubx=p.upper, lbg=low, ubg=high)
+                sol = program(x0=x, p=params, lbx=p.lower, ubx=p.upper, lbg=low, ubg=high)
             else:
-                sol = self.cut_stages[k](x0=x, p=np.concatenate([params, cuts.matrix.ravel(order="F")]), lbx=p.lower, ubx=p.upper, lbg=low, ubg=high)
+                sol = program(x0=x, p=np.concatenate([params, cuts.matrix.ravel(order="F")]), lbx=p.lower, ubx=p.upper, lbg=low, ubg=high)
         except RuntimeError:
             return None  # a numerical failure of the solver
         if k > 0:
@@ -500,14 +530,16 @@ class CasadiIK(IKOracle):
                 return None
         return np.clip(np.asarray(sol["x"]).ravel(), p.lower, p.upper)
 
-    def _cut_stage(self, k: int, x: np.ndarray, params: np.ndarray, optimum: list[float], cuts: _Cuts) -> tuple[np.ndarray, float] | None:
+    def _cut_stage(
+        self, k: int, x: np.ndarray, params: np.ndarray, optimum: list[float], cuts: _Cuts, settled: bool = False,
+    ) -> tuple[np.ndarray, float] | None:
         """Stage k with the lazy tasks: while its posture breaks one, cut the near rows there and solve again.
 
         Returns the posture and the stage's objective there, or None when the stage gives no posture.
         """
         task = self.order[k]
         for rounds in range(CUT_ROUNDS + 1):
-            x_new = self._stage(k, x, params, optimum, cuts if cuts.count else None)
+            x_new = self._stage(k, x, params, optimum, cuts if cuts.count else None, settled)
             if x_new is None:
                 return None
             value = float(self._objective_fns[k](x_new, params))
@@ -554,7 +586,7 @@ class CasadiIK(IKOracle):
         optimum: list[float] = []
         cuts = _Cuts(CUT_SLOTS, p.nx)  # kept from stage to stage: they describe the same neighbourhood
         for k, task in enumerate(self.order):
-            stage = self._cut_stage(k, x, params, optimum, cuts)
+            stage = self._cut_stage(k, x, params, optimum, cuts, settled=not lower)
             if stage is None:
                 break  # keep the last posture; the check decides
             x, value = stage

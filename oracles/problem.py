@@ -11,7 +11,8 @@ support polygon).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable
+from functools import cached_property
 
 import casadi as ca
 import numpy as np
@@ -26,14 +27,28 @@ LIMIT_TOL = 1e-6  # [rad or m] joint limit overshoot the verdict accepts
 READY = 0.3  # how far the ready start moves each joint from the reference towards its range's middle (a modelling choice)
 
 
-@dataclass(frozen=True)
 class Check:
-    """Outcome of the Pinocchio check of one posture."""
+    """Outcome of the Pinocchio check of one posture.
 
-    residual: float  # [m] effector to goal
-    hard_ok: bool  # joint limits and every hard task hold
-    reachable: bool
-    eager_ok: bool = True  # joint limits and the hard tasks that are not lazy hold
+    The lazy hard tasks (self-collision, the floor: the costly checks) are
+    checked when ``hard_ok`` or ``reachable`` is first asked, and
+    ``reachable`` asks the soft tasks (the effector at the goal) first: a
+    build's unreachable vertex, given up after one solve, never needs them.
+    """
+
+    def __init__(self, residual: float, eager_ok: bool, lazy_ok: Callable[[], bool], soft_ok: Callable[[], bool]) -> None:
+        self.residual = residual  # [m] effector to goal
+        self.eager_ok = eager_ok  # joint limits and the hard tasks that are not lazy hold
+        self._lazy_ok, self._soft_ok = lazy_ok, soft_ok
+
+    @cached_property
+    def hard_ok(self) -> bool:
+        """Joint limits and every hard task hold."""
+        return self.eager_ok and self._lazy_ok()
+
+    @cached_property
+    def reachable(self) -> bool:
+        return self._soft_ok() and self.hard_ok
 
 
 def _rpy_quat(r: ca.SX, p: ca.SX, y: ca.SX) -> ca.SX:
@@ -97,6 +112,13 @@ class ReachProblem:
             k += 1
         self.x_sym, self.q_sym = xs, q
         self._q_of_x = ca.Function("q_of_x", [xs], [q], ["x"], ["q"])
+        # x_of_q's index maps (it runs for every start of every solve): one-coordinate joints, and the
+        # unbounded revolute ones stored as (cos, sin).
+        k0 = 6 if strategy.floating else 0
+        single = [(k0 + k, model.joints[j].idx_q) for k, j in enumerate(self.joint_ids) if model.joints[j].nq == 1]
+        paired = [(k0 + k, model.joints[j].idx_q) for k, j in enumerate(self.joint_ids) if model.joints[j].nq == 2]
+        self._x_single, self._q_single = (np.array([a for a, _ in single], int), np.array([b for _, b in single], int))
+        self._x_paired, self._q_paired = (np.array([a for a, _ in paired], int), np.array([b for _, b in paired], int))
         self.x_ref = self.x_of_q(body.q_ref)
         # A start for refinements: the reference with every joint READY of the
         # way to the middle of its range (the root where it stands).
@@ -118,14 +140,14 @@ class ReachProblem:
         return np.asarray(self._q_of_x(x)).ravel()
 
     def x_of_q(self, q: np.ndarray) -> np.ndarray:
-        x = []
+        q = np.asarray(q, float)
+        x = np.empty(self.nx)
         if self.strategy.floating:
-            rot = pin.Quaternion(np.asarray(q[3:7])).normalized().toRotationMatrix()
-            x += [*q[:3], *pin.rpy.matrixToRpy(rot)]
-        for j in self.joint_ids:
-            jm = self.body.model.joints[j]
-            x.append(np.arctan2(q[jm.idx_q + 1], q[jm.idx_q]) if jm.nq == 2 else q[jm.idx_q])
-        return np.clip(np.array(x, dtype=float), self.lower, self.upper)
+            rot = pin.Quaternion(q[3:7]).normalized().toRotationMatrix()
+            x[:3], x[3:6] = q[:3], pin.rpy.matrixToRpy(rot)
+        x[self._x_single] = q[self._q_single]
+        x[self._x_paired] = np.arctan2(q[self._q_paired + 1], q[self._q_paired])
+        return np.clip(x, self.lower, self.upper)
 
     def numeric_x(self, q: np.ndarray, data: pin.Data) -> Numeric:
         """Pinocchio's evaluation of q with Jacobians over x (not over velocities), for linearising in x.
@@ -239,9 +261,15 @@ class ReachProblem:
         """Independent Pinocchio check of a posture: each task's own check, and the joint limits."""
         model = self.body.model
         data = model.createData() if data is None else data
+        q, goal = np.array(q, float), np.array(goal, float)  # copies: the deferred checks below read them later
         pin.framesForwardKinematics(model, data, q)
-        num = Numeric(model, data, q, np.asarray(goal, float))
+        num = Numeric(model, data, q, goal)
         residual = self.strategy.reach.residual(num)
         eager_ok = self.within_limits(q) and all(t.holds(num) for t in self.strategy.hard if not t.lazy)
-        hard_ok = eager_ok and all(t.holds(num) for t in self.strategy.hard if t.lazy)
-        return Check(residual, hard_ok, hard_ok and all(t.holds(num) for t in self.strategy.soft), eager_ok)
+        soft_ok = all(t.holds(num) for t in self.strategy.soft)
+
+        def lazy_ok() -> bool:
+            pin.framesForwardKinematics(model, data, q)  # data may hold another posture by now
+            return all(t.holds(num) for t in self.strategy.hard if t.lazy)
+
+        return Check(residual, eager_ok, lazy_ok, lambda: soft_ok)

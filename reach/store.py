@@ -309,7 +309,9 @@ def save_state(state: Any, path: str | Path, fingerprint: str) -> Path:
     if v.posture is not None:
         arrays["vertex_posture"] = v.posture
     path.parent.mkdir(parents=True, exist_ok=True)
-    _atomic_write(path, lambda fh: np.savez_compressed(fh, **arrays))  # type: ignore[arg-type]
+    # Not compressed: a checkpoint is written after every depth and deleted at the end, and float
+    # postures barely compress (a D_max 7 whole body's: 2.1 s for 20 % smaller, against 0.04 s).
+    _atomic_write(path, lambda fh: np.savez(fh, **arrays))  # type: ignore[arg-type]
     return path
 
 

@@ -317,7 +317,7 @@ def test_jit_leaves_no_files_behind(tmp_path, monkeypatch):
     assert os.getcwd() == str(tmp_path) and list(tmp_path.iterdir()) == []
 
 
-@pytest.mark.parametrize("params", [{"rescues": -1}, {"restarts": -2}, {"give_up": -0.01}, {"settle": -0.01}])
+@pytest.mark.parametrize("params", [{"rescues": -1}, {"restarts": -2}, {"give_up": -0.01}, {"settle": -0.01}, {"decisive": -0.1}])
 def test_negative_search_parameters_are_refused(params):
     with pytest.raises(OracleError, match="must not be negative"):
         CasadiIK(HUMAN, "right_hand", ARM, **params)
@@ -396,26 +396,38 @@ def test_a_settled_warm_start_solves_reach_alone_and_keeps_the_hints_choices(mon
     # Reach alone, pulled towards the hint, moves the natural posture the last
     # centimetres: it stays close to it and about as liked as the full solve's
     # (measured over 6 steps of 2 cm: at most 4.4 deg and 0.9 % less liked;
-    # without the pull 16.6 deg and 11 % for one of them).
-    def settle_around(pulled: bool) -> tuple[list[float], list[float]]:
-        monkeypatch.setattr(CasadiIK, "_params", lambda self, g, x, pull=False: real_params(self, g, x, pulled and pull))
-        moved, liked = [], []
-        for step in np.concatenate([np.eye(3), -np.eye(3)]) * 0.02:
-            q = settled.evaluate((goal + step)[None], natural).posture[0]
-            moved.append(float(np.degrees(np.abs(q - natural[0]).max())))
-            best = full.evaluate((goal + step)[None], natural).posture[0]
-            liked.append(full.preference(q, goal + step) / full.preference(best, goal + step))
-        return moved, liked
-
-    real_params = CasadiIK._params
-    moved, liked = settle_around(pulled=True)
+    # before the pull and the settled program's smaller barrier, 16.6 deg and
+    # 11 % for one of them).
+    moved, liked = [], []
+    for step in np.concatenate([np.eye(3), -np.eye(3)]) * 0.02:
+        q = settled.evaluate((goal + step)[None], natural).posture[0]
+        moved.append(float(np.degrees(np.abs(q - natural[0]).max())))
+        best = full.evaluate((goal + step)[None], natural).posture[0]
+        liked.append(full.preference(q, goal + step) / full.preference(best, goal + step))
     assert max(moved) < 6.0 and max(liked) < 1.03
-    assert max(settle_around(pulled=False)[0]) > 10.0  # the wandering the pull removes
-    monkeypatch.setattr(CasadiIK, "_params", real_params)
     stages.clear()
     assert settled.evaluate(far[None], natural).reachable[0] and 1 in stages  # 6 cm: every stage
     stages.clear()
     assert settled.evaluate(near[None]).reachable[0] and 1 in stages  # no hint: every stage
+
+
+def test_a_settled_reach_stage_runs_its_own_program_with_a_smaller_barrier():
+    tasks = [{"type": "reach"}, {"type": "posture"}]
+    settled = CasadiIK(HUMAN, "right_hand", ARM, tasks, restarts=0, settle=0.03)
+    settled.prepare()
+    assert set(settled.settling) == {0}  # the plain program's twin; the cut one is built with the cuts
+    for other in (CasadiIK(HUMAN, "right_hand", ARM, tasks, restarts=0), CasadiIK(HUMAN, "right_hand", ARM, tasks, restarts=0, settle=0.03, solver="ipopt")):
+        other.prepare()
+        assert other.settling == {}  # nothing settles, or the option is fatrop's
+    goal = settled.problem.anchor + [0.35, -0.1, -0.25]
+    natural = settled.evaluate(goal[None]).posture  # every stage: no hint
+    real, used = settled.settling[0], []
+    settled.settling[0] = lambda **kw: (used.append(1), real(**kw))[1]
+    near = (goal + [0.0, 0.02, 0.0])[None]
+    v = settled.evaluate(near, natural)
+    assert used == [1] and v.reachable[0]
+    _assert_reachable_verdicts_hold(settled, near, v)
+    assert settled.evaluate(near).reachable[0] and used == [1]  # no hint: the plain programs
 
 
 def test_verify_checks_a_posture_found_elsewhere_against_this_strategys_tasks():
@@ -428,3 +440,21 @@ def test_verify_checks_a_posture_found_elsewhere_against_this_strategys_tasks():
     through = q.copy()
     through[arm.body.model.joints[arm.body.joint_id("right_shoulder_abduction")].idx_q] = -0.5
     assert not arm.verify(arm.effector_positions(through[None]), through[None]).any()
+
+
+def test_the_lazy_hard_tasks_are_checked_only_when_asked_and_at_their_own_posture(monkeypatch):
+    from oracles.tasks.self_collision import SelfCollisionTask
+
+    oracle = CasadiIK(HUMAN, "right_hand", ARM, [{"type": "reach"}, {"type": "self_collision"}])
+    p, data = oracle.problem, oracle.body.model.createData()
+    rng = np.random.default_rng(0)
+    postures = [p.q_of_x(p.random_x(rng)) for _ in range(200)]
+    verdicts = [p.check(q, np.zeros(3)).hard_ok for q in postures]  # each with its own data
+    colliding, free = postures[verdicts.index(False)], postures[verdicts.index(True)]
+    asked: list[int] = []
+    real = SelfCollisionTask.holds
+    monkeypatch.setattr(SelfCollisionTask, "holds", lambda self, num: (asked.append(1), real(self, num))[1])
+    far = p.check(colliding, np.array([5.0, 0.0, 0.0]), data)
+    assert not far.reachable and asked == []  # the goal is missed: no collision check
+    later = p.check(free, np.zeros(3), data)  # data now holds the free posture
+    assert far.hard_ok is False and later.hard_ok is True and len(asked) == 2

@@ -73,3 +73,19 @@ def test_other_joint_types_match_pinocchio(kind):
     model.appendBodyToJoint(j, pin.Inertia(2.0, np.array([0.1, -0.2, 0.3]), np.eye(3) * 0.01), pin.SE3.Identity())
     model.addFrame(pin.Frame("tip", j, 0, pin.SE3(np.eye(3), np.array([0.4, 0.0, -0.1])), pin.FrameType.OP_FRAME))
     _check(model, seed=2)
+
+
+def test_x_of_q_inverts_q_of_x_for_every_one_axis_joint_type():
+    # x holds one coordinate per active joint: a continuous joint's (cos, sin) pair maps back to its angle.
+    from oracles.problem import ReachProblem
+    from oracles.strategy import parse_strategy
+
+    body = urdf_body(HERE / "data" / "all_joints.urdf")
+    joints = ["revolute_skew", "revolute_z", "continuous_x", "prismatic_x", "prismatic_skew"]
+    problem = ReachProblem(body, parse_strategy(body, "tool", joints, [{"type": "reach"}]))
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        x = rng.uniform(np.maximum(problem.lower, -3.0), np.minimum(problem.upper, 3.0))
+        q = problem.q_of_x(x)
+        assert np.allclose(problem.x_of_q(q), x, atol=1e-12)
+        assert np.isclose(q[body.model.joints[body.joint_id("continuous_x")].idx_q + 1], np.sin(x[2]))

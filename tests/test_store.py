@@ -245,7 +245,9 @@ def test_verdicts_contradicting_the_labels_are_refused(unit_sphere_tree, tmp_pat
 
 
 def test_a_checkpoint_is_at_most_one_and_a_half_times_the_tree(tmp_path):
-    """The last checkpoint of a build holds what the tree holds: compressed alike, it is no bigger (it was 8x)."""
+    """The last checkpoint of a build holds what the tree holds: no more bytes than the tree's arrays (it was 8x).
+
+    Checkpoints are written uncompressed (the build's time), trees compressed."""
     from helpers import TwoLinkArm
 
     from reach.build import build_tree
@@ -255,6 +257,7 @@ def test_a_checkpoint_is_at_most_one_and_a_half_times_the_tree(tmp_path):
     states = []
     tree = build_tree(TwoLinkArm(), Box([-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]), 2, 5, on_level=states.append)
     assert tree.vertices.posture is not None  # postures are most of the bytes
-    final = save_tree(tree, tmp_path / "tree.npz").stat().st_size
+    with np.load(save_tree(tree, tmp_path / "tree.npz")) as z:
+        raw = sum(z[k].nbytes for k in z.files)
     checkpoint = save_state(states[-1], tmp_path / "state.npz", "fp").stat().st_size
-    assert checkpoint <= 1.5 * final
+    assert checkpoint <= 1.5 * raw

@@ -129,6 +129,7 @@ class SelfCollisionTask(HardTask):
     static: tuple[int, ...] = ()  # capsules that no active joint moves and the effector may not enter (see keep_out)
     _model: CollisionModel | None = field(default=None, repr=False, compare=False)
     _floors: np.ndarray = field(default_factory=lambda: np.zeros(0), init=False, repr=False, compare=False)
+    _ids: tuple[tuple[int, int], ...] = field(default=(), init=False, repr=False, compare=False)
     _reference: Reference | None = field(default=None, init=False, repr=False, compare=False)
 
     @classmethod
@@ -178,6 +179,7 @@ class SelfCollisionTask(HardTask):
         self._model = reference.body.collision
         self._reference = reference
         self._floors = np.array([p.floor for p in self.pairs])
+        self._ids = tuple((p.first, p.second) for p in self.pairs)
 
     def describe(self) -> dict[str, Any]:
         names = [p.name for p in self._model.placed] if self._model else []
@@ -200,7 +202,7 @@ class SelfCollisionTask(HardTask):
     def distances(self, q: np.ndarray) -> np.ndarray:
         """Coal's distance [m] of every pair at q."""
         assert self._model is not None
-        return self._model.distances(q, [(p.first, p.second) for p in self.pairs])
+        return self._model.distances(q, self._ids or tuple((p.first, p.second) for p in self.pairs))
 
     def cuts(self, num: Numeric, within: float) -> list[Cut]:
         assert self._model is not None
