@@ -225,10 +225,13 @@ class IKOracle(ABC):
         if purpose == "refine":
             # The hint and the reference posture, both tried (no give-up): the
             # tree already says reachable, and the budget bounds the time.
-            over: dict[str, Any] = {"restarts": 0, "give_up": None, "secondary": True, "max_seconds": budget, "prefer": PREFER, "reference_first": True}
+            # Never settled: an answer from a character's current posture is
+            # the natural posture reached from it, every stage solved.
+            over: dict[str, Any] = {"restarts": 0, "give_up": None, "secondary": True, "max_seconds": budget, "prefer": PREFER, "reference_first": True,
+                                    "settle": 0.0}
         else:
-            # A verdict only: the lower tasks never change one.
-            over = {"restarts": max(int(self.params["restarts"]), int(restarts)), "give_up": None, "secondary": False}
+            # A verdict only: the lower tasks never change one; the referee solves as it always has (no settling).
+            over = {"restarts": max(int(self.params["restarts"]), int(restarts)), "give_up": None, "secondary": False, "settle": 0.0}
         return type(self)(**{**self.params, **over, **self.variant_params(purpose)})
 
     def variant_params(self, purpose: Purpose) -> dict[str, Any]:

@@ -458,3 +458,18 @@ def test_the_lazy_hard_tasks_are_checked_only_when_asked_and_at_their_own_postur
     assert not far.reachable and asked == []  # the goal is missed: no collision check
     later = p.check(free, np.zeros(3), data)  # data now holds the free posture
     assert far.hard_ok is False and later.hard_ok is True and len(asked) == 2
+
+
+def test_a_settling_builds_variants_never_settle(monkeypatch):
+    # A build settles; an answer from the character's current posture solves every stage, and the referee as always.
+    builder = CasadiIK(HUMAN, "right_hand", ARM, [{"type": "reach"}, {"type": "posture"}], restarts=0, settle=0.07)
+    refine, referee = builder.variant("refine", budget=None), builder.variant("referee")
+    assert builder.settle == 0.07 and refine.settle == 0.0 and referee.settle == 0.0
+    stages: list[int] = []
+    real = CasadiIK._stage
+    monkeypatch.setattr(CasadiIK, "_stage", lambda self, k, *a: (stages.append(k), real(self, k, *a))[1])
+    goal = builder.problem.anchor + [0.35, -0.1, -0.25]
+    current = builder.evaluate(goal[None]).posture[0]
+    stages.clear()
+    v = refine.evaluate_from((goal + [0.0, 0.02, 0.0])[None], current)  # 2 cm from the current posture
+    assert v.reachable[0] and 1 in stages  # the posture stage too
