@@ -32,14 +32,15 @@ class Check:
 
     The lazy hard tasks (self-collision, the floor: the costly checks) are
     checked when ``hard_ok`` or ``reachable`` is first asked, and
-    ``reachable`` asks the soft tasks (the effector at the goal) first: a
+    ``reachable`` looks at the soft tasks (the effector at the goal) first: a
     build's unreachable vertex, given up after one solve, never needs them.
     """
 
-    def __init__(self, residual: float, eager_ok: bool, lazy_ok: Callable[[], bool], soft_ok: Callable[[], bool]) -> None:
+    def __init__(self, residual: float, eager_ok: bool, lazy_ok: Callable[[], bool], soft_ok: bool) -> None:
         self.residual = residual  # [m] effector to goal
         self.eager_ok = eager_ok  # joint limits and the hard tasks that are not lazy hold
-        self._lazy_ok, self._soft_ok = lazy_ok, soft_ok
+        self.soft_ok = soft_ok  # every soft task holds (the effector at the goal among them)
+        self._lazy_ok = lazy_ok
 
     @cached_property
     def hard_ok(self) -> bool:
@@ -48,7 +49,7 @@ class Check:
 
     @cached_property
     def reachable(self) -> bool:
-        return self._soft_ok() and self.hard_ok
+        return self.soft_ok and self.hard_ok
 
 
 def _rpy_quat(r: ca.SX, p: ca.SX, y: ca.SX) -> ca.SX:
@@ -272,4 +273,4 @@ class ReachProblem:
             pin.framesForwardKinematics(model, data, q)  # data may hold another posture by now
             return all(t.holds(num) for t in self.strategy.hard if t.lazy)
 
-        return Check(residual, eager_ok, lazy_ok, lambda: soft_ok)
+        return Check(residual, eager_ok, lazy_ok, soft_ok)

@@ -202,7 +202,7 @@ class SelfCollisionTask(HardTask):
     def distances(self, q: np.ndarray) -> np.ndarray:
         """Coal's distance [m] of every pair at q."""
         assert self._model is not None
-        return self._model.distances(q, self._ids or tuple((p.first, p.second) for p in self.pairs))
+        return self._model.distances(q, self._ids)  # set with _model by bind
 
     def cuts(self, num: Numeric, within: float) -> list[Cut]:
         assert self._model is not None
