@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 from statistics import NormalDist
 from typing import Literal
 
-from reach.errors import ModelError
+from oracles.errors import ModelError
 
 Sex = Literal["male", "female"]
 
@@ -179,7 +179,7 @@ class Anthropometry:
 def stature_at_percentile(sex: Sex, percentile: float) -> float:
     """Stature [m] at a percentile of the ANSUR II distribution (normal)."""
     if not 0.0 < percentile < 100.0:
-        raise ModelError(f"percentile must be in (0, 100), got {percentile}")
+        raise ModelError(f"percentile must be in (0, 100), got {percentile}", name="percentile")
     mean, sd = ANSUR_STATURE[sex]
     return NormalDist(mean, sd).inv_cdf(percentile / 100.0) / 1000.0
 
@@ -200,18 +200,18 @@ def anthropometry(sex: Sex = "male", stature: float | None = None, percentile: f
     the body mass.
     """
     if sex not in DE_LEVA:
-        raise ModelError(f"sex must be 'male' or 'female', got {sex!r}")
+        raise ModelError(f"sex must be 'male' or 'female', got {sex!r}", name="sex")
     if stature is not None and percentile is not None:
-        raise ModelError("give stature or percentile, not both")
+        raise ModelError("give stature or percentile, not both", name="stature")
     if stature is None:
         stature = stature_at_percentile(sex, 50.0 if percentile is None else percentile)
     if not 1.0 <= stature <= 2.5:
-        raise ModelError(f"stature must be in [1.0, 2.5] m, got {stature}")
+        raise ModelError(f"stature must be in [1.0, 2.5] m, got {stature}", name="stature")
     mean_h = ANSUR_STATURE[sex][0] / 1000.0
     if mass is None:
         mass = ANSUR_MASS[sex] * (stature / mean_h) ** 2
     if not 20.0 <= mass <= 250.0:
-        raise ModelError(f"mass must be in [20, 250] kg, got {mass}")
+        raise ModelError(f"mass must be in [20, 250] kg, got {mass}", name="mass")
     table = DE_LEVA[sex]
     scale = stature / (REFERENCE[sex][0] / 1000.0)
     lengths = {k: v[0] / 1000.0 * scale for k, v in table.items()}

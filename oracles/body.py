@@ -31,8 +31,8 @@ import pinocchio as pin
 
 from oracles.anthropometry import Anthropometry, anthropometry
 from oracles.collision import Capsule, CollisionModel, urdf_capsules
+from oracles.errors import ModelError
 from oracles.human import human_capsules, human_urdf, root_height
-from reach.errors import ModelError
 
 ROOT = "root"
 
@@ -91,12 +91,12 @@ class Body:
     def frame_id(self, name: str) -> int:
         if not self.model.existFrame(name):
             known = sorted({str(f.name) for f in self.model.frames} - {"universe"})
-            raise ModelError(f"{self.source}: no frame {name!r}; frames are: {', '.join(known)}")
+            raise ModelError(f"no frame {name!r}; frames are: {', '.join(known)}", source=self.source)
         return int(self.model.getFrameId(name))
 
     def joint_id(self, name: str) -> int:
         if name not in self.joint_names:
-            raise ModelError(f"{self.source}: no joint {name!r}; joints are: {', '.join(self.joint_names)}")
+            raise ModelError(f"no joint {name!r}; joints are: {', '.join(self.joint_names)}", source=self.source)
         return int(self.model.getJointId(name))
 
     def configuration(self, joints: dict[str, float], root: dict[str, list[float]] | None = None) -> np.ndarray:
@@ -155,7 +155,7 @@ def _parse(urdf: str, source: str) -> pin.Model:
     try:
         return pin.buildModelFromXML(urdf, pin.JointModelFreeFlyer(), ROOT)
     except (RuntimeError, ValueError, IndexError) as exc:
-        raise ModelError(f"{source}: not a valid URDF ({exc})") from exc
+        raise ModelError(f"not a valid URDF ({exc})", source=source) from exc
 
 
 def _apply_ranges(model: pin.Model, ranges: dict[str, Any], source: str) -> None:
@@ -163,11 +163,11 @@ def _apply_ranges(model: pin.Model, ranges: dict[str, Any], source: str) -> None
     for pattern, value in ranges.items():
         hits = [n for n in names if fnmatch.fnmatchcase(n, pattern)]
         if not hits:
-            raise ModelError(f"{source}: ranges: no joint matches {pattern!r}; joints are: {', '.join(names)}")
+            raise ModelError(f"ranges: no joint matches {pattern!r}; joints are: {', '.join(names)}", source=source)
         for n in hits:
             jm = model.joints[model.getJointId(n)]
             if jm.nq != 1:
-                raise ModelError(f"{source}: ranges: joint {n!r} has {jm.nq} coordinates; only 1-coordinate joints take ranges")
+                raise ModelError(f"ranges: joint {n!r} has {jm.nq} coordinates; only 1-coordinate joints take ranges", source=source)
             i = jm.idx_q
             if isinstance(value, dict) and set(value) == {"scale"} and isinstance(value["scale"], (int, float)) and 0 < value["scale"] <= 1:
                 model.lowerPositionLimit[i] *= value["scale"]
@@ -175,7 +175,7 @@ def _apply_ranges(model: pin.Model, ranges: dict[str, Any], source: str) -> None
             elif isinstance(value, (list, tuple)) and len(value) == 2 and all(isinstance(v, (int, float)) for v in value) and value[0] <= value[1]:
                 model.lowerPositionLimit[i], model.upperPositionLimit[i] = float(value[0]), float(value[1])
             else:
-                raise ModelError(f"{source}: ranges.{pattern}: expected [lower, upper] in radians or {{scale: f}} with 0 < f <= 1, got {value!r}")
+                raise ModelError(f"ranges.{pattern}: expected [lower, upper] in radians or {{scale: f}} with 0 < f <= 1, got {value!r}", source=source)
 
 
 def _finish(model: pin.Model, urdf: str, source: str, spec: dict[str, Any], root: np.ndarray, capsules: list[Capsule], anthro: Anthropometry | None = None) -> Body:
@@ -212,7 +212,7 @@ def urdf_body(path: str | Path, root_position: list[float] | None = None, ranges
     try:
         urdf = path.read_text()
     except OSError as exc:
-        raise ModelError(f"{path}: cannot read URDF ({exc.strerror or exc})") from exc
+        raise ModelError(f"cannot read URDF ({exc.strerror or exc})", source=path) from exc
     spec: dict[str, Any] = {"urdf": str(path)}
     if root_position is not None:
         spec["root_position"] = list(root_position)
@@ -222,7 +222,7 @@ def urdf_body(path: str | Path, root_position: list[float] | None = None, ranges
         spec["package_dirs"] = list(package_dirs)
     root = np.zeros(3) if root_position is None else np.asarray(root_position, float)
     if root.shape != (3,):
-        raise ModelError(f"{path}: root_position must be [x, y, z] in metres, got {root_position!r}")
+        raise ModelError(f"root_position must be [x, y, z] in metres, got {root_position!r}", source=path)
     capsules = urdf_capsules(urdf, str(path), path.parent, package_dirs or ())
     return _finish(_parse(urdf, str(path)), urdf, str(path), spec, root, capsules)
 
@@ -234,19 +234,19 @@ HUMAN_KEYS = {"sex", "stature", "percentile", "mass"}
 def load_body(spec: dict[str, Any]) -> Body:
     """Build a body from its JSON-compatible spec (see the module docstring)."""
     if not isinstance(spec, dict) or ("human" in spec) == ("urdf" in spec):
-        raise ModelError(f"body spec needs exactly one of 'human' or 'urdf', got {spec!r}")
+        raise ModelError(f"body spec needs exactly one of 'human' or 'urdf', got {spec!r}", source="body spec")
     unknown = set(spec) - BODY_KEYS
     if unknown:
-        raise ModelError(f"body spec: unknown keys {sorted(unknown)}; allowed: {sorted(BODY_KEYS)}")
+        raise ModelError(f"unknown keys {sorted(unknown)}; allowed: {sorted(BODY_KEYS)}", source="body spec")
     ranges = spec.get("ranges")
     if ranges is not None and not isinstance(ranges, dict):
-        raise ModelError(f"body spec: ranges must be a mapping of joint name to range, got {ranges!r}")
+        raise ModelError(f"ranges must be a mapping of joint name to range, got {ranges!r}", source="body spec", name="ranges")
     if "human" in spec:
         human = spec["human"] or {}
         if not isinstance(human, dict) or set(human) - HUMAN_KEYS:
-            raise ModelError(f"body spec: human takes {sorted(HUMAN_KEYS)}, got {human!r}")
+            raise ModelError(f"human takes {sorted(HUMAN_KEYS)}, got {human!r}", source="body spec", name="human")
         return human_body(ranges=ranges, **human)
     dirs = spec.get("package_dirs")
     if dirs is not None and (not isinstance(dirs, list) or not all(isinstance(d, str) for d in dirs)):
-        raise ModelError(f"body spec: package_dirs must be a list of folders, got {dirs!r}")
+        raise ModelError(f"package_dirs must be a list of folders, got {dirs!r}", source="body spec", name="package_dirs")
     return urdf_body(spec["urdf"], spec.get("root_position"), ranges, dirs)

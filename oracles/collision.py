@@ -31,7 +31,7 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from reach.errors import ModelError
+from oracles.errors import ModelError
 
 CAPSULE_PREFIX = "capsule_"
 
@@ -98,7 +98,7 @@ class CollisionModel:
         self.placed: list[Placed] = []
         for c in capsules:
             if not model.existFrame(c.link):
-                raise ModelError(f"{source}: capsule {c.name!r} is on link {c.link!r}, which the model does not have")
+                raise ModelError(f"capsule {c.name!r} is on link {c.link!r}, which the model does not have", source=source)
             frame = model.frames[model.getFrameId(c.link)]
             m = frame.placement
             self.placed.append(Placed(c, int(frame.parentJoint), m.act(np.asarray(c.a, float)), m.act(np.asarray(c.b, float))))
@@ -118,7 +118,7 @@ class CollisionModel:
         for pattern in patterns:
             hits = [n for n in self.index if fnmatch.fnmatchcase(n, pattern)]
             if not hits:
-                raise ModelError(f"no capsule matches {pattern!r}; capsules are: {', '.join(self.index)}")
+                raise ModelError(f"no capsule matches {pattern!r}; capsules are: {', '.join(self.index)}", name=pattern)
             out += hits
         return out
 
@@ -178,12 +178,12 @@ def _resolve(filename: str, urdf_dir: Path | None, package_dirs: Sequence[str | 
             candidate = Path(root) / rest
             if candidate.is_file():
                 return candidate
-        raise ModelError(f"{source}: mesh {filename!r} not found in package_dirs {[str(d) for d in package_dirs]}")
+        raise ModelError(f"mesh {filename!r} not found in package_dirs {[str(d) for d in package_dirs]}", source=source)
     path = Path(filename.removeprefix("file://"))
     if not path.is_absolute() and urdf_dir is not None:
         path = urdf_dir / path
     if not path.is_file():
-        raise ModelError(f"{source}: mesh {filename!r} not found (looked for {path})")
+        raise ModelError(f"mesh {filename!r} not found (looked for {path})", source=source)
     return path
 
 
@@ -193,10 +193,10 @@ def _mesh_capsule(path: Path, scale: np.ndarray, source: str) -> tuple[np.ndarra
     try:
         mesh = trimesh.load(path, force="mesh")
     except Exception as exc:  # trimesh raises many types for unreadable files
-        raise ModelError(f"{source}: cannot read mesh {path} ({exc})") from exc
+        raise ModelError(f"cannot read mesh {path} ({exc})", source=source) from exc
     v = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), dtype=np.float64) * scale
     if v.shape[0] == 0:
-        raise ModelError(f"{source}: mesh {path} has no vertices")
+        raise ModelError(f"mesh {path} has no vertices", source=source)
     centre = v.mean(axis=0)
     axis = np.linalg.svd(v - centre, full_matrices=False)[2][0]
     t = (v - centre) @ axis
@@ -215,7 +215,7 @@ def urdf_capsules(urdf: str, source: str, urdf_dir: Path | None = None, package_
     try:
         root = ET.fromstring(urdf)
     except ET.ParseError as exc:
-        raise ModelError(f"{source}: not a valid URDF (not well-formed XML: {exc})") from exc
+        raise ModelError(f"not a valid URDF (not well-formed XML: {exc})", source=source) from exc
     out: list[Capsule] = []
     for link in root.iter("link"):
         lname = link.get("name", "")
@@ -228,7 +228,7 @@ def urdf_capsules(urdf: str, source: str, urdf_dir: Path | None = None, package_
             geom = col.find("geometry")
             shape = None if geom is None else next(iter(geom), None)
             if shape is None:
-                raise ModelError(f"{source}: link {lname!r}: collision {name!r} has no geometry")
+                raise ModelError(f"link {lname!r}: collision {name!r} has no geometry", source=source)
             where = f"{source}: link {lname!r}: collision {name!r}"
             try:
                 if shape.tag == "cylinder":

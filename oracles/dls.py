@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from oracles.ik import IKOracle
+from oracles.ik import NO_CALL, Call, IKOracle
 from oracles.tasks import Numeric, Row
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
@@ -53,7 +53,6 @@ class DLSIK(IKOracle):
 
     def __init__(self, *args: Any, max_iter: int = 150, damping: float = 0.02, max_step: float = 0.3, max_reach_step: float = 0.05, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        self.params.update(max_iter=max_iter, damping=damping, max_step=max_step, max_reach_step=max_reach_step)
         self.max_iter, self.damping, self.max_step = int(max_iter), float(damping), float(max_step)
         self.max_reach_step = float(max_reach_step)
         model = self.body.model
@@ -70,7 +69,10 @@ class DLSIK(IKOracle):
         self.reach_level = self.soft.index(self.strategy.reach)
         self.unbounded = np.array([model.joints[j].nq == 2 for j in p.joint_ids], dtype=bool)
 
-    def _levels(self, q: np.ndarray, goal: np.ndarray, soft: int) -> tuple[list[Row], int]:
+    def engine_params(self) -> dict[str, Any]:
+        return {"max_iter": self.max_iter, "damping": self.damping, "max_step": self.max_step, "max_reach_step": self.max_reach_step}
+
+    def _levels(self, q: np.ndarray, goal: np.ndarray, soft: int, call: Call) -> tuple[list[Row], int]:
         """The (jacobian, error) of the hard level and the first soft levels at q, columns restricted to x,
         and how many levels (0 or 1) are hard."""
         model, data = self.body.model, self._data
@@ -80,7 +82,7 @@ class DLSIK(IKOracle):
             model, data, q, goal, lambda fid: pin.getFrameJacobian(model, data, fid, LWA)[:, self.cols],
             lambda joint: pin.getJointJacobian(model, data, joint, LWA)[:, self.cols],
             self.cols, self.jcols, self.qidx, self.problem.x_ref, self.max_reach_step,
-            start=self._start, start_weight=0.0 if self._start is None else 1.0,
+            start=call.start, start_weight=0.0 if call.start is None else 1.0,
         )
         hard = [row for t in self.strategy.hard for row in t.rows(num)]
         levels = [Row(np.vstack([r.jacobian for r in hard]), np.concatenate([r.error for r in hard]))] if hard else []
@@ -99,15 +101,15 @@ class DLSIK(IKOracle):
             proj = proj - np.linalg.pinv(jp, rcond=1e-8) @ jp
         return dq
 
-    def _iterate(self, q: np.ndarray, goal: np.ndarray, soft: int, max_iter: int) -> np.ndarray:
+    def _iterate(self, q: np.ndarray, goal: np.ndarray, soft: int, max_iter: int, call: Call) -> np.ndarray:
         """Iterate the stack truncated after the first soft levels; returns q."""
         model = self.body.model
         tol = 0.05 * self.strategy.tolerance
         bounded = ~self.unbounded
         for _ in range(max_iter):
-            if time.perf_counter() > self._deadline:
+            if time.perf_counter() > call.deadline:
                 break
-            levels, n_hard = self._levels(q, goal, soft)
+            levels, n_hard = self._levels(q, goal, soft, call)
             # The hard level (when any row is active) and the levels down to reach must be closed.
             err = max((float(np.abs(e).max()) if e.size else 0.0) for _, e in levels[: n_hard + self.reach_level + 1])
             free = np.ones(self.cols.size, bool)
@@ -129,11 +131,11 @@ class DLSIK(IKOracle):
             q[self.qidx[bounded]] = np.clip(q[self.qidx[bounded]], self.qlo[bounded], self.qhi[bounded])
         return q
 
-    def solve(self, goal: np.ndarray, x0: np.ndarray, lower: bool = True) -> np.ndarray:
+    def solve(self, goal: np.ndarray, x0: np.ndarray, lower: bool = True, call: Call = NO_CALL) -> np.ndarray:
         """Lexicographic like casadi-ik: first the tasks down to reach, then the lower ones."""
-        q = self._iterate(self.problem.q_of_x(x0), goal, self.reach_level + 1, self.max_iter)
-        if lower and self.secondary and len(self.soft) > self.reach_level + 1 and self.problem.check(q, goal, self._data).reachable:
-            refined = self._iterate(q.copy(), goal, len(self.soft), self.max_iter // 3)
+        q = self._iterate(self.problem.q_of_x(x0), goal, self.reach_level + 1, self.max_iter, call)
+        if lower and self.search.secondary and len(self.soft) > self.reach_level + 1 and self.problem.check(q, goal, self._data).reachable:
+            refined = self._iterate(q.copy(), goal, len(self.soft), self.max_iter // 3, call)
             if self.problem.check(refined, goal, self._data).reachable:
                 q = refined  # the lower tasks never cost the verdict
         return q

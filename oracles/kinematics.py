@@ -21,7 +21,7 @@ import casadi as ca
 import numpy as np
 import pinocchio as pin
 
-from reach.errors import ModelError
+from oracles.errors import ModelError
 
 SE3 = tuple[ca.SX, ca.SX]  # (rotation 3x3, translation 3x1)
 
@@ -88,7 +88,7 @@ def joint_motion(joint: pin.JointModel, q: ca.SX) -> SE3:
         ry = _rot(_AXES["Y"], ca.cos(q[1]), ca.sin(q[1]))
         rx = _rot(_AXES["X"], ca.cos(q[2]), ca.sin(q[2]))
         return rz @ ry @ rx, zero
-    raise ModelError(f"joint type {kind} is not supported by the symbolic kinematics")
+    raise ModelError(f"joint type {kind} is not supported by the symbolic kinematics", name=str(kind))
 
 
 def _compose(a: SE3, b: SE3) -> SE3:
@@ -120,7 +120,7 @@ class SymbolicKinematics:
     def frame(self, name: str) -> SE3:
         """World placement (R, p) of a frame."""
         if not self.model.existFrame(name):
-            raise ModelError(f"no frame {name!r} in the model")
+            raise ModelError(f"no frame {name!r} in the model", name=name)
         f = self.model.frames[self.model.getFrameId(name)]
         return _compose(self.placements[f.parentJoint], _const(f.placement))
 

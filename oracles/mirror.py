@@ -13,7 +13,7 @@ import numpy as np
 import pinocchio as pin
 
 from oracles.body import Body
-from reach.errors import ModelError
+from oracles.errors import ModelError
 
 SIDES = (("left_", "right_"), ("right_", "left_"))
 REFLECT = np.array([1.0, -1.0, 1.0])  # a point's mirror image about the world frame's y = 0
@@ -38,10 +38,10 @@ class MirrorMap:
         for n in names:
             other = _counterpart(n)
             if other not in names:
-                raise ModelError(f"{body.source}: joint {n!r} has no mirror counterpart {other!r}")
+                raise ModelError(f"joint {n!r} has no mirror counterpart {other!r}", source=body.source)
             j, k = model.joints[model.getJointId(n)], model.joints[model.getJointId(other)]
             if j.nq != 1 or k.nq != 1:
-                raise ModelError(f"{body.source}: mirroring supports one-coordinate joints only ({n!r})")
+                raise ModelError(f"mirroring supports one-coordinate joints only ({n!r})", source=body.source)
             self.perm[j.idx_q] = k.idx_q
         self.frames = [str(f.name) for f in model.frames if str(f.name) != "universe" and _counterpart(str(f.name)) in {str(g.name) for g in model.frames}]
         # Central joints: pick the sign that mirrors the frames; side joints keep theirs.
@@ -61,7 +61,7 @@ class MirrorMap:
         mhi = np.where(self.sign[7:] > 0, hi, -lo)[self.perm[7:] - 7]
         bad = [names[i] for i in range(len(names)) if not (np.isclose(mlo[i], lo[i]) and np.isclose(mhi[i], hi[i]))]
         if bad:
-            raise ModelError(f"{body.source}: joint ranges are not mirror-symmetric ({', '.join(sorted(bad)[:4])}); build both sides instead")
+            raise ModelError(f"joint ranges are not mirror-symmetric ({', '.join(sorted(bad)[:4])}); build both sides instead", source=body.source)
         rng = np.random.default_rng(seed)
         for _ in range(samples):
             q = body.q_ref.copy()
@@ -70,7 +70,7 @@ class MirrorMap:
             q[3:7] = pin.Quaternion(pin.rpy.rpyToMatrix(*rng.normal(scale=0.2, size=3))).coeffs()
             err = self._error(q)
             if err > tol:
-                raise ModelError(f"{body.source}: the model is not mirror-symmetric about y = 0 (frames differ by {err:.3g} m); build both sides instead")
+                raise ModelError(f"the model is not mirror-symmetric about y = 0 (frames differ by {err:.3g} m); build both sides instead", source=body.source)
 
     def mirror_q(self, q: np.ndarray) -> np.ndarray:
         """The mirror image of configuration(s) q, shape (..., nq)."""

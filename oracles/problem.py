@@ -19,9 +19,9 @@ import numpy as np
 import pinocchio as pin
 
 from oracles.body import ROOT, Body
+from oracles.errors import ModelError
 from oracles.strategy import Strategy
 from oracles.tasks import Numeric, Reference
-from reach.errors import ModelError
 
 LIMIT_TOL = 1e-6  # [rad or m] joint limit overshoot the verdict accepts
 READY = 0.3  # how far the ready start moves each joint from the reference towards its range's middle (a modelling choice)
@@ -82,7 +82,7 @@ class ReachProblem:
             j = body.joint_id(name)
             jm = model.joints[j]
             if jm.nv != 1:
-                raise ModelError(f"{body.source}: joint {name!r} has {jm.nv} degrees of freedom; only the root and one-axis joints can be active")
+                raise ModelError(f"joint {name!r} has {jm.nv} degrees of freedom; only the root and one-axis joints can be active", source=body.source)
             self.joint_ids.append(j)
             self.x_names.append(name)
             limited.append(jm.nq == 1)

@@ -45,7 +45,7 @@ from typing import Any, Literal, NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
 
-from reach.errors import OracleError
+from oracles.errors import OracleError
 
 
 class Verdicts(NamedTuple):
@@ -110,7 +110,7 @@ PURPOSES: tuple[str, ...] = ("refine", "referee")
 
 def check_purpose(purpose: str) -> None:
     if purpose not in PURPOSES:
-        raise OracleError(f"unknown oracle purpose {purpose!r}; expected one of {', '.join(PURPOSES)}")
+        raise OracleError(f"unknown oracle purpose {purpose!r}; expected one of {', '.join(PURPOSES)}", key="purpose")
 
 
 @runtime_checkable
@@ -295,7 +295,7 @@ def check_points(points: np.ndarray, dim: int) -> np.ndarray:
     """Return points as a float (N, dim) array or raise a clear error."""
     arr = np.asarray(points, dtype=float)
     if arr.ndim != 2 or arr.shape[1] != dim:
-        raise OracleError(f"points must have shape (N, {dim}), got {arr.shape}")
+        raise OracleError(f"points must have shape (N, {dim}), got {arr.shape}", key="points")
     return arr
 
 
@@ -309,9 +309,9 @@ def check_verdicts(verdicts: Verdicts, n: int, nq: int) -> Verdicts:
         )
     posture = verdicts.posture
     if nq and posture is None:
-        raise OracleError(f"oracle declares {nq} posture names but returned no postures")
+        raise OracleError(f"oracle declares {nq} posture names but returned no postures", key="posture")
     if posture is not None:
         posture = np.asarray(posture, dtype=float)
         if posture.shape != (n, nq):
-            raise OracleError(f"oracle returned postures {posture.shape}, expected ({n}, {nq})")
+            raise OracleError(f"oracle returned postures {posture.shape}, expected ({n}, {nq})", key="posture")
     return Verdicts(reach, res, posture)

@@ -13,8 +13,8 @@ from collections.abc import Callable
 from importlib.metadata import entry_points
 from typing import Any
 
+from oracles.errors import OracleError
 from oracles.protocol import Oracle, OracleSpec
-from reach.errors import OracleError
 
 ENTRY_POINT_GROUP = "reach.oracles"
 
@@ -27,14 +27,17 @@ BUILTIN: dict[str, str] = {
     "union": "oracles.shapes:union",
     "intersection": "oracles.shapes:intersection",
     "difference": "oracles.shapes:difference",
-    "casadi-ik": "oracles.ik:CasadiIK",
-    "dls": "oracles.dls:DLSIK",
+    "casadi-ik": "oracles.ik:CasadiIK.from_params",
+    "dls": "oracles.dls:DLSIK.from_params",
 }
 
 
 def _load(target: str) -> Callable[..., Oracle]:
     module, _, attr = target.partition(":")
-    return getattr(importlib.import_module(module), attr)  # type: ignore[no-any-return]
+    found: Any = importlib.import_module(module)
+    for part in attr.split("."):  # a class's factory method, e.g. CasadiIK.from_params
+        found = getattr(found, part)
+    return found  # type: ignore[no-any-return]
 
 
 def available() -> list[str]:
@@ -51,7 +54,7 @@ def factory(name: str) -> Callable[..., Oracle]:
     for ep in entry_points(group=ENTRY_POINT_GROUP):
         if ep.name == name:
             return ep.load()  # type: ignore[no-any-return]
-    raise OracleError(f"unknown oracle {name!r}; available: {', '.join(available())}")
+    raise OracleError(f"unknown oracle {name!r}; available: {', '.join(available())}", key="name")
 
 
 def create(spec: OracleSpec | dict[str, Any]) -> Oracle:
@@ -62,4 +65,4 @@ def create(spec: OracleSpec | dict[str, Any]) -> Oracle:
     try:
         return make(**spec.params)
     except TypeError as exc:
-        raise OracleError(f"oracle {spec.name!r}: bad parameters {sorted(spec.params)}: {exc}") from exc
+        raise OracleError(f"oracle {spec.name!r}: bad parameters {sorted(spec.params)}: {exc}", key="params") from exc

@@ -13,23 +13,23 @@ from typing import Any
 
 import numpy as np
 
+from oracles.errors import OracleError
 from oracles.protocol import Oracle, Verdicts, check_points
 from oracles.registry import create
-from reach.errors import OracleError
 
 
 def _vector(name: str, value: Any, dim: int | None = None) -> np.ndarray:
     arr = np.asarray(value, dtype=float)
     if arr.ndim != 1 or (dim is not None and arr.shape[0] != dim) or not np.all(np.isfinite(arr)):
         want = f"{dim} finite numbers" if dim else "a list of finite numbers"
-        raise OracleError(f"{name} must be {want}, got {value!r}")
+        raise OracleError(f"{name} must be {want}, got {value!r}", key=name)
     return arr
 
 
 def _positive(name: str, value: Any) -> float:
     v = float(value)
     if not np.isfinite(v) or v <= 0:
-        raise OracleError(f"{name} must be a positive number [m], got {value!r}")
+        raise OracleError(f"{name} must be a positive number [m], got {value!r}", key=name)
     return v
 
 
@@ -65,7 +65,7 @@ def circle(center: Sequence[float] = (0.0, 0.0), radius: float = 1.0) -> Ball:
     """The 2-D disc of the paper's Figure 2."""
     ball = Ball(center, radius)
     if ball.dim != 2:
-        raise OracleError(f"circle needs a 2-D center, got {list(center)}")
+        raise OracleError(f"circle needs a 2-D center, got {list(center)}", oracle="circle", key="center")
     return ball
 
 

@@ -32,9 +32,9 @@ from dataclasses import dataclass
 from typing import Any
 
 from oracles.body import ROOT, Body
+from oracles.errors import ModelError, TaskError
 from oracles.tasks import TASKS, HardTask, ReachTask, Scope, SoftTask, Task
 from oracles.tasks.base import matching
-from reach.errors import ModelError, TaskError
 
 
 @dataclass(frozen=True)
@@ -88,13 +88,13 @@ class Strategy:
 def active_joints(body: Body, joints: Any) -> tuple[str, ...]:
     """The joints named by names or glob patterns, in model order."""
     if not isinstance(joints, list) or not joints or not all(isinstance(j, str) for j in joints):
-        raise ModelError(f"joints: expected a non-empty list of joint names or patterns, got {joints!r}")
+        raise ModelError(f"joints: expected a non-empty list of joint names or patterns, got {joints!r}", name="joints")
     names = [ROOT, *body.joint_names]
     active: set[str] = set()
     for pattern in joints:
         hits = matching(names, pattern)
         if not hits:
-            raise ModelError(f"{body.source}: joints: no joint matches {pattern!r}; joints are: {', '.join(names)}")
+            raise ModelError(f"joints: no joint matches {pattern!r}; joints are: {', '.join(names)}", source=body.source)
         active.update(hits)
     return tuple(n for n in names if n in active)
 
@@ -116,7 +116,7 @@ def parse_strategy(body: Body, effector: str, joints: list[str], tasks: list[dic
     ordered = active_joints(body, joints)
     tasks = [{"type": "reach"}] if tasks is None else tasks
     if not isinstance(tasks, list):
-        raise ModelError(f"tasks: expected a list of task mappings, got {tasks!r}")
+        raise ModelError(f"tasks: expected a list of task mappings, got {tasks!r}", name="tasks")
     scope = Scope(body, effector, frozenset(ordered))
     parsed: list[Task] = []
     for i, raw in enumerate(tasks):

@@ -1,17 +1,22 @@
-"""Errors raised by reach and oracles.
+"""Errors raised by reach, and the oracles' own re-exported.
 
 Every error a user can trigger derives from :class:`ReachError` and carries
 the file, key or field it is about, so that a message names what was wrong
-and what was expected.
+and what was expected. The root and the oracles' errors live in
+:mod:`oracles.errors` (the lower layer); they are re-exported here so that
+``reach.errors`` names every error.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
+from oracles.errors import ModelError, OracleError, ReachError, TaskError
 
-class ReachError(Exception):
-    """Root of every error reach raises on purpose."""
+__all__ = [
+    "ConfigError", "InputError", "ModelError", "ModelMismatch", "OracleError", "ProtocolError", "ReachError", "ServerError",
+    "ServerUnavailable", "StoreError", "TaskError", "TreeError", "UnknownEffector", "UnknownName", "UnknownPolicy", "UnknownStrategy",
+]
 
 
 class ConfigError(ReachError):
@@ -43,10 +48,6 @@ class StoreError(ReachError):
         self.path = str(path)
         self.reason = reason
         super().__init__(f"{self.path}: {reason}")
-
-
-class OracleError(ReachError):
-    """An oracle is unknown, misconfigured, or returned malformed verdicts."""
 
 
 class UnknownName(ReachError):
@@ -141,26 +142,17 @@ class ServerUnavailable(ReachError):
         super().__init__(f"no reply from {address} after {attempts} attempts of {timeout_ms} ms")
 
 
-class ModelError(ReachError):
-    """A body model (URDF, frame or joint name) is invalid or unknown."""
-
-
-class TaskError(ModelError):
-    """A strategy's task is misconfigured.
+class TreeError(ReachError):
+    """An operation on trees is impossible (e.g. booleans of mismatched lattices).
 
     Attributes:
-        key: Where in the strategy, e.g. ``tasks[1].heels``.
         reason: What was wrong and what was expected.
+        what: The argument or tree concerned, when there is one.
     """
 
-    def __init__(self, key: str, reason: str) -> None:
-        self.key = key
-        self.reason = reason
-        super().__init__(f"{key}: {reason}")
-
-
-class TreeError(ReachError):
-    """An operation on trees is impossible (e.g. booleans of mismatched lattices)."""
+    def __init__(self, reason: str, *, what: str | None = None) -> None:
+        self.reason, self.what = reason, what
+        super().__init__(f"{what}: {reason}" if what else reason)
 
 
 class UnknownPolicy(UnknownName, TreeError):

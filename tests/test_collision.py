@@ -13,6 +13,7 @@ from helpers import ARM
 from oracles.body import human_body, urdf_body
 from oracles.collision import Capsule, nearest_points
 from oracles.problem import ReachProblem
+from oracles.search import Search
 from oracles.strategy import parse_strategy
 from reach.errors import ModelError
 
@@ -167,8 +168,8 @@ def test_a_robot_on_a_table_no_longer_reaches_through_it():
 
     ur5 = {"urdf": str(Path(__file__).resolve().parents[1] / "configs" / "urdf" / "ur5.urdf")}
     table = {"type": "obstacles", "boxes": [{"min": [-1.0, -1.0, -0.8], "max": [1.0, 1.0, -0.001]}]}
-    free = CasadiIK(ur5, "ee_link", ["*_joint"], [{"type": "reach"}], restarts=2)
-    guarded = CasadiIK(ur5, "ee_link", ["*_joint"], [{"type": "reach"}, table], restarts=2)
+    free = CasadiIK(ur5, "ee_link", ["*_joint"], [{"type": "reach"}], search=Search(restarts=2))
+    guarded = CasadiIK(ur5, "ee_link", ["*_joint"], [{"type": "reach"}, table], search=Search(restarts=2))
     below, above = np.array([[0.4, 0.2, -0.3]]), np.array([[0.4, 0.2, 0.3]])
     assert free.evaluate(below).reachable[0]  # through the table top
     assert not guarded.evaluate(below).reachable[0]
@@ -195,7 +196,7 @@ def test_reachable_arm_verdicts_are_collision_free_by_an_independent_coal_check(
 
     from oracles.ik import CasadiIK
 
-    oracle = CasadiIK({"human": {"sex": "male", "percentile": 50}}, "right_hand", ARM, [{"type": "reach"}, {"type": "self_collision"}], restarts=2)
+    oracle = CasadiIK({"human": {"sex": "male", "percentile": 50}}, "right_hand", ARM, [{"type": "reach"}, {"type": "self_collision"}], search=Search(restarts=2))
     body, task = oracle.body, oracle.strategy.task("self_collision")
     shapes = {}
     for link in ET.fromstring(body.urdf).iter("link"):
@@ -228,7 +229,7 @@ def test_reachable_arm_verdicts_are_collision_free_by_an_independent_coal_check(
 def test_the_arms_keep_out_is_the_static_body_and_unreachable():
     from oracles.ik import CasadiIK
 
-    oracle = CasadiIK({"human": {}}, "right_hand", ARM, [{"type": "reach"}, {"type": "self_collision"}], restarts=3, give_up=None)
+    oracle = CasadiIK({"human": {}}, "right_hand", ARM, [{"type": "reach"}, {"type": "self_collision"}], search=Search(restarts=3, give_up=None))
     task = oracle.strategy.task("self_collision")
     names = {oracle.body.collision.placed[i].name for i in task.static}
     assert {"thorax", "abdomen", "pelvis", "head", "left_upper_arm"} <= names

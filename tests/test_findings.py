@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from oracles.search import Search
 from reach.atlas import build_atlas
 from reach.config import load_config, parse_config, read_yaml
 from reach.executor import ProcessExecutor
@@ -69,8 +70,8 @@ def test_balance_costs_upper_front_goals():
     joints = [j for j in read_yaml(ROOT / "configs" / "demo.yaml")["strategies"][4]["joints"] if not j.startswith("left_")]
     planted = [{"type": "reach"}, {"type": "feet", "heels": "down"}]
     body = {"human": {"sex": "male", "percentile": 50}}
-    free = CasadiIK(body, "right_hand", joints, planted, restarts=2)
-    balanced = CasadiIK(body, "right_hand", joints, [*planted, {"type": "balance", "margin": 0.02}], restarts=2)
+    free = CasadiIK(body, "right_hand", joints, planted, search=Search(restarts=2))
+    balanced = CasadiIK(body, "right_hand", joints, [*planted, {"type": "balance", "margin": 0.02}], search=Search(restarts=2))
     goals = np.array([[1.1, -0.2, 1.6], [1.2, -0.2, 1.4], [1.0, -0.2, 1.8]])
     assert free.evaluate(goals).reachable.all()
     assert not balanced.evaluate(goals).reachable.any()

@@ -11,8 +11,9 @@ import pinocchio as pin
 import pytest
 
 from oracles.dls import DLSIK
-from oracles.ik import CasadiIK
+from oracles.ik import Call, CasadiIK
 from oracles.protocol import OracleSpec
+from oracles.search import Search
 from reach.config import load_config
 from reach.errors import ModelError, OracleError
 
@@ -27,17 +28,17 @@ PLANTED = [{"type": "reach"}, {"type": "feet", "heels": "down"}, {"type": "balan
 
 @pytest.fixture(scope="module")
 def arm():
-    return CasadiIK(HUMAN, "right_hand", ARM, restarts=2)
+    return CasadiIK(HUMAN, "right_hand", ARM, search=Search(restarts=2))
 
 
 @pytest.fixture(scope="module")
 def whole():
-    return CasadiIK(HUMAN, "right_hand", WHOLE, PLANTED, restarts=1)
+    return CasadiIK(HUMAN, "right_hand", WHOLE, PLANTED, search=Search(restarts=1))
 
 
 @pytest.fixture(scope="module")
 def crouch():
-    return CasadiIK(HUMAN, "right_hand", CROUCH, PLANTED, restarts=1)
+    return CasadiIK(HUMAN, "right_hand", CROUCH, PLANTED, search=Search(restarts=1))
 
 
 def _independent_fk(oracle, q: np.ndarray) -> dict[str, np.ndarray]:
@@ -116,8 +117,8 @@ def test_warm_start_hint_needs_one_solve(arm):
 
 def test_determinism():
     pts = np.random.default_rng(2).uniform([-0.2, -0.8, 0.8], [0.7, 0.2, 1.9], (8, 3))
-    a = CasadiIK(HUMAN, "right_hand", ARM, seed=7).evaluate(pts)
-    b = CasadiIK(HUMAN, "right_hand", ARM, seed=7).evaluate(pts)
+    a = CasadiIK(HUMAN, "right_hand", ARM, search=Search(seed=7)).evaluate(pts)
+    b = CasadiIK(HUMAN, "right_hand", ARM, search=Search(seed=7)).evaluate(pts)
     assert np.array_equal(a.reachable, b.reachable) and np.array_equal(a.posture, b.posture)
 
 
@@ -152,8 +153,8 @@ def test_gaze_aims_the_eyes_without_degrading_reach():
 
 def test_dls_agrees_with_casadi_and_holds_under_fk():
     pts = np.random.default_rng(3).uniform([-0.4, -0.9, 0.6], [0.8, 0.4, 2.1], (40, 3))
-    c = CasadiIK(HUMAN, "right_hand", UPPER, [{"type": "reach"}], restarts=2)
-    d = DLSIK(HUMAN, "right_hand", UPPER, [{"type": "reach"}], restarts=2)
+    c = CasadiIK(HUMAN, "right_hand", UPPER, [{"type": "reach"}], search=Search(restarts=2))
+    d = DLSIK(HUMAN, "right_hand", UPPER, [{"type": "reach"}], search=Search(restarts=2))
     vc, vd = c.evaluate(pts), d.evaluate(pts)
     _assert_reachable_verdicts_hold(d, pts, vd)
     assert np.mean(vc.reachable == vd.reachable) >= 0.95
@@ -161,7 +162,7 @@ def test_dls_agrees_with_casadi_and_holds_under_fk():
 
 def test_ik_on_a_urdf_robot():
     body = {"urdf": str(ROOT / "configs" / "urdf" / "ur5.urdf")}
-    oracle = CasadiIK(body, "ee_link", ["*_joint"], restarts=2)
+    oracle = CasadiIK(body, "ee_link", ["*_joint"], search=Search(restarts=2))
     pts = np.array([[0.4, 0.2, 0.3], [0.0, 0.5, 0.6], [2.0, 0.0, 0.0]])
     v = oracle.evaluate(pts)
     assert v.reachable.tolist() == [True, True, False]
@@ -213,8 +214,8 @@ def test_contacts_are_kept_only_where_an_active_joint_can_move_them():
 def test_give_up_skips_restarts_after_a_decisive_warm_solve():
     # Behind and across the body at shoulder height the arm's joint limits
     # end the volume about 0.4 m left of the shoulder; this goal is beyond.
-    thorough = CasadiIK(HUMAN, "right_hand", ARM, restarts=2, give_up=None)
-    hasty = CasadiIK(HUMAN, "right_hand", ARM, restarts=2)  # gives up after any failed decisive warm start
+    thorough = CasadiIK(HUMAN, "right_hand", ARM, search=Search(restarts=2, give_up=None))
+    hasty = CasadiIK(HUMAN, "right_hand", ARM, search=Search(restarts=2))  # gives up after any failed decisive warm start
     goal = (thorough.problem.anchor + [-0.1, 0.5, 0.0])[None]
     assert thorough.problem.prefilter(goal[0]) == 0.0  # the solver, not the pre-filter, decides
     best = thorough.evaluate(goal)
@@ -230,7 +231,7 @@ def test_give_up_skips_restarts_after_a_decisive_warm_solve():
 def test_give_up_never_cuts_cold_starts_short():
     # From the reference posture this goal's first solve ends about 0.3 m
     # away; a random restart reaches it.
-    hasty = CasadiIK(HUMAN, "right_hand", ARM, restarts=2)
+    hasty = CasadiIK(HUMAN, "right_hand", ARM, search=Search(restarts=2))
     goal = (hasty.problem.anchor + [-0.2, 0.3, 0.3])[None]
     v = hasty.evaluate(goal)
     assert v.reachable[0] and hasty.stats["solves"] >= 2
@@ -239,8 +240,8 @@ def test_give_up_never_cuts_cold_starts_short():
 
 def test_fatrop_and_ipopt_agree_on_whole_body_verdicts():
     goals = np.random.default_rng(5).uniform([-0.8, -1.2, 0.0], [1.2, 0.6, 2.4], (16, 3))
-    fatrop = CasadiIK(HUMAN, "right_hand", WHOLE, PLANTED, restarts=1, solver="fatrop").evaluate(goals)
-    ipopt = CasadiIK(HUMAN, "right_hand", WHOLE, PLANTED, restarts=1, solver="ipopt").evaluate(goals)
+    fatrop = CasadiIK(HUMAN, "right_hand", WHOLE, PLANTED, solver="fatrop", search=Search(restarts=1)).evaluate(goals)
+    ipopt = CasadiIK(HUMAN, "right_hand", WHOLE, PLANTED, solver="ipopt", search=Search(restarts=1)).evaluate(goals)
     assert 4 <= fatrop.reachable.sum() <= 12  # a mix of both verdicts
     assert np.sum(fatrop.reachable != ipopt.reachable) <= 1
 
@@ -298,13 +299,13 @@ def test_jit_without_a_compiler(monkeypatch):
 
 
 def test_rescues_are_random_restarts_after_giving_up():
-    thorough = CasadiIK(HUMAN, "right_hand", ARM, restarts=2, give_up=None)
+    thorough = CasadiIK(HUMAN, "right_hand", ARM, search=Search(restarts=2, give_up=None))
     goal = (thorough.problem.anchor + [-0.1, 0.5, 0.0])[None]
     hint = thorough.evaluate(goal).posture  # as in test_give_up_...: a decisive, failing warm start
-    rescuing = CasadiIK(HUMAN, "right_hand", ARM, restarts=2, rescues=1)
+    rescuing = CasadiIK(HUMAN, "right_hand", ARM, search=Search(restarts=2, rescues=1))
     assert not rescuing.evaluate(goal, hint).reachable[0]
     assert rescuing.stats["solves"] == 2  # the hint, then one random restart (no reference start)
-    near_miss = CasadiIK(HUMAN, "right_hand", ARM, restarts=2, give_up=1.0)  # every failure counts as a near miss
+    near_miss = CasadiIK(HUMAN, "right_hand", ARM, search=Search(restarts=2, give_up=1.0))  # every failure counts as a near miss
     near_miss.evaluate(goal, hint)
     assert near_miss.stats["solves"] == 4  # the hint, the reference and both restarts
 
@@ -317,10 +318,13 @@ def test_jit_leaves_no_files_behind(tmp_path, monkeypatch):
     assert os.getcwd() == str(tmp_path) and list(tmp_path.iterdir()) == []
 
 
-@pytest.mark.parametrize("params", [{"rescues": -1}, {"restarts": -2}, {"give_up": -0.01}, {"settle": -0.01}, {"decisive": -0.1}])
-def test_negative_search_parameters_are_refused(params):
-    with pytest.raises(OracleError, match="must not be negative"):
-        CasadiIK(HUMAN, "right_hand", ARM, **params)
+@pytest.mark.parametrize("params", [{"rescues": -1}, {"restarts": -2}, {"give_up": -0.01}, {"settle": -0.01}, {"decisive": -0.1},
+                                    {"restarts": 1.5}, {"prefer": "yes"}, {"max_seconds": float("nan")}])
+def test_bad_search_parameters_are_refused_naming_the_key(params):
+    key = next(iter(params))
+    with pytest.raises(OracleError, match=rf"^{key} must be") as err:
+        OracleSpec("casadi-ik", {"body": HUMAN, "effector": "right_hand", "joints": ARM, **params}).create()
+    assert err.value.key == key
 
 
 def test_refinement_starts_from_the_reference_unless_a_current_posture_is_given():
@@ -334,8 +338,8 @@ def test_refinement_starts_from_the_reference_unless_a_current_posture_is_given(
     assert np.allclose(starts[0], refine.problem.x_ref) and np.allclose(starts[1], refine.problem.x_ready)  # queries: reference, ready
     elbow = refine.problem.x_names.index("right_elbow_flexion")
     assert refine.problem.x_ref[elbow] == 0.0 < refine.problem.x_ready[elbow]  # off the straight elbow
-    refine._start = x_hint  # as evaluate_from sets it: the current posture first, for continuity
-    assert np.allclose(refine.starts(goal, hint)[0], x_hint)
+    # With a current posture (evaluate_from), the hint (that posture) comes first, for continuity.
+    assert np.allclose(refine.starts(goal, hint, Call(start=x_hint))[0], x_hint)
 
 
 def test_seeded_refinement_tries_every_seed_and_refuses_a_wrong_shape():
@@ -375,8 +379,8 @@ def test_with_a_current_posture_the_reach_stage_moves_it_the_least(monkeypatch):
 
 def test_a_settled_warm_start_solves_reach_alone_and_keeps_the_hints_choices(monkeypatch):
     tasks = [{"type": "reach"}, {"type": "posture"}]
-    full = CasadiIK(HUMAN, "right_hand", ARM, tasks, restarts=0)
-    settled = CasadiIK(HUMAN, "right_hand", ARM, tasks, restarts=0, settle=0.03)
+    full = CasadiIK(HUMAN, "right_hand", ARM, tasks, search=Search(restarts=0))
+    settled = CasadiIK(HUMAN, "right_hand", ARM, tasks, search=Search(restarts=0, settle=0.03))
     stages: list[int] = []
     real = CasadiIK._stage
 
@@ -413,16 +417,16 @@ def test_a_settled_warm_start_solves_reach_alone_and_keeps_the_hints_choices(mon
 
 def test_a_settled_reach_stage_runs_its_own_program_with_a_smaller_barrier():
     tasks = [{"type": "reach"}, {"type": "posture"}]
-    settled = CasadiIK(HUMAN, "right_hand", ARM, tasks, restarts=0, settle=0.03)
+    settled = CasadiIK(HUMAN, "right_hand", ARM, tasks, search=Search(restarts=0, settle=0.03))
     settled.prepare()
-    assert set(settled.settling) == {0}  # the plain program's twin; the cut one is built with the cuts
-    for other in (CasadiIK(HUMAN, "right_hand", ARM, tasks, restarts=0), CasadiIK(HUMAN, "right_hand", ARM, tasks, restarts=0, settle=0.03, solver="ipopt")):
+    assert set(settled.programs.settling) == {0}  # the plain program's twin; the cut one is built with the cuts
+    for other in (CasadiIK(HUMAN, "right_hand", ARM, tasks, search=Search(restarts=0)), CasadiIK(HUMAN, "right_hand", ARM, tasks, solver="ipopt", search=Search(restarts=0, settle=0.03))):
         other.prepare()
-        assert other.settling == {}  # nothing settles, or the option is fatrop's
+        assert other.programs.settling == {}  # nothing settles, or the option is fatrop's
     goal = settled.problem.anchor + [0.35, -0.1, -0.25]
     natural = settled.evaluate(goal[None]).posture  # every stage: no hint
-    real, used = settled.settling[0], []
-    settled.settling[0] = lambda **kw: (used.append(1), real(**kw))[1]
+    real, used = settled.programs.settling[0], []
+    settled.programs.settling[0] = lambda **kw: (used.append(1), real(**kw))[1]
     near = (goal + [0.0, 0.02, 0.0])[None]
     v = settled.evaluate(near, natural)
     assert used == [1] and v.reachable[0]
@@ -462,9 +466,9 @@ def test_the_lazy_hard_tasks_are_checked_only_when_asked_and_at_their_own_postur
 
 def test_a_settling_builds_variants_never_settle(monkeypatch):
     # A build settles; an answer from the character's current posture solves every stage, and the referee as always.
-    builder = CasadiIK(HUMAN, "right_hand", ARM, [{"type": "reach"}, {"type": "posture"}], restarts=0, settle=0.07)
+    builder = CasadiIK(HUMAN, "right_hand", ARM, [{"type": "reach"}, {"type": "posture"}], search=Search(restarts=0, settle=0.07))
     refine, referee = builder.variant("refine", budget=None), builder.variant("referee")
-    assert builder.settle == 0.07 and refine.settle == 0.0 and referee.settle == 0.0
+    assert builder.search.settle == 0.07 and refine.search.settle == 0.0 and referee.search.settle == 0.0
     stages: list[int] = []
     real = CasadiIK._stage
     monkeypatch.setattr(CasadiIK, "_stage", lambda self, k, *a: (stages.append(k), real(self, k, *a))[1])

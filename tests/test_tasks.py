@@ -15,6 +15,7 @@ from helpers import ARM
 from oracles.body import human_body
 from oracles.kinematics import SymbolicKinematics
 from oracles.problem import ReachProblem
+from oracles.search import Search
 from oracles.strategy import parse_strategy
 from oracles.tasks import TASKS, HardTask, Numeric, SoftTask, Symbolic, table
 from oracles.tasks.base import perpendicular_basis
@@ -313,8 +314,8 @@ def test_a_crouch_reaches_lower_than_the_straight_legged_whole_body():
     straight = [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*", "root", "*_hip_*", "*_ankle_*"]
     tasks = [{"type": "reach"}, {"type": "feet"}, {"type": "balance"}, {"type": "floor"}, {"type": "coupling"}]
     body = {"human": {"sex": "male", "percentile": 50}}
-    whole = CasadiIK(body, "right_hand", straight, tasks, restarts=4, give_up=None)
-    crouch = CasadiIK(body, "right_hand", [*straight, "*_knee_*"], tasks, restarts=4, give_up=None)
+    whole = CasadiIK(body, "right_hand", straight, tasks, search=Search(restarts=4, give_up=None))
+    crouch = CasadiIK(body, "right_hand", [*straight, "*_knee_*"], tasks, search=Search(restarts=4, give_up=None))
     # In front of the feet: the straight-legged stoop ends with the fist's
     # grip centre about 7 cm above the floor (the open hand's fingertips at
     # it); bending the knees lays the fist on the floor.
@@ -329,7 +330,7 @@ def test_the_coupling_holds_in_the_solvers_postures():
 
     straight = [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*", "root", "*_hip_*", "*_ankle_*"]
     tasks = [{"type": "reach"}, {"type": "feet"}, {"type": "balance"}, {"type": "coupling"}]
-    oracle = CasadiIK({"human": {"sex": "male", "percentile": 50}}, "right_hand", straight, tasks, restarts=2)
+    oracle = CasadiIK({"human": {"sex": "male", "percentile": 50}}, "right_hand", straight, tasks, search=Search(restarts=2))
     hip = oracle.body.model.joints[oracle.body.joint_id("right_hip_flexion")].idx_q
     goals = np.array([[0.35, -0.2, 0.35], [0.45, -0.2, 0.5], [0.3, -0.3, 0.6]])
     v = oracle.evaluate(goals)
@@ -462,7 +463,7 @@ def test_a_low_reach_keeps_the_idle_arm_hanging():
 
     joints = [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*", "root", "*_hip_*", "*_ankle_*", *IDLE_ARM]
     tasks = [{"type": "reach"}, {"type": "feet"}, {"type": "balance", "margin": 0.02}, {"type": "floor"}, {"type": "coupling"}, {"type": "hang"}]
-    oracle = CasadiIK({"human": {"sex": "male", "percentile": 50}}, "right_hand", joints, tasks, restarts=2)
+    oracle = CasadiIK({"human": {"sex": "male", "percentile": 50}}, "right_hand", joints, tasks, search=Search(restarts=2))
     model = oracle.body.model
     # The lower edge of the straight-legged stoop in front, where the free
     # arm was thrown behind the back as a counterweight.

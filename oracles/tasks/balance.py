@@ -17,6 +17,7 @@ import numpy as np
 import pinocchio as pin
 from scipy.spatial import ConvexHull
 
+from oracles.errors import ModelError, TaskError
 from oracles.tasks.base import (
     BUFFER,
     INSIDE,
@@ -31,7 +32,6 @@ from oracles.tasks.base import (
     frames,
     number,
 )
-from reach.errors import ModelError, TaskError
 
 BALANCE_TOL = 1e-5  # [m] CoM beyond the shrunk polygon that the verdict accepts
 

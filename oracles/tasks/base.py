@@ -29,8 +29,8 @@ import numpy as np
 import pinocchio as pin
 
 from oracles.body import Body
+from oracles.errors import TaskError
 from oracles.kinematics import SymbolicKinematics
-from reach.errors import TaskError
 
 BUFFER = 0.005  # [m] dls: distance from an inequality's bound at which its row becomes active
 INSIDE = 1e-4  # [m] dls: how far inside its bound a violated row is pushed

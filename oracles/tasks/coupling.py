@@ -74,8 +74,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from oracles.errors import TaskError
 from oracles.tasks.base import BUFFER, INSIDE, Constraint, HardTask, Numeric, Row, Scope, Symbolic, matching, number
-from reach.errors import TaskError
 
 LIMIT_TOL = 1e-6  # [rad] overshoot the verdict accepts
 HAMSTRINGS = {"joint": "*_hip_flexion", "by": "*_knee_flexion", "limit": math.radians(80.0), "slope": 40.0 / 90.0}

@@ -13,9 +13,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
+from oracles.errors import TaskError
 from oracles.tasks.base import Scope, frames
 from oracles.tasks.contacts import Contact, ContactsTask
-from reach.errors import TaskError
 
 HEELS = ("down", "rise")
 DOWN_SUPPORT = ["heel_inner", "heel_outer", "toe_inner", "toe_outer"]

@@ -28,6 +28,7 @@ import casadi as ca
 import numpy as np
 
 from oracles.collision import CollisionModel
+from oracles.errors import TaskError
 from oracles.tasks.base import (
     BUFFER,
     INSIDE,
@@ -43,7 +44,6 @@ from oracles.tasks.base import (
     world_point,
 )
 from oracles.tasks.contacts import CONTACT_TOL
-from reach.errors import TaskError
 
 FEET = ["*_foot"]
 

@@ -32,6 +32,7 @@ from typing import Any, ClassVar
 import casadi as ca
 import numpy as np
 
+from oracles.errors import TaskError
 from oracles.tasks.base import (
     BUFFER,
     INSIDE,
@@ -46,7 +47,6 @@ from oracles.tasks.base import (
     number,
     relative_motion,
 )
-from reach.errors import TaskError
 
 CONE = 45.0  # [deg] a modelling choice (see the module docstring)
 HUMAN_ARM = ("{side}_shoulder", "{side}_elbow_flexion", "{side}_wrist_flexion")

@@ -18,6 +18,7 @@ import numpy as np
 import pinocchio as pin
 
 from oracles.collision import CollisionModel
+from oracles.errors import TaskError
 from oracles.tasks.base import (
     BUFFER,
     Constraint,
@@ -33,7 +34,6 @@ from oracles.tasks.base import (
     rows_of_cuts,
 )
 from oracles.tasks.self_collision import CHECK_TOL, MARGIN
-from reach.errors import TaskError
 
 
 @dataclass(frozen=True)

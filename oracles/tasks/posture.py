@@ -46,8 +46,8 @@ from typing import Any, ClassVar
 import casadi as ca
 import numpy as np
 
+from oracles.errors import TaskError
 from oracles.tasks.base import Numeric, Reference, Row, Scope, SoftTask, Symbolic, number
-from reach.errors import TaskError
 
 # Per-joint weights of the displacement term, first matching pattern wins
 # (modelling choices; see the module docstring). The hand's roll (forearm

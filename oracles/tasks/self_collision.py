@@ -40,6 +40,7 @@ import numpy as np
 import pinocchio as pin
 
 from oracles.collision import CollisionModel, nearest_points
+from oracles.errors import TaskError
 from oracles.tasks.base import (
     BUFFER,
     Constraint,
@@ -55,7 +56,6 @@ from oracles.tasks.base import (
     relative_motion,
     rows_of_cuts,
 )
-from reach.errors import TaskError
 
 MARGIN = 0.01  # [m] default clearance between segments
 CHECK_TOL = 1e-4  # [m] the verdict's tolerance on coal's distance
