@@ -29,7 +29,7 @@ from scipy.spatial import cKDTree
 
 from oracles.protocol import Oracle, OracleSpec
 from reach.errors import TreeError
-from reach.executor import Executor, InlineExecutor
+from reach.executor import CHUNK_SIZE, Executor, InlineExecutor
 from reach.tree import FINAL, INNER, OUTER, PARENT, Box, Lattice, VATree, VertexTable, bfs_children, corner_offsets
 
 LevelCallback = Callable[["BuildState"], object]
@@ -299,7 +299,7 @@ def build_tree(
     d_max: int,
     *,
     executor: Executor | None = None,
-    chunk_size: int = 2048,
+    chunk_size: int = CHUNK_SIZE,
     progress: bool | str = False,
     meta: dict[str, Any] | None = None,
     state: BuildState | None = None,

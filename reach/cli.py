@@ -397,7 +397,7 @@ def make_parser() -> argparse.ArgumentParser:
                    help=f"reading an atlas: time budget of the IK refinement [ms] (default {QUERY_BUDGET * 1000:g}: a one-off question "
                         f"lets it converge; a server's default is {REFINE_BUDGET * 1000:g}, a frame)")
     _handover_option(p, "reading an atlas: ")
-    p.add_argument("--timeout", type=int, default=2500, help="with --connect: ms to wait for each reply (default 2500)")
+    p.add_argument("--timeout", type=int, default=P.REQUEST_TIMEOUT_MS, help=f"with --connect: ms to wait for each reply (default {P.REQUEST_TIMEOUT_MS})")
     p.add_argument("--curve-server-key", metavar="FILE", help="with --connect: the server's CURVE public-key file")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_query)

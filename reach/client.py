@@ -19,10 +19,10 @@ import zmq
 import zmq.auth
 
 from reach import protocol as P
-from reach.errors import ServerError, ServerUnavailable
+from reach.errors import InputError, ServerError, ServerUnavailable
 
-REQUEST_TIMEOUT_MS = 2500
-REQUEST_RETRIES = 3
+REQUEST_TIMEOUT_MS = P.REQUEST_TIMEOUT_MS
+REQUEST_RETRIES = P.REQUEST_RETRIES
 
 __all__ = ["Client", "ServerError", "ServerUnavailable"]
 
@@ -72,8 +72,24 @@ class Client:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
+    def __getattr__(self, name: str) -> Any:
+        """Every operation of the table (:data:`reach.protocol.OPERATIONS`) as a method: ``client.version()``,
+        ``client.health()``; fields as keyword arguments (``from`` as ``from_``)."""
+        if name in P.OPERATIONS:
+            return lambda **fields: self.call(name, **{k.rstrip("_"): v for k, v in fields.items()})
+        raise AttributeError(f"{type(self).__name__!r} has no attribute {name!r}")
+
     def call(self, op: str, **fields: Any) -> dict[str, Any]:
-        """Send one request and return the reply's fields; raises ServerError or ServerUnavailable."""
+        """Send one request and return the reply's fields; raises ServerError or ServerUnavailable.
+
+        An operation or field the protocol does not declare raises InputError before anything is sent.
+        """
+        known = P.OPERATIONS.get(op)
+        if known is None:
+            raise InputError("op", f"unknown operation {op!r}; operations are {', '.join(P.OPS)}")
+        extra = sorted(set(fields) - {f.name for f in known.fields})
+        if extra:
+            raise InputError(op, f"unknown fields {extra}; {op} takes {', '.join(f.name for f in known.fields) or 'none'}")
         rid = next(self._ids)
         payload = json.dumps({"op": op, "id": rid, **fields}).encode()
         for _ in range(self.retries):
@@ -108,15 +124,9 @@ class Client:
             fields["from"] = {str(k): float(v) for k, v in start.items()}
         return fields
 
-    def strategies(self) -> dict[str, Any]:
-        return self.call("strategies")
-
     def cells(self, strategy: str | None = None, level: int = 4) -> dict[str, Any]:
         """Centres [m] and size of each strategy's reachable cells on a 2**level grid."""
         return dict(self.call("cells", level=level, **({"strategy": strategy} if strategy else {}))["cells"])
-
-    def health(self) -> dict[str, Any]:
-        return self.call("health")
 
     def reload(self, path: str | None = None) -> dict[str, Any]:
         return self.call("reload", **({"path": path} if path else {}))

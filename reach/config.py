@@ -38,6 +38,7 @@ import yaml
 from oracles.protocol import Oracle, OracleSpec, ReachBound, body_params
 from reach.build import Refine
 from reach.errors import ConfigError, ReachError, TreeError
+from reach.executor import CHUNK_SIZE
 from reach.tree import MAX_DEPTH, Box
 
 TOP_KEYS = {"name", "description", "base", "body", "box", "depth", "oracle", "strategies", "build"}
@@ -77,7 +78,7 @@ class Config:
     d_min: int
     d_max: int
     strategies: tuple[StrategySpec, ...]
-    chunk_size: int = 2048
+    chunk_size: int = CHUNK_SIZE
     refine: Refine = field(default_factory=Refine)
     raw: dict[str, Any] = field(default_factory=dict, compare=False)
 
@@ -187,7 +188,7 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
         mirror_of = check.string(s["mirror_of"], f"{key}.mirror_of") if "mirror_of" in s else None
         strategies.append(StrategySpec(sname, effector, priority, oracle, str(s.get("description", "")), mirror_of))
     build = check.mapping(top.get("build", {}), "build", BUILD_KEYS)
-    chunk = check.integer(build.get("chunk_size", 2048), "build.chunk_size", 1, 10**7)
+    chunk = check.integer(build.get("chunk_size", CHUNK_SIZE), "build.chunk_size", 1, 10**7)
     refine_raw = check.mapping(build.get("refine", {}), "build.refine", REFINE_KEYS)
     for k, v in refine_raw.items():
         if not isinstance(v, bool):

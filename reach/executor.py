@@ -22,6 +22,7 @@ import numpy as np
 from oracles.protocol import Oracle, OracleSpec, Verdicts, check_verdicts
 
 Progress = Callable[[int], None]
+CHUNK_SIZE = 2048  # points per task a build sends an executor (the default of build.chunk_size)
 
 
 def chunks(n: int, size: int) -> Iterator[slice]:
@@ -53,7 +54,7 @@ class Executor(Protocol):
 class InlineExecutor:
     """Runs every chunk in this process, one after the other."""
 
-    def __init__(self, oracle: Oracle | OracleSpec, chunk_size: int = 2048) -> None:
+    def __init__(self, oracle: Oracle | OracleSpec, chunk_size: int = CHUNK_SIZE) -> None:
         self.oracle = oracle.create() if isinstance(oracle, OracleSpec) else oracle
         self.dim = self.oracle.dim
         self.posture_names = tuple(self.oracle.posture_names)
@@ -152,7 +153,7 @@ class _Pooled(ABC):
 class ProcessExecutor(_Pooled):
     """Runs chunks on a pool of local processes (``--workers N``)."""
 
-    def __init__(self, spec: OracleSpec, workers: int | None = None, chunk_size: int = 2048) -> None:
+    def __init__(self, spec: OracleSpec, workers: int | None = None, chunk_size: int = CHUNK_SIZE) -> None:
         super().__init__(spec, chunk_size)
         self.workers = workers or os.cpu_count() or 1
         self.pool = ProcessPoolExecutor(max_workers=self.workers, initializer=build_worker)
@@ -176,7 +177,7 @@ class DaskExecutor(_Pooled):
     oracle once and keeps it for the following chunks.
     """
 
-    def __init__(self, spec: OracleSpec, client: Any, chunk_size: int = 2048) -> None:
+    def __init__(self, spec: OracleSpec, client: Any, chunk_size: int = CHUNK_SIZE) -> None:
         super().__init__(spec, chunk_size)
         self.client = client
         self.workers = max(1, len(client.scheduler_info().get("workers", {})))

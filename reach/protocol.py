@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -31,12 +32,15 @@ MAX_MESSAGE_BYTES = 1 << 20  # a request larger than this is refused unread
 MAX_BATCH = 10_000  # goals per query
 POLL_MS = 100  # server poll timeout: how often it checks for a stop request
 PUB_HWM = 1000  # messages queued per subscriber before the PUB socket drops
+REQUEST_TIMEOUT_MS = 2500  # a client's wait for each reply [ms] (zguide's Lazy Pirate)
+REQUEST_RETRIES = 3  # a client's attempts before it gives up
 
-OPS = ("query", "strategies", "cells", "health", "reload", "hello")
 MAX_ID = 2**53  # the largest integer id (doubles hold every integer up to it; JavaScript clients too)
 MAX_DEADLINE = 3600.0  # [s] the longest deadline a request may give
 MAX_TAG = 256  # characters of a client's tag
+MAX_NAME = 256  # characters of an effector's, strategy's or joint's name
 MAX_CELLS_LEVEL = 6  # "cells" rasterises at most 2**6 cells per axis
+MAX_FROM = 1024  # joints in a query's "from"
 
 # Error codes, in replies' "error": {"code": ..., "message": ...}.
 BAD_FRAMES = "bad_frames"  # wrong number of frames or an empty payload
@@ -50,42 +54,181 @@ RELOAD_FAILED = "reload_failed"
 INTERNAL = "internal"  # a bug: the server logs it and keeps serving
 
 
-@dataclass(frozen=True)
-class Request:
-    """A parsed request. ``goals`` is (N, d) for queries; ``single`` says whether ``goal`` was used."""
-
-    op: str
-    id: Any = None
-    effector: str | None = None
-    goals: list[list[float]] | None = None
-    single: bool = True
-    refine: bool | None = None
-    path: str | None = None
-    level: int = 4
-    strategy: str | None = None
-    start: dict[str, float] | None = None  # the query's "from": the character's current posture
-    deadline: float | None = None  # [s] from receipt, for the whole request
-    tag: str | None = None  # the client's own label, echoed on PUB
-
-
 def _reject_constant(name: str) -> float:
     raise ValueError(f"{name} is not allowed")
 
 
-def _number_list(value: Any, field: str, request_id: Any) -> list[float]:
-    if not isinstance(value, list) or not value or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
-        raise ProtocolError(BAD_REQUEST, f"'{field}' must be a list of numbers [m], got {json.dumps(value)[:80]}", request_id)
+class Invalid(ValueError):
+    """A field's value is wrong: the message says what was expected; ``code`` is the reply's error code."""
+
+    def __init__(self, message: str, code: str = BAD_REQUEST) -> None:
+        super().__init__(message)
+        self.code = code
+
+
+def _string(limit: int) -> Callable[[Any], str]:
+    def check(value: Any) -> str:
+        if not isinstance(value, str) or not value or len(value) > limit:
+            raise Invalid(f"a non-empty string of at most {limit} characters")
+        return value
+    return check
+
+
+def _bool(value: Any) -> bool:
+    if not isinstance(value, bool):
+        raise Invalid("true or false")
+    return value
+
+
+def _number(value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise Invalid("a number")
     try:
-        out = [float(v) for v in value]
+        out = float(value)
     except OverflowError:  # an integer beyond a double's range
-        out = [math.inf]
-    if not all(math.isfinite(v) for v in out):
-        raise ProtocolError(BAD_REQUEST, f"'{field}' must hold finite numbers", request_id)
+        out = math.inf
+    if not math.isfinite(out):
+        raise Invalid("a finite number")
     return out
 
 
+def _point(value: Any) -> list[float]:
+    if not isinstance(value, list) or not value or len(value) > 3:
+        raise Invalid(f"a list of 2 or 3 numbers [m], got {json.dumps(value)[:80]}")
+    try:
+        return [_number(v) for v in value]
+    except Invalid:
+        raise Invalid(f"a list of finite numbers [m], got {json.dumps(value)[:80]}") from None
+
+
+def _points(value: Any) -> list[list[float]]:
+    if not isinstance(value, list) or not value:
+        raise Invalid("a non-empty list of [x, y, z] [m]")
+    if len(value) > MAX_BATCH:
+        raise Invalid(f"{len(value)} goals; the limit is {MAX_BATCH} per request", TOO_LARGE)
+    out = []
+    for i, g in enumerate(value):
+        try:
+            out.append(_point(g))
+        except Invalid as exc:
+            raise Invalid(f"[{i}] must be {exc}") from None
+    if len({len(g) for g in out}) != 1:
+        raise Invalid("goals with the same number of coordinates each")
+    return out
+
+
+def _deadline(value: Any) -> float:
+    seconds = _number(value)
+    if not 0 < seconds <= MAX_DEADLINE:
+        raise Invalid(f"a number of seconds in (0, {MAX_DEADLINE:g}]")
+    return seconds
+
+
+def _level(value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_CELLS_LEVEL:
+        raise Invalid(f"an integer in [1, {MAX_CELLS_LEVEL}]")
+    return value
+
+
+def _posture(value: Any) -> dict[str, float]:
+    if not isinstance(value, dict) or len(value) > MAX_FROM:
+        raise Invalid(f"an object of at most {MAX_FROM} joint name -> finite number [rad or m]")
+    try:
+        return {_string(MAX_NAME)(k): _number(v) for k, v in value.items()}
+    except Invalid:
+        raise Invalid("an object of joint name -> finite number [rad or m]") from None
+
+
+@dataclass(frozen=True)
+class Field:
+    """One field of a request: its JSON name, its type as the document names it, and its check.
+
+    Attributes:
+        name: The JSON key.
+        kind: The type and unit, as docs/protocol.md shows it.
+        check: Returns the parsed value or raises :class:`Invalid` saying what was expected.
+        doc: One line for the operations table.
+        required: Whether the request must give it.
+        default: The value when it is absent.
+    """
+
+    name: str
+    kind: str
+    check: Callable[[Any], Any]
+    doc: str
+    required: bool = False
+    default: Any = None
+
+
+@dataclass(frozen=True)
+class Operation:
+    """One request operation, declared once: the parser, the server's dispatch, the client and the
+    document's table follow from it.
+
+    Attributes:
+        name: The ``op``.
+        fields: Its fields beyond ``op`` and ``id``.
+        doc: What it does, one line.
+        handler: The name of the server's method that answers it (``Server.<handler>(request) -> dict | bytes``).
+        worker: Whether it may run in the refinement workers.
+        check: Cross-field rules after each field is parsed (raise :class:`Invalid`); may fill derived values.
+    """
+
+    name: str
+    fields: tuple[Field, ...]
+    doc: str
+    handler: str
+    worker: bool = False
+    check: Callable[[dict[str, Any]], None] | None = None
+
+
+def _one_goal_or_many(args: dict[str, Any]) -> None:
+    if (args["goal"] is None) == (args["goals"] is None):
+        raise Invalid("give exactly one of 'goal' ([x, y, z]) or 'goals' ([[x, y, z], ...])")
+    args["single"] = args["goal"] is not None
+    if args["single"]:
+        args["goals"] = [args["goal"]]
+
+
+TAG = Field("tag", "string", _string(MAX_TAG), f"the client's label (at most {MAX_TAG} characters), published with its choices")
+OPERATIONS: dict[str, Operation] = {op.name: op for op in (
+    Operation("query", (
+        Field("effector", "string", _string(MAX_NAME), "the effector's frame, e.g. `right_hand`", required=True),
+        Field("goal", "[x, y, z] m", _point, "one goal in the world frame"),
+        Field("goals", "[[x, y, z], ...] m", _points, f"a batch of at most {MAX_BATCH} goals (instead of `goal`)"),
+        Field("refine", "bool", _bool, "refine by IK at the exact goal (default: the server's)"),
+        Field("from", "{joint: rad or m}", _posture, "the character's current posture; refinement starts from it"),
+        Field("deadline", "s", _deadline, f"answer within this many seconds of arrival (0 to {MAX_DEADLINE:g})"),
+        TAG,
+    ), "which strategy reaches each goal, and in which posture", "op_query", worker=True, check=_one_goal_or_many),
+    Operation("strategies", (), "the atlas's strategies, effectors, boxes and world frame", "op_strategies"),
+    Operation("cells", (
+        Field("strategy", "string", _string(MAX_NAME), "one strategy (default: all)"),
+        Field("level", "int", _level, f"cells per axis 2**level, 1 to {MAX_CELLS_LEVEL}", default=4),
+    ), "centres of each strategy's reachable cells on a regular grid", "op_cells"),
+    Operation("health", (), "status and counters", "op_health"),
+    Operation("hello", (TAG,), "publish `hello` with the tag: a subscriber's sync", "op_hello"),
+    Operation("reload", (Field("path", "string", _string(4096), "the atlas folder (default: the one served)"),),
+              "load an atlas and serve it", "op_reload"),
+    Operation("version", (), "the protocol's version, the server's and its operations", "op_version"),
+)}
+OPS = tuple(OPERATIONS)
+
+
+@dataclass(frozen=True)
+class Request:
+    """A parsed request: its operation, id and checked fields (every declared field, None when absent)."""
+
+    op: str
+    id: Any
+    args: dict[str, Any]
+
+    def __getitem__(self, name: str) -> Any:
+        return self.args[name]
+
+
 def parse_request(payload: bytes) -> Request:
-    """Parse and validate one request payload; raises ProtocolError."""
+    """Parse and validate one request payload against the table of operations; raises ProtocolError."""
     if len(payload) > MAX_MESSAGE_BYTES:
         raise ProtocolError(TOO_LARGE, f"request of {len(payload)} bytes; the limit is {MAX_MESSAGE_BYTES}")
     if not payload:
@@ -105,64 +248,42 @@ def parse_request(payload: bytes) -> Request:
     if rid is not None and (isinstance(rid, bool) or not isinstance(rid, (str, int, float))):
         echo = rid if isinstance(rid, bool) else None
         raise ProtocolError(BAD_REQUEST, "'id' must be a JSON string or number", echo)
-    op = data.get("op")
-    if not isinstance(op, str):
+    name = data.get("op")
+    if not isinstance(name, str):
         raise ProtocolError(BAD_REQUEST, "'op' must be a string naming the operation", rid)
-    if op not in OPS:
-        raise ProtocolError(UNKNOWN_OP, f"unknown op {op!r}; ops are {', '.join(OPS)}", rid)
-    allowed = {"query": {"op", "id", "effector", "goal", "goals", "refine", "from", "deadline", "tag"}, "reload": {"op", "id", "path"},
-               "cells": {"op", "id", "strategy", "level"}, "hello": {"op", "id", "tag"}}.get(op, {"op", "id"})
+    op = OPERATIONS.get(name)
+    if op is None:
+        raise ProtocolError(UNKNOWN_OP, f"unknown op {name!r}; ops are {', '.join(OPS)}", rid)
+    allowed = {"op", "id", *(f.name for f in op.fields)}
     extra = sorted(set(data) - allowed)
     if extra:
-        raise ProtocolError(BAD_REQUEST, f"unknown fields {extra} for op {op!r}; allowed: {sorted(allowed)}", rid)
-    if op == "reload":
-        path = data.get("path")
-        if path is not None and not isinstance(path, str):
-            raise ProtocolError(BAD_REQUEST, "'path' must be a string", rid)
-        return Request(op, rid, path=path)
-    if op == "cells":
-        level = data.get("level", 4)
-        if isinstance(level, bool) or not isinstance(level, int) or not 1 <= level <= MAX_CELLS_LEVEL:
-            raise ProtocolError(BAD_REQUEST, f"'level' must be an integer in [1, {MAX_CELLS_LEVEL}]", rid)
-        strategy = data.get("strategy")
-        if strategy is not None and not isinstance(strategy, str):
-            raise ProtocolError(BAD_REQUEST, "'strategy' must be a string", rid)
-        return Request(op, rid, level=level, strategy=strategy)
-    tag = data.get("tag")
-    if tag is not None and (not isinstance(tag, str) or len(tag) > MAX_TAG):
-        raise ProtocolError(BAD_REQUEST, f"'tag' must be a string of at most {MAX_TAG} characters", rid)
-    if op == "hello":
-        return Request(op, rid, tag=tag)
-    if op != "query":
-        return Request(op, rid)
-    deadline = data.get("deadline")
-    if deadline is not None and (isinstance(deadline, bool) or not isinstance(deadline, (int, float)) or not 0 < deadline <= MAX_DEADLINE):
-        raise ProtocolError(BAD_REQUEST, f"'deadline' must be a number of seconds in (0, {MAX_DEADLINE:g}]", rid)
-    effector = data.get("effector")
-    if not isinstance(effector, str) or not effector:
-        raise ProtocolError(BAD_REQUEST, "'effector' must be a non-empty string", rid)
-    refine = data.get("refine")
-    if refine is not None and not isinstance(refine, bool):
-        raise ProtocolError(BAD_REQUEST, "'refine' must be true or false", rid)
-    if ("goal" in data) == ("goals" in data):
-        raise ProtocolError(BAD_REQUEST, "give exactly one of 'goal' ([x, y, z]) or 'goals' ([[x, y, z], ...])", rid)
-    start = None
-    if "from" in data:
-        given = data["from"]
-        if not isinstance(given, dict) or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in given.values()):
-            raise ProtocolError(BAD_REQUEST, "'from' must be an object of joint name -> finite number [rad or m]", rid)
-        start = {str(k): float(v) for k, v in given.items()}
-    if "goal" in data:
-        return Request(op, rid, effector, [_number_list(data["goal"], "goal", rid)], True, refine, start=start, deadline=deadline, tag=tag)
-    goals = data["goals"]
-    if not isinstance(goals, list) or not goals:
-        raise ProtocolError(BAD_REQUEST, "'goals' must be a non-empty list of [x, y, z]", rid)
-    if len(goals) > MAX_BATCH:
-        raise ProtocolError(TOO_LARGE, f"{len(goals)} goals; the limit is {MAX_BATCH} per request", rid)
-    parsed = [_number_list(g, f"goals[{i}]", rid) for i, g in enumerate(goals)]
-    if len({len(g) for g in parsed}) != 1:
-        raise ProtocolError(BAD_REQUEST, "every goal must have the same number of coordinates", rid)
-    return Request(op, rid, effector, parsed, False, refine, start=start, deadline=deadline, tag=tag)
+        raise ProtocolError(BAD_REQUEST, f"unknown fields {extra} for op {name!r}; allowed: {sorted(allowed)}", rid)
+    args: dict[str, Any] = {}
+    try:
+        for f in op.fields:
+            if f.name not in data:
+                if f.required:
+                    raise Invalid(f"'{f.name}' is required: {f.doc}")
+                args[f.name] = f.default
+                continue
+            try:
+                args[f.name] = f.check(data[f.name])
+            except Invalid as exc:
+                raise Invalid(f"'{f.name}' must be {exc}", exc.code) from None
+        if op.check is not None:
+            op.check(args)
+    except Invalid as exc:
+        raise ProtocolError(exc.code, str(exc), rid) from None
+    return Request(name, rid, args)
+
+
+def operations_table() -> str:
+    """The Markdown table of operations that docs/protocol.md holds (a test keeps the two equal)."""
+    rows = ["| op | fields | what it answers | in workers |", "| --- | --- | --- | --- |"]
+    for op in OPERATIONS.values():
+        fields = "<br>".join(f"`{f.name}`{'*' if f.required else ''} ({f.kind}): {f.doc}" for f in op.fields) or "none"
+        rows.append(f"| `{op.name}` | {fields} | {op.doc} | {'yes' if op.worker else 'no'} |")
+    return "\n".join(rows)
 
 
 def finite(data: Any) -> Any:
@@ -196,3 +317,7 @@ def encode_value(value: Any) -> bytes:
 
 def error_reply(code: str, message: str, request_id: Any = None) -> bytes:
     return encode({"id": request_id, "ok": False, "error": {"code": code, "message": message}})
+
+
+if __name__ == "__main__":
+    print(operations_table())

@@ -214,6 +214,34 @@ class Selector:
             raise UnknownEffector(effector, self.effectors)
         return names
 
+    def check_goals(self, effector: str, goals: np.ndarray, start: dict[str, float] | None = None) -> list[str]:
+        """The effector's strategies, once the goals (N, d) and the ``from`` joints are known to be valid for them.
+
+        Raises UnknownEffector, or InputError naming the field: what a query
+        would refuse, checked before any work is queued.
+        """
+        names = self.strategies_for(effector)
+        dim = self.atlas.trees[names[0]].dim
+        if goals.ndim != 2 or goals.shape[1] != dim:
+            raise InputError("goals", f"expected {dim} coordinates [m] each, got shape {list(goals.shape)}")
+        if start:
+            known = {n for s in names if (v := self.atlas.trees[s].vertices).posture is not None for n in v.posture_names}
+            unknown = sorted(set(start) - known)
+            if unknown:
+                raise InputError("from", f"unknown joints {unknown[:5]}; the posture's names are {', '.join(sorted(known))}")
+        return names
+
+    def needs_ik(self, effector: str, goals: np.ndarray, start: dict[str, float] | None = None) -> bool:
+        """Whether refining these goals would solve any IK: some strategy that stores postures holds one of them.
+
+        Validates the request as :meth:`check_goals` does.
+        """
+        names = [n for n in self.check_goals(effector, goals, start) if self.atlas.trees[n].vertices.posture is not None]
+        if len(goals) == 1:
+            point = goals[0].tolist()
+            return any(self.atlas.trees[n].contains_one(point, self.policy) for n in names)
+        return any(bool(self.atlas.trees[n].contains(goals, self.policy).any()) for n in names)
+
     def _stored(self, name: str, tree: VATree, goals: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """Rows of the nearest reachable stored vertices and where their postures put the effector [m].
 
@@ -283,10 +311,7 @@ class Selector:
         """
         t0 = time.perf_counter()
         g = np.asarray(goals, dtype=float)
-        names = self.strategies_for(effector)
-        dim = self.atlas.trees[names[0]].dim
-        if g.ndim != 2 or g.shape[1] != dim:
-            raise InputError("goals", f"expected {dim} coordinates [m] each, got shape {list(g.shape)}")
+        names = self.check_goals(effector, g, start)
         refine = self.refine if refine is None else refine
         if len(g) == 1:
             return [self._select_one(effector, names, g[0], refine, t0, start)]
@@ -306,7 +331,7 @@ class Selector:
     def _select_one(self, effector: str, names: list[str], goal: np.ndarray, refine: bool, t0: float, start: dict[str, float] | None) -> Answer:
         """select_many for one goal, in plain Python: the server's per-request path."""
         point = goal.tolist()
-        hits = [n for n in names if self.atlas.trees[n]._contains_one(point, self.policy)]
+        hits = [n for n in names if self.atlas.trees[n].contains_one(point, self.policy)]
         nearest = self._nearest_row(hits[0], self.atlas.trees[hits[0]], point) if hits else None
         return self._answer(effector, goal, hits, nearest, refine, t0, start)
 

@@ -40,6 +40,7 @@ import numpy as np
 import zmq
 import zmq.auth
 
+from reach import __version__
 from reach import protocol as P
 from reach.errors import ReachError, UnknownEffector, UnknownStrategy
 from reach.select import FAILED, HANDOVER, REFINE_BUDGET, SKIPPED, TIMEOUT, Selector
@@ -230,61 +231,118 @@ class Server:
             if envelope is not None and self._deferred(req, envelope):
                 return None
             return P.ok_reply(self.dispatch(req), rid)
-        except P.ProtocolError as exc:
-            self.errors += 1
+        except Exception as exc:  # noqa: BLE001 - nothing a client sends may stop the server
+            return self._error(exc, rid)
+
+    def _error(self, exc: Exception, rid: Any) -> bytes:
+        """The error reply of an exception raised while answering a request (a bug's is logged as ``internal``)."""
+        self.errors += 1
+        if isinstance(exc, P.ProtocolError):
             return P.error_reply(exc.code, exc.message, exc.request_id if exc.request_id is not None else rid)
-        except ReachError as exc:
-            self.errors += 1
+        if isinstance(exc, ReachError):
             code = P.UNKNOWN_EFFECTOR if isinstance(exc, UnknownEffector) else P.UNKNOWN_STRATEGY if isinstance(exc, UnknownStrategy) else P.BAD_REQUEST
             return P.error_reply(code, str(exc), rid)
-        except Exception as exc:  # a bug must not stop the server
-            self.errors += 1
-            self._log_internal(exc)
-            return P.error_reply(P.INTERNAL, f"{type(exc).__name__}: {exc}", rid)
+        self._log_internal(exc)
+        return P.error_reply(P.INTERNAL, f"{type(exc).__name__}: {exc}", rid)
 
     def dispatch(self, req: P.Request) -> bytes:
-        """The encoded result object of a valid request."""
-        if req.op == "query":
-            assert req.effector is not None and req.goals is not None
-            answers = self.selector.select_many(req.effector, np.array(req.goals), req.refine, start=req.start)
-            return self._result(req, [a.to_json() for a in answers])
-        if req.op == "hello":
-            self._publish(b"hello", [b"{}"], req)
-            return P.encode({"published": self.publisher is not None})
-        return P.encode(self.control(req))
+        """The encoded result object of a valid request, from its operation's handler."""
+        result = getattr(self, P.OPERATIONS[req.op].handler)(req)
+        return result if isinstance(result, bytes) else P.encode(result)
+
+    # -- the operations' handlers (declared in reach.protocol.OPERATIONS) -----
+    def op_query(self, req: P.Request) -> bytes:
+        answers = self.selector.select_many(req["effector"], np.array(req["goals"]), req["refine"], start=req["from"])
+        return self._result(req, [a.to_json() for a in answers])
+
+    def op_hello(self, req: P.Request) -> dict[str, Any]:
+        self._publish(b"hello", [b"{}"], req)
+        return {"published": self.publisher is not None}
+
+    def op_version(self, req: P.Request) -> dict[str, Any]:
+        return {"protocol": P.VERSION, "reach": __version__, "operations": list(P.OPS)}
+
+    def op_health(self, req: P.Request) -> dict[str, Any]:
+        return {
+            "status": "serving", "protocol": P.VERSION, "atlas": str(self.atlas_path), "strategies": len(self.selector.order),
+            "uptime": time.monotonic() - self.started, "requests": self.requests, "errors": self.errors,
+            "workers": 0 if self.pool is None else self.pool.size, "pending": len(self.pending), "resends": self.resends,
+            "worker_restarts": 0 if self.pool is None else self.pool.restarts,
+        }
+
+    def op_strategies(self, req: P.Request) -> dict[str, Any]:
+        trees = self.selector.atlas.trees
+        return {"strategies": [
+            {"name": n, "effector": e, "priority": int(trees[n].meta.get("priority", 0)), "box": trees[n].box.to_dict(), "d_max": trees[n].d_max}
+            for n, e in self.selector.order
+        ], "effectors": self.selector.effectors, "frame": "world: z up, x forward, y left; metres, radians"}
+
+    def op_reload(self, req: P.Request) -> dict[str, Any]:
+        path = Path(req["path"]) if req["path"] else self.atlas_path
+        try:
+            selector = Selector(load_atlas(path), self.policy, self.refine, self.budget, self.handover).warm_up()  # type: ignore[arg-type]
+        except ReachError as exc:
+            raise P.ProtocolError(P.RELOAD_FAILED, f"kept the current atlas: {exc}", req.id) from None
+        self.selector, self.atlas_path = selector, path
+        if self.pool is not None:
+            # The workers hold the old atlas: answer their requests from the store, and start new ones.
+            for seq in list(self.pending):
+                self.pending[seq].deadline = 0.0
+            self._expire()
+            self.pool.close()
+            self.pool = Pool(self.context, path, self.policy, self.budget, self.pool.size, self.handover)
+        return {"atlas": str(path), "strategies": len(selector.order)}
+
+    def op_cells(self, req: P.Request) -> dict[str, Any]:
+        """Centres of the reachable cells of each strategy on a regular grid (for markers in RViz)."""
+        from reach.report import raster
+
+        atlas = self.selector.atlas
+        out = {}
+        for name in atlas.select([req["strategy"]] if req["strategy"] else None):
+            tree = atlas.trees[name]
+            level = min(req["level"], tree.d_max)
+            occ, edges = raster(tree, level)
+            centres = np.stack(np.meshgrid(*[0.5 * (e[1:] + e[:-1]) for e in edges], indexing="ij"), axis=-1)[occ]
+            out[name] = {"effector": tree.meta.get("effector"), "priority": tree.meta.get("priority"),
+                         "size": (tree.box.size / (1 << level)).tolist(), "centres": np.round(centres, 6).tolist()}
+        return {"cells": out, "level": req["level"]}
 
     def _result(self, req: P.Request, bodies: list[bytes]) -> bytes:
-        assert req.effector is not None
-        self._publish(req.effector.encode(), bodies, req)
-        return bodies[0] if req.single else b'{"answers":[' + b",".join(bodies) + b"]}"
+        self._publish(req["effector"].encode(), bodies, req)
+        return bodies[0] if req["single"] else b'{"answers":[' + b",".join(bodies) + b"]}"
 
     # -- with workers ----------------------------------------------------------
     def _deferred(self, req: P.Request, envelope: list[bytes]) -> bool:
-        """Hand a query that needs refinement to the workers; False when the loop answers it itself."""
-        if self.pool is None or req.op != "query" or not (self.refine if req.refine is None else req.refine):
+        """Hand a request that needs IK to the workers; False when the loop answers it itself.
+
+        Everything a worker could refuse is checked here first (the effector,
+        the goals' dimension, the ``from`` joints), so a worker only fails on a bug.
+        """
+        if self.pool is None or not P.OPERATIONS[req.op].worker or not (self.refine if req["refine"] is None else req["refine"]):
             return False
-        assert req.effector is not None and req.goals is not None
-        self.selector.strategies_for(req.effector)  # an unknown effector is answered at once
+        goals = np.array(req["goals"])
+        if not self.selector.needs_ik(req["effector"], goals, req["from"]):
+            return False  # nothing to refine (an analytic atlas, or no strategy holds a goal): answered at once
         key = (envelope[0], P.encode_value(req.id)) if req.id is not None else None
         if key is not None and key in self.by_key:
             self.resends += 1  # a resend of a request being worked on: answered once
             return True
-        n = len(req.goals)
+        n = len(goals)
         size = max(1, min(CHUNK, math.ceil(n / max(1, self.pool.size))))
         bounds = [(a, min(n, a + size)) for a in range(0, n, size)]
-        deadline = time.monotonic() + (req.deadline if req.deadline is not None else n * self.budget + SLACK)
+        deadline = time.monotonic() + (req["deadline"] if req["deadline"] is not None else n * self.budget + SLACK)
         self._seq += 1
         self.pending[self._seq] = Pending(envelope, req, key, deadline, [None] * len(bounds), bounds)
         if key is not None:
             self.by_key[key] = self._seq
         for part, (a, b) in enumerate(bounds):
-            self.pool.submit(Task(self._seq, part, req.effector, req.goals[a:b], req.start, deadline))
+            self.pool.submit(Task(self._seq, part, req["effector"], req["goals"][a:b], req["from"], deadline))
         return True
 
     def _stored(self, req: P.Request, a: int, b: int, outcome: str) -> list[bytes]:
         """The stored answers of goals a..b, marked with why they were not refined."""
-        assert req.effector is not None and req.goals is not None
-        answers = self.selector.select_many(req.effector, np.array(req.goals[a:b]), False, start=req.start)
+        answers = self.selector.select_many(req["effector"], np.array(req["goals"][a:b]), False)
         return [dataclasses.replace(x, refined=outcome).to_json() if x.refined == SKIPPED else x.to_json() for x in answers]
 
     def _finished(self, task: Task, frames: list[bytes]) -> None:
@@ -292,14 +350,27 @@ class Server:
         if pending is None:
             return  # answered already (its deadline passed)
         a, b = pending.bounds[task.part]
-        if frames == [EXPIRED]:
-            frames = self._stored(pending.request, a, b, TIMEOUT)
-        elif len(frames) != b - a or not frames[0].startswith(b"{"):  # a worker's failure, not answers
-            log.error("worker failed: %s", b"".join(frames)[:500].decode(errors="replace"))
-            frames = self._stored(pending.request, a, b, FAILED)
+        try:
+            if frames == [EXPIRED]:
+                frames = self._stored(pending.request, a, b, TIMEOUT)
+            elif len(frames) != b - a or not frames[0].startswith(b"{"):  # a worker's failure, not answers
+                log.error("worker failed: %s", b"".join(frames)[:500].decode(errors="replace"))
+                frames = self._stored(pending.request, a, b, FAILED)
+        except Exception as exc:  # noqa: BLE001 - this request's error reply; the others go on
+            self._abandon(task.request, self._error(exc, pending.request.id))
+            return
         pending.parts[task.part] = frames
         if all(p is not None for p in pending.parts):
             self._reply(task.request)
+
+    def _abandon(self, seq: int, reply: bytes) -> None:
+        """Answer a pending request with an error reply and drop its queued work."""
+        pending = self.pending.pop(seq)
+        if pending.key is not None:
+            self.by_key.pop(pending.key, None)
+        if self.pool is not None:
+            self.pool.cancel(seq)
+        self._send(pending.envelope, reply)
 
     def _expire(self) -> None:
         now = time.monotonic()
@@ -307,9 +378,13 @@ class Server:
             pending = self.pending[seq]
             assert self.pool is not None
             self.pool.cancel(seq)
-            for part, (a, b) in enumerate(pending.bounds):
-                if pending.parts[part] is None:
-                    pending.parts[part] = self._stored(pending.request, a, b, TIMEOUT)
+            try:
+                for part, (a, b) in enumerate(pending.bounds):
+                    if pending.parts[part] is None:
+                        pending.parts[part] = self._stored(pending.request, a, b, TIMEOUT)
+            except Exception as exc:  # noqa: BLE001 - this request's error reply; the others go on
+                self._abandon(seq, self._error(exc, pending.request.id))
+                continue
             self._reply(seq)
 
     def _reply(self, seq: int) -> None:
@@ -331,61 +406,11 @@ class Server:
             self._logged[key] = now
             log.error("internal error", exc_info=exc)
 
-    def control(self, req: P.Request) -> dict[str, Any]:
-        """Results of the health, strategies and reload ops."""
-        if req.op == "health":
-            return {
-                "status": "serving", "protocol": P.VERSION, "atlas": str(self.atlas_path), "strategies": len(self.selector.order),
-                "uptime": time.monotonic() - self.started, "requests": self.requests, "errors": self.errors,
-                "workers": 0 if self.pool is None else self.pool.size, "pending": len(self.pending), "resends": self.resends,
-            "worker_restarts": 0 if self.pool is None else self.pool.restarts,
-            }
-        if req.op == "strategies":
-            return {"strategies": [
-                {"name": n, "effector": e, "priority": int(self.selector.atlas.trees[n].meta.get("priority", 0)),
-                 "box": self.selector.atlas.trees[n].box.to_dict(), "d_max": self.selector.atlas.trees[n].d_max}
-                for n, e in self.selector.order
-            ], "effectors": self.selector.effectors, "frame": "world: z up, x forward, y left; metres, radians"}
-        if req.op == "cells":
-            return self.cells(req)
-        if req.op == "reload":
-            path = Path(req.path) if req.path else self.atlas_path
-            try:
-                selector = Selector(load_atlas(path), self.policy, self.refine, self.budget, self.handover).warm_up()  # type: ignore[arg-type]
-            except ReachError as exc:
-                raise P.ProtocolError(P.RELOAD_FAILED, f"kept the current atlas: {exc}", req.id) from None
-            self.selector, self.atlas_path = selector, path
-            if self.pool is not None:
-                # The workers hold the old atlas: answer their requests from the store, and start new ones.
-                for seq in list(self.pending):
-                    self.pending[seq].deadline = 0.0
-                self._expire()
-                self.pool.close()
-                self.pool = Pool(self.context, path, self.policy, self.budget, self.pool.size, self.handover)
-            return {"atlas": str(path), "strategies": len(selector.order)}
-        raise P.ProtocolError(P.UNKNOWN_OP, f"unknown op {req.op!r}", req.id)
-
-    def cells(self, req: P.Request) -> dict[str, Any]:
-        """Centres of the reachable cells of each strategy on a regular grid (for markers in RViz)."""
-        from reach.report import raster
-
-        atlas = self.selector.atlas
-        trees = atlas.trees
-        out = {}
-        for name in atlas.select([req.strategy] if req.strategy else None):
-            tree = trees[name]
-            level = min(req.level, tree.d_max)
-            occ, edges = raster(tree, level)
-            centres = np.stack(np.meshgrid(*[0.5 * (e[1:] + e[:-1]) for e in edges], indexing="ij"), axis=-1)[occ]
-            out[name] = {"effector": tree.meta.get("effector"), "priority": tree.meta.get("priority"),
-                         "size": (tree.box.size / (1 << level)).tolist(), "centres": np.round(centres, 6).tolist()}
-        return {"cells": out, "level": req.level}
-
     def _publish(self, topic: bytes, bodies: list[bytes], req: P.Request) -> None:
         """Publish each encoded choice with the request's id and tag; a slow subscriber costs a dropped message, never a blocked reply."""
         if self.publisher is None:
             return
-        head = b'{"id":' + P.encode_value(req.id) + b',"tag":' + P.encode_value(req.tag)
+        head = b'{"id":' + P.encode_value(req.id) + b',"tag":' + P.encode_value(req["tag"])
         for body in bodies:
             try:
                 self.publisher.send_multipart([topic, head + (b"," + body[1:] if body != b"{}" else b"}")], zmq.NOBLOCK)

@@ -362,7 +362,7 @@ class VATree:
             raise UnknownPolicy(policy, POLICIES)
         pts = np.asarray(points, dtype=float)
         if pts.ndim == 2 and pts.shape == (1, self.dim):
-            return np.array([self._contains_one(pts[0].tolist(), policy)])
+            return np.array([self.contains_one(pts[0].tolist(), policy)])
         kinds = self.classify(pts)
         result = kinds == INNER
         if policy == "optimistic":
@@ -373,7 +373,7 @@ class VATree:
                 result[fin] = self.nearest_vertex_verdict(pts[fin])
         return result
 
-    def _contains_one(self, point: list[float], policy: Policy) -> bool:
+    def contains_one(self, point: list[float], policy: Policy) -> bool:
         """contains() for one point in plain Python (the server's per-request path)."""
         node = self._locate_one(point)
         kind = OUTER if node < 0 else int(self.kind[node])

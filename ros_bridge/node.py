@@ -42,7 +42,7 @@ from typing import Any
 import zmq
 
 from reach import protocol as P
-from reach.client import Client, ServerError, ServerUnavailable
+from reach.client import REQUEST_RETRIES, REQUEST_TIMEOUT_MS, Client, ServerError, ServerUnavailable
 
 COLOURS = [(0.84, 0.15, 0.16), (0.17, 0.63, 0.17), (0.12, 0.47, 0.71), (1.0, 0.5, 0.05), (0.58, 0.4, 0.74), (0.55, 0.34, 0.29), (0.89, 0.47, 0.76), (0.09, 0.75, 0.81)]
 
@@ -110,7 +110,7 @@ class Bridge:
         self.frame = p("~frame", P.WORLD_FRAME)
         self.prefix = p("~prefix", "/reach").rstrip("/")
         self.marker_level = int(p("~marker_level", 4))
-        self.client = Client(self.server, timeout=int(p("~timeout_ms", 2500)), retries=int(p("~retries", 3)))
+        self.client = Client(self.server, timeout=int(p("~timeout_ms", REQUEST_TIMEOUT_MS)), retries=int(p("~retries", REQUEST_RETRIES)))
         self.relay = Relay()
         effectors = p("~effectors", [])
         while not effectors and not rospy.is_shutdown():

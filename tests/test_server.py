@@ -20,6 +20,7 @@ from reach.atlas import build_atlas
 from reach.cli import main
 from reach.client import Client, ServerError, ServerUnavailable
 from reach.config import parse_config
+from reach.errors import InputError
 from reach.server import Server
 
 RECV_MS = 5000
@@ -112,6 +113,15 @@ def test_batch_query_matches_geometry(running):
     assert np.array_equal(got[clear], (r <= 0.9)[clear])
     near = np.array([a["strategy"] == "near" for a in answers])
     assert np.all(near[r < 0.33]) and not np.any(near[r > 0.47])
+
+
+def test_version_names_the_protocol_and_every_operation(running):
+    # `version` was added through the table alone (a declaration and a handler): the client calls it as any operation.
+    with Client(running.server.endpoint) as c:
+        v = c.version()
+        assert v["protocol"] == P.VERSION and v["operations"] == list(P.OPS) and "version" in v["operations"]
+        with pytest.raises(InputError, match="unknown fields \\['colour'\\]"):
+            c.call("version", colour=1)  # refused before anything is sent
 
 
 def test_health_and_strategies(running):
@@ -379,6 +389,47 @@ def _pending_health(client):
 GOALS = np.random.default_rng(4).uniform([0.1, -0.7, 0.8], [0.6, 0.0, 1.6], (60, 3)).round(4).tolist()
 
 
+# Requests a worker would refuse (found killing the server: a worker's InputError re-raised by the broker's
+# fallback outside any handler). With workers and without, each gets the same error and the server lives.
+WORKER_PATH_ERRORS = [
+    (b'{"op": "query", "id": 1, "effector": "right_hand", "goal": [0.4, 0.2]}', P.BAD_REQUEST, "goals: expected 3 coordinates"),
+    (b'{"op": "query", "id": 2, "effector": "right_hand", "goals": [[0.4, 0.2, 1.0, 1.0]]}', P.BAD_REQUEST, "'goals' must be"),
+    (b'{"op": "query", "id": 3, "effector": "right_hand", "goal": [0.4, -0.2, 1.1], "from": {"wing": 0.1}}', P.BAD_REQUEST, "from: unknown joints ['wing']"),
+    (b'{"op": "query", "id": 4, "effector": "tail", "goal": [0.4, -0.2, 1.1]}', P.UNKNOWN_EFFECTOR, "unknown effector 'tail'"),
+]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("workers", [0, 2])
+def test_requests_a_worker_would_refuse_are_refused_alike_on_every_path(human, workers):
+    r = Running(human, budget=0.5, workers=workers)
+    sock = _dealer(r.server.endpoint)
+    sock.setsockopt(zmq.RCVTIMEO, 30_000)
+    try:
+        for payload, code, message in WORKER_PATH_ERRORS:
+            reply = ask(sock, payload)
+            assert reply["ok"] is False and reply["error"]["code"] == code and message in reply["error"]["message"], reply
+            assert reply["id"] == json.loads(payload)["id"]
+        assert ask(sock, b'{"op": "health"}')["ok"] and r.thread.is_alive()
+    finally:
+        sock.close(linger=0)
+        r.stop()
+
+
+def test_a_query_that_needs_no_ik_never_leaves_the_loop(balls):
+    # An analytic atlas stores no postures: with workers and refinement on by default, the loop answers.
+    r = Running(balls, workers=1)
+    sent: list[object] = []
+    r.server.pool.submit = sent.append  # type: ignore[union-attr]
+    try:
+        with Client(r.server.endpoint) as c:
+            answer = c.query("point", [0.1, 0.0, 0.0])
+            batch = c.query_many("point", [[0.1, 0.0, 0.0], [0.95, 0.95, 0.0]])
+        assert answer["strategy"] == "near" and answer["refined"] == "unavailable" and len(batch) == 2 and sent == []
+    finally:
+        r.stop()
+
+
 @pytest.mark.slow
 def test_the_loop_answers_while_workers_refine(human):
     r = Running(human, budget=0.5, workers=2)
@@ -522,7 +573,7 @@ def test_an_internal_error_is_logged_once_a_minute(running, dealer, caplog, monk
     def broken(req):
         raise RuntimeError("a bug")
 
-    monkeypatch.setattr(running.server, "control", broken)
+    monkeypatch.setattr(running.server, "op_health", broken)
     with caplog.at_level("ERROR", logger="reach.server"):
         for _ in range(5):
             reply = ask(dealer, b'{"op": "health", "id": 3}')
