@@ -19,7 +19,7 @@ import numpy as np
 
 from reach import protocol as P
 from reach.errors import InputError, ReachError
-from reach.select import HANDOVER, REFINE_BUDGET
+from reach.select import HANDOVER, MISS, MISSES, REFINE_BUDGET
 from reach.tree import DEFAULT_POLICY, POLICIES
 
 QUERY_BUDGET = 1.0  # [s] default refinement budget of a local `reach query`: one question, no frame to keep
@@ -137,13 +137,13 @@ def cmd_query(args: argparse.Namespace) -> int:
         with Client(args.connect, timeout=args.timeout, curve_server_key=args.curve_server_key) as client:
             effectors = [args.effector] if args.effector else client.strategies()["effectors"]
             # The reply's envelope fields are not part of the answer.
-            answers = [{k: v for k, v in client.query(e, goal, refine, start).items() if k not in ("ok", "id")} for e in effectors]
+            answers = [{k: v for k, v in client.query(e, goal, refine, start, miss=args.miss).items() if k not in ("ok", "id")} for e in effectors]
     else:
         from reach.select import Selector
         from reach.store import load_atlas
 
         selector = Selector(load_atlas(atlas), policy=args.policy, refine=refine is not False, budget=args.budget_ms / 1000.0,  # type: ignore[arg-type]
-                            handover=_handover(args))
+                            handover=_handover(args), miss=args.miss)
         effectors = [args.effector] if args.effector else selector.effectors
         answers = [selector.select(e, np.array(goal), start=start).to_dict() for e in effectors]
     if args.json:
@@ -155,9 +155,15 @@ def cmd_query(args: argparse.Namespace) -> int:
             print(f"{a['effector']}: goal {a['goal']} reachable with strategy {a['strategy']}{also}")
             if a.get("handover"):
                 print(f"  handed over by {a['handover']['from']}, whose posture came near these limits: {', '.join(a['handover']['limits'])}")
+            if a.get("within") is not None:
+                print(f"  within {1000 * a['within']:.1f} mm only: no refinement reached the goal; the posture is the nearest stored one")
             if a.get("posture"):
                 moved = {k: round(v, 4) for k, v in a["posture"].items() if abs(v) > 1e-9}
                 print(f"  posture [rad] (refined: {a['refined']}, residual {a['residual']:.2e} m): {moved}")
+        elif a.get("nearest"):
+            n = a["nearest"]
+            print(f"{a['effector']}: goal {a['goal']} not reachable: {n['strategy']}'s tree holds it but no refinement reached it; "
+                  f"the nearest point a stored posture reaches is {n['point']}, {1000 * n['distance']:.1f} mm away")
         else:
             print(f"{a['effector']}: goal {a['goal']} not reachable by any strategy")
     return 0
@@ -188,7 +194,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         raise InputError("--workers", f"expected 0 or more worker processes, got {workers}")
     server = Server(args.atlas, args.bind, None if args.pub == "none" else args.pub, policy=args.policy,
                     refine=not args.no_refine, budget=args.budget_ms / 1000.0, curve_secret=args.curve_secret_key, workers=workers,
-                    handover=_handover(args))
+                    handover=_handover(args), miss=args.miss)
     print(f"serving {args.atlas} on {server.endpoint}" + (f", publishing on {server.pub_endpoint}" if server.pub_endpoint else ""), flush=True)
     server.serve_forever()
     print("server stopped", flush=True)
@@ -300,7 +306,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from reach.evaluate import evaluate, load_targets, text_table
     from reach.store import load_atlas
 
-    results = evaluate([load_atlas(a) for a in args.atlas], load_targets(args.targets), args.effector, args.policy)
+    results = evaluate([load_atlas(a) for a in args.atlas], load_targets(args.targets), args.effector, args.policy, refine=not args.no_refine)
     if args.json:
         _print_json(results)
     else:
@@ -342,6 +348,9 @@ def _handover_option(p: argparse.ArgumentParser, where: str = "") -> None:
     p.add_argument("--handover-deg", type=float, default=math.degrees(HANDOVER), metavar="DEG",
                    help=f"{where}a strategy whose posture has joints within DEG of their limits hands the goal to the next that "
                         f"reaches it with fewer (default {math.degrees(HANDOVER):g}; 0: the paper's plain priority)")
+    p.add_argument("--miss", choices=MISSES, default=MISS,
+                   help="a goal the trees hold but no refinement reaches answers 'unreachable' with the nearest point a stored posture "
+                        "reaches (default), or 'within': reachable, with the distance the posture stops short")
 
 
 def _handover(args: argparse.Namespace) -> float:
@@ -455,6 +464,8 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--targets", required=True, help="CSV file with name, x, y, z[, effector]")
     p.add_argument("--effector", help="effector for targets without one")
     _policy_option(p)
+    p.add_argument("--no-refine", action="store_true",
+                   help="take the trees' word: no IK at the targets (a target counts as reachable when a tree holds it)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_evaluate)
 

@@ -107,21 +107,25 @@ class Client:
             self.socket = self._connect()
         raise ServerUnavailable(self.address, self.retries, self.timeout)
 
-    def query(self, effector: str, goal: list[float], refine: bool | None = None, start: dict[str, float] | None = None) -> dict[str, Any]:
-        """One goal [m]; ``start`` is the character's current posture (joint name -> rad or m), the query's ``from``."""
-        return self.call("query", **self._fields(effector, refine, start), goal=[float(v) for v in goal])
+    def query(self, effector: str, goal: list[float], refine: bool | None = None, start: dict[str, float] | None = None,
+              miss: str | None = None) -> dict[str, Any]:
+        """One goal [m]; ``start`` is the character's current posture (joint name -> rad or m), the query's ``from``;
+        ``miss``: ``unreachable`` or ``within`` (see docs/protocol.md)."""
+        return self.call("query", **self._fields(effector, refine, start, miss), goal=[float(v) for v in goal])
 
     def query_many(self, effector: str, goals: list[list[float]], refine: bool | None = None,
-                   start: dict[str, float] | None = None) -> list[dict[str, Any]]:
-        return list(self.call("query", **self._fields(effector, refine, start), goals=[[float(v) for v in g] for g in goals])["answers"])
+                   start: dict[str, float] | None = None, miss: str | None = None) -> list[dict[str, Any]]:
+        return list(self.call("query", **self._fields(effector, refine, start, miss), goals=[[float(v) for v in g] for g in goals])["answers"])
 
     @staticmethod
-    def _fields(effector: str, refine: bool | None, start: dict[str, float] | None) -> dict[str, Any]:
+    def _fields(effector: str, refine: bool | None, start: dict[str, float] | None, miss: str | None) -> dict[str, Any]:
         fields: dict[str, Any] = {"effector": effector}
         if refine is not None:
             fields["refine"] = refine
         if start is not None:
             fields["from"] = {str(k): float(v) for k, v in start.items()}
+        if miss is not None:
+            fields["miss"] = miss
         return fields
 
     def cells(self, strategy: str | None = None, level: int = 4) -> dict[str, Any]:

@@ -7,6 +7,12 @@ chosen strategy (or none) and the other strategies that reach it. Given
 several atlases (say a 5th-percentile woman, a 50th- and a 95th-percentile
 man), the population table shows, per target, the strategy each body uses:
 the ergonomics question the paper opens with (front-panel controls in a car).
+
+A target counts as reachable only when a posture reaches it: each answer is
+refined by IK at the target (within ``budget`` per target), and a target the
+trees hold but no refinement reaches counts as unreachable (the selector's
+``miss="unreachable"``). With ``refine=False`` the trees' word is taken, and
+each row says how near the stored posture comes (``within``).
 """
 
 from __future__ import annotations
@@ -53,19 +59,24 @@ def load_targets(path: str | Path) -> list[Target]:
     return out
 
 
-def evaluate(atlases: list[Atlas], targets: list[Target], effector: str | None = None, policy: str = "vertex") -> dict[str, Any]:
-    """Per atlas and target: the chosen strategy, the alternatives; and a summary."""
-    results: dict[str, Any] = {"atlases": [], "targets": [t.name for t in targets]}
+EVALUATE_BUDGET = 1.0  # [s] refinement budget per target: an offline question, no frame to keep
+
+
+def evaluate(atlases: list[Atlas], targets: list[Target], effector: str | None = None, policy: str = "vertex", refine: bool = True,
+             budget: float = EVALUATE_BUDGET) -> dict[str, Any]:
+    """Per atlas and target: the chosen strategy, the alternatives, whether a posture reaches it; and a summary."""
+    results: dict[str, Any] = {"atlases": [], "targets": [t.name for t in targets], "refined": refine}
     for atlas in atlases:
-        selector = Selector(atlas, policy, refine=False)  # type: ignore[arg-type]
+        selector = Selector(atlas, policy, refine=refine, budget=budget, miss="unreachable")  # type: ignore[arg-type]
         rows: list[dict[str, Any]] = []
         for t in targets:
             eff = t.effector or effector or (selector.effectors[0] if len(selector.effectors) == 1 else None)
             if eff is None:
                 raise ConfigError("targets", t.name, f"no effector: give an effector column or --effector (one of {', '.join(selector.effectors)})")
-            a = selector.select(eff, np.array(t.point), refine=False)
+            a = selector.select(eff, np.array(t.point))
             rows.append({"target": t.name, "effector": eff, "point": list(t.point), "strategy": a.strategy, "reachable": a.reachable,
-                         "also": list(a.alternatives)})
+                         "also": list(a.alternatives), "refined": a.refined, "within": a.within,
+                         "nearest": None if a.nearest is None else {k: a.nearest[k] for k in ("strategy", "point", "distance")}})
         reached = sum(r["reachable"] for r in rows)
         by_strategy: dict[str, int] = {}
         for r in rows:

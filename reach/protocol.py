@@ -42,6 +42,8 @@ MAX_NAME = 256  # characters of an effector's, strategy's or joint's name
 MAX_CELLS_LEVEL = 6  # "cells" rasterises at most 2**6 cells per axis
 MAX_FROM = 1024  # joints in a query's "from"
 
+MISSES = ("unreachable", "within")  # reach.select.MISSES (the protocol imports nothing heavy)
+
 # Error codes, in replies' "error": {"code": ..., "message": ...}.
 BAD_FRAMES = "bad_frames"  # wrong number of frames or an empty payload
 TOO_LARGE = "too_large"  # message or batch over the limits
@@ -115,6 +117,14 @@ def _points(value: Any) -> list[list[float]]:
     if len({len(g) for g in out}) != 1:
         raise Invalid("goals with the same number of coordinates each")
     return out
+
+
+def _choice(options: tuple[str, ...]) -> Callable[[Any], str]:
+    def check(value: Any) -> str:
+        if value not in options:
+            raise Invalid(f"one of {', '.join(options)}")
+        return str(value)
+    return check
 
 
 def _deadline(value: Any) -> float:
@@ -199,6 +209,7 @@ OPERATIONS: dict[str, Operation] = {op.name: op for op in (
         Field("refine", "bool", _bool, "refine by IK at the exact goal (default: the server's)"),
         Field("from", "{joint: rad or m}", _posture, "the character's current posture; refinement starts from it"),
         Field("deadline", "s", _deadline, f"answer within this many seconds of arrival (0 to {MAX_DEADLINE:g})"),
+        Field("miss", "string", _choice(MISSES), "a goal the trees hold but no refinement reaches: `unreachable` or `within` (default: the server's)"),
         TAG,
     ), "which strategy reaches each goal, and in which posture", "op_query", worker=True, check=_one_goal_or_many),
     Operation("strategies", (), "the atlas's strategies, effectors, boxes and world frame", "op_strategies"),

@@ -8,6 +8,18 @@ IK at the exact goal within a time budget: the paper's "additional inverse
 kinematics simulation". If refinement fails or runs out of time, the answer
 keeps the stored posture and says so.
 
+**Answers that hold.** When the chosen strategy's refinement cannot reach
+the exact goal (its tree held the goal from a boundary cell), the goal is
+read as outside that strategy's volume and the next strategy holding it
+answers. When none reaches it, the answer says so, as ``miss`` asks:
+``unreachable`` (the default) answers ``reachable: false`` with the nearest
+point a stored posture reaches and that posture; ``within`` answers
+``reachable: true`` with ``within``. Every answer whose posture was not
+solved at the goal (not refined, out of time, or missed) carries
+``within``: the distance [m] that stored posture stops short of the goal.
+So a "reachable" answer's posture reaches the goal unless ``within`` says
+how near it comes.
+
 **Handover.** A strategy that reaches a goal only with joints at (within
 ``handover``, default 5 deg, of) the end of their range or a coupled limit
 passes the goal to the next strategy by priority that reaches it with fewer
@@ -50,6 +62,7 @@ from oracles.protocol import (
     Preparable,
     Tunable,
 )
+from reach import protocol as P
 from reach.errors import InputError, ModelMismatch, UnknownEffector, UnknownPolicy
 from reach.store import Atlas
 from reach.tree import DEFAULT_POLICY, POLICIES, Policy, VATree
@@ -61,6 +74,10 @@ TIMEOUT = "timeout"  # the budget ran out; posture is the stored one
 SKIPPED = "skipped"  # refinement was not asked for
 UNAVAILABLE = "unavailable"  # the strategy's oracle stores no postures (analytic shapes)
 NONE = "none"  # no strategy reaches the goal: there is no posture to refine
+ERROR = "error"  # the refinement could not run (a server's worker died); posture is the stored one
+MISSES = P.MISSES  # what a goal the trees hold but no refinement reaches answers (see the module docstring)
+MISS = "unreachable"
+STORED = (SKIPPED, TIMEOUT, FAILED, ERROR)  # outcomes whose posture is the nearest stored one, not one solved at the goal
 POSTURE_CACHE = 4096  # stored postures kept encoded, most recently used first
 REFINE_BUDGET = 0.02  # [s] default time budget of one refinement (a frame at 50 Hz)
 HANDOVER = math.radians(5.0)  # [rad] a joint this near a limit passes the goal on (see the module docstring)
@@ -95,6 +112,14 @@ class Answer:
         handover: When a strategy of higher priority passed the goal over,
             ``{"from": its name, "limits": the limits its posture came
             near}`` (see the module docstring); else None.
+        within: When the posture is a stored one (refinement skipped, out of
+            time or missed, see ``refined``): the distance [m] it stops short
+            of the goal; None when the posture was solved at the goal (or
+            there is none).
+        nearest: With ``miss="unreachable"``, for a goal the trees hold but
+            no refinement reached: ``{"strategy", "point" [m], "distance"
+            [m], "posture", "root"}``, the nearest point a stored posture of
+            the first such strategy reaches; else None.
     """
 
     effector: str
@@ -108,6 +133,8 @@ class Answer:
     refined: str = SKIPPED
     seconds: float = 0.0
     handover: dict[str, Any] | None = None
+    within: float | None = None
+    nearest: dict[str, Any] | None = None
     posture_json: bytes | None = field(default=None, repr=False, compare=False)
 
     def to_json(self) -> bytes:
@@ -134,6 +161,7 @@ class Answer:
             "effector": self.effector, "goal": list(self.goal), "strategy": self.strategy, "reachable": self.reachable,
             "alternatives": list(self.alternatives), "posture": self.posture, "root": self.root,
             "residual": self.residual, "refined": self.refined, "seconds": self.seconds, "handover": self.handover,
+            "within": self.within, "nearest": self.nearest,
         }
 
 
@@ -171,10 +199,15 @@ class Selector:
         handover: [rad] A posture with joints this near their limits passes
             the goal to the next strategy that reaches it with fewer (see the
             module docstring); 0 keeps the plain priority.
+        miss: What a goal the trees hold but no refinement reaches answers:
+            ``unreachable`` or ``within`` (see the module docstring).
     """
 
     def __init__(self, atlas: Atlas, policy: Policy = DEFAULT_POLICY, refine: bool = True, budget: float = REFINE_BUDGET,
-                 handover: float = HANDOVER) -> None:
+                 handover: float = HANDOVER, miss: str = MISS) -> None:
+        if miss not in MISSES:
+            raise InputError("miss", f"expected one of {', '.join(MISSES)}, got {miss!r}")
+        self.miss = miss
         if policy not in POLICIES:
             raise UnknownPolicy(policy, POLICIES)
         if not (math.isfinite(handover) and handover >= 0):
@@ -300,21 +333,26 @@ class Selector:
             self._oracles[name] = oracle.variant("refine", budget=self.budget) if isinstance(oracle, Tunable) else oracle
         return self._oracles[name]
 
-    def select_many(self, effector: str, goals: np.ndarray, refine: bool | None = None, start: dict[str, float] | None = None) -> list[Answer]:
+    def select_many(self, effector: str, goals: np.ndarray, refine: bool | None = None, start: dict[str, float] | None = None,
+                    miss: str | None = None) -> list[Answer]:
         """Answers for goals (N, d) [m], one tree lookup per strategy for the whole batch.
 
         ``start`` is the character's current posture (joint name -> rad or m;
         ``root_x`` ... ``root_qw`` for a floating base), a query's ``from``:
         refinement then starts from it, with a small cost on displacement from
         it, so that the answer is the natural posture reached from there.
-        Joints it omits keep the stored posture's values.
+        Joints it omits keep the stored posture's values. ``miss`` overrides
+        the selector's (see the module docstring).
         """
         t0 = time.perf_counter()
         g = np.asarray(goals, dtype=float)
         names = self.check_goals(effector, g, start)
         refine = self.refine if refine is None else refine
+        miss = self.miss if miss is None else miss
+        if miss not in MISSES:
+            raise InputError("miss", f"expected one of {', '.join(MISSES)}, got {miss!r}")
         if len(g) == 1:
-            return [self._select_one(effector, names, g[0], refine, t0, start)]
+            return [self._select_one(effector, names, g[0], refine, t0, start, miss)]
         hits = np.stack([self.atlas.trees[n].contains(g, self.policy) for n in names])
         chosen = np.where(hits.any(axis=0), hits.argmax(axis=0), -1)
         nearest: dict[int, tuple[int, np.ndarray] | None] = {}
@@ -324,19 +362,20 @@ class Selector:
             for m, i in enumerate(sel):
                 nearest[int(i)] = None if found is None else (int(found[0][m]), found[1][m])
         return [
-            self._answer(effector, g[i], [n for j, n in enumerate(names) if hits[j, i]], nearest.get(i), refine, time.perf_counter(), start)
+            self._answer(effector, g[i], [n for j, n in enumerate(names) if hits[j, i]], nearest.get(i), refine, time.perf_counter(), start, miss)
             for i in range(len(g))
         ]
 
-    def _select_one(self, effector: str, names: list[str], goal: np.ndarray, refine: bool, t0: float, start: dict[str, float] | None) -> Answer:
+    def _select_one(self, effector: str, names: list[str], goal: np.ndarray, refine: bool, t0: float, start: dict[str, float] | None,
+                    miss: str) -> Answer:
         """select_many for one goal, in plain Python: the server's per-request path."""
         point = goal.tolist()
         hits = [n for n in names if self.atlas.trees[n].contains_one(point, self.policy)]
         nearest = self._nearest_row(hits[0], self.atlas.trees[hits[0]], point) if hits else None
-        return self._answer(effector, goal, hits, nearest, refine, t0, start)
+        return self._answer(effector, goal, hits, nearest, refine, t0, start, miss)
 
     def _answer(self, effector: str, goal: np.ndarray, hits: list[str], nearest: tuple[int, np.ndarray] | None, refine: bool, t0: float,
-                start: dict[str, float] | None = None) -> Answer:
+                start: dict[str, float] | None = None, miss: str = MISS) -> Answer:
         """The answer for one goal, given the strategies that hold it (by priority) and the chosen one's nearest stored vertex."""
         if not hits:
             return Answer(effector, tuple(goal.tolist()), None, False, refined=NONE, seconds=time.perf_counter() - t0)
@@ -370,12 +409,19 @@ class Selector:
             if found is not None:
                 name, q, residual, outcome, row = found
                 tree = self.atlas.trees[name]
+            elif outcome == FAILED and miss == "unreachable":
+                # No strategy's refinement reaches the goal: not reachable, and the nearest point a stored posture reaches.
+                joints, pose, _ = self._stored_posture(name, tree, row)
+                point = [float(v) for v in reached] if np.all(np.isfinite(reached)) else None
+                return Answer(effector, tuple(goal.tolist()), None, False, refined=FAILED, seconds=time.perf_counter() - t0,
+                              nearest={"strategy": name, "point": point, "distance": residual, "posture": joints, "root": pose})
             if outcome == REFINED:
                 posture, root = split_posture(tree.vertices.posture_names, q)
             else:
                 posture, root, fragment = self._stored_posture(name, tree, row)
+        within = residual if outcome in STORED else None  # a posture that was not refined at this goal says how near it comes
         return Answer(effector, tuple(goal.tolist()), name, True, tuple(others), posture, root, residual, outcome, time.perf_counter() - t0,
-                      handover, fragment)
+                      handover, within, None, fragment)
 
     def _limits(self, name: str, q: np.ndarray) -> list[str]:
         """The joint limits a posture of a strategy comes within ``handover`` of (none when its oracle cannot tell)."""
@@ -386,7 +432,7 @@ class Selector:
                       below: int | None = None) -> tuple[str, np.ndarray, float | None, str, int] | None:
         """The first of names (by priority) whose refinement reaches the goal (without refinement: whose tree
         holds a posture) and, given ``below``, with fewer joints near their limits: its name, posture,
-        residual, refinement outcome and nearest stored row; None if none does or the time runs out."""
+        residual, refinement outcome and nearest stored row; None if none does (or, given ``below``, the time runs out)."""
         point = goal.tolist()
         for name in names:
             tree = self.atlas.trees[name]
@@ -400,8 +446,10 @@ class Selector:
             outcome = SKIPPED
             if refine:
                 q, residual, outcome = self._refine(name, goal, q, None, start)
-                if outcome == TIMEOUT:
-                    return None  # out of time: no further strategy is tried
+                if outcome == TIMEOUT:  # out of time: no further strategy is tried
+                    # A handover keeps the answer it had; a failed goal is answered by this strategy's
+                    # stored posture, marked timeout: its tree holds the goal and nothing said otherwise.
+                    return None if below is not None else (name, q, residual, outcome, row)
                 if outcome != REFINED:
                     continue
             if below is None or len(self._limits(name, q)) < below:
@@ -472,6 +520,7 @@ class Selector:
         best = candidates[int(np.argmin(liked))]
         return None if np.array_equal(best, q) else best
 
-    def select(self, effector: str, goal: np.ndarray, refine: bool | None = None, start: dict[str, float] | None = None) -> Answer:
-        """Choose a strategy for one goal [m] (``start``: see :meth:`select_many`)."""
-        return self.select_many(effector, np.asarray(goal, dtype=float).reshape(1, -1), refine, start)[0]
+    def select(self, effector: str, goal: np.ndarray, refine: bool | None = None, start: dict[str, float] | None = None,
+               miss: str | None = None) -> Answer:
+        """Choose a strategy for one goal [m] (``start``, ``miss``: see :meth:`select_many`)."""
+        return self.select_many(effector, np.asarray(goal, dtype=float).reshape(1, -1), refine, start, miss)[0]

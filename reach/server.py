@@ -43,7 +43,7 @@ import zmq.auth
 from reach import __version__
 from reach import protocol as P
 from reach.errors import ReachError, UnknownEffector, UnknownStrategy
-from reach.select import FAILED, HANDOVER, REFINE_BUDGET, SKIPPED, TIMEOUT, Selector
+from reach.select import ERROR, HANDOVER, MISS, REFINE_BUDGET, SKIPPED, TIMEOUT, Selector
 from reach.store import load_atlas
 from reach.tree import DEFAULT_POLICY
 from reach.workers import EXPIRED, Pool, Task
@@ -81,6 +81,8 @@ class Server:
         budget: Time budget of one refinement [s] (per goal).
         handover: [rad] A strategy whose posture has joints this near their
             limits hands the goal over (see :mod:`reach.select`); 0: plain priority.
+        miss: What a goal the trees hold but no refinement reaches answers,
+            ``unreachable`` or ``within`` (see :mod:`reach.select`), unless a request says.
         curve_secret: Path of the server's CURVE secret-key file, or None.
         context: A zmq context (a new one by default).
         workers: Refinement worker processes; 0 refines in the request loop.
@@ -89,11 +91,13 @@ class Server:
     def __init__(
         self, atlas: str | Path, bind: str = P.DEFAULT_BIND, pub: str | None = P.DEFAULT_PUB, *, policy: str = DEFAULT_POLICY,
         refine: bool = True, budget: float = REFINE_BUDGET, curve_secret: str | Path | None = None, context: zmq.Context | None = None,
-        workers: int = 0, handover: float = HANDOVER,
+        workers: int = 0, handover: float = HANDOVER, miss: str = MISS,
     ) -> None:
         self.atlas_path = Path(atlas)
-        self.policy, self.refine, self.budget, self.handover = policy, refine, budget, handover
-        self.selector = Selector(load_atlas(self.atlas_path), policy, refine, budget, handover).warm_up()  # type: ignore[arg-type]
+        self.refine, self.budget = refine, budget
+        # The selector's options, as the workers' selectors get them too.
+        self.options: dict[str, Any] = {"policy": policy, "refine": refine, "budget": budget, "handover": handover, "miss": miss}
+        self.selector = Selector(load_atlas(self.atlas_path), **self.options).warm_up()
         self.context = context or zmq.Context.instance()
         self.router = self.context.socket(zmq.ROUTER)
         self.router.setsockopt(zmq.LINGER, 0)
@@ -127,7 +131,7 @@ class Server:
         self.pending: dict[int, Pending] = {}
         self.by_key: dict[tuple[bytes, bytes], int] = {}
         self._seq = 0
-        self.pool = Pool(self.context, self.atlas_path, policy, budget, int(workers), handover) if workers > 0 else None
+        self.pool = Pool(self.context, self.atlas_path, self.options, int(workers)) if workers > 0 else None
 
     # -- lifecycle ---------------------------------------------------------
     def stop(self) -> None:
@@ -252,7 +256,7 @@ class Server:
 
     # -- the operations' handlers (declared in reach.protocol.OPERATIONS) -----
     def op_query(self, req: P.Request) -> bytes:
-        answers = self.selector.select_many(req["effector"], np.array(req["goals"]), req["refine"], start=req["from"])
+        answers = self.selector.select_many(req["effector"], np.array(req["goals"]), req["refine"], start=req["from"], miss=req["miss"])
         return self._result(req, [a.to_json() for a in answers])
 
     def op_hello(self, req: P.Request) -> dict[str, Any]:
@@ -280,7 +284,7 @@ class Server:
     def op_reload(self, req: P.Request) -> dict[str, Any]:
         path = Path(req["path"]) if req["path"] else self.atlas_path
         try:
-            selector = Selector(load_atlas(path), self.policy, self.refine, self.budget, self.handover).warm_up()  # type: ignore[arg-type]
+            selector = Selector(load_atlas(path), **self.options).warm_up()
         except ReachError as exc:
             raise P.ProtocolError(P.RELOAD_FAILED, f"kept the current atlas: {exc}", req.id) from None
         self.selector, self.atlas_path = selector, path
@@ -290,7 +294,7 @@ class Server:
                 self.pending[seq].deadline = 0.0
             self._expire()
             self.pool.close()
-            self.pool = Pool(self.context, path, self.policy, self.budget, self.pool.size, self.handover)
+            self.pool = Pool(self.context, path, self.options, self.pool.size)
         return {"atlas": str(path), "strategies": len(selector.order)}
 
     def op_cells(self, req: P.Request) -> dict[str, Any]:
@@ -337,7 +341,7 @@ class Server:
         if key is not None:
             self.by_key[key] = self._seq
         for part, (a, b) in enumerate(bounds):
-            self.pool.submit(Task(self._seq, part, req["effector"], req["goals"][a:b], req["from"], deadline))
+            self.pool.submit(Task(self._seq, part, req["effector"], req["goals"][a:b], req["from"], deadline, req["miss"]))
         return True
 
     def _stored(self, req: P.Request, a: int, b: int, outcome: str) -> list[bytes]:
@@ -355,7 +359,7 @@ class Server:
                 frames = self._stored(pending.request, a, b, TIMEOUT)
             elif len(frames) != b - a or not frames[0].startswith(b"{"):  # a worker's failure, not answers
                 log.error("worker failed: %s", b"".join(frames)[:500].decode(errors="replace"))
-                frames = self._stored(pending.request, a, b, FAILED)
+                frames = self._stored(pending.request, a, b, ERROR)
         except Exception as exc:  # noqa: BLE001 - this request's error reply; the others go on
             self._abandon(task.request, self._error(exc, pending.request.id))
             return

@@ -49,9 +49,10 @@ class Task:
     goals: list[list[float]]
     start: dict[str, float] | None
     deadline: float  # time.monotonic() after which the work is abandoned
+    miss: str | None = None  # the request's (see reach.select); None: the selector's
 
     def encode(self) -> bytes:
-        return json.dumps({"effector": self.effector, "goals": self.goals, "from": self.start, "deadline": self.deadline}).encode()
+        return json.dumps({"effector": self.effector, "goals": self.goals, "from": self.start, "deadline": self.deadline, "miss": self.miss}).encode()
 
 
 @dataclass
@@ -60,10 +61,8 @@ class Pool:
 
     context: zmq.Context
     atlas: Path
-    policy: str
-    budget: float
+    options: dict[str, Any]  # the selector's keyword arguments (see reach.select.Selector)
     size: int
-    handover: float  # [rad] the selector's (see reach.select)
     backend: Any = None
     processes: list[Any] = field(default_factory=list)
     idle: deque[bytes] = field(default_factory=deque)
@@ -82,7 +81,7 @@ class Pool:
 
     def _start(self, k: int) -> Any:
         """Worker k, a fresh interpreter (no copy of the server's sockets), known to the broker as ``w<k>``."""
-        p = mp.get_context("spawn").Process(target=work, args=(self._address, str(self.atlas), self.policy, self.budget, self.handover, f"w{k}".encode()), daemon=True)
+        p = mp.get_context("spawn").Process(target=work, args=(self._address, str(self.atlas), self.options, f"w{k}".encode()), daemon=True)
         p.start()
         return p
 
@@ -151,7 +150,7 @@ class Pool:
             pass
 
 
-def work(address: str, atlas: str, policy: str, budget: float, handover: float, identity: bytes) -> None:
+def work(address: str, atlas: str, options: dict[str, Any], identity: bytes) -> None:
     """A worker process: refine the tasks the broker sends until it dies with the server."""
     from reach.executor import die_with_parent
     from reach.select import Selector
@@ -163,7 +162,7 @@ def work(address: str, atlas: str, policy: str, budget: float, handover: float, 
     except (AttributeError, OSError):
         os.nice(NICE)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group; the server decides
-    selector = Selector(load_atlas(atlas), policy, True, budget, handover).warm_up()  # type: ignore[arg-type]
+    selector = Selector(load_atlas(atlas), **{**options, "refine": True}).warm_up()
     import numpy as np
 
     sock = zmq.Context().socket(zmq.DEALER)
@@ -178,7 +177,7 @@ def work(address: str, atlas: str, policy: str, budget: float, handover: float, 
             sock.send(EXPIRED)
             continue
         try:
-            answers = selector.select_many(job["effector"], np.array(job["goals"]), True, start=job["from"])
+            answers = selector.select_many(job["effector"], np.array(job["goals"]), True, start=job["from"], miss=job["miss"])
             sock.send_multipart([a.to_json() for a in answers])
         except Exception as exc:  # noqa: BLE001 - reported to the broker, which answers with stored postures
             sock.send(FAILED + f"{type(exc).__name__}: {exc}".encode())

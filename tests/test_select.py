@@ -13,7 +13,7 @@ from reach.atlas import build_atlas
 from reach.cli import main
 from reach.config import parse_config
 from reach.errors import InputError, ModelMismatch, UnknownEffector, UnknownPolicy
-from reach.select import REFINED, SEEDS, SKIPPED, UNAVAILABLE, Selector
+from reach.select import FAILED, REFINED, SEEDS, SKIPPED, UNAVAILABLE, Answer, Selector
 
 
 @pytest.fixture(scope="module")
@@ -164,6 +164,32 @@ def test_a_strategy_whose_ik_misses_the_exact_goal_gives_way_to_the_next(tmp_pat
     assert np.linalg.norm(hand_of(answer, body) - goal) <= 0.005
     # A goal the arm does reach keeps the arm.
     assert s.select("right_hand", shoulder + [0.45, 0.0, -0.1]).strategy == "arm"
+
+
+def test_a_goal_no_refinement_reaches_is_never_a_bare_reachable(tmp_path, capsys):
+    # The arm alone, coarse and optimistic: its tree holds a goal 10 cm beyond its reach, and no strategy is left.
+    strategies = [{"name": "arm", "effector": "right_hand", "priority": 1, "joints": ARM, "tasks": [{"type": "reach"}, {"type": "self_collision"}]}]
+    atlas = build_atlas(parse_config(human_config(d_max=2, strategies=strategies, name="lone"), "lone", "lone"), tmp_path / "lone")
+    body = human_body()
+    goal = body.frame_positions(names=["right_shoulder"])["right_shoulder"] + [0.75, 0.0, 0.0]
+    s = Selector(atlas, policy="optimistic", budget=2.0).warm_up()
+    stored = s.select("right_hand", goal, refine=False)
+    assert stored.reachable and stored.refined == SKIPPED and stored.within == stored.residual > 0.005  # the tree's word, said how near
+    no = s.select("right_hand", goal)  # the default: unreachable, with the nearest point a stored posture reaches
+    assert not no.reachable and no.strategy is None and no.refined == FAILED and no.posture is None
+    near = no.nearest
+    assert near["strategy"] == "arm" and near["distance"] == pytest.approx(np.linalg.norm(np.array(near["point"]) - goal))
+    reached = hand_of(Answer("right_hand", tuple(goal), "arm", True, posture=near["posture"], root=near["root"]), body)
+    assert np.linalg.norm(reached - near["point"]) < 1e-3  # independent FK: the posture reaches that point
+    within = s.select("right_hand", goal, miss="within")
+    assert within.reachable and within.refined == FAILED and within.within == pytest.approx(near["distance"]) and within.within > 0.005
+    assert np.linalg.norm(hand_of(within, body) - goal) == pytest.approx(within.within, abs=1e-6)
+    reached_goal = s.select("right_hand", goal - [0.3, 0.0, 0.1])
+    assert reached_goal.refined == REFINED and reached_goal.within is None  # solved at the goal: no `within`
+    with pytest.raises(InputError, match="miss: expected one of unreachable, within"):
+        s.select("right_hand", goal, miss="maybe")
+    assert main(["query", str(tmp_path / "lone"), *map(str, goal), "--effector", "right_hand", "--policy", "optimistic"]) == 0
+    assert "not reachable: arm's tree holds it but no refinement reached it" in capsys.readouterr().out
 
 
 def test_a_strategy_at_its_joint_limits_hands_the_goal_to_the_next(tmp_path, capsys):
