@@ -2,7 +2,8 @@
 
 For each strategy named (default: every right-hand one), goals are drawn
 uniformly in its final (boundary) cells and asked of the selector with the
-server's defaults (refinement within the 20 ms budget, handover on). An
+server's defaults (refinement within the 20 ms budget, or ``--budget-ms``;
+handover on). An
 answer *misses* when it says reachable and its posture puts the effector
 farther than the tolerance (5 mm) from the goal, by an independent
 Pinocchio forward kinematics of the body. Prints one JSON line per
@@ -34,9 +35,10 @@ def main() -> None:
     parser.add_argument("--goals", type=int, default=60, help="goals per strategy (default 60)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--strategies", nargs="*", help="default: every right-hand strategy")
+    parser.add_argument("--budget-ms", type=float, default=20.0, help="refinement budget per goal [ms] (default 20, the server's; reach query: 1000)")
     args = parser.parse_args()
     atlas = load_atlas(args.atlas)
-    selector = Selector(atlas).warm_up()
+    selector = Selector(atlas, budget=args.budget_ms / 1000.0).warm_up()
     rng = np.random.default_rng(args.seed)
     names = args.strategies or [n for n in atlas.trees if n.startswith("right_")]
     seconds: list[float] = []
@@ -71,7 +73,7 @@ def main() -> None:
             gap = float(np.linalg.norm(pin.updateFramePlacement(model, data, fid).translation - goal))
             if gap > TOLERANCE:
                 misses.append(gap)
-        print(json.dumps({"strategy": name, "goals": args.goals, "reachable": reachable, "unreachable": unreachable, "within": within,
+        print(json.dumps({"strategy": name, "budget_ms": args.budget_ms, "goals": args.goals, "reachable": reachable, "unreachable": unreachable, "within": within,
                           "reachable_but_missed": len(misses), "worst_mm": round(1e3 * max(misses), 1) if misses else None,
                           "median_mm": round(1e3 * float(np.median(misses)), 1) if misses else None, "refined": outcomes}), flush=True)
     lat = np.array(seconds) * 1e3

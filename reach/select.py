@@ -445,7 +445,7 @@ class Selector:
             residual: float | None = gap if np.isfinite(gap) else None
             outcome = SKIPPED
             if refine:
-                q, residual, outcome = self._refine(name, goal, q, None, start)
+                q, residual, outcome = self._refine(name, goal, q, residual, start)
                 if outcome == TIMEOUT:  # out of time: no further strategy is tried
                     # A handover keeps the answer it had; a failed goal is answered by this strategy's
                     # stored posture, marked timeout: its tree holds the goal and nothing said otherwise.
