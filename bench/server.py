@@ -6,6 +6,9 @@
   the size of the server's reply: the floor on this machine. Requests to the
   two alternate, so that both see the same machine noise.
 * Throughput with 1, 4 and 16 concurrent clients (stored postures).
+* A query with the default options (refinement on) of an analytic atlas,
+  which needs no IK, from a server with 2 workers, against the echo in the
+  same run: such a query never leaves the server's loop.
 * With refinement workers (``--workers``): the stored-posture p99 while 2
   clients ask for refined postures; ``health`` behind a 2,000-goal refined
   batch; refined throughput with 1 and 2 workers; a 10,000-goal refined
@@ -46,6 +49,12 @@ CONFIG = {
         {"name": "right_upper_body", "effector": "right_hand", "priority": 2,
          "joints": [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*", "neck_*"], "tasks": [{"type": "reach"}]},
     ],
+}
+
+SPHERE = {
+    "box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 2, "max": 6},
+    "oracle": {"name": "sphere", "params": {"radius": 0.9}},
+    "strategies": [{"name": "sphere", "effector": "point", "priority": 1}],
 }
 
 ECHO = """
@@ -172,7 +181,32 @@ def main() -> None:
                     proc.terminate()
                     proc.wait()
         emit(bench="goals", stored_p99_over_echo_p99=round(s["p99"] / e["p99"], 3), stored_p99_ms=round(s["p99"], 4), refined_p99_ms=round(r["p99"], 4))
+        analytic_bench(Path(tmp) / "sphere", args.requests)
         workers_bench(atlas, goals, stored)
+
+
+def analytic_bench(atlas: Path, requests: int) -> None:
+    """Default-option queries of an analytic atlas (no IK) from a server with workers, against the echo."""
+    build_atlas(parse_config(SPHERE, "sphere", "sphere"), atlas)
+    goals = np.random.default_rng(1).uniform(-1, 1, (requests, 3))
+    payloads = [json.dumps({"op": "query", "id": i, "effector": "point", "goal": g.tolist()}).encode() for i, g in enumerate(goals)]
+    server, address = serve(atlas, 2)
+    echo = None
+    try:
+        sock = zmq.Context.instance().socket(zmq.REQ)
+        sock.connect(address)
+        sock.send(payloads[0])
+        size = len(sock.recv())
+        sock.close()
+        echo, echo_address = start([sys.executable, "-c", ECHO, str(size)])
+        lat, lat_echo = latencies([address, echo_address], payloads)
+        a, e = stats("analytic_default_options_2_workers", lat, reply_bytes=size), stats("echo_analytic", lat_echo, reply_bytes=size)
+        emit(bench="goals", analytic_default_p99_over_echo_p99=round(a["p99"] / e["p99"], 3))
+    finally:
+        for proc in (server, echo):
+            if proc is not None:
+                proc.terminate()
+                proc.wait()
 
 
 def serve(atlas: Path, workers: int) -> tuple[subprocess.Popen, str]:

@@ -84,10 +84,7 @@ HANDOVER = math.radians(5.0)  # [rad] a joint this near a limit passes the goal 
 # A refinement without `from` also starts from the best-liked of this many
 # nearest stored postures (when it is not the nearest's): the nearest can sit
 # in a worse basin of the posture task than its neighbours, and two goals 1 cm
-# apart then ended in different basins. Measured on the demo atlas, 1-cm
-# neighbours low in front asked independently: 10 of 292 pairs changed a joint
-# by more than 10 deg with the nearest alone, 7 with the best-liked instead of
-# it, 3 with both.
+# apart then ended in different basins (docs/history.md, session 8).
 SEEDS = 8
 
 

@@ -33,7 +33,7 @@ READY = b"READY"
 # Workers run at the idle scheduling class (Linux SCHED_IDLE; elsewhere a
 # nice of 10) below the request loop: on a machine with as many workers as
 # cores, the loop's stored-posture answers must not queue behind refinements
-# for a CPU (measured with nice 10 alone: p99 1.4-1.6 ms under refinement load).
+# for a CPU (a nice of 10 alone was not enough: docs/history.md).
 NICE = 10
 EXPIRED = b"expired"
 FAILED = b"failed:"

@@ -52,9 +52,8 @@ Without ``rules`` the task applies the couplings of the generated human:
   rotation is about 160 deg in all (-90 to 70 deg here) and is itself
   limited by the arm's direction (Wang, X. et al. (1998), *Three-dimensional
   modelling of the motion range of axial rotation of the upper arm*,
-  J Biomech 31(10), 899-908). Builds and answers took that second posture:
-  2-4 % of the stored postures of the trunk strategies (default atlas,
-  session 8), and two goals 1 cm apart flipped the shoulder by 165 deg.
+  J Biomech 31(10), 899-908). Without the rule builds and answers took that
+  second posture, and two goals 1 cm apart flipped the shoulder by 165 deg.
   The rule: abduction <= 180 deg + 2 x flexion, which leaves every flexed
   arm its full range and an extended one abduction up to 180 deg + 2 x
   flexion (90 deg at 45 deg of extension, 60 deg at the full 60); near the

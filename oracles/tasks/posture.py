@@ -67,12 +67,8 @@ ENERGY_SCALE = 0.1  # [m] a segment's rise that costs as much as its mass share
 ENERGY = 5.0  # default weight of the energy term: an idle arm left at 60 deg from hanging costs ten times its shoulder's displacement
 # Default weight of the displacement from the character's current posture: a
 # 10 deg change of one joint then costs about as much as a 3 cm rise of the
-# forearm, so that 1-cm goal steps move the joints by degrees, not tens of them.
-# Measured with bench/posture.py on the default atlas (1-cm neighbours low in
-# front, asked with `from`, same 98 pairs): p99 11.4 deg at 5 (2 pairs over
-# 10 deg, at the whole body's lower edge), 7.3 deg at 10, 7.5 deg at 20; in
-# front of the chest 8.8 deg at each. 10 keeps the least pull towards where
-# the character is that closes the gap.
+# forearm, so that 1-cm goal steps move the joints by degrees, not tens of them
+# (the least pull that kept 1-cm neighbours under 10 deg: docs/history.md).
 START = 10.0
 LIMIT_POWER = 8
 DLS_GAIN = 0.1
