@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from oracles.protocol import Described, KeepOut, Mirrorable, ModelHashed, OracleSpec, Verifying
+from oracles.protocol import Described, KeepOut, Mirrorable, ModelHashed, Oracle, OracleSpec, Verifying
 from reach.build import Inherited, build_tree
 from reach.config import Config, StrategySpec
 from reach.errors import ModelError, StoreError
@@ -54,12 +54,14 @@ def fingerprint(config: Config, strategy: StrategySpec) -> str:
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-def sub_strategies(order: list[StrategySpec]) -> dict[str, str]:
+def sub_strategies(order: list[StrategySpec], oracle_of: Callable[[StrategySpec], Oracle] | None = None) -> dict[str, str]:
     """For each strategy, the sub-strategy it inherits from, if any: built before it, on the same body and
-    effector, with a subset of its active joints (the largest such subset; the earliest among equals)."""
+    effector, with a subset of its active joints (the largest such subset; the earliest among equals).
+
+    ``oracle_of`` gives a strategy's oracle (a build's own, made once); by default each is made here."""
     seen: dict[str, tuple[str, str, frozenset[str], tuple[str, ...]]] = {}
     for s in order:
-        oracle = s.oracle.create()  # builds no solver
+        oracle = oracle_of(s) if oracle_of is not None else s.oracle.create()  # builds no solver
         if isinstance(oracle, Described) and isinstance(oracle, ModelHashed):
             seen[s.name] = (oracle.model_hash, s.effector, frozenset(oracle.describe()["joints"]), tuple(oracle.posture_names))
     out: dict[str, str] = {}
@@ -74,12 +76,12 @@ def sub_strategies(order: list[StrategySpec]) -> dict[str, str]:
     return out
 
 
-def _mirror_source(config: Config, s: StrategySpec, built: dict[str, VATree], log: Callable[[str], None]) -> tuple[VATree, Any] | None:
+def _mirror_source(s: StrategySpec, built: dict[str, VATree], oracle_of: Callable[[str], Oracle], log: Callable[[str], None]) -> tuple[VATree, Any] | None:
     """The source tree and posture mirror if s may be derived by mirroring, else None (with the reason logged)."""
     if s.mirror_of is None or s.mirror_of not in built:
         return None
     source = built[s.mirror_of]
-    oracle = OracleSpec.from_dict(source.meta["oracle"]).create()  # builds no solver
+    oracle = oracle_of(s.mirror_of)  # builds no solver
     if not isinstance(oracle, Mirrorable):
         log(f"{s.name}: built, not mirrored: its oracle has no body whose symmetry could be checked")
         return None
@@ -133,7 +135,15 @@ def _build_locked(
     t0 = time.perf_counter()
     # Mirror sources first, so that their trees exist when their images are made.
     order = sorted(config.strategies, key=lambda s: s.mirror_of is not None)
-    subs = sub_strategies(order) if inherit else {}
+    made: dict[str, Oracle] = {}  # each strategy's oracle, made once for this build (a body each)
+
+    def oracle_of(s: StrategySpec) -> Oracle:
+        if s.name not in made:
+            made[s.name] = s.oracle.create()
+        return made[s.name]
+
+    by_name = {s.name: s for s in order}
+    subs = sub_strategies(order, oracle_of) if inherit else {}
     prints: dict[str, str] = {}
     for s in order:
         path, partial = out / f"{s.name}.npz", out / PARTIAL / f"{s.name}.npz"
@@ -154,10 +164,10 @@ def _build_locked(
                     say(f"{s.name}: rebuilding (the config changed since {path.name} was built)")
             except StoreError as exc:
                 say(f"{s.name}: rebuilding ({exc})")
-        source = _mirror_source(config, s, built, say) if tree is None and mirror else None
+        source = _mirror_source(s, built, lambda name: oracle_of(by_name[name]), say) if tree is None and mirror else None
         if tree is None and source is not None:
             tree = build_tree(MirrorOracle(*source), config.box, config.d_min, config.d_max, meta={**meta, "mirrored_from": s.mirror_of},
-                              keep_out=_keep_out(s.oracle.create()))
+                              keep_out=_keep_out(oracle_of(s)))
             # The mirror oracle only looks verdicts up: no oracle call is made.
             tree.meta["build"].update(mirrored_from=s.mirror_of, lookups=tree.meta["build"]["oracle_calls"], oracle_calls=0)
             if "model_hash" in source[0].meta:
@@ -166,7 +176,7 @@ def _build_locked(
         if tree is None:
             sub = subs.get(s.name)
             parent = (sub, built[sub]) if sub is not None and sub in built else None
-            tree = _build_one(config, s, meta, partial, fp, executor_factory, progress, resume, parent)
+            tree = _build_one(config, s, meta, partial, fp, executor_factory, progress, resume, parent, oracle_of(s))
             b = tree.meta["build"]
             also = f", {b['inherited']} reachable vertices inherited from {sub}" if "inherited_from" in tree.meta else ""
             say(f"{s.name}: {b['oracle_calls']} oracle calls{also}, {len(tree)} nodes, inner volume {tree.volume(INNER):.6g}, {b['seconds']:.2f} s")
@@ -194,9 +204,10 @@ def _build_locked(
 def _build_one(
     config: Config, s: StrategySpec, meta: dict[str, Any], partial: Path, fp: str,
     executor_factory: Callable[[OracleSpec], Executor] | None, progress: bool, resume: bool, parent: tuple[str, VATree] | None = None,
+    oracle: Oracle | None = None,
 ) -> VATree:
     state = load_state(partial, fp) if resume and partial.is_file() else None
-    ex: Executor = executor_factory(s.oracle) if executor_factory else InlineExecutor(s.oracle, config.chunk_size)
+    ex: Executor = executor_factory(s.oracle) if executor_factory else InlineExecutor(oracle or s.oracle, config.chunk_size)
     try:
         if isinstance(ex.oracle, ModelHashed):
             meta["model_hash"] = ex.oracle.model_hash
