@@ -624,5 +624,5 @@ def test_a_crashed_worker_is_replaced_and_its_work_answered(human):
             health = c.health()
     finally:
         r.stop()
-    assert again["strategy"] == "right_arm" and again["refined"] in ("ok", "failed")
+    assert again["strategy"] == "right_arm" and again["refined"] in ("ok", "error")
     assert later["refined"] == "ok" and health["worker_restarts"] == 1 and r.server.pool is not None

@@ -1,0 +1,122 @@
+"""The refinement workers (reach.workers): the broker's pool, its tasks and its worker processes, driven directly."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import time
+
+import numpy as np
+import pytest
+import zmq
+from helpers import ARM, human_config
+
+from reach.atlas import build_atlas
+from reach.config import parse_config
+from reach.select import MISS, Selector
+from reach.store import load_atlas
+from reach.workers import EXPIRED, Pool, Task
+
+OPTIONS = {"policy": "vertex", "refine": True, "budget": 0.5, "handover": 0.0, "miss": MISS}
+GOALS = [[0.35, -0.3, 1.1], [0.4, -0.2, 1.3], [0.3, -0.45, 1.0]]
+
+
+@pytest.fixture(scope="module")
+def atlas(tmp_path_factory):
+    strategies = [{"name": "right_arm", "effector": "right_hand", "joints": ARM, "tasks": [{"type": "reach"}]}]
+    out = tmp_path_factory.mktemp("workers") / "arm"
+    build_atlas(parse_config(human_config(d_max=3, strategies=strategies), "arm", "arm"), out)
+    return out
+
+
+def results(pool: Pool, want: int, seconds: float = 60.0) -> list[tuple[Task, list[bytes]]]:
+    """What the workers send back for `want` tasks (readiness messages are skipped)."""
+    got: list[tuple[Task, list[bytes]]] = []
+    end = time.monotonic() + seconds
+    while len(got) < want and time.monotonic() < end:
+        if pool.backend.poll(100):
+            out = pool.receive()
+            if out is not None:
+                got.append(out)
+        for task in pool.revive():
+            got.append((task, [b"lost"]))
+    return got
+
+
+def ready(pool: Pool, seconds: float = 60.0) -> None:
+    """Wait until every worker has loaded the atlas and said it is ready."""
+    end = time.monotonic() + seconds
+    while len(pool.idle) < pool.size and time.monotonic() < end:
+        if pool.backend.poll(100):
+            assert pool.receive() is None
+    assert len(pool.idle) == pool.size
+
+
+def task(request: int, part: int, goals=GOALS, deadline: float | None = None, start=None) -> Task:
+    return Task(request, part, "right_hand", goals, start, time.monotonic() + 60 if deadline is None else deadline)
+
+
+@pytest.mark.slow
+def test_workers_answer_as_the_selector_does_and_a_task_round_trips_as_json(atlas):
+    t = task(1, 0, start={"right_elbow_flexion": 0.4})
+    assert json.loads(t.encode()) == {"effector": "right_hand", "goals": GOALS, "from": {"right_elbow_flexion": 0.4}, "deadline": t.deadline, "miss": None}
+    pool = Pool(zmq.Context.instance(), atlas, OPTIONS, 2)
+    try:
+        ready(pool)
+        pool.submit(task(1, 0))
+        pool.submit(task(1, 1, GOALS[:1]))
+        got = sorted(results(pool, 2), key=lambda r: r[0].part)
+        assert pool.ready == 2 and not pool.busy and not pool.queue
+    finally:
+        pool.close()
+    assert [r[0].part for r in got] == [0, 1] and [len(r[1]) for r in got] == [3, 1]
+    local = Selector(load_atlas(atlas), **OPTIONS)
+    for frame, goal in zip(got[0][1], GOALS, strict=True):
+        answer, expected = json.loads(frame), local.select("right_hand", np.array(goal)).to_dict()
+        assert answer["goal"] == goal and answer["strategy"] == expected["strategy"] and answer["refined"] == expected["refined"]
+        assert answer["posture"] == pytest.approx(expected["posture"])  # the same request, the same answer
+
+
+@pytest.mark.slow
+def test_a_task_past_its_deadline_answers_expired_and_cancel_drops_queued_work(atlas):
+    pool = Pool(zmq.Context.instance(), atlas, OPTIONS, 1)
+    try:
+        ready(pool)
+        pool.idle.clear()  # hold the worker back so that tasks queue
+        pool.submit(task(7, 0))
+        pool.submit(task(8, 0))
+        pool.cancel(7)
+        assert [t.request for t in pool.queue] == [8]
+        pool.queue.appendleft(Task(9, 0, "right_hand", GOALS, None, time.monotonic() + 0.05))
+        time.sleep(0.1)
+        pool.idle.append(b"w0")
+        pool.dispatch()  # the late task is past its deadline: dropped here, never sent
+        got = results(pool, 1)
+        assert [r[0].request for r in got] == [8]
+        # A task whose deadline passes while it travels is answered `expired` by the worker itself.
+        t = Task(10, 0, "right_hand", GOALS, None, time.monotonic() + 1e-4)
+        pool.idle.popleft()
+        pool.backend.send_multipart([b"w0", t.encode()])
+        pool.busy[b"w0"] = t
+        assert results(pool, 1)[0][1] == [EXPIRED]
+    finally:
+        pool.close()
+
+
+@pytest.mark.slow
+def test_a_killed_worker_is_replaced_and_its_task_handed_back(atlas):
+    pool = Pool(zmq.Context.instance(), atlas, OPTIONS, 1)
+    try:
+        ready(pool)
+        pool.submit(task(3, 0, GOALS * 20))  # long enough to be killed in the middle of
+        assert list(pool.busy) == [b"w0"]
+        os.kill(pool.processes[0].pid, signal.SIGKILL)
+        pool.processes[0].join(timeout=10)
+        lost = pool.revive()
+        assert [t.request for t in lost] == [3] and pool.restarts == 1 and pool.processes[0].is_alive()
+        pool.submit(task(4, 0, GOALS[:1]))
+        assert [r[0].request for r in results(pool, 1)] == [4]  # the new worker answers
+    finally:
+        pool.close()
+    assert not any(p.is_alive() for p in pool.processes)
