@@ -162,12 +162,7 @@ def main() -> None:
         echo = None
         try:
             _ready(address)  # the workers have loaded the atlas: nothing else runs while we measure
-            sock = zmq.Context.instance().socket(zmq.REQ)
-            sock.connect(address)
-            sock.send(stored[0])
-            reply_size = len(sock.recv())
-            sock.close()
-            echo, echo_address = start([sys.executable, "-c", ECHO, str(reply_size)])
+            echo, echo_address, reply_size = echo_beside(address, stored[0])
             lat, lat_echo = latencies([address, echo_address], stored)
             s = stats("stored_posture", lat, request_bytes=len(stored[0]), reply_bytes=reply_size)
             e = stats("echo", lat_echo, reply_bytes=reply_size)
@@ -193,12 +188,7 @@ def analytic_bench(atlas: Path, requests: int) -> None:
     server, address = serve(atlas, 2)
     echo = None
     try:
-        sock = zmq.Context.instance().socket(zmq.REQ)
-        sock.connect(address)
-        sock.send(payloads[0])
-        size = len(sock.recv())
-        sock.close()
-        echo, echo_address = start([sys.executable, "-c", ECHO, str(size)])
+        echo, echo_address, size = echo_beside(address, payloads[0])
         lat, lat_echo = latencies([address, echo_address], payloads)
         a, e = stats("analytic_default_options_2_workers", lat, reply_bytes=size), stats("echo_analytic", lat_echo, reply_bytes=size)
         emit(bench="goals", analytic_default_p99_over_echo_p99=round(a["p99"] / e["p99"], 3))
@@ -207,6 +197,17 @@ def analytic_bench(atlas: Path, requests: int) -> None:
             if proc is not None:
                 proc.terminate()
                 proc.wait()
+
+
+def echo_beside(address: str, payload: bytes) -> tuple[subprocess.Popen, str, int]:
+    """A bare echo server whose reply has the size of the server's reply to payload: its process, address and that size."""
+    sock = zmq.Context.instance().socket(zmq.REQ)
+    sock.connect(address)
+    sock.send(payload)
+    size = len(sock.recv())
+    sock.close()
+    echo, echo_address = start([sys.executable, "-c", ECHO, str(size)])
+    return echo, echo_address, size
 
 
 def serve(atlas: Path, workers: int) -> tuple[subprocess.Popen, str]:

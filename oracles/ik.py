@@ -37,7 +37,7 @@ from oracles.errors import OracleError
 from oracles.jit import COMPILER, compiled_nlpsol
 from oracles.kinematics import SymbolicKinematics
 from oracles.problem import Check, ReachProblem
-from oracles.protocol import OracleSpec, Purpose, Verdicts, check_points, check_purpose
+from oracles.protocol import Ball, OracleSpec, Purpose, Verdicts, check_points, check_purpose
 from oracles.search import Search
 from oracles.strategy import parse_strategy
 from oracles.tasks import Numeric, Symbolic
@@ -135,12 +135,12 @@ class IKOracle(ABC):
             out[k] = pin.updateFramePlacement(model, data, fid).translation
         return out
 
-    def reach_bound(self) -> tuple[np.ndarray, float] | None:
+    def reach_bound(self) -> Ball | None:
         """A fixed point and the most the effector can be from it [m], or None when unbounded."""
         p = self.problem
         if p.anchor is None or not np.isfinite(p.max_reach):
             return None
-        return p.anchor.copy(), float(p.max_reach)
+        return Ball(p.anchor.copy(), float(p.max_reach))
 
     def reference_posture(self) -> np.ndarray:
         return self.body.q_ref.copy()

@@ -138,12 +138,19 @@ class EffectorPositions(Protocol):
         ...
 
 
+class Ball(NamedTuple):
+    """A ball: ``centre`` [m] (dim,) and ``radius`` [m]."""
+
+    centre: np.ndarray
+    radius: float
+
+
 @runtime_checkable
 class ReachBound(Protocol):
     """An oracle that bounds its volume by a ball."""
 
-    def reach_bound(self) -> tuple[np.ndarray, float] | None:
-        """(centre [m], radius [m]) of a ball holding every reachable point, or None when unbounded."""
+    def reach_bound(self) -> Ball | tuple[np.ndarray, float] | None:
+        """A ball (centre [m], radius [m]) holding every reachable point, or None when unbounded."""
         ...
 
 

@@ -22,7 +22,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -76,6 +76,15 @@ def warm_hints(table: VertexTable, lattice: Lattice, points: np.ndarray) -> np.n
     return hints
 
 
+class Taken(NamedTuple):
+    """What a strategy inherits of new vertices: ``mask`` (N,) over the keys asked, and the
+    ``residual`` [m] and ``posture`` (M, nq) of the M inherited ones."""
+
+    mask: np.ndarray
+    residual: np.ndarray
+    posture: np.ndarray
+
+
 @dataclass(frozen=True)
 class Inherited:
     """Reachable vertices of a sub-strategy's tree, and this strategy's check of a posture.
@@ -91,7 +100,7 @@ class Inherited:
     table: VertexTable
     verify: Callable[[np.ndarray, np.ndarray], np.ndarray]
 
-    def take(self, keys: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def take(self, keys: np.ndarray, points: np.ndarray) -> Taken:
         """Which keys are inherited (mask), and their residuals and postures."""
         rows = self.table.index(keys)
         cand = np.nonzero(rows >= 0)[0]
@@ -102,7 +111,7 @@ class Inherited:
             mask[cand[ok]] = True
         rows = rows[mask]
         posture = self.table.posture[rows] if self.table.posture is not None else np.zeros((0, 0))
-        return mask, self.table.residual[rows], posture
+        return Taken(mask, self.table.residual[rows], posture)
 
 
 @dataclass(frozen=True)

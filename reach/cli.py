@@ -271,12 +271,8 @@ def cmd_model(args: argparse.Namespace) -> int:
         print(f"    {c['name']:<20} on {c['link']:<16} radius {c['radius']:.4f} length {c['length']:.4f}")
     for name, d in strategies.items():
         for t in d["tasks"]:
-            if isinstance(t.get("pairs"), list):
-                close = ", ".join(f"{a}-{b} ({dist:+.3f} m)" for (a, b), dist in ((c["pair"], c["distance"]) for c in t["at_reference"]))
-                print(f"  {name}: {len(t['pairs'])} pairs checked; closer than the margin at the reference (keep that clearance): {close or 'none'}")
-            if isinstance(t.get("rules"), list) and t["rules"]:
-                rules = "; ".join(f"{' + '.join(r['joints'])} <= {r['limit']:.4f} {'-' if r['slope'] < 0 else '+'} {abs(r['slope']):.4f} x {r['by']}" for r in t["rules"])
-                print(f"  {name}: coupled limits [rad]: {rules}")
+            if t.get("text"):  # the task's own line (see oracles.tasks.base.Task.describe)
+                print(f"  {name}: {t['text']}")
     return 0
 
 

@@ -46,7 +46,7 @@ import math
 import time
 from collections import OrderedDict
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -86,6 +86,16 @@ HANDOVER = math.radians(5.0)  # [rad] a joint this near a limit passes the goal 
 # in a worse basin of the posture task than its neighbours, and two goals 1 cm
 # apart then ended in different basins (docs/history.md, session 8).
 SEEDS = 8
+
+
+class Found(NamedTuple):
+    """A strategy that answers a goal (see ``Selector._first_answer``)."""
+
+    name: str
+    posture: np.ndarray  # (nq,)
+    residual: float | None  # [m] from the goal
+    outcome: str  # the refinement's, one of the outcomes above
+    row: int  # the nearest stored vertex's row
 
 
 @dataclass(frozen=True)
@@ -397,11 +407,11 @@ class Selector:
                 # priority that does answers; else this one's stored posture.
                 found = self._first_answer(goal, others, refine, start)
                 if found is not None:
-                    others = others[others.index(found[0]) + 1 :]
+                    others = others[others.index(found.name) + 1 :]
             elif self.handover and others and outcome in (REFINED, SKIPPED) and (limits := self._limits(name, q)):
                 found = self._first_answer(goal, others, refine, start, below=len(limits))
                 if found is not None:
-                    others = [h for h in hits if h != found[0]]  # the strategy passed over stays an alternative
+                    others = [h for h in hits if h != found.name]  # the strategy passed over stays an alternative
                     handover = {"from": name, "limits": limits}
             if found is not None:
                 name, q, residual, outcome, row = found
@@ -426,7 +436,7 @@ class Selector:
         return list(oracle.limits_near(q, self.handover)) if isinstance(oracle, Limited) else []
 
     def _first_answer(self, goal: np.ndarray, names: list[str], refine: bool, start: dict[str, float] | None,
-                      below: int | None = None) -> tuple[str, np.ndarray, float | None, str, int] | None:
+                      below: int | None = None) -> Found | None:
         """The first of names (by priority) whose refinement reaches the goal (without refinement: whose tree
         holds a posture) and, given ``below``, with fewer joints near their limits: its name, posture,
         residual, refinement outcome and nearest stored row; None if none does (or, given ``below``, the time runs out)."""
@@ -446,11 +456,11 @@ class Selector:
                 if outcome == TIMEOUT:  # out of time: no further strategy is tried
                     # A handover keeps the answer it had; a failed goal is answered by this strategy's
                     # stored posture, marked timeout: its tree holds the goal and nothing said otherwise.
-                    return None if below is not None else (name, q, residual, outcome, row)
+                    return None if below is not None else Found(name, q, residual, outcome, row)
                 if outcome != REFINED:
                     continue
             if below is None or len(self._limits(name, q)) < below:
-                return name, q, residual, outcome, row
+                return Found(name, q, residual, outcome, row)
         return None
 
     def _stored_posture(self, name: str, tree: VATree, row: int) -> tuple[dict[str, float], dict[str, list[float]] | None, bytes]:

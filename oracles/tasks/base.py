@@ -267,7 +267,7 @@ class Task(ABC):
         """The independent check of the verdict, on Pinocchio's evaluation of a posture."""
 
     def describe(self) -> dict[str, Any]:
-        """What ``reach model`` prints of the task (JSON-compatible)."""
+        """What ``reach model`` prints of the task (JSON-compatible); its ``text``, when given, is the line it prints."""
         return {"type": self.type, "hard": self.hard}
 
 

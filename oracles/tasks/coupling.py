@@ -179,4 +179,6 @@ class CouplingTask(HardTask):
         return all(sum(num.q[i] for i in r.iq) - r.slope * num.q[r.iby] <= r.limit + LIMIT_TOL for r in self.rules)
 
     def describe(self) -> dict[str, Any]:
-        return {**super().describe(), "rules": [{"joints": list(r.joints), "by": r.by, "limit": r.limit, "slope": r.slope} for r in self.rules]}
+        rules = "; ".join(f"{' + '.join(r.joints)} <= {r.limit:.4f} {'-' if r.slope < 0 else '+'} {abs(r.slope):.4f} x {r.by}" for r in self.rules)
+        return {**super().describe(), "rules": [{"joints": list(r.joints), "by": r.by, "limit": r.limit, "slope": r.slope} for r in self.rules],
+                **({"text": f"coupled limits [rad]: {rules}"} if self.rules else {})}

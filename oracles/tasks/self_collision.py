@@ -183,11 +183,13 @@ class SelfCollisionTask(HardTask):
 
     def describe(self) -> dict[str, Any]:
         names = [p.name for p in self._model.placed] if self._model else []
+        close = ", ".join(f"{a}-{b} ({d:+.3f} m)" for a, b, d in self.at_reference)
         return {
             **super().describe(), "margin": self.margin,
             "pairs": [[names[p.first], names[p.second]] for p in self.pairs] if names else len(self.pairs),
             "at_reference": [{"pair": [a, b], "distance": d} for a, b, d in self.at_reference],
             "keep_out": [names[i] for i in self.static] if names else len(self.static),
+            "text": f"{len(self.pairs)} pairs checked; closer than the margin at the reference (keep that clearance): {close or 'none'}",
         }
 
     def constraints(self, sym: Symbolic) -> list[Constraint]:
