@@ -91,12 +91,12 @@ class Body:
     def frame_id(self, name: str) -> int:
         if not self.model.existFrame(name):
             known = sorted({str(f.name) for f in self.model.frames} - {"universe"})
-            raise ModelError(f"no frame {name!r}; frames are: {', '.join(known)}", source=self.source)
+            raise ModelError(f"no frame {name!r}; frames are: {', '.join(known)}", source=self.source, name=name)
         return int(self.model.getFrameId(name))
 
     def joint_id(self, name: str) -> int:
         if name not in self.joint_names:
-            raise ModelError(f"no joint {name!r}; joints are: {', '.join(self.joint_names)}", source=self.source)
+            raise ModelError(f"no joint {name!r}; joints are: {', '.join(self.joint_names)}", source=self.source, name=name)
         return int(self.model.getJointId(name))
 
     def configuration(self, joints: dict[str, float], root: dict[str, list[float]] | None = None) -> np.ndarray:

@@ -58,9 +58,9 @@ class BuildState:
 
 def check_depths(d_min: int, d_max: int) -> None:
     if d_max < 0 or d_min < 0:
-        raise TreeError(f"depths must be non-negative, got D_min {d_min} and D_max {d_max}")
+        raise TreeError(f"depths must be non-negative, got D_min {d_min} and D_max {d_max}", what="depth")
     if d_min > d_max:
-        raise TreeError(f"D_min ({d_min}) must not exceed D_max ({d_max})")
+        raise TreeError(f"D_min ({d_min}) must not exceed D_max ({d_max})", what="depth")
 
 
 def warm_hints(table: VertexTable, lattice: Lattice, points: np.ndarray) -> np.ndarray | None:
@@ -343,7 +343,7 @@ def build_tree(
     own = executor is None
     ex = executor if executor is not None else InlineExecutor(oracle, chunk_size)
     if ex.dim != box.dim:
-        raise TreeError(f"oracle is {ex.dim}-D but B0 is {box.dim}-D")
+        raise TreeError(f"oracle is {ex.dim}-D but B0 is {box.dim}-D", what="box")
     if state is None:
         state = BuildState(0, np.zeros((1, box.dim), np.int64), vertices=VertexTable.empty(ex.posture_names))
     bar = None

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from reach import protocol as P
-from reach.errors import InputError, ReachError
+from reach.errors import ConfigError, InputError, ReachError
 from reach.select import HANDOVER, MISS, MISSES, REFINE_BUDGET
 from reach.tree import DEFAULT_POLICY, POLICIES
 
@@ -118,13 +118,13 @@ def _goal(values: list[str], with_atlas: bool) -> tuple[str | None, list[float]]
     expected = "ATLAS X Y [Z]" if with_atlas else "X Y [Z] (with --connect)"
     need = (3, 4) if with_atlas else (2, 3)
     if len(values) not in need:
-        raise ReachError(f"query takes {expected}, got {len(values)} values")
+        raise InputError("goal", f"query takes {expected}, got {len(values)} values")
     atlas = values[0] if with_atlas else None
     coords = values[1:] if with_atlas else values
     try:
         return atlas, [float(v) for v in coords]
     except ValueError as exc:
-        raise ReachError(f"goal coordinates must be numbers in metres ({exc})") from exc
+        raise InputError("goal", f"coordinates must be numbers in metres ({exc})") from exc
 
 
 def cmd_query(args: argparse.Namespace) -> int:
@@ -250,7 +250,7 @@ def cmd_model(args: argparse.Namespace) -> int:
 
         data = read_yaml(Path(spec))
         if not isinstance(data, dict) or "body" not in data:
-            raise ReachError(f"{spec}: body: the config names no body")
+            raise ConfigError(spec, "body", "the config names no body")
         body = load_body(data["body"])
         for s in load_config(spec).strategies:
             oracle = s.oracle.create()

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from reach.errors import ReachError
+from reach.errors import InputError
 from reach.tree import VATree
 
 MAX_GRID = 1 << 24  # vertices; above this the lattice is sampled coarser
@@ -24,7 +24,7 @@ def mesh(tree: VATree, level: int | None = None) -> tuple[np.ndarray, np.ndarray
     from skimage.measure import marching_cubes
 
     if tree.dim != 3:
-        raise ReachError("meshes need a 3-D tree")
+        raise InputError("strategy", "meshes need a 3-D tree")
     level = tree.d_max if level is None else min(level, tree.d_max)
     while level > 1 and ((1 << level) + 1) ** 3 > MAX_GRID:
         level -= 1
@@ -33,7 +33,7 @@ def mesh(tree: VATree, level: int | None = None) -> tuple[np.ndarray, np.ndarray
     grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
     occ = tree.contains(grid, "vertex").reshape(n, n, n).astype(np.float32)
     if not occ.any():
-        raise ReachError("the volume is empty: nothing to mesh")
+        raise InputError("strategy", "the volume is empty: nothing to mesh")
     padded = np.pad(occ, 1)
     spacing = tuple(float(s) for s in tree.box.size / (n - 1))
     verts, faces, _, _ = marching_cubes(padded, level=0.5, spacing=spacing)
@@ -48,7 +48,7 @@ def export_mesh(tree: VATree, path: str | Path, level: int | None = None) -> Pat
 
     path = Path(path)
     if path.suffix.lower() not in (".stl", ".ply"):
-        raise ReachError(f"{path}: expected a .stl or .ply file name")
+        raise InputError("--output", f"{path}: expected a .stl or .ply file name")
     verts, faces = mesh(tree, level)
     path.parent.mkdir(parents=True, exist_ok=True)
     trimesh.Trimesh(vertices=verts, faces=faces, process=False).export(path)

@@ -42,7 +42,7 @@ import zmq.auth
 
 from reach import __version__
 from reach import protocol as P
-from reach.errors import ReachError, UnknownEffector, UnknownStrategy
+from reach.errors import InputError, ReachError, UnknownEffector, UnknownStrategy
 from reach.select import ERROR, HANDOVER, MISS, REFINE_BUDGET, SKIPPED, TIMEOUT, Selector
 from reach.store import load_atlas
 from reach.tree import DEFAULT_POLICY
@@ -111,7 +111,7 @@ class Server:
         if curve_secret:
             public, secret = zmq.auth.load_certificate(str(curve_secret))
             if secret is None:
-                raise ReachError(f"{curve_secret}: not a CURVE secret-key file (expected one written by zmq.auth.create_certificates)")
+                raise InputError("--curve-secret-key", f"{curve_secret}: not a CURVE secret-key file (expected one written by zmq.auth.create_certificates)")
             for s in sockets:
                 s.curve_secretkey, s.curve_publickey, s.curve_server = secret, public, True
         self.router.bind(bind)

@@ -50,11 +50,11 @@ class Box:
         lo = np.asarray(self.lo, dtype=float).reshape(-1)
         hi = np.asarray(self.hi, dtype=float).reshape(-1)
         if lo.shape != hi.shape or lo.shape[0] not in (2, 3):
-            raise TreeError(f"box min and max must both have 2 or 3 coordinates, got {lo.shape} and {hi.shape}")
+            raise TreeError(f"box min and max must both have 2 or 3 coordinates, got {lo.shape} and {hi.shape}", what="box")
         if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
-            raise TreeError("box coordinates must be finite")
+            raise TreeError("box coordinates must be finite", what="box")
         if np.any(hi <= lo):
-            raise TreeError(f"box is empty: max {hi.tolist()} must exceed min {lo.tolist()} on every axis")
+            raise TreeError(f"box is empty: max {hi.tolist()} must exceed min {lo.tolist()} on every axis", what="box")
         object.__setattr__(self, "lo", lo)
         object.__setattr__(self, "hi", hi)
 
@@ -95,7 +95,7 @@ class Lattice:
 
     def __post_init__(self) -> None:
         if not 0 <= self.d_max <= MAX_DEPTH:
-            raise TreeError(f"d_max must be in [0, {MAX_DEPTH}], got {self.d_max}")
+            raise TreeError(f"d_max must be in [0, {MAX_DEPTH}], got {self.d_max}", what="d_max")
 
     @property
     def dim(self) -> int:
@@ -277,7 +277,7 @@ class VATree:
         """
         pts = np.asarray(points, dtype=float)
         if pts.ndim != 2 or pts.shape[1] != self.dim:
-            raise TreeError(f"points must have shape (N, {self.dim}), got {pts.shape}")
+            raise TreeError(f"points must have shape (N, {self.dim}), got {pts.shape}", what="points")
         if pts.shape[0] == 1:
             return np.array([self._locate_one(pts[0].tolist())], np.int64)
         cells, inside = self.lattice.cell_of(pts)
@@ -452,7 +452,7 @@ def combine(a: VATree, b: VATree, mode: str) -> VATree:
     tree never evaluated takes that tree's answer under the vertex policy).
     """
     if mode not in ("intersection", "union", "difference"):
-        raise TreeError(f"unknown boolean {mode!r}")
+        raise TreeError(f"unknown boolean {mode!r}", what="mode")
     if a.box != b.box or a.d_max != b.d_max:
         raise TreeError(
             f"booleans need the same B0 and D_max; got {a.box.to_dict()} D_max {a.d_max} "

@@ -74,7 +74,7 @@ def test_errors_exit_2_with_one_line(tmp_path, capsys):
     assert "no such atlas folder" in capsys.readouterr().err
     assert main(["query", str(tmp_path / "absent"), "0", "0"]) == 2
     assert main(["query", str(tmp_path / "absent"), "zero", "0"]) == 2
-    assert "goal coordinates must be numbers" in capsys.readouterr().err
+    assert "goal: coordinates must be numbers" in capsys.readouterr().err
 
 
 def test_unknown_effector_is_an_error(figure2_atlas, capsys):

@@ -77,3 +77,27 @@ def test_verdicts_concatenate():
     b = Verdicts(np.array([False]), np.array([0.5]), np.array([[3.0, 4.0]]))
     c = Verdicts.concatenate([a, b])
     assert c.reachable.tolist() == [True, False] and c.posture.shape == (2, 2)
+
+
+def test_errors_live_in_oracles_carry_their_fields_and_reach_re_exports_them():
+    import oracles.errors
+    import reach.errors
+    from oracles.body import human_body
+
+    for name in ("ReachError", "OracleError", "ModelError", "TaskError"):
+        assert getattr(reach.errors, name) is getattr(oracles.errors, name)
+    with pytest.raises(reach.errors.ModelError, match="no frame 'wing'") as err:
+        human_body().frame_id("wing")
+    assert err.value.name == "wing" and err.value.source and err.value.reason.startswith("no frame 'wing'")
+    with pytest.raises(reach.errors.OracleError) as bad:
+        OracleSpec("casadi-ik", {"body": {"human": {}}, "effector": "right_hand", "joints": ["right_elbow_flexion"], "solver": "snopt"}).create()
+    assert (bad.value.oracle, bad.value.key) == ("casadi-ik", "solver") and str(bad.value).startswith("casadi-ik: solver must be one of")
+
+
+def test_nothing_in_oracles_imports_reach():
+    import re
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1] / "oracles"
+    offenders = [str(p) for p in root.rglob("*.py") if re.search(r"^\s*(from|import) reach\b", p.read_text(), flags=re.M)]
+    assert offenders == []
