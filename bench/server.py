@@ -188,6 +188,7 @@ def analytic_bench(atlas: Path, requests: int) -> None:
     server, address = serve(atlas, 2)
     echo = None
     try:
+        _workers_ready(address, 2)  # no worker starting up beside the measure
         echo, echo_address, size = echo_beside(address, payloads[0])
         lat, lat_echo = latencies([address, echo_address], payloads)
         a, e = stats("analytic_default_options_2_workers", lat, reply_bytes=size), stats("echo_analytic", lat_echo, reply_bytes=size)
@@ -222,6 +223,18 @@ def _ready(address: str) -> None:
     for _ in range(4):
         sock.send(json.dumps({"op": "query", "effector": "right_hand", "goals": [[0.4, -0.3, 1.2]] * 8}).encode())
         sock.recv()
+    sock.close(linger=0)
+
+
+def _workers_ready(address: str, workers: int) -> None:
+    """Wait until the server's workers have all loaded the atlas (health's workers_ready)."""
+    sock = zmq.Context.instance().socket(zmq.REQ)
+    sock.connect(address)
+    for _ in range(600):
+        sock.send(b'{"op": "health"}')
+        if json.loads(sock.recv())["workers_ready"] >= workers:
+            break
+        time.sleep(0.1)
     sock.close(linger=0)
 
 

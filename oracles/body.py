@@ -178,7 +178,20 @@ def _apply_ranges(model: pin.Model, ranges: dict[str, Any], source: str) -> None
                 raise ModelError(f"ranges.{pattern}: expected [lower, upper] in radians or {{scale: f}} with 0 < f <= 1, got {value!r}", source=source)
 
 
+def _check_limits(model: pin.Model, source: str) -> None:
+    """Every one-coordinate joint's limits are numbers with lower <= upper (a URDF may say otherwise)."""
+    for j in range(2, model.njoints):
+        jm = model.joints[j]
+        if jm.nq != 1:
+            continue
+        lo, hi = float(model.lowerPositionLimit[jm.idx_q]), float(model.upperPositionLimit[jm.idx_q])
+        if np.isnan(lo) or np.isnan(hi) or lo > hi:
+            name = str(model.names[j])
+            raise ModelError(f"joint {name!r} has limits lower {lo} > upper {hi}; expected lower <= upper [rad or m]", source=source, name=name)
+
+
 def _finish(model: pin.Model, urdf: str, source: str, spec: dict[str, Any], root: np.ndarray, capsules: list[Capsule], anthro: Anthropometry | None = None) -> Body:
+    _check_limits(model, source)
     _apply_ranges(model, dict(spec.get("ranges", {})), source)
     # The free flyer's translation has no meaningful limits; bound it so
     # that random configurations and solvers stay finite.

@@ -19,7 +19,10 @@ from oracles.registry import create
 
 
 def _vector(name: str, value: Any, dim: int | None = None) -> np.ndarray:
-    arr = np.asarray(value, dtype=float)
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        arr = np.zeros((0, 0))  # refused below
     if arr.ndim != 1 or (dim is not None and arr.shape[0] != dim) or not np.all(np.isfinite(arr)):
         want = f"{dim} finite numbers" if dim else "a list of finite numbers"
         raise OracleError(f"{name} must be {want}, got {value!r}", key=name)
@@ -27,7 +30,10 @@ def _vector(name: str, value: Any, dim: int | None = None) -> np.ndarray:
 
 
 def _positive(name: str, value: Any) -> float:
-    v = float(value)
+    try:
+        v = float(value)
+    except (TypeError, ValueError):
+        raise OracleError(f"{name} must be a positive number [m], got {value!r}", key=name) from None
     if not np.isfinite(v) or v <= 0:
         raise OracleError(f"{name} must be a positive number [m], got {value!r}", key=name)
     return v

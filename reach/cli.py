@@ -194,7 +194,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         raise InputError("--workers", f"expected 0 or more worker processes, got {workers}")
     server = Server(args.atlas, args.bind, None if args.pub == "none" else args.pub, policy=args.policy,
                     refine=not args.no_refine, budget=args.budget_ms / 1000.0, curve_secret=args.curve_secret_key, workers=workers,
-                    handover=_handover(args), miss=args.miss)
+                    handover=_handover(args), miss=args.miss, allow_reload=args.allow_reload)
     print(f"serving {args.atlas} on {server.endpoint}" + (f", publishing on {server.pub_endpoint}" if server.pub_endpoint else ""), flush=True)
     server.serve_forever()
     print("server stopped", flush=True)
@@ -419,6 +419,7 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--budget-ms", type=float, default=REFINE_BUDGET * 1000, help=f"time budget of one IK refinement [ms] (default {REFINE_BUDGET * 1000:g})")
     p.add_argument("--curve-secret-key", metavar="FILE", help="encrypt with CURVE, using this server secret-key file (zmq.auth.create_certificates)")
     p.add_argument("--workers", type=int, metavar="N", help="refinement worker processes (default: all cores; 0 refines in the request loop)")
+    p.add_argument("--allow-reload", metavar="ROOT", help="let clients 'reload' atlases from folders under ROOT (default: reload is refused)")
     _handover_option(p)
     p.set_defaults(func=cmd_serve)
 

@@ -27,6 +27,17 @@ REQUEST_RETRIES = P.REQUEST_RETRIES
 __all__ = ["Client", "ServerError", "ServerUnavailable"]
 
 
+def load_curve_key(path: str | Path, *, secret: bool, what: str) -> tuple[bytes, bytes | None]:
+    """The (public, secret) keys of a ZeroMQ certificate file (``reach keys``), or an InputError naming ``what``."""
+    try:
+        public, secret_key = zmq.auth.load_certificate(str(path))
+    except (OSError, ValueError) as exc:
+        raise InputError(what, f"{path}: cannot read a CURVE key file ({exc}); write one with `reach keys DIR`") from None
+    if secret and secret_key is None:
+        raise InputError(what, f"{path}: not a CURVE secret-key file (expected the .key_secret written by `reach keys DIR`)")
+    return public, secret_key
+
+
 class Client:
     """Talks to a reach server.
 
@@ -43,7 +54,7 @@ class Client:
         self.context = context or zmq.Context.instance()
         self.curve = None
         if curve_server_key:
-            server_public, _ = zmq.auth.load_certificate(str(curve_server_key))
+            server_public, _ = load_curve_key(curve_server_key, secret=False, what="curve_server_key")
             client_public, client_secret = zmq.curve_keypair()
             self.curve = (server_public, client_public, client_secret)
         self._ids = itertools.count(1)

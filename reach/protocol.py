@@ -53,6 +53,7 @@ UNKNOWN_OP = "unknown_op"
 UNKNOWN_EFFECTOR = "unknown_effector"
 UNKNOWN_STRATEGY = "unknown_strategy"
 RELOAD_FAILED = "reload_failed"
+FORBIDDEN = "forbidden"  # an operation the server was not started to allow (reload without --allow-reload)
 INTERNAL = "internal"  # a bug: the server logs it and keeps serving
 
 
@@ -219,8 +220,8 @@ OPERATIONS: dict[str, Operation] = {op.name: op for op in (
     ), "centres of each strategy's reachable cells on a regular grid", "op_cells"),
     Operation("health", (), "status and counters", "op_health"),
     Operation("hello", (TAG,), "publish `hello` with the tag: a subscriber's sync", "op_hello"),
-    Operation("reload", (Field("path", "string", _string(4096), "the atlas folder (default: the one served)"),),
-              "load an atlas and serve it", "op_reload"),
+    Operation("reload", (Field("path", "string", _string(4096), "the atlas folder, under the server's `--allow-reload` root (default: the one served)"),),
+              "load an atlas and serve it (only with `reach serve --allow-reload ROOT`)", "op_reload"),
     Operation("version", (), "the protocol's version, the server's and its operations", "op_version"),
 )}
 OPS = tuple(OPERATIONS)

@@ -42,7 +42,8 @@ import zmq.auth
 
 from reach import __version__
 from reach import protocol as P
-from reach.errors import InputError, ReachError, UnknownEffector, UnknownStrategy
+from reach.client import load_curve_key
+from reach.errors import ReachError, UnknownEffector, UnknownStrategy
 from reach.select import ERROR, HANDOVER, MISS, REFINE_BUDGET, SKIPPED, TIMEOUT, Selector
 from reach.store import load_atlas
 from reach.tree import DEFAULT_POLICY
@@ -83,6 +84,8 @@ class Server:
             limits hands the goal over (see :mod:`reach.select`); 0: plain priority.
         miss: What a goal the trees hold but no refinement reaches answers,
             ``unreachable`` or ``within`` (see :mod:`reach.select`), unless a request says.
+        allow_reload: The folder under which ``reload`` may load atlases; None
+            (the default) refuses every ``reload``.
         curve_secret: Path of the server's CURVE secret-key file, or None.
         context: A zmq context (a new one by default).
         workers: Refinement worker processes; 0 refines in the request loop.
@@ -91,8 +94,11 @@ class Server:
     def __init__(
         self, atlas: str | Path, bind: str = P.DEFAULT_BIND, pub: str | None = P.DEFAULT_PUB, *, policy: str = DEFAULT_POLICY,
         refine: bool = True, budget: float = REFINE_BUDGET, curve_secret: str | Path | None = None, context: zmq.Context | None = None,
-        workers: int = 0, handover: float = HANDOVER, miss: str = MISS,
+        workers: int = 0, handover: float = HANDOVER, miss: str = MISS, allow_reload: str | Path | None = None,
     ) -> None:
+        # reload is off unless the operator names the folder under which atlases may be loaded.
+        self.reload_root = None if allow_reload is None else Path(allow_reload).resolve()
+        keys = load_curve_key(curve_secret, secret=True, what="--curve-secret-key") if curve_secret else None  # before any socket
         self.atlas_path = Path(atlas)
         self.refine, self.budget = refine, budget
         # The selector's options, as the workers' selectors get them too.
@@ -108,12 +114,9 @@ class Server:
         self.router.setsockopt(zmq.ROUTER_HANDOVER, 1)
         self.publisher = self.context.socket(zmq.PUB) if pub else None
         sockets = [self.router] + ([self.publisher] if self.publisher else [])
-        if curve_secret:
-            public, secret = zmq.auth.load_certificate(str(curve_secret))
-            if secret is None:
-                raise InputError("--curve-secret-key", f"{curve_secret}: not a CURVE secret-key file (expected one written by zmq.auth.create_certificates)")
+        if keys is not None:
             for s in sockets:
-                s.curve_secretkey, s.curve_publickey, s.curve_server = secret, public, True
+                s.curve_secretkey, s.curve_publickey, s.curve_server = keys[1], keys[0], True
         self.router.bind(bind)
         self.endpoint = self.router.getsockopt(zmq.LAST_ENDPOINT).decode()
         self.pub_endpoint = None
@@ -272,6 +275,7 @@ class Server:
             "uptime": time.monotonic() - self.started, "requests": self.requests, "errors": self.errors,
             "workers": 0 if self.pool is None else self.pool.size, "pending": len(self.pending), "resends": self.resends,
             "worker_restarts": 0 if self.pool is None else self.pool.restarts,
+            "workers_ready": 0 if self.pool is None else self.pool.ready,
         }
 
     def op_strategies(self, req: P.Request) -> dict[str, Any]:
@@ -282,7 +286,12 @@ class Server:
         ], "effectors": self.selector.effectors, "frame": "world: z up, x forward, y left; metres, radians"}
 
     def op_reload(self, req: P.Request) -> dict[str, Any]:
-        path = Path(req["path"]) if req["path"] else self.atlas_path
+        if self.reload_root is None:
+            raise P.ProtocolError(P.FORBIDDEN, "reload is off; the operator allows it with reach serve --allow-reload ROOT", req.id)
+        # Checked before the path is touched: a refused path reveals nothing of what exists there.
+        path = (self.reload_root / req["path"]).resolve() if req["path"] else self.atlas_path
+        if not path.is_relative_to(self.reload_root):
+            raise P.ProtocolError(P.FORBIDDEN, f"reload loads atlases under {self.reload_root} only", req.id)
         try:
             selector = Selector(load_atlas(path), **self.options).warm_up()
         except ReachError as exc:

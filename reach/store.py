@@ -239,6 +239,13 @@ def read_manifest(folder: str | Path) -> dict[str, Any]:
     strategies = manifest.get("strategies")
     if not isinstance(strategies, list) or not all(isinstance(s, dict) and "name" in s and "file" in s for s in strategies):
         raise StoreError(path, "'strategies' must be a list of objects with 'name' and 'file'")
+    if not strategies:
+        raise StoreError(path, "'strategies' is empty: an atlas holds at least one tree; rebuild it with 'reach build'")
+    for s in strategies:
+        # A tree file is a plain name inside the atlas folder: a path out of it (../, absolute, a link) is refused unread.
+        name = s["file"]
+        if not isinstance(name, str) or Path(name).name != name or name in (".", "..") or (folder / name).is_symlink():
+            raise StoreError(path, f"strategy {s.get('name')!r}: 'file' must name a file inside the atlas folder, got {name!r}")
     return manifest
 
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 import json
 import multiprocessing as mp
 import os
+import shutil
 import signal
 import tempfile
 import time
@@ -36,6 +37,7 @@ READY = b"READY"
 # for a CPU (a nice of 10 alone was not enough: docs/history.md).
 NICE = 10
 EXPIRED = b"expired"
+FOLDER_PREFIX = "reach-serve-"  # the back-end socket's folder in the temporary directory: reach-serve-<server pid>-<random>
 FAILED = b"failed:"
 
 
@@ -70,7 +72,8 @@ class Pool:
     busy: dict[bytes, Task] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        self._folder = tempfile.mkdtemp(prefix="reach-serve-")
+        remove_stale_folders()
+        self._folder = tempfile.mkdtemp(prefix=f"{FOLDER_PREFIX}{os.getpid()}-")
         self._address = f"ipc://{self._folder}/refine"
         self.backend = self.context.socket(zmq.ROUTER)
         self.backend.setsockopt(zmq.LINGER, 0)
@@ -148,6 +151,29 @@ class Pool:
             os.rmdir(self._folder)
         except OSError:
             pass
+
+
+def remove_stale_folders(root: str | None = None) -> list[str]:
+    """Remove the back-end folders of servers that no longer run (a SIGKILLed server leaves its own); returns them."""
+    root = root or tempfile.gettempdir()
+    gone = []
+    for entry in Path(root).glob(f"{FOLDER_PREFIX}*"):
+        pid = entry.name[len(FOLDER_PREFIX) :].split("-")[0]
+        if pid.isdigit() and _alive(int(pid)):
+            continue
+        shutil.rmtree(entry, ignore_errors=True)
+        gone.append(str(entry))
+    return gone
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True  # another user's process
+    return True
 
 
 def work(address: str, atlas: str, options: dict[str, Any], identity: bytes) -> None:

@@ -177,3 +177,17 @@ def test_reach_model_lists_the_capsules_and_each_strategys_pairs(capsys):
     coupling = next(t for t in info["strategies"]["right_arm"]["tasks"] if t["type"] == "coupling")
     assert coupling["rules"] == [{"joints": ["right_shoulder_abduction"], "by": "right_shoulder_flexion", "limit": pytest.approx(np.pi), "slope": 2.0}]
     assert "right_arm: coupled limits [rad]: right_shoulder_abduction <= 3.1416 + 2.0000 x right_shoulder_flexion" in text
+
+
+def test_a_urdf_joint_with_lower_above_upper_is_named(tmp_path):
+    from pathlib import Path
+
+    from oracles.body import urdf_body
+    from reach.errors import ModelError
+
+    text = (Path(__file__).parent / "data" / "all_joints.urdf").read_text()
+    bad = tmp_path / "bad.urdf"
+    bad.write_text(text.replace('<axis xyz="0 0 1"/><limit lower="-2" upper="2"', '<axis xyz="0 0 1"/><limit lower="2" upper="-2"', 1))
+    with pytest.raises(ModelError, match=r"bad\.urdf: joint 'revolute_z' has limits lower 2\.0 > upper -2\.0; expected lower <= upper") as err:
+        urdf_body(bad)
+    assert err.value.name == "revolute_z"

@@ -67,6 +67,8 @@ def test_good_config_and_priority_order(tmp_path):
         ({"box__min": "low"}, "box.min", "list of numbers"),
         ({"oracle__name": "teapot"}, "strategies[0].oracle", "unknown oracle 'teapot'"),
         ({"oracle__params": {"radius": -1}}, "strategies[0].oracle", "radius must be a positive number"),
+        ({"oracle__params": {"radius": "big"}}, "strategies[0].oracle", "radius must be a positive number \\[m\\], got 'big'"),
+        ({"oracle__params": {"center": ["a", 0, 0]}}, "strategies[0].oracle", "center must be a list of finite numbers, got"),
         ({"oracle__name": "circle", "oracle__params": {}}, "box", "box is 3-D but strategy 'a' uses a 2-D oracle"),
         ({"strategies": []}, "strategies", "non-empty list"),
         ({"strategies": [{"name": "a"}, {"name": "a"}]}, "strategies[1].name", "duplicate"),

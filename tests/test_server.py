@@ -154,7 +154,8 @@ def test_health_and_strategies(running):
         (b'{"op": "query", "effector": "point", "goal": [0, 0, 0], "from": {"right_elbow_flexion": "bent"}}', P.BAD_REQUEST),
         (b'{"op": "fly"}', P.UNKNOWN_OP),
         (b'{"op": "query", "effector": "left_hand", "goal": [0, 0, 0]}', P.UNKNOWN_EFFECTOR),
-        (b'{"op": "reload", "path": "/nonexistent/atlas"}', P.RELOAD_FAILED),
+        (b'{"op": "reload", "path": "/nonexistent/atlas"}', P.FORBIDDEN),
+        (b'{"op": "reload"}', P.FORBIDDEN),
     ],
 )
 def test_malformed_requests_get_structured_errors_and_the_server_lives(dealer, payload, code):
@@ -252,15 +253,23 @@ def test_cells_of_the_volumes(running):
             c.cells(level=9)
 
 
-def test_reload_hot_swaps_the_atlas(running, cube):
-    with Client(running.server.endpoint) as c:
-        assert c.reload(str(cube))["strategies"] == 1
-        assert c.query("tool", [0.0, 0.0, 0.0])["strategy"] == "cube"
-        with pytest.raises(ServerError, match="unknown_effector"):
-            c.query("point", [0.0, 0.0, 0.0])
-        with pytest.raises(ServerError, match="reload_failed"):
-            c.reload("/nonexistent")
-        assert c.query("tool", [0.0, 0.0, 0.0])["ok"]  # the old atlas is kept
+def test_reload_hot_swaps_the_atlas_only_under_the_allowed_root(balls, cube, tmp_path):
+    root = cube.parent  # the cube's folder is allowed; the balls' is not
+    r = Running(balls, allow_reload=root)
+    try:
+        with Client(r.server.endpoint) as c:
+            for outside in (str(balls), "/etc", "../" * 12 + "etc", str(root / ".." / balls.parent.name / balls.name)):
+                with pytest.raises(ServerError, match=f"forbidden: reload loads atlases under {root.resolve()} only"):
+                    c.reload(outside)
+            assert c.reload(cube.name)["strategies"] == 1  # relative to the root
+            assert c.query("tool", [0.0, 0.0, 0.0])["strategy"] == "cube"
+            with pytest.raises(ServerError, match="unknown_effector"):
+                c.query("point", [0.0, 0.0, 0.0])
+            with pytest.raises(ServerError, match="reload_failed"):
+                c.reload("nonexistent")
+            assert c.query("tool", [0.0, 0.0, 0.0])["ok"]  # the current atlas is kept
+    finally:
+        r.stop()
 
 
 def test_lazy_pirate_gives_up_then_survives_a_server_restart(balls):
@@ -548,6 +557,23 @@ def test_sigterm_under_a_refined_batch_stops_the_server_and_its_workers(human):
             proc.kill()
 
 
+def test_unreadable_curve_keys_are_named_and_a_sigkilled_servers_folder_is_removed(balls, tmp_path, capsys):
+    from reach.workers import FOLDER_PREFIX, remove_stale_folders
+
+    assert main(["serve", str(balls), "--bind", "tcp://127.0.0.1:*", "--pub", "none", "--curve-secret-key", str(tmp_path / "nonexistent")]) == 2
+    err = capsys.readouterr().err
+    assert "--curve-secret-key: " in err and "nonexistent: cannot read a CURVE key file" in err and "Traceback" not in err
+    with pytest.raises(InputError, match="curve_server_key: .*cannot read a CURVE key file"):
+        Client("tcp://127.0.0.1:5599", curve_server_key=tmp_path / "none.key")
+    # A server killed with SIGKILL leaves its back-end folder; the next server's pool removes it (not a living server's).
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True, check=True)
+    stale, alive, legacy = (tmp_path / f"{FOLDER_PREFIX}{dead.stdout.strip()}-x1"), tmp_path / f"{FOLDER_PREFIX}{os.getpid()}-x2", tmp_path / f"{FOLDER_PREFIX}abc123"
+    for folder in (stale, alive, legacy):
+        folder.mkdir()
+        (folder / "refine").write_text("")
+    assert sorted(remove_stale_folders(str(tmp_path))) == sorted([str(stale), str(legacy)]) and alive.is_dir()
+
+
 def test_reach_keys_writes_a_pair_the_server_and_clients_use(tmp_path, balls, capsys):
     assert main(["keys", str(tmp_path / "keys")]) == 0
     public, secret = zmq.auth.load_certificate(str(tmp_path / "keys" / "server.key_secret"))
@@ -599,7 +625,7 @@ def test_a_lazy_pirate_resend_of_a_slow_request_is_computed_once(human):
 
 @pytest.mark.slow
 def test_reload_with_workers_restarts_them_on_the_new_atlas(human):
-    r = Running(human, budget=0.5, workers=1)
+    r = Running(human, budget=0.5, workers=1, allow_reload=human.parent)
     try:
         with Client(r.server.endpoint, timeout=20_000) as c:
             before = c.query("right_hand", GOALS[0])

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import zipfile
 
 import numpy as np
@@ -261,3 +262,28 @@ def test_a_checkpoint_is_at_most_one_and_a_half_times_the_tree(tmp_path):
         raw = sum(z[k].nbytes for k in z.files)
     checkpoint = save_state(states[-1], tmp_path / "state.npz", "fp").stat().st_size
     assert checkpoint <= 1.5 * raw
+
+
+@pytest.mark.parametrize(("file", "message"), [
+    ("../../../../etc/passwd", "'file' must name a file inside the atlas folder, got '../../../../etc/passwd'"),
+    ("/etc/passwd", "'file' must name a file inside the atlas folder, got '/etc/passwd'"),
+    ("link.npz", "'file' must name a file inside the atlas folder, got 'link.npz'"),
+])
+def test_manifest_files_are_confined_to_the_atlas_folder(tmp_path, file, message):
+    from reach.atlas import build_atlas
+    from reach.config import parse_config
+
+    config = parse_config({"box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 1, "max": 2},
+                           "oracle": {"name": "sphere", "params": {"radius": 0.9}}, "strategies": [{"name": "s", "effector": "a"}]})
+    out = tmp_path / "out"
+    build_atlas(config, out)
+    (out / "link.npz").symlink_to(out / "s.npz")
+    manifest = json.loads((out / "manifest.json").read_text())
+    manifest["strategies"][0]["file"] = file
+    (out / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(StoreError, match=f"manifest.json: strategy 's': {re.escape(message)}"):
+        load_atlas(out)
+    manifest["strategies"] = []
+    (out / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.raises(StoreError, match="'strategies' is empty: an atlas holds at least one tree"):
+        load_atlas(out)
