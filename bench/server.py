@@ -10,7 +10,8 @@
   which needs no IK, from a server with 2 workers, against the echo in the
   same run: such a query never leaves the server's loop.
 * With refinement workers (``--workers``): the stored-posture p99 while 2
-  clients ask for refined postures; ``health`` behind a 2,000-goal refined
+  clients ask for refined postures; a client's single refined queries alone
+  and while another client's 10,000-goal refined batch runs (fairness); ``health`` behind a 2,000-goal refined
   batch; refined throughput with 1 and 2 workers; a 10,000-goal refined
   batch; the time SIGTERM takes to stop a server in the middle of a refined
   batch.
@@ -238,11 +239,24 @@ def _workers_ready(address: str, workers: int) -> None:
     sock.close(linger=0)
 
 
-def _batch(address: str, goals: np.ndarray) -> zmq.Socket:
+def _idle(address: str, seconds: float = 120.0) -> None:
+    """Wait until the server has no pending request (an abandoned batch ran out)."""
+    sock = zmq.Context.instance().socket(zmq.REQ)
+    sock.connect(address)
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        sock.send(b'{"op": "health"}')
+        if json.loads(sock.recv())["pending"] == 0:
+            break
+        time.sleep(0.2)
+    sock.close(linger=0)
+
+
+def _batch(address: str, goals: np.ndarray, deadline: float = 3600) -> zmq.Socket:
     sock = zmq.Context.instance().socket(zmq.DEALER)
     sock.setsockopt(zmq.LINGER, 0)
     sock.connect(address)
-    sock.send_multipart([b"", json.dumps({"op": "query", "id": "batch", "effector": "right_hand", "goals": goals.tolist(), "deadline": 3600}).encode()])
+    sock.send_multipart([b"", json.dumps({"op": "query", "id": "batch", "effector": "right_hand", "goals": goals.tolist(), "deadline": deadline}).encode()])
     return sock
 
 
@@ -262,6 +276,15 @@ def workers_bench(atlas: Path, goals: np.ndarray, stored: list[bytes]) -> None:
             proc.wait()
         a, b = stats("stored_alone_workers", alone), stats("stored_while_2_clients_refine", loaded)
         emit(bench="goals", mixed_p99_ms=round(b["p99"], 4), mixed_over_alone_p99=round(b["p99"] / a["p99"], 3))
+        refined = [json.dumps({"op": "query", "id": i, "effector": "right_hand", "goal": g.tolist()}).encode() for i, g in enumerate(goals[:300])]
+        single_alone = latencies([address], refined)[0]
+        huge = _batch(address, np.tile(goals, (1 + 10_000 // len(goals), 1))[:10_000])
+        time.sleep(0.5)
+        single_behind = latencies([address], refined)[0]
+        huge.close(linger=0)  # the batch's client goes away; its work is dropped by its deadline, shared meanwhile
+        a1, b1 = stats("refined_single_alone", single_alone), stats("refined_single_during_another_clients_10000_goal_batch", single_behind)
+        emit(bench="goals", fair_p99_over_alone_p99=round(b1["p99"] / a1["p99"], 3))
+        _idle(address)
         big = _batch(address, np.tile(goals, (1 + 2000 // len(goals), 1))[:2000])
         time.sleep(0.2)
         behind = latencies([address], [health] * 50)[0]

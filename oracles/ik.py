@@ -156,6 +156,16 @@ class IKOracle(ABC):
         pts = check_points(points, 3)
         return np.array([self.problem.check(np.asarray(q, float), g, self._data).reachable for g, q in zip(pts, postures, strict=True)], bool)
 
+    def posture_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """The model's joint ranges per posture coordinate; a floating base's position and a continuous joint are unbounded."""
+        model = self.body.model
+        lower, upper = model.lowerPositionLimit.astype(float).copy(), model.upperPositionLimit.astype(float).copy()
+        for j in range(1, model.njoints):
+            jm = model.joints[j]
+            if j == 1 or jm.nq != 1:  # the root (its limits are the solvers' box) and continuous joints
+                lower[jm.idx_q : jm.idx_q + jm.nq], upper[jm.idx_q : jm.idx_q + jm.nq] = -np.inf, np.inf
+        return lower, upper
+
     def limits_near(self, posture: np.ndarray, margin: float) -> list[str]:
         """The joint limits a posture comes within margin [rad or m] of (see :meth:`ReachProblem.limits_near`)."""
         return self.problem.limits_near(np.asarray(posture, float), float(margin))

@@ -30,7 +30,9 @@ Oracles may also offer optional capabilities, each a protocol of its own;
   with a body bent to its limits;
 * :class:`Preferring`: how much the lower tasks like a posture, and a
   refinement from several warm starts, so that the selector may also start
-  from the best-liked stored posture near the goal.
+  from the best-liked stored posture near the goal;
+* :class:`Bounded`: the range of each posture coordinate, so that a
+  query's ``from`` outside the body's joint ranges is refused.
 
 ``reach`` asks nothing else: not an oracle's parameters, registry names or
 internals, so a third-party oracle registered through the ``reach.oracles``
@@ -256,6 +258,16 @@ class Preferring(Protocol):
 
     def evaluate_seeded(self, points: np.ndarray, seeds: np.ndarray) -> Verdicts:
         """Verdicts with several warm starts per point: ``seeds`` (N, k, nq), tried in order (NaN rows skipped)."""
+        ...
+
+
+@runtime_checkable
+class Bounded(Protocol):
+    """An oracle whose posture coordinates have ranges."""
+
+    def posture_bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Lower and upper bounds (nq,) of each posture coordinate [rad or m], -inf/inf where unbounded
+        (a floating base's position, a continuous joint)."""
         ...
 
 

@@ -52,6 +52,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from oracles.protocol import (
+    Bounded,
     Continuing,
     EffectorPositions,
     Limited,
@@ -78,6 +79,8 @@ ERROR = "error"  # the refinement could not run (a server's worker died); postur
 MISSES = P.MISSES  # what a goal the trees hold but no refinement reaches answers (see the module docstring)
 MISS = "unreachable"
 STORED = (SKIPPED, TIMEOUT, FAILED, ERROR)  # outcomes whose posture is the nearest stored one, not one solved at the goal
+FROM_TOLERANCE = math.radians(1.0)  # [rad] (or m) a `from` joint this far past its range is still accepted (rounding in a client)
+FROM_REACH = 1000.0  # [m] a `from` root farther than this from the world origin is a mistake, not a scene
 POSTURE_CACHE = 4096  # stored postures kept encoded, most recently used first
 REFINE_BUDGET = 0.02  # [s] default time budget of one refinement (a frame at 50 Hz)
 HANDOVER = math.radians(5.0)  # [rad] a joint this near a limit passes the goal on (see the module docstring)
@@ -265,11 +268,31 @@ class Selector:
         if goals.ndim != 2 or goals.shape[1] != dim:
             raise InputError("goals", f"expected {dim} coordinates [m] each, got shape {list(goals.shape)}")
         if start:
-            known = {n for s in names if (v := self.atlas.trees[s].vertices).posture is not None for n in v.posture_names}
-            unknown = sorted(set(start) - known)
-            if unknown:
-                raise InputError("from", f"unknown joints {unknown[:5]}; the posture's names are {', '.join(sorted(known))}")
+            self._check_start(names, start)
         return names
+
+    def _check_start(self, names: list[str], start: dict[str, float]) -> None:
+        """A ``from`` names the posture's coordinates, within their ranges (``FROM_TOLERANCE``); a root's
+        position is within ``FROM_REACH`` of the origin and its quaternion is not zero."""
+        posed = [s for s in names if self.atlas.trees[s].vertices.posture is not None]
+        known = {n for s in posed for n in self.atlas.trees[s].vertices.posture_names}
+        unknown = sorted(set(start) - known)
+        if unknown:
+            raise InputError("from", f"unknown joints {unknown[:5]}; the posture's names are {', '.join(sorted(known))}")
+        for s in posed:
+            oracle = self._oracle(s)
+            if not isinstance(oracle, Bounded):
+                continue
+            lower, upper = oracle.posture_bounds()
+            for k, n in enumerate(self.atlas.trees[s].vertices.posture_names):
+                if n in start and not lower[k] - FROM_TOLERANCE <= start[n] <= upper[k] + FROM_TOLERANCE:
+                    raise InputError("from", f"{n} = {start[n]:.6g} is outside its range [{lower[k]:.4f}, {upper[k]:.4f}] rad or m")
+            break  # the strategies of an effector share a body
+        if any(abs(start.get(f"root_{c}", 0.0)) > FROM_REACH for c in "xyz"):
+            raise InputError("from", f"the root's position must be within {FROM_REACH:g} m of the world origin")
+        quat = [start[f"root_q{c}"] for c in "xyzw" if f"root_q{c}" in start]
+        if len(quat) == 4 and math.hypot(*quat) < 1e-9:
+            raise InputError("from", "the root's quaternion (root_qx, root_qy, root_qz, root_qw) must not be zero")
 
     def needs_ik(self, effector: str, goals: np.ndarray, start: dict[str, float] | None = None) -> bool:
         """Whether refining these goals would solve any IK: some strategy that stores postures holds one of them.
@@ -493,6 +516,9 @@ class Selector:
         for k, n in enumerate(names):
             if n in start:
                 q[k] = start[n]
+        if "root_qx" in names:  # a client's quaternion, rounded, made a rotation again
+            i = names.index("root_qx")
+            q[i : i + 4] /= np.linalg.norm(q[i : i + 4])
         return q
 
     def _refine(self, name: str, goal: np.ndarray, q: np.ndarray, residual: float | None,

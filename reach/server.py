@@ -52,7 +52,8 @@ from reach.workers import FAILED as WORKER_FAILED
 
 log = logging.getLogger("reach.server")
 CHUNK = 32  # goals per worker task at most: a batch spreads over the workers, and a deadline cuts it finely
-SLACK = 5.0  # [s] a request's default deadline: the budget per goal, plus this
+SLACK = 5.0  # [s] a request's default deadline: the budget per goal, plus this ...
+MAX_WAIT = 60.0  # [s] ... and at most this: a client that vanished without a deadline of its own holds the workers no longer
 LOG_EVERY = 60.0  # [s] an identical internal error's traceback is logged at most this often
 REVIVE_EVERY = 0.5  # [s] how often the loop looks for dead workers
 FAILED_TASK = WORKER_FAILED + b" the worker died"
@@ -344,13 +345,13 @@ class Server:
         n = len(goals)
         size = max(1, min(CHUNK, math.ceil(n / max(1, self.pool.size))))
         bounds = [(a, min(n, a + size)) for a in range(0, n, size)]
-        deadline = time.monotonic() + (req["deadline"] if req["deadline"] is not None else n * self.budget + SLACK)
+        deadline = time.monotonic() + (req["deadline"] if req["deadline"] is not None else min(n * self.budget + SLACK, MAX_WAIT))
         self._seq += 1
         self.pending[self._seq] = Pending(envelope, req, key, deadline, [None] * len(bounds), bounds)
         if key is not None:
             self.by_key[key] = self._seq
         for part, (a, b) in enumerate(bounds):
-            self.pool.submit(Task(self._seq, part, req["effector"], req["goals"][a:b], req["from"], deadline, req["miss"]))
+            self.pool.submit(Task(self._seq, part, req["effector"], req["goals"][a:b], req["from"], deadline, req["miss"], envelope[0]))
         return True
 
     def _stored(self, req: P.Request, a: int, b: int, outcome: str) -> list[bytes]:

@@ -6,8 +6,10 @@ atlas and holds its own oracles (their "refine" variants); it connects a
 DEALER to the broker's back-end ROUTER, says it is ready, and then answers
 one task at a time: a chunk of a query's goals, with the query's effector,
 ``from`` and deadline. The broker (:class:`Pool`, in the server's loop) keeps
-a queue of tasks and the ready workers, least recently used first, and
-hands each task to a ready worker as soon as there is one.
+a queue of tasks per client and the ready workers, least recently used
+first, and hands each ready worker the next task of the next client in turn
+(round robin), so that one client's large batch shares the workers with the
+others' queries instead of holding them.
 
 Tasks are JSON, results are the answers' own JSON: nothing is pickled. A
 worker dies with the server (the parent-death signal), and one whose task's
@@ -52,6 +54,7 @@ class Task:
     start: dict[str, float] | None
     deadline: float  # time.monotonic() after which the work is abandoned
     miss: str | None = None  # the request's (see reach.select); None: the selector's
+    client: bytes = b""  # who asked (the request's routing identity): the queues are served in turn
 
     def encode(self) -> bytes:
         return json.dumps({"effector": self.effector, "goals": self.goals, "from": self.start, "deadline": self.deadline, "miss": self.miss}).encode()
@@ -68,7 +71,7 @@ class Pool:
     backend: Any = None
     processes: list[Any] = field(default_factory=list)
     idle: deque[bytes] = field(default_factory=deque)
-    queue: deque[Task] = field(default_factory=deque)
+    queues: dict[bytes, deque[Task]] = field(default_factory=dict)  # per client, in the order they are served
     busy: dict[bytes, Task] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -104,17 +107,31 @@ class Pool:
         return lost
 
     def submit(self, task: Task) -> None:
-        self.queue.append(task)
+        self.queues.setdefault(task.client, deque()).append(task)
         self.dispatch()
 
     def cancel(self, request: int) -> None:
         """Drop the queued tasks of a request (tasks already in a worker finish and are ignored)."""
-        self.queue = deque(t for t in self.queue if t.request != request)
+        for client, queue in list(self.queues.items()):
+            kept = deque(t for t in queue if t.request != request)
+            if kept:
+                self.queues[client] = kept
+            else:
+                del self.queues[client]
+
+    @property
+    def queued(self) -> int:
+        """Tasks waiting for a worker."""
+        return sum(len(q) for q in self.queues.values())
 
     def dispatch(self) -> None:
         now = time.monotonic()
-        while self.idle and self.queue:
-            task = self.queue.popleft()
+        while self.idle and self.queues:
+            client, queue = next(iter(self.queues.items()))
+            task = queue.popleft()
+            del self.queues[client]
+            if queue:
+                self.queues[client] = queue  # to the back of the turn
             if task.deadline < now:
                 continue  # abandoned: the request has been answered already
             worker = self.idle.popleft()

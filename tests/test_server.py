@@ -405,6 +405,14 @@ WORKER_PATH_ERRORS = [
     (b'{"op": "query", "id": 2, "effector": "right_hand", "goals": [[0.4, 0.2, 1.0, 1.0]]}', P.BAD_REQUEST, "'goals' must be"),
     (b'{"op": "query", "id": 3, "effector": "right_hand", "goal": [0.4, -0.2, 1.1], "from": {"wing": 0.1}}', P.BAD_REQUEST, "from: unknown joints ['wing']"),
     (b'{"op": "query", "id": 4, "effector": "tail", "goal": [0.4, -0.2, 1.1]}', P.UNKNOWN_EFFECTOR, "unknown effector 'tail'"),
+    (b'{"op": "query", "id": 5, "effector": "right_hand", "goal": [0.4, -0.2, 1.1], "from": {"right_elbow_flexion": 1e6}}', P.BAD_REQUEST,
+     "from: right_elbow_flexion = 1e+06 is outside its range [0.0000, "),
+    (b'{"op": "query", "id": 6, "effector": "right_hand", "goal": [0.4, -0.2, 1.1], "from": {"root_z": 1e300}}', P.BAD_REQUEST,
+     "from: the root's position must be within 1000 m"),
+    (b'{"op": "query", "id": 7, "effector": "right_hand", "goal": [0.4, -0.2, 1.1], "from": {"root_qx": 0, "root_qy": 0, "root_qz": 0, "root_qw": 0}}',
+     P.BAD_REQUEST, "quaternion (root_qx, root_qy, root_qz, root_qw) must not be zero"),
+    (b'{"op": "query", "id": 8, "effector": "right_hand", "goal": [0.4, -0.2, 1.1], "refine": false, "from": {"right_elbow_flexion": -3}}', P.BAD_REQUEST,
+     "from: right_elbow_flexion = -3 is outside its range"),
 ]
 
 

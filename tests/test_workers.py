@@ -67,7 +67,7 @@ def test_workers_answer_as_the_selector_does_and_a_task_round_trips_as_json(atla
         pool.submit(task(1, 0))
         pool.submit(task(1, 1, GOALS[:1]))
         got = sorted(results(pool, 2), key=lambda r: r[0].part)
-        assert pool.ready == 2 and not pool.busy and not pool.queue
+        assert pool.ready == 2 and not pool.busy and not pool.queued
     finally:
         pool.close()
     assert [r[0].part for r in got] == [0, 1] and [len(r[1]) for r in got] == [3, 1]
@@ -87,8 +87,8 @@ def test_a_task_past_its_deadline_answers_expired_and_cancel_drops_queued_work(a
         pool.submit(task(7, 0))
         pool.submit(task(8, 0))
         pool.cancel(7)
-        assert [t.request for t in pool.queue] == [8]
-        pool.queue.appendleft(Task(9, 0, "right_hand", GOALS, None, time.monotonic() + 0.05))
+        assert [t.request for q in pool.queues.values() for t in q] == [8]
+        pool.queues[b""].appendleft(Task(9, 0, "right_hand", GOALS, None, time.monotonic() + 0.05))
         time.sleep(0.1)
         pool.idle.append(b"w0")
         pool.dispatch()  # the late task is past its deadline: dropped here, never sent
@@ -120,3 +120,28 @@ def test_a_killed_worker_is_replaced_and_its_task_handed_back(atlas):
     finally:
         pool.close()
     assert not any(p.is_alive() for p in pool.processes)
+
+
+def test_clients_are_served_in_turn(atlas):
+    # No worker processes: the pool's own bookkeeping, with the back end's sends recorded.
+    pool = Pool(zmq.Context.instance(), atlas, OPTIONS, 0)
+    sent: list[tuple[bytes, int]] = []
+    real = pool.backend
+    pool.backend = type("Backend", (), {"send_multipart": lambda self, frames: sent.append((frames[0], json.loads(frames[1])["goals"][0][0]))})()
+    try:
+        for k in range(4):
+            pool.submit(Task(1, k, "right_hand", [[float(k), 0.0, 0.0]], None, time.monotonic() + 60, client=b"big"))
+        pool.submit(Task(2, 0, "right_hand", [[10.0, 0.0, 0.0]], None, time.monotonic() + 60, client=b"small"))
+        pool.submit(Task(3, 0, "right_hand", [[20.0, 0.0, 0.0]], None, time.monotonic() + 60, client=b"other"))
+        assert pool.queued == 6 and sent == []
+        for w in range(6):  # workers become ready one at a time
+            pool.idle.append(f"w{w}".encode())
+            pool.dispatch()
+        # The big batch's first chunk, then each other client's, then the rest of the batch: no client waits behind it.
+        assert [x for _, x in sent] == [0.0, 10.0, 20.0, 1.0, 2.0, 3.0] and pool.queued == 0
+        pool.submit(Task(4, 0, "right_hand", [[30.0, 0.0, 0.0]], None, time.monotonic() + 60, client=b"big"))
+        pool.cancel(4)
+        assert pool.queued == 0 and pool.queues == {}
+    finally:
+        pool.backend = real
+        pool.close()
