@@ -134,7 +134,7 @@ def cmd_query(args: argparse.Namespace) -> int:
     if args.connect:
         from reach.client import Client
 
-        with Client(args.connect, timeout=args.timeout, curve_server_key=args.curve_server_key) as client:
+        with Client(args.connect, timeout=args.timeout, curve_server_key=args.curve_server_key, curve_client_key=args.curve_client_key) as client:
             effectors = [args.effector] if args.effector else client.strategies()["effectors"]
             # The reply's envelope fields are not part of the answer.
             answers = [{k: v for k, v in client.query(e, goal, refine, start, miss=args.miss).items() if k not in ("ok", "id")} for e in effectors]
@@ -193,7 +193,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     if workers < 0:
         raise InputError("--workers", f"expected 0 or more worker processes, got {workers}")
     server = Server(args.atlas, args.bind, None if args.pub == "none" else args.pub, policy=args.policy,
-                    refine=not args.no_refine, budget=args.budget_ms / 1000.0, curve_secret=args.curve_secret_key, workers=workers,
+                    refine=not args.no_refine, budget=args.budget_ms / 1000.0, curve_secret=args.curve_secret_key, workers=workers, curve_clients=args.curve_clients,
                     handover=_handover(args), miss=args.miss, allow_reload=args.allow_reload)
     print(f"serving {args.atlas} on {server.endpoint}" + (f", publishing on {server.pub_endpoint}" if server.pub_endpoint else ""), flush=True)
     server.serve_forever()
@@ -404,6 +404,7 @@ def make_parser() -> argparse.ArgumentParser:
     _handover_option(p, "reading an atlas: ")
     p.add_argument("--timeout", type=int, default=P.REQUEST_TIMEOUT_MS, help=f"with --connect: ms to wait for each reply (default {P.REQUEST_TIMEOUT_MS})")
     p.add_argument("--curve-server-key", metavar="FILE", help="with --connect: the server's CURVE public-key file")
+    p.add_argument("--curve-client-key", metavar="FILE", help="with --curve-server-key: this client's secret-key file (for a server with --curve-clients)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_query)
 
@@ -418,6 +419,7 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-refine", action="store_true", help="answer with stored postures; no IK refinement unless a request asks")
     p.add_argument("--budget-ms", type=float, default=REFINE_BUDGET * 1000, help=f"time budget of one IK refinement [ms] (default {REFINE_BUDGET * 1000:g})")
     p.add_argument("--curve-secret-key", metavar="FILE", help="encrypt with CURVE, using this server secret-key file (zmq.auth.create_certificates)")
+    p.add_argument("--curve-clients", metavar="DIR", help="with --curve-secret-key: let in only the clients whose public-key files (*.key) are in DIR")
     p.add_argument("--workers", type=int, metavar="N", help="refinement worker processes (default: all cores; 0 refines in the request loop)")
     p.add_argument("--allow-reload", metavar="ROOT", help="let clients 'reload' atlases from folders under ROOT (default: reload is refused)")
     _handover_option(p)

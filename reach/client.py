@@ -46,16 +46,22 @@ class Client:
         timeout: Milliseconds to wait for each reply.
         retries: Attempts before giving up.
         curve_server_key: Path of the server's public-key file, for CURVE.
+        curve_client_key: Path of this client's secret-key file (``reach keys``),
+            for a server that allows listed clients only; a fresh pair otherwise.
     """
 
     def __init__(self, address: str = P.DEFAULT_BIND, timeout: int = REQUEST_TIMEOUT_MS, retries: int = REQUEST_RETRIES,
-                 curve_server_key: str | Path | None = None, context: zmq.Context | None = None) -> None:
+                 curve_server_key: str | Path | None = None, context: zmq.Context | None = None,
+                 curve_client_key: str | Path | None = None) -> None:
         self.address, self.timeout, self.retries = address, timeout, retries
         self.context = context or zmq.Context.instance()
         self.curve = None
         if curve_server_key:
             server_public, _ = load_curve_key(curve_server_key, secret=False, what="curve_server_key")
-            client_public, client_secret = zmq.curve_keypair()
+            if curve_client_key:  # this client's own pair, the public half on the server's allow-list
+                client_public, client_secret = load_curve_key(curve_client_key, secret=True, what="curve_client_key")
+            else:
+                client_public, client_secret = zmq.curve_keypair()
             self.curve = (server_public, client_public, client_secret)
         self._ids = itertools.count(1)
         # One routing identity for every socket this client opens: a resend

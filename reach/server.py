@@ -43,7 +43,7 @@ import zmq.auth
 from reach import __version__
 from reach import protocol as P
 from reach.client import load_curve_key
-from reach.errors import ReachError, UnknownEffector, UnknownStrategy
+from reach.errors import InputError, ReachError, UnknownEffector, UnknownStrategy
 from reach.select import ERROR, HANDOVER, MISS, REFINE_BUDGET, SKIPPED, TIMEOUT, Selector
 from reach.store import load_atlas
 from reach.tree import DEFAULT_POLICY
@@ -87,6 +87,9 @@ class Server:
             ``unreachable`` or ``within`` (see :mod:`reach.select`), unless a request says.
         allow_reload: The folder under which ``reload`` may load atlases; None
             (the default) refuses every ``reload``.
+        curve_clients: With ``curve_secret``, a folder of client public-key
+            files (``*.key``): only those clients are let in (pyzmq's ZAP
+            authenticator). Without it any client key pair is accepted.
         curve_secret: Path of the server's CURVE secret-key file, or None.
         context: A zmq context (a new one by default).
         workers: Refinement worker processes; 0 refines in the request loop.
@@ -96,10 +99,13 @@ class Server:
         self, atlas: str | Path, bind: str = P.DEFAULT_BIND, pub: str | None = P.DEFAULT_PUB, *, policy: str = DEFAULT_POLICY,
         refine: bool = True, budget: float = REFINE_BUDGET, curve_secret: str | Path | None = None, context: zmq.Context | None = None,
         workers: int = 0, handover: float = HANDOVER, miss: str = MISS, allow_reload: str | Path | None = None,
+        curve_clients: str | Path | None = None,
     ) -> None:
         # reload is off unless the operator names the folder under which atlases may be loaded.
         self.reload_root = None if allow_reload is None else Path(allow_reload).resolve()
         keys = load_curve_key(curve_secret, secret=True, what="--curve-secret-key") if curve_secret else None  # before any socket
+        if curve_clients is not None and (keys is None or not Path(curve_clients).is_dir()):
+            raise InputError("--curve-clients", f"{curve_clients}: expected a folder of client public-key files, with --curve-secret-key")
         self.atlas_path = Path(atlas)
         self.refine, self.budget = refine, budget
         # The selector's options, as the workers' selectors get them too.
@@ -115,6 +121,14 @@ class Server:
         self.router.setsockopt(zmq.ROUTER_HANDOVER, 1)
         self.publisher = self.context.socket(zmq.PUB) if pub else None
         sockets = [self.router] + ([self.publisher] if self.publisher else [])
+        self.authenticator = None
+        if curve_clients is not None:
+            from zmq.auth.thread import ThreadAuthenticator
+
+            # ZAP: libzmq asks this thread about every CURVE handshake; keys not in the folder are refused.
+            self.authenticator = ThreadAuthenticator(self.context, log=logging.getLogger("reach.server.auth"))
+            self.authenticator.start()
+            self.authenticator.configure_curve(domain="*", location=str(curve_clients))
         if keys is not None:
             for s in sockets:
                 s.curve_secretkey, s.curve_publickey, s.curve_server = keys[1], keys[0], True
@@ -148,6 +162,8 @@ class Server:
         self.router.close(linger=0)
         if self.publisher is not None:
             self.publisher.close(linger=0)
+        if self.authenticator is not None:
+            self.authenticator.stop()
 
     def serve_forever(self) -> None:
         """Poll and answer until stop() or SIGINT/SIGTERM."""

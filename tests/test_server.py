@@ -308,6 +308,29 @@ def test_curve_encryption(balls, tmp_path):
         r.stop()
 
 
+def test_curve_with_an_allow_list_lets_in_listed_clients_only(balls, tmp_path):
+    server_public, server_secret = zmq.auth.create_certificates(str(tmp_path), "server")
+    allowed = tmp_path / "allowed"
+    allowed.mkdir()
+    listed_public, listed_secret = zmq.auth.create_certificates(str(allowed), "animation")
+    (tmp_path / "others").mkdir()
+    _, stranger_secret = zmq.auth.create_certificates(str(tmp_path / "others"), "stranger")
+    r = Running(balls, curve_secret=server_secret, curve_clients=allowed)
+    try:
+        with Client(r.server.endpoint, curve_server_key=server_public, curve_client_key=listed_secret) as c:
+            assert c.query("point", [0.0, 0.0, 0.0])["ok"]
+        for key in (stranger_secret, None):  # an unlisted pair, and a fresh random one, get nothing
+            with Client(r.server.endpoint, timeout=300, retries=1, curve_server_key=server_public, curve_client_key=key) as c:
+                with pytest.raises(ServerUnavailable):
+                    c.health()
+        with Client(r.server.endpoint, timeout=300, retries=1, curve_server_key=server_secret, curve_client_key=listed_secret) as c:
+            assert c.health()["ok"]  # the secret file's public half is the server's key too (it holds both)
+    finally:
+        r.stop()
+    with pytest.raises(InputError, match="--curve-clients: .*expected a folder of client public-key files, with --curve-secret-key"):
+        Server(balls, "tcp://127.0.0.1:*", None, curve_clients=allowed)
+
+
 def test_sigterm_stops_the_server_cleanly(balls):
     proc = subprocess.Popen(
         [sys.executable, "-m", "reach.cli", "serve", str(balls), "--bind", "tcp://127.0.0.1:*", "--pub", "none"],
