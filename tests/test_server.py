@@ -14,6 +14,8 @@ import numpy as np
 import pytest
 import zmq
 import zmq.auth
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from reach import protocol as P
 from reach.atlas import build_atlas
@@ -683,3 +685,61 @@ def test_a_crashed_worker_is_replaced_and_its_work_answered(human):
         r.stop()
     assert again["strategy"] == "right_arm" and again["refined"] in ("ok", "error")
     assert later["refined"] == "ok" and health["worker_restarts"] == 1 and r.server.pool is not None
+
+
+JUNK = st.one_of(st.none(), st.booleans(), st.integers(-10, 10), st.floats(allow_nan=False, allow_infinity=False), st.text(max_size=5),
+                 st.lists(st.integers(), max_size=2), st.dictionaries(st.text(max_size=3), st.integers(), max_size=2))
+POINT = st.lists(st.floats(-1.5, 2.5), min_size=1, max_size=4)
+FIELD_VALUES = {
+    "effector": st.sampled_from(["right_hand", "left_hand", "", "x" * 300]),
+    "goal": POINT,
+    "goals": st.lists(POINT, min_size=0, max_size=4),
+    "refine": st.booleans(),
+    "from": st.dictionaries(st.sampled_from(["right_elbow_flexion", "right_shoulder_flexion", "root_z", "root_qw", "wing"]), st.floats(-10, 10), max_size=3),
+    "deadline": st.floats(-1.0, 2.0),
+    "miss": st.sampled_from(["unreachable", "within", "maybe"]),
+    "tag": st.text(max_size=8),
+    "strategy": st.sampled_from(["right_arm", "nope"]),
+    "level": st.integers(0, 8),
+    "path": st.sampled_from(["/etc", "..", "human_workers"]),
+}
+
+
+@st.composite
+def requests(draw):
+    op = draw(st.sampled_from([*P.OPS, "fly"]))
+    fields = P.OPERATIONS[op].fields if op in P.OPERATIONS else ()
+    body = {"op": op, "id": draw(st.integers(0, 10**6))}
+    for f in fields:
+        if draw(st.booleans()):
+            body[f.name] = draw(st.one_of(FIELD_VALUES[f.name], JUNK))
+    if draw(st.integers(0, 9)) == 0:
+        body["colour"] = 1
+    return json.dumps(body).encode()
+
+
+@pytest.mark.slow
+def test_generated_requests_get_the_same_kind_of_reply_with_workers_and_without_and_no_server_dies(human):
+    servers = [Running(human, budget=0.05, workers=0), Running(human, budget=0.05, workers=1)]
+    socks = [_dealer(r.server.endpoint) for r in servers]
+    for sock in socks:
+        sock.setsockopt(zmq.RCVTIMEO, 30_000)
+
+    @settings(max_examples=200, deadline=None, derandomize=True, suppress_health_check=list(HealthCheck))
+    @given(requests())
+    def check(payload):
+        replies = [ask(sock, payload) for sock in socks]
+        kinds = [(r["ok"], r.get("error", {}).get("code")) for r in replies]
+        assert kinds[0] == kinds[1], (payload, replies)
+        assert P.INTERNAL not in {k[1] for k in kinds}, (payload, replies)
+        assert all(r["id"] == json.loads(payload)["id"] for r in replies)
+
+    try:
+        check()
+        for sock, r in zip(socks, servers, strict=True):
+            assert ask(sock, b'{"op": "health"}')["ok"] and r.thread.is_alive()
+    finally:
+        for sock in socks:
+            sock.close(linger=0)
+        for r in servers:
+            r.stop()
