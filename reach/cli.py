@@ -201,6 +201,14 @@ def cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_accept(args: argparse.Namespace) -> int:
+    from reach.store import accept_manifest
+
+    atlas = accept_manifest(args.atlas)
+    print(f"{atlas.path}: manifest accepted as it is ({len(atlas.trees)} strategies: {', '.join(atlas.trees)})")
+    return 0
+
+
 def cmd_keys(args: argparse.Namespace) -> int:
     import zmq.auth
 
@@ -424,6 +432,12 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--allow-reload", metavar="ROOT", help="let clients 'reload' atlases from folders under ROOT (default: reload is refused)")
     _handover_option(p)
     p.set_defaults(func=cmd_serve)
+
+    p = sub.add_parser("accept", help="accept a hand-edited atlas manifest",
+                       description="Stamp an atlas's manifest.json with the digest of its content as it now is, after checking that the atlas loads with it. "
+                                   "A manifest edited by hand (priorities, strategies, model hashes) is refused until accepted so.")
+    p.add_argument("atlas", help="atlas folder")
+    p.set_defaults(func=cmd_accept)
 
     p = sub.add_parser("keys", help="write a CURVE key pair", description="Write a CURVE key pair (ZeroMQ certificate files NAME.key and NAME.key_secret) for 'reach serve --curve-secret-key' and its clients. See docs/protocol.md.")
     p.add_argument("folder", help="folder to write the two files into")

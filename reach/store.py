@@ -219,10 +219,18 @@ class Atlas:
         return list(names)
 
 
+def manifest_digest(manifest: dict[str, Any]) -> str:
+    """The digest of a manifest's content, its own ``digest`` field left out (canonical JSON, SHA-256)."""
+    body = {k: v for k, v in manifest.items() if k != "digest"}
+    return hashlib.sha256(json.dumps(body, sort_keys=True, separators=(",", ":")).encode()).hexdigest()[:32]
+
+
 def write_manifest(folder: str | Path, manifest: dict[str, Any]) -> Path:
+    """Write an atlas's manifest with the digest of its content, so that a hand edit is noticed on loading."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    body = {**manifest, "format": ATLAS_FORMAT, "version": ATLAS_VERSION}
+    body = {**{k: v for k, v in manifest.items() if k != "digest"}, "format": ATLAS_FORMAT, "version": ATLAS_VERSION}
+    body["digest"] = manifest_digest(body)
     path = folder / MANIFEST
     _atomic_write(path, lambda fh: fh.write(json.dumps(body, indent=2, sort_keys=True).encode()))
     return path
@@ -236,6 +244,16 @@ def read_manifest(folder: str | Path) -> dict[str, Any]:
     if not path.is_file():
         raise StoreError(path, "missing; this folder is not an atlas written by 'reach build'")
     manifest = _header(path, path.read_bytes(), ATLAS_FORMAT, ATLAS_VERSION, "atlas")
+    if manifest.get("digest") != manifest_digest(manifest):
+        # Priorities, strategies or model hashes edited by hand would change the answers silently.
+        raise StoreError(path, "its content does not match its digest: it was edited after 'reach build' wrote it (or written by an "
+                               "older reach); rebuild the atlas, or accept the manifest as it is with 'reach accept ATLAS'")
+    _check_strategies(path, folder, manifest)
+    return manifest
+
+
+def _check_strategies(path: Path, folder: Path, manifest: dict[str, Any]) -> None:
+    """A manifest's strategy list: at least one, each a name and a tree file inside the atlas folder."""
     strategies = manifest.get("strategies")
     if not isinstance(strategies, list) or not all(isinstance(s, dict) and "name" in s and "file" in s for s in strategies):
         raise StoreError(path, "'strategies' must be a list of objects with 'name' and 'file'")
@@ -246,13 +264,29 @@ def read_manifest(folder: str | Path) -> dict[str, Any]:
         name = s["file"]
         if not isinstance(name, str) or Path(name).name != name or name in (".", "..") or (folder / name).is_symlink():
             raise StoreError(path, f"strategy {s.get('name')!r}: 'file' must name a file inside the atlas folder, got {name!r}")
-    return manifest
+
+
+def accept_manifest(folder: str | Path) -> Atlas:
+    """Accept an atlas's manifest as it now is (a deliberate hand edit): stamp its digest, once the atlas loads with it."""
+    folder = Path(folder)
+    path = folder / MANIFEST
+    if not path.is_file():
+        raise StoreError(path, "missing; this folder is not an atlas written by 'reach build'")
+    manifest = _header(path, path.read_bytes(), ATLAS_FORMAT, ATLAS_VERSION, "atlas")
+    _check_strategies(path, folder, manifest)
+    trees = _load_trees(folder, manifest)  # the edited manifest must hold, trees and all, before it is stamped
+    write_manifest(folder, manifest)
+    return Atlas(folder, read_manifest(folder), trees)
 
 
 def load_atlas(folder: str | Path) -> Atlas:
     """Read an atlas folder: its manifest and every strategy's tree."""
     folder = Path(folder)
     manifest = read_manifest(folder)
+    return Atlas(folder, manifest, _load_trees(folder, manifest))
+
+
+def _load_trees(folder: Path, manifest: dict[str, Any]) -> dict[str, VATree]:
     trees = {}
     for s in manifest["strategies"]:
         path = folder / s["file"]
@@ -262,7 +296,7 @@ def load_atlas(folder: str | Path) -> Atlas:
             if key in s and key in tree.meta and tree.meta[key] != s[key]:
                 raise StoreError(path, f"holds the tree of {key} {tree.meta[key]!r}, but the manifest lists it for {s[key]!r}; rebuild the atlas")
         trees[s["name"]] = tree
-    return Atlas(folder, manifest, trees)
+    return trees
 
 
 LOCK = ".lock"

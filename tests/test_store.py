@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from reach.errors import StoreError
-from reach.store import load_atlas, load_tree, save_tree
+from reach.store import accept_manifest, load_atlas, load_tree, manifest_digest, save_tree
 
 
 def test_round_trip_keeps_every_array_and_the_metadata(unit_sphere_tree, tmp_path):
@@ -280,10 +280,42 @@ def test_manifest_files_are_confined_to_the_atlas_folder(tmp_path, file, message
     (out / "link.npz").symlink_to(out / "s.npz")
     manifest = json.loads((out / "manifest.json").read_text())
     manifest["strategies"][0]["file"] = file
+    manifest["digest"] = manifest_digest(manifest)  # as if accepted: the confinement still holds
     (out / "manifest.json").write_text(json.dumps(manifest))
     with pytest.raises(StoreError, match=f"manifest.json: strategy 's': {re.escape(message)}"):
         load_atlas(out)
+    with pytest.raises(StoreError, match=f"manifest.json: strategy 's': {re.escape(message)}"):
+        accept_manifest(out)
     manifest["strategies"] = []
+    manifest["digest"] = manifest_digest(manifest)
     (out / "manifest.json").write_text(json.dumps(manifest))
     with pytest.raises(StoreError, match="'strategies' is empty: an atlas holds at least one tree"):
         load_atlas(out)
+
+
+def test_a_hand_edited_manifest_is_refused_until_accepted(tmp_path, capsys):
+    from reach.atlas import build_atlas
+    from reach.cli import main
+    from reach.config import parse_config
+
+    config = parse_config({"box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 1, "max": 2},
+                           "oracle": {"name": "sphere", "params": {"radius": 0.9}},
+                           "strategies": [{"name": "a", "effector": "p", "priority": 1}, {"name": "b", "effector": "p", "priority": 2}]})
+    out = tmp_path / "out"
+    build_atlas(config, out)
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["digest"] == manifest_digest(manifest) and load_atlas(out).manifest["digest"] == manifest["digest"]
+    for edit in ({"swap": True}, {"strategies": manifest["strategies"][:1]}, {"drop_digest": True}):
+        edited = json.loads(json.dumps(manifest))
+        if edit.get("swap"):
+            edited["strategies"][0]["priority"], edited["strategies"][1]["priority"] = 2, 1
+        elif "strategies" in edit:
+            edited["strategies"] = edit["strategies"]
+        else:
+            del edited["digest"]
+        (out / "manifest.json").write_text(json.dumps(edited))
+        with pytest.raises(StoreError, match="does not match its digest: it was edited after 'reach build' wrote it.*reach accept ATLAS"):
+            load_atlas(out)
+    assert main(["accept", str(out)]) == 0  # the last edit (no digest) accepted deliberately
+    assert "manifest accepted as it is (2 strategies: a, b)" in capsys.readouterr().out
+    assert set(load_atlas(out).trees) == {"a", "b"}
