@@ -150,6 +150,8 @@ def stats(name: str, lat: np.ndarray, **extra: object) -> dict[str, float]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--requests", type=int, default=3000)
+    parser.add_argument("--chunk", type=int, default=None, help="the servers' --chunk (goals per worker task; default: the server's)")
+    parser.add_argument("--only", choices=["workers"], help="run only the benchmarks with workers")
     args = parser.parse_args()
     emit(bench="machine", python=platform.python_version(), processor=platform.processor() or platform.machine(), pyzmq=zmq.__version__)
     with tempfile.TemporaryDirectory() as tmp:
@@ -159,26 +161,33 @@ def main() -> None:
         goals = rng.uniform([0.1, -0.6, 0.9], [0.6, 0.0, 1.6], (args.requests, 3))
         stored = [json.dumps({"op": "query", "id": i, "effector": "right_hand", "goal": g.tolist(), "refine": False}).encode() for i, g in enumerate(goals)]
         refined = [json.dumps({"op": "query", "id": i, "effector": "right_hand", "goal": g.tolist(), "refine": True}).encode() for i, g in enumerate(goals)]
-        server, address = start([sys.executable, "-m", "reach.cli", "serve", str(atlas), "--bind", "tcp://127.0.0.1:*", "--pub", "tcp://127.0.0.1:*", "--budget-ms", "20"])
-        echo = None
-        try:
-            _ready(address)  # the workers have loaded the atlas: nothing else runs while we measure
-            echo, echo_address, reply_size = echo_beside(address, stored[0])
-            lat, lat_echo = latencies([address, echo_address], stored)
-            s = stats("stored_posture", lat, request_bytes=len(stored[0]), reply_bytes=reply_size)
-            e = stats("echo", lat_echo, reply_bytes=reply_size)
-            r = stats("refined", latencies([address], refined[: max(200, args.requests // 5)])[0])
-            for n in (1, 4, 16):
-                emit(bench="throughput", clients=n, requests_per_s=round(throughput(address, stored, n)))
-            emit(bench="throughput", clients=1, case="echo", requests_per_s=round(throughput(echo_address, stored, 1)))
-        finally:
-            for proc in (server, echo):
-                if proc is not None:
-                    proc.terminate()
-                    proc.wait()
-        emit(bench="goals", stored_p99_over_echo_p99=round(s["p99"] / e["p99"], 3), stored_p99_ms=round(s["p99"], 4), refined_p99_ms=round(r["p99"], 4))
-        analytic_bench(Path(tmp) / "sphere", args.requests)
+        CHUNK[:] = [] if args.chunk is None else ["--chunk", str(args.chunk)]
+        if args.only is None:
+            one_server_bench(atlas, stored, refined, args.requests)
+            analytic_bench(Path(tmp) / "sphere", args.requests)
         workers_bench(atlas, goals, stored)
+
+
+def one_server_bench(atlas: Path, stored: list[bytes], refined: list[bytes], requests: int) -> None:
+    """Stored and refined latency against the echo, and throughput, from one server with its default workers."""
+    server, address = start([sys.executable, "-m", "reach.cli", "serve", str(atlas), "--bind", "tcp://127.0.0.1:*", "--pub", "tcp://127.0.0.1:*", "--budget-ms", "20"])
+    echo = None
+    try:
+        _ready(address)  # the workers have loaded the atlas: nothing else runs while we measure
+        echo, echo_address, reply_size = echo_beside(address, stored[0])
+        lat, lat_echo = latencies([address, echo_address], stored)
+        s = stats("stored_posture", lat, request_bytes=len(stored[0]), reply_bytes=reply_size)
+        e = stats("echo", lat_echo, reply_bytes=reply_size)
+        r = stats("refined", latencies([address], refined[: max(200, requests // 5)])[0])
+        for n in (1, 4, 16):
+            emit(bench="throughput", clients=n, requests_per_s=round(throughput(address, stored, n)))
+        emit(bench="throughput", clients=1, case="echo", requests_per_s=round(throughput(echo_address, stored, 1)))
+    finally:
+        for proc in (server, echo):
+            if proc is not None:
+                proc.terminate()
+                proc.wait()
+    emit(bench="goals", stored_p99_over_echo_p99=round(s["p99"] / e["p99"], 3), stored_p99_ms=round(s["p99"], 4), refined_p99_ms=round(r["p99"], 4))
 
 
 def analytic_bench(atlas: Path, requests: int) -> None:
@@ -212,9 +221,12 @@ def echo_beside(address: str, payload: bytes) -> tuple[subprocess.Popen, str, in
     return echo, echo_address, size
 
 
+CHUNK: list[str] = []  # the servers' --chunk option, when given
+
+
 def serve(atlas: Path, workers: int) -> tuple[subprocess.Popen, str]:
     return start([sys.executable, "-m", "reach.cli", "serve", str(atlas), "--bind", "tcp://127.0.0.1:*", "--pub", "none",
-                  "--budget-ms", "20", "--workers", str(workers)])
+                  "--budget-ms", "20", "--workers", str(workers), *CHUNK])
 
 
 def _ready(address: str) -> None:

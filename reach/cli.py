@@ -193,7 +193,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     if workers < 0:
         raise InputError("--workers", f"expected 0 or more worker processes, got {workers}")
     server = Server(args.atlas, args.bind, None if args.pub == "none" else args.pub, policy=args.policy,
-                    refine=not args.no_refine, budget=args.budget_ms / 1000.0, curve_secret=args.curve_secret_key, workers=workers, curve_clients=args.curve_clients,
+                    refine=not args.no_refine, budget=args.budget_ms / 1000.0, curve_secret=args.curve_secret_key, workers=workers, curve_clients=args.curve_clients, chunk=args.chunk,
                     handover=_handover(args), miss=args.miss, allow_reload=args.allow_reload)
     print(f"serving {args.atlas} on {server.endpoint}" + (f", publishing on {server.pub_endpoint}" if server.pub_endpoint else ""), flush=True)
     server.serve_forever()
@@ -429,6 +429,8 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--curve-secret-key", metavar="FILE", help="encrypt with CURVE, using this server secret-key file (zmq.auth.create_certificates)")
     p.add_argument("--curve-clients", metavar="DIR", help="with --curve-secret-key: let in only the clients whose public-key files (*.key) are in DIR")
     p.add_argument("--workers", type=int, metavar="N", help="refinement worker processes (default: all cores; 0 refines in the request loop)")
+    p.add_argument("--chunk", type=int, default=P.CHUNK_GOALS, metavar="N",
+                   help=f"goals per worker task at most (default {P.CHUNK_GOALS}): smaller shares the workers more finely between clients")
     p.add_argument("--allow-reload", metavar="ROOT", help="let clients 'reload' atlases from folders under ROOT (default: reload is refused)")
     _handover_option(p)
     p.set_defaults(func=cmd_serve)

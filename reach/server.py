@@ -51,7 +51,6 @@ from reach.workers import EXPIRED, Pool, Task
 from reach.workers import FAILED as WORKER_FAILED
 
 log = logging.getLogger("reach.server")
-CHUNK = 32  # goals per worker task at most: a batch spreads over the workers, and a deadline cuts it finely
 SLACK = 5.0  # [s] a request's default deadline: the budget per goal, plus this ...
 MAX_WAIT = 60.0  # [s] ... and at most this: a client that vanished without a deadline of its own holds the workers no longer
 LOG_EVERY = 60.0  # [s] an identical internal error's traceback is logged at most this often
@@ -90,6 +89,9 @@ class Server:
         curve_clients: With ``curve_secret``, a folder of client public-key
             files (``*.key``): only those clients are let in (pyzmq's ZAP
             authenticator). Without it any client key pair is accepted.
+        chunk: Goals per worker task at most. A query waits for a busy worker
+            to finish its task, so smaller chunks share the workers more
+            finely between clients, at some cost in throughput.
         curve_secret: Path of the server's CURVE secret-key file, or None.
         context: A zmq context (a new one by default).
         workers: Refinement worker processes; 0 refines in the request loop.
@@ -99,8 +101,11 @@ class Server:
         self, atlas: str | Path, bind: str = P.DEFAULT_BIND, pub: str | None = P.DEFAULT_PUB, *, policy: str = DEFAULT_POLICY,
         refine: bool = True, budget: float = REFINE_BUDGET, curve_secret: str | Path | None = None, context: zmq.Context | None = None,
         workers: int = 0, handover: float = HANDOVER, miss: str = MISS, allow_reload: str | Path | None = None,
-        curve_clients: str | Path | None = None,
+        curve_clients: str | Path | None = None, chunk: int = P.CHUNK_GOALS,
     ) -> None:
+        if isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1:
+            raise InputError("--chunk", f"expected a whole number of goals >= 1, got {chunk!r}")
+        self.chunk = chunk
         # reload is off unless the operator names the folder under which atlases may be loaded.
         self.reload_root = None if allow_reload is None else Path(allow_reload).resolve()
         keys = load_curve_key(curve_secret, secret=True, what="--curve-secret-key") if curve_secret else None  # before any socket
@@ -359,7 +364,7 @@ class Server:
             self.resends += 1  # a resend of a request being worked on: answered once
             return True
         n = len(goals)
-        size = max(1, min(CHUNK, math.ceil(n / max(1, self.pool.size))))
+        size = max(1, min(self.chunk, math.ceil(n / max(1, self.pool.size))))
         bounds = [(a, min(n, a + size)) for a in range(0, n, size)]
         deadline = time.monotonic() + (req["deadline"] if req["deadline"] is not None else min(n * self.budget + SLACK, MAX_WAIT))
         self._seq += 1

@@ -35,6 +35,7 @@ from scipy.spatial.transform import Rotation
 
 from oracles.protocol import OracleSpec, Shaped
 from reach.errors import InputError
+from reach.gate import Gate
 from reach.select import Selector, posture_vector
 from reach.store import Atlas
 from reach.tree import DEFAULT_POLICY, FINAL, INNER, POLICIES, VATree
@@ -118,8 +119,10 @@ class Viewer:
             raise InputError("atlas", "at least one atlas is needed")
         if policy not in POLICIES:
             raise InputError("policy", f"expected one of {', '.join(POLICIES)}, got {policy!r}")
-        self.server = viser.ViserServer(host=host, port=port, verbose=False)
-        self.host, self.port = host, self.server.get_port()
+        # viser listens on a loopback port of its own; the gate, where the user asked, lets only this server's origin through.
+        self.server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+        self.gate = Gate(host, port, self.server.get_port())
+        self.host, self.port = host, self.gate.port
         self.refine, self.policy = refine, policy
         self.client = None
         if connect is not None:
@@ -360,6 +363,7 @@ class Viewer:
         return self.answers
 
     def close(self) -> None:
+        self.gate.close()
         self.server.stop()
         if self.client is not None:
             self.client.close()

@@ -274,3 +274,41 @@ def test_an_analytic_atlas_is_viewed_without_a_body(tmp_path):
         assert not outside["reachable"] and "unreachable" in v.answer_box.content
     finally:
         v.close()
+
+
+def viser_version() -> str:
+    import viser
+
+    return str(viser.__version__)
+
+
+def _get(port: int, host_header: str, origin: str | None = None, upgrade: bool = False) -> tuple[int, bytes]:
+    """One raw HTTP request to the viewer's port, with the Host (and Origin) a browser elsewhere could send."""
+    import socket
+
+    head = ["GET / HTTP/1.1", f"Host: {host_header}", "Connection: close"]
+    if origin is not None:
+        head.append(f"Origin: {origin}")
+    if upgrade:
+        head = [*head[:2], "Connection: Upgrade", "Upgrade: websocket", "Sec-WebSocket-Version: 13", "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==",
+                f"Sec-WebSocket-Protocol: viser-v{viser_version()}", *head[3:]]
+    with socket.create_connection(("127.0.0.1", port), timeout=10) as s:
+        s.sendall(("\r\n".join(head) + "\r\n\r\n").encode())
+        data = b""
+        while b"\r\n\r\n" not in data:
+            chunk = s.recv(4096)
+            if not chunk:
+                break
+            data += chunk
+    return int(data.split(b" ", 2)[1]), data
+
+
+def test_the_viewer_answers_only_its_own_origin(viewer):
+    port = viewer.port
+    assert _get(port, f"127.0.0.1:{port}")[0] == 200 and _get(port, f"localhost:{port}")[0] == 200  # its page
+    status, text = _get(port, f"evil.example:{port}")  # DNS rebinding: another name for this address
+    assert status == 403 and b"forbidden: Host 'evil.example:" in text
+    assert _get(port, f"127.0.0.1:{port + 1}")[0] == 403  # another port's name
+    status, text = _get(port, f"127.0.0.1:{port}", origin="http://evil.example", upgrade=True)  # a cross-site WebSocket
+    assert status == 403 and b"forbidden: Origin 'http://evil.example' is not this server's" in text
+    assert _get(port, f"127.0.0.1:{port}", origin=f"http://127.0.0.1:{port}", upgrade=True)[0] == 101  # its own page's WebSocket
