@@ -18,6 +18,9 @@ refined keep their stored postures, marked ``timeout``, the reply goes, and
 the request's queued work is dropped. A resend of a pending request (same
 client, same id) is answered once.
 
+``reload`` (only with ``allow_reload``) loads the new atlas in a thread
+while the current one answers, and the loop swaps it in when it is ready.
+
 Binds to 127.0.0.1 by default. With a CURVE secret-key file (as written by
 ``zmq.auth.create_certificates``) both sockets encrypt, and clients must
 know the server's public key.
@@ -25,6 +28,7 @@ know the server's public key.
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
 import gc
 import logging
@@ -34,7 +38,7 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 import zmq
@@ -56,6 +60,16 @@ MAX_WAIT = 60.0  # [s] ... and at most this: a client that vanished without a de
 LOG_EVERY = 60.0  # [s] an identical internal error's traceback is logged at most this often
 REVIVE_EVERY = 0.5  # [s] how often the loop looks for dead workers
 FAILED_TASK = WORKER_FAILED + b" the worker died"
+
+
+@dataclass
+class Reloading:
+    """An atlas loading in the background for a ``reload`` request."""
+
+    envelope: list[bytes]
+    request: P.Request
+    path: Path
+    future: concurrent.futures.Future
 
 
 @dataclass
@@ -155,6 +169,9 @@ class Server:
         self.by_key: dict[tuple[bytes, bytes], int] = {}
         self._seq = 0
         self.pool = Pool(self.context, self.atlas_path, self.options, int(workers)) if workers > 0 else None
+        # reload loads in this thread, so no request waits for it; the loop swaps the atlas in when it is ready.
+        self._loader: concurrent.futures.ThreadPoolExecutor | None = None
+        self.reloading: Reloading | None = None
 
     # -- lifecycle ---------------------------------------------------------
     def stop(self) -> None:
@@ -162,6 +179,8 @@ class Server:
         self._stop.set()
 
     def close(self) -> None:
+        if self._loader is not None:
+            self._loader.shutdown(wait=True, cancel_futures=True)
         if self.pool is not None:
             self.pool.close()
         self.router.close(linger=0)
@@ -188,8 +207,11 @@ class Server:
                     try:
                         frames = self.router.recv_multipart()
                     except zmq.Again:
-                        continue
-                    self.handle(frames)
+                        frames = None
+                    if frames is not None:
+                        self.handle(frames)
+                    if self.reloading is not None and self.reloading.future.done():
+                        self._swap()
             else:
                 self._broker()
         finally:
@@ -228,6 +250,8 @@ class Server:
                     log.error("a refinement worker died; restarted it")
                     self._finished(task, [FAILED_TASK])
             self._expire()
+            if self.reloading is not None and self.reloading.future.done():
+                self._swap()
 
     # -- one request -------------------------------------------------------
     def handle(self, frames: list[bytes]) -> None:
@@ -257,7 +281,7 @@ class Server:
         try:
             req = P.parse_request(payload)
             rid = req.id
-            if envelope is not None and self._deferred(req, envelope):
+            if envelope is not None and (self._deferred(req, envelope) or self._reload_later(req, envelope)):
                 return None
             return P.ok_reply(self.dispatch(req), rid)
         except Exception as exc:  # noqa: BLE001 - nothing a client sends may stop the server
@@ -308,14 +332,48 @@ class Server:
         ], "effectors": self.selector.effectors, "frame": "world: z up, x forward, y left; metres, radians"}
 
     def op_reload(self, req: P.Request) -> dict[str, Any]:
+        """Load and swap at once (an in-process call; over the socket the load runs in the background)."""
+        path = self._reload_path(req)
+        return self._install(req, path, lambda: self._load(path))
+
+    def _reload_path(self, req: P.Request) -> Path:
         if self.reload_root is None:
             raise P.ProtocolError(P.FORBIDDEN, "reload is off; the operator allows it with reach serve --allow-reload ROOT", req.id)
         # Checked before the path is touched: a refused path reveals nothing of what exists there.
         path = (self.reload_root / req["path"]).resolve() if req["path"] else self.atlas_path
         if not path.is_relative_to(self.reload_root):
             raise P.ProtocolError(P.FORBIDDEN, f"reload loads atlases under {self.reload_root} only", req.id)
+        return path
+
+    def _load(self, path: Path) -> Selector:
+        return Selector(load_atlas(path), **self.options).warm_up()
+
+    def _reload_later(self, req: P.Request, envelope: list[bytes]) -> bool:
+        """Start loading a ``reload``'s atlas in the background; its reply goes when the loop has swapped it in."""
+        if req.op != "reload":
+            return False
+        path = self._reload_path(req)
+        if self.reloading is not None:
+            raise P.ProtocolError(P.RELOAD_FAILED, f"kept the current atlas: another reload ({self.reloading.path}) is loading", req.id)
+        if self._loader is None:
+            self._loader = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="reach-reload")
+        self.reloading = Reloading(envelope, req, path, self._loader.submit(self._load, path))
+        return True
+
+    def _swap(self) -> None:
+        """Serve the atlas a background reload has loaded, and answer its request."""
+        job, self.reloading = self.reloading, None
+        assert job is not None
         try:
-            selector = Selector(load_atlas(path), **self.options).warm_up()
+            reply = P.ok_reply(P.encode(self._install(job.request, job.path, job.future.result)), job.request.id)
+        except Exception as exc:  # noqa: BLE001 - the reload's error reply; the current atlas stays
+            reply = self._error(exc, job.request.id)
+        self._send(job.envelope, reply)
+
+    def _install(self, req: P.Request, path: Path, loaded: Callable[[], Selector]) -> dict[str, Any]:
+        """Swap in the selector ``loaded`` gives (one assignment, between two requests); the workers restart on it."""
+        try:
+            selector = loaded()
         except ReachError as exc:
             raise P.ProtocolError(P.RELOAD_FAILED, f"kept the current atlas: {exc}", req.id) from None
         self.selector, self.atlas_path = selector, path

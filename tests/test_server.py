@@ -656,6 +656,35 @@ def test_a_lazy_pirate_resend_of_a_slow_request_is_computed_once(human):
     assert health["pending"] == 0
 
 
+def test_reload_loads_in_the_background_and_no_request_waits_for_it(balls, cube):
+    r = Running(balls, allow_reload=cube.parent)
+    gate = threading.Event()
+    load = r.server._load
+    r.server._load = lambda path: (gate.wait(10), load(path))[1]  # a load that takes as long as the test says
+    sock = zmq.Context.instance().socket(zmq.DEALER)
+    sock.setsockopt(zmq.LINGER, 0)
+    sock.setsockopt(zmq.RCVTIMEO, 10_000)
+    sock.connect(r.server.endpoint)
+    try:
+        with Client(r.server.endpoint, timeout=5_000) as other:
+            sock.send(json.dumps({"op": "reload", "path": cube.name, "id": 7}).encode())
+            while r.server.reloading is None:
+                time.sleep(0.01)
+            # While the new atlas loads, the old one answers, and a second reload is refused.
+            assert other.query("point", [0.0, 0.0, 0.0])["strategy"] in ("near", "far")
+            assert other.health()["status"] == "serving"
+            with pytest.raises(ServerError, match="another reload"):
+                other.reload(cube.name)
+            gate.set()
+            reply = json.loads(sock.recv())
+            assert reply["ok"] and reply["id"] == 7 and reply["strategies"] == 1
+            assert other.query("tool", [0.0, 0.0, 0.0])["strategy"] == "cube"  # swapped
+    finally:
+        gate.set()
+        sock.close(linger=0)
+        r.stop()
+
+
 @pytest.mark.slow
 def test_reload_with_workers_restarts_them_on_the_new_atlas(human):
     r = Running(human, budget=0.5, workers=1, allow_reload=human.parent)
