@@ -15,6 +15,8 @@
   batch; refined throughput with 1 and 2 workers; a 10,000-goal refined
   batch; the time SIGTERM takes to stop a server in the middle of a refined
   batch.
+* Stored-posture latency while a client reloads the atlas again and again
+  (``--allow-reload``): the load runs in the background.
 
 The atlas is a small human atlas (right arm and upper body, D_max 3) built
 in a temporary folder. Servers run in their own processes.
@@ -165,6 +167,7 @@ def main() -> None:
         if args.only is None:
             one_server_bench(atlas, stored, refined, args.requests)
             analytic_bench(Path(tmp) / "sphere", args.requests)
+            reload_bench(atlas, stored)
         workers_bench(atlas, goals, stored)
 
 
@@ -208,6 +211,37 @@ def analytic_bench(atlas: Path, requests: int) -> None:
             if proc is not None:
                 proc.terminate()
                 proc.wait()
+
+
+def reload_bench(atlas: Path, stored: list[bytes]) -> None:
+    """Stored answers alone, then while another client reloads the atlas back to back (no workers, so only the load competes)."""
+    server, address = start([sys.executable, "-m", "reach.cli", "serve", str(atlas), "--bind", "tcp://127.0.0.1:*", "--pub", "none",
+                             "--workers", "0", "--no-refine", "--allow-reload", str(atlas.parent)])
+    stop = threading.Event()
+    took: list[float] = []
+
+    def reload_forever() -> None:
+        sock = zmq.Context.instance().socket(zmq.REQ)
+        sock.connect(address)
+        while not stop.is_set():
+            t0 = time.perf_counter()
+            sock.send(json.dumps({"op": "reload", "path": atlas.name}).encode())
+            assert json.loads(sock.recv())["ok"]
+            took.append(time.perf_counter() - t0)
+        sock.close(linger=0)
+
+    try:
+        alone = stats("stored_alone_no_workers", latencies([address], stored)[0])
+        reloader = threading.Thread(target=reload_forever)
+        reloader.start()
+        during = stats("stored_during_back_to_back_reloads", latencies([address], stored)[0])
+        stop.set()
+        reloader.join()
+        emit(bench="reload", reloads=len(took), reload_median_s=round(float(np.median(took)), 3),
+             stored_p99_during_over_alone=round(during["p99"] / alone["p99"], 3))
+    finally:
+        server.terminate()
+        server.wait()
 
 
 def echo_beside(address: str, payload: bytes) -> tuple[subprocess.Popen, str, int]:
