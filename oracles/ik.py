@@ -105,6 +105,7 @@ class IKOracle(ABC):
         self.posture_names = tuple(self.body.q_names)
         self._data = self.body.model.createData()
         self.stats = _stats()
+        self._projector: Any = None  # the damped-least-squares twin that holds a posture's hard tasks (built on first use)
 
     @classmethod
     def from_params(cls, **params: Any) -> IKOracle:
@@ -165,6 +166,36 @@ class IKOracle(ABC):
             if j == 1 or jm.nq != 1:  # the root (its limits are the solvers' box) and continuous joints
                 lower[jm.idx_q : jm.idx_q + jm.nq], upper[jm.idx_q : jm.idx_q + jm.nq] = -np.inf, np.inf
         return lower, upper
+
+    def interpolate(self, q0: np.ndarray, q1: np.ndarray, s: np.ndarray) -> np.ndarray:
+        """Pinocchio's interpolation on the model's configuration space (see :class:`oracles.protocol.Moving`)."""
+        model, a, b = self.body.model, np.asarray(q0, float), np.asarray(q1, float)
+        return np.array([pin.interpolate(model, a, b, float(u)) for u in np.atleast_1d(s)]).reshape(-1, model.nq)
+
+    def faults(self, postures: np.ndarray) -> list[list[str]]:
+        """The joints outside their ranges and the hard tasks a posture breaks, by each task's own check."""
+        model, data, p = self.body.model, self._data, self.problem
+        out = []
+        for q in np.atleast_2d(np.asarray(postures, float)):
+            pin.framesForwardKinematics(model, data, q)
+            num = Numeric(model, data, q, data.oMf[p.effector_id].translation.copy())
+            out.append(p.out_of_limits(q) + [t.type for t in self.strategy.hard if not t.holds(num)])
+        return out
+
+    def hold(self, posture: np.ndarray) -> np.ndarray | None:
+        """The least change that holds every hard task (damped least squares on their rows alone, a few
+        iterations); failing that, the refinement's solve at the posture's own effector position, started
+        from it and pulled towards it."""
+        q = np.asarray(posture, float)
+        if self._projector is None:
+            from oracles.dls import DLSIK
+
+            self._projector = self if isinstance(self, DLSIK) else DLSIK(**self._strategy_params)
+        held = self._projector.project(q)
+        if not self.faults(held[None])[0]:
+            return held
+        v = self.evaluate_from(self.effector_positions(q[None]), q)
+        return v.posture[0] if v.reachable[0] and v.posture is not None else None
 
     def limits_near(self, posture: np.ndarray, margin: float) -> list[str]:
         """The joint limits a posture comes within margin [rad or m] of (see :meth:`ReachProblem.limits_near`)."""

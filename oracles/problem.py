@@ -258,6 +258,12 @@ class ReachProblem:
         model = self.body.model
         return bool(np.all(q[7:] >= model.lowerPositionLimit[7:] - LIMIT_TOL) and np.all(q[7:] <= model.upperPositionLimit[7:] + LIMIT_TOL))
 
+    def out_of_limits(self, q: np.ndarray) -> list[str]:
+        """The posture coordinates of q outside their ranges (beyond the verdict's tolerance), by name."""
+        model, names = self.body.model, self.body.q_names
+        bad = (q[7:] < model.lowerPositionLimit[7:] - LIMIT_TOL) | (q[7:] > model.upperPositionLimit[7:] + LIMIT_TOL)
+        return [names[7 + k] for k in np.nonzero(bad)[0]]
+
     def check(self, q: np.ndarray, goal: np.ndarray, data: pin.Data | None = None) -> Check:
         """Independent Pinocchio check of a posture: each task's own check, and the joint limits."""
         model = self.body.model

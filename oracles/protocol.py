@@ -32,7 +32,11 @@ Oracles may also offer optional capabilities, each a protocol of its own;
   refinement from several warm starts, so that the selector may also start
   from the best-liked stored posture near the goal;
 * :class:`Bounded`: the range of each posture coordinate, so that a
-  query's ``from`` outside the body's joint ranges is refused.
+  query's ``from`` outside the body's joint ranges is refused;
+* :class:`Moving`: postures between two postures on the body's own
+  configuration space, what a posture breaks (limits, collisions, feet,
+  balance), and the posture nearest one that holds every hard task, so that
+  :mod:`reach.motion` plans a reach motion without seeing the model.
 
 ``reach`` asks nothing else: not an oracle's parameters, registry names or
 internals, so a third-party oracle registered through the ``reach.oracles``
@@ -268,6 +272,26 @@ class Bounded(Protocol):
     def posture_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Lower and upper bounds (nq,) of each posture coordinate [rad or m], -inf/inf where unbounded
         (a floating base's position, a continuous joint)."""
+        ...
+
+
+@runtime_checkable
+class Moving(Protocol):
+    """An oracle whose body moves between postures (:mod:`reach.motion`)."""
+
+    def interpolate(self, q0: np.ndarray, q1: np.ndarray, s: np.ndarray) -> np.ndarray:
+        """Postures (T, nq) at fractions ``s`` (T,) in [0, 1] of the way from ``q0`` to ``q1`` (nq,), on the
+        configuration space (a floating base on SE(3)), not by straight lines in the posture's numbers."""
+        ...
+
+    def faults(self, postures: np.ndarray) -> list[list[str]]:
+        """For each posture (T, nq), what it breaks among the joint ranges and the hard tasks (by name;
+        empty when it holds them all)."""
+        ...
+
+    def hold(self, posture: np.ndarray) -> np.ndarray | None:
+        """A posture near ``posture`` (nq,) that holds every hard task with the effector where ``posture``
+        puts it, or None when none is found."""
         ...
 
 

@@ -41,6 +41,7 @@ keeps the paper's plain priority.
 
 from __future__ import annotations
 
+import copy
 import json
 import math
 import time
@@ -352,6 +353,18 @@ class Selector:
             return np.asarray(oracle.effector_positions(postures), dtype=float)
         return np.full((len(postures), self.atlas.trees[name].dim), np.nan)
 
+    def with_budget(self, budget: float) -> Selector:
+        """This selector with another refinement budget [s], sharing its atlas, indexes and solvers
+        (each oracle's ``"refine"`` variant with that budget)."""
+        twin = copy.copy(self)
+        twin.budget = float(budget)
+        twin._oracles = {n: o.variant("refine", budget=budget) if isinstance(o, Tunable) else o for n, o in self._oracles.items()}
+        return twin
+
+    def oracle(self, name: str) -> Oracle:
+        """The strategy's oracle as answers use it (its ``"refine"`` variant)."""
+        return self._oracle(name)
+
     def _oracle(self, name: str) -> Oracle:
         """The strategy's oracle for refinement (its ``"refine"`` variant), built once from the tree's own spec."""
         if name not in self._oracles:
@@ -504,7 +517,7 @@ class Selector:
         return hit
 
     @staticmethod
-    def _start_posture(tree: VATree, stored: np.ndarray, start: dict[str, float] | None) -> np.ndarray | None:
+    def start_posture(tree: VATree, stored: np.ndarray, start: dict[str, float] | None) -> np.ndarray | None:
         """The query's ``from`` as a full posture: the stored one with the given joints replaced."""
         if start is None:
             return None
@@ -525,7 +538,7 @@ class Selector:
                 start_joints: dict[str, float] | None = None) -> tuple[np.ndarray, float | None, str]:
         oracle = self._oracle(name)
         t0 = time.perf_counter()
-        start = self._start_posture(self.atlas.trees[name], q, start_joints)
+        start = self.start_posture(self.atlas.trees[name], q, start_joints)
         if start is not None and isinstance(oracle, Continuing):
             v = oracle.evaluate_from(goal[None], start)
         elif start is None and isinstance(oracle, Preferring) and (liked := self._best_liked(name, oracle, goal, q)) is not None:

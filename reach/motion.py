@@ -1,0 +1,457 @@
+"""Reach motion: a timed, collision-free motion from the character's posture now to the selector's answer.
+
+The paper leaves "the timing of motion in order to get more smooth and
+realistic reaching animations ... an interpolation scheme ... storing
+postural data in each reachable node of the tree" as future work (section
+6). :class:`Planner` does it in four steps:
+
+1. **The end posture** is the selector's answer for the goal, refined from
+   the start posture (the query's ``from``): the strategy is chosen as a
+   query chooses it (priority, handover, answers that hold).
+2. **The path** interpolates the start and end postures on the body's own
+   configuration space (the oracle's :class:`~oracles.protocol.Moving`
+   capability: a floating root on SE(3)), so the hand's path curves as
+   people's do rather than following a straight line (Faraway 1997, "Regression
+   analysis for a functional response", Technometrics 39(3):254-261, fitted
+   reach trajectories). Where a frame breaks a hard task (a collision, a
+   foot that drifts, the balance), the oracle's ``hold`` moves it to the
+   nearest posture that keeps the hand where it was and every hard task;
+   where that fails, the path is routed through the postures stored at the
+   tree's reachable vertices (the paper's stored postural data): a shortest
+   path over neighbouring vertices in posture distance, edges checked
+   lazily, then shortened by dropping every waypoint a direct segment can
+   skip.
+3. **The duration** follows MTM-1 (Maynard, Stegemerten & Schwab 1948,
+   Methods-Time Measurement, McGraw-Hill; the MTM Association's MTM-1 data
+   card): the reach table's case A (an object in a fixed location) for the
+   distance the hand travels, plus a body motion when the body takes part:
+   a stoop or bend (B/S, 29.0 TMU) when the pelvis drops or tilts, a foot
+   motion (FM, 8.5 TMU) when it rises onto the toes. MTM-1 counts them one
+   after the other; here they share the frames, as a person's overlap.
+4. **The timing** is minimum jerk (Flash & Hogan 1985, J Neurosci
+   5(7):1688-1703): the path parameter s(t) = 10 u^3 - 15 u^4 + 6 u^5,
+   u = t / T, so the hand's speed is bell-shaped with its peak near the
+   middle of the motion.
+
+Frames are in the atlas's world frame: metres, radians, the model's joint names.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass, fields
+from typing import Any, Protocol, runtime_checkable
+
+import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import dijkstra
+from scipy.spatial import cKDTree
+
+from oracles.protocol import EffectorPositions, Moving, Shaped
+from reach.errors import InputError, ReachError
+from reach.select import Selector, posture_vector, split_posture
+
+TMU = 0.036  # [s] one time measurement unit, 0.00001 h (MTM-1 data card)
+INCH = 0.0254  # [m]
+# MTM-1 Reach, case A (to an object in a fixed location): TMU by the distance the hand moves [in] (MTM-1 data card).
+REACH_A = ((0.0, 0.0), (0.75, 2.0), (1, 2.5), (2, 4.0), (3, 5.3), (4, 6.1), (5, 6.5), (6, 7.0), (7, 7.4), (8, 7.9), (9, 8.3),
+           (10, 8.7), (12, 9.6), (14, 10.5), (16, 11.4), (18, 12.3), (20, 13.1), (22, 14.0), (24, 14.9), (26, 15.8), (28, 16.7), (30, 17.5))
+PAST_30 = 0.4  # TMU per inch past 30 in (same table)
+STOOP = 29.0  # TMU: bend, stoop or kneel on one knee (B, S, KOK; MTM-1 body motions)
+FOOT = 8.5  # TMU: foot motion pivoted at the ankle (FM), the MTM-1 element nearest a rise onto the toes
+DROP = 0.10  # [m] a pelvis lowered this much stoops or crouches (a modelling choice: a knee bend of about 30 deg)
+TILT = math.radians(30.0)  # [rad] a pelvis tilted this much bends (a modelling choice)
+LIFT = 0.01  # [m] a pelvis raised this much rises onto the toes (a modelling choice)
+RATE = 30.0  # [Hz] frames per second by default
+MAX_RATE = 240.0  # [Hz]
+MAX_DURATION = 20.0  # [s] an explicit duration at most this
+BUDGET = 0.25  # [s] the end posture's refinement budget: a motion is not a 50 Hz query, and a stored posture stops short
+HOLD_STEP = 0.25  # [rad or m] a frame that holding moves more than this (any coordinate) leaves the path: it is routed instead
+JUMP = 2.0  # a held path whose largest step between frames is this many times the unheld path's has a jump: it is routed instead
+EDGE_STEP = 0.1  # [rad] posture distance between the checked postures of a routed segment
+NEIGHBOURS = 10  # stored vertices each one links to in the routing graph
+ENTRIES = 12  # stored vertices tried as the route's first and last waypoints
+ROUNDS = 100  # shortest paths tried before the route is given up
+REACHED, NEAREST = "reached", "nearest"
+MOTION_MISSES = ("nearest", "error")
+
+
+@runtime_checkable
+class Body(Moving, Shaped, EffectorPositions, Protocol):
+    """What the planner asks of a strategy's oracle: the capabilities it combines."""
+
+
+def minimum_jerk(u: np.ndarray) -> np.ndarray:
+    """Flash & Hogan's minimum-jerk path parameter at normalised times u in [0, 1]."""
+    u = np.clip(np.asarray(u, float), 0.0, 1.0)
+    return u**3 * (10.0 - 15.0 * u + 6.0 * u * u)  # type: ignore[no-any-return]
+
+
+@dataclass(frozen=True)
+class Timing:
+    """The movement-time law's coefficients (MTM-1 by default; see the module docstring).
+
+    Attributes:
+        tmu: Seconds per TMU; a slower or faster performer scales every element.
+        past_30: TMU per inch of reach past 30 in.
+        stoop: TMU added when the pelvis drops by ``drop`` or tilts by ``tilt``.
+        foot: TMU added when the pelvis rises by ``lift`` (onto the toes).
+        drop: [m] see ``stoop``.
+        tilt: [rad] see ``stoop``.
+        lift: [m] see ``foot``.
+        duration: [s] the motion's duration, instead of the law's (None: the law's).
+    """
+
+    tmu: float = TMU
+    past_30: float = PAST_30
+    stoop: float = STOOP
+    foot: float = FOOT
+    drop: float = DROP
+    tilt: float = TILT
+    lift: float = LIFT
+    duration: float | None = None
+
+    @classmethod
+    def from_dict(cls, raw: dict[str, Any] | None, where: str = "timing") -> Timing:
+        """Overrides of the defaults, each a finite number >= 0 (``duration`` > 0, at most ``MAX_DURATION``)."""
+        if raw is None:
+            return cls()
+        if not isinstance(raw, dict):
+            raise InputError(where, f"expected a mapping of coefficients, got {type(raw).__name__}")
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(raw) - known)
+        if unknown:
+            raise InputError(where, f"unknown keys {unknown}; expected some of {', '.join(sorted(known))}")
+        for k, v in raw.items():
+            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0
+            if k == "duration":
+                ok = ok and 0 < v <= MAX_DURATION
+            if not ok:
+                limit = f"a number of seconds in (0, {MAX_DURATION:g}]" if k == "duration" else "a finite number >= 0"
+                raise InputError(f"{where}.{k}", f"expected {limit}, got {v!r}")
+        return cls(**{k: float(v) for k, v in raw.items()})
+
+    def reach_tmu(self, distance: float) -> float:
+        """MTM-1 R-A time [TMU] of a reach whose hand travels ``distance`` [m]."""
+        inches = distance / INCH
+        if inches > 30.0:
+            return REACH_A[-1][1] + self.past_30 * (inches - 30.0)
+        d, t = zip(*REACH_A, strict=True)
+        return float(np.interp(inches, d, t))
+
+    def seconds(self, hand_path: float, root_drop: float, root_tilt: float, root_lift: float) -> tuple[float, dict[str, float]]:
+        """The duration [s] and its parts [TMU]: the reach, and the body motions the root's excursion calls for."""
+        if self.duration is not None:
+            return self.duration, {}
+        parts = {"reach": self.reach_tmu(hand_path)}
+        if root_drop >= self.drop or root_tilt >= self.tilt:
+            parts["stoop"] = self.stoop
+        elif root_lift >= self.lift:
+            parts["foot"] = self.foot
+        return sum(parts.values()) * self.tmu, parts
+
+
+class MotionError(ReachError):
+    """No motion could be planned: the goal is out of reach (with ``miss="error"``), or no path holds every task."""
+
+    def __init__(self, message: str, code: str = "no_motion") -> None:
+        super().__init__(message)
+        self.code = code
+
+
+@dataclass(frozen=True)
+class Motion:
+    """A planned reach motion.
+
+    Attributes:
+        effector: The effector.
+        goal: The goal [m].
+        strategy: The strategy whose end posture it reaches.
+        outcome: ``reached`` (the end posture reaches the goal), or ``nearest``
+            (the goal is out of reach; the motion goes to the nearest point a
+            stored posture reaches).
+        point: Where the effector ends [m].
+        names: The posture's coordinate names (``root_x`` ... ``root_qw`` for
+            a floating base, then the joints).
+        times: (T,) [s] from 0 to the duration.
+        postures: (T, nq) one posture per frame.
+        path: (T, 3) [m] the effector's position at each frame.
+        refined: The end posture's refinement outcome, as a query's answer says it (``ok``, or ``timeout`` /
+            ``failed`` ... when the end posture is the stored one, ``within`` of the goal).
+        within: [m] how far short of the goal the end posture stops when it was not solved at the goal; else None.
+        waypoints: Stored postures the path goes through (0: direct).
+        held: Frames moved to hold every hard task (a foot, the balance, a collision).
+        parts: The duration's parts [TMU] (empty for an explicit duration).
+    """
+
+    effector: str
+    goal: tuple[float, ...]
+    strategy: str
+    outcome: str
+    point: tuple[float, ...]
+    names: tuple[str, ...]
+    times: np.ndarray
+    postures: np.ndarray
+    path: np.ndarray
+    refined: str
+    within: float | None
+    waypoints: int
+    held: int
+    parts: dict[str, float]
+
+    @property
+    def duration(self) -> float:
+        return float(self.times[-1])
+
+    def frames(self) -> list[dict[str, Any]]:
+        """One dict per frame: ``t`` [s], ``posture`` (joint -> rad or m), ``root`` (position, quaternion
+        [qx, qy, qz, qw]) or None, ``effector`` [m]."""
+        out = []
+        for t, q, p in zip(self.times, self.postures, self.path, strict=True):
+            joints, root = split_posture(self.names, q)
+            out.append({"t": round(float(t), 6), "posture": joints, "root": root, "effector": [float(v) for v in p]})
+        return out
+
+    def summary(self) -> dict[str, Any]:
+        """Everything but the frames."""
+        return {"effector": self.effector, "goal": list(self.goal), "strategy": self.strategy, "outcome": self.outcome,
+                "point": list(self.point), "refined": self.refined, "within": self.within, "duration": self.duration, "rate": self.rate, "frame_count": len(self.times),
+                "waypoints": self.waypoints, "held": self.held, "timing_tmu": self.parts}
+
+    @property
+    def rate(self) -> float:
+        return float((len(self.times) - 1) / self.duration) if self.duration > 0 else 0.0
+
+    def to_dict(self) -> dict[str, Any]:
+        return {**self.summary(), "frames": self.frames()}
+
+
+class Planner:
+    """Plans reach motions on a selector's atlas (see the module docstring).
+
+    Args:
+        selector: The selector whose answers end the motions; its strategies'
+            oracles must offer :class:`~oracles.protocol.Moving`.
+        budget: [s] the end posture's refinement budget.
+    """
+
+    def __init__(self, selector: Selector, budget: float = BUDGET) -> None:
+        self.selector = selector.with_budget(budget)
+        self._graphs: dict[str, tuple[cKDTree, np.ndarray, np.ndarray, csr_matrix]] = {}
+
+    def plan(self, effector: str, goal: np.ndarray | list[float], start: dict[str, float] | None = None, *, rate: float = RATE,
+             timing: Timing | None = None, miss: str = "nearest") -> Motion:
+        """The motion from ``start`` (joint name -> rad or m, ``root_*`` for the base; the reference posture
+        where omitted) to the answer for ``goal`` [m], at ``rate`` frames per second.
+
+        Raises InputError for a bad goal, start posture, rate or ``miss``, and
+        MotionError when the goal is out of reach (``miss="error"``) or no
+        path holds every task.
+        """
+        if not (isinstance(rate, (int, float)) and math.isfinite(rate) and 1.0 <= rate <= MAX_RATE):
+            raise InputError("rate", f"expected frames per second in [1, {MAX_RATE:g}], got {rate!r}")
+        if miss not in MOTION_MISSES:
+            raise InputError("miss", f"expected one of {', '.join(MOTION_MISSES)}, got {miss!r}")
+        timing = timing or Timing()
+        g = np.asarray(goal, float).reshape(1, -1)
+        names = [n for n in self.selector.check_goals(effector, g, start) if self.selector.atlas.trees[n].vertices.posture is not None]
+        if not names:
+            raise MotionError(f"the strategies of {effector!r} store no postures: there is no body to move", "no_motion")
+        answer = self.selector.select(effector, g[0], True, start=start, miss="unreachable")
+        if answer.reachable:
+            name, outcome, q1 = answer.strategy, REACHED, None
+        elif miss == "error":
+            raise MotionError(f"{effector} cannot reach {g[0].tolist()}: no strategy's posture reaches it", "unreachable")
+        elif answer.nearest is not None:
+            name, outcome = answer.nearest["strategy"], NEAREST
+        else:
+            name, outcome = names[0], NEAREST
+        assert name is not None
+        oracle = self._moving(name)
+        tree = self.selector.atlas.trees[name]
+        labels = tree.vertices.posture_names
+        q0 = self._start(oracle, tree, start)
+        broken = oracle.faults(q0[None])[0]
+        if broken:
+            raise InputError("from", f"the start posture breaks {', '.join(broken)} for strategy {name}")
+        if outcome == REACHED:
+            q1 = posture_vector(labels, q0, answer.posture, answer.root)
+        elif answer.nearest is not None:
+            q1 = posture_vector(labels, q0, answer.nearest["posture"], answer.nearest["root"])
+        else:
+            q1 = self._nearest_stored(name, g[0])
+        postures, waypoints, held = self._path(name, oracle, q0, q1, rate, timing)
+        times = postures[1]
+        path = np.asarray(oracle.effector_positions(postures[0]))
+        within = answer.within if outcome == REACHED else float(np.linalg.norm(path[-1] - g[0]))
+        return Motion(effector, tuple(g[0].tolist()), name, outcome, tuple(path[-1].tolist()), labels, times, postures[0], path,
+                      answer.refined, within, waypoints, held, postures[2])
+
+    # -- the path -----------------------------------------------------------
+    def _path(self, name: str, oracle: Body, q0: np.ndarray, q1: np.ndarray, rate: float,
+              timing: Timing) -> tuple[tuple[np.ndarray, np.ndarray, dict[str, float]], int, int]:
+        """Frames (postures, times, the duration's parts), the stored postures routed through and the frames held."""
+        for waypoints in ([q0, q1], None):
+            if waypoints is None:
+                waypoints = self._route(name, oracle, q0, q1)
+            timed = self._timed(oracle, waypoints, rate, timing)
+            held = self._hold_path(oracle, timed[0])
+            if held is not None:
+                return (held[0], timed[1], timed[2]), len(waypoints) - 2, held[1]
+        raise MotionError(f"no motion of strategy {name} found that holds every task at every frame")
+
+    def _timed(self, oracle: Body, waypoints: list[np.ndarray], rate: float, timing: Timing) -> tuple[np.ndarray, np.ndarray, dict[str, float]]:
+        """Frames along the waypoints, minimum-jerk timed over their posture length, and the duration's parts."""
+        # The hand's path length and the root's excursion, on a fine sampling of the path.
+        fine = self._along(oracle, waypoints, np.linspace(0.0, 1.0, 64))
+        hand = np.asarray(oracle.effector_positions(fine))
+        drop = tilt = lift = 0.0
+        if fine.shape[1] >= 7:
+            drop = max(0.0, float(fine[0, 2] - fine[:, 2].min()))
+            lift = max(0.0, float(fine[:, 2].max() - fine[0, 2]))
+            dots = np.abs(fine[:, 3:7] @ fine[0, 3:7]) / np.linalg.norm(fine[:, 3:7], axis=1) / np.linalg.norm(fine[0, 3:7])
+            tilt = float(2.0 * np.arccos(np.clip(dots.min(), -1.0, 1.0)))
+        seconds, parts = timing.seconds(float(np.linalg.norm(np.diff(hand, axis=0), axis=1).sum()), drop, tilt, lift)
+        n = max(2, int(math.ceil(seconds * rate)) + 1)
+        times = np.linspace(0.0, seconds, n)
+        return self._along(oracle, waypoints, minimum_jerk(times / seconds if seconds > 0 else times)), times, parts
+
+    @staticmethod
+    def _along(oracle: Body, waypoints: list[np.ndarray], s: np.ndarray) -> np.ndarray:
+        """Postures at fractions s of the waypoints' total posture length, each segment on the configuration space."""
+        lengths = np.array([np.linalg.norm(b - a) for a, b in zip(waypoints[:-1], waypoints[1:], strict=True)])
+        total = float(lengths.sum())
+        if total == 0.0:
+            return np.tile(waypoints[0], (len(s), 1))
+        ends = np.concatenate([[0.0], np.cumsum(lengths) / total])
+        out = np.empty((len(s), len(waypoints[0])))
+        seg = np.clip(np.searchsorted(ends, s, side="right") - 1, 0, len(lengths) - 1)
+        for k in np.unique(seg):
+            rows = np.nonzero(seg == k)[0]
+            local = (s[rows] - ends[k]) / max(ends[k + 1] - ends[k], 1e-12)
+            out[rows] = oracle.interpolate(waypoints[k], waypoints[k + 1], np.clip(local, 0.0, 1.0))
+        return out
+
+    # -- routing through stored postures -------------------------------------
+    def _graph(self, name: str) -> tuple[cKDTree, np.ndarray, np.ndarray, csr_matrix]:
+        """The reachable stored vertices of a strategy: a k-d tree of their effector positions, their postures,
+        those positions, and the graph linking each to its nearest, weighted by posture distance."""
+        if name not in self._graphs:
+            tree = self.selector.atlas.trees[name]
+            v = tree.vertices
+            assert v.posture is not None
+            rows = np.nonzero(v.reachable)[0]
+            postures = v.posture[rows]
+            points = tree.lattice.points(tree.lattice.coords(v.keys[rows]))
+            kd = cKDTree(points)
+            k = min(NEIGHBOURS + 1, len(rows))
+            _, near = kd.query(points, k=k)
+            near = np.asarray(near).reshape(len(rows), k)
+            a = np.repeat(np.arange(len(rows)), k - 1)
+            b = near[:, 1:].ravel()
+            w = np.linalg.norm(postures[a] - postures[b], axis=1) + 1e-9
+            graph = csr_matrix((np.concatenate([w, w]), (np.concatenate([a, b]), np.concatenate([b, a]))), shape=(len(rows), len(rows)))
+            self._graphs[name] = (kd, postures, points, graph)
+        return self._graphs[name]
+
+    def _route(self, name: str, oracle: Body, q0: np.ndarray, q1: np.ndarray) -> list[np.ndarray]:
+        """Waypoints from q0 to q1 through stored postures whose segments hold every task (lazily checked), then shortened."""
+        kd, postures, _, graph = self._graph(name)
+        graph = graph.tolil()
+        ends = np.asarray(oracle.effector_positions(np.stack([q0, q1])))
+        firsts = self._entries(kd, postures, ends[0], q0, oracle, first=True)
+        lasts = self._entries(kd, postures, ends[1], q1, oracle, first=False)
+        if not firsts or not lasts:
+            raise MotionError(f"no motion of strategy {name} found: no stored posture near the start or the end links to it")
+        good: set[tuple[int, int]] = set()
+        for _ in range(ROUNDS):
+            dist, pred = dijkstra(graph.tocsr(), indices=firsts[0], return_predecessors=True)
+            last = min(lasts, key=lambda j: dist[j])
+            if not np.isfinite(dist[last]):
+                break
+            chain = [last]
+            while chain[-1] != firsts[0]:
+                chain.append(int(pred[chain[-1]]))
+            chain.reverse()
+            broken = None
+            for a, b in zip(chain[:-1], chain[1:], strict=True):
+                if (a, b) not in good:
+                    if not self._clear(oracle, postures[a], postures[b]):
+                        broken = (a, b)
+                        break
+                    good.add((a, b))
+            if broken is None:
+                return self._shorten(oracle, [q0, *postures[chain], q1])
+            graph[broken[0], broken[1]] = graph[broken[1], broken[0]] = 0.0  # lil: an explicit zero removes the edge
+        raise MotionError(f"no motion of strategy {name} found through its stored postures that holds every task")
+
+    def _entries(self, kd: cKDTree, postures: np.ndarray, point: np.ndarray, q: np.ndarray, oracle: Body, first: bool) -> list[int]:
+        """Stored vertices near ``point`` linked to ``q`` by a segment that holds (from q when ``first``, else to it),
+        nearest in posture first: one for the route's start, up to three for its end."""
+        _, near = kd.query(point, k=min(ENTRIES, len(postures)))
+        near = sorted(np.atleast_1d(near).tolist(), key=lambda i: float(np.linalg.norm(postures[i] - q)))
+        linked = (i for i in near if (self._clear(oracle, q, postures[i]) if first else self._clear(oracle, postures[i], q)))
+        return list(itertools.islice(linked, 1 if first else 3))
+
+    def _clear(self, oracle: Body, a: np.ndarray, b: np.ndarray) -> bool:
+        """Whether the segment a -> b holds every task at postures ``EDGE_STEP`` apart (see ``_hold_path``)."""
+        n = max(3, int(math.ceil(np.linalg.norm(b - a) / EDGE_STEP)) + 1)
+        return self._hold_path(oracle, oracle.interpolate(a, b, np.linspace(0.0, 1.0, n))) is not None
+
+    def _hold_path(self, oracle: Body, postures: np.ndarray) -> tuple[np.ndarray, int] | None:
+        """The postures with each inner one that breaks a task held (and how many), or None when one cannot
+        be held, or holding makes a jump: a frame moved more than ``HOLD_STEP``, or a step between frames
+        ``JUMP`` times the largest before."""
+        out, held = postures.copy(), 0
+        for k, broken in enumerate(oracle.faults(postures)):
+            if not broken or k in (0, len(postures) - 1):
+                continue
+            fixed = self._held(oracle, postures[k])
+            if fixed is None:
+                return None
+            out[k], held = fixed, held + 1
+        if held and self._steps(out) > JUMP * self._steps(postures):
+            return None
+        return out, held
+
+    @staticmethod
+    def _steps(postures: np.ndarray) -> float:
+        """The largest change of any coordinate between consecutive frames."""
+        return float(np.abs(np.diff(postures, axis=0)).max()) if len(postures) > 1 else 0.0
+
+    @staticmethod
+    def _held(oracle: Body, q: np.ndarray) -> np.ndarray | None:
+        """The oracle's hold of a posture that breaks a task, when it holds every task and moves no coordinate
+        more than ``HOLD_STEP`` (a larger change would be a jump between frames)."""
+        fixed = oracle.hold(q)
+        if fixed is None or np.abs(fixed - q).max() > HOLD_STEP or oracle.faults(fixed[None])[0]:
+            return None
+        return fixed
+
+    def _shorten(self, oracle: Body, waypoints: list[np.ndarray]) -> list[np.ndarray]:
+        """Drop every waypoint that a direct segment between its neighbours can skip (greedy, farthest first)."""
+        out, i = [waypoints[0]], 0
+        while i < len(waypoints) - 1:
+            j = next((j for j in range(len(waypoints) - 1, i + 1, -1) if self._clear(oracle, waypoints[i], waypoints[j])), i + 1)
+            out.append(waypoints[j])
+            i = j
+        return out
+
+    # -- postures -----------------------------------------------------------
+    def _moving(self, name: str) -> Body:
+        oracle = self.selector.oracle(name)
+        if not isinstance(oracle, Body):
+            raise MotionError(f"strategy {name}'s oracle cannot plan motions (it offers no Moving capability)", "no_motion")
+        return oracle
+
+    @staticmethod
+    def _start(oracle: Body, tree: Any, start: dict[str, float] | None) -> np.ndarray:
+        reference = np.array(oracle.reference_posture(), dtype=float)
+        q = Selector.start_posture(tree, reference, start)
+        return reference if q is None else q
+
+    def _nearest_stored(self, name: str, goal: np.ndarray) -> np.ndarray:
+        kd, postures, _, _ = self._graph(name)
+        _, i = kd.query(goal)
+        return postures[int(i)].copy()  # type: ignore[no-any-return]
