@@ -131,13 +131,13 @@ class DLSIK(IKOracle):
             q[self.qidx[bounded]] = np.clip(q[self.qidx[bounded]], self.qlo[bounded], self.qhi[bounded])
         return q
 
-    def project(self, q: np.ndarray, max_iter: int = 12) -> np.ndarray:
-        """The least change of q (nq,) that holds the hard tasks with the effector where q puts it: the stack
-        down to the reach task, iterated from q."""
+    def project(self, q: np.ndarray, start: np.ndarray | None = None, max_iter: int = 12) -> np.ndarray:
+        """A posture near q (nq,) that holds the hard tasks with the effector where q puts it: the stack
+        down to the reach task, iterated from ``start`` (q by default)."""
         model, data = self.body.model, self._data
         pin.framesForwardKinematics(model, data, q)
         goal = data.oMf[self.problem.effector_id].translation.copy()
-        return self._iterate(np.array(q, float), goal, self.reach_level + 1, max_iter, NO_CALL)
+        return self._iterate(np.array(q if start is None else start, float), goal, self.reach_level + 1, max_iter, NO_CALL)
 
     def solve(self, goal: np.ndarray, x0: np.ndarray, lower: bool = True, call: Call = NO_CALL) -> np.ndarray:
         """Lexicographic like casadi-ik: first the tasks down to reach, then the lower ones."""

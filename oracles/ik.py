@@ -182,7 +182,7 @@ class IKOracle(ABC):
             out.append(p.out_of_limits(q) + [t.type for t in self.strategy.hard if not t.holds(num)])
         return out
 
-    def hold(self, posture: np.ndarray) -> np.ndarray | None:
+    def hold(self, posture: np.ndarray, before: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray | None:
         """The least change that holds every hard task (damped least squares on their rows alone, a few
         iterations); failing that, the refinement's solve at the posture's own effector position, started
         from it and pulled towards it."""
@@ -191,9 +191,12 @@ class IKOracle(ABC):
             from oracles.dls import DLSIK
 
             self._projector = self if isinstance(self, DLSIK) else DLSIK(**self._strategy_params)
-        held = self._projector.project(q)
-        if not self.faults(held[None])[0]:
-            return held
+        model = self.body.model
+        guesses = [q] if before is None else [pin.integrate(model, q, pin.difference(model, before[0], before[1])), q]
+        for guess in guesses:
+            held = self._projector.project(q, guess)
+            if not self.faults(held[None])[0]:
+                return held
         v = self.evaluate_from(self.effector_positions(q[None]), q)
         return v.posture[0] if v.reachable[0] and v.posture is not None else None
 

@@ -289,9 +289,10 @@ class Moving(Protocol):
         empty when it holds them all)."""
         ...
 
-    def hold(self, posture: np.ndarray) -> np.ndarray | None:
+    def hold(self, posture: np.ndarray, before: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray | None:
         """A posture near ``posture`` (nq,) that holds every hard task with the effector where ``posture``
-        puts it, or None when none is found."""
+        puts it, or None when none is found. ``before``: the previous frame and its hold, whose
+        displacement is the first guess (so that consecutive frames are held alike)."""
         ...
 
 

@@ -169,6 +169,48 @@ def cmd_query(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_motion(args: argparse.Namespace) -> int:
+    """The reach motion to a goal, from a posture: a summary on stdout, the frames in ``-o FILE.json``."""
+    atlas, goal = _goal(args.values, args.connect is None)
+    if len(goal) != 3:
+        raise InputError("goal", f"a motion's goal has 3 coordinates [m], got {len(goal)}")
+    start = _start(args.start)
+    timing = {"duration": args.duration} if args.duration is not None else None
+    if args.connect:
+        from reach.client import Client
+
+        with Client(args.connect, timeout=args.timeout) as client:
+            fields = {"effector": args.effector, "goal": goal, "rate": args.rate, "miss": args.miss}
+            fields.update({k: v for k, v in (("from", start), ("timing", timing)) if v is not None})
+            data = {k: v for k, v in client.call("motion", **fields).items() if k not in ("ok", "id")}
+    else:
+        from reach.motion import Planner, Timing
+        from reach.select import Selector
+        from reach.store import load_atlas
+
+        planner = Planner(Selector(load_atlas(atlas), policy=args.policy))  # type: ignore[arg-type]
+        data = planner.plan(args.effector, goal, start, rate=args.rate, timing=Timing.from_dict(timing, "--duration"), miss=args.miss).to_dict()
+    if args.output:
+        out = Path(args.output)
+        if out.suffix.lower() != ".json":
+            raise InputError("-o", f"{out}: expected a .json file")
+        out.write_text(json.dumps(data, indent=1) + "\n")
+    summary = {k: v for k, v in data.items() if k != "frames"}
+    if args.json:
+        _print_json(summary)
+        return 0
+    where = f"reaches {summary['goal']}" if summary["outcome"] == "reached" else f"goes towards {summary['goal']}, out of reach, ending at {[round(v, 4) for v in summary['point']]}"
+    print(f"{summary['effector']} {where} with strategy {summary['strategy']} in {summary['duration']:.3f} s "
+          f"({summary['frame_count']} frames at {args.rate:g} Hz; {summary['waypoints']} stored postures on the way, {summary['held']} frames held)")
+    if summary.get("within") is not None:
+        print(f"  the end posture stops {1000 * summary['within']:.1f} mm short of the goal")
+    if summary["timing_tmu"]:
+        print("  MTM-1: " + ", ".join(f"{k} {v:.1f} TMU" for k, v in summary["timing_tmu"].items()))
+    if args.output:
+        print(f"frames written to {args.output}")
+    return 0
+
+
 def _start(value: str | None) -> dict[str, float] | None:
     """--from: a JSON object of joint name -> value, or a file holding one."""
     if value is None:
@@ -415,6 +457,24 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--curve-client-key", metavar="FILE", help="with --curve-server-key: this client's secret-key file (for a server with --curve-clients)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_query)
+
+    p = sub.add_parser(
+        "motion", help="the timed reach motion to a goal",
+        description="Plan the reach motion of an effector to the goal X Y Z (metres, atlas world frame) from a posture (the reference by default): "
+        "the strategy chosen as a query chooses it, MTM-1 timing, minimum-jerk, collision-free frames holding feet and balance.",
+    )
+    p.add_argument("values", nargs="+", metavar="ATLAS X Y Z", help="atlas folder (omitted with --connect) and goal [m]")
+    p.add_argument("--effector", required=True, help="the effector that reaches, e.g. right_hand")
+    p.add_argument("--connect", metavar="ADDR", help="ask the server at ADDR instead of reading an atlas")
+    p.add_argument("--from", dest="start", metavar="POSTURE", help="the first frame's posture: a JSON object of joint name -> value [rad or m], or a file holding one")
+    p.add_argument("--rate", type=float, default=30.0, help="frames per second (default 30)")
+    p.add_argument("--duration", type=float, help="the motion's duration [s] instead of MTM-1's")
+    p.add_argument("--miss", choices=["nearest", "error"], default="nearest", help="a goal out of reach: move towards the nearest reachable point (default), or fail")
+    p.add_argument("-o", "--output", metavar="FILE.json", help="write the frames (time, posture, root, effector) as JSON")
+    _policy_option(p)
+    p.add_argument("--timeout", type=int, default=P.REQUEST_TIMEOUT_MS, help=f"with --connect: ms to wait for the reply (default {P.REQUEST_TIMEOUT_MS})")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.set_defaults(func=cmd_motion)
 
     p = sub.add_parser(
         "serve", help="answer queries over ZeroMQ",

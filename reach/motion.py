@@ -237,6 +237,7 @@ class Planner:
     """
 
     def __init__(self, selector: Selector, budget: float = BUDGET) -> None:
+        self.served = selector  # the selector given (a server compares it after a reload)
         self.selector = selector.with_budget(budget)
         self._graphs: dict[str, tuple[cKDTree, np.ndarray, np.ndarray, csr_matrix]] = {}
 
@@ -407,7 +408,7 @@ class Planner:
         for k, broken in enumerate(oracle.faults(postures)):
             if not broken or k in (0, len(postures) - 1):
                 continue
-            fixed = self._held(oracle, postures[k])
+            fixed = self._held(oracle, postures[k], (postures[k - 1], out[k - 1]))
             if fixed is None:
                 return None
             out[k], held = fixed, held + 1
@@ -421,10 +422,10 @@ class Planner:
         return float(np.abs(np.diff(postures, axis=0)).max()) if len(postures) > 1 else 0.0
 
     @staticmethod
-    def _held(oracle: Body, q: np.ndarray) -> np.ndarray | None:
+    def _held(oracle: Body, q: np.ndarray, before: tuple[np.ndarray, np.ndarray]) -> np.ndarray | None:
         """The oracle's hold of a posture that breaks a task, when it holds every task and moves no coordinate
         more than ``HOLD_STEP`` (a larger change would be a jump between frames)."""
-        fixed = oracle.hold(q)
+        fixed = oracle.hold(q, before)
         if fixed is None or np.abs(fixed - q).max() > HOLD_STEP or oracle.faults(fixed[None])[0]:
             return None
         return fixed

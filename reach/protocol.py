@@ -44,6 +44,9 @@ MAX_CELLS_LEVEL = 6  # "cells" rasterises at most 2**6 cells per axis
 MAX_FROM = 1024  # joints in a query's "from"
 
 MISSES = ("unreachable", "within")  # reach.select.MISSES (the protocol imports nothing heavy)
+MOTION_MISSES = ("nearest", "error")  # reach.motion.MOTION_MISSES
+MAX_RATE = 240.0  # [Hz] reach.motion.MAX_RATE
+MAX_TIMING = 16  # keys in a motion's "timing"
 
 # Error codes, in replies' "error": {"code": ..., "message": ...}.
 BAD_FRAMES = "bad_frames"  # wrong number of frames or an empty payload
@@ -55,6 +58,9 @@ UNKNOWN_EFFECTOR = "unknown_effector"
 UNKNOWN_STRATEGY = "unknown_strategy"
 RELOAD_FAILED = "reload_failed"
 FORBIDDEN = "forbidden"  # an operation the server was not started to allow (reload without --allow-reload)
+UNREACHABLE = "unreachable"  # a motion to a goal no strategy reaches, asked with miss "error"
+NO_MOTION = "no_motion"  # no motion found that holds every task at every frame
+TIMEOUT = "timeout"  # a motion not planned by its deadline
 INTERNAL = "internal"  # a bug: the server logs it and keeps serving
 
 
@@ -151,6 +157,22 @@ def _posture(value: Any) -> dict[str, float]:
         raise Invalid("an object of joint name -> finite number [rad or m]") from None
 
 
+def _rate(value: Any) -> float:
+    rate = _number(value)
+    if not 1.0 <= rate <= MAX_RATE:
+        raise Invalid(f"frames per second in [1, {MAX_RATE:g}]")
+    return rate
+
+
+def _timing(value: Any) -> dict[str, float]:
+    if not isinstance(value, dict) or len(value) > MAX_TIMING:
+        raise Invalid("an object of coefficient name -> finite number (see reach.motion.Timing)")
+    try:
+        return {_string(MAX_NAME)(k): _number(v) for k, v in value.items()}
+    except Invalid:
+        raise Invalid("an object of coefficient name -> finite number (see reach.motion.Timing)") from None
+
+
 @dataclass(frozen=True)
 class Field:
     """One field of a request: its JSON name, its type as the document names it, and its check.
@@ -214,6 +236,17 @@ OPERATIONS: dict[str, Operation] = {op.name: op for op in (
         Field("miss", "string", _choice(MISSES), "a goal the trees hold but no refinement reaches: `unreachable` or `within` (default: the server's)"),
         TAG,
     ), "which strategy reaches each goal, and in which posture", "op_query", worker=True, check=_one_goal_or_many),
+    Operation("motion", (
+        Field("effector", "string", _string(MAX_NAME), "the effector's frame, e.g. `right_hand`", required=True),
+        Field("goal", "[x, y, z] m", _point, "the goal in the world frame", required=True),
+        Field("from", "{joint: rad or m}", _posture, "the character's current posture, the first frame (default: the reference posture)"),
+        Field("rate", "Hz", _rate, f"frames per second, 1 to {MAX_RATE:g}", default=30.0),
+        Field("timing", "{name: number}", _timing, "overrides of the movement-time law: `tmu`, `past_30`, `stoop`, `foot`, `drop`, `tilt`, `lift`, `duration`"),
+        Field("miss", "string", _choice(MOTION_MISSES), "a goal out of reach: `nearest` (move towards the nearest reachable point) or `error`",
+              default="nearest"),
+        Field("deadline", "s", _deadline, f"answer within this many seconds of arrival (0 to {MAX_DEADLINE:g})"),
+        TAG,
+    ), "the timed motion from a posture to the answer's posture: frames of posture, root and effector", "op_motion", worker=True),
     Operation("strategies", (), "the atlas's strategies, effectors, boxes and world frame", "op_strategies"),
     Operation("cells", (
         Field("strategy", "string", _string(MAX_NAME), "one strategy (default: all)"),

@@ -31,6 +31,7 @@ from __future__ import annotations
 import concurrent.futures
 import dataclasses
 import gc
+import json
 import logging
 import math
 import signal
@@ -49,6 +50,7 @@ from reach import __version__
 from reach import protocol as P
 from reach.client import load_curve_key
 from reach.errors import InputError, ReachError, UnknownEffector, UnknownStrategy
+from reach.motion import MotionError, Planner, Timing
 from reach.select import ERROR, HANDOVER, MISS, REFINE_BUDGET, SKIPPED, TIMEOUT, Selector
 from reach.store import load_atlas
 from reach.tree import DEFAULT_POLICY
@@ -173,6 +175,7 @@ class Server:
         # reload loads in this thread, so no request waits for it; the loop swaps the atlas in when it is ready.
         self._loader: concurrent.futures.ThreadPoolExecutor | None = None
         self.reloading: Reloading | None = None
+        self._planner: Planner | None = None  # motions without workers, made on the first
 
     # -- lifecycle ---------------------------------------------------------
     def stop(self) -> None:
@@ -293,6 +296,8 @@ class Server:
         self.errors += 1
         if isinstance(exc, P.ProtocolError):
             return P.error_reply(exc.code, exc.message, exc.request_id if exc.request_id is not None else rid)
+        if isinstance(exc, MotionError):
+            return P.error_reply(exc.code, str(exc), rid)
         if isinstance(exc, ReachError):
             code = P.UNKNOWN_EFFECTOR if isinstance(exc, UnknownEffector) else P.UNKNOWN_STRATEGY if isinstance(exc, UnknownStrategy) else P.BAD_REQUEST
             return P.error_reply(code, str(exc), rid)
@@ -308,6 +313,25 @@ class Server:
     def op_query(self, req: P.Request) -> bytes:
         answers = self.selector.select_many(req["effector"], np.array(req["goals"]), req["refine"], start=req["from"], miss=req["miss"])
         return self._result(req, [a.to_json() for a in answers])
+
+    def op_motion(self, req: P.Request) -> bytes:
+        motion = self.planner.plan(req["effector"], np.array(req["goal"]), req["from"], rate=req["rate"],
+                                   timing=Timing.from_dict(req["timing"]), miss=req["miss"])
+        return self._motion_result(req, P.encode(motion.to_dict()))
+
+    @property
+    def planner(self) -> Planner:
+        """The motion planner on the selector served now (made again after a reload)."""
+        if self._planner is None or self._planner.served is not self.selector:
+            self._planner = Planner(self.selector)
+        return self._planner
+
+    def _motion_result(self, req: P.Request, body: bytes) -> bytes:
+        """Publish a motion's summary (everything but its frames) on the effector's topic; the reply is the whole motion."""
+        summary = json.loads(body)
+        summary.pop("frames", None)
+        self._publish(req["effector"].encode(), [P.encode(summary)], req)
+        return body
 
     def op_hello(self, req: P.Request) -> dict[str, Any]:
         self._publish(b"hello", [b"{}"], req)
@@ -413,7 +437,11 @@ class Server:
         Everything a worker could refuse is checked here first (the effector,
         the goals' dimension, the ``from`` joints), so a worker only fails on a bug.
         """
-        if self.pool is None or not P.OPERATIONS[req.op].worker or not (self.refine if req["refine"] is None else req["refine"]):
+        if self.pool is None or not P.OPERATIONS[req.op].worker:
+            return False
+        if req.op == "motion":
+            return self._defer_motion(req, envelope)
+        if not (self.refine if req["refine"] is None else req["refine"]):
             return False
         goals = np.array(req["goals"])
         if not self.selector.needs_ik(req["effector"], goals, req["from"]):
@@ -434,6 +462,24 @@ class Server:
             self.pool.submit(Task(self._seq, part, req["effector"], req["goals"][a:b], req["from"], deadline, req["miss"], envelope[0]))
         return True
 
+    def _defer_motion(self, req: P.Request, envelope: list[bytes]) -> bool:
+        """Hand a motion to the workers, once what they could refuse is checked here."""
+        assert self.pool is not None
+        self.selector.check_goals(req["effector"], np.array([req["goal"]]), req["from"])
+        Timing.from_dict(req["timing"])
+        key = (envelope[0], P.encode_value(req.id)) if req.id is not None else None
+        if key is not None and key in self.by_key:
+            self.resends += 1
+            return True
+        deadline = time.monotonic() + (req["deadline"] if req["deadline"] is not None else MAX_WAIT)
+        self._seq += 1
+        self.pending[self._seq] = Pending(envelope, req, key, deadline, [None], [(0, 1)])
+        if key is not None:
+            self.by_key[key] = self._seq
+        options = {"rate": req["rate"], "timing": req["timing"], "miss": req["miss"]}
+        self.pool.submit(Task(self._seq, 0, req["effector"], [req["goal"]], req["from"], deadline, None, envelope[0], "motion", options))
+        return True
+
     def _stored(self, req: P.Request, a: int, b: int, outcome: str) -> list[bytes]:
         """The stored answers of goals a..b, marked with why they were not refined."""
         answers = self.selector.select_many(req["effector"], np.array(req["goals"][a:b]), False)
@@ -444,6 +490,9 @@ class Server:
         if pending is None:
             return  # answered already (its deadline passed)
         a, b = pending.bounds[task.part]
+        if pending.request.op == "motion":
+            self._motion_finished(task.request, pending, frames)
+            return
         try:
             if frames == [EXPIRED]:
                 frames = self._stored(pending.request, a, b, TIMEOUT)
@@ -456,6 +505,21 @@ class Server:
         pending.parts[task.part] = frames
         if all(p is not None for p in pending.parts):
             self._reply(task.request)
+
+    def _motion_finished(self, seq: int, pending: Pending, frames: list[bytes]) -> None:
+        """A worker's motion (one frame of JSON), or its error (``failed: code: message``), answers the request."""
+        rid = pending.request.id
+        if frames == [EXPIRED]:
+            self._abandon(seq, P.error_reply(P.TIMEOUT, "the motion was not planned by its deadline", rid))
+        elif len(frames) == 1 and frames[0].startswith(b"{"):
+            self._abandon(seq, P.ok_reply(self._motion_result(pending.request, frames[0]), rid))
+        else:
+            code, _, message = b"".join(frames)[len(WORKER_FAILED):].decode(errors="replace").strip().partition(": ")
+            if code not in (P.BAD_REQUEST, P.UNREACHABLE, P.NO_MOTION, P.UNKNOWN_EFFECTOR):
+                log.error("worker failed: %s", message[:500])
+                code, message = P.INTERNAL, "the motion could not be planned"
+            self.errors += 1
+            self._abandon(seq, P.error_reply(code, message, rid))
 
     def _abandon(self, seq: int, reply: bytes) -> None:
         """Answer a pending request with an error reply and drop its queued work."""
@@ -472,6 +536,9 @@ class Server:
             pending = self.pending[seq]
             assert self.pool is not None
             self.pool.cancel(seq)
+            if pending.request.op == "motion":
+                self._motion_finished(seq, pending, [EXPIRED])
+                continue
             try:
                 for part, (a, b) in enumerate(pending.bounds):
                     if pending.parts[part] is None:

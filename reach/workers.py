@@ -55,9 +55,12 @@ class Task:
     deadline: float  # time.monotonic() after which the work is abandoned
     miss: str | None = None  # the request's (see reach.select); None: the selector's
     client: bytes = b""  # who asked (the request's routing identity): the queues are served in turn
+    op: str = "query"  # or "motion": plan the motion to goals[0]
+    options: dict[str, Any] | None = None  # a motion's rate, timing and miss
 
     def encode(self) -> bytes:
-        return json.dumps({"effector": self.effector, "goals": self.goals, "from": self.start, "deadline": self.deadline, "miss": self.miss}).encode()
+        return json.dumps({"op": self.op, "effector": self.effector, "goals": self.goals, "from": self.start, "deadline": self.deadline,
+                           "miss": self.miss, "options": self.options}).encode()
 
 
 @dataclass
@@ -195,7 +198,9 @@ def _alive(pid: int) -> bool:
 
 def work(address: str, atlas: str, options: dict[str, Any], identity: bytes) -> None:
     """A worker process: refine the tasks the broker sends until it dies with the server."""
+    from reach.errors import ReachError, UnknownEffector
     from reach.executor import die_with_parent
+    from reach.motion import MotionError, Planner, Timing
     from reach.select import Selector
     from reach.store import load_atlas
 
@@ -206,6 +211,7 @@ def work(address: str, atlas: str, options: dict[str, Any], identity: bytes) -> 
         os.nice(NICE)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group; the server decides
     selector = Selector(load_atlas(atlas), **{**options, "refine": True}).warm_up()
+    planner = Planner(selector)
     import numpy as np
 
     sock = zmq.Context().socket(zmq.DEALER)
@@ -218,6 +224,21 @@ def work(address: str, atlas: str, options: dict[str, Any], identity: bytes) -> 
         job = json.loads(payload)
         if time.monotonic() > job["deadline"]:
             sock.send(EXPIRED)
+            continue
+        if job["op"] == "motion":
+            opts = job["options"]
+            try:
+                motion = planner.plan(job["effector"], np.array(job["goals"][0]), job["from"], rate=opts["rate"],
+                                      timing=Timing.from_dict(opts["timing"]), miss=opts["miss"])
+                sock.send(json.dumps(motion.to_dict(), allow_nan=False, separators=(",", ":")).encode())
+            except MotionError as exc:
+                sock.send(FAILED + f" {exc.code}: {exc}".encode())
+            except UnknownEffector as exc:
+                sock.send(FAILED + f" unknown_effector: {exc}".encode())
+            except ReachError as exc:
+                sock.send(FAILED + f" bad_request: {exc}".encode())
+            except Exception as exc:  # noqa: BLE001 - reported to the broker, which answers with an error
+                sock.send(FAILED + f" internal: {type(exc).__name__}: {exc}".encode())
             continue
         try:
             answers = selector.select_many(job["effector"], np.array(job["goals"]), True, start=job["from"], miss=job["miss"])

@@ -1,0 +1,207 @@
+"""Reach motion (reach.motion): end postures, timing law, minimum jerk, held tasks, routing, errors."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import numpy as np
+import pinocchio as pin
+import pytest
+from helpers import ARM, human_config
+
+from oracles.body import human_body
+from reach.atlas import build_atlas
+from reach.config import parse_config
+from reach.errors import InputError
+from reach.motion import INCH, TMU, MotionError, Planner, Timing, minimum_jerk
+from reach.select import Selector, posture_vector
+
+TOL = 0.005  # [m] the reach task's default tolerance
+UPPER = [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*"]
+STRATEGIES = [
+    {"name": "arm", "effector": "right_hand", "priority": 1, "joints": ARM, "tasks": [{"type": "reach"}, {"type": "self_collision"}]},
+    {"name": "whole", "effector": "right_hand", "priority": 2, "joints": [*UPPER, "root", "*_hip_*", "*_knee_*", "*_ankle_*"],
+     "tasks": [{"type": "reach"}, {"type": "self_collision"}, {"type": "posture"}, {"type": "feet", "heels": "down"}, {"type": "balance"},
+               {"type": "coupling"}]},
+]
+
+
+@pytest.fixture(scope="module")
+def planner(tmp_path_factory):
+    config = human_config(d_max=3, strategies=STRATEGIES, name="motion")
+    config["box"], config["depth"] = {"min": [-0.2, -0.7, 0.3], "max": [0.7, 0.3, 1.6]}, {"min": 2, "max": 4}  # the arm needs depth 4 to hold its volume
+    atlas = build_atlas(parse_config(config, "motion", "motion"), tmp_path_factory.mktemp("motion") / "atlas")
+    # A budget no machine runs out of: the same request then gives the same frames.
+    return Planner(Selector(atlas, policy="optimistic").warm_up(), budget=5.0)
+
+
+@pytest.fixture(scope="module")
+def body():
+    return human_body()
+
+
+def hand(body, q):
+    data = body.model.createData()
+    pin.framesForwardKinematics(body.model, data, q)
+    return data.oMf[body.frame_id("right_hand")].translation.copy()
+
+
+def test_mtm_reach_table_and_body_motions():
+    t = Timing()
+    assert t.reach_tmu(10 * INCH) == pytest.approx(8.7)  # MTM-1 R-A, 10 in
+    assert t.reach_tmu(30 * INCH) == pytest.approx(17.5)
+    assert t.reach_tmu(40 * INCH) == pytest.approx(17.5 + 10 * 0.4)  # 0.4 TMU per inch past 30
+    assert t.reach_tmu(11 * INCH) == pytest.approx((8.7 + 9.6) / 2)
+    seconds, parts = t.seconds(10 * INCH, root_drop=0.2, root_tilt=0.0, root_lift=0.0)
+    assert parts == {"reach": pytest.approx(8.7), "stoop": 29.0} and seconds == pytest.approx((8.7 + 29.0) * 0.036)
+    assert t.seconds(10 * INCH, 0.0, 0.0, 0.02)[1]["foot"] == 8.5
+    assert Timing.from_dict({"tmu": 0.05}).seconds(10 * INCH, 0, 0, 0)[0] == pytest.approx(8.7 * 0.05)
+    assert Timing.from_dict({"duration": 2.0}).seconds(1.0, 0, 0, 0) == (2.0, {})
+    with pytest.raises(InputError, match=r"timing: unknown keys \['speed'\]"):
+        Timing.from_dict({"speed": 2})
+    with pytest.raises(InputError, match="timing.duration: expected a number of seconds"):
+        Timing.from_dict({"duration": 0})
+
+
+def test_an_arm_reach_starts_at_the_start_ends_at_the_answer_and_is_minimum_jerk(planner, body):
+    goal = np.array([0.45, -0.25, 1.2])
+    m = planner.plan("right_hand", goal)
+    answer = planner.selector.select("right_hand", goal)
+    names = m.names
+    assert m.strategy == answer.strategy == "arm" and m.outcome == "reached" and m.refined == "ok"
+    np.testing.assert_allclose(m.postures[0], body.q_ref, atol=1e-12)  # the reference posture by default
+    np.testing.assert_allclose(m.postures[-1], posture_vector(names, body.q_ref, answer.posture, answer.root), atol=1e-9)
+    assert np.linalg.norm(hand(body, m.postures[-1]) - goal) <= TOL  # by our own forward kinematics
+    np.testing.assert_allclose(m.path, [hand(body, q) for q in m.postures], atol=1e-9)
+    # Timing: MTM-1 for the hand's path, frames at 30 Hz from 0 to the duration.
+    length = float(np.linalg.norm(np.diff(m.path, axis=0), axis=1).sum())
+    assert m.parts == {"reach": pytest.approx(Timing().reach_tmu(length), rel=0.05)}
+    assert m.duration == pytest.approx(m.parts["reach"] * TMU) and m.times[0] == 0.0
+    np.testing.assert_allclose(np.diff(m.times), 1 / 30, rtol=0.3)
+    # Nothing was held: each posture is the minimum-jerk fraction of the way (arm joints interpolate linearly).
+    assert m.held == 0 and m.waypoints == 0
+    s = np.linalg.norm(m.postures - m.postures[0], axis=1) / np.linalg.norm(m.postures[-1] - m.postures[0])
+    np.testing.assert_allclose(s, minimum_jerk(m.times / m.duration), atol=1e-9)
+    # The hand's speed: one peak, between 40 % and 60 % of the duration.
+    speed = np.linalg.norm(np.diff(m.path, axis=0), axis=1) / np.diff(m.times)
+    peak = int(np.argmax(speed))
+    assert 0.4 <= (m.times[peak] + m.times[peak + 1]) / 2 / m.duration <= 0.6
+    assert np.all(np.diff(speed[: peak + 1]) > -1e-3) and np.all(np.diff(speed[peak:]) < 1e-3)
+    assert not any(planner._moving("arm").faults(m.postures))
+
+
+def test_a_low_reach_holds_the_feet_and_balance_at_every_frame_and_adds_a_stoop(planner, body):
+    goal = np.array([0.35, -0.2, 0.45])
+    m = planner.plan("right_hand", goal)
+    assert m.strategy == "whole" and m.outcome == "reached"
+    assert np.linalg.norm(hand(body, m.postures[-1]) - goal) <= TOL
+    assert "stoop" in m.parts and m.duration == pytest.approx(sum(m.parts.values()) * TMU)
+    oracle = planner._moving("whole")
+    assert not any(oracle.faults(m.postures))  # limits, self-collision, feet, balance, by each task's own check
+    # Independently: the soles' frames stay where they stood, and the centre of mass over the feet.
+    data = body.model.createData()
+    corners = [body.frame_id(f"{side}_{end}_{edge}") for side in ("right", "left") for end in ("heel", "toe") for edge in ("inner", "outer")]
+    first = None
+    for q in m.postures:
+        pin.framesForwardKinematics(body.model, data, q)
+        where = np.array([data.oMf[f].translation for f in corners])
+        first = where if first is None else first
+        np.testing.assert_allclose(where, first, atol=2e-4)
+        com = pin.centerOfMass(body.model, data, q)
+        assert np.all(first[:, :2].min(axis=0) <= com[:2]) and np.all(com[:2] <= first[:, :2].max(axis=0))  # within the soles' bounds
+    assert m.held > 0  # the interpolation alone lets the feet slide: frames were held
+
+
+def test_a_reach_across_the_body_avoids_the_collision_of_direct_interpolation(planner, body):
+    goal = np.array([0.08, 0.18, 0.75])  # the right hand to the left hip
+    m = planner.plan("right_hand", goal)
+    oracle = planner._moving(m.strategy)
+    q0, q1 = m.postures[0], m.postures[-1]
+    direct = oracle.faults(oracle.interpolate(q0, q1, np.linspace(0, 1, 40)))
+    assert any("self_collision" in f for f in direct)  # the precondition: straight through the body
+    assert not any(oracle.faults(m.postures)) and m.held > 0
+    assert np.linalg.norm(hand(body, q1) - goal) <= TOL
+    # The route through stored postures, as the planner takes it when holding the frames fails: its inner
+    # waypoints are postures stored in the tree, and its frames, held, break nothing.
+    waypoints = planner._route(m.strategy, oracle, q0, q1)
+    stored = planner.selector.atlas.trees[m.strategy].vertices.posture
+    assert all(np.any(np.all(stored == w, axis=1)) for w in waypoints[1:-1])
+    frames = planner._timed(oracle, waypoints, 30.0, Timing())[0]
+    held = planner._hold_path(oracle, frames)
+    assert held is not None and not any(oracle.faults(held[0]))
+
+
+def test_the_same_request_gives_the_same_frames(planner):
+    a = planner.plan("right_hand", [0.4, -0.3, 1.0], rate=60)
+    b = planner.plan("right_hand", [0.4, -0.3, 1.0], rate=60)
+    np.testing.assert_array_equal(a.postures, b.postures)
+    np.testing.assert_array_equal(a.times, b.times)
+    assert a.frames() == b.frames() and a.rate == pytest.approx(60, rel=0.1)
+
+
+def test_out_of_reach_goes_to_the_nearest_point_or_is_an_error(planner):
+    far = [2.0, -0.3, 1.2]
+    m = planner.plan("right_hand", far)
+    assert m.outcome == "nearest" and m.within == pytest.approx(np.linalg.norm(np.array(m.point) - far))
+    assert m.within > 0.5
+    with pytest.raises(MotionError, match="cannot reach"):
+        planner.plan("right_hand", far, miss="error")
+
+
+def test_bad_start_postures_and_options_are_refused_by_name(planner):
+    with pytest.raises(InputError, match="from: right_elbow_flexion = 9 is outside its range"):
+        planner.plan("right_hand", [0.45, -0.25, 1.2], start={"right_elbow_flexion": 9.0})
+    with pytest.raises(InputError, match="from: the start posture breaks .*self_collision"):
+        # The upper arm drawn in across the trunk.
+        planner.plan("right_hand", [0.45, -0.25, 1.2], start={"right_shoulder_abduction": -0.3, "right_elbow_flexion": 2.0})
+    with pytest.raises(InputError, match=r"rate: expected frames per second in \[1, 240\]"):
+        planner.plan("right_hand", [0.45, -0.25, 1.2], rate=0)
+    with pytest.raises(InputError, match="miss: expected one of nearest, error"):
+        planner.plan("right_hand", [0.45, -0.25, 1.2], miss="within")
+
+
+@pytest.mark.parametrize("workers", [0, 1])
+def test_the_motion_operation_over_the_wire(planner, workers):
+    import threading
+
+    import zmq
+
+    from reach.client import Client, ServerError
+    from reach.server import Server
+
+    server = Server(planner.selector.atlas.path, "tcp://127.0.0.1:*", "tcp://127.0.0.1:*", workers=workers)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    sub = zmq.Context.instance().socket(zmq.SUB)
+    sub.setsockopt(zmq.LINGER, 0)
+    sub.setsockopt(zmq.SUBSCRIBE, b"right_hand")
+    sub.connect(server.pub_endpoint)
+    try:
+        with Client(server.endpoint, timeout=60_000) as c:
+            goal = [0.45, -0.25, 1.2]
+            time.sleep(0.3)  # the subscription reaches the server
+            m = c.motion(effector="right_hand", goal=goal, rate=60, tag="t1")
+            assert m["strategy"] == "arm" and m["outcome"] == "reached" and m["frame_count"] == len(m["frames"])
+            assert m["frames"][0]["t"] == 0.0 and m["frames"][-1]["t"] == pytest.approx(m["duration"])
+            assert np.linalg.norm(np.array(m["frames"][-1]["effector"]) - goal) <= TOL
+            local = planner.plan("right_hand", goal, rate=60)
+            assert m["frames"] == json.loads(json.dumps(local.frames()))  # the same frames as in-process
+            topic, body = sub.recv_multipart()
+            published = json.loads(body)
+            assert topic == b"right_hand" and published["tag"] == "t1" and published["duration"] == m["duration"] and "frames" not in published
+            with pytest.raises(ServerError, match="unreachable"):
+                c.motion(effector="right_hand", goal=[2.0, 0.0, 1.0], miss="error")
+            with pytest.raises(ServerError, match="bad_request: .*rate"):
+                c.motion(effector="right_hand", goal=goal, rate=1000)
+            with pytest.raises(ServerError, match="bad_request: .*timing"):
+                c.motion(effector="right_hand", goal=goal, timing={"speed": 2})
+            with pytest.raises(ServerError, match="bad_request: .*goal"):
+                c.motion(effector="right_hand", goal=[0.4, 0.2])
+            with pytest.raises(ServerError, match="unknown_effector"):
+                c.motion(effector="left_foot", goal=goal)
+            assert c.health()["status"] == "serving"
+    finally:
+        sub.close(linger=0)
+        server.stop()
+        thread.join(timeout=10)
