@@ -175,6 +175,8 @@ def cmd_motion(args: argparse.Namespace) -> int:
     if len(goal) != 3:
         raise InputError("goal", f"a motion's goal has 3 coordinates [m], got {len(goal)}")
     start = _start(args.start)
+    if args.output and Path(args.output).suffix.lower() != ".json":
+        raise InputError("-o", f"{args.output}: expected a .json file")
     timing = {"duration": args.duration} if args.duration is not None else None
     if args.connect:
         from reach.client import Client
@@ -191,10 +193,7 @@ def cmd_motion(args: argparse.Namespace) -> int:
         planner = Planner(Selector(load_atlas(atlas), policy=args.policy))  # type: ignore[arg-type]
         data = planner.plan(args.effector, goal, start, rate=args.rate, timing=Timing.from_dict(timing, "--duration"), miss=args.miss).to_dict()
     if args.output:
-        out = Path(args.output)
-        if out.suffix.lower() != ".json":
-            raise InputError("-o", f"{out}: expected a .json file")
-        out.write_text(json.dumps(data, indent=1) + "\n")
+        Path(args.output).write_text(json.dumps(data, indent=1) + "\n")
     summary = {k: v for k, v in data.items() if k != "frames"}
     if args.json:
         _print_json(summary)

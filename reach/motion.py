@@ -174,6 +174,7 @@ class Motion:
         point: Where the effector ends [m].
         names: The posture's coordinate names (``root_x`` ... ``root_qw`` for
             a floating base, then the joints).
+        rate: [Hz] frames per second: ``times`` are k / rate, the law's duration rounded up to a whole frame.
         times: (T,) [s] from 0 to the duration.
         postures: (T, nq) one posture per frame.
         path: (T, 3) [m] the effector's position at each frame.
@@ -191,6 +192,7 @@ class Motion:
     outcome: str
     point: tuple[float, ...]
     names: tuple[str, ...]
+    rate: float
     times: np.ndarray
     postures: np.ndarray
     path: np.ndarray
@@ -216,12 +218,8 @@ class Motion:
     def summary(self) -> dict[str, Any]:
         """Everything but the frames."""
         return {"effector": self.effector, "goal": list(self.goal), "strategy": self.strategy, "outcome": self.outcome,
-                "point": list(self.point), "refined": self.refined, "within": self.within, "duration": self.duration, "rate": self.rate, "frame_count": len(self.times),
-                "waypoints": self.waypoints, "held": self.held, "timing_tmu": self.parts}
-
-    @property
-    def rate(self) -> float:
-        return float((len(self.times) - 1) / self.duration) if self.duration > 0 else 0.0
+                "point": list(self.point), "refined": self.refined, "within": self.within, "duration": self.duration, "rate": self.rate,
+                "frame_count": len(self.times), "waypoints": self.waypoints, "held": self.held, "timing_tmu": self.parts}
 
     def to_dict(self) -> dict[str, Any]:
         return {**self.summary(), "frames": self.frames()}
@@ -282,41 +280,42 @@ class Planner:
             q1 = posture_vector(labels, q0, answer.nearest["posture"], answer.nearest["root"])
         else:
             q1 = self._nearest_stored(name, g[0])
-        postures, waypoints, held = self._path(name, oracle, q0, q1, rate, timing)
+        postures, waypoints, held = self._path(name, oracle, labels, q0, q1, rate, timing)
         times = postures[1]
         path = np.asarray(oracle.effector_positions(postures[0]))
         within = answer.within if outcome == REACHED else float(np.linalg.norm(path[-1] - g[0]))
-        return Motion(effector, tuple(g[0].tolist()), name, outcome, tuple(path[-1].tolist()), labels, times, postures[0], path,
+        return Motion(effector, tuple(g[0].tolist()), name, outcome, tuple(path[-1].tolist()), labels, float(rate), times, postures[0], path,
                       answer.refined, within, waypoints, held, postures[2])
 
     # -- the path -----------------------------------------------------------
-    def _path(self, name: str, oracle: Body, q0: np.ndarray, q1: np.ndarray, rate: float,
+    def _path(self, name: str, oracle: Body, names: tuple[str, ...], q0: np.ndarray, q1: np.ndarray, rate: float,
               timing: Timing) -> tuple[tuple[np.ndarray, np.ndarray, dict[str, float]], int, int]:
-        """Frames (postures, times, the duration's parts), the stored postures routed through and the frames held."""
-        for waypoints in ([q0, q1], None):
-            if waypoints is None:
-                waypoints = self._route(name, oracle, q0, q1)
-            timed = self._timed(oracle, waypoints, rate, timing)
+        """Frames (postures, times, the duration's parts), the stored postures routed through and the frames held:
+        the direct path if its frames can be held, else the route through stored postures."""
+        for routed in (False, True):
+            waypoints = self._route(name, oracle, q0, q1) if routed else [q0, q1]
+            timed = self._timed(oracle, names, waypoints, rate, timing)
             held = self._hold_path(oracle, timed[0])
             if held is not None:
                 return (held[0], timed[1], timed[2]), len(waypoints) - 2, held[1]
         raise MotionError(f"no motion of strategy {name} found that holds every task at every frame")
 
-    def _timed(self, oracle: Body, waypoints: list[np.ndarray], rate: float, timing: Timing) -> tuple[np.ndarray, np.ndarray, dict[str, float]]:
-        """Frames along the waypoints, minimum-jerk timed over their posture length, and the duration's parts."""
+    def _timed(self, oracle: Body, names: tuple[str, ...], waypoints: list[np.ndarray], rate: float,
+               timing: Timing) -> tuple[np.ndarray, np.ndarray, dict[str, float]]:
+        """Frames k / rate apart along the waypoints, minimum-jerk timed over their posture length, and the duration's parts."""
         # The hand's path length and the root's excursion, on a fine sampling of the path.
         fine = self._along(oracle, waypoints, np.linspace(0.0, 1.0, 64))
         hand = np.asarray(oracle.effector_positions(fine))
         drop = tilt = lift = 0.0
-        if fine.shape[1] >= 7:
-            drop = max(0.0, float(fine[0, 2] - fine[:, 2].min()))
-            lift = max(0.0, float(fine[:, 2].max() - fine[0, 2]))
-            dots = np.abs(fine[:, 3:7] @ fine[0, 3:7]) / np.linalg.norm(fine[:, 3:7], axis=1) / np.linalg.norm(fine[0, 3:7])
+        if "root_z" in names and "root_qx" in names:
+            z, quat = fine[:, names.index("root_z")], fine[:, names.index("root_qx") : names.index("root_qx") + 4]
+            drop, lift = max(0.0, float(z[0] - z.min())), max(0.0, float(z.max() - z[0]))
+            dots = np.abs(quat @ quat[0]) / np.linalg.norm(quat, axis=1) / np.linalg.norm(quat[0])
             tilt = float(2.0 * np.arccos(np.clip(dots.min(), -1.0, 1.0)))
         seconds, parts = timing.seconds(float(np.linalg.norm(np.diff(hand, axis=0), axis=1).sum()), drop, tilt, lift)
-        n = max(2, int(math.ceil(seconds * rate)) + 1)
-        times = np.linspace(0.0, seconds, n)
-        return self._along(oracle, waypoints, minimum_jerk(times / seconds if seconds > 0 else times)), times, parts
+        frames = max(1, int(math.ceil(seconds * rate - 1e-9)))  # the law's duration, rounded up to a whole frame
+        times = np.arange(frames + 1) / rate
+        return self._along(oracle, waypoints, minimum_jerk(times / times[-1])), times, parts
 
     @staticmethod
     def _along(oracle: Body, waypoints: list[np.ndarray], s: np.ndarray) -> np.ndarray:
@@ -423,12 +422,10 @@ class Planner:
 
     @staticmethod
     def _held(oracle: Body, q: np.ndarray, before: tuple[np.ndarray, np.ndarray]) -> np.ndarray | None:
-        """The oracle's hold of a posture that breaks a task, when it holds every task and moves no coordinate
-        more than ``HOLD_STEP`` (a larger change would be a jump between frames)."""
+        """The oracle's hold of a posture that breaks a task (it holds every task, by the protocol), when it moves
+        no coordinate more than ``HOLD_STEP`` (a larger change would be a jump between frames)."""
         fixed = oracle.hold(q, before)
-        if fixed is None or np.abs(fixed - q).max() > HOLD_STEP or oracle.faults(fixed[None])[0]:
-            return None
-        return fixed
+        return None if fixed is None or np.abs(fixed - q).max() > HOLD_STEP else fixed
 
     def _shorten(self, oracle: Body, waypoints: list[np.ndarray]) -> list[np.ndarray]:
         """Drop every waypoint that a direct segment between its neighbours can skip (greedy, farthest first)."""

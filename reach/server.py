@@ -31,7 +31,6 @@ from __future__ import annotations
 import concurrent.futures
 import dataclasses
 import gc
-import json
 import logging
 import math
 import signal
@@ -317,7 +316,7 @@ class Server:
     def op_motion(self, req: P.Request) -> bytes:
         motion = self.planner.plan(req["effector"], np.array(req["goal"]), req["from"], rate=req["rate"],
                                    timing=Timing.from_dict(req["timing"]), miss=req["miss"])
-        return self._motion_result(req, P.encode(motion.to_dict()))
+        return self._motion_result(req, P.encode(motion.summary()), P.encode(motion.to_dict()))
 
     @property
     def planner(self) -> Planner:
@@ -326,11 +325,9 @@ class Server:
             self._planner = Planner(self.selector)
         return self._planner
 
-    def _motion_result(self, req: P.Request, body: bytes) -> bytes:
+    def _motion_result(self, req: P.Request, summary: bytes, body: bytes) -> bytes:
         """Publish a motion's summary (everything but its frames) on the effector's topic; the reply is the whole motion."""
-        summary = json.loads(body)
-        summary.pop("frames", None)
-        self._publish(req["effector"].encode(), [P.encode(summary)], req)
+        self._publish(req["effector"].encode(), [summary], req)
         return body
 
     def op_hello(self, req: P.Request) -> dict[str, Any]:
@@ -446,20 +443,13 @@ class Server:
         goals = np.array(req["goals"])
         if not self.selector.needs_ik(req["effector"], goals, req["from"]):
             return False  # nothing to refine (an analytic atlas, or no strategy holds a goal): answered at once
-        key = (envelope[0], P.encode_value(req.id)) if req.id is not None else None
-        if key is not None and key in self.by_key:
-            self.resends += 1  # a resend of a request being worked on: answered once
-            return True
         n = len(goals)
         size = max(1, min(self.chunk, math.ceil(n / max(1, self.pool.size))))
         bounds = [(a, min(n, a + size)) for a in range(0, n, size)]
-        deadline = time.monotonic() + (req["deadline"] if req["deadline"] is not None else min(n * self.budget + SLACK, MAX_WAIT))
-        self._seq += 1
-        self.pending[self._seq] = Pending(envelope, req, key, deadline, [None] * len(bounds), bounds)
-        if key is not None:
-            self.by_key[key] = self._seq
-        for part, (a, b) in enumerate(bounds):
-            self.pool.submit(Task(self._seq, part, req["effector"], req["goals"][a:b], req["from"], deadline, req["miss"], envelope[0]))
+        seq = self._pend(req, envelope, min(n * self.budget + SLACK, MAX_WAIT), bounds)
+        if seq is not None:
+            for part, (a, b) in enumerate(bounds):
+                self.pool.submit(Task(seq, part, req["effector"], req["goals"][a:b], req["from"], self.pending[seq].deadline, req["miss"], envelope[0]))
         return True
 
     def _defer_motion(self, req: P.Request, envelope: list[bytes]) -> bool:
@@ -467,18 +457,25 @@ class Server:
         assert self.pool is not None
         self.selector.check_goals(req["effector"], np.array([req["goal"]]), req["from"])
         Timing.from_dict(req["timing"])
+        seq = self._pend(req, envelope, MAX_WAIT, [(0, 1)])
+        if seq is not None:
+            options = {"rate": req["rate"], "timing": req["timing"], "miss": req["miss"]}
+            self.pool.submit(Task(seq, 0, req["effector"], [req["goal"]], req["from"], self.pending[seq].deadline, None, envelope[0], "motion", options))
+        return True
+
+    def _pend(self, req: P.Request, envelope: list[bytes], wait: float, bounds: list[tuple[int, int]]) -> int | None:
+        """Register a request the workers will answer in ``bounds`` parts, by its deadline (``wait`` [s] unless it
+        gives one); its sequence number, or None for a resend of a request being worked on (answered once)."""
         key = (envelope[0], P.encode_value(req.id)) if req.id is not None else None
         if key is not None and key in self.by_key:
             self.resends += 1
-            return True
-        deadline = time.monotonic() + (req["deadline"] if req["deadline"] is not None else MAX_WAIT)
+            return None
+        deadline = time.monotonic() + (req["deadline"] if req["deadline"] is not None else wait)
         self._seq += 1
-        self.pending[self._seq] = Pending(envelope, req, key, deadline, [None], [(0, 1)])
+        self.pending[self._seq] = Pending(envelope, req, key, deadline, [None] * len(bounds), bounds)
         if key is not None:
             self.by_key[key] = self._seq
-        options = {"rate": req["rate"], "timing": req["timing"], "miss": req["miss"]}
-        self.pool.submit(Task(self._seq, 0, req["effector"], [req["goal"]], req["from"], deadline, None, envelope[0], "motion", options))
-        return True
+        return self._seq
 
     def _stored(self, req: P.Request, a: int, b: int, outcome: str) -> list[bytes]:
         """The stored answers of goals a..b, marked with why they were not refined."""
@@ -500,29 +497,30 @@ class Server:
                 log.error("worker failed: %s", b"".join(frames)[:500].decode(errors="replace"))
                 frames = self._stored(pending.request, a, b, ERROR)
         except Exception as exc:  # noqa: BLE001 - this request's error reply; the others go on
-            self._abandon(task.request, self._error(exc, pending.request.id))
+            self._answer_now(task.request, self._error(exc, pending.request.id))
             return
         pending.parts[task.part] = frames
         if all(p is not None for p in pending.parts):
             self._reply(task.request)
 
     def _motion_finished(self, seq: int, pending: Pending, frames: list[bytes]) -> None:
-        """A worker's motion (one frame of JSON), or its error (``failed: code: message``), answers the request."""
+        """A worker's motion (two frames of JSON: its summary, then the whole motion), or its error
+        (``failed: code: message``), answers the request."""
         rid = pending.request.id
         if frames == [EXPIRED]:
-            self._abandon(seq, P.error_reply(P.TIMEOUT, "the motion was not planned by its deadline", rid))
-        elif len(frames) == 1 and frames[0].startswith(b"{"):
-            self._abandon(seq, P.ok_reply(self._motion_result(pending.request, frames[0]), rid))
+            self._answer_now(seq, P.error_reply(P.TIMEOUT, "the motion was not planned by its deadline", rid))
+        elif len(frames) == 2 and frames[0].startswith(b"{"):
+            self._answer_now(seq, P.ok_reply(self._motion_result(pending.request, *frames), rid))
         else:
             code, _, message = b"".join(frames)[len(WORKER_FAILED):].decode(errors="replace").strip().partition(": ")
             if code not in (P.BAD_REQUEST, P.UNREACHABLE, P.NO_MOTION, P.UNKNOWN_EFFECTOR):
                 log.error("worker failed: %s", message[:500])
                 code, message = P.INTERNAL, "the motion could not be planned"
             self.errors += 1
-            self._abandon(seq, P.error_reply(code, message, rid))
+            self._answer_now(seq, P.error_reply(code, message, rid))
 
-    def _abandon(self, seq: int, reply: bytes) -> None:
-        """Answer a pending request with an error reply and drop its queued work."""
+    def _answer_now(self, seq: int, reply: bytes) -> None:
+        """Answer a pending request with ``reply`` now (an error, or a motion) and drop its queued work."""
         pending = self.pending.pop(seq)
         if pending.key is not None:
             self.by_key.pop(pending.key, None)
@@ -544,7 +542,7 @@ class Server:
                     if pending.parts[part] is None:
                         pending.parts[part] = self._stored(pending.request, a, b, TIMEOUT)
             except Exception as exc:  # noqa: BLE001 - this request's error reply; the others go on
-                self._abandon(seq, self._error(exc, pending.request.id))
+                self._answer_now(seq, self._error(exc, pending.request.id))
                 continue
             self._reply(seq)
 

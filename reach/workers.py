@@ -201,6 +201,7 @@ def work(address: str, atlas: str, options: dict[str, Any], identity: bytes) -> 
     from reach.errors import ReachError, UnknownEffector
     from reach.executor import die_with_parent
     from reach.motion import MotionError, Planner, Timing
+    from reach.protocol import encode
     from reach.select import Selector
     from reach.store import load_atlas
 
@@ -230,7 +231,7 @@ def work(address: str, atlas: str, options: dict[str, Any], identity: bytes) -> 
             try:
                 motion = planner.plan(job["effector"], np.array(job["goals"][0]), job["from"], rate=opts["rate"],
                                       timing=Timing.from_dict(opts["timing"]), miss=opts["miss"])
-                sock.send(json.dumps(motion.to_dict(), allow_nan=False, separators=(",", ":")).encode())
+                sock.send_multipart([encode(motion.summary()), encode(motion.to_dict())])
             except MotionError as exc:
                 sock.send(FAILED + f" {exc.code}: {exc}".encode())
             except UnknownEffector as exc:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import time
 
 import numpy as np
 import pinocchio as pin
@@ -77,8 +76,9 @@ def test_an_arm_reach_starts_at_the_start_ends_at_the_answer_and_is_minimum_jerk
     # Timing: MTM-1 for the hand's path, frames at 30 Hz from 0 to the duration.
     length = float(np.linalg.norm(np.diff(m.path, axis=0), axis=1).sum())
     assert m.parts == {"reach": pytest.approx(Timing().reach_tmu(length), rel=0.05)}
-    assert m.duration == pytest.approx(m.parts["reach"] * TMU) and m.times[0] == 0.0
-    np.testing.assert_allclose(np.diff(m.times), 1 / 30, rtol=0.3)
+    # The law's duration rounded up to a whole frame.
+    assert m.parts["reach"] * TMU <= m.duration < m.parts["reach"] * TMU + 1 / 30 and m.times[0] == 0.0
+    np.testing.assert_allclose(np.diff(m.times), 1 / 30, rtol=1e-12)
     # Nothing was held: each posture is the minimum-jerk fraction of the way (arm joints interpolate linearly).
     assert m.held == 0 and m.waypoints == 0
     s = np.linalg.norm(m.postures - m.postures[0], axis=1) / np.linalg.norm(m.postures[-1] - m.postures[0])
@@ -96,7 +96,8 @@ def test_a_low_reach_holds_the_feet_and_balance_at_every_frame_and_adds_a_stoop(
     m = planner.plan("right_hand", goal)
     assert m.strategy == "whole" and m.outcome == "reached"
     assert np.linalg.norm(hand(body, m.postures[-1]) - goal) <= TOL
-    assert "stoop" in m.parts and m.duration == pytest.approx(sum(m.parts.values()) * TMU)
+    law = sum(m.parts.values()) * TMU
+    assert "stoop" in m.parts and law <= m.duration < law + 1 / 30
     oracle = planner._moving("whole")
     assert not any(oracle.faults(m.postures))  # limits, self-collision, feet, balance, by each task's own check
     # Independently: the soles' frames stay where they stood, and the centre of mass over the feet.
@@ -127,7 +128,7 @@ def test_a_reach_across_the_body_avoids_the_collision_of_direct_interpolation(pl
     waypoints = planner._route(m.strategy, oracle, q0, q1)
     stored = planner.selector.atlas.trees[m.strategy].vertices.posture
     assert all(np.any(np.all(stored == w, axis=1)) for w in waypoints[1:-1])
-    frames = planner._timed(oracle, waypoints, 30.0, Timing())[0]
+    frames = planner._timed(oracle, m.names, waypoints, 30.0, Timing())[0]
     held = planner._hold_path(oracle, frames)
     assert held is not None and not any(oracle.faults(held[0]))
 
@@ -137,7 +138,7 @@ def test_the_same_request_gives_the_same_frames(planner):
     b = planner.plan("right_hand", [0.4, -0.3, 1.0], rate=60)
     np.testing.assert_array_equal(a.postures, b.postures)
     np.testing.assert_array_equal(a.times, b.times)
-    assert a.frames() == b.frames() and a.rate == pytest.approx(60, rel=0.1)
+    assert a.frames() == b.frames() and a.rate == 60 and np.allclose(np.diff(a.times), 1 / 60)
 
 
 def test_out_of_reach_goes_to_the_nearest_point_or_is_an_error(planner):
@@ -176,11 +177,15 @@ def test_the_motion_operation_over_the_wire(planner, workers):
     sub = zmq.Context.instance().socket(zmq.SUB)
     sub.setsockopt(zmq.LINGER, 0)
     sub.setsockopt(zmq.SUBSCRIBE, b"right_hand")
+    sub.setsockopt(zmq.SUBSCRIBE, b"hello")
     sub.connect(server.pub_endpoint)
     try:
         with Client(server.endpoint, timeout=60_000) as c:
             goal = [0.45, -0.25, 1.2]
-            time.sleep(0.3)  # the subscription reaches the server
+            while not sub.poll(100):  # hello until the subscription has reached the server
+                c.hello(tag="sync")
+            while sub.poll(100):
+                sub.recv_multipart()  # the hellos
             m = c.motion(effector="right_hand", goal=goal, rate=60, tag="t1")
             assert m["strategy"] == "arm" and m["outcome"] == "reached" and m["frame_count"] == len(m["frames"])
             assert m["frames"][0]["t"] == 0.0 and m["frames"][-1]["t"] == pytest.approx(m["duration"])
@@ -205,3 +210,18 @@ def test_the_motion_operation_over_the_wire(planner, workers):
         sub.close(linger=0)
         server.stop()
         thread.join(timeout=10)
+
+
+def test_reach_motion_writes_the_frames_and_names_bad_input(planner, tmp_path, capsys):
+    from reach.cli import main
+
+    atlas = str(planner.selector.atlas.path)
+    out = tmp_path / "reach.json"
+    assert main(["motion", atlas, "0.45", "-0.25", "1.2", "--effector", "right_hand", "--rate", "50", "-o", str(out)]) == 0
+    assert "reaches [0.45, -0.25, 1.2] with strategy arm" in capsys.readouterr().out
+    data = json.loads(out.read_text())
+    assert data["rate"] == 50 and len(data["frames"]) == data["frame_count"] and data["frames"][-1]["t"] == pytest.approx(data["duration"])
+    assert main(["motion", atlas, "0.45", "-0.25", "1.2", "--effector", "right_hand", "-o", str(tmp_path / "reach.bvh")]) == 2
+    assert "-o: " in capsys.readouterr().err and not (tmp_path / "reach.bvh").exists()
+    assert main(["motion", atlas, "0.45", "-0.25", "--effector", "right_hand"]) == 2
+    assert "goal: a motion's goal has 3 coordinates" in capsys.readouterr().err
