@@ -37,8 +37,9 @@ from oracles.errors import OracleError
 from oracles.jit import COMPILER, compiled_nlpsol
 from oracles.kinematics import SymbolicKinematics
 from oracles.problem import Check, ReachProblem
-from oracles.protocol import Ball, OracleSpec, Purpose, Verdicts, check_points, check_purpose
+from oracles.protocol import Ball, OracleSpec, Purpose, Skeleton, Verdicts, check_points, check_purpose
 from oracles.search import Search
+from oracles.skeleton import bone_frames, build_skeleton
 from oracles.strategy import parse_strategy
 from oracles.tasks import Numeric, Symbolic
 
@@ -105,6 +106,7 @@ class IKOracle(ABC):
         self.posture_names = tuple(self.body.q_names)
         self._data = self.body.model.createData()
         self.stats = _stats()
+        self._bones: tuple[Skeleton, tuple[int, ...]] | None = None
         self._projector: Any = None  # the damped-least-squares twin that holds a posture's hard tasks (built on first use)
 
     @classmethod
@@ -166,6 +168,19 @@ class IKOracle(ABC):
             if j == 1 or jm.nq != 1:  # the root (its limits are the solvers' box) and continuous joints
                 lower[jm.idx_q : jm.idx_q + jm.nq], upper[jm.idx_q : jm.idx_q + jm.nq] = -np.inf, np.inf
         return lower, upper
+
+    def skeleton(self) -> Skeleton:
+        """The body's bones (see :mod:`oracles.skeleton`), the effector among their ends."""
+        return self._skeleton()[0]
+
+    def bone_frames(self, postures: np.ndarray) -> np.ndarray:
+        """World transforms (T, B, 4, 4) of the skeleton's bones at postures (T, nq), by Pinocchio."""
+        return bone_frames(self.body.model, self._skeleton()[1], postures)
+
+    def _skeleton(self) -> tuple[Skeleton, tuple[int, ...]]:
+        if self._bones is None:
+            self._bones = build_skeleton(self.body, self.strategy.effector)
+        return self._bones
 
     def interpolate(self, q0: np.ndarray, q1: np.ndarray, s: np.ndarray) -> np.ndarray:
         """Pinocchio's interpolation on the model's configuration space (see :class:`oracles.protocol.Moving`)."""

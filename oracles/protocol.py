@@ -36,7 +36,10 @@ Oracles may also offer optional capabilities, each a protocol of its own;
 * :class:`Moving`: postures between two postures on the body's own
   configuration space, what a posture breaks (limits, collisions, feet,
   balance), and the posture nearest one that holds every hard task, so that
-  :mod:`reach.motion` plans a reach motion without seeing the model.
+  :mod:`reach.motion` plans a reach motion without seeing the model;
+* :class:`Articulated`: the body's skeleton (its joints grouped into bones)
+  and each bone's world transform at postures, for animation files (BVH,
+  glTF).
 
 ``reach`` asks nothing else: not an oracle's parameters, registry names or
 internals, so a third-party oracle registered through the ``reach.oracles``
@@ -293,6 +296,42 @@ class Moving(Protocol):
         """A posture near ``posture`` (nq,) that holds every hard task with the effector where ``posture``
         puts it, or None when none is found. ``before``: the previous frame and its hold, whose
         displacement is the first guess (so that consecutive frames are held alike)."""
+        ...
+
+
+@dataclass(frozen=True)
+class Skeleton:
+    """A body's joints grouped into bones, as animation files want them.
+
+    Attributes:
+        bones: Bone names (the links they move), parents before children.
+        joints: The joints each bone turns by (several at one point, such as a shoulder's three).
+        parents: Each bone's parent (-1: the root, the body's floating base).
+        ends: (name, bone, offset [m] in the bone's frame): where leaf bones end, and the effector.
+        capsule_names: The body's capsules.
+        capsules: (K, 7) end points a, b [m] in their bone's frame, radius [m].
+        capsule_bones: (K,) the bone each capsule moves with.
+    """
+
+    bones: tuple[str, ...]
+    joints: tuple[tuple[str, ...], ...]
+    parents: tuple[int, ...]
+    ends: tuple[tuple[str, int, tuple[float, float, float]], ...]
+    capsule_names: tuple[str, ...] = ()
+    capsules: np.ndarray = field(default_factory=lambda: np.zeros((0, 7)))
+    capsule_bones: tuple[int, ...] = ()
+
+
+@runtime_checkable
+class Articulated(Protocol):
+    """An oracle whose body is a tree of bones (:mod:`reach.rig`)."""
+
+    def skeleton(self) -> Skeleton:
+        """The body's bones, their parents, ends and capsules."""
+        ...
+
+    def bone_frames(self, postures: np.ndarray) -> np.ndarray:
+        """World transforms (T, B, 4, 4) [m] of every bone of :meth:`skeleton` at postures (T, nq)."""
         ...
 
 

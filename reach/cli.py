@@ -23,6 +23,7 @@ from reach.select import HANDOVER, MISS, MISSES, REFINE_BUDGET
 from reach.tree import DEFAULT_POLICY, POLICIES
 
 QUERY_BUDGET = 1.0  # [s] default refinement budget of a local `reach query`: one question, no frame to keep
+MOTION_FILES = (".json", ".bvh", ".glb", ".gltf")  # reach motion -o: by the file's extension
 
 
 def _print_json(data: Any) -> None:
@@ -175,8 +176,11 @@ def cmd_motion(args: argparse.Namespace) -> int:
     if len(goal) != 3:
         raise InputError("goal", f"a motion's goal has 3 coordinates [m], got {len(goal)}")
     start = _start(args.start)
-    if args.output and Path(args.output).suffix.lower() != ".json":
-        raise InputError("-o", f"{args.output}: expected a .json file")
+    kind = Path(args.output).suffix.lower() if args.output else None
+    if kind is not None and kind not in MOTION_FILES:
+        raise InputError("-o", f"{args.output}: expected a {', '.join(MOTION_FILES)} file")
+    if kind not in (None, ".json") and args.connect:
+        raise InputError("-o", f"{args.output}: a {kind} file needs the body's skeleton: give the atlas folder rather than --connect")
     timing = {"duration": args.duration} if args.duration is not None else None
     if args.connect:
         from reach.client import Client
@@ -191,8 +195,11 @@ def cmd_motion(args: argparse.Namespace) -> int:
         from reach.store import load_atlas
 
         planner = Planner(Selector(load_atlas(atlas), policy=args.policy))  # type: ignore[arg-type]
-        data = planner.plan(args.effector, goal, start, rate=args.rate, timing=Timing.from_dict(timing, "--duration"), miss=args.miss).to_dict()
-    if args.output:
+        motion = planner.plan(args.effector, goal, start, rate=args.rate, timing=Timing.from_dict(timing, "--duration"), miss=args.miss)
+        data = motion.to_dict()
+        if kind in (".bvh", ".glb", ".gltf"):
+            _write_animation(args.output, kind, motion, planner.body(motion.strategy))
+    if kind == ".json":
         Path(args.output).write_text(json.dumps(data, indent=1) + "\n")
     summary = {k: v for k, v in data.items() if k != "frames"}
     if args.json:
@@ -208,6 +215,21 @@ def cmd_motion(args: argparse.Namespace) -> int:
     if args.output:
         print(f"frames written to {args.output}")
     return 0
+
+
+def _write_animation(path: str, kind: str, motion: Any, body: Any) -> None:
+    """A motion as BVH or glTF, its skeleton from the strategy's oracle."""
+    from reach.rig import rig
+
+    bones = rig(motion, body)
+    if kind == ".bvh":
+        from reach.bvh import write_bvh
+
+        write_bvh(bones, path)
+    else:
+        from reach.gltf import write_gltf
+
+        write_gltf(bones, path)
 
 
 def _start(value: str | None) -> dict[str, float] | None:
@@ -469,7 +491,8 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--rate", type=float, default=30.0, help="frames per second (default 30)")
     p.add_argument("--duration", type=float, help="the motion's duration [s] instead of MTM-1's")
     p.add_argument("--miss", choices=["nearest", "error"], default="nearest", help="a goal out of reach: move towards the nearest reachable point (default), or fail")
-    p.add_argument("-o", "--output", metavar="FILE.json", help="write the frames (time, posture, root, effector) as JSON")
+    p.add_argument("-o", "--output", metavar="FILE", help="write the frames: .json (time, posture, root, effector), .bvh (Biovision hierarchy), "
+                   ".glb or .gltf (glTF 2.0: skinned capsules and their animation)")
     _policy_option(p)
     p.add_argument("--timeout", type=int, default=P.REQUEST_TIMEOUT_MS, help=f"with --connect: ms to wait for the reply (default {P.REQUEST_TIMEOUT_MS})")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")

@@ -267,7 +267,7 @@ class Planner:
         else:
             name, outcome = names[0], NEAREST
         assert name is not None
-        oracle = self._moving(name)
+        oracle = self.body(name)
         tree = self.selector.atlas.trees[name]
         labels = tree.vertices.posture_names
         q0 = self._start(oracle, tree, start)
@@ -437,7 +437,8 @@ class Planner:
         return out
 
     # -- postures -----------------------------------------------------------
-    def _moving(self, name: str) -> Body:
+    def body(self, name: str) -> Body:
+        """The oracle of strategy ``name``, which moves its body (:class:`~oracles.protocol.Moving`)."""
         oracle = self.selector.oracle(name)
         if not isinstance(oracle, Body):
             raise MotionError(f"strategy {name}'s oracle cannot plan motions (it offers no Moving capability)", "no_motion")

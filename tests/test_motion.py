@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import os
+from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
@@ -88,7 +90,7 @@ def test_an_arm_reach_starts_at_the_start_ends_at_the_answer_and_is_minimum_jerk
     peak = int(np.argmax(speed))
     assert 0.4 <= (m.times[peak] + m.times[peak + 1]) / 2 / m.duration <= 0.6
     assert np.all(np.diff(speed[: peak + 1]) > -1e-3) and np.all(np.diff(speed[peak:]) < 1e-3)
-    assert not any(planner._moving("arm").faults(m.postures))
+    assert not any(planner.body("arm").faults(m.postures))
 
 
 def test_a_low_reach_holds_the_feet_and_balance_at_every_frame_and_adds_a_stoop(planner, body):
@@ -98,7 +100,7 @@ def test_a_low_reach_holds_the_feet_and_balance_at_every_frame_and_adds_a_stoop(
     assert np.linalg.norm(hand(body, m.postures[-1]) - goal) <= TOL
     law = sum(m.parts.values()) * TMU
     assert "stoop" in m.parts and law <= m.duration < law + 1 / 30
-    oracle = planner._moving("whole")
+    oracle = planner.body("whole")
     assert not any(oracle.faults(m.postures))  # limits, self-collision, feet, balance, by each task's own check
     # Independently: the soles' frames stay where they stood, and the centre of mass over the feet.
     data = body.model.createData()
@@ -117,7 +119,7 @@ def test_a_low_reach_holds_the_feet_and_balance_at_every_frame_and_adds_a_stoop(
 def test_a_reach_across_the_body_avoids_the_collision_of_direct_interpolation(planner, body):
     goal = np.array([0.08, 0.18, 0.75])  # the right hand to the left hip
     m = planner.plan("right_hand", goal)
-    oracle = planner._moving(m.strategy)
+    oracle = planner.body(m.strategy)
     q0, q1 = m.postures[0], m.postures[-1]
     direct = oracle.faults(oracle.interpolate(q0, q1, np.linspace(0, 1, 40)))
     assert any("self_collision" in f for f in direct)  # the precondition: straight through the body
@@ -221,7 +223,155 @@ def test_reach_motion_writes_the_frames_and_names_bad_input(planner, tmp_path, c
     assert "reaches [0.45, -0.25, 1.2] with strategy arm" in capsys.readouterr().out
     data = json.loads(out.read_text())
     assert data["rate"] == 50 and len(data["frames"]) == data["frame_count"] and data["frames"][-1]["t"] == pytest.approx(data["duration"])
-    assert main(["motion", atlas, "0.45", "-0.25", "1.2", "--effector", "right_hand", "-o", str(tmp_path / "reach.bvh")]) == 2
-    assert "-o: " in capsys.readouterr().err and not (tmp_path / "reach.bvh").exists()
+    assert main(["motion", atlas, "0.45", "-0.25", "1.2", "--effector", "right_hand", "-o", str(tmp_path / "reach.fbx")]) == 2
+    assert "-o: " in capsys.readouterr().err and not (tmp_path / "reach.fbx").exists()
+    assert main(["motion", "0.45", "-0.25", "1.2", "--effector", "right_hand", "--connect", "tcp://127.0.0.1:9", "-o", str(tmp_path / "r.bvh")]) == 2
+    assert "needs the body's skeleton" in capsys.readouterr().err
+    for name in ("reach.bvh", "reach.glb"):
+        assert main(["motion", atlas, "0.45", "-0.25", "1.2", "--effector", "right_hand", "-o", str(tmp_path / name)]) == 0
+        assert (tmp_path / name).stat().st_size > 1000
     assert main(["motion", atlas, "0.45", "-0.25", "--effector", "right_hand"]) == 2
     assert "goal: a motion's goal has 3 coordinates" in capsys.readouterr().err
+
+
+# -- animation files ---------------------------------------------------------
+Y_UP = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])  # the files' axes in the world's: x' = y, y' = z, z' = x
+
+
+@pytest.fixture(scope="module")
+def crouch(planner):
+    """A low reach: the root moves and turns, the legs bend (the whole-body strategy)."""
+    m = planner.plan("right_hand", [0.35, -0.2, 0.45])
+    assert m.strategy == "whole"
+    return m
+
+
+def test_the_skeleton_groups_joints_at_one_point_into_bones(planner):
+    sk = planner.body("whole").skeleton()
+    bone = dict(zip(sk.bones, sk.joints, strict=True))
+    assert bone["right_upper_arm"] == ("right_shoulder_flexion", "right_shoulder_abduction", "right_shoulder_rotation")
+    assert bone["pelvis"] == ("root",) and bone["right_shank"] == ("right_knee_flexion",)
+    assert sum(len(j) for j in sk.joints) == planner.body("whole").body.model.njoints - 1  # every joint in one bone
+    parent = {b: sk.bones[p] for b, p in zip(sk.bones, sk.parents, strict=True) if p >= 0}
+    assert parent["right_forearm"] == "right_upper_arm" and parent["right_thigh"] == "pelvis"
+    assert ("right_hand", sk.bones.index("right_palm")) == sk.ends[[e[0] for e in sk.ends].index("right_hand")][:2]
+
+
+def _quat_matrix(w: float, x: float, y: float, z: float) -> np.ndarray:
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
+def test_bvh_round_trip_puts_the_hand_where_pinocchio_does(planner, crouch, tmp_path):
+    """bvhio parses the file (its own Euler-to-rotation reading of the channels); the forward kinematics is this test's."""
+    import bvhio
+
+    from reach.bvh import write_bvh
+    from reach.rig import rig
+
+    path = write_bvh(rig(crouch, planner.body(crouch.strategy)), tmp_path / "crouch.bvh")
+    parsed = bvhio.readAsBvh(str(path))
+    assert parsed.FrameCount == len(crouch.times) and parsed.FrameTime == pytest.approx(1 / 30, abs=1e-7)
+
+    def chain(joint, name):
+        if joint.Name == name:
+            return [joint]
+        for child in joint.Children:
+            if found := chain(child, name):
+                return [joint, *found]
+        return []
+
+    arm = chain(parsed.Root, "right_palm")
+    assert [j.Name for j in arm] == ["pelvis", "abdomen", "thorax", "right_clavicle", "right_upper_arm", "right_forearm", "right_palm"]
+    assert arm[0].Channels[:3] == ["Xposition", "Yposition", "Zposition"] and arm[4].Channels == ["Zrotation", "Xrotation", "Yrotation"]
+    error = []
+    for k in range(parsed.FrameCount):
+        world = np.eye(4)
+        for joint in arm:
+            pose, local = joint.Keyframes[k], np.eye(4)
+            local[:3, :3] = _quat_matrix(pose.Rotation.w, pose.Rotation.x, pose.Rotation.y, pose.Rotation.z)
+            local[:3, 3] = list(pose.Position) if joint is parsed.Root else list(joint.Offset)
+            world = world @ local
+        tip = world[:3, :3] @ np.array(list(arm[-1].EndSite)) + world[:3, 3]
+        error.append(np.linalg.norm(Y_UP.T @ tip - crouch.path[k]))
+    assert max(error) < 0.001
+    assert np.ptp(crouch.path, axis=0).max() > 0.2  # the hand travelled: the check is not of a still pose
+
+
+def _gltf_validator():
+    """The Khronos glTF Validator (npm gltf-validator), installed by make beside the venv."""
+    import os
+    import shutil
+    from pathlib import Path
+
+    modules = Path(__file__).resolve().parents[1] / ".venv" / "node" / "node_modules"
+    if shutil.which("node") is None or not (modules / "gltf-validator").exists():
+        if os.environ.get("CI"):
+            pytest.fail(f"node or the glTF validator ({modules}) is missing on CI")
+        pytest.skip("node or the npm package gltf-validator is missing (make .venv/.installed installs it)")
+    return modules
+
+
+def _accessor(doc, blob: bytes, index: int) -> np.ndarray:
+    acc = doc.accessors[index]
+    view = doc.bufferViews[acc.bufferView]
+    dtype = {5126: np.float32, 5123: np.uint16, 5125: np.uint32, 5121: np.uint8}[acc.componentType]
+    width = {"SCALAR": 1, "VEC3": 3, "VEC4": 4, "MAT4": 16}[acc.type]
+    start = (view.byteOffset or 0) + (acc.byteOffset or 0)
+    return np.frombuffer(blob, dtype, acc.count * width, start).reshape(acc.count, width).astype(float)
+
+
+def test_gltf_passes_the_khronos_validator_and_its_hand_follows_pinocchio(planner, crouch, tmp_path):
+    import subprocess
+
+    import pygltflib
+
+    from reach.gltf import write_gltf
+    from reach.rig import rig
+
+    bones = rig(crouch, planner.body(crouch.strategy))
+    files = [write_gltf(bones, tmp_path / "crouch.glb"), write_gltf(bones, tmp_path / "crouch.gltf")]
+    modules = _gltf_validator()
+    script = Path(__file__).parent / "tools" / "gltf_validate.js"
+    out = subprocess.run(["node", str(script), *map(str, files)], capture_output=True, text=True, check=True, env={**os.environ, "NODE_PATH": str(modules)})
+    reports = [json.loads(line) for line in out.stdout.splitlines()]
+    assert [r["errors"] for r in reports] == [0, 0], reports
+    assert reports[0]["info"]["animationCount"] == 1 and reports[0]["info"]["hasSkins"]
+
+    # An independent reading: pygltflib for the document, this test's own sampling and matrix product.
+    doc = pygltflib.GLTF2().load(str(files[0]))
+    blob = doc.binary_blob()
+    (anim,) = doc.animations
+    parent = {c: n for n, node in enumerate(doc.nodes) for c in (node.children or [])}
+    tracks = {}
+    for ch in anim.channels:
+        sampler = anim.samplers[ch.sampler]
+        tracks[(ch.target.node, ch.target.path)] = (_accessor(doc, blob, sampler.input)[:, 0], _accessor(doc, blob, sampler.output))
+    keys = tracks[(0, "rotation")][0]
+    np.testing.assert_allclose(keys, crouch.times, atol=1e-6)
+    hand_node = [n.name for n in doc.nodes].index("right_hand")
+
+    def world(n: int, k: int) -> np.ndarray:
+        node, local = doc.nodes[n], np.eye(4)
+        t = tracks[(n, "translation")][1][k] if (n, "translation") in tracks else (node.translation or [0, 0, 0])
+        x, y, z, w = tracks[(n, "rotation")][1][k] if (n, "rotation") in tracks else (node.rotation or [0, 0, 0, 1])
+        local[:3, :3], local[:3, 3] = _quat_matrix(w, x, y, z), t
+        return local if n not in parent else world(parent[n], k) @ local
+
+    error = [np.linalg.norm(Y_UP.T @ world(hand_node, k)[:3, 3] - crouch.path[k]) for k in range(len(keys))]
+    assert max(error) < 0.001
+
+    # The skin: each capsule's vertices, moved by their bone to the last key, lie on that capsule as Pinocchio places it.
+    (prim,) = doc.meshes[0].primitives
+    verts, joints = _accessor(doc, blob, prim.attributes.POSITION), _accessor(doc, blob, prim.attributes.JOINTS_0)[:, 0].astype(int)
+    ibm = _accessor(doc, blob, doc.skins[0].inverseBindMatrices).reshape(-1, 4, 4).transpose(0, 2, 1)
+    last = len(keys) - 1
+    skinned = np.array([(world(doc.skins[0].joints[j], last) @ ibm[j] @ np.append(v, 1.0))[:3] for v, j in zip(verts, joints, strict=True)])
+    names, capsules = planner.body(crouch.strategy).shape(crouch.postures[-1])
+    per = len(verts) // len(names)
+    for i, (a, b, r) in enumerate((c[:3], c[3:6], c[6]) for c in capsules):
+        p = skinned[i * per : (i + 1) * per] @ Y_UP  # back to the world's axes
+        u = np.clip((p - a) @ (b - a) / max((b - a) @ (b - a), 1e-12), 0, 1)
+        dist = np.linalg.norm(p - (a + u[:, None] * (b - a)), axis=1)
+        assert np.abs(dist - r).max() < 1e-4, names[i]  # the mesh's vertices are on the capsule's surface (float32 file)
