@@ -1,0 +1,146 @@
+"""Reach motion latency; prints JSON lines.
+
+Goals are drawn at the stored reachable vertices of each right-hand strategy
+(jittered by up to half a finest cell) and kept where the selector's stored
+answer chooses that strategy, so each group is what a query of that kind of
+goal plans: an arm reach, an upper-body reach, a whole-body reach, a crouch.
+Each goal's motion at 30 Hz from the reference posture is timed:
+
+* in-process (``Planner.plan``, the server's 250 ms refinement budget);
+* over the wire: a ``motion`` request to ``reach serve`` with 2 workers
+  (the request and its whole reply, frames included), one client.
+
+One JSON line per group and path: median and p99 [ms], the motions' median
+duration [s] and frame count, how many were routed through stored postures,
+the goals no motion was found for (``no_motion``: no path held every task).
+
+Run: ``.venv/bin/python bench/motion.py ATLAS [--goals 20] [--seed 0] [--no-wire]``
+(ATLAS: the demo atlas, ``make run``'s ``out/demo``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import zmq
+
+from reach.motion import MotionError, Planner
+from reach.select import Selector
+from reach.store import load_atlas
+
+GROUPS = ("arm", "upper_body", "whole_body", "crouch")
+EFFECTOR = "right_hand"
+
+
+def emit(**fields: object) -> None:
+    print(json.dumps(fields), flush=True)
+
+
+def goals_by_group(selector: Selector, per_group: int, rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """Goals whose stored answer is each group's right-hand strategy."""
+    out: dict[str, list[np.ndarray]] = {g: [] for g in GROUPS}
+    atlas = selector.atlas
+    for group in GROUPS:
+        tree = atlas.trees.get(f"right_{group}")
+        if tree is None or tree.vertices.posture is None:
+            continue
+        points = tree.lattice.points(tree.lattice.coords(tree.vertices.keys[tree.vertices.reachable]))
+        half = 0.5 * tree.cell_size(np.array([tree.d_max]))[0]
+        for i in rng.permutation(len(points)):
+            goal = points[i] + rng.uniform(-half, half, 3)
+            answer = selector.select(EFFECTOR, goal, False)
+            if answer.reachable and answer.strategy == f"right_{group}":
+                out[group].append(goal)
+            if len(out[group]) == per_group:
+                break
+    return {g: np.array(v) for g, v in out.items() if v}
+
+
+def stats(ms: list[float]) -> dict[str, float]:
+    return {"median_ms": round(float(np.median(ms)), 1), "p99_ms": round(float(np.percentile(ms, 99)), 1), "max_ms": round(float(np.max(ms)), 1)}
+
+
+def in_process(planner: Planner, groups: dict[str, np.ndarray]) -> None:
+    for group, goals in groups.items():
+        ms, durations, frames, routed, failed = [], [], [], 0, []
+        for goal in goals[:2]:  # the first plan of a strategy builds its oracle and graph
+            try:
+                planner.plan(EFFECTOR, goal)
+            except MotionError:
+                pass
+        for goal in goals:
+            t0 = time.perf_counter()
+            try:
+                m = planner.plan(EFFECTOR, goal)
+            except MotionError as exc:
+                failed.append([round(float(v), 3) for v in goal] + [exc.code])
+                continue
+            finally:
+                ms.append(1e3 * (time.perf_counter() - t0))
+            durations.append(m.duration)
+            frames.append(len(m.times))
+            routed += m.waypoints > 0
+        emit(bench="motion", path="in_process", group=group, goals=len(goals), **stats(ms), duration_s=round(float(np.median(durations)), 3),
+             frames=int(np.median(frames)) if frames else 0, routed=routed, failed=failed)
+
+
+def over_the_wire(atlas: str, groups: dict[str, np.ndarray]) -> None:
+    proc = subprocess.Popen([sys.executable, "-m", "reach.cli", "serve", atlas, "--bind", "tcp://127.0.0.1:*", "--pub", "none", "--workers", "2"],
+                            stdout=subprocess.PIPE, text=True)
+    try:
+        line = proc.stdout.readline()  # type: ignore[union-attr]
+        address = line.split(" on ")[1].split(",")[0].strip()
+        sock = zmq.Context.instance().socket(zmq.REQ)
+        sock.setsockopt(zmq.LINGER, 0)
+        sock.connect(address)
+        for _ in range(600):  # the workers have loaded the atlas
+            sock.send(b'{"op": "health"}')
+            if json.loads(sock.recv())["workers_ready"] >= 2:
+                break
+            time.sleep(0.1)
+        for group, goals in groups.items():
+            for goal in goals[:2]:  # each worker's first plan of the strategy
+                sock.send(json.dumps({"op": "motion", "effector": EFFECTOR, "goal": goal.tolist()}).encode())
+                sock.recv()
+            ms, sizes, failed = [], [], 0
+            for goal in goals:
+                t0 = time.perf_counter()
+                sock.send(json.dumps({"op": "motion", "effector": EFFECTOR, "goal": goal.tolist()}).encode())
+                reply = sock.recv()
+                ms.append(1e3 * (time.perf_counter() - t0))
+                sizes.append(len(reply))
+                failed += not json.loads(reply).get("ok")
+            emit(bench="motion", path="wire_2_workers", group=group, goals=len(goals), **stats(ms), reply_kib=round(float(np.median(sizes)) / 1024, 1),
+                 failed=failed)
+        sock.close()
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("atlas", help="the demo atlas (make run's out/demo)")
+    parser.add_argument("--goals", type=int, default=20, help="goals per group (default 20)")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--no-wire", action="store_true", help="in-process only")
+    args = parser.parse_args()
+    if not Path(args.atlas, "manifest.json").exists():
+        sys.exit(f"{args.atlas}: no atlas there (make run builds out/demo)")
+    emit(machine=platform.processor() or platform.machine(), python=platform.python_version())
+    selector = Selector(load_atlas(args.atlas)).warm_up()
+    groups = goals_by_group(selector, args.goals, np.random.default_rng(args.seed))
+    in_process(Planner(selector), groups)
+    if not args.no_wire:
+        over_the_wire(args.atlas, groups)
+
+
+if __name__ == "__main__":
+    main()
