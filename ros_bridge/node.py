@@ -18,23 +18,31 @@ Topics, for each effector E (the server's effectors, or ``~effectors``):
 * out: ``<prefix>/E/strategy`` (std_msgs/String; empty when none reaches),
   ``<prefix>/E/posture`` (sensor_msgs/JointState: the model's joint names,
   radians), ``<prefix>/E/reachable`` (std_msgs/Bool).
+* in: ``<prefix>/E/motion_goal`` (geometry_msgs/PointStamped, frame ``~frame``):
+  plan the reach motion to the goal from the reference posture (the
+  server's ``motion`` operation, 30 Hz);
+* out: ``<prefix>/E/motion`` (trajectory_msgs/JointTrajectory): its frames,
+  the model's joint names, radians, ``time_from_start`` [s]; the floating
+  root's pose is not a joint and is not in the message;
 * out, latched: ``<prefix>/markers`` (visualization_msgs/MarkerArray): each
   strategy's reachable cells as a cube list, one colour per strategy.
 
 Choices other clients cause (the server's PUB stream) are relayed to the
-same topics. If the server is down, goals get an error in the log and the
+same topics; the stream carries only a motion's summary, not its frames, so
+motions other clients ask for are not relayed. If the server is down, goals get an error in the log and the
 node keeps running; markers are retried until they are published.
 
 Parameters (private, with defaults): ``~server`` (tcp://127.0.0.1:5555),
 ``~pub`` (tcp://127.0.0.1:5556; empty to not relay), ``~frame`` (world),
 ``~prefix`` (/reach), ``~effectors`` (all the server has), ``~timeout_ms``
-(2500), ``~retries`` (3), ``~marker_level`` (4: 2**4 cells per axis),
+(2500), ``~motion_timeout_ms`` (20000: a whole-body motion takes seconds to plan), ``~retries`` (3), ``~marker_level`` (4: 2**4 cells per axis),
 ``~relay_hz`` (100: how often the stream is polled), ``~marker_retry_s`` (2).
 """
 
 from __future__ import annotations
 
 import json
+import threading
 import time
 from collections import Counter, deque
 from typing import Any
@@ -44,6 +52,7 @@ import zmq
 from reach import protocol as P
 from reach.client import REQUEST_RETRIES, REQUEST_TIMEOUT_MS, Client, ServerError, ServerUnavailable
 
+MOTION_TIMEOUT_MS = 20_000
 COLOURS = [(0.84, 0.15, 0.16), (0.17, 0.63, 0.17), (0.12, 0.47, 0.71), (1.0, 0.5, 0.05), (0.58, 0.4, 0.74), (0.55, 0.34, 0.29), (0.89, 0.47, 0.76), (0.09, 0.75, 0.81)]
 
 
@@ -100,10 +109,11 @@ class Bridge:
         from geometry_msgs.msg import PointStamped
         from sensor_msgs.msg import JointState
         from std_msgs.msg import Bool, String
+        from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
         from visualization_msgs.msg import MarkerArray
 
         self.rospy = rospy
-        self.msgs = {"JointState": JointState, "String": String, "Bool": Bool}
+        self.msgs = {"JointState": JointState, "String": String, "Bool": Bool, "JointTrajectory": JointTrajectory, "JointTrajectoryPoint": JointTrajectoryPoint}
         p = rospy.get_param
         self.server = p("~server", P.DEFAULT_BIND)
         self.pub_address = p("~pub", P.DEFAULT_PUB)
@@ -111,6 +121,9 @@ class Bridge:
         self.prefix = p("~prefix", "/reach").rstrip("/")
         self.marker_level = int(p("~marker_level", 4))
         self.client = Client(self.server, timeout=int(p("~timeout_ms", REQUEST_TIMEOUT_MS)), retries=int(p("~retries", REQUEST_RETRIES)))
+        # Motions on their own connection: one takes seconds, and a REQ socket is one thread's.
+        self.motions = Client(self.server, timeout=int(p("~motion_timeout_ms", MOTION_TIMEOUT_MS)), retries=1)
+        self.motion_lock = threading.Lock()
         self.relay = Relay()
         effectors = p("~effectors", [])
         while not effectors and not rospy.is_shutdown():
@@ -125,8 +138,10 @@ class Bridge:
                 "strategy": rospy.Publisher(f"{self.prefix}/{e}/strategy", String, queue_size=10),
                 "posture": rospy.Publisher(f"{self.prefix}/{e}/posture", JointState, queue_size=10),
                 "reachable": rospy.Publisher(f"{self.prefix}/{e}/reachable", Bool, queue_size=10),
+                "motion": rospy.Publisher(f"{self.prefix}/{e}/motion", JointTrajectory, queue_size=10),
             }
             rospy.Subscriber(f"{self.prefix}/{e}/goal", PointStamped, self.on_goal, callback_args=e, queue_size=10)
+            rospy.Subscriber(f"{self.prefix}/{e}/motion_goal", PointStamped, self.on_motion_goal, callback_args=e, queue_size=10)
         self.markers = rospy.Publisher(f"{self.prefix}/markers", MarkerArray, queue_size=1, latch=True)
         self.markers_done = False
         rospy.Timer(rospy.Duration(float(p("~marker_retry_s", 2.0))), self.publish_markers)
@@ -139,13 +154,45 @@ class Bridge:
             rospy.Timer(rospy.Duration(1.0 / float(p("~relay_hz", 100.0))), self.relay_stream)
         rospy.loginfo("reach bridge: server %s, effectors %s, frame %s", self.server, ", ".join(effectors), self.frame)
 
-    def on_goal(self, msg: Any, effector: str) -> None:
-        rospy = self.rospy
+    def _goal(self, msg: Any, effector: str) -> list[float] | None:
+        """The goal of a PointStamped [m], or None (logged) when it is in another frame."""
         frame = msg.header.frame_id
         if frame != self.frame:
-            rospy.logerr("reach bridge: goal for %s in frame %r ignored; goals must be in frame %r", effector, frame, self.frame)
+            self.rospy.logerr("reach bridge: goal for %s in frame %r ignored; goals must be in frame %r", effector, frame, self.frame)
+            return None
+        return [msg.point.x, msg.point.y, msg.point.z]
+
+    def on_motion_goal(self, msg: Any, effector: str) -> None:
+        goal = self._goal(msg, effector)
+        if goal is None:
             return
-        goal = [msg.point.x, msg.point.y, msg.point.z]
+        try:
+            with self.motion_lock:
+                motion = self.motions.motion(effector=effector, goal=goal)
+        except (ServerError, ServerUnavailable) as exc:
+            self.rospy.logerr("reach bridge: no motion of %s to %s: %s", effector, goal, exc)
+            return
+        self.pubs[effector]["motion"].publish(self.trajectory(motion))
+
+    def trajectory(self, motion: dict[str, Any]) -> Any:
+        """A motion's frames as a JointTrajectory: the joints in name order, positions [rad or m] at each frame's time."""
+        names = sorted(motion["frames"][0]["posture"])
+        out = self.msgs["JointTrajectory"]()
+        out.header.stamp = self.rospy.Time.now()
+        out.header.frame_id = self.frame
+        out.joint_names = names
+        for frame in motion["frames"]:
+            point = self.msgs["JointTrajectoryPoint"]()
+            point.positions = [float(frame["posture"][n]) for n in names]
+            point.time_from_start = self.rospy.Duration.from_sec(float(frame["t"]))
+            out.points.append(point)
+        return out
+
+    def on_goal(self, msg: Any, effector: str) -> None:
+        rospy = self.rospy
+        goal = self._goal(msg, effector)
+        if goal is None:
+            return
         try:
             answer = self.client.query(effector, goal)
         except ServerError as exc:
@@ -178,6 +225,8 @@ class Bridge:
                 return
             try:
                 answer = json.loads(body)
+                if "frame_count" in answer:
+                    continue  # a motion's summary: its frames went to the client that asked
                 if not self.relay.is_echo(answer):
                     self.publish(topic.decode(), answer)
             except (ValueError, UnicodeDecodeError) as exc:

@@ -1,6 +1,7 @@
 """Helper for the ROS tests, run under Debian's /usr/bin/python3 (rospy does not import elsewhere).
 
     ros_helper.py goal EFFECTOR X Y Z FRAME [TIMEOUT]   publish one goal, print the answers as JSON
+    ros_helper.py motion EFFECTOR X Y Z                 publish one motion goal, print the trajectory as JSON
     ros_helper.py listen EFFECTOR                       print the next strategy published, whoever caused it
     ros_helper.py markers                      print a summary of the latched markers as JSON
     ros_helper.py alive NODE                   print whether a node answers
@@ -17,6 +18,7 @@ import rospy
 from geometry_msgs.msg import PointStamped
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool, String
+from trajectory_msgs.msg import JointTrajectory
 from visualization_msgs.msg import MarkerArray
 
 TIMEOUT = 15.0
@@ -60,6 +62,27 @@ def goal(effector: str, x: float, y: float, z: float, frame: str, timeout: float
     print(json.dumps(out), flush=True)
 
 
+def motion(effector: str, x: float, y: float, z: float) -> None:
+    got: list = []
+    done = threading.Event()
+    sub = rospy.Subscriber(f"/reach/{effector}/motion", JointTrajectory, lambda msg: (got.append(msg), done.set()))
+    pub = rospy.Publisher(f"/reach/{effector}/motion_goal", PointStamped, queue_size=1, latch=True)
+    deadline = rospy.Time.now() + rospy.Duration(TIMEOUT)
+    while (pub.get_num_connections() == 0 or sub.get_num_connections() == 0) and rospy.Time.now() < deadline:
+        rospy.sleep(0.05)
+    msg = PointStamped()
+    msg.header.frame_id = "world"
+    msg.point.x, msg.point.y, msg.point.z = x, y, z
+    pub.publish(msg)
+    done.wait(3 * TIMEOUT)
+    if not got:
+        print(json.dumps({"received": False}), flush=True)
+        return
+    t = got[0]
+    print(json.dumps({"received": True, "frame": t.header.frame_id, "names": list(t.joint_names),
+                      "times": [p.time_from_start.to_sec() for p in t.points], "positions": [list(p.positions) for p in t.points]}), flush=True)
+
+
 def listen(effector: str) -> None:
     """Print the first strategy published for effector, whoever caused it."""
     print(json.dumps({"ready": True}), flush=True)
@@ -76,7 +99,9 @@ def markers() -> None:
 if __name__ == "__main__":
     rospy.init_node("reach_test_helper", anonymous=True, disable_signals=True)
     mode = sys.argv[1]
-    if mode == "goal":
+    if mode == "motion":
+        motion(sys.argv[2], float(sys.argv[3]), float(sys.argv[4]), float(sys.argv[5]))
+    elif mode == "goal":
         goal(sys.argv[2], float(sys.argv[3]), float(sys.argv[4]), float(sys.argv[5]), sys.argv[6], *map(float, sys.argv[7:8]))
     elif mode == "listen":
         listen(sys.argv[2])

@@ -24,13 +24,13 @@ from reach.config import parse_config
 ROOT = Path(__file__).resolve().parents[1]
 SYSTEM_PYTHON = "/usr/bin/python3"
 INSTALL = ("apt-get install ros-core python3-rospy python3-geometry-msgs python3-sensor-msgs "
-           "python3-visualization-msgs python3-std-msgs python3-zmq")
+           "python3-visualization-msgs python3-std-msgs python3-trajectory-msgs python3-zmq")
 
 
 def ros_missing() -> str | None:
     if not shutil.which("roscore"):
         return "roscore not found"
-    probe = subprocess.run([SYSTEM_PYTHON, "-c", "import rospy, zmq, sensor_msgs.msg, visualization_msgs.msg"], capture_output=True, text=True)
+    probe = subprocess.run([SYSTEM_PYTHON, "-c", "import rospy, zmq, sensor_msgs.msg, visualization_msgs.msg, trajectory_msgs.msg"], capture_output=True, text=True)
     return None if probe.returncode == 0 else f"{SYSTEM_PYTHON} cannot import rospy: {probe.stderr.strip().splitlines()[-1:]}"
 
 
@@ -145,6 +145,29 @@ def test_choices_of_other_clients_are_relayed(ros):
     finally:
         if listener.poll() is None:
             listener.kill()
+
+
+def test_a_motion_goal_gives_a_joint_trajectory_whose_last_point_reaches_it(ros):
+    import numpy as np
+    import pinocchio as pin
+
+    from oracles.body import human_body
+
+    goal = np.array([0.4, -0.3, 1.2])
+    got = ros.helper("motion", "right_hand", *map(str, goal), timeout=90)
+    assert got["received"] and got["frame"] == "world"
+    times, positions = np.array(got["times"]), np.array(got["positions"])
+    assert times[0] == 0.0 and np.all(np.diff(times) > 0) and len(positions) == len(times) > 5
+    np.testing.assert_allclose(np.diff(times), 1 / 30, atol=1e-6)  # 30 Hz
+    body = human_body()
+    data = body.model.createData()
+    hand = []
+    for row in positions[[0, -1]]:  # an independent forward kinematics of the first and last points
+        q = body.configuration(dict(zip(got["names"], row, strict=True)))
+        pin.framesForwardKinematics(body.model, data, q)
+        hand.append(data.oMf[body.frame_id("right_hand")].translation.copy())
+    assert np.linalg.norm(hand[-1] - goal) < 0.005 < np.linalg.norm(hand[0] - goal)
+    assert ros.bridge.poll() is None
 
 
 def test_markers_are_published_latched(ros):
