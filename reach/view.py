@@ -16,7 +16,11 @@ the wheel: the page works offline). The scene, in the atlas's world frame
   selector (or a running ``reach serve``, ``--connect``), and the panel shows
   the strategy, its colour, the alternatives, whether the posture was
   refined and its residual, the strategy that handed the goal over and the
-  limits its posture came near, or that the goal is unreachable.
+  limits its posture came near, or that the goal is unreachable;
+* the answer's reach motion (:mod:`reach.motion`, or the server's
+  ``motion`` operation with ``--connect``): planned on demand from the
+  reference posture, played in real time (or slower), paused, or scrubbed frame by
+  frame on the first atlas's body, with the hand's path drawn as a line.
 
 Several atlases (a population study) stand side by side, ``spacing`` metres
 apart along y, each with its own colours. :class:`Viewer` is also the
@@ -26,6 +30,7 @@ Python API the tests drive.
 from __future__ import annotations
 
 import threading
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -144,6 +149,12 @@ class Viewer:
         self.effector = "right_hand" if "right_hand" in effectors else effectors[0]
         self.answers: list[dict[str, Any]] = []
         self.goal = np.array([0.45, -0.25, 1.2])
+        self.motion: dict[str, Any] | None = None  # the planned motion: its summary, times and postures (the shaper's order)
+        self._path: Any = None
+        self._planner: Any = None
+        self._player: threading.Thread | None = None
+        self._stop = threading.Event()
+        self.frame = 0  # the motion's frame shown
         self._gui()
         for k, scene in enumerate(self.scenes):
             self._body(k, scene)
@@ -163,6 +174,12 @@ class Viewer:
             self.policy_box = gui.add_dropdown("policy", list(POLICIES), initial_value=self.policy, disabled=self.client is not None,
                                                hint="the server's own policy applies with --connect" if self.client else None)
             self.answer_box = gui.add_markdown("")
+        with gui.add_folder("Motion"):
+            self.plan_button = gui.add_button("plan the reach motion", hint="from the reference posture to the answer (the first atlas)")
+            self.play_button = gui.add_button("play / pause", disabled=True)
+            self.frame_slider = gui.add_slider("frame", 0, 1, 1, 0, disabled=True)
+            self.speed_slider = gui.add_slider("speed", 0.1, 1.0, 0.05, 1.0, hint="playback speed: 1 is real time")
+            self.motion_box = gui.add_markdown("")
         with gui.add_folder("Volumes"):
             self.style_box = gui.add_dropdown("style", list(STYLES), initial_value="boxes")
             self.cells_box = gui.add_dropdown("cells", list(CELLS), initial_value="boundary")
@@ -183,6 +200,9 @@ class Viewer:
         for handle in (self.style_box, self.cells_box, self.first_box, self.slice_axis, self.slice_at):
             handle.on_update(lambda _e: self.draw())
         self.goal_box.on_update(lambda e: self._from_panel())
+        self.plan_button.on_click(lambda _e: self._plan_clicked())
+        self.play_button.on_click(lambda _e: self.pause() if self.playing else self.play())
+        self.frame_slider.on_update(lambda _e: self.show_frame(int(self.frame_slider.value)))
         self.effector_box.on_update(lambda e: self.set_effector(self.effector_box.value))
         self.policy_box.on_update(lambda e: self.set_policy(self.policy_box.value))
         self.gizmo = self.server.scene.add_transform_controls("/goal", scale=0.25, disable_rotations=True, position=tuple(self.goal))
@@ -318,6 +338,7 @@ class Viewer:
     def set_policy(self, policy: str) -> None:
         self.policy = policy
         self.selectors = [Selector(s.atlas, policy=policy, refine=self.refine) for s in self.scenes]  # type: ignore[arg-type]
+        self._planner = None
         for s in self.scenes:
             s.covered.clear()
         self.draw()
@@ -334,6 +355,13 @@ class Viewer:
         """Move the goal [m, world frame of the first atlas]: answer it for every atlas and show the answers."""
         goal = np.asarray(goal, float).reshape(3)
         self.goal = goal
+        if self.motion is not None:  # a new goal: the motion shown was to the old one
+            self.pause()
+            self.motion = None
+            self._path.remove()
+            self._path = None
+            self.play_button.disabled = self.frame_slider.disabled = True
+            self.motion_box.content = ""
         self.answers = [self.answer(k, goal) for k in range(len(self.scenes))]
         if not np.allclose(self.gizmo.position, goal):
             self.gizmo.position = tuple(goal)
@@ -362,7 +390,84 @@ class Viewer:
         self.answer_box.content = "\n\n".join(lines)
         return self.answers
 
+    # -- motion -----------------------------------------------------------------
+    @property
+    def playing(self) -> bool:
+        return self._player is not None and self._player.is_alive()
+
+    def plan_motion(self) -> dict[str, Any]:
+        """Plan the motion to the goal on the first atlas (its planner, or the server's ``motion``), draw the
+        hand's path and show its first frame; returns the motion's summary."""
+        from reach.motion import MotionError, Planner
+
+        self.pause()
+        scene = self.scenes[0]
+        if scene.shaper is None:
+            raise InputError("motion", "this atlas has no body to move")
+        try:
+            if self.client is not None:
+                data = {k: v for k, v in self.client.motion(effector=self.effector, goal=[float(v) for v in self.goal]).items() if k not in ("id", "ok")}
+            else:
+                if self._planner is None:  # its own selector: a motion ends in a refined answer, whatever the view shows
+                    self._planner = Planner(Selector(scene.atlas, policy=self.policy))  # type: ignore[arg-type]
+                data = self._planner.plan(self.effector, self.goal).to_dict()
+        except (MotionError, InputError) as exc:
+            self.motion_box.content = f"no motion: {exc}"
+            return {"error": str(exc)}
+        ref, names = scene.shaper.reference_posture(), scene.shaper.posture_names
+        frames = data.pop("frames")
+        postures = np.array([posture_vector(names, ref, f["posture"], f["root"]) for f in frames])
+        path = np.array([f["effector"] for f in frames], float) + scene.offset
+        self.motion = {**data, "times": np.array([f["t"] for f in frames]), "postures": postures, "path": path}
+        if self._path is not None:
+            self._path.remove()
+        segments = np.stack([path[:-1], path[1:]], axis=1) if len(path) > 1 else np.stack([path, path], axis=1)
+        self._path = self.server.scene.add_line_segments("/atlas0/motion/path", segments, (20, 20, 20), thickness=0.006)
+        last = len(postures) - 1
+        self.frame_slider.max, self.frame_slider.disabled, self.play_button.disabled = max(last, 1), False, False
+        self.motion_box.content = (f"**{data['strategy']}**, {data['outcome']}: {data['duration']:.2f} s, {len(postures)} frames at {data['rate']:g} Hz  \n"
+                                   f"{data['waypoints']} stored postures on the way, {data['held']} frames held")
+        self.frame_slider.value = 0  # type: ignore[misc]  # settable at run time
+        self.show_frame(0)
+        return data
+
+    def _plan_clicked(self) -> None:
+        self.plan_motion()
+
+    def show_frame(self, k: int) -> None:
+        """Pose the first atlas's body at frame k of the planned motion."""
+        if self.motion is None:
+            return
+        scene = self.scenes[0]
+        k = int(np.clip(k, 0, len(self.motion["postures"]) - 1))
+        self._pose(scene, scene.shaper.shape(self.motion["postures"][k])[1])
+        self.frame = k
+
+    def play(self) -> None:
+        """Play the motion at its rate from the slider's frame (from the start when at the end)."""
+        if self.motion is None or self.playing:
+            return
+        self._stop.clear()
+        start = 0 if int(self.frame_slider.value) >= len(self.motion["postures"]) - 1 else int(self.frame_slider.value)
+        self._player = threading.Thread(target=self._play, args=(start,), daemon=True)
+        self._player.start()
+
+    def _play(self, start: int) -> None:
+        assert self.motion is not None
+        rate, t0 = float(self.motion["rate"]) * float(self.speed_slider.value), time.monotonic()
+        for k in range(start, len(self.motion["postures"])):
+            if self._stop.wait(max(0.0, t0 + (k - start) / rate - time.monotonic())):
+                return
+            self.frame_slider.value = k  # type: ignore[misc]  # settable at run time; its update poses the body
+
+    def pause(self) -> None:
+        self._stop.set()
+        if self._player is not None:
+            self._player.join(timeout=5)
+        self._player = None
+
     def close(self) -> None:
+        self.pause()
         self.gate.close()
         self.server.stop()
         if self.client is not None:

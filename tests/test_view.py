@@ -245,13 +245,70 @@ def test_moving_the_goal_moves_the_drawn_arm_and_names_the_strategy(viewer, brow
     before = _shot(browser, "goal_before")
     text = browser.find_element("tag name", "body").text
     assert "right_arm" in text
-    viewer.set_goal(GOALS[2])  # reached only by bending the trunk
+    viewer.set_goal(GOALS[1])  # reached only by bending the trunk
     after = _shot_until(browser, "goal_after", lambda im: (np.abs(im[:, :760] - before[:, :760]).max(axis=2) > 30).sum() > 300)
-    assert "right_upper_body" in browser.find_element("tag name", "body").text
+    assert "right_upper_body" in viewer.answer_box.content  # (the layers' checkboxes name every strategy on the page)
     changed = np.abs(after[:, :760] - before[:, :760]).max(axis=2) > 30
     assert changed.sum() > 300  # the body moved on screen
     ys, xs = np.nonzero(changed)
     assert xs.max() - xs.min() < 600  # where the body is, not the whole scene
+
+
+def _hand_capsule(viewer) -> np.ndarray:
+    return np.array(viewer.scenes[0].capsules[list(viewer.scenes[0].shaper.shape(viewer.scenes[0].shaper.reference_posture())[0]).index("right_hand")].position)
+
+
+def test_a_planned_motion_poses_the_body_frame_by_frame_and_ends_in_the_answer(viewer):
+    from reach.motion import Planner
+    from reach.select import posture_vector
+
+    viewer._planner = Planner(Selector(viewer.scenes[0].atlas), budget=5.0)  # a budget no machine runs out of: the same answer below
+    viewer.set_goal(GOALS[0])
+    summary = viewer.plan_motion()
+    # The motion ends in the planner's answer: refined at the goal (the viewer's own answers here are stored postures).
+    answer = viewer._planner.selector.select("right_hand", GOALS[0], True, miss="unreachable").to_dict()
+    shaper = viewer.scenes[0].shaper
+    names, at_answer = shaper.shape(posture_vector(shaper.posture_names, shaper.reference_posture(), answer["posture"], answer["root"]))
+    frames = len(viewer.motion["postures"])
+    assert summary["strategy"] == answer["strategy"] and summary["frame_count"] == frames and viewer.frame_slider.max == frames - 1
+    hand = names.index("right_hand")
+    start = shaper.shape(shaper.reference_posture())[1][hand]
+    assert np.allclose(_hand_capsule(viewer), 0.5 * (start[:3] + start[3:6]))  # the first frame: the reference posture
+    viewer.show_frame(frames - 1)
+    assert np.allclose(_hand_capsule(viewer), 0.5 * (at_answer[hand, :3] + at_answer[hand, 3:6]), atol=1e-6)  # the last: the answer's
+    np.testing.assert_allclose(viewer._path.points[-1, 1], viewer.motion["path"][-1])  # the path ends at the hand
+    viewer.set_goal(GOALS[1])  # another goal: the motion shown was to the old one
+    assert viewer.motion is None and viewer.play_button.disabled
+
+
+@browser_only
+def test_the_motion_plays_in_the_browser_and_ends_in_the_answers_posture(viewer, browser):
+    from reach.motion import Planner
+    from reach.select import posture_vector
+
+    viewer._planner = Planner(Selector(viewer.scenes[0].atlas), budget=5.0)  # a budget no machine runs out of: the same answer below
+    viewer.show_strategy("right_arm", False)  # the body alone
+    viewer.set_goal(GOALS[1])  # the trunk bends: a motion a screenshot sees
+    _wait_for_page(browser, viewer)
+    viewer.plan_motion()
+    moved = lambda a, b: int((np.abs(a[:, :760] - b[:, :760]).max(axis=2) > 30).sum())  # noqa: E731
+    start = _shot(browser, "motion_start")
+    viewer.speed_slider.value = 0.1  # ten times slower: screenshots see the frames go by
+    browser.find_element("xpath", "//button[contains(., 'play / pause')]").click()  # the page's own button
+    seen, t0 = [], time.monotonic()
+    while time.monotonic() - t0 < 30 and (not seen or viewer.playing or seen[-1][0] != viewer.frame):
+        seen.append((viewer.frame, _shot(browser, f"motion_{len(seen)}", settle=0.15)))
+    frames = [k for k, _ in seen]
+    assert len(set(frames)) >= 3 and frames[-1] == len(viewer.motion["postures"]) - 1  # it played to the end
+    assert any(moved(im, start) > 300 for _, im in seen[1:-1])  # the drawn body changed while playing
+    end = _shot(browser, "motion_end")
+    # The answer the motion ends in, drawn from its own posture (not from the motion's frames).
+    answer = viewer._planner.selector.select("right_hand", GOALS[1], True, miss="unreachable")
+    assert answer.strategy == "right_upper_body" and viewer.motion["outcome"] == "reached"
+    shaper = viewer.scenes[0].shaper
+    viewer._pose(viewer.scenes[0], shaper.shape(posture_vector(shaper.posture_names, shaper.reference_posture(), answer.posture, answer.root))[1])
+    posed = _shot(browser, "motion_answer")
+    assert moved(start, posed) > 300 and moved(end, posed) < 0.05 * moved(start, posed)
 
 
 def test_view_command_needs_an_atlas(tmp_path, capsys):
