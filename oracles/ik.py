@@ -183,9 +183,40 @@ class IKOracle(ABC):
         return self._bones
 
     def interpolate(self, q0: np.ndarray, q1: np.ndarray, s: np.ndarray) -> np.ndarray:
-        """Pinocchio's interpolation on the model's configuration space (see :class:`oracles.protocol.Moving`)."""
+        """Pinocchio's interpolation on the model's configuration space (see :class:`oracles.protocol.Moving`).
+
+        With a floating root and a foot held fixed (a ``fixed`` contact of a
+        hard task), the root is then placed so that this foot follows its
+        own interpolation between its two placements: a standing body moves
+        from its foot, as people do, and the feet hardly slide, so that
+        :meth:`hold` has little to mend.
+        """
         model, a, b = self.body.model, np.asarray(q0, float), np.asarray(q1, float)
-        return np.array([pin.interpolate(model, a, b, float(u)) for u in np.atleast_1d(s)]).reshape(-1, model.nq)
+        out = np.array([pin.interpolate(model, a, b, float(u)) for u in np.atleast_1d(s)]).reshape(-1, model.nq)
+        anchor = self._anchor()
+        if anchor is None:
+            return out
+        data = self._data
+        ends = []
+        for q in (a, b):
+            pin.framesForwardKinematics(model, data, q)
+            ends.append(data.oMf[anchor].copy())
+        for k, u in enumerate(np.atleast_1d(s)):
+            pin.framesForwardKinematics(model, data, out[k])
+            target = pin.SE3.Interpolate(ends[0], ends[1], float(u))
+            root = target * data.oMf[anchor].inverse() * data.oMi[1]
+            out[k, :3], out[k, 3:7] = root.translation, pin.Quaternion(root.rotation).coeffs()
+        return out
+
+    def _anchor(self) -> int | None:
+        """The frame a standing body moves from: the first ``fixed`` contact of a hard task, when the root floats."""
+        if not self.strategy.floating:
+            return None
+        for task in self.strategy.hard:
+            for c in getattr(task, "contacts", ()):
+                if c.mode == "fixed":
+                    return int(self.body.frame_id(c.frame))
+        return None
 
     def faults(self, postures: np.ndarray) -> list[list[str]]:
         """The joints outside their ranges and the hard tasks a posture breaks, by each task's own check."""
