@@ -230,7 +230,7 @@ def _keep_out(oracle: object) -> np.ndarray | None:
 
 def tree_summary(tree: VATree) -> dict[str, Any]:
     """The per-strategy block of ``reach info --json``."""
-    ext = tree.extent()
+    ext, reach = tree.extent(), tree.reachable_extent()
     build = tree.meta.get("build", {})
     return {
         "nodes": {str(d): counts for d, counts in tree.node_counts().items()},
@@ -238,6 +238,8 @@ def tree_summary(tree: VATree) -> dict[str, Any]:
         "lattice_vertices": tree.lattice.vertex_count,
         "volume": {"inner": tree.volume(INNER), "boundary": tree.volume(FINAL)},
         "extent": {"min": ext[0].tolist(), "max": ext[1].tolist()} if ext else None,
+        "reachable_extent": {"min": reach[0].tolist(), "max": reach[1].tolist()} if reach else None,
+        "on_faces": tree.faces(),
         "effector": tree.meta.get("effector"),
         "priority": tree.meta.get("priority"),
         "box": tree.box.to_dict(),

@@ -111,7 +111,13 @@ def cmd_info(args: argparse.Namespace) -> int:
             + (f", {s['inherited_vertices']} reachable vertices inherited from {s['inherited_from']}" if s.get("inherited_from") else "")
         )
         if ext:
-            print(f"    extent min {np.round(ext['min'], 4).tolist()} max {np.round(ext['max'], 4).tolist()}")
+            print(f"    inner and boundary cells span min {np.round(ext['min'], 4).tolist()} max {np.round(ext['max'], 4).tolist()} [m]")
+        if s["reachable_extent"]:
+            r = s["reachable_extent"]
+            print(f"    reachable vertices span min {np.round(r['min'], 4).tolist()} max {np.round(r['max'], 4).tolist()} [m]")
+        if s["on_faces"]:
+            faces = ", ".join(f"{n} on {f}" for f, n in s["on_faces"].items())
+            print(f"    warning: reachable vertices lie on faces of the box ({faces}): the box cuts the volume; enlarge it there")
     return 0
 
 

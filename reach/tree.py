@@ -267,6 +267,27 @@ class VATree:
         hi = lo + self.cell_size(self.depth[sel])
         return lo.min(axis=0), hi.max(axis=0)
 
+    def reachable_extent(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """Bounds [m] of the reachable vertices (the oracle's own verdicts), or None when none is reachable."""
+        v = self.vertices
+        if not v.reachable.any():
+            return None
+        pts = self.lattice.points(self.lattice.coords(v.keys[v.reachable]))
+        return pts.min(axis=0), pts.max(axis=0)
+
+    def faces(self) -> dict[str, int]:
+        """The faces of B0 that reachable vertices lie on (``x-``, ``x+``, ``y-`` ...) and how many lie on each:
+        the box cuts the volume there, where the paper asks that it contain it."""
+        v = self.vertices
+        coords = self.lattice.coords(v.keys[v.reachable])
+        out = {}
+        for axis, name in enumerate("xyz"[: self.dim]):
+            for side, at in (("-", 0), ("+", self.lattice.cells)):
+                n = int(np.count_nonzero(coords[:, axis] == at))
+                if n:
+                    out[f"{name}{side}"] = n
+        return out
+
     # -- queries -----------------------------------------------------------
     def locate(self, points: np.ndarray) -> np.ndarray:
         """Index of the leaf containing each point, -1 outside B0.

@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import reach
@@ -49,6 +50,26 @@ def test_info_json_has_the_documented_keys(figure2_atlas, capsys):
     assert s["lattice_vertices"] == 9**2
     assert s["volume"]["inner"] <= 3.141592653589793 <= s["volume"]["inner"] + s["volume"]["boundary"]
     assert s["extent"] == {"min": [-1.0, -1.0], "max": [1.0, 1.0]}
+    assert s["reachable_extent"] == {"min": [-1.0, -1.0], "max": [1.0, 1.0]}
+    assert s["on_faces"] == {"x-": 1, "x+": 1, "y-": 1, "y+": 1}  # the inscribed circle touches each face at one lattice vertex
+
+
+def test_info_warns_when_reachable_vertices_lie_on_the_box(tmp_path, capsys):
+    raw = {"box": {"min": [-1, -1, 0], "max": [1, 1, 1]}, "depth": {"min": 1, "max": 3},
+           "oracle": {"name": "sphere", "params": {"radius": 0.9}}, "strategies": [{"name": "ball", "effector": "point"}]}
+    config = tmp_path / "cut.json"  # JSON is YAML
+    config.write_text(json.dumps(raw))
+    assert main(["build", str(config), "-o", str(tmp_path / "cut"), "--quiet"]) == 0
+    capsys.readouterr()
+    assert main(["info", str(tmp_path / "cut"), "--json"]) == 0
+    s = json.loads(capsys.readouterr().out)["strategies"]["ball"]
+    # At most the lattice vertices on z = 0 inside the ball (9 x 9 at depth 3, 0.25 m apart): the tree asks the oracle of some only.
+    g = np.linspace(-1, 1, 9)
+    x, y = np.meshgrid(g, g)
+    assert list(s["on_faces"]) == ["z-"] and 0 < s["on_faces"]["z-"] <= int(np.count_nonzero(x**2 + y**2 <= 0.81))
+    assert s["reachable_extent"]["min"][2] == 0.0
+    assert main(["info", str(tmp_path / "cut")]) == 0
+    assert "warning: reachable vertices lie on faces of the box" in capsys.readouterr().out
 
 
 def test_query_json(figure2_atlas, capsys):
