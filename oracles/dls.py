@@ -38,7 +38,7 @@ def damped_pinv(jac: np.ndarray, damping: float) -> np.ndarray:
     return jac.T @ np.linalg.inv(jac @ jac.T + (damping**2) * np.eye(jac.shape[0]))  # type: ignore[no-any-return]
 
 
-HELD = 1e-5  # [m or rad] project's rows: a tenth of the contacts' tolerances (oracles/tasks/contacts.py)
+HELD = 1e-5  # [m or rad] project's rows: well within the contacts' checks (0.1 mm, 1 mrad; oracles/tasks/contacts.py)
 
 
 class DLSIK(IKOracle):

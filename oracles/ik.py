@@ -41,7 +41,7 @@ from oracles.protocol import Ball, OracleSpec, Purpose, Skeleton, Verdicts, chec
 from oracles.search import Search
 from oracles.skeleton import bone_frames, build_skeleton
 from oracles.strategy import parse_strategy
-from oracles.tasks import Numeric, Symbolic
+from oracles.tasks import ContactsTask, Numeric, Symbolic
 
 SOLVERS = ("fatrop", "ipopt")
 # fatrop's initial barrier parameter for a settled reach stage (see Search.settle):
@@ -212,11 +212,9 @@ class IKOracle(ABC):
         """The frame a standing body moves from: the first ``fixed`` contact of a hard task, when the root floats."""
         if not self.strategy.floating:
             return None
-        for task in self.strategy.hard:
-            for c in getattr(task, "contacts", ()):
-                if c.mode == "fixed":
-                    return int(self.body.frame_id(c.frame))
-        return None
+        fixed = (c for t in self.strategy.hard if isinstance(t, ContactsTask) for c in t.contacts if c.mode == "fixed")
+        contact = next(fixed, None)
+        return None if contact is None else int(self.body.frame_id(contact.frame))
 
     def faults(self, postures: np.ndarray) -> list[list[str]]:
         """The joints outside their ranges and the hard tasks a posture breaks, by each task's own check."""

@@ -29,6 +29,7 @@ if TYPE_CHECKING:
 
 SHARED = 1e-9  # [m] a placement this short puts two joints at one point
 NEAR = 0.01  # [m] frames this close to a leaf's farthest one end it as well
+TURNING = ("JointModelR", "JointModelSpherical")  # Pinocchio's revolute (bounded or not, any axis) and spherical joints
 
 
 def build_skeleton(body: Body, effector: str | None = None) -> tuple[Skeleton, tuple[int, ...]]:
@@ -40,10 +41,11 @@ def build_skeleton(body: Body, effector: str | None = None) -> tuple[Skeleton, t
     hung = {p.joint for p in body.collision.placed}
     eff_joint = int(model.frames[body.frame_id(effector)].parentJoint) if effector else -1
     hung.add(eff_joint)
-    for j in range(1, model.njoints):
-        if model.joints[j].shortname().startswith(("JointModelP", "JointModelTranslation", "JointModelPlanar")) and j != 1:
-            raise ModelError(f"joint {model.names[j]!r} translates ({model.joints[j].shortname()}); a skeleton's bones only turn",
-                             source=body.source, name=str(model.names[j]))
+    for j in range(2, model.njoints):  # the root may float; every other joint must only turn
+        kind = model.joints[j].shortname()
+        if not kind.startswith(TURNING):
+            raise ModelError(f"joint {model.names[j]!r} is a {kind}, which translates; a skeleton's bones only turn "
+                             "(write the motion as .json)", source=body.source, name=str(model.names[j]))
     bone_of: dict[int, int] = {}
     chains: list[list[int]] = []
     parents: list[int] = []

@@ -39,7 +39,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from oracles.protocol import OracleSpec, Shaped
-from reach.errors import InputError
+from reach.errors import InputError, ServerError, ServerUnavailable
 from reach.gate import Gate
 from reach.select import Selector, posture_vector
 from reach.store import Atlas
@@ -411,7 +411,7 @@ class Viewer:
                 if self._planner is None:  # its own selector: a motion ends in a refined answer, whatever the view shows
                     self._planner = Planner(Selector(scene.atlas, policy=self.policy))  # type: ignore[arg-type]
                 data = self._planner.plan(self.effector, self.goal).to_dict()
-        except (MotionError, InputError) as exc:
+        except (MotionError, InputError, ServerError, ServerUnavailable) as exc:  # shown on the panel: the page lives on
             self.motion_box.content = f"no motion: {exc}"
             return {"error": str(exc)}
         ref, names = scene.shaper.reference_posture(), scene.shaper.posture_names

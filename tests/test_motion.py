@@ -267,6 +267,20 @@ def test_the_skeleton_groups_joints_at_one_point_into_bones(planner):
     assert ("right_hand", sk.bones.index("right_palm")) == sk.ends[[e[0] for e in sk.ends].index("right_hand")][:2]
 
 
+def test_a_skeleton_refuses_a_joint_that_translates_and_a_rig_needs_a_skeleton(crouch):
+    from pathlib import Path
+
+    from oracles.body import urdf_body
+    from oracles.errors import ModelError
+    from oracles.skeleton import build_skeleton
+    from reach.rig import rig
+
+    with pytest.raises(ModelError, match="joint 'prismatic_x' is a JointModelPX, which translates; a skeleton's bones only turn"):
+        build_skeleton(urdf_body(Path(__file__).parent / "data" / "all_joints.urdf"))
+    with pytest.raises(InputError, match="has no skeleton .no Articulated capability.: write the motion as .json"):
+        rig(crouch, object())
+
+
 def _quat_matrix(w: float, x: float, y: float, z: float) -> np.ndarray:
     return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
                      [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],

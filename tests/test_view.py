@@ -144,6 +144,8 @@ def test_the_viewer_over_a_server_shows_the_servers_answers(atlas):
         selector = Selector(atlas, refine=False)
         for goal in GOALS[:2]:
             assert _same(v.set_goal(goal)[0], selector.select("right_hand", goal).to_dict())
+        v.effector = "nose"  # the server refuses the motion: the panel says why, the viewer lives on
+        assert "error" in v.plan_motion() and v.motion_box.content.startswith("no motion: ") and "nose" in v.motion_box.content
     finally:
         v.close()
         server.stop()
