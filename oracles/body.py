@@ -9,11 +9,32 @@ into its range); for the generated human that is standing, soles on z = 0.
 A body is described by a JSON-compatible spec, so that workers can rebuild it:
 
 * ``{"human": {"sex": "male", "percentile": 50, "mass": 80}}``
-* ``{"urdf": "path/to/robot.urdf", "root_position": [0, 0, 0.5]}``
+* ``{"urdf": "path/to/robot.urdf", "root_position": [0, 0, 0.5], "up": "y"}``
 
-either with optional ``ranges``: joint name or glob pattern -> ``[lower,
-upper]`` in radians, or ``{"scale": f}`` to scale both limits towards zero
-(an impaired or fatigued joint).
+The world frame is z-up, in metres. A URDF body takes
+
+* ``root_position`` [m]: where its root link stands (default the origin);
+* ``up``: the model's own up axis (``z``, ``-z``, ``y``, ``-y``, ``x`` or
+  ``-x``; default ``z``), turned onto the world's z;
+* ``forward``: the model's own forward axis, perpendicular to ``up``, turned
+  onto the world's x (default ``x``, or ``z`` when ``up`` is ``x`` or ``-x``);
+  a glTF-style character is ``up: y, forward: z``;
+* ``root_rpy`` [rad]: a further rotation of the root, roll, pitch, yaw about
+  the world's fixed x, y, z (R = Rz(yaw) Ry(pitch) Rx(roll)), after those;
+* ``package_dirs``: folders holding the packages its ``package://`` meshes
+  name (the folder above each package's folder).
+
+Either body takes
+
+* ``ranges``: joint name or glob pattern -> ``[lower, upper]`` in radians,
+  or ``{"scale": f}`` to scale both limits towards zero (an impaired or
+  fatigued joint);
+* ``frames``: name -> ``{"parent": FRAME, "xyz": [m], "rpy": [rad]}``, frames
+  added on an existing one (grip points, tool centre points, sole corners);
+* ``reference``: the reference posture, ``zero`` (the default: every joint at
+  zero, clipped into its range, each clipped joint noted), ``middle`` (every
+  joint at its range's middle), or joint name -> value [rad or m] over
+  ``zero`` (a value outside the joint's range is an error).
 """
 
 from __future__ import annotations
@@ -48,6 +69,9 @@ class Body:
         spec: The JSON-compatible spec it was built from.
         urdf: The URDF text.
         anthropometry: Dimensions, for generated humans.
+        capsules: Collision capsules on the links.
+        notes: What loading changed without being asked (a reference joint
+            clipped into its range), for warnings.
     """
 
     model: pin.Model
@@ -57,6 +81,7 @@ class Body:
     urdf: str
     anthropometry: Anthropometry | None = None
     capsules: tuple[Capsule, ...] = ()
+    notes: tuple[str, ...] = ()  # what the loader changed without being asked (a clipped reference joint)
 
     @cached_property
     def collision(self) -> CollisionModel:
@@ -86,6 +111,9 @@ class Body:
     def hash(self) -> str:
         """Identifies the model (URDF text and range overrides) in stored atlases."""
         text = self.urdf + json.dumps(self.spec.get("ranges", {}), sort_keys=True)
+        placed = {k: self.spec[k] for k in PLACING if k in self.spec}
+        if placed:  # older atlases (no such keys) keep their hash
+            text += json.dumps(placed, sort_keys=True)
         return hashlib.sha256(text.encode()).hexdigest()[:16]
 
     def frame_id(self, name: str) -> int:
@@ -163,11 +191,12 @@ def _apply_ranges(model: pin.Model, ranges: dict[str, Any], source: str) -> None
     for pattern, value in ranges.items():
         hits = [n for n in names if fnmatch.fnmatchcase(n, pattern)]
         if not hits:
-            raise ModelError(f"ranges: no joint matches {pattern!r}; joints are: {', '.join(names)}", source=source)
+            raise ModelError(f"no joint matches; joints are: {', '.join(names)}", source=source, key=f"ranges.{pattern}")
         for n in hits:
             jm = model.joints[model.getJointId(n)]
             if jm.nq != 1:
-                raise ModelError(f"ranges: joint {n!r} has {jm.nq} coordinates; only 1-coordinate joints take ranges", source=source)
+                raise ModelError(f"joint {n!r} has {jm.nq} coordinates; only 1-coordinate joints take ranges", source=source,
+                                 key=f"ranges.{pattern}")
             i = jm.idx_q
             if isinstance(value, dict) and set(value) == {"scale"} and isinstance(value["scale"], (int, float)) and 0 < value["scale"] <= 1:
                 model.lowerPositionLimit[i] *= value["scale"]
@@ -175,7 +204,8 @@ def _apply_ranges(model: pin.Model, ranges: dict[str, Any], source: str) -> None
             elif isinstance(value, (list, tuple)) and len(value) == 2 and all(isinstance(v, (int, float)) for v in value) and value[0] <= value[1]:
                 model.lowerPositionLimit[i], model.upperPositionLimit[i] = float(value[0]), float(value[1])
             else:
-                raise ModelError(f"ranges.{pattern}: expected [lower, upper] in radians or {{scale: f}} with 0 < f <= 1, got {value!r}", source=source)
+                raise ModelError(f"expected [lower, upper] in radians or {{scale: f}} with 0 < f <= 1, got {value!r}", source=source,
+                                 key=f"ranges.{pattern}")
 
 
 def _check_limits(model: pin.Model, source: str) -> None:
@@ -190,9 +220,99 @@ def _check_limits(model: pin.Model, source: str) -> None:
             raise ModelError(f"joint {name!r} has limits lower {lo} > upper {hi}; expected lower <= upper [rad or m]", source=source, name=name)
 
 
+# A model's own axes, as ``up`` and ``forward`` name them.
+AXES = {"x": (1.0, 0.0, 0.0), "-x": (-1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "-y": (0.0, -1.0, 0.0), "z": (0.0, 0.0, 1.0), "-z": (0.0, 0.0, -1.0)}
+
+
+def _numbers(value: Any, n: int, key: str, unit: str, source: str) -> np.ndarray:
+    if (not isinstance(value, (list, tuple)) or len(value) != n
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) for v in value)):
+        raise ModelError(f"expected {n} numbers [{unit}], got {value!r}", source=source, key=key)
+    return np.array(value, float)
+
+
+def _root_rotation(spec: dict[str, Any], source: str) -> np.ndarray:
+    """The root's orientation: the model's ``up`` onto the world's z and its ``forward`` onto x, then ``root_rpy``."""
+    up = spec.get("up", "z")
+    if up not in AXES:
+        raise ModelError(f"expected one of {', '.join(AXES)} (the model's own up axis), got {up!r}", source=source, key="up")
+    u = np.array(AXES[up])
+    # By default the model's x stays forward, or its z for a model whose x is up.
+    forward = spec.get("forward", "x" if up not in ("x", "-x") else "z")
+    if forward not in AXES or abs(float(np.dot(AXES[forward], u))) > 0.5:
+        raise ModelError(f"expected one of {', '.join(a for a in AXES if abs(float(np.dot(AXES[a], u))) < 0.5)} (the model's own forward "
+                         f"axis, perpendicular to up {up}), got {forward!r}", source=source, key="forward")
+    f = np.array(AXES[forward])
+    turn = np.stack([f, np.cross(u, f), u])  # rows: model axes that become the world's x, y, z
+    rpy = _numbers(spec.get("root_rpy", [0, 0, 0]), 3, "root_rpy", "rad", source)
+    return np.asarray(pin.rpy.rpyToMatrix(*rpy) @ turn)
+
+
+def _add_frames(model: pin.Model, frames: Any, source: str) -> None:
+    """Frames the spec adds on existing ones (fixed placements: grip points, tool centre points, sole corners)."""
+    if not isinstance(frames, dict):
+        raise ModelError(f"expected a mapping of name to {{parent, xyz, rpy}}, got {frames!r}", source=source, name="frames")
+    for name, raw in frames.items():
+        key = f"frames.{name}"
+        if not isinstance(raw, dict) or "parent" not in raw or set(raw) - {"parent", "xyz", "rpy"}:
+            raise ModelError(f"expected {{parent: FRAME, xyz: [x, y, z], rpy: [r, p, y]}}, got {raw!r}", source=source, key=key)
+        if model.existFrame(str(name)):
+            raise ModelError(f"the model already has a frame {name!r}; choose another name", source=source, key=key)
+        parent = raw["parent"]
+        if not isinstance(parent, str) or not model.existFrame(parent):
+            known = sorted({str(f.name) for f in model.frames} - {"universe"})
+            raise ModelError(f"no frame {parent!r}; frames are: {', '.join(known)}", source=source, key=f"{key}.parent")
+        xyz = _numbers(raw.get("xyz", [0, 0, 0]), 3, f"{key}.xyz", "m", source)
+        rpy = _numbers(raw.get("rpy", [0, 0, 0]), 3, f"{key}.rpy", "rad", source)
+        pid = model.getFrameId(parent)
+        on = model.frames[pid]
+        placement = on.placement * pin.SE3(pin.rpy.rpyToMatrix(*rpy), xyz)
+        model.addFrame(pin.Frame(str(name), on.parentJoint, pid, placement, pin.FrameType.OP_FRAME))
+
+
+def _reference(model: pin.Model, q: np.ndarray, reference: Any, source: str) -> list[str]:
+    """Set q's joints to the reference posture; the notes say which joints zero had to be clipped for."""
+    lower, upper = model.lowerPositionLimit, model.upperPositionLimit
+    if reference is None or reference in ("zero", "middle"):
+        given: dict[str, Any] = {}
+    elif isinstance(reference, dict):
+        given = dict(reference)
+    else:
+        raise ModelError(f"expected zero, middle or a mapping of joint name to value [rad or m], got {reference!r}",
+                         source=source, key="reference")
+    names = [str(n) for n in model.names[2:]]
+    for name in given:
+        if name not in names:
+            raise ModelError(f"no such joint; joints are: {', '.join(names)}", source=source, key=f"reference.{name}")
+    notes = []
+    for j in range(2, model.njoints):
+        name, jm = str(model.names[j]), model.joints[j]
+        i = jm.idx_q
+        if name in given:
+            value = given[name]
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+                raise ModelError(f"expected a number [rad or m], got {value!r}", source=source, key=f"reference.{name}")
+            if jm.nq == 2:  # an unbounded revolute, stored as (cos, sin)
+                q[i:i + 2] = np.cos(value), np.sin(value)
+            elif jm.nq == 1 and not lower[i] - 1e-9 <= value <= upper[i] + 1e-9:
+                raise ModelError(f"{value} is outside the joint's range [{lower[i]:.6g}, {upper[i]:.6g}]",
+                                 source=source, key=f"reference.{name}")
+            elif jm.nq == 1:
+                q[i] = value
+        elif jm.nq == 1 and reference == "middle":
+            q[i] = 0.5 * (lower[i] + upper[i])
+        elif jm.nq == 1 and not lower[i] <= q[i] <= upper[i]:
+            clipped = float(np.clip(q[i], lower[i], upper[i]))
+            notes.append(f"reference: joint {name!r} at 0 is outside its range [{lower[i]:.6g}, {upper[i]:.6g}]; "
+                         f"it stands at {clipped:.6g} (give body.reference to choose)")
+            q[i] = clipped
+    return notes
+
+
 def _finish(model: pin.Model, urdf: str, source: str, spec: dict[str, Any], root: np.ndarray, capsules: list[Capsule], anthro: Anthropometry | None = None) -> Body:
     _check_limits(model, source)
     _apply_ranges(model, dict(spec.get("ranges", {})), source)
+    _add_frames(model, spec.get("frames", {}), source)
     # The free flyer's translation has no meaningful limits; bound it so
     # that random configurations and solvers stay finite.
     model.lowerPositionLimit[:3] = root - 2.0
@@ -201,65 +321,74 @@ def _finish(model: pin.Model, urdf: str, source: str, spec: dict[str, Any], root
     model.upperPositionLimit[3:7] = 1.0
     q = pin.neutral(model)
     q[:3] = root
-    q[7:] = np.clip(q[7:], model.lowerPositionLimit[7:], model.upperPositionLimit[7:])
-    return Body(model, q, source, spec, urdf, anthro, tuple(capsules))
+    q[3:7] = pin.Quaternion(_root_rotation(spec, source)).coeffs()
+    notes = _reference(model, q, spec.get("reference"), source)
+    return Body(model, q, source, spec, urdf, anthro, tuple(capsules), tuple(notes))
 
 
-def human_body(sex: str = "male", stature: float | None = None, percentile: float | None = None, mass: float | None = None, ranges: dict[str, Any] | None = None) -> Body:
-    """The generated human (see :mod:`oracles.human`)."""
+def human_body(sex: str = "male", stature: float | None = None, percentile: float | None = None, mass: float | None = None,
+               ranges: dict[str, Any] | None = None, frames: dict[str, Any] | None = None, reference: Any = None) -> Body:
+    """The generated human (see :mod:`oracles.human`), standing on z = 0, facing +x."""
     anthro = anthropometry(sex, stature, percentile, mass)  # type: ignore[arg-type]
     human = {"sex": sex, "stature": stature, "percentile": percentile, "mass": mass}
     spec: dict[str, Any] = {"human": {k: v for k, v in human.items() if v is not None}}
-    if ranges:
-        spec["ranges"] = ranges
+    spec.update(_given(ranges=ranges, frames=frames, reference=reference))
     urdf = human_urdf(anthro)
     model = _parse(urdf, "human")
     return _finish(model, urdf, "human", spec, np.array([0.0, 0.0, root_height(anthro)]), human_capsules(anthro), anthro)
 
 
+def _given(**keys: Any) -> dict[str, Any]:
+    """The spec's optional keys that were given (a spec without them keeps its hash)."""
+    return {k: v for k, v in keys.items() if v is not None and v != {} and v != []}
+
+
 def urdf_body(path: str | Path, root_position: list[float] | None = None, ranges: dict[str, Any] | None = None,
-              package_dirs: list[str] | None = None) -> Body:
-    """Any URDF, with a floating root at root_position [m]; its collision geometry becomes capsules
-    (meshes found by ``package://`` in package_dirs, or relative to the URDF's folder)."""
+              package_dirs: list[str] | None = None, *, up: str | None = None, forward: str | None = None, root_rpy: list[float] | None = None,
+              frames: dict[str, Any] | None = None, reference: Any = None) -> Body:
+    """Any URDF, with a floating root at root_position [m] turned by ``up`` and root_rpy; its collision geometry
+    becomes capsules (meshes found by ``package://`` in package_dirs, or relative to the URDF's folder)."""
     path = Path(path)
     try:
         urdf = path.read_text()
     except OSError as exc:
         raise ModelError(f"cannot read URDF ({exc.strerror or exc})", source=path) from exc
     spec: dict[str, Any] = {"urdf": str(path)}
-    if root_position is not None:
-        spec["root_position"] = list(root_position)
-    if ranges:
-        spec["ranges"] = ranges
-    if package_dirs:
-        spec["package_dirs"] = list(package_dirs)
-    root = np.zeros(3) if root_position is None else np.asarray(root_position, float)
-    if root.shape != (3,):
-        raise ModelError(f"root_position must be [x, y, z] in metres, got {root_position!r}", source=path)
+    spec.update(_given(root_position=None if root_position is None else list(root_position), ranges=ranges,
+                       package_dirs=None if package_dirs is None else list(package_dirs), up=up, forward=forward, root_rpy=root_rpy,
+                       frames=frames, reference=reference))
+    root = np.zeros(3) if root_position is None else _numbers(root_position, 3, "root_position", "m", str(path))
     capsules = urdf_capsules(urdf, str(path), path.parent, package_dirs or ())
     return _finish(_parse(urdf, str(path)), urdf, str(path), spec, root, capsules)
 
 
-BODY_KEYS = {"human", "urdf", "root_position", "ranges", "package_dirs"}
+BODY_KEYS = {"human", "urdf", "root_position", "ranges", "package_dirs", "up", "forward", "root_rpy", "frames", "reference"}
+URDF_ONLY = {"root_position", "package_dirs", "up", "forward", "root_rpy"}
 HUMAN_KEYS = {"sex", "stature", "percentile", "mass"}
+PLACING = ("up", "forward", "root_rpy", "frames", "reference")  # keys that change where the body's frames stand, so its hash
 
 
 def load_body(spec: dict[str, Any]) -> Body:
     """Build a body from its JSON-compatible spec (see the module docstring)."""
     if not isinstance(spec, dict) or ("human" in spec) == ("urdf" in spec):
-        raise ModelError(f"body spec needs exactly one of 'human' or 'urdf', got {spec!r}", source="body spec")
+        raise ModelError(f"expected a mapping with exactly one of 'human' or 'urdf', got {spec!r}")
     unknown = set(spec) - BODY_KEYS
     if unknown:
-        raise ModelError(f"unknown keys {sorted(unknown)}; allowed: {sorted(BODY_KEYS)}", source="body spec")
+        key = sorted(unknown)[0]
+        raise ModelError(f"unknown key; allowed: {', '.join(sorted(BODY_KEYS))}", key=key)
     ranges = spec.get("ranges")
     if ranges is not None and not isinstance(ranges, dict):
-        raise ModelError(f"ranges must be a mapping of joint name to range, got {ranges!r}", source="body spec", name="ranges")
+        raise ModelError(f"expected a mapping of joint name to range, got {ranges!r}", key="ranges")
     if "human" in spec:
         human = spec["human"] or {}
         if not isinstance(human, dict) or set(human) - HUMAN_KEYS:
-            raise ModelError(f"human takes {sorted(HUMAN_KEYS)}, got {human!r}", source="body spec", name="human")
-        return human_body(ranges=ranges, **human)
+            raise ModelError(f"expected a mapping with keys among {sorted(HUMAN_KEYS)}, got {human!r}", key="human")
+        placed = sorted(set(spec) & URDF_ONLY)
+        if placed:
+            raise ModelError(f"a URDF body's key; the generated human stands on z = 0 facing +x", key=placed[0])
+        return human_body(ranges=ranges, frames=spec.get("frames"), reference=spec.get("reference"), **human)
     dirs = spec.get("package_dirs")
     if dirs is not None and (not isinstance(dirs, list) or not all(isinstance(d, str) for d in dirs)):
-        raise ModelError(f"package_dirs must be a list of folders, got {dirs!r}", source="body spec", name="package_dirs")
-    return urdf_body(spec["urdf"], spec.get("root_position"), ranges, dirs)
+        raise ModelError(f"expected a list of folders, got {dirs!r}", key="package_dirs")
+    return urdf_body(spec["urdf"], spec.get("root_position"), ranges, dirs, up=spec.get("up"), forward=spec.get("forward"), root_rpy=spec.get("root_rpy"),
+                     frames=spec.get("frames"), reference=spec.get("reference"))

@@ -178,13 +178,27 @@ def _resolve(filename: str, urdf_dir: Path | None, package_dirs: Sequence[str | 
             candidate = Path(root) / rest
             if candidate.is_file():
                 return candidate
-        raise ModelError(f"mesh {filename!r} not found in package_dirs {[str(d) for d in package_dirs]}", source=source)
+        package = rest.split("/", 1)[0]
+        found = _package_parent(package, urdf_dir)
+        hint = f"; {found} holds a folder {package!r}: give it" if found else ""
+        raise ModelError(f"mesh {filename!r} not found in {[str(d) for d in package_dirs]}: give package_dirs the folder that "
+                         f"holds the package folder {package!r} (the folder above it){hint}", source=source, key="package_dirs")
     path = Path(filename.removeprefix("file://"))
     if not path.is_absolute() and urdf_dir is not None:
         path = urdf_dir / path
     if not path.is_file():
         raise ModelError(f"mesh {filename!r} not found (looked for {path})", source=source)
     return path
+
+
+def _package_parent(package: str, urdf_dir: Path | None) -> Path | None:
+    """A folder holding a folder named ``package``, among the URDF's folder and its ancestors (a hint for the error)."""
+    if urdf_dir is None:
+        return None
+    for folder in [urdf_dir.resolve(), *urdf_dir.resolve().parents]:
+        if (folder / package).is_dir():
+            return folder
+    return None
 
 
 def _mesh_capsule(path: Path, scale: np.ndarray, source: str) -> tuple[np.ndarray, np.ndarray, float]:

@@ -38,11 +38,22 @@ class ModelError(ReachError):
         source: The file or body spec the model came from, when known.
         name: The joint, frame, link or key concerned, when there is one (the
             reason names it too).
+        key: Where in the spec the user wrote the offending value (``body.frames.grip.parent``,
+            ``tasks[1].margin``, ``joints``), when known; enclosing specs prefix it as
+            the error passes up (a config then names the key as written).
     """
 
-    def __init__(self, reason: str, *, source: str | Path | None = None, name: str | None = None) -> None:
-        self.reason, self.source, self.name = reason, None if source is None else str(source), name
-        super().__init__(f"{self.source}: {reason}" if self.source else reason)
+    def __init__(self, reason: str, *, source: str | Path | None = None, name: str | None = None, key: str | None = None) -> None:
+        self.reason, self.source, self.name, self.key = reason, None if source is None else str(source), name, key
+        super().__init__(reason)
+
+    def __str__(self) -> str:
+        return ": ".join([p for p in (self.source, self.key) if p] + [self.reason])
+
+    def under(self, prefix: str) -> ModelError:
+        """This error, its key placed under ``prefix`` (the enclosing spec's key); returns self."""
+        self.key = f"{prefix}.{self.key}" if self.key else prefix
+        return self
 
 
 class TaskError(ModelError):
@@ -54,5 +65,4 @@ class TaskError(ModelError):
     """
 
     def __init__(self, key: str, reason: str) -> None:
-        super().__init__(f"{key}: {reason}", name=key)
-        self.key, self.reason = key, reason
+        super().__init__(reason, name=key, key=key)

@@ -33,7 +33,7 @@ import numpy as np
 import pinocchio as pin
 
 from oracles.body import load_body
-from oracles.errors import OracleError
+from oracles.errors import ModelError, OracleError
 from oracles.jit import COMPILER, compiled_nlpsol
 from oracles.kinematics import SymbolicKinematics
 from oracles.problem import Check, ReachProblem
@@ -100,7 +100,10 @@ class IKOracle(ABC):
                  search: Search | None = None) -> None:
         self.search = search if search is not None else Search()
         self._strategy_params: dict[str, Any] = {"body": body, "effector": effector, "joints": joints, "tasks": tasks}
-        self.body = load_body(body)
+        try:
+            self.body = load_body(body)
+        except ModelError as exc:
+            raise exc.under("body") from None
         self.strategy = parse_strategy(self.body, effector, joints, tasks)
         self.problem = ReachProblem(self.body, self.strategy)
         self.posture_names = tuple(self.body.q_names)
@@ -144,6 +147,11 @@ class IKOracle(ABC):
         if p.anchor is None or not np.isfinite(p.max_reach):
             return None
         return Ball(p.anchor.copy(), float(p.max_reach))
+
+    def lowest(self) -> float | None:
+        """0 when a floor task holds the effector's own capsule above z = 0 (the effector lies inside it), else None."""
+        floor = self.strategy.task("floor")
+        return 0.0 if floor is not None and getattr(floor, "eager", ()) else None
 
     def reference_posture(self) -> np.ndarray:
         return self.body.q_ref.copy()
@@ -226,19 +234,23 @@ class IKOracle(ABC):
             out.append(p.out_of_limits(q) + [t.type for t in self.strategy.hard if not t.holds(num)])
         return out
 
+    def _project(self, posture: np.ndarray, guess: np.ndarray) -> np.ndarray:
+        """Damped least squares on the hard tasks' rows alone, from guess, pulled towards posture (may still break them)."""
+        if self._projector is None:
+            from oracles.dls import DLSIK
+
+            self._projector = self if isinstance(self, DLSIK) else DLSIK(**self._strategy_params)
+        return np.asarray(self._projector.project(posture, guess))
+
     def hold(self, posture: np.ndarray, before: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray | None:
         """The least change that holds every hard task (damped least squares on their rows alone, a few
         iterations); failing that, the refinement's solve at the posture's own effector position, started
         from it and pulled towards it."""
         q = np.asarray(posture, float)
-        if self._projector is None:
-            from oracles.dls import DLSIK
-
-            self._projector = self if isinstance(self, DLSIK) else DLSIK(**self._strategy_params)
         model = self.body.model
         guesses = [q] if before is None else [pin.integrate(model, q, pin.difference(model, before[0], before[1])), q]
         for guess in guesses:
-            held = self._projector.project(q, guess)
+            held = self._project(q, guess)
             if not self.faults(held[None])[0]:
                 return held
         v = self.evaluate_from(self.effector_positions(q[None]), q)
@@ -256,6 +268,20 @@ class IKOracle(ABC):
     def describe(self) -> dict[str, Any]:
         """The strategy as parsed: effector, active joints and tasks (``reach model CONFIG``)."""
         return {"effector": self.strategy.effector, "joints": list(self.strategy.joints), "tasks": [t.describe() for t in self.strategy.tasks]}
+
+    def diagnose(self) -> list[str]:
+        """What in the spec will likely give a wrong or empty volume (see :class:`oracles.protocol.Diagnosed`)."""
+        out = list(self.body.notes)
+        for task in self.strategy.hard:
+            out += task.warnings()
+        q = self.body.q_ref
+        broken = self.faults(q[None])[0]
+        # A start that breaks a hard task is common (one foot's balance from two feet) and the search leaves
+        # it; only when the nearest posture holding the hard tasks cannot be found is the volume at risk.
+        if broken and self.faults(self._project(q, q)[None])[0]:
+            out.append(f"the reference posture breaks the hard tasks {broken} and no posture near it holds them: every search starts "
+                       "there, so the volume may come out empty; give body.reference (a posture that holds them) or change the tasks")
+        return out
 
     def variant(self, purpose: Purpose, *, budget: float | None = None, restarts: int = 6) -> IKOracle:
         """This oracle set up for a purpose (see :class:`oracles.protocol.Tunable`).

@@ -1,7 +1,7 @@
 """The reach problem of one strategy on one body, shared by the IK oracles.
 
 It fixes the active coordinates ``x`` (the root's position [m] and roll,
-pitch, yaw [rad] when the base floats, then one angle [rad] or length [m] per
+pitch, yaw [rad] from its reference orientation when the base floats, then one angle [rad] or length [m] per
 active joint), their bounds, the map ``x -> q``, the reach pre-filter, and
 the verdict: an independent Pinocchio forward-kinematics check of a posture,
 by each task's own check and the joint limits. It binds the strategy's
@@ -58,6 +58,16 @@ def _rpy_quat(r: ca.SX, p: ca.SX, y: ca.SX) -> ca.SX:
     return ca.vertcat(sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy, cr * cp * cy + sr * sp * sy)
 
 
+def _compose(a: np.ndarray, b: ca.SX) -> ca.SX:
+    """Quaternion (x, y, z, w) of the rotation a then b in a's frame (a b), a constant; b itself when a is the identity."""
+    if np.allclose(a, [0.0, 0.0, 0.0, 1.0]):
+        return b
+    ax, ay, az, aw = (float(v) for v in a)
+    bx, by, bz, bw = b[0], b[1], b[2], b[3]
+    return ca.vertcat(aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
+                      aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz)
+
+
 class ReachProblem:
     """Coordinates, bounds, polygon and verdict of a strategy on a body."""
 
@@ -93,6 +103,10 @@ class ReachProblem:
                 lo.append(float(model.lowerPositionLimit[jm.idx_q]))
                 hi.append(float(model.upperPositionLimit[jm.idx_q]))
         self.lower, self.upper = np.array(lo), np.array(hi)
+        # A floating root's roll, pitch and yaw turn it from its reference orientation (a y-up model stands
+        # turned; its x then starts at zero, far from the rpy's gimbal lock at pitch +-pi/2).
+        self._root_ref = np.asarray(body.q_ref[3:7], float)
+        self._root_ref_rot = pin.Quaternion(self._root_ref).normalized().toRotationMatrix()
         self.limited = np.array(limited, bool)
         self.nx = len(self.x_names)
         # Symbolic x -> q: locked coordinates keep their reference values.
@@ -101,7 +115,7 @@ class ReachProblem:
         k = 0
         if strategy.floating:
             q[0:3] = xs[0:3]
-            q[3:7] = _rpy_quat(xs[3], xs[4], xs[5])
+            q[3:7] = _compose(self._root_ref, _rpy_quat(xs[3], xs[4], xs[5]))
             k = 6
         for j in self.joint_ids:
             jm = model.joints[j]
@@ -145,7 +159,7 @@ class ReachProblem:
         x = np.empty(self.nx)
         if self.strategy.floating:
             rot = pin.Quaternion(q[3:7]).normalized().toRotationMatrix()
-            x[:3], x[3:6] = q[:3], pin.rpy.matrixToRpy(rot)
+            x[:3], x[3:6] = q[:3], pin.rpy.matrixToRpy(self._root_ref_rot.T @ rot)
         x[self._x_single] = q[self._q_single]
         x[self._x_paired] = np.arctan2(q[self._q_paired + 1], q[self._q_paired])
         return np.clip(x, self.lower, self.upper)
@@ -165,7 +179,7 @@ class ReachProblem:
             rot = pin.Quaternion(np.asarray(q[3:7])).normalized().toRotationMatrix()
             root = np.zeros((6, 6))
             root[:3, :3] = rot.T
-            root[3:, 3:] = pin.rpy.computeRpyJacobian(pin.rpy.matrixToRpy(rot), pin.LOCAL)
+            root[3:, 3:] = pin.rpy.computeRpyJacobian(pin.rpy.matrixToRpy(self._root_ref_rot.T @ rot), pin.LOCAL)
 
         def joint_jacobian(joint: int) -> np.ndarray:
             jac = pin.getJointJacobian(model, data, joint, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)

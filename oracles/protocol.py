@@ -164,6 +164,15 @@ class ReachBound(Protocol):
 
 
 @runtime_checkable
+class Floored(Protocol):
+    """An oracle whose reachable points lie on or above a height (a floor the effector cannot pass)."""
+
+    def lowest(self) -> float | None:
+        """The least world z [m] of any reachable point, or None when nothing bounds it below."""
+        ...
+
+
+@runtime_checkable
 class Shaped(Protocol):
     """An oracle whose body can be drawn."""
 
@@ -215,6 +224,19 @@ class Described(Protocol):
 
     def describe(self) -> dict[str, Any]:
         """A JSON-compatible description: for body oracles the effector, joints and tasks with their pairs."""
+        ...
+
+
+@runtime_checkable
+class Diagnosed(Protocol):
+    """An oracle that can say, before solving anything, what in its spec will likely give a wrong or empty volume."""
+
+    def diagnose(self) -> list[str]:
+        """One sentence per finding, naming the joint, pair or task and what to give instead (empty: nothing found).
+
+        For a body: reference joints clipped into their ranges, hard tasks the
+        reference posture breaks, collision pairs overlapping at the reference.
+        """
         ...
 
 

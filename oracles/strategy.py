@@ -88,13 +88,13 @@ class Strategy:
 def active_joints(body: Body, joints: Any) -> tuple[str, ...]:
     """The joints named by names or glob patterns, in model order."""
     if not isinstance(joints, list) or not joints or not all(isinstance(j, str) for j in joints):
-        raise ModelError(f"joints: expected a non-empty list of joint names or patterns, got {joints!r}", name="joints")
+        raise ModelError(f"expected a non-empty list of joint names or patterns, got {joints!r}", key="joints")
     names = [ROOT, *body.joint_names]
     active: set[str] = set()
     for pattern in joints:
         hits = matching(names, pattern)
         if not hits:
-            raise ModelError(f"joints: no joint matches {pattern!r}; joints are: {', '.join(names)}", source=body.source)
+            raise ModelError(f"no joint matches {pattern!r}; joints are: {', '.join(names)}", key="joints")
         active.update(hits)
     return tuple(n for n in names if n in active)
 
@@ -112,11 +112,14 @@ def parse_task(raw: Any, where: str, scope: Scope) -> Task:
 
 def parse_strategy(body: Body, effector: str, joints: list[str], tasks: list[dict[str, Any]] | None = None) -> Strategy:
     """Validate a strategy against a body; errors name the task, key and value."""
-    body.frame_id(effector)
+    try:
+        body.frame_id(effector)
+    except ModelError as exc:
+        raise exc.under("effector") from None
     ordered = active_joints(body, joints)
     tasks = [{"type": "reach"}] if tasks is None else tasks
     if not isinstance(tasks, list):
-        raise ModelError(f"tasks: expected a list of task mappings, got {tasks!r}", name="tasks")
+        raise ModelError(f"expected a list of task mappings, got {tasks!r}", key="tasks")
     scope = Scope(body, effector, frozenset(ordered))
     parsed: list[Task] = []
     for i, raw in enumerate(tasks):

@@ -93,6 +93,12 @@ def _mirror_source(s: StrategySpec, built: dict[str, VATree], oracle_of: Callabl
     return source, mirror
 
 
+def face_text(faces: dict[str, int]) -> str:
+    """The warning for reachable vertices on faces of B0 (see :meth:`VATree.faces`)."""
+    listed = ", ".join(f"{n} on {f}" for f, n in faces.items())
+    return f"reachable vertices lie on faces of the box ({listed}): the box cuts the volume there; enlarge it on those faces"
+
+
 def build_atlas(
     config: Config,
     out: str | Path,
@@ -131,6 +137,7 @@ def _build_locked(
     """build_atlas's work, with the folder locked."""
     from reach.mirror import MirrorOracle
     entries = []
+    warnings: list[dict[str, Any]] = []
     built: dict[str, VATree] = {}
     t0 = time.perf_counter()
     # Mirror sources first, so that their trees exist when their images are made.
@@ -183,6 +190,10 @@ def _build_locked(
         save_tree(tree, path)
         partial.unlink(missing_ok=True)
         built[s.name] = tree
+        faces = tree.faces()
+        if faces:
+            warnings.append({"strategy": s.name, "faces": faces})
+            say(f"warning: {s.name}: {face_text(faces)}")
         entries.append({"name": s.name, "effector": s.effector, "priority": s.priority, "file": path.name, "oracle": s.oracle.to_dict(), "fingerprint": fp,
                         "digest": tree.meta["digest"]})
     entries.sort(key=lambda e: (e["priority"], e["name"]))
@@ -194,6 +205,7 @@ def _build_locked(
         "model_hashes": sorted({t.meta["model_hash"] for t in built.values() if "model_hash" in t.meta}),
         "versions": package_versions(),
         "build_seconds": time.perf_counter() - t0,
+        "warnings": {"config": list(config.notes), "faces": warnings},
     }
     write_manifest(out, manifest)
     if (out / PARTIAL).is_dir() and not any((out / PARTIAL).iterdir()):
@@ -258,5 +270,6 @@ def summary(atlas: Atlas) -> dict[str, Any]:
         "name": atlas.manifest.get("name"),
         "path": str(atlas.path),
         "strategies": {name: tree_summary(tree) for name, tree in atlas.trees.items()},
+        "config_warnings": list(atlas.manifest.get("warnings", {}).get("config", [])),
     }
 

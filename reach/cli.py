@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from reach import protocol as P
-from reach.errors import ConfigError, InputError, ReachError
+from reach.errors import ConfigError, InputError, ReachError, TreeError
 from reach.select import HANDOVER, MISS, MISSES, REFINE_BUDGET
 from reach.tree import DEFAULT_POLICY, POLICIES
 
@@ -37,6 +37,10 @@ def cmd_build(args: argparse.Namespace) -> int:
     from reach.config import load_config
 
     config = load_config(args.config)
+    for note in config.notes:
+        print(f"warning: {config.source}: {note}", file=sys.stderr, flush=True)
+    if args.strict and config.notes:
+        raise ConfigError(config.source, "", f"{len(config.notes)} warning(s) above, and --strict makes them errors")
     if args.refine_centres or args.refine_faces or args.retry_isolated:
         import dataclasses
 
@@ -53,13 +57,16 @@ def cmd_build(args: argparse.Namespace) -> int:
         signal.signal(signal.SIGTERM, _terminated)  # as Ctrl-C: the checkpoints stay, a message, status 143
     print(f"building {len(config.strategies)} strateg{'y' if len(config.strategies) == 1 else 'ies'} of {config.source} into {out} ({how})", flush=True)
     try:
-        build_atlas(config, out, executor_factory=factory, progress=not args.quiet, log=lambda line: print(line, flush=True),
+        atlas = build_atlas(config, out, executor_factory=factory, progress=not args.quiet, log=lambda line: print(line, flush=True),
                     resume=args.resume, mirror=not args.no_mirror,
                     inherit=not args.no_inherit)
     finally:
         if client is not None:
             client.close()
     print(f"atlas written to {out}")
+    cut = [w["strategy"] for w in atlas.manifest.get("warnings", {}).get("faces", [])]
+    if args.strict and cut:
+        raise TreeError(f"the box cuts the volume of {', '.join(cut)} (warnings above), and --strict makes that an error; the atlas is kept")
     return 0
 
 
@@ -94,7 +101,7 @@ def _executor_factory(args: argparse.Namespace, chunk_size: int) -> tuple[Any, A
 
 
 def cmd_info(args: argparse.Namespace) -> int:
-    from reach.atlas import summary
+    from reach.atlas import face_text, summary
     from reach.store import load_atlas
 
     info = summary(load_atlas(args.atlas))
@@ -116,8 +123,9 @@ def cmd_info(args: argparse.Namespace) -> int:
             r = s["reachable_extent"]
             print(f"    reachable vertices span min {np.round(r['min'], 4).tolist()} max {np.round(r['max'], 4).tolist()} [m]")
         if s["on_faces"]:
-            faces = ", ".join(f"{n} on {f}" for f, n in s["on_faces"].items())
-            print(f"    warning: reachable vertices lie on faces of the box ({faces}): the box cuts the volume; enlarge it there")
+            print(f"    warning: {face_text(s['on_faces'])}")
+    for note in info.get("config_warnings", []):
+        print(f"  warning (config): {note}")
     return 0
 
 
@@ -354,14 +362,18 @@ def cmd_model(args: argparse.Namespace) -> int:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
+    from reach.atlas import face_text
     from reach.report import markdown, report
     from reach.store import load_atlas
 
     atlas = load_atlas(args.atlas)
     names = atlas.select(args.strategies.split(",")) if args.strategies else None
-    tables = report(atlas, args.output, args.level, names)
+    tables = report(atlas, args.output, args.level, names, (args.slice_z, args.slice_y))
     print(markdown(tables, str(atlas.manifest.get("name", atlas.path))))
     print("figures: " + ", ".join(tables["figures"]))
+    for name, s in tables["strategies"].items():
+        if s["on_faces"]:
+            print(f"warning: {name}: {face_text(s['on_faces'])}", file=sys.stderr)
     return 0
 
 
@@ -455,6 +467,9 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--refine-centres", action="store_true", help="probe the centre of each would-be inner cell; split it if the probe fails")
     p.add_argument("--refine-faces", action="store_true", help="also probe the centres of its faces")
     p.add_argument("--retry-isolated", action="store_true", help="retry unreachable vertices whose neighbours are all reachable, from their postures")
+    p.add_argument("--strict", action="store_true",
+                   help="make warnings errors (exit 2): the config's (a clipped reference joint, a hard task the reference breaks, "
+                        "capsules overlapping there) before building, and reachable vertices on a face of the box after (the atlas is kept)")
     p.set_defaults(func=cmd_build)
 
     p = sub.add_parser("info", help="summarise an atlas", description="Print node counts, volumes, extents and oracle calls of every strategy of an atlas.")
@@ -553,6 +568,8 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="folder for the report")
     p.add_argument("--strategies", help="comma-separated strategies for the figures (default: all)")
     p.add_argument("--level", type=int, default=4, help="figure grid: 2**LEVEL cells per axis (default 4; 5 is finer and slower)")
+    p.add_argument("--slice-z", type=float, metavar="Z", help="height [m] of the horizontal slice (default: the box's middle)")
+    p.add_argument("--slice-y", type=float, metavar="Y", help="y [m] of the sagittal slice (default 0)")
     p.set_defaults(func=cmd_report)
 
     p = sub.add_parser("export", help="mesh of a strategy's volume", description="Write the surface of a strategy's reachable volume (marching cubes) as STL or PLY, in metres.")

@@ -12,11 +12,13 @@ Example (``configs/sphere.yaml``)::
     strategies:
       - {name: sphere, effector: point, priority: 1}
 
-``box: auto`` (or ``box: {auto: {margin: 0.05, floor: true}}``) derives B0
+``box: auto`` (or ``box: {auto: {margin: 0.05, floor: auto}}``) derives B0
 from the body's size: the union of every strategy's reach bound (a ball
 about its fixed anchor: the first moving joint, or a planted foot), plus the
-margin [m], cut at the floor z = 0, and symmetric about y = 0 when a strategy
-is mirrored.
+margin [m], and symmetric about y = 0 when a strategy is mirrored. The world
+is z-up (a body's ``up`` turns it so). With ``floor: auto`` a strategy's
+ball is cut at z = 0 when its floor task keeps the effector above the floor;
+``true`` cuts every ball there, ``false`` none.
 
 Strategies are tried in increasing ``priority`` (1 first); the default is
 their order in the file. A strategy's ``oracle.params`` are merged over the
@@ -35,9 +37,9 @@ from typing import Any
 import numpy as np
 import yaml
 
-from oracles.protocol import Oracle, OracleSpec, ReachBound, body_params
+from oracles.protocol import Diagnosed, Floored, Oracle, OracleSpec, ReachBound, body_params
 from reach.build import Refine
-from reach.errors import ConfigError, ReachError, TreeError
+from reach.errors import ConfigError, ModelError, ReachError, TreeError
 from reach.executor import CHUNK_SIZE
 from reach.tree import MAX_DEPTH, Box
 
@@ -81,6 +83,7 @@ class Config:
     chunk_size: int = CHUNK_SIZE
     refine: Refine = field(default_factory=Refine)
     raw: dict[str, Any] = field(default_factory=dict, compare=False)
+    notes: tuple[str, ...] = field(default=(), compare=False)  # load-time warnings (see Diagnosed), each naming its strategies
 
     def strategy(self, name: str) -> StrategySpec:
         for s in self.strategies:
@@ -195,6 +198,7 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
             raise check.fail(f"build.refine.{k}", f"expected true or false, got {v!r}")
     refine = Refine(**refine_raw)
     oracles = _check_oracles(check, strategies, box.dim)
+    notes = _diagnose(strategies, oracles)
     if auto is not None:
         box = _derive_box(check, oracles, auto, any(spec.mirror_of for spec in strategies))
     names = {spec.name for spec in strategies}
@@ -204,7 +208,17 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
         if spec.mirror_of is not None and box.dim == 3 and box.lo[1] != -box.hi[1]:
             raise check.fail(f"strategies[{i}].mirror_of", f"mirroring needs a box symmetric about y = 0, got y in [{box.lo[1]}, {box.hi[1]}]")
     strategies.sort(key=lambda spec: spec.priority)
-    return Config(name, source, box, d_min, d_max, tuple(strategies), chunk, refine, dict(top))
+    return Config(name, source, box, d_min, d_max, tuple(strategies), chunk, refine, dict(top), notes)
+
+
+def _diagnose(strategies: list[StrategySpec], oracles: list[Oracle]) -> tuple[str, ...]:
+    """Each oracle's load-time findings (see :class:`~oracles.protocol.Diagnosed`), once each, naming the strategies it concerns."""
+    found: dict[str, list[str]] = {}
+    for s, oracle in zip(strategies, oracles, strict=True):
+        if isinstance(oracle, Diagnosed):
+            for finding in oracle.diagnose():
+                found.setdefault(finding, []).append(s.name)
+    return tuple(f"{'strategy' if len(names) == 1 else 'strategies'} {', '.join(names)}: {finding}" for finding, names in found.items())
 
 
 def _check_oracles(check: _Checker, strategies: list[StrategySpec], dim: int) -> list[Oracle]:
@@ -217,6 +231,10 @@ def _check_oracles(check: _Checker, strategies: list[StrategySpec], dim: int) ->
     for i, s in enumerate(strategies):
         try:
             oracle = s.oracle.create()
+        except ModelError as exc:
+            # A body oracle's error names where in the body or strategy it lies: name it as the config writes it.
+            key = exc.key if exc.key and exc.key.split(".")[0].split("[")[0] == "body" else f"strategies[{i}].{exc.key or 'oracle'}"
+            raise check.fail(key, f"{exc.source}: {exc.reason}" if exc.source else exc.reason) from exc
         except ReachError as exc:
             raise check.fail(f"strategies[{i}].oracle", str(exc)) from exc
         if oracle.dim != dim:
@@ -226,18 +244,19 @@ def _check_oracles(check: _Checker, strategies: list[StrategySpec], dim: int) ->
 
 
 def _auto_box(check: _Checker, value: Any) -> dict[str, Any] | None:
-    """Options of a derived box (``box: auto`` or ``box: {auto: {margin: m, floor: true}}``), or None for a given one."""
+    """Options of a derived box (``box: auto`` or ``box: {auto: {margin: m, floor: auto}}``), or None for a given one."""
     if value == "auto":
-        return {"margin": 0.05, "floor": True}
+        return {"margin": 0.05, "floor": "auto"}
     if isinstance(value, Mapping) and "auto" in value:
         check.mapping(value, "box", {"auto"})
         opts = check.mapping(value["auto"] if value["auto"] is not True else {}, "box.auto", {"margin", "floor"})
         margin = opts.get("margin", 0.05)
         if isinstance(margin, bool) or not isinstance(margin, (int, float)) or not 0 <= margin <= 2:
             raise check.fail("box.auto.margin", f"expected a number of metres in [0, 2], got {margin!r}")
-        if not isinstance(opts.get("floor", True), bool):
-            raise check.fail("box.auto.floor", f"expected true or false, got {opts['floor']!r}")
-        return {"margin": float(margin), "floor": opts.get("floor", True)}
+        floor = opts.get("floor", "auto")
+        if floor not in (True, False, "auto"):
+            raise check.fail("box.auto.floor", f"expected auto, true or false, got {floor!r}")
+        return {"margin": float(margin), "floor": floor}
     return None
 
 
@@ -249,12 +268,15 @@ def _derive_box(check: _Checker, oracles: list[Oracle], auto: dict[str, Any], sy
         if bound is None:
             raise check.fail("box", "box: auto needs body strategies whose reach is bounded (a fixed root, or feet on the floor); give box.min and box.max")
         centre, radius = bound
-        lows.append(centre - radius)
-        highs.append(centre + radius)
-    lo = np.min(lows, axis=0) - auto["margin"]
-    hi = np.max(highs, axis=0) + auto["margin"]
-    if auto["floor"]:
-        lo[2] = max(lo[2], 0.0)  # the floor of the world frame: nothing reaches below it
+        low = np.asarray(centre - radius - auto["margin"], float)
+        # The floor z = 0 cuts a strategy's box where the strategy itself keeps its effector above it (auto),
+        # or everywhere (true); a robot without a floor task reaches below its base's plane.
+        floor = (o.lowest() if isinstance(o, Floored) else None) if auto["floor"] == "auto" else (0.0 if auto["floor"] else None)
+        if floor is not None:
+            low[2] = max(low[2], floor)
+        lows.append(low)
+        highs.append(centre + radius + auto["margin"])
+    lo, hi = np.min(lows, axis=0), np.max(highs, axis=0)
     if symmetric:
         half = max(-lo[1], hi[1])
         lo[1], hi[1] = -half, half

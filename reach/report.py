@@ -46,7 +46,8 @@ def tables(atlas: Atlas) -> dict[str, Any]:
     """Volumes, extents and pairwise booleans of every strategy."""
     names = list(atlas.trees)
     per = {
-        n: {"effector": t.meta.get("effector"), "priority": t.meta.get("priority"), "volume_inner": t.volume(INNER), "volume_boundary": t.volume(FINAL), **extents(t)}
+        n: {"effector": t.meta.get("effector"), "priority": t.meta.get("priority"), "volume_inner": t.volume(INNER), "volume_boundary": t.volume(FINAL), **extents(t),
+            "on_faces": t.faces()}
         for n, t in atlas.trees.items()
     }
     pairs = []
@@ -72,6 +73,10 @@ def markdown(t: dict[str, Any], title: str) -> str:
              "| strategy | effector | priority | inner | boundary | highest | lowest | forward | left | right |", "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for n, s in t["strategies"].items():
         lines.append(f"| {n} | {s['effector']} | {s['priority']} | {f(s['volume_inner'])} | {f(s['volume_boundary'])} | {f(s.get('highest'))} | {f(s.get('lowest'))} | {f(s['forward'])} | {f(s['left'])} | {f(s['right'])} |")
+    cut = {n: s["on_faces"] for n, s in t["strategies"].items() if s.get("on_faces")}
+    if cut:
+        lines += ["", "**Warning: the box cuts these volumes** (reachable vertices on its faces; enlarge the box there):", ""]
+        lines += [f"- {n}: " + ", ".join(f"{k} on {f}" for f, k in faces.items()) for n, faces in cut.items()]
     lines += ["", "Pairwise volumes [m^3] (inner cells of the boolean trees):", "", "| a | b | a and b | a not b | b not a |", "| --- | --- | --- | --- | --- |"]
     for p in t["pairs"]:
         lines.append(f"| {p['a']} | {p['b']} | {p['intersection']:.3f} | {p['a_minus_b']:.3f} | {p['b_minus_a']:.3f} |")
@@ -118,7 +123,7 @@ def overlay_names(trees: dict[str, VATree]) -> list[str]:
     return out[:3]
 
 
-def figures(atlas: Atlas, out: Path, level: int = 4, names: list[str] | None = None) -> list[Path]:
+def figures(atlas: Atlas, out: Path, level: int = 4, names: list[str] | None = None, planes: tuple[float | None, float | None] = (None, None)) -> list[Path]:
     """Write the PNG figures; returns their paths."""
     import matplotlib
 
@@ -169,12 +174,12 @@ def figures(atlas: Atlas, out: Path, level: int = 4, names: list[str] | None = N
         else:
             ax.voxels(x, y, z, occ, facecolors=(0, 0, 0, 0), edgecolors=colour, linewidth=0.3)
     written.append(_save(fig, out / "figure11.png"))
-    written.append(slices(trees, out / "slices.png", level))
+    written.append(slices(trees, out / "slices.png", level, *planes))
     return written
 
 
 def slices(trees: dict[str, VATree], path: Path, level: int, z: float | None = None, y: float | None = None) -> Path:
-    """Horizontal (z = const) and sagittal (y = const) slices of every strategy."""
+    """Horizontal (z = const, default the box's middle) and sagittal (y = const, default 0) slices of every strategy."""
     import matplotlib.pyplot as plt
 
     first = next(iter(trees.values()))
@@ -217,13 +222,15 @@ def _save(fig: Any, path: Path) -> Path:
     return path
 
 
-def report(atlas: Atlas, out: str | Path, level: int = 4, names: list[str] | None = None) -> dict[str, Any]:
-    """Write the tables and figures into out; returns the tables with the figure paths."""
+def report(atlas: Atlas, out: str | Path, level: int = 4, names: list[str] | None = None,
+           planes: tuple[float | None, float | None] = (None, None)) -> dict[str, Any]:
+    """Write the tables and figures into out; returns the tables with the figure paths. ``planes``: the
+    slices' z and y [m] (None: the box's middle height, and y = 0)."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     t = tables(atlas)
     (out / "report.md").write_text(markdown(t, str(atlas.manifest.get("name", atlas.path))))
-    t["figures"] = [str(p) for p in figures(atlas, out, level, names)]
+    t["figures"] = [str(p) for p in figures(atlas, out, level, names, planes)]
     from reach.protocol import finite
 
     (out / "report.json").write_text(json.dumps(finite(t), indent=2, allow_nan=False))

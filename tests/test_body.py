@@ -118,7 +118,7 @@ def test_range_overrides_scale_or_replace(man):
 
 
 def test_range_override_errors_name_the_joint():
-    with pytest.raises(ModelError, match="no joint matches 'right_tail'"):
+    with pytest.raises(ModelError, match=r"ranges.right_tail: no joint matches"):
         human_body(ranges={"right_tail": [0, 1]})
     with pytest.raises(ModelError, match=r"ranges\.right_elbow_flexion: expected \[lower, upper\]"):
         human_body(ranges={"right_elbow_flexion": {"scale": 3}})

@@ -58,7 +58,8 @@ class BalanceTask(HardTask):
     def resolve(self, tasks: Sequence[Task], where: str) -> BalanceTask:
         support = self.polygon_frames or tuple(dict.fromkeys(f for t in tasks for f in t.support))
         if len(set(support)) < 3:
-            raise TaskError(where, "balance needs a support polygon: give a feet or contacts task, or balance.support with 3 frames or more")
+            raise TaskError(where, f"balance needs a support polygon of 3 frames or more, got {list(dict.fromkeys(support))}: give the feet task soles (each foot's corner frames; "
+                                  "add them with the body's frames), a contacts task's support, or balance.support")
         return replace(self, polygon_frames=support)
 
     def bind(self, reference: Reference) -> None:

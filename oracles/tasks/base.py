@@ -270,6 +270,10 @@ class Task(ABC):
         """What ``reach model`` prints of the task (JSON-compatible); its ``text``, when given, is the line it prints."""
         return {"type": self.type, "hard": self.hard}
 
+    def warnings(self) -> list[str]:
+        """What the task, bound to the reference posture, finds suspect there (one sentence each; see ``IKOracle.diagnose``)."""
+        return []
+
 
 class HardTask(Task):
     """A constraint: no soft task may trade it away.

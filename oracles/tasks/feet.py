@@ -3,14 +3,22 @@
 ``heels: down`` holds each foot flat where it stands; its support polygon
 is spanned by the heels' and toes' corners. ``heels: rise`` holds the balls
 of the feet and lets each foot pivot about its lateral axis, heels kept at
-z >= 0, over a polygon of the balls and toes. ``support`` replaces the
-polygon's frames. Bodies without the generated human's heel and toe frames
-use the foot frames themselves.
+z >= 0, over a polygon of the balls and toes.
+
+The corners are found by name: for a foot frame ``right_foot`` (or ``r_sole``),
+``right_heel_inner``, ``right_heel_outer``, ``right_toe_inner``,
+``right_toe_outer`` (and ``right_ball_inner``, ``right_ball_outer`` for
+``heels: rise``; ``r_sole_heel_inner``... for a name not ending in ``foot``),
+as the generated human has them. ``soles`` names each foot's polygon
+explicitly instead: foot frame -> its corner frames (3 or more; add them
+with the body's ``frames``), used for both ``heels`` settings. ``support``
+replaces the whole polygon's frames. A foot with neither stands on its own
+frame alone, and ``reach model`` and ``reach build`` warn about it.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, ClassVar
 
 from oracles.errors import TaskError
@@ -34,8 +42,10 @@ class FeetTask(ContactsTask):
     """Feet held on the floor, flat or pivoting about the balls (a contacts task with foot defaults)."""
 
     type: ClassVar[str] = "feet"
-    keys: ClassVar[frozenset[str]] = frozenset({"frames", "heels", "support"})
+    keys: ClassVar[frozenset[str]] = frozenset({"frames", "heels", "support", "soles"})
     summary: ClassVar[str] = "feet held flat where they stand (`heels: down`), or on their balls, pivoting, heels at z >= 0 (`heels: rise`)"
+
+    bare: tuple[str, ...] = ()  # feet with no sole corners: each stands on its own frame alone
 
     @classmethod
     def parse(cls, raw: dict[str, Any], where: str, scope: Scope) -> FeetTask:
@@ -43,15 +53,30 @@ class FeetTask(ContactsTask):
         heels = raw.get("heels", "down")
         if heels not in HEELS:
             raise TaskError(f"{where}.heels", f"expected 'down' or 'rise', got {heels!r}")
-        contacts, above, support = [], [], []
+        soles = raw.get("soles", {})
+        if not isinstance(soles, dict) or set(soles) - set(feet):
+            raise TaskError(f"{where}.soles", f"expected a mapping of foot frame (one of {list(feet)}) to its corner frames, got {soles!r}")
+        contacts, above, support, bare = [], [], [], []
         for f in feet:
+            if f in soles:
+                corners = list(frames(scope, soles[f], f"{where}.soles.{f}"))
+                if len(set(corners)) < 3:
+                    raise TaskError(f"{where}.soles.{f}", f"expected 3 corner frames or more (a polygon), got {corners!r}")
+            else:
+                corners = _side_frames(scope, f, DOWN_SUPPORT if heels == "down" else RISE_SUPPORT)
+                bare += [f] if corners == [f] else []
+            support += corners
             if heels == "down":
                 contacts.append(Contact(f, "fixed"))
-                support += _side_frames(scope, f, DOWN_SUPPORT)
             else:
                 contacts.append(Contact(f, "hinge"))
                 above += _side_frames(scope, f, ["heel"])
-                support += _side_frames(scope, f, RISE_SUPPORT)
         if "support" in raw:
             support = list(frames(scope, raw["support"], f"{where}.support"))
-        return cls.held(scope, contacts, above, support)  # type: ignore[return-value]
+            bare = []
+        return replace(cls.held(scope, contacts, above, support), bare=tuple(bare))  # type: ignore[return-value]
+
+    def warnings(self) -> list[str]:
+        return [f"foot {f!r} has no sole corners (no frames named as the feet task's docs say, no soles.{f}): it stands on its own "
+                f"frame alone, a point, and balance has no polygon from it; give soles: {{{f}: [corner frames]}}"
+                for f in self.bare]

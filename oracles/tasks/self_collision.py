@@ -127,6 +127,7 @@ class SelfCollisionTask(HardTask):
     pairs: tuple[Pair, ...] = ()
     at_reference: tuple[tuple[str, str, float], ...] = ()  # pairs closer than the margin at the reference: names, distance [m]
     static: tuple[int, ...] = ()  # capsules that no active joint moves and the effector may not enter (see keep_out)
+    tissue: bool = False  # capsules of flesh (the generated human), whose contacts at rest are by design
     _model: CollisionModel | None = field(default=None, repr=False, compare=False)
     _floors: np.ndarray = field(default_factory=lambda: np.zeros(0), init=False, repr=False, compare=False)
     _ids: tuple[tuple[int, int], ...] = field(default=(), init=False, repr=False, compare=False)
@@ -173,7 +174,7 @@ class SelfCollisionTask(HardTask):
             if d < margin:
                 close.append((model.placed[i].name, model.placed[j].name, round(float(d), 4)))
             pairs.append(Pair(i, j, clearance, clearance - CHECK_TOL if d >= margin else min(0.0, clearance) - CONTACT_GIVE))
-        return cls(margin, tuple(pairs), tuple(close), _keep_out(scope, model, pairs))
+        return cls(margin, tuple(pairs), tuple(close), _keep_out(scope, model, pairs), scope.body.anthropometry is not None)
 
     def bind(self, reference: Reference) -> None:
         self._model = reference.body.collision
@@ -191,6 +192,16 @@ class SelfCollisionTask(HardTask):
             "keep_out": [names[i] for i in self.static] if names else len(self.static),
             "text": f"{len(self.pairs)} pairs checked; closer than the margin at the reference (keep that clearance): {close or 'none'}",
         }
+
+    def warnings(self) -> list[str]:
+        # The generated human's arms rest against its trunk and thighs, flesh on flesh, by design; a robot's
+        # capsules overlapping deeper than CONTACT_GIVE are its geometry or a reference posture folded into
+        # itself, and the pair then keeps that overlap as its clearance.
+        if self.tissue:
+            return []
+        return [f"capsules {a} and {b} overlap by {-d * 1000:.0f} mm at the reference posture; the pair keeps that clearance instead "
+                f"of the margin: give body.reference where they are apart, or exclude [{a}, {b}]"
+                for a, b, d in self.at_reference if d < -CONTACT_GIVE]
 
     def constraints(self, sym: Symbolic) -> list[Constraint]:
         return []  # lazy: see cuts
