@@ -385,7 +385,7 @@ def load_body(spec: dict[str, Any]) -> Body:
             raise ModelError(f"expected a mapping with keys among {sorted(HUMAN_KEYS)}, got {human!r}", key="human")
         placed = sorted(set(spec) & URDF_ONLY)
         if placed:
-            raise ModelError(f"a URDF body's key; the generated human stands on z = 0 facing +x", key=placed[0])
+            raise ModelError("a URDF body's key; the generated human stands on z = 0 facing +x", key=placed[0])
         return human_body(ranges=ranges, frames=spec.get("frames"), reference=spec.get("reference"), **human)
     dirs = spec.get("package_dirs")
     if dirs is not None and (not isinstance(dirs, list) or not all(isinstance(d, str) for d in dirs)):

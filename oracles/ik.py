@@ -41,7 +41,7 @@ from oracles.protocol import Ball, OracleSpec, Purpose, Skeleton, Verdicts, chec
 from oracles.search import Search
 from oracles.skeleton import bone_frames, build_skeleton
 from oracles.strategy import parse_strategy
-from oracles.tasks import ContactsTask, Numeric, Symbolic
+from oracles.tasks import ContactsTask, FloorTask, Numeric, Symbolic
 
 SOLVERS = ("fatrop", "ipopt")
 # fatrop's initial barrier parameter for a settled reach stage (see Search.settle):
@@ -151,7 +151,7 @@ class IKOracle(ABC):
     def lowest(self) -> float | None:
         """0 when a floor task holds the effector's own capsule above z = 0 (the effector lies inside it), else None."""
         floor = self.strategy.task("floor")
-        return 0.0 if floor is not None and getattr(floor, "eager", ()) else None
+        return 0.0 if isinstance(floor, FloorTask) and floor.eager else None
 
     def reference_posture(self) -> np.ndarray:
         return self.body.q_ref.copy()

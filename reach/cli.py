@@ -175,6 +175,9 @@ def cmd_query(args: argparse.Namespace) -> int:
             if a.get("posture"):
                 moved = {k: round(v, 4) for k, v in a["posture"].items() if abs(v) > 1e-9}
                 print(f"  posture [rad] (refined: {a['refined']}, residual {a['residual']:.2e} m): {moved}")
+            if a.get("root"):
+                r = a["root"]
+                print(f"  root: position {np.round(r['position'], 4).tolist()} [m], quaternion (x, y, z, w) {np.round(r['quaternion'], 5).tolist()}")
         elif a.get("nearest"):
             n = a["nearest"]
             print(f"{a['effector']}: goal {a['goal']} not reachable: {n['strategy']}'s tree holds it but no refinement reached it; "
@@ -323,27 +326,35 @@ def cmd_view(args: argparse.Namespace) -> int:
 
 
 def cmd_model(args: argparse.Namespace) -> int:
-    from oracles.body import human_body, load_body, urdf_body
+    from oracles.body import human_body, load_body
     from oracles.protocol import Described
 
     spec = args.spec
     strategies: dict[str, Any] = {}
+    warnings: list[str] = []
+    placing = {"up": args.up, "forward": args.forward, "root_position": args.root_position, "root_rpy": args.root_rpy, "package_dirs": args.package_dir}
+    given = sorted(k for k, v in placing.items() if v is not None)
+    if given and (spec == "human" or spec.endswith((".yaml", ".yml"))):
+        raise InputError(given[0], "options for a URDF (a config gives them in its body; the generated human stands on z = 0 facing +x)")
     if spec == "human":
         body = human_body(args.sex, args.stature, args.percentile, args.mass)
     elif spec.endswith((".yaml", ".yml")):
         from reach.config import load_config, read_yaml
 
+        config = load_config(spec)  # errors name the file and the key
         data = read_yaml(Path(spec))
         if not isinstance(data, dict) or "body" not in data:
             raise ConfigError(spec, "body", "the config names no body")
         body = load_body(data["body"])
-        for s in load_config(spec).strategies:
+        for s in config.strategies:
             oracle = s.oracle.create()
             if isinstance(oracle, Described):
                 strategies[s.name] = oracle.describe()
+        warnings = list(config.notes)
     else:
-        body = urdf_body(spec)
-    info = {**body.describe(), "world_frame": P.WORLD_AXES, **({"strategies": strategies} if strategies else {})}
+        body = load_body({"urdf": spec, **{k: v for k, v in placing.items() if v is not None}})
+        warnings = list(body.notes)
+    info = {**body.describe(), "world_frame": P.WORLD_AXES, "warnings": warnings, **({"strategies": strategies} if strategies else {})}
     if args.json:
         _print_json(info)
         return 0
@@ -351,6 +362,9 @@ def cmd_model(args: argparse.Namespace) -> int:
     for j in info["joints"]:
         print(f"  {j['name']:<28} [{j['lower']:+.4f}, {j['upper']:+.4f}]")
     print(f"  centre of mass {info['center_of_mass']}")
+    print(f"  {len(info['frames'])} frames at the reference posture [m]:")
+    for name, pos in info["frames"].items():
+        print(f"    {name:<28} {np.round(pos, 4).tolist()}")
     print(f"  {len(info['capsules'])} collision capsules [m]:")
     for c in info["capsules"]:
         print(f"    {c['name']:<20} on {c['link']:<16} radius {c['radius']:.4f} length {c['length']:.4f}")
@@ -358,6 +372,8 @@ def cmd_model(args: argparse.Namespace) -> int:
         for t in d["tasks"]:
             if t.get("text"):  # the task's own line (see oracles.tasks.base.Task.describe)
                 print(f"  {name}: {t['text']}")
+    for w in warnings:
+        print(f"warning: {w}", file=sys.stderr)
     return 0
 
 
@@ -482,7 +498,8 @@ def make_parser() -> argparse.ArgumentParser:
         description="Ask which strategy reaches the goal X Y [Z] (metres, atlas world frame), by priority: "
         "'reach query ATLAS X Y [Z]' reads the atlas, 'reach query --connect ADDR X Y [Z]' asks a running server.",
     )
-    p.add_argument("values", nargs="+", metavar="ATLAS X Y [Z]", help="atlas folder (omitted with --connect) and goal [m]")
+    p.usage = "reach query [options] ATLAS X Y [Z]\n       reach query --connect ADDR [options] X Y [Z]"
+    p.add_argument("values", nargs="+", metavar="ATLAS X Y [Z]", help="atlas folder (omitted with --connect) and one goal [m]")
     p.add_argument("--connect", metavar="ADDR", help=f"ask the server at ADDR (e.g. {P.DEFAULT_BIND}) instead of reading an atlas")
     p.add_argument("--effector", help="effector to ask about (default: every effector of the atlas)")
     _policy_option(p)
@@ -609,6 +626,12 @@ def make_parser() -> argparse.ArgumentParser:
     group.add_argument("--percentile", type=float, help="for 'human': stature percentile of ANSUR II (default 50)")
     group.add_argument("--stature", type=float, help="for 'human': stature [m]")
     p.add_argument("--mass", type=float, help="for 'human': body mass [kg] (default: ANSUR II mean at constant BMI)")
+    p.add_argument("--up", help="for a URDF: the model's own up axis (z, -z, y, -y, x, -x; default z), turned onto the world's z")
+    p.add_argument("--forward", help="for a URDF: the model's own forward axis, turned onto the world's x (default x; z when up is x)")
+    p.add_argument("--root-position", type=float, nargs=3, metavar=("X", "Y", "Z"), help="for a URDF: where its root link stands [m]")
+    p.add_argument("--root-rpy", type=float, nargs=3, metavar=("R", "P", "Y"), help="for a URDF: a further root rotation [rad]")
+    p.add_argument("--package-dir", action="append", metavar="DIR",
+                   help="for a URDF: a folder holding a package its package:// meshes name (the folder above the package's); repeatable")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_model)
     return parser

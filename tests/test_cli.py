@@ -70,6 +70,20 @@ def test_info_warns_when_reachable_vertices_lie_on_the_box(tmp_path, capsys):
     assert s["reachable_extent"]["min"][2] == 0.0
     assert main(["info", str(tmp_path / "cut")]) == 0
     assert "warning: reachable vertices lie on faces of the box" in capsys.readouterr().out
+    # The build said it, the manifest keeps it, the report flags it, and --strict fails (keeping the atlas).
+    manifest = json.loads((tmp_path / "cut" / "manifest.json").read_text())
+    assert manifest["warnings"]["faces"] == [{"strategy": "ball", "faces": s["on_faces"]}]
+    assert main(["report", str(tmp_path / "cut"), "-o", str(tmp_path / "report"), "--level", "2"]) == 0
+    out = capsys.readouterr()
+    assert "the box cuts these volumes" in (tmp_path / "report" / "report.md").read_text() and "warning: ball:" in out.err
+    assert json.loads((tmp_path / "report" / "report.json").read_text())["strategies"]["ball"]["on_faces"] == s["on_faces"]
+    assert main(["build", str(config), "-o", str(tmp_path / "strict"), "--quiet", "--strict"]) == 2
+    out = capsys.readouterr()
+    assert "warning: ball: reachable vertices lie on faces of the box" in out.out and "--strict makes that an error" in out.err
+    assert (tmp_path / "strict" / "ball.npz").is_file()
+    raw["box"] = {"min": [-1, -1, -1], "max": [1, 1, 1]}
+    config.write_text(json.dumps(raw))
+    assert main(["build", str(config), "-o", str(tmp_path / "whole"), "--quiet", "--strict"]) == 0
 
 
 def test_query_json(figure2_atlas, capsys):

@@ -74,7 +74,9 @@ class FeetTask(ContactsTask):
         if "support" in raw:
             support = list(frames(scope, raw["support"], f"{where}.support"))
             bare = []
-        return replace(cls.held(scope, contacts, above, support), bare=tuple(bare))  # type: ignore[return-value]
+        task = cls.held(scope, contacts, above, support)
+        assert isinstance(task, FeetTask)
+        return replace(task, bare=tuple(bare))
 
     def warnings(self) -> list[str]:
         return [f"foot {f!r} has no sole corners (no frames named as the feet task's docs say, no soles.{f}): it stands on its own "

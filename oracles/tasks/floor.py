@@ -21,7 +21,8 @@ missed reachable goals.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
 import casadi as ca
@@ -40,6 +41,7 @@ from oracles.tasks.base import (
     Row,
     Scope,
     Symbolic,
+    Task,
     moved,
     world_point,
 )
@@ -59,6 +61,7 @@ class FloorTask(HardTask):
 
     capsules: tuple[int, ...] = ()
     eager: tuple[int, ...] = ()  # the effector's capsules: constraint rows, not cuts
+    standing: bool = False  # no exclude given: the segments that hold the strategy's contacts stand on the floor (see resolve)
     _model: CollisionModel | None = field(default=None, repr=False, compare=False)
 
     @classmethod
@@ -73,7 +76,17 @@ class FloorTask(HardTask):
             raise TaskError(f"{where}.exclude", str(exc)) from exc
         keep = [i for i, p in enumerate(model.placed) if p.name not in skip and moved(scope.body.model, p.joint, scope.active)]
         effector = int(scope.body.model.frames[scope.body.frame_id(scope.effector)].parentJoint)
-        return cls(tuple(keep), tuple(i for i in keep if model.placed[i].joint == effector))
+        return cls(tuple(keep), tuple(i for i in keep if model.placed[i].joint == effector), "exclude" not in raw, scope.body.collision)
+
+    def resolve(self, tasks: Sequence[Task], where: str) -> FloorTask:
+        """Without ``exclude``, the capsules on the segments holding a contacts or feet task's frames (a robot's
+        feet, whatever their names) stand on the floor too."""
+        if not self.standing or self._model is None:
+            return self
+        pm = self._model.model
+        feet = {int(pm.frames[pm.getFrameId(f)].parentJoint) for t in tasks for f in t.held_frames}
+        keep = tuple(i for i in self.capsules if self._model.placed[i].joint not in feet)
+        return replace(self, capsules=keep, eager=tuple(i for i in self.eager if i in keep))
 
     def bind(self, reference: Reference) -> None:
         self._model = reference.body.collision

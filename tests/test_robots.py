@@ -1,0 +1,203 @@
+"""Robots as they come: URDFs turned, given frames and reference postures in the config, and checked at load."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+import pytest
+import yaml
+
+from oracles.body import load_body
+from oracles.errors import ModelError
+from oracles.protocol import OracleSpec, body_params
+from reach.cli import main
+from reach.config import load_config, parse_config
+from reach.errors import ConfigError
+
+ROOT = Path(__file__).resolve().parents[1]
+URDF = ROOT / "configs" / "urdf"
+EXAMPLES = ROOT / "configs" / "examples"
+
+
+def _frames(model: pin.Model, q: np.ndarray) -> dict[str, np.ndarray]:
+    data = model.createData()
+    pin.framesForwardKinematics(model, data, q)
+    return {str(f.name): data.oMf[i].translation.copy() for i, f in enumerate(model.frames)}
+
+
+def test_up_and_forward_place_the_model_as_a_rotated_wrapper_urdf_does(tmp_path):
+    """A y-up, z-forward character turned by the config stands where an independent wrapper URDF puts it:
+    a new base link and a fixed joint with rpy (pi/2, 0, pi/2), i.e. Rz(90) Rx(90), which sends the model's
+    x, y, z onto the world's y, z, x (worked by hand)."""
+    text = (URDF / "yup_humanoid.urdf").read_text()
+    wrapper = text.replace('<robot name="yup_humanoid">', '<robot name="wrapped"><link name="base"/>'
+                           '<joint name="turn" type="fixed"><parent link="base"/><child link="pelvis"/>'
+                           f'<origin xyz="0 0 1.0" rpy="{math.pi / 2} 0 {math.pi / 2}"/></joint>')
+    (tmp_path / "wrapped.urdf").write_text(wrapper)
+    turned = load_body({"urdf": str(URDF / "yup_humanoid.urdf"), "up": "y", "forward": "z", "root_position": [0, 0, 1.0]})
+    wrapped = load_body({"urdf": str(tmp_path / "wrapped.urdf")})
+    a, b = turned.frame_positions(), wrapped.frame_positions()
+    for name in ("head", "right_hand", "left_hand", "right_shoulder", "chest"):
+        assert np.allclose(a[name], b[name], atol=1e-9), name
+    assert a["head"][2] > a["chest"][2] > 1.0  # the head is up
+    assert a["left_shoulder"][1] > 0 > a["right_shoulder"][1]  # the model's x (its left) is the world's y (left)
+    # Moving a joint moves both alike: the root's turn is the reference, not a clipped coordinate.
+    qa, qb = turned.q_ref.copy(), wrapped.q_ref.copy()
+    for body, q in ((turned, qa), (wrapped, qb)):
+        q[body.model.joints[body.joint_id("right_shoulder_flexion")].idx_q] = 1.2
+    assert np.allclose(turned.frame_positions(qa)["right_hand"], wrapped.frame_positions(qb)["right_hand"], atol=1e-9)
+
+
+def test_up_forward_and_root_rpy_errors_name_the_key():
+    with pytest.raises(ModelError, match=r"ur5.urdf: up: expected one of x, -x, y, -y, z, -z"):
+        load_body({"urdf": str(URDF / "ur5.urdf"), "up": "w"})
+    with pytest.raises(ModelError, match=r"forward: expected one of x, -x, z, -z .*perpendicular to up y.*got 'y'"):
+        load_body({"urdf": str(URDF / "ur5.urdf"), "up": "y", "forward": "y"})
+    with pytest.raises(ModelError, match=r"root_rpy: expected 3 numbers \[rad\]"):
+        load_body({"urdf": str(URDF / "ur5.urdf"), "root_rpy": [0, 1]})
+    with pytest.raises(ModelError, match=r"^up: a URDF body's key"):
+        load_body({"human": {}, "up": "y"})
+
+
+def test_root_rpy_turns_the_root_about_the_world_axes():
+    plain = load_body({"urdf": str(URDF / "ur5.urdf")})
+    yawed = load_body({"urdf": str(URDF / "ur5.urdf"), "root_rpy": [0, 0, math.pi / 2]})
+    p, y = plain.frame_positions()["ee_link"], yawed.frame_positions()["ee_link"]
+    assert np.allclose(y, [-p[1], p[0], p[2]], atol=1e-9)  # a quarter turn about z: (x, y) -> (-y, x)
+    assert plain.hash != yawed.hash
+
+
+def test_frames_are_added_on_their_parent():
+    body = load_body({"urdf": str(URDF / "arm7.urdf"), "frames": {"tcp": {"parent": "arm7_hand", "xyz": [0, 0, 0.1034]},
+                                                                   "side": {"parent": "arm7_link3", "xyz": [0.1, 0, 0], "rpy": [0, 0, 1.0]}}})
+    model = body.model
+    data = model.createData()
+    pin.framesForwardKinematics(model, data, body.q_ref)
+    hand = data.oMf[model.getFrameId("arm7_hand")]
+    assert np.allclose(data.oMf[model.getFrameId("tcp")].translation, hand.translation + hand.rotation[:, 2] * 0.1034)
+    link3 = data.oMf[model.getFrameId("arm7_link3")]
+    assert np.allclose(data.oMf[model.getFrameId("side")].translation, link3.translation + link3.rotation[:, 0] * 0.1)
+    with pytest.raises(ModelError, match=r"frames.tcp.parent: no frame 'hand'; frames are: "):
+        load_body({"urdf": str(URDF / "arm7.urdf"), "frames": {"tcp": {"parent": "hand"}}})
+    with pytest.raises(ModelError, match=r"frames.arm7_hand: the model already has a frame 'arm7_hand'"):
+        load_body({"urdf": str(URDF / "arm7.urdf"), "frames": {"arm7_hand": {"parent": "arm7_link7"}}})
+    with pytest.raises(ModelError, match=r"frames.tcp: expected \{parent: FRAME"):
+        load_body({"urdf": str(URDF / "arm7.urdf"), "frames": {"tcp": {"parent": "arm7_hand", "xzy": [0, 0, 1]}}})
+
+
+def test_reference_posture_given_clipped_or_refused():
+    clipped = load_body({"urdf": str(URDF / "arm7.urdf")})
+    j4 = clipped.model.joints[clipped.joint_id("arm7_joint4")].idx_q
+    assert clipped.q_ref[j4] == pytest.approx(-0.0698)
+    assert clipped.notes == ("reference: joint 'arm7_joint4' at 0 is outside its range [-3.0718, -0.0698]; it stands at -0.0698 "
+                             "(give body.reference to choose)",)
+    ready = load_body({"urdf": str(URDF / "arm7.urdf"), "reference": {"arm7_joint4": -2.356194, "arm7_joint6": 1.570796}})
+    assert ready.q_ref[j4] == pytest.approx(-2.356194) and ready.notes == ()
+    middle = load_body({"urdf": str(URDF / "arm7.urdf"), "reference": "middle"})
+    assert middle.q_ref[j4] == pytest.approx(0.5 * (-3.0718 - 0.0698))
+    with pytest.raises(ModelError, match=r"reference.arm7_joint4: -3.5 is outside the joint's range \[-3.0718, -0.0698\]"):
+        load_body({"urdf": str(URDF / "arm7.urdf"), "reference": {"arm7_joint4": -3.5}})
+    with pytest.raises(ModelError, match=r"reference.elbow: no such joint; joints are: arm7_joint1"):
+        load_body({"urdf": str(URDF / "arm7.urdf"), "reference": {"elbow": 0.1}})
+    assert ready.hash != clipped.hash
+
+
+def test_package_dirs_error_names_the_folder_to_give(tmp_path):
+    pkg = tmp_path / "ws" / "my_robot"
+    (pkg / "urdf").mkdir(parents=True)
+    urdf = pkg / "urdf" / "r.urdf"
+    urdf.write_text('<robot name="r"><link name="a"><collision><geometry><mesh filename="package://my_robot/meshes/a.stl"/>'
+                    '</geometry></collision></link></robot>')
+    with pytest.raises(ModelError) as err:
+        load_body({"urdf": str(urdf), "package_dirs": [str(pkg)]})
+    assert err.value.key == "package_dirs"
+    assert "give package_dirs the folder that holds the package folder 'my_robot'" in str(err.value)
+    assert f"{tmp_path / 'ws'} holds a folder 'my_robot': give it" in str(err.value)
+
+
+def _config(body: dict, strategies: list[dict], box: object = "auto") -> dict:
+    return {"name": "t", "body": body, "box": box, "depth": {"min": 1, "max": 2}, "oracle": {"name": "casadi-ik"}, "strategies": strategies}
+
+
+def test_config_errors_name_the_key_where_it_was_written():
+    arm = {"name": "a", "effector": "ee_link", "joints": ["*_joint"], "tasks": [{"type": "reach"}, {"type": "self_collision", "margn": 1}]}
+    with pytest.raises(ConfigError, match=r"strategies\[0\]\.tasks\[1\]: unknown keys \['margn'\]"):
+        parse_config(_config({"urdf": str(URDF / "ur5.urdf")}, [arm]))
+    arm["tasks"] = [{"type": "reach"}]
+    with pytest.raises(ConfigError, match=r"body\.frames\.tcp\.parent: .*ur5.urdf: no frame 'hand'"):
+        parse_config(_config({"urdf": str(URDF / "ur5.urdf"), "frames": {"tcp": {"parent": "hand"}}}, [arm]))
+    with pytest.raises(ConfigError, match=r"body\.colour: unknown key"):
+        parse_config(_config({"urdf": str(URDF / "ur5.urdf"), "colour": "red"}, [arm]))
+    with pytest.raises(ConfigError, match=r"strategies\[0\]\.joints: no joint matches 'wrist'"):
+        parse_config(_config({"urdf": str(URDF / "ur5.urdf")}, [{**arm, "joints": ["wrist"]}]))
+    with pytest.raises(ConfigError, match=r"strategies\[0\]\.effector: .*ur5.urdf: no frame 'tool0'"):
+        parse_config(_config({"urdf": str(URDF / "ur5.urdf")}, [{**arm, "effector": "tool0"}]))
+    with pytest.raises(ConfigError, match=r"ur5\.urdf: reference\.elbow_joint|body\.reference\.elbow_joint"):
+        parse_config(_config({"urdf": str(URDF / "ur5.urdf"), "reference": {"elbow_joint": 9}}, [arm]))
+
+
+def test_load_time_warnings_name_the_joint_pair_and_task():
+    arm = {"name": "arm", "effector": "arm7_flange", "joints": ["arm7_joint*"], "tasks": [{"type": "reach"}, {"type": "self_collision"}]}
+    # The Panda's zero posture folds its hand into its forearm once joint 4 is clipped: both are said.
+    notes = parse_config(_config({"urdf": str(URDF / "arm7.urdf")}, [arm])).notes
+    assert any("joint 'arm7_joint4' at 0 is outside its range" in n for n in notes)
+    folded = [n for n in notes if "overlap by" in n]
+    assert folded and all(n.startswith("strategy arm: capsules arm7_link") for n in folded)
+    # The example's ready posture has none.
+    assert load_config(EXAMPLES / "arm7_table.yaml").notes == ()
+    # The biped's feet with no corners: the foot stands on its frame, and balance cannot be asked.
+    raw = yaml.safe_load((EXAMPLES / "biped.yaml").read_text())
+    raw["body"]["urdf"] = str(URDF / "biped.urdf")
+    whole = raw["strategies"][1]
+    bare = [t for t in whole["tasks"] if t["type"] != "balance"]
+    bare[1] = {"type": "feet", "frames": ["r_sole", "l_sole"]}
+    notes = parse_config({**raw, "strategies": [{**whole, "tasks": bare}]}).notes
+    assert any("foot 'r_sole' has no sole corners" in n for n in notes)
+    with pytest.raises(ConfigError, match=r"strategies\[0\]\.tasks\[4\]: balance needs a support polygon of 3 frames or more.*soles"):
+        parse_config({**raw, "strategies": [{**whole, "tasks": [*bare, {"type": "balance"}]}]})
+    # A floor that the planted feet's own capsules go through at the reference: no posture near it holds it.
+    floored = [*(t for t in bare if t["type"] != "floor"), {"type": "floor", "exclude": []}]
+    notes = parse_config({**raw, "strategies": [{**whole, "tasks": floored}]}).notes
+    assert any("the reference posture breaks the hard tasks ['floor'] and no posture near it holds them" in n for n in notes)
+
+
+def test_the_floor_stands_the_held_segments_of_any_robot():
+    """Without exclude, the floor leaves out the capsules of the segments holding the feet, whatever their names."""
+    raw = yaml.safe_load((EXAMPLES / "biped.yaml").read_text())
+    raw["body"]["urdf"] = str(URDF / "biped.urdf")
+    spec = raw["strategies"][1]
+    oracle = OracleSpec("casadi-ik", body_params(raw["body"], spec["effector"], spec["joints"], spec["tasks"])).create()
+    floor = oracle.strategy.task("floor")
+    names = {oracle.body.collision.placed[i].name for i in floor.capsules}
+    assert "r_foot_0" not in names and "l_foot_0" not in names and {"r_shank_0", "r_hand_0", "pelvis_0"} <= names
+    assert oracle.diagnose() == []
+
+
+def test_box_auto_cuts_the_floor_only_where_a_floor_task_holds_the_effector():
+    arm7 = load_config(EXAMPLES / "arm7_table.yaml")  # no floor task: the arm reaches below its table top's plane
+    assert arm7.box.lo[2] < -0.5
+    biped = load_config(EXAMPLES / "biped.yaml")  # the whole body's floor task holds the hand above z = 0
+    assert biped.box.lo[2] == 0.0
+    raw = yaml.safe_load((EXAMPLES / "arm7_table.yaml").read_text())
+    raw["body"]["urdf"] = str(URDF / "arm7.urdf")
+    assert parse_config({**raw, "box": {"auto": {"floor": True}}}).box.lo[2] == 0.0
+    with pytest.raises(ConfigError, match=r"box.auto.floor: expected auto, true or false"):
+        parse_config({**raw, "box": {"auto": {"floor": "yes"}}})
+
+
+def test_reach_model_takes_a_urdfs_placement_and_prints_frames_and_warnings(capsys):
+    assert main(["model", str(URDF / "yup_humanoid.urdf"), "--up", "y", "--forward", "z", "--root-position", "0", "0", "1", "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["frames"]["head"][2] > 1.5 and info["warnings"] == []
+    assert main(["model", str(URDF / "arm7.urdf")]) == 0
+    out = capsys.readouterr()
+    assert "frames at the reference posture [m]:" in out.out and "arm7_flange" in out.out
+    assert "warning: reference: joint 'arm7_joint4'" in out.err
+    assert main(["model", "human", "--up", "y"]) == 2
+    assert "up: options for a URDF" in capsys.readouterr().err
+    assert main(["model", str(URDF / "ur5.urdf"), "--up", "q"]) == 2
+    assert "ur5.urdf: up: expected one of" in capsys.readouterr().err
