@@ -234,13 +234,43 @@ class IKOracle(ABC):
             out.append(p.out_of_limits(q) + [t.type for t in self.strategy.hard if not t.holds(num)])
         return out
 
-    def _project(self, posture: np.ndarray, guess: np.ndarray) -> np.ndarray:
-        """Damped least squares on the hard tasks' rows alone, from guess, pulled towards posture (may still break them)."""
+    def _dls(self) -> Any:
+        """The damped-least-squares twin of this oracle (itself for ``dls``), built on first use: no compilation."""
         if self._projector is None:
             from oracles.dls import DLSIK
 
             self._projector = self if isinstance(self, DLSIK) else DLSIK(**self._strategy_params)
-        return np.asarray(self._projector.project(posture, guess))
+        return self._projector
+
+    def _project(self, posture: np.ndarray, guess: np.ndarray) -> np.ndarray:
+        """Damped least squares on the hard tasks' rows alone, from guess, pulled towards posture (may still break them)."""
+        return np.asarray(self._dls().project(posture, guess))
+
+    def reach_extent(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The effector's farthest positions found reaching for goals on the reach bound's sphere in 26 directions
+        (the cube's faces, edges and corners), postures breaking a hard task left out: an estimate of the volume's
+        bounds [m], not a bound (see :class:`oracles.protocol.Probing`). One start each, interpreted (no
+        compilation): an extreme is sought, not a natural posture."""
+        bound = self.reach_bound()
+        if bound is None:
+            return None
+        dirs = np.array([d for d in np.ndindex(3, 3, 3) if d != (1, 1, 1)], float) - 1.0
+        goals = bound.centre + bound.radius * dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+        params = {**self.spec.params, "restarts": 1, "secondary": False}
+        if "jit" in params:
+            params["jit"] = False
+        probe = OracleSpec(self.name, params).create()
+        postures = probe.evaluate(goals).posture
+        if postures is None:
+            return None
+        # An unreachable goal's best attempt may stop mid-way through a lazy task (a table, the body itself):
+        # the least change that holds the hard tasks keeps it as an extreme.
+        held = [q if not f else self._project(q, q) for q, f in zip(postures, self.faults(postures), strict=True)]
+        held = [q for q, f in zip(held, self.faults(np.array(held)), strict=True) if not f]
+        if not held:
+            return None
+        reached = self.effector_positions(np.array(held))
+        return reached.min(axis=0), reached.max(axis=0)
 
     def hold(self, posture: np.ndarray, before: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray | None:
         """The least change that holds every hard task (damped least squares on their rows alone, a few

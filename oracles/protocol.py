@@ -164,6 +164,15 @@ class ReachBound(Protocol):
 
 
 @runtime_checkable
+class Probing(Protocol):
+    """An oracle that can estimate its volume's bounds by reaching far in a few directions (``box: auto``)."""
+
+    def reach_extent(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """Lowest and highest effector positions [m] (3,) found reaching far: an estimate, not a bound; None if none was found."""
+        ...
+
+
+@runtime_checkable
 class Floored(Protocol):
     """An oracle whose reachable points lie on or above a height (a floor the effector cannot pass)."""
 

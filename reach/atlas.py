@@ -15,6 +15,7 @@ vertices once its own oracle has verified their postures
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import platform
@@ -28,7 +29,7 @@ import numpy as np
 
 from oracles.protocol import Described, KeepOut, Mirrorable, ModelHashed, Oracle, OracleSpec, Verifying
 from reach.build import Inherited, build_tree
-from reach.config import Config, StrategySpec
+from reach.config import Config, StrategySpec, grown
 from reach.errors import ModelError, StoreError
 from reach.executor import Executor, InlineExecutor
 from reach.store import Atlas, build_lock, load_atlas, load_state, load_tree, save_state, save_tree, write_manifest
@@ -93,6 +94,9 @@ def _mirror_source(s: StrategySpec, built: dict[str, VATree], oracle_of: Callabl
     return source, mirror
 
 
+GROWS = 3  # box: auto: how many times B0 may grow after a build whose reachable vertices lie on its faces
+
+
 def face_text(faces: dict[str, int]) -> str:
     """The warning for reachable vertices on faces of B0 (see :meth:`VATree.faces`)."""
     listed = ", ".join(f"{n} on {f}" for f, n in faces.items())
@@ -127,7 +131,18 @@ def build_atlas(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     with build_lock(out):
-        return _build_locked(config, out, executor_factory, progress, say, resume, mirror, inherit)
+        for grows in range(GROWS + 1):
+            atlas = _build_locked(config, out, executor_factory, progress, say, resume, mirror, inherit)
+            cut = {f for w in atlas.manifest["warnings"]["faces"] for f in w["faces"]}
+            if any(s.mirror_of for s in config.strategies) and cut & {"y-", "y+"}:
+                cut |= {"y-", "y+"}  # a mirrored atlas keeps its box symmetric about y = 0
+            box = grown(config.box, config.limit, cut) if cut and config.limit is not None and grows < GROWS else None
+            if box is None:
+                return atlas
+            say(f"box: auto: reachable vertices lie on {', '.join(sorted(cut))}; B0 grows to min {box.lo.tolist()} max {box.hi.tolist()} [m], "
+                "and every strategy is built again")
+            config = dataclasses.replace(config, box=box)
+    raise AssertionError("unreachable")
 
 
 def _build_locked(

@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from oracles.protocol import Diagnosed, Floored, Oracle, OracleSpec, ReachBound, body_params
+from oracles.protocol import Diagnosed, Floored, Oracle, OracleSpec, Probing, ReachBound, body_params
 from reach.build import Refine
 from reach.errors import ConfigError, ModelError, ReachError, TreeError
 from reach.executor import CHUNK_SIZE
@@ -84,6 +84,7 @@ class Config:
     refine: Refine = field(default_factory=Refine)
     raw: dict[str, Any] = field(default_factory=dict, compare=False)
     notes: tuple[str, ...] = field(default=(), compare=False)  # load-time warnings (see Diagnosed), each naming its strategies
+    limit: Box | None = None  # box: auto: the provable bound B0 may grow to when reachable vertices lie on its faces
 
     def strategy(self, name: str) -> StrategySpec:
         for s in self.strategies:
@@ -158,6 +159,7 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
             raise check.fail("box", str(exc)) from exc
     else:
         box = Box(-np.ones(3), np.ones(3))  # a stand-in until the oracles give the real one
+    limit = None
     depth = check.mapping(top["depth"], "depth", {"min", "max"}, {"min", "max"})
     d_max = check.integer(depth["max"], "depth.max", 0, MAX_DEPTH)
     d_min = check.integer(depth["min"], "depth.min", 0, MAX_DEPTH)
@@ -200,7 +202,7 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
     oracles = _check_oracles(check, strategies, box.dim)
     notes = _diagnose(strategies, oracles)
     if auto is not None:
-        box = _derive_box(check, oracles, auto, any(spec.mirror_of for spec in strategies))
+        box, limit = _derive_box(check, oracles, auto, any(spec.mirror_of for spec in strategies))
     names = {spec.name for spec in strategies}
     for i, spec in enumerate(strategies):
         if spec.mirror_of is not None and (spec.mirror_of not in names or spec.mirror_of == spec.name):
@@ -208,7 +210,7 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
         if spec.mirror_of is not None and box.dim == 3 and box.lo[1] != -box.hi[1]:
             raise check.fail(f"strategies[{i}].mirror_of", f"mirroring needs a box symmetric about y = 0, got y in [{box.lo[1]}, {box.hi[1]}]")
     strategies.sort(key=lambda spec: spec.priority)
-    return Config(name, source, box, d_min, d_max, tuple(strategies), chunk, refine, dict(top), notes)
+    return Config(name, source, box, d_min, d_max, tuple(strategies), chunk, refine, dict(top), notes, limit)
 
 
 def _diagnose(strategies: list[StrategySpec], oracles: list[Oracle]) -> tuple[str, ...]:
@@ -260,26 +262,63 @@ def _auto_box(check: _Checker, value: Any) -> dict[str, Any] | None:
     return None
 
 
-def _derive_box(check: _Checker, oracles: list[Oracle], auto: dict[str, Any], symmetric: bool) -> Box:
-    """B0 from the bodies' size: the union of every strategy's reach bound (a ball about its fixed anchor)."""
-    lows, highs = [], []
+PROBE_PAD = 0.15  # of a probed extent, added on each side: the 26 probes find the extremes along their own directions only
+
+
+def _derive_box(check: _Checker, oracles: list[Oracle], auto: dict[str, Any], symmetric: bool) -> tuple[Box, Box]:
+    """B0 from the bodies' size, and the provable bound it may grow to (see :func:`grown`).
+
+    Each strategy's reach bound (a ball about its fixed anchor) bounds its
+    volume; where the oracle can probe its extent (:class:`~oracles.protocol.Probing`),
+    the probed extent padded by ``PROBE_PAD`` of itself and the margin,
+    within the ball, sizes its box instead (a standing body's ball about a
+    foot is 4 m wide; its reach is not).
+    """
+    lows, highs, limit_lo, limit_hi = [], [], [], []
     for o in oracles:
         bound = o.reach_bound() if isinstance(o, ReachBound) else None
         if bound is None:
             raise check.fail("box", "box: auto needs body strategies whose reach is bounded (a fixed root, or feet on the floor); give box.min and box.max")
         centre, radius = bound
-        low = np.asarray(centre - radius - auto["margin"], float)
+        ball_lo, ball_hi = np.asarray(centre - radius - auto["margin"], float), np.asarray(centre + radius + auto["margin"], float)
         # The floor z = 0 cuts a strategy's box where the strategy itself keeps its effector above it (auto),
         # or everywhere (true); a robot without a floor task reaches below its base's plane.
         floor = (o.lowest() if isinstance(o, Floored) else None) if auto["floor"] == "auto" else (0.0 if auto["floor"] else None)
         if floor is not None:
-            low[2] = max(low[2], floor)
+            ball_lo[2] = max(ball_lo[2], floor)
+        low, high = ball_lo.copy(), ball_hi.copy()
+        extent = o.reach_extent() if isinstance(o, Probing) else None
+        if extent is not None:
+            pad = PROBE_PAD * (extent[1] - extent[0]) + auto["margin"]
+            low, high = np.maximum(extent[0] - pad, ball_lo), np.minimum(extent[1] + pad, ball_hi)
         lows.append(low)
-        highs.append(centre + radius + auto["margin"])
+        highs.append(high)
+        limit_lo.append(ball_lo)
+        limit_hi.append(ball_hi)
     lo, hi = np.min(lows, axis=0), np.max(highs, axis=0)
+    top_lo, top_hi = np.min(limit_lo, axis=0), np.max(limit_hi, axis=0)
     if symmetric:
-        half = max(-lo[1], hi[1])
-        lo[1], hi[1] = -half, half
+        for a, b in ((lo, hi), (top_lo, top_hi)):
+            half = max(-a[1], b[1])
+            a[1], b[1] = -half, half
+    return Box(np.round(lo, 4), np.round(hi, 4)), Box(np.round(top_lo, 4), np.round(top_hi, 4))
+
+
+GROW = 0.25  # of the box's extent, by which a face that reachable vertices lie on moves out (within the limit)
+
+
+def grown(box: Box, limit: Box, faces: set[str]) -> Box | None:
+    """B0 with each named face (``x-``, ``z+`` ...) moved out by ``GROW`` of the box's extent, within limit; None if none can move."""
+    lo, hi = box.lo.copy(), box.hi.copy()
+    size = hi - lo
+    for face in faces:
+        axis = "xyz".index(face[0])
+        if face[1] == "-":
+            lo[axis] = max(limit.lo[axis], lo[axis] - GROW * size[axis])
+        else:
+            hi[axis] = min(limit.hi[axis], hi[axis] + GROW * size[axis])
+    if np.array_equal(lo, box.lo) and np.array_equal(hi, box.hi):
+        return None
     return Box(np.round(lo, 4), np.round(hi, 4))
 
 

@@ -201,3 +201,32 @@ def test_reach_model_takes_a_urdfs_placement_and_prints_frames_and_warnings(caps
     assert "up: options for a URDF" in capsys.readouterr().err
     assert main(["model", str(URDF / "ur5.urdf"), "--up", "q"]) == 2
     assert "ur5.urdf: up: expected one of" in capsys.readouterr().err
+
+
+def test_a_box_that_cuts_the_volume_grows_within_its_limit(tmp_path):
+    """box: auto's B0 grows on the faces reachable vertices lie on, up to the provable bound, and the atlas is built again."""
+    import dataclasses
+
+    from reach.atlas import build_atlas
+    from reach.config import grown
+    from reach.tree import Box
+
+    raw = {"box": {"min": [-1.2, -1.2, -1.2], "max": [1.2, 1.2, 1.2]}, "depth": {"min": 1, "max": 3},
+           "oracle": {"name": "sphere", "params": {"radius": 1.0}}, "strategies": [{"name": "ball", "effector": "point"}]}
+    config = parse_config(raw)
+    small = Box(np.array([-0.6, -1.2, -1.2]), np.array([1.2, 1.2, 1.2]))  # cuts the unit ball on x-
+    assert grown(small, config.box, {"x-"}) == Box(np.array([-1.05, -1.2, -1.2]), np.array([1.2, 1.2, 1.2]))
+    assert grown(config.box, config.box, {"x-", "z+"}) is None  # at the limit: nothing can move
+    lines: list[str] = []
+    atlas = build_atlas(dataclasses.replace(config, box=small, limit=config.box), tmp_path / "a", log=lines.append)
+    tree = atlas.tree("ball")
+    assert tree.box.lo[0] == pytest.approx(-1.05) and tree.faces() == {}
+    assert any("B0 grows to min [-1.05, -1.2, -1.2]" in line for line in lines)
+    assert atlas.manifest["warnings"]["faces"] == []
+
+
+def test_box_auto_probes_a_standing_body_instead_of_a_ball_about_its_foot():
+    config = load_config(EXAMPLES / "biped.yaml")
+    size, limit = config.box.hi - config.box.lo, config.limit.hi - config.limit.lo
+    assert np.all(size[:2] < 0.7 * limit[:2])  # the 4.3 m ball about the foot, sized down to the body's reach
+    assert config.box.hi[2] > 2.0  # the raised hand (2.05 m found) stays inside
