@@ -122,7 +122,7 @@ def test_urdf_primitives_and_meshes_become_capsules(tmp_path):
     rod = caps["arm_2"]
     # The rim of a cylinder needs the whole axis: the caps then enclose its flat ends.
     assert rod.radius == pytest.approx(0.05, rel=0.02) and rod.length == pytest.approx(0.4, abs=0.01)
-    with pytest.raises(ModelError, match=r"mesh 'package://pkg/meshes/rod.stl' not found in package_dirs"):
+    with pytest.raises(ModelError, match=r"package_dirs: mesh 'package://pkg/meshes/rod.stl' not found in \[\]: give package_dirs the folder that holds the package folder 'pkg'"):
         urdf_body(urdf)
 
 

@@ -108,7 +108,11 @@ def test_box_auto_is_derived_from_the_body():
     arm = np.linalg.norm(body.frame_positions(names=["right_hand"])["right_hand"] - shoulder)
     bound = config.strategies[0].oracle.create().reach_bound()[1]
     assert arm <= bound <= arm + 0.03  # the chain's stretched length, about the shoulder
-    assert np.allclose(config.box.lo, shoulder - bound - 0.1, atol=1e-3) and np.allclose(config.box.hi, shoulder + bound + 0.1, atol=1e-3)
+    # The ball (plus the margin) is the limit B0 may grow to; B0 itself holds what the probes reached, within it.
+    limit = config.limit
+    assert np.allclose(limit.lo, shoulder - bound - 0.1, atol=1e-3) and np.allclose(limit.hi, shoulder + bound + 0.1, atol=1e-3)
+    lo, hi = config.strategies[0].oracle.create().reach_extent()
+    assert np.all(limit.lo <= config.box.lo) and np.all(config.box.lo <= lo) and np.all(hi <= config.box.hi) and np.all(config.box.hi <= limit.hi)
     data["box"] = "auto"
     data["oracle"] = {"name": "sphere"}
     data["strategies"] = [{"name": "ball", "effector": "point"}]

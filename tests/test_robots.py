@@ -230,3 +230,14 @@ def test_box_auto_probes_a_standing_body_instead_of_a_ball_about_its_foot():
     size, limit = config.box.hi - config.box.lo, config.limit.hi - config.limit.lo
     assert np.all(size[:2] < 0.7 * limit[:2])  # the 4.3 m ball about the foot, sized down to the body's reach
     assert config.box.hi[2] > 2.0  # the raised hand (2.05 m found) stays inside
+
+
+def test_build_strict_refuses_a_config_with_warnings_before_building(tmp_path, capsys):
+    raw = yaml.safe_load((EXAMPLES / "arm7_table.yaml").read_text())
+    raw["body"] = {"urdf": str(URDF / "arm7.urdf"), "frames": raw["body"]["frames"]}  # no reference: joint 4 is clipped
+    config = tmp_path / "clipped.yaml"
+    config.write_text(yaml.safe_dump(raw))
+    assert main(["build", str(config), "-o", str(tmp_path / "out"), "--strict"]) == 2
+    err = capsys.readouterr().err
+    assert "warning: " in err and "joint 'arm7_joint4' at 0 is outside its range" in err and "--strict makes them errors" in err
+    assert not (tmp_path / "out" / "tcp.npz").exists()
