@@ -251,7 +251,7 @@ def _root_rotation(spec: dict[str, Any], source: str) -> np.ndarray:
 def _add_frames(model: pin.Model, frames: Any, source: str) -> None:
     """Frames the spec adds on existing ones (fixed placements: grip points, tool centre points, sole corners)."""
     if not isinstance(frames, dict):
-        raise ModelError(f"expected a mapping of name to {{parent, xyz, rpy}}, got {frames!r}", source=source, name="frames")
+        raise ModelError(f"expected a mapping of name to {{parent, xyz, rpy}}, got {frames!r}", source=source, key="frames")
     for name, raw in frames.items():
         key = f"frames.{name}"
         if not isinstance(raw, dict) or "parent" not in raw or set(raw) - {"parent", "xyz", "rpy"}:
@@ -365,7 +365,7 @@ def urdf_body(path: str | Path, root_position: list[float] | None = None, ranges
 BODY_KEYS = {"human", "urdf", "root_position", "ranges", "package_dirs", "up", "forward", "root_rpy", "frames", "reference"}
 URDF_ONLY = {"root_position", "package_dirs", "up", "forward", "root_rpy"}
 HUMAN_KEYS = {"sex", "stature", "percentile", "mass"}
-PLACING = ("up", "forward", "root_rpy", "frames", "reference")  # keys that change where the body's frames stand, so its hash
+PLACING = ("up", "forward", "root_rpy", "frames", "reference")  # keys that move the body's frames: part of its hash
 
 
 def load_body(spec: dict[str, Any]) -> Body:

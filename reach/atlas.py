@@ -131,18 +131,19 @@ def build_atlas(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     with build_lock(out):
-        for grows in range(GROWS + 1):
-            atlas = _build_locked(config, out, executor_factory, progress, say, resume, mirror, inherit)
+        atlas = _build_locked(config, out, executor_factory, progress, say, resume, mirror, inherit)
+        for _ in range(GROWS if config.limit is not None else 0):
             cut = {f for w in atlas.manifest["warnings"]["faces"] for f in w["faces"]}
             if any(s.mirror_of for s in config.strategies) and cut & {"y-", "y+"}:
                 cut |= {"y-", "y+"}  # a mirrored atlas keeps its box symmetric about y = 0
-            box = grown(config.box, config.limit, cut) if cut and config.limit is not None and grows < GROWS else None
+            box = grown(config.box, config.limit, cut) if cut and config.limit is not None else None
             if box is None:
-                return atlas
+                break
             say(f"box: auto: reachable vertices lie on {', '.join(sorted(cut))}; B0 grows to min {box.lo.tolist()} max {box.hi.tolist()} [m], "
                 "and every strategy is built again")
             config = dataclasses.replace(config, box=box)
-    raise AssertionError("unreachable")
+            atlas = _build_locked(config, out, executor_factory, progress, say, resume, mirror, inherit)
+        return atlas
 
 
 def _build_locked(

@@ -85,6 +85,8 @@ def test_frames_are_added_on_their_parent():
         load_body({"urdf": str(URDF / "arm7.urdf"), "frames": {"tcp": {"parent": "hand"}}})
     with pytest.raises(ModelError, match=r"frames.arm7_hand: the model already has a frame 'arm7_hand'"):
         load_body({"urdf": str(URDF / "arm7.urdf"), "frames": {"arm7_hand": {"parent": "arm7_link7"}}})
+    with pytest.raises(ModelError, match=r"arm7.urdf: frames: expected a mapping of name to \{parent, xyz, rpy\}"):
+        load_body({"urdf": str(URDF / "arm7.urdf"), "frames": ["tcp"]})
     with pytest.raises(ModelError, match=r"frames.tcp: expected \{parent: FRAME"):
         load_body({"urdf": str(URDF / "arm7.urdf"), "frames": {"tcp": {"parent": "arm7_hand", "xzy": [0, 0, 1]}}})
 

@@ -5,11 +5,11 @@ is spanned by the heels' and toes' corners. ``heels: rise`` holds the balls
 of the feet and lets each foot pivot about its lateral axis, heels kept at
 z >= 0, over a polygon of the balls and toes.
 
-The corners are found by name: for a foot frame ``right_foot`` (or ``r_sole``),
-``right_heel_inner``, ``right_heel_outer``, ``right_toe_inner``,
-``right_toe_outer`` (and ``right_ball_inner``, ``right_ball_outer`` for
-``heels: rise``; ``r_sole_heel_inner``... for a name not ending in ``foot``),
-as the generated human has them. ``soles`` names each foot's polygon
+The corners are found by name, as the generated human has them: for a foot
+frame ``right_foot``, ``right_heel_inner``, ``right_heel_outer``,
+``right_toe_inner``, ``right_toe_outer`` (and ``right_ball_inner``,
+``right_ball_outer`` for ``heels: rise``); for a name not ending in ``foot``,
+such as ``r_sole``, ``r_sole_heel_inner`` and so on. ``soles`` names each foot's polygon
 explicitly instead: foot frame -> its corner frames (3 or more; add them
 with the body's ``frames``), used for both ``heels`` settings. ``support``
 replaces the whole polygon's frames. A foot with neither stands on its own
