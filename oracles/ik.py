@@ -41,7 +41,7 @@ from oracles.protocol import Ball, OracleSpec, Purpose, Skeleton, Verdicts, chec
 from oracles.search import Search
 from oracles.skeleton import bone_frames, build_skeleton
 from oracles.strategy import parse_strategy
-from oracles.tasks import ContactsTask, FloorTask, Numeric, Symbolic
+from oracles.tasks import ContactsTask, FloorTask, Numeric, OrientationTask, Symbolic
 
 SOLVERS = ("fatrop", "ipopt")
 # fatrop's initial barrier parameter for a settled reach stage (see Search.settle):
@@ -66,10 +66,12 @@ class Call(NamedTuple):
     Attributes:
         start: The character's current posture as the problem's x (``evaluate_from``), or None.
         deadline: ``time.perf_counter()`` past which no new solve starts (inf: no budget).
+        aim: The goal's orientation (3, 3) for the strategy's orientation task, or None (set per goal).
     """
 
     start: np.ndarray | None = None
     deadline: float = np.inf
+    aim: np.ndarray | None = None
 
 
 NO_CALL = Call()  # a call with neither current posture nor budget
@@ -354,10 +356,59 @@ class IKOracle(ABC):
         """How much the lower tasks dislike a posture (lower is better; 0 when the engine cannot tell)."""
         return 0.0
 
-    def solve_batch(self, goals: np.ndarray, x0: np.ndarray, lower: np.ndarray | None = None, call: Call = NO_CALL) -> np.ndarray:
-        """Configurations (N, nq) for goals (N, 3) from starts (N, nx), with the lower tasks where lower (N,) is true; engines may batch."""
+    def solve_batch(self, goals: np.ndarray, x0: np.ndarray, lower: np.ndarray | None = None, call: Call = NO_CALL,
+                    aims: np.ndarray | None = None) -> np.ndarray:
+        """Configurations (N, nq) for goals (N, 3) from starts (N, nx), with the lower tasks where lower (N,) is true,
+        each goal with its orientation (aims (N, 3, 3)) when given; engines may batch."""
         flags = np.ones(len(goals), bool) if lower is None else lower
-        return np.array([self.solve(g, x, bool(f), call) for g, x, f in zip(goals, x0, flags, strict=True)])
+        calls = [call] * len(goals) if aims is None else [call._replace(aim=a) for a in aims]
+        return np.array([self.solve(g, x, bool(f), c) for g, x, f, c in zip(goals, x0, flags, calls, strict=True)])
+
+    @property
+    def orientation(self) -> OrientationTask | None:
+        """The strategy's orientation task, if it has one."""
+        task = self.strategy.task("orientation")
+        return task if isinstance(task, OrientationTask) else None
+
+    def orientation_kinds(self) -> tuple[str, ...]:
+        """``direction`` and ``rotation`` for an axis-form orientation task, ``rotation`` for a full one, else none."""
+        task = self.orientation
+        return () if task is None else ("direction", "rotation") if task.axis is not None else ("rotation",)
+
+    def aims(self, orientations: np.ndarray, n: int) -> np.ndarray:
+        """Goal orientations as the rotations (n, 3, 3) the orientation task holds: from (n, 3) world directions
+        of its axis or (n, 3, 3) effector rotations (see :class:`oracles.protocol.Oriented`)."""
+        task = self.orientation
+        if task is None:
+            raise OracleError("this strategy has no orientation task; add {type: orientation, axis: ...} to hold a goal's orientation",
+                              key="orientation")
+        o = np.asarray(orientations, float)
+        if o.shape == (n, 3):
+            norms = np.linalg.norm(o, axis=1)
+            if not np.all(np.isfinite(o)) or np.any(norms < 1e-9):
+                raise OracleError("directions must be finite and not zero", key="orientation")
+            try:
+                return np.array([task.aim(direction=d) for d in o]).reshape(n, 3, 3)
+            except ValueError as exc:
+                raise OracleError(str(exc), key="orientation") from None
+        if o.shape == (n, 3, 3):
+            if not np.all(np.isfinite(o)) or np.abs(np.einsum("nij,nkj->nik", o, o) - np.eye(3)).max(initial=0.0) > 1e-6:
+                raise OracleError("rotations must be orthonormal 3 x 3 matrices", key="orientation")
+            return o
+        raise OracleError(f"orientations have shape {o.shape}, expected ({n}, 3) directions or ({n}, 3, 3) rotations", key="orientation")
+
+    def evaluate_oriented(self, points: np.ndarray, orientations: np.ndarray, hints: np.ndarray | None = None,
+                          current: np.ndarray | None = None) -> Verdicts:
+        """Verdicts for goals [m] each with an orientation (see :class:`oracles.protocol.Oriented`)."""
+        pts = check_points(points, 3)
+        aims = self.aims(orientations, len(pts))
+        if current is None:
+            return self._evaluate(pts, hints, None, aims)
+        current = np.asarray(current, float)
+        if current.shape != (len(self.posture_names),):
+            raise OracleError(f"current posture has shape {current.shape}, expected ({len(self.posture_names)},)", key="current")
+        seeds = np.tile(current, (len(pts), 1)) if hints is None else hints
+        return self._evaluate(pts, seeds, self.problem.x_of_q(current), aims)
 
     def starts(self, goal: np.ndarray, hint: np.ndarray | None, call: Call = NO_CALL) -> list[np.ndarray]:
         """Initial postures: the hint(s), the reference, then seeded random ones.
@@ -391,8 +442,9 @@ class IKOracle(ABC):
         """Verdicts for goals [m], warm-started from hints (N, nq), or (N, k, nq) from :meth:`evaluate_seeded`."""
         return self._evaluate(points, hints, None)
 
-    def _evaluate(self, points: np.ndarray, hints: np.ndarray | None, start: np.ndarray | None) -> Verdicts:
-        """Rounds of solves from each point's next start until it reaches, gives up or runs out of starts.
+    def _evaluate(self, points: np.ndarray, hints: np.ndarray | None, start: np.ndarray | None, aims: np.ndarray | None = None) -> Verdicts:
+        """Rounds of solves from each point's next start until it reaches, gives up or runs out of starts
+        (each goal held to its orientation, aims (N, 3, 3), when given).
 
         The first of a point's seeds stands for the neighbour's posture in a build.
         """
@@ -426,11 +478,12 @@ class IKOracle(ABC):
             if todo.size == 0 or time.perf_counter() > call.deadline:
                 break
             self.stats["solves"] += int(todo.size)
-            q = self.solve_batch(pts[todo], np.array([starts[i][r] for i in todo]), ~settled[todo] if r == 0 else None, call)
+            q = self.solve_batch(pts[todo], np.array([starts[i][r] for i in todo]), ~settled[todo] if r == 0 else None, call,
+                                 None if aims is None else aims[todo])
             for k, i in enumerate(todo):
-                check = self.problem.check(q[k], pts[i], self._data)
+                check = self.problem.check(q[k], pts[i], self._data, None if aims is None else aims[i])
                 if search.prefer and check.reachable:
-                    liked = self.preference(q[k], pts[i], call)
+                    liked = self.preference(q[k], pts[i], call if aims is None else call._replace(aim=aims[i]))
                     if not reach[i] or liked < preferred[i]:
                         residual[i], posture[i], preferred[i], kept[i] = check.residual, q[k], liked, check
                     reach[i] = True
@@ -558,8 +611,10 @@ class CasadiIK(IKOracle):
         p, order = self.problem, self.order
         x, goal = p.x_sym, ca.SX.sym("goal", 3)
         start, weight = ca.SX.sym("start", p.nx), ca.SX.sym("start_weight", 1)
-        sym = Symbolic(SymbolicKinematics(self.body.model, p.q_sym), x, goal, p.x_ref, p.upper - p.lower, tuple(p.x_names), p.lower, start, weight)
-        params = ca.vertcat(goal, start, weight)
+        aim, aim_on = ca.SX.sym("aim", 3, 3), ca.SX.sym("aim_on", 1)
+        sym = Symbolic(SymbolicKinematics(self.body.model, p.q_sym), x, goal, p.x_ref, p.upper - p.lower, tuple(p.x_names), p.lower, start, weight,
+                       aim, aim_on)
+        params = ca.vertcat(goal, start, weight, ca.vec(aim), aim_on)
         rows = [c for t in self.strategy.hard for c in t.constraints(sym)]
         # The lazy tasks' cuts: linear rows whose coefficients are parameters,
         # so they add nothing to the second derivatives. An unused slot is
@@ -670,11 +725,14 @@ class CasadiIK(IKOracle):
         assert x_new is not None
         return (x_new, value) if task is self.strategy.reach else None
 
-    @staticmethod
-    def _params(goal: np.ndarray, x: np.ndarray, call: Call, pull: bool = False) -> np.ndarray:
-        """The programs' parameters: the goal, the current posture (x itself without one) and its weight (0 unless pulled)."""
+    def _params(self, goal: np.ndarray, x: np.ndarray, call: Call, pull: bool = False) -> np.ndarray:
+        """The programs' parameters: the goal, the current posture (x itself without one) and its weight (0 unless
+        pulled), the goal's orientation (column-major) and whether it applies."""
         start = call.start if call.start is not None else x
-        return np.concatenate([goal, start, [0.0 if call.start is None and not pull else 1.0]])
+        task = self.orientation
+        aim = call.aim if call.aim is not None else (np.eye(3) if task is None else task.default_aim())
+        on = float(task is not None and (call.aim is not None or not task.free))
+        return np.concatenate([goal, start, [0.0 if call.start is None and not pull else 1.0], aim.ravel(order="F"), [on]])
 
     def preference(self, posture: np.ndarray, goal: np.ndarray, call: Call = NO_CALL) -> float:
         """The lowest stage's objective at a posture (the posture task's, in the shipped strategies)."""

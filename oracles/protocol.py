@@ -37,6 +37,9 @@ Oracles may also offer optional capabilities, each a protocol of its own;
   configuration space, what a posture breaks (limits, collisions, feet,
   balance), and the posture nearest one that holds every hard task, so that
   :mod:`reach.motion` plans a reach motion without seeing the model;
+* :class:`Oriented`: verdicts for goals that carry an orientation (an
+  approach direction or a full rotation), for queries' ``orientation`` and
+  the reachability index;
 * :class:`Articulated`: the body's skeleton (its joints grouped into bones)
   and each bone's world transform at postures, for animation files (BVH,
   glTF).
@@ -351,6 +354,24 @@ class Skeleton:
     capsule_names: tuple[str, ...] = ()
     capsules: np.ndarray = field(default_factory=lambda: np.zeros((0, 7)))
     capsule_bones: tuple[int, ...] = ()
+
+
+@runtime_checkable
+class Oriented(Protocol):
+    """Goals with an orientation: the strategy holds its effector to each goal's (see :mod:`oracles.tasks.orientation`)."""
+
+    def orientation_kinds(self) -> tuple[str, ...]:
+        """What a goal's orientation may be for this strategy: ``direction`` (of its approach axis) and
+        ``rotation``, only ``rotation``, or none (the strategy holds no orientation)."""
+        ...
+
+    def evaluate_oriented(self, points: np.ndarray, orientations: np.ndarray, hints: np.ndarray | None = None,
+                          current: np.ndarray | None = None) -> Verdicts:
+        """Verdicts for goals (N, 3) [m], each with an orientation: (N, 3) world directions of the effector's
+        approach axis, or (N, 3, 3) rotations of the effector in the world; hints as :meth:`Oracle.evaluate`
+        (or (N, k, nq) seeds); ``current``: the character's posture (nq,), as :class:`Continuing`. Raises
+        OracleError (key ``orientation``) when the strategy holds no orientation or not of that kind."""
+        ...
 
 
 @runtime_checkable

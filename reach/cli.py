@@ -146,21 +146,30 @@ def cmd_query(args: argparse.Namespace) -> int:
     atlas, goal = _goal(args.values, args.connect is None)
     refine = None if args.refine is None else args.refine == "on"
     start = _start(args.start)
+    wire = {"direction": args.direction} if args.direction else {"quaternion": args.quaternion} if args.quaternion else None
+    if wire is not None:
+        try:
+            P.check_orientation(wire)  # the server's own check of the field
+        except P.Invalid as exc:
+            raise InputError("--direction" if args.direction else "--quaternion", str(exc)) from None
+        if not args.effector:
+            raise InputError("--effector", "give the effector with --direction or --quaternion")
     if args.connect:
         from reach.client import Client
 
         with Client(args.connect, timeout=args.timeout, curve_server_key=args.curve_server_key, curve_client_key=args.curve_client_key) as client:
             effectors = [args.effector] if args.effector else client.strategies()["effectors"]
             # The reply's envelope fields are not part of the answer.
-            answers = [{k: v for k, v in client.query(e, goal, refine, start, miss=args.miss).items() if k not in ("ok", "id")} for e in effectors]
+            answers = [{k: v for k, v in client.query(e, goal, refine, start, miss=args.miss, orientation=wire).items() if k not in ("ok", "id")}
+                       for e in effectors]
     else:
-        from reach.select import Selector
+        from reach.select import Selector, orientation_of
         from reach.store import load_atlas
 
         selector = Selector(load_atlas(atlas), policy=args.policy, refine=refine is not False, budget=args.budget_ms / 1000.0,  # type: ignore[arg-type]
                             handover=_handover(args), miss=args.miss)
         effectors = [args.effector] if args.effector else selector.effectors
-        answers = [selector.select(e, np.array(goal), start=start).to_dict() for e in effectors]
+        answers = [selector.select(e, np.array(goal), start=start, orientation=orientation_of(wire)).to_dict() for e in effectors]
     if args.json:
         _print_json({"answers": answers})
         return 0
@@ -507,6 +516,11 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--from", dest="start", metavar="POSTURE",
                    help="the character's current posture, a JSON object of joint name -> value [rad or m] (or a file holding one): "
                         "the answer is the natural posture reached from it")
+    aim = p.add_mutually_exclusive_group()
+    aim.add_argument("--direction", nargs=3, type=float, metavar=("X", "Y", "Z"),
+                     help="hold the effector's approach axis along this world direction (strategies with an orientation task that has an axis)")
+    aim.add_argument("--quaternion", nargs=4, type=float, metavar=("QX", "QY", "QZ", "QW"),
+                     help="hold the effector's rotation in the world (strategies with an orientation task)")
     p.add_argument("--budget-ms", type=float, default=QUERY_BUDGET * 1000,
                    help=f"reading an atlas: time budget of the IK refinement [ms] (default {QUERY_BUDGET * 1000:g}: a one-off question "
                         f"lets it converge; a server's default is {REFINE_BUDGET * 1000:g}, a frame)")

@@ -125,18 +125,24 @@ class Client:
         raise ServerUnavailable(self.address, self.retries, self.timeout)
 
     def query(self, effector: str, goal: list[float], refine: bool | None = None, start: dict[str, float] | None = None,
-              miss: str | None = None) -> dict[str, Any]:
+              miss: str | None = None, orientation: dict[str, list[float]] | None = None) -> dict[str, Any]:
         """One goal [m]; ``start`` is the character's current posture (joint name -> rad or m), the query's ``from``;
-        ``miss``: ``unreachable`` or ``within`` (see docs/protocol.md)."""
-        return self.call("query", **self._fields(effector, refine, start, miss), goal=[float(v) for v in goal])
+        ``miss``: ``unreachable`` or ``within``; ``orientation``: ``{"direction": [x, y, z]}`` or
+        ``{"quaternion": [qx, qy, qz, qw]}`` (see docs/protocol.md)."""
+        return self.call("query", **self._fields(effector, refine, start, miss, orientation), goal=[float(v) for v in goal])
 
     def query_many(self, effector: str, goals: list[list[float]], refine: bool | None = None,
-                   start: dict[str, float] | None = None, miss: str | None = None) -> list[dict[str, Any]]:
-        return list(self.call("query", **self._fields(effector, refine, start, miss), goals=[[float(v) for v in g] for g in goals])["answers"])
+                   start: dict[str, float] | None = None, miss: str | None = None,
+                   orientation: dict[str, list[float]] | None = None) -> list[dict[str, Any]]:
+        fields = self._fields(effector, refine, start, miss, orientation)
+        return list(self.call("query", **fields, goals=[[float(v) for v in g] for g in goals])["answers"])
 
     @staticmethod
-    def _fields(effector: str, refine: bool | None, start: dict[str, float] | None, miss: str | None) -> dict[str, Any]:
+    def _fields(effector: str, refine: bool | None, start: dict[str, float] | None, miss: str | None,
+                orientation: dict[str, list[float]] | None = None) -> dict[str, Any]:
         fields: dict[str, Any] = {"effector": effector}
+        if orientation is not None:
+            fields["orientation"] = {str(k): [float(x) for x in v] for k, v in orientation.items()}
         if refine is not None:
             fields["refine"] = refine
         if start is not None:

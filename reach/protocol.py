@@ -157,6 +157,23 @@ def _posture(value: Any) -> dict[str, float]:
         raise Invalid("an object of joint name -> finite number [rad or m]") from None
 
 
+def check_orientation(value: Any) -> dict[str, list[float]]:
+    kinds = ("direction", "quaternion")
+    if not isinstance(value, dict) or len(value) != 1 or next(iter(value)) not in kinds:
+        raise Invalid('an object with one of "direction": [x, y, z] (the effector\'s approach axis in the world) or "quaternion": [qx, qy, qz, qw]')
+    kind, raw = next(iter(value.items()))
+    n = 3 if kind == "direction" else 4
+    if not isinstance(raw, list) or len(raw) != n:
+        raise Invalid(f"{kind}: a list of {n} finite numbers")
+    try:
+        numbers = [_number(v) for v in raw]
+    except Invalid:
+        raise Invalid(f"{kind}: a list of {n} finite numbers") from None
+    if math.hypot(*numbers) < 1e-9:
+        raise Invalid(f"{kind}: not zero")
+    return {kind: numbers}
+
+
 def _rate(value: Any) -> float:
     rate = _number(value)
     if not 1.0 <= rate <= MAX_RATE:
@@ -234,6 +251,9 @@ OPERATIONS: dict[str, Operation] = {op.name: op for op in (
         Field("from", "{joint: rad or m}", _posture, "the character's current posture; refinement starts from it"),
         Field("deadline", "s", _deadline, f"answer within this many seconds of arrival (0 to {MAX_DEADLINE:g})"),
         Field("miss", "string", _choice(MISSES), "a goal the trees hold but no refinement reaches: `unreachable` or `within` (default: the server's)"),
+        Field("orientation", "{direction: [x, y, z]} or {quaternion: [qx, qy, qz, qw]}", check_orientation,
+              "hold every goal's effector orientation: its approach axis's world direction, or its rotation; only strategies with an "
+              "`orientation` task answer, always refined"),
         TAG,
     ), "which strategy reaches each goal, and in which posture", "op_query", worker=True, check=_one_goal_or_many),
     Operation("motion", (

@@ -51,6 +51,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
 
 from oracles.protocol import (
     Bounded,
@@ -60,6 +61,7 @@ from oracles.protocol import (
     ModelHashed,
     Oracle,
     OracleSpec,
+    Oriented,
     Preferring,
     Preparable,
     Tunable,
@@ -174,6 +176,17 @@ class Answer:
             "residual": self.residual, "refined": self.refined, "seconds": self.seconds, "handover": self.handover,
             "within": self.within, "nearest": self.nearest,
         }
+
+
+def orientation_of(wire: dict[str, list[float]] | None) -> np.ndarray | None:
+    """A request's ``orientation`` as the selector takes it: a unit direction (3,) or a rotation (3, 3) from a
+    quaternion ``[qx, qy, qz, qw]`` (normalised); None stays None."""
+    if wire is None:
+        return None
+    if "direction" in wire:
+        d = np.asarray(wire["direction"], float)
+        return d / np.linalg.norm(d)  # type: ignore[no-any-return]
+    return np.asarray(Rotation.from_quat(np.asarray(wire["quaternion"], float)).as_matrix())
 
 
 def split_posture(names: tuple[str, ...], q: np.ndarray) -> tuple[dict[str, float], dict[str, list[float]] | None]:
@@ -376,8 +389,17 @@ class Selector:
             self._oracles[name] = oracle.variant("refine", budget=self.budget) if isinstance(oracle, Tunable) else oracle
         return self._oracles[name]
 
+    def oriented(self, effector: str, orientation: np.ndarray) -> list[str]:
+        """The effector's strategies that hold a goal's orientation of this kind ((3,) direction or (3, 3) rotation), by priority."""
+        kind = "direction" if orientation.shape == (3,) else "rotation"
+        names = [n for n in self.strategies_for(effector) if isinstance(o := self._oracle(n), Oriented) and kind in o.orientation_kinds()]
+        if not names:
+            raise InputError("orientation", f"no strategy of {effector!r} holds a goal's {kind}: give it an orientation task"
+                             + (" with an axis" if kind == "direction" else ""))
+        return names
+
     def select_many(self, effector: str, goals: np.ndarray, refine: bool | None = None, start: dict[str, float] | None = None,
-                    miss: str | None = None) -> list[Answer]:
+                    miss: str | None = None, orientation: np.ndarray | None = None) -> list[Answer]:
         """Answers for goals (N, d) [m], one tree lookup per strategy for the whole batch.
 
         ``start`` is the character's current posture (joint name -> rad or m;
@@ -385,17 +407,26 @@ class Selector:
         refinement then starts from it, with a small cost on displacement from
         it, so that the answer is the natural posture reached from there.
         Joints it omits keep the stored posture's values. ``miss`` overrides
-        the selector's (see the module docstring).
+        the selector's (see the module docstring). ``orientation``, a world
+        direction (3,) of the effector's approach axis or its rotation (3, 3),
+        holds every goal's orientation: only the strategies with an
+        orientation task answer, always by refinement, and a goal no
+        refinement reaches with it is unreachable.
         """
         t0 = time.perf_counter()
         g = np.asarray(goals, dtype=float)
         names = self.check_goals(effector, g, start)
         refine = self.refine if refine is None else refine
+        if orientation is not None:
+            if not refine:
+                raise InputError("refine", "a goal with an orientation is always refined (the trees hold positions); leave refine out or true")
+            names = self.oriented(effector, np.asarray(orientation, float))
         miss = self.miss if miss is None else miss
         if miss not in MISSES:
             raise InputError("miss", f"expected one of {', '.join(MISSES)}, got {miss!r}")
+        aim = None if orientation is None else np.asarray(orientation, float)
         if len(g) == 1:
-            return [self._select_one(effector, names, g[0], refine, t0, start, miss)]
+            return [self._select_one(effector, names, g[0], refine, t0, start, miss, aim)]
         hits = np.stack([self.atlas.trees[n].contains(g, self.policy) for n in names])
         chosen = np.where(hits.any(axis=0), hits.argmax(axis=0), -1)
         nearest: dict[int, tuple[int, np.ndarray] | None] = {}
@@ -405,20 +436,20 @@ class Selector:
             for m, i in enumerate(sel):
                 nearest[int(i)] = None if found is None else (int(found[0][m]), found[1][m])
         return [
-            self._answer(effector, g[i], [n for j, n in enumerate(names) if hits[j, i]], nearest.get(i), refine, time.perf_counter(), start, miss)
+            self._answer(effector, g[i], [n for j, n in enumerate(names) if hits[j, i]], nearest.get(i), refine, time.perf_counter(), start, miss, aim)
             for i in range(len(g))
         ]
 
     def _select_one(self, effector: str, names: list[str], goal: np.ndarray, refine: bool, t0: float, start: dict[str, float] | None,
-                    miss: str) -> Answer:
+                    miss: str, aim: np.ndarray | None = None) -> Answer:
         """select_many for one goal, in plain Python: the server's per-request path."""
         point = goal.tolist()
         hits = [n for n in names if self.atlas.trees[n].contains_one(point, self.policy)]
         nearest = self._nearest_row(hits[0], self.atlas.trees[hits[0]], point) if hits else None
-        return self._answer(effector, goal, hits, nearest, refine, t0, start, miss)
+        return self._answer(effector, goal, hits, nearest, refine, t0, start, miss, aim)
 
     def _answer(self, effector: str, goal: np.ndarray, hits: list[str], nearest: tuple[int, np.ndarray] | None, refine: bool, t0: float,
-                start: dict[str, float] | None = None, miss: str = MISS) -> Answer:
+                start: dict[str, float] | None = None, miss: str = MISS, aim: np.ndarray | None = None) -> Answer:
         """The answer for one goal, given the strategies that hold it (by priority) and the chosen one's nearest stored vertex."""
         if not hits:
             return Answer(effector, tuple(goal.tolist()), None, False, refined=NONE, seconds=time.perf_counter() - t0)
@@ -435,23 +466,26 @@ class Selector:
             residual = gap if np.isfinite(gap) else None
             q, outcome = tree.vertices.posture[row], SKIPPED  # type: ignore[index]
             if refine:
-                q, residual, outcome = self._refine(name, goal, q, residual, start)
+                q, residual, outcome = self._refine(name, goal, q, residual, start, aim)
             found = None
             if outcome == FAILED:
                 # The IK says this strategy does not reach the exact goal (its
                 # tree said so from a coarse cell): the next strategy by
                 # priority that does answers; else this one's stored posture.
-                found = self._first_answer(goal, others, refine, start)
+                found = self._first_answer(goal, others, refine, start, aim=aim)
                 if found is not None:
                     others = others[others.index(found.name) + 1 :]
             elif self.handover and others and outcome in (REFINED, SKIPPED) and (limits := self._limits(name, q)):
-                found = self._first_answer(goal, others, refine, start, below=len(limits))
+                found = self._first_answer(goal, others, refine, start, below=len(limits), aim=aim)
                 if found is not None:
                     others = [h for h in hits if h != found.name]  # the strategy passed over stays an alternative
                     handover = {"from": name, "limits": limits}
             if found is not None:
                 name, q, residual, outcome, row = found
                 tree = self.atlas.trees[name]
+            elif aim is not None and outcome != REFINED:
+                # A stored posture holds no goal's orientation: what no refinement reached with it is unreachable.
+                return Answer(effector, tuple(goal.tolist()), None, False, refined=outcome, seconds=time.perf_counter() - t0)
             elif outcome == FAILED and miss == "unreachable":
                 # No strategy's refinement reaches the goal: not reachable, and the nearest point a stored posture reaches.
                 joints, pose, _ = self._stored_posture(name, tree, row)
@@ -472,7 +506,7 @@ class Selector:
         return list(oracle.limits_near(q, self.handover)) if isinstance(oracle, Limited) else []
 
     def _first_answer(self, goal: np.ndarray, names: list[str], refine: bool, start: dict[str, float] | None,
-                      below: int | None = None) -> Found | None:
+                      below: int | None = None, aim: np.ndarray | None = None) -> Found | None:
         """The first of names (by priority) whose refinement reaches the goal (without refinement: whose tree
         holds a posture) and, given ``below``, with fewer joints near their limits: its name, posture,
         residual, refinement outcome and nearest stored row; None if none does (or, given ``below``, the time runs out)."""
@@ -488,7 +522,7 @@ class Selector:
             residual: float | None = gap if np.isfinite(gap) else None
             outcome = SKIPPED
             if refine:
-                q, residual, outcome = self._refine(name, goal, q, residual, start)
+                q, residual, outcome = self._refine(name, goal, q, residual, start, aim)
                 if outcome == TIMEOUT:  # out of time: no further strategy is tried
                     # A handover keeps the answer it had; a failed goal is answered by this strategy's
                     # stored posture, marked timeout: its tree holds the goal and nothing said otherwise.
@@ -535,11 +569,15 @@ class Selector:
         return q
 
     def _refine(self, name: str, goal: np.ndarray, q: np.ndarray, residual: float | None,
-                start_joints: dict[str, float] | None = None) -> tuple[np.ndarray, float | None, str]:
+                start_joints: dict[str, float] | None = None, aim: np.ndarray | None = None) -> tuple[np.ndarray, float | None, str]:
         oracle = self._oracle(name)
         t0 = time.perf_counter()
         start = self.start_posture(self.atlas.trees[name], q, start_joints)
-        if start is not None and isinstance(oracle, Continuing):
+        if aim is not None and isinstance(oracle, Oriented):
+            liked = self._best_liked(name, oracle, goal, q) if start is None and isinstance(oracle, Preferring) else None
+            seeds = None if start is not None else np.stack([q] if liked is None else [q, liked])[None]
+            v = oracle.evaluate_oriented(goal[None], aim[None], seeds, current=start)
+        elif start is not None and isinstance(oracle, Continuing):
             v = oracle.evaluate_from(goal[None], start)
         elif start is None and isinstance(oracle, Preferring) and (liked := self._best_liked(name, oracle, goal, q)) is not None:
             v = oracle.evaluate_seeded(goal[None], np.stack([q, liked])[None])
@@ -567,6 +605,6 @@ class Selector:
         return None if np.array_equal(best, q) else best
 
     def select(self, effector: str, goal: np.ndarray, refine: bool | None = None, start: dict[str, float] | None = None,
-               miss: str | None = None) -> Answer:
-        """Choose a strategy for one goal [m] (``start``, ``miss``: see :meth:`select_many`)."""
-        return self.select_many(effector, np.asarray(goal, dtype=float).reshape(1, -1), refine, start, miss)[0]
+               miss: str | None = None, orientation: np.ndarray | None = None) -> Answer:
+        """Choose a strategy for one goal [m] (``start``, ``miss``, ``orientation``: see :meth:`select_many`)."""
+        return self.select_many(effector, np.asarray(goal, dtype=float).reshape(1, -1), refine, start, miss, orientation)[0]

@@ -50,7 +50,7 @@ from reach import protocol as P
 from reach.client import load_curve_key
 from reach.errors import InputError, ReachError, UnknownEffector, UnknownStrategy
 from reach.motion import MotionError, Planner, Timing
-from reach.select import ERROR, HANDOVER, MISS, REFINE_BUDGET, SKIPPED, TIMEOUT, Selector
+from reach.select import ERROR, HANDOVER, MISS, REFINE_BUDGET, SKIPPED, TIMEOUT, Answer, Selector, orientation_of
 from reach.store import load_atlas
 from reach.tree import DEFAULT_POLICY
 from reach.workers import EXPIRED, Pool, Task
@@ -310,7 +310,8 @@ class Server:
 
     # -- the operations' handlers (declared in reach.protocol.OPERATIONS) -----
     def op_query(self, req: P.Request) -> bytes:
-        answers = self.selector.select_many(req["effector"], np.array(req["goals"]), req["refine"], start=req["from"], miss=req["miss"])
+        answers = self.selector.select_many(req["effector"], np.array(req["goals"]), req["refine"], start=req["from"], miss=req["miss"],
+                                            orientation=orientation_of(req["orientation"]))
         return self._result(req, [a.to_json() for a in answers])
 
     def op_motion(self, req: P.Request) -> bytes:
@@ -441,6 +442,8 @@ class Server:
         if not (self.refine if req["refine"] is None else req["refine"]):
             return False
         goals = np.array(req["goals"])
+        if req["orientation"] is not None:
+            self.selector.oriented(req["effector"], orientation_of(req["orientation"]))  # type: ignore[arg-type]
         if not self.selector.needs_ik(req["effector"], goals, req["from"]):
             return False  # nothing to refine (an analytic atlas, or no strategy holds a goal): answered at once
         n = len(goals)
@@ -449,7 +452,8 @@ class Server:
         seq = self._pend(req, envelope, min(n * self.budget + SLACK, MAX_WAIT), bounds)
         if seq is not None:
             for part, (a, b) in enumerate(bounds):
-                self.pool.submit(Task(seq, part, req["effector"], req["goals"][a:b], req["from"], self.pending[seq].deadline, req["miss"], envelope[0]))
+                self.pool.submit(Task(seq, part, req["effector"], req["goals"][a:b], req["from"], self.pending[seq].deadline, req["miss"], envelope[0],
+                                      orientation=req["orientation"]))
         return True
 
     def _defer_motion(self, req: P.Request, envelope: list[bytes]) -> bool:
@@ -479,6 +483,8 @@ class Server:
 
     def _stored(self, req: P.Request, a: int, b: int, outcome: str) -> list[bytes]:
         """The stored answers of goals a..b, marked with why they were not refined."""
+        if req["orientation"] is not None:  # a stored posture holds no goal's orientation
+            return [Answer(req["effector"], tuple(g), None, False, refined=outcome).to_json() for g in req["goals"][a:b]]
         answers = self.selector.select_many(req["effector"], np.array(req["goals"][a:b]), False)
         return [dataclasses.replace(x, refined=outcome).to_json() if x.refined == SKIPPED else x.to_json() for x in answers]
 

@@ -57,10 +57,11 @@ class Task:
     client: bytes = b""  # who asked (the request's routing identity): the queues are served in turn
     op: str = "query"  # or "motion": plan the motion to goals[0]
     options: dict[str, Any] | None = None  # a motion's rate, timing and miss
+    orientation: dict[str, list[float]] | None = None  # a query's, as the request gives it
 
     def encode(self) -> bytes:
         return json.dumps({"op": self.op, "effector": self.effector, "goals": self.goals, "from": self.start, "deadline": self.deadline,
-                           "miss": self.miss, "options": self.options}).encode()
+                           "miss": self.miss, "options": self.options, "orientation": self.orientation}).encode()
 
 
 @dataclass
@@ -202,7 +203,7 @@ def work(address: str, atlas: str, options: dict[str, Any], identity: bytes) -> 
     from reach.executor import die_with_parent
     from reach.motion import MotionError, Planner, Timing
     from reach.protocol import encode
-    from reach.select import Selector
+    from reach.select import Selector, orientation_of
     from reach.store import load_atlas
 
     die_with_parent()
@@ -242,7 +243,8 @@ def work(address: str, atlas: str, options: dict[str, Any], identity: bytes) -> 
                 sock.send(FAILED + f" internal: {type(exc).__name__}: {exc}".encode())
             continue
         try:
-            answers = selector.select_many(job["effector"], np.array(job["goals"]), True, start=job["from"], miss=job["miss"])
+            answers = selector.select_many(job["effector"], np.array(job["goals"]), True, start=job["from"], miss=job["miss"],
+                                           orientation=orientation_of(job["orientation"]))
             sock.send_multipart([a.to_json() for a in answers])
         except Exception as exc:  # noqa: BLE001 - reported to the broker, which answers with stored postures
             sock.send(FAILED + f"{type(exc).__name__}: {exc}".encode())

@@ -17,6 +17,7 @@ from oracles.tasks.floor import FloorTask
 from oracles.tasks.gaze import GazeTask
 from oracles.tasks.hang import HangTask
 from oracles.tasks.obstacles import ObstaclesTask
+from oracles.tasks.orientation import OrientationTask
 from oracles.tasks.posture import PostureTask
 from oracles.tasks.reach import ReachTask
 from oracles.tasks.self_collision import SelfCollisionTask
@@ -29,6 +30,7 @@ TASKS: dict[str, type[Task]] = {
     SelfCollisionTask.type: SelfCollisionTask,
     FloorTask.type: FloorTask,
     ObstaclesTask.type: ObstaclesTask,
+    OrientationTask.type: OrientationTask,
     CouplingTask.type: CouplingTask,
     HangTask.type: HangTask,
     GazeTask.type: GazeTask,
@@ -63,6 +65,7 @@ __all__ = [
     "HardTask",
     "Numeric",
     "ObstaclesTask",
+    "OrientationTask",
     "PostureTask",
     "ReachTask",
     "Reference",

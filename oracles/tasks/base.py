@@ -107,6 +107,8 @@ class Symbolic:
         lower: Lower bound of each coordinate of x.
         start: The character's current posture as x (n_x,), a parameter (continuity).
         start_weight: Weight of the displacement from ``start``, a parameter (0 without one).
+        aim: The goal's orientation (3, 3), a parameter (see :mod:`oracles.tasks.orientation`).
+        aim_on: 1 when the goal's orientation applies, else 0, a parameter.
     """
 
     kin: SymbolicKinematics
@@ -118,6 +120,8 @@ class Symbolic:
     lower: np.ndarray | None = None
     start: ca.SX | None = None
     start_weight: ca.SX | None = None
+    aim: ca.SX | None = None
+    aim_on: ca.SX | None = None
 
 
 @dataclass
@@ -145,6 +149,7 @@ class Numeric:
     span: np.ndarray | None = None
     start: np.ndarray | None = None  # the character's current posture as x, when a query gives one
     start_weight: float = 0.0
+    aim: np.ndarray | None = None  # the goal's orientation (3, 3), when it carries one
 
     def frame(self, frame_id: int) -> pin.SE3:
         return self.data.oMf[frame_id]
