@@ -583,11 +583,12 @@ class CasadiIK(IKOracle):
     def tune(self, purpose: Purpose) -> None:
         # A refinement never compiles (seconds, more than a server's few
         # solves gain) and lets the lower stages converge (its budget bounds
-        # the time); the referee solves with IPOPT, the reference solver.
+        # the time); the referee solves with IPOPT, the reference solver; the
+        # index keeps the build's engine (its many solves are worth compiling).
         if purpose == "refine":
             self._set_jit(False)
             self.secondary_iter = REFINE_SECONDARY_ITER
-        else:
+        elif purpose == "referee":
             self.solver = "ipopt"
         self._set_order()
 

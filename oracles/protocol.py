@@ -19,7 +19,8 @@ Oracles may also offer optional capabilities, each a protocol of its own;
   the body), so that the builder never labels a cell that meets them inner;
 * :class:`Tunable`: a variant set up for a purpose, ``"refine"`` (the
   selector's quick solve at the exact goal, secondary tasks on, within a
-  time budget) or ``"referee"`` (the audit's thorough solve);
+  time budget), ``"referee"`` (the audit's thorough solve) or ``"index"``
+  (the reachability index's quick verdicts from neighbouring postures);
 * :class:`Described`: what the oracle checks, for ``reach model``;
 * :class:`Continuing`: answers from the character's current posture;
 * :class:`Preparable`: build now what the first evaluate would build;
@@ -116,8 +117,8 @@ class Oracle(Protocol):
         ...
 
 
-Purpose = Literal["refine", "referee"]
-PURPOSES: tuple[str, ...] = ("refine", "referee")
+Purpose = Literal["refine", "referee", "index"]
+PURPOSES: tuple[str, ...] = ("refine", "referee", "index")
 
 
 def check_purpose(purpose: str) -> None:
@@ -223,8 +224,10 @@ class Tunable(Protocol):
 
     ``variant("refine", budget=s)``: fast, secondary tasks on, at most
     ``budget`` seconds per ``evaluate``. ``variant("referee", restarts=n)``:
-    thorough, every start tried, at least ``n`` random restarts. Variants
-    are :class:`Specified` when their oracle is.
+    thorough, every start tried, at least ``n`` random restarts.
+    ``variant("index")``: a verdict only, from the hints and the reference
+    (no random restart), a hint at the goal solved alone. Variants are
+    :class:`Specified` when their oracle is.
     """
 
     def variant(self, purpose: Purpose, *, budget: float | None = None, restarts: int = 6) -> Oracle: ...

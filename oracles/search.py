@@ -17,6 +17,7 @@ from typing import Any
 from oracles.errors import OracleError
 
 NEAR_HINT = 0.1  # [m] default of `decisive`: a hint this close to the goal makes its failed warm solve decisive
+INDEX_SETTLE = 0.01  # [m] the index variant's `settle`: its hints reach the vertex already (within the reach tolerance)
 
 
 @dataclass(frozen=True)
@@ -91,8 +92,13 @@ class Search:
         ``refine``: the hint, the reference and ready postures, every one tried
         and the best-liked kept, within ``budget`` [s]; never settled, since an
         answer is the natural posture reached from the character's. ``referee``:
-        a verdict only, every start, at least ``restarts`` random ones.
+        a verdict only, every start, at least ``restarts`` random ones. ``index``: a verdict only, from the hints
+        (the neighbouring direction's posture, the vertex's) and the reference, no random start; a hint at the
+        goal solves the reach stage alone (see :mod:`reach.index`).
         """
+        if purpose == "index":
+            return dataclasses.replace(self, restarts=0, give_up=0.0, rescues=0, decisive=max(self.decisive, NEAR_HINT), secondary=False,
+                                       prefer=False, reference_first=False, settle=max(self.settle, INDEX_SETTLE))
         if purpose == "refine":
             return dataclasses.replace(self, restarts=0, give_up=None, secondary=True, max_seconds=budget, prefer=True,
                                        reference_first=True, settle=0.0)

@@ -27,11 +27,12 @@ from typing import Any
 
 import numpy as np
 
-from oracles.protocol import Described, KeepOut, Mirrorable, ModelHashed, Oracle, OracleSpec, Verifying
+from oracles.protocol import Described, KeepOut, Mirrorable, ModelHashed, Oracle, OracleSpec, Specified, Tunable, Verifying
 from reach.build import Inherited, build_tree
 from reach.config import Config, StrategySpec, grown
 from reach.errors import ModelError, StoreError
 from reach.executor import Executor, InlineExecutor
+from reach.index import compute_index, spiral
 from reach.store import Atlas, build_lock, load_atlas, load_state, load_tree, save_state, save_tree, write_manifest
 from reach.tree import FINAL, INNER, VATree
 
@@ -50,8 +51,10 @@ def package_versions() -> dict[str, str]:
 
 def fingerprint(config: Config, strategy: StrategySpec) -> str:
     """Identifies what a strategy's tree depends on: its oracle, B0 and depths."""
-    text = json.dumps({"oracle": strategy.oracle.to_dict(), "box": config.box.to_dict(), "depth": [config.d_min, config.d_max],
-                       "refine": config.refine.to_dict()}, sort_keys=True)
+    parts = {"oracle": strategy.oracle.to_dict(), "box": config.box.to_dict(), "depth": [config.d_min, config.d_max], "refine": config.refine.to_dict()}
+    if strategy.directions:
+        parts["directions"] = strategy.directions
+    text = json.dumps(parts, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
@@ -203,6 +206,11 @@ def _build_locked(
             b = tree.meta["build"]
             also = f", {b['inherited']} reachable vertices inherited from {sub}" if "inherited_from" in tree.meta else ""
             say(f"{s.name}: {b['oracle_calls']} oracle calls{also}, {len(tree)} nodes, inner volume {tree.volume(INNER):.6g}, {b['seconds']:.2f} s")
+        if s.directions and tree.index is None and tree.vertices.posture is not None:
+            tree = _index_one(config, s, tree, executor_factory, progress, oracle_of(s))
+            i = tree.meta["index"]
+            say(f"{s.name}: reachability index over {s.directions} directions: {i['goals']} goals solved, mean {i['mean']:.3f} at reachable "
+                f"vertices, {i['seconds']:.2f} s")
         save_tree(tree, path)
         partial.unlink(missing_ok=True)
         built[s.name] = tree
@@ -249,6 +257,30 @@ def _build_one(
         )
     finally:
         ex.close()
+
+
+def _index_one(config: Config, s: StrategySpec, tree: VATree, executor_factory: Callable[[OracleSpec], Executor] | None, progress: bool,
+               oracle: Oracle) -> VATree:
+    """The tree with its reachability index (see :mod:`reach.index`), solved by the strategy's ``index`` variant."""
+    assert isinstance(oracle, Tunable)  # the config checked it
+    variant = oracle.variant("index")
+    ex: Executor = executor_factory(variant.spec) if executor_factory and isinstance(variant, Specified) else InlineExecutor(variant, config.chunk_size)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(unit="goal", leave=False, dynamic_ncols=True, desc=f"{s.name} index")
+    t0 = time.perf_counter()
+    try:
+        index, solved = compute_index(tree, ex, spiral(s.directions), None if bar is None else bar.update)
+    finally:
+        ex.close()
+        if bar is not None:
+            bar.close()
+    reachable = tree.vertices.reachable
+    meta = {**tree.meta, "index": {"directions": s.directions, "goals": solved, "seconds": time.perf_counter() - t0,
+                                   "mean": float(index.share[reachable].mean()) if reachable.any() else 0.0}}
+    return dataclasses.replace(tree, meta=meta, index=index)
 
 
 def _keep_out(oracle: object) -> np.ndarray | None:

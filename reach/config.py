@@ -37,14 +37,15 @@ from typing import Any
 import numpy as np
 import yaml
 
-from oracles.protocol import Diagnosed, Floored, Oracle, OracleSpec, Probing, ReachBound, body_params
+from oracles.protocol import Diagnosed, Floored, Oracle, OracleSpec, Oriented, Probing, ReachBound, Tunable, body_params
 from reach.build import Refine
 from reach.errors import ConfigError, ModelError, ReachError, TreeError
 from reach.executor import CHUNK_SIZE
+from reach.index import MAX_DIRECTIONS
 from reach.tree import MAX_DEPTH, Box
 
 TOP_KEYS = {"name", "description", "base", "body", "box", "depth", "oracle", "strategies", "build"}
-STRATEGY_KEYS = {"name", "effector", "priority", "oracle", "description", "joints", "tasks", "mirror_of"}
+STRATEGY_KEYS = {"name", "effector", "priority", "oracle", "description", "joints", "tasks", "mirror_of", "directions"}
 BUILD_KEYS = {"chunk_size", "refine"}
 REFINE_KEYS = {"centres", "faces", "isolated"}
 
@@ -60,6 +61,7 @@ class StrategySpec:
         oracle: The oracle deciding reachability for this strategy.
         mirror_of: A strategy whose tree, mirrored about y = 0, may stand for
             this one's when the body is mirror-symmetric.
+        directions: Approach directions of the reachability index (0: none; see :mod:`reach.index`).
     """
 
     name: str
@@ -68,6 +70,7 @@ class StrategySpec:
     oracle: OracleSpec
     description: str = ""
     mirror_of: str | None = None
+    directions: int = 0
 
 
 @dataclass(frozen=True)
@@ -191,7 +194,8 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
                 raise check.fail(f"{key}.joints", "required key is missing (the joints this strategy may move)")
             oracle = OracleSpec(oracle.name, {**oracle.params, **body_params(top["body"], effector, s["joints"], s.get("tasks"))})
         mirror_of = check.string(s["mirror_of"], f"{key}.mirror_of") if "mirror_of" in s else None
-        strategies.append(StrategySpec(sname, effector, priority, oracle, str(s.get("description", "")), mirror_of))
+        directions = check.integer(s.get("directions", 0), f"{key}.directions", 0, MAX_DIRECTIONS)
+        strategies.append(StrategySpec(sname, effector, priority, oracle, str(s.get("description", "")), mirror_of, directions))
     build = check.mapping(top.get("build", {}), "build", BUILD_KEYS)
     chunk = check.integer(build.get("chunk_size", CHUNK_SIZE), "build.chunk_size", 1, 10**7)
     refine_raw = check.mapping(build.get("refine", {}), "build.refine", REFINE_KEYS)
@@ -200,6 +204,10 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
             raise check.fail(f"build.refine.{k}", f"expected true or false, got {v!r}")
     refine = Refine(**refine_raw)
     oracles = _check_oracles(check, strategies, box.dim)
+    for i, (spec, made) in enumerate(zip(strategies, oracles, strict=True)):
+        if spec.directions and not (isinstance(made, Oriented) and isinstance(made, Tunable) and "direction" in made.orientation_kinds()):
+            raise check.fail(f"strategies[{i}].directions", "the reachability index needs an orientation task with an axis (the effector's "
+                             "approach axis whose directions it counts), e.g. {type: orientation, axis: z}")
     notes = _diagnose(strategies, oracles)
     if auto is not None:
         box, limit = _derive_box(check, oracles, auto, any(spec.mirror_of for spec in strategies))

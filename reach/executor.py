@@ -19,7 +19,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from oracles.protocol import Oracle, OracleSpec, Verdicts, check_verdicts
+from oracles.errors import OracleError
+from oracles.protocol import Oracle, OracleSpec, Oriented, Verdicts, check_verdicts
 
 Progress = Callable[[int], None]
 CHUNK_SIZE = 2048  # points per task a build sends an executor (the default of build.chunk_size)
@@ -44,8 +45,9 @@ class Executor(Protocol):
     dim: int
     posture_names: tuple[str, ...]
 
-    def evaluate(self, points: np.ndarray, hints: np.ndarray | None, progress: Progress | None = None) -> Verdicts:
-        """Verdicts for every point, in order; calls progress(n) as chunks finish."""
+    def evaluate(self, points: np.ndarray, hints: np.ndarray | None, progress: Progress | None = None, aims: np.ndarray | None = None) -> Verdicts:
+        """Verdicts for every point, in order; calls progress(n) as chunks finish. With aims, each point's
+        orientation (see :class:`oracles.protocol.Oriented`)."""
         ...
 
     def close(self) -> None: ...
@@ -60,10 +62,10 @@ class InlineExecutor:
         self.posture_names = tuple(self.oracle.posture_names)
         self.chunk_size = chunk_size
 
-    def evaluate(self, points: np.ndarray, hints: np.ndarray | None, progress: Progress | None = None) -> Verdicts:
+    def evaluate(self, points: np.ndarray, hints: np.ndarray | None, progress: Progress | None = None, aims: np.ndarray | None = None) -> Verdicts:
         parts = []
         for sl in chunks(points.shape[0], self.chunk_size):
-            v = self.oracle.evaluate(points[sl], None if hints is None else hints[sl])
+            v = _evaluate(self.oracle, points[sl], None if hints is None else hints[sl], None if aims is None else aims[sl])
             parts.append(check_verdicts(v, sl.stop - sl.start, len(self.posture_names)))
             if progress:
                 progress(sl.stop - sl.start)
@@ -109,12 +111,20 @@ _WORKER_ORACLES: dict[str, Oracle] = {}
 _WORKER_LOCK = threading.Lock()
 
 
-def _worker_evaluate(spec: OracleSpec, key: str, points: np.ndarray, hints: np.ndarray | None) -> Verdicts:
+def _evaluate(oracle: Oracle, points: np.ndarray, hints: np.ndarray | None, aims: np.ndarray | None) -> Verdicts:
+    if aims is None:
+        return oracle.evaluate(points, hints)
+    if not isinstance(oracle, Oriented):
+        raise OracleError("goals with an orientation need an oracle that holds one (the Oriented capability)", key="orientation")
+    return oracle.evaluate_oriented(points, aims, hints)
+
+
+def _worker_evaluate(spec: OracleSpec, key: str, points: np.ndarray, hints: np.ndarray | None, aims: np.ndarray | None = None) -> Verdicts:
     with _WORKER_LOCK:
         oracle = _WORKER_ORACLES.get(key)
         if oracle is None:
             oracle = _WORKER_ORACLES[key] = spec.create()
-        return oracle.evaluate(points, hints)
+        return _evaluate(oracle, points, hints, aims)
 
 
 class _Pooled(ABC):
@@ -132,7 +142,7 @@ class _Pooled(ABC):
         self.chunk_size = chunk_size
 
     @abstractmethod
-    def submit(self, points: np.ndarray, hints: np.ndarray | None) -> tuple[list[slice], list[Any]]:
+    def submit(self, points: np.ndarray, hints: np.ndarray | None, aims: np.ndarray | None = None) -> tuple[list[slice], list[Any]]:
         """Send a batch's chunks to the workers: the slices and their futures, in order."""
 
     def slices(self, n: int) -> list[slice]:
@@ -140,8 +150,8 @@ class _Pooled(ABC):
         size = max(1, min(self.chunk_size, -(-n // (4 * max(self.workers, 1)))))
         return list(chunks(n, size))
 
-    def evaluate(self, points: np.ndarray, hints: np.ndarray | None, progress: Progress | None = None) -> Verdicts:
-        slices, futures = self.submit(points, hints)
+    def evaluate(self, points: np.ndarray, hints: np.ndarray | None, progress: Progress | None = None, aims: np.ndarray | None = None) -> Verdicts:
+        slices, futures = self.submit(points, hints, aims)
         parts = []
         for sl, fut in zip(slices, futures, strict=True):
             parts.append(check_verdicts(fut.result(), sl.stop - sl.start, len(self.posture_names)))
@@ -158,10 +168,11 @@ class ProcessExecutor(_Pooled):
         self.workers = workers or os.cpu_count() or 1
         self.pool = ProcessPoolExecutor(max_workers=self.workers, initializer=build_worker)
 
-    def submit(self, points: np.ndarray, hints: np.ndarray | None) -> tuple[list[slice], list[Any]]:
+    def submit(self, points: np.ndarray, hints: np.ndarray | None, aims: np.ndarray | None = None) -> tuple[list[slice], list[Any]]:
         slices = self.slices(points.shape[0])
         return slices, [
-            self.pool.submit(_worker_evaluate, self.spec, self.key, points[sl], None if hints is None else hints[sl]) for sl in slices
+            self.pool.submit(_worker_evaluate, self.spec, self.key, points[sl], None if hints is None else hints[sl], None if aims is None else aims[sl])
+            for sl in slices
         ]
 
     def close(self) -> None:
@@ -182,11 +193,11 @@ class DaskExecutor(_Pooled):
         self.client = client
         self.workers = max(1, len(client.scheduler_info().get("workers", {})))
 
-    def submit(self, points: np.ndarray, hints: np.ndarray | None) -> tuple[list[slice], list[Any]]:
+    def submit(self, points: np.ndarray, hints: np.ndarray | None, aims: np.ndarray | None = None) -> tuple[list[slice], list[Any]]:
         slices = self.slices(points.shape[0])
         futures = self.client.map(
             _worker_evaluate, [self.spec] * len(slices), [self.key] * len(slices), [points[sl] for sl in slices],
-            [None if hints is None else hints[sl] for sl in slices], pure=False,
+            [None if hints is None else hints[sl] for sl in slices], [None if aims is None else aims[sl] for sl in slices], pure=False,
         )
         return slices, futures
 

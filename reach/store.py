@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from reach.errors import StoreError, TreeError, UnknownStrategy
+from reach.index import ReachIndex
 from reach.tree import FINAL, INNER, MAX_DEPTH, OUTER, PARENT, Box, Lattice, VATree, VertexTable, bfs_children
 
 TREE_FORMAT = "reach.vatree"
@@ -75,6 +76,8 @@ def save_tree(tree: VATree, path: str | Path) -> Path:
     }
     if tree.vertices.posture is not None:
         arrays["vertex_posture"] = tree.vertices.posture.astype(float)
+    if tree.index is not None:
+        arrays.update(tree.index.to_arrays())
     meta["digest"] = tree.meta["digest"] = digest(arrays)
     arrays["meta"] = np.frombuffer(json.dumps(meta, sort_keys=True).encode(), np.uint8)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -169,7 +172,10 @@ def load_tree(path: str | Path) -> VATree:
     wrong = _labels_contradicting_verdicts(Lattice(box, d_max), depth, corner, kind, vertices)
     if wrong:
         raise StoreError(path, f"{wrong} inner or outer cells contradict their vertices' verdicts (inverted verdicts or shifted corners?)")
-    return VATree(box, d_min, d_max, depth, corner, kind, bfs_children(kind, dim), vertices, meta)
+    index = ReachIndex.from_arrays(arrays, keys.shape[0], path)
+    if index is not None and np.any(index.reached[~reach_]):
+        raise StoreError(path, "the reachability index holds directions reached at unreachable vertices")
+    return VATree(box, d_min, d_max, depth, corner, kind, bfs_children(kind, dim), vertices, meta, index)
 
 
 def _labels_contradicting_verdicts(lattice: Lattice, depth: np.ndarray, corner: np.ndarray, kind: np.ndarray, vertices: VertexTable) -> int:

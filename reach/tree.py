@@ -25,11 +25,14 @@ outer; points on its upper faces belong to the last cell.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
 from reach.errors import TreeError, UnknownPolicy
+
+if TYPE_CHECKING:
+    from reach.index import ReachIndex
 
 OUTER, INNER, PARENT, FINAL = 0, 1, 2, 3
 KIND_NAMES = ("outer", "inner", "parent", "final")
@@ -212,6 +215,7 @@ class VATree:
         child: (n,) int64 index of the first of the 2**dim children, -1 for leaves.
         vertices: The vertex table.
         meta: JSON-compatible metadata (config, oracle spec, build statistics).
+        index: The reachability index of the vertices (see :mod:`reach.index`), or None.
     """
 
     box: Box
@@ -223,6 +227,7 @@ class VATree:
     child: np.ndarray
     vertices: VertexTable
     meta: dict[str, Any] = field(default_factory=dict)
+    index: ReachIndex | None = None
 
     # -- structure ---------------------------------------------------------
     @property
