@@ -27,7 +27,17 @@ from typing import Any
 
 import numpy as np
 
-from oracles.protocol import Described, KeepOut, Mirrorable, ModelHashed, Oracle, OracleSpec, Specified, Tunable, Verifying
+from oracles.protocol import (
+    Described,
+    KeepOut,
+    Mirrorable,
+    ModelHashed,
+    Oracle,
+    OracleSpec,
+    Specified,
+    Tunable,
+    Verifying,
+)
 from reach.build import Inherited, build_tree
 from reach.config import Config, StrategySpec, grown
 from reach.errors import ModelError, StoreError
@@ -51,7 +61,7 @@ def package_versions() -> dict[str, str]:
 
 def fingerprint(config: Config, strategy: StrategySpec) -> str:
     """Identifies what a strategy's tree depends on: its oracle, B0 and depths."""
-    parts = {"oracle": strategy.oracle.to_dict(), "box": config.box.to_dict(), "depth": [config.d_min, config.d_max], "refine": config.refine.to_dict()}
+    parts: dict[str, Any] = {"oracle": strategy.oracle.to_dict(), "box": config.box.to_dict(), "depth": [config.d_min, config.d_max], "refine": config.refine.to_dict()}
     if strategy.directions:
         parts["directions"] = strategy.directions
     text = json.dumps(parts, sort_keys=True)
