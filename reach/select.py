@@ -68,6 +68,7 @@ from oracles.protocol import (
 )
 from reach import protocol as P
 from reach.errors import InputError, ModelMismatch, UnknownEffector, UnknownPolicy
+from reach.index import index_of
 from reach.store import Atlas
 from reach.tree import DEFAULT_POLICY, POLICIES, Policy, VATree
 
@@ -133,6 +134,9 @@ class Answer:
             no refinement reached: ``{"strategy", "point" [m], "distance"
             [m], "posture", "root"}``, the nearest point a stored posture of
             the first such strategy reaches; else None.
+        index: The reachability index (see :mod:`reach.index`) of the chosen
+            strategy's nearest reachable stored vertex, the share of
+            approach directions reached there, when its tree has one; else None.
     """
 
     effector: str
@@ -149,6 +153,7 @@ class Answer:
     within: float | None = None
     nearest: dict[str, Any] | None = None
     posture_json: bytes | None = field(default=None, repr=False, compare=False)
+    index: float | None = None
 
     def to_json(self) -> bytes:
         """UTF-8 JSON of to_dict(), reusing the posture's cached encoding when there is one."""
@@ -174,7 +179,7 @@ class Answer:
             "effector": self.effector, "goal": list(self.goal), "strategy": self.strategy, "reachable": self.reachable,
             "alternatives": list(self.alternatives), "posture": self.posture, "root": self.root,
             "residual": self.residual, "refined": self.refined, "seconds": self.seconds, "handover": self.handover,
-            "within": self.within, "nearest": self.nearest,
+            "within": self.within, "nearest": self.nearest, "index": self.index,
         }
 
 
@@ -458,6 +463,7 @@ class Selector:
         handover: dict[str, Any] | None = None
         outcome = UNAVAILABLE
         others = hits[1:]
+        row = -1
         if nearest is not None:
             row, reached = nearest
             # The stored residual is the vertex's own; what matters is the distance to this goal
@@ -498,7 +504,7 @@ class Selector:
                 posture, root, fragment = self._stored_posture(name, tree, row)
         within = residual if outcome in STORED else None  # a posture that was not refined at this goal says how near it comes
         return Answer(effector, tuple(goal.tolist()), name, True, tuple(others), posture, root, residual, outcome, time.perf_counter() - t0,
-                      handover, within, None, fragment)
+                      handover, within, None, fragment, index_of(tree, row) if row >= 0 else None)
 
     def _limits(self, name: str, q: np.ndarray) -> list[str]:
         """The joint limits a posture of a strategy comes within ``handover`` of (none when its oracle cannot tell)."""

@@ -1,0 +1,255 @@
+"""Orientation goals and the reachability index, on the 7-DoF arm (configs/urdf/arm7.urdf), checked by
+Pinocchio's forward kinematics independently of the solvers."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+import pinocchio as pin
+import pytest
+import yaml
+
+from oracles.errors import OracleError, TaskError
+from oracles.kinematics import SymbolicKinematics
+from oracles.protocol import OracleSpec, Oriented, body_params
+from oracles.tasks import OrientationTask, Symbolic
+from reach.atlas import build_atlas
+from reach.config import parse_config
+from reach.errors import ConfigError, InputError, StoreError
+from reach.index import ReachIndex, spiral, vertex_levels
+from reach.protocol import parse_request
+from reach.select import Selector, orientation_of
+from reach.store import load_atlas, load_tree, save_tree
+from reach.errors import ProtocolError
+
+ROOT = Path(__file__).resolve().parents[1]
+ARM = {"urdf": str(ROOT / "configs" / "urdf" / "arm7.urdf"), "frames": {"tcp": {"parent": "arm7_hand", "xyz": [0, 0, 0.1034]}},
+       "reference": {"arm7_joint2": -0.785398, "arm7_joint4": -2.356194, "arm7_joint6": 1.570796, "arm7_joint7": 0.785398}}
+TABLE = {"type": "obstacles", "boxes": [{"min": [-0.5, -1.0, -0.1], "max": [1.2, 1.0, 0.0]}]}
+
+
+def _oracle(orientation: dict, engine: str = "casadi-ik") -> object:
+    params = body_params(ARM, "tcp", ["arm7_joint*"], [{"type": "reach"}, TABLE, orientation])
+    if engine == "casadi-ik":
+        params["jit"] = False
+    return OracleSpec(engine, {**params, "restarts": 2}).create()
+
+
+def _pose(oracle: object, q: np.ndarray) -> pin.SE3:
+    model = oracle.body.model  # type: ignore[attr-defined]
+    data = model.createData()
+    pin.framesForwardKinematics(model, data, q)
+    return data.oMf[model.getFrameId("tcp")]
+
+
+GOALS = np.array([[0.5, 0.0, 0.3], [0.5, 0.2, 0.1], [0.3, -0.3, 0.5], [0.0, 0.0, 1.2], [0.5, 0.2, 0.03]])
+
+
+@pytest.mark.parametrize("engine", ["casadi-ik", "dls"])
+def test_an_axis_within_its_cone_by_forward_kinematics(engine):
+    """Every reachable verdict of 'the tool pointing down' puts the tool centre point at the goal (5 mm) and its
+    z axis within 5 deg of -z (plus the verdict's 1 mrad), by Pinocchio; straight overhead it cannot point down
+    (the hand would stand 0.1 m above the 1.2 m goal, past the reach the free arm has there)."""
+    oracle = _oracle({"type": "orientation", "axis": "z", "direction": "-z", "cone": 5}, engine)
+    v = oracle.evaluate(GOALS)  # type: ignore[attr-defined]
+    assert v.reachable[:3].all() and not v.reachable[3]
+    for g, q, ok in zip(GOALS, v.posture, v.reachable, strict=True):
+        if ok:
+            pose = _pose(oracle, q)
+            assert np.linalg.norm(pose.translation - g) <= 0.005
+            assert math.degrees(math.acos(np.clip(-(pose.rotation @ [0, 0, 1])[2], -1, 1))) <= 5.06
+
+
+def test_a_free_task_holds_each_goals_own_direction_and_the_tree_stays_position_only():
+    """Without a direction the task asks nothing (the tree is position-only); a goal's direction is held: the tool
+    pointing up 3 cm above the table is not reachable (the hand would be under it), pointing down it is."""
+    oracle = _oracle({"type": "orientation", "axis": "z"})
+    assert isinstance(oracle, Oriented) and oracle.orientation_kinds() == ("direction", "rotation")
+    free = oracle.evaluate(GOALS)  # type: ignore[attr-defined]
+    assert free.reachable[[0, 1, 2, 4]].all()
+    up = oracle.evaluate_oriented(GOALS[4:], np.array([[0.0, 0.0, 1.0]]))
+    down = oracle.evaluate_oriented(GOALS[4:], np.array([[0.0, 0.0, -1.0]]))
+    assert not up.reachable[0] and down.reachable[0]
+    sideways = np.array([[1.0, 0.0, 0.0]] * 3)
+    v = oracle.evaluate_oriented(GOALS[:3], sideways)
+    for g, q, ok in zip(GOALS[:3], v.posture, v.reachable, strict=True):
+        if ok:
+            pose = _pose(oracle, q)
+            assert np.linalg.norm(pose.translation - g) <= 0.005 and (pose.rotation @ [0, 0, 1])[0] >= math.cos(math.radians(5)) - 1e-3
+    with pytest.raises(OracleError, match="orientations have shape"):
+        oracle.evaluate_oriented(GOALS[:2], np.zeros((3, 3)))
+    with pytest.raises(OracleError, match="not zero"):
+        oracle.evaluate_oriented(GOALS[:1], np.zeros((1, 3)))
+
+
+def test_a_full_orientation_within_its_tolerance_by_forward_kinematics():
+    """rpy (pi, 0, 0): the hand's x along the world's x, its z down; the angle of the rotation between the
+    reached and the asked orientation is within the 5 deg tolerance. A direction is refused for the full form."""
+    oracle = _oracle({"type": "orientation", "rpy": [math.pi, 0, 0], "tolerance": 5})
+    target = pin.rpy.rpyToMatrix(math.pi, 0, 0)
+    v = oracle.evaluate(GOALS[:3])  # type: ignore[attr-defined]
+    assert v.reachable.all()
+    for g, q in zip(GOALS[:3], v.posture, strict=True):
+        pose = _pose(oracle, q)
+        assert np.linalg.norm(pose.translation - g) <= 0.005
+        assert math.degrees(np.linalg.norm(pin.log3(target.T @ pose.rotation))) <= 5.06
+    assert oracle.orientation_kinds() == ("rotation",)
+    with pytest.raises(OracleError, match="full orientation"):
+        oracle.evaluate_oriented(GOALS[:1], np.array([[0.0, 0.0, -1.0]]))
+
+
+def test_the_casadi_row_is_the_cosine_pinocchio_gives():
+    """The task's CasADi expression at random postures equals the cosine computed from Pinocchio's frame rotation."""
+    oracle = _oracle({"type": "orientation", "axis": [0, 1, 0], "cone": 10})
+    task = oracle.strategy.task("orientation")  # type: ignore[attr-defined]
+    p = oracle.problem  # type: ignore[attr-defined]
+    aim, on = ca.SX.sym("aim", 3, 3), ca.SX.sym("on")
+    sym = Symbolic(SymbolicKinematics(oracle.body.model, p.q_sym), p.x_sym, ca.SX.sym("g", 3), p.x_ref, p.upper - p.lower, aim=aim, aim_on=on)  # type: ignore[attr-defined]
+    row = ca.Function("row", [p.x_sym, aim, on], [task.constraints(sym)[0].expr])
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        x = p.random_x(rng)
+        target = pin.rpy.rpyToMatrix(*rng.uniform(-3, 3, 3))
+        rot = _pose(oracle, p.q_of_x(x)).rotation
+        expected = (rot @ [0, 1, 0]) @ (target @ [0, 1, 0]) - math.cos(math.radians(10))
+        assert float(row(x, target, 1.0)) == pytest.approx(expected, abs=1e-9)
+        assert float(row(x, target, 0.0)) >= 1.0  # off: always held
+
+
+def test_orientation_task_errors_name_the_key():
+    def parse(raw: dict) -> None:
+        OracleSpec("casadi-ik", body_params(ARM, "tcp", ["arm7_joint*"], [{"type": "reach"}, raw])).create()
+
+    with pytest.raises(TaskError, match=r"tasks\[1\]\.axis: expected one of x, -x"):
+        parse({"type": "orientation", "axis": "w"})
+    with pytest.raises(TaskError, match=r"tasks\[1\]\.direction: direction and cone need axis"):
+        parse({"type": "orientation", "direction": "z"})
+    with pytest.raises(TaskError, match=r"tasks\[1\]\.rpy: an axis form takes"):
+        parse({"type": "orientation", "axis": "z", "rpy": [0, 0, 0]})
+    with pytest.raises(TaskError, match=r"tasks\[1\]\.cone: expected a number in \[0.5, 90"):
+        parse({"type": "orientation", "axis": "z", "cone": 0})
+    with pytest.raises(TaskError, match=r"tasks\[1\]\.axis: .*not zero"):
+        parse({"type": "orientation", "axis": [0, 0, 0]})
+
+
+def test_the_protocols_orientation_field():
+    req = parse_request(json.dumps({"op": "query", "effector": "tcp", "goal": [0.5, 0, 0.3], "orientation": {"direction": [0, 0, -2]}}).encode())
+    assert np.allclose(orientation_of(req["orientation"]), [0, 0, -1])
+    req = parse_request(json.dumps({"op": "query", "effector": "tcp", "goal": [0.5, 0, 0.3], "orientation": {"quaternion": [1, 0, 0, 0]}}).encode())
+    assert np.allclose(orientation_of(req["orientation"]), np.diag([1.0, -1.0, -1.0]))  # 180 deg about x, [qx, qy, qz, qw]
+    for bad, says in (({"direction": [0, 0, 0]}, "not zero"), ({"direction": [0, 1]}, "3 finite numbers"),
+                      ({"direction": [0, 0, 1], "quaternion": [0, 0, 0, 1]}, "one of"), ({"rpy": [0, 0, 0]}, "one of")):
+        with pytest.raises(ProtocolError, match=says):
+            parse_request(json.dumps({"op": "query", "effector": "tcp", "goal": [0.5, 0, 0.3], "orientation": bad}).encode())
+
+
+def test_spiral_points_cover_the_sphere_evenly():
+    """Unit vectors; consecutive points are neighbours (within 2.5 times the mean spacing sqrt(4 pi / N)) and no two
+    points are closer than a third of it: the spiral of Saff & Kuijlaars (1997)."""
+    for n in (26, 50, 200):
+        d = spiral(n)
+        assert d.shape == (n, 3) and np.allclose(np.linalg.norm(d, axis=1), 1.0)
+        spacing = math.sqrt(4 * math.pi / n)
+        assert np.linalg.norm(np.diff(d, axis=0), axis=1).max() < 2.5 * spacing
+        gaps = np.linalg.norm(d[:, None] - d[None], axis=2) + 10 * np.eye(n)
+        assert gaps.min() > spacing / 3
+        assert np.linalg.norm(d.mean(axis=0)) < 0.05  # no side favoured
+    assert np.array_equal(vertex_levels(np.array([[0, 0, 0], [4, 0, 8], [2, 4, 0], [1, 0, 0]]), 3), [0, 1, 2, 3])
+
+
+@pytest.fixture(scope="module")
+def arm_atlas(tmp_path_factory):
+    """A small atlas of the arm: position-only with a 12-direction index, and the tool pointing down."""
+    folder = tmp_path_factory.mktemp("arm")
+    config = {
+        "name": "arm_small", "body": ARM, "box": {"min": [-0.9, -0.9, 0.0], "max": [0.9, 0.9, 1.3]}, "depth": {"min": 2, "max": 3},
+        "oracle": {"name": "casadi-ik", "params": {"restarts": 1, "jit": False}},
+        "strategies": [
+            {"name": "tcp", "effector": "tcp", "joints": ["arm7_joint*"], "directions": 12,
+             "tasks": [{"type": "reach"}, TABLE, {"type": "orientation", "axis": "z"}]},
+            {"name": "plain", "effector": "tcp", "joints": ["arm7_joint*"], "priority": 5, "tasks": [{"type": "reach"}, TABLE]},
+        ],
+    }
+    (folder / "arm.yaml").write_text(yaml.safe_dump(config))
+    from reach.config import load_config
+
+    build_atlas(load_config(folder / "arm.yaml"), folder / "atlas")
+    return folder
+
+
+def test_the_index_is_stored_and_each_reached_direction_holds(arm_atlas):
+    """The index's bits are only at reachable vertices, survive the round trip, and a sample of the directions it
+    says are reached is reached again by the audit's thorough referee, and of those it says are not, the referee
+    reaches few (the quick search's misses)."""
+    atlas = load_atlas(arm_atlas / "atlas")
+    tree = atlas.trees["tcp"]
+    assert tree.index is not None and tree.index.reached.shape == (len(tree.vertices), 12)
+    assert not tree.index.reached[~tree.vertices.reachable].any()
+    share = tree.index.share[tree.vertices.reachable]
+    assert 0.05 < share.mean() < 0.95 and share.max() > share.min()
+    assert tree.meta["index"]["goals"] <= 12 * int(tree.vertices.reachable.sum())
+    assert atlas.trees["plain"].index is None
+    referee = OracleSpec.from_dict(tree.meta["oracle"]).create().variant("referee", restarts=2)
+    rows = np.nonzero(tree.vertices.reachable)[0][::7][:12]
+    points = tree.lattice.points(tree.lattice.coords(tree.vertices.keys[rows]))
+    yes = no = miss = 0
+    for r, p in zip(rows, points, strict=True):
+        for j in (0, 5, 11):
+            v = referee.evaluate_oriented(p[None], tree.index.directions[j][None], tree.vertices.posture[r][None])
+            if tree.index.reached[r, j]:
+                yes += 1
+                assert v.reachable[0], (r, j)
+            else:
+                no += 1
+                miss += int(v.reachable[0])
+    assert yes and no and miss <= max(2, no // 5)
+
+
+def test_a_damaged_index_is_refused(arm_atlas, tmp_path):
+    tree = load_tree(arm_atlas / "atlas" / "tcp.npz")
+    bad = ReachIndex(tree.index.directions, np.ones_like(tree.index.reached))
+    with pytest.raises(StoreError, match="unreachable vertices"):
+        load_tree(save_tree(type(tree)(**{**tree.__dict__, "index": bad}), tmp_path / "bad.npz"))
+    arrays = dict(np.load(arm_atlas / "atlas" / "tcp.npz"))
+    arrays["index_bits"] = arrays["index_bits"][:-1]
+    with pytest.raises(StoreError, match="bits .* do not match"):
+        ReachIndex.from_arrays(arrays, len(tree.vertices), "tcp.npz")
+
+
+def test_queries_hold_the_goals_orientation(arm_atlas):
+    """Only strategies with an orientation task answer, by refinement; the posture holds it by forward kinematics;
+    refine off and an atlas without such a strategy are refused naming the field; the answer carries the index."""
+    atlas = load_atlas(arm_atlas / "atlas")
+    selector = Selector(atlas, budget=1.0)
+    down = np.array([0.0, 0.0, -1.0])
+    a = selector.select("tcp", np.array([0.45, 0.1, 0.25]), orientation=down)
+    assert a.reachable and a.strategy == "tcp" and a.refined == "ok"
+    oracle = selector.oracle("tcp")
+    q = np.array([a.posture.get(n, 0.0) for n in atlas.trees["tcp"].vertices.posture_names])
+    q[:7] = [*a.root["position"], *a.root["quaternion"]]
+    pose = _pose(oracle, q)
+    assert np.linalg.norm(pose.translation - [0.45, 0.1, 0.25]) <= 0.005 and -(pose.rotation @ [0, 0, 1])[2] >= math.cos(math.radians(5)) - 1e-3
+    assert a.index is not None and 0.0 <= a.index <= 1.0
+    up = selector.select("tcp", np.array([0.5, 0.2, 0.03]), orientation=np.array([0.0, 0.0, 1.0]))
+    assert not up.reachable and up.posture is None
+    with pytest.raises(InputError, match="refine: a goal with an orientation is always refined"):
+        selector.select("tcp", np.array([0.45, 0.1, 0.25]), refine=False, orientation=down)
+    plain = Selector(atlas, budget=1.0)
+    plain.order = [o for o in plain.order if o[0] == "plain"]
+    plain._by_effector = {"tcp": ["plain"]}
+    with pytest.raises(InputError, match="orientation: no strategy of 'tcp' holds a goal's direction"):
+        plain.select("tcp", np.array([0.45, 0.1, 0.25]), orientation=down)
+
+
+def test_directions_need_an_orientation_task_with_an_axis():
+    config = {"name": "x", "body": ARM, "box": {"min": [-1, -1, 0], "max": [1, 1, 1.3]}, "depth": {"min": 1, "max": 2},
+              "oracle": {"name": "casadi-ik"}, "strategies": [{"name": "tcp", "effector": "tcp", "joints": ["arm7_joint*"], "directions": 20}]}
+    with pytest.raises(ConfigError, match=r"strategies\[0\]\.directions: the reachability index needs an orientation task with an axis"):
+        parse_config(config, "x.yaml")
+    config["strategies"][0]["directions"] = -1
+    with pytest.raises(ConfigError, match=r"strategies\[0\]\.directions"):
+        parse_config(config, "x.yaml")
