@@ -253,3 +253,27 @@ def test_directions_need_an_orientation_task_with_an_axis():
     config["strategies"][0]["directions"] = -1
     with pytest.raises(ConfigError, match=r"strategies\[0\]\.directions"):
         parse_config(config, "x.yaml")
+
+
+@pytest.mark.parametrize("workers", [0, 1])
+def test_the_server_answers_an_oriented_query(arm_atlas, workers):
+    """Over ZeroMQ, in the loop and in a worker process: the answer holds the direction (forward kinematics), and
+    refine false with an orientation is a bad_request naming the field; the server keeps serving."""
+    from reach.client import Client, ServerError
+    from tests.test_server import Running
+
+    r = Running(arm_atlas / "atlas", budget=2.0, workers=workers)
+    try:
+        with Client(r.server.endpoint, timeout=20000, retries=1) as client:
+            a = client.query("tcp", [0.45, 0.1, 0.25], orientation={"direction": [1.0, 0.0, 0.0]})
+            assert a["reachable"] and a["strategy"] == "tcp" and a["refined"] == "ok"
+            names = load_atlas(arm_atlas / "atlas").trees["tcp"].vertices.posture_names
+            q = np.array([a["posture"].get(n, 0.0) for n in names])
+            q[:7] = [*a["root"]["position"], *a["root"]["quaternion"]]
+            pose = _pose(_oracle({"type": "orientation", "axis": "z"}), q)
+            assert np.linalg.norm(pose.translation - [0.45, 0.1, 0.25]) <= 0.005 and (pose.rotation @ [0, 0, 1])[0] >= math.cos(math.radians(5)) - 1e-3
+            with pytest.raises(ServerError, match="refine"):
+                client.query("tcp", [0.45, 0.1, 0.25], refine=False, orientation={"direction": [1.0, 0.0, 0.0]})
+            assert client.call("health")["ok"]
+    finally:
+        r.stop()
