@@ -34,6 +34,13 @@ from reach.index import spiral
 from reach.store import load_atlas
 
 
+def reached(ex: ProcessExecutor, points: np.ndarray, postures: np.ndarray, directions: np.ndarray) -> np.ndarray:
+    """(m, n) whether the referee reaches each point with each direction, from the point's stored posture."""
+    m, n = len(points), len(directions)
+    verdicts = ex.evaluate(np.repeat(points, n, axis=0), np.repeat(postures, n, axis=0), aims=np.tile(directions, (m, 1)))
+    return verdicts.reachable.reshape(m, n)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("atlases", nargs="+")
@@ -63,14 +70,8 @@ def main() -> None:
             referee = OracleSpec.from_dict(tree.meta["oracle"]).create().variant("referee", restarts=args.restarts)  # type: ignore[attr-defined]
             ex = ProcessExecutor(referee.spec, workers=args.workers)
             try:
-                def reached(directions: np.ndarray) -> np.ndarray:
-                    m = len(sample)
-                    pts = np.repeat(points, len(directions), axis=0)
-                    aims = np.tile(directions, (m, 1))
-                    return ex.evaluate(pts, np.repeat(postures, len(directions), axis=0), aims=aims).reachable.reshape(m, len(directions))
-
-                own = reached(tree.index.directions)
-                dense = reached(spiral(args.dense))
+                own = reached(ex, points, postures, tree.index.directions)
+                dense = reached(ex, points, postures, spiral(args.dense))
             finally:
                 ex.close()
             index = tree.index.reached[sample]

@@ -16,15 +16,14 @@ import yaml
 from oracles.errors import OracleError, TaskError
 from oracles.kinematics import SymbolicKinematics
 from oracles.protocol import OracleSpec, Oriented, body_params
-from oracles.tasks import OrientationTask, Symbolic
+from oracles.tasks import Symbolic
 from reach.atlas import build_atlas
 from reach.config import parse_config
-from reach.errors import ConfigError, InputError, StoreError
+from reach.errors import ConfigError, InputError, ProtocolError, StoreError
 from reach.index import ReachIndex, spiral, vertex_levels
 from reach.protocol import parse_request
 from reach.select import Selector, orientation_of
 from reach.store import load_atlas, load_tree, save_tree
-from reach.errors import ProtocolError
 
 ROOT = Path(__file__).resolve().parents[1]
 ARM = {"urdf": str(ROOT / "configs" / "urdf" / "arm7.urdf"), "frames": {"tcp": {"parent": "arm7_hand", "xyz": [0, 0, 0.1034]}},
