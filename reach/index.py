@@ -155,6 +155,34 @@ def compute_index(tree: VATree, executor: Executor, directions: np.ndarray, prog
     return ReachIndex(directions, reached), solved
 
 
+def index_at(tree: VATree, points: np.ndarray) -> np.ndarray:
+    """The index at points (n, 3) [m] that the tree holds (``vertex`` policy): its nearest reachable vertex's; NaN elsewhere
+    or without an index."""
+    pts = np.asarray(points, float).reshape(-1, tree.dim)
+    out = np.full(len(pts), np.nan)
+    rows = np.nonzero(tree.vertices.reachable)[0]
+    if tree.index is None or not rows.size:
+        return out
+    inside = tree.contains(pts, "vertex")
+    if inside.any():
+        from scipy.spatial import cKDTree
+
+        _, near = cKDTree(tree.lattice.points(tree.lattice.coords(tree.vertices.keys[rows]))).query(pts[inside])
+        out[inside] = tree.index.share[rows[near]]
+    return out
+
+
+def summary(tree: VATree) -> dict[str, Any] | None:
+    """The index's figures for reports and ``reach info``: directions, its mean and quartiles over reachable vertices, its cost."""
+    if tree.index is None:
+        return None
+    share = tree.index.share[tree.vertices.reachable]
+    q = np.percentile(share, [25, 50, 75]) if share.size else np.full(3, np.nan)
+    meta = tree.meta.get("index", {})
+    return {"directions": len(tree.index.directions), "mean": float(share.mean()) if share.size else None, "quartiles": q.round(4).tolist(),
+            "goals": meta.get("goals"), "seconds": meta.get("seconds")}
+
+
 def index_of(tree: VATree, row: int) -> float | None:
     """The index of one vertex row (None when the tree has no index)."""
     index = getattr(tree, "index", None)

@@ -10,7 +10,9 @@
   the first strategy (by priority) that holds it;
 * ``figure11.png``: an overlay of one effector's strategies by priority
   (e.g. arm only as boxes, upper body as dots, whole body as a wireframe);
-* ``slices.png``: horizontal and sagittal slices through every strategy.
+* ``slices.png``: horizontal and sagittal slices through every strategy;
+* ``index_<name>.png``: the reachability index of a strategy built with
+  ``directions: N`` as a heat map on the same two slices.
 
 Figures rasterise the trees on a regular grid of cells (at most 2**4 per
 axis by default), each cell decided at its centre with the ``vertex`` policy.
@@ -24,6 +26,8 @@ from typing import Any
 
 import numpy as np
 
+from reach.index import index_at
+from reach.index import summary as index_summary
 from reach.store import Atlas
 from reach.tree import FINAL, INNER, VATree
 
@@ -47,7 +51,7 @@ def tables(atlas: Atlas) -> dict[str, Any]:
     names = list(atlas.trees)
     per = {
         n: {"effector": t.meta.get("effector"), "priority": t.meta.get("priority"), "volume_inner": t.volume(INNER), "volume_boundary": t.volume(FINAL), **extents(t),
-            "on_faces": t.faces()}
+            "on_faces": t.faces(), "index": index_summary(t)}
         for n, t in atlas.trees.items()
     }
     pairs = []
@@ -77,6 +81,11 @@ def markdown(t: dict[str, Any], title: str) -> str:
     if cut:
         lines += ["", "**Warning: the box cuts these volumes** (reachable vertices on its faces; enlarge the box there):", ""]
         lines += [f"- {n}: " + ", ".join(f"{k} on {f}" for f, k in faces.items()) for n, faces in cut.items()]
+    indexed = {n: s["index"] for n, s in t["strategies"].items() if s.get("index")}
+    if indexed:
+        lines += ["", "Reachability index (share of approach directions reached at the reachable vertices; `index_<strategy>.png`):", "",
+                  "| strategy | directions | mean | quartiles |", "| --- | --- | --- | --- |"]
+        lines += [f"| {n} | {i['directions']} | {f(i['mean'])} | {', '.join(f(v) for v in i['quartiles'])} |" for n, i in indexed.items()]
     lines += ["", "Pairwise volumes [m^3] (inner cells of the boolean trees):", "", "| a | b | a and b | a not b | b not a |", "| --- | --- | --- | --- | --- |"]
     for p in t["pairs"]:
         lines.append(f"| {p['a']} | {p['b']} | {p['intersection']:.3f} | {p['a_minus_b']:.3f} | {p['b_minus_a']:.3f} |")
@@ -175,7 +184,40 @@ def figures(atlas: Atlas, out: Path, level: int = 4, names: list[str] | None = N
             ax.voxels(x, y, z, occ, facecolors=(0, 0, 0, 0), edgecolors=colour, linewidth=0.3)
     written.append(_save(fig, out / "figure11.png"))
     written.append(slices(trees, out / "slices.png", level, *planes))
+    written += [heat_map(n, t, out / f"index_{n}.png", level, *planes) for n, t in trees.items() if t.index is not None]
     return written
+
+
+def heat_map(name: str, tree: VATree, path: Path, level: int, z: float | None = None, y: float | None = None) -> Path:
+    """The reachability index on the horizontal and sagittal slices (planes as :func:`slices`), nearest vertex's, blank outside."""
+    import matplotlib.pyplot as plt
+
+    lo, hi = tree.box.lo, tree.box.hi
+    z, y = _planes(tree, z, y)
+    n = 1 << (level + 3)
+    xs, ys, zs = (np.linspace(lo[i], hi[i], n) for i in range(3))
+    fig, axes = plt.subplots(1, 2, figsize=(11, 5))
+    gx, gy = np.meshgrid(xs, ys, indexing="ij")
+    gx2, gz = np.meshgrid(xs, zs, indexing="ij")
+    horiz = index_at(tree, np.stack([gx.ravel(), gy.ravel(), np.full(gx.size, z)], 1)).reshape(gx.shape)
+    sag = index_at(tree, np.stack([gx2.ravel(), np.full(gx2.size, y), gz.ravel()], 1)).reshape(gx2.shape)
+    for ax, (a, b, v) in zip(axes, ((gx, gy, horiz), (gx2, gz, sag)), strict=True):
+        image = ax.pcolormesh(a, b, np.ma.masked_invalid(v), vmin=0.0, vmax=1.0, cmap="viridis", shading="nearest")
+        ax.set_aspect("equal")
+        ax.grid(alpha=0.3)
+        ax.set_xlabel("x forward [m]")
+    axes[0].set_title(f"{name}: index, z = {z:.2f} m")
+    axes[0].set_ylabel("y left [m]")
+    axes[1].set_title(f"{name}: index, y = {y:.2f} m")
+    axes[1].set_ylabel("z up [m]")
+    fig.colorbar(image, ax=axes, shrink=0.8, label=f"share of {len(tree.index.directions)} approach directions reached")  # type: ignore[union-attr]
+    return _save(fig, path, tight=False)
+
+
+def _planes(tree: VATree, z: float | None, y: float | None) -> tuple[float, float]:
+    """The slices' heights: z the box's middle and y = 0 unless given (y within the box)."""
+    lo, hi = tree.box.lo, tree.box.hi
+    return (float(0.5 * (lo[2] + hi[2])) if z is None else z), (0.0 if y is None or not lo[1] <= y <= hi[1] else y)
 
 
 def slices(trees: dict[str, VATree], path: Path, level: int, z: float | None = None, y: float | None = None) -> Path:
@@ -184,8 +226,7 @@ def slices(trees: dict[str, VATree], path: Path, level: int, z: float | None = N
 
     first = next(iter(trees.values()))
     lo, hi = first.box.lo, first.box.hi
-    z = float(0.5 * (lo[2] + hi[2])) if z is None else z
-    y = 0.0 if y is None or not lo[1] <= y <= hi[1] else y
+    z, y = _planes(first, z, y)
     n = 1 << (level + 2)
     fig, axes = plt.subplots(1, 2, figsize=(11, 5))
     xs, ys, zs = (np.linspace(lo[i], hi[i], n) for i in range(3))
@@ -212,11 +253,12 @@ def slices(trees: dict[str, VATree], path: Path, level: int, z: float | None = N
     return _save(fig, path)
 
 
-def _save(fig: Any, path: Path) -> Path:
+def _save(fig: Any, path: Path, tight: bool = True) -> Path:
     import matplotlib.pyplot as plt
 
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.tight_layout()
+    if tight:
+        fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path

@@ -41,6 +41,7 @@ from scipy.spatial.transform import Rotation
 from oracles.protocol import OracleSpec, Shaped
 from reach.errors import InputError, ServerError, ServerUnavailable
 from reach.gate import Gate
+from reach.index import index_at
 from reach.select import Selector, posture_vector
 from reach.store import Atlas
 from reach.tree import DEFAULT_POLICY, FINAL, INNER, POLICIES, VATree
@@ -62,6 +63,15 @@ def cube() -> tuple[np.ndarray, np.ndarray]:
     f = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
                   [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]], np.uint32)
     return v, f
+
+
+def index_colours(index: np.ndarray) -> np.ndarray:
+    """uint8 RGB (n, 3) of reachability indices in [0, 1] on matplotlib's viridis; NaN (no index there) grey."""
+    from matplotlib import colormaps
+
+    rgb = (colormaps["viridis"](np.nan_to_num(index, nan=0.0))[:, :3] * 255).astype(np.uint8)
+    rgb[~np.isfinite(index)] = 128
+    return rgb  # type: ignore[no-any-return]
 
 
 def quaternion_z_to(axis: np.ndarray) -> np.ndarray:
@@ -184,6 +194,8 @@ class Viewer:
             self.style_box = gui.add_dropdown("style", list(STYLES), initial_value="boxes")
             self.cells_box = gui.add_dropdown("cells", list(CELLS), initial_value="boundary")
             self.first_box = gui.add_checkbox("first strategy by priority", False, hint="each cell in the colour of the first strategy that holds it (the paper's Figure 8)")
+            self.index_box = gui.add_checkbox("reachability index", False, hint="colour the cells of strategies built with `directions: N` by the share "
+                                              "of approach directions reached (viridis: dark 0, yellow 1)")
             self.slice_axis = gui.add_dropdown("slice axis", list(SLICE_AXES), initial_value="none")
             lo, hi = self.scenes[0].atlas.trees[next(iter(self.scenes[0].atlas.trees))].box.lo, self.scenes[0].atlas.trees[next(iter(self.scenes[0].atlas.trees))].box.hi
             self.slice_at = gui.add_slider("slice at [m]", float(lo.min()), float(hi.max()), 0.01, 1.0)
@@ -197,7 +209,7 @@ class Viewer:
                     box = gui.add_checkbox(name, name == first, hint=f"colour rgb({r}, {g}, {b})")
                     box.on_update(lambda _e: self.draw())
                     self.layer_boxes[(k, name)] = box
-        for handle in (self.style_box, self.cells_box, self.first_box, self.slice_axis, self.slice_at):
+        for handle in (self.style_box, self.cells_box, self.first_box, self.index_box, self.slice_axis, self.slice_at):
             handle.on_update(lambda _e: self.draw())
         self.goal_box.on_update(lambda e: self._from_panel())
         self.plan_button.on_click(lambda _e: self._plan_clicked())
@@ -278,7 +290,8 @@ class Viewer:
         return cells.select(mask)
 
     def _settings(self) -> tuple[Any, ...]:
-        return (self.style_box.value, self.cells_box.value, self.first_box.value, self.slice_axis.value, self.slice_at.value, self.policy)
+        return (self.style_box.value, self.cells_box.value, self.first_box.value, self.index_box.value, self.slice_axis.value, self.slice_at.value,
+                self.policy)
 
     def draw(self) -> None:
         """Bring every layer in line with the panel: a layer drawn with today's settings is only shown or
@@ -306,8 +319,12 @@ class Viewer:
         if not len(cells.centre):
             return None
         centre = (cells.centre + scene.offset).astype(np.float32)
-        colour = np.tile(scene.colours[i], (len(centre), 1))
-        colour[~cells.inner] = (colour[~cells.inner] * BOUNDARY_SHADE).astype(np.uint8)
+        tree = scene.atlas.trees[name]
+        if self.index_box.value and tree.index is not None:
+            colour = index_colours(index_at(tree, cells.centre))
+        else:
+            colour = np.tile(scene.colours[i], (len(centre), 1))
+            colour[~cells.inner] = (colour[~cells.inner] * BOUNDARY_SHADE).astype(np.uint8)
         if self.style_box.value == "dots":
             return self.server.scene.add_point_cloud(path, centre, colour, point_size=float(cells.size.min()) * 0.5, point_shape="circle", point_shading="flat")
         vertices, faces = cube()
