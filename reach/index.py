@@ -155,15 +155,15 @@ def compute_index(tree: VATree, executor: Executor, directions: np.ndarray, prog
     return ReachIndex(directions, reached), solved
 
 
-def index_at(tree: VATree, points: np.ndarray) -> np.ndarray:
-    """The index at points (n, 3) [m] that the tree holds (``vertex`` policy): its nearest reachable vertex's; NaN elsewhere
-    or without an index."""
+def index_at(tree: VATree, points: np.ndarray, held: bool = True) -> np.ndarray:
+    """The index at points (n, 3) [m]: its nearest reachable vertex's, at the points the tree holds (``vertex`` policy;
+    every point with ``held`` false, e.g. the centres of drawn cells); NaN elsewhere or without an index."""
     pts = np.asarray(points, float).reshape(-1, tree.dim)
     out = np.full(len(pts), np.nan)
     rows = np.nonzero(tree.vertices.reachable)[0]
     if tree.index is None or not rows.size:
         return out
-    inside = tree.contains(pts, "vertex")
+    inside = tree.contains(pts, "vertex") if held else np.ones(len(pts), bool)
     if inside.any():
         from scipy.spatial import cKDTree
 

@@ -321,7 +321,7 @@ class Viewer:
         centre = (cells.centre + scene.offset).astype(np.float32)
         tree = scene.atlas.trees[name]
         if self.index_box.value and tree.index is not None:
-            colour = index_colours(index_at(tree, cells.centre))
+            colour = index_colours(index_at(tree, cells.centre, held=False))
         else:
             colour = np.tile(scene.colours[i], (len(centre), 1))
             colour[~cells.inner] = (colour[~cells.inner] * BOUNDARY_SHADE).astype(np.uint8)

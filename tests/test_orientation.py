@@ -276,3 +276,40 @@ def test_the_server_answers_an_oriented_query(arm_atlas, workers):
             assert client.call("health")["ok"]
     finally:
         r.stop()
+
+
+def test_the_report_draws_the_index_as_a_heat_map(arm_atlas, tmp_path):
+    """index_tcp.png (none for the strategy without an index) shows the viridis range; report.md has the index's table."""
+    from PIL import Image
+
+    from reach.report import report
+
+    t = report(load_atlas(arm_atlas / "atlas"), tmp_path, level=3)
+    assert (tmp_path / "index_tcp.png").is_file() and not (tmp_path / "index_plain.png").exists()
+    assert t["strategies"]["tcp"]["index"]["directions"] == 12 and t["strategies"]["plain"]["index"] is None
+    assert "| tcp | 12 |" in (tmp_path / "report.md").read_text()
+    image = np.asarray(Image.open(tmp_path / "index_tcp.png").convert("RGB")).astype(int)
+    purple, yellow = np.array([68, 1, 84]), np.array([253, 231, 37])  # viridis at 0 and 1 (in the colour bar at least)
+    assert (np.abs(image - purple).max(axis=2) < 30).sum() > 50 and (np.abs(image - yellow).max(axis=2) < 30).sum() > 50
+    # Greens and blues in between: the slices hold more than the two ends.
+    assert len({tuple(p) for p in image.reshape(-1, 3)[::7]}) > 60
+
+
+def test_the_viewer_colours_cells_by_the_index(arm_atlas):
+    from reach.index import index_at
+    from reach.view import Viewer, index_colours
+    from tests.test_view import _free_port
+
+    assert np.array_equal(index_colours(np.array([0.0, 1.0, np.nan])), [[68, 1, 84], [253, 231, 36], [128, 128, 128]])
+    atlas = load_atlas(arm_atlas / "atlas")
+    viewer = Viewer([atlas], port=_free_port(), refine=False)
+    try:
+        viewer.cells_box.value = "both"
+        viewer.index_box.value = True
+        viewer.show_strategy("tcp", True)
+        cells = viewer.visible_cells(0, "tcp")
+        shown = index_at(atlas.trees["tcp"], cells.centre, held=False)
+        assert np.isfinite(shown).all() and shown.max() > shown.min()
+        assert viewer._drawn[(0, "tcp")][0][3] is True  # drawn with the index's colours
+    finally:
+        viewer.close()
