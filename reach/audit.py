@@ -15,6 +15,14 @@ reports per strategy, per cell type and per depth:
 
 each with a 95 % Wilson confidence interval. Overall rates weight each cell
 type by its volume, so they estimate the rates over the whole box.
+
+A tree with a reachability index (see :mod:`reach.index`) is audited on it
+too: seeded (reachable vertex, direction) pairs, the referee asked with the
+direction held from the vertex's stored posture; ``index`` gives the rate of
+directions the index calls reached that the referee does not reach (a
+neighbour's agreement inherited wrongly) and of those it calls missed that
+the referee reaches (a quick solve that missed), and the mean index over the
+sampled vertices by the index and by the referee.
 """
 
 from __future__ import annotations
@@ -25,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from oracles.protocol import Oracle, OracleSpec, Specified, Tunable
+from oracles.protocol import Oracle, OracleSpec, Oriented, Specified, Tunable
 from reach.build import warm_hints
 from reach.executor import Executor, InlineExecutor
 from reach.store import Atlas
@@ -115,7 +123,28 @@ def audit_tree(tree: VATree, referee: Oracle | Executor, samples: int = 300, pol
     fu, fu_ci = _stratified(kind, ~said, truth & ~said, tree)
     out.update(false_reachable=fr, false_unreachable=fu, false_reachable_ci95=fr_ci, false_unreachable_ci95=fu_ci,
                counts={"false_reachable": _rate(~truth, said), "false_unreachable": _rate(truth, ~said)})
+    if tree.index is not None and tree.vertices.posture is not None:
+        out["index"] = audit_index(tree, referee, samples, rng)
     return out
+
+
+def audit_index(tree: VATree, referee: Oracle | Executor, samples: int, rng: np.random.Generator) -> dict[str, Any]:
+    """The index against the referee on ``samples`` (vertex, direction) pairs (see the module docstring)."""
+    assert tree.index is not None and tree.vertices.posture is not None
+    rows = np.nonzero(tree.vertices.reachable)[0]
+    if not rows.size:
+        return {"pairs": 0}
+    v = rng.choice(rows, size=samples)
+    d = rng.integers(0, len(tree.index.directions), size=samples)
+    points = tree.lattice.points(tree.lattice.coords(tree.vertices.keys[v]))
+    aims = tree.index.directions[d]
+    if isinstance(referee, Oriented):
+        truth = referee.evaluate_oriented(points, aims, tree.vertices.posture[v]).reachable
+    else:
+        truth = referee.evaluate(points, tree.vertices.posture[v], aims=aims).reachable  # type: ignore[call-arg]
+    said = tree.index.reached[v, d]
+    return {"pairs": int(samples), "directions": len(tree.index.directions), "false_reached": _rate(~truth, said),
+            "false_missed": _rate(truth, ~said), "share_by_index": float(said.mean()), "share_by_referee": float(truth.mean())}
 
 
 def referee(tree: VATree, restarts: int) -> Oracle:

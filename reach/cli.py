@@ -445,6 +445,14 @@ def cmd_audit(args: argparse.Namespace) -> int:
     for name, r in result["strategies"].items():
         fr, fu = r["false_reachable_ci95"], r["false_unreachable_ci95"]
         print(f"{name:<22} {100 * r['false_reachable']:>6.2f} % [{100 * fr[0]:.1f}, {100 * fr[1]:.1f}]  {100 * r['false_unreachable']:>6.2f} % [{100 * fu[0]:.1f}, {100 * fu[1]:.1f}]")
+    for name, r in result["strategies"].items():
+        if "index" in r and r["index"].get("pairs"):
+            i = r["index"]
+            fr, fu = i["false_reached"], i["false_missed"]
+            print(f"{name}: reachability index on {i['pairs']} (vertex, direction) pairs: reached but not by the referee {100 * fr['rate']:.1f} % "
+                  f"[{100 * fr['ci95'][0]:.1f}, {100 * fr['ci95'][1]:.1f}] of {fr['of']}; missed but reached by the referee {100 * fu['rate']:.1f} % "
+                  f"[{100 * fu['ci95'][0]:.1f}, {100 * fu['ci95'][1]:.1f}] of {fu['of']}; share {i['share_by_index']:.3f} by the index, "
+                  f"{i['share_by_referee']:.3f} by the referee")
     return 0
 
 

@@ -313,3 +313,15 @@ def test_the_viewer_colours_cells_by_the_index(arm_atlas):
         assert viewer._drawn[(0, "tcp")][0][3] is True  # drawn with the index's colours
     finally:
         viewer.close()
+
+
+def test_the_audit_covers_the_index(arm_atlas):
+    """The audit asks the referee about seeded (vertex, direction) pairs; directions the index calls reached are reached
+    (its bits come from verdicts checked by forward kinematics, or from agreeing corners), and the shares are close."""
+    from reach.audit import audit
+
+    result = audit(load_atlas(arm_atlas / "atlas"), samples=30, restarts=1, names=["tcp", "plain"])
+    i = result["strategies"]["tcp"]["index"]
+    assert i["pairs"] == 30 and i["false_reached"]["of"] + i["false_missed"]["of"] == 30
+    assert i["false_reached"]["rate"] <= 0.2 and abs(i["share_by_index"] - i["share_by_referee"]) <= 0.25
+    assert "index" not in result["strategies"]["plain"]
