@@ -43,6 +43,7 @@ from reach.config import Config, StrategySpec, grown
 from reach.errors import ModelError, StoreError
 from reach.executor import Executor, InlineExecutor
 from reach.index import compute_index, spiral
+from reach.index import summary as index_summary
 from reach.store import Atlas, build_lock, load_atlas, load_state, load_tree, save_state, save_tree, write_manifest
 from reach.tree import FINAL, INNER, VATree
 
@@ -319,6 +320,7 @@ def tree_summary(tree: VATree) -> dict[str, Any]:
         "mirrored_from": build.get("mirrored_from"),
         "inherited_from": tree.meta.get("inherited_from"),
         "inherited_vertices": int(build.get("inherited", 0)),
+        "index": index_summary(tree),
     }
 
 

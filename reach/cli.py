@@ -122,6 +122,10 @@ def cmd_info(args: argparse.Namespace) -> int:
         if s["reachable_extent"]:
             r = s["reachable_extent"]
             print(f"    reachable vertices span min {np.round(r['min'], 4).tolist()} max {np.round(r['max'], 4).tolist()} [m]")
+        if s.get("index"):
+            i = s["index"]
+            print(f"    reachability index over {i['directions']} directions: mean {i['mean']:.3f}, quartiles {i['quartiles']} at reachable vertices"
+                  + (f" ({i['goals']} goals solved, {i['seconds']:.1f} s)" if i.get("goals") is not None else ""))
         if s["on_faces"]:
             print(f"    warning: {face_text(s['on_faces'])}")
     for note in info.get("config_warnings", []):
