@@ -325,3 +325,40 @@ def test_the_audit_covers_the_index(arm_atlas):
     assert i["pairs"] == 30 and i["false_reached"]["of"] + i["false_missed"]["of"] == 30
     assert i["false_reached"]["rate"] <= 0.2 and abs(i["share_by_index"] - i["share_by_referee"]) <= 0.25
     assert "index" not in result["strategies"]["plain"]
+
+
+@pytest.mark.skipif(not Path("/usr/bin/chromium").exists(), reason="no browser (apt-get install chromium chromium-driver)")
+def test_the_page_shows_the_index_colours(arm_atlas):
+    """In a real browser: a slice of the arm's cells as dots in the index's colours, the dark violet of the edge
+    (index near 0) and the greens of the ring within; without the index, the strategy's own colour instead."""
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    from reach.view import Viewer
+    from tests.test_view import CHROMIUM, DRIVER, _free_port, _profile, _shot_until, _wait_for_page
+
+    viewer = Viewer([load_atlas(arm_atlas / "atlas")], port=_free_port(), refine=False)
+    opts = webdriver.ChromeOptions()
+    opts.binary_location = CHROMIUM
+    for flag in ("--headless=new", "--no-sandbox", "--disable-gpu", "--window-size=1200,800", "--use-angle=swiftshader",
+                 "--enable-unsafe-swiftshader", f"--user-data-dir={_profile()}"):
+        opts.add_argument(flag)
+    driver = webdriver.Chrome(service=Service(DRIVER), options=opts)
+    try:
+        viewer.style_box.value, viewer.cells_box.value, viewer.index_box.value = "dots", "both", True
+        viewer.show_strategy("tcp", True)
+        _wait_for_page(driver, viewer)
+
+        def count(image: np.ndarray, rgb: tuple[int, int, int], tol: int = 45) -> int:
+            return int((np.abs(image[:, :760] - np.asarray(rgb)).max(axis=2) <= tol).sum())
+
+        violet, green = (68, 1, 84), (53, 183, 121)  # viridis near 0 and near 0.75
+        image = _shot_until(driver, "index_dots", lambda im: count(im, violet) > 200 and count(im, green) > 100)
+        assert count(image, violet) > 200 and count(image, green) > 100
+        viewer.index_box.value = False
+        viewer.draw()
+        plain = _shot_until(driver, "index_off", lambda im: count(im, green) < 0.2 * count(image, green))
+        assert count(plain, green) < 0.2 * count(image, green)
+    finally:
+        driver.quit()
+        viewer.close()
