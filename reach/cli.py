@@ -173,7 +173,9 @@ def cmd_query(args: argparse.Namespace) -> int:
         selector = Selector(load_atlas(atlas), policy=args.policy, refine=refine is not False, budget=args.budget_ms / 1000.0,  # type: ignore[arg-type]
                             handover=_handover(args), miss=args.miss)
         effectors = [args.effector] if args.effector else selector.effectors
-        answers = [selector.select(e, np.array(goal), start=start, orientation=orientation_of(wire)).to_dict() for e in effectors]
+        aim = orientation_of(wire)
+        assert not isinstance(aim, list)  # one goal, one orientation
+        answers = [selector.select(e, np.array(goal), start=start, orientation=aim).to_dict() for e in effectors]
     if args.json:
         _print_json({"answers": answers})
         return 0

@@ -133,16 +133,19 @@ class Client:
 
     def query_many(self, effector: str, goals: list[list[float]], refine: bool | None = None,
                    start: dict[str, float] | None = None, miss: str | None = None,
-                   orientation: dict[str, list[float]] | None = None) -> list[dict[str, Any]]:
+                   orientation: dict[str, list[float]] | list[dict[str, list[float]]] | None = None) -> list[dict[str, Any]]:
+        """Goals [m] (``orientation``: one for all, or a list of one per goal; the rest as :meth:`query`)."""
         fields = self._fields(effector, refine, start, miss, orientation)
         return list(self.call("query", **fields, goals=[[float(v) for v in g] for g in goals])["answers"])
 
     @staticmethod
     def _fields(effector: str, refine: bool | None, start: dict[str, float] | None, miss: str | None,
-                orientation: dict[str, list[float]] | None = None) -> dict[str, Any]:
+                orientation: dict[str, list[float]] | list[dict[str, list[float]]] | None = None) -> dict[str, Any]:
         fields: dict[str, Any] = {"effector": effector}
         if orientation is not None:
-            fields["orientation"] = {str(k): [float(x) for x in v] for k, v in orientation.items()}
+            each = orientation if isinstance(orientation, list) else [orientation]
+            wire = [{str(k): [float(x) for x in v] for k, v in o.items()} for o in each]
+            fields["orientation"] = wire if isinstance(orientation, list) else wire[0]
         if refine is not None:
             fields["refine"] = refine
         if start is not None:

@@ -157,7 +157,24 @@ def _posture(value: Any) -> dict[str, float]:
         raise Invalid("an object of joint name -> finite number [rad or m]") from None
 
 
-def check_orientation(value: Any) -> dict[str, list[float]]:
+def check_orientation(value: Any) -> dict[str, list[float]] | list[dict[str, list[float]]]:
+    """One orientation for every goal, or a list of them, one per goal (of one kind)."""
+    if isinstance(value, list):
+        if not value or len(value) > MAX_BATCH:
+            raise Invalid(f"a list of 1 to {MAX_BATCH} orientations, one per goal")
+        out = []
+        for i, item in enumerate(value):
+            try:
+                out.append(_one_orientation(item))
+            except Invalid as exc:
+                raise Invalid(f"[{i}] {exc}") from None
+        if len({next(iter(o)) for o in out}) != 1:
+            raise Invalid("orientations of one kind: all directions or all quaternions")
+        return out
+    return _one_orientation(value)
+
+
+def _one_orientation(value: Any) -> dict[str, list[float]]:
     kinds = ("direction", "quaternion")
     if not isinstance(value, dict) or len(value) != 1 or next(iter(value)) not in kinds:
         raise Invalid('an object with one of "direction": [x, y, z] (the effector\'s approach axis in the world) or "quaternion": [qx, qy, qz, qw]')
@@ -239,6 +256,9 @@ def _one_goal_or_many(args: dict[str, Any]) -> None:
     args["single"] = args["goal"] is not None
     if args["single"]:
         args["goals"] = [args["goal"]]
+    if isinstance(args.get("orientation"), list) and len(args["orientation"]) != len(args["goals"]):
+        raise Invalid(f"'orientation' must be one object for every goal or a list of one per goal: {len(args['orientation'])} for "
+                      f"{len(args['goals'])} goals")
 
 
 TAG = Field("tag", "string", _string(MAX_TAG), f"the client's label (at most {MAX_TAG} characters), published with its choices")
@@ -251,8 +271,8 @@ OPERATIONS: dict[str, Operation] = {op.name: op for op in (
         Field("from", "{joint: rad or m}", _posture, "the character's current posture; refinement starts from it"),
         Field("deadline", "s", _deadline, f"answer within this many seconds of arrival (0 to {MAX_DEADLINE:g})"),
         Field("miss", "string", _choice(MISSES), "a goal the trees hold but no refinement reaches: `unreachable` or `within` (default: the server's)"),
-        Field("orientation", "{direction: [x, y, z]} or {quaternion: [qx, qy, qz, qw]}", check_orientation,
-              "hold every goal's effector orientation: its approach axis's world direction, or its rotation; only strategies with an "
+        Field("orientation", "{direction: [x, y, z]} or {quaternion: [qx, qy, qz, qw]}, or a list of one per goal", check_orientation,
+              "hold the goals' effector orientation: its approach axis's world direction, or its rotation; only strategies with an "
               "`orientation` task answer, always refined"),
         TAG,
     ), "which strategy reaches each goal, and in which posture", "op_query", worker=True, check=_one_goal_or_many),

@@ -183,11 +183,13 @@ class Answer:
         }
 
 
-def orientation_of(wire: dict[str, list[float]] | None) -> np.ndarray | None:
+def orientation_of(wire: dict[str, list[float]] | list[dict[str, list[float]]] | None) -> np.ndarray | list[np.ndarray] | None:
     """A request's ``orientation`` as the selector takes it: a unit direction (3,) or a rotation (3, 3) from a
-    quaternion ``[qx, qy, qz, qw]`` (normalised); None stays None."""
+    quaternion ``[qx, qy, qz, qw]`` (normalised), or a list of them, one per goal; None stays None."""
     if wire is None:
         return None
+    if isinstance(wire, list):
+        return [orientation_of(w) for w in wire]  # type: ignore[misc]
     if "direction" in wire:
         d = np.asarray(wire["direction"], float)
         return d / np.linalg.norm(d)  # type: ignore[no-any-return]
@@ -404,7 +406,7 @@ class Selector:
         return names
 
     def select_many(self, effector: str, goals: np.ndarray, refine: bool | None = None, start: dict[str, float] | None = None,
-                    miss: str | None = None, orientation: np.ndarray | None = None) -> list[Answer]:
+                    miss: str | None = None, orientation: np.ndarray | list[np.ndarray] | None = None) -> list[Answer]:
         """Answers for goals (N, d) [m], one tree lookup per strategy for the whole batch.
 
         ``start`` is the character's current posture (joint name -> rad or m;
@@ -414,24 +416,28 @@ class Selector:
         Joints it omits keep the stored posture's values. ``miss`` overrides
         the selector's (see the module docstring). ``orientation``, a world
         direction (3,) of the effector's approach axis or its rotation (3, 3),
-        holds every goal's orientation: only the strategies with an
-        orientation task answer, always by refinement, and a goal no
-        refinement reaches with it is unreachable.
+        holds every goal's orientation (a list of them: one per goal, of one
+        kind): only the strategies with an orientation task answer, always by
+        refinement, and a goal no refinement reaches with it is unreachable.
         """
         t0 = time.perf_counter()
         g = np.asarray(goals, dtype=float)
         names = self.check_goals(effector, g, start)
         refine = self.refine if refine is None else refine
+        aims: list[np.ndarray | None] = [None] * len(g)
         if orientation is not None:
             if not refine:
                 raise InputError("refine", "a goal with an orientation is always refined (the trees hold positions); leave refine out or true")
-            names = self.oriented(effector, np.asarray(orientation, float))
+            each = orientation if isinstance(orientation, list) else [orientation] * len(g)
+            if len(each) != len(g) or len({np.shape(a) for a in each}) != 1 or np.shape(each[0]) not in ((3,), (3, 3)):
+                raise InputError("orientation", f"expected one direction (3,) or rotation (3, 3), or a list of one per goal ({len(g)}), of one kind")
+            aims = [np.asarray(a, float) for a in each]
+            names = self.oriented(effector, np.asarray(each[0], float))
         miss = self.miss if miss is None else miss
         if miss not in MISSES:
             raise InputError("miss", f"expected one of {', '.join(MISSES)}, got {miss!r}")
-        aim = None if orientation is None else np.asarray(orientation, float)
         if len(g) == 1:
-            return [self._select_one(effector, names, g[0], refine, t0, start, miss, aim)]
+            return [self._select_one(effector, names, g[0], refine, t0, start, miss, aims[0])]
         hits = np.stack([self.atlas.trees[n].contains(g, self.policy) for n in names])
         chosen = np.where(hits.any(axis=0), hits.argmax(axis=0), -1)
         nearest: dict[int, tuple[int, np.ndarray] | None] = {}
@@ -441,7 +447,7 @@ class Selector:
             for m, i in enumerate(sel):
                 nearest[int(i)] = None if found is None else (int(found[0][m]), found[1][m])
         return [
-            self._answer(effector, g[i], [n for j, n in enumerate(names) if hits[j, i]], nearest.get(i), refine, time.perf_counter(), start, miss, aim)
+            self._answer(effector, g[i], [n for j, n in enumerate(names) if hits[j, i]], nearest.get(i), refine, time.perf_counter(), start, miss, aims[i])
             for i in range(len(g))
         ]
 

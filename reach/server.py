@@ -443,7 +443,8 @@ class Server:
             return False
         goals = np.array(req["goals"])
         if req["orientation"] is not None:
-            self.selector.oriented(req["effector"], orientation_of(req["orientation"]))  # type: ignore[arg-type]
+            aims = orientation_of(req["orientation"])
+            self.selector.oriented(req["effector"], aims[0] if isinstance(aims, list) else aims)  # type: ignore[arg-type]
         if not self.selector.needs_ik(req["effector"], goals, req["from"]):
             return False  # nothing to refine (an analytic atlas, or no strategy holds a goal): answered at once
         n = len(goals)
@@ -453,7 +454,7 @@ class Server:
         if seq is not None:
             for part, (a, b) in enumerate(bounds):
                 self.pool.submit(Task(seq, part, req["effector"], req["goals"][a:b], req["from"], self.pending[seq].deadline, req["miss"], envelope[0],
-                                      orientation=req["orientation"]))
+                                      orientation=req["orientation"][a:b] if isinstance(req["orientation"], list) else req["orientation"]))
         return True
 
     def _defer_motion(self, req: P.Request, envelope: list[bytes]) -> bool:

@@ -57,7 +57,7 @@ class Task:
     client: bytes = b""  # who asked (the request's routing identity): the queues are served in turn
     op: str = "query"  # or "motion": plan the motion to goals[0]
     options: dict[str, Any] | None = None  # a motion's rate, timing and miss
-    orientation: dict[str, list[float]] | None = None  # a query's, as the request gives it
+    orientation: dict[str, list[float]] | list[dict[str, list[float]]] | None = None  # a query's, as the request gives it (its chunk's)
 
     def encode(self) -> bytes:
         return json.dumps({"op": self.op, "effector": self.effector, "goals": self.goals, "from": self.start, "deadline": self.deadline,

@@ -362,3 +362,23 @@ def test_the_page_shows_the_index_colours(arm_atlas):
     finally:
         driver.quit()
         viewer.close()
+
+
+def test_a_batch_carries_one_orientation_per_goal(arm_atlas):
+    """Per goal: the same goal asked pointing down and pointing up (3 cm above the table) answers each as asked;
+    the protocol refuses a list of the wrong length or of two kinds, naming the field."""
+    goals = [[0.5, 0.2, 0.03], [0.5, 0.2, 0.03]]
+    selector = Selector(load_atlas(arm_atlas / "atlas"), budget=1.0)
+    down, up = np.array([0.0, 0.0, -1.0]), np.array([0.0, 0.0, 1.0])
+    a, b = selector.select_many("tcp", np.array(goals), orientation=[down, up])
+    assert a.reachable and not b.reachable
+    with pytest.raises(InputError, match="orientation: expected one direction"):
+        selector.select_many("tcp", np.array(goals), orientation=[down])
+    ok = parse_request(json.dumps({"op": "query", "effector": "tcp", "goals": goals,
+                                   "orientation": [{"direction": [0, 0, -1]}, {"direction": [0, 0, 1]}]}).encode())
+    assert [np.asarray(o).tolist() for o in orientation_of(ok["orientation"])] == [[0, 0, -1], [0, 0, 1]]
+    for bad, says in (([{"direction": [0, 0, -1]}], "one per goal: 1 for 2 goals"),
+                      ([{"direction": [0, 0, -1]}, {"quaternion": [0, 0, 0, 1]}], "of one kind"),
+                      ([{"direction": [0, 0, -1]}, {"direction": [0, 0]}], r"\[1\] direction: a list of 3")):
+        with pytest.raises(ProtocolError, match=says):
+            parse_request(json.dumps({"op": "query", "effector": "tcp", "goals": goals, "orientation": bad}).encode())
