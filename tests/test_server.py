@@ -733,6 +733,8 @@ FIELD_VALUES = {
     "strategy": st.sampled_from(["right_arm", "nope"]),
     "level": st.integers(0, 8),
     "path": st.sampled_from(["/etc", "..", "human_workers"]),
+    "orientation": st.one_of(st.fixed_dictionaries({"direction": POINT}), st.fixed_dictionaries({"quaternion": st.lists(st.floats(-1, 1), min_size=3, max_size=5)}),
+                             st.lists(st.fixed_dictionaries({"direction": POINT}), min_size=0, max_size=3)),
 }
 
 
