@@ -430,6 +430,45 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_place(args: argparse.Namespace) -> int:
+    """Rank placements of the body (a population of atlases) against a layout's targets; verify the best by IK."""
+    from reach.evaluate import load_targets
+    from reach.place import Space, heat_map, rank, verify
+    from reach.store import load_atlas
+
+    atlases = [load_atlas(a) for a in args.atlas]
+    targets = load_targets(args.targets)
+    weights = {}
+    for item in args.weight or []:
+        name, _, value = item.partition("=")
+        try:
+            weights[name] = float(value)
+        except ValueError:
+            raise InputError("--weight", f"expected STRATEGY=NUMBER, got {item!r}") from None
+    space = Space(tuple(args.x), tuple(args.y), tuple(args.z), (math.radians(args.yaw[0]), math.radians(args.yaw[1])), args.step,
+                  math.radians(args.yaw_step))
+    ranking = rank(atlases, targets, space, args.effector, args.policy, weights)
+    if args.verify:
+        verify(ranking, atlases, targets, args.verify, args.effector, args.policy)
+    rows = [ranking.row(k, targets) for k in range(min(args.top, len(ranking.placements)))]
+    if args.figure:
+        heat_map(ranking, targets, Path(args.figure))
+    if args.json:
+        _print_json({"candidates": len(ranking.placements), "ranked": rows, "verified": ranking.verified})
+        return 0
+    print(f"{len(ranking.placements)} placements of {len(atlases)} bodies against {len(targets)} targets (trees' word; best first)")
+    print(f"{'rank':>4}  {'x [m]':>7} {'y [m]':>7} {'z [m]':>7} {'yaw':>6}  {'bodies':>7} {'targets':>7} {'weight':>7}")
+    for r in rows:
+        x, y, z = r["position"]
+        print(f"{r['rank']:>4}  {x:>7.3f} {y:>7.3f} {z:>7.3f} {r['yaw_deg']:>5.0f}°  {100 * r['accommodated']:>6.0f}% {100 * r['reached']:>6.0f}% {r['preference']:>7.3f}")
+    for v in ranking.verified:
+        print(f"rank {v['rank']} verified by IK: {100 * v['reached']:.0f}% of targets reached, {100 * v['accommodated']:.0f}% of bodies accommodated "
+              f"(trees: {100 * v['claimed_reached']:.0f}%)")
+    if args.figure:
+        print(f"figure: {args.figure}")
+    return 0
+
+
 def cmd_audit(args: argparse.Namespace) -> int:
     from reach.audit import audit
     from reach.store import load_atlas
@@ -633,6 +672,27 @@ def make_parser() -> argparse.ArgumentParser:
                    help="take the trees' word: no IK at the targets (a target counts as reachable when a tree holds it)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("place", help="where the body should stand, sit or be mounted to reach a layout's targets",
+                       description="Score a grid of placements (position [m] and heading [deg] of the body's frame in the layout's frame) of one "
+                       "body or a population (several atlases) against a targets CSV by the trees, rank them (bodies accommodated, targets "
+                       "reached, strategies needed), and verify the best by IK.")
+    p.add_argument("atlas", nargs="+", help="atlas folders (several: a population)")
+    p.add_argument("--targets", required=True, help="CSV file with name, x, y, z[, effector] in the layout's frame [m]")
+    p.add_argument("--effector", help="effector for targets without one")
+    p.add_argument("--x", nargs=2, type=float, required=True, metavar=("MIN", "MAX"), help="range of the body's x [m]")
+    p.add_argument("--y", nargs=2, type=float, required=True, metavar=("MIN", "MAX"), help="range of the body's y [m]")
+    p.add_argument("--z", nargs=2, type=float, default=[0.0, 0.0], metavar=("MIN", "MAX"), help="range of its height [m] (default 0: on the floor)")
+    p.add_argument("--yaw", nargs=2, type=float, default=[-180.0, 180.0], metavar=("MIN", "MAX"), help="range of its heading [deg] (default a full turn)")
+    p.add_argument("--step", type=float, default=0.05, help="position step [m] (default 0.05)")
+    p.add_argument("--yaw-step", type=float, default=15.0, help="heading step [deg] (default 15)")
+    p.add_argument("--weight", action="append", metavar="STRATEGY=W", help="a strategy's weight (default: 1, 0.8, 0.6, ... by priority)")
+    p.add_argument("--top", type=int, default=10, help="placements to print (default 10)")
+    p.add_argument("--verify", type=int, default=5, help="the best placements to verify by IK (default 5; 0: none)")
+    p.add_argument("--figure", metavar="PNG", help="write the floor heat map (share of targets reached per position)")
+    _policy_option(p)
+    p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.set_defaults(func=cmd_place)
 
     p = sub.add_parser("audit", help="check a tree's verdicts against direct IK", description="Draw seeded random probes in the inner, boundary and outer cells of each strategy, check each by direct IK (IPOPT, extra restarts, every start tried), and report false-reachable and false-unreachable rates with 95 % confidence intervals.")
     p.add_argument("atlas", help="atlas folder written by 'reach build'")

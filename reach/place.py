@@ -1,0 +1,236 @@
+"""Where to stand, sit or mount: placements of a body that reach a layout's targets.
+
+A placement puts the body's world frame (the frame its trees are built in:
+for the generated human, the floor between the ankles, x forward) at a
+position ``(x, y, z)`` [m] of the layout's frame, turned by ``yaw`` [rad]
+about z: a target ``t`` of the layout lies at ``Rz(-yaw) (t - position)`` in
+the body's frame. The trees never move; only the targets do, so that every
+candidate of a grid is scored by the trees' vectorised lookups at once.
+
+Per body (an atlas; several atlases are a population) and candidate, each
+target is taken by the first strategy of its effector, by priority, whose
+tree holds it (the ``vertex`` policy by default), as the selector chooses.
+Candidates are ranked, best first, by
+
+1. the share of bodies *accommodated* (reaching every target);
+2. the share of targets reached, over bodies;
+3. the mean strategy weight of the targets, over bodies (0 for a target no
+   strategy reaches): the effector's k-th strategy by priority weighs
+   ``max(1 - 0.2 k, 0.2)`` (arm only 1, upper body 0.8, whole body 0.6,
+   crouch 0.4 in the shipped human atlases): the fewer joints a reach
+   needs, the better the placement. A modelling choice, not a measured
+   figure; ``weights`` overrides it per strategy name;
+4. on a tie, the nearness to the centroid of the tied candidates (the one
+   with the most room around it).
+
+The best few are then verified: each target is asked of the selector, refined
+by IK at the moved target (a target the trees hold but no posture reaches
+counts as unreached), and the verified figures are reported beside the
+trees' claim.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from reach.errors import InputError
+from reach.evaluate import Target
+from reach.select import Selector
+from reach.store import Atlas
+from reach.tree import POLICIES, Policy
+
+WEIGHT_STEP = 0.2  # each later strategy by priority weighs this much less (a modelling choice; see the module docstring)
+WEIGHT_FLOOR = 0.2  # ... and never less than this
+MAX_CANDIDATES = 1_000_000  # candidates of one ranking at most
+VERIFY_BUDGET = 1.0  # [s] refinement budget per target when verifying
+
+
+@dataclass(frozen=True)
+class Space:
+    """The candidate placements: a grid of positions [m] and headings [rad].
+
+    Each axis is ``(min, max)`` sampled every ``step`` [m] (a single value
+    when min equals max); ``yaw`` is ``(min, max)`` sampled every
+    ``yaw_step`` [rad], the max left out when the range is a full turn.
+    """
+
+    x: tuple[float, float]
+    y: tuple[float, float]
+    z: tuple[float, float] = (0.0, 0.0)
+    yaw: tuple[float, float] = (0.0, 0.0)
+    step: float = 0.05
+    yaw_step: float = math.radians(15.0)
+
+    def __post_init__(self) -> None:
+        for name in ("x", "y", "z", "yaw"):
+            lo, hi = getattr(self, name)
+            if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
+                raise InputError(name, f"expected min <= max, finite, got {lo!r}, {hi!r}")
+        if not (self.step > 0 and self.yaw_step > 0):
+            raise InputError("step", f"expected positive steps, got {self.step!r} m and {self.yaw_step!r} rad")
+        count = math.prod(len(a) for a in self._axes())
+        if count > MAX_CANDIDATES:
+            raise InputError("step", f"{count} candidates; at most {MAX_CANDIDATES}: coarsen the steps or narrow the ranges")
+
+    @staticmethod
+    def _axis(lo: float, hi: float, step: float, turn: bool = False) -> np.ndarray:
+        n = int(math.floor((hi - lo) / step + 1e-9)) + 1
+        if n > MAX_CANDIDATES:
+            raise InputError("step", f"{n} values on one axis; at most {MAX_CANDIDATES} candidates: coarsen the steps or narrow the ranges")
+        values = lo + step * np.arange(n)
+        if turn and hi - lo >= 2 * math.pi - 1e-9:
+            values = values[values < lo + 2 * math.pi - 1e-9]
+        return values
+
+    def _axes(self) -> list[np.ndarray]:
+        return [self._axis(*self.x, self.step), self._axis(*self.y, self.step), self._axis(*self.z, self.step), self._axis(*self.yaw, self.yaw_step, turn=True)]
+
+    def candidates(self) -> np.ndarray:
+        """(C, 4) placements: x, y, z [m] and yaw [rad]."""
+        return np.stack(np.meshgrid(*self._axes(), indexing="ij"), axis=-1).reshape(-1, 4)
+
+
+def to_body(targets: np.ndarray, placements: np.ndarray) -> np.ndarray:
+    """Targets (T, 3) in the layout's frame seen from each placement (C, 4): (C, T, 3) in the body's frame."""
+    d = targets[None, :, :] - placements[:, None, :3]
+    c, s = np.cos(placements[:, 3])[:, None], np.sin(placements[:, 3])[:, None]
+    return np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1], d[..., 2]], axis=-1)
+
+
+@dataclass
+class Ranking:
+    """The scored candidates, best first, and what the figures need.
+
+    Attributes:
+        placements: (C, 4) x, y, z [m], yaw [rad], best first.
+        accommodated: (C,) share of bodies reaching every target.
+        reached: (C,) share of targets reached, over bodies.
+        preference: (C,) mean strategy weight, over bodies and targets.
+        strategies: (C, B, T) index of the strategy taking each target per body (-1: none), in the names' order.
+        names: Per body, its strategy names in ``strategies``' numbering.
+        verified: The best placements verified by IK: one dict each (see :func:`verify`).
+    """
+
+    placements: np.ndarray
+    accommodated: np.ndarray
+    reached: np.ndarray
+    preference: np.ndarray
+    strategies: np.ndarray
+    names: list[list[str]]
+    verified: list[dict[str, Any]] = field(default_factory=list)
+
+    def row(self, k: int, targets: Sequence[Target]) -> dict[str, Any]:
+        """Candidate k as a JSON-compatible dict."""
+        x, y, z, yaw = (float(v) for v in self.placements[k])
+        by = [{t.name: (names[s] if s >= 0 else None) for t, s in zip(targets, self.strategies[k, b], strict=True)} for b, names in enumerate(self.names)]
+        return {"rank": k + 1, "position": [x, y, z], "yaw_deg": math.degrees(yaw), "accommodated": float(self.accommodated[k]),
+                "reached": float(self.reached[k]), "preference": float(self.preference[k]), "strategies": by}
+
+
+def weights_of(atlas: Atlas, effector: str, overrides: dict[str, float] | None = None) -> tuple[list[str], np.ndarray]:
+    """An effector's strategies by priority and their weights (see the module docstring)."""
+    names = [s["name"] for s in sorted(atlas.strategies, key=lambda s: s["priority"]) if s["effector"] == effector]
+    if not names:
+        raise InputError("effector", f"{atlas.path}: no strategy for effector {effector!r}")
+    w = np.array([max(1.0 - WEIGHT_STEP * k, WEIGHT_FLOOR) for k in range(len(names))])
+    for k, n in enumerate(names):
+        if overrides and n in overrides:
+            w[k] = float(overrides[n])
+    return names, w
+
+
+def rank(atlases: Sequence[Atlas], targets: Sequence[Target], space: Space, effector: str | None = None, policy: Policy = "vertex",
+         weights: dict[str, float] | None = None) -> Ranking:
+    """Score every candidate of the space against the targets by the trees (see the module docstring); best first."""
+    if not atlases or not targets:
+        raise InputError("targets" if atlases else "atlases", "expected at least one atlas and one target")
+    if policy not in POLICIES:
+        raise InputError("policy", f"expected one of {', '.join(POLICIES)}, got {policy!r}")
+    placements = space.candidates()
+    points = np.array([t.point for t in targets], float)
+    body = to_body(points, placements).reshape(-1, 3)
+    n_c, n_t = len(placements), len(targets)
+    taken = np.full((n_c, len(atlases), n_t), -1, np.int16)
+    weight = np.zeros((n_c, len(atlases), n_t))
+    all_names: list[list[str]] = []
+    for b, atlas in enumerate(atlases):
+        names_b: list[str] = []
+        for eff in sorted({t.effector or effector or "" for t in targets}):
+            if not eff:
+                raise InputError("effector", "a target has no effector: give an effector column or --effector")
+            cols = np.array([k for k, t in enumerate(targets) if (t.effector or effector) == eff])
+            names, w = weights_of(atlas, eff, weights)
+            sub = body.reshape(n_c, n_t, 3)[:, cols].reshape(-1, 3)
+            open_ = np.ones((n_c, len(cols)), bool)
+            for k, name in enumerate(names):
+                held = atlas.trees[name].contains(sub, policy).reshape(n_c, len(cols)) & open_
+                taken[:, b, cols] = np.where(held, len(names_b) + k, taken[:, b, cols])
+                weight[:, b, cols] = np.where(held, w[k], weight[:, b, cols])
+                open_ &= ~held
+            names_b += names
+        all_names.append(names_b)
+    reached_bt = taken >= 0
+    accommodated = reached_bt.all(axis=2).mean(axis=1)
+    reached = reached_bt.mean(axis=(1, 2))
+    preference = weight.mean(axis=(1, 2))
+    # Lexicographic, best first; ties broken by nearness to the tied candidates' centroid (positions, and headings on the circle).
+    key = np.round(np.stack([accommodated, reached, preference], axis=1), 9)
+    top = np.all(key == key[np.lexsort(key.T[::-1])[-1]], axis=1)
+    centre = placements[top, :3].mean(axis=0)
+    heading = math.atan2(np.sin(placements[top, 3]).mean(), np.cos(placements[top, 3]).mean())
+    spread = np.linalg.norm(placements[:, :3] - centre, axis=1) + 0.1 * np.abs(np.angle(np.exp(1j * (placements[:, 3] - heading))))
+    order = np.lexsort((spread, -preference, -reached, -accommodated))
+    return Ranking(placements[order], accommodated[order], reached[order], preference[order], taken[order], all_names)
+
+
+def verify(ranking: Ranking, atlases: Sequence[Atlas], targets: Sequence[Target], best: int = 5, effector: str | None = None,
+           policy: Policy = "vertex", budget: float = VERIFY_BUDGET) -> list[dict[str, Any]]:
+    """The best placements checked by IK: per placement, the share of bodies accommodated and of targets reached when
+    each target, moved into the body's frame, is answered by the selector with refinement (unreached when no posture
+    reaches it); also stored in ``ranking.verified``."""
+    selectors = [Selector(a, policy, refine=True, budget=budget, miss="unreachable") for a in atlases]
+    points = np.array([t.point for t in targets], float)
+    out = []
+    for k in range(min(best, len(ranking.placements))):
+        body = to_body(points, ranking.placements[k : k + 1])[0]
+        ok = np.array([[s.select(t.effector or effector or "", p).reachable for t, p in zip(targets, body, strict=True)] for s in selectors])
+        out.append({"rank": k + 1, "accommodated": float(ok.all(axis=1).mean()), "reached": float(ok.mean()),
+                    "claimed_reached": float(ranking.reached[k]), "agree": bool(np.isclose(ok.mean(), ranking.reached[k]))})
+    ranking.verified = out
+    return out
+
+
+def heat_map(ranking: Ranking, targets: Sequence[Target], path: Any, title: str = "") -> Any:
+    """A figure of the floor (x, y): per position, the best share of targets reached over headings and heights,
+    the targets, and the best placement's position and heading."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from reach.report import _save
+
+    p = ranking.placements
+    xs, ys = np.unique(p[:, 0]), np.unique(p[:, 1])
+    grid = np.full((len(xs), len(ys)), np.nan)
+    ix, iy = np.searchsorted(xs, p[:, 0]), np.searchsorted(ys, p[:, 1])
+    np.fmax.at(grid, (ix, iy), ranking.reached)
+    fig, ax = plt.subplots(figsize=(7, 6))
+    image = ax.pcolormesh(xs, ys, grid.T, vmin=0.0, vmax=1.0, cmap="viridis", shading="nearest")
+    t = np.array([tg.point for tg in targets])
+    ax.scatter(t[:, 0], t[:, 1], marker="x", color="red", label="targets")
+    bx, by, _, yaw = p[0]
+    ax.arrow(bx, by, 0.15 * math.cos(yaw), 0.15 * math.sin(yaw), width=0.01, color="white", length_includes_head=True)
+    ax.plot([bx], [by], "o", color="white", label=f"best: ({bx:.2f}, {by:.2f}) m, {math.degrees(yaw):.0f} deg")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(title or "share of targets reached, best heading per position")
+    ax.legend(fontsize=7, loc="upper right")
+    fig.colorbar(image, ax=ax, shrink=0.8, label="share of targets reached (over bodies)")
+    return _save(fig, path)

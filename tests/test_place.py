@@ -1,0 +1,115 @@
+"""Where to stand: placements ranked by the trees against analytic truths, verified by IK on the arm."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from reach.atlas import build_atlas
+from reach.cli import main
+from reach.config import parse_config
+from reach.errors import InputError
+from reach.evaluate import Target
+from reach.place import Space, rank, to_body, verify
+from reach.store import load_atlas
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _atlas(tmp_path_factory, name: str, strategies: list[dict]) -> object:
+    out = tmp_path_factory.mktemp(name) / name
+    build_atlas(parse_config({"box": {"min": [-1.2, -1.2, -1.2], "max": [1.2, 1.2, 1.2]}, "depth": {"min": 2, "max": 5},
+                              "oracle": {"name": "sphere", "params": {"radius": 1.0}}, "strategies": strategies}, name, name), out)
+    return load_atlas(out)
+
+
+@pytest.fixture(scope="module")
+def balls(tmp_path_factory):
+    """An arm-only ball of 0.5 m (priority 1) inside a whole-body ball of 1 m, about the body's origin."""
+    return _atlas(tmp_path_factory, "balls", [{"name": "arm", "effector": "hand", "oracle": {"params": {"radius": 0.5}}},
+                                              {"name": "body", "effector": "hand"}])
+
+
+@pytest.fixture(scope="module")
+def front(tmp_path_factory):
+    """A volume in front of the body only: the box x in [0.3, 0.9], |y| <= 0.3, |z| <= 0.3 (a robot's reach over a table)."""
+    return _atlas(tmp_path_factory, "front", [{"name": "front", "effector": "hand", "oracle": {"name": "box", "params": {"min": [0.3, -0.3, -0.3], "max": [0.9, 0.3, 0.3]}}}])
+
+
+@pytest.fixture(scope="module")
+def nothing(tmp_path_factory):
+    return _atlas(tmp_path_factory, "nothing", [{"name": "none", "effector": "hand", "oracle": {"name": "box", "params": {"min": [5, 5, 5], "max": [6, 6, 6]}}}])
+
+
+def test_to_body_moves_and_turns_the_targets():
+    """A body at (1, 2, 0) facing +y sees the layout's point (1, 3, 0.5) 1 m straight ahead, 0.5 m up."""
+    got = to_body(np.array([[1.0, 3.0, 0.5]]), np.array([[1.0, 2.0, 0.0, math.pi / 2]]))
+    assert np.allclose(got, [[[1.0, 0.0, 0.5]]])
+
+
+def test_a_ring_of_targets_puts_the_body_at_its_centre(balls):
+    """Eight targets on a 0.4 m ring about (0.6, -0.3) at the body's height: every target within the arm's 0.5 m ball
+    only within 0.1 m of the centre; the best placement is the centre (the middle of the tied ones), arm only."""
+    angles = np.linspace(0, 2 * math.pi, 8, endpoint=False)
+    targets = [Target(f"t{k}", (0.6 + 0.4 * math.cos(a), -0.3 + 0.4 * math.sin(a), 0.0), "hand") for k, a in enumerate(angles)]
+    r = rank([balls], targets, Space((0.0, 1.2), (-0.9, 0.3), step=0.05, yaw=(0.0, 0.0)))
+    assert np.allclose(r.placements[0, :2], [0.6, -0.3], atol=0.051)
+    assert r.accommodated[0] == 1.0 and r.preference[0] == 1.0  # the arm reaches them all
+    far = np.linalg.norm(r.placements[:, :2] - [0.6, -0.3], axis=1) > 0.2
+    assert (r.preference[far] < 1.0).all()  # farther, the whole body is needed for some (weight 0.8), or none reaches
+
+
+def test_a_robot_turns_to_face_targets_on_one_side(front):
+    """Targets 0.6 m to the left of a base held near the origin: only a heading of +90 deg reaches them."""
+    targets = [Target(f"t{k}", (dx, 0.6, dz), "hand") for k, (dx, dz) in enumerate([(-0.1, 0.0), (0.1, 0.0), (0.0, 0.1), (0.0, -0.1)])]
+    r = rank([front], targets, Space((-0.1, 0.1), (-0.1, 0.1), step=0.05, yaw=(-math.pi, math.pi), yaw_step=math.radians(15)))
+    assert r.reached[0] == 1.0 and abs(math.degrees(r.placements[0, 3]) - 90.0) < 16.0
+    behind = np.abs(np.angle(np.exp(1j * (r.placements[:, 3] + math.pi / 2)))) < 0.3
+    assert (r.reached[behind] == 0).all()
+
+
+def test_a_population_counts_the_bodies_accommodated(balls, nothing):
+    """Two bodies, one reaching nothing: at best half the population is accommodated and half the targets reached."""
+    targets = [Target("a", (0.3, 0.0, 0.0), "hand"), Target("b", (0.0, 0.3, 0.0), "hand")]
+    r = rank([balls, nothing], targets, Space((-0.2, 0.2), (-0.2, 0.2), step=0.1))
+    assert r.accommodated[0] == 0.5 and r.reached[0] == 0.5 and r.preference[0] == 0.5
+    assert r.row(0, targets)["strategies"][1] == {"a": None, "b": None}
+
+
+def test_bad_spaces_and_targets_are_refused_naming_the_field(balls):
+    with pytest.raises(InputError, match="x: expected min <= max"):
+        Space((1.0, 0.0), (0.0, 0.0))
+    with pytest.raises(InputError, match="step: .* candidates; at most"):
+        Space((-10, 10), (-10, 10), step=0.001)
+    with pytest.raises(InputError, match="effector: .* no strategy for effector 'foot'"):
+        rank([balls], [Target("a", (0.1, 0, 0), "foot")], Space((0, 0), (0, 0)))
+
+
+@pytest.fixture(scope="module")
+def arm(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("arm")
+    body = {"urdf": str(ROOT / "configs" / "urdf" / "arm7.urdf"), "frames": {"tcp": {"parent": "arm7_hand", "xyz": [0, 0, 0.1034]}},
+            "reference": {"arm7_joint2": -0.785398, "arm7_joint4": -2.356194, "arm7_joint6": 1.570796, "arm7_joint7": 0.785398}}
+    build_atlas(parse_config({"name": "arm", "body": body, "box": {"min": [-1.0, -1.0, -0.4], "max": [1.0, 1.0, 1.3]}, "depth": {"min": 2, "max": 4},
+                              "oracle": {"name": "casadi-ik", "params": {"restarts": 1, "jit": False}},
+                              "strategies": [{"name": "tcp", "effector": "tcp", "joints": ["arm7_joint*"]}]}, "arm", "arm"), folder / "atlas")
+    return load_atlas(folder / "atlas")
+
+
+def test_ik_verifies_the_best_placement_of_a_robot_on_a_table(arm, tmp_path, capsys):
+    """Targets on a shelf 1.2 m ahead of the layout's origin: the base moves towards them; IK at the best placement
+    reaches what the trees claim; `reach place` prints the ranking and writes the heat map."""
+    targets = [Target(f"t{k}", (1.2, y, z), "tcp") for k, (y, z) in enumerate([(-0.2, 0.3), (0.0, 0.3), (0.2, 0.3), (0.0, 0.5)])]
+    r = rank([arm], targets, Space((0.0, 1.0), (-0.3, 0.3), step=0.1, yaw=(-math.pi / 2, math.pi / 2), yaw_step=math.radians(30)))
+    assert r.reached[0] == 1.0 and r.placements[0, 0] > 0.3
+    checked = verify(r, [arm], targets, best=2)
+    assert checked[0]["reached"] == 1.0 and checked[0]["agree"]
+    csv = tmp_path / "shelf.csv"
+    csv.write_text("name,x,y,z,effector\n" + "".join(f"{t.name},{t.point[0]},{t.point[1]},{t.point[2]},tcp\n" for t in targets))
+    assert main(["place", str(arm.path), "--targets", str(csv), "--x", "0", "1", "--y", "-0.3", "0.3", "--step", "0.1", "--yaw", "-90", "90",
+                 "--yaw-step", "30", "--verify", "1", "--figure", str(tmp_path / "floor.png")]) == 0
+    out = capsys.readouterr().out
+    assert "rank 1 verified by IK: 100% of targets reached" in out and (tmp_path / "floor.png").stat().st_size > 10_000
