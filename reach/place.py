@@ -65,6 +65,7 @@ class Space:
     yaw: tuple[float, float] = (0.0, 0.0)
     step: float = 0.05
     yaw_step: float = math.radians(15.0)
+    max_candidates: int = MAX_CANDIDATES
 
     def __post_init__(self) -> None:
         for name in ("x", "y", "z", "yaw"):
@@ -74,8 +75,8 @@ class Space:
         if not (self.step > 0 and self.yaw_step > 0):
             raise InputError("step", f"expected positive steps, got {self.step!r} m and {self.yaw_step!r} rad")
         count = math.prod(len(a) for a in self._axes())
-        if count > MAX_CANDIDATES:
-            raise InputError("step", f"{count} candidates; at most {MAX_CANDIDATES}: coarsen the steps or narrow the ranges")
+        if count > self.max_candidates:
+            raise InputError("step", f"{count} candidates; at most {self.max_candidates}: coarsen the steps or narrow the ranges")
 
     @staticmethod
     def _axis(lo: float, hi: float, step: float, turn: bool = False) -> np.ndarray:

@@ -42,6 +42,9 @@ MAX_TAG = 256  # characters of a client's tag
 MAX_NAME = 256  # characters of an effector's, strategy's or joint's name
 MAX_CELLS_LEVEL = 6  # "cells" rasterises at most 2**6 cells per axis
 MAX_FROM = 1024  # joints in a query's "from"
+MAX_TARGETS = 1000  # targets of a "place"
+MAX_TOP = 100  # placements a "place" returns
+MAX_PLACE_POINTS = 2_000_000  # candidates x targets of one "place": the loop answers it, in well under a second
 
 MISSES = ("unreachable", "within")  # reach.select.MISSES (the protocol imports nothing heavy)
 MOTION_MISSES = ("nearest", "error")  # reach.motion.MOTION_MISSES
@@ -191,6 +194,47 @@ def _one_orientation(value: Any) -> dict[str, list[float]]:
     return {kind: numbers}
 
 
+def _targets(value: Any) -> list[dict[str, Any]]:
+    if not isinstance(value, list) or not value or len(value) > MAX_TARGETS:
+        raise Invalid(f'a list of 1 to {MAX_TARGETS} targets, each {{"point": [x, y, z], "effector": name, "name": optional}}')
+    out = []
+    for i, t in enumerate(value):
+        if not isinstance(t, dict) or not {"point", "effector"} <= set(t) or set(t) - {"point", "effector", "name"}:
+            raise Invalid(f'[{i}] an object with "point" [x, y, z] m and "effector" (and optionally "name")')
+        try:
+            point = _point(t["point"])
+            effector = _string(MAX_NAME)(t["effector"])
+            name = _string(MAX_NAME)(t.get("name", f"t{i}"))
+        except Invalid as exc:
+            raise Invalid(f"[{i}] {exc}") from None
+        if len(point) != 3:
+            raise Invalid(f"[{i}] point: 3 numbers [m]")
+        out.append({"point": point, "effector": effector, "name": name})
+    return out
+
+
+def _range(value: Any) -> list[float]:
+    if not isinstance(value, list) or len(value) != 2:
+        raise Invalid("[min, max]")
+    lo, hi = _number(value[0]), _number(value[1])
+    if lo > hi:
+        raise Invalid("[min, max] with min <= max")
+    return [lo, hi]
+
+
+def _positive(value: Any) -> float:
+    v = _number(value)
+    if v <= 0:
+        raise Invalid("a number > 0")
+    return v
+
+
+def _top(value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_TOP:
+        raise Invalid(f"an integer in [1, {MAX_TOP}]")
+    return value
+
+
 def _rate(value: Any) -> float:
     rate = _number(value)
     if not 1.0 <= rate <= MAX_RATE:
@@ -287,6 +331,17 @@ OPERATIONS: dict[str, Operation] = {op.name: op for op in (
         Field("deadline", "s", _deadline, f"answer within this many seconds of arrival (0 to {MAX_DEADLINE:g})"),
         TAG,
     ), "the timed motion from a posture to the answer's posture: frames of posture, root and effector", "op_motion", worker=True),
+    Operation("place", (
+        Field("targets", "[{point, effector, name}]", _targets, f"the layout's targets [m] (at most {MAX_TARGETS})", required=True),
+        Field("x", "[min, max] m", _range, "range of the body's x", required=True),
+        Field("y", "[min, max] m", _range, "range of the body's y", required=True),
+        Field("z", "[min, max] m", _range, "range of its height (default [0, 0])", default=[0.0, 0.0]),
+        Field("yaw", "[min, max] deg", _range, "range of its heading (default [-180, 180])", default=[-180.0, 180.0]),
+        Field("step", "m", _positive, "position step (default 0.05)", default=0.05),
+        Field("yaw_step", "deg", _positive, "heading step (default 15)", default=15.0),
+        Field("top", "int", _top, f"placements returned, 1 to {MAX_TOP} (default 10)", default=10),
+    ), f"where to place the body to reach the targets: placements ranked by the trees (candidates x targets at most {MAX_PLACE_POINTS:,})",
+        "op_place"),
     Operation("strategies", (), "the atlas's strategies, effectors, boxes and world frame", "op_strategies"),
     Operation("cells", (
         Field("strategy", "string", _string(MAX_NAME), "one strategy (default: all)"),

@@ -409,6 +409,17 @@ class Server:
             self.pool = Pool(self.context, path, self.options, self.pool.size)
         return {"atlas": str(path), "strategies": len(selector.order)}
 
+    def op_place(self, req: P.Request) -> dict[str, Any]:
+        """Placements of the served body ranked by its trees against the request's targets (see :mod:`reach.place`)."""
+        from reach.evaluate import Target
+        from reach.place import Space, rank
+
+        space = Space(tuple(req["x"]), tuple(req["y"]), tuple(req["z"]), (math.radians(req["yaw"][0]), math.radians(req["yaw"][1])), req["step"],
+                      math.radians(req["yaw_step"]), max_candidates=P.MAX_PLACE_POINTS // len(req["targets"]))
+        targets = [Target(t["name"], tuple(t["point"]), t["effector"]) for t in req["targets"]]
+        ranking = rank([self.selector.atlas], targets, space, policy=self.selector.policy)  # type: ignore[arg-type]
+        return {"candidates": len(ranking.placements), "ranked": [ranking.row(k, targets) for k in range(min(req["top"], len(ranking.placements)))]}
+
     def op_cells(self, req: P.Request) -> dict[str, Any]:
         """Centres of the reachable cells of each strategy on a regular grid (for markers in RViz)."""
         from reach.report import raster

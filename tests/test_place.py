@@ -113,3 +113,23 @@ def test_ik_verifies_the_best_placement_of_a_robot_on_a_table(arm, tmp_path, cap
                  "--yaw-step", "30", "--verify", "1", "--figure", str(tmp_path / "floor.png")]) == 0
     out = capsys.readouterr().out
     assert "rank 1 verified by IK: 100% of targets reached" in out and (tmp_path / "floor.png").stat().st_size > 10_000
+
+
+def test_the_server_places_the_body(balls):
+    """The `place` operation ranks as reach.place does; a grid too large for the loop is a bad_request naming the step."""
+    from reach.client import Client, ServerError
+    from tests.test_server import Running
+
+    targets = [{"point": [0.6 + 0.4 * math.cos(a), -0.3 + 0.4 * math.sin(a), 0.0], "effector": "hand"} for a in np.linspace(0, 2 * math.pi, 8, endpoint=False)]
+    r = Running(balls.path)
+    try:
+        with Client(r.server.endpoint, retries=1) as c:
+            got = c.call("place", targets=targets, x=[0.0, 1.2], y=[-0.9, 0.3], yaw=[0, 0], step=0.05, top=3)
+            assert got["candidates"] == 25 * 25 and len(got["ranked"]) == 3
+            best = got["ranked"][0]
+            assert np.allclose(best["position"][:2], [0.6, -0.3], atol=0.051) and best["reached"] == 1.0 and best["strategies"][0]["t0"] == "arm"
+            with pytest.raises(ServerError, match="step"):
+                c.call("place", targets=targets, x=[-10, 10], y=[-10, 10], step=0.01)
+            assert c.call("health")["ok"]
+    finally:
+        r.stop()
