@@ -114,17 +114,23 @@ def _point(value: Any) -> list[float]:
         raise Invalid(f"a list of finite numbers [m], got {json.dumps(value)[:80]}") from None
 
 
+def _each(values: list[Any], check: Callable[[Any], Any], says: str = "") -> list[Any]:
+    """check of every item of a list; the error of the first bad one names its index."""
+    out = []
+    for i, item in enumerate(values):
+        try:
+            out.append(check(item))
+        except Invalid as exc:
+            raise Invalid(f"[{i}] {says}{exc}", exc.code) from None
+    return out
+
+
 def _points(value: Any) -> list[list[float]]:
     if not isinstance(value, list) or not value:
         raise Invalid("a non-empty list of [x, y, z] [m]")
     if len(value) > MAX_BATCH:
         raise Invalid(f"{len(value)} goals; the limit is {MAX_BATCH} per request", TOO_LARGE)
-    out = []
-    for i, g in enumerate(value):
-        try:
-            out.append(_point(g))
-        except Invalid as exc:
-            raise Invalid(f"[{i}] must be {exc}") from None
+    out = _each(value, _point, "must be ")
     if len({len(g) for g in out}) != 1:
         raise Invalid("goals with the same number of coordinates each")
     return out
@@ -165,12 +171,7 @@ def check_orientation(value: Any) -> dict[str, list[float]] | list[dict[str, lis
     if isinstance(value, list):
         if not value or len(value) > MAX_BATCH:
             raise Invalid(f"a list of 1 to {MAX_BATCH} orientations, one per goal")
-        out = []
-        for i, item in enumerate(value):
-            try:
-                out.append(_one_orientation(item))
-            except Invalid as exc:
-                raise Invalid(f"[{i}] {exc}") from None
+        out = _each(value, _one_orientation)
         if len({next(iter(o)) for o in out}) != 1:
             raise Invalid("orientations of one kind: all directions or all quaternions")
         return out
