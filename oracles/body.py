@@ -52,8 +52,10 @@ import pinocchio as pin
 
 from oracles.anthropometry import Anthropometry, anthropometry
 from oracles.collision import Capsule, CollisionModel, urdf_capsules
+from oracles.environment import Box
 from oracles.errors import ModelError
 from oracles.human import human_capsules, human_urdf, root_height
+from oracles.seat import Seated, parse_seat, seated
 
 ROOT = "root"
 
@@ -82,11 +84,19 @@ class Body:
     anthropometry: Anthropometry | None = None
     capsules: tuple[Capsule, ...] = ()
     notes: tuple[str, ...] = ()  # what the loader changed without being asked (a clipped reference joint)
+    furniture: tuple[Box, ...] = ()  # static boxes that come with the body (a seated human's seat)
 
     @cached_property
     def collision(self) -> CollisionModel:
         """The capsules placed on the model's joints, with coal geometry (built once)."""
         return CollisionModel(self.model, self.capsules, self.source)
+
+    def capsules_at(self, q: np.ndarray | None = None) -> np.ndarray:
+        """The collision capsules (K, 7: end points a, b [m], radius [m]; world frame) at a posture (the reference by default)."""
+        col = self.collision
+        data = self.model.createData()
+        pin.forwardKinematics(self.model, data, self.q_ref if q is None else np.asarray(q, float))
+        return np.array([[*np.concatenate(col.world(data, i)), p.radius] for i, p in enumerate(col.placed)]).reshape(-1, 7)
 
     @property
     def joint_names(self) -> list[str]:
@@ -112,6 +122,9 @@ class Body:
         """Identifies the model (URDF text and range overrides) in stored atlases."""
         text = self.urdf + json.dumps(self.spec.get("ranges", {}), sort_keys=True)
         placed = {k: self.spec[k] for k in PLACING if k in self.spec}
+        human = self.spec.get("human") or {}
+        if "posture" in human or "seat" in human:
+            placed["human"] = {k: human.get(k) for k in ("posture", "seat")}
         if placed:  # older atlases (no such keys) keep their hash
             text += json.dumps(placed, sort_keys=True)
         return hashlib.sha256(text.encode()).hexdigest()[:16]
@@ -309,7 +322,8 @@ def _reference(model: pin.Model, q: np.ndarray, reference: Any, source: str) -> 
     return notes
 
 
-def _finish(model: pin.Model, urdf: str, source: str, spec: dict[str, Any], root: np.ndarray, capsules: list[Capsule], anthro: Anthropometry | None = None) -> Body:
+def _finish(model: pin.Model, urdf: str, source: str, spec: dict[str, Any], root: np.ndarray, capsules: list[Capsule], anthro: Anthropometry | None = None,
+            sitting: Seated | None = None) -> Body:
     _check_limits(model, source)
     _apply_ranges(model, dict(spec.get("ranges", {})), source)
     _add_frames(model, spec.get("frames", {}), source)
@@ -321,21 +335,75 @@ def _finish(model: pin.Model, urdf: str, source: str, spec: dict[str, Any], root
     model.upperPositionLimit[3:7] = 1.0
     q = pin.neutral(model)
     q[:3] = root
-    q[3:7] = pin.Quaternion(_root_rotation(spec, source)).coeffs()
+    if sitting is None:
+        q[3:7] = pin.Quaternion(_root_rotation(spec, source)).coeffs()
+    else:
+        q = _seated_q(model, sitting)
     notes = _reference(model, q, spec.get("reference"), source)
-    return Body(model, q, source, spec, urdf, anthro, tuple(capsules), tuple(notes))
+    return Body(model, q, source, spec, urdf, anthro, tuple(capsules), tuple(notes), () if sitting is None else sitting.furniture)
 
 
 def human_body(sex: str = "male", stature: float | None = None, percentile: float | None = None, mass: float | None = None,
-               ranges: dict[str, Any] | None = None, frames: dict[str, Any] | None = None, reference: Any = None) -> Body:
-    """The generated human (see :mod:`oracles.human`), standing on z = 0, facing +x."""
+               ranges: dict[str, Any] | None = None, frames: dict[str, Any] | None = None, reference: Any = None,
+               posture: str | None = None, seat: dict[str, Any] | None = None) -> Body:
+    """The generated human (see :mod:`oracles.human`), standing on z = 0, facing +x; or seated (``posture: seated``)
+    on a seat (see :mod:`oracles.seat`)."""
     anthro = anthropometry(sex, stature, percentile, mass)  # type: ignore[arg-type]
-    human = {"sex": sex, "stature": stature, "percentile": percentile, "mass": mass}
+    human = {"sex": sex, "stature": stature, "percentile": percentile, "mass": mass, "posture": posture, "seat": seat}
     spec: dict[str, Any] = {"human": {k: v for k, v in human.items() if v is not None}}
     spec.update(_given(ranges=ranges, frames=frames, reference=reference))
     urdf = human_urdf(anthro)
     model = _parse(urdf, "human")
-    return _finish(model, urdf, "human", spec, np.array([0.0, 0.0, root_height(anthro)]), human_capsules(anthro), anthro)
+    if posture not in (None, "standing", "seated"):
+        raise ModelError(f"expected standing or seated, got {posture!r}", source="human", key="human.posture")
+    if posture != "seated":
+        if seat is not None:
+            raise ModelError("a seat needs posture: seated", source="human", key="human.seat")
+        return _finish(model, urdf, "human", spec, np.array([0.0, 0.0, root_height(anthro)]), human_capsules(anthro), anthro)
+    sitting = seated(anthro, parse_seat(seat))
+    _frames_at(model, sitting)
+    body = _finish(model, urdf, "human", spec, sitting.root, human_capsules(anthro), anthro, sitting)
+    _check_seat(body)
+    return body
+
+
+def _frames_at(model: pin.Model, sitting: Seated) -> None:
+    """The seated body's contact frames, at their world points in the seated reference posture."""
+    data = model.createData()
+    q = _seated_q(model, sitting)
+    pin.framesForwardKinematics(model, data, q)
+    for name, (parent, point) in sitting.frames.items():
+        pid = model.getFrameId(parent)
+        on = model.frames[pid]
+        joint = data.oMi[on.parentJoint]
+        # Axes parallel to the world's in the seated reference (a hinge about the frame's y pitches about the world's y).
+        model.addFrame(pin.Frame(name, on.parentJoint, pid, pin.SE3(joint.rotation.T, joint.actInv(point)), pin.FrameType.OP_FRAME))
+
+
+def _seated_q(model: pin.Model, sitting: Seated) -> np.ndarray:
+    q = pin.neutral(model)
+    q[:3] = sitting.root
+    q[3:7] = pin.Quaternion(pin.rpy.rpyToMatrix(0.0, sitting.pitch, 0.0)).coeffs()
+    for name, value in sitting.joints.items():
+        q[model.joints[model.getJointId(name)].idx_q] = value
+    return q
+
+
+def _check_seat(body: Body) -> None:
+    """No segment passes through the seat in the seated reference posture (coal), or the seat's dimensions do not fit the body."""
+    import coal
+
+    model = body.collision
+    data = model.model.createData()
+    pin.forwardKinematics(model.model, data, body.q_ref)
+    for i, obj in enumerate(model.geometry.geometryObjects):
+        placement = data.oMi[obj.parentJoint] * obj.placement
+        for box in body.furniture:
+            d = coal.distance(obj.geometry, coal.Transform3s(placement.rotation, placement.translation), coal.Box(*(2 * box.half)),
+                              coal.Transform3s(box.matrix, box.centre), coal.DistanceRequest(), coal.DistanceResult())
+            if d < -0.005:
+                raise ModelError(f"seated, the {model.placed[i].name} passes {-d:.3f} m into the seat's {box.name}: the seat does not fit "
+                                 "this body (check its depth, height, back_angle and feet)", source="human", key="human.seat")
 
 
 def _given(**keys: Any) -> dict[str, Any]:
@@ -364,7 +432,7 @@ def urdf_body(path: str | Path, root_position: list[float] | None = None, ranges
 
 BODY_KEYS = {"human", "urdf", "root_position", "ranges", "package_dirs", "up", "forward", "root_rpy", "frames", "reference"}
 URDF_ONLY = {"root_position", "package_dirs", "up", "forward", "root_rpy"}
-HUMAN_KEYS = {"sex", "stature", "percentile", "mass"}
+HUMAN_KEYS = {"sex", "stature", "percentile", "mass", "posture", "seat"}
 PLACING = ("up", "forward", "root_rpy", "frames", "reference")  # keys that move the body's frames: part of its hash
 
 

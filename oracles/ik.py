@@ -160,9 +160,7 @@ class IKOracle(ABC):
 
     def shape(self, posture: np.ndarray) -> tuple[list[str], np.ndarray]:
         """The body's capsules (K, 7) at a posture, world frame (see :class:`oracles.protocol.Shaped`)."""
-        model, data, col = self.body.model, self.body.model.createData(), self.body.collision
-        pin.forwardKinematics(model, data, np.asarray(posture, float))
-        return [p.name for p in col.placed], np.array([[*np.concatenate(col.world(data, i)), p.radius] for i, p in enumerate(col.placed)]).reshape(-1, 7)
+        return [p.name for p in self.body.collision.placed], self.body.capsules_at(posture)
 
     def verify(self, points: np.ndarray, postures: np.ndarray) -> np.ndarray:
         """The verdict's own check (Pinocchio forward kinematics, every hard task) of postures found elsewhere."""

@@ -1,6 +1,8 @@
-"""Static boxes in the world: ``{type: obstacles, boxes: [{min: [x, y, z], max: [x, y, z]}], margin: 0.01}``.
+"""Static boxes in the world: ``{type: obstacles, boxes: [{min: [x, y, z], max: [x, y, z], rpy: [r, p, y]}], margin: 0.01}``.
 
-A table, a wall, a shelf: axis-aligned boxes [m] in the world frame that
+A table, a wall, a shelf: boxes [m] in the world frame (axis-aligned, or
+turned about their centre by ``rpy`` [rad]), and the body's own furniture
+(a seated body's seat, :mod:`oracles.seat`: ``boxes`` may then be left out), that
 every collision capsule moved by an active joint keeps ``margin`` [m] away
 from (spheres along the capsule's axis kept out of the box grown by their
 radius; a lazy task, see :class:`~oracles.tasks.base.HardTask`). A capsule already closer at the reference posture (a robot's base
@@ -18,6 +20,7 @@ import numpy as np
 import pinocchio as pin
 
 from oracles.collision import CollisionModel
+from oracles.environment import Box, parse_box
 from oracles.errors import TaskError
 from oracles.tasks.base import (
     BUFFER,
@@ -37,33 +40,6 @@ from oracles.tasks.self_collision import CHECK_TOL, MARGIN
 
 
 @dataclass(frozen=True)
-class Box:
-    """An axis-aligned box [m] in the world frame."""
-
-    lo: tuple[float, float, float]
-    hi: tuple[float, float, float]
-
-    @property
-    def centre(self) -> np.ndarray:
-        return 0.5 * (np.asarray(self.lo) + np.asarray(self.hi))
-
-    @property
-    def half(self) -> np.ndarray:
-        return 0.5 * (np.asarray(self.hi) - np.asarray(self.lo))
-
-    def outside(self, p: np.ndarray) -> tuple[float, np.ndarray]:
-        """Signed distance [m] of a point to the box (negative inside) and the direction away from it."""
-        side = np.where(p >= self.centre, 1.0, -1.0)
-        d = np.abs(p - self.centre) - self.half
-        if np.all(d <= 0):  # inside: out through the nearest face
-            k = int(np.argmax(d))
-            return float(d[k]), side[k] * np.eye(3)[k]
-        out = np.maximum(d, 0.0) * side
-        n = float(np.linalg.norm(out))
-        return n, out / n
-
-
-@dataclass(frozen=True)
 class Guard:
     """A capsule kept from a box by ``clearance`` [m]; ``floor`` is the least coal distance the verdict accepts."""
 
@@ -73,18 +49,6 @@ class Guard:
     floor: float
 
 
-def _box(value: Any, where: str) -> Box:
-    if not isinstance(value, dict) or set(value) != {"min", "max"}:
-        raise TaskError(where, f"expected {{min: [x, y, z], max: [x, y, z]}} in metres, got {value!r}")
-    lo, hi = value["min"], value["max"]
-    for key, v in (("min", lo), ("max", hi)):
-        if not isinstance(v, list) or len(v) != 3 or not all(isinstance(c, (int, float)) and not isinstance(c, bool) for c in v):
-            raise TaskError(f"{where}.{key}", f"expected [x, y, z] in metres, got {v!r}")
-    if not all(a < b for a, b in zip(lo, hi, strict=True)):
-        raise TaskError(where, f"min must be below max on every axis, got {lo} and {hi}")
-    return Box(tuple(float(c) for c in lo), tuple(float(c) for c in hi))  # type: ignore[arg-type]
-
-
 @dataclass
 class ObstaclesTask(HardTask):
     """Keep every moving segment out of static boxes."""
@@ -92,7 +56,7 @@ class ObstaclesTask(HardTask):
     type: ClassVar[str] = "obstacles"
     lazy: ClassVar[bool] = True
     keys: ClassVar[frozenset[str]] = frozenset({"boxes", "margin"})
-    summary: ClassVar[str] = "every moving segment `margin` [m] (default 1 cm) away from static `boxes` (a table, a wall, a shelf)"
+    summary: ClassVar[str] = "every moving segment `margin` [m] (default 1 cm) away from static `boxes` (a table, a wall, a shelf) and the body's seat"
 
     boxes: tuple[Box, ...] = ()
     margin: float = MARGIN
@@ -101,10 +65,11 @@ class ObstaclesTask(HardTask):
 
     @classmethod
     def parse(cls, raw: dict[str, Any], where: str, scope: Scope) -> ObstaclesTask:
-        boxes_raw = raw.get("boxes")
-        if not isinstance(boxes_raw, list) or not boxes_raw:
+        boxes_raw = raw.get("boxes", [])
+        furniture = scope.body.furniture
+        if not isinstance(boxes_raw, list) or not (boxes_raw or furniture):
             raise TaskError(f"{where}.boxes", f"expected a non-empty list of boxes, got {boxes_raw!r}")
-        boxes = tuple(_box(b, f"{where}.boxes[{k}]") for k, b in enumerate(boxes_raw))
+        boxes = tuple(parse_box(b, f"{where}.boxes[{k}]") for k, b in enumerate(boxes_raw)) + furniture
         margin = number(raw.get("margin", MARGIN), f"{where}.margin", 0.0, 0.2)
         model = scope.body.collision
         if not model.placed:
@@ -135,7 +100,7 @@ class ObstaclesTask(HardTask):
         b = self.boxes[box]
         request, result = coal.DistanceRequest(), coal.DistanceResult()
         return float(coal.distance(obj.geometry, coal.Transform3s(placement.rotation, placement.translation),
-                                   coal.Box(*(2 * b.half)), coal.Transform3s(np.eye(3), b.centre), request, result))
+                                   coal.Box(*(2 * b.half)), coal.Transform3s(b.matrix, b.centre), request, result))
 
     def constraints(self, sym: Symbolic) -> list[Constraint]:
         return []  # lazy: see cuts
