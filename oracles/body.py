@@ -42,7 +42,8 @@ from __future__ import annotations
 import fnmatch
 import hashlib
 import json
-from dataclasses import dataclass
+import math
+from dataclasses import asdict, dataclass
 from functools import cached_property
 from pathlib import Path
 from typing import Any
@@ -55,7 +56,7 @@ from oracles.collision import Capsule, CollisionModel, urdf_capsules
 from oracles.environment import Box
 from oracles.errors import ModelError
 from oracles.human import human_capsules, human_urdf, root_height
-from oracles.seat import Seated, parse_seat, seated
+from oracles.seat import Seated, fit, parse_seat, seated
 
 ROOT = "root"
 
@@ -179,6 +180,12 @@ class Body:
         if self.anthropometry is not None:
             info["stature"] = self.anthropometry.stature
             info["sex"] = self.anthropometry.sex
+        human = self.spec.get("human") or {}
+        if human.get("posture") == "seated" and self.anthropometry is not None:
+            seat = fit(self.anthropometry, parse_seat(human.get("seat")))
+            info["seat"] = {k: round(math.degrees(v), 3) if k in ("back_angle", "ankle") and v is not None else v for k, v in asdict(seat).items()}
+        if self.furniture:
+            info["furniture"] = [b.to_dict() for b in self.furniture]
         return info
 
     def limits(self) -> list[tuple[str, float, float]]:

@@ -64,9 +64,9 @@ class Box:
         return np.concatenate([self.centre, self.half, [q.w, q.x, q.y, q.z]])
 
     def to_dict(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"min": list(self.lo), "max": list(self.hi)}
+        out: dict[str, Any] = {"min": [round(v, 6) for v in self.lo], "max": [round(v, 6) for v in self.hi]}
         if self.rotation != IDENTITY:
-            out["rpy"] = [float(v) for v in pin.rpy.matrixToRpy(self.matrix)]
+            out["rpy"] = [round(float(v), 6) for v in pin.rpy.matrixToRpy(self.matrix)]
         if self.name:
             out["name"] = self.name
         return out

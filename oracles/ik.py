@@ -41,7 +41,7 @@ from oracles.protocol import Ball, OracleSpec, Purpose, Skeleton, Verdicts, chec
 from oracles.search import Search
 from oracles.skeleton import bone_frames, build_skeleton
 from oracles.strategy import parse_strategy
-from oracles.tasks import ContactsTask, FloorTask, Numeric, OrientationTask, Symbolic
+from oracles.tasks import ContactsTask, FloorTask, Numeric, ObstaclesTask, OrientationTask, Symbolic
 
 SOLVERS = ("fatrop", "ipopt")
 # fatrop's initial barrier parameter for a settled reach stage (see Search.settle):
@@ -161,6 +161,12 @@ class IKOracle(ABC):
     def shape(self, posture: np.ndarray) -> tuple[list[str], np.ndarray]:
         """The body's capsules (K, 7) at a posture, world frame (see :class:`oracles.protocol.Shaped`)."""
         return [p.name for p in self.body.collision.placed], self.body.capsules_at(posture)
+
+    def furniture(self) -> tuple[list[str], np.ndarray]:
+        """The body's seat and the obstacles task's boxes (see :class:`oracles.protocol.Furnished`)."""
+        task = self.strategy.task("obstacles")
+        boxes = list(dict.fromkeys([*self.body.furniture, *(task.boxes if isinstance(task, ObstaclesTask) else ())]))
+        return [b.name or f"box{i}" for i, b in enumerate(boxes)], np.array([b.as_row() for b in boxes]).reshape(-1, 10)
 
     def verify(self, points: np.ndarray, postures: np.ndarray) -> np.ndarray:
         """The verdict's own check (Pinocchio forward kinematics, every hard task) of postures found elsewhere."""

@@ -15,6 +15,7 @@ Oracles may also offer optional capabilities, each a protocol of its own;
   selector's nearest-posture index);
 * :class:`ReachBound`: a ball that holds every reachable point (``box: auto``);
 * :class:`Shaped`: the body's capsules at a posture, to draw it (``reach view``);
+* :class:`Furnished`: the static boxes around the body (a seat, a table);
 * :class:`KeepOut`: capsules no reachable point lies in (the static parts of
   the body), so that the builder never labels a cell that meets them inner;
 * :class:`Tunable`: a variant set up for a purpose, ``"refine"`` (the
@@ -197,6 +198,15 @@ class Shaped(Protocol):
 
     def shape(self, posture: np.ndarray) -> tuple[list[str], np.ndarray]:
         """Names and capsules (K, 7: end points a, b [m], radius [m]; world frame) of the body at a posture (nq,)."""
+        ...
+
+
+@runtime_checkable
+class Furnished(Protocol):
+    """An oracle whose body comes with static boxes (a seated body's seat) or whose strategy keeps out of some (a table)."""
+
+    def furniture(self) -> tuple[list[str], np.ndarray]:
+        """Names and boxes (K, 10: centre [m], half sizes [m], orientation quaternion w, x, y, z; world frame)."""
         ...
 
 

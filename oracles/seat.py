@@ -34,7 +34,7 @@ the buttocks rest on the pan (the lowest of the pelvis's and thighs'
 capsules touches it), the thighs run level, forward, at hip width, the
 shanks fall to the feet (or reach the heel point, knees up), the head is
 upright, the upper arms hang 11 deg forward of vertical with the forearms
-level over the lap. Frames added: ``right_ischium``/``left_ischium`` on the
+level over the lap, the elbows 11 deg out. Frames added: ``right_ischium``/``left_ischium`` on the
 pan below each hip joint centre (the pelvis's contact with the seat),
 ``right_thigh_rest``/``left_thigh_rest`` under the thighs near the pan's
 front edge, ``sternum`` on the chest's front on the mid-plane (where a
@@ -81,6 +81,7 @@ POPLITEAL_CLEARANCE = 0.05
 FIT = float("nan")  # a dimension fitted to the body (see ``fit``)
 WHEEL_DIAMETER = 0.61  # a 24 in rear wheel, the usual adult size (ADAAG Fig. A3's 26 in overall width fits two beside an 18 in seat)
 ARM_FORWARD = 0.2  # [rad] upper arm forward of vertical in the seated reference (modelling choice)
+ARM_OUT = 0.2  # [rad] upper arm abducted so that it hangs clear of the reclined abdomen (modelling choice)
 ELBOW = 1.3  # [rad] elbow flexion in the seated reference: forearm about level over the lap (modelling choice)
 
 
@@ -222,7 +223,8 @@ def seated(body: Anthropometry, seat: Seat) -> Seated:
     joints = {"neck_flexion": beta}
     for side in ("right", "left"):
         joints.update({f"{side}_hip_flexion": hip_flex, f"{side}_knee_flexion": knee_flex, f"{side}_ankle_flexion": ankle_flex,
-                       f"{side}_shoulder_flexion": ARM_FORWARD - beta, f"{side}_elbow_flexion": ELBOW})
+                       f"{side}_shoulder_flexion": ARM_FORWARD - beta, f"{side}_shoulder_abduction": ARM_OUT,
+                       f"{side}_elbow_flexion": ELBOW})
     for name, value in joints.items():
         lo, hi = A.RANGES[name.removeprefix("right_").removeprefix("left_")]
         if not lo - 1e-9 <= value <= hi + 1e-9:

@@ -370,6 +370,11 @@ def cmd_model(args: argparse.Namespace) -> int:
         body = load_body({"urdf": spec, **{k: v for k, v in placing.items() if v is not None}})
         warnings = list(body.notes)
     info = {**body.describe(), "world_frame": P.WORLD_AXES, "warnings": warnings, **({"strategies": strategies} if strategies else {})}
+    if args.figure:
+        from reach.sketch import body_figure
+
+        body_figure(body.capsules_at(), body.furniture, Path(args.figure), Path(spec).stem if spec != "human" else "human")
+        info["figure"] = args.figure
     if args.json:
         _print_json(info)
         return 0
@@ -383,6 +388,12 @@ def cmd_model(args: argparse.Namespace) -> int:
     print(f"  {len(info['capsules'])} collision capsules [m]:")
     for c in info["capsules"]:
         print(f"    {c['name']:<20} on {c['link']:<16} radius {c['radius']:.4f} length {c['length']:.4f}")
+    if "seat" in info:
+        print("  seated on " + ", ".join(f"{k} {v}" for k, v in info["seat"].items()) + " [m, deg]")
+        for b in info["furniture"]:
+            print(f"    {b['name']:<20} min {b['min']} max {b['max']}" + (f" turned rpy {np.round(b['rpy'], 4).tolist()} [rad]" if "rpy" in b else ""))
+    if args.figure:
+        print(f"  wrote {args.figure}")
     for name, d in strategies.items():
         for t in d["tasks"]:
             if t.get("text"):  # the task's own line (see oracles.tasks.base.Task.describe)
@@ -422,7 +433,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from reach.evaluate import evaluate, load_targets, text_table
     from reach.store import load_atlas
 
-    results = evaluate([load_atlas(a) for a in args.atlas], load_targets(args.targets), args.effector, args.policy, refine=not args.no_refine)
+    at = None if not args.at else np.array([[x, y, z, math.radians(yaw)] for x, y, z, yaw in args.at])
+    results = evaluate([load_atlas(a) for a in args.atlas], load_targets(args.targets), args.effector, args.policy, refine=not args.no_refine,
+                       placements=at)
     if args.json:
         _print_json(results)
     else:
@@ -670,6 +683,9 @@ def make_parser() -> argparse.ArgumentParser:
     _policy_option(p)
     p.add_argument("--no-refine", action="store_true",
                    help="take the trees' word: no IK at the targets (a target counts as reachable when a tree holds it)")
+    p.add_argument("--at", type=float, nargs=4, action="append", metavar=("X", "Y", "Z", "YAW"),
+                   help="where the body's frame stands in the targets' frame: position [m] and heading [deg]; once for every atlas, or "
+                        "once per atlas in order (a driver's seat slid to her heel point); default: the targets are in the body's frame")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_evaluate)
 
@@ -720,6 +736,7 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--root-rpy", type=float, nargs=3, metavar=("R", "P", "Y"), help="for a URDF: a further root rotation [rad]")
     p.add_argument("--package-dir", action="append", metavar="DIR",
                    help="for a URDF: a folder holding a package its package:// meshes name (the folder above the package's); repeatable")
+    p.add_argument("--figure", metavar="PNG", help="draw the reference posture and the body's furniture (a seat), side and top views")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_model)
     return parser

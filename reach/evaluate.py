@@ -59,21 +59,41 @@ def load_targets(path: str | Path) -> list[Target]:
     return out
 
 
+PLACE_KEYS = ("x", "y", "z", "yaw")
+
+
+def to_body(targets: np.ndarray, placements: np.ndarray) -> np.ndarray:
+    """Targets (T, 3) in the layout's frame seen from each placement (C, 4): (C, T, 3) in the body's frame."""
+    d = targets[None, :, :] - placements[:, None, :3]
+    c, s = np.cos(placements[:, 3])[:, None], np.sin(placements[:, 3])[:, None]
+    return np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1], d[..., 2]], axis=-1)
+
+
 EVALUATE_BUDGET = 1.0  # [s] refinement budget per target: an offline question, no frame to keep
 
 
 def evaluate(atlases: list[Atlas], targets: list[Target], effector: str | None = None, policy: str = "vertex", refine: bool = True,
-             budget: float = EVALUATE_BUDGET) -> dict[str, Any]:
-    """Per atlas and target: the chosen strategy, the alternatives, whether a posture reaches it; and a summary."""
+             budget: float = EVALUATE_BUDGET, placements: np.ndarray | None = None) -> dict[str, Any]:
+    """Per atlas and target: the chosen strategy, the alternatives, whether a posture reaches it; and a summary.
+
+    ``placements`` (one row, or one per atlas: x, y, z [m], yaw [rad]) puts each body's frame in the layout's
+    frame: the targets are given in the layout's frame and moved into the body's (``reach evaluate --at``).
+    """
     results: dict[str, Any] = {"atlases": [], "targets": [t.name for t in targets], "refined": refine}
-    for atlas in atlases:
+    points = np.array([t.point for t in targets], float).reshape(-1, 3)
+    if placements is not None:
+        placements = np.asarray(placements, float).reshape(-1, 4)
+        if len(placements) not in (1, len(atlases)):
+            raise ConfigError("--at", "", f"expected one placement or one per atlas ({len(atlases)}), got {len(placements)}")
+    for k, atlas in enumerate(atlases):
         selector = Selector(atlas, policy, refine=refine, budget=budget, miss="unreachable")  # type: ignore[arg-type]
         rows: list[dict[str, Any]] = []
-        for t in targets:
+        seen = points if placements is None else to_body(points, placements[min(k, len(placements) - 1)][None])[0]
+        for t, point in zip(targets, seen, strict=True):
             eff = t.effector or effector or (selector.effectors[0] if len(selector.effectors) == 1 else None)
             if eff is None:
                 raise ConfigError("targets", t.name, f"no effector: give an effector column or --effector (one of {', '.join(selector.effectors)})")
-            a = selector.select(eff, np.array(t.point))
+            a = selector.select(eff, point)
             rows.append({"target": t.name, "effector": eff, "point": list(t.point), "strategy": a.strategy, "reachable": a.reachable,
                          "also": list(a.alternatives), "refined": a.refined, "within": a.within,
                          "nearest": None if a.nearest is None else {k: a.nearest[k] for k in ("strategy", "point", "distance")}})
@@ -82,7 +102,8 @@ def evaluate(atlases: list[Atlas], targets: list[Target], effector: str | None =
         for r in rows:
             key = r["strategy"] or "none"
             by_strategy[key] = by_strategy.get(key, 0) + 1
-        results["atlases"].append({"atlas": str(atlas.path), "name": atlas.manifest.get("name"), "rows": rows,
+        at = None if placements is None else dict(zip(PLACE_KEYS, placements[min(k, len(placements) - 1)].tolist(), strict=True))
+        results["atlases"].append({"atlas": str(atlas.path), "name": atlas.manifest.get("name"), "rows": rows, "at": at,
                                    "summary": {"targets": len(rows), "reachable": reached, "unreachable": len(rows) - reached, "by_strategy": by_strategy}})
     return results
 

@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from reach.errors import InputError
-from reach.evaluate import Target
+from reach.evaluate import Target, to_body
 from reach.select import Selector
 from reach.store import Atlas
 from reach.tree import POLICIES, Policy
@@ -94,13 +94,6 @@ class Space:
     def candidates(self) -> np.ndarray:
         """(C, 4) placements: x, y, z [m] and yaw [rad]."""
         return np.stack(np.meshgrid(*self._axes(), indexing="ij"), axis=-1).reshape(-1, 4)
-
-
-def to_body(targets: np.ndarray, placements: np.ndarray) -> np.ndarray:
-    """Targets (T, 3) in the layout's frame seen from each placement (C, 4): (C, T, 3) in the body's frame."""
-    d = targets[None, :, :] - placements[:, None, :3]
-    c, s = np.cos(placements[:, 3])[:, None], np.sin(placements[:, 3])[:, None]
-    return np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1], d[..., 2]], axis=-1)
 
 
 @dataclass

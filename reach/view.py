@@ -11,7 +11,8 @@ the wheel: the page works offline). The scene, in the atlas's world frame
   not already hold (Figure 8's "first strategy by priority"), and only those
   a slice plane cuts;
 * the body, drawn from its collision capsules, in the reference posture and
-  then in each answer's posture;
+  then in each answer's posture, and its furniture (a seated body's seat,
+  the obstacles task's boxes) in grey;
 * a goal to drag (a transform gizmo) or to type; every move asks the
   selector (or a running ``reach serve``, ``--connect``), and the panel shows
   the strategy, its colour, the alternatives, whether the posture was
@@ -38,7 +39,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from oracles.protocol import OracleSpec, Shaped
+from oracles.protocol import Furnished, OracleSpec, Shaped
 from reach.errors import InputError, ServerError, ServerUnavailable
 from reach.gate import Gate
 from reach.index import index_at
@@ -50,6 +51,7 @@ from reach.tree import DEFAULT_POLICY, FINAL, INNER, POLICIES, VATree
 PALETTE = np.array([(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
                     (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207)], np.uint8)
 BODY = (230, 200, 170)  # skin
+FURNITURE = (140, 140, 148)  # a seat, a table: grey
 UNREACHABLE = (200, 0, 0)
 BOUNDARY_SHADE = 0.75  # boundary (final) cells are drawn this much darker than inner ones
 STYLES = ("boxes", "dots", "wireframe")
@@ -111,6 +113,7 @@ class Scene:
     covered: dict[str, np.ndarray] = field(default_factory=dict)  # cells a higher-priority strategy holds
     shaper: Any = None
     capsules: list[Any] = field(default_factory=list)
+    furniture: list[Any] = field(default_factory=list)  # box handles: the seat, the obstacles
 
 
 class Viewer:
@@ -249,6 +252,11 @@ class Viewer:
             scene.capsules.append(self.server.scene.add_mesh_simple(
                 f"/atlas{k}/body/{name}", np.asarray(mesh.vertices, np.float32), np.asarray(mesh.faces, np.uint32), color=BODY))
         self._pose(scene, caps)
+        if isinstance(shaper, Furnished):
+            for name, box in zip(*shaper.furniture(), strict=True):
+                scene.furniture.append(self.server.scene.add_box(
+                    f"/atlas{k}/furniture/{name}", color=FURNITURE, dimensions=tuple(2 * box[3:6]), wxyz=tuple(box[6:10]),
+                    position=tuple(box[:3] + scene.offset), opacity=0.6))
 
     def _pose(self, scene: Scene, caps: np.ndarray) -> None:
         for handle, cap in zip(scene.capsules, caps, strict=True):

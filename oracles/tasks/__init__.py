@@ -21,6 +21,7 @@ from oracles.tasks.orientation import OrientationTask
 from oracles.tasks.posture import PostureTask
 from oracles.tasks.reach import ReachTask
 from oracles.tasks.self_collision import SelfCollisionTask
+from oracles.tasks.tether import TetherTask
 
 TASKS: dict[str, type[Task]] = {
     ReachTask.type: ReachTask,
@@ -30,6 +31,7 @@ TASKS: dict[str, type[Task]] = {
     SelfCollisionTask.type: SelfCollisionTask,
     FloorTask.type: FloorTask,
     ObstaclesTask.type: ObstaclesTask,
+    TetherTask.type: TetherTask,
     OrientationTask.type: OrientationTask,
     CouplingTask.type: CouplingTask,
     HangTask.type: HangTask,
@@ -75,5 +77,6 @@ __all__ = [
     "SoftTask",
     "Symbolic",
     "Task",
+    "TetherTask",
     "table",
 ]
