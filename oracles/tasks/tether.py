@@ -19,7 +19,19 @@ import casadi as ca
 import numpy as np
 
 from oracles.errors import TaskError
-from oracles.tasks.base import BUFFER, INSIDE, Constraint, HardTask, Numeric, Reference, Row, Scope, Symbolic, frames, number
+from oracles.tasks.base import (
+    BUFFER,
+    INSIDE,
+    Constraint,
+    HardTask,
+    Numeric,
+    Reference,
+    Row,
+    Scope,
+    Symbolic,
+    frames,
+    number,
+)
 
 TETHER_TOL = 1e-4  # [m] beyond the webbing's length that the verdict accepts
 
