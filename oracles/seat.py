@@ -171,7 +171,7 @@ def seated(body: Anthropometry, seat: Seat) -> Seated:
     # The trunk's back: the deepest of its capsules behind the pelvis's axis.
     hip_z = seat.height + _hip_above_pan(caps, beta)
     thigh = caps["right_thigh"]
-    hip_x = _hip_forward(caps, beta)
+    hip_x = _hip_forward(caps, L, seat)
     hip = np.array([hip_x, 0.0, hip_z])
     lt, ls, lf = L["thigh"], L["shank"], L["foot"]
     ankle_z = body.ankle_height
@@ -253,10 +253,31 @@ def _hip_above_pan(caps: dict[str, Any], beta: float) -> float:
     return max(thigh.radius, -lowest_pelvis)
 
 
-def _hip_forward(caps: dict[str, Any], beta: float) -> float:
-    """The hip joint centres' distance [m] forward of the backrest's foot: the trunk's back lies on the backrest's plane."""
-    back = max(c.radius - min(c.a[0], c.b[0]) for c in caps.values() if c.link in ("pelvis", "abdomen", "thorax"))
-    return (back - _hip_above_pan(caps, beta) * math.sin(beta)) / math.cos(beta)
+def _hip_forward(caps: dict[str, Any], lengths: dict[str, float], seat: Seat) -> float:
+    """The hip joint centres' distance [m] forward of the backrest's foot where the trunk's capsules touch the backrest's
+    front face (a segment in the mid-plane; the trunk's capsules lie across the body): bisection on the least gap."""
+    above = _hip_above_pan(caps, seat.back_angle)
+    base = {"pelvis": 0.0, "abdomen": lengths["lower_trunk"], "thorax": lengths["lower_trunk"] + lengths["middle_trunk"]}
+    trunk = _pitch(-seat.back_angle)
+    up = np.array([-math.sin(seat.back_angle), 0.0, math.cos(seat.back_angle)])
+    foot = np.array([0.0, 0.0, seat.height])
+    circles = [(trunk @ (0.5 * (np.asarray(c.a) + np.asarray(c.b)) + np.array([0.0, 0.0, base[c.link]])), c.radius)
+               for c in caps.values() if c.link in base]
+
+    def gap(x: float) -> float:
+        hip = np.array([x, 0.0, seat.height + above])
+        out = np.inf
+        for centre, r in circles:
+            p = hip + centre
+            t = min(max(float((p - foot) @ up), 0.0), seat.back_height)
+            out = min(out, float(np.linalg.norm(p - foot - t * up)) - r)
+        return out
+
+    lo, hi = -0.2, 0.6
+    for _ in range(60):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if gap(mid) < 0.0 else (lo, mid)
+    return hi
 
 
 def fit(body: Anthropometry, seat: Seat, caps: dict[str, Any] | None = None) -> Seat:
@@ -265,11 +286,11 @@ def fit(body: Anthropometry, seat: Seat, caps: dict[str, Any] | None = None) -> 
     ls, lt, ankle_z = body.lengths["shank"], body.lengths["thigh"], body.ankle_height
     above = _hip_above_pan(caps, seat.back_angle)
     drop = ls * math.cos(SHANK_FORWARD) + ankle_z  # hip to sole with level thighs and the shank 10 deg forward
-    if math.isnan(seat.depth):
-        popliteal = _hip_forward(caps, seat.back_angle) + lt - caps["right_shank"].radius
-        seat = replace(seat, depth=round(popliteal - POPLITEAL_CLEARANCE, 4))
     if math.isnan(seat.height):
         seat = replace(seat, height=round(seat.feet_height + drop - above, 4))
+    if math.isnan(seat.depth):
+        popliteal = _hip_forward(caps, body.lengths, seat) + lt - caps["right_shank"].radius
+        seat = replace(seat, depth=round(popliteal - POPLITEAL_CLEARANCE, 4))
     if math.isnan(seat.feet_height):
         rest = seat.height + above - drop
         if rest < 0.0:

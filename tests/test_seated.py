@@ -1,0 +1,190 @@
+"""Seated bodies: the seat's geometry and reference posture, postures that never pass through the seat (coal),
+the buttocks held on the pan, a locked belt, and the seated arm's volume as the standing arm's moved with the shoulder."""
+
+from __future__ import annotations
+
+import math
+
+import coal
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from oracles.body import load_body
+from oracles.environment import parse_box
+from oracles.errors import ModelError
+from oracles.ik import CasadiIK
+from oracles.search import Search
+from oracles.tasks.reach import TOLERANCE
+
+ARM = ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"]
+TRUNK = [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*", "neck_*", "root", "*_hip_*", "*_knee_*", "*_ankle_*"]
+SUPPORT = ["right_ischium", "left_ischium", "right_thigh_rest", "left_thigh_rest", "right_heel_inner", "right_heel_outer", "right_toe_inner",
+           "right_toe_outer", "left_heel_inner", "left_heel_outer", "left_toe_inner", "left_toe_outer"]
+LEAN = [{"type": "reach"}, {"type": "contacts", "hinge": ["right_ischium", "left_ischium"], "fixed": ["right_foot", "left_foot"], "support": SUPPORT},
+        {"type": "balance", "margin": 0.02}, {"type": "self_collision"}, {"type": "obstacles"}, {"type": "floor"}, {"type": "coupling"}]
+ANCHOR = [-0.25, 0.30, 0.85]
+BELTED = [{"type": "reach"}, {"type": "contacts", "fixed": ["right_ischium", "left_ischium", "right_foot", "left_foot"], "support": SUPPORT},
+          {"type": "tether", "anchor": ANCHOR, "frames": ["sternum", "left_shoulder"], "slack": 0.02},
+          {"type": "balance", "margin": 0.02}, {"type": "self_collision"}, {"type": "obstacles"}, {"type": "floor"}, {"type": "coupling"}]
+
+
+def seated(kind: str = "chair", sex: str = "male", percentile: float = 50, **seat) -> dict:
+    return {"human": {"sex": sex, "percentile": percentile, "posture": "seated", "seat": {"kind": kind, **seat}}}
+
+
+def _coal_gap(capsule: np.ndarray, box) -> float:
+    """Coal's distance [m] between a world capsule (a, b, r) and a box, built here from the end points."""
+    a, b, r = capsule[:3], capsule[3:6], float(capsule[6])
+    axis = b - a
+    n = float(np.linalg.norm(axis))
+    z = axis / n if n > 1e-12 else np.array([0.0, 0.0, 1.0])
+    x = np.cross(z, [1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0])
+    x /= np.linalg.norm(x)
+    rot = np.column_stack([x, np.cross(z, x), z])
+    return float(coal.distance(coal.Capsule(r, n), coal.Transform3s(rot, 0.5 * (a + b)), coal.Box(*(2 * box.half)),
+                               coal.Transform3s(box.matrix, box.centre), coal.DistanceRequest(), coal.DistanceResult()))
+
+
+@pytest.mark.parametrize("kind,sex,percentile", [("chair", "female", 5), ("chair", "male", 95), ("wheelchair", "male", 50), ("car", "female", 5)])
+def test_the_seated_reference_rests_on_the_pan_against_the_backrest(kind, sex, percentile):
+    """Coal: no capsule passes into the seat; the lowest of the pelvis's and thighs' capsules touches the pan, the trunk
+    the backrest; the soles lie on their rest; the ischia lie on the pan."""
+    body = load_body(seated(kind, sex, percentile))
+    caps = body.capsules_at()
+    names = [p.name for p in body.collision.placed]
+    boxes = {b.name: b for b in body.furniture}
+    gaps = {(n, b): _coal_gap(c, boxes[b]) for n, c in zip(names, caps, strict=True) for b in boxes}
+    assert min(gaps.values()) > -0.005
+    assert min(gaps[(n, "seat_pan")] for n in ("pelvis", "right_thigh", "left_thigh")) == pytest.approx(0.0, abs=0.003)
+    assert min(gaps[(n, "backrest")] for n in ("pelvis", "abdomen", "thorax")) == pytest.approx(0.0, abs=0.003)
+    frames = body.frame_positions()
+    pan_top = boxes["seat_pan"].hi[2]
+    assert frames["right_ischium"][2] == pytest.approx(pan_top, abs=1e-6) and frames["left_ischium"][2] == pytest.approx(pan_top, abs=1e-6)
+    sole = 0.0 if kind != "wheelchair" else boxes["footrest"].hi[2]
+    assert frames["right_heel"][2] == pytest.approx(sole, abs=1e-6)
+    if kind != "car":  # the car's feet rest on the heel point, toes up on the pedal
+        assert frames["right_toe"][2] == pytest.approx(sole, abs=1e-6)
+
+
+def test_our_turned_box_distance_agrees_with_coal():
+    """Box.outside (the obstacles task's cuts) against coal's distance of a small sphere to the turned box."""
+    box = parse_box({"min": [0.0, -0.2, 0.3], "max": [0.05, 0.2, 0.9], "rpy": [0.1, -0.4, 0.3]}, "box")
+    rng = np.random.default_rng(3)
+    for p in box.centre + rng.uniform(-0.5, 0.5, (200, 3)):
+        ours, _ = box.outside(p)
+        theirs = coal.distance(coal.Sphere(1e-9), coal.Transform3s(np.eye(3), p), coal.Box(*(2 * box.half)),
+                               coal.Transform3s(box.matrix, box.centre), coal.DistanceRequest(), coal.DistanceResult())
+        if ours > 0:
+            assert ours == pytest.approx(theirs, abs=1e-6)
+        else:
+            assert theirs <= 1e-6
+
+
+@pytest.mark.parametrize("spec,key,says", [
+    (seated(height=0.9), "human.seat.height", "above this body's lower leg"),
+    (seated("car", feet={"x": 1.4}), "human.seat.feet.x", "out of this body's reach"),
+    (seated(kind="sofa"), "human.seat.kind", "chair, wheelchair, car"),
+    (seated(back_angle=70), "human.seat.back_angle", r"\[0.0, 40.0\] deg"),
+    ({"human": {"seat": {"kind": "chair"}}}, "human.seat", "posture: seated"),
+    ({"human": {"posture": "kneeling"}}, "human.posture", "standing or seated"),
+    (seated(depth=0.75), "human.seat", "passes .* into the seat's seat_pan"),
+])
+def test_seats_that_do_not_fit_are_named(spec, key, says):
+    with pytest.raises(ModelError, match=rf"{key}.*{says}"):
+        load_body(spec)
+
+
+def test_the_seat_is_part_of_the_bodys_identity():
+    """Another seat, another body: atlases built on one are not served for the other."""
+    assert load_body(seated(back_angle=10)).hash != load_body(seated(back_angle=20)).hash
+    assert load_body(seated()).hash != load_body({"human": {"sex": "male", "percentile": 50}}).hash
+
+
+@pytest.fixture(scope="module")
+def lean():
+    return CasadiIK(seated(), "right_hand", TRUNK, LEAN, search=Search(restarts=3, seed=0))
+
+
+GOALS = np.array([[0.75, -0.2, 0.95], [0.6, -0.45, 0.45], [0.45, -0.35, 0.15], [0.9, -0.1, 0.7], [0.3, 0.25, 0.9], [0.55, -0.2, 0.5]])
+
+
+def test_lean_postures_never_pass_through_the_seat_and_keep_the_buttocks_on_it(lean):
+    """Every reachable verdict: the hand on the goal (Pinocchio FK), no capsule into the seat (coal, margin given to the
+    reference's contacts), the ischia where they sat, the centre of mass over the seated support."""
+    v = lean.evaluate(GOALS)
+    assert v.reachable.sum() >= 4
+    body = lean.body
+    boxes = body.furniture
+    ref = body.frame_positions()
+    for goal, ok, q in zip(GOALS, v.reachable, v.posture, strict=True):
+        if not ok:
+            continue
+        frames = body.frame_positions(q)
+        assert np.linalg.norm(frames["right_hand"] - goal) <= TOLERANCE + 1e-6
+        for name in ("right_ischium", "left_ischium", "right_foot", "left_foot"):
+            assert np.linalg.norm(frames[name] - ref[name]) < 1e-3
+        for cap in body.capsules_at(q):
+            assert min(_coal_gap(cap, b) for b in boxes) > -0.01
+        com = body.center_of_mass(q)
+        support = np.array([ref[f][:2] for f in SUPPORT])
+        assert support[:, 0].min() <= com[0] <= support[:, 0].max() and support[:, 1].min() <= com[1] <= support[:, 1].max()
+
+
+def test_the_pelvis_turns_on_the_seat_and_the_lean_reaches_past_the_arm(lean):
+    """A goal 0.2 m beyond the arm's reach straight ahead at shoulder height: the arm alone misses it, the lean reaches
+    it with the pelvis pitched forward about the ischia (its orientation changes) and the trunk off the backrest."""
+    arm = CasadiIK(seated(), "right_hand", ARM, [{"type": "reach"}, {"type": "obstacles"}], search=Search(restarts=3, seed=0))
+    shoulder = lean.body.frame_positions()["right_shoulder"]
+    far = shoulder + np.array([0.62 + 0.2, 0.0, 0.0])
+    assert not arm.evaluate(far[None]).reachable[0]
+    v = lean.evaluate(far[None])
+    assert v.reachable[0]
+    q = v.posture[0]
+    pitch = pin.rpy.matrixToRpy(pin.Quaternion(q[6], *q[3:6]).toRotationMatrix())[1]
+    assert pitch > -math.radians(15.0) + 0.05  # the pelvis pitched forward from its reclined 15 deg
+
+
+def test_a_locked_belt_holds_the_chest_and_reaches_no_farther():
+    """Belted: the sternum and the outboard shoulder within their webbing (+2 cm) of the anchor, by Pinocchio FK; straight
+    ahead at shoulder height, the belted reach is no longer than the unbelted lean's."""
+    body = seated("car")
+    belted = CasadiIK(body, "right_hand", TRUNK, BELTED, search=Search(restarts=2, seed=0))
+    free = CasadiIK(body, "right_hand", TRUNK, LEAN, search=Search(restarts=2, seed=0))
+    ref = belted.body.frame_positions()
+    shoulder = ref["right_shoulder"]
+    line = shoulder + np.outer(np.arange(0.4, 1.2, 0.05), [1.0, 0.0, 0.0])
+    vb, vf = belted.evaluate(line), free.evaluate(line)
+    farthest = [float(line[v.reachable][:, 0].max() - shoulder[0]) if v.reachable.any() else 0.0 for v in (vb, vf)]
+    assert 0.4 <= farthest[0] <= farthest[1]
+    anchor = np.array(ANCHOR)
+    for ok, q in zip(vb.reachable, vb.posture, strict=True):
+        if ok:
+            now = belted.body.frame_positions(q)
+            for f in ("sternum", "left_shoulder"):
+                assert np.linalg.norm(now[f] - anchor) <= np.linalg.norm(ref[f] - anchor) + 0.02 + 1e-4
+
+
+def test_the_seated_arm_volume_is_the_standing_arm_volume_moved_with_the_shoulder():
+    """The same arm on another trunk posture: goals around the shoulder, moved by the clavicle's rigid motion from
+    standing to seated, get the same verdicts (reach and the arm's coupling only, no seat or legs in the way)."""
+    tasks = [{"type": "reach"}, {"type": "coupling"}]
+    stand = CasadiIK({"human": {"sex": "male", "percentile": 50}}, "right_hand", ARM, tasks, search=Search(restarts=3, seed=0))
+    sit = CasadiIK(seated("car"), "right_hand", ARM, tasks, search=Search(restarts=3, seed=0))
+
+    def clavicle(oracle):
+        data = oracle.body.model.createData()
+        pin.framesForwardKinematics(oracle.body.model, data, oracle.body.q_ref)
+        return data.oMf[oracle.body.model.getFrameId("right_clavicle")]
+
+    move = clavicle(sit) * clavicle(stand).inverse()
+    rng = np.random.default_rng(7)
+    shoulder = stand.body.frame_positions()["right_shoulder"]
+    directions = rng.normal(size=(40, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    # Radii away from the boundary by 5 cm either way (the arm reaches about 0.62 m from the shoulder).
+    goals = shoulder + directions * rng.choice([0.3, 0.45, 0.75, 0.85], size=(40, 1))
+    a = stand.evaluate(goals).reachable
+    b = sit.evaluate(np.array([move.act(g) for g in goals])).reachable
+    assert a.any() and (~a).any()
+    assert np.mean(a == b) >= 0.95
