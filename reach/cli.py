@@ -434,12 +434,19 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from reach.store import load_atlas
 
     at = None if not args.at else np.array([[x, y, z, math.radians(yaw)] for x, y, z, yaw in args.at])
-    results = evaluate([load_atlas(a) for a in args.atlas], load_targets(args.targets), args.effector, args.policy, refine=not args.no_refine,
+    atlases = [load_atlas(a) for a in args.atlas]
+    results = evaluate(atlases, load_targets(args.targets), args.effector, args.policy, refine=not args.no_refine,
                        placements=at)
+    if args.figure:
+        from reach.sketch import layout_figure
+
+        layout_figure(atlases, results, Path(args.figure))
     if args.json:
         _print_json(results)
     else:
         print(text_table(results))
+        if args.figure:
+            print(f"wrote {args.figure}")
     return 0
 
 
@@ -686,6 +693,8 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--at", type=float, nargs=4, action="append", metavar=("X", "Y", "Z", "YAW"),
                    help="where the body's frame stands in the targets' frame: position [m] and heading [deg]; once for every atlas, or "
                         "once per atlas in order (a driver's seat slid to her heel point); default: the targets are in the body's frame")
+    p.add_argument("--figure", metavar="PNG", help="per atlas, side and top views of the body, its furniture, the volumes through the right "
+                                                   "shoulder and the targets coloured by the strategy that reaches them")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_evaluate)
 

@@ -91,3 +91,77 @@ def frame(ax: Any, view: str, capsules: np.ndarray, boxes: Sequence[Box], points
     ax.grid(alpha=0.3)
     ax.set_xlabel("x forward [m]")
     ax.set_ylabel("z up [m]" if view == "side" else "y left [m]")
+
+
+def from_row(row: np.ndarray) -> Box:
+    """A box from a Furnished row: centre [m], half sizes [m], quaternion (w, x, y, z)."""
+    import pinocchio as pin
+
+    rotation = pin.Quaternion(float(row[6]), float(row[7]), float(row[8]), float(row[9])).toRotationMatrix()
+    return Box(tuple(row[:3] - row[3:6]), tuple(row[:3] + row[3:6]), tuple(tuple(float(v) for v in r) for r in rotation))  # type: ignore[arg-type]
+
+
+def layout_figure(atlases: Sequence[Any], results: dict[str, Any], path: Any, resolution: float = 0.01) -> Any:
+    """Per atlas (a row): side and top views of the body in its reference posture, its furniture, the volumes' slices
+    through the right shoulder (each cell in the colour of the first strategy, by priority, that holds it), and the
+    targets (body frame) coloured by the strategy that reaches them, a red cross where none does."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from oracles.protocol import Furnished, OracleSpec, Shaped
+    from reach.report import COLOURS
+
+    fig, axes = plt.subplots(len(atlases), 2, figsize=(12, 5.5 * len(atlases)), squeeze=False)
+    for row, (atlas, result) in enumerate(zip(atlases, results["atlases"], strict=True)):
+        names = sorted(atlas.trees, key=lambda n: atlas.trees[n].meta.get("priority", 0))
+        colour = {n: COLOURS[k % len(COLOURS)] for k, n in enumerate(names)}
+        oracle = OracleSpec.from_dict(next(iter(atlas.trees.values())).meta["oracle"]).create()
+        capsules = oracle.shape(oracle.reference_posture())[1] if isinstance(oracle, Shaped) else np.zeros((0, 7))
+        boxes = [from_row(b) for b in oracle.furniture()[1]] if isinstance(oracle, Furnished) else []
+        points = np.array([r["point"] for r in result["rows"]], float).reshape(-1, 3)
+        if result.get("at"):
+            from reach.evaluate import to_body
+
+            a = result["at"]
+            points = to_body(points, np.array([[a["x"], a["y"], a["z"], a["yaw"]]]))[0]
+        names_of = oracle.shape(oracle.reference_posture())[0] if isinstance(oracle, Shaped) else []
+        shoulder = capsules[names_of.index("right_upper_arm"), :3] if "right_upper_arm" in names_of else np.zeros(3)
+        for col, view in enumerate(AXES):
+            ax = axes[row, col]
+            i, j = AXES[view]
+            tree0 = atlas.trees[names[0]]
+            lo, hi = tree0.box.lo, tree0.box.hi
+            u = np.arange(lo[i], hi[i], resolution) + 0.5 * resolution
+            v = np.arange(lo[j], hi[j], resolution) + 0.5 * resolution
+            gu, gv = np.meshgrid(u, v, indexing="ij")
+            pts = np.zeros((gu.size, 3))
+            pts[:, i], pts[:, j] = gu.ravel(), gv.ravel()
+            pts[:, 3 - i - j] = shoulder[3 - i - j]
+            taken = np.zeros(gu.size, bool)
+            image = np.ones((*gu.shape, 4))
+            image[..., 3] = 0.0
+            for n in names:
+                held = atlas.trees[n].contains(pts, "vertex") & ~taken
+                taken |= held
+                rgba = matplotlib.colors.to_rgba(colour[n], 0.35)
+                image.reshape(-1, 4)[held] = rgba
+            ax.imshow(np.transpose(image, (1, 0, 2)), origin="lower", extent=(lo[i], hi[i], lo[j], hi[j]), zorder=1, interpolation="nearest")
+            draw_boxes(ax, boxes, view)
+            draw_capsules(ax, capsules, view)
+            for r, p in zip(result["rows"], points, strict=True):
+                if r["reachable"]:
+                    ax.scatter([p[i]], [p[j]], s=40, color=colour.get(r["strategy"], "k"), edgecolor="k", zorder=6)
+                else:
+                    ax.scatter([p[i]], [p[j]], s=50, marker="x", color="red", zorder=6)
+            frame(ax, view, capsules, boxes, points)
+            which = "y" if view == "side" else "z"
+            ax.set_title(f"{result['name'] or atlas.path.name}: {view}, volumes at {which} = {shoulder[3 - i - j]:.2f} m (right shoulder)")
+        handles = [plt.Rectangle((0, 0), 1, 1, color=colour[n], alpha=0.6) for n in names]
+        handles.append(plt.Line2D([], [], marker="x", color="red", linestyle=""))
+        axes[row, 0].legend(handles, [*names, "unreachable"], fontsize=8, loc="upper right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+    return path

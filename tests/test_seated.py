@@ -188,3 +188,42 @@ def test_the_seated_arm_volume_is_the_standing_arm_volume_moved_with_the_shoulde
     b = sit.evaluate(np.array([move.act(g) for g in goals])).reachable
     assert a.any() and (~a).any()
     assert np.mean(a == b) >= 0.95
+
+
+def test_the_tether_row_and_its_casadi_constraint_agree_with_pinocchio_and_finite_differences():
+    """The CasADi constraint is the squared distance to the anchor (Pinocchio FK); the dls row's Jacobian is the
+    distance's gradient (finite differences), and it appears only near or past the webbing's length."""
+    import casadi as ca
+
+    from oracles.kinematics import SymbolicKinematics
+    from oracles.problem import ReachProblem
+    from oracles.strategy import parse_strategy
+    from oracles.tasks import Symbolic
+    from tests.test_tasks import numeric, random_x
+
+    body = load_body(seated("car"))
+    problem = ReachProblem(body, parse_strategy(body, "right_hand", TRUNK, BELTED))
+    tether = problem.strategy.task("tether")
+    x = random_x(problem, 5)
+    q = problem.q_of_x(x)
+    num = numeric(problem, q, np.zeros(3))
+    anchor = np.array(ANCHOR)
+    for f in ("sternum", "left_shoulder"):
+        d = body.frame_positions(q)[f] - anchor
+        tether._length[f] = float(np.linalg.norm(d)) - 0.001  # just past: the row is active
+    sym = Symbolic(SymbolicKinematics(body.model, problem.q_sym), problem.x_sym, ca.SX.sym("g", 3), problem.x_ref, problem.upper - problem.lower)
+    values = ca.Function("c", [sym.x], [ca.vertcat(*[c.expr for c in tether.constraints(sym)])])(x)
+    assert np.allclose(np.array(values).ravel(), [np.sum((body.frame_positions(q)[f] - anchor) ** 2) for f in ("sternum", "left_shoulder")], atol=1e-9)
+    rows = tether.rows(num)
+    assert len(rows) == 2
+    eps = 1e-6
+    model = body.model
+    for row, f in zip(rows, ("sternum", "left_shoulder"), strict=True):
+        fd = []
+        for k in range(num.columns.size):
+            v = np.zeros(model.nv)
+            v[num.columns[k]] = eps
+            moved = body.frame_positions(pin.integrate(model, q, v))[f]
+            fd.append((np.linalg.norm(moved - anchor) - np.linalg.norm(body.frame_positions(q)[f] - anchor)) / eps)
+        assert np.allclose(row.jacobian.ravel(), fd, atol=1e-4)
+        assert row.error[0] < 0  # pulled back inside
