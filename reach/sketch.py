@@ -98,7 +98,7 @@ def from_row(row: np.ndarray) -> Box:
     import pinocchio as pin
 
     rotation = pin.Quaternion(float(row[6]), float(row[7]), float(row[8]), float(row[9])).toRotationMatrix()
-    return Box(tuple(row[:3] - row[3:6]), tuple(row[:3] + row[3:6]), tuple(tuple(float(v) for v in r) for r in rotation))  # type: ignore[arg-type]
+    return Box(tuple(row[:3] - row[3:6]), tuple(row[:3] + row[3:6]), tuple(tuple(float(v) for v in r) for r in rotation))  # type: ignore[arg-type,misc]
 
 
 def layout_figure(atlases: Sequence[Any], results: dict[str, Any], path: Any, resolution: float = 0.01) -> Any:
@@ -158,7 +158,7 @@ def layout_figure(atlases: Sequence[Any], results: dict[str, Any], path: Any, re
             frame(ax, view, capsules, boxes, points)
             which = "y" if view == "side" else "z"
             ax.set_title(f"{result['name'] or atlas.path.name}: {view}, volumes at {which} = {shoulder[3 - i - j]:.2f} m (right shoulder)")
-        handles = [plt.Rectangle((0, 0), 1, 1, color=colour[n], alpha=0.6) for n in names]
+        handles: list[Any] = [plt.Rectangle((0, 0), 1, 1, color=colour[n], alpha=0.6) for n in names]
         handles.append(plt.Line2D([], [], marker="x", color="red", linestyle=""))
         axes[row, 0].legend(handles, [*names, "unreachable"], fontsize=8, loc="upper right")
     fig.tight_layout()
