@@ -227,3 +227,73 @@ def test_the_tether_row_and_its_casadi_constraint_agree_with_pinocchio_and_finit
             fd.append((np.linalg.norm(moved - anchor) - np.linalg.norm(body.frame_positions(q)[f] - anchor)) / eps)
         assert np.allclose(row.jacobian.ravel(), fd, atol=1e-4)
         assert row.error[0] < 0  # pulled back inside
+
+
+@pytest.fixture(scope="module")
+def seated_atlas(tmp_path_factory):
+    """A coarse arm-only atlas of a seated 50th-percentile man at an office chair, right hand."""
+    from reach.atlas import build_atlas
+    from reach.config import parse_config
+
+    out = tmp_path_factory.mktemp("seated") / "atlas"
+    config = {"body": seated(), "box": {"min": [-0.4, -1.0, 0.2], "max": [1.2, 0.6, 1.8]}, "depth": {"min": 2, "max": 3},
+              "oracle": {"name": "casadi-ik", "params": {"restarts": 1, "seed": 0}},
+              "strategies": [{"name": "arm", "effector": "right_hand", "joints": ARM,
+                              "tasks": [{"type": "reach"}, {"type": "obstacles", "boxes": [{"name": "desk", "min": [0.55, -0.8, 0.69], "max": [1.3, 0.8, 0.72]}]}]}]}
+    build_atlas(parse_config(config, "seated", "seated"), out)
+    return out
+
+
+def test_the_viewer_shows_the_seat_and_the_desk(seated_atlas):
+    """The viewer adds the body's furniture and the strategy's obstacles as boxes where the body says they are."""
+    from reach.store import load_atlas
+    from reach.view import Viewer
+    from tests.test_view import _free_port
+
+    atlas = load_atlas(seated_atlas)
+    v = Viewer([atlas], port=_free_port(), refine=False)
+    try:
+        boxes = {h.name.rsplit("/", 1)[-1]: h for h in v.scenes[0].furniture}
+        assert set(boxes) == {"seat_pan", "backrest", "desk"}
+        body = load_body(seated())
+        pan = next(b for b in body.furniture if b.name == "seat_pan")
+        assert np.allclose(boxes["seat_pan"].position, pan.centre) and np.allclose(boxes["desk"].position, [0.925, 0.0, 0.705])
+    finally:
+        v.close()
+
+
+def test_evaluate_at_moves_the_targets_into_the_body_and_draws_them(seated_atlas, tmp_path, capsys):
+    """--at X Y Z YAW gives the verdicts of the targets moved into the body's frame by hand; --figure writes a PNG;
+    reach model --figure draws the seated reference."""
+    import json
+
+    from reach.cli import main
+
+    layout = tmp_path / "layout.csv"
+    # The body's frame stands at (2, 1, 0) facing +y in the layout: the layout's (1.3, 1.6, 0.9) is 0.6 ahead, 0.7 right.
+    layout.write_text("name,x,y,z,effector\nahead,1.3,1.6,0.9,right_hand\nbehind,2.0,0.0,0.9,right_hand\n")
+    body_frame = tmp_path / "body.csv"
+    body_frame.write_text("name,x,y,z,effector\nahead,0.6,0.7,0.9,right_hand\nbehind,-1.0,0.0,0.9,right_hand\n")
+    assert main(["evaluate", str(seated_atlas), "--targets", str(layout), "--at", "2", "1", "0", "90", "--json", "--figure", str(tmp_path / "f.png")]) == 0
+    moved = json.loads(capsys.readouterr().out)
+    assert main(["evaluate", str(seated_atlas), "--targets", str(body_frame), "--json"]) == 0
+    direct = json.loads(capsys.readouterr().out)
+    assert [r["reachable"] for r in moved["atlases"][0]["rows"]] == [r["reachable"] for r in direct["atlases"][0]["rows"]]
+    assert [r["strategy"] for r in moved["atlases"][0]["rows"]] == [r["strategy"] for r in direct["atlases"][0]["rows"]]
+    assert not moved["atlases"][0]["rows"][1]["reachable"]  # 1 m behind the backrest
+    assert (tmp_path / "f.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_reach_model_prints_and_draws_the_fitted_seat(tmp_path, capsys):
+    import json
+    from pathlib import Path
+
+    from reach.cli import main
+
+    config = Path(__file__).resolve().parents[1] / "configs" / "examples" / "office_seated_female_p05.yaml"
+    assert main(["model", str(config), "--figure", str(tmp_path / "m.png"), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["seat"]["kind"] == "chair" and info["seat"]["back_angle"] == pytest.approx(15.0)
+    assert 0.3 < info["seat"]["height"] < 0.45  # fitted to her lower leg
+    assert {b["name"] for b in info["furniture"]} == {"seat_pan", "backrest"}
+    assert (tmp_path / "m.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
