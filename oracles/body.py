@@ -43,7 +43,7 @@ import fnmatch
 import hashlib
 import json
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from functools import cached_property
 from pathlib import Path
 from typing import Any
@@ -183,6 +183,8 @@ class Body:
         human = self.spec.get("human") or {}
         if human.get("posture") == "seated" and self.anthropometry is not None:
             seat = fit(self.anthropometry, parse_seat(human.get("seat")))
+            if seat.feet_x is not None and math.isnan(seat.feet_x):  # fitted with the legs: where the heel came to rest
+                seat = replace(seat, feet_x=round(float(info["frames"]["right_heel"][0]), 4))
             info["seat"] = {k: round(math.degrees(v), 3) if k in ("back_angle", "ankle") and v is not None else v for k, v in asdict(seat).items()}
         if self.furniture:
             info["furniture"] = [b.to_dict() for b in self.furniture]
