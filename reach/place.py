@@ -200,8 +200,8 @@ def verify(ranking: Ranking, atlases: Sequence[Atlas], targets: Sequence[Target]
 
 
 def heat_map(ranking: Ranking, targets: Sequence[Target], path: Any, title: str = "") -> Any:
-    """A figure of the floor (x, y): per position, the best share of targets reached over headings and heights,
-    the targets, and the best placement's position and heading."""
+    """A figure of the floor (x, y): per position, the best share of targets reached over headings and heights, the
+    targets, and the best placement's position and heading; or of a seat's track (x, z) when y is fixed and z is not."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -210,21 +210,30 @@ def heat_map(ranking: Ranking, targets: Sequence[Target], path: Any, title: str 
     from reach.report import _save
 
     p = ranking.placements
-    xs, ys = np.unique(p[:, 0]), np.unique(p[:, 1])
+    track = np.unique(p[:, 1]).size == 1 and np.unique(p[:, 2]).size > 1
+    a, b = (0, 2) if track else (0, 1)
+    xs, ys = np.unique(p[:, a]), np.unique(p[:, b])
     grid = np.full((len(xs), len(ys)), np.nan)
-    ix, iy = np.searchsorted(xs, p[:, 0]), np.searchsorted(ys, p[:, 1])
+    ix, iy = np.searchsorted(xs, p[:, a]), np.searchsorted(ys, p[:, b])
     np.fmax.at(grid, (ix, iy), ranking.reached)
     fig, ax = plt.subplots(figsize=(7, 6))
     image = ax.pcolormesh(xs, ys, grid.T, vmin=0.0, vmax=1.0, cmap="viridis", shading="nearest")
     t = np.array([tg.point for tg in targets])
-    ax.scatter(t[:, 0], t[:, 1], marker="x", color="red", label="targets")
-    bx, by, _, yaw = p[0]
-    ax.arrow(bx, by, 0.15 * math.cos(yaw), 0.15 * math.sin(yaw), width=0.01, color="white", length_includes_head=True)
-    ax.plot([bx], [by], "o", color="white", label=f"best: ({bx:.2f}, {by:.2f}) m, {math.degrees(yaw):.0f} deg")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_title(title or "share of targets reached, best heading per position")
+    best = p[0]
+    if track:
+        ax.plot([best[0]], [best[2]], "o", color="white", label=f"best: x {best[0]:.3f} m, z {best[2]:.3f} m")
+        ax.set_ylabel("z: the seat's height offset [m]")
+        ax.set_xlabel("x: the seat's position on its track [m]")
+        ax.set_title(title or "share of targets reached along the seat's track")
+    else:
+        bx, by, _, yaw = best
+        ax.scatter(t[:, 0], t[:, 1], marker="x", color="red", label="targets")
+        ax.arrow(bx, by, 0.15 * math.cos(yaw), 0.15 * math.sin(yaw), width=0.01, color="white", length_includes_head=True)
+        ax.plot([bx], [by], "o", color="white", label=f"best: ({bx:.2f}, {by:.2f}) m, {math.degrees(yaw):.0f} deg")
+        ax.set_aspect("equal")
+        ax.set_xlabel("x [m]")
+        ax.set_ylabel("y [m]")
+        ax.set_title(title or "share of targets reached, best heading per position")
     ax.legend(fontsize=7, loc="upper right")
     fig.colorbar(image, ax=ax, shrink=0.8, label="share of targets reached (over bodies)")
     return _save(fig, path)

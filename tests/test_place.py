@@ -133,3 +133,17 @@ def test_the_server_places_the_body(balls):
             assert c.call("health")["ok"]
     finally:
         r.stop()
+
+
+def test_a_seat_track_ranks_positions_and_heights_and_draws_them(balls, tmp_path):
+    """A seat slides on x and rises on z, no turn: three targets 0.4 m apart in z at x = 0.7 fit the arm's 0.5 m ball only
+    from z = 0.2 and x >= 0.4; the heat map is drawn on the track's (x, z)."""
+    from reach.place import heat_map
+
+    targets = [Target("a", (0.7, 0.0, 0.2), "hand"), Target("b", (0.7, 0.0, 0.6), "hand"), Target("c", (0.7, 0.0, -0.2), "hand")]
+    r = rank([balls], targets, Space((0.0, 0.6), (0.0, 0.0), (0.0, 0.4), step=0.05, yaw=(0.0, 0.0)))
+    assert r.preference[0] == 1.0 and r.reached[0] == 1.0
+    assert r.placements[0, 1] == 0.0 and r.placements[0, 3] == 0.0
+    assert r.placements[0, 2] == pytest.approx(0.2, abs=0.051) and r.placements[0, 0] >= 0.4 - 0.051
+    path = heat_map(r, targets, tmp_path / "track.png")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
