@@ -38,3 +38,23 @@ def counting():
 @pytest.fixture(scope="session")
 def unit_sphere_tree() -> VATree:
     return build_tree(OracleSpec("sphere", {"radius": 1.0}), Box([-1, -1, -1], [1, 1, 1]), 2, 6)
+
+
+@pytest.fixture
+def browser():
+    """Headless Chromium (Debian's) driven by Selenium, for the viewer's page (tests/test_view.py's constants)."""
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    from tests.test_view import CHROMIUM, DRIVER, _profile
+
+    opts = webdriver.ChromeOptions()
+    opts.binary_location = CHROMIUM
+    # As the machine's notes say: no background networking (the network is closed), software WebGL.
+    for flag in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
+                 "--disable-component-update", "--disable-sync", "--window-size=1200,800", "--use-angle=swiftshader",
+                 "--enable-unsafe-swiftshader", f"--user-data-dir={_profile()}"):
+        opts.add_argument(flag)
+    driver = webdriver.Chrome(service=Service(DRIVER), options=opts)
+    yield driver
+    driver.quit()

@@ -4,6 +4,7 @@ the buttocks held on the pan, a locked belt, and the seated arm's volume as the 
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import coal
 import numpy as np
@@ -286,7 +287,6 @@ def test_evaluate_at_moves_the_targets_into_the_body_and_draws_them(seated_atlas
 
 def test_reach_model_prints_and_draws_the_fitted_seat(tmp_path, capsys):
     import json
-    from pathlib import Path
 
     from reach.cli import main
 
@@ -297,3 +297,27 @@ def test_reach_model_prints_and_draws_the_fitted_seat(tmp_path, capsys):
     assert 0.3 < info["seat"]["height"] < 0.45  # fitted to her lower leg
     assert {b["name"] for b in info["furniture"]} == {"seat_pan", "backrest"}
     assert (tmp_path / "m.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.skipif(not Path("/usr/bin/chromium").exists(), reason="no browser (apt-get install chromium chromium-driver)")
+def test_the_page_draws_the_seat(seated_atlas, browser, tmp_path):
+    """In a real browser: with the volumes hidden, the page differs where the seat and the desk are drawn (hidden, then
+    shown); the screenshot with them is kept in $REACH_SHOTS to look at."""
+    from reach.store import load_atlas
+    from reach.view import Viewer
+    from tests.test_view import _free_port, _shot, _wait_for_page
+
+    v = Viewer([load_atlas(seated_atlas)], port=_free_port(), refine=False)
+    try:
+        _wait_for_page(browser, v)
+        v.show_strategy("arm", False)
+        for h in v.scenes[0].furniture:
+            h.visible = False
+        without = _shot(browser, "seated_without")
+        for h in v.scenes[0].furniture:
+            h.visible = True
+        with_seat = _shot(browser, "seated_with_seat")
+        changed = int((np.abs(with_seat.astype(int) - without.astype(int)).max(axis=2) > 30)[:, :760].sum())
+        assert changed > 2000
+    finally:
+        v.close()

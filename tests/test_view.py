@@ -166,23 +166,6 @@ def test_two_atlases_stand_side_by_side(atlas):
 
 
 # -- in a real browser --------------------------------------------------------
-@pytest.fixture
-def browser():
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
-
-    opts = webdriver.ChromeOptions()
-    opts.binary_location = CHROMIUM
-    # As the machine's notes say: no background networking (the network is closed), software WebGL.
-    for flag in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
-                 "--disable-component-update", "--disable-sync", "--window-size=1200,800", "--use-angle=swiftshader",
-                 "--enable-unsafe-swiftshader", f"--user-data-dir={_profile()}"):
-        opts.add_argument(flag)
-    driver = webdriver.Chrome(service=Service(DRIVER), options=opts)
-    yield driver
-    driver.quit()
-
-
 def _profile() -> str:
     import tempfile
 
