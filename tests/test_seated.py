@@ -321,3 +321,37 @@ def test_the_page_draws_the_seat(seated_atlas, browser, tmp_path):
         assert changed > 2000
     finally:
         v.close()
+
+
+def test_the_seated_arm_tree_is_the_standing_arm_tree_moved_with_the_shoulder(tmp_path):
+    """Trees (D_max 4, reach and the arm's coupling only): every point whose standing verdict holds a cell around it
+    (an interior point), moved by the clavicle's rigid motion from standing to seated, gets the same verdict from the
+    seated tree: the volumes agree within a cell."""
+    from reach.atlas import build_atlas
+    from reach.config import parse_config
+    from reach.store import load_atlas
+
+    tasks = [{"type": "reach"}, {"type": "coupling"}]
+    trees, moves = {}, {}
+    for name, body in (("stand", {"human": {"sex": "male", "percentile": 50}}), ("sit", seated("car"))):
+        oracle = CasadiIK(body, "right_hand", ARM, tasks)
+        shoulder = oracle.body.frame_positions()["right_shoulder"]
+        config = {"body": body, "box": {"min": (shoulder - 0.8).tolist(), "max": (shoulder + 0.8).tolist()}, "depth": {"min": 2, "max": 4},
+                  "oracle": {"name": "casadi-ik", "params": {"restarts": 2, "seed": 0}},
+                  "strategies": [{"name": "arm", "effector": "right_hand", "joints": ARM, "tasks": tasks}]}
+        build_atlas(parse_config(config, name, name), tmp_path / name)
+        trees[name] = load_atlas(tmp_path / name).trees["arm"]
+        data = oracle.body.model.createData()
+        pin.framesForwardKinematics(oracle.body.model, data, oracle.body.q_ref)
+        moves[name] = data.oMf[oracle.body.model.getFrameId("right_clavicle")]
+    move = moves["sit"] * moves["stand"].inverse()
+    cell = float(np.max(trees["stand"].box.hi - trees["stand"].box.lo)) / 2**4
+    rng = np.random.default_rng(11)
+    points = rng.uniform(trees["stand"].box.lo, trees["stand"].box.hi, (3000, 3))
+    inside = trees["stand"].contains(points, "vertex")
+    offsets = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float) * cell
+    interior = np.all([trees["stand"].contains(points + o, "vertex") == inside for o in offsets], axis=0)
+    moved = np.array([move.act(p) for p in points[interior]])
+    agree = trees["sit"].contains(moved, "vertex") == inside[interior]
+    assert interior.sum() > 1000 and inside[interior].any()
+    assert agree.mean() >= 0.98
