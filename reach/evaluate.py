@@ -94,8 +94,14 @@ def evaluate(atlases: list[Atlas], targets: list[Target], effector: str | None =
             if eff is None:
                 raise ConfigError("targets", t.name, f"no effector: give an effector column or --effector (one of {', '.join(selector.effectors)})")
             a = selector.select(eff, point)
+            probed = False
+            if refine and not a.reachable and a.refined == "none":
+                # No tree holds it: a thorough IK solve per strategy, by priority.
+                found = selector.probe(eff, point)
+                if found is not None:
+                    a, probed = found, True
             rows.append({"target": t.name, "effector": eff, "point": list(t.point), "strategy": a.strategy, "reachable": a.reachable,
-                         "also": list(a.alternatives), "refined": a.refined, "within": a.within,
+                         "also": list(a.alternatives), "refined": a.refined, "within": a.within, "beyond_trees": probed,
                          "nearest": None if a.nearest is None else {k: a.nearest[k] for k in ("strategy", "point", "distance")}})
         reached = sum(r["reachable"] for r in rows)
         by_strategy: dict[str, int] = {}
@@ -112,10 +118,16 @@ def text_table(results: dict[str, Any]) -> str:
     """The population table: one row per target, one column per atlas."""
     names = [a["name"] or Path(a["atlas"]).name for a in results["atlases"]]
     width = max([len("target"), *map(len, results["targets"])])
-    cols = [max(len(n), *(len(r["strategy"] or "none") for r in a["rows"])) for n, a in zip(names, results["atlases"], strict=True)]
+    cols = [max(len(n), *(len(_cell(r)) for r in a["rows"])) for n, a in zip(names, results["atlases"], strict=True)]
     lines = ["  ".join(["target".ljust(width), *(n.ljust(c) for n, c in zip(names, cols, strict=True))])]
     for i, t in enumerate(results["targets"]):
-        cells = [(a["rows"][i]["strategy"] or "none").ljust(c) for a, c in zip(results["atlases"], cols, strict=True)]
+        cells = [_cell(a["rows"][i]).ljust(c) for a, c in zip(results["atlases"], cols, strict=True)]
         lines.append("  ".join([t.ljust(width), *cells]))
     lines.append("  ".join(["reachable".ljust(width), *(f"{a['summary']['reachable']}/{a['summary']['targets']}".ljust(c) for a, c in zip(results["atlases"], cols, strict=True))]))
+    if any(r.get("beyond_trees") for a in results["atlases"] for r in a["rows"]):
+        lines.append("* no tree holds the target; a thorough IK solve (4 random restarts and the nearest stored posture) reaches it")
     return "\n".join(lines)
+
+
+def _cell(row: dict[str, Any]) -> str:
+    return (row["strategy"] or "none") + ("*" if row.get("beyond_trees") else "")

@@ -512,6 +512,27 @@ class Selector:
         return Answer(effector, tuple(goal.tolist()), name, True, tuple(others), posture, root, residual, outcome, time.perf_counter() - t0,
                       handover, within, None, fragment, index_of(tree, row) if row >= 0 else None)
 
+    def probe(self, effector: str, goal: np.ndarray, restarts: int = 4) -> Answer | None:
+        """For a goal no tree holds: the first strategy of the effector, by priority, whose thorough solve (its
+        ``"referee"`` variant, ``restarts`` random starts besides its stored posture nearest the goal) reaches it, or
+        None. Offline (``reach evaluate``): a coarse tree beside a thin obstacle (a counter's top) misses goals a
+        posture reaches; the server never probes."""
+        t0 = time.perf_counter()
+        goal = np.asarray(goal, float)
+        for name in self.strategies_for(effector):
+            tree = self.atlas.trees[name]
+            nearest = self._nearest_row(name, tree, goal.tolist())
+            hint = None if nearest is None else tree.vertices.posture[nearest[0]][None]  # type: ignore[index]
+            meta = tree.meta
+            oracle = OracleSpec.from_dict(meta["oracle"]).create()
+            thorough = oracle.variant("referee", restarts=restarts) if isinstance(oracle, Tunable) else oracle
+            v = thorough.evaluate(goal[None], hint)
+            if v.reachable[0] and v.posture is not None:
+                posture, root = split_posture(tree.vertices.posture_names, v.posture[0])
+                return Answer(effector, tuple(goal.tolist()), name, True, (), posture, root, float(v.residual[0]), REFINED,
+                              time.perf_counter() - t0)
+        return None
+
     def _limits(self, name: str, q: np.ndarray) -> list[str]:
         """The joint limits a posture of a strategy comes within ``handover`` of (none when its oracle cannot tell)."""
         oracle = self._oracle(name)

@@ -17,6 +17,7 @@ from oracles.errors import ModelError
 from oracles.ik import CasadiIK
 from oracles.search import Search
 from oracles.tasks.reach import TOLERANCE
+from reach.select import Selector
 
 ARM = ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"]
 TRUNK = [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*", "neck_*", "root", "*_hip_*", "*_knee_*", "*_ankle_*"]
@@ -355,3 +356,26 @@ def test_the_seated_arm_tree_is_the_standing_arm_tree_moved_with_the_shoulder(tm
     agree = trees["sit"].contains(moved, "vertex") == inside[interior]
     assert interior.sum() > 1000 and inside[interior].any()
     assert agree.mean() >= 0.98
+
+
+def test_evaluate_probes_targets_a_coarse_tree_misses_beside_the_desk(seated_atlas, tmp_path):
+    """Over the lap and the desk, where the coarse tree's cells (D_max 3, 20 cm) meet the body and the desk: targets no
+    tree holds are solved thoroughly by IK, marked beyond the trees, and every such verdict puts the hand on the target
+    (Pinocchio FK)."""
+    from reach.evaluate import Target, evaluate
+    from reach.store import load_atlas
+
+    atlas = load_atlas(seated_atlas)
+    tree = atlas.trees["arm"]
+    grid = np.array([[x, y, z] for x in np.arange(0.2, 0.66, 0.05) for y in (-0.5, -0.3, -0.1) for z in (0.76, 0.9)])
+    missed = grid[~tree.contains(grid, "vertex")]
+    assert len(missed) >= 3
+    result = evaluate([atlas], [Target(f"t{k}", tuple(p), "right_hand") for k, p in enumerate(missed)])
+    rows = result["atlases"][0]["rows"]
+    probed = [r for r in rows if r["beyond_trees"]]
+    assert probed and all(r["reachable"] and r["strategy"] == "arm" for r in probed)
+    body = load_body(seated())
+    for r in probed:
+        a = Selector(atlas).probe("right_hand", np.array(r["point"]))
+        q = body.configuration(a.posture, a.root)
+        assert np.linalg.norm(body.frame_positions(q)["right_hand"] - np.array(r["point"])) <= TOLERANCE + 1e-6
