@@ -32,10 +32,13 @@ from oracles.ik import CasadiIK  # noqa: E402
 from oracles.search import Search  # noqa: E402
 
 ARM = ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"]
-TRUNK = [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*", "neck_*", "root", "*_hip_*", "*_knee_*", "*_ankle_*"]
+# The examples' trunk strategies (configs/examples/*.yaml): the idle arm's shoulder and elbow move too.
+TRUNK = [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*", "neck_*", "root", "*_hip_*", "*_knee_*", "*_ankle_*",
+         "left_shoulder_flexion", "left_shoulder_abduction", "left_elbow_flexion"]
 SUPPORT = ["right_ischium", "left_ischium", "right_thigh_rest", "left_thigh_rest", "right_heel_inner", "right_heel_outer", "right_toe_inner",
            "right_toe_outer", "left_heel_inner", "left_heel_outer", "left_toe_inner", "left_toe_outer"]
-COMMON = [{"type": "balance", "margin": 0.02}, {"type": "self_collision"}, {"type": "obstacles"}, {"type": "floor"}, {"type": "coupling"}]
+COMMON = [{"type": "balance", "margin": 0.02}, {"type": "self_collision"}, {"type": "obstacles"}, {"type": "floor"}, {"type": "coupling"},
+          {"type": "hang", "frames": ["left_shoulder", "left_elbow_flexion"]}]
 LEAN = [{"type": "reach"}, {"type": "contacts", "hinge": ["right_ischium", "left_ischium"], "fixed": ["right_foot", "left_foot"], "support": SUPPORT},
         *COMMON]
 BELTED = [{"type": "reach"}, {"type": "contacts", "fixed": ["right_ischium", "left_ischium", "right_foot", "left_foot"], "support": SUPPORT},
