@@ -29,12 +29,13 @@ backrest meet, on the mid-plane. The pan's top is z = ``height`` for
 ``back_angle``.
 
 The seated reference posture (a modelling choice): the trunk lies against
-the backrest (reclined by ``back_angle``, its back on the backrest's plane),
-the buttocks rest on the pan (the lowest of the pelvis's and thighs'
-capsules touches it), the thighs run level, forward, at hip width, the
-shanks fall to the feet (or reach the heel point, knees up), the head is
-upright, the upper arms hang 11 deg forward of vertical with the forearms
-level over the lap, the elbows 11 deg out. Frames added: ``right_ischium``/``left_ischium`` on the
+the backrest (reclined by ``back_angle``, the nearest of its capsules
+touching the backrest's face), the buttocks rest on the pan (the lowest of
+the pelvis's and thighs' capsules touches it), the thighs run level,
+forward, at hip width, the shanks fall to the feet (or reach the heel
+point, knees up), the head is upright, the upper arms hang 11 deg forward
+of vertical with the forearms level over the lap, the elbows 11 deg out.
+Frames added: ``right_ischium``/``left_ischium`` on the
 pan below each hip joint centre (the pelvis's contact with the seat),
 ``right_thigh_rest``/``left_thigh_rest`` under the thighs near the pan's
 front edge, ``sternum`` on the chest's front on the mid-plane (where a
