@@ -157,7 +157,7 @@ def layout_figure(atlases: Sequence[Any], results: dict[str, Any], path: Any, re
                     ax.scatter([p[i]], [p[j]], s=50, marker="x", color="red", zorder=6)
             frame(ax, view, capsules, boxes, points)
             which = "y" if view == "side" else "z"
-            ax.set_title(f"{result['name'] or atlas.path.name}: {view}, volumes at {which} = {shoulder[3 - i - j]:.2f} m (right shoulder)")
+            ax.set_title(f"{result['name'] or atlas.path.name}: {view}, volumes at {which} = {shoulder[3 - i - j]:.2f} m (right shoulder)", fontsize=9)
         handles: list[Any] = [plt.Rectangle((0, 0), 1, 1, color=colour[n], alpha=0.6) for n in names]
         handles.append(plt.Line2D([], [], marker="x", color="red", linestyle=""))
         axes[row, 0].legend(handles, [*names, "unreachable"], fontsize=8, loc="upper right")
