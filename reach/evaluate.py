@@ -125,7 +125,7 @@ def text_table(results: dict[str, Any]) -> str:
         lines.append("  ".join([t.ljust(width), *cells]))
     lines.append("  ".join(["reachable".ljust(width), *(f"{a['summary']['reachable']}/{a['summary']['targets']}".ljust(c) for a, c in zip(results["atlases"], cols, strict=True))]))
     if any(r.get("beyond_trees") for a in results["atlases"] for r in a["rows"]):
-        lines.append("* no tree holds the target; a thorough IK solve (4 random restarts and the nearest stored posture) reaches it")
+        lines.append("* no tree holds the target; a thorough IK solve (8 random restarts and the nearest stored posture) reaches it")
     return "\n".join(lines)
 
 

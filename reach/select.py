@@ -512,7 +512,7 @@ class Selector:
         return Answer(effector, tuple(goal.tolist()), name, True, tuple(others), posture, root, residual, outcome, time.perf_counter() - t0,
                       handover, within, None, fragment, index_of(tree, row) if row >= 0 else None)
 
-    def probe(self, effector: str, goal: np.ndarray, restarts: int = 4) -> Answer | None:
+    def probe(self, effector: str, goal: np.ndarray, restarts: int = 8) -> Answer | None:
         """For a goal no tree holds: the first strategy of the effector, by priority, whose thorough solve (its
         ``"referee"`` variant, ``restarts`` random starts besides its stored posture nearest the goal) reaches it, or
         None. Offline (``reach evaluate``): a coarse tree beside a thin obstacle (a counter's top) misses goals a
