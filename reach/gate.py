@@ -82,6 +82,7 @@ class Gate:
             ready.set()
             if not failure:
                 self.loop.run_forever()
+            self.loop.close()
 
         self.thread = threading.Thread(target=run, name="reach-gate", daemon=True)
         self.thread.start()
@@ -114,8 +115,14 @@ class Gate:
 
     def close(self) -> None:
         async def stop() -> None:
+            # Open connections' pipes are cancelled and awaited here, so none is
+            # left to close its socket on a loop that has gone.
             if self._server is not None:
                 self._server.close()
+            pending = [t for t in asyncio.all_tasks() if t is not asyncio.current_task()]
+            for task in pending:
+                task.cancel()
+            await asyncio.gather(*pending, return_exceptions=True)
 
         if self.loop.is_running():
             asyncio.run_coroutine_threadsafe(stop(), self.loop).result(timeout=5)

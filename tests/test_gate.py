@@ -53,3 +53,24 @@ def test_a_connection_passes_through_to_the_server_behind_or_is_refused():
     finally:
         gate.close()
         upstream.shutdown()
+        upstream.server_close()
+
+
+def test_closing_the_gate_ends_the_connections_still_open():
+    """A connection left open through the gate (a viewer's WebSocket) is cut when the gate closes: its pipes end
+    on the gate's own loop, which then closes, so nothing is left to run on a loop that has gone."""
+    upstream = socket.create_server(("127.0.0.1", 0))
+    gate = Gate("127.0.0.1", 18800, upstream.getsockname()[1])
+    client = socket.create_connection(("127.0.0.1", gate.port), timeout=10)
+    try:
+        client.sendall(head(f"127.0.0.1:{gate.port}"))
+        behind, _ = upstream.accept()
+        behind.settimeout(10)
+        assert behind.recv(4096).startswith(b"GET / HTTP/1.1")  # the connection is open through the gate
+        gate.close()
+        assert not gate.thread.is_alive() and gate.loop.is_closed()
+        assert client.recv(4096) == b"" and behind.recv(4096) == b""  # both ends see the gate hang up
+        behind.close()
+    finally:
+        client.close()
+        upstream.close()
