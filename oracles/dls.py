@@ -33,9 +33,19 @@ from oracles.tasks import Numeric, Row
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
 
-def damped_pinv(jac: np.ndarray, damping: float) -> np.ndarray:
-    """J^T (J J^T + lambda^2 I)^-1 of a (m, n) Jacobian."""
-    return jac.T @ np.linalg.inv(jac @ jac.T + (damping**2) * np.eye(jac.shape[0]))  # type: ignore[no-any-return]
+RCOND = 1e-8  # singular values below this share of the largest span no direction of a projector (numpy's pinv rcond)
+
+
+def damped_solve(jac: np.ndarray, err: np.ndarray, damping: float) -> tuple[np.ndarray, np.ndarray]:
+    """J^T (J J^T + lambda^2 I)^-1 err of a (m, n) Jacobian, and the rows (r, n) spanning J's row space.
+
+    One SVD J = U S V^T gives both: the damped step V S (S^2 + lambda^2)^-1 U^T err,
+    and the exact projector pinv(J) J = V_r V_r^T for the next level's null space.
+    """
+    u, s, vt = np.linalg.svd(jac, full_matrices=False)
+    step = vt.T @ (s / (s**2 + damping**2) * (u.T @ err))
+    rank = int((s > RCOND * s[0]).sum()) if s.size else 0
+    return step, vt[:rank]
 
 
 HELD = 1e-5  # [m or rad] project's rows: well within the contacts' checks (0.1 mm, 1 mrad; oracles/tasks/contacts.py)
@@ -96,12 +106,13 @@ class DLSIK(IKOracle):
         n = self.cols.size
         proj = np.diag(free.astype(float))
         dq = np.zeros(n)
-        for jac, err in levels:
-            jp = jac @ proj
-            dq = dq + damped_pinv(jp, self.damping) @ (err - jac @ dq)
-            # The projector uses the exact pseudo-inverse: a damped one would
-            # leak lower tasks into the higher ones' space.
-            proj = proj - np.linalg.pinv(jp, rcond=1e-8) @ jp
+        for k, (jac, err) in enumerate(levels):
+            step, span = damped_solve(jac @ proj, err - jac @ dq, self.damping)
+            dq = dq + step
+            if k < len(levels) - 1:
+                # The projector uses the exact pseudo-inverse: a damped one would
+                # leak lower tasks into the higher ones' space.
+                proj = proj - span.T @ span
         return dq
 
     def _iterate(self, q: np.ndarray, goal: np.ndarray, soft: int, max_iter: int, call: Call, tol: float | None = None) -> np.ndarray:

@@ -274,9 +274,9 @@ class ReachProblem:
 
     def out_of_limits(self, q: np.ndarray) -> list[str]:
         """The posture coordinates of q outside their ranges (beyond the verdict's tolerance), by name."""
-        model, names = self.body.model, self.body.q_names
-        bad = (q[7:] < model.lowerPositionLimit[7:] - LIMIT_TOL) | (q[7:] > model.upperPositionLimit[7:] + LIMIT_TOL)
-        return [names[7 + k] for k in np.nonzero(bad)[0]]
+        model = self.body.model
+        bad = np.nonzero((q[7:] < model.lowerPositionLimit[7:] - LIMIT_TOL) | (q[7:] > model.upperPositionLimit[7:] + LIMIT_TOL))[0]
+        return [self.body.q_names[7 + k] for k in bad] if bad.size else []
 
     def check(self, q: np.ndarray, goal: np.ndarray, data: pin.Data | None = None, aim: np.ndarray | None = None) -> Check:
         """Independent Pinocchio check of a posture: each task's own check, and the joint limits (aim: the
