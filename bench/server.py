@@ -306,22 +306,34 @@ def _batch(address: str, goals: np.ndarray, deadline: float = 3600) -> zmq.Socke
     return sock
 
 
+def mixed(address: str, stored: list[bytes], workers: int) -> None:
+    """Stored answers alone, then while 2 client processes ask for refined postures, from a server with ``workers``."""
+    alone = latencies([address], stored[:1000])[0]
+    # The refining clients are processes of their own: threads here would
+    # share this process's interpreter lock with the client being measured.
+    refiners = [subprocess.Popen([sys.executable, "-c", REFINER, address, str(k)]) for k in range(2)]
+    time.sleep(1.0)
+    loaded = latencies([address], stored[:1000])[0]
+    for proc in refiners:
+        proc.kill()
+        proc.wait()
+    a, b = stats(f"stored_alone_{workers}_workers", alone), stats(f"stored_while_2_clients_refine_{workers}_workers", loaded)
+    emit(bench="goals", workers=workers, mixed_p99_ms=round(b["p99"], 4), mixed_over_alone_p99=round(b["p99"] / a["p99"], 3))
+
+
 def workers_bench(atlas: Path, goals: np.ndarray, stored: list[bytes]) -> None:
     health = json.dumps({"op": "health"}).encode()
+    server, address = serve(atlas, 1)
+    try:
+        _ready(address)
+        mixed(address, stored, 1)
+    finally:
+        server.terminate()
+        server.wait()
     server, address = serve(atlas, 2)
     try:
         _ready(address)
-        alone = latencies([address], stored[:1000])[0]
-        # The refining clients are processes of their own: threads here would
-        # share this process's interpreter lock with the client being measured.
-        refiners = [subprocess.Popen([sys.executable, "-c", REFINER, address, str(k)]) for k in range(2)]
-        time.sleep(1.0)
-        loaded = latencies([address], stored[:1000])[0]
-        for proc in refiners:
-            proc.kill()
-            proc.wait()
-        a, b = stats("stored_alone_workers", alone), stats("stored_while_2_clients_refine", loaded)
-        emit(bench="goals", mixed_p99_ms=round(b["p99"], 4), mixed_over_alone_p99=round(b["p99"] / a["p99"], 3))
+        mixed(address, stored, 2)
         refined = [json.dumps({"op": "query", "id": i, "effector": "right_hand", "goal": g.tolist()}).encode() for i, g in enumerate(goals[:300])]
         single_alone = latencies([address], refined)[0]
         huge = _batch(address, np.tile(goals, (1 + 10_000 // len(goals), 1))[:10_000])

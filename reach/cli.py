@@ -284,7 +284,9 @@ def cmd_serve(args: argparse.Namespace) -> int:
     from reach.server import Server
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    workers = (os.cpu_count() or 1) if args.workers is None else args.workers
+    # One core is left to the request loop: on 2 cores the stored answers' p99 under refinement
+    # load was 0.52-0.80 ms with one worker, 0.61-1.44 ms with two (bench/server.py; README, Benchmarks).
+    workers = max(1, (os.cpu_count() or 1) - 1) if args.workers is None else args.workers
     if workers < 0:
         raise InputError("--workers", f"expected 0 or more worker processes, got {workers}")
     server = Server(args.atlas, args.bind, None if args.pub == "none" else args.pub, policy=args.policy,
@@ -635,7 +637,7 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--budget-ms", type=float, default=REFINE_BUDGET * 1000, help=f"time budget of one IK refinement [ms] (default {REFINE_BUDGET * 1000:g})")
     p.add_argument("--curve-secret-key", metavar="FILE", help="encrypt with CURVE, using this server secret-key file (zmq.auth.create_certificates)")
     p.add_argument("--curve-clients", metavar="DIR", help="with --curve-secret-key: let in only the clients whose public-key files (*.key) are in DIR")
-    p.add_argument("--workers", type=int, metavar="N", help="refinement worker processes (default: all cores; 0 refines in the request loop)")
+    p.add_argument("--workers", type=int, metavar="N", help="refinement worker processes (default: one fewer than the cores, at least 1; 0 refines in the request loop)")
     p.add_argument("--chunk", type=int, default=P.CHUNK_GOALS, metavar="N",
                    help=f"goals per worker task at most (default {P.CHUNK_GOALS}): smaller shares the workers more finely between clients")
     p.add_argument("--allow-reload", metavar="ROOT", help="let clients 'reload' atlases from folders under ROOT (default: reload is refused)")
