@@ -73,6 +73,8 @@ EDGE_STEP = 0.1  # [rad] posture distance between the checked postures of a rout
 NEIGHBOURS = 10  # stored vertices each one links to in the routing graph
 ENTRIES = 12  # stored vertices tried as the route's first and last waypoints
 ROUNDS = 100  # shortest paths tried before the route is given up
+FINE = 128  # postures sampled along a path to measure the hand's path and time it
+POSTURE_SHARE = 0.1  # the posture path's share in a motion's progress (a modelling choice: the rest is the hand's path)
 REACHED, NEAREST = "reached", "nearest"
 MOTION_MISSES = ("nearest", "error")
 
@@ -294,28 +296,39 @@ class Planner:
         the direct path if its frames can be held, else the route through stored postures."""
         for routed in (False, True):
             waypoints = self._route(name, oracle, q0, q1) if routed else [q0, q1]
-            timed = self._timed(oracle, names, waypoints, rate, timing)
-            held = self._hold_path(oracle, timed[0])
-            if held is not None:
-                return (held[0], timed[1], timed[2]), len(waypoints) - 2, held[1]
+            # Timed by the hand's path first; by the posture's path when that cannot be held (the body then moves
+            # most where the hand moves least, which holding may not follow).
+            for by_hand in (True, False):
+                timed = self._timed(oracle, names, waypoints, rate, timing, by_hand)
+                held = self._hold_path(oracle, timed[0])
+                if held is not None:
+                    return (held[0], timed[1], timed[2]), len(waypoints) - 2, held[1]
         raise MotionError(f"no motion of strategy {name} found that holds every task at every frame")
 
     def _timed(self, oracle: Body, names: tuple[str, ...], waypoints: list[np.ndarray], rate: float,
-               timing: Timing) -> tuple[np.ndarray, np.ndarray, dict[str, float]]:
-        """Frames k / rate apart along the waypoints, minimum-jerk timed over their posture length, and the duration's parts."""
+               timing: Timing, by_hand: bool = True) -> tuple[np.ndarray, np.ndarray, dict[str, float]]:
+        """Frames k / rate apart along the waypoints, timed by minimum jerk along the hand's path (``by_hand``)
+        or the posture's, and the duration's parts."""
         # The hand's path length and the root's excursion, on a fine sampling of the path.
-        fine = self._along(oracle, waypoints, np.linspace(0.0, 1.0, 64))
+        along = np.linspace(0.0, 1.0, FINE)
+        fine = self._along(oracle, waypoints, along)
         hand = np.asarray(oracle.effector_positions(fine))
+        steps = np.linalg.norm(np.diff(hand, axis=0), axis=1)
         drop = tilt = lift = 0.0
         if "root_z" in names and "root_qx" in names:
             z, quat = fine[:, names.index("root_z")], fine[:, names.index("root_qx") : names.index("root_qx") + 4]
             drop, lift = max(0.0, float(z[0] - z.min())), max(0.0, float(z.max() - z[0]))
             dots = np.abs(quat @ quat[0]) / np.linalg.norm(quat, axis=1) / np.linalg.norm(quat[0])
             tilt = float(2.0 * np.arccos(np.clip(dots.min(), -1.0, 1.0)))
-        seconds, parts = timing.seconds(float(np.linalg.norm(np.diff(hand, axis=0), axis=1).sum()), drop, tilt, lift)
+        seconds, parts = timing.seconds(float(steps.sum()), drop, tilt, lift)
         frames = max(1, int(math.ceil(seconds * rate - 1e-9)))  # the law's duration, rounded up to a whole frame
         times = np.arange(frames + 1) / rate
-        return self._along(oracle, waypoints, minimum_jerk(times / times[-1])), times, parts
+        # Minimum jerk is a law of the hand's path (Flash and Hogan 1985): progress is the share of the hand's path
+        # covered, with a little of the posture's share so that a stretch where the hand stays still takes time too.
+        progress = along
+        if by_hand and steps.sum() > 0.0:
+            progress = (1.0 - POSTURE_SHARE) * np.concatenate([[0.0], np.cumsum(steps)]) / steps.sum() + POSTURE_SHARE * along
+        return self._along(oracle, waypoints, np.interp(minimum_jerk(times / times[-1]), progress, along)), times, parts
 
     @staticmethod
     def _along(oracle: Body, waypoints: list[np.ndarray], s: np.ndarray) -> np.ndarray:
