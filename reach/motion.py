@@ -74,6 +74,8 @@ NEIGHBOURS = 10  # stored vertices each one links to in the routing graph
 ENTRIES = 12  # stored vertices tried as the route's first and last waypoints
 ROUNDS = 100  # shortest paths tried before the route is given up
 FINE = 128  # postures sampled along a path to measure the hand's path and time it
+BLEND = 0.4  # share of each segment beside an inner waypoint that its rounded corner takes (under half: corners never overlap)
+BLEND_SAMPLES = 9  # postures along each rounded corner
 POSTURE_SHARE = 0.1  # the posture path's share in a motion's progress (a modelling choice: the rest is the hand's path)
 REACHED, NEAREST = "reached", "nearest"
 MOTION_MISSES = ("nearest", "error")
@@ -295,14 +297,15 @@ class Planner:
         """Frames (postures, times, the duration's parts), the stored postures routed through and the frames held:
         the direct path if its frames can be held, else the route through stored postures."""
         for routed in (False, True):
-            waypoints = self._route(name, oracle, q0, q1) if routed else [q0, q1]
+            route = self._route(name, oracle, q0, q1) if routed else [q0, q1]
             # Timed by the hand's path first; by the posture's path when that cannot be held (the body then moves
             # most where the hand moves least, which holding may not follow).
-            for by_hand in (True, False):
-                timed = self._timed(oracle, names, waypoints, rate, timing, by_hand)
-                held = self._hold_path(oracle, timed[0])
-                if held is not None:
-                    return (held[0], timed[1], timed[2]), len(waypoints) - 2, held[1]
+            for waypoints in ([self._rounded(oracle, route)] if len(route) > 2 else []) + [route]:
+                for by_hand in (True, False):
+                    timed = self._timed(oracle, names, waypoints, rate, timing, by_hand)
+                    held = self._hold_path(oracle, timed[0])
+                    if held is not None:
+                        return (held[0], timed[1], timed[2]), len(route) - 2, held[1]
         raise MotionError(f"no motion of strategy {name} found that holds every task at every frame")
 
     def _timed(self, oracle: Body, names: tuple[str, ...], waypoints: list[np.ndarray], rate: float,
@@ -439,6 +442,20 @@ class Planner:
         no coordinate more than ``HOLD_STEP`` (a larger change would be a jump between frames)."""
         fixed = oracle.hold(q, before)
         return None if fixed is None or np.abs(fixed - q).max() > HOLD_STEP else fixed
+
+    @staticmethod
+    def _rounded(oracle: Body, waypoints: list[np.ndarray]) -> list[np.ndarray]:
+        """The waypoints with each inner corner replaced by a quadratic Bezier curve on the configuration space
+        (de Casteljau with the body's interpolation) from ``BLEND`` of the way back along its incoming segment
+        to ``BLEND`` along its outgoing one, the waypoint its control point: the path's direction turns smoothly."""
+        out = [waypoints[0]]
+        for before, corner, after in zip(waypoints[:-2], waypoints[1:-1], waypoints[2:], strict=True):
+            share = np.array([BLEND])
+            a, b = oracle.interpolate(corner, before, share)[0], oracle.interpolate(corner, after, share)[0]
+            for t in np.linspace(0.0, 1.0, BLEND_SAMPLES)[:, None]:
+                out.append(oracle.interpolate(oracle.interpolate(a, corner, t)[0], oracle.interpolate(corner, b, t)[0], t)[0])
+        out.append(waypoints[-1])
+        return out
 
     def _shorten(self, oracle: Body, waypoints: list[np.ndarray]) -> list[np.ndarray]:
         """Drop every waypoint that a direct segment between its neighbours can skip (greedy, farthest first)."""

@@ -153,6 +153,34 @@ def test_a_reach_across_the_body_avoids_the_collision_of_direct_interpolation(pl
     assert held is not None and not any(oracle.faults(held[0]))
 
 
+def largest_turn(path: np.ndarray) -> float:
+    """The largest angle [deg] between the hand's consecutive moves of more than 0.1 mm."""
+    v = np.diff(path, axis=0)
+    n = np.linalg.norm(v, axis=1)
+    moving = (n[:-1] > 1e-4) & (n[1:] > 1e-4)
+    cos = np.sum(v[:-1] * v[1:], axis=1)[moving] / (n[:-1] * n[1:])[moving]
+    return float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))).max())
+
+
+def test_a_routes_corners_are_rounded_and_still_hold(planner, body):
+    """Through a stored posture the hand would turn at once; the rounded route turns it over several frames,
+    and its frames, held, break nothing."""
+    goal = np.array([0.08, 0.18, 0.75])
+    m = planner.plan("right_hand", goal)
+    oracle = planner.body(m.strategy)
+    route = planner._route(m.strategy, oracle, m.postures[0], m.postures[-1])
+    assert len(route) > 2  # the precondition: a corner to round
+    rounded = planner._rounded(oracle, route)
+    assert np.array_equal(rounded[0], route[0]) and np.array_equal(rounded[-1], route[-1])
+    turns = []
+    for waypoints in (route, rounded):
+        frames = planner._timed(oracle, m.names, waypoints, 30.0, Timing())[0]
+        held = planner._hold_path(oracle, frames)
+        assert held is not None and not any(oracle.faults(held[0]))
+        turns.append(largest_turn(np.asarray(oracle.effector_positions(held[0]))))
+    assert turns[1] < 0.8 * turns[0], turns  # here 50 -> 36 deg
+
+
 def test_the_same_request_gives_the_same_frames(planner):
     a = planner.plan("right_hand", [0.4, -0.3, 1.0], rate=60)
     b = planner.plan("right_hand", [0.4, -0.3, 1.0], rate=60)
