@@ -70,6 +70,7 @@ BUDGET = 0.25  # [s] the end posture's refinement budget: a motion is not a 50 H
 HOLD_STEP = 0.25  # [rad or m] a frame that holding moves more than this (any coordinate) leaves the path: it is routed instead
 JUMP = 2.0  # a held path whose largest step between frames is this many times the unheld path's has a jump: it is routed instead
 EDGE_STEP = 0.1  # [rad] posture distance between the checked postures of a routed segment
+EDGE_HOLD = 0.05  # [rad or m] a routed segment's checked posture that holding moves more than this would jump between frames
 NEIGHBOURS = 10  # stored vertices each one links to in the routing graph
 ENTRIES = 12  # stored vertices tried as the route's first and last waypoints
 ROUNDS = 100  # shortest paths tried before the route is given up
@@ -376,8 +377,9 @@ class Planner:
         kd, postures, _, graph = self._graph(name)
         graph = graph.tolil()
         ends = np.asarray(oracle.effector_positions(np.stack([q0, q1])))
-        firsts = self._entries(kd, postures, ends[0], q0, oracle, first=True)
-        lasts = self._entries(kd, postures, ends[1], q1, oracle, first=False)
+        # The route's ends link by segments held as closely as its inner ones, or failing that as closely as frames are.
+        firsts = self._entries(kd, postures, ends[0], q0, oracle, True) or self._entries(kd, postures, ends[0], q0, oracle, True, HOLD_STEP)
+        lasts = self._entries(kd, postures, ends[1], q1, oracle, False) or self._entries(kd, postures, ends[1], q1, oracle, False, HOLD_STEP)
         if not firsts or not lasts:
             raise MotionError(f"no motion of strategy {name} found: no stored posture near the start or the end links to it")
         good: set[tuple[int, int]] = set()
@@ -402,28 +404,31 @@ class Planner:
             graph[broken[0], broken[1]] = graph[broken[1], broken[0]] = 0.0  # lil: an explicit zero removes the edge
         raise MotionError(f"no motion of strategy {name} found through its stored postures that holds every task")
 
-    def _entries(self, kd: cKDTree, postures: np.ndarray, point: np.ndarray, q: np.ndarray, oracle: Body, first: bool) -> list[int]:
+    def _entries(self, kd: cKDTree, postures: np.ndarray, point: np.ndarray, q: np.ndarray, oracle: Body, first: bool,
+                 limit: float = EDGE_HOLD) -> list[int]:
         """Stored vertices near ``point`` linked to ``q`` by a segment that holds (from q when ``first``, else to it),
         nearest in posture first: one for the route's start, up to three for its end."""
         _, near = kd.query(point, k=min(ENTRIES, len(postures)))
         near = sorted(np.atleast_1d(near).tolist(), key=lambda i: float(np.linalg.norm(postures[i] - q)))
-        linked = (i for i in near if (self._clear(oracle, q, postures[i]) if first else self._clear(oracle, postures[i], q)))
+        linked = (i for i in near if (self._clear(oracle, q, postures[i], limit) if first else self._clear(oracle, postures[i], q, limit)))
         return list(itertools.islice(linked, 1 if first else 3))
 
-    def _clear(self, oracle: Body, a: np.ndarray, b: np.ndarray) -> bool:
+    def _clear(self, oracle: Body, a: np.ndarray, b: np.ndarray, limit: float = EDGE_HOLD) -> bool:
         """Whether the segment a -> b holds every task at postures ``EDGE_STEP`` apart (see ``_hold_path``)."""
         n = max(3, int(math.ceil(np.linalg.norm(b - a) / EDGE_STEP)) + 1)
-        return self._hold_path(oracle, oracle.interpolate(a, b, np.linspace(0.0, 1.0, n))) is not None
+        # Its checked postures are farther apart than frames: a hold that passes the jump test here may fail it
+        # at the frames' steps, so it may move a posture less.
+        return self._hold_path(oracle, oracle.interpolate(a, b, np.linspace(0.0, 1.0, n)), limit) is not None
 
-    def _hold_path(self, oracle: Body, postures: np.ndarray) -> tuple[np.ndarray, int] | None:
+    def _hold_path(self, oracle: Body, postures: np.ndarray, limit: float = HOLD_STEP) -> tuple[np.ndarray, int] | None:
         """The postures with each inner one that breaks a task held (and how many), or None when one cannot
-        be held, or holding makes a jump: a frame moved more than ``HOLD_STEP``, or a step between frames
+        be held, or holding makes a jump: a frame moved more than ``limit``, or a step between frames
         ``JUMP`` times the largest before."""
         out, held = postures.copy(), 0
         for k, broken in enumerate(oracle.faults(postures)):
             if not broken or k in (0, len(postures) - 1):
                 continue
-            fixed = self._held(oracle, postures[k], (postures[k - 1], out[k - 1]))
+            fixed = self._held(oracle, postures[k], (postures[k - 1], out[k - 1]), limit)
             if fixed is None:
                 return None
             out[k], held = fixed, held + 1
@@ -437,11 +442,11 @@ class Planner:
         return float(np.abs(np.diff(postures, axis=0)).max()) if len(postures) > 1 else 0.0
 
     @staticmethod
-    def _held(oracle: Body, q: np.ndarray, before: tuple[np.ndarray, np.ndarray]) -> np.ndarray | None:
+    def _held(oracle: Body, q: np.ndarray, before: tuple[np.ndarray, np.ndarray], limit: float) -> np.ndarray | None:
         """The oracle's hold of a posture that breaks a task (it holds every task, by the protocol), when it moves
-        no coordinate more than ``HOLD_STEP`` (a larger change would be a jump between frames)."""
+        no coordinate more than ``limit`` (a larger change would be a jump between frames)."""
         fixed = oracle.hold(q, before)
-        return None if fixed is None or np.abs(fixed - q).max() > HOLD_STEP else fixed
+        return None if fixed is None or np.abs(fixed - q).max() > limit else fixed
 
     @staticmethod
     def _rounded(oracle: Body, waypoints: list[np.ndarray]) -> list[np.ndarray]:
