@@ -285,7 +285,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     # One core is left to the request loop: on 2 cores the stored answers' p99 under refinement
-    # load was 0.52-0.80 ms with one worker, 0.61-1.44 ms with two (bench/server.py; README, Benchmarks).
+    # load was 0.52-0.80 ms with one worker, 0.61-1.78 ms with two (bench/server.py; README, Benchmarks).
     workers = max(1, (os.cpu_count() or 1) - 1) if args.workers is None else args.workers
     if workers < 0:
         raise InputError("--workers", f"expected 0 or more worker processes, got {workers}")

@@ -20,7 +20,8 @@ postural data in each reachable node of the tree" as future work (section
    tree's reachable vertices (the paper's stored postural data): a shortest
    path over neighbouring vertices in posture distance, edges checked
    lazily, then shortened by dropping every waypoint a direct segment can
-   skip.
+   skip, its corners rounded (quadratic Bezier curves on the configuration
+   space) where the rounded frames can be held.
 3. **The duration** follows MTM-1 (Maynard, Stegemerten & Schwab 1948,
    Methods-Time Measurement, McGraw-Hill; the MTM Association's MTM-1 data
    card): the reach table's case A (an object in a fixed location) for the
@@ -29,9 +30,10 @@ postural data in each reachable node of the tree" as future work (section
    motion (FM, 8.5 TMU) when it rises onto the toes. MTM-1 counts them one
    after the other; here they share the frames, as a person's overlap.
 4. **The timing** is minimum jerk (Flash & Hogan 1985, J Neurosci
-   5(7):1688-1703): the path parameter s(t) = 10 u^3 - 15 u^4 + 6 u^5,
-   u = t / T, so the hand's speed is bell-shaped with its peak near the
-   middle of the motion.
+   5(7):1688-1703) along the hand's path: the share of the path covered
+   (the hand's, with a tenth of the posture's) is s(t) = 10 u^3 - 15 u^4 +
+   6 u^5, u = t / T, so the hand's speed is bell-shaped with its peak near
+   the middle of the motion.
 
 Frames are in the atlas's world frame: metres, radians, the model's joint names.
 """
@@ -40,6 +42,7 @@ from __future__ import annotations
 
 import itertools
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass, fields
 from typing import Any, Protocol, runtime_checkable
 
@@ -302,17 +305,21 @@ class Planner:
             # Timed by the hand's path first; by the posture's path when that cannot be held (the body then moves
             # most where the hand moves least, which holding may not follow).
             for waypoints in ([self._rounded(oracle, route)] if len(route) > 2 else []) + [route]:
-                for by_hand in (True, False):
-                    timed = self._timed(oracle, names, waypoints, rate, timing, by_hand)
+                for timed in self._timings(oracle, names, waypoints, rate, timing):
                     held = self._hold_path(oracle, timed[0])
                     if held is not None:
                         return (held[0], timed[1], timed[2]), len(route) - 2, held[1]
         raise MotionError(f"no motion of strategy {name} found that holds every task at every frame")
 
     def _timed(self, oracle: Body, names: tuple[str, ...], waypoints: list[np.ndarray], rate: float,
-               timing: Timing, by_hand: bool = True) -> tuple[np.ndarray, np.ndarray, dict[str, float]]:
-        """Frames k / rate apart along the waypoints, timed by minimum jerk along the hand's path (``by_hand``)
-        or the posture's, and the duration's parts."""
+               timing: Timing) -> tuple[np.ndarray, np.ndarray, dict[str, float]]:
+        """Frames k / rate apart along the waypoints, timed by minimum jerk along the hand's path, and the duration's parts."""
+        return next(self._timings(oracle, names, waypoints, rate, timing))
+
+    def _timings(self, oracle: Body, names: tuple[str, ...], waypoints: list[np.ndarray], rate: float,
+                 timing: Timing) -> Iterator[tuple[np.ndarray, np.ndarray, dict[str, float]]]:
+        """The frames of :meth:`_timed`, then the same path's frames timed by minimum jerk along the posture's path
+        alone, both from one sampling of the path."""
         # The hand's path length and the root's excursion, on a fine sampling of the path.
         along = np.linspace(0.0, 1.0, FINE)
         fine = self._along(oracle, waypoints, along)
@@ -329,10 +336,11 @@ class Planner:
         times = np.arange(frames + 1) / rate
         # Minimum jerk is a law of the hand's path (Flash and Hogan 1985): progress is the share of the hand's path
         # covered, with a little of the posture's share so that a stretch where the hand stays still takes time too.
-        progress = along
-        if by_hand and steps.sum() > 0.0:
+        share = minimum_jerk(times / times[-1])
+        if steps.sum() > 0.0:
             progress = (1.0 - POSTURE_SHARE) * np.concatenate([[0.0], np.cumsum(steps)]) / steps.sum() + POSTURE_SHARE * along
-        return self._along(oracle, waypoints, np.interp(minimum_jerk(times / times[-1]), progress, along)), times, parts
+            yield self._along(oracle, waypoints, np.interp(share, progress, along)), times, parts
+        yield self._along(oracle, waypoints, share), times, parts
 
     @staticmethod
     def _along(oracle: Body, waypoints: list[np.ndarray], s: np.ndarray) -> np.ndarray:
