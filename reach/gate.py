@@ -10,13 +10,21 @@ given, with its port) and ``Origin``, when the browser sends one, is that
 same ``http://`` address. Anything else gets ``403 Forbidden``. A browser
 keeps a connection to one host, and opens a WebSocket on a connection of
 its own, so the first request speaks for the connection.
+
+The server behind the gate listens on a loopback port of its own, which a
+rebound name reaches as well as the gate's. :func:`guarded_websockets` makes
+that port check every request too, against the gate's names: only a
+connection the gate passed on (its ``Host`` is the gate's) gets through, so
+the gate is the only door.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import threading
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable, Iterator
+from typing import Any
 
 HEAD_LIMIT = 64 * 1024  # [bytes] a request head longer than this is refused
 HEAD_SECONDS = 10.0  # [s] a client that sends no complete head in this time is dropped
@@ -38,6 +46,11 @@ def verdict(head: bytes, hosts: Iterable[str]) -> str | None:
     for line in head.split(b"\r\n")[1:]:
         name, _, value = line.partition(b":")
         fields[name.strip().lower().decode("latin-1")] = value.strip().decode("latin-1")
+    return fields_verdict(fields, hosts)
+
+
+def fields_verdict(fields: dict[str, str], hosts: Iterable[str]) -> str | None:
+    """:func:`verdict` of header fields already parsed (names in lower case)."""
     hosts = set(hosts)
     host = fields.get("host", "")
     if host.lower() not in hosts:
@@ -128,6 +141,48 @@ class Gate:
             asyncio.run_coroutine_threadsafe(stop(), self.loop).result(timeout=5)
             self.loop.call_soon_threadsafe(self.loop.stop)
         self.thread.join(timeout=5)
+
+
+_PATCH = threading.Lock()  # one guarded server starts at a time: the patch below is process-wide while it does
+
+
+@contextlib.contextmanager
+def guarded_websockets(hosts: Callable[[], Iterable[str]]) -> Iterator[list[int]]:
+    """While open, every server that ``websockets.asyncio.server.serve`` starts (viser's) refuses, with
+    ``403 Forbidden``, each request whose Host or Origin is not one of ``hosts()`` (asked per request:
+    the gate's names are known only once it listens; empty refuses everything).
+
+    viser offers no hook of its own for this; its server calls ``serve`` with a ``process_request``, which is
+    wrapped here. The guard stays with each server started meanwhile; ``serve`` is restored on exit. Yields a
+    list that holds one entry per server guarded, so that a caller can refuse to go on when none was (a viser
+    that no longer starts its server this way).
+    """
+    import websockets.asyncio.server as ws_server
+
+    def guard(inner: Callable[..., Any] | None) -> Callable[..., Any]:
+        def process_request(connection: Any, request: Any) -> Any:
+            fields = {k.lower(): v for k, v in request.headers.raw_items()}
+            why = fields_verdict(fields, hosts())
+            if why is not None:
+                return connection.respond(403, f"forbidden: {why}\n")
+            return None if inner is None else inner(connection, request)
+
+        return process_request
+
+    guarded: list[int] = []
+    with _PATCH:
+        original = ws_server.serve
+
+        def serve(*args: Any, **kwargs: Any) -> Any:
+            kwargs["process_request"] = guard(kwargs.get("process_request"))
+            guarded.append(1)
+            return original(*args, **kwargs)
+
+        ws_server.serve = serve  # type: ignore[assignment, misc]
+        try:
+            yield guarded
+        finally:
+            ws_server.serve = original  # type: ignore[misc]
 
 
 async def _pipe(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:

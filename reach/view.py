@@ -41,7 +41,7 @@ from scipy.spatial.transform import Rotation
 
 from oracles.protocol import Furnished, OracleSpec, Shaped
 from reach.errors import InputError, ServerError, ServerUnavailable
-from reach.gate import Gate
+from reach.gate import Gate, guarded_websockets
 from reach.index import index_at
 from reach.select import Selector, posture_vector
 from reach.store import Atlas
@@ -137,9 +137,18 @@ class Viewer:
             raise InputError("atlas", "at least one atlas is needed")
         if policy not in POLICIES:
             raise InputError("policy", f"expected one of {', '.join(POLICIES)}, got {policy!r}")
-        # viser listens on a loopback port of its own; the gate, where the user asked, lets only this server's origin through.
-        self.server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+        # viser listens on a loopback port of its own; the gate, where the user asked, lets only this server's origin
+        # through, and viser's port lets through only what the gate passed on (its Host is the gate's): the gate is
+        # the only door (a rebound name reaches viser's port as well as the gate's).
+        gate_names: set[str] = set()
+        with guarded_websockets(lambda: gate_names) as guarded:
+            self.server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+        if not guarded:
+            self.server.stop()
+            raise InputError("viser", f"viser {viser.__version__} did not start its server through websockets' serve, so its own port "
+                              "cannot be guarded; install the viser version pyproject.toml names")
         self.gate = Gate(host, port, self.server.get_port())
+        gate_names.update(self.gate.hosts)
         self.host, self.port = host, self.gate.port
         self.refine, self.policy = refine, policy
         self.client = None

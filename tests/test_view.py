@@ -354,3 +354,51 @@ def test_the_viewer_answers_only_its_own_origin(viewer):
     status, text = _get(port, f"127.0.0.1:{port}", origin="http://evil.example", upgrade=True)  # a cross-site WebSocket
     assert status == 403 and b"forbidden: Origin 'http://evil.example' is not this server's" in text
     assert _get(port, f"127.0.0.1:{port}", origin=f"http://127.0.0.1:{port}", upgrade=True)[0] == 101  # its own page's WebSocket
+
+
+def test_vipers_own_port_refuses_what_the_gate_did_not_pass_on(viewer):
+    """DNS rebinding to viser's own loopback port (issue 35, item 3): the page, a WebSocket of a foreign origin and
+    even this machine's own name for that port are refused there; only what came through the gate gets in."""
+    inner = viewer.server.get_port()
+    assert inner != viewer.port
+    for host, origin in ((f"evil.example:{inner}", None), (f"127.0.0.1:{inner}", None), (f"127.0.0.1:{inner}", "http://evil.example")):
+        for upgrade in (False, True):
+            status, text = _get(inner, host, origin=origin, upgrade=upgrade)
+            assert status == 403 and b"forbidden:" in text, (host, origin, upgrade, text[:200])
+    # The gate's own names, as the gate passes them on, still reach viser.
+    assert _get(viewer.port, f"127.0.0.1:{viewer.port}", origin=f"http://127.0.0.1:{viewer.port}", upgrade=True)[0] == 101
+
+
+@browser_only
+def test_a_page_of_another_origin_reaches_no_port_of_the_viewer(viewer, browser, tmp_path):
+    """A real browser on a page served from another loopback port tries a WebSocket to every port the viewer
+    opens (the gate's and viser's): none opens."""
+    import http.server
+    import threading
+
+    page = tmp_path / "index.html"
+    page.write_text("<html><body><script>window.results = {};</script></body></html>")
+    handler = lambda *a, **k: http.server.SimpleHTTPRequestHandler(*a, directory=str(tmp_path), **k)  # noqa: E731
+    other = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    threading.Thread(target=other.serve_forever, daemon=True).start()
+    try:
+        browser.get(f"http://127.0.0.1:{other.server_address[1]}/index.html")
+        script = """
+            const done = arguments[arguments.length - 1];
+            const ports = arguments[0], out = {};
+            let left = ports.length;
+            for (const p of ports) {
+                const ws = new WebSocket(`ws://127.0.0.1:${p}`, [arguments[1]]);
+                ws.onopen = () => { out[p] = 'open'; ws.close(); if (--left === 0) done(out); };
+                ws.onerror = () => { out[p] = 'refused'; if (--left === 0) done(out); };
+            }"""
+        browser.set_script_timeout(20)
+        ports = [viewer.port, viewer.server.get_port()]
+        out = browser.execute_async_script(script, ports, f"viser-v{viser_version()}")
+        assert out == {str(p): "refused" for p in ports}, out
+        # The same browser on the viewer's own page opens its WebSocket (the check can fail).
+        browser.get(viewer.url)
+        out = browser.execute_async_script(script, [viewer.port], f"viser-v{viser_version()}")
+        assert out == {str(viewer.port): "open"}, out
+    finally:
+        other.shutdown()
