@@ -32,6 +32,8 @@ import casadi as ca
 import numpy as np
 import pinocchio as pin
 
+from oracles.batch import CONTINUITY as CONTINUITY_WEIGHT
+from oracles.batch import POLISH_NEAR, STARTS, BatchProgram, run_starts
 from oracles.body import load_body
 from oracles.errors import ModelError, OracleError
 from oracles.jit import COMPILER, compiled_nlpsol
@@ -43,7 +45,7 @@ from oracles.skeleton import bone_frames, build_skeleton
 from oracles.strategy import parse_strategy
 from oracles.tasks import ContactsTask, FloorTask, Numeric, ObstaclesTask, OrientationTask, Symbolic
 
-SOLVERS = ("fatrop", "ipopt")
+SOLVERS = ("batch", "fatrop", "ipopt")  # batch: oracles.batch, every goal x start together (fatrop polishes)
 # fatrop's initial barrier parameter for a settled reach stage (see Search.settle):
 # its start is a neighbour's posture a few centimetres off, which a smaller
 # barrier leaves less (docs/history.md: 17-24 % fewer iterations, same verdicts).
@@ -562,13 +564,17 @@ class CasadiIK(IKOracle):
 
     name = "casadi-ik"
 
-    def __init__(self, *args: Any, max_iter: int = 60, solver: str = "fatrop", jit: bool | str = False, secondary_iter: int = 15, **kwargs: Any) -> None:
+    def __init__(self, *args: Any, max_iter: int = 60, solver: str = "fatrop", jit: bool | str = False, secondary_iter: int = 15,
+                 starts: int = STARTS, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         if solver not in SOLVERS:
             raise OracleError(f"solver must be one of {sorted(SOLVERS)}, got {solver!r}", oracle=self.name, key="solver")
         if jit not in (True, False, "auto"):
             raise OracleError(f"jit must be true, false or 'auto', got {jit!r}", oracle=self.name, key="jit")
-        self.max_iter, self.solver, self.secondary_iter = int(max_iter), solver, int(secondary_iter)
+        if isinstance(starts, bool) or not isinstance(starts, int) or not 1 <= starts <= 256:
+            raise OracleError(f"starts must be a whole number from 1 to 256, got {starts!r}", oracle=self.name, key="starts")
+        self.max_iter, self.solver, self.secondary_iter, self.starts_per_goal = int(max_iter), solver, int(secondary_iter), starts
+        self._batch_cache: dict[tuple[Any, ...], BatchProgram] = {}  # shared with variants, as the programs are
         self._set_jit(jit)
         self._cache: dict[tuple[Any, ...], _Programs] = {}  # shared with variants (a shallow copy keeps the dict)
         self._set_order()
@@ -582,7 +588,13 @@ class CasadiIK(IKOracle):
         self.jit = jit is True or (jit == "auto" and has_compiler)
 
     def engine_params(self) -> dict[str, Any]:
-        return {"max_iter": self.max_iter, "solver": self.solver, "jit": self.jit_asked, "secondary_iter": self.secondary_iter}
+        out = {"max_iter": self.max_iter, "solver": self.solver, "jit": self.jit_asked, "secondary_iter": self.secondary_iter}
+        return {**out, "starts": self.starts_per_goal} if self.solver == "batch" else out
+
+    @property
+    def nlp_solver(self) -> str:
+        """The interior-point solver of the programs: the engine's own, or fatrop where ``batch`` polishes."""
+        return "fatrop" if self.solver == "batch" else self.solver
 
     def tune(self, purpose: Purpose) -> None:
         # A refinement never compiles (seconds, more than a server's few
@@ -590,7 +602,8 @@ class CasadiIK(IKOracle):
         # the time); the referee solves with IPOPT, the reference solver; the
         # index keeps the build's engine (its many solves are worth compiling).
         if purpose == "refine":
-            self._set_jit(False)
+            if self.solver != "batch":  # the batched engine's code is compiled once, kept on disk and built at warm-up
+                self._set_jit(False)
             self.secondary_iter = REFINE_SECONDARY_ITER
         elif purpose == "referee":
             self.solver = "ipopt"
@@ -604,8 +617,8 @@ class CasadiIK(IKOracle):
     @property
     def programs(self) -> _Programs:
         """The programs of this oracle's engine options (those a variant with the same options shares)."""
-        key = (self.solver, self.jit_asked, self.max_iter, self.secondary_iter, len(self.order), self.search.settle > 0,
-               self.search.max_seconds if self.solver == "ipopt" else None)
+        key = (self.nlp_solver, self.jit_asked, self.max_iter, self.secondary_iter, len(self.order), self.search.settle > 0,
+               self.search.max_seconds if self.nlp_solver == "ipopt" else None)
         found = self._cache.get(key)
         if found is None:
             found = self._cache[key] = _Programs()
@@ -614,12 +627,8 @@ class CasadiIK(IKOracle):
     def _build(self, programs: _Programs, slots: int = 0) -> list[ca.Function]:
         """The lexicographic stages: each soft task minimised with the earlier ones held, and ``slots`` cut rows."""
         p, order = self.problem, self.order
-        x, goal = p.x_sym, ca.SX.sym("goal", 3)
-        start, weight = ca.SX.sym("start", p.nx), ca.SX.sym("start_weight", 1)
-        aim, aim_on = ca.SX.sym("aim", 3, 3), ca.SX.sym("aim_on", 1)
-        sym = Symbolic(SymbolicKinematics(self.body.model, p.q_sym), x, goal, p.x_ref, p.upper - p.lower, tuple(p.x_names), p.lower, start, weight,
-                       aim, aim_on)
-        params = ca.vertcat(goal, start, weight, ca.vec(aim), aim_on)
+        sym, params = self._symbols()
+        x = sym.x
         rows = [c for t in self.strategy.hard for c in t.constraints(sym)]
         # The lazy tasks' cuts: linear rows whose coefficients are parameters,
         # so they add nothing to the second derivatives. An unused slot is
@@ -635,12 +644,22 @@ class CasadiIK(IKOracle):
             earlier = [t.held(sym) for t in order[:k]]
             nlp = {"x": x, "p": ca.vertcat(params, ca.vec(cut)), "f": task.objective(sym), "g": ca.vertcat(g, *earlier)}
             iters = self.max_iter if k == 0 else self.secondary_iter
-            stages.append(self._nlpsol(f"stage_{task.type}{'_cut' if slots else ''}", self.solver, nlp, self._options(self.solver, iters)))
-            if k == 0 and self.search.settle > 0 and self.solver == "fatrop":
-                opts = {**self._options(self.solver, iters), "fatrop.mu_init": SETTLE_MU}
-                programs.settling[slots] = self._nlpsol(f"stage_{task.type}_settle{'_cut' if slots else ''}", self.solver, nlp, opts)
+            solver = self.nlp_solver
+            stages.append(self._nlpsol(f"stage_{task.type}{'_cut' if slots else ''}", solver, nlp, self._options(solver, iters)))
+            if k == 0 and self.search.settle > 0 and solver == "fatrop":
+                opts = {**self._options(solver, iters), "fatrop.mu_init": SETTLE_MU}
+                programs.settling[slots] = self._nlpsol(f"stage_{task.type}_settle{'_cut' if slots else ''}", solver, nlp, opts)
         programs.objectives = [ca.Function(t.type, [x, params], [t.measure(sym)]) for t in order]
         return stages
+
+    def _symbols(self) -> tuple[Symbolic, ca.SX]:
+        """The programs' symbols and their parameter vector: goal (3), start (nx), start weight, aim (9, column-major), aim on."""
+        p = self.problem
+        goal, start, weight = ca.SX.sym("goal", 3), ca.SX.sym("start", p.nx), ca.SX.sym("start_weight", 1)
+        aim, aim_on = ca.SX.sym("aim", 3, 3), ca.SX.sym("aim_on", 1)
+        sym = Symbolic(SymbolicKinematics(self.body.model, p.q_sym), p.x_sym, goal, p.x_ref, p.upper - p.lower, tuple(p.x_names), p.lower, start,
+                       weight, aim, aim_on)
+        return sym, ca.vertcat(goal, start, weight, ca.vec(aim), aim_on)
 
     def _nlpsol(self, name: str, solver: str, nlp: dict[str, Any], opts: dict[str, Any]) -> ca.Function:
         if self.jit:
@@ -751,6 +770,118 @@ class CasadiIK(IKOracle):
         programs = self.programs
         if not programs.stages:
             programs.stages = self._build(programs)
+        if self.solver == "batch":
+            self.batch_program()
+
+    def batch_program(self) -> BatchProgram:
+        """The batched engine's compiled function of this oracle's tasks (shared by variants with the same options)."""
+        key = (self.jit, tuple(t.type for t in self.order))
+        found = self._batch_cache.get(key)
+        if found is None:
+            sym, params = self._symbols()
+            hard = [c for t in self.strategy.hard for c in t.constraints(sym)]
+            soft = self.order
+            reach = self.strategy.reach
+            lower = [t for t in soft[soft.index(reach) + 1 :]]
+            p = self.problem
+            name = f"batch_{zlib.crc32(repr(self.spec.to_dict()).encode()):08x}"
+            found = BatchProgram(sym, params, hard, reach.held(sym), lower, p.lower, p.upper, p.upper - p.lower, self._batch_jit(), name)
+            self._batch_cache[key] = found
+        return found
+
+    def _batch_jit(self) -> bool:
+        return self.jit
+
+    def _polisher(self) -> CasadiIK:
+        """This oracle with fatrop as its engine (sharing its programs): the batched engine's polish."""
+        twin = copy.copy(self)
+        twin.solver = "fatrop"
+        return twin
+
+    def _evaluate(self, points: np.ndarray, hints: np.ndarray | None, start: np.ndarray | None, aims: np.ndarray | None = None) -> Verdicts:
+        if self.solver != "batch":
+            return super()._evaluate(points, hints, start, aims)
+        return self._evaluate_batch(points, hints, start, aims)
+
+    def _batch_starts(self, goal: np.ndarray, hint: np.ndarray | None) -> list[np.ndarray]:
+        """A goal's K starts: its hints (the neighbour's posture first), the reference and ready postures, then
+        random ones seeded by the search's seed and the goal (the same goal gets the same starts in any batch)."""
+        p = self.problem
+        seeds = np.zeros((0, 0)) if hint is None else np.atleast_2d(hint)
+        out = [p.x_of_q(h) for h in seeds if np.all(np.isfinite(h))]
+        out += [p.x_ref.copy(), p.x_ready.copy()]
+        rng = np.random.default_rng([self.search.seed, zlib.crc32(np.round(goal, 9).tobytes())])
+        out += [p.random_x(rng) for _ in range(max(self.starts_per_goal - len(out), 0))]
+        return out
+
+    def _evaluate_batch(self, points: np.ndarray, hints: np.ndarray | None, start: np.ndarray | None, aims: np.ndarray | None) -> Verdicts:
+        """Every goal's K starts iterated together by the batched engine (:mod:`oracles.batch`); the verdict is the
+        Pinocchio check, in order of how well each reaching posture is liked; a goal none reaches whose best start
+        ended within ``POLISH_NEAR`` of it is polished by fatrop's programs from there."""
+        pts = check_points(points, 3)
+        hints = None if hints is None else np.asarray(hints, float)
+        p, search, n = self.problem, self.search, len(pts)
+        tol = self.strategy.tolerance
+        self.stats["points"] += n
+        deadline = np.inf if search.max_seconds is None else time.perf_counter() + search.max_seconds
+        residual = np.zeros(n) if p.anchor is None else np.maximum(np.linalg.norm(pts - p.anchor, axis=1) - p.max_reach, 0.0)
+        prefiltered = residual > tol
+        self.stats["prefiltered"] += int(prefiltered.sum())
+        reach = np.zeros(n, bool)
+        posture = np.tile(self.body.q_ref, (n, 1))
+        todo = np.nonzero(~prefiltered)[0]
+        if not todo.size:
+            return Verdicts(reach, residual, posture)
+        self.prepare()
+        program = self.batch_program()
+        starts = [self._batch_starts(pts[i], None if hints is None else hints[i]) for i in todo]
+        owner = np.concatenate([np.full(len(s), i) for i, s in zip(todo, starts, strict=True)])
+        x0 = np.clip(np.concatenate([np.array(s) for s in starts]), p.lower, p.upper)
+        b = len(x0)
+        self.stats["solves"] += b
+        task = self.orientation
+        aim = np.tile(np.eye(3) if task is None else task.default_aim(), (b, 1, 1)) if aims is None else aims[owner]
+        on = float(task is not None and (aims is not None or not task.free))
+        params = np.concatenate([pts[owner], x0 if start is None else np.tile(start, (b, 1)), np.full((b, 1), 0.0 if start is None else 1.0),
+                                 np.transpose(aim, (0, 2, 1)).reshape(b, 9), np.full((b, 1), on)], axis=1)
+        x, dist, viol, liked = run_starts(program, x0, params, owner, tol, search.secondary, start, deadline, self.stats)
+        # Continuity with the neighbour's posture (the first hint) is part of "liked".
+        first = np.array([s[0] for s in starts]) if hints is not None else None
+        if first is not None:
+            nearness = np.sum(((x - first[np.searchsorted(todo, owner)]) / (p.upper - p.lower)) ** 2, axis=1)
+            liked = np.where(np.isfinite(liked), liked, 0.0) + CONTINUITY_WEIGHT * nearness
+        q_all = p.q_of_x_many(x)
+        offsets = np.concatenate([[0], np.cumsum([len(s) for s in starts])])
+        polisher = None
+        for j, i in enumerate(todo):
+            rows = np.arange(offsets[j], offsets[j + 1])
+            aim_i = None if aims is None else aims[i]
+            near = rows[(dist[rows] <= tol) & (viol[rows] <= 1e-5)]
+            order = near[np.lexsort((dist[near], liked[near]))]
+            best: Check | None = None
+            for r in order:
+                check = p.check(q_all[r], pts[i], self._data, aim_i)
+                if check.reachable:
+                    reach[i], residual[i], posture[i] = True, check.residual, q_all[r]
+                    break
+                if best is None:
+                    best, residual[i], posture[i] = check, check.residual, q_all[r]
+            if reach[i]:
+                continue
+            r = rows[np.lexsort((dist[rows], viol[rows] > 1e-5))][0]
+            if best is None:
+                best = p.check(q_all[r], pts[i], self._data, aim_i)
+                residual[i], posture[i] = best.residual, q_all[r]
+            if dist[r] <= POLISH_NEAR and time.perf_counter() <= deadline:
+                polisher = polisher or self._polisher()
+                call = Call(start, deadline, aim_i)
+                q = polisher.solve(pts[i], x[r], search.secondary, call)
+                self.stats["polished"] = self.stats.get("polished", 0) + 1
+                check = p.check(q, pts[i], self._data, aim_i)
+                if check.reachable or check.residual < residual[i]:
+                    reach[i], residual[i], posture[i] = check.reachable, check.residual, q
+        self.stats["reachable"] += int(reach.sum())
+        return Verdicts(reach, residual, posture)
 
     def solve(self, goal: np.ndarray, x0: np.ndarray, lower: bool = True, call: Call = NO_CALL) -> np.ndarray:
         self.prepare()

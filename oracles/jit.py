@@ -45,13 +45,29 @@ def compiled_nlpsol(name: str, solver: str, nlp: dict[str, Any], opts: dict[str,
         RuntimeError: the compiler failed or is missing (its message last).
     """
     interpreted = ca.nlpsol(name, solver, nlp, opts)
+    library = _library(name, lambda file: interpreted.generate_dependencies(file))
+    return ca.nlpsol(name, solver, str(library), opts)
+
+
+def compiled_function(name: str, function: ca.Function) -> ca.Function:
+    """A CasADi function compiled to machine code (``oracles.batch``'s mapped kinematics), from the cache when there.
+
+    Raises:
+        RuntimeError: the compiler failed or is missing (its message last).
+    """
+    library = _library(name, lambda file: function.generate(file))
+    return ca.external(function.name(), str(library))
+
+
+def _library(name: str, generate: Any) -> Path:
+    """The shared library compiled from the C that ``generate(file name)`` writes, kept in the cache folder."""
     with tempfile.TemporaryDirectory(prefix="reach-jit-") as scratch:
         source = Path(scratch) / f"{name}.c"
         # CasADi writes into the working directory.
         home = os.getcwd()
         os.chdir(scratch)
         try:
-            interpreted.generate_dependencies(source.name)
+            generate(source.name)
         finally:
             os.chdir(home)
         code = source.read_bytes()
@@ -71,4 +87,4 @@ def compiled_nlpsol(name: str, solver: str, nlp: dict[str, Any], opts: dict[str,
                     except subprocess.CalledProcessError as exc:
                         raise RuntimeError(f"{COMPILER} failed on {name}: {exc.stderr.strip()[-500:]}") from exc
                     os.replace(built, library)  # atomic: a reader sees the whole library or none
-    return ca.nlpsol(name, solver, str(library), opts)
+    return library

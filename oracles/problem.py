@@ -154,6 +154,12 @@ class ReachProblem:
     def q_of_x(self, x: np.ndarray) -> np.ndarray:
         return np.asarray(self._q_of_x(x)).ravel()
 
+    def q_of_x_many(self, x: np.ndarray) -> np.ndarray:
+        """Postures (B, nq) of coordinates (B, nx), in one mapped call."""
+        if not len(x):
+            return np.zeros((0, self.body.model.nq))
+        return np.asarray(self._q_of_x(np.asarray(x, float).T)).T.reshape(len(x), -1)
+
     def x_of_q(self, q: np.ndarray) -> np.ndarray:
         q = np.asarray(q, float)
         x = np.empty(self.nx)

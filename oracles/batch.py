@@ -1,0 +1,357 @@
+"""A batched damped Gauss-Newton engine: every goal x start of one call advances together.
+
+``casadi-ik``'s default engine (``solver: batch``). The tasks keep their one
+definition: the CasADi expressions they already give the interior-point
+programs (hard rows with their bounds, the reach task's residual, the lower
+tasks' objectives) are compiled into one function of (x, parameters), mapped
+over a chunk of postures (CasADi ``Function.map``), and evaluated for the
+whole batch at once. Each iteration then takes, for every start at once, the
+step of the equality-constrained least-squares problem
+
+    min  |J_e dx + e|^2 + lambda^2 |dx|^2      s.t.  C dx = r
+
+solved through its KKT system (one batched ``numpy.linalg.solve``):
+
+* **hard tasks as constraints (an active set).** ``C`` holds every equality
+  row and every inequality row within ``BUFFER`` of its bound (pushed
+  ``INSIDE`` it), as ``dls`` activates them; a row far from its bound is
+  zero and costs nothing. An active set, not a barrier: most rows (balance,
+  couplings, the hang cone) are inactive most of the time, and a start that
+  breaks one is pulled back to it in one linearised step, which a barrier
+  cannot do from outside its domain. Not a projection: the constraints and
+  the reach share one solve, so a step never trades a hard row for reach;
+* **joint limits** by clamping: a coordinate a step would push past its
+  range is fixed at its bound and the step is solved again without it;
+* **the reach task** as the objective, its error clamped to
+  ``MAX_REACH_STEP`` per iteration (a far goal does not drag a posture off
+  its constraints), Levenberg-Marquardt damped;
+* **the lower tasks** (gaze, posture, comfort) as the secondary objective:
+  once a start reaches, the reach rows join the constraints and the lower
+  tasks' weighted sum (weights ``LOWER_WEIGHT`` ** rank, an approximation of
+  their lexicographic order) is minimised by damped Newton steps on its
+  exact Hessian.
+
+Lazy hard tasks (self-collision, the floor) give no rows here: a posture
+found is checked by the verdict (coal, Pinocchio) as always, and one that
+breaks them, or that ends near the goal but not within the tolerance, is
+polished by the interior-point programs (fatrop) from there, which cut the
+lazy rows (see :mod:`oracles.ik`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from oracles.jit import compiled_function
+from oracles.tasks import Constraint, SoftTask, Symbolic
+from oracles.tasks.reach import PROXIMAL
+
+CHUNK = 64  # postures per call of the mapped function (padded): large enough to amortise a call, small enough to pad little
+BUFFER = 0.005  # [m or rad] an inequality row within this of its bound is active (as dls: oracles/tasks/base.py)
+INSIDE = 1e-4  # [m or rad] how far inside its bound an active row is pushed
+DAMPING = 1e-2  # Levenberg-Marquardt damping lambda of the reach steps [m per rad] (dls's is 0.02)
+LOWER_DAMPING = 1e-2  # damping of the lower tasks' Newton steps, a share of their Hessian's mean diagonal
+REGULAR = 1e-10  # KKT regularisation of the constraint block: contradictory or zero rows stay solvable
+MAX_STEP = 0.4  # [rad or m] largest step norm of one iteration
+MAX_REACH_STEP = 0.1  # [m] largest reach error pursued in one iteration
+LOWER_WEIGHT = 0.1  # weight of each lower task relative to the one above it
+FIXED = 1e8  # the diagonal that holds a clamped coordinate still
+HARD_TOL = 1e-6  # [m or rad] a hard row this far past its bound still holds (the interior-point programs' tolerance)
+
+
+@dataclass(frozen=True)
+class Rows:
+    """Bounds of the hard rows: ``lower <= g(x) <= upper`` per row, and which rows are equalities."""
+
+    lower: np.ndarray
+    upper: np.ndarray
+
+    @property
+    def equality(self) -> np.ndarray:
+        return np.asarray(self.lower == self.upper)
+
+
+@dataclass
+class State:
+    """The batch's evaluation at its postures: hard rows g (B, m) and their Jacobians (B, m, n), the reach
+    residual e (B, 3) and its Jacobian (B, 3, n), and (when asked) the lower tasks' value (B,), gradient
+    (B, n) and Hessian's diagonal (B, n)."""
+
+    g: np.ndarray
+    jg: np.ndarray
+    e: np.ndarray
+    je: np.ndarray
+    f: np.ndarray | None = None
+    grad: np.ndarray | None = None
+    hess: np.ndarray | None = None
+
+
+class BatchProgram:
+    """The tasks' expressions compiled for batches, and the batched iteration on them.
+
+    Args:
+        sym: The symbols of the strategy's programs (see :class:`oracles.tasks.Symbolic`).
+        params: Their parameter vector (goal, start, start weight, aim, aim on).
+        hard: The hard tasks' constraint rows (the lazy ones give none).
+        reach: The reach task's residual expression (3,).
+        lower: The soft tasks below reach, in priority order.
+        lower_bound, upper_bound: The coordinates' bounds (n,).
+        span: The coordinates' ranges (n,), for the proximal term's scale.
+        jit: Compile the functions with the C compiler (``oracles.jit``), else CasADi's interpreter.
+        name: A prefix for the compiled functions' names.
+    """
+
+    def __init__(self, sym: Symbolic, params: ca.SX, hard: Sequence[Constraint], reach: ca.SX, lower: Sequence[SoftTask],
+                 lower_bound: np.ndarray, upper_bound: np.ndarray, span: np.ndarray, jit: bool, name: str) -> None:
+        x = sym.x
+        self.n = int(x.numel())
+        g = ca.vertcat(*[c.expr for c in hard]) if hard else ca.SX.zeros(0, 1)
+        self.rows = Rows(np.array([c.lower for c in hard for _ in range(c.expr.numel())], float),
+                         np.array([c.upper for c in hard for _ in range(c.expr.numel())], float))
+        self.m = int(g.numel())
+        jg = ca.jacobian(g, x) if self.m else ca.SX.zeros(0, self.n)
+        je = ca.jacobian(reach, x)
+        f = ca.SX(0.0)
+        for k, task in enumerate(lower):
+            f += LOWER_WEIGHT**k * task.objective(sym)
+        hess, grad = ca.hessian(f, x)
+        hess = ca.diag(hess)  # the lower steps use its diagonal (lower_step): the rest would only cost compile time
+        self.np = int(params.numel())
+        self.lower_bound, self.upper_bound, self.span = lower_bound, upper_bound, span
+        self.has_lower = bool(lower)
+        outs = [g, jg, reach, je]
+        base = ca.Function(f"{name}_reach", [x, params], [ca.densify(o) for o in outs])
+        full = ca.Function(f"{name}_lower", [x, params], [ca.densify(o) for o in [*outs, f, grad, hess]])
+        self._reach = _Mapped(base, jit, [(self.m, 1), (self.m, self.n), (3, 1), (3, self.n)], self.n, self.np)
+        self._full = _Mapped(full, jit, [(self.m, 1), (self.m, self.n), (3, 1), (3, self.n), (1, 1), (self.n, 1), (self.n, 1)],
+                             self.n, self.np) if lower else None
+
+    # -- evaluation -----------------------------------------------------------
+    def evaluate(self, x: np.ndarray, p: np.ndarray, lower: bool = False) -> State:
+        """The batch's :class:`State` at postures x (B, n) with parameters p (B, np)."""
+        fn = self._full if lower and self._full is not None else self._reach
+        out = fn(x, p)
+        state = State(out[0][..., 0], out[1], out[2][..., 0], out[3])
+        if lower and self._full is not None:
+            state.f, state.grad, state.hess = out[4][:, 0, 0], out[5][..., 0], out[6][..., 0]
+        return state
+
+    # -- the step -------------------------------------------------------------
+    def active(self, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Which hard rows are active (B, m) and what change each active row needs (B, m)."""
+        lo, hi = self.rows.lower, self.rows.upper
+        eq = self.rows.equality
+        low = g < lo + BUFFER
+        high = g > hi - BUFFER
+        target = np.where(eq, lo, np.where(low & ~high, lo + INSIDE, np.where(high & ~low, hi - INSIDE, 0.5 * (lo + hi))))
+        act = eq | low | high
+        return act, np.where(act, target - g, 0.0)
+
+    def violation(self, g: np.ndarray) -> np.ndarray:
+        """The largest amount (B,) by which a hard row lies outside its bounds."""
+        if not self.m:
+            return np.zeros(len(g))
+        return np.maximum(np.maximum(self.rows.lower - g, g - self.rows.upper), 0.0).max(axis=1)
+
+    def step(self, diag: np.ndarray, jac: np.ndarray | None, gradient: np.ndarray, state: State, fixed: np.ndarray,
+             extra: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+        """The KKT step (B, n) of min 1/2 dx' H dx + gradient' dx subject to the active hard rows (and ``extra``
+        rows C dx = r, the reach held below it), H = diag(diag) + jac' jac, coordinates in ``fixed`` (B, n) held
+        still.
+
+        H is a diagonal plus a low-rank term (the reach's 3 rows), so its inverse is applied by the
+        Woodbury identity and the constraints by their Schur complement S = C H^-1 C': a few small batched
+        products and one (m, m) solve per posture instead of an (n + m) one.
+        """
+        act, need = self.active(state.g)
+        # Only the active rows enter the solve: each posture's first, padded with zero rows to the batch's most.
+        top = int(act.sum(axis=1).max(initial=0))
+        order = np.argsort(~act, axis=1, kind="stable")[:, :top]
+        keep = np.take_along_axis(act, order, axis=1)
+        cs = [np.take_along_axis(state.jg, order[..., None], axis=1) * keep[..., None]]
+        rs = [np.take_along_axis(need, order, axis=1)]
+        if extra is not None:
+            cs.append(extra[0])
+            rs.append(extra[1])
+        c, r = np.concatenate(cs, axis=1), np.concatenate(rs, axis=1)
+        d_inv = 1.0 / np.where(fixed, FIXED, diag)
+
+        def h_inv(v: np.ndarray) -> np.ndarray:
+            # H^-1 v for v (B, n, k): D^-1 v - D^-1 J' M^-1 J D^-1 v, M = I + J D^-1 J'.
+            dv = d_inv[..., None] * v
+            if jac is None:
+                return dv
+            return dv - d_inv[..., None] * (np.transpose(jac, (0, 2, 1)) @ np.linalg.solve(middle, jac @ dv))
+
+        if jac is not None:
+            middle = np.eye(jac.shape[1]) + (jac * d_inv[:, None, :]) @ np.transpose(jac, (0, 2, 1))
+        dx = -h_inv(gradient[..., None])[..., 0]
+        m = c.shape[1]
+        if m:
+            hc = h_inv(np.transpose(c, (0, 2, 1)))  # (B, n, m)
+            schur = c @ hc
+            scale = np.abs(np.einsum("bii->b", schur)) / m + 1e-300
+            schur += (REGULAR * scale)[:, None, None] * np.eye(m)
+            nu = np.linalg.solve(schur, ((c @ dx[..., None])[..., 0] - r)[..., None])
+            dx = dx - (hc @ nu)[..., 0]
+        dx = dx * ~fixed
+        norm = np.linalg.norm(dx, axis=1, keepdims=True)
+        return np.where(norm > MAX_STEP, dx * (MAX_STEP / np.maximum(norm, 1e-300)), dx)
+
+    def clamped_step(self, x: np.ndarray, diag: np.ndarray, jac: np.ndarray | None, gradient: np.ndarray, state: State,
+                     extra: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+        """:meth:`step`, solved again with the coordinates it would push past their bounds held there."""
+        fixed = np.zeros(x.shape, bool)
+        dx = self.step(diag, jac, gradient, state, fixed, extra)
+        over = ((x + dx < self.lower_bound) | (x + dx > self.upper_bound)) & ~fixed
+        again = np.nonzero(over.any(axis=1))[0]
+        if again.size:
+            sub = State(state.g[again], state.jg[again], state.e[again], state.je[again])
+            ex = None if extra is None else (extra[0][again], extra[1][again])
+            dx[again] = self.step(diag[again], None if jac is None else jac[again], gradient[again], sub, over[again], ex)
+        return np.clip(x + dx, self.lower_bound, self.upper_bound)
+
+    def reach_step(self, x: np.ndarray, state: State, start: np.ndarray | None, start_weight: np.ndarray) -> np.ndarray:
+        """One Gauss-Newton iteration of every posture towards its goal (reach as objective, hard rows held)."""
+        e, je = state.e, state.je
+        dist = np.linalg.norm(e, axis=1, keepdims=True)
+        e_c = e * np.minimum(1.0, MAX_REACH_STEP / np.maximum(dist, 1e-12))
+        diag = np.full(x.shape, DAMPING**2)
+        gradient = (np.transpose(je, (0, 2, 1)) @ e_c[..., None])[..., 0]
+        if start is not None:
+            # The reach task's proximal term (oracles/tasks/reach.py): move the least from the current posture.
+            w = PROXIMAL * start_weight[:, None] / self.span**2
+            diag = diag + w
+            gradient = gradient + w * (x - start)
+        return self.clamped_step(x, diag, je, gradient, state)
+
+    def lower_step(self, x: np.ndarray, state: State) -> np.ndarray:
+        """One damped iteration of the lower tasks on their Hessian's diagonal (a scaled gradient step), the reach
+        rows held at the goal with the hard ones."""
+        assert state.hess is not None and state.grad is not None
+        diag = np.abs(state.hess)
+        diag = diag + LOWER_DAMPING * diag.mean(axis=1, keepdims=True) + 1e-6
+        return self.clamped_step(x, diag, None, state.grad, state, (state.je, -state.e))
+
+
+class _Mapped:
+    """A function of (x, p) mapped over ``CHUNK`` postures, compiled or interpreted, called through CasADi's
+    buffers (no conversion of its outputs: numpy arrays are written in place)."""
+
+    def __init__(self, f: ca.Function, jit: bool, shapes: list[tuple[int, int]], n: int, np_: int) -> None:
+        mapped = f.map(f"{f.name()}_map{CHUNK}", "serial", CHUNK, [], [])
+        self.function = compiled_function(mapped.name(), mapped) if jit else mapped
+        self.shapes, self.n, self.np = shapes, n, np_
+        self.x = np.zeros((CHUNK, n))
+        self.p = np.zeros((CHUNK, np_))
+        self.out = [np.zeros((CHUNK, cols, rows)) for rows, cols in shapes]  # each block column-major
+        self.buffer, self.trigger = self.function.buffer()
+        self.buffer.set_arg(0, memoryview(self.x))
+        self.buffer.set_arg(1, memoryview(self.p))
+        for k, o in enumerate(self.out):
+            self.buffer.set_res(k, memoryview(o))
+
+    def __call__(self, x: np.ndarray, p: np.ndarray) -> list[np.ndarray]:
+        """Each output (B, rows, cols) at postures x (B, n) and parameters p (B, np)."""
+        b = len(x)
+        result = [np.empty((b, rows, cols)) for rows, cols in self.shapes]
+        for k in range(0, b, CHUNK):
+            c = min(CHUNK, b - k)
+            self.x[:c], self.p[:c] = x[k : k + c], p[k : k + c]
+            if c < CHUNK:  # pad with the first posture: every column of the map is evaluated
+                self.x[c:], self.p[c:] = x[k], p[k]
+            self.trigger()
+            for r, o in zip(result, self.out, strict=True):
+                r[k : k + c] = np.transpose(o[:c], (0, 2, 1))
+        return result
+
+
+# -- the search over many starts ------------------------------------------------
+
+STARTS = 8  # default starts per goal (K): the hint(s), the reference, the ready posture, seeded random ones (README: why 8)
+MAX_ITER = 40  # reach iterations
+LOWER_ITER = 12  # lower-task iterations of a start that reached
+STALL = 0.01  # a start whose distance to the goal shrinks by less than this share in an iteration has stalled
+EXTRA = 2  # iterations the other starts of a goal get once one has reached (a better-liked posture; more cost little gain: README)
+CONVERGED = 0.1  # share of the tolerance within which a start has reached and stops iterating
+POLISH_NEAR = 0.03  # [m] a goal whose best start ends this near (but does not reach) is polished by the interior-point programs
+CONTINUITY = 1.0  # weight of the range-normalised distance to the first hint (the neighbour's posture) in "liked"
+
+
+@dataclass
+class Candidates:
+    """Every goal's K finished starts: postures x (N, K, n), reach distance (N, K), hard-row violation (N, K) and
+    how much the lower tasks and continuity dislike each (N, K; inf when unknown)."""
+
+    x: np.ndarray
+    dist: np.ndarray
+    violation: np.ndarray
+    dislike: np.ndarray
+
+
+def run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_of: np.ndarray, tolerance: float,
+               lower: bool, start: np.ndarray | None, deadline: float, stats: dict[str, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Iterate every start (B, n) with its parameters (B, np) together; returns the final postures, reach distances,
+    hard-row violations and the lower tasks' values (inf where not computed)."""
+    import time
+
+    x = x0.copy()
+    b = len(x)
+    dist = np.full(b, np.inf)
+    viol = np.full(b, np.inf)
+    live = np.arange(b)
+    start_weight = params[:, 3 + program.n] if start is not None else np.zeros(b)
+    starts = None if start is None else params[:, 3 : 3 + program.n]
+    owner = np.asarray(goal_of, int)
+    reached_at = np.full(int(owner.max()) + 1 if b else 0, -1)  # the iteration at which each goal's first start reached
+    for it in range(MAX_ITER + 1):
+        if not live.size or time.perf_counter() > deadline:
+            break
+        state = program.evaluate(x[live], params[live])
+        stats["iterations"] = stats.get("iterations", 0) + int(live.size)
+        d, v = np.linalg.norm(state.e, axis=1), program.violation(state.g)
+        before = dist[live]
+        dist[live], viol[live] = d, v
+        done = (d <= CONVERGED * tolerance) & (v <= HARD_TOL)
+        first = owner[live[done]]
+        reached_at[first[reached_at[first] < 0]] = it
+        # A start stops when it has reached; when it stalls far from the goal (its distance shrinks by less than
+        # STALL of itself in an iteration, its rows held); or EXTRA iterations after another start of its goal reached.
+        stalled = (d > tolerance) & (v <= HARD_TOL) & (before - d < STALL * d) & (it > 2)
+        late = (reached_at[owner[live]] >= 0) & (it - reached_at[owner[live]] >= EXTRA)
+        keep = ~(done | stalled | late)
+        if not keep.any():
+            break
+        sub = np.nonzero(keep)[0]
+        state = State(state.g[sub], state.jg[sub], state.e[sub], state.je[sub])
+        live = live[sub]
+        x[live] = program.reach_step(x[live], state, None if starts is None else starts[live], start_weight[live])
+    f = np.full(b, np.inf)
+    if not (lower and program.has_lower):
+        return x, dist, viol, f
+    reached = np.nonzero((dist <= tolerance) & (viol <= HARD_TOL))[0]
+    if not reached.size:
+        return x, dist, viol, f
+    y = x[reached].copy()
+    for _ in range(LOWER_ITER):
+        if time.perf_counter() > deadline:
+            break
+        state = program.evaluate(y, params[reached], lower=True)
+        stats["iterations"] = stats.get("iterations", 0) + int(reached.size)
+        y = program.lower_step(y, state)
+    state = program.evaluate(y, params[reached], lower=True)
+    d, v = np.linalg.norm(state.e, axis=1), program.violation(state.g)
+    # The lower tasks never cost the verdict: a start whose lower steps leave the goal or a hard row keeps its reach posture.
+    ok = (d <= 0.5 * tolerance) & (v <= HARD_TOL)
+    assert state.f is not None
+    x[reached[ok]], dist[reached[ok]], viol[reached[ok]] = y[ok], d[ok], v[ok]
+    f[reached[ok]] = state.f[ok]
+    if (~ok).any():
+        back = program.evaluate(x[reached[~ok]], params[reached[~ok]], lower=True)
+        assert back.f is not None
+        f[reached[~ok]] = back.f
+    return x, dist, viol, f
