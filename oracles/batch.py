@@ -250,10 +250,11 @@ class _Mapped:
         self.p = np.zeros((CHUNK, np_))
         self.out = [np.zeros((CHUNK, cols, rows)) for rows, cols in shapes]  # each block column-major
         self.buffer, self.trigger = self.function.buffer()
-        self.buffer.set_arg(0, memoryview(self.x))
-        self.buffer.set_arg(1, memoryview(self.p))
+        # CasADi takes the arrays' own memory (the buffer protocol); its stubs type the size argument it does not need.
+        self.buffer.set_arg(0, memoryview(self.x))  # type: ignore[call-arg, arg-type]
+        self.buffer.set_arg(1, memoryview(self.p))  # type: ignore[call-arg, arg-type]
         for k, o in enumerate(self.out):
-            self.buffer.set_res(k, memoryview(o))
+            self.buffer.set_res(k, memoryview(o))  # type: ignore[call-arg, arg-type]
 
     def __call__(self, x: np.ndarray, p: np.ndarray) -> list[np.ndarray]:
         """Each output (B, rows, cols) at postures x (B, n) and parameters p (B, np)."""
@@ -275,10 +276,11 @@ class _Mapped:
 STARTS = 8  # default starts per goal (K): the hint(s), the reference, the ready posture, seeded random ones (README: why 8)
 MAX_ITER = 40  # reach iterations
 LOWER_ITER = 12  # lower-task iterations of a start that reached
-STALL = 0.01  # a start whose distance to the goal shrinks by less than this share in an iteration has stalled
+STALL = 0.02  # a start whose distance to the goal shrinks by less than this share in an iteration has stalled
 EXTRA = 2  # iterations the other starts of a goal get once one has reached (a better-liked posture; more cost little gain: README)
 CONVERGED = 0.1  # share of the tolerance within which a start has reached and stops iterating
 POLISH_NEAR = 0.03  # [m] a goal whose best start ends this near (but does not reach) is polished by the interior-point programs
+POLISHES = 3  # the most starts of one goal polished (the best-liked reaching ones that break a lazy task, then the nearest)
 CONTINUITY = 1.0  # weight of the range-normalised distance to the first hint (the neighbour's posture) in "liked"
 
 

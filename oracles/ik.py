@@ -33,7 +33,7 @@ import numpy as np
 import pinocchio as pin
 
 from oracles.batch import CONTINUITY as CONTINUITY_WEIGHT
-from oracles.batch import POLISH_NEAR, STARTS, BatchProgram, run_starts
+from oracles.batch import POLISH_NEAR, POLISHES, STARTS, BatchProgram, run_starts
 from oracles.body import load_body
 from oracles.errors import ModelError, OracleError
 from oracles.jit import COMPILER, compiled_nlpsol
@@ -868,18 +868,23 @@ class CasadiIK(IKOracle):
                     best, residual[i], posture[i] = check, check.residual, q_all[r]
             if reach[i]:
                 continue
-            r = rows[np.lexsort((dist[rows], viol[rows] > 1e-5))][0]
+            ranked = rows[np.lexsort((dist[rows], viol[rows] > 1e-5))]
             if best is None:
-                best = p.check(q_all[r], pts[i], self._data, aim_i)
-                residual[i], posture[i] = best.residual, q_all[r]
-            if dist[r] <= POLISH_NEAR and time.perf_counter() <= deadline:
+                best = p.check(q_all[ranked[0]], pts[i], self._data, aim_i)
+                residual[i], posture[i] = best.residual, q_all[ranked[0]]
+            # Polish from the best-liked postures that reach but break a lazy task (a collision), then from the nearest.
+            tries = list(dict.fromkeys([*order[:POLISHES], *ranked[:1]]))[:POLISHES]
+            for r in tries:
+                if dist[r] > POLISH_NEAR or time.perf_counter() > deadline:
+                    continue
                 polisher = polisher or self._polisher()
-                call = Call(start, deadline, aim_i)
-                q = polisher.solve(pts[i], x[r], search.secondary, call)
+                q = polisher.solve(pts[i], x[r], search.secondary, Call(start, deadline, aim_i))
                 self.stats["polished"] = self.stats.get("polished", 0) + 1
                 check = p.check(q, pts[i], self._data, aim_i)
                 if check.reachable or check.residual < residual[i]:
                     reach[i], residual[i], posture[i] = check.reachable, check.residual, q
+                if check.reachable:
+                    break
         self.stats["reachable"] += int(reach.sum())
         return Verdicts(reach, residual, posture)
 
