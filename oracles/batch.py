@@ -56,8 +56,9 @@ INSIDE = 1e-4  # [m or rad] how far inside its bound an active row is pushed
 DAMPING = 1e-2  # Levenberg-Marquardt damping lambda of the reach steps [m per rad] (dls's is 0.02)
 LOWER_DAMPING = 1e-2  # damping of the lower tasks' Newton steps, a share of their Hessian's mean diagonal
 REGULAR = 1e-10  # KKT regularisation of the constraint block: contradictory or zero rows stay solvable
-MAX_STEP = 0.4  # [rad or m] largest step norm of one iteration
-MAX_REACH_STEP = 0.1  # [m] largest reach error pursued in one iteration
+MAX_STEP = 0.4  # [rad or m] largest step norm of one iteration (a start's trust radius at most)
+MIN_RADIUS = 1e-3  # [rad or m] a start whose trust radius has shrunk below this has stalled
+MAX_REACH_STEP = 0.25  # [m] largest reach error pursued in one iteration
 LOWER_WEIGHT = 0.1  # weight of each lower task relative to the one above it
 FIXED = 1e8  # the diagonal that holds a clamped coordinate still
 HARD_TOL = 1e-6  # [m or rad] a hard row this far past its bound still holds (the interior-point programs' tolerance)
@@ -141,12 +142,16 @@ class BatchProgram:
         return state
 
     # -- the step -------------------------------------------------------------
-    def active(self, g: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Which hard rows are active (B, m) and what change each active row needs (B, m)."""
+    def active(self, g: np.ndarray, ahead: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Which hard rows are active (B, m) and what change each active row needs (B, m): those within ``BUFFER``
+        of a bound, and those that ``ahead`` (the rows' values after a first step, linearised) would cross."""
         lo, hi = self.rows.lower, self.rows.upper
         eq = self.rows.equality
         low = g < lo + BUFFER
         high = g > hi - BUFFER
+        if ahead is not None:
+            low |= ahead < lo
+            high |= ahead > hi
         target = np.where(eq, lo, np.where(low & ~high, lo + INSIDE, np.where(high & ~low, hi - INSIDE, 0.5 * (lo + hi))))
         act = eq | low | high
         return act, np.where(act, target - g, 0.0)
@@ -157,8 +162,8 @@ class BatchProgram:
             return np.zeros(len(g))
         return np.maximum(np.maximum(self.rows.lower - g, g - self.rows.upper), 0.0).max(axis=1)
 
-    def step(self, diag: np.ndarray, jac: np.ndarray | None, gradient: np.ndarray, state: State, fixed: np.ndarray,
-             extra: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    def step(self, diag: np.ndarray, jac: np.ndarray | None, gradient: np.ndarray, state: State, fixed: np.ndarray, radius: np.ndarray,
+             extra: tuple[np.ndarray, np.ndarray] | None = None, ahead: np.ndarray | None = None) -> np.ndarray:
         """The KKT step (B, n) of min 1/2 dx' H dx + gradient' dx subject to the active hard rows (and ``extra``
         rows C dx = r, the reach held below it), H = diag(diag) + jac' jac, coordinates in ``fixed`` (B, n) held
         still.
@@ -167,13 +172,10 @@ class BatchProgram:
         Woodbury identity and the constraints by their Schur complement S = C H^-1 C': a few small batched
         products and one (m, m) solve per posture instead of an (n + m) one.
         """
-        act, need = self.active(state.g)
-        # Only the active rows enter the solve: each posture's first, padded with zero rows to the batch's most.
-        top = int(act.sum(axis=1).max(initial=0))
-        order = np.argsort(~act, axis=1, kind="stable")[:, :top]
-        keep = np.take_along_axis(act, order, axis=1)
-        cs = [np.take_along_axis(state.jg, order[..., None], axis=1) * keep[..., None]]
-        rs = [np.take_along_axis(need, order, axis=1)]
+        act, need = self.active(state.g, ahead)
+        # Rows active for no posture of the batch are left out (an inactive row is a zero row otherwise).
+        used = act.any(axis=0)
+        cs, rs = [state.jg[:, used] * act[:, used, None]], [need[:, used]]
         if extra is not None:
             cs.append(extra[0])
             rs.append(extra[1])
@@ -189,33 +191,47 @@ class BatchProgram:
 
         if jac is not None:
             middle = np.eye(jac.shape[1]) + (jac * d_inv[:, None, :]) @ np.transpose(jac, (0, 2, 1))
-        dx = -h_inv(gradient[..., None])[..., 0]
+        dx_g = -h_inv(gradient[..., None])[..., 0]  # the objective's part of the step
+        dx_r = np.zeros_like(dx_g)  # the constraints' part (the KKT step is linear in the gradient and the rows' need)
         m = c.shape[1]
         if m:
             hc = h_inv(np.transpose(c, (0, 2, 1)))  # (B, n, m)
             schur = c @ hc
-            scale = np.abs(np.einsum("bii->b", schur)) / m + 1e-300
+            # A row whose gradient vanishes here (a coupling at its apex) has a zero Schur row: the floor keeps its
+            # multiplier finite, and its zero gradient makes it move nothing.
+            scale = np.maximum(np.abs(np.einsum("bii->b", schur)) / m, 1e-12)
             schur += (REGULAR * scale)[:, None, None] * np.eye(m)
-            nu = np.linalg.solve(schur, ((c @ dx[..., None])[..., 0] - r)[..., None])
-            dx = dx - (hc @ nu)[..., 0]
-        dx = dx * ~fixed
-        norm = np.linalg.norm(dx, axis=1, keepdims=True)
-        return np.where(norm > MAX_STEP, dx * (MAX_STEP / np.maximum(norm, 1e-300)), dx)
+            nu = np.linalg.solve(schur, np.stack([(c @ dx_g[..., None])[..., 0], r], axis=2))
+            dx_g = dx_g - (hc @ nu[..., :1])[..., 0]
+            dx_r = (hc @ nu[..., 1:])[..., 0]
+        dx_g, dx_r = dx_g * ~fixed, dx_r * ~fixed
+        # The step is bounded by each start's trust radius (B,), the constraints' part first: a far goal's pull never
+        # cuts short the return to the hard rows (scaling the whole step did, and kept 9 in 10 whole-body starts off
+        # their feet).
+        n_r = np.linalg.norm(dx_r, axis=1, keepdims=True)
+        n_g = np.linalg.norm(dx_g, axis=1, keepdims=True)
+        room = np.clip((radius[:, None] - n_r) / np.maximum(n_g, 1e-300), 0.0, 1.0)
+        dx = dx_r * np.minimum(1.0, MAX_STEP / np.maximum(n_r, 1e-300)) + room * dx_g
+        return np.where(np.isfinite(dx).all(axis=1, keepdims=True), dx, 0.0)  # a singular solve moves nothing
 
     def clamped_step(self, x: np.ndarray, diag: np.ndarray, jac: np.ndarray | None, gradient: np.ndarray, state: State,
-                     extra: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
-        """:meth:`step`, solved again with the coordinates it would push past their bounds held there."""
+                     radius: np.ndarray, extra: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+        """:meth:`step`, solved again where it would push coordinates past their bounds (held there) or carry
+        inactive hard rows past theirs (made active): an active set of one look ahead."""
         fixed = np.zeros(x.shape, bool)
-        dx = self.step(diag, jac, gradient, state, fixed, extra)
+        dx = self.step(diag, jac, gradient, state, fixed, radius, extra)
         over = ((x + dx < self.lower_bound) | (x + dx > self.upper_bound)) & ~fixed
-        again = np.nonzero(over.any(axis=1))[0]
+        ahead = state.g + (state.jg @ dx[..., None])[..., 0]
+        crossing = ((ahead < self.rows.lower) | (ahead > self.rows.upper)) & ~self.active(state.g)[0]
+        again = np.nonzero(over.any(axis=1) | crossing.any(axis=1))[0]
         if again.size:
             sub = State(state.g[again], state.jg[again], state.e[again], state.je[again])
             ex = None if extra is None else (extra[0][again], extra[1][again])
-            dx[again] = self.step(diag[again], None if jac is None else jac[again], gradient[again], sub, over[again], ex)
+            dx[again] = self.step(diag[again], None if jac is None else jac[again], gradient[again], sub, over[again], radius[again], ex,
+                                  ahead[again])
         return np.clip(x + dx, self.lower_bound, self.upper_bound)
 
-    def reach_step(self, x: np.ndarray, state: State, start: np.ndarray | None, start_weight: np.ndarray) -> np.ndarray:
+    def reach_step(self, x: np.ndarray, state: State, start: np.ndarray | None, start_weight: np.ndarray, radius: np.ndarray) -> np.ndarray:
         """One Gauss-Newton iteration of every posture towards its goal (reach as objective, hard rows held)."""
         e, je = state.e, state.je
         dist = np.linalg.norm(e, axis=1, keepdims=True)
@@ -227,7 +243,7 @@ class BatchProgram:
             w = PROXIMAL * start_weight[:, None] / self.span**2
             diag = diag + w
             gradient = gradient + w * (x - start)
-        return self.clamped_step(x, diag, je, gradient, state)
+        return self.clamped_step(x, diag, je, gradient, state, radius)
 
     def lower_step(self, x: np.ndarray, state: State) -> np.ndarray:
         """One damped iteration of the lower tasks on their Hessian's diagonal (a scaled gradient step), the reach
@@ -235,7 +251,7 @@ class BatchProgram:
         assert state.hess is not None and state.grad is not None
         diag = np.abs(state.hess)
         diag = diag + LOWER_DAMPING * diag.mean(axis=1, keepdims=True) + 1e-6
-        return self.clamped_step(x, diag, None, state.grad, state, (state.je, -state.e))
+        return self.clamped_step(x, diag, None, state.grad, state, np.full(len(x), MAX_STEP), (state.je, -state.e))
 
 
 class _Mapped:
@@ -276,11 +292,13 @@ class _Mapped:
 STARTS = 8  # default starts per goal (K): the hint(s), the reference, the ready posture, seeded random ones (README: why 8)
 MAX_ITER = 40  # reach iterations
 LOWER_ITER = 12  # lower-task iterations of a start that reached
-STALL = 0.02  # a start whose distance to the goal shrinks by less than this share in an iteration has stalled
+RANDOM_SPREAD = 0.5  # a floating body's random starts: this share of the way from the reference to a uniform posture
+DECIDES = 1e-3  # [m or rad] a decisive start decides its goal only with its hard rows held this well
+STALL = 0.005  # a start whose distance to the goal shrinks by less than this share in an iteration has stalled
 EXTRA = 2  # iterations the other starts of a goal get once one has reached (a better-liked posture; more cost little gain: README)
 CONVERGED = 0.1  # share of the tolerance within which a start has reached and stops iterating
 POLISH_NEAR = 0.03  # [m] a goal whose best start ends this near (but does not reach) is polished by the interior-point programs
-POLISHES = 3  # the most starts of one goal polished (the best-liked reaching ones that break a lazy task, then the nearest)
+POLISHES = 6  # the most fatrop polishes of one goal (its reaching postures that break a lazy task, its nearest, its random starts)
 CONTINUITY = 1.0  # weight of the range-normalised distance to the first hint (the neighbour's posture) in "liked"
 
 
@@ -296,9 +314,14 @@ class Candidates:
 
 
 def run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_of: np.ndarray, tolerance: float,
-               lower: bool, start: np.ndarray | None, deadline: float, stats: dict[str, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+               lower: bool, start: np.ndarray | None, deadline: float, stats: dict[str, int], decisive: np.ndarray | None = None,
+               give_up: float = np.inf) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Iterate every start (B, n) with its parameters (B, np) together; returns the final postures, reach distances,
-    hard-row violations and the lower tasks' values (inf where not computed)."""
+    hard-row violations and the lower tasks' values (inf where not computed).
+
+    ``decisive`` (B,) marks the starts whose failure decides their goal (a build's warm start from a neighbour
+    near the goal, see :class:`oracles.search.Search`): when one stalls farther than ``give_up`` [m] from its goal,
+    its rows held, the goal's other starts stop there (they ran beside it until then)."""
     import time
 
     x = x0.copy()
@@ -310,28 +333,38 @@ def run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_o
     starts = None if start is None else params[:, 3 : 3 + program.n]
     owner = np.asarray(goal_of, int)
     reached_at = np.full(int(owner.max()) + 1 if b else 0, -1)  # the iteration at which each goal's first start reached
+    given_up = np.zeros(len(reached_at), bool)
+    radius = np.full(b, MAX_STEP)  # each start's trust radius: halved when a step loses ground, grown when it gains
     for it in range(MAX_ITER + 1):
         if not live.size or time.perf_counter() > deadline:
             break
         state = program.evaluate(x[live], params[live])
         stats["iterations"] = stats.get("iterations", 0) + int(live.size)
         d, v = np.linalg.norm(state.e, axis=1), program.violation(state.g)
-        before = dist[live]
+        before = dist[live] + viol[live]
         dist[live], viol[live] = d, v
         done = (d <= CONVERGED * tolerance) & (v <= HARD_TOL)
         first = owner[live[done]]
         reached_at[first[reached_at[first] < 0]] = it
-        # A start stops when it has reached; when it stalls far from the goal (its distance shrinks by less than
-        # STALL of itself in an iteration, its rows held); or EXTRA iterations after another start of its goal reached.
-        stalled = (d > tolerance) & (v <= HARD_TOL) & (before - d < STALL * d) & (it > 2)
+        # A start stops when it has reached; when it stalls away from the goal (its distance plus its rows' violation
+        # shrinks by less than STALL of itself in an iteration); or EXTRA iterations after another start of its goal reached.
+        merit = d + v  # [m, with rad as m] progress counts the return to the hard rows as well as towards the goal
+        worse = merit > before
+        radius[live] = np.where(worse, 0.5 * radius[live], np.minimum(MAX_STEP, 1.5 * radius[live]))
+        stalled = (d > tolerance) & (before - merit < STALL * merit) & ~worse & (it > 2)
+        stalled |= radius[live] < MIN_RADIUS
         late = (reached_at[owner[live]] >= 0) & (it - reached_at[owner[live]] >= EXTRA)
+        if decisive is not None:
+            lost = owner[live[stalled & decisive[live] & (d > give_up) & (v <= DECIDES)]]
+            given_up[lost] = True
+            late |= given_up[owner[live]]
         keep = ~(done | stalled | late)
         if not keep.any():
             break
         sub = np.nonzero(keep)[0]
         state = State(state.g[sub], state.jg[sub], state.e[sub], state.je[sub])
         live = live[sub]
-        x[live] = program.reach_step(x[live], state, None if starts is None else starts[live], start_weight[live])
+        x[live] = program.reach_step(x[live], state, None if starts is None else starts[live], start_weight[live], radius[live])
     f = np.full(b, np.inf)
     if not (lower and program.has_lower):
         return x, dist, viol, f

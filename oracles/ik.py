@@ -33,7 +33,7 @@ import numpy as np
 import pinocchio as pin
 
 from oracles.batch import CONTINUITY as CONTINUITY_WEIGHT
-from oracles.batch import POLISH_NEAR, POLISHES, STARTS, BatchProgram, run_starts
+from oracles.batch import POLISH_NEAR, POLISHES, RANDOM_SPREAD, STARTS, BatchProgram, run_starts
 from oracles.body import load_body
 from oracles.errors import ModelError, OracleError
 from oracles.jit import COMPILER, compiled_nlpsol
@@ -811,7 +811,10 @@ class CasadiIK(IKOracle):
         out = [p.x_of_q(h) for h in seeds if np.all(np.isfinite(h))]
         out += [p.x_ref.copy(), p.x_ready.copy()]
         rng = np.random.default_rng([self.search.seed, zlib.crc32(np.round(goal, 9).tobytes())])
-        out += [p.random_x(rng) for _ in range(max(self.starts_per_goal - len(out), 0))]
+        # A standing body's random start moves every joint only part of the way into its range (RANDOM_SPREAD):
+        # uniform hips and ankles throw the held feet metres off, which no start came back from in 40 steps.
+        spread = RANDOM_SPREAD if self.strategy.floating else 1.0
+        out += [p.x_ref + spread * (p.random_x(rng) - p.x_ref) for _ in range(max(self.starts_per_goal - len(out), 0))]
         return out
 
     def _evaluate_batch(self, points: np.ndarray, hints: np.ndarray | None, start: np.ndarray | None, aims: np.ndarray | None) -> Verdicts:
@@ -836,6 +839,7 @@ class CasadiIK(IKOracle):
         program = self.batch_program()
         starts = [self._batch_starts(pts[i], None if hints is None else hints[i]) for i in todo]
         owner = np.concatenate([np.full(len(s), i) for i, s in zip(todo, starts, strict=True)])
+        offsets = np.concatenate([[0], np.cumsum([len(s) for s in starts])])
         x0 = np.clip(np.concatenate([np.array(s) for s in starts]), p.lower, p.upper)
         b = len(x0)
         self.stats["solves"] += b
@@ -844,14 +848,22 @@ class CasadiIK(IKOracle):
         on = float(task is not None and (aims is not None or not task.free))
         params = np.concatenate([pts[owner], x0 if start is None else np.tile(start, (b, 1)), np.full((b, 1), 0.0 if start is None else 1.0),
                                  np.transpose(aim, (0, 2, 1)).reshape(b, 9), np.full((b, 1), on)], axis=1)
-        x, dist, viol, liked = run_starts(program, x0, params, owner, tol, search.secondary, start, deadline, self.stats)
+        # A goal's first start is decisive when it is a hint whose effector lies within `decisive` of the goal.
+        decisive = None
+        if hints is not None and np.isfinite(search.give_up_distance):
+            first_hint = hints[todo, 0] if hints.ndim == 3 else hints[todo]
+            near = np.array([np.all(np.isfinite(h)) and p.effector_distance(h, pts[i], self._data) <= search.decisive
+                             for h, i in zip(first_hint, todo, strict=True)])
+            decisive = np.zeros(b, bool)
+            decisive[offsets[:-1][near]] = True
+        x, dist, viol, liked = run_starts(program, x0, params, owner, tol, search.secondary, start, deadline, self.stats, decisive,
+                                          search.give_up_distance)
         # Continuity with the neighbour's posture (the first hint) is part of "liked".
         first = np.array([s[0] for s in starts]) if hints is not None else None
         if first is not None:
             nearness = np.sum(((x - first[np.searchsorted(todo, owner)]) / (p.upper - p.lower)) ** 2, axis=1)
             liked = np.where(np.isfinite(liked), liked, 0.0) + CONTINUITY_WEIGHT * nearness
         q_all = p.q_of_x_many(x)
-        offsets = np.concatenate([[0], np.cumsum([len(s) for s in starts])])
         polisher = None
         for j, i in enumerate(todo):
             rows = np.arange(offsets[j], offsets[j + 1])
@@ -872,13 +884,18 @@ class CasadiIK(IKOracle):
             if best is None:
                 best = p.check(q_all[ranked[0]], pts[i], self._data, aim_i)
                 residual[i], posture[i] = best.residual, q_all[ranked[0]]
-            # Polish from the best-liked postures that reach but break a lazy task (a collision), then from the nearest.
-            tries = list(dict.fromkeys([*order[:POLISHES], *ranked[:1]]))[:POLISHES]
-            for r in tries:
-                if dist[r] > POLISH_NEAR or time.perf_counter() > deadline:
-                    continue
+            if dist[ranked[0]] > POLISH_NEAR:
+                continue
+            # A goal that some starts reach but whose postures break a lazy task (a collision) is polished from
+            # them, then from its random starts themselves (fatrop's own restarts: another basin); a near miss
+            # (no start reached) from its nearest end only: most are beyond the boundary.
+            ends = [x[r] for r in dict.fromkeys([*order, *ranked[:1]])]
+            tries = [*ends, *x0[rows[::-1]]][:POLISHES] if order.size else ends[:1]
+            for guess in tries:
+                if time.perf_counter() > deadline:
+                    break
                 polisher = polisher or self._polisher()
-                q = polisher.solve(pts[i], x[r], search.secondary, Call(start, deadline, aim_i))
+                q = polisher.solve(pts[i], guess, search.secondary, Call(start, deadline, aim_i))
                 self.stats["polished"] = self.stats.get("polished", 0) + 1
                 check = p.check(q, pts[i], self._data, aim_i)
                 if check.reachable or check.residual < residual[i]:

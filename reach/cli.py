@@ -226,7 +226,8 @@ def cmd_motion(args: argparse.Namespace) -> int:
         from reach.select import Selector
         from reach.store import load_atlas
 
-        planner = Planner(Selector(load_atlas(atlas), policy=args.policy))  # type: ignore[arg-type]
+        # The solvers are built (warm_up) before planning starts, so the end posture's budget is not spent on them.
+        planner = Planner(Selector(load_atlas(atlas), policy=args.policy).warm_up())  # type: ignore[arg-type]
         motion = planner.plan(args.effector, goal, start, rate=args.rate, timing=Timing.from_dict(timing, "--duration"), miss=args.miss)
         data = motion.to_dict()
         if kind in (".bvh", ".glb", ".gltf"):

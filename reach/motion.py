@@ -51,7 +51,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
-from oracles.protocol import EffectorPositions, Moving, Shaped
+from oracles.protocol import EffectorPositions, Moving, Shaped, Verifying
 from reach.errors import InputError, ReachError
 from reach.select import Selector, posture_vector, split_posture
 
@@ -82,6 +82,7 @@ BLEND = 0.4  # share of each segment beside an inner waypoint that its rounded c
 BLEND_SAMPLES = 9  # postures along each rounded corner
 POSTURE_SHARE = 0.1  # the posture path's share in a motion's progress (a modelling choice: the rest is the hand's path)
 REACHED, NEAREST = "reached", "nearest"
+REACH_TOLERANCE = 0.005  # [m] a motion's end this near its goal reaches it, for oracles without a verdict of their own (the reach task's default)
 MOTION_MISSES = ("nearest", "error")
 
 
@@ -176,7 +177,7 @@ class Motion:
         effector: The effector.
         goal: The goal [m].
         strategy: The strategy whose end posture it reaches.
-        outcome: ``reached`` (the end posture reaches the goal), or ``nearest``
+        outcome: ``reached`` (the last frame reaches the goal, by the verdict's own check), or ``nearest``
             (the goal is out of reach; the motion goes to the nearest point a
             stored posture reaches).
         point: Where the effector ends [m].
@@ -291,9 +292,19 @@ class Planner:
         postures, waypoints, held = self._path(name, oracle, labels, q0, q1, rate, timing)
         times = postures[1]
         path = np.asarray(oracle.effector_positions(postures[0]))
+        if outcome == REACHED and not self._reaches(oracle, g[0], postures[0][-1], path[-1]):
+            outcome = NEAREST  # honest: held frames (or a stored end posture) that stop short of the goal did not reach it
         within = answer.within if outcome == REACHED else float(np.linalg.norm(path[-1] - g[0]))
         return Motion(effector, tuple(g[0].tolist()), name, outcome, tuple(path[-1].tolist()), labels, float(rate), times, postures[0], path,
                       answer.refined, within, waypoints, held, postures[2])
+
+    @staticmethod
+    def _reaches(oracle: Body, goal: np.ndarray, end: np.ndarray, point: np.ndarray) -> bool:
+        """Whether the motion's last frame reaches the goal: the verdict's own check where the oracle offers it,
+        else the effector within the default reach tolerance of the goal."""
+        if isinstance(oracle, Verifying):
+            return bool(oracle.verify(goal[None], end[None])[0])
+        return float(np.linalg.norm(point - goal)) <= REACH_TOLERANCE
 
     # -- the path -----------------------------------------------------------
     def _path(self, name: str, oracle: Body, names: tuple[str, ...], q0: np.ndarray, q1: np.ndarray, rate: float,

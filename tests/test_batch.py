@@ -1,0 +1,139 @@
+"""The batched engine (oracles/batch.py, casadi-ik's ``solver: batch``) against independent truth and fatrop."""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from oracles.batch import CHUNK
+from oracles.ik import CasadiIK
+from oracles.protocol import OracleSpec
+from oracles.search import Search
+from reach.config import load_config
+from reach.errors import OracleError
+from tests.test_collision import coal_capsule_distance
+from tests.test_ik import ARM, HUMAN, PLANTED, WHOLE, _assert_reachable_verdicts_hold
+
+pytestmark = pytest.mark.slow  # solves hundreds of whole-body goals
+
+
+def _batch(joints, tasks=None, **engine):  # noqa: ANN001, ANN003
+    return CasadiIK(HUMAN, "right_hand", joints, tasks, search=Search(restarts=1), solver="batch", **engine)
+
+
+@pytest.fixture(scope="module")
+def arm():
+    return _batch(ARM, [{"type": "reach"}, {"type": "self_collision"}, {"type": "coupling"}, {"type": "posture"}])
+
+
+@pytest.fixture(scope="module")
+def whole():
+    return _batch(WHOLE, [*PLANTED, {"type": "self_collision"}, {"type": "floor"}, {"type": "posture"}])
+
+
+def _goals(oracle, n: int, seed: int) -> np.ndarray:  # noqa: ANN001
+    bound = oracle.reach_bound()
+    lo, hi = np.maximum([-1.1, -1.2, 0.0], bound.centre - bound.radius), np.minimum([1.4, 1.2, 2.4], bound.centre + bound.radius)
+    return np.random.default_rng(seed).uniform(lo, hi, (n, 3))
+
+
+def test_every_batched_reachable_verdict_holds_under_independent_checks(arm, whole):
+    """Pinocchio forward kinematics of our own (effector, limits, held feet, centre of mass over the polygon), and
+    coal's distance of every self-collision pair, computed here from the capsules (not the task's own call)."""
+    for oracle, n in ((arm, 120), (whole, 60)):
+        goals = _goals(oracle, n, 11)
+        v = oracle.evaluate(goals)
+        assert v.reachable.sum() >= n // 5  # the check can fail: many goals are reached
+        _assert_reachable_verdicts_hold(oracle, goals, v)
+        task = oracle.strategy.task("self_collision")
+        for q in v.posture[v.reachable]:
+            caps = oracle.body.capsules_at(q)
+            for pair in task.pairs:
+                a, b = caps[pair.first], caps[pair.second]
+                d = coal_capsule_distance(a[:3], a[3:6], a[6], b[:3], b[3:6], b[6])
+                assert d >= pair.floor - 1e-6, (pair, d)
+
+
+def test_it_misses_few_goals_fatrop_reaches_with_six_restarts_and_fatrop_accepts_all_it_reaches():
+    """Seeded random goals of every shipped demo strategy (the right side): the batched engine with its default
+    starts against fatrop with 6 random restarts."""
+    config = load_config("configs/demo.yaml")
+    reached = missed = 0
+    for name, n in (("right_arm", 100), ("right_upper_body", 60), ("right_whole_body", 40), ("right_crouch", 30)):
+        params = dict(config.strategy(name).oracle.params)
+        batch = OracleSpec("casadi-ik", {**params, "solver": "batch"}).create()
+        fatrop = OracleSpec("casadi-ik", {**params, "solver": "fatrop", "restarts": 6}).create()
+        goals = _goals(batch, n, 5)
+        vb, vf = batch.evaluate(goals), fatrop.evaluate(goals)
+        assert fatrop.verify(goals[vb.reachable], vb.posture[vb.reachable]).all(), name
+        reached += int(vf.reachable.sum())
+        missed += int((vf.reachable & ~vb.reachable).sum())
+    assert reached >= 60
+    assert missed <= max(1, round(0.02 * reached)), (missed, reached)
+
+
+def test_the_same_goals_give_the_same_postures_in_any_batch(arm):
+    goals = _goals(arm, 2 * CHUNK + 5, 3)
+    whole = arm.evaluate(goals)
+    again = arm.evaluate(goals)
+    assert np.array_equal(whole.reachable, again.reachable) and np.array_equal(whole.posture, again.posture)
+    alone = [arm.evaluate(goals[i : i + 1]) for i in (0, 7, 2 * CHUNK + 4)]
+    for v, i in zip(alone, (0, 7, 2 * CHUNK + 4), strict=True):
+        assert v.reachable[0] == whole.reachable[i]
+        assert np.allclose(v.posture[0], whole.posture[i], atol=1e-9)
+
+
+def test_many_starts_reach_what_one_start_misses(arm):
+    """The reason for K starts: with one start (the reference) some goals are called unreachable that the
+    default starts reach, and never the other way round."""
+    one = _batch(ARM, [{"type": "reach"}, {"type": "self_collision"}, {"type": "coupling"}, {"type": "posture"}], starts=1)
+    goals = _goals(arm, 150, 8)
+    many, single = arm.evaluate(goals), one.evaluate(goals)
+    assert (many.reachable & ~single.reachable).sum() >= 1
+    assert (single.reachable & ~many.reachable).sum() <= 1
+
+
+def test_a_warm_hint_is_kept_when_it_reaches(arm):
+    """Continuity: the neighbour's posture (the first hint), moved the least, is the best liked."""
+    goals = _goals(arm, 60, 4)
+    v = arm.evaluate(goals)
+    ok = np.nonzero(v.reachable)[0][:10]
+    near = goals[ok] + 0.01
+    w = arm.evaluate(near, v.posture[ok])
+    moved = np.abs(arm.problem.x_of_q(w.posture[0]) - arm.problem.x_of_q(v.posture[ok[0]])).max()
+    assert w.reachable.sum() >= 8 and moved < 0.3
+
+
+def test_the_engine_parameters_are_checked_and_written():
+    with pytest.raises(OracleError, match="starts"):
+        _batch(ARM, starts=0)
+    spec = _batch(ARM, starts=5).spec
+    assert spec.params["solver"] == "batch" and spec.params["starts"] == 5
+    assert "starts" not in CasadiIK(HUMAN, "right_hand", ARM, solver="fatrop").spec.params
+
+
+def test_the_batched_kinematics_match_pinocchio(whole):
+    """The mapped, compiled function's reach residual and Jacobian against Pinocchio at random postures."""
+    program = whole.batch_program()
+    rng = np.random.default_rng(2)
+    p = whole.problem
+    x = np.array([p.random_x(rng) for _ in range(CHUNK + 3)])
+    x[:, :6] += rng.normal(scale=0.05, size=(len(x), 6))
+    goal = np.array([0.4, -0.3, 1.1])
+    params = np.zeros((len(x), program.np))
+    params[:, :3] = goal
+    params[:, 3 : 3 + program.n] = x
+    state = program.evaluate(x, params)
+    model, data = whole.body.model, whole.body.model.createData()
+    for k in (0, CHUNK - 1, CHUNK + 2):
+        q = p.q_of_x(x[k])
+        pin.framesForwardKinematics(model, data, q)
+        assert np.allclose(state.e[k], data.oMf[p.effector_id].translation - goal, atol=1e-9)
+        eps = 1e-6
+        for j in (0, 4, 10, program.n - 1):
+            dx = np.zeros(program.n)
+            dx[j] = eps
+            pin.framesForwardKinematics(model, data, p.q_of_x(x[k] + dx))
+            fd = (data.oMf[p.effector_id].translation - goal - state.e[k]) / eps
+            assert np.allclose(state.je[k][:, j], fd, atol=1e-4)
