@@ -28,7 +28,6 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from oracles.protocol import OracleSpec
 from reach.atlas import build_atlas
 from reach.config import parse_config, read_yaml
 from reach.executor import ProcessExecutor
@@ -107,7 +106,7 @@ def builds(data: dict, workers: int) -> None:
         config = parse_config(with_engine(data, engine), str(data.get("name", "bench")), "bench")
         with tempfile.TemporaryDirectory() as tmp:
             t0, c0 = time.perf_counter(), cpu()
-            atlas = build_atlas(config, Path(tmp) / "atlas", executor_factory=lambda s: ProcessExecutor(s, workers, config.chunk_size))
+            atlas = build_atlas(config, Path(tmp) / "atlas", executor_factory=lambda s, c=config: ProcessExecutor(s, workers, c.chunk_size))
             wall, spent = time.perf_counter() - t0, cpu() - c0
             for name, tree in atlas.trees.items():
                 b = tree.meta["build"]
