@@ -291,6 +291,7 @@ class _Mapped:
 
 STARTS = 8  # default starts per goal (K): the hint(s), the reference, the ready posture, seeded random ones (README: why 8)
 MAX_ITER = 40  # reach iterations
+LOWER_STARTS = 2  # reaching starts of one goal whose lower tasks are refined (the lower steps are the dearest)
 LOWER_ITER = 12  # lower-task iterations of a start that reached
 RANDOM_SPREAD = 0.5  # a floating body's random starts: this share of the way from the reference to a uniform posture
 DECIDES = 1e-3  # [m or rad] a decisive start decides its goal only with its hard rows held this well
@@ -369,8 +370,14 @@ def run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_o
     if not (lower and program.has_lower):
         return x, dist, viol, f
     reached = np.nonzero((dist <= tolerance) & (viol <= HARD_TOL))[0]
+    # The lower tasks refine at most LOWER_STARTS reaching starts per goal, the first in the order of the starts
+    # (the hint, the reference, the ready posture, then the random ones): the rest keep their reach posture.
+    rank = np.zeros(len(reached), int)
+    for k in range(1, len(reached)):
+        rank[k] = rank[k - 1] + 1 if owner[reached[k]] == owner[reached[k - 1]] else 0
+    reached = reached[rank < LOWER_STARTS]
     if not reached.size:
-        return x, dist, viol, f
+        return x, dist, viol, f  # (no start reached: nothing to like)
     y = x[reached].copy()
     for _ in range(LOWER_ITER):
         if time.perf_counter() > deadline:
@@ -385,8 +392,10 @@ def run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_o
     assert state.f is not None
     x[reached[ok]], dist[reached[ok]], viol[reached[ok]] = y[ok], d[ok], v[ok]
     f[reached[ok]] = state.f[ok]
-    if (~ok).any():
-        back = program.evaluate(x[reached[~ok]], params[reached[~ok]], lower=True)
+    # Every other reaching start is scored where it stands, so that "liked" compares them all.
+    rest = np.nonzero((dist <= tolerance) & (viol <= HARD_TOL) & ~np.isfinite(f))[0]
+    if rest.size:
+        back = program.evaluate(x[rest], params[rest], lower=True)
         assert back.f is not None
-        f[reached[~ok]] = back.f
+        f[rest] = back.f
     return x, dist, viol, f
