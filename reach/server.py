@@ -162,6 +162,7 @@ class Server:
             self.publisher.bind(pub)  # type: ignore[arg-type]
             self.pub_endpoint = self.publisher.getsockopt(zmq.LAST_ENDPOINT).decode()
         self._stop = threading.Event()
+        self._signalled = False  # set by SIGINT/SIGTERM: a handler that only assigns can never deadlock (Event.set locks)
         self.started = time.monotonic()
         self.requests = 0
         self.errors = 0
@@ -181,6 +182,22 @@ class Server:
         """Ask the loop to finish (thread- and signal-safe)."""
         self._stop.set()
 
+    def handle_signals(self) -> None:
+        """Make SIGINT and SIGTERM end the loop (from the main thread only; before "serving" is printed, so that a
+        signal sent as soon as it is seen is the server's)."""
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                signal.signal(sig, self._on_signal)
+
+    def _on_signal(self, signum: int, frame: object) -> None:
+        # Only a flag: Event.set() takes a lock, and a second signal arriving inside it blocked the process for good.
+        self._signalled = True
+
+    @property
+    def running(self) -> bool:
+        """Whether the loop goes on: neither stop() nor a signal has asked it to end."""
+        return not (self._signalled or self._stop.is_set())
+
     def close(self) -> None:
         if self._loader is not None:
             self._loader.shutdown(wait=True, cancel_futures=True)
@@ -194,9 +211,7 @@ class Server:
 
     def serve_forever(self) -> None:
         """Poll and answer until stop() or SIGINT/SIGTERM."""
-        if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                signal.signal(sig, lambda *_: self.stop())
+        self.handle_signals()
         # What is loaded now lives as long as the server: keep it out of the
         # garbage collector's scans, which otherwise show in the latency tail.
         gc.collect()
@@ -206,7 +221,7 @@ class Server:
                 # A blocking receive with a timeout wakes fastest; the timeout lets the
                 # loop see a stop request within POLL_MS.
                 self.router.setsockopt(zmq.RCVTIMEO, P.POLL_MS)
-                while not self._stop.is_set():
+                while self.running:
                     try:
                         frames = self.router.recv_multipart()
                     except zmq.Again:
@@ -227,7 +242,7 @@ class Server:
         poller.register(self.router, zmq.POLLIN)
         backend = None
         next_check = time.monotonic() + REVIVE_EVERY
-        while not self._stop.is_set():
+        while self.running:
             if backend is not self.pool.backend:  # a reload replaced the workers
                 if backend is not None:
                     poller.unregister(backend)

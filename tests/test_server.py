@@ -352,6 +352,26 @@ def test_sigterm_stops_the_server_cleanly(balls):
             proc.kill()
 
 
+def test_a_burst_of_signals_stops_the_server_and_never_blocks_it(balls):
+    """Issue 35, item 7: the handler only sets a flag; a hundred SIGTERMs and SIGINTs in a burst (one arriving while
+    another is handled) still end the process, with its usual message and status."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "reach.cli", "serve", str(balls), "--bind", "tcp://127.0.0.1:*", "--pub", "none", "--workers", "0"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    try:
+        assert proc.stdout.readline().startswith("serving")
+        for k in range(100):
+            if proc.poll() is not None:
+                break
+            proc.send_signal(signal.SIGTERM if k % 2 else signal.SIGINT)
+        out, _ = proc.communicate(timeout=10)
+        assert proc.returncode == 0 and "server stopped" in out
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+
+
 def test_cli_query_connect(running, capsys):
     assert main(["query", "--connect", running.server.endpoint, "0.1", "0", "0", "--json"]) == 0
     answer = json.loads(capsys.readouterr().out)["answers"][0]
