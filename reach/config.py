@@ -150,6 +150,9 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
     check = _Checker(source)
     top = check.mapping(data, "", TOP_KEYS, {"box", "depth", "oracle", "strategies"})
     name = check.string(top.get("name", default_name), "name")
+    if not name.replace("_", "").replace("-", "").replace(".", "").isalnum() or name.startswith("."):
+        # It names the default output folder (out/<name>): no separators, no "..".
+        raise check.fail("name", f"use letters, digits, '-', '_' and '.' only, not first (it names the folder out/<name>), got {name!r}")
     auto = _auto_box(check, top["box"])
     if auto is None:
         box_raw = check.mapping(top["box"], "box", {"min", "max"}, {"min", "max"})

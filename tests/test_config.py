@@ -73,6 +73,8 @@ def test_good_config_and_priority_order(tmp_path):
         ({"strategies": []}, "strategies", "non-empty list"),
         ({"strategies": [{"name": "a"}, {"name": "a"}]}, "strategies[1].name", "duplicate"),
         ({"strategies": [{"name": "../x"}]}, "strategies[0].name", "names a file"),
+        ({"name": "../../../escaped"}, "name", "names the folder out/<name>"),  # issue 35: it wrote outside out/
+        ({"name": "a/b"}, "name", "names the folder out/<name>"),
         ({"strategies": [{"name": "a", "speed": 3}]}, "strategies[0].speed", "unknown key"),
         ({"box": ...}, "box", "required key is missing"),
     ],
