@@ -86,6 +86,25 @@ class Pending:
     bounds: list[tuple[int, int]]
 
 
+
+def check_endpoint(address: str, flag: str) -> None:
+    """A ZeroMQ address a server may bind, or an InputError naming the flag: ``tcp://HOST:PORT`` (PORT 1-65535, or
+    ``*`` for any free one), ``ipc://PATH`` or ``inproc://NAME``. libzmq itself took port 99999 as another port."""
+    scheme, sep, rest = address.partition("://")
+    if not sep or scheme not in ("tcp", "ipc", "inproc") or not rest or "\0" in rest:
+        raise InputError(flag, f"expected tcp://HOST:PORT, ipc://PATH or inproc://NAME, got {address!r}")
+    if scheme == "tcp":
+        host, colon, port = rest.rpartition(":")
+        if not colon or not host or not (port == "*" or (port.isdigit() and 1 <= int(port) <= 65535)):
+            raise InputError(flag, f"expected tcp://HOST:PORT with PORT from 1 to 65535 or *, got {address!r}")
+
+
+def _bind(socket: zmq.Socket, address: str, flag: str) -> None:  # type: ignore[type-arg]
+    try:
+        socket.bind(address)
+    except zmq.ZMQError as exc:
+        raise InputError(flag, f"cannot bind {address}: {exc.strerror}") from None
+
 class Server:
     """The selector behind a ROUTER and a PUB socket.
 
@@ -127,6 +146,9 @@ class Server:
         keys = load_curve_key(curve_secret, secret=True, what="--curve-secret-key") if curve_secret else None  # before any socket
         if curve_clients is not None and (keys is None or not Path(curve_clients).is_dir()):
             raise InputError("--curve-clients", f"{curve_clients}: expected a folder of client public-key files, with --curve-secret-key")
+        check_endpoint(bind, "--bind")
+        if pub:
+            check_endpoint(pub, "--pub")
         self.atlas_path = Path(atlas)
         self.refine, self.budget = refine, budget
         # The selector's options, as the workers' selectors get them too.
@@ -153,13 +175,13 @@ class Server:
         if keys is not None:
             for s in sockets:
                 s.curve_secretkey, s.curve_publickey, s.curve_server = keys[1], keys[0], True
-        self.router.bind(bind)
+        _bind(self.router, bind, "--bind")
         self.endpoint = self.router.getsockopt(zmq.LAST_ENDPOINT).decode()
         self.pub_endpoint = None
         if self.publisher is not None:
             self.publisher.setsockopt(zmq.LINGER, 0)
             self.publisher.setsockopt(zmq.SNDHWM, P.PUB_HWM)
-            self.publisher.bind(pub)  # type: ignore[arg-type]
+            _bind(self.publisher, pub, "--pub")  # type: ignore[arg-type]
             self.pub_endpoint = self.publisher.getsockopt(zmq.LAST_ENDPOINT).decode()
         self._stop = threading.Event()
         self._signalled = False  # set by SIGINT/SIGTERM: a handler that only assigns can never deadlock (Event.set locks)

@@ -372,6 +372,18 @@ def test_a_burst_of_signals_stops_the_server_and_never_blocks_it(balls):
             proc.kill()
 
 
+def test_bad_bind_addresses_get_one_line_errors_naming_the_flag(balls, running):
+    """Issue 35, finding 9: a port out of range served on another port; 'foo' and a port in use gave tracebacks."""
+    for address, message in (("tcp://127.0.0.1:99999", "PORT from 1 to 65535"), ("foo", "expected tcp://HOST:PORT"),
+                             ("tcp://127.0.0.1", "expected tcp://HOST:PORT"), (running.server.endpoint, "cannot bind")):
+        with pytest.raises(InputError, match=message) as info:
+            Server(balls, address, None)
+        assert info.value.field == "--bind"
+    with pytest.raises(InputError, match="expected tcp") as info:
+        Server(balls, "tcp://127.0.0.1:*", "udp://x")
+    assert info.value.field == "--pub"
+
+
 def test_cli_query_connect(running, capsys):
     assert main(["query", "--connect", running.server.endpoint, "0.1", "0", "0", "--json"]) == 0
     answer = json.loads(capsys.readouterr().out)["answers"][0]
