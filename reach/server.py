@@ -399,6 +399,8 @@ class Server:
     def _reload_path(self, req: P.Request) -> Path:
         if self.reload_root is None:
             raise P.ProtocolError(P.FORBIDDEN, "reload is off; the operator allows it with reach serve --allow-reload ROOT", req.id)
+        if "\0" in (req["path"] or ""):
+            raise P.ProtocolError(P.BAD_REQUEST, "path: a NUL character cannot be in a file path", req.id)
         # Checked before the path is touched: a refused path reveals nothing of what exists there.
         path = (self.reload_root / req["path"]).resolve() if req["path"] else self.atlas_path
         if not path.is_relative_to(self.reload_root):

@@ -269,6 +269,8 @@ def test_reload_hot_swaps_the_atlas_only_under_the_allowed_root(balls, cube, tmp
                 c.query("point", [0.0, 0.0, 0.0])
             with pytest.raises(ServerError, match="reload_failed"):
                 c.reload("nonexistent")
+            with pytest.raises(ServerError, match="bad_request: path: a NUL character"):  # was `internal` (issue 35)
+                c.reload("a\0b")
             assert c.query("tool", [0.0, 0.0, 0.0])["ok"]  # the current atlas is kept
     finally:
         r.stop()
