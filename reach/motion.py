@@ -343,6 +343,9 @@ class Planner:
             dots = np.abs(quat @ quat[0]) / np.linalg.norm(quat, axis=1) / np.linalg.norm(quat[0])
             tilt = float(2.0 * np.arccos(np.clip(dots.min(), -1.0, 1.0)))
         seconds, parts = timing.seconds(float(steps.sum()), drop, tilt, lift)
+        if not math.isfinite(seconds) or seconds > MAX_DURATION:
+            # Bounded whatever the coefficients (issue 35): a motion is at most MAX_DURATION x rate frames.
+            raise InputError("timing", f"these coefficients time this motion at {seconds:.3g} s; a motion lasts at most {MAX_DURATION:g} s")
         frames = max(1, int(math.ceil(seconds * rate - 1e-9)))  # the law's duration, rounded up to a whole frame
         times = np.arange(frames + 1) / rate
         # Minimum jerk is a law of the hand's path (Flash and Hogan 1985): progress is the share of the hand's path

@@ -454,3 +454,12 @@ def test_a_motion_is_reached_only_when_its_last_frame_reaches_the_goal(planner, 
         else:
             assert m.within == pytest.approx(end, abs=1e-9)
     assert "nearest" in outcomes  # the check can fail: stored postures stop short
+
+
+def test_timing_coefficients_cannot_make_a_motion_longer_than_its_bound(planner):
+    """Issue 35, item 1: duration was capped but not the law's coefficients (tmu: 36 planned for 100 s; 1e300 was
+    an internal error). Both are refused, naming the timing."""
+    for timing, goal in (({"tmu": 36.0}, [0.4, -0.3, 1.0]), ({"tmu": 1e300}, [0.4, -0.3, 1.0]), ({"past_30": 1e300}, [2.0, -0.3, 1.2])):
+        with pytest.raises(InputError, match="a motion lasts at most"):
+            planner.plan("right_hand", goal, rate=240, timing=Timing.from_dict(timing))
+    assert planner.plan("right_hand", [0.4, -0.3, 1.0], timing=Timing.from_dict({"tmu": 0.036})).duration < 20
