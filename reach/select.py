@@ -190,10 +190,16 @@ def orientation_of(wire: dict[str, list[float]] | list[dict[str, list[float]]] |
         return None
     if isinstance(wire, list):
         return [orientation_of(w) for w in wire]  # type: ignore[misc]
-    if "direction" in wire:
-        d = np.asarray(wire["direction"], float)
-        return d / np.linalg.norm(d)  # type: ignore[no-any-return]
-    return np.asarray(Rotation.from_quat(np.asarray(wire["quaternion"], float)).as_matrix())
+    key = "direction" if "direction" in wire else "quaternion"
+    v = np.asarray(wire[key], float)
+    # Scaled by the largest component before normalising: [1e200, 0, 0]'s norm overflowed to a zero direction.
+    top = np.abs(v).max(initial=0.0)
+    if not np.all(np.isfinite(v)) or top == 0.0:
+        raise InputError(f"orientation.{key}", f"expected finite numbers, not all zero, got {wire[key]!r}")
+    v = v / top
+    if key == "direction":
+        return v / np.linalg.norm(v)  # type: ignore[no-any-return]
+    return np.asarray(Rotation.from_quat(v).as_matrix())
 
 
 def split_posture(names: tuple[str, ...], q: np.ndarray) -> tuple[dict[str, float], dict[str, list[float]] | None]:

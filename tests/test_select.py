@@ -265,3 +265,18 @@ def test_refinement_also_starts_from_the_best_liked_stored_posture_nearby(arm, m
         assert np.linalg.norm(hand_of(answer, human_body()) - goal) <= 0.005
     finally:
         postures[row] = saved
+
+
+def test_a_requests_orientation_is_scaled_before_it_is_normalised_and_bad_ones_name_the_field():
+    """Issue 35: [1e200, 0, 0] overflowed to a zero direction (bad_request without workers, a worker's error with
+    them); it is the x axis. A zero, infinite or NaN orientation is refused naming the field, in the loop."""
+    from reach.errors import InputError
+    from reach.select import orientation_of
+
+    assert np.allclose(orientation_of({"direction": [1e200, 0, 0]}), [1, 0, 0])
+    assert np.allclose(orientation_of({"quaternion": [0, 0, 0, 1e300]}), np.eye(3))
+    for wire, field in (({"direction": [0, 0, 0]}, "orientation.direction"), ({"direction": [float("inf"), 0, 0]}, "orientation.direction"),
+                        ({"quaternion": [0, 0, 0, 0]}, "orientation.quaternion")):
+        with pytest.raises(InputError) as info:
+            orientation_of(wire)
+        assert info.value.field == field
