@@ -146,6 +146,11 @@ class Server:
         keys = load_curve_key(curve_secret, secret=True, what="--curve-secret-key") if curve_secret else None  # before any socket
         if curve_clients is not None and (keys is None or not Path(curve_clients).is_dir()):
             raise InputError("--curve-clients", f"{curve_clients}: expected a folder of client public-key files, with --curve-secret-key")
+        if curve_clients is not None:
+            # Each file the authenticator will read (pyzmq reads *.key), checked now: one malformed file emptied the
+            # allow-list after "serving" was printed, and every client was refused.
+            for key_file in sorted(Path(curve_clients).glob("*.key")):
+                load_curve_key(key_file, secret=False, what="--curve-clients")
         check_endpoint(bind, "--bind")
         if pub:
             check_endpoint(pub, "--pub")

@@ -333,6 +333,9 @@ def test_curve_with_an_allow_list_lets_in_listed_clients_only(balls, tmp_path):
         r.stop()
     with pytest.raises(InputError, match="--curve-clients: .*expected a folder of client public-key files, with --curve-secret-key"):
         Server(balls, "tcp://127.0.0.1:*", None, curve_clients=allowed)
+    (allowed / "broken.key").write_text("not a certificate\n")  # issue 35: emptied the allow-list after "serving"
+    with pytest.raises(InputError, match=r"--curve-clients: .*broken\.key: cannot read a CURVE key file"):
+        Server(balls, "tcp://127.0.0.1:*", None, curve_secret=server_secret, curve_clients=allowed)
 
 
 def test_sigterm_stops_the_server_cleanly(balls):
