@@ -420,6 +420,9 @@ def _given(**keys: Any) -> dict[str, Any]:
     return {k: v for k, v in keys.items() if v is not None and v != {} and v != []}
 
 
+URDF_MAX_BYTES = 64 * 1024 * 1024  # a URDF's XML: the largest in example-robot-data is under 1 MB
+
+
 def urdf_body(path: str | Path, root_position: list[float] | None = None, ranges: dict[str, Any] | None = None,
               package_dirs: list[str] | None = None, *, up: str | None = None, forward: str | None = None, root_rpy: list[float] | None = None,
               frames: dict[str, Any] | None = None, reference: Any = None) -> Body:
@@ -427,9 +430,16 @@ def urdf_body(path: str | Path, root_position: list[float] | None = None, ranges
     becomes capsules (meshes found by ``package://`` in package_dirs, or relative to the URDF's folder)."""
     path = Path(path)
     try:
-        urdf = path.read_text()
+        # A regular file of bounded size: /dev/zero was read for ever.
+        if path.exists() and not path.is_file():
+            raise ModelError("not a regular file: a URDF is an XML file", source=path)
+        if path.exists() and path.stat().st_size > URDF_MAX_BYTES:
+            raise ModelError(f"{path.stat().st_size} bytes: a URDF is at most {URDF_MAX_BYTES} bytes here (meshes live in their own files)", source=path)
+        urdf = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise ModelError(f"cannot read URDF ({exc.strerror or exc})", source=path) from exc
+    except UnicodeDecodeError as exc:
+        raise ModelError(f"not UTF-8 text (byte {exc.start}): a URDF is an XML file in UTF-8", source=path) from None
     spec: dict[str, Any] = {"urdf": str(path)}
     spec.update(_given(root_position=None if root_position is None else list(root_position), ranges=ranges,
                        package_dirs=None if package_dirs is None else list(package_dirs), up=up, forward=forward, root_rpy=root_rpy,

@@ -375,9 +375,11 @@ def read_yaml(path: Path, seen: tuple[Path, ...] = ()) -> Any:
     Relative paths (``base``, ``body.urdf``) are relative to the file naming them.
     """
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise ConfigError(path, "", f"cannot read: {exc.strerror or exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise ConfigError(path, "", f"not UTF-8 text (byte {exc.start}): a config is a YAML file in UTF-8") from None
     try:
         data = yaml.load(text, Loader=_StrictLoader)  # a SafeLoader subclass: safe
     except _DuplicateKey as exc:

@@ -142,6 +142,13 @@ def test_malformed_urdf_and_unknown_names_are_named(tmp_path, man):
         urdf_body(bad)
     with pytest.raises(ModelError, match=r"cannot read URDF"):
         urdf_body(tmp_path / "absent.urdf")
+    # Issue 35: these gave tracebacks (or read for ever).
+    with pytest.raises(ModelError, match=r"/dev/zero: not a regular file"):
+        urdf_body("/dev/zero")
+    latin = tmp_path / "latin.urdf"
+    latin.write_bytes("<robot name='caf\xe9'/>".encode("latin-1"))
+    with pytest.raises(ModelError, match=r"latin\.urdf: not UTF-8 text"):
+        urdf_body(latin)
     with pytest.raises(ModelError, match=r"human: no frame 'right_paw'; frames are: .*right_hand"):
         man.frame_id("right_paw")
     with pytest.raises(ModelError, match=r"human: no joint 'tail'"):

@@ -87,6 +87,13 @@ def test_errors_name_file_and_key(tmp_path, changes, key, message):
     assert str(path) in str(info.value) and key in str(info.value)
 
 
+def test_a_config_that_is_not_utf8_is_named(tmp_path):
+    path = tmp_path / "latin.yaml"
+    path.write_bytes("name: caf\xe9\n".encode("latin-1"))
+    with pytest.raises(ConfigError, match=r"latin\.yaml.*not UTF-8 text"):  # issue 35: a traceback
+        load_config(path)
+
+
 def test_not_yaml_and_not_a_mapping(tmp_path):
     with pytest.raises(ConfigError, match="not valid YAML"):
         load_config(write(tmp_path, "box: [unclosed"))
