@@ -85,14 +85,28 @@ def save_tree(tree: VATree, path: str | Path) -> Path:
     return path
 
 
+# [bytes] the most one array of a tree file may inflate to: a D_max 9 tree's postures (about 2 million vertices x 42
+# coordinates x 8 bytes) fit four times over.
+MAX_MEMBER_BYTES = 2**31
+
+
 def _read_arrays(path: Path) -> dict[str, np.ndarray]:
     if not path.is_file():
         raise StoreError(path, "no such tree file")
     if not zipfile.is_zipfile(path):
         raise StoreError(path, "not a readable tree file (not an .npz zip archive; truncated or corrupt?)")
     try:
+        # Sizes read from the archive's directory before anything is inflated: a member of gigabytes of zeros
+        # compresses to a few megabytes, and every member was decompressed on load.
+        with zipfile.ZipFile(path) as archive:
+            for info in archive.infolist():
+                if info.file_size > MAX_MEMBER_BYTES:
+                    raise StoreError(path, f"member {info.filename!r} inflates to {info.file_size} bytes, more than the "
+                                           f"{MAX_MEMBER_BYTES} a tree's array may hold")
         with np.load(path, allow_pickle=False) as data:
             return {name: data[name] for name in data.files}
+    except StoreError:
+        raise
     except (zipfile.BadZipFile, EOFError) as exc:
         raise StoreError(path, f"not a readable tree file (truncated or corrupt zip: {exc})") from exc
     except ValueError as exc:

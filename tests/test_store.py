@@ -51,6 +51,22 @@ def test_truncated_file_is_a_clear_error(unit_sphere_tree, tmp_path):
         load_tree(path)
 
 
+def test_a_member_that_inflates_past_the_bound_is_refused_before_it_is_inflated(unit_sphere_tree, tmp_path, monkeypatch):
+    """Issue 35: a 2 GiB member of zeros (megabytes on disk) was decompressed on load. The bound is read from the
+    archive's directory; here it is lowered so that the test writes little."""
+    import zipfile
+
+    import reach.store as store
+
+    path = save_tree(unit_sphere_tree, tmp_path / "z.npz")
+    with zipfile.ZipFile(path, "a", compression=zipfile.ZIP_DEFLATED) as archive:
+        archive.writestr("padding.npy", bytes(10**7))
+    assert path.stat().st_size < 10**6  # megabytes of zeros take kilobytes
+    monkeypatch.setattr(store, "MAX_MEMBER_BYTES", 8 * 10**6)
+    with pytest.raises(StoreError, match=r"z\.npz: member 'padding\.npy' inflates to 10000000 bytes"):
+        load_tree(path)
+
+
 def test_flipped_bytes_are_a_clear_error(unit_sphere_tree, tmp_path):
     path = save_tree(unit_sphere_tree, tmp_path / "c.npz")
     data = bytearray(path.read_bytes())
