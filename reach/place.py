@@ -80,7 +80,10 @@ class Space:
 
     @staticmethod
     def _axis(lo: float, hi: float, step: float, turn: bool = False) -> np.ndarray:
-        n = int(math.floor((hi - lo) / step + 1e-9)) + 1
+        count = (hi - lo) / step  # inf for a step of 1e-320 or a range of +-1e308: refused below, not an overflow
+        if not math.isfinite(count) or count + 1 > MAX_CANDIDATES:
+            raise InputError("step", f"{count + 1:.3g} values on one axis; at most {MAX_CANDIDATES} candidates: coarsen the steps or narrow the ranges")
+        n = int(math.floor(count + 1e-9)) + 1
         if n > MAX_CANDIDATES:
             raise InputError("step", f"{n} values on one axis; at most {MAX_CANDIDATES} candidates: coarsen the steps or narrow the ranges")
         values = lo + step * np.arange(n)

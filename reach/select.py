@@ -84,6 +84,7 @@ MISSES = P.MISSES  # what a goal the trees hold but no refinement reaches answer
 MISS = "unreachable"
 STORED = (SKIPPED, TIMEOUT, FAILED, ERROR)  # outcomes whose posture is the nearest stored one, not one solved at the goal
 FROM_TOLERANCE = math.radians(1.0)  # [rad] (or m) a `from` joint this far past its range is still accepted (rounding in a client)
+FROM_QUATERNION = 1e3  # the largest component of a `from` root quaternion (it is normalised)
 FROM_REACH = 1000.0  # [m] a `from` root farther than this from the world origin is a mistake, not a scene
 POSTURE_CACHE = 4096  # stored postures kept encoded, most recently used first
 REFINE_BUDGET = 0.02  # [s] default time budget of one refinement (a frame at 50 Hz)
@@ -301,6 +302,10 @@ class Selector:
     def _check_start(self, names: list[str], start: dict[str, float]) -> None:
         """A ``from`` names the posture's coordinates, within their ranges (``FROM_TOLERANCE``); a root's
         position is within ``FROM_REACH`` of the origin and its quaternion is not zero."""
+        quat = [start[f"root_q{c}"] for c in "xyzw" if f"root_q{c}" in start]
+        if any(abs(v) > FROM_QUATERNION for v in quat):  # 1e300 overflowed where the quaternion is normalised
+            raise InputError("from", f"the root's quaternion components must be within +-{FROM_QUATERNION:g} (a unit quaternion, "
+                                     f"normalised if off by a little), got {quat}")
         posed = [s for s in names if self.atlas.trees[s].vertices.posture is not None]
         known = {n for s in posed for n in self.atlas.trees[s].vertices.posture_names}
         unknown = sorted(set(start) - known)

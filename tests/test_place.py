@@ -147,3 +147,15 @@ def test_a_seat_track_ranks_positions_and_heights_and_draws_them(balls, tmp_path
     assert r.placements[0, 2] == pytest.approx(0.2, abs=0.051) and r.placements[0, 0] >= 0.4 - 0.051
     path = heat_map(r, targets, tmp_path / "track.png")
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_absurd_steps_and_ranges_are_bad_input_not_an_overflow():
+    """Issue 35: a step of 1e-320 or an x range of +-1e308 overflowed (an `internal` reply over the wire)."""
+    from reach.errors import InputError
+    from reach.place import Space
+
+    for kwargs in ({"x": (-1.0, 1.0), "y": (0.0, 0.0), "step": 1e-320}, {"x": (-1e308, 1e308), "y": (0.0, 0.0)}):
+        with pytest.raises(InputError, match="values on one axis") as info:
+            Space(**kwargs)
+        assert info.value.field == "step"
+    assert len(Space(x=(-1.0, 1.0), y=(0.0, 0.0)).candidates()) == 41

@@ -280,3 +280,15 @@ def test_a_requests_orientation_is_scaled_before_it_is_normalised_and_bad_ones_n
         with pytest.raises(InputError) as info:
             orientation_of(wire)
         assert info.value.field == field
+
+
+def test_a_from_root_quaternion_of_huge_components_is_refused_by_name():
+    """Issue 35: root_qw = 1e300 overflowed where the quaternion is normalised (an `internal` reply)."""
+    from reach.errors import InputError
+    from reach.select import Selector
+
+    selector = Selector.__new__(Selector)
+    selector.atlas = type("A", (), {"trees": {}})()
+    with pytest.raises(InputError, match="quaternion components must be within") as info:
+        selector._check_start([], {"root_qx": 0.0, "root_qy": 0.0, "root_qz": 0.0, "root_qw": 1e300})
+    assert info.value.field == "from"
