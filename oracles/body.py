@@ -201,7 +201,38 @@ class Body:
         return out
 
 
+def _check_xml(urdf: str, source: str) -> None:
+    """What urdfdom accepts silently or reports over many lines: not XML, a negative or non-finite mass, a zero
+    joint axis. Each is one line naming the link or joint."""
+    import xml.etree.ElementTree as ET
+
+    try:
+        root = ET.fromstring(urdf)
+    except ET.ParseError as exc:
+        raise ModelError(f"not a valid URDF (XML: {exc})", source=source) from None
+    for link in root.iter("link"):
+        mass = link.find("inertial/mass")
+        if mass is not None:
+            try:
+                value = float(mass.get("value", "nan"))
+            except ValueError:
+                value = math.nan
+            if not (math.isfinite(value) and value >= 0):
+                raise ModelError(f"link {link.get('name')!r}: mass {mass.get('value')!r}; expected a finite number >= 0 [kg]", source=source)
+    for joint in root.iter("joint"):
+        axis = joint.find("axis")
+        if axis is not None and joint.get("type") in ("revolute", "continuous", "prismatic"):
+            try:
+                xyz = [float(v) for v in axis.get("xyz", "1 0 0").split()]
+            except ValueError:
+                xyz = []
+            if len(xyz) != 3 or not all(math.isfinite(v) for v in xyz) or math.hypot(*xyz) < 1e-9:
+                raise ModelError(f"joint {joint.get('name')!r}: axis {axis.get('xyz')!r}; expected three finite numbers, not all zero",
+                                 source=source)
+
+
 def _parse(urdf: str, source: str) -> pin.Model:
+    _check_xml(urdf, source)
     try:
         return pin.buildModelFromXML(urdf, pin.JointModelFreeFlyer(), ROOT)
     except (RuntimeError, ValueError, IndexError) as exc:

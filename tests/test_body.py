@@ -142,6 +142,16 @@ def test_malformed_urdf_and_unknown_names_are_named(tmp_path, man):
         urdf_body(bad)
     with pytest.raises(ModelError, match=r"cannot read URDF"):
         urdf_body(tmp_path / "absent.urdf")
+    # Issue 35: a negative mass and a zero joint axis were accepted.
+    for fault, message in (("<mass value='-2'/>", r"link 'a': mass '-2'; expected a finite number >= 0"),):
+        bad.write_text(f"<robot name='x'><link name='a'><inertial>{fault}<inertia ixx='1' iyy='1' izz='1' ixy='0' ixz='0' iyz='0'/>"
+                       "</inertial></link></robot>")
+        with pytest.raises(ModelError, match=message):
+            urdf_body(bad)
+    bad.write_text("<robot name='x'><link name='a'/><link name='b'/><joint name='j' type='revolute'><parent link='a'/><child link='b'/>"
+                   "<axis xyz='0 0 0'/><limit lower='-1' upper='1' effort='1' velocity='1'/></joint></robot>")
+    with pytest.raises(ModelError, match=r"joint 'j': axis '0 0 0'; expected three finite numbers, not all zero"):
+        urdf_body(bad)
     # Issue 35: these gave tracebacks (or read for ever).
     with pytest.raises(ModelError, match=r"/dev/zero: not a regular file"):
         urdf_body("/dev/zero")
