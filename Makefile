@@ -5,9 +5,14 @@ PY := $(VENV)/bin/python
 
 .PHONY: run sphere view test lint bench clean
 
+# Running needs the package alone; the tests add their extras (viser, selenium, mypy, the npm validator).
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e .
+	touch $@
+
+$(VENV)/.installed-test: $(VENV)/.installed
 	$(PY) -m pip install --quiet -e '.[test]'
 	# The Khronos glTF Validator for the glTF tests (the npm registry; skipped without npm).
 	if command -v npm >/dev/null 2>&1; then npm install --silent --no-audit --no-fund --prefix $(VENV)/node gltf-validator@2.0.0-dev.3.10; fi
@@ -35,14 +40,14 @@ sphere: $(VENV)/.installed
 	$(VENV)/bin/reach info out/sphere
 	$(VENV)/bin/reach query out/sphere 0.5 0.2 -0.3
 
-lint: $(VENV)/.installed
+lint: $(VENV)/.installed-test
 	$(VENV)/bin/ruff check reach oracles ros_bridge tests bench
 	$(VENV)/bin/mypy
 
 test: lint
 	$(PY) -m pytest -q
 
-bench: $(VENV)/.installed
+bench: $(VENV)/.installed-test
 	$(PY) bench/config.py
 	$(PY) bench/tree.py
 	$(PY) bench/ik.py

@@ -369,7 +369,7 @@ def _gltf_validator():
     if shutil.which("node") is None or not (modules / "gltf-validator").exists():
         if os.environ.get("CI"):
             pytest.fail(f"node or the glTF validator ({modules}) is missing on CI")
-        pytest.skip("node or the npm package gltf-validator is missing (make .venv/.installed installs it)")
+        pytest.skip("node or the npm package gltf-validator is missing (make .venv/.installed-test installs it)")
     return modules
 
 
