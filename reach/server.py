@@ -539,9 +539,17 @@ class Server:
 
     def _stored(self, req: P.Request, a: int, b: int, outcome: str) -> list[bytes]:
         """The stored answers of goals a..b, marked with why they were not refined."""
+        return self._stored_at(req, np.arange(a, b), outcome)
+
+    def _stored_at(self, req: P.Request, index: np.ndarray, outcome: str) -> list[bytes]:
+        """The stored answers of the request's goals at ``index`` (one lookup for them all), marked with why they
+        were not refined."""
+        goals = [req["goals"][i] for i in index]
+        if not goals:
+            return []
         if req["orientation"] is not None:  # a stored posture holds no goal's orientation
-            return [Answer(req["effector"], tuple(g), None, False, refined=outcome).to_json() for g in req["goals"][a:b]]
-        answers = self.selector.select_many(req["effector"], np.array(req["goals"][a:b]), False)
+            return [Answer(req["effector"], tuple(g), None, False, refined=outcome).to_json() for g in goals]
+        answers = self.selector.select_many(req["effector"], np.array(goals), False)
         return [dataclasses.replace(x, refined=outcome).to_json() if x.refined == SKIPPED else x.to_json() for x in answers]
 
     def _finished(self, task: Task, frames: list[bytes]) -> None:
@@ -600,9 +608,15 @@ class Server:
                 self._motion_finished(seq, pending, [EXPIRED])
                 continue
             try:
-                for part, (a, b) in enumerate(pending.bounds):
-                    if pending.parts[part] is None:
-                        pending.parts[part] = self._stored(pending.request, a, b, TIMEOUT)
+                # One vectorised lookup for every part still missing, not one call per part (a 10,000-goal batch
+                # sent one goal a part held the loop for 1.3 s).
+                missing = [part for part, done in enumerate(pending.parts) if done is None]
+                index = np.concatenate([np.arange(*pending.bounds[part]) for part in missing]) if missing else np.zeros(0, int)
+                answers = self._stored_at(pending.request, index, TIMEOUT)
+                k = 0
+                for part in missing:
+                    a, b = pending.bounds[part]
+                    pending.parts[part], k = answers[k : k + b - a], k + b - a
             except Exception as exc:  # noqa: BLE001 - this request's error reply; the others go on
                 self._answer_now(seq, self._error(exc, pending.request.id))
                 continue

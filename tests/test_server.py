@@ -23,7 +23,9 @@ from reach.cli import main
 from reach.client import Client, ServerError, ServerUnavailable
 from reach.config import parse_config
 from reach.errors import InputError
+from reach.select import Selector
 from reach.server import Server
+from reach.store import load_atlas
 
 RECV_MS = 5000
 
@@ -544,6 +546,12 @@ def test_a_deadline_answers_with_stored_postures_marked_timeout(human):
     stored = [a for a in reply["answers"] if a["refined"] == "timeout"]
     assert all(a["posture"] is not None and a["strategy"] == "right_arm" for a in stored)
     assert health["pending"] == 0
+    # The expired parts are answered by one lookup for them all, and as the selector answers each goal alone.
+    selector = Selector(load_atlas(human), refine=False)
+    for goal, answer in zip(GOALS, reply["answers"], strict=True):
+        if answer["refined"] == "timeout":
+            alone = selector.select("right_hand", np.array(goal), refine=False)
+            assert alone.strategy == answer["strategy"] and alone.posture == answer["posture"]
 
 
 @pytest.mark.slow
