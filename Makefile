@@ -51,6 +51,7 @@ bench: $(VENV)/.installed-test
 	$(PY) bench/config.py
 	$(PY) bench/tree.py
 	$(PY) bench/ik.py
+	$(PY) bench/engine.py
 	$(PY) bench/server.py
 	$(PY) bench/build.py
 
