@@ -42,6 +42,7 @@ keeps the paper's plain priority.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import json
 import math
 import time
@@ -182,6 +183,11 @@ class Answer:
             "residual": self.residual, "refined": self.refined, "seconds": self.seconds, "handover": self.handover,
             "within": self.within, "nearest": self.nearest, "index": self.index,
         }
+
+
+def _timed_out(answer: Answer, late: bool) -> Answer:
+    """An answer not refined because its request's deadline had passed: its stored posture, marked ``timeout``."""
+    return dataclasses.replace(answer, refined=TIMEOUT) if late and answer.refined == SKIPPED else answer
 
 
 def orientation_of(wire: dict[str, list[float]] | list[dict[str, list[float]]] | None) -> np.ndarray | list[np.ndarray] | None:
@@ -417,7 +423,8 @@ class Selector:
         return names
 
     def select_many(self, effector: str, goals: np.ndarray, refine: bool | None = None, start: dict[str, float] | None = None,
-                    miss: str | None = None, orientation: np.ndarray | list[np.ndarray] | None = None) -> list[Answer]:
+                    miss: str | None = None, orientation: np.ndarray | list[np.ndarray] | None = None,
+                    deadline: float | None = None) -> list[Answer]:
         """Answers for goals (N, d) [m], one tree lookup per strategy for the whole batch.
 
         ``start`` is the character's current posture (joint name -> rad or m;
@@ -430,6 +437,8 @@ class Selector:
         holds every goal's orientation (a list of them: one per goal, of one
         kind): only the strategies with an orientation task answer, always by
         refinement, and a goal no refinement reaches with it is unreachable.
+        ``deadline`` (a ``time.perf_counter()`` value): goals whose turn comes after it are not refined;
+        their answers are the stored ones, marked ``timeout``.
         """
         t0 = time.perf_counter()
         g = np.asarray(goals, dtype=float)
@@ -447,8 +456,12 @@ class Selector:
         miss = self.miss if miss is None else miss
         if miss not in MISSES:
             raise InputError("miss", f"expected one of {', '.join(MISSES)}, got {miss!r}")
+        def late() -> bool:
+            return deadline is not None and time.perf_counter() > deadline
+
         if len(g) == 1:
-            return [self._select_one(effector, names, g[0], refine, t0, start, miss, aims[0])]
+            out_of_time = refine and late()
+            return [_timed_out(self._select_one(effector, names, g[0], refine and not out_of_time, t0, start, miss, aims[0]), out_of_time)]
         hits = np.stack([self.atlas.trees[n].contains(g, self.policy) for n in names])
         chosen = np.where(hits.any(axis=0), hits.argmax(axis=0), -1)
         nearest: dict[int, tuple[int, np.ndarray] | None] = {}
@@ -457,10 +470,13 @@ class Selector:
             found = self._stored(names[k], self.atlas.trees[names[k]], g[sel])
             for m, i in enumerate(sel):
                 nearest[int(i)] = None if found is None else (int(found[0][m]), found[1][m])
-        return [
-            self._answer(effector, g[i], [n for j, n in enumerate(names) if hits[j, i]], nearest.get(i), refine, time.perf_counter(), start, miss, aims[i])
-            for i in range(len(g))
-        ]
+        out = []
+        for n_goal in range(len(g)):
+            out_of_time = refine and late()  # with a deadline, each goal is refined only while there is time
+            answer = self._answer(effector, g[n_goal], [n for j, n in enumerate(names) if hits[j, n_goal]], nearest.get(n_goal),
+                                  refine and not out_of_time, time.perf_counter(), start, miss, aims[n_goal])
+            out.append(_timed_out(answer, out_of_time))
+        return out
 
     def _select_one(self, effector: str, names: list[str], goal: np.ndarray, refine: bool, t0: float, start: dict[str, float] | None,
                     miss: str, aim: np.ndarray | None = None) -> Answer:

@@ -352,8 +352,10 @@ class Server:
 
     # -- the operations' handlers (declared in reach.protocol.OPERATIONS) -----
     def op_query(self, req: P.Request) -> bytes:
+        # Without workers the loop refines; a deadline stops it refining, and later goals get their stored postures.
+        deadline = None if req["deadline"] is None else time.perf_counter() + req["deadline"]
         answers = self.selector.select_many(req["effector"], np.array(req["goals"]), req["refine"], start=req["from"], miss=req["miss"],
-                                            orientation=orientation_of(req["orientation"]))
+                                            orientation=orientation_of(req["orientation"]), deadline=deadline)
         return self._result(req, [a.to_json() for a in answers])
 
     def op_motion(self, req: P.Request) -> bytes:

@@ -555,6 +555,24 @@ def test_a_deadline_answers_with_stored_postures_marked_timeout(human):
 
 
 @pytest.mark.slow
+def test_without_workers_a_deadline_stops_the_loop_refining(human):
+    """Issue 35, item 2: with --workers 0 a deadline was ignored (1 s answered after 5.8 s). The loop now refines
+    only while the deadline allows; the other goals get their stored postures, marked timeout."""
+    r = Running(human, budget=0.5, workers=0)
+    try:
+        with Client(r.server.endpoint) as c:
+            reply = c.call("query", effector="right_hand", goals=GOALS, deadline=0.001)
+            again = c.call("query", effector="right_hand", goals=GOALS)
+    finally:
+        r.stop()
+    outcomes = [a["refined"] for a in reply["answers"]]
+    assert outcomes.count("timeout") > len(GOALS) // 2
+    assert sum(o not in ("timeout", "none") for o in outcomes) <= 1  # at most the goal in hand when the deadline passed
+    assert all(a["posture"] is not None for a in reply["answers"] if a["refined"] == "timeout")
+    assert "timeout" not in [a["refined"] for a in again["answers"]]  # without a deadline every goal is refined
+
+
+@pytest.mark.slow
 def test_a_resend_of_a_pending_request_is_answered_once(human):
     r = Running(human, budget=0.5, workers=1)
     sock = _dealer(r.server.endpoint)
