@@ -44,6 +44,7 @@ from reach.executor import CHUNK_SIZE
 from reach.index import MAX_DIRECTIONS
 from reach.tree import MAX_DEPTH, Box
 
+DEFAULT_BODY_ORACLE = "casadi-ik"
 TOP_KEYS = {"name", "description", "base", "body", "box", "depth", "oracle", "strategies", "build"}
 STRATEGY_KEYS = {"name", "effector", "priority", "oracle", "description", "joints", "tasks", "mirror_of", "directions"}
 BUILD_KEYS = {"chunk_size", "refine"}
@@ -148,7 +149,7 @@ def _oracle(check: _Checker, value: Any, key: str, base: OracleSpec | None) -> O
 def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atlas") -> Config:
     """Validate a parsed YAML document into a :class:`Config`."""
     check = _Checker(source)
-    top = check.mapping(data, "", TOP_KEYS, {"box", "depth", "oracle", "strategies"})
+    top = check.mapping(data, "", TOP_KEYS, {"box", "depth", "strategies"} | (set() if isinstance(data, dict) and "body" in data else {"oracle"}))
     name = check.string(top.get("name", default_name), "name")
     if not name.replace("_", "").replace("-", "").replace(".", "").isalnum() or name.startswith("."):
         # It names the default output folder (out/<name>): no separators, no "..".
@@ -171,7 +172,8 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
     d_min = check.integer(depth["min"], "depth.min", 0, MAX_DEPTH)
     if d_min > d_max:
         raise check.fail("depth.min", f"D_min ({d_min}) must not exceed D_max ({d_max})")
-    default = _oracle(check, top["oracle"], "oracle", None)
+    # A body's oracle defaults to casadi-ik, the reference engine; an analytic atlas names its shape.
+    default = _oracle(check, top.get("oracle", {"name": DEFAULT_BODY_ORACLE}), "oracle", None)
     raw_strategies = top["strategies"]
     if not isinstance(raw_strategies, list) or not raw_strategies:
         raise check.fail("strategies", "expected a non-empty list of strategies")

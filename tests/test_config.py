@@ -144,3 +144,18 @@ def test_a_tab_gives_one_line_naming_the_place(tmp_path):
         load_config(path)
     message = str(err.value)
     assert "\n" not in message and "at line 3, column 1 (YAML indents with spaces, not tabs)" in message
+
+
+def test_a_bodys_oracle_defaults_to_casadi_ik():
+    """Issue 36, item 4: a URDF config without `oracle:` was refused ("required key is missing")."""
+    from reach.config import read_yaml
+
+    path = Path(__file__).resolve().parents[1] / "configs" / "examples" / "arm7_table.yaml"
+    data = read_yaml(path)
+    data.pop("oracle", None)
+    config = parse_config(data, str(path), "arm7_table")
+    assert {config.strategy(s.name).oracle.name for s in config.strategies} == {"casadi-ik"}
+    analytic = {"box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 1, "max": 2}, "strategies": [{"name": "a"}]}
+    with pytest.raises(ConfigError, match="required key is missing") as info:  # an analytic atlas names its shape
+        parse_config(analytic, "x", "x")
+    assert info.value.key == "oracle"
