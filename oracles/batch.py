@@ -1,25 +1,28 @@
 """A batched damped Gauss-Newton engine: every goal x start of one call advances together.
 
-``casadi-ik``'s default engine (``solver: batch``). The tasks keep their one
-definition: the CasADi expressions they already give the interior-point
-programs (hard rows with their bounds, the reach task's residual, the lower
-tasks' objectives) are compiled into one function of (x, parameters), mapped
-over a chunk of postures (CasADi ``Function.map``), and evaluated for the
-whole batch at once. Each iteration then takes, for every start at once, the
-step of the equality-constrained least-squares problem
+``casadi-ik``'s opt-in engine (``solver: batch``; fatrop stays the default,
+see the README's limitations). The tasks keep their one definition: the
+CasADi expressions they already give the interior-point programs (hard rows
+with their bounds, the reach task's residual, the lower tasks' objectives)
+are compiled into one function of (x, parameters), mapped over a chunk of
+postures (CasADi ``Function.map``), and evaluated for the whole batch at
+once. Each iteration then takes, for every start at once, the step of
 
     min  |J_e dx + e|^2 + lambda^2 |dx|^2      s.t.  C dx = r
 
-solved through its KKT system (one batched ``numpy.linalg.solve``):
+through its KKT system, solved by the Woodbury identity on the reach's three
+rows and a Schur complement on the constraints (:meth:`BatchProgram.step`):
 
 * **hard tasks as constraints (an active set).** ``C`` holds every equality
-  row and every inequality row within ``BUFFER`` of its bound (pushed
-  ``INSIDE`` it), as ``dls`` activates them; a row far from its bound is
-  zero and costs nothing. An active set, not a barrier: most rows (balance,
-  couplings, the hang cone) are inactive most of the time, and a start that
-  breaks one is pulled back to it in one linearised step, which a barrier
-  cannot do from outside its domain. Not a projection: the constraints and
-  the reach share one solve, so a step never trades a hard row for reach;
+  row, every inequality row within ``BUFFER`` of its bound (pushed
+  ``INSIDE`` it), as ``dls`` activates them, and the rows a first solve
+  would carry past their bounds (solved again). An active set, not a
+  barrier: most rows (balance, couplings, the hang cone) are inactive most
+  of the time, and a start that breaks one is pulled back to it in one
+  linearised step, which a barrier cannot do from outside its domain. Not a
+  projection: the constraints and the reach share one solve, so a step
+  never trades a hard row for reach; the constraints' part of the step is
+  taken first and the reach's within each start's trust radius;
 * **joint limits** by clamping: a coordinate a step would push past its
   range is fixed at its bound and the step is solved again without it;
 * **the reach task** as the objective, its error clamped to
@@ -28,8 +31,8 @@ solved through its KKT system (one batched ``numpy.linalg.solve``):
 * **the lower tasks** (gaze, posture, comfort) as the secondary objective:
   once a start reaches, the reach rows join the constraints and the lower
   tasks' weighted sum (weights ``LOWER_WEIGHT`` ** rank, an approximation of
-  their lexicographic order) is minimised by damped Newton steps on its
-  exact Hessian.
+  their lexicographic order) is minimised by damped steps scaled by the
+  diagonal of its Hessian.
 
 Lazy hard tasks (self-collision, the floor) give no rows here: a posture
 found is checked by the verdict (coal, Pinocchio) as always, and one that
@@ -37,9 +40,9 @@ breaks them, or that ends near the goal but not within the tolerance, is
 polished by the interior-point programs (fatrop) from there, which cut the
 lazy rows (see :mod:`oracles.ik`).
 """
-
 from __future__ import annotations
 
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -289,29 +292,18 @@ class _Mapped:
 
 # -- the search over many starts ------------------------------------------------
 
-STARTS = 8  # default starts per goal (K): the hint(s), the reference, the ready posture, seeded random ones (README: why 8)
+STARTS = 8  # default starts per goal (K): the hint(s), the reference, the ready posture, seeded random ones (the issue's first guess, not yet tuned)
 MAX_ITER = 40  # reach iterations
 LOWER_STARTS = 2  # reaching starts of one goal whose lower tasks are refined (the lower steps are the dearest)
 LOWER_ITER = 12  # lower-task iterations of a start that reached
 RANDOM_SPREAD = 0.5  # a floating body's random starts: this share of the way from the reference to a uniform posture
 DECIDES = 1e-3  # [m or rad] a decisive start decides its goal only with its hard rows held this well
 STALL = 0.02  # a start whose distance to the goal shrinks by less than this share in an iteration has stalled
-EXTRA = 2  # iterations the other starts of a goal get once one has reached (a better-liked posture; more cost little gain: README)
+EXTRA = 2  # iterations the other starts of a goal get once one has reached, to find a better-liked posture (a choice, not tuned)
 CONVERGED = 0.1  # share of the tolerance within which a start has reached and stops iterating
 POLISH_NEAR = 0.03  # [m] a goal whose best start ends this near (but does not reach) is polished by the interior-point programs
 POLISHES = 6  # the most fatrop polishes of one goal (its reaching postures that break a lazy task, its nearest, its random starts)
 CONTINUITY = 1.0  # weight of the range-normalised distance to the first hint (the neighbour's posture) in "liked"
-
-
-@dataclass
-class Candidates:
-    """Every goal's K finished starts: postures x (N, K, n), reach distance (N, K), hard-row violation (N, K) and
-    how much the lower tasks and continuity dislike each (N, K; inf when unknown)."""
-
-    x: np.ndarray
-    dist: np.ndarray
-    violation: np.ndarray
-    dislike: np.ndarray
 
 
 def run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_of: np.ndarray, tolerance: float,
@@ -323,8 +315,6 @@ def run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_o
     ``decisive`` (B,) marks the starts whose failure decides their goal (a build's warm start from a neighbour
     near the goal, see :class:`oracles.search.Search`): when one stalls farther than ``give_up`` [m] from its goal,
     its rows held, the goal's other starts stop there (they ran beside it until then)."""
-    import time
-
     x = x0.copy()
     b = len(x)
     dist = np.full(b, np.inf)
@@ -372,9 +362,8 @@ def run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_o
     reached = np.nonzero((dist <= tolerance) & (viol <= HARD_TOL))[0]
     # The lower tasks refine at most LOWER_STARTS reaching starts per goal, the first in the order of the starts
     # (the hint, the reference, the ready posture, then the random ones): the rest keep their reach posture.
-    rank = np.zeros(len(reached), int)
-    for k in range(1, len(reached)):
-        rank[k] = rank[k - 1] + 1 if owner[reached[k]] == owner[reached[k - 1]] else 0
+    # (reached is in start order, and a goal's starts are contiguous: a start's rank is its distance from its goal's first.)
+    rank = np.arange(len(reached)) - np.searchsorted(owner[reached], owner[reached], side="left")
     reached = reached[rank < LOWER_STARTS]
     if not reached.size:
         return x, dist, viol, f  # (no start reached: nothing to like)

@@ -464,8 +464,9 @@ def urdf_body(path: str | Path, root_position: list[float] | None = None, ranges
         # A regular file of bounded size: /dev/zero was read for ever.
         if path.exists() and not path.is_file():
             raise ModelError("not a regular file: a URDF is an XML file", source=path)
-        if path.exists() and path.stat().st_size > URDF_MAX_BYTES:
-            raise ModelError(f"{path.stat().st_size} bytes: a URDF is at most {URDF_MAX_BYTES} bytes here (meshes live in their own files)", source=path)
+        size = path.stat().st_size
+        if size > URDF_MAX_BYTES:
+            raise ModelError(f"{size} bytes: a URDF is at most {URDF_MAX_BYTES} bytes here (meshes live in their own files)", source=path)
         urdf = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise ModelError(f"cannot read URDF ({exc.strerror or exc})", source=path) from exc

@@ -782,15 +782,12 @@ class CasadiIK(IKOracle):
             hard = [c for t in self.strategy.hard for c in t.constraints(sym)]
             soft = self.order
             reach = self.strategy.reach
-            lower = [t for t in soft[soft.index(reach) + 1 :]]
+            lower = list(soft[soft.index(reach) + 1 :])
             p = self.problem
             name = f"batch_{zlib.crc32(repr(self.spec.to_dict()).encode()):08x}"
-            found = BatchProgram(sym, params, hard, reach.held(sym), lower, p.lower, p.upper, p.upper - p.lower, self._batch_jit(), name)
+            found = BatchProgram(sym, params, hard, reach.held(sym), lower, p.lower, p.upper, p.upper - p.lower, self.jit, name)
             self._batch_cache[key] = found
         return found
-
-    def _batch_jit(self) -> bool:
-        return self.jit
 
     def _polisher(self) -> CasadiIK:
         """This oracle with fatrop as its engine (sharing its programs): the batched engine's polish."""

@@ -84,8 +84,6 @@ class Space:
         if not math.isfinite(count) or count + 1 > MAX_CANDIDATES:
             raise InputError("step", f"{count + 1:.3g} values on one axis; at most {MAX_CANDIDATES} candidates: coarsen the steps or narrow the ranges")
         n = int(math.floor(count + 1e-9)) + 1
-        if n > MAX_CANDIDATES:
-            raise InputError("step", f"{n} values on one axis; at most {MAX_CANDIDATES} candidates: coarsen the steps or narrow the ranges")
         values = lo + step * np.arange(n)
         if turn and hi - lo >= 2 * math.pi - 1e-9:
             values = values[values < lo + 2 * math.pi - 1e-9]

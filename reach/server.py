@@ -180,14 +180,22 @@ class Server:
         if keys is not None:
             for s in sockets:
                 s.curve_secretkey, s.curve_publickey, s.curve_server = keys[1], keys[0], True
-        _bind(self.router, bind, "--bind")
-        self.endpoint = self.router.getsockopt(zmq.LAST_ENDPOINT).decode()
         self.pub_endpoint = None
-        if self.publisher is not None:
-            self.publisher.setsockopt(zmq.LINGER, 0)
-            self.publisher.setsockopt(zmq.SNDHWM, P.PUB_HWM)
-            _bind(self.publisher, pub, "--pub")  # type: ignore[arg-type]
-            self.pub_endpoint = self.publisher.getsockopt(zmq.LAST_ENDPOINT).decode()
+        try:
+            _bind(self.router, bind, "--bind")
+            self.endpoint = self.router.getsockopt(zmq.LAST_ENDPOINT).decode()
+            if self.publisher is not None:
+                self.publisher.setsockopt(zmq.LINGER, 0)
+                self.publisher.setsockopt(zmq.SNDHWM, P.PUB_HWM)
+                _bind(self.publisher, pub, "--pub")  # type: ignore[arg-type]
+                self.pub_endpoint = self.publisher.getsockopt(zmq.LAST_ENDPOINT).decode()
+        except InputError:
+            # Nothing of a server that could not bind is left behind: its sockets, and the CURVE thread.
+            for s in sockets:
+                s.close(linger=0)
+            if self.authenticator is not None:
+                self.authenticator.stop()
+            raise
         self._stop = threading.Event()
         self._signalled = False  # set by SIGINT/SIGTERM: a handler that only assigns can never deadlock (Event.set locks)
         self.started = time.monotonic()

@@ -146,7 +146,7 @@ class Viewer:
         if not guarded:
             self.server.stop()
             raise InputError("viser", f"viser {viser.__version__} did not start its server through websockets' serve, so its own port "
-                              "cannot be guarded; install the viser version pyproject.toml names")
+                              "cannot be guarded; install a viser that does (1.1 does)")
         self.gate = Gate(host, port, self.server.get_port())
         gate_names.update(self.gate.hosts)
         self.host, self.port = host, self.gate.port
