@@ -64,6 +64,8 @@ MIN_RADIUS = 1e-3  # [rad or m] a start whose trust radius has shrunk below this
 MAX_REACH_STEP = 0.25  # [m] largest reach error pursued in one iteration
 LOWER_WEIGHT = 0.1  # weight of each lower task relative to the one above it
 FIXED = 1e8  # the diagonal that holds a clamped coordinate still
+GROUP = 8  # lazy rows per compiled Jacobian (a group is evaluated only where one of its rows is near)
+SCREEN = 0.05  # [m] a lazy row (a collision pair, a capsule over the floor) this near its bound gives the step a row (a step moves a hand a few cm)
 HARD_TOL = 1e-6  # [m or rad] a hard row this far past its bound still holds (the interior-point programs' tolerance)
 
 
@@ -81,17 +83,27 @@ class Rows:
 
 @dataclass
 class State:
-    """The batch's evaluation at its postures: hard rows g (B, m) and their Jacobians (B, m, n), the reach
-    residual e (B, 3) and its Jacobian (B, 3, n), and (when asked) the lower tasks' value (B,), gradient
-    (B, n) and Hessian's diagonal (B, n)."""
+    """The batch's evaluation at its postures: hard rows g (B, m) with their bounds (m,) and Jacobians
+    (B, m, n), the reach residual e (B, 3) and its Jacobian (B, 3, n), how far each posture breaks a lazy
+    row (B,), and (when asked) the lower tasks' value (B,), gradient (B, n) and Hessian's diagonal (B, n).
+
+    The rows are the eager hard tasks' and the lazy rows near their bound in some posture of the batch
+    (:meth:`BatchProgram.evaluate`), so their number changes from one evaluation to the next.
+    """
 
     g: np.ndarray
     jg: np.ndarray
     e: np.ndarray
     je: np.ndarray
+    rows: Rows
+    lazy_violation: np.ndarray
     f: np.ndarray | None = None
     grad: np.ndarray | None = None
     hess: np.ndarray | None = None
+
+    def take(self, index: np.ndarray) -> State:
+        """The state of some postures of the batch (the lower tasks' terms left out)."""
+        return State(self.g[index], self.jg[index], self.e[index], self.je[index], self.rows, self.lazy_violation[index])
 
 
 class BatchProgram:
@@ -110,13 +122,32 @@ class BatchProgram:
     """
 
     def __init__(self, sym: Symbolic, params: ca.SX, hard: Sequence[Constraint], reach: ca.SX, lower: Sequence[SoftTask],
-                 lower_bound: np.ndarray, upper_bound: np.ndarray, span: np.ndarray, jit: bool, name: str) -> None:
+                 lower_bound: np.ndarray, upper_bound: np.ndarray, span: np.ndarray, jit: bool, name: str,
+                 screened: Sequence[Constraint] = ()) -> None:
         x = sym.x
         self.n = int(x.numel())
         g = ca.vertcat(*[c.expr for c in hard]) if hard else ca.SX.zeros(0, 1)
-        self.rows = Rows(np.array([c.lower for c in hard for _ in range(c.expr.numel())], float),
-                         np.array([c.upper for c in hard for _ in range(c.expr.numel())], float))
+        self.rows = _rows(hard)
         self.m = int(g.numel())
+        # The lazy tasks' rows (self-collision, the floor): all evaluated, their Jacobians only where near.
+        lazy = ca.vertcat(*[c.expr for c in screened]) if screened else ca.SX.zeros(0, 1)
+        self.lazy_rows = _rows(screened)
+        self.lazy_m = int(lazy.numel())
+        if self.lazy_m:
+            # Frozen symbols (the nearest points' parameters) are held while differentiating, then replaced.
+            held = [pair for c in screened for pair in c.frozen]
+            symbols, values = [v for v, _ in held], [e for _, e in held]
+            jac = ca.jacobian(lazy, x)
+            if held:
+                lazy, jac = ca.substitute([lazy, jac], [ca.vertcat(*symbols)], [ca.vertcat(*values)])
+            self._lazy = _Mapped(ca.Function(f"{name}_lazy", [x, params], [ca.densify(lazy)]), jit, [(self.lazy_m, 1)], self.n, int(params.numel()))
+            # The Jacobian by groups of rows, each evaluated only for the postures with one of its rows near: all
+            # 147 rows of the whole body cost 69 us a posture, about ten times the reach's (measured here).
+            self._lazy_groups = [
+                (k, _Mapped(ca.Function(f"{name}_lazy_jac{k}", [x, params], [ca.densify(jac[k : min(k + GROUP, self.lazy_m), :])]), jit,
+                            [(min(GROUP, self.lazy_m - k), self.n)], self.n, int(params.numel())))
+                for k in range(0, self.lazy_m, GROUP)
+            ]
         jg = ca.jacobian(g, x) if self.m else ca.SX.zeros(0, self.n)
         je = ca.jacobian(reach, x)
         f = ca.SX(0.0)
@@ -135,21 +166,41 @@ class BatchProgram:
                              self.n, self.np) if lower else None
 
     # -- evaluation -----------------------------------------------------------
-    def evaluate(self, x: np.ndarray, p: np.ndarray, lower: bool = False) -> State:
-        """The batch's :class:`State` at postures x (B, n) with parameters p (B, np)."""
+    def evaluate(self, x: np.ndarray, p: np.ndarray, lower: bool = False, guard: np.ndarray | None = None) -> State:
+        """The batch's :class:`State` at postures x (B, n) with parameters p (B, np); the lazy rows near their bound
+        become rows of the postures in ``guard`` (B,) (all when None), and count in every posture's violation."""
         fn = self._full if lower and self._full is not None else self._reach
         out = fn(x, p)
-        state = State(out[0][..., 0], out[1], out[2][..., 0], out[3])
+        g, jg, rows = out[0][..., 0], out[1], self.rows
+        lazy_violation = np.zeros(len(x))
+        if self.lazy_m:
+            values = self._lazy(x, p)[0][..., 0]
+            lazy_violation = np.maximum(self.lazy_rows.lower - values, 0.0).max(axis=1)
+            near = values < self.lazy_rows.lower + SCREEN
+            if guard is not None:
+                near &= guard[:, None]
+            cols = np.nonzero(near.any(axis=0))[0]
+            if cols.size:
+                jac = np.zeros((len(x), cols.size, self.n))
+                for k, group in self._lazy_groups:
+                    mine = np.nonzero((cols >= k) & (cols < k + GROUP))[0]  # this group's near rows, as columns of jac
+                    some = np.nonzero(near[:, cols[mine]].any(axis=1))[0] if mine.size else mine
+                    if some.size:
+                        jac[some[:, None], mine] = group(x[some], p[some])[0][:, cols[mine] - k]
+                g, jg = np.concatenate([g, values[:, cols]], axis=1), np.concatenate([jg, jac], axis=1)
+                rows = Rows(np.concatenate([rows.lower, self.lazy_rows.lower[cols]]), np.concatenate([rows.upper, self.lazy_rows.upper[cols]]))
+        state = State(g, jg, out[2][..., 0], out[3], rows, lazy_violation)
         if lower and self._full is not None:
             state.f, state.grad, state.hess = out[4][:, 0, 0], out[5][..., 0], out[6][..., 0]
         return state
 
     # -- the step -------------------------------------------------------------
-    def active(self, g: np.ndarray, ahead: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    @staticmethod
+    def active(state: State, ahead: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Which hard rows are active (B, m) and what change each active row needs (B, m): those within ``BUFFER``
         of a bound, and those that ``ahead`` (the rows' values after a first step, linearised) would cross."""
-        lo, hi = self.rows.lower, self.rows.upper
-        eq = self.rows.equality
+        g, lo, hi = state.g, state.rows.lower, state.rows.upper
+        eq = state.rows.equality
         low = g < lo + BUFFER
         high = g > hi - BUFFER
         if ahead is not None:
@@ -159,11 +210,11 @@ class BatchProgram:
         act = eq | low | high
         return act, np.where(act, target - g, 0.0)
 
-    def violation(self, g: np.ndarray) -> np.ndarray:
-        """The largest amount (B,) by which a hard row lies outside its bounds."""
-        if not self.m:
-            return np.zeros(len(g))
-        return np.maximum(np.maximum(self.rows.lower - g, g - self.rows.upper), 0.0).max(axis=1)
+    def violation(self, state: State, lazy: bool = True) -> np.ndarray:
+        """The largest amount (B,) by which a hard row (with ``lazy``, a lazy one too) lies outside its bounds."""
+        g = state.g[:, : self.m]
+        eager = np.maximum(np.maximum(self.rows.lower - g, g - self.rows.upper), 0.0).max(axis=1, initial=0.0)
+        return np.maximum(eager, state.lazy_violation) if lazy else eager
 
     def step(self, diag: np.ndarray, jac: np.ndarray | None, gradient: np.ndarray, state: State, fixed: np.ndarray, radius: np.ndarray,
              extra: tuple[np.ndarray, np.ndarray] | None = None, ahead: np.ndarray | None = None) -> np.ndarray:
@@ -175,10 +226,14 @@ class BatchProgram:
         Woodbury identity and the constraints by their Schur complement S = C H^-1 C': a few small batched
         products and one (m, m) solve per posture instead of an (n + m) one.
         """
-        act, need = self.active(state.g, ahead)
-        # Rows active for no posture of the batch are left out (an inactive row is a zero row otherwise).
-        used = act.any(axis=0)
-        cs, rs = [state.jg[:, used] * act[:, used, None]], [need[:, used]]
+        act, need = self.active(state, ahead)
+        # Each posture's active rows first, as many columns as the posture with the most (a padding row is a zero row,
+        # which the Schur complement's floor keeps harmless): about half the rows active in any posture of the batch.
+        k = int(act.sum(axis=1).max(initial=0))
+        order = np.argsort(~act, axis=1, kind="stable")[:, :k]
+        on = np.take_along_axis(act, order, axis=1)
+        cs = [np.take_along_axis(state.jg, order[..., None], axis=1) * on[..., None]]
+        rs = [np.take_along_axis(need, order, axis=1)]
         if extra is not None:
             cs.append(extra[0])
             rs.append(extra[1])
@@ -225,10 +280,10 @@ class BatchProgram:
         dx = self.step(diag, jac, gradient, state, fixed, radius, extra)
         over = ((x + dx < self.lower_bound) | (x + dx > self.upper_bound)) & ~fixed
         ahead = state.g + (state.jg @ dx[..., None])[..., 0]
-        crossing = ((ahead < self.rows.lower) | (ahead > self.rows.upper)) & ~self.active(state.g)[0]
+        crossing = ((ahead < state.rows.lower) | (ahead > state.rows.upper)) & ~self.active(state)[0]
         again = np.nonzero(over.any(axis=1) | crossing.any(axis=1))[0]
         if again.size:
-            sub = State(state.g[again], state.jg[again], state.e[again], state.je[again])
+            sub = state.take(again)
             ex = None if extra is None else (extra[0][again], extra[1][again])
             dx[again] = self.step(diag[again], None if jac is None else jac[again], gradient[again], sub, over[again], radius[again], ex,
                                   ahead[again])
@@ -255,6 +310,11 @@ class BatchProgram:
         diag = np.abs(state.hess)
         diag = diag + LOWER_DAMPING * diag.mean(axis=1, keepdims=True) + 1e-6
         return self.clamped_step(x, diag, None, state.grad, state, np.full(len(x), MAX_STEP), (state.je, -state.e))
+
+
+def _rows(constraints: Sequence[Constraint]) -> Rows:
+    return Rows(np.array([c.lower for c in constraints for _ in range(c.expr.numel())], float),
+                np.array([c.upper for c in constraints for _ in range(c.expr.numel())], float))
 
 
 class _Mapped:
@@ -292,6 +352,7 @@ class _Mapped:
 
 # -- the search over many starts ------------------------------------------------
 
+WAVE = 2  # a goal no start reached (and no decisive hint decided) gets WAVE x STARTS more random starts
 STARTS = 8  # default starts per goal (K): the hint(s), the reference, the ready posture, seeded random ones (the issue's first guess, not yet tuned)
 MAX_ITER = 40  # reach iterations
 LOWER_STARTS = 2  # reaching starts of one goal whose lower tasks are refined (the lower steps are the dearest)
@@ -302,6 +363,7 @@ STALL = 0.02  # a start whose distance to the goal shrinks by less than this sha
 EXTRA = 2  # iterations the other starts of a goal get once one has reached, to find a better-liked posture (a choice, not tuned)
 CONVERGED = 0.1  # share of the tolerance within which a start has reached and stops iterating
 POLISH_NEAR = 0.03  # [m] a goal whose best start ends this near (but does not reach) is polished by the interior-point programs
+POLISH_FAR = 0.25  # [m] ... or this near, for a goal without a decisive hint that both waves missed (see oracles.ik)
 POLISHES = 6  # the most fatrop polishes of one goal (its reaching postures that break a lazy task, its nearest, its random starts)
 CONTINUITY = 1.0  # weight of the range-normalised distance to the first hint (the neighbour's posture) in "liked"
 
@@ -326,22 +388,35 @@ def run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_o
     reached_at = np.full(int(owner.max()) + 1 if b else 0, -1)  # the iteration at which each goal's first start reached
     given_up = np.zeros(len(reached_at), bool)
     radius = np.full(b, MAX_STEP)  # each start's trust radius: halved when a step loses ground, grown when it gains
+    # A start moves free of the lazy rows (collisions, the floor) until it reaches its goal through one; from then on
+    # they are rows of its steps, which take it out with the goal held. Guarded from the first step, the arm of a
+    # reach across the body stopped against the trunk (12 of 99 goals fatrop reaches missed, against 4 unguarded).
+    guarded = np.zeros(b, bool)
+    merit_before = np.full(b, np.inf)
     for it in range(MAX_ITER + 1):
         if not live.size or time.perf_counter() > deadline:
             break
-        state = program.evaluate(x[live], params[live])
+        state = program.evaluate(x[live], params[live], guard=guarded[live])
         stats["iterations"] = stats.get("iterations", 0) + int(live.size)
-        d, v = np.linalg.norm(state.e, axis=1), program.violation(state.g)
-        before = dist[live] + viol[live]
+        d, v = np.linalg.norm(state.e, axis=1), program.violation(state)
+        before = merit_before[live]
         dist[live], viol[live] = d, v
         done = (d <= CONVERGED * tolerance) & (v <= HARD_TOL)
         first = owner[live[done]]
         reached_at[first[reached_at[first] < 0]] = it
         # A start stops when it has reached; when it stalls away from the goal (its distance plus its rows' violation
         # shrinks by less than STALL of itself in an iteration); or EXTRA iterations after another start of its goal reached.
-        merit = d + v  # [m, with rad as m] progress counts the return to the hard rows as well as towards the goal
+        # [m, with rad as m] progress counts the return to the hard rows as well as towards the goal (the lazy ones once guarded)
+        merit = d + np.where(guarded[live], v, program.violation(state, lazy=False))
+        newly = ~guarded[live] & (d <= tolerance) & (state.lazy_violation > HARD_TOL)
         worse = merit > before
         radius[live] = np.where(worse, 0.5 * radius[live], np.minimum(MAX_STEP, 1.5 * radius[live]))
+        # A newly guarded start waits an iteration for its lazy rows, with its full trust radius (its progress is not
+        # judged on it).
+        guarded[live[newly]] = True
+        radius[live[newly]] = MAX_STEP
+        merit[newly] = np.inf
+        merit_before[live] = merit
         stalled = (d > tolerance) & (before - merit < STALL * merit) & ~worse & (it > 2)
         stalled |= radius[live] < MIN_RADIUS
         late = (reached_at[owner[live]] >= 0) & (it - reached_at[owner[live]] >= EXTRA)
@@ -352,10 +427,11 @@ def run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_o
         keep = ~(done | stalled | late)
         if not keep.any():
             break
-        sub = np.nonzero(keep)[0]
-        state = State(state.g[sub], state.jg[sub], state.e[sub], state.je[sub])
-        live = live[sub]
-        x[live] = program.reach_step(x[live], state, None if starts is None else starts[live], start_weight[live], radius[live])
+        sub = np.nonzero(keep & ~newly)[0]
+        moving = live[sub]
+        x[moving] = program.reach_step(x[moving], state.take(sub), None if starts is None else starts[moving], start_weight[moving],
+                                       radius[moving])
+        live = live[keep]
     f = np.full(b, np.inf)
     if not (lower and program.has_lower):
         return x, dist, viol, f
@@ -375,7 +451,7 @@ def run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_o
         stats["iterations"] = stats.get("iterations", 0) + int(reached.size)
         y = program.lower_step(y, state)
     state = program.evaluate(y, params[reached], lower=True)
-    d, v = np.linalg.norm(state.e, axis=1), program.violation(state.g)
+    d, v = np.linalg.norm(state.e, axis=1), program.violation(state)
     # The lower tasks never cost the verdict: a start whose lower steps leave the goal or a hard row keeps its reach posture.
     ok = (d <= 0.5 * tolerance) & (v <= HARD_TOL)
     assert state.f is not None

@@ -27,6 +27,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+import casadi as ca
 import coal
 import numpy as np
 import pinocchio as pin
@@ -167,6 +168,37 @@ def nearest_points(p: np.ndarray, q: np.ndarray, a: np.ndarray, b: np.ndarray) -
             s = float(np.clip((t * bb - c) / aa, 0.0, 1.0)) if aa > 1e-15 else 0.0
     x, y = p + s * d1, a + t * d2
     return x, y, float(np.linalg.norm(x - y))
+
+
+def segment_gap(p: ca.SX, q: ca.SX, a: ca.SX, b: ca.SX, aa: float, ee: float) -> tuple[ca.SX, tuple[tuple[ca.SX, ca.SX], ...]]:
+    """Distance [m] between segments p-q and a-b as a CasADi expression: :func:`nearest_points`'s closed form,
+    its branches as ``if_else``. ``aa`` and ``ee`` are the squared lengths of the two segments, constants of
+    rigid capsules, so that a sphere's branch is chosen here rather than in the expression.
+
+    Returns the distance in terms of two fresh symbols, the nearest points' parameters s and t, and those
+    symbols with the expressions they stand for (a :class:`~oracles.tasks.base.Constraint`'s ``frozen``):
+    the distance's derivative with s and t held is its derivative (they are optimal, or clamped)."""
+    d1, d2, r = q - p, b - a, p - a
+    f, c, bb = ca.dot(d2, r), ca.dot(d1, r), ca.dot(d1, d2)
+
+    def clip(v: ca.SX) -> ca.SX:
+        return ca.fmin(ca.fmax(v, 0.0), 1.0)
+
+    if ee <= 1e-15:
+        s, t = (clip(-c / aa) if aa > 1e-15 else ca.SX(0.0)), ca.SX(0.0)
+    elif aa <= 1e-15:
+        s, t = ca.SX(0.0), clip(f / ee)
+    else:
+        den = aa * ee - bb * bb
+        # Parallel axes (den -> 0): any s is as near; nearest_points takes s = 0 (relative threshold: den scales as aa ee).
+        s0 = ca.if_else(den > 1e-12 * aa * ee, clip((bb * f - c * ee) / ca.fmax(den, 1e-300)), 0.0)
+        t0 = (bb * s0 + f) / ee
+        t = clip(t0)
+        s = ca.if_else(t0 != t, clip((t * bb - c) / aa), s0)
+    s_sym, t_sym = ca.SX.sym("s"), ca.SX.sym("t")
+    gap = (p + s_sym * d1) - (a + t_sym * d2)
+    # The square root's derivative is infinite at 0 (crossing axes, deep inside a pair's radii): a floor keeps it finite.
+    return ca.sqrt(ca.dot(gap, gap) + 1e-12), ((s_sym, s), (t_sym, t))
 
 
 # -- capsules from a URDF's own collision elements -----------------------------

@@ -33,7 +33,7 @@ import numpy as np
 import pinocchio as pin
 
 from oracles.batch import CONTINUITY as CONTINUITY_WEIGHT
-from oracles.batch import POLISH_NEAR, POLISHES, RANDOM_SPREAD, STARTS, BatchProgram, run_starts
+from oracles.batch import POLISH_FAR, POLISH_NEAR, POLISHES, RANDOM_SPREAD, STARTS, WAVE, BatchProgram, run_starts
 from oracles.body import load_body
 from oracles.errors import ModelError, OracleError
 from oracles.jit import COMPILER, compiled_nlpsol
@@ -511,6 +511,21 @@ class IKOracle(ABC):
         return Verdicts(reach, residual, posture)
 
 
+class _Wave(NamedTuple):
+    """One batched run of some goals' starts: the goals (indices), each goal's rows (``offsets``), the starts x0
+    and ends x (B, nx), the ends as postures q (B, nq), their reach distances, hard-row violations and how
+    little they are liked (B,)."""
+
+    goals: np.ndarray
+    offsets: np.ndarray
+    x0: np.ndarray
+    x: np.ndarray
+    q: np.ndarray
+    dist: np.ndarray
+    viol: np.ndarray
+    liked: np.ndarray
+
+
 class _Cuts:
     """The cut slots of one solve: rows ``matrix @ x >= lower``; once full, a new cut replaces the oldest."""
 
@@ -785,7 +800,8 @@ class CasadiIK(IKOracle):
             lower = list(soft[soft.index(reach) + 1 :])
             p = self.problem
             name = f"batch_{zlib.crc32(repr(self.spec.to_dict()).encode()):08x}"
-            found = BatchProgram(sym, params, hard, reach.held(sym), lower, p.lower, p.upper, p.upper - p.lower, self.jit, name)
+            screened = [c for t in self.strategy.hard for c in t.screened(sym)]
+            found = BatchProgram(sym, params, hard, reach.held(sym), lower, p.lower, p.upper, p.upper - p.lower, self.jit, name, screened)
             self._batch_cache[key] = found
         return found
 
@@ -800,32 +816,39 @@ class CasadiIK(IKOracle):
             return super()._evaluate(points, hints, start, aims)
         return self._evaluate_batch(points, hints, start, aims)
 
-    def _batch_starts(self, goal: np.ndarray, hint: np.ndarray | None) -> list[np.ndarray]:
+    def _batch_starts(self, goal: np.ndarray, hint: np.ndarray | None, wave: int = 0) -> list[np.ndarray]:
         """A goal's K starts: its hints (the neighbour's posture first), the reference and ready postures, then
-        random ones seeded by the search's seed and the goal (the same goal gets the same starts in any batch)."""
+        random ones seeded by the search's seed and the goal (the same goal gets the same starts in any batch).
+        Wave 1 (see :meth:`_evaluate_batch`): ``WAVE`` times K random ones, of the same seed's next draws."""
         p = self.problem
-        seeds = np.zeros((0, 0)) if hint is None else np.atleast_2d(hint)
-        out = [p.x_of_q(h) for h in seeds if np.all(np.isfinite(h))]
-        out += [p.x_ref.copy(), p.x_ready.copy()]
-        rng = np.random.default_rng([self.search.seed, zlib.crc32(np.round(goal, 9).tobytes())])
-        # A standing body's random start moves every joint only part of the way into its range (RANDOM_SPREAD):
-        # uniform hips and ankles throw the held feet metres off, which no start came back from in 40 steps.
-        spread = RANDOM_SPREAD if self.strategy.floating else 1.0
-        out += [p.x_ref + spread * (p.random_x(rng) - p.x_ref) for _ in range(max(self.starts_per_goal - len(out), 0))]
+        out: list[np.ndarray] = []
+        if wave == 0:
+            seeds = np.zeros((0, 0)) if hint is None else np.atleast_2d(hint)
+            out += [p.x_of_q(h) for h in seeds if np.all(np.isfinite(h))]
+            out += [p.x_ref.copy(), p.x_ready.copy()]
+        rng = np.random.default_rng([self.search.seed, zlib.crc32(np.round(goal, 9).tobytes()), wave])
+        # A standing body's first random starts move every joint only part of the way into its range (RANDOM_SPREAD):
+        # uniform hips and ankles throw the held feet metres off, which most starts do not come back from in 40
+        # steps; the second wave's are uniform, for the far basins (a reach behind the back, measured in
+        # docs/history.md, session 18).
+        spread = RANDOM_SPREAD if self.strategy.floating and wave == 0 else 1.0
+        count = max(self.starts_per_goal - len(out), 0) if wave == 0 else WAVE * self.starts_per_goal
+        out += [p.x_ref + spread * (p.random_x(rng) - p.x_ref) for _ in range(count)]
         return out
 
     def _evaluate_batch(self, points: np.ndarray, hints: np.ndarray | None, start: np.ndarray | None, aims: np.ndarray | None) -> Verdicts:
         """Every goal's K starts iterated together by the batched engine (:mod:`oracles.batch`); the verdict is the
-        Pinocchio check, in order of how well each reaching posture is liked; a goal none reaches whose best start
-        ended within ``POLISH_NEAR`` of it is polished by fatrop's programs from there."""
+        Pinocchio check, in order of how well each reaching posture is liked. A goal none reaches gets a second wave
+        of ``WAVE`` x K random starts, unless its first start was a decisive hint (a build's neighbour, which decides,
+        as :class:`~oracles.search.Search`'s ``give_up`` says); one still missed whose best start ended within
+        ``POLISH_NEAR`` of it is polished by fatrop's programs from there."""
         pts = check_points(points, 3)
         hints = None if hints is None else np.asarray(hints, float)
         p, search, n = self.problem, self.search, len(pts)
-        tol = self.strategy.tolerance
         self.stats["points"] += n
         deadline = np.inf if search.max_seconds is None else time.perf_counter() + search.max_seconds
         residual = np.zeros(n) if p.anchor is None else np.maximum(np.linalg.norm(pts - p.anchor, axis=1) - p.max_reach, 0.0)
-        prefiltered = residual > tol
+        prefiltered = residual > self.strategy.tolerance
         self.stats["prefiltered"] += int(prefiltered.sum())
         reach = np.zeros(n, bool)
         posture = np.tile(self.body.q_ref, (n, 1))
@@ -833,9 +856,38 @@ class CasadiIK(IKOracle):
         if not todo.size:
             return Verdicts(reach, residual, posture)
         self.prepare()
-        program = self.batch_program()
-        starts = [self._batch_starts(pts[i], None if hints is None else hints[i]) for i in todo]
-        owner = np.concatenate([np.full(len(s), i) for i, s in zip(todo, starts, strict=True)])
+        # A goal's first start is decisive when it is a hint whose effector lies within `decisive` of the goal.
+        decisive = np.zeros(n, bool)
+        if hints is not None and np.isfinite(search.give_up_distance):
+            first_hint = hints[:, 0] if hints.ndim == 3 else hints
+            decisive[todo] = [np.all(np.isfinite(first_hint[i])) and p.effector_distance(first_hint[i], pts[i], self._data) <= search.decisive
+                              for i in todo]
+        first = None  # each goal's first start, as x: continuity with it is liked
+        if hints is not None:
+            first_hint = hints[:, 0] if hints.ndim == 3 else hints
+            first = np.tile(p.x_ref, (n, 1))
+            for i in todo:
+                if np.all(np.isfinite(first_hint[i])):
+                    first[i] = p.x_of_q(first_hint[i])
+        residual[todo] = np.inf
+        runs = []
+        for wave in (0, 1):
+            goals = todo if wave == 0 else todo[~reach[todo] & ~decisive[todo]]
+            if not goals.size or time.perf_counter() > deadline:
+                break
+            starts = [self._batch_starts(pts[i], None if hints is None else hints[i], wave) for i in goals]
+            run = self._run_wave(pts, goals, starts, start, aims, decisive if wave == 0 else None, first, deadline)
+            runs.append(run)
+            self._keep_reaching(run, pts, aims, reach, residual, posture)
+        self._polish_missed(runs, pts, aims, start, deadline, reach, residual, posture)
+        self.stats["reachable"] += int(reach.sum())
+        return Verdicts(reach, residual, posture)
+
+    def _run_wave(self, pts: np.ndarray, goals: np.ndarray, starts: list[list[np.ndarray]], start: np.ndarray | None,
+                  aims: np.ndarray | None, decisive: np.ndarray | None, first: np.ndarray | None, deadline: float) -> _Wave:
+        """The goals' starts iterated together (:func:`oracles.batch.run_starts`)."""
+        p, search = self.problem, self.search
+        owner = np.concatenate([np.full(len(s), i) for i, s in zip(goals, starts, strict=True)])
         offsets = np.concatenate([[0], np.cumsum([len(s) for s in starts])])
         x0 = np.clip(np.concatenate([np.array(s) for s in starts]), p.lower, p.upper)
         b = len(x0)
@@ -845,62 +897,71 @@ class CasadiIK(IKOracle):
         on = float(task is not None and (aims is not None or not task.free))
         params = np.concatenate([pts[owner], x0 if start is None else np.tile(start, (b, 1)), np.full((b, 1), 0.0 if start is None else 1.0),
                                  np.transpose(aim, (0, 2, 1)).reshape(b, 9), np.full((b, 1), on)], axis=1)
-        # A goal's first start is decisive when it is a hint whose effector lies within `decisive` of the goal.
-        decisive = None
-        if hints is not None and np.isfinite(search.give_up_distance):
-            first_hint = hints[todo, 0] if hints.ndim == 3 else hints[todo]
-            near = np.array([np.all(np.isfinite(h)) and p.effector_distance(h, pts[i], self._data) <= search.decisive
-                             for h, i in zip(first_hint, todo, strict=True)])
-            decisive = np.zeros(b, bool)
-            decisive[offsets[:-1][near]] = True
-        x, dist, viol, liked = run_starts(program, x0, params, owner, tol, search.secondary, start, deadline, self.stats, decisive,
-                                          search.give_up_distance)
-        # Continuity with the neighbour's posture (the first hint) is part of "liked".
-        first = np.array([s[0] for s in starts]) if hints is not None else None
+        first_start = None
+        if decisive is not None and decisive.any():
+            first_start = np.zeros(b, bool)
+            first_start[offsets[:-1][decisive[goals]]] = True
+        x, dist, viol, liked = run_starts(self.batch_program(), x0, params, owner, self.strategy.tolerance, search.secondary, start,
+                                          deadline, self.stats, first_start, search.give_up_distance)
         if first is not None:
-            nearness = np.sum(((x - first[np.searchsorted(todo, owner)]) / (p.upper - p.lower)) ** 2, axis=1)
+            # Continuity with the neighbour's posture (the first hint) is part of "liked".
+            nearness = np.sum(((x - first[owner]) / (p.upper - p.lower)) ** 2, axis=1)
             liked = np.where(np.isfinite(liked), liked, 0.0) + CONTINUITY_WEIGHT * nearness
-        q_all = p.q_of_x_many(x)
-        polisher = None
-        for j, i in enumerate(todo):
-            rows = np.arange(offsets[j], offsets[j + 1])
+        return _Wave(goals, offsets, x0, x, p.q_of_x_many(x), dist, viol, liked)
+
+    def _keep_reaching(self, run: _Wave, pts: np.ndarray, aims: np.ndarray | None, reach: np.ndarray, residual: np.ndarray,
+                       posture: np.ndarray) -> None:
+        """For each goal of a wave, the best-liked posture that passes the verdict's check; or, when none does and
+        none did before, the nearest attempt."""
+        p, tol = self.problem, self.strategy.tolerance
+        for j, i in enumerate(run.goals):
+            rows = np.arange(run.offsets[j], run.offsets[j + 1])
             aim_i = None if aims is None else aims[i]
-            near = rows[(dist[rows] <= tol) & (viol[rows] <= 1e-5)]
-            order = near[np.lexsort((dist[near], liked[near]))]
-            best: Check | None = None
-            for r in order:
-                check = p.check(q_all[r], pts[i], self._data, aim_i)
+            near = rows[(run.dist[rows] <= tol) & (run.viol[rows] <= 1e-5)]
+            for r in near[np.lexsort((run.dist[near], run.liked[near]))]:
+                check = p.check(run.q[r], pts[i], self._data, aim_i)
                 if check.reachable:
-                    reach[i], residual[i], posture[i] = True, check.residual, q_all[r]
+                    reach[i], residual[i], posture[i] = True, check.residual, run.q[r]
                     break
-                if best is None:
-                    best, residual[i], posture[i] = check, check.residual, q_all[r]
             if reach[i]:
                 continue
-            ranked = rows[np.lexsort((dist[rows], viol[rows] > 1e-5))]
-            if best is None:
-                best = p.check(q_all[ranked[0]], pts[i], self._data, aim_i)
-                residual[i], posture[i] = best.residual, q_all[ranked[0]]
-            if dist[ranked[0]] > POLISH_NEAR:
-                continue
-            # A goal that some starts reach but whose postures break a lazy task (a collision) is polished from
-            # them, then from its random starts themselves (fatrop's own restarts: another basin); a near miss
-            # (no start reached) from its nearest end only: most are beyond the boundary.
-            ends = [x[r] for r in dict.fromkeys([*order, *ranked[:1]])]
-            tries = [*ends, *x0[rows[::-1]]][:POLISHES] if order.size else ends[:1]
-            for guess in tries:
-                if time.perf_counter() > deadline:
-                    break
-                polisher = polisher or self._polisher()
-                q = polisher.solve(pts[i], guess, search.secondary, Call(start, deadline, aim_i))
-                self.stats["polished"] = self.stats.get("polished", 0) + 1
-                check = p.check(q, pts[i], self._data, aim_i)
-                if check.reachable or check.residual < residual[i]:
-                    reach[i], residual[i], posture[i] = check.reachable, check.residual, q
-                if check.reachable:
-                    break
-        self.stats["reachable"] += int(reach.sum())
-        return Verdicts(reach, residual, posture)
+            r = rows[np.lexsort((run.dist[rows], run.viol[rows] > 1e-5))][0]
+            check = p.check(run.q[r], pts[i], self._data, aim_i)
+            if check.residual < residual[i]:
+                residual[i], posture[i] = check.residual, run.q[r]
+
+    def _polish_missed(self, runs: list[_Wave], pts: np.ndarray, aims: np.ndarray | None, start: np.ndarray | None, deadline: float,
+                       reach: np.ndarray, residual: np.ndarray, posture: np.ndarray) -> None:
+        """fatrop from a missed goal's best ends: its reaching postures that break a lazy task, then its random
+        starts themselves (fatrop's own restarts: another basin), or a near miss (no start reached) from its
+        nearest end only: most are beyond the boundary. A near miss is one within ``POLISH_NEAR``, or
+        ``POLISH_FAR`` for a goal that went through the second wave (at the volume's boundary, where a
+        Gauss-Newton step slows down and fatrop's second derivatives still find a way)."""
+        tol, polisher = self.strategy.tolerance, None
+        cold = set(runs[-1].goals.tolist()) if len(runs) > 1 else set()  # the second wave's: no decisive hint
+        for run in runs:
+            for j, i in enumerate(run.goals):
+                if reach[i]:
+                    continue
+                rows = np.arange(run.offsets[j], run.offsets[j + 1])
+                ranked = rows[np.lexsort((run.dist[rows], run.viol[rows] > 1e-5))]
+                if run.dist[ranked[0]] > (POLISH_FAR if i in cold else POLISH_NEAR):
+                    continue
+                reached = rows[run.dist[rows] <= tol]
+                ends = [run.x[r] for r in dict.fromkeys([*reached, *ranked[:1]])]
+                tries = [*ends, *run.x0[rows[::-1]]][:POLISHES] if reached.size else ends[:1]
+                aim_i = None if aims is None else aims[i]
+                for guess in tries:
+                    if time.perf_counter() > deadline:
+                        return
+                    polisher = polisher or self._polisher()
+                    q = polisher.solve(pts[i], guess, self.search.secondary, Call(start, deadline, aim_i))
+                    self.stats["polished"] = self.stats.get("polished", 0) + 1
+                    check = self.problem.check(q, pts[i], self._data, aim_i)
+                    if check.reachable or check.residual < residual[i]:
+                        reach[i], residual[i], posture[i] = check.reachable, check.residual, q
+                    if check.reachable:
+                        break
 
     def solve(self, goal: np.ndarray, x0: np.ndarray, lower: bool = True, call: Call = NO_CALL) -> np.ndarray:
         self.prepare()

@@ -56,23 +56,24 @@ def test_every_batched_reachable_verdict_holds_under_independent_checks(arm, who
 
 
 def test_it_misses_few_goals_fatrop_reaches_with_six_restarts_and_fatrop_accepts_all_it_reaches():
-    """Seeded random goals of every shipped demo strategy (the right side): the batched engine with its default
-    starts against fatrop with 6 random restarts."""
+    """Seeded random goals of every shipped demo strategy (the right side), two seeds: the batched engine with its
+    default starts against fatrop with 6 random restarts."""
     config = load_config("configs/demo.yaml")
     reached = missed = 0
-    for name, n in (("right_arm", 100), ("right_upper_body", 60), ("right_whole_body", 40), ("right_crouch", 30)):
-        params = dict(config.strategy(name).oracle.params)
-        batch = OracleSpec("casadi-ik", {**params, "solver": "batch"}).create()
-        fatrop = OracleSpec("casadi-ik", {**params, "solver": "fatrop", "restarts": 6}).create()
-        goals = _goals(batch, n, 5)
-        vb, vf = batch.evaluate(goals), fatrop.evaluate(goals)
-        assert fatrop.verify(goals[vb.reachable], vb.posture[vb.reachable]).all(), name
-        reached += int(vf.reachable.sum())
-        missed += int((vf.reachable & ~vb.reachable).sum())
-    assert reached >= 60
-    # The issue's goal is 1 %; measured here 4 of 99 (cold whole-body goals across the body, whose starts end in a
-    # collision basin that fatrop's random restarts leave): the bound holds that, and fails on a real regression.
-    assert missed <= round(0.05 * reached), (missed, reached)
+    for seed in (5, 9):
+        for name, n in (("right_arm", 100), ("right_upper_body", 60), ("right_whole_body", 40), ("right_crouch", 30)):
+            params = dict(config.strategy(name).oracle.params)
+            batch = OracleSpec("casadi-ik", {**params, "solver": "batch"}).create()
+            fatrop = OracleSpec("casadi-ik", {**params, "solver": "fatrop", "restarts": 6}).create()
+            goals = _goals(batch, n, seed)
+            vb, vf = batch.evaluate(goals), fatrop.evaluate(goals)
+            assert fatrop.verify(goals[vb.reachable], vb.posture[vb.reachable]).all(), name
+            reached += int(vf.reachable.sum())
+            missed += int((vf.reachable & ~vb.reachable).sum())
+    assert reached >= 150
+    # The issue's goal: at most 1 %. Measured 2 of 207: one goal at the volume's boundary, 1 m to the left at
+    # shoulder height, missed by 2 cm (whole body) and 5 mm (crouch), its nearest postures against the trunk.
+    assert missed <= round(0.01 * reached), (missed, reached)
 
 
 def test_the_same_goals_give_the_same_postures_in_any_batch(arm):

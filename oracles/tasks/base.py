@@ -37,11 +37,18 @@ INSIDE = 1e-4  # [m] dls: how far inside its bound a violated row is pushed
 
 
 class Constraint(NamedTuple):
-    """Rows ``lower <= expr <= upper`` of a nonlinear program (bounds apply to every row)."""
+    """Rows ``lower <= expr <= upper`` of a nonlinear program (bounds apply to every row).
+
+    ``frozen``: symbols of ``expr`` and the expressions they stand for, held constant when differentiating
+    (the nearest points' parameters of a distance, whose derivative vanishes where they are optimal:
+    the envelope theorem); the batched engine substitutes them after differentiating, which keeps the
+    Jacobian a tenth of the size of the closed form's own.
+    """
 
     expr: ca.SX
     lower: float
     upper: float
+    frozen: tuple[tuple[ca.SX, ca.SX], ...] = ()
 
 
 class Row(NamedTuple):
@@ -309,6 +316,12 @@ class HardTask(Task):
 
     def cuts(self, num: Numeric, within: float) -> list[Cut]:
         """A lazy task's inequalities within ``within`` [m] of their bound at ``num.q``, linearised there."""
+        return []
+
+    def screened(self, sym: Symbolic) -> list[Constraint]:
+        """A lazy task's rows that :meth:`constraints` leaves out, as expressions, for an engine that evaluates them
+        all and keeps the near ones (the batched engine, :mod:`oracles.batch`); none by default (the engine then
+        leaves the task to its verdict and polish)."""
         return []
 
     def keep_out(self) -> list[np.ndarray]:

@@ -100,6 +100,17 @@ class FloorTask(HardTask):
             out.append(Constraint(ca.vertcat(*z), p.radius, np.inf))
         return out
 
+    def screened(self, sym: Symbolic) -> list[Constraint]:
+        """The other moving capsules' end points at least their radius above the floor."""
+        assert self._model is not None
+        out = []
+        for i in self.capsules:
+            if i in self.eager:
+                continue
+            p = self._model.placed[i]
+            out.append(Constraint(ca.vertcat(*[world_point(sym, p.joint, e)[2] for e in (p.a, p.b)]), p.radius, np.inf))
+        return out
+
     def cuts(self, num: Numeric, within: float) -> list[Cut]:
         assert self._model is not None
         out = []

@@ -39,7 +39,7 @@ from typing import Any, ClassVar
 import numpy as np
 import pinocchio as pin
 
-from oracles.collision import CollisionModel, nearest_points
+from oracles.collision import CollisionModel, nearest_points, segment_gap
 from oracles.errors import TaskError
 from oracles.tasks.base import (
     BUFFER,
@@ -55,6 +55,7 @@ from oracles.tasks.base import (
     number,
     relative_motion,
     rows_of_cuts,
+    world_point,
 )
 
 MARGIN = 0.01  # [m] default clearance between segments
@@ -205,6 +206,22 @@ class SelfCollisionTask(HardTask):
 
     def constraints(self, sym: Symbolic) -> list[Constraint]:
         return []  # lazy: see cuts
+
+    def screened(self, sym: Symbolic) -> list[Constraint]:
+        """Every pair's distance less its radii, at least its clearance (:func:`oracles.collision.segment_gap`)."""
+        assert self._model is not None
+        ends = {}
+        out = []
+        for pair in self.pairs:
+            for i in (pair.first, pair.second):
+                if i not in ends:
+                    p = self._model.placed[i]
+                    ends[i] = (world_point(sym, p.joint, p.a), world_point(sym, p.joint, p.b), float(np.sum((np.subtract(p.b, p.a)) ** 2)))
+            (pa, pb, aa), (qa, qb, ee) = ends[pair.first], ends[pair.second]
+            radii = self._model.placed[pair.first].radius + self._model.placed[pair.second].radius
+            gap, frozen = segment_gap(pa, pb, qa, qb, aa, ee)
+            out.append(Constraint(gap - radii, pair.clearance, np.inf, frozen))
+        return out
 
     def keep_out(self) -> list[np.ndarray]:
         """The static capsules the effector may not enter, where they stand: a, b [m], radius [m]."""
