@@ -45,6 +45,7 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import casadi as ca
 import numpy as np
@@ -363,16 +364,27 @@ STALL = 0.02  # a start whose distance to the goal shrinks by less than this sha
 EXTRA = 2  # iterations the other starts of a goal get once one has reached, to find a better-liked posture (a choice, not tuned)
 CONVERGED = 0.1  # share of the tolerance within which a start has reached and stops iterating
 POLISH_NEAR = 0.03  # [m] a goal whose best start ends this near (but does not reach) is polished by the interior-point programs
+WAVE_NEAR = 0.25  # [m] the random wave is for goals the K starts ended this near (farther: outside, as a rule)
 POLISH_FAR = 0.25  # [m] ... or this near, for a goal without a decisive hint that both waves missed (see oracles.ik)
 POLISHES = 6  # the most fatrop polishes of one goal (its reaching postures that break a lazy task, its nearest, its random starts)
 CONTINUITY = 1.0  # weight of the range-normalised distance to the first hint (the neighbour's posture) in "liked"
 
 
+class Ends(NamedTuple):
+    """Where a batch's starts ended: postures x (B, n), reach distances, hard-row violations and the lower tasks'
+    values (B,) (inf where not computed), and which goals a decisive start gave up (indexed by goal)."""
+
+    x: np.ndarray
+    dist: np.ndarray
+    viol: np.ndarray
+    liked: np.ndarray
+    given_up: np.ndarray
+
+
 def run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_of: np.ndarray, tolerance: float,
                lower: bool, start: np.ndarray | None, deadline: float, stats: dict[str, int], decisive: np.ndarray | None = None,
-               give_up: float = np.inf) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Iterate every start (B, n) with its parameters (B, np) together; returns the final postures, reach distances,
-    hard-row violations and the lower tasks' values (inf where not computed).
+               give_up: float = np.inf) -> Ends:
+    """Iterate every start (B, n) with its parameters (B, np) together (see :class:`Ends`).
 
     ``decisive`` (B,) marks the starts whose failure decides their goal (a build's warm start from a neighbour
     near the goal, see :class:`oracles.search.Search`): when one stalls farther than ``give_up`` [m] from its goal,
@@ -434,7 +446,7 @@ def run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_o
         live = live[keep]
     f = np.full(b, np.inf)
     if not (lower and program.has_lower):
-        return x, dist, viol, f
+        return Ends(x, dist, viol, f, given_up)
     reached = np.nonzero((dist <= tolerance) & (viol <= HARD_TOL))[0]
     # The lower tasks refine at most LOWER_STARTS reaching starts per goal, the first in the order of the starts
     # (the hint, the reference, the ready posture, then the random ones): the rest keep their reach posture.
@@ -442,7 +454,7 @@ def run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_o
     rank = np.arange(len(reached)) - np.searchsorted(owner[reached], owner[reached], side="left")
     reached = reached[rank < LOWER_STARTS]
     if not reached.size:
-        return x, dist, viol, f  # (no start reached: nothing to like)
+        return Ends(x, dist, viol, f, given_up)  # (no start reached: nothing to like)
     y = x[reached].copy()
     for _ in range(LOWER_ITER):
         if time.perf_counter() > deadline:
@@ -463,4 +475,4 @@ def run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_o
         back = program.evaluate(x[rest], params[rest], lower=True)
         assert back.f is not None
         f[rest] = back.f
-    return x, dist, viol, f
+    return Ends(x, dist, viol, f, given_up)

@@ -33,7 +33,17 @@ import numpy as np
 import pinocchio as pin
 
 from oracles.batch import CONTINUITY as CONTINUITY_WEIGHT
-from oracles.batch import POLISH_FAR, POLISH_NEAR, POLISHES, RANDOM_SPREAD, STARTS, WAVE, BatchProgram, run_starts
+from oracles.batch import (
+    POLISH_FAR,
+    POLISH_NEAR,
+    POLISHES,
+    RANDOM_SPREAD,
+    STARTS,
+    WAVE,
+    WAVE_NEAR,
+    BatchProgram,
+    run_starts,
+)
 from oracles.body import load_body
 from oracles.errors import ModelError, OracleError
 from oracles.jit import COMPILER, compiled_nlpsol
@@ -862,30 +872,46 @@ class CasadiIK(IKOracle):
             first_hint = hints[:, 0] if hints.ndim == 3 else hints
             decisive[todo] = [np.all(np.isfinite(first_hint[i])) and p.effector_distance(first_hint[i], pts[i], self._data) <= search.decisive
                               for i in todo]
-        first = None  # each goal's first start, as x: continuity with it is liked
+        first = np.tile(p.x_ref, (n, 1))  # each goal's first hint, as x: continuity with it is liked
         if hints is not None:
             first_hint = hints[:, 0] if hints.ndim == 3 else hints
-            first = np.tile(p.x_ref, (n, 1))
             for i in todo:
                 if np.all(np.isfinite(first_hint[i])):
                     first[i] = p.x_of_q(first_hint[i])
         residual[todo] = np.inf
         runs = []
-        for wave in (0, 1):
-            goals = todo if wave == 0 else todo[~reach[todo] & ~decisive[todo]]
+        given_up = np.zeros(n, bool)
+        # The waves: a decisive hint alone (it decides, as in a build: the neighbour's posture, moved the least);
+        # every goal's K starts (a decisive hint not run again); random starts for a goal without a decisive hint
+        # that the K starts came near.
+        for wave in ("hint", "starts", "random"):
+            if wave == "hint":
+                goals = todo[decisive[todo]]
+            elif wave == "starts":
+                goals = todo[~reach[todo] & ~given_up[todo]]
+            else:
+                goals = todo[~reach[todo] & ~decisive[todo] & (residual[todo] <= WAVE_NEAR)]
             if not goals.size or time.perf_counter() > deadline:
-                break
-            starts = [self._batch_starts(pts[i], None if hints is None else hints[i], wave) for i in goals]
-            run = self._run_wave(pts, goals, starts, start, aims, decisive if wave == 0 else None, first, deadline)
+                continue
+            self.stats[f"wave_{wave}"] = self.stats.get(f"wave_{wave}", 0) + int(goals.size)
+            if wave == "hint":
+                starts = [[first[i]] for i in goals]
+            else:
+                starts = [self._batch_starts(pts[i], None if hints is None or decisive[i] else hints[i], int(wave == "random")) for i in goals]
+            run, lost = self._run_wave(pts, goals, starts, start, aims, decisive if wave == "hint" else None,
+                                       None if hints is None else first, deadline)
+            given_up[goals] |= lost
             runs.append(run)
             self._keep_reaching(run, pts, aims, reach, residual, posture)
-        self._polish_missed(runs, pts, aims, start, deadline, reach, residual, posture)
+        far = set(todo[~decisive[todo]].tolist())
+        self._polish_missed(runs, pts, aims, start, deadline, reach, residual, posture, far)
         self.stats["reachable"] += int(reach.sum())
         return Verdicts(reach, residual, posture)
 
     def _run_wave(self, pts: np.ndarray, goals: np.ndarray, starts: list[list[np.ndarray]], start: np.ndarray | None,
-                  aims: np.ndarray | None, decisive: np.ndarray | None, first: np.ndarray | None, deadline: float) -> _Wave:
-        """The goals' starts iterated together (:func:`oracles.batch.run_starts`)."""
+                  aims: np.ndarray | None, decisive: np.ndarray | None, first: np.ndarray | None, deadline: float) -> tuple[_Wave, np.ndarray]:
+        """The goals' starts iterated together (:func:`oracles.batch.run_starts`), and which goals (of ``goals``) their
+        decisive first start gave up."""
         p, search = self.problem, self.search
         owner = np.concatenate([np.full(len(s), i) for i, s in zip(goals, starts, strict=True)])
         offsets = np.concatenate([[0], np.cumsum([len(s) for s in starts])])
@@ -901,13 +927,14 @@ class CasadiIK(IKOracle):
         if decisive is not None and decisive.any():
             first_start = np.zeros(b, bool)
             first_start[offsets[:-1][decisive[goals]]] = True
-        x, dist, viol, liked = run_starts(self.batch_program(), x0, params, owner, self.strategy.tolerance, search.secondary, start,
-                                          deadline, self.stats, first_start, search.give_up_distance)
+        x, dist, viol, liked, given_up = run_starts(self.batch_program(), x0, params, owner, self.strategy.tolerance, search.secondary,
+                                                    start, deadline, self.stats, first_start, search.give_up_distance)
         if first is not None:
             # Continuity with the neighbour's posture (the first hint) is part of "liked".
             nearness = np.sum(((x - first[owner]) / (p.upper - p.lower)) ** 2, axis=1)
             liked = np.where(np.isfinite(liked), liked, 0.0) + CONTINUITY_WEIGHT * nearness
-        return _Wave(goals, offsets, x0, x, p.q_of_x_many(x), dist, viol, liked)
+        lost = given_up[goals] if len(given_up) else np.zeros(len(goals), bool)
+        return _Wave(goals, offsets, x0, x, p.q_of_x_many(x), dist, viol, liked), lost
 
     def _keep_reaching(self, run: _Wave, pts: np.ndarray, aims: np.ndarray | None, reach: np.ndarray, residual: np.ndarray,
                        posture: np.ndarray) -> None:
@@ -931,21 +958,20 @@ class CasadiIK(IKOracle):
                 residual[i], posture[i] = check.residual, run.q[r]
 
     def _polish_missed(self, runs: list[_Wave], pts: np.ndarray, aims: np.ndarray | None, start: np.ndarray | None, deadline: float,
-                       reach: np.ndarray, residual: np.ndarray, posture: np.ndarray) -> None:
+                       reach: np.ndarray, residual: np.ndarray, posture: np.ndarray, far: set[int]) -> None:
         """fatrop from a missed goal's best ends: its reaching postures that break a lazy task, then its random
         starts themselves (fatrop's own restarts: another basin), or a near miss (no start reached) from its
         nearest end only: most are beyond the boundary. A near miss is one within ``POLISH_NEAR``, or
-        ``POLISH_FAR`` for a goal that went through the second wave (at the volume's boundary, where a
+        ``POLISH_FAR`` for a goal without a decisive hint (at the volume's boundary, where a
         Gauss-Newton step slows down and fatrop's second derivatives still find a way)."""
         tol, polisher = self.strategy.tolerance, None
-        cold = set(runs[-1].goals.tolist()) if len(runs) > 1 else set()  # the second wave's: no decisive hint
         for run in runs:
             for j, i in enumerate(run.goals):
                 if reach[i]:
                     continue
                 rows = np.arange(run.offsets[j], run.offsets[j + 1])
                 ranked = rows[np.lexsort((run.dist[rows], run.viol[rows] > 1e-5))]
-                if run.dist[ranked[0]] > (POLISH_FAR if i in cold else POLISH_NEAR):
+                if run.dist[ranked[0]] > (POLISH_FAR if i in far else POLISH_NEAR):
                     continue
                 reached = rows[run.dist[rows] <= tol]
                 ends = [run.x[r] for r in dict.fromkeys([*reached, *ranked[:1]])]
