@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass, fields
 from typing import Any, Protocol, runtime_checkable
@@ -69,6 +70,7 @@ LIFT = 0.01  # [m] a pelvis raised this much rises onto the toes (a modelling ch
 RATE = 30.0  # [Hz] frames per second by default
 MAX_RATE = 240.0  # [Hz]
 MAX_DURATION = 20.0  # [s] an explicit duration at most this
+CHECK_FRAMES = 16  # frames checked between two readings of the deadline (about 2 ms of the whole body's checks)
 BUDGET = 0.25  # [s] the end posture's refinement budget: a motion is not a 50 Hz query, and a stored posture stops short
 HOLD_STEP = 0.25  # [rad or m] a frame that holding moves more than this (any coordinate) leaves the path: it is routed instead
 JUMP = 2.0  # a held path whose largest step between frames is this many times the unheld path's has a jump: it is routed instead
@@ -247,16 +249,28 @@ class Planner:
         self.served = selector  # the selector given (a server compares it after a reload)
         self.selector = selector.with_budget(budget)
         self._graphs: dict[str, tuple[cKDTree, np.ndarray, np.ndarray, csr_matrix]] = {}
+        self._deadline = math.inf  # time.perf_counter() past which the plan in progress stops (see plan)
 
     def plan(self, effector: str, goal: np.ndarray | list[float], start: dict[str, float] | None = None, *, rate: float = RATE,
-             timing: Timing | None = None, miss: str = "nearest") -> Motion:
+             timing: Timing | None = None, miss: str = "nearest", deadline: float | None = None) -> Motion:
         """The motion from ``start`` (joint name -> rad or m, ``root_*`` for the base; the reference posture
         where omitted) to the answer for ``goal`` [m], at ``rate`` frames per second.
 
+        ``deadline``: ``time.perf_counter()`` past which planning stops (a server's request deadline): the
+        frames are checked one at a time, so it stops within one hold of a frame.
+
         Raises InputError for a bad goal, start posture, rate or ``miss``, and
-        MotionError when the goal is out of reach (``miss="error"``) or no
-        path holds every task.
+        MotionError when the goal is out of reach (``miss="error"``), no
+        path holds every task, or the deadline passed (code ``timeout``).
         """
+        self._deadline = math.inf if deadline is None else float(deadline)
+        try:
+            return self._plan(effector, goal, start, rate, timing, miss)
+        finally:
+            self._deadline = math.inf
+
+    def _plan(self, effector: str, goal: np.ndarray | list[float], start: dict[str, float] | None, rate: float, timing: Timing | None,
+              miss: str) -> Motion:
         if not (isinstance(rate, (int, float)) and math.isfinite(rate) and 1.0 <= rate <= MAX_RATE):
             raise InputError("rate", f"expected frames per second in [1, {MAX_RATE:g}], got {rate!r}")
         if miss not in MOTION_MISSES:
@@ -447,9 +461,10 @@ class Planner:
         be held, or holding makes a jump: a frame moved more than ``limit``, or a step between frames
         ``JUMP`` times the largest before."""
         out, held = postures.copy(), 0
-        for k, broken in enumerate(oracle.faults(postures)):
+        for k, broken in enumerate(self._faults(oracle, postures)):
             if not broken or k in (0, len(postures) - 1):
                 continue
+            self._in_time()
             fixed = self._held(oracle, postures[k], (postures[k - 1], out[k - 1]), limit)
             if fixed is None:
                 return None
@@ -457,6 +472,16 @@ class Planner:
         if held and self._steps(out) > JUMP * self._steps(postures):
             return None
         return out, held
+
+    def _faults(self, oracle: Body, postures: np.ndarray) -> Iterator[list[str]]:
+        """The oracle's faults of each posture, ``CHECK_FRAMES`` at a time with the deadline read between them."""
+        for k in range(0, len(postures), CHECK_FRAMES):
+            self._in_time()
+            yield from oracle.faults(postures[k : k + CHECK_FRAMES])
+
+    def _in_time(self) -> None:
+        if time.perf_counter() > self._deadline:
+            raise MotionError("the motion was not planned by its deadline", "timeout")
 
     @staticmethod
     def _steps(postures: np.ndarray) -> float:

@@ -44,6 +44,10 @@ MAX_CELLS_LEVEL = 6  # "cells" rasterises at most 2**6 cells per axis
 MAX_FROM = 1024  # joints in a query's "from"
 MAX_TARGETS = 1000  # targets of a "place"
 MAX_TOP = 100  # placements a "place" returns
+MAX_CLIENT_GOALS = 20_000  # goals one client may have queued for the workers (two full batches); more get `busy`
+MAX_QUEUED_GOALS = 100_000  # goals all clients together may have queued (about 60 MB held: 580 bytes a goal, measured)
+MAX_CLIENT_REQUESTS = 100  # requests one client may have queued for the workers (motions, small queries)
+RCVHWM = 16  # requests the server's socket queues per client before it stops reading that client (16 MiB at most)
 MAX_PLACE_POINTS = 2_000_000  # candidates x targets of one "place": the loop answers it, in well under a second
 
 MISSES = ("unreachable", "within")  # reach.select.MISSES (the protocol imports nothing heavy)
@@ -64,6 +68,7 @@ FORBIDDEN = "forbidden"  # an operation the server was not started to allow (rel
 UNREACHABLE = "unreachable"  # a motion to a goal no strategy reaches, asked with miss "error"
 NO_MOTION = "no_motion"  # no motion found that holds every task at every frame
 TIMEOUT = "timeout"  # a motion not planned by its deadline
+BUSY = "busy"  # the client (or all clients together) has as much work queued as the server holds; retry later
 INTERNAL = "internal"  # a bug: the server logs it and keeps serving
 
 

@@ -167,6 +167,9 @@ class Server:
         self.router.setsockopt(zmq.MAXMSGSIZE, 64 * P.MAX_MESSAGE_BYTES)
         # A client that reconnects under its identity (a Lazy Pirate resend) takes it over.
         self.router.setsockopt(zmq.ROUTER_HANDOVER, 1)
+        # What one client can make the server hold unread: RCVHWM messages of at most 1 MiB each (the default of
+        # 1000 let 40 requests of 60 MiB take the loop from 311 MB to 3.19 GB).
+        self.router.setsockopt(zmq.RCVHWM, P.RCVHWM)
         self.publisher = self.context.socket(zmq.PUB) if pub else None
         sockets = [self.router] + ([self.publisher] if self.publisher else [])
         self.authenticator = None
@@ -205,6 +208,8 @@ class Server:
         self._logged: dict[str, float] = {}
         self.pending: dict[int, Pending] = {}
         self.by_key: dict[tuple[bytes, bytes], int] = {}
+        self.held: dict[bytes, int] = {}  # goals each client has pending (see _admit)
+        self.held_requests: dict[bytes, int] = {}
         self._seq = 0
         self.pool = Pool(self.context, self.atlas_path, self.options, int(workers)) if workers > 0 else None
         # reload loads in this thread, so no request waits for it; the loop swaps the atlas in when it is ready.
@@ -367,8 +372,10 @@ class Server:
         return self._result(req, [a.to_json() for a in answers])
 
     def op_motion(self, req: P.Request) -> bytes:
+        # Without workers the loop plans; a deadline stops it (a timeout error), as a worker's does.
+        deadline = None if req["deadline"] is None else time.perf_counter() + req["deadline"]
         motion = self.planner.plan(req["effector"], np.array(req["goal"]), req["from"], rate=req["rate"],
-                                   timing=Timing.from_dict(req["timing"]), miss=req["miss"])
+                                   timing=Timing.from_dict(req["timing"]), miss=req["miss"], deadline=deadline)
         return self._motion_result(req, P.encode(motion.summary()), P.encode(motion.to_dict()))
 
     @property
@@ -540,12 +547,41 @@ class Server:
         if key is not None and key in self.by_key:
             self.resends += 1
             return None
+        self._admit(envelope[0], bounds[-1][1], req.id)
         deadline = time.monotonic() + (req["deadline"] if req["deadline"] is not None else wait)
         self._seq += 1
         self.pending[self._seq] = Pending(envelope, req, key, deadline, [None] * len(bounds), bounds)
+        self.held[envelope[0]] = self.held.get(envelope[0], 0) + bounds[-1][1]
+        self.held_requests[envelope[0]] = self.held_requests.get(envelope[0], 0) + 1
         if key is not None:
             self.by_key[key] = self._seq
         return self._seq
+
+    def _admit(self, client: bytes, goals: int, rid: Any) -> None:
+        """Refuse with ``busy`` work that would take a client, or every client together, over what the server holds
+        queued (docs/protocol.md, limits): memory is bounded whatever the deadlines, and a client that left holds
+        at most its share until its requests' deadlines."""
+        mine, requests, total = self.held.get(client, 0), self.held_requests.get(client, 0), sum(self.held.values())
+        if mine + goals > P.MAX_CLIENT_GOALS or requests + 1 > P.MAX_CLIENT_REQUESTS or total + goals > P.MAX_QUEUED_GOALS:
+            what = (f"this client has {mine} goals in {requests} requests queued (at most {P.MAX_CLIENT_GOALS} goals, "
+                    f"{P.MAX_CLIENT_REQUESTS} requests)" if total + goals <= P.MAX_QUEUED_GOALS else
+                    f"the server has {total} goals queued (at most {P.MAX_QUEUED_GOALS})")
+            # By its deadline at the latest, the soonest of the work counted is answered.
+            mine_only = total + goals <= P.MAX_QUEUED_GOALS
+            soonest = min((p.deadline for p in self.pending.values() if p.envelope[0] == client or not mine_only), default=time.monotonic())
+            retry = max(0.1, round(soonest - time.monotonic(), 1))
+            raise P.ProtocolError(P.BUSY, f"{what}; retry in about {retry:g} s, when some of it is answered", rid)
+
+    def _release(self, pending: Pending) -> None:
+        """Forget a pending request's share of its client's held work (it is answered)."""
+        client = pending.envelope[0]
+        left = self.held.get(client, 0) - pending.bounds[-1][1]
+        requests = self.held_requests.get(client, 0) - 1
+        if left > 0 or requests > 0:
+            self.held[client], self.held_requests[client] = max(left, 0), max(requests, 0)
+        else:
+            self.held.pop(client, None)
+            self.held_requests.pop(client, None)
 
     def _stored(self, req: P.Request, a: int, b: int, outcome: str) -> list[bytes]:
         """The stored answers of goals a..b, marked with why they were not refined."""
@@ -593,7 +629,7 @@ class Server:
             self._answer_now(seq, P.ok_reply(self._motion_result(pending.request, *frames), rid))
         else:
             code, _, message = b"".join(frames)[len(WORKER_FAILED):].decode(errors="replace").strip().partition(": ")
-            if code not in (P.BAD_REQUEST, P.UNREACHABLE, P.NO_MOTION, P.UNKNOWN_EFFECTOR):
+            if code not in (P.BAD_REQUEST, P.UNREACHABLE, P.NO_MOTION, P.UNKNOWN_EFFECTOR, P.TIMEOUT):
                 log.error("worker failed: %s", message[:500])
                 code, message = P.INTERNAL, "the motion could not be planned"
             self.errors += 1
@@ -602,6 +638,7 @@ class Server:
     def _answer_now(self, seq: int, reply: bytes) -> None:
         """Answer a pending request with ``reply`` now (an error, or a motion) and drop its queued work."""
         pending = self.pending.pop(seq)
+        self._release(pending)
         if pending.key is not None:
             self.by_key.pop(pending.key, None)
         if self.pool is not None:
@@ -634,6 +671,7 @@ class Server:
 
     def _reply(self, seq: int) -> None:
         pending = self.pending.pop(seq)
+        self._release(pending)
         if pending.key is not None:
             self.by_key.pop(pending.key, None)
         bodies = [body for part in pending.parts if part is not None for body in part]

@@ -41,6 +41,8 @@ NICE = 10
 EXPIRED = b"expired"
 FOLDER_PREFIX = "reach-serve-"  # the back-end socket's folder in the temporary directory: reach-serve-<server pid>-<random>
 FAILED = b"failed:"
+GOAL_COST = 0.02  # [s] a refined goal's estimated worker time (the default refinement budget, reach.select.REFINE_BUDGET)
+MOTION_COST = 0.5  # [s] a motion's (the README's planning times: 0.1-2 s)
 
 
 @dataclass
@@ -59,6 +61,12 @@ class Task:
     options: dict[str, Any] | None = None  # a motion's rate, timing and miss
     orientation: dict[str, list[float]] | list[dict[str, list[float]]] | None = None  # a query's, as the request gives it (its chunk's)
 
+    @property
+    def cost(self) -> float:
+        """Estimated worker seconds, charged to the client when the task starts (the time it took replaces it):
+        a goal's refinement budget each, a motion's ``MOTION_COST``."""
+        return MOTION_COST if self.op == "motion" else GOAL_COST * len(self.goals)
+
     def encode(self) -> bytes:
         return json.dumps({"op": self.op, "effector": self.effector, "goals": self.goals, "from": self.start, "deadline": self.deadline,
                            "miss": self.miss, "options": self.options, "orientation": self.orientation}).encode()
@@ -75,8 +83,13 @@ class Pool:
     backend: Any = None
     processes: list[Any] = field(default_factory=list)
     idle: deque[bytes] = field(default_factory=deque)
-    queues: dict[bytes, deque[Task]] = field(default_factory=dict)  # per client, in the order they are served
+    queues: dict[bytes, deque[Task]] = field(default_factory=dict)  # per client
     busy: dict[bytes, Task] = field(default_factory=dict)
+    # Worker seconds each client with work has had (estimated at dispatch, then as measured): the next task is
+    # the queued one of the client that has had the least, so that one client's long motions cannot starve
+    # another's single query (issue 35; a round robin of tasks did, each motion taking seconds).
+    served: dict[bytes, float] = field(default_factory=dict)
+    started: dict[bytes, tuple[float, float]] = field(default_factory=dict)  # worker -> (dispatch time, estimate charged)
 
     def __post_init__(self) -> None:
         remove_stale_folders()
@@ -104,6 +117,7 @@ class Pool:
             identity = f"w{k}".encode()
             if identity in self.busy:
                 lost.append(self.busy.pop(identity))
+                self.started.pop(identity, None)
             self.idle = deque(w for w in self.idle if w != identity)
             p.join(timeout=0)
             self.processes[k] = self._start(k)
@@ -111,6 +125,10 @@ class Pool:
         return lost
 
     def submit(self, task: Task) -> None:
+        if task.client not in self.served:
+            # A client new to the pool starts level with the least served one: it is next, but gets no credit to
+            # monopolise the workers with.
+            self.served[task.client] = min(self.served.values(), default=0.0)
         self.queues.setdefault(task.client, deque()).append(task)
         self.dispatch()
 
@@ -131,16 +149,27 @@ class Pool:
     def dispatch(self) -> None:
         now = time.monotonic()
         while self.idle and self.queues:
-            client, queue = next(iter(self.queues.items()))
+            # The least served client first; ties in the order clients came (dicts keep it).
+            client = min(self.queues, key=lambda c: self.served.get(c, 0.0))
+            queue = self.queues[client]
             task = queue.popleft()
-            del self.queues[client]
-            if queue:
-                self.queues[client] = queue  # to the back of the turn
+            if not queue:
+                del self.queues[client]
             if task.deadline < now:
                 continue  # abandoned: the request has been answered already
             worker = self.idle.popleft()
             self.busy[worker] = task
+            estimate = task.cost
+            self.served[client] = self.served.get(client, 0.0) + estimate
+            self.started[worker] = (now, estimate)
             self.backend.send_multipart([worker, task.encode()])
+        self._forget()
+
+    def _forget(self) -> None:
+        """Drop the served time of clients with nothing queued or running (a client's identity is not kept for ever)."""
+        active = set(self.queues) | {t.client for t in self.busy.values()}
+        for client in [c for c in self.served if c not in active]:
+            del self.served[client]
 
     def receive(self) -> tuple[Task, list[bytes]] | None:
         """One message from a worker: the finished task and its result frames (None for a worker saying it is ready).
@@ -150,6 +179,9 @@ class Pool:
         worker, *payload = self.backend.recv_multipart()
         self.idle.append(worker)
         task = self.busy.pop(worker, None)
+        began = self.started.pop(worker, None)
+        if task is not None and began is not None and task.client in self.served:
+            self.served[task.client] += (time.monotonic() - began[0]) - began[1]  # the estimate replaced by the time it took
         self.dispatch()
         if payload == [READY] or task is None:
             return None
@@ -227,11 +259,14 @@ def work(address: str, atlas: str, options: dict[str, Any], identity: bytes) -> 
         if time.monotonic() > job["deadline"]:
             sock.send(EXPIRED)
             continue
+        # The task's deadline, on the clock the planner and the selector read: they stop there (issue 35: a worker
+        # planned on for 100 s after its request had been answered).
+        deadline = time.perf_counter() + (job["deadline"] - time.monotonic())
         if job["op"] == "motion":
             opts = job["options"]
             try:
                 motion = planner.plan(job["effector"], np.array(job["goals"][0]), job["from"], rate=opts["rate"],
-                                      timing=Timing.from_dict(opts["timing"]), miss=opts["miss"])
+                                      timing=Timing.from_dict(opts["timing"]), miss=opts["miss"], deadline=deadline)
                 sock.send_multipart([encode(motion.summary()), encode(motion.to_dict())])
             except MotionError as exc:
                 sock.send(FAILED + f" {exc.code}: {exc}".encode())
@@ -244,7 +279,7 @@ def work(address: str, atlas: str, options: dict[str, Any], identity: bytes) -> 
             continue
         try:
             answers = selector.select_many(job["effector"], np.array(job["goals"]), True, start=job["from"], miss=job["miss"],
-                                           orientation=orientation_of(job["orientation"]))
+                                           orientation=orientation_of(job["orientation"]), deadline=deadline)
             sock.send_multipart([a.to_json() for a in answers])
         except Exception as exc:  # noqa: BLE001 - reported to the broker, which answers with stored postures
             sock.send(FAILED + f"{type(exc).__name__}: {exc}".encode())

@@ -253,6 +253,8 @@ def test_the_motion_operation_over_the_wire(planner, workers):
                 c.motion(effector="right_hand", goal=[0.4, 0.2])
             with pytest.raises(ServerError, match="unknown_effector"):
                 c.motion(effector="left_foot", goal=goal)
+            with pytest.raises(ServerError, match="timeout"):  # issue 35: with --workers 0 the deadline was ignored
+                c.motion(effector="right_hand", goal=[0.35, -0.2, 0.45], rate=240, deadline=0.001)
             assert c.health()["status"] == "serving"
     finally:
         sub.close(linger=0)
@@ -463,3 +465,34 @@ def test_timing_coefficients_cannot_make_a_motion_longer_than_its_bound(planner)
         with pytest.raises(InputError, match="a motion lasts at most"):
             planner.plan("right_hand", goal, rate=240, timing=Timing.from_dict(timing))
     assert planner.plan("right_hand", [0.4, -0.3, 1.0], timing=Timing.from_dict({"tmu": 0.036})).duration < 20
+
+
+def test_planning_stops_at_its_deadline_within_a_frame(planner, monkeypatch):
+    """Issue 35, item 2: a worker planned on for 100 s after its request's deadline. The planner reads the clock
+    before holding each frame (here a clock that moves 1 s a reading): it stops at the deadline, after a few
+    frames of the motion's hundreds, with a timeout."""
+    import reach.motion as motion
+
+    class Clock:
+        now = 0.0
+
+        def perf_counter(self) -> float:
+            self.now += 1.0
+            return self.now
+
+    clock = Clock()
+    oracle = planner.body("whole")
+    checked = []
+    real = oracle.faults
+    monkeypatch.setattr(oracle, "faults", lambda postures: checked.append(len(postures)) or real(postures))
+    monkeypatch.setattr(motion, "time", clock)
+    with pytest.raises(MotionError, match="deadline") as err:
+        planner.plan("right_hand", [0.35, -0.2, 0.45], rate=240, deadline=3.5)
+    assert err.value.code == "timeout" and clock.now <= 5.0
+    stopped = sum(checked)
+    monkeypatch.setattr(motion, "time", __import__("time"))
+    checked.clear()
+    m = planner.plan("right_hand", [0.35, -0.2, 0.45], rate=240)  # the same motion, without a deadline
+    assert m.strategy == "whole" and len(m.times) > 200
+    # Three readings of the deadline, then it stopped (and the start posture's own check), long before the end.
+    assert stopped <= 3 * motion.CHECK_FRAMES + 1 < sum(checked)

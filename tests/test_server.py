@@ -847,3 +847,40 @@ def test_generated_requests_get_the_same_kind_of_reply_with_workers_and_without_
             sock.close(linger=0)
         for r in servers:
             r.stop()
+
+
+@pytest.mark.slow
+def test_a_clients_queued_work_is_capped_and_refused_with_busy(human, monkeypatch):
+    """Issue 35, item 5: 100 batches of 10,000 goals with an hour's deadline held 580 MB after their client left.
+    Each client, and all together, hold at most so many goals queued; more is refused with `busy` and a retry
+    hint, at once, and the client's next batch is taken once its first is answered."""
+    monkeypatch.setattr(P, "MAX_CLIENT_GOALS", 100)
+    monkeypatch.setattr(P, "MAX_QUEUED_GOALS", 150)
+    r = Running(human, budget=0.5, workers=1)
+    a, b, c = (_dealer(r.server.endpoint) for _ in range(3))
+    for sock in (a, b, c):
+        sock.setsockopt(zmq.RCVTIMEO, 60_000)
+    try:
+        def send(sock, rid, goals):  # noqa: ANN001, ANN202
+            sock.send_multipart([b"", json.dumps({"op": "query", "id": rid, "effector": "right_hand", "goals": goals, "deadline": 30}).encode()])
+
+        send(a, "a1", GOALS)
+        send(a, "a2", GOALS)  # 120 goals for this client: over its 100
+        busy = json.loads(a.recv_multipart()[-1])
+        assert busy["id"] == "a2" and busy["error"]["code"] == "busy" and "retry in about" in busy["error"]["message"]
+        assert "this client has 60 goals in 1 requests queued" in busy["error"]["message"]
+        send(b, "b1", GOALS[:50])  # another client's: 110 held in all
+        send(c, "c1", GOALS)  # 170 in all: over the server's 150
+        full = json.loads(c.recv_multipart()[-1])
+        assert full["error"]["code"] == "busy" and "the server has 110 goals queued" in full["error"]["message"]
+        first = json.loads(a.recv_multipart()[-1])
+        assert first["id"] == "a1" and len(first["answers"]) == len(GOALS)
+        send(a, "a3", GOALS)  # its first batch answered: taken
+        third = json.loads(a.recv_multipart()[-1])
+        assert third["id"] == "a3" and third["ok"] and len(third["answers"]) == len(GOALS)
+        assert json.loads(b.recv_multipart()[-1])["id"] == "b1"
+        assert r.server.held == {} and r.server.held_requests == {}  # nothing held once every request is answered
+    finally:
+        for sock in (a, b, c):
+            sock.close(linger=0)
+        r.stop()

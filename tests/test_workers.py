@@ -146,3 +146,47 @@ def test_clients_are_served_in_turn(atlas):
     finally:
         pool.backend = real
         pool.close()
+
+
+def test_workers_are_shared_by_cost_so_long_motions_never_starve_a_query(atlas):
+    """Issue 35, item 6: one client's motions (seconds each) and another's single-goal queries. A round robin of
+    tasks alternated them, so each query waited a whole motion; by cost, the queries go before the second motion,
+    and the time a task took replaces its estimate."""
+    pool = Pool(zmq.Context.instance(), atlas, OPTIONS, 0)
+    sent: list[str] = []
+    real = pool.backend
+    pool.backend = type("Backend", (), {"send_multipart": lambda self, frames: sent.append(json.loads(frames[1])["op"])})()
+    try:
+        for k in range(3):
+            pool.submit(Task(1, k, "right_hand", [[0.3, -0.3, 1.0]], None, time.monotonic() + 60, client=b"animator", op="motion"))
+        for k in range(3):
+            pool.submit(Task(2 + k, 0, "right_hand", [[0.3, -0.3, 1.0]], None, time.monotonic() + 60, client=b"ergonomist"))
+        for w in range(6):  # one worker, finishing each task before the next starts
+            pool.idle.append(b"w0")
+            pool.dispatch()
+            pool.busy.clear()
+            pool.started.clear()
+        assert sent == ["motion", "query", "query", "query", "motion", "motion"]
+        pool.dispatch()
+        assert pool.served == {}  # clients with nothing queued or running are forgotten
+    finally:
+        pool.backend = real
+        pool.close()
+
+
+def test_a_task_is_charged_the_time_it_took():
+    """The estimate charged at dispatch is replaced by the worker's measured time when its result comes back."""
+    pool = Pool.__new__(Pool)
+    pool.idle, pool.queues, pool.busy, pool.served, pool.started = __import__("collections").deque(), {}, {}, {}, {}
+    replies = [[b"w0", b'{"a": 1}']]
+    pool.backend = type("Backend", (), {"send_multipart": lambda self, frames: None,
+                                        "recv_multipart": lambda self: replies.pop()})()
+    pool.submit(Task(1, 0, "right_hand", [[0.3, -0.3, 1.0]], None, time.monotonic() + 60, client=b"a", op="motion"))
+    pool.submit(Task(2, 0, "right_hand", [[0.3, -0.3, 1.0]], None, time.monotonic() + 60, client=b"a", op="motion"))
+    pool.idle.append(b"w0")
+    pool.dispatch()
+    assert pool.served[b"a"] == pytest.approx(0.5)  # the motion's estimate
+    pool.started[b"w0"] = (time.monotonic() - 2.0, 0.5)  # it took 2 s
+    task, frames = pool.receive()  # the worker is idle again: the next motion starts, charged its estimate
+    assert task.request == 1 and frames == [b'{"a": 1}']
+    assert pool.served[b"a"] == pytest.approx(2.0 + 0.5, abs=0.05)
