@@ -353,7 +353,7 @@ class _Mapped:
 
 # -- the search over many starts ------------------------------------------------
 
-WAVE = 2  # a goal no start reached (and no decisive hint decided) gets WAVE x STARTS more random starts
+WAVE = 2  # a cold goal no start reached (see oracles.ik) gets WAVE x STARTS more random starts
 STARTS = 8  # default starts per goal (K): the hint(s), the reference, the ready posture, seeded random ones (the first guess, not yet tuned)
 MAX_ITER = 40  # reach iterations
 LOWER_STARTS = 2  # reaching starts of one goal whose lower tasks are refined (the lower steps are the dearest)
@@ -363,9 +363,13 @@ DECIDES = 1e-3  # [m or rad] a decisive start decides its goal only with its har
 STALL = 0.02  # a start whose distance to the goal shrinks by less than this share in an iteration has stalled
 EXTRA = 2  # iterations the other starts of a goal get once one has reached, to find a better-liked posture (a choice, not tuned)
 CONVERGED = 0.1  # share of the tolerance within which a start has reached and stops iterating
-POLISH_NEAR = 0.03  # [m] a goal whose best start ends this near (but does not reach) is polished by the interior-point programs
+# [m] a goal whose best start ends this near (but does not reach) is polished by the interior-point programs:
+# at the volume's boundary a Gauss-Newton step slows down where fatrop's second derivatives still find the way
+# (right whole body at D_max 4: 35.2 % of the vertices reachable polishing within 3 cm, 35.7 % within 10 cm,
+# fatrop alone 36.0 %; 34 s and 37 s of CPU against fatrop's 50 s, docs/history.md session 18).
+POLISH_NEAR = 0.1
 WAVE_NEAR = 0.25  # [m] the random wave is for goals the K starts ended this near (farther: outside, as a rule)
-POLISH_FAR = 0.25  # [m] ... or this near, for a goal without a decisive hint that both waves missed (see oracles.ik)
+POLISH_FAR = 0.25  # [m] ... or this near, for a cold goal that both waves missed (see oracles.ik)
 POLISHES = 6  # the most fatrop polishes of one goal (its reaching postures that break a lazy task, its nearest, its random starts)
 CONTINUITY = 1.0  # weight of the range-normalised distance to the first hint (the neighbour's posture) in "liked"
 

@@ -848,10 +848,10 @@ class CasadiIK(IKOracle):
 
     def _evaluate_batch(self, points: np.ndarray, hints: np.ndarray | None, start: np.ndarray | None, aims: np.ndarray | None) -> Verdicts:
         """Every goal's K starts iterated together by the batched engine (:mod:`oracles.batch`); the verdict is the
-        Pinocchio check, in order of how well each reaching posture is liked. A goal none reaches gets a second wave
-        of ``WAVE`` x K random starts, unless its first start was a decisive hint (a build's neighbour, which decides,
-        as :class:`~oracles.search.Search`'s ``give_up`` says); one still missed whose best start ended within
-        ``POLISH_NEAR`` of it is polished by fatrop's programs from there."""
+        Pinocchio check, in order of how well each reaching posture is liked. A cold goal (no hint, or a search that
+        never gives up) that none reaches but some ended within ``WAVE_NEAR`` of gets a second wave of ``WAVE`` x K
+        random starts; a goal still missed whose best start ended within ``POLISH_NEAR`` of it (``POLISH_FAR`` when
+        cold) is polished by fatrop's programs from there."""
         pts = check_points(points, 3)
         hints = None if hints is None else np.asarray(hints, float)
         p, search, n = self.problem, self.search, len(pts)
@@ -879,39 +879,35 @@ class CasadiIK(IKOracle):
                 if np.all(np.isfinite(first_hint[i])):
                     first[i] = p.x_of_q(first_hint[i])
         residual[todo] = np.inf
+        # A goal far from what anything found: no hint (a first call, a cold query) or a search that never gives
+        # up (a refinement, the audit's referee). A build's vertex always has its nearest reachable neighbour's
+        # posture, and its K starts are the build's search (measured: with every vertex's misses sent to the random
+        # wave, the demo build took 1.5 times fatrop's time).
+        cold = np.zeros(n, bool)
+        cold[todo] = search.give_up is None or hints is None
+        if hints is not None and search.give_up is not None:
+            first_hint = hints[:, 0] if hints.ndim == 3 else hints
+            cold[todo] = ~np.all(np.isfinite(first_hint[todo]), axis=1)
         runs = []
-        given_up = np.zeros(n, bool)
-        # The waves: a decisive hint alone (it decides, as in a build: the neighbour's posture, moved the least);
-        # every goal's K starts (a decisive hint not run again); random starts for a goal without a decisive hint
-        # that the K starts came near.
-        for wave in ("hint", "starts", "random"):
-            if wave == "hint":
-                goals = todo[decisive[todo]]
-            elif wave == "starts":
-                goals = todo[~reach[todo] & ~given_up[todo]]
-            else:
-                goals = todo[~reach[todo] & ~decisive[todo] & (residual[todo] <= WAVE_NEAR)]
+        # The waves: every goal's K starts together (a decisive hint among them stops the others when it fails, as
+        # Search.give_up says); then WAVE x K random ones for a cold goal that the K starts ended near.
+        for wave in ("starts", "random"):
+            goals = todo if wave == "starts" else todo[~reach[todo] & cold[todo] & (residual[todo] <= WAVE_NEAR)]
             if not goals.size or time.perf_counter() > deadline:
                 continue
             self.stats[f"wave_{wave}"] = self.stats.get(f"wave_{wave}", 0) + int(goals.size)
-            if wave == "hint":
-                starts = [[first[i]] for i in goals]
-            else:
-                starts = [self._batch_starts(pts[i], None if hints is None or decisive[i] else hints[i], int(wave == "random")) for i in goals]
-            run, lost = self._run_wave(pts, goals, starts, start, aims, decisive if wave == "hint" else None,
-                                       None if hints is None else first, deadline)
-            given_up[goals] |= lost
+            starts = [self._batch_starts(pts[i], None if hints is None else hints[i], int(wave == "random")) for i in goals]
+            run = self._run_wave(pts, goals, starts, start, aims, decisive if wave == "starts" else None, None if hints is None else first,
+                                 deadline)
             runs.append(run)
             self._keep_reaching(run, pts, aims, reach, residual, posture)
-        far = set(todo[~decisive[todo]].tolist())
-        self._polish_missed(runs, pts, aims, start, deadline, reach, residual, posture, far)
+        self._polish_missed(runs, pts, aims, start, deadline, reach, residual, posture, set(np.nonzero(cold)[0].tolist()))
         self.stats["reachable"] += int(reach.sum())
         return Verdicts(reach, residual, posture)
 
     def _run_wave(self, pts: np.ndarray, goals: np.ndarray, starts: list[list[np.ndarray]], start: np.ndarray | None,
-                  aims: np.ndarray | None, decisive: np.ndarray | None, first: np.ndarray | None, deadline: float) -> tuple[_Wave, np.ndarray]:
-        """The goals' starts iterated together (:func:`oracles.batch.run_starts`), and which goals (of ``goals``) their
-        decisive first start gave up."""
+                  aims: np.ndarray | None, decisive: np.ndarray | None, first: np.ndarray | None, deadline: float) -> _Wave:
+        """The goals' starts iterated together (:func:`oracles.batch.run_starts`)."""
         p, search = self.problem, self.search
         owner = np.concatenate([np.full(len(s), i) for i, s in zip(goals, starts, strict=True)])
         offsets = np.concatenate([[0], np.cumsum([len(s) for s in starts])])
@@ -927,14 +923,13 @@ class CasadiIK(IKOracle):
         if decisive is not None and decisive.any():
             first_start = np.zeros(b, bool)
             first_start[offsets[:-1][decisive[goals]]] = True
-        x, dist, viol, liked, given_up = run_starts(self.batch_program(), x0, params, owner, self.strategy.tolerance, search.secondary,
+        x, dist, viol, liked, _ = run_starts(self.batch_program(), x0, params, owner, self.strategy.tolerance, search.secondary,
                                                     start, deadline, self.stats, first_start, search.give_up_distance)
         if first is not None:
             # Continuity with the neighbour's posture (the first hint) is part of "liked".
             nearness = np.sum(((x - first[owner]) / (p.upper - p.lower)) ** 2, axis=1)
             liked = np.where(np.isfinite(liked), liked, 0.0) + CONTINUITY_WEIGHT * nearness
-        lost = given_up[goals] if len(given_up) else np.zeros(len(goals), bool)
-        return _Wave(goals, offsets, x0, x, p.q_of_x_many(x), dist, viol, liked), lost
+        return _Wave(goals, offsets, x0, x, p.q_of_x_many(x), dist, viol, liked)
 
     def _keep_reaching(self, run: _Wave, pts: np.ndarray, aims: np.ndarray | None, reach: np.ndarray, residual: np.ndarray,
                        posture: np.ndarray) -> None:
@@ -962,7 +957,7 @@ class CasadiIK(IKOracle):
         """fatrop from a missed goal's best ends: its reaching postures that break a lazy task, then its random
         starts themselves (fatrop's own restarts: another basin), or a near miss (no start reached) from its
         nearest end only: most are beyond the boundary. A near miss is one within ``POLISH_NEAR``, or
-        ``POLISH_FAR`` for a goal without a decisive hint (at the volume's boundary, where a
+        ``POLISH_FAR`` for a cold goal (at the volume's boundary, where a
         Gauss-Newton step slows down and fatrop's second derivatives still find a way)."""
         tol, polisher = self.strategy.tolerance, None
         for run in runs:
