@@ -238,3 +238,16 @@ def heat_map(ranking: Ranking, targets: Sequence[Target], path: Any, title: str 
     ax.legend(fontsize=7, loc="upper right")
     fig.colorbar(image, ax=ax, shrink=0.8, label="share of targets reached (over bodies)")
     return _save(fig, path)
+
+
+def answer(atlas: Atlas, fields: dict[str, Any], policy: Policy = "vertex") -> dict[str, Any]:
+    """A ``place`` request's result (see docs/protocol.md): the fields as the protocol parsed them (degrees for
+    ``yaw`` and ``yaw_step``), the placements of the served body ranked by its trees."""
+    from reach.evaluate import Target
+    from reach.protocol import MAX_PLACE_POINTS
+
+    targets = [Target(t["name"], tuple(t["point"]), t["effector"]) for t in fields["targets"]]
+    space = Space(tuple(fields["x"]), tuple(fields["y"]), tuple(fields["z"]), (math.radians(fields["yaw"][0]), math.radians(fields["yaw"][1])),
+                  fields["step"], math.radians(fields["yaw_step"]), max_candidates=MAX_PLACE_POINTS // len(targets))
+    ranking = rank([atlas], targets, space, policy=policy)
+    return {"candidates": len(ranking.placements), "ranked": [ranking.row(k, targets) for k in range(min(fields["top"], len(ranking.placements)))]}

@@ -48,7 +48,8 @@ MAX_CLIENT_GOALS = 20_000  # goals one client may have queued for the workers (t
 MAX_QUEUED_GOALS = 100_000  # goals all clients together may have queued (about 60 MB held: 580 bytes a goal, measured)
 MAX_CLIENT_REQUESTS = 100  # requests one client may have queued for the workers (motions, small queries)
 RCVHWM = 16  # requests the server's socket queues per client before it stops reading that client (16 MiB at most)
-MAX_PLACE_POINTS = 2_000_000  # candidates x targets of one "place": the loop answers it, in well under a second
+MAX_PLACE_POINTS = 2_000_000  # candidates x targets of one "place" (about 2 s of a worker's time at the limit)
+STORED_IN_LOOP = 1000  # stored answers (no IK) a query may ask of the loop itself; a larger batch goes to the workers
 
 MISSES = ("unreachable", "within")  # reach.select.MISSES (the protocol imports nothing heavy)
 MOTION_MISSES = ("nearest", "error")  # reach.motion.MOTION_MISSES
@@ -347,7 +348,7 @@ OPERATIONS: dict[str, Operation] = {op.name: op for op in (
         Field("yaw_step", "deg", _positive, "heading step (default 15)", default=15.0),
         Field("top", "int", _top, f"placements returned, 1 to {MAX_TOP} (default 10)", default=10),
     ), f"where to place the body to reach the targets: placements ranked by the trees (candidates x targets at most {MAX_PLACE_POINTS:,})",
-        "op_place"),
+        "op_place", worker=True),
     Operation("strategies", (), "the atlas's strategies, effectors, boxes and world frame", "op_strategies"),
     Operation("cells", (
         Field("strategy", "string", _string(MAX_NAME), "one strategy (default: all)"),

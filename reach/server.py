@@ -471,15 +471,11 @@ class Server:
         return {"atlas": str(path), "strategies": len(selector.order)}
 
     def op_place(self, req: P.Request) -> dict[str, Any]:
-        """Placements of the served body ranked by its trees against the request's targets (see :mod:`reach.place`)."""
-        from reach.evaluate import Target
-        from reach.place import Space, rank
+        """Placements of the served body ranked by its trees against the request's targets (see :mod:`reach.place`);
+        with workers a worker answers it (seconds at its limit, which held the loop)."""
+        from reach.place import answer
 
-        space = Space(tuple(req["x"]), tuple(req["y"]), tuple(req["z"]), (math.radians(req["yaw"][0]), math.radians(req["yaw"][1])), req["step"],
-                      math.radians(req["yaw_step"]), max_candidates=P.MAX_PLACE_POINTS // len(req["targets"]))
-        targets = [Target(t["name"], tuple(t["point"]), t["effector"]) for t in req["targets"]]
-        ranking = rank([self.selector.atlas], targets, space, policy=self.selector.policy)  # type: ignore[arg-type]
-        return {"candidates": len(ranking.placements), "ranked": [ranking.row(k, targets) for k in range(min(req["top"], len(ranking.placements)))]}
+        return answer(self.selector.atlas, req.args, self.selector.policy)  # type: ignore[arg-type]
 
     def op_cells(self, req: P.Request) -> dict[str, Any]:
         """Centres of the reachable cells of each strategy on a regular grid (for markers in RViz)."""
@@ -511,33 +507,53 @@ class Server:
             return False
         if req.op == "motion":
             return self._defer_motion(req, envelope)
-        if not (self.refine if req["refine"] is None else req["refine"]):
-            return False
+        if req.op == "place":
+            return self._defer_whole(req, envelope, "place", {"fields": req.args})
         goals = np.array(req["goals"])
+        if not (self.refine if req["refine"] is None else req["refine"]):
+            if len(goals) <= P.STORED_IN_LOOP:
+                return False
+            # A large batch of stored answers (1.4-1.8 s for 10,000 in the loop) goes to the workers too, unrefined.
+            self.selector.check_goals(req["effector"], goals, req["from"])
+            return self._defer_goals(req, envelope, goals, refine=False)
         if req["orientation"] is not None:
             aims = orientation_of(req["orientation"])
             self.selector.oriented(req["effector"], aims[0] if isinstance(aims, list) else aims)  # type: ignore[arg-type]
         if not self.selector.needs_ik(req["effector"], goals, req["from"]):
-            return False  # nothing to refine (an analytic atlas, or no strategy holds a goal): answered at once
+            if len(goals) <= P.STORED_IN_LOOP:
+                return False  # nothing to refine (an analytic atlas, or no strategy holds a goal): answered at once
+            return self._defer_goals(req, envelope, goals, refine=False)
+        return self._defer_goals(req, envelope, goals, refine=True)
+
+    def _defer_goals(self, req: P.Request, envelope: list[bytes], goals: np.ndarray, refine: bool) -> bool:
+        """Hand a query's goals to the workers in chunks (refined, or their stored answers when not ``refine``)."""
+        assert self.pool is not None
         n = len(goals)
-        size = max(1, min(self.chunk, math.ceil(n / max(1, self.pool.size))))
+        chunk = self.chunk if refine else P.STORED_IN_LOOP  # stored answers cost little each: a chunk is about 0.15 s
+        size = max(1, min(chunk, math.ceil(n / max(1, self.pool.size))))
         bounds = [(a, min(n, a + size)) for a in range(0, n, size)]
-        seq = self._pend(req, envelope, min(n * self.budget + SLACK, MAX_WAIT), bounds)
+        seq = self._pend(req, envelope, min(n * self.budget + SLACK, MAX_WAIT) if refine else MAX_WAIT, bounds)
         if seq is not None:
             for part, (a, b) in enumerate(bounds):
                 self.pool.submit(Task(seq, part, req["effector"], req["goals"][a:b], req["from"], self.pending[seq].deadline, req["miss"], envelope[0],
-                                      orientation=req["orientation"][a:b] if isinstance(req["orientation"], list) else req["orientation"]))
+                                      orientation=req["orientation"][a:b] if isinstance(req["orientation"], list) else req["orientation"],
+                                      refine=refine))
         return True
 
     def _defer_motion(self, req: P.Request, envelope: list[bytes]) -> bool:
         """Hand a motion to the workers, once what they could refuse is checked here."""
-        assert self.pool is not None
         self.selector.check_goals(req["effector"], np.array([req["goal"]]), req["from"])
         Timing.from_dict(req["timing"])
+        return self._defer_whole(req, envelope, "motion", {"rate": req["rate"], "timing": req["timing"], "miss": req["miss"]})
+
+    def _defer_whole(self, req: P.Request, envelope: list[bytes], op: str, options: dict[str, Any]) -> bool:
+        """Hand a request a worker answers whole (a motion, a placement) to the workers."""
+        assert self.pool is not None
+        goal = [req["goal"]] if op == "motion" else []
         seq = self._pend(req, envelope, MAX_WAIT, [(0, 1)])
         if seq is not None:
-            options = {"rate": req["rate"], "timing": req["timing"], "miss": req["miss"]}
-            self.pool.submit(Task(seq, 0, req["effector"], [req["goal"]], req["from"], self.pending[seq].deadline, None, envelope[0], "motion", options))
+            self.pool.submit(Task(seq, 0, req.args.get("effector") or "", goal, req.args.get("from"), self.pending[seq].deadline, None,
+                                  envelope[0], op, options))
         return True
 
     def _pend(self, req: P.Request, envelope: list[bytes], wait: float, bounds: list[tuple[int, int]]) -> int | None:
@@ -548,7 +564,8 @@ class Server:
             self.resends += 1
             return None
         self._admit(envelope[0], bounds[-1][1], req.id)
-        deadline = time.monotonic() + (req["deadline"] if req["deadline"] is not None else wait)
+        given = req.args.get("deadline")  # place has none
+        deadline = time.monotonic() + (given if given is not None else wait)
         self._seq += 1
         self.pending[self._seq] = Pending(envelope, req, key, deadline, [None] * len(bounds), bounds)
         self.held[envelope[0]] = self.held.get(envelope[0], 0) + bounds[-1][1]
@@ -603,8 +620,8 @@ class Server:
         if pending is None:
             return  # answered already (its deadline passed)
         a, b = pending.bounds[task.part]
-        if pending.request.op == "motion":
-            self._motion_finished(task.request, pending, frames)
+        if pending.request.op in ("motion", "place"):
+            self._whole_finished(task.request, pending, frames)
             return
         try:
             if frames == [EXPIRED]:
@@ -619,19 +636,23 @@ class Server:
         if all(p is not None for p in pending.parts):
             self._reply(task.request)
 
-    def _motion_finished(self, seq: int, pending: Pending, frames: list[bytes]) -> None:
-        """A worker's motion (two frames of JSON: its summary, then the whole motion), or its error
-        (``failed: code: message``), answers the request."""
+    def _whole_finished(self, seq: int, pending: Pending, frames: list[bytes]) -> None:
+        """A worker's motion (two frames of JSON: its summary, then the whole motion) or placement (one frame), or its
+        error (``failed: code: message``), answers the request."""
         rid = pending.request.id
+        motion = pending.request.op == "motion"
         if frames == [EXPIRED]:
-            self._answer_now(seq, P.error_reply(P.TIMEOUT, "the motion was not planned by its deadline", rid))
-        elif len(frames) == 2 and frames[0].startswith(b"{"):
+            what = "the motion was not planned" if motion else "the placements were not ranked"
+            self._answer_now(seq, P.error_reply(P.TIMEOUT, f"{what} by its deadline", rid))
+        elif motion and len(frames) == 2 and frames[0].startswith(b"{"):
             self._answer_now(seq, P.ok_reply(self._motion_result(pending.request, *frames), rid))
+        elif not motion and len(frames) == 1 and frames[0].startswith(b"{"):
+            self._answer_now(seq, P.ok_reply(frames[0], rid))
         else:
             code, _, message = b"".join(frames)[len(WORKER_FAILED):].decode(errors="replace").strip().partition(": ")
             if code not in (P.BAD_REQUEST, P.UNREACHABLE, P.NO_MOTION, P.UNKNOWN_EFFECTOR, P.TIMEOUT):
                 log.error("worker failed: %s", message[:500])
-                code, message = P.INTERNAL, "the motion could not be planned"
+                code, message = P.INTERNAL, "the motion could not be planned" if motion else "the placements could not be ranked"
             self.errors += 1
             self._answer_now(seq, P.error_reply(code, message, rid))
 
@@ -651,8 +672,8 @@ class Server:
             pending = self.pending[seq]
             assert self.pool is not None
             self.pool.cancel(seq)
-            if pending.request.op == "motion":
-                self._motion_finished(seq, pending, [EXPIRED])
+            if pending.request.op in ("motion", "place"):
+                self._whole_finished(seq, pending, [EXPIRED])
                 continue
             try:
                 # One vectorised lookup for every part still missing, not one call per part (a 10,000-goal batch

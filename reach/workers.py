@@ -43,6 +43,8 @@ FOLDER_PREFIX = "reach-serve-"  # the back-end socket's folder in the temporary 
 FAILED = b"failed:"
 GOAL_COST = 0.02  # [s] a refined goal's estimated worker time (the default refinement budget, reach.select.REFINE_BUDGET)
 MOTION_COST = 0.5  # [s] a motion's (the README's planning times: 0.1-2 s)
+STORED_COST = 1.5e-4  # [s] a stored answer's (1.4-1.8 s for 10,000 in the loop: issue 35)
+PLACE_COST = 1.0  # [s] a placement's (1.9-2.8 s at its limit: issue 35)
 
 
 @dataclass
@@ -60,16 +62,20 @@ class Task:
     op: str = "query"  # or "motion": plan the motion to goals[0]
     options: dict[str, Any] | None = None  # a motion's rate, timing and miss
     orientation: dict[str, list[float]] | list[dict[str, list[float]]] | None = None  # a query's, as the request gives it (its chunk's)
+    refine: bool = True  # a query's goals refined, or their stored answers only (a large batch, out of the loop)
 
     @property
     def cost(self) -> float:
         """Estimated worker seconds, charged to the client when the task starts (the time it took replaces it):
-        a goal's refinement budget each, a motion's ``MOTION_COST``."""
-        return MOTION_COST if self.op == "motion" else GOAL_COST * len(self.goals)
+        a goal's refinement budget each (a stored answer's ``STORED_COST``), a motion's ``MOTION_COST``, a placement's
+        ``PLACE_COST``."""
+        if self.op != "query":
+            return MOTION_COST if self.op == "motion" else PLACE_COST
+        return (GOAL_COST if self.refine else STORED_COST) * len(self.goals)
 
     def encode(self) -> bytes:
         return json.dumps({"op": self.op, "effector": self.effector, "goals": self.goals, "from": self.start, "deadline": self.deadline,
-                           "miss": self.miss, "options": self.options, "orientation": self.orientation}).encode()
+                           "miss": self.miss, "options": self.options, "orientation": self.orientation, "refine": self.refine}).encode()
 
 
 @dataclass
@@ -234,6 +240,7 @@ def work(address: str, atlas: str, options: dict[str, Any], identity: bytes) -> 
     from reach.errors import ReachError, UnknownEffector
     from reach.executor import die_with_parent
     from reach.motion import MotionError, Planner, Timing
+    from reach.place import answer
     from reach.protocol import encode
     from reach.select import Selector, orientation_of
     from reach.store import load_atlas
@@ -277,8 +284,16 @@ def work(address: str, atlas: str, options: dict[str, Any], identity: bytes) -> 
             except Exception as exc:  # noqa: BLE001 - reported to the broker, which answers with an error
                 sock.send(FAILED + f" internal: {type(exc).__name__}: {exc}".encode())
             continue
+        if job["op"] == "place":
+            try:
+                sock.send(encode(answer(selector.atlas, job["options"]["fields"], selector.policy)))
+            except ReachError as exc:
+                sock.send(FAILED + f" bad_request: {exc}".encode())
+            except Exception as exc:  # noqa: BLE001 - reported to the broker, which answers with an error
+                sock.send(FAILED + f" internal: {type(exc).__name__}: {exc}".encode())
+            continue
         try:
-            answers = selector.select_many(job["effector"], np.array(job["goals"]), True, start=job["from"], miss=job["miss"],
+            answers = selector.select_many(job["effector"], np.array(job["goals"]), job["refine"], start=job["from"], miss=job["miss"],
                                            orientation=orientation_of(job["orientation"]), deadline=deadline)
             sock.send_multipart([a.to_json() for a in answers])
         except Exception as exc:  # noqa: BLE001 - reported to the broker, which answers with stored postures

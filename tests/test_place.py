@@ -115,15 +115,21 @@ def test_ik_verifies_the_best_placement_of_a_robot_on_a_table(arm, tmp_path, cap
     assert "rank 1 verified by IK: 100% of targets reached" in out and (tmp_path / "floor.png").stat().st_size > 10_000
 
 
-def test_the_server_places_the_body(balls):
-    """The `place` operation ranks as reach.place does; a grid too large for the loop is a bad_request naming the step."""
+@pytest.mark.parametrize("workers", [0, 1])
+def test_the_server_places_the_body(balls, workers):
+    """The `place` operation ranks as reach.place does, in the loop or (with workers: seconds of work at its limit)
+    in a worker; a grid over the limit is a bad_request naming the step."""
     from reach.client import Client, ServerError
     from tests.test_server import Running
 
     targets = [{"point": [0.6 + 0.4 * math.cos(a), -0.3 + 0.4 * math.sin(a), 0.0], "effector": "hand"} for a in np.linspace(0, 2 * math.pi, 8, endpoint=False)]
-    r = Running(balls.path)
+    r = Running(balls.path, workers=workers)
+    sent: list[str] = []
+    if workers:
+        submit = r.server.pool.submit
+        r.server.pool.submit = lambda task: sent.append(task.op) or submit(task)  # type: ignore[union-attr]
     try:
-        with Client(r.server.endpoint, retries=1) as c:
+        with Client(r.server.endpoint, retries=1, timeout=60_000) as c:  # a worker starts first
             got = c.call("place", targets=targets, x=[0.0, 1.2], y=[-0.9, 0.3], yaw=[0, 0], step=0.05, top=3)
             assert got["candidates"] == 25 * 25 and len(got["ranked"]) == 3
             best = got["ranked"][0]
@@ -131,6 +137,7 @@ def test_the_server_places_the_body(balls):
             with pytest.raises(ServerError, match="step"):
                 c.call("place", targets=targets, x=[-10, 10], y=[-10, 10], step=0.01)
             assert c.call("health")["ok"]
+        assert sent == (["place", "place"] if workers else [])  # the second refused by the worker, naming the step
     finally:
         r.stop()
 

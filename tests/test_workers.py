@@ -161,7 +161,7 @@ def test_workers_are_shared_by_cost_so_long_motions_never_starve_a_query(atlas):
             pool.submit(Task(1, k, "right_hand", [[0.3, -0.3, 1.0]], None, time.monotonic() + 60, client=b"animator", op="motion"))
         for k in range(3):
             pool.submit(Task(2 + k, 0, "right_hand", [[0.3, -0.3, 1.0]], None, time.monotonic() + 60, client=b"ergonomist"))
-        for w in range(6):  # one worker, finishing each task before the next starts
+        for _ in range(6):  # one worker, finishing each task before the next starts
             pool.idle.append(b"w0")
             pool.dispatch()
             pool.busy.clear()
