@@ -563,12 +563,13 @@ class Server:
         if key is not None and key in self.by_key:
             self.resends += 1
             return None
-        self._admit(envelope[0], bounds[-1][1], req.id)
+        goals = bounds[-1][1] if req.op == "query" else 0  # a motion or placement counts as a request (MAX_CLIENT_REQUESTS)
+        self._admit(envelope[0], goals, req.id)
         given = req.args.get("deadline")  # place has none
         deadline = time.monotonic() + (given if given is not None else wait)
         self._seq += 1
         self.pending[self._seq] = Pending(envelope, req, key, deadline, [None] * len(bounds), bounds)
-        self.held[envelope[0]] = self.held.get(envelope[0], 0) + bounds[-1][1]
+        self.held[envelope[0]] = self.held.get(envelope[0], 0) + goals
         self.held_requests[envelope[0]] = self.held_requests.get(envelope[0], 0) + 1
         if key is not None:
             self.by_key[key] = self._seq
@@ -592,7 +593,7 @@ class Server:
     def _release(self, pending: Pending) -> None:
         """Forget a pending request's share of its client's held work (it is answered)."""
         client = pending.envelope[0]
-        left = self.held.get(client, 0) - pending.bounds[-1][1]
+        left = self.held.get(client, 0) - (pending.bounds[-1][1] if pending.request.op == "query" else 0)
         requests = self.held_requests.get(client, 0) - 1
         if left > 0 or requests > 0:
             self.held[client], self.held_requests[client] = max(left, 0), max(requests, 0)
