@@ -856,7 +856,6 @@ class CasadiIK(IKOracle):
         hints = None if hints is None else np.asarray(hints, float)
         p, search, n = self.problem, self.search, len(pts)
         self.stats["points"] += n
-        deadline = np.inf if search.max_seconds is None else time.perf_counter() + search.max_seconds
         residual = np.zeros(n) if p.anchor is None else np.maximum(np.linalg.norm(pts - p.anchor, axis=1) - p.max_reach, 0.0)
         prefiltered = residual > self.strategy.tolerance
         self.stats["prefiltered"] += int(prefiltered.sum())
@@ -865,7 +864,8 @@ class CasadiIK(IKOracle):
         todo = np.nonzero(~prefiltered)[0]
         if not todo.size:
             return Verdicts(reach, residual, posture)
-        self.prepare()
+        self.prepare()  # compiling (seconds, once) is not the call's budget
+        deadline = np.inf if search.max_seconds is None else time.perf_counter() + search.max_seconds
         # A goal's first start is decisive when it is a hint whose effector lies within `decisive` of the goal.
         decisive = np.zeros(n, bool)
         if hints is not None and np.isfinite(search.give_up_distance):
