@@ -153,7 +153,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--requests", type=int, default=3000)
     parser.add_argument("--chunk", type=int, default=None, help="the servers' --chunk (goals per worker task; default: the server's)")
-    parser.add_argument("--only", choices=["workers"], help="run only the benchmarks with workers")
+    parser.add_argument("--only", choices=["workers", "attacks"], help="run only the benchmarks with workers, or only the attacks")
     args = parser.parse_args()
     emit(bench="machine", python=platform.python_version(), processor=platform.processor() or platform.machine(), pyzmq=zmq.__version__)
     with tempfile.TemporaryDirectory() as tmp:
@@ -168,7 +168,10 @@ def main() -> None:
             one_server_bench(atlas, stored, refined, args.requests)
             analytic_bench(Path(tmp) / "sphere", args.requests)
             reload_bench(atlas, stored)
-        workers_bench(atlas, goals, stored)
+        if args.only != "attacks":
+            workers_bench(atlas, goals, stored)
+        for workers in (1, 0):
+            attacks_bench(atlas, workers)
 
 
 def one_server_bench(atlas: Path, stored: list[bytes], refined: list[bytes], requests: int) -> None:
@@ -383,6 +386,77 @@ def workers_bench(atlas: Path, goals: np.ndarray, stored: list[bytes]) -> None:
             server.terminate()
             server.wait()
     emit(bench="goals", refined_throughput_2_over_1=round(rates[2] / rates[1], 3))
+
+
+def attacks_bench(atlas: Path, workers: int) -> None:
+    """Issue 35's attacks from one client while another asks for stored postures without pause: the watcher's
+    longest wait and p99, the requests it lost (no reply in 5 s), the server process's largest resident memory
+    (its workers apart), and the replies' codes."""
+    server, address = serve(atlas, workers)
+    _workers_ready(address, workers)
+    pid = server.pid
+    goals = np.random.default_rng(35).uniform([0.1, -0.7, 0.8], [0.6, 0.0, 1.6], (10_000, 3)).round(4).tolist()
+    target = {"point": [0.5, -0.2, 1.1], "effector": "right_hand"}
+    attacks = [
+        {"op": "query", "effector": "right_hand", "goals": goals, "deadline": 0.5},  # an expired refined batch
+        {"op": "query", "effector": "right_hand", "goals": goals, "refine": False},  # a stored batch
+        {"op": "motion", "effector": "right_hand", "goal": [0.4, -0.3, 1.1], "rate": 240, "deadline": 0.05},
+        {"op": "motion", "effector": "right_hand", "goal": [0.4, -0.3, 1.1], "timing": {"tmu": 1e300}},
+        {"op": "place", "targets": [target] * 1000, "x": [-1.0, 1.0], "y": [-1.0, 1.0], "yaw": [0, 0], "step": 0.05},
+    ] * 4 + [{"op": "query", "effector": "right_hand", "goals": goals, "deadline": 3600}] * 20  # batches held for an hour
+    stop = threading.Event()
+    waits: list[float] = []
+    lost = [0]
+    memory = [0]
+
+    def watch() -> None:
+        sock = zmq.Context.instance().socket(zmq.REQ)
+        sock.setsockopt(zmq.LINGER, 0)
+        sock.connect(address)
+        payload = json.dumps({"op": "query", "effector": "right_hand", "goal": [0.4, -0.3, 1.1], "refine": False}).encode()
+        while not stop.is_set():
+            t0 = time.perf_counter()
+            sock.send(payload)
+            if sock.poll(5000):
+                sock.recv()
+                waits.append(time.perf_counter() - t0)
+            else:
+                lost[0] += 1
+                sock.close(linger=0)
+                sock = zmq.Context.instance().socket(zmq.REQ)
+                sock.setsockopt(zmq.LINGER, 0)
+                sock.connect(address)
+            with open(f"/proc/{pid}/status") as status:
+                memory[0] = max(memory[0], int(next(x for x in status if x.startswith("VmRSS:")).split()[1]) * 1024)
+        sock.close(linger=0)
+
+    watcher = threading.Thread(target=watch)
+    watcher.start()
+    attacker = zmq.Context.instance().socket(zmq.DEALER)
+    attacker.setsockopt(zmq.LINGER, 0)
+    attacker.connect(address)
+    codes: dict[str, int] = {}
+    try:
+        for k, attack in enumerate(attacks):
+            attacker.send_multipart([b"", json.dumps({**attack, "id": k}).encode()])
+        answered = 0
+        while answered < len(attacks) and attacker.poll(120_000):
+            reply = json.loads(attacker.recv_multipart()[-1])
+            code = "ok" if reply["ok"] else reply["error"]["code"]
+            codes[code] = codes.get(code, 0) + 1
+            answered += 1
+            if answered == len(attacks) - 2 and workers:  # the two held batches the server took: not waited for
+                break
+    finally:
+        stop.set()
+        watcher.join()
+        attacker.close(linger=0)
+        server.terminate()
+        server.wait(timeout=30)
+    lat = np.array(waits) * 1e3
+    emit(bench="server_attacks", workers=workers, attacks=len(attacks), replies=codes, watcher_queries=len(waits), watcher_lost=lost[0],
+         longest_wait_ms=round(float(lat.max()), 1), watcher_p99_ms=round(float(np.percentile(lat, 99)), 2),
+         server_rss_max_mb=round(memory[0] / 2**20, 1))
 
 
 if __name__ == "__main__":

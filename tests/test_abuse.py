@@ -116,7 +116,7 @@ def test_the_attacks_leave_the_server_answering_bounded_and_without_internal_err
     assert codes[12] == P.FORBIDDEN and codes[None] == P.TOO_LARGE  # this server allows no reload
     if workers:
         held = [codes.get(100 + k) for k in range(HELD)]
-        # Two batches are this client's share (one when its stored batch is still queued): the rest are refused.
-        assert held.count(P.BUSY) in (HELD - 2, HELD - 1) and held.count(None) == HELD - held.count(P.BUSY), held
+        # Two batches are this client's share (fewer while its earlier batches are still held): the rest are refused.
+        assert held.count(P.BUSY) >= HELD - 2 and held.count(None) == HELD - held.count(P.BUSY), held
         assert health["pending"] <= 2
     assert grown < MEMORY_BOUND, grown / 2**20
