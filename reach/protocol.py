@@ -131,11 +131,35 @@ def _each(values: list[Any], check: Callable[[Any], Any], says: str = "") -> lis
     return out
 
 
+def _plain_points(value: list[Any]) -> list[list[float]] | None:
+    """The goals as floats when every one is a list of 2 or 3 finite JSON numbers of one length; else None (the
+    item-by-item check then names the first bad one). A tenth of its time: it held the loop 0.2 s for 10,000 goals."""
+    if set(map(type, value)) != {list}:
+        return None
+    widths = set(map(len, value))
+    if len(widths) != 1 or not widths <= {2, 3}:
+        return None
+    flat = [c for g in value for c in g]
+    if not set(map(type, flat)) <= {float, int}:  # not bool, a subclass of int
+        return None
+    try:
+        numbers = list(map(float, flat))
+    except OverflowError:  # an integer beyond a double's range
+        return None
+    if not all(map(math.isfinite, numbers)):
+        return None
+    width = widths.pop()
+    return [numbers[k : k + width] for k in range(0, len(numbers), width)]
+
+
 def _points(value: Any) -> list[list[float]]:
     if not isinstance(value, list) or not value:
         raise Invalid("a non-empty list of [x, y, z] [m]")
     if len(value) > MAX_BATCH:
         raise Invalid(f"{len(value)} goals; the limit is {MAX_BATCH} per request", TOO_LARGE)
+    plain = _plain_points(value)
+    if plain is not None:
+        return plain
     out = _each(value, _point, "must be ")
     if len({len(g) for g in out}) != 1:
         raise Invalid("goals with the same number of coordinates each")

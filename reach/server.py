@@ -55,7 +55,7 @@ from reach.motion import MotionError, Planner, Timing
 from reach.select import ERROR, HANDOVER, MISS, REFINE_BUDGET, SKIPPED, TIMEOUT, Answer, Selector, orientation_of
 from reach.store import load_atlas
 from reach.tree import DEFAULT_POLICY
-from reach.workers import EXPIRED, Pool, Task
+from reach.workers import EXPIRED, Pool, Task, Tasks
 from reach.workers import FAILED as WORKER_FAILED
 
 log = logging.getLogger("reach.server")
@@ -538,10 +538,14 @@ class Server:
         bounds = [(a, min(n, a + size)) for a in range(0, n, size)]
         seq = self._pend(req, envelope, min(n * self.budget + SLACK, MAX_WAIT) if refine else MAX_WAIT, bounds)
         if seq is not None:
-            for part, (a, b) in enumerate(bounds):
-                self.pool.submit(Task(seq, part, req["effector"], req["goals"][a:b], req["from"], self.pending[seq].deadline, req["miss"], envelope[0],
-                                      orientation=req["orientation"][a:b] if isinstance(req["orientation"], list) else req["orientation"],
-                                      refine=refine))
+            deadline, orientation = self.pending[seq].deadline, req["orientation"]
+
+            def make(part: int) -> Task:
+                a, b = bounds[part]
+                return Task(seq, part, req["effector"], req["goals"][a:b], req["from"], deadline, req["miss"], envelope[0],
+                            orientation=orientation[a:b] if isinstance(orientation, list) else orientation, refine=refine)
+
+            self.pool.submit(Tasks(make, len(bounds), seq, envelope[0]))
         return True
 
     def _defer_motion(self, req: P.Request, envelope: list[bytes]) -> bool:

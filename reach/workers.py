@@ -26,6 +26,7 @@ import signal
 import tempfile
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -78,6 +79,27 @@ class Task:
                            "miss": self.miss, "options": self.options, "orientation": self.orientation, "refine": self.refine}).encode()
 
 
+class Tasks:
+    """A request's chunks as tasks, made one at a time as the workers take them.
+
+    Args:
+        make: The task of a part.
+        parts: How many parts.
+        request, client: As every one of its tasks has them.
+    """
+
+    def __init__(self, make: Callable[[int], Task], parts: int, request: int, client: bytes) -> None:
+        self.make, self.next, self.parts, self.request, self.client = make, 0, parts, request, client
+
+    def __len__(self) -> int:
+        return self.parts - self.next
+
+    def take(self) -> Task:
+        task = self.make(self.next)
+        self.next += 1
+        return task
+
+
 @dataclass
 class Pool:
     """The broker's side of the workers: their processes, the back-end socket, the task queue."""
@@ -89,7 +111,7 @@ class Pool:
     backend: Any = None
     processes: list[Any] = field(default_factory=list)
     idle: deque[bytes] = field(default_factory=deque)
-    queues: dict[bytes, deque[Task]] = field(default_factory=dict)  # per client
+    queues: dict[bytes, deque[Task | Tasks]] = field(default_factory=dict)  # per client
     busy: dict[bytes, Task] = field(default_factory=dict)
     # Worker seconds each client with work has had (estimated at dispatch, then as measured): the next task is
     # the queued one of the client that has had the least, so that one client's long motions cannot starve
@@ -130,7 +152,9 @@ class Pool:
             self.restarts += 1
         return lost
 
-    def submit(self, task: Task) -> None:
+    def submit(self, task: Task | Tasks) -> None:
+        """Queue a task, or a request's tasks made one at a time as workers take them (a 10,000-goal batch sent
+        one goal a task made 10,000 tasks in the loop at once: 0.4 s)."""
         if task.client not in self.served:
             # A client new to the pool starts level with the least served one: it is next, but gets no credit to
             # monopolise the workers with.
@@ -150,7 +174,7 @@ class Pool:
     @property
     def queued(self) -> int:
         """Tasks waiting for a worker."""
-        return sum(len(q) for q in self.queues.values())
+        return sum(len(t) if isinstance(t, Tasks) else 1 for q in self.queues.values() for t in q)
 
     def dispatch(self) -> None:
         now = time.monotonic()
@@ -158,7 +182,14 @@ class Pool:
             # The least served client first; ties in the order clients came (dicts keep it).
             client = min(self.queues, key=lambda c: self.served.get(c, 0.0))
             queue = self.queues[client]
-            task = queue.popleft()
+            head = queue[0]
+            if isinstance(head, Tasks):
+                task = head.take()
+                if not len(head):
+                    queue.popleft()
+            else:
+                task = head
+                queue.popleft()
             if not queue:
                 del self.queues[client]
             if task.deadline < now:

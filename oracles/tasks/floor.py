@@ -92,21 +92,17 @@ class FloorTask(HardTask):
         self._model = reference.body.collision
 
     def constraints(self, sym: Symbolic) -> list[Constraint]:
-        assert self._model is not None
-        out = []
-        for i in self.eager:
-            p = self._model.placed[i]
-            z = [world_point(sym, p.joint, e)[2] for e in (p.a, p.b)]
-            out.append(Constraint(ca.vertcat(*z), p.radius, np.inf))
-        return out
+        return self._heights(sym, self.eager)
 
     def screened(self, sym: Symbolic) -> list[Constraint]:
         """The other moving capsules' end points at least their radius above the floor."""
+        return self._heights(sym, [i for i in self.capsules if i not in self.eager])
+
+    def _heights(self, sym: Symbolic, capsules: Sequence[int]) -> list[Constraint]:
+        """Each capsule's end points' heights, at least its radius."""
         assert self._model is not None
         out = []
-        for i in self.capsules:
-            if i in self.eager:
-                continue
+        for i in capsules:
             p = self._model.placed[i]
             out.append(Constraint(ca.vertcat(*[world_point(sym, p.joint, e)[2] for e in (p.a, p.b)]), p.radius, np.inf))
         return out
