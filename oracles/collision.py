@@ -236,6 +236,13 @@ def _package_parent(package: str, urdf_dir: Path | None) -> Path | None:
 def _mesh_capsule(path: Path, scale: np.ndarray, source: str) -> tuple[np.ndarray, np.ndarray, float]:
     import trimesh
 
+    if path.suffix.lower() == ".dae":
+        try:
+            import collada  # noqa: F401 - trimesh reads COLLADA through it, and says little when it is missing
+        except ImportError:
+            raise ModelError(f"mesh {path} is COLLADA (.dae), which needs pycollada: pip install 'reach[meshes]' "
+                             "(or convert the mesh to .stl)", source=source) from None
+
     try:
         mesh = trimesh.load(path, force="mesh")
     except Exception as exc:  # trimesh raises many types for unreadable files

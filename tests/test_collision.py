@@ -126,6 +126,19 @@ def test_urdf_primitives_and_meshes_become_capsules(tmp_path):
         urdf_body(urdf)
 
 
+def test_a_collada_mesh_without_pycollada_names_the_extra(tmp_path, monkeypatch):
+    """Issue 36, item 4: a .dae mesh needs pycollada, which trimesh only hints at; the error names the extra."""
+    import sys
+
+    (tmp_path / "part.dae").write_text("<COLLADA/>")
+    urdf = tmp_path / "robot.urdf"
+    urdf.write_text("""<?xml version="1.0"?><robot name="r">
+      <link name="base"><collision><geometry><mesh filename="part.dae"/></geometry></collision></link></robot>""")
+    monkeypatch.setitem(sys.modules, "collada", None)  # as if pycollada were not installed
+    with pytest.raises(ModelError, match=r"part.dae is COLLADA \(.dae\), which needs pycollada: pip install 'reach\[meshes\]'"):
+        urdf_body(urdf)
+
+
 def test_a_capsule_on_an_unknown_link_is_named():
     from oracles.collision import CollisionModel
 
