@@ -866,28 +866,22 @@ class CasadiIK(IKOracle):
             return Verdicts(reach, residual, posture)
         self.prepare()  # compiling (seconds, once) is not the call's budget
         deadline = np.inf if search.max_seconds is None else time.perf_counter() + search.max_seconds
+        first_hint = None if hints is None else hints[:, 0] if hints.ndim == 3 else hints
+        hinted = np.zeros(n, bool) if first_hint is None else np.all(np.isfinite(first_hint), axis=1)
         # A goal's first start is decisive when it is a hint whose effector lies within `decisive` of the goal.
         decisive = np.zeros(n, bool)
-        if hints is not None and np.isfinite(search.give_up_distance):
-            first_hint = hints[:, 0] if hints.ndim == 3 else hints
-            decisive[todo] = [np.all(np.isfinite(first_hint[i])) and p.effector_distance(first_hint[i], pts[i], self._data) <= search.decisive
-                              for i in todo]
+        if first_hint is not None and np.isfinite(search.give_up_distance):
+            decisive[todo] = [hinted[i] and p.effector_distance(first_hint[i], pts[i], self._data) <= search.decisive for i in todo]
         first = np.tile(p.x_ref, (n, 1))  # each goal's first hint, as x: continuity with it is liked
-        if hints is not None:
-            first_hint = hints[:, 0] if hints.ndim == 3 else hints
-            for i in todo:
-                if np.all(np.isfinite(first_hint[i])):
-                    first[i] = p.x_of_q(first_hint[i])
+        for i in todo[hinted[todo]]:
+            first[i] = p.x_of_q(first_hint[i])  # type: ignore[index]
         residual[todo] = np.inf
         # A goal far from what anything found: no hint (a first call, a cold query) or a search that never gives
         # up (a refinement, the audit's referee). A build's vertex always has its nearest reachable neighbour's
         # posture, and its K starts are the build's search (measured: with every vertex's misses sent to the random
         # wave, the demo build took 1.5 times fatrop's time).
         cold = np.zeros(n, bool)
-        cold[todo] = search.give_up is None or hints is None
-        if hints is not None and search.give_up is not None:
-            first_hint = hints[:, 0] if hints.ndim == 3 else hints
-            cold[todo] = ~np.all(np.isfinite(first_hint[todo]), axis=1)
+        cold[todo] = True if search.give_up is None else ~hinted[todo]
         runs = []
         # The waves: every goal's K starts together (a decisive hint among them stops the others when it fails, as
         # Search.give_up says); then WAVE x K random ones for a cold goal that the K starts ended near.
@@ -902,6 +896,8 @@ class CasadiIK(IKOracle):
             runs.append(run)
             self._keep_reaching(run, pts, aims, reach, residual, posture)
         self._polish_missed(runs, pts, aims, start, deadline, reach, residual, posture, set(np.nonzero(cold)[0].tolist()))
+        for i in np.nonzero(np.isinf(residual))[0]:  # no wave ran in time: the reference posture is the attempt
+            residual[i] = p.effector_distance(posture[i], pts[i], self._data)
         self.stats["reachable"] += int(reach.sum())
         return Verdicts(reach, residual, posture)
 
