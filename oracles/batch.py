@@ -477,13 +477,14 @@ def run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_o
     for _ in range(LOWER_ITER):
         if time.perf_counter() > deadline or not np.any(r_low >= MIN_RADIUS):
             break
-        stats["iterations"] = stats.get("iterations", 0) + 2 * int(reached.size)
+
         # Each lower step is linearised: a Gauss-Newton step back to the goal and the hard rows follows it (without,
         # the lower steps drifted 2-27 mm off the goal and 1-4 mm past hard rows, and were all thrown away). A step
         # is kept where the lower tasks like it better, back within reach of the goal; else its radius halves (a
         # diagonal Newton step on coupled terms overshot, and the idle arm swung out).
         # (Each start's steps depend on itself alone: the same goal gets the same posture in any batch.)
         on = np.nonzero(r_low >= MIN_RADIUS)[0]
+        stats["iterations"] = stats.get("iterations", 0) + 2 * int(on.size)
         trial = program.lower_step(y[on], state.take_lower(on), r_low[on])
         trial = program.reach_step(trial, program.evaluate(trial, p_low[on]), None if s_low is None else s_low[on], w_low[on],
                                    np.full(len(on), MAX_STEP))
@@ -492,15 +493,15 @@ def run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_o
         better = (after.f < best[on]) & (np.linalg.norm(after.e, axis=1) <= tolerance) & (program.violation(after) <= 1e-4)
         y[on[better]], best[on[better]] = trial[better], after.f[better]
         r_low[on] = np.where(better, np.minimum(MAX_STEP, 1.5 * r_low[on]), 0.5 * r_low[on])
-        state = program.evaluate(y, p_low, lower=True)
+        if better.any():  # state is y's evaluation throughout
+            state = program.evaluate(y, p_low, lower=True)
     for _ in range(RESTORE_ITER):
-        state = program.evaluate(y, p_low, lower=True)
         d, v = np.linalg.norm(state.e, axis=1), program.violation(state)
         off = np.nonzero((d > 0.5 * tolerance) | (v > HARD_TOL))[0]
         if not off.size:
             break
         y[off] = program.reach_step(y[off], state.take(off), None if s_low is None else s_low[off], w_low[off], np.full(len(off), MAX_STEP))
-    state = program.evaluate(y, p_low, lower=True)
+        state = program.evaluate(y, p_low, lower=True)
     d, v = np.linalg.norm(state.e, axis=1), program.violation(state)
     # The lower tasks never cost the verdict: a start whose lower steps leave the goal or a hard row keeps its reach posture.
     ok = (d <= 0.5 * tolerance) & (v <= HARD_TOL)

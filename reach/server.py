@@ -514,20 +514,18 @@ class Server:
         if req.op == "place":
             return self._defer_whole(req, envelope, "place", {"fields": req.args})
         goals = np.array(req["goals"])
-        if not (self.refine if req["refine"] is None else req["refine"]):
-            if len(goals) <= P.STORED_IN_LOOP:
-                return False
-            # A large batch of stored answers (1.4-1.8 s for 10,000 in the loop) goes to the workers too, unrefined.
+        refine = self.refine if req["refine"] is None else req["refine"]
+        if refine:
+            if req["orientation"] is not None:
+                aims = orientation_of(req["orientation"])
+                self.selector.oriented(req["effector"], aims[0] if isinstance(aims, list) else aims)  # type: ignore[arg-type]
+            # Nothing to refine (an analytic atlas, or no strategy holds a goal): stored answers.
+            refine = self.selector.needs_ik(req["effector"], goals, req["from"])
+        elif len(goals) > P.STORED_IN_LOOP:
             self.selector.check_goals(req["effector"], goals, req["from"])
-            return self._defer_goals(req, envelope, goals, refine=False)
-        if req["orientation"] is not None:
-            aims = orientation_of(req["orientation"])
-            self.selector.oriented(req["effector"], aims[0] if isinstance(aims, list) else aims)  # type: ignore[arg-type]
-        if not self.selector.needs_ik(req["effector"], goals, req["from"]):
-            if len(goals) <= P.STORED_IN_LOOP:
-                return False  # nothing to refine (an analytic atlas, or no strategy holds a goal): answered at once
-            return self._defer_goals(req, envelope, goals, refine=False)
-        return self._defer_goals(req, envelope, goals, refine=True)
+        if not refine and len(goals) <= P.STORED_IN_LOOP:
+            return False  # answered at once; a larger stored batch (1.4-1.8 s for 10,000 in the loop) goes to the workers
+        return self._defer_goals(req, envelope, goals, refine)
 
     def _defer_goals(self, req: P.Request, envelope: list[bytes], goals: np.ndarray, refine: bool) -> bool:
         """Hand a query's goals to the workers in chunks (refined, or their stored answers when not ``refine``)."""
@@ -545,7 +543,7 @@ class Server:
                 return Task(seq, part, req["effector"], req["goals"][a:b].tolist(), req["from"], deadline, req["miss"], envelope[0],
                             orientation=orientation[a:b] if isinstance(orientation, list) else orientation, refine=refine)
 
-            self.pool.submit(Tasks(make, len(bounds), seq, envelope[0]))
+            self.pool.submit(Tasks(make, len(bounds), seq, envelope[0], deadline))
         return True
 
     def _defer_motion(self, req: P.Request, envelope: list[bytes]) -> bool:
@@ -592,15 +590,16 @@ class Server:
         queued (docs/protocol.md, limits): memory is bounded whatever the deadlines, and a client that left holds
         at most its share until its requests' deadlines."""
         mine, requests, total = self.held.get(client, 0), self.held_requests.get(client, 0), sum(self.held.values())
-        if mine + goals > P.MAX_CLIENT_GOALS or requests + 1 > P.MAX_CLIENT_REQUESTS or total + goals > P.MAX_QUEUED_GOALS:
-            what = (f"this client has {mine} goals in {requests} requests queued (at most {P.MAX_CLIENT_GOALS} goals, "
-                    f"{P.MAX_CLIENT_REQUESTS} requests)" if total + goals <= P.MAX_QUEUED_GOALS else
-                    f"the server has {total} goals queued (at most {P.MAX_QUEUED_GOALS})")
-            # By its deadline at the latest, the soonest of the work counted is answered.
-            mine_only = total + goals <= P.MAX_QUEUED_GOALS
-            soonest = min((p.deadline for p in self.pending.values() if p.envelope[0] == client or not mine_only), default=time.monotonic())
-            retry = max(0.1, round(soonest - time.monotonic(), 1))
-            raise P.ProtocolError(P.BUSY, f"{what}; retry in about {retry:g} s, when some of it is answered", rid)
+        server_full = total + goals > P.MAX_QUEUED_GOALS
+        if not server_full and mine + goals <= P.MAX_CLIENT_GOALS and requests + 1 <= P.MAX_CLIENT_REQUESTS:
+            return
+        what = (f"the server has {total} goals queued (at most {P.MAX_QUEUED_GOALS})" if server_full else
+                f"this client has {mine} goals in {requests} requests queued (at most {P.MAX_CLIENT_GOALS} goals, {P.MAX_CLIENT_REQUESTS} requests)")
+        # By its deadline at the latest, the soonest of the work counted is answered (an expiring one: within passes).
+        now = time.monotonic()
+        soonest = min((min(p.deadline, now) for p in self.pending.values() if server_full or p.envelope[0] == client), default=now)
+        retry = max(0.1, round(soonest - now, 1))
+        raise P.ProtocolError(P.BUSY, f"{what}; retry in about {retry:g} s, when some of it is answered", rid)
 
     def _release(self, pending: Pending) -> None:
         """Forget a pending request's share of its client's held work (it is answered)."""

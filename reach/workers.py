@@ -85,11 +85,11 @@ class Tasks:
     Args:
         make: The task of a part.
         parts: How many parts.
-        request, client: As every one of its tasks has them.
+        request, client, deadline: As every one of its tasks has them.
     """
 
-    def __init__(self, make: Callable[[int], Task], parts: int, request: int, client: bytes) -> None:
-        self.make, self.next, self.parts, self.request, self.client = make, 0, parts, request, client
+    def __init__(self, make: Callable[[int], Task], parts: int, request: int, client: bytes, deadline: float) -> None:
+        self.make, self.next, self.parts, self.request, self.client, self.deadline = make, 0, parts, request, client, deadline
 
     def __len__(self) -> int:
         return self.parts - self.next
@@ -183,7 +183,10 @@ class Pool:
             client = min(self.queues, key=lambda c: self.served.get(c, 0.0))
             queue = self.queues[client]
             head = queue[0]
-            if isinstance(head, Tasks):
+            if isinstance(head, Tasks) and head.deadline < now:
+                queue.popleft()  # abandoned: none of its parts is made
+                task = None
+            elif isinstance(head, Tasks):
                 task = head.take()
                 if not len(head):
                     queue.popleft()
@@ -192,7 +195,7 @@ class Pool:
                 queue.popleft()
             if not queue:
                 del self.queues[client]
-            if task.deadline < now:
+            if task is None or task.deadline < now:
                 continue  # abandoned: the request has been answered already
             worker = self.idle.popleft()
             self.busy[worker] = task

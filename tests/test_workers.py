@@ -190,3 +190,30 @@ def test_a_task_is_charged_the_time_it_took():
     task, frames = pool.receive()  # the worker is idle again: the next motion starts, charged its estimate
     assert task.request == 1 and frames == [b'{"a": 1}']
     assert pool.served[b"a"] == pytest.approx(2.0 + 0.5, abs=0.05)
+
+
+def test_a_requests_tasks_past_their_deadline_are_dropped_unmade(atlas):
+    """A request's tasks are made as workers take them; once its deadline has passed none of the rest is made
+    (10,000 abandoned parts would each have been made and skipped in the loop)."""
+    from reach.workers import Tasks
+
+    pool = Pool(zmq.Context.instance(), atlas, OPTIONS, 0)
+    made: list[int] = []
+    real = pool.backend
+    pool.backend = type("Backend", (), {"send_multipart": lambda self, frames: None})()
+    try:
+        def make(part: int) -> Task:
+            made.append(part)
+            return Task(1, part, "right_hand", [[0.3, -0.3, 1.0]], None, time.monotonic() - 1.0, client=b"a")
+
+        pool.submit(Tasks(make, 10_000, 1, b"a", time.monotonic() - 1.0))
+        pool.idle.append(b"w0")
+        pool.dispatch()
+        assert made == [] and pool.queued == 0 and pool.busy == {}
+        live = Tasks(lambda part: Task(2, part, "right_hand", [[0.3, -0.3, 1.0]], None, time.monotonic() + 60, client=b"b"), 3, 2, b"b",
+                     time.monotonic() + 60)
+        pool.submit(live)
+        assert pool.queued == 2 and pool.busy[b"w0"].request == 2  # one taken by the idle worker, two still unmade
+    finally:
+        pool.backend = real
+        pool.close()
