@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
+from oracles.protocol import Goals
 from reach.atlas import build_atlas
 from reach.config import parse_config, read_yaml
 from reach.executor import ProcessExecutor
@@ -84,7 +85,7 @@ def calls(data: dict, names: list[str], goals: int, chunk: int) -> None:
             fkj = fk_jacobian_seconds(oracle)
             for label, h in (("cold", None), ("warm", hints)):
                 t0, c0 = time.perf_counter(), time.process_time()
-                parts = [oracle.evaluate(goals_at[k : k + chunk], None if h is None else h[k : k + chunk]) for k in range(0, goals, chunk)]
+                parts = [oracle.evaluate(Goals(goals_at[k : k + chunk], seeds=None if h is None else h[k : k + chunk])) for k in range(0, goals, chunk)]
                 wall, spent = time.perf_counter() - t0, time.process_time() - c0
                 reach = np.concatenate([p.reachable for p in parts])
                 posture = np.concatenate([p.posture for p in parts])

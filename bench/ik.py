@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from oracles.protocol import OracleSpec
+from oracles.protocol import Goals, OracleSpec
 from reach.config import load_config
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -42,7 +42,7 @@ def timed(oracle, points: np.ndarray, hints: np.ndarray | None = None) -> tuple[
     seconds, reach, post = [], [], []
     for i in range(len(points)):
         t0 = time.perf_counter()
-        v = oracle.evaluate(points[i : i + 1], None if hints is None else hints[i : i + 1])
+        v = oracle.evaluate(Goals(points[i : i + 1], seeds=None if hints is None else hints[i : i + 1]))
         seconds.append(time.perf_counter() - t0)
         reach.append(v.reachable[0])
         post.append(v.posture[0])

@@ -28,7 +28,7 @@ import platform
 
 import numpy as np
 
-from oracles.protocol import OracleSpec
+from oracles.protocol import Goals, OracleSpec
 from reach.executor import ProcessExecutor
 from reach.index import spiral
 from reach.store import load_atlas
@@ -37,7 +37,7 @@ from reach.store import load_atlas
 def reached(ex: ProcessExecutor, points: np.ndarray, postures: np.ndarray, directions: np.ndarray) -> np.ndarray:
     """(m, n) whether the referee reaches each point with each direction, from the point's stored posture."""
     m, n = len(points), len(directions)
-    verdicts = ex.evaluate(np.repeat(points, n, axis=0), np.repeat(postures, n, axis=0), aims=np.tile(directions, (m, 1)))
+    verdicts = ex.evaluate(Goals(np.repeat(points, n, axis=0), {"orientation": np.tile(directions, (m, 1))}, seeds=np.repeat(postures, n, axis=0)))
     return verdicts.reachable.reshape(m, n)
 
 

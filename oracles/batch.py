@@ -119,7 +119,7 @@ class BatchProgram:
 
     Args:
         sym: The symbols of the strategy's programs (see :class:`oracles.tasks.Symbolic`).
-        params: Their parameter vector (goal, start, start weight, aim, aim on).
+        params: Their parameter vector (goal, start, start weight, the tasks' targets).
         hard: The hard tasks' constraint rows (the lazy ones give none).
         reach: The reach task's residual expression (3,).
         lower: The soft tasks below reach, in priority order.

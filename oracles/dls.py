@@ -95,7 +95,8 @@ class DLSIK(IKOracle):
             model, data, q, goal, lambda fid: pin.getFrameJacobian(model, data, fid, LWA)[:, self.cols],
             lambda joint: pin.getJointJacobian(model, data, joint, LWA)[:, self.cols],
             self.cols, self.jcols, self.qidx, self.problem.x_ref, self.max_reach_step,
-            start=call.start, start_weight=0.0 if call.start is None else 1.0, aim=call.aim,
+            start=call.start, start_weight=0.0 if call.start is None else 1.0,
+            targets={} if call.target is None else self.strategy.target_dict(call.target),
         )
         hard = [row for t in self.strategy.hard for row in t.rows(num)]
         levels = [Row(np.vstack([r.jacobian for r in hard]), np.concatenate([r.error for r in hard]))] if hard else []
@@ -158,8 +159,8 @@ class DLSIK(IKOracle):
     def solve(self, goal: np.ndarray, x0: np.ndarray, lower: bool = True, call: Call = NO_CALL) -> np.ndarray:
         """Lexicographic like casadi-ik: first the tasks down to reach, then the lower ones."""
         q = self._iterate(self.problem.q_of_x(x0), goal, self.reach_level + 1, self.max_iter, call)
-        if lower and self.search.secondary and len(self.soft) > self.reach_level + 1 and self.problem.check(q, goal, self._data, call.aim).reachable:
+        if lower and self.search.secondary and len(self.soft) > self.reach_level + 1 and self.problem.check(q, goal, self._data, call.target).reachable:
             refined = self._iterate(q.copy(), goal, len(self.soft), self.max_iter // 3, call)
-            if self.problem.check(refined, goal, self._data, call.aim).reachable:
+            if self.problem.check(refined, goal, self._data, call.target).reachable:
                 q = refined  # the lower tasks never cost the verdict
         return q

@@ -26,6 +26,7 @@ import warnings
 import zlib
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any, NamedTuple
 
 import casadi as ca
@@ -49,7 +50,7 @@ from oracles.errors import ModelError, OracleError
 from oracles.jit import COMPILER, compiled_nlpsol
 from oracles.kinematics import SymbolicKinematics
 from oracles.problem import Check, ReachProblem
-from oracles.protocol import Ball, OracleSpec, Purpose, Skeleton, Verdicts, check_points, check_purpose
+from oracles.protocol import Ball, Goals, OracleSpec, Purpose, Skeleton, Verdicts, check_points, check_purpose
 from oracles.search import Search
 from oracles.skeleton import bone_frames, build_skeleton
 from oracles.strategy import parse_strategy
@@ -76,14 +77,15 @@ class Call(NamedTuple):
     """What one ``evaluate`` call knows beyond its points, passed down to every solve (never stored).
 
     Attributes:
-        start: The character's current posture as the problem's x (``evaluate_from``), or None.
+        start: The character's current posture as the problem's x (``Goals.current``), or None.
         deadline: ``time.perf_counter()`` past which no new solve starts (inf: no budget).
-        aim: The goal's orientation (3, 3) for the strategy's orientation task, or None (set per goal).
+        target: The goal's task targets as the programs' parameters (``Strategy.target_rows``; set per goal),
+            or None: the goal carries none.
     """
 
     start: np.ndarray | None = None
     deadline: float = np.inf
-    aim: np.ndarray | None = None
+    target: np.ndarray | None = None
 
 
 NO_CALL = Call()  # a call with neither current posture nor budget
@@ -301,7 +303,7 @@ class IKOracle(ABC):
             held = self._project(q, guess)
             if not self.faults(held[None])[0]:
                 return held
-        v = self.evaluate_from(self.effector_positions(q[None]), q)
+        v = self.evaluate(Goals(self.effector_positions(q[None]), current=q))
         return v.posture[0] if v.reachable[0] and v.posture is not None else None
 
     def limits_near(self, posture: np.ndarray, margin: float) -> list[str]:
@@ -353,14 +355,6 @@ class IKOracle(ABC):
 
         return MirrorMap(self.body).mirror_q
 
-    def evaluate_from(self, points: np.ndarray, current: np.ndarray) -> Verdicts:
-        """Verdicts for goals reached from the character's current posture (nq,): warm-started from it,
-        with the posture task's small cost on displacement from it (see :class:`oracles.protocol.Continuing`)."""
-        current = np.asarray(current, float)
-        if current.shape != (len(self.posture_names),):
-            raise OracleError(f"current posture has shape {current.shape}, expected ({len(self.posture_names)},)", key="current")
-        return self._evaluate(points, np.tile(current, (len(np.atleast_2d(points)), 1)), self.problem.x_of_q(current))
-
     def prepare(self) -> None:  # noqa: B027 - engines without solvers to build need nothing
         """Build the solvers now rather than on the first evaluate."""
 
@@ -373,12 +367,18 @@ class IKOracle(ABC):
         return 0.0
 
     def solve_batch(self, goals: np.ndarray, x0: np.ndarray, lower: np.ndarray | None = None, call: Call = NO_CALL,
-                    aims: np.ndarray | None = None) -> np.ndarray:
+                    targets: np.ndarray | None = None) -> np.ndarray:
         """Configurations (N, nq) for goals (N, 3) from starts (N, nx), with the lower tasks where lower (N,) is true,
-        each goal with its orientation (aims (N, 3, 3)) when given; engines may batch."""
+        each goal with its targets (N, T) (``Strategy.target_rows``) when given; engines may batch. Past
+        ``call.deadline`` no further solve starts: the first k <= N postures (k >= 1) are returned."""
         flags = np.ones(len(goals), bool) if lower is None else lower
-        calls = [call] * len(goals) if aims is None else [call._replace(aim=a) for a in aims]
-        return np.array([self.solve(g, x, bool(f), c) for g, x, f, c in zip(goals, x0, flags, calls, strict=True)])
+        calls = [call] * len(goals) if targets is None else [call._replace(target=t) for t in targets]
+        out: list[np.ndarray] = []
+        for g, x, f, c in zip(goals, x0, flags, calls, strict=True):
+            if out and time.perf_counter() > call.deadline:
+                break
+            out.append(self.solve(g, x, bool(f), c))
+        return np.array(out)
 
     @property
     def orientation(self) -> OrientationTask | None:
@@ -391,41 +391,6 @@ class IKOracle(ABC):
         task = self.orientation
         return () if task is None else ("direction", "rotation") if task.axis is not None else ("rotation",)
 
-    def aims(self, orientations: np.ndarray, n: int) -> np.ndarray:
-        """Goal orientations as the rotations (n, 3, 3) the orientation task holds: from (n, 3) world directions
-        of its axis or (n, 3, 3) effector rotations (see :class:`oracles.protocol.Oriented`)."""
-        task = self.orientation
-        if task is None:
-            raise OracleError("this strategy has no orientation task; add {type: orientation, axis: ...} to hold a goal's orientation",
-                              key="orientation")
-        o = np.asarray(orientations, float)
-        if o.shape == (n, 3):
-            norms = np.linalg.norm(o, axis=1)
-            if not np.all(np.isfinite(o)) or np.any(norms < 1e-9):
-                raise OracleError("directions must be finite and not zero", key="orientation")
-            try:
-                return np.array([task.aim(direction=d) for d in o]).reshape(n, 3, 3)
-            except ValueError as exc:
-                raise OracleError(str(exc), key="orientation") from None
-        if o.shape == (n, 3, 3):
-            if not np.all(np.isfinite(o)) or np.abs(np.einsum("nij,nkj->nik", o, o) - np.eye(3)).max(initial=0.0) > 1e-6:
-                raise OracleError("rotations must be orthonormal 3 x 3 matrices", key="orientation")
-            return o
-        raise OracleError(f"orientations have shape {o.shape}, expected ({n}, 3) directions or ({n}, 3, 3) rotations", key="orientation")
-
-    def evaluate_oriented(self, points: np.ndarray, orientations: np.ndarray, hints: np.ndarray | None = None,
-                          current: np.ndarray | None = None) -> Verdicts:
-        """Verdicts for goals [m] each with an orientation (see :class:`oracles.protocol.Oriented`)."""
-        pts = check_points(points, 3)
-        aims = self.aims(orientations, len(pts))
-        if current is None:
-            return self._evaluate(pts, hints, None, aims)
-        current = np.asarray(current, float)
-        if current.shape != (len(self.posture_names),):
-            raise OracleError(f"current posture has shape {current.shape}, expected ({len(self.posture_names)},)", key="current")
-        seeds = np.tile(current, (len(pts), 1)) if hints is None else hints
-        return self._evaluate(pts, seeds, self.problem.x_of_q(current), aims)
-
     def starts(self, goal: np.ndarray, hint: np.ndarray | None, call: Call = NO_CALL) -> list[np.ndarray]:
         """Initial postures: the hint(s), the reference, then seeded random ones.
 
@@ -436,7 +401,7 @@ class IKOracle(ABC):
         hint rescues a goal both miss.
         """
         out = []
-        seeds = np.zeros((0, 0)) if hint is None else np.atleast_2d(hint)  # one hint, or several (evaluate_seeded)
+        seeds = np.zeros((0, 0)) if hint is None else np.atleast_2d(hint)  # one hint, or several
         out += [self.problem.x_of_q(h) for h in seeds if np.all(np.isfinite(h))]
         if self.search.reference_first and call.start is None:
             out[:0] = [self.problem.x_ref.copy(), self.problem.x_ready.copy()]
@@ -446,21 +411,28 @@ class IKOracle(ABC):
         out += [self.problem.random_x(rng) for _ in range(self.search.restarts)]
         return out
 
-    def evaluate_seeded(self, points: np.ndarray, seeds: np.ndarray) -> Verdicts:
-        """Verdicts for goals [m] with several warm starts each (see :class:`oracles.protocol.Preferring`)."""
-        seeds = np.asarray(seeds, float)
-        n = len(check_points(points, 3))
-        if seeds.ndim != 3 or seeds.shape[0] != n or seeds.shape[2] != len(self.posture_names):
-            raise OracleError(f"seeds have shape {seeds.shape}, expected ({n}, k, {len(self.posture_names)})", key="seeds")
-        return self.evaluate(points, seeds)
+    def evaluate(self, goals: Goals | np.ndarray) -> Verdicts:
+        """Verdicts for goals [m] (see :class:`oracles.protocol.Goals`): held to their targets, warm-started from
+        their seeds ((N, nq), or (N, k, nq) tried in order), or from the current posture with a small cost on
+        displacement from it."""
+        g = Goals.of(goals)
+        n, nq = len(g), len(self.posture_names)
+        targets = self.strategy.target_rows(g.targets, n) if g.targets else None
+        seeds = None if g.seeds is None else np.asarray(g.seeds, float)
+        if seeds is not None and not (seeds.ndim in (2, 3) and seeds.shape[0] == n and seeds.shape[-1] == nq):
+            raise OracleError(f"seeds have shape {seeds.shape}, expected ({n}, {nq}) or ({n}, k, {nq})", key="seeds")
+        start = None
+        if g.current is not None:
+            current = np.asarray(g.current, float)
+            if current.shape != (nq,):
+                raise OracleError(f"current posture has shape {current.shape}, expected ({nq},)", key="current")
+            start = self.problem.x_of_q(current)
+            seeds = np.tile(current, (n, 1)) if seeds is None else seeds
+        return self._evaluate(g.points, seeds, start, targets)
 
-    def evaluate(self, points: np.ndarray, hints: np.ndarray | None = None) -> Verdicts:
-        """Verdicts for goals [m], warm-started from hints (N, nq), or (N, k, nq) from :meth:`evaluate_seeded`."""
-        return self._evaluate(points, hints, None)
-
-    def _evaluate(self, points: np.ndarray, hints: np.ndarray | None, start: np.ndarray | None, aims: np.ndarray | None = None) -> Verdicts:
+    def _evaluate(self, points: np.ndarray, hints: np.ndarray | None, start: np.ndarray | None, targets: np.ndarray | None = None) -> Verdicts:
         """Rounds of solves from each point's next start until it reaches, gives up or runs out of starts
-        (each goal held to its orientation, aims (N, 3, 3), when given).
+        (each goal held to its targets (N, T), ``Strategy.target_rows``, when given).
 
         The first of a point's seeds stands for the neighbour's posture in a build.
         """
@@ -493,13 +465,14 @@ class IKOracle(ABC):
             todo = np.array([i for i in range(n) if not done[i] and len(starts[i]) > r], dtype=int)
             if todo.size == 0 or time.perf_counter() > call.deadline:
                 break
-            self.stats["solves"] += int(todo.size)
             q = self.solve_batch(pts[todo], np.array([starts[i][r] for i in todo]), ~settled[todo] if r == 0 else None, call,
-                                 None if aims is None else aims[todo])
+                                 None if targets is None else targets[todo])
+            todo = todo[: len(q)]  # the goals solved before the deadline
+            self.stats["solves"] += int(todo.size)
             for k, i in enumerate(todo):
-                check = self.problem.check(q[k], pts[i], self._data, None if aims is None else aims[i])
+                check = self.problem.check(q[k], pts[i], self._data, None if targets is None else targets[i])
                 if search.prefer and check.reachable:
-                    liked = self.preference(q[k], pts[i], call if aims is None else call._replace(aim=aims[i]))
+                    liked = self.preference(q[k], pts[i], call if targets is None else call._replace(target=targets[i]))
                     if not reach[i] or liked < preferred[i]:
                         residual[i], posture[i], preferred[i], kept[i] = check.residual, q[k], liked, check
                     reach[i] = True
@@ -517,6 +490,8 @@ class IKOracle(ABC):
                 if not done[i] and r == 0 and decisive[i] and check.eager_ok and check.residual > give_up:
                     # Given up: no reference start, only the first `rescues` random ones.
                     starts[i] = [starts[i][0], *starts[i][2 : 2 + search.rescues]]
+        for i in np.nonzero(np.isinf(residual))[0]:  # not solved before the deadline: the reference posture is the attempt
+            residual[i] = self.problem.effector_distance(posture[i], pts[i], self._data)
         self.stats["reachable"] += int(reach.sum())
         return Verdicts(reach, residual, posture)
 
@@ -678,13 +653,13 @@ class CasadiIK(IKOracle):
         return stages
 
     def _symbols(self) -> tuple[Symbolic, ca.SX]:
-        """The programs' symbols and their parameter vector: goal (3), start (nx), start weight, aim (9, column-major), aim on."""
+        """The programs' symbols and their parameter vector: goal (3), start (nx), start weight, the tasks' targets."""
         p = self.problem
         goal, start, weight = ca.SX.sym("goal", 3), ca.SX.sym("start", p.nx), ca.SX.sym("start_weight", 1)
-        aim, aim_on = ca.SX.sym("aim", 3, 3), ca.SX.sym("aim_on", 1)
+        target = ca.SX.sym("target", self.strategy.target_size)
         sym = Symbolic(SymbolicKinematics(self.body.model, p.q_sym), p.x_sym, goal, p.x_ref, p.upper - p.lower, tuple(p.x_names), p.lower, start,
-                       weight, aim, aim_on)
-        return sym, ca.vertcat(goal, start, weight, ca.vec(aim), aim_on)
+                       weight, self.strategy.target_dict(target))
+        return sym, ca.vertcat(goal, start, weight, target)
 
     def _nlpsol(self, name: str, solver: str, nlp: dict[str, Any], opts: dict[str, Any]) -> ca.Function:
         if self.jit:
@@ -776,12 +751,15 @@ class CasadiIK(IKOracle):
 
     def _params(self, goal: np.ndarray, x: np.ndarray, call: Call, pull: bool = False) -> np.ndarray:
         """The programs' parameters: the goal, the current posture (x itself without one) and its weight (0 unless
-        pulled), the goal's orientation (column-major) and whether it applies."""
+        pulled), the goal's task targets (``Strategy.target_rows``; the tasks' defaults without)."""
         start = call.start if call.start is not None else x
-        task = self.orientation
-        aim = call.aim if call.aim is not None else (np.eye(3) if task is None else task.default_aim())
-        on = float(task is not None and (call.aim is not None or not task.free))
-        return np.concatenate([goal, start, [0.0 if call.start is None and not pull else 1.0], aim.ravel(order="F"), [on]])
+        target = call.target if call.target is not None else self._default_target
+        return np.concatenate([goal, start, [0.0 if call.start is None and not pull else 1.0], target])
+
+    @cached_property
+    def _default_target(self) -> np.ndarray:
+        """The target parameters of a goal that carries none (each task's default)."""
+        return self.strategy.target_rows({}, 1)[0]
 
     def preference(self, posture: np.ndarray, goal: np.ndarray, call: Call = NO_CALL) -> float:
         """The lowest stage's objective at a posture (the posture task's, in the shipped strategies)."""
@@ -821,10 +799,10 @@ class CasadiIK(IKOracle):
         twin.solver = "fatrop"
         return twin
 
-    def _evaluate(self, points: np.ndarray, hints: np.ndarray | None, start: np.ndarray | None, aims: np.ndarray | None = None) -> Verdicts:
+    def _evaluate(self, points: np.ndarray, hints: np.ndarray | None, start: np.ndarray | None, targets: np.ndarray | None = None) -> Verdicts:
         if self.solver != "batch":
-            return super()._evaluate(points, hints, start, aims)
-        return self._evaluate_batch(points, hints, start, aims)
+            return super()._evaluate(points, hints, start, targets)
+        return self._evaluate_batch(points, hints, start, targets)
 
     def _batch_starts(self, goal: np.ndarray, hint: np.ndarray | None, wave: int = 0) -> list[np.ndarray]:
         """A goal's K starts: its hints (the neighbour's posture first), the reference and ready postures, then
@@ -846,7 +824,7 @@ class CasadiIK(IKOracle):
         out += [p.x_ref + spread * (p.random_x(rng) - p.x_ref) for _ in range(count)]
         return out
 
-    def _evaluate_batch(self, points: np.ndarray, hints: np.ndarray | None, start: np.ndarray | None, aims: np.ndarray | None) -> Verdicts:
+    def _evaluate_batch(self, points: np.ndarray, hints: np.ndarray | None, start: np.ndarray | None, targets: np.ndarray | None) -> Verdicts:
         """Every goal's K starts iterated together by the batched engine (:mod:`oracles.batch`); the verdict is the
         Pinocchio check, in order of how well each reaching posture is liked. A cold goal (no hint, or a search that
         never gives up) that none reaches but some ended within ``WAVE_NEAR`` of gets a second wave of ``WAVE`` x K
@@ -891,18 +869,18 @@ class CasadiIK(IKOracle):
                 continue
             self.stats[f"wave_{wave}"] = self.stats.get(f"wave_{wave}", 0) + int(goals.size)
             starts = [self._batch_starts(pts[i], None if hints is None else hints[i], int(wave == "random")) for i in goals]
-            run = self._run_wave(pts, goals, starts, start, aims, decisive if wave == "starts" else None, None if hints is None else first,
+            run = self._run_wave(pts, goals, starts, start, targets, decisive if wave == "starts" else None, None if hints is None else first,
                                  deadline)
             runs.append(run)
-            self._keep_reaching(run, pts, aims, reach, residual, posture)
-        self._polish_missed(runs, pts, aims, start, deadline, reach, residual, posture, set(np.nonzero(cold)[0].tolist()))
+            self._keep_reaching(run, pts, targets, reach, residual, posture)
+        self._polish_missed(runs, pts, targets, start, deadline, reach, residual, posture, set(np.nonzero(cold)[0].tolist()))
         for i in np.nonzero(np.isinf(residual))[0]:  # no wave ran in time: the reference posture is the attempt
             residual[i] = p.effector_distance(posture[i], pts[i], self._data)
         self.stats["reachable"] += int(reach.sum())
         return Verdicts(reach, residual, posture)
 
     def _run_wave(self, pts: np.ndarray, goals: np.ndarray, starts: list[list[np.ndarray]], start: np.ndarray | None,
-                  aims: np.ndarray | None, decisive: np.ndarray | None, first: np.ndarray | None, deadline: float) -> _Wave:
+                  targets: np.ndarray | None, decisive: np.ndarray | None, first: np.ndarray | None, deadline: float) -> _Wave:
         """The goals' starts iterated together (:func:`oracles.batch.run_starts`)."""
         p, search = self.problem, self.search
         owner = np.concatenate([np.full(len(s), i) for i, s in zip(goals, starts, strict=True)])
@@ -910,11 +888,9 @@ class CasadiIK(IKOracle):
         x0 = np.clip(np.concatenate([np.array(s) for s in starts]), p.lower, p.upper)
         b = len(x0)
         self.stats["solves"] += b
-        task = self.orientation
-        aim = np.tile(np.eye(3) if task is None else task.default_aim(), (b, 1, 1)) if aims is None else aims[owner]
-        on = float(task is not None and (aims is not None or not task.free))
+        target = np.tile(self._default_target, (b, 1)) if targets is None else targets[owner]
         params = np.concatenate([pts[owner], x0 if start is None else np.tile(start, (b, 1)), np.full((b, 1), 0.0 if start is None else 1.0),
-                                 np.transpose(aim, (0, 2, 1)).reshape(b, 9), np.full((b, 1), on)], axis=1)
+                                 target], axis=1)
         first_start = None
         if decisive is not None and decisive.any():
             first_start = np.zeros(b, bool)
@@ -927,28 +903,28 @@ class CasadiIK(IKOracle):
             liked = np.where(np.isfinite(liked), liked, 0.0) + CONTINUITY_WEIGHT * nearness
         return _Wave(goals, offsets, x0, x, p.q_of_x_many(x), dist, viol, liked)
 
-    def _keep_reaching(self, run: _Wave, pts: np.ndarray, aims: np.ndarray | None, reach: np.ndarray, residual: np.ndarray,
+    def _keep_reaching(self, run: _Wave, pts: np.ndarray, targets: np.ndarray | None, reach: np.ndarray, residual: np.ndarray,
                        posture: np.ndarray) -> None:
         """For each goal of a wave, the best-liked posture that passes the verdict's check; or, when none does and
         none did before, the nearest attempt."""
         p, tol = self.problem, self.strategy.tolerance
         for j, i in enumerate(run.goals):
             rows = np.arange(run.offsets[j], run.offsets[j + 1])
-            aim_i = None if aims is None else aims[i]
+            target_i = None if targets is None else targets[i]
             near = rows[(run.dist[rows] <= tol) & (run.viol[rows] <= 1e-5)]
             for r in near[np.lexsort((run.dist[near], run.liked[near]))]:
-                check = p.check(run.q[r], pts[i], self._data, aim_i)
+                check = p.check(run.q[r], pts[i], self._data, target_i)
                 if check.reachable:
                     reach[i], residual[i], posture[i] = True, check.residual, run.q[r]
                     break
             if reach[i]:
                 continue
             r = rows[np.lexsort((run.dist[rows], run.viol[rows] > 1e-5))][0]
-            check = p.check(run.q[r], pts[i], self._data, aim_i)
+            check = p.check(run.q[r], pts[i], self._data, target_i)
             if check.residual < residual[i]:
                 residual[i], posture[i] = check.residual, run.q[r]
 
-    def _polish_missed(self, runs: list[_Wave], pts: np.ndarray, aims: np.ndarray | None, start: np.ndarray | None, deadline: float,
+    def _polish_missed(self, runs: list[_Wave], pts: np.ndarray, targets: np.ndarray | None, start: np.ndarray | None, deadline: float,
                        reach: np.ndarray, residual: np.ndarray, posture: np.ndarray, far: set[int]) -> None:
         """fatrop from a missed goal's best ends: its reaching postures that break a lazy task, then its random
         starts themselves (fatrop's own restarts: another basin), or a near miss (no start reached) from its
@@ -967,14 +943,14 @@ class CasadiIK(IKOracle):
                 reached = rows[run.dist[rows] <= tol]
                 ends = [run.x[r] for r in dict.fromkeys([*reached, *ranked[:1]])]
                 tries = [*ends, *run.x0[rows[::-1]]][:POLISHES] if reached.size else ends[:1]
-                aim_i = None if aims is None else aims[i]
+                target_i = None if targets is None else targets[i]
                 for guess in tries:
                     if time.perf_counter() > deadline:
                         return
                     polisher = polisher or self._polisher()
-                    q = polisher.solve(pts[i], guess, self.search.secondary, Call(start, deadline, aim_i))
+                    q = polisher.solve(pts[i], guess, self.search.secondary, Call(start, deadline, target_i))
                     self.stats["polished"] = self.stats.get("polished", 0) + 1
-                    check = self.problem.check(q, pts[i], self._data, aim_i)
+                    check = self.problem.check(q, pts[i], self._data, target_i)
                     if check.reachable or check.residual < residual[i]:
                         reach[i], residual[i], posture[i] = check.reachable, check.residual, q
                     if check.reachable:

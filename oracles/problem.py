@@ -284,14 +284,14 @@ class ReachProblem:
         bad = np.nonzero((q[7:] < model.lowerPositionLimit[7:] - LIMIT_TOL) | (q[7:] > model.upperPositionLimit[7:] + LIMIT_TOL))[0]
         return [self.body.q_names[7 + k] for k in bad] if bad.size else []
 
-    def check(self, q: np.ndarray, goal: np.ndarray, data: pin.Data | None = None, aim: np.ndarray | None = None) -> Check:
-        """Independent Pinocchio check of a posture: each task's own check, and the joint limits (aim: the
-        goal's orientation (3, 3), when it carries one)."""
+    def check(self, q: np.ndarray, goal: np.ndarray, data: pin.Data | None = None, target: np.ndarray | None = None) -> Check:
+        """Independent Pinocchio check of a posture: each task's own check, and the joint limits (target: the
+        goal's task targets, a row of ``Strategy.target_rows``, when it carries any)."""
         model = self.body.model
         data = model.createData() if data is None else data
         q, goal = np.array(q, float), np.array(goal, float)  # copies: the deferred checks below read them later
         pin.framesForwardKinematics(model, data, q)
-        num = Numeric(model, data, q, goal, aim=aim)
+        num = Numeric(model, data, q, goal, targets={} if target is None else self.strategy.target_dict(target))
         residual = self.strategy.reach.residual(num)
         eager_ok = self.within_limits(q) and all(t.holds(num) for t in self.strategy.hard if not t.lazy)
         soft_ok = all(t.holds(num) for t in self.strategy.soft)

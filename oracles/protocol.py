@@ -1,10 +1,14 @@
 """The oracle protocol: everything ``reach`` may ask of an oracle.
 
-An oracle answers, for a batch of points, whether each is inside the volume
-(reachable), how far from it the best attempt ended (the residual, metres),
-and, for oracles that find one, the posture that reaches it
-(:class:`Oracle`). The builder never shows an oracle the tree; it only
-sends batches of points with optional warm-start postures (hints).
+An oracle answers, for a batch of goals (:class:`Goals`: points, each
+goal's task targets such as an orientation, the current posture, warm
+starts), whether each is inside the volume (reachable), how far from it the
+best attempt ended (the residual, metres), and, for oracles that find one,
+the posture that reaches it (:class:`Oracle`). The builder never shows an
+oracle the tree; it only sends batches of goals with optional warm-start
+postures (seeds). There is one ``evaluate``: a new kind of goal is a task
+that declares its per-goal target (:mod:`oracles.tasks.base`), not a new
+method here.
 
 Oracles may also offer optional capabilities, each a protocol of its own;
 ``reach`` checks for them with ``isinstance`` and does without when absent:
@@ -23,25 +27,24 @@ Oracles may also offer optional capabilities, each a protocol of its own;
   time budget), ``"referee"`` (the audit's thorough solve) or ``"index"``
   (the reachability index's quick verdicts from neighbouring postures);
 * :class:`Described`: what the oracle checks, for ``reach model``;
-* :class:`Continuing`: answers from the character's current posture;
 * :class:`Preparable`: build now what the first evaluate would build;
 * :class:`Mirrorable`: the map of postures to their mirror images about
   y = 0, for deriving left-side trees from right-side ones;
 * :class:`Limited`: the joint limits a posture comes near, so that the
   selector may hand a goal over to the next strategy rather than answer
   with a body bent to its limits;
-* :class:`Preferring`: how much the lower tasks like a posture, and a
-  refinement from several warm starts, so that the selector may also start
-  from the best-liked stored posture near the goal;
+* :class:`Preferring`: how much the lower tasks like a posture, so that the
+  selector may also start a refinement from the best-liked stored posture
+  near the goal;
 * :class:`Bounded`: the range of each posture coordinate, so that a
   query's ``from`` outside the body's joint ranges is refused;
 * :class:`Moving`: postures between two postures on the body's own
   configuration space, what a posture breaks (limits, collisions, feet,
   balance), and the posture nearest one that holds every hard task, so that
   :mod:`reach.motion` plans a reach motion without seeing the model;
-* :class:`Oriented`: verdicts for goals that carry an orientation (an
-  approach direction or a full rotation), for queries' ``orientation`` and
-  the reachability index;
+* :class:`Oriented`: which orientations (an approach direction, a full
+  rotation) its goals may carry (``Goals.targets["orientation"]``), for
+  queries' ``orientation`` and the reachability index;
 * :class:`Articulated`: the body's skeleton (its joints grouped into bones)
   and each bone's world transform at postures, for animation files (BVH,
   glTF).
@@ -53,7 +56,7 @@ entry point works everywhere a built-in one does.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Literal, NamedTuple, Protocol, runtime_checkable
 
@@ -92,6 +95,64 @@ class Verdicts(NamedTuple):
         )
 
 
+@dataclass(frozen=True)
+class Goals:
+    """A batch of goals: everything one :meth:`Oracle.evaluate` is asked.
+
+    Attributes:
+        points: (N, dim) goal points [m], world frame.
+        targets: Each goal's targets for the strategy's tasks, by the key a task declares
+            (:attr:`oracles.tasks.base.Task.target_key`): ``orientation``, (N, 3) world directions of the
+            effector's approach axis or (N, 3, 3) effector rotations. A goal kind is a task and its key.
+        current: The character's posture (nq,) when there is one: the warm start of every goal, with a
+            small cost on displacement from it (continuity between answers).
+        seeds: Warm starts, (N, nq) or (N, k, nq) tried in order (a NaN row: none); the first stands for
+            the neighbour's posture in a build. Without seeds, ``current`` seeds every goal.
+    """
+
+    points: np.ndarray
+    targets: Mapping[str, np.ndarray] = field(default_factory=dict)
+    current: np.ndarray | None = None
+    seeds: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+    @staticmethod
+    def of(goals: Goals | np.ndarray, dim: int = 3) -> Goals:
+        """Goals as given, or a plain (N, dim) array of points as goals with nothing else; points checked."""
+        if isinstance(goals, Goals):
+            return goals if isinstance(goals.points, np.ndarray) and goals.points.dtype == float else Goals(
+                check_points(goals.points, dim), goals.targets, goals.current, goals.seeds)
+        return Goals(check_points(goals, dim))
+
+    @staticmethod
+    def points_of(goals: Goals | np.ndarray, dim: int) -> np.ndarray:
+        """The points of goals for an oracle that holds no target (an analytic volume): (N, dim), checked; raises
+        OracleError naming a target's key when the goals carry one."""
+        g = Goals.of(goals, dim)
+        for key in g.targets:
+            raise OracleError(f"this oracle holds no goal's {key!r}", key=key)
+        return g.points
+
+    def take(self, index: slice | np.ndarray) -> Goals:
+        """The goals at ``index`` (a slice, indices or a mask), each with its own targets and seeds."""
+        return Goals(self.points[index], {k: np.asarray(v)[index] for k, v in self.targets.items()}, self.current,
+                     None if self.seeds is None else self.seeds[index])
+
+    def hinted(self, seeds: np.ndarray | None) -> Goals:
+        """These goals with other seeds."""
+        return Goals(self.points, self.targets, self.current, seeds)
+
+    @staticmethod
+    def concatenate(parts: list[Goals]) -> Goals:
+        """Join batches of goals that share the same current posture and target keys."""
+        first = parts[0]
+        seeds = None if first.seeds is None else np.concatenate([p.seeds for p in parts])  # type: ignore[misc]
+        return Goals(np.concatenate([p.points for p in parts]), {k: np.concatenate([p.targets[k] for p in parts]) for k in first.targets},
+                     first.current, seeds)
+
+
 @runtime_checkable
 class Oracle(Protocol):
     """Anything that classifies points.
@@ -105,15 +166,15 @@ class Oracle(Protocol):
     dim: int
     posture_names: tuple[str, ...]
 
-    def evaluate(self, points: np.ndarray, hints: np.ndarray | None = None) -> Verdicts:
-        """Classify points.
+    def evaluate(self, goals: Goals) -> Verdicts:
+        """Classify goals: their points, held to their targets, from their seeds or the current posture.
 
-        Args:
-            points: (N, dim) goals [m].
-            hints: Optional (N, nq) warm-start postures; a NaN row means no hint.
+        An oracle that cannot use a field ignores it, except targets: a goal
+        target that no task of the oracle takes is an OracleError naming its
+        key. (The built-in oracles also take a plain (N, dim) array of points.)
 
         Returns:
-            The verdicts, one per point, in order.
+            The verdicts, one per goal, in order.
         """
         ...
 
@@ -266,15 +327,6 @@ class Diagnosed(Protocol):
 
 
 @runtime_checkable
-class Continuing(Protocol):
-    """An oracle that answers from the character's current posture (continuity between answers)."""
-
-    def evaluate_from(self, points: np.ndarray, current: np.ndarray) -> Verdicts:
-        """Verdicts for goals, warm-started from ``current`` (nq,) with a small cost on displacement from it."""
-        ...
-
-
-@runtime_checkable
 class Preparable(Protocol):
     """An oracle that builds heavy structures (solvers, compiled code) on its first evaluate."""
 
@@ -304,14 +356,10 @@ class Limited(Protocol):
 
 @runtime_checkable
 class Preferring(Protocol):
-    """An oracle that ranks reaching postures by its lower tasks and refines from several warm starts per point."""
+    """An oracle that ranks reaching postures by its lower tasks (and tries every seed a goal gives)."""
 
     def preference(self, posture: np.ndarray, goal: np.ndarray) -> float:
         """How much the lower tasks dislike a posture (nq,) for a goal [m] (lower is better)."""
-        ...
-
-    def evaluate_seeded(self, points: np.ndarray, seeds: np.ndarray) -> Verdicts:
-        """Verdicts with several warm starts per point: ``seeds`` (N, k, nq), tried in order (NaN rows skipped)."""
         ...
 
 
@@ -371,19 +419,12 @@ class Skeleton:
 
 @runtime_checkable
 class Oriented(Protocol):
-    """Goals with an orientation: the strategy holds its effector to each goal's (see :mod:`oracles.tasks.orientation`)."""
+    """Goals with an orientation (``Goals.targets["orientation"]``): the strategy holds its effector to each
+    goal's (see :mod:`oracles.tasks.orientation`)."""
 
     def orientation_kinds(self) -> tuple[str, ...]:
         """What a goal's orientation may be for this strategy: ``direction`` (of its approach axis) and
         ``rotation``, only ``rotation``, or none (the strategy holds no orientation)."""
-        ...
-
-    def evaluate_oriented(self, points: np.ndarray, orientations: np.ndarray, hints: np.ndarray | None = None,
-                          current: np.ndarray | None = None) -> Verdicts:
-        """Verdicts for goals (N, 3) [m], each with an orientation: (N, 3) world directions of the effector's
-        approach axis, or (N, 3, 3) rotations of the effector in the world; hints as :meth:`Oracle.evaluate`
-        (or (N, k, nq) seeds); ``current``: the character's posture (nq,), as :class:`Continuing`. Raises
-        OracleError (key ``orientation``) when the strategy holds no orientation or not of that kind."""
         ...
 
 

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from oracles.errors import OracleError
-from oracles.protocol import Oracle, Verdicts, check_points
+from oracles.protocol import Goals, Oracle, Verdicts
 from oracles.registry import create
 
 
@@ -49,8 +49,8 @@ class _Analytic(ABC):
     def distance(self, points: np.ndarray) -> np.ndarray:
         """Signed distance [m] of each point to the volume's surface (negative inside)."""
 
-    def evaluate(self, points: np.ndarray, hints: np.ndarray | None = None) -> Verdicts:
-        pts = check_points(points, self.dim)
+    def evaluate(self, goals: Goals | np.ndarray) -> Verdicts:
+        pts = Goals.points_of(goals, self.dim)
         dist = self.distance(pts)
         return Verdicts(dist <= 0.0, np.maximum(dist, 0.0), None)
 
@@ -147,9 +147,9 @@ class Combination:
         self.parts = parts
         self.dim = dims.pop()
 
-    def evaluate(self, points: np.ndarray, hints: np.ndarray | None = None) -> Verdicts:
-        pts = check_points(points, self.dim)
-        verdicts = [p.evaluate(pts) for p in self.parts]
+    def evaluate(self, goals: Goals | np.ndarray) -> Verdicts:
+        pts = Goals.points_of(goals, self.dim)
+        verdicts = [p.evaluate(Goals(pts)) for p in self.parts]
         inside = np.stack([v.reachable for v in verdicts])
         res = np.stack([v.residual for v in verdicts])
         if self.mode == "union":

@@ -28,11 +28,14 @@ tolerance).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from oracles.body import ROOT, Body
-from oracles.errors import ModelError, TaskError
+from oracles.errors import ModelError, OracleError, TaskError
 from oracles.tasks import TASKS, HardTask, ReachTask, Scope, SoftTask, Task
 from oracles.tasks.base import matching
 
@@ -83,6 +86,47 @@ class Strategy:
     def task(self, kind: str) -> Task | None:
         """The task of a type, or None."""
         return next((t for t in self.tasks if t.type == kind), None)
+
+    @property
+    def targeted(self) -> tuple[Task, ...]:
+        """The tasks that take a per-goal target (:attr:`Task.target_key`), in the config's order."""
+        return tuple(t for t in self.tasks if t.target_key is not None)
+
+    @property
+    def target_size(self) -> int:
+        """How many numbers of the programs' parameters the goals' targets fill."""
+        return sum(t.target_size for t in self.targeted)
+
+    def target_rows(self, targets: Mapping[str, np.ndarray], n: int) -> np.ndarray:
+        """(n, target_size) program parameters of n goals' targets (``Goals.targets``), each task's in order.
+
+        Raises OracleError (its key: the target's) for a key no task of the strategy takes, or a value its task refuses.
+        """
+        takes = {t.target_key for t in self.targeted}
+        for key in targets:
+            if key not in takes:
+                kinds = [c.type for c in TASKS.values() if c.target_key == key]
+                add = f"; add a task {{type: {kinds[0]}, ...}} to the strategy" if kinds else ""
+                raise OracleError(f"no task of this strategy takes a goal's {key!r}{add}", key=key)
+        parts = [np.zeros((n, 0))]
+        for t in self.targeted:
+            assert t.target_key is not None
+            raw = targets.get(t.target_key)
+            try:
+                values = t.targets(None if raw is None else np.asarray(raw, float), n)
+            except ValueError as exc:
+                raise OracleError(str(exc), key=t.target_key) from None
+            parts.append(values.reshape(n, t.target_size))
+        return np.concatenate(parts, axis=1)
+
+    def target_dict(self, row: Any) -> dict[str, Any]:
+        """One goal's target parameters (a row of :meth:`target_rows`, numbers or symbols) split by task key."""
+        out, k = {}, 0
+        for t in self.targeted:
+            assert t.target_key is not None
+            out[t.target_key] = row[k : k + t.target_size]
+            k += t.target_size
+        return out
 
 
 def active_joints(body: Body, joints: Any) -> tuple[str, ...]:

@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from oracles.protocol import Oracle, OracleSpec, Oriented, Specified, Tunable
+from oracles.protocol import Goals, Oracle, OracleSpec, Specified, Tunable
 from reach.build import warm_hints
 from reach.executor import Executor, InlineExecutor
 from reach.store import Atlas
@@ -110,7 +110,7 @@ def audit_tree(tree: VATree, referee: Oracle | Executor, samples: int = 300, pol
     # The referee starts from the tree's nearest reachable posture too (then
     # the reference and its restarts): a stronger referee, as the build's own
     # solves were warm-started; its verdicts are still checked by Pinocchio.
-    truth = referee.evaluate(pts, warm_hints(tree.vertices, tree.lattice, pts)).reachable
+    truth = referee.evaluate(Goals(pts, seeds=warm_hints(tree.vertices, tree.lattice, pts))).reachable
     out: dict[str, Any] = {"probes": int(len(pts)), "policy": policy, "by_type": {}, "by_depth": {}}
     for k in (INNER, FINAL, OUTER):
         m = kind == k
@@ -138,10 +138,7 @@ def audit_index(tree: VATree, referee: Oracle | Executor, samples: int, rng: np.
     d = rng.integers(0, len(tree.index.directions), size=samples)
     points = tree.lattice.points(tree.lattice.coords(tree.vertices.keys[v]))
     aims = tree.index.directions[d]
-    if isinstance(referee, Oriented):
-        truth = referee.evaluate_oriented(points, aims, tree.vertices.posture[v]).reachable
-    else:
-        truth = referee.evaluate(points, tree.vertices.posture[v], aims=aims).reachable  # type: ignore[call-arg]
+    truth = referee.evaluate(Goals(points, {"orientation": aims}, seeds=tree.vertices.posture[v])).reachable
     said = tree.index.reached[v, d]
     return {"pairs": int(samples), "directions": len(tree.index.directions), "false_reached": _rate(~truth, said),
             "false_missed": _rate(truth, ~said), "share_by_index": float(said.mean()), "share_by_referee": float(truth.mean())}

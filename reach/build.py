@@ -27,7 +27,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from scipy.spatial import cKDTree
 
-from oracles.protocol import Oracle, OracleSpec
+from oracles.protocol import Goals, Oracle, OracleSpec
 from reach.errors import TreeError
 from reach.executor import CHUNK_SIZE, Executor, InlineExecutor
 from reach.tree import FINAL, INNER, OUTER, PARENT, Box, Lattice, VATree, VertexTable, bfs_children, corner_offsets
@@ -158,7 +158,7 @@ def _evaluate(
     if progress is not None:
         progress.reset(total=int(new.size))
         progress.set_description(f"{getattr(progress, 'label', '')} {label}".strip())
-    verdicts = executor.evaluate(pts, warm_hints(table, lattice, pts), progress.update if progress is not None else None)
+    verdicts = executor.evaluate(Goals(pts, seeds=warm_hints(table, lattice, pts)), progress.update if progress is not None else None)
     return table.merged(new, verdicts.reachable, verdicts.residual, verdicts.posture), taken
 
 
@@ -185,7 +185,7 @@ def _retry_isolated(keys: np.ndarray, table: VertexTable, lattice: Lattice, step
         if todo.size == 0:
             break
         pts = lattice.points(coords[todo])
-        v = executor.evaluate(pts, table.posture[nrow[todo, k]], None)
+        v = executor.evaluate(Goals(pts, seeds=table.posture[nrow[todo, k]]))
         calls += int(todo.size)
         fixed = v.reachable
         if fixed.any():

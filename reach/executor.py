@@ -17,10 +17,7 @@ from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any, Protocol
 
-import numpy as np
-
-from oracles.errors import OracleError
-from oracles.protocol import Oracle, OracleSpec, Oriented, Verdicts, check_verdicts
+from oracles.protocol import Goals, Oracle, OracleSpec, Verdicts, check_verdicts
 
 Progress = Callable[[int], None]
 CHUNK_SIZE = 2048  # points per task a build sends an executor (the default of build.chunk_size)
@@ -45,9 +42,8 @@ class Executor(Protocol):
     dim: int
     posture_names: tuple[str, ...]
 
-    def evaluate(self, points: np.ndarray, hints: np.ndarray | None, progress: Progress | None = None, aims: np.ndarray | None = None) -> Verdicts:
-        """Verdicts for every point, in order; calls progress(n) as chunks finish. With aims, each point's
-        orientation (see :class:`oracles.protocol.Oriented`)."""
+    def evaluate(self, goals: Goals, progress: Progress | None = None) -> Verdicts:
+        """Verdicts for every goal (:class:`oracles.protocol.Goals`), in order; calls progress(n) as chunks finish."""
         ...
 
     def close(self) -> None: ...
@@ -62,10 +58,10 @@ class InlineExecutor:
         self.posture_names = tuple(self.oracle.posture_names)
         self.chunk_size = chunk_size
 
-    def evaluate(self, points: np.ndarray, hints: np.ndarray | None, progress: Progress | None = None, aims: np.ndarray | None = None) -> Verdicts:
+    def evaluate(self, goals: Goals, progress: Progress | None = None) -> Verdicts:
         parts = []
-        for sl in chunks(points.shape[0], self.chunk_size):
-            v = _evaluate(self.oracle, points[sl], None if hints is None else hints[sl], None if aims is None else aims[sl])
+        for sl in chunks(len(goals), self.chunk_size):
+            v = self.oracle.evaluate(goals.take(sl))
             parts.append(check_verdicts(v, sl.stop - sl.start, len(self.posture_names)))
             if progress:
                 progress(sl.stop - sl.start)
@@ -111,20 +107,12 @@ _WORKER_ORACLES: dict[str, Oracle] = {}
 _WORKER_LOCK = threading.Lock()
 
 
-def _evaluate(oracle: Oracle, points: np.ndarray, hints: np.ndarray | None, aims: np.ndarray | None) -> Verdicts:
-    if aims is None:
-        return oracle.evaluate(points, hints)
-    if not isinstance(oracle, Oriented):
-        raise OracleError("goals with an orientation need an oracle that holds one (the Oriented capability)", key="orientation")
-    return oracle.evaluate_oriented(points, aims, hints)
-
-
-def _worker_evaluate(spec: OracleSpec, key: str, points: np.ndarray, hints: np.ndarray | None, aims: np.ndarray | None = None) -> Verdicts:
+def _worker_evaluate(spec: OracleSpec, key: str, goals: Goals) -> Verdicts:
     with _WORKER_LOCK:
         oracle = _WORKER_ORACLES.get(key)
         if oracle is None:
             oracle = _WORKER_ORACLES[key] = spec.create()
-        return _evaluate(oracle, points, hints, aims)
+        return oracle.evaluate(goals)
 
 
 class _Pooled(ABC):
@@ -142,7 +130,7 @@ class _Pooled(ABC):
         self.chunk_size = chunk_size
 
     @abstractmethod
-    def submit(self, points: np.ndarray, hints: np.ndarray | None, aims: np.ndarray | None = None) -> tuple[list[slice], list[Any]]:
+    def submit(self, goals: Goals) -> tuple[list[slice], list[Any]]:
         """Send a batch's chunks to the workers: the slices and their futures, in order."""
 
     def slices(self, n: int) -> list[slice]:
@@ -150,8 +138,8 @@ class _Pooled(ABC):
         size = max(1, min(self.chunk_size, -(-n // (4 * max(self.workers, 1)))))
         return list(chunks(n, size))
 
-    def evaluate(self, points: np.ndarray, hints: np.ndarray | None, progress: Progress | None = None, aims: np.ndarray | None = None) -> Verdicts:
-        slices, futures = self.submit(points, hints, aims)
+    def evaluate(self, goals: Goals, progress: Progress | None = None) -> Verdicts:
+        slices, futures = self.submit(goals)
         parts = []
         for sl, fut in zip(slices, futures, strict=True):
             parts.append(check_verdicts(fut.result(), sl.stop - sl.start, len(self.posture_names)))
@@ -168,12 +156,9 @@ class ProcessExecutor(_Pooled):
         self.workers = workers or os.cpu_count() or 1
         self.pool = ProcessPoolExecutor(max_workers=self.workers, initializer=build_worker)
 
-    def submit(self, points: np.ndarray, hints: np.ndarray | None, aims: np.ndarray | None = None) -> tuple[list[slice], list[Any]]:
-        slices = self.slices(points.shape[0])
-        return slices, [
-            self.pool.submit(_worker_evaluate, self.spec, self.key, points[sl], None if hints is None else hints[sl], None if aims is None else aims[sl])
-            for sl in slices
-        ]
+    def submit(self, goals: Goals) -> tuple[list[slice], list[Any]]:
+        slices = self.slices(len(goals))
+        return slices, [self.pool.submit(_worker_evaluate, self.spec, self.key, goals.take(sl)) for sl in slices]
 
     def close(self) -> None:
         # After a normal batch nothing is pending; after an interrupt the chunks not yet started are dropped
@@ -193,12 +178,10 @@ class DaskExecutor(_Pooled):
         self.client = client
         self.workers = max(1, len(client.scheduler_info().get("workers", {})))
 
-    def submit(self, points: np.ndarray, hints: np.ndarray | None, aims: np.ndarray | None = None) -> tuple[list[slice], list[Any]]:
-        slices = self.slices(points.shape[0])
-        futures = self.client.map(
-            _worker_evaluate, [self.spec] * len(slices), [self.key] * len(slices), [points[sl] for sl in slices],
-            [None if hints is None else hints[sl] for sl in slices], [None if aims is None else aims[sl] for sl in slices], pure=False,
-        )
+    def submit(self, goals: Goals) -> tuple[list[slice], list[Any]]:
+        slices = self.slices(len(goals))
+        futures = self.client.map(_worker_evaluate, [self.spec] * len(slices), [self.key] * len(slices), [goals.take(sl) for sl in slices],
+                                  pure=False)
         return slices, futures
 
     def close(self) -> None:

@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from oracles.protocol import Goals
 from reach.errors import StoreError
 from reach.executor import Executor
 from reach.tree import VATree, corner_offsets
@@ -145,7 +146,8 @@ def compute_index(tree: VATree, executor: Executor, directions: np.ndarray, prog
             if not pick.size:
                 continue
             seeds = np.stack([hint[pick, j], base[pick]], axis=1)
-            verdicts = executor.evaluate(lattice.points(at[pick]), seeds, progress, aims=np.tile(directions[j], (len(pick), 1)))
+            goals = Goals(lattice.points(at[pick]), {"orientation": np.tile(directions[j], (len(pick), 1))}, seeds=seeds)
+            verdicts = executor.evaluate(goals, progress)
             solved += len(pick)
             reached[sel[pick], j] = verdicts.reachable
             if verdicts.posture is not None:

@@ -17,7 +17,7 @@ from collections.abc import Callable
 import numpy as np
 
 from oracles.mirror import REFLECT
-from oracles.protocol import Verdicts, check_points
+from oracles.protocol import Goals, Verdicts
 from reach.errors import OracleError
 from reach.tree import Lattice, VATree
 
@@ -35,8 +35,8 @@ class MirrorOracle:
         self.lattice: Lattice = source.lattice
         self.posture_names = tuple(source.vertices.posture_names)
 
-    def evaluate(self, points: np.ndarray, hints: np.ndarray | None = None) -> Verdicts:
-        pts = check_points(points, 3) * REFLECT
+    def evaluate(self, goals: Goals | np.ndarray) -> Verdicts:
+        pts = Goals.points_of(goals, 3) * REFLECT
         lat = self.lattice
         coords = np.rint((pts - lat.box.lo) / lat.resolution).astype(np.int64)
         row = self.source.vertices.index(lat.keys(coords))

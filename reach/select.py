@@ -37,6 +37,14 @@ rhythm, reviewed by Vazirian, Van Dillen & Bazrgari 2016, Int Musculoskelet
 Med 38:51-58). 5 deg is the margin the project's posture figures count as
 "at a limit" (``bench/posture.py``), a modelling choice. ``handover=0``
 keeps the paper's plain priority.
+
+**Batches.** :meth:`Selector.select_many` refines a batch's goals in passes,
+one evaluate call per strategy each (the oracle's engine then solves them
+together): every goal's first choice, then the next strategy for the goals
+it failed, then the handover's candidates, within the budget of as many
+refinements. The answers are those of one goal at a time. A query with a
+``from`` is refined goal by goal (the omitted joints come from each goal's
+own stored posture).
 """
 
 from __future__ import annotations
@@ -56,8 +64,8 @@ from scipy.spatial.transform import Rotation
 
 from oracles.protocol import (
     Bounded,
-    Continuing,
     EffectorPositions,
+    Goals,
     Limited,
     ModelHashed,
     Oracle,
@@ -95,6 +103,10 @@ HANDOVER = math.radians(5.0)  # [rad] a joint this near a limit passes the goal 
 # in a worse basin of the posture task than its neighbours, and two goals 1 cm
 # apart then ended in different basins (docs/history.md, session 8).
 SEEDS = 8
+
+
+Refined = tuple[np.ndarray, "float | None", str]  # a refinement: the posture, its residual [m] and its outcome
+Prefetched = dict[str, Refined]  # one goal's refinements made ahead, by strategy (see Selector._prefetch)
 
 
 class Found(NamedTuple):
@@ -470,11 +482,16 @@ class Selector:
             found = self._stored(names[k], self.atlas.trees[names[k]], g[sel])
             for m, i in enumerate(sel):
                 nearest[int(i)] = None if found is None else (int(found[0][m]), found[1][m])
+        # Without a `from` (whose omitted joints each goal's stored posture fills in), every refinement is made ahead
+        # in one evaluate call per strategy and pass; with one, goal by goal.
+        batched = refine and start is None
+        done, unrefined = self._prefetch(g, names, hits, nearest, aims, deadline) if batched else ([None] * len(g), None)
         out = []
         for n_goal in range(len(g)):
-            out_of_time = refine and late()  # with a deadline, each goal is refined only while there is time
+            # With a deadline, each goal is refined only while there is time.
+            out_of_time = bool(unrefined[n_goal]) if unrefined is not None else refine and late()
             answer = self._answer(effector, g[n_goal], [n for j, n in enumerate(names) if hits[j, n_goal]], nearest.get(n_goal),
-                                  refine and not out_of_time, time.perf_counter(), start, miss, aims[n_goal])
+                                  refine and not out_of_time, time.perf_counter(), start, miss, aims[n_goal], done[n_goal])
             out.append(_timed_out(answer, out_of_time))
         return out
 
@@ -487,8 +504,10 @@ class Selector:
         return self._answer(effector, goal, hits, nearest, refine, t0, start, miss, aim)
 
     def _answer(self, effector: str, goal: np.ndarray, hits: list[str], nearest: tuple[int, np.ndarray] | None, refine: bool, t0: float,
-                start: dict[str, float] | None = None, miss: str = MISS, aim: np.ndarray | None = None) -> Answer:
-        """The answer for one goal, given the strategies that hold it (by priority) and the chosen one's nearest stored vertex."""
+                start: dict[str, float] | None = None, miss: str = MISS, aim: np.ndarray | None = None,
+                done: Prefetched | None = None) -> Answer:
+        """The answer for one goal, given the strategies that hold it (by priority) and the chosen one's nearest stored vertex
+        (``done``: the refinements already made for it, by strategy; see :meth:`_prefetch`)."""
         if not hits:
             return Answer(effector, tuple(goal.tolist()), None, False, refined=NONE, seconds=time.perf_counter() - t0)
         name, tree = hits[0], self.atlas.trees[hits[0]]
@@ -505,17 +524,17 @@ class Selector:
             residual = gap if np.isfinite(gap) else None
             q, outcome = tree.vertices.posture[row], SKIPPED  # type: ignore[index]
             if refine:
-                q, residual, outcome = self._refine(name, goal, q, residual, start, aim)
+                q, residual, outcome = self._refine(name, goal, q, residual, start, aim, done)
             found = None
             if outcome == FAILED:
                 # The IK says this strategy does not reach the exact goal (its
                 # tree said so from a coarse cell): the next strategy by
                 # priority that does answers; else this one's stored posture.
-                found = self._first_answer(goal, others, refine, start, aim=aim)
+                found = self._first_answer(goal, others, refine, start, aim=aim, done=done)
                 if found is not None:
                     others = others[others.index(found.name) + 1 :]
             elif self.handover and others and outcome in (REFINED, SKIPPED) and (limits := self._limits(name, q)):
-                found = self._first_answer(goal, others, refine, start, below=len(limits), aim=aim)
+                found = self._first_answer(goal, others, refine, start, below=len(limits), aim=aim, done=done)
                 if found is not None:
                     others = [h for h in hits if h != found.name]  # the strategy passed over stays an alternative
                     handover = {"from": name, "limits": limits}
@@ -553,7 +572,7 @@ class Selector:
             meta = tree.meta
             oracle = OracleSpec.from_dict(meta["oracle"]).create()
             thorough = oracle.variant("referee", restarts=restarts) if isinstance(oracle, Tunable) else oracle
-            v = thorough.evaluate(goal[None], hint)
+            v = thorough.evaluate(Goals(goal[None], seeds=hint))
             if v.reachable[0] and v.posture is not None:
                 posture, root = split_posture(tree.vertices.posture_names, v.posture[0])
                 return Answer(effector, tuple(goal.tolist()), name, True, (), posture, root, float(v.residual[0]), REFINED,
@@ -566,7 +585,7 @@ class Selector:
         return list(oracle.limits_near(q, self.handover)) if isinstance(oracle, Limited) else []
 
     def _first_answer(self, goal: np.ndarray, names: list[str], refine: bool, start: dict[str, float] | None,
-                      below: int | None = None, aim: np.ndarray | None = None) -> Found | None:
+                      below: int | None = None, aim: np.ndarray | None = None, done: Prefetched | None = None) -> Found | None:
         """The first of names (by priority) whose refinement reaches the goal (without refinement: whose tree
         holds a posture) and, given ``below``, with fewer joints near their limits: its name, posture,
         residual, refinement outcome and nearest stored row; None if none does (or, given ``below``, the time runs out)."""
@@ -582,7 +601,7 @@ class Selector:
             residual: float | None = gap if np.isfinite(gap) else None
             outcome = SKIPPED
             if refine:
-                q, residual, outcome = self._refine(name, goal, q, residual, start, aim)
+                q, residual, outcome = self._refine(name, goal, q, residual, start, aim, done)
                 if outcome == TIMEOUT:  # out of time: no further strategy is tried
                     # A handover keeps the answer it had; a failed goal is answered by this strategy's
                     # stored posture, marked timeout: its tree holds the goal and nothing said otherwise.
@@ -629,23 +648,100 @@ class Selector:
         return q
 
     def _refine(self, name: str, goal: np.ndarray, q: np.ndarray, residual: float | None,
-                start_joints: dict[str, float] | None = None, aim: np.ndarray | None = None) -> tuple[np.ndarray, float | None, str]:
+                start_joints: dict[str, float] | None = None, aim: np.ndarray | None = None,
+                done: Prefetched | None = None) -> Refined:
+        if done is not None and name in done:
+            q_done, residual_done, outcome = done[name]
+            return (q_done, residual_done, outcome) if outcome == REFINED else (q, residual, outcome)
         oracle = self._oracle(name)
         t0 = time.perf_counter()
         start = self.start_posture(self.atlas.trees[name], q, start_joints)
-        if aim is not None and isinstance(oracle, Oriented):
-            liked = self._best_liked(name, oracle, goal, q) if start is None and isinstance(oracle, Preferring) else None
-            seeds = None if start is not None else np.stack([q] if liked is None else [q, liked])[None]
-            v = oracle.evaluate_oriented(goal[None], aim[None], seeds, current=start)
-        elif start is not None and isinstance(oracle, Continuing):
-            v = oracle.evaluate_from(goal[None], start)
-        elif start is None and isinstance(oracle, Preferring) and (liked := self._best_liked(name, oracle, goal, q)) is not None:
-            v = oracle.evaluate_seeded(goal[None], np.stack([q, liked])[None])
-        else:
-            v = oracle.evaluate(goal[None], (q if start is None else start)[None])
+        # From the character's posture when the query gives one; else from the stored posture and the best liked near it.
+        liked = self._best_liked(name, oracle, goal, q) if start is None and isinstance(oracle, Preferring) else None
+        seeds = None if start is not None else np.stack([q] if liked is None else [q, liked])[None]
+        v = oracle.evaluate(Goals(goal[None], {} if aim is None else {"orientation": aim[None]}, start, seeds))
         if v.reachable[0] and v.posture is not None:
             return v.posture[0], float(v.residual[0]), REFINED
         return q, residual, TIMEOUT if time.perf_counter() - t0 >= self.budget else FAILED
+
+    def _prefetch(self, g: np.ndarray, names: list[str], hits: np.ndarray, nearest: dict[int, tuple[int, np.ndarray] | None],
+                  aims: list[np.ndarray | None], deadline: float | None) -> tuple[list[Prefetched], np.ndarray]:
+        """Every refinement the answers of a batch will ask for, made in passes of one evaluate call per strategy:
+        each goal's first choice; then, for the goals it failed, the next strategy by priority (again, while
+        some fail); then, for goals answered with a joint near its limit, the next strategies until one comes
+        nearer fewer limits (the handover). Returns each goal's refinements by strategy, and which goals the
+        deadline left unrefined (their turn came after it)."""
+        n = len(g)
+        done: list[Prefetched] = [{} for _ in range(n)]
+        late = np.zeros(n, bool)
+        held = [[name for j, name in enumerate(names) if hits[j, i]] for i in range(n)]
+        first = [(i, held[i][0], nearest[i]) for i in range(n) if held[i] and nearest.get(i) is not None]
+        self._refine_pass(g, first, aims, deadline, done, late)
+        # What is left to try after the first choice: the other strategies, and the limits to beat (None: a fallback).
+        pending: dict[int, tuple[list[str], int | None]] = {}
+        for i, name, _ in first:
+            q, _, outcome = done[i][name]
+            if outcome == FAILED:
+                pending[i] = (held[i][1:], None)
+            elif outcome == REFINED and self.handover and len(held[i]) > 1 and (limits := self._limits(name, q)):
+                pending[i] = (held[i][1:], len(limits))
+        while pending:
+            items = []
+            for i, (rest, _) in pending.items():
+                while rest and (row := self._nearest_row(rest[0], self.atlas.trees[rest[0]], g[i].tolist())) is None:
+                    rest.pop(0)  # a strategy with no stored posture is passed over, as _first_answer does
+                if rest:
+                    items.append((i, rest[0], row))
+            self._refine_pass(g, items, aims, deadline, done, None)
+            for i, name, _ in items:
+                rest, below = pending[i]
+                q, _, outcome = done[i][name]
+                rest.pop(0)
+                if outcome == TIMEOUT or (outcome == REFINED and (below is None or len(self._limits(name, q)) < below)):
+                    rest.clear()  # answered, or out of time: no further strategy is tried
+            pending = {i: p for i, p in pending.items() if p[0]}
+        return done, late
+
+    def _refine_pass(self, g: np.ndarray, items: list[tuple[int, str, tuple[int, np.ndarray] | None]], aims: list[np.ndarray | None],
+                     deadline: float | None, done: list[Prefetched], late: np.ndarray | None) -> None:
+        """One pass of :meth:`_prefetch`: (goal, strategy, nearest stored row) items refined in one call per strategy.
+        Past the deadline a first pass (``late`` given) marks its goals late; a later pass records them ``timeout``."""
+        for name in dict.fromkeys(name for _, name, _ in items):
+            mine = [(i, row) for i, other, row in items if other == name and row is not None]
+            if not mine:
+                continue
+            if late is not None and deadline is not None and time.perf_counter() > deadline:
+                late[[i for i, _ in mine]] = True
+                continue
+            idx = np.array([i for i, _ in mine])
+            stored = self.atlas.trees[name].vertices.posture[[row for _, (row, _) in mine]]  # type: ignore[index]
+            gaps = [float(np.linalg.norm(g[i] - reached)) for i, (_, reached) in mine]
+            found = self._refine_many(name, g[idx], stored, [gap if np.isfinite(gap) else None for gap in gaps],
+                                      [aims[i] for i in idx], deadline)
+            for i, refined in zip(idx, found, strict=True):
+                done[i][name] = refined
+
+    def _refine_many(self, name: str, goals: np.ndarray, stored: np.ndarray, residuals: list[float | None],
+                     aims: list[np.ndarray | None], deadline: float | None) -> list[Refined]:
+        """:meth:`_refine` for a strategy's goals (m, 3) in one evaluate call: each from its stored posture and the
+        best-liked one near it, within m refinements' budgets (and the deadline)."""
+        oracle = self._oracle(name)
+        m = len(goals)
+        budget = self.budget * m
+        if deadline is not None:
+            budget = min(budget, deadline - time.perf_counter())
+        if budget <= 0:
+            return [(q, r, TIMEOUT) for q, r in zip(stored, residuals, strict=True)]
+        tuned = oracle.variant("refine", budget=budget) if isinstance(oracle, Tunable) else oracle
+        liked = [self._best_liked(name, oracle, goal, q) for goal, q in zip(goals, stored, strict=True)] if isinstance(oracle, Preferring) else []
+        seeds = stored[:, None]
+        if any(q is not None for q in liked):
+            seeds = np.stack([stored, np.array([np.full(stored.shape[1], np.nan) if q is None else q for q in liked])], axis=1)
+        t0 = time.perf_counter()
+        v = tuned.evaluate(Goals(goals, {} if aims[0] is None else {"orientation": np.stack(aims)}, None, seeds))  # type: ignore[arg-type]
+        over = time.perf_counter() - t0 >= budget
+        return [(v.posture[k], float(v.residual[k]), REFINED) if v.reachable[k] and v.posture is not None
+                else (stored[k], residuals[k], TIMEOUT if over else FAILED) for k in range(m)]
 
     def _best_liked(self, name: str, oracle: Preferring, goal: np.ndarray, q: np.ndarray) -> np.ndarray | None:
         """The stored posture the oracle likes best among the ``SEEDS`` reachable vertices nearest the goal,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from oracles.protocol import OracleSpec, Verdicts
+from oracles.protocol import Goals, OracleSpec, Verdicts
 from reach.build import build_tree
 from reach.tree import Box, VATree
 
@@ -20,10 +20,11 @@ class CountingOracle:
         self.asked: list[np.ndarray] = []
         self.hints: list[np.ndarray | None] = []
 
-    def evaluate(self, points: np.ndarray, hints: np.ndarray | None = None) -> Verdicts:
-        self.asked.append(np.array(points))
-        self.hints.append(None if hints is None else np.array(hints))
-        return self.inner.evaluate(points, hints)
+    def evaluate(self, goals: Goals | np.ndarray) -> Verdicts:
+        g = Goals.of(goals, self.dim)
+        self.asked.append(np.array(g.points))
+        self.hints.append(None if g.seeds is None else np.array(g.seeds))
+        return self.inner.evaluate(g)
 
     @property
     def calls(self) -> int:

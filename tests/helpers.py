@@ -48,17 +48,18 @@ class TwoLinkArm:
         self.solved = 0
 
     # -- the Oracle protocol
-    def evaluate(self, points: np.ndarray, hints: np.ndarray | None = None):  # noqa: ANN201
-        from oracles.protocol import Verdicts
+    def evaluate(self, goals):  # noqa: ANN001, ANN201
+        from oracles.protocol import Goals, Verdicts
 
-        p = np.asarray(points, float) - self.shoulder
+        points = Goals.points_of(goals, 3)
+        p = points - self.shoulder
         self.solved += len(p)
         r = np.clip(np.linalg.norm(p, axis=1), abs(self.upper - self.fore) + 1e-12, self.upper + self.fore)
         elbow = np.arccos(np.clip((r**2 - self.upper**2 - self.fore**2) / (2 * self.upper * self.fore), -1.0, 1.0))
         beta = np.arctan2(self.fore * np.sin(elbow), self.upper + self.fore * np.cos(elbow))
         pitch = np.arctan2(p[:, 2], np.hypot(p[:, 0], p[:, 1])) - beta
         posture = np.stack([np.arctan2(p[:, 1], p[:, 0]), pitch, elbow], axis=1)
-        residual = np.linalg.norm(self.effector_positions(posture) - np.asarray(points, float), axis=1)
+        residual = np.linalg.norm(self.effector_positions(posture) - points, axis=1)
         return Verdicts(residual <= 1e-6, residual, posture)
 
     # -- optional capabilities

@@ -6,7 +6,7 @@ import json
 
 import numpy as np
 
-from oracles.protocol import OracleSpec
+from oracles.protocol import Goals, OracleSpec
 from reach.atlas import build_atlas
 from reach.audit import audit_tree, referee, wilson
 from reach.build import Refine, build_tree
@@ -116,7 +116,8 @@ class StubbornBall:
         self.trap = np.asarray(trap)
         self.asked = 0
 
-    def evaluate(self, points, hints=None):
+    def evaluate(self, goals):
+        points = Goals.of(goals).points
         v = self.ball.evaluate(points)
         trapped = np.all(np.isclose(points, self.trap), axis=1)
         reach = v.reachable & ~(trapped & (self.asked == 0))

@@ -8,7 +8,7 @@ import pytest
 
 from oracles.batch import CHUNK
 from oracles.ik import CasadiIK
-from oracles.protocol import OracleSpec
+from oracles.protocol import Goals, OracleSpec
 from oracles.search import Search
 from reach.config import load_config
 from reach.errors import OracleError
@@ -103,7 +103,7 @@ def test_a_warm_hint_is_kept_when_it_reaches(arm):
     v = arm.evaluate(goals)
     ok = np.nonzero(v.reachable)[0][:10]
     near = goals[ok] + 0.01
-    w = arm.evaluate(near, v.posture[ok])
+    w = arm.evaluate(Goals(near, seeds=v.posture[ok]))
     moved = np.abs(arm.problem.x_of_q(w.posture[0]) - arm.problem.x_of_q(v.posture[ok[0]])).max()
     assert w.reachable.sum() >= 8 and moved < 0.3
 

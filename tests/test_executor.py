@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from helpers import human_config, same_tree
 
-from oracles.protocol import OracleSpec, Verdicts
+from oracles.protocol import Goals, OracleSpec, Verdicts
 from oracles.shapes import sphere
 from reach.atlas import build_atlas
 from reach.config import parse_config
@@ -39,12 +39,12 @@ def test_inline_and_process_executors_agree_pointwise_with_the_oracle():
     truth = np.linalg.norm(pts - [0.1, 0.0, -0.2], axis=1) <= 0.7
     progress: list[int] = []
     inline = InlineExecutor(spec, chunk_size=17)
-    assert np.array_equal(inline.evaluate(pts, None, progress.append).reachable, truth)
+    assert np.array_equal(inline.evaluate(Goals(pts), progress.append).reachable, truth)
     assert sum(progress) == 101 and len(progress) == 6
     pool = ProcessExecutor(spec, workers=2, chunk_size=17)
     try:
         assert pool.slices(101)[0].stop <= 13  # at least four chunks per worker when the batch allows
-        assert np.array_equal(pool.evaluate(pts, None).reachable, truth)
+        assert np.array_equal(pool.evaluate(Goals(pts)).reachable, truth)
     finally:
         pool.close()
 
@@ -55,13 +55,13 @@ class Misshapen:
     dim = 3
     posture_names = ()
 
-    def evaluate(self, points, hints=None):  # noqa: ANN001
-        return Verdicts(np.ones(len(points) - 1, bool), np.zeros(len(points) - 1), None)
+    def evaluate(self, goals):  # noqa: ANN001
+        return Verdicts(np.ones(len(goals) - 1, bool), np.zeros(len(goals) - 1), None)
 
 
 def test_malformed_verdicts_are_refused_with_the_shapes():
     with pytest.raises(OracleError, match=r"expected \(3,\)"):
-        InlineExecutor(Misshapen()).evaluate(np.zeros((3, 3)), None)
+        InlineExecutor(Misshapen()).evaluate(Goals(np.zeros((3, 3))))
 
 
 def test_executors_expose_a_local_oracle_built_without_solving():

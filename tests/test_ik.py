@@ -12,7 +12,7 @@ import pytest
 
 from oracles.dls import DLSIK
 from oracles.ik import Call, CasadiIK
-from oracles.protocol import OracleSpec
+from oracles.protocol import Goals, OracleSpec
 from oracles.search import Search
 from reach.config import load_config
 from reach.errors import ModelError, OracleError
@@ -111,7 +111,7 @@ def test_warm_start_hint_needs_one_solve(arm):
     goal = np.array([[0.4, -0.3, 1.1]])
     first = arm.evaluate(goal)
     before = arm.stats["solves"]
-    again = arm.evaluate(goal + 0.01, first.posture)
+    again = arm.evaluate(Goals(goal + 0.01, seeds=first.posture))
     assert again.reachable[0] and arm.stats["solves"] == before + 1
 
 
@@ -222,9 +222,9 @@ def test_give_up_skips_restarts_after_a_decisive_warm_solve():
     assert not best.reachable[0] and best.residual[0] > 0.01
     assert thorough.stats["solves"] == 3  # reference and two restarts
     hint = best.posture  # its effector is within NEAR_HINT of the goal: a decisive warm start
-    warm = hasty.evaluate(goal, hint)
+    warm = hasty.evaluate(Goals(goal, seeds=hint))
     assert not warm.reachable[0] and hasty.stats["solves"] == 1
-    thorough.evaluate(goal, hint)
+    thorough.evaluate(Goals(goal, seeds=hint))
     assert thorough.stats["solves"] == 3 + 4  # the hint, then every other start
 
 
@@ -303,10 +303,10 @@ def test_rescues_are_random_restarts_after_giving_up():
     goal = (thorough.problem.anchor + [-0.1, 0.5, 0.0])[None]
     hint = thorough.evaluate(goal).posture  # as in test_give_up_...: a decisive, failing warm start
     rescuing = CasadiIK(HUMAN, "right_hand", ARM, search=Search(restarts=2, rescues=1))
-    assert not rescuing.evaluate(goal, hint).reachable[0]
+    assert not rescuing.evaluate(Goals(goal, seeds=hint)).reachable[0]
     assert rescuing.stats["solves"] == 2  # the hint, then one random restart (no reference start)
     near_miss = CasadiIK(HUMAN, "right_hand", ARM, search=Search(restarts=2, give_up=1.0))  # every failure counts as a near miss
-    near_miss.evaluate(goal, hint)
+    near_miss.evaluate(Goals(goal, seeds=hint))
     assert near_miss.stats["solves"] == 4  # the hint, the reference and both restarts
 
 
@@ -338,7 +338,7 @@ def test_refinement_starts_from_the_reference_unless_a_current_posture_is_given(
     assert np.allclose(starts[0], refine.problem.x_ref) and np.allclose(starts[1], refine.problem.x_ready)  # queries: reference, ready
     elbow = refine.problem.x_names.index("right_elbow_flexion")
     assert refine.problem.x_ref[elbow] == 0.0 < refine.problem.x_ready[elbow]  # off the straight elbow
-    # With a current posture (evaluate_from), the hint (that posture) comes first, for continuity.
+    # With a current posture (Goals.current), the hint (that posture) comes first, for continuity.
     assert np.allclose(refine.starts(goal, hint, Call(start=x_hint))[0], x_hint)
 
 
@@ -348,11 +348,11 @@ def test_seeded_refinement_tries_every_seed_and_refuses_a_wrong_shape():
     nq = len(refine.posture_names)
     ref = refine.body.q_ref
     seeds = np.stack([ref, np.full(nq, np.nan), ref])[None]  # a NaN row is skipped
-    v = refine.evaluate_seeded(goal, seeds)
+    v = refine.evaluate(Goals(goal, seeds=seeds))
     assert v.reachable[0] and refine.stats["solves"] == 4  # the reference, the ready posture and both seeds
     _assert_reachable_verdicts_hold(refine, goal, v)
-    with pytest.raises(OracleError, match=r"seeds have shape \(1, 3\), expected \(1, k, "):
-        refine.evaluate_seeded(goal, ref[None, :3])
+    with pytest.raises(OracleError, match=r"seeds have shape \(1, 3\), expected \(1, 43\) or \(1, k, 43\)"):
+        refine.evaluate(Goals(goal, seeds=ref[None, :3]))
 
 
 def test_with_a_current_posture_the_reach_stage_moves_it_the_least(monkeypatch):
@@ -368,7 +368,7 @@ def test_with_a_current_posture_the_reach_stage_moves_it_the_least(monkeypatch):
         monkeypatch.setattr(reach_task, "PROXIMAL", proximal)
         refine = OracleSpec(spec.name, {**spec.params, "jit": False}).create().variant("refine", budget=None)
         a = refine.evaluate(first)
-        b = refine.evaluate_from(second, a.posture[0])
+        b = refine.evaluate(Goals(second, current=a.posture[0]))
         assert a.reachable[0] and b.reachable[0]
         _assert_reachable_verdicts_hold(refine, second, b)
         return float(np.degrees(np.abs(b.posture[0, 7:] - a.posture[0, 7:]).max()))
@@ -394,7 +394,7 @@ def test_a_settled_warm_start_solves_reach_alone_and_keeps_the_hints_choices(mon
     assert full.evaluate(goal[None]).reachable[0] and 1 in stages
     near, far = goal + [0.02, 0.0, 0.0], goal + [0.06, 0.0, 0.0]
     stages.clear()
-    v = settled.evaluate(near[None], natural)
+    v = settled.evaluate(Goals(near[None], seeds=natural))
     assert v.reachable[0] and stages == [0]  # 2 cm from the hint: reach alone
     _assert_reachable_verdicts_hold(settled, near[None], v)
     # Reach alone, pulled towards the hint, moves the natural posture the last
@@ -404,13 +404,13 @@ def test_a_settled_warm_start_solves_reach_alone_and_keeps_the_hints_choices(mon
     # 11 % for one of them).
     moved, liked = [], []
     for step in np.concatenate([np.eye(3), -np.eye(3)]) * 0.02:
-        q = settled.evaluate((goal + step)[None], natural).posture[0]
+        q = settled.evaluate(Goals((goal + step)[None], seeds=natural)).posture[0]
         moved.append(float(np.degrees(np.abs(q - natural[0]).max())))
-        best = full.evaluate((goal + step)[None], natural).posture[0]
+        best = full.evaluate(Goals((goal + step)[None], seeds=natural)).posture[0]
         liked.append(full.preference(q, goal + step) / full.preference(best, goal + step))
     assert max(moved) < 6.0 and max(liked) < 1.03
     stages.clear()
-    assert settled.evaluate(far[None], natural).reachable[0] and 1 in stages  # 6 cm: every stage
+    assert settled.evaluate(Goals(far[None], seeds=natural)).reachable[0] and 1 in stages  # 6 cm: every stage
     stages.clear()
     assert settled.evaluate(near[None]).reachable[0] and 1 in stages  # no hint: every stage
 
@@ -428,7 +428,7 @@ def test_a_settled_reach_stage_runs_its_own_program_with_a_smaller_barrier():
     real, used = settled.programs.settling[0], []
     settled.programs.settling[0] = lambda **kw: (used.append(1), real(**kw))[1]
     near = (goal + [0.0, 0.02, 0.0])[None]
-    v = settled.evaluate(near, natural)
+    v = settled.evaluate(Goals(near, seeds=natural))
     assert used == [1] and v.reachable[0]
     _assert_reachable_verdicts_hold(settled, near, v)
     assert settled.evaluate(near).reachable[0] and used == [1]  # no hint: the plain programs
@@ -475,5 +475,5 @@ def test_a_settling_builds_variants_never_settle(monkeypatch):
     goal = builder.problem.anchor + [0.35, -0.1, -0.25]
     current = builder.evaluate(goal[None]).posture[0]
     stages.clear()
-    v = refine.evaluate_from((goal + [0.0, 0.02, 0.0])[None], current)  # 2 cm from the current posture
+    v = refine.evaluate(Goals((goal + [0.0, 0.02, 0.0])[None], current=current))  # 2 cm from the current posture
     assert v.reachable[0] and 1 in stages  # the posture stage too

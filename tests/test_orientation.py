@@ -15,7 +15,7 @@ import yaml
 
 from oracles.errors import OracleError, TaskError
 from oracles.kinematics import SymbolicKinematics
-from oracles.protocol import OracleSpec, Oriented, body_params
+from oracles.protocol import Goals, OracleSpec, Oriented, body_params
 from oracles.tasks import Symbolic
 from reach.atlas import build_atlas
 from reach.config import parse_config
@@ -70,19 +70,19 @@ def test_a_free_task_holds_each_goals_own_direction_and_the_tree_stays_position_
     assert isinstance(oracle, Oriented) and oracle.orientation_kinds() == ("direction", "rotation")
     free = oracle.evaluate(GOALS)  # type: ignore[attr-defined]
     assert free.reachable[[0, 1, 2, 4]].all()
-    up = oracle.evaluate_oriented(GOALS[4:], np.array([[0.0, 0.0, 1.0]]))
-    down = oracle.evaluate_oriented(GOALS[4:], np.array([[0.0, 0.0, -1.0]]))
+    up = oracle.evaluate(Goals(GOALS[4:], {"orientation": np.array([[0.0, 0.0, 1.0]])}))
+    down = oracle.evaluate(Goals(GOALS[4:], {"orientation": np.array([[0.0, 0.0, -1.0]])}))
     assert not up.reachable[0] and down.reachable[0]
     sideways = np.array([[1.0, 0.0, 0.0]] * 3)
-    v = oracle.evaluate_oriented(GOALS[:3], sideways)
+    v = oracle.evaluate(Goals(GOALS[:3], {"orientation": sideways}))
     for g, q, ok in zip(GOALS[:3], v.posture, v.reachable, strict=True):
         if ok:
             pose = _pose(oracle, q)
             assert np.linalg.norm(pose.translation - g) <= 0.005 and (pose.rotation @ [0, 0, 1])[0] >= math.cos(math.radians(5)) - 1e-3
     with pytest.raises(OracleError, match="orientations have shape"):
-        oracle.evaluate_oriented(GOALS[:2], np.zeros((3, 3)))
+        oracle.evaluate(Goals(GOALS[:2], {"orientation": np.zeros((3, 3))}))
     with pytest.raises(OracleError, match="not zero"):
-        oracle.evaluate_oriented(GOALS[:1], np.zeros((1, 3)))
+        oracle.evaluate(Goals(GOALS[:1], {"orientation": np.zeros((1, 3))}))
 
 
 def test_a_full_orientation_within_its_tolerance_by_forward_kinematics():
@@ -98,7 +98,7 @@ def test_a_full_orientation_within_its_tolerance_by_forward_kinematics():
         assert math.degrees(np.linalg.norm(pin.log3(target.T @ pose.rotation))) <= 5.06
     assert oracle.orientation_kinds() == ("rotation",)
     with pytest.raises(OracleError, match="full orientation"):
-        oracle.evaluate_oriented(GOALS[:1], np.array([[0.0, 0.0, -1.0]]))
+        oracle.evaluate(Goals(GOALS[:1], {"orientation": np.array([[0.0, 0.0, -1.0]])}))
 
 
 def test_the_casadi_row_is_the_cosine_pinocchio_gives():
@@ -107,7 +107,8 @@ def test_the_casadi_row_is_the_cosine_pinocchio_gives():
     task = oracle.strategy.task("orientation")  # type: ignore[attr-defined]
     p = oracle.problem  # type: ignore[attr-defined]
     aim, on = ca.SX.sym("aim", 3, 3), ca.SX.sym("on")
-    sym = Symbolic(SymbolicKinematics(oracle.body.model, p.q_sym), p.x_sym, ca.SX.sym("g", 3), p.x_ref, p.upper - p.lower, aim=aim, aim_on=on)  # type: ignore[attr-defined]
+    sym = Symbolic(SymbolicKinematics(oracle.body.model, p.q_sym), p.x_sym, ca.SX.sym("g", 3), p.x_ref, p.upper - p.lower,  # type: ignore[attr-defined]
+                   targets={"orientation": ca.vertcat(ca.vec(aim), on)})
     row = ca.Function("row", [p.x_sym, aim, on], [task.constraints(sym)[0].expr])
     rng = np.random.default_rng(0)
     for _ in range(5):
@@ -198,7 +199,7 @@ def test_the_index_is_stored_and_each_reached_direction_holds(arm_atlas):
     yes = no = miss = 0
     for r, p in zip(rows, points, strict=True):
         for j in (0, 5, 11):
-            v = referee.evaluate_oriented(p[None], tree.index.directions[j][None], tree.vertices.posture[r][None])
+            v = referee.evaluate(Goals(p[None], {"orientation": tree.index.directions[j][None]}, seeds=tree.vertices.posture[r][None]))
             if tree.index.reached[r, j]:
                 yes += 1
                 assert v.reachable[0], (r, j)

@@ -17,7 +17,6 @@ from helpers import ARM, HUMAN, TwoLinkArm
 
 from oracles import registry
 from oracles.protocol import (
-    Continuing,
     Described,
     EffectorPositions,
     Mirrorable,
@@ -74,7 +73,7 @@ def test_the_plugin_declares_the_optional_capabilities(plugin):
 
 def test_builtin_body_oracles_declare_every_capability():
     oracle = OracleSpec("casadi-ik", {"body": HUMAN, "effector": "right_hand", "joints": ARM}).create()
-    for capability in (Specified, ModelHashed, EffectorPositions, ReachBound, Tunable, Preparable, Mirrorable, Continuing, Described, Verifying):
+    for capability in (Specified, ModelHashed, EffectorPositions, ReachBound, Tunable, Preparable, Mirrorable, Described, Verifying):
         assert isinstance(oracle, capability), capability.__name__
     refine = oracle.variant("refine", budget=0.01)
     assert refine.spec.params["max_seconds"] == 0.01 and refine.spec.params["jit"] is False
@@ -131,6 +130,41 @@ def test_a_plugin_is_served(arm_atlas):
     finally:
         server.stop()
         thread.join(timeout=5)
+
+
+def test_a_thousand_refined_goals_across_four_strategies_cost_a_few_evaluate_calls_each(plugin, tmp_path, monkeypatch):
+    """Issue 34, item 4: the selector refines a batch's goals in one evaluate call per strategy and pass (first
+    choice, then fallback), not one per goal; the answers are those of one goal at a time, and every reachable
+    one is reached by the arm's own forward kinematics."""
+    shoulders = [[0.0, 0.0, 1.0], [0.0, 0.35, 1.0], [0.0, -0.35, 1.0], [0.3, 0.0, 1.2]]
+    config = parse_config({
+        "name": "four", "box": {"min": [-0.6, -0.9, 0.4], "max": [0.9, 0.9, 1.8]}, "depth": {"min": 2, "max": 4},
+        "oracle": {"name": "two-link-arm", "params": {"upper": UPPER, "fore": FORE}},
+        "strategies": [{"name": f"arm{k}", "effector": "hand", "priority": k,
+                        "oracle": {"name": "two-link-arm", "params": {"upper": UPPER, "fore": FORE, "shoulder": s}}}
+                       for k, s in enumerate(shoulders)],
+    }, "four", "four")
+    atlas = build_atlas(config, tmp_path / "four")
+    goals = np.random.default_rng(3).uniform([-0.6, -0.9, 0.4], [0.9, 0.9, 1.8], (1000, 3))
+    selector = Selector(atlas).warm_up()
+    calls: list[tuple[float, ...]] = []
+    real = TwoLinkArm.evaluate
+    monkeypatch.setattr(TwoLinkArm, "evaluate", lambda self, g: calls.append(tuple(self.shoulder)) or real(self, g))
+    answers = selector.select_many("hand", goals)
+    refined = [a for a in answers if a.refined == REFINED]
+    assert len(refined) >= 300  # the four shells hold hundreds of these goals
+    per_strategy = {k: calls.count(tuple(map(float, s))) for k, s in enumerate(shoulders)}
+    assert sum(per_strategy.values()) == len(calls) and max(per_strategy.values()) <= 4, per_strategy
+    for a, g in zip(answers, goals, strict=True):
+        if a.reachable:
+            k = int(a.strategy[3:])
+            q = np.array([a.posture[n] for n in TwoLinkArm.posture_names])
+            assert np.linalg.norm(TwoLinkArm(UPPER, FORE, tuple(shoulders[k])).effector_positions(q[None])[0] - g) <= 1e-6
+    calls.clear()
+    for a, g in zip(answers[:60], goals[:60], strict=True):  # one goal at a time: the same answers, a call per refinement
+        one = selector.select("hand", g)
+        assert (one.strategy, one.reachable, one.refined) == (a.strategy, a.reachable, a.refined)
+    assert len(calls) >= sum(a.refined == REFINED for a in answers[:60])
 
 
 def test_box_auto_uses_the_plugins_reach_bound(plugin):

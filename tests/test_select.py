@@ -258,8 +258,8 @@ def test_refinement_also_starts_from_the_best_liked_stored_posture_nearby(arm, m
         assert s._best_liked(name, oracle, goal, worse) is None
         monkeypatch.undo()
         seeded: list[tuple[int, ...]] = []
-        real = type(oracle).evaluate_seeded
-        monkeypatch.setattr(type(oracle), "evaluate_seeded", lambda self, p, seeds: seeded.append(seeds.shape) or real(self, p, seeds))
+        real = type(oracle).evaluate
+        monkeypatch.setattr(type(oracle), "evaluate", lambda self, goals: seeded.append(goals.seeds.shape) or real(self, goals))
         answer = Selector(arm, budget=0.5).select("right_hand", goal)
         assert answer.refined == REFINED and seeded == [(1, 2, len(tree.vertices.posture_names))]
         assert np.linalg.norm(hand_of(answer, human_body()) - goal) <= 0.005

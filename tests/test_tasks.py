@@ -15,6 +15,7 @@ from helpers import ARM
 from oracles.body import human_body
 from oracles.kinematics import SymbolicKinematics
 from oracles.problem import ReachProblem
+from oracles.protocol import Goals
 from oracles.search import Search
 from oracles.strategy import parse_strategy
 from oracles.tasks import TASKS, HardTask, Numeric, SoftTask, Symbolic, table
@@ -478,10 +479,10 @@ def test_a_low_reach_keeps_the_idle_arm_hanging():
             assert z[0] > z[1] > z[2]
 
 
-def test_evaluate_from_refuses_a_posture_of_the_wrong_size():
+def test_a_current_posture_of_the_wrong_size_is_refused():
     from oracles.ik import CasadiIK
     from reach.errors import OracleError
 
     oracle = CasadiIK({"human": {"sex": "male", "percentile": 50}}, "right_hand", ARM)
     with pytest.raises(OracleError, match=r"current posture has shape \(3,\), expected \(43,\)"):
-        oracle.evaluate_from(np.array([[0.4, -0.3, 1.2]]), np.zeros(3))
+        oracle.evaluate(Goals(np.array([[0.4, -0.3, 1.2]]), current=np.zeros(3)))

@@ -20,8 +20,8 @@ from __future__ import annotations
 
 import fnmatch
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import Any, ClassVar, NamedTuple
 
 import casadi as ca
@@ -114,8 +114,8 @@ class Symbolic:
         lower: Lower bound of each coordinate of x.
         start: The character's current posture as x (n_x,), a parameter (continuity).
         start_weight: Weight of the displacement from ``start``, a parameter (0 without one).
-        aim: The goal's orientation (3, 3), a parameter (see :mod:`oracles.tasks.orientation`).
-        aim_on: 1 when the goal's orientation applies, else 0, a parameter.
+        targets: Each goal's target, by the key of the task that declares it (:attr:`Task.target_key`), as
+            parameters of the programs (one compiled program serves every goal's target).
     """
 
     kin: SymbolicKinematics
@@ -127,8 +127,7 @@ class Symbolic:
     lower: np.ndarray | None = None
     start: ca.SX | None = None
     start_weight: ca.SX | None = None
-    aim: ca.SX | None = None
-    aim_on: ca.SX | None = None
+    targets: Mapping[str, ca.SX] = field(default_factory=dict)
 
 
 @dataclass
@@ -156,7 +155,7 @@ class Numeric:
     span: np.ndarray | None = None
     start: np.ndarray | None = None  # the character's current posture as x, when a query gives one
     start_weight: float = 0.0
-    aim: np.ndarray | None = None  # the goal's orientation (3, 3), when it carries one
+    targets: Mapping[str, np.ndarray] = field(default_factory=dict)  # the goal's targets by key (Task.target_key), as parameters
 
     def frame(self, frame_id: int) -> pin.SE3:
         return self.data.oMf[frame_id]
@@ -252,6 +251,11 @@ class Task(ABC):
     held_frames: tuple[str, ...] = ()
     #: Frames whose reference ground positions span a support polygon.
     support: tuple[str, ...] = ()
+    #: A per-goal target the task takes (``Goals.targets[target_key]``; None: none) and how many numbers of the
+    #: programs' parameters it fills per goal (:meth:`targets`, read back as ``Symbolic.targets[target_key]``
+    #: and ``Numeric.targets[target_key]``). A new kind of goal is a task with these, and nothing else.
+    target_key: ClassVar[str | None] = None
+    target_size: ClassVar[int] = 0
 
     @property
     def inert(self) -> bool:
@@ -270,6 +274,11 @@ class Task(ABC):
     def resolve(self, tasks: Sequence[Task], where: str) -> Task:
         """Settle what depends on the strategy's other tasks (e.g. a support polygon); default: nothing."""
         return self
+
+    def targets(self, raw: np.ndarray | None, n: int) -> np.ndarray:
+        """(n, target_size) parameters of n goals from their raw targets (None: the goals carry none, the task's
+        configured default applies); raises ValueError saying what was expected."""
+        return np.zeros((n, self.target_size))
 
     def bind(self, reference: Reference) -> None:  # noqa: B027 - most tasks need no reference
         """Record what the task holds at the reference posture (called once per problem)."""

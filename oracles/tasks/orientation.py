@@ -67,6 +67,10 @@ class OrientationTask(HardTask):
     """Hold the effector's approach axis within a cone of a direction, or its rotation near a target."""
 
     type: ClassVar[str] = "orientation"
+    # A goal's orientation: its rotation (9, column-major) and whether it applies (1) or not (0, a free task's
+    # goal without one).
+    target_key: ClassVar[str | None] = "orientation"
+    target_size: ClassVar[int] = 10
     keys: ClassVar[frozenset[str]] = frozenset({"axis", "direction", "cone", "rpy", "tolerance"})
     summary: ClassVar[str] = ("the effector's `axis` (its frame; `x`, `-z` or [x, y, z]) within `cone` deg (default 5) of the world "
                               "`direction`, or its rotation within `tolerance` deg of `rpy` [rad]; without `direction`/`rpy`, only a "
@@ -121,6 +125,23 @@ class OrientationTask(HardTask):
         """The configured rotation, or the identity for a free task (then not applied)."""
         return np.eye(3) if self.target is None else self.target
 
+    def targets(self, raw: np.ndarray | None, n: int) -> np.ndarray:
+        """Goals' orientations, (n, 3) world directions of the axis or (n, 3, 3) effector rotations (None: the
+        configured one, or none for a free task), as the programs' parameters: rotation (column-major) and 1 (0: none)."""
+        if raw is None:
+            aims, on = np.tile(self.default_aim(), (n, 1, 1)), float(not self.free)
+        elif raw.shape == (n, 3):
+            if not np.all(np.isfinite(raw)) or np.any(np.linalg.norm(raw, axis=1) < 1e-9):
+                raise ValueError("directions must be finite and not zero")
+            aims, on = np.array([self.aim(direction=d) for d in raw]).reshape(n, 3, 3), 1.0
+        elif raw.shape == (n, 3, 3):
+            if not np.all(np.isfinite(raw)) or np.abs(np.einsum("nij,nkj->nik", raw, raw) - np.eye(3)).max(initial=0.0) > 1e-6:
+                raise ValueError("rotations must be orthonormal 3 x 3 matrices")
+            aims, on = raw, 1.0
+        else:
+            raise ValueError(f"orientations have shape {raw.shape}, expected ({n}, 3) directions or ({n}, 3, 3) rotations")
+        return np.concatenate([np.transpose(aims, (0, 2, 1)).reshape(n, 9), np.full((n, 1), on)], axis=1)
+
     def bind(self, reference: Reference) -> None:
         self._id = reference.body.frame_id(self.effector)
 
@@ -145,12 +166,16 @@ class OrientationTask(HardTask):
         return float((np.trace(aim.T @ rot) - 1.0) / 2.0)
 
     def constraints(self, sym: Symbolic) -> list[Constraint]:
-        assert sym.aim is not None and sym.aim_on is not None
+        target = sym.targets[self.type]
         rot = sym.kin.frame(self.effector)[0]
-        return [Constraint(self._cosine(rot, sym.aim) - math.cos(self.limit) + OFF * (1.0 - sym.aim_on), 0.0, np.inf)]
+        return [Constraint(self._cosine(rot, ca.reshape(target[:9], 3, 3)) - math.cos(self.limit) + OFF * (1.0 - target[9]), 0.0, np.inf)]
 
     def _aim_of(self, num: Numeric) -> np.ndarray | None:
-        return num.aim if num.aim is not None else self.target
+        """The rotation the posture is held to: the goal's, else the configured one (None: nothing applies)."""
+        target = num.targets.get(self.type)
+        if target is None:
+            return self.target
+        return np.asarray(target[:9]).reshape(3, 3, order="F") if target[9] > 0.5 else None
 
     def angle(self, num: Numeric) -> float:
         """The angle [rad] the task bounds at a posture (0 when no orientation applies)."""
