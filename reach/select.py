@@ -680,6 +680,8 @@ class Selector:
         # What is left to try after the first choice: the other strategies, and the limits to beat (None: a fallback).
         pending: dict[int, tuple[list[str], int | None]] = {}
         for i, name, _ in first:
+            if name not in done[i]:
+                continue  # its turn came after the deadline
             q, _, outcome = done[i][name]
             if outcome == FAILED:
                 pending[i] = (held[i][1:], None)
