@@ -56,6 +56,7 @@ from oracles.collision import Capsule, CollisionModel, urdf_capsules
 from oracles.environment import Box
 from oracles.errors import ModelError
 from oracles.human import human_capsules, human_urdf, root_height
+from oracles.protocol import COS, SIN
 from oracles.seat import Seated, fit, parse_seat, seated
 
 ROOT = "root"
@@ -106,12 +107,13 @@ class Body:
 
     @property
     def q_names(self) -> list[str]:
-        """A name for each configuration coordinate (root: root_x ... root_qw)."""
+        """A name for each configuration coordinate (root: root_x ... root_qw; a continuous joint's pair:
+        ``NAME.cos``, ``NAME.sin``, which answers and files give as the one angle ``NAME``)."""
         names = [f"root_{c}" for c in ("x", "y", "z", "qx", "qy", "qz", "qw")]
         for j in range(2, self.model.njoints):
             jm = self.model.joints[j]
             n = str(self.model.names[j])
-            names += [n] if jm.nq == 1 else [f"{n}_{k}" for k in range(jm.nq)]
+            names += [n] if jm.nq == 1 else [n + COS, n + SIN] if _continuous(jm) else [f"{n}_{k}" for k in range(jm.nq)]
         return names
 
     @property
@@ -165,12 +167,14 @@ class Body:
 
     def describe(self) -> dict[str, Any]:
         """What ``reach model`` prints: source, hash, mass [kg], joints and ranges [rad, m], frames [m], centre of mass [m]."""
+        continuous = self.continuous
         info: dict[str, Any] = {
             "source": self.source,
             "hash": self.hash,
             "mass": self.mass,
             "nq": int(self.model.nq),
-            "joints": [{"name": n, "lower": lo, "upper": hi} for n, lo, hi in self.limits()],
+            "joints": [{"name": n, "lower": lo, "upper": hi, **({"continuous": True} if n in continuous else {})}
+                       for n, lo, hi in self.limits()],
             "frames": {name: pos.round(6).tolist() for name, pos in self.frame_positions().items()},
             "center_of_mass": self.center_of_mass().round(6).tolist(),
             "capsules": [{"name": c.name, "link": c.link, "radius": round(c.radius, 6), "length": round(c.length, 6),
@@ -190,15 +194,28 @@ class Body:
             info["furniture"] = [b.to_dict() for b in self.furniture]
         return info
 
+    @property
+    def continuous(self) -> frozenset[str]:
+        """The continuous joints (turning without limit; their angle is given in (-pi, pi])."""
+        return frozenset(str(self.model.names[j]) for j in range(2, self.model.njoints) if _continuous(self.model.joints[j]))
+
     def limits(self) -> list[tuple[str, float, float]]:
-        """(name, lower, upper) of every joint coordinate after the root."""
+        """(name, lower, upper) of every joint after the root [rad or m]; a continuous joint's angle is (-pi, pi]."""
         out = []
         for j in range(2, self.model.njoints):
             i, nq = self.model.joints[j].idx_q, self.model.joints[j].nq
-            for k in range(nq):
+            if _continuous(self.model.joints[j]):
+                out.append((str(self.model.names[j]), -math.pi, math.pi))
+                continue
+            for k in range(nq):  # a planar or free joint (not one a strategy moves) by its coordinates
                 name = str(self.model.names[j]) if nq == 1 else f"{self.model.names[j]}_{k}"
                 out.append((name, float(self.model.lowerPositionLimit[i + k]), float(self.model.upperPositionLimit[i + k])))
         return out
+
+
+def _continuous(joint: pin.JointModel) -> bool:
+    """Whether a joint is a continuous one (Pinocchio's unbounded revolute: (cos, sin), one velocity)."""
+    return bool(joint.nq == 2 and joint.nv == 1)
 
 
 def _check_xml(urdf: str, source: str) -> None:

@@ -64,6 +64,10 @@ import numpy as np
 
 from oracles.errors import OracleError
 
+# The posture coordinates of a continuous joint (Pinocchio's unbounded revolute, stored as (cos, sin)) are named
+# NAME.cos and NAME.sin in ``posture_names``; answers, motions, files and configs give the one angle NAME instead.
+COS, SIN = ".cos", ".sin"
+
 
 class Verdicts(NamedTuple):
     """Per-point answers of an oracle.
@@ -160,7 +164,7 @@ class Oracle(Protocol):
     Attributes:
         dim: Dimension of the points (2 or 3).
         posture_names: Names of the posture coordinates (empty when the oracle
-            returns no postures).
+            returns no postures; a continuous joint's pair: ``NAME.cos``, ``NAME.sin``).
     """
 
     dim: int

@@ -384,7 +384,7 @@ def cmd_model(args: argparse.Namespace) -> int:
         return 0
     print(f"{body.source}: {len(info['joints'])} joints, mass {info['mass']:.2f} kg" + (f", stature {info['stature']:.4f} m" if "stature" in info else ""))
     for j in info["joints"]:
-        print(f"  {j['name']:<28} [{j['lower']:+.4f}, {j['upper']:+.4f}]")
+        print(f"  {j['name']:<28} " + ("continuous (-pi, pi]" if j.get("continuous") else f"[{j['lower']:+.4f}, {j['upper']:+.4f}]"))
     print(f"  centre of mass {info['center_of_mass']}")
     print(f"  {len(info['frames'])} frames at the reference posture [m]:")
     for name, pos in info["frames"].items():

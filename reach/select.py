@@ -63,6 +63,8 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from oracles.protocol import (
+    COS,
+    SIN,
     Bounded,
     EffectorPositions,
     Goals,
@@ -222,22 +224,46 @@ def orientation_of(wire: dict[str, list[float]] | list[dict[str, list[float]]] |
 
 
 def split_posture(names: tuple[str, ...], q: np.ndarray) -> tuple[dict[str, float], dict[str, list[float]] | None]:
-    """Joint name -> value, and the root pose when the names carry one."""
-    joints = {n: float(v) for n, v in zip(names, q, strict=True) if not n.startswith("root_")}
+    """Joint name -> value [rad or m], and the root pose when the names carry one. A continuous joint's
+    coordinates (``NAME.cos``, ``NAME.sin``) are its one angle ``NAME``, in (-pi, pi]."""
+    joints: dict[str, float] = {}
+    for k, n in enumerate(names):
+        if n.startswith("root_") or n.endswith(SIN):
+            continue
+        if n.endswith(COS):
+            angle = math.atan2(float(q[k + 1]), float(q[k]))
+            joints[n[: -len(COS)]] = math.pi if angle <= -math.pi else angle
+        else:
+            joints[n] = float(q[k])
     if "root_x" not in names:
         return joints, None
     i = names.index("root_x")
     return joints, {"position": [float(v) for v in q[i : i + 3]], "quaternion": [float(v) for v in q[i + 3 : i + 7]]}
 
 
+def joint_names(names: tuple[str, ...]) -> list[str]:
+    """The names :func:`split_posture` gives values of: the joints, and the root's coordinates (``root_x`` ...)."""
+    return [n[: -len(COS)] if n.endswith(COS) else n for n in names if not n.endswith(SIN)]
+
+
+def set_joints(names: tuple[str, ...], q: np.ndarray, joints: dict[str, float], field: str = "posture") -> np.ndarray:
+    """q (nq,) with the given joints' values [rad or m] (a continuous joint by its angle); returns q. Raises
+    InputError naming ``field`` for a name that is none of :func:`joint_names`."""
+    index = {n: k for k, n in enumerate(names)}
+    for n, v in joints.items():
+        if n in index:
+            q[index[n]] = v
+        elif n + COS in index:
+            q[index[n + COS]], q[index[n + SIN]] = math.cos(v), math.sin(v)
+        else:
+            raise InputError(field, f"unknown joint {n!r}; the posture's names are {', '.join(joint_names(names))}")
+    return q
+
+
 def posture_vector(names: tuple[str, ...], reference: np.ndarray, joints: dict[str, float] | None, root: dict[str, list[float]] | None) -> np.ndarray:
     """The inverse of :func:`split_posture`: a posture (nq,) from an answer's joints and root, ``reference`` elsewhere."""
-    q = np.array(reference, float)
+    q = set_joints(names, np.array(reference, float), joints or {})
     index = {n: k for k, n in enumerate(names)}
-    for n, v in (joints or {}).items():
-        if n not in index:
-            raise InputError("posture", f"unknown joint {n!r}")
-        q[index[n]] = v
     if root is not None and "root_x" in index:
         i = index["root_x"]
         q[i : i + 3], q[i + 3 : i + 7] = root["position"], root["quaternion"]
@@ -325,7 +351,7 @@ class Selector:
             raise InputError("from", f"the root's quaternion components must be within +-{FROM_QUATERNION:g} (a unit quaternion, "
                                      f"normalised if off by a little), got {quat}")
         posed = [s for s in names if self.atlas.trees[s].vertices.posture is not None]
-        known = {n for s in posed for n in self.atlas.trees[s].vertices.posture_names}
+        known = {n for s in posed for n in joint_names(self.atlas.trees[s].vertices.posture_names)}
         unknown = sorted(set(start) - known)
         if unknown:
             raise InputError("from", f"unknown joints {unknown[:5]}; the posture's names are {', '.join(sorted(known))}")
@@ -635,13 +661,10 @@ class Selector:
         if start is None:
             return None
         names = tree.vertices.posture_names
-        unknown = sorted(set(start) - set(names))
+        unknown = sorted(set(start) - set(joint_names(names)))
         if unknown:
-            raise InputError("from", f"unknown joints {unknown[:5]}; the posture's names are {', '.join(names)}")
-        q = stored.copy()
-        for k, n in enumerate(names):
-            if n in start:
-                q[k] = start[n]
+            raise InputError("from", f"unknown joints {unknown[:5]}; the posture's names are {', '.join(joint_names(names))}")
+        q = set_joints(names, stored.copy(), start, "from")
         if "root_qx" in names:  # a client's quaternion, rounded, made a rotation again
             i = names.index("root_qx")
             q[i : i + 4] /= np.linalg.norm(q[i : i + 4])

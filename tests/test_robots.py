@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +17,7 @@ from oracles.errors import ModelError
 from oracles.protocol import OracleSpec, body_params
 from reach.cli import main
 from reach.config import load_config, parse_config
-from reach.errors import ConfigError
+from reach.errors import ConfigError, InputError
 
 ROOT = Path(__file__).resolve().parents[1]
 URDF = ROOT / "configs" / "urdf"
@@ -243,3 +244,46 @@ def test_build_strict_refuses_a_config_with_warnings_before_building(tmp_path, c
     err = capsys.readouterr().err
     assert "warning: " in err and "joint 'arm7_joint4' at 0 is outside its range" in err and "--strict makes them errors" in err
     assert not (tmp_path / "out" / "tcp.npz").exists()
+
+
+def _turntable_tool(joints: dict[str, float]) -> np.ndarray:
+    """The turntable's tool [m] by its own geometry (tests/data/turntable.urdf), not Pinocchio's: the arm's length
+    0.35 m plus the extension, raised by the shoulder about -y at 0.3 m, turned by the base about z."""
+    length, s, t = 0.35 + joints["extend"], joints["shoulder"], joints["base_turn"]
+    return np.array([length * math.cos(s) * math.cos(t), length * math.cos(s) * math.sin(t), 0.3 + length * math.sin(s)])
+
+
+def test_a_continuous_joint_is_one_angle_in_answers_motions_configs_and_reach_model(tmp_path, capsys):
+    """Issue 36, item 1: a continuous joint came back as NAME_0 and NAME_1 (its cosine and sine), which a user's
+    own forward kinematics read as two joints. It is one angle in (-pi, pi] under the joint's own name, in answers,
+    motion frames and a query's ``from``; ``reach model`` shows it as continuous."""
+    from reach.atlas import build_atlas
+    from reach.motion import Planner
+    from reach.select import Selector
+
+    urdf = Path(__file__).parent / "data" / "turntable.urdf"
+    config = parse_config({
+        "name": "turntable", "body": {"urdf": str(urdf), "reference": {"base_turn": 0.5, "extend": 0.1}},
+        "box": {"min": [-0.7, -0.7, -0.2], "max": [0.7, 0.7, 0.9]}, "depth": {"min": 2, "max": 3},
+        "strategies": [{"name": "arm", "effector": "tool", "joints": ["base_turn", "shoulder", "extend"], "tasks": [{"type": "reach"}]}],
+    }, "turntable", "turntable")
+    atlas = build_atlas(config, tmp_path / "turntable")
+    assert atlas.trees["arm"].vertices.posture_names[-4:] == ("base_turn.cos", "base_turn.sin", "shoulder", "extend")
+    selector = Selector(atlas).warm_up()
+    # Goals behind the arm, on both sides of the turn's +-pi seam.
+    goals = np.array([_turntable_tool({"base_turn": t, "shoulder": 0.3, "extend": 0.1}) for t in (2.9, -3.0, 3.1, 0.4)])
+    for goal, answer in zip(goals, selector.select_many("tool", goals), strict=True):
+        assert answer.reachable and set(answer.posture) == {"base_turn", "shoulder", "extend"}
+        assert -math.pi < answer.posture["base_turn"] <= math.pi
+        assert np.linalg.norm(_turntable_tool(answer.posture) - goal) <= 0.005  # the user's own forward kinematics
+    # A query's `from` gives the angle; the raw coordinates are not joints.
+    start = selector.select("tool", goals[0], start={"base_turn": 3.0, "shoulder": 0.2, "extend": 0.05})
+    assert start.reachable and np.linalg.norm(_turntable_tool(start.posture) - goals[0]) <= 0.005
+    with pytest.raises(InputError, match=r"from: unknown joints \['base_turn.cos'\]; the posture's names are .*base_turn, extend"):
+        selector.select("tool", goals[0], start={"base_turn.cos": 1.0})
+    frames = Planner(selector).plan("tool", goals[1], start={"base_turn": 0.5}).frames()
+    assert frames[0]["posture"]["base_turn"] == pytest.approx(0.5) and "base_turn.sin" not in frames[-1]["posture"]
+    assert np.linalg.norm(_turntable_tool(frames[-1]["posture"]) - goals[1]) <= 0.005
+    assert main(["model", str(urdf)]) == 0
+    out = capsys.readouterr().out
+    assert re.search(r"base_turn\s+continuous \(-pi, pi\]", out) and re.search(r"extend\s+\[\+0\.0000, \+0\.2500\]", out)
