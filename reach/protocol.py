@@ -480,7 +480,25 @@ def ok_reply(body: bytes, request_id: Any) -> bytes:
     Splicing saves encoding the same answer twice (once published, once replied).
     """
     head = b'{"id":' + encode_value(request_id) + b',"ok":true'
-    return head + (b"," + body[1:] if body != b"{}" else b"}")
+    # One copy of the body (a 10,000-goal batch's is 13 MB): its slice is a view, not a bytes object.
+    return b"".join([head, b",", memoryview(body)[1:]]) if body != b"{}" else head + b"}"
+
+
+def batch_body(bodies: list[bytes]) -> bytes:
+    """A batch's result ``{"answers": [...]}`` from its encoded answers."""
+    return b'{"answers":[' + b",".join(bodies) + b"]}"
+
+
+def ok_batch_reply(bodies: list[bytes], request_id: Any) -> bytes:
+    """``ok_reply(batch_body(bodies), request_id)`` in one copy of the answers (a 10,000-goal batch's are 13 MB;
+    each copy cost the loop about 13 ms)."""
+    parts = [b'{"id":' + encode_value(request_id) + b',"ok":true,"answers":[']
+    for body in bodies:
+        parts += (body, b",")
+    if bodies:
+        parts.pop()
+    parts.append(b"]}")
+    return b"".join(parts)
 
 
 def encode_value(value: Any) -> bytes:
