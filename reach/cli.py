@@ -481,13 +481,16 @@ def cmd_place(args: argparse.Namespace) -> int:
         _print_json({"candidates": len(ranking.placements), "ranked": rows, "verified": ranking.verified})
         return 0
     print(f"{len(ranking.placements)} placements of {len(atlases)} bodies against {len(targets)} targets (trees' word; best first)")
-    print(f"{'rank':>4}  {'x [m]':>7} {'y [m]':>7} {'z [m]':>7} {'yaw':>6}  {'bodies':>7} {'targets':>7} {'weight':>7}")
+    print(f"{'rank':>4}  {'x [m]':>7} {'y [m]':>7} {'z [m]':>7} {'yaw':>6}  {'bodies':>7} {'targets':>7} {'weight':>7} {'margin':>7}")
     for r in rows:
         x, y, z = r["position"]
-        print(f"{r['rank']:>4}  {x:>7.3f} {y:>7.3f} {z:>7.3f} {r['yaw_deg']:>5.0f}°  {100 * r['accommodated']:>6.0f}% {100 * r['reached']:>6.0f}% {r['preference']:>7.3f}")
+        margin = "" if r["margin"] is None else f"{r['margin']:>7.3f}"
+        print(f"{r['rank']:>4}  {x:>7.3f} {y:>7.3f} {z:>7.3f} {r['yaw_deg']:>5.0f}°  {100 * r['accommodated']:>6.0f}% {100 * r['reached']:>6.0f}% "
+              f"{r['preference']:>7.3f} {margin}")
     for v in ranking.verified:
+        moved = f", the trees' rank {v['trees_rank']}" if v["trees_rank"] != v["rank"] else ""
         print(f"rank {v['rank']} verified by IK: {100 * v['reached']:.0f}% of targets reached, {100 * v['accommodated']:.0f}% of bodies accommodated "
-              f"(trees: {100 * v['claimed_reached']:.0f}%)")
+              f"(trees: {100 * v['claimed_reached']:.0f}%{moved})")
     if args.figure:
         print(f"figure: {args.figure}")
     return 0

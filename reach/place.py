@@ -20,13 +20,19 @@ Candidates are ranked, best first, by
    crouch 0.4 in the shipped human atlases): the fewer joints a reach
    needs, the better the placement. A modelling choice, not a measured
    figure; ``weights`` overrides it per strategy name;
-4. on a tie, the nearness to the centroid of the tied candidates (the one
-   with the most room around it).
+4. on a tie, the *margin*: how deep inside the volumes the targets lie, the
+   least over bodies and targets of the distance [m] from a target to the
+   nearest stored vertex its strategy's tree does not reach (the surface is
+   within half a cell of it). The middle of the tie is not preferred: on a
+   robot's table it stood the base among the targets, where the trees'
+   boundary cells claim what no posture reaches (issue 36);
+5. then the nearness to the centroid of the tied candidates.
 
 The best few are then verified: each target is asked of the selector, refined
 by IK at the moved target (a target the trees hold but no posture reaches
-counts as unreached), and the verified figures are reported beside the
-trees' claim.
+counts as unreached), the verified figures are reported beside the trees'
+claim, and the verified candidates are ranked again among themselves by them
+(bodies accommodated, then targets reached), the trees' order breaking ties.
 """
 
 from __future__ import annotations
@@ -37,6 +43,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from reach.errors import InputError
 from reach.evaluate import Target, to_body
@@ -48,6 +55,7 @@ WEIGHT_STEP = 0.2  # each later strategy by priority weighs this much less (a mo
 WEIGHT_FLOOR = 0.2  # ... and never less than this
 MAX_CANDIDATES = 1_000_000  # candidates of one ranking at most
 VERIFY_BUDGET = 1.0  # [s] refinement budget per target when verifying
+MARGIN_TIES = 5000  # tied best candidates whose margin is measured at most (each a k-d tree query per target and body)
 
 
 @dataclass(frozen=True)
@@ -106,6 +114,8 @@ class Ranking:
         accommodated: (C,) share of bodies reaching every target.
         reached: (C,) share of targets reached, over bodies.
         preference: (C,) mean strategy weight, over bodies and targets.
+        margin: (C,) the least depth [m] of a reached target inside its strategy's volume, measured for the tied best
+            candidates (NaN elsewhere; inf when no tree has an unreachable vertex).
         strategies: (C, B, T) index of the strategy taking each target per body (-1: none), in the names' order.
         names: Per body, its strategy names in ``strategies``' numbering.
         verified: The best placements verified by IK: one dict each (see :func:`verify`).
@@ -117,14 +127,16 @@ class Ranking:
     preference: np.ndarray
     strategies: np.ndarray
     names: list[list[str]]
+    margin: np.ndarray = field(default_factory=lambda: np.zeros(0))
     verified: list[dict[str, Any]] = field(default_factory=list)
 
     def row(self, k: int, targets: Sequence[Target]) -> dict[str, Any]:
         """Candidate k as a JSON-compatible dict."""
         x, y, z, yaw = (float(v) for v in self.placements[k])
         by = [{t.name: (names[s] if s >= 0 else None) for t, s in zip(targets, self.strategies[k, b], strict=True)} for b, names in enumerate(self.names)]
+        margin = float(self.margin[k]) if k < len(self.margin) and np.isfinite(self.margin[k]) else None
         return {"rank": k + 1, "position": [x, y, z], "yaw_deg": math.degrees(yaw), "accommodated": float(self.accommodated[k]),
-                "reached": float(self.reached[k]), "preference": float(self.preference[k]), "strategies": by}
+                "reached": float(self.reached[k]), "preference": float(self.preference[k]), "margin": margin, "strategies": by}
 
 
 def weights_of(atlas: Atlas, effector: str, overrides: dict[str, float] | None = None) -> tuple[list[str], np.ndarray]:
@@ -173,14 +185,39 @@ def rank(atlases: Sequence[Atlas], targets: Sequence[Target], space: Space, effe
     accommodated = reached_bt.all(axis=2).mean(axis=1)
     reached = reached_bt.mean(axis=(1, 2))
     preference = weight.mean(axis=(1, 2))
-    # Lexicographic, best first; ties broken by nearness to the tied candidates' centroid (positions, and headings on the circle).
+    # Lexicographic, best first; ties broken by the margin, then by nearness to the tied candidates' centroid (positions,
+    # and headings on the circle).
     key = np.round(np.stack([accommodated, reached, preference], axis=1), 9)
     top = np.all(key == key[np.lexsort(key.T[::-1])[-1]], axis=1)
     centre = placements[top, :3].mean(axis=0)
     heading = math.atan2(np.sin(placements[top, 3]).mean(), np.cos(placements[top, 3]).mean())
     spread = np.linalg.norm(placements[:, :3] - centre, axis=1) + 0.1 * np.abs(np.angle(np.exp(1j * (placements[:, 3] - heading))))
-    order = np.lexsort((spread, -preference, -reached, -accommodated))
-    return Ranking(placements[order], accommodated[order], reached[order], preference[order], taken[order], all_names)
+    margin = np.full(n_c, np.nan)
+    tied = np.nonzero(top)[0]
+    tied = tied[np.argsort(spread[tied], kind="stable")][:MARGIN_TIES]
+    margin[tied] = margins(atlases, all_names, taken[tied], body.reshape(n_c, n_t, 3)[tied])
+    order = np.lexsort((spread, -np.nan_to_num(margin, nan=-np.inf), -preference, -reached, -accommodated))
+    return Ranking(placements[order], accommodated[order], reached[order], preference[order], taken[order], all_names, margin[order])
+
+
+def margins(atlases: Sequence[Atlas], names: list[list[str]], taken: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Per candidate, the least distance [m] from a reached target (its point in the body's frame, ``points``
+    (C, T, 3)) to the nearest vertex of its strategy's tree that does not reach (``taken``: (C, B, T), see
+    :class:`Ranking`); inf when no reached target's tree has such a vertex."""
+    out = np.full(len(points), np.inf)
+    for b, atlas in enumerate(atlases):
+        for s, name in enumerate(names[b]):
+            c, t = np.nonzero(taken[:, b] == s)
+            if not c.size:
+                continue
+            tree = atlas.trees[name]
+            v = tree.vertices
+            outside = tree.lattice.points(tree.lattice.coords(v.keys[~v.reachable]))
+            if not len(outside):
+                continue
+            depth, _ = cKDTree(outside).query(points[c, t])
+            np.minimum.at(out, c, depth)
+    return out
 
 
 def verify(ranking: Ranking, atlases: Sequence[Atlas], targets: Sequence[Target], best: int = 5, effector: str | None = None,
@@ -191,11 +228,21 @@ def verify(ranking: Ranking, atlases: Sequence[Atlas], targets: Sequence[Target]
     selectors = [Selector(a, policy, refine=True, budget=budget, miss="unreachable") for a in atlases]
     points = np.array([t.point for t in targets], float)
     out = []
-    for k in range(min(best, len(ranking.placements))):
+    count = min(best, len(ranking.placements))
+    for k in range(count):
         body = to_body(points, ranking.placements[k : k + 1])[0]
         ok = np.array([[s.select(t.effector or effector or "", p).reachable for t, p in zip(targets, body, strict=True)] for s in selectors])
-        out.append({"rank": k + 1, "accommodated": float(ok.all(axis=1).mean()), "reached": float(ok.mean()),
+        out.append({"rank": k + 1, "trees_rank": k + 1, "accommodated": float(ok.all(axis=1).mean()), "reached": float(ok.mean()),
                     "claimed_reached": float(ranking.reached[k]), "agree": bool(np.isclose(ok.mean(), ranking.reached[k]))})
+    # The verified candidates ranked again by what IK verified (stable: the trees' order breaks ties).
+    again = sorted(range(count), key=lambda k: (-out[k]["accommodated"], -out[k]["reached"]))
+    if again != list(range(count)):
+        idx = np.array(again + list(range(count, len(ranking.placements))))
+        for name in ("placements", "accommodated", "reached", "preference", "strategies", "margin"):
+            values = getattr(ranking, name)
+            if len(values) == len(idx):
+                setattr(ranking, name, values[idx])
+        out = [{**out[k], "rank": r + 1} for r, k in enumerate(again)]
     ranking.verified = out
     return out
 

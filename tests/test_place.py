@@ -115,6 +115,50 @@ def test_ik_verifies_the_best_placement_of_a_robot_on_a_table(arm, tmp_path, cap
     assert "rank 1 verified by IK: 100% of targets reached" in out and (tmp_path / "floor.png").stat().st_size > 10_000
 
 
+@pytest.fixture(scope="module")
+def table_arm(tmp_path_factory):
+    """The arm on a table top (z = 0), clear of itself and of the table: it cannot reach among its own base."""
+    folder = tmp_path_factory.mktemp("table_arm")
+    body = {"urdf": str(ROOT / "configs" / "urdf" / "arm7.urdf"), "frames": {"tcp": {"parent": "arm7_hand", "xyz": [0, 0, 0.1034]}},
+            "reference": {"arm7_joint2": -0.785398, "arm7_joint4": -2.356194, "arm7_joint6": 1.570796, "arm7_joint7": 0.785398}}
+    tasks = [{"type": "reach"}, {"type": "self_collision"}, {"type": "obstacles", "boxes": [{"min": [-1.5, -1.5, -0.1], "max": [1.5, 1.5, 0.0]}]}]
+    build_atlas(parse_config({"name": "table_arm", "body": body, "box": {"min": [-1.0, -1.0, -0.4], "max": [1.0, 1.0, 1.3]},
+                              "depth": {"min": 2, "max": 4}, "oracle": {"name": "casadi-ik", "params": {"restarts": 1, "jit": False}},
+                              "strategies": [{"name": "tcp", "effector": "tcp", "joints": ["arm7_joint*"], "tasks": tasks}]}, "t", "t"),
+                folder / "atlas")
+    return load_atlas(folder / "atlas")
+
+
+def test_the_best_placement_has_margin_not_the_middle_of_the_tie_and_verifies(table_arm, monkeypatch):
+    """Issue 36, item 3: six tray targets 8 cm over the table on a 12 cm ring. Every placement of the base within
+    about half a metre of the tray holds them all by the trees, and the middle of that tie is the tray itself, where
+    the base stands among the targets and IK reaches only some (as a UR5's ranking did: 50 %). Ranked by margin the
+    best placement keeps the targets deep inside the volume, and IK reaches them all; the IK-verified share re-ranks
+    the verified candidates."""
+    angles = np.linspace(0, 2 * math.pi, 6, endpoint=False)
+    targets = [Target(f"t{k}", (0.12 * math.cos(a), 0.12 * math.sin(a), 0.08), "tcp") for k, a in enumerate(angles)]
+    space = Space((-0.6, 0.6), (-0.6, 0.6), step=0.05, yaw=(0.0, 0.0))
+    middle = rank([table_arm], targets, Space((0.0, 0.0), (0.0, 0.0)))
+    assert middle.reached[0] == 1.0 and verify(middle, [table_arm], targets, best=1)[0]["reached"] < 1.0  # the trap is there
+    r = rank([table_arm], targets, space)
+    tied = np.isfinite(r.margin)
+    assert tied.sum() > 100 and r.reached[tied].min() == 1.0  # a wide tie, with the tray's middle inside it
+    assert np.linalg.norm(r.placements[0, :2]) > 0.2 and r.margin[0] > middle.margin[0] + 0.05
+    assert np.all(np.diff(r.margin[tied]) <= 1e-12)  # the tie ordered by margin, deepest first
+    best = verify(r, [table_arm], targets, best=3)
+    assert [v["reached"] for v in best] == [1.0, 1.0, 1.0] and best[0]["agree"]
+    # Without the margin the middle of the tie came first; verifying re-ranks it below a placement that IK confirms.
+    import reach.place as place
+
+    monkeypatch.setattr(place, "margins", lambda atlases, names, taken, points: np.zeros(len(points)))
+    plain = rank([table_arm], targets, space)
+    assert np.allclose(plain.placements[0, :2], [0.0, 0.0])
+    again = verify(plain, [table_arm], targets, best=3)
+    assert again[0]["trees_rank"] != 1  # the middle, which IK does not confirm, is no longer first
+    assert [v["reached"] for v in again] == sorted((v["reached"] for v in again), reverse=True)
+    assert np.allclose(plain.placements[again[0]["rank"] - 1], plain.placements[0])
+
+
 @pytest.mark.parametrize("workers", [0, 1])
 def test_the_server_places_the_body(balls, workers):
     """The `place` operation ranks as reach.place does, in the loop or (with workers: seconds of work at its limit)
