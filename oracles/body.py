@@ -33,8 +33,10 @@ Either body takes
   added on an existing one (grip points, tool centre points, sole corners);
 * ``reference``: the reference posture, ``zero`` (the default: every joint at
   zero, clipped into its range, each clipped joint noted), ``middle`` (every
-  joint at its range's middle), or joint name -> value [rad or m] over
-  ``zero`` (a value outside the joint's range is an error).
+  joint at its range's middle), ``auto`` (the middle, and then for each
+  strategy the nearest posture holding its hard tasks: see
+  ``oracles.ik.IKOracle``), or joint name -> value [rad or m] over ``zero``
+  (a value outside the joint's range is an error).
 """
 
 from __future__ import annotations
@@ -343,12 +345,12 @@ def _add_frames(model: pin.Model, frames: Any, source: str) -> None:
 def _reference(model: pin.Model, q: np.ndarray, reference: Any, source: str) -> list[str]:
     """Set q's joints to the reference posture; the notes say which joints zero had to be clipped for."""
     lower, upper = model.lowerPositionLimit, model.upperPositionLimit
-    if reference is None or reference in ("zero", "middle"):
+    if reference is None or reference in ("zero", "middle", "auto"):
         given: dict[str, Any] = {}
     elif isinstance(reference, dict):
         given = dict(reference)
     else:
-        raise ModelError(f"expected zero, middle or a mapping of joint name to value [rad or m], got {reference!r}",
+        raise ModelError(f"expected zero, middle, auto or a mapping of joint name to value [rad or m], got {reference!r}",
                          source=source, key="reference")
     names = [str(n) for n in model.names[2:]]
     for name in given:
@@ -369,7 +371,7 @@ def _reference(model: pin.Model, q: np.ndarray, reference: Any, source: str) -> 
                                  source=source, key=f"reference.{name}")
             elif jm.nq == 1:
                 q[i] = value
-        elif jm.nq == 1 and reference == "middle":
+        elif jm.nq == 1 and reference in ("middle", "auto"):
             q[i] = 0.5 * (lower[i] + upper[i])
         elif jm.nq == 1 and not lower[i] <= q[i] <= upper[i]:
             clipped = float(np.clip(q[i], lower[i], upper[i]))

@@ -20,6 +20,7 @@ a higher one.
 from __future__ import annotations
 
 import copy
+import dataclasses
 import shutil
 import time
 import warnings
@@ -124,9 +125,26 @@ class IKOracle(ABC):
         self.problem = ReachProblem(self.body, self.strategy)
         self.posture_names = tuple(self.body.q_names)
         self._data = self.body.model.createData()
+        if body.get("reference") == "auto":
+            self._auto_reference(body, effector, joints, tasks)
         self.stats = _stats()
         self._bones: tuple[Skeleton, tuple[int, ...]] | None = None
         self._projector: Any = None  # the damped-least-squares twin that holds a posture's hard tasks (built on first use)
+
+    def _auto_reference(self, body: dict[str, Any], effector: str, joints: list[str], tasks: list[dict[str, Any]] | None) -> None:
+        """``reference: auto``: the middle of the ranges, moved by damped least squares on this strategy's hard tasks
+        (the effector kept where it is) to the nearest posture that holds them all, when the middle breaks one
+        (a tool held pointing down, a tether); kept as it is when none is found (``diagnose`` then warns)."""
+        from oracles.dls import DLSIK
+
+        q = self.body.q_ref
+        if not self.faults(q[None])[0]:
+            return
+        held = DLSIK({**body, "reference": "middle"}, effector, joints, tasks).project(q, q)
+        if self.faults(held[None])[0]:
+            return
+        self.body = dataclasses.replace(self.body, q_ref=held)
+        self.problem = ReachProblem(self.body, self.strategy)
 
     @classmethod
     def from_params(cls, **params: Any) -> IKOracle:
@@ -316,8 +334,15 @@ class IKOracle(ABC):
         return np.array(out, float).reshape(-1, 7)
 
     def describe(self) -> dict[str, Any]:
-        """The strategy as parsed: effector, active joints and tasks (``reach model CONFIG``)."""
-        return {"effector": self.strategy.effector, "joints": list(self.strategy.joints), "tasks": [t.describe() for t in self.strategy.tasks]}
+        """The strategy as parsed: effector, active joints and tasks (``reach model CONFIG``); with ``reference: auto``,
+        the reference posture found for it (joint -> rad or m)."""
+        out: dict[str, Any] = {"effector": self.strategy.effector, "joints": list(self.strategy.joints),
+                               "tasks": [t.describe() for t in self.strategy.tasks]}
+        if self._strategy_params["body"].get("reference") == "auto":
+            names = self.body.q_names
+            out["reference"] = {n: round(float(v), 6) for n, v in zip(names, self.body.q_ref, strict=True)
+                                if not n.startswith("root_") and n.split(".")[0] in self.strategy.joints}
+        return out
 
     def diagnose(self) -> list[str]:
         """What in the spec will likely give a wrong or empty volume (see :class:`oracles.protocol.Diagnosed`)."""

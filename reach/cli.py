@@ -402,6 +402,8 @@ def cmd_model(args: argparse.Namespace) -> int:
         for t in d["tasks"]:
             if t.get("text"):  # the task's own line (see oracles.tasks.base.Task.describe)
                 print(f"  {name}: {t['text']}")
+        if "reference" in d:  # reference: auto, as found for this strategy
+            print(f"  {name}: reference (auto) " + ", ".join(f"{k} {v:+.4f}" for k, v in d["reference"].items()))
     for w in warnings:
         print(f"warning: {w}", file=sys.stderr)
     return 0

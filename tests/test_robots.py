@@ -287,3 +287,28 @@ def test_a_continuous_joint_is_one_angle_in_answers_motions_configs_and_reach_mo
     assert main(["model", str(urdf)]) == 0
     out = capsys.readouterr().out
     assert re.search(r"base_turn\s+continuous \(-pi, pi\]", out) and re.search(r"extend\s+\[\+0\.0000, \+0\.2500\]", out)
+
+
+def test_reference_auto_finds_a_posture_holding_each_strategys_hard_tasks(tmp_path, capsys):
+    """Issue 36, item 4: a strategy holding the tool pointing down started from a reference that breaks it, and the
+    user had to solve a posture by hand. ``reference: auto`` starts from the middle of the ranges and finds, per
+    strategy, the nearest posture that holds its hard tasks; ``reach model`` prints it; Pinocchio agrees."""
+    body = {"urdf": str(URDF / "arm7.urdf"), "frames": {"tcp": {"parent": "arm7_hand", "xyz": [0, 0, 0.1034]}}, "reference": "auto"}
+    down = [{"type": "reach"}, {"type": "orientation", "axis": "z", "direction": "-z", "cone": 5}]
+    oracle = OracleSpec("casadi-ik", {**body_params(body, "tcp", ["arm7_joint*"], down), "restarts": 1}).create()
+    middle = load_body({**body, "reference": "middle"}).q_ref
+    q = oracle.body.q_ref  # type: ignore[attr-defined]
+    assert not np.allclose(q, middle) and oracle.faults(middle[None])[0] == ["orientation"] and oracle.faults(q[None])[0] == []  # type: ignore[attr-defined]
+    tool = _frames(oracle.body.model, q)["tcp"]  # type: ignore[attr-defined]
+    assert np.allclose(tool, _frames(oracle.body.model, middle)["tcp"], atol=1e-3)  # the tool turned where it stood
+    data = oracle.body.model.createData()  # type: ignore[attr-defined]
+    pin.framesForwardKinematics(oracle.body.model, data, q)  # type: ignore[attr-defined]
+    assert (data.oMf[oracle.body.model.getFrameId("tcp")].rotation @ [0, 0, 1])[2] <= -math.cos(math.radians(5))  # type: ignore[attr-defined]
+    assert oracle.diagnose() == [] and "reference" in oracle.describe()  # type: ignore[attr-defined]
+    free = OracleSpec("casadi-ik", {**body_params(body, "tcp", ["arm7_joint*"], [{"type": "reach"}]), "restarts": 1}).create()
+    assert np.allclose(free.body.q_ref, middle)  # type: ignore[attr-defined]  # nothing to hold: the middle itself
+    config = tmp_path / "auto.yaml"
+    config.write_text(yaml.safe_dump({"name": "auto", "body": body, "box": {"min": [-1, -1, 0], "max": [1, 1, 1.2]}, "depth": {"min": 1, "max": 2},
+                                      "strategies": [{"name": "down", "effector": "tcp", "joints": ["arm7_joint*"], "tasks": down}]}))
+    assert main(["model", str(config)]) == 0
+    assert re.search(r"down: reference \(auto\) arm7_joint1 [+-]\d\.\d{4}, arm7_joint2", capsys.readouterr().out)
