@@ -99,6 +99,9 @@ FROM_QUATERNION = 1e3  # the largest component of a `from` root quaternion (it i
 FROM_REACH = 1000.0  # [m] a `from` root farther than this from the world origin is a mistake, not a scene
 POSTURE_CACHE = 4096  # stored postures kept encoded, most recently used first
 REFINE_BUDGET = 0.02  # [s] default time budget of one refinement (a frame at 50 Hz)
+# [s] the least budget of a goal with an orientation: its stored postures hold none, so its refinement tries random
+# starts too; within 20 ms it timed out on 5 of 72 oriented arm7_table goals the referee reaches (docs/history.md).
+ORIENTED_BUDGET = 0.2
 HANDOVER = math.radians(5.0)  # [rad] a joint this near a limit passes the goal on (see the module docstring)
 # A refinement without `from` also starts from the best-liked of this many
 # nearest stored postures (when it is not the nearest's): the nearest can sit
@@ -676,7 +679,7 @@ class Selector:
         if done is not None and name in done:
             q_done, residual_done, outcome = done[name]
             return (q_done, residual_done, outcome) if outcome == REFINED else (q, residual, outcome)
-        oracle = self._oracle(name)
+        oracle, budget = self._tuned(name, 1, aim)
         t0 = time.perf_counter()
         start = self.start_posture(self.atlas.trees[name], q, start_joints)
         # From the character's posture when the query gives one; else from the stored posture and the best liked near it.
@@ -685,7 +688,18 @@ class Selector:
         v = oracle.evaluate(Goals(goal[None], {} if aim is None else {"orientation": aim[None]}, start, seeds))
         if v.reachable[0] and v.posture is not None:
             return v.posture[0], float(v.residual[0]), REFINED
-        return q, residual, TIMEOUT if time.perf_counter() - t0 >= self.budget else FAILED
+        return q, residual, TIMEOUT if time.perf_counter() - t0 >= budget else FAILED
+
+    def _tuned(self, name: str, goals: int, aim: np.ndarray | None, deadline: float | None = None) -> tuple[Oracle, float]:
+        """The strategy's refinement oracle for ``goals`` goals and its budget [s]: theirs pooled, each at least
+        ``ORIENTED_BUDGET`` with an orientation, within the deadline."""
+        oracle = self._oracle(name)
+        budget = goals * (self.budget if aim is None else max(self.budget, ORIENTED_BUDGET))
+        if deadline is not None:
+            budget = min(budget, deadline - time.perf_counter())
+        if budget != self.budget and budget > 0 and isinstance(oracle, Tunable):
+            oracle = oracle.variant("refine", budget=budget)
+        return oracle, budget
 
     def _prefetch(self, g: np.ndarray, names: list[str], hits: np.ndarray, nearest: dict[int, tuple[int, np.ndarray] | None],
                   aims: list[np.ndarray | None], deadline: float | None) -> tuple[list[Prefetched], np.ndarray]:
@@ -750,14 +764,11 @@ class Selector:
                      aims: list[np.ndarray | None], deadline: float | None) -> list[Refined]:
         """:meth:`_refine` for a strategy's goals (m, 3) in one evaluate call: each from its stored posture and the
         best-liked one near it, within m refinements' budgets (and the deadline)."""
-        oracle = self._oracle(name)
         m = len(goals)
-        budget = self.budget * m
-        if deadline is not None:
-            budget = min(budget, deadline - time.perf_counter())
+        tuned, budget = self._tuned(name, m, aims[0], deadline)
+        oracle = self._oracle(name)
         if budget <= 0:
             return [(q, r, TIMEOUT) for q, r in zip(stored, residuals, strict=True)]
-        tuned = oracle.variant("refine", budget=budget) if isinstance(oracle, Tunable) else oracle
         liked = [self._best_liked(name, oracle, goal, q) for goal, q in zip(goals, stored, strict=True)] if isinstance(oracle, Preferring) else []
         seeds = stored[:, None]
         if any(q is not None for q in liked):
