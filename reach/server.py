@@ -52,7 +52,18 @@ from reach import protocol as P
 from reach.client import load_curve_key
 from reach.errors import InputError, ReachError, UnknownEffector, UnknownStrategy
 from reach.motion import MotionError, Planner, Timing
-from reach.select import ERROR, HANDOVER, MISS, REFINE_BUDGET, SKIPPED, TIMEOUT, Answer, Selector, orientation_of
+from reach.select import (
+    ERROR,
+    HANDOVER,
+    MISS,
+    ORIENTED_BUDGET,
+    REFINE_BUDGET,
+    SKIPPED,
+    TIMEOUT,
+    Answer,
+    Selector,
+    orientation_of,
+)
 from reach.store import load_atlas
 from reach.tree import DEFAULT_POLICY
 from reach.workers import EXPIRED, Pool, Task, Tasks
@@ -542,7 +553,8 @@ class Server:
         chunk = self.chunk if refine else P.STORED_IN_LOOP  # stored answers cost little each: a chunk is about 0.15 s
         size = max(1, min(chunk, math.ceil(n / max(1, self.pool.size))))
         bounds = [(a, min(n, a + size)) for a in range(0, n, size)]
-        seq = self._pend(req, envelope, min(n * self.budget + SLACK, MAX_WAIT) if refine else MAX_WAIT, bounds)
+        each = self.budget if req["orientation"] is None else max(self.budget, ORIENTED_BUDGET)  # see reach.select
+        seq = self._pend(req, envelope, min(n * each + SLACK, MAX_WAIT) if refine else MAX_WAIT, bounds)
         if seq is not None:
             deadline, orientation = self.pending[seq].deadline, req["orientation"]
 
