@@ -24,6 +24,7 @@ from reach.tree import DEFAULT_POLICY, POLICIES
 
 QUERY_BUDGET = 1.0  # [s] default refinement budget of a local `reach query`: one question, no frame to keep
 MOTION_FILES = (".json", ".bvh", ".glb", ".gltf")  # reach motion -o: by the file's extension
+ANIMATION_FILES = (".bvh", ".glb", ".gltf")  # ... those written from the motion's bones (its rig)
 
 
 def _print_json(data: Any) -> None:
@@ -211,8 +212,6 @@ def cmd_motion(args: argparse.Namespace) -> int:
     kind = Path(args.output).suffix.lower() if args.output else None
     if kind is not None and kind not in MOTION_FILES:
         raise InputError("-o", f"{args.output}: expected a {', '.join(MOTION_FILES)} file")
-    if kind not in (None, ".json") and args.connect:
-        raise InputError("-o", f"{args.output}: a {kind} file needs the body's skeleton: give the atlas folder rather than --connect")
     timing = {"duration": args.duration} if args.duration is not None else None
     if args.connect:
         from reach.client import Client
@@ -220,7 +219,13 @@ def cmd_motion(args: argparse.Namespace) -> int:
         with Client(args.connect, timeout=args.timeout) as client:
             fields = {"effector": args.effector, "goal": goal, "rate": args.rate, "miss": args.miss}
             fields.update({k: v for k, v in (("from", start), ("timing", timing)) if v is not None})
+            if kind in ANIMATION_FILES:
+                fields["bones"] = True  # the server's body gives the skeleton
             data = {k: v for k, v in client.call("motion", **fields).items() if k not in ("ok", "id")}
+        if kind in ANIMATION_FILES:
+            from reach.rig import Rig
+
+            _write_animation(args.output, kind, Rig.from_dict(data.pop("rig", None)))
     else:
         from reach.motion import Planner, Timing
         from reach.select import Selector
@@ -230,8 +235,10 @@ def cmd_motion(args: argparse.Namespace) -> int:
         planner = Planner(Selector(load_atlas(atlas), policy=args.policy).warm_up())  # type: ignore[arg-type]
         motion = planner.plan(args.effector, goal, start, rate=args.rate, timing=Timing.from_dict(timing, "--duration"), miss=args.miss)
         data = motion.to_dict()
-        if kind in (".bvh", ".glb", ".gltf"):
-            _write_animation(args.output, kind, motion, planner.body(motion.strategy))
+        if kind in ANIMATION_FILES:
+            from reach.rig import rig
+
+            _write_animation(args.output, kind, rig(motion, planner.body(motion.strategy)))
     if kind == ".json":
         Path(args.output).write_text(json.dumps(data, indent=1) + "\n")
     summary = {k: v for k, v in data.items() if k != "frames"}
@@ -250,11 +257,8 @@ def cmd_motion(args: argparse.Namespace) -> int:
     return 0
 
 
-def _write_animation(path: str, kind: str, motion: Any, body: Any) -> None:
-    """A motion as BVH or glTF, its skeleton from the strategy's oracle."""
-    from reach.rig import rig
-
-    bones = rig(motion, body)
+def _write_animation(path: str, kind: str, bones: Any) -> None:
+    """A motion's rig (:class:`reach.rig.Rig`) as BVH or glTF."""
     if kind == ".bvh":
         from reach.bvh import write_bvh
 

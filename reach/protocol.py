@@ -360,6 +360,8 @@ OPERATIONS: dict[str, Operation] = {op.name: op for op in (
         Field("timing", "{name: number}", _timing, "overrides of the movement-time law: `tmu`, `past_30`, `stoop`, `foot`, `drop`, `tilt`, `lift`, `duration`"),
         Field("miss", "string", _choice(MOTION_MISSES), "a goal out of reach: `nearest` (move towards the nearest reachable point) or `error`",
               default="nearest"),
+        Field("bones", "bool", _bool, "also the motion as bones (`rig`: each bone's offset and rotation per frame, Y up), "
+              "from which a client writes BVH or glTF", default=False),
         Field("deadline", "s", _deadline, f"answer within this many seconds of arrival (0 to {MAX_DEADLINE:g})"),
         TAG,
     ), "the timed motion from a posture to the answer's posture: frames of posture, root and effector", "op_motion", worker=True),

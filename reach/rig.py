@@ -16,6 +16,7 @@ a human's rest pose is upright, not lying on its back.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -56,6 +57,36 @@ class Rig:
     def bones(self) -> tuple[str, ...]:
         return self.skeleton.bones
 
+    def to_dict(self) -> dict[str, Any]:
+        """The rig as JSON-compatible data (a motion reply's ``rig``; :meth:`from_dict` reads it back)."""
+        sk = self.skeleton
+        return {"bones": list(sk.bones), "joints": [list(j) for j in sk.joints], "parents": list(sk.parents),
+                "ends": [[name, bone, list(offset)] for name, bone, offset in sk.ends], "capsule_names": list(sk.capsule_names),
+                "capsule_bones": list(sk.capsule_bones), "bone_capsules": np.asarray(sk.capsules, float).tolist(),
+                "offsets": self.offsets.tolist(), "rotations": self.rotations.tolist(), "root": self.root.tolist(),
+                "end_offsets": self.ends.tolist(), "capsules": self.capsules.tolist(), "times": self.times.tolist(), "rate": self.rate}
+
+    @staticmethod
+    def from_dict(data: Any) -> Rig:
+        """A rig from :meth:`to_dict`'s data (a server's motion reply); raises InputError naming ``rig`` when malformed."""
+        try:
+            bones = tuple(str(b) for b in data["bones"])
+            n = len(bones)
+            skeleton = Skeleton(bones, tuple(tuple(str(j) for j in js) for js in data["joints"]), tuple(int(p) for p in data["parents"]),
+                                tuple((str(e[0]), int(e[1]), (float(e[2][0]), float(e[2][1]), float(e[2][2]))) for e in data["ends"]),
+                                tuple(str(c) for c in data["capsule_names"]), np.asarray(data["bone_capsules"], float).reshape(-1, 7),
+                                tuple(int(b) for b in data["capsule_bones"]))
+            times = np.asarray(data["times"], float).reshape(-1)
+            t = len(times)
+            out = Rig(skeleton, np.asarray(data["offsets"], float).reshape(n, 3), np.asarray(data["rotations"], float).reshape(t, n, 3, 3),
+                      np.asarray(data["root"], float).reshape(t, 3), np.asarray(data["end_offsets"], float).reshape(-1, 3),
+                      np.asarray(data["capsules"], float).reshape(-1, 7), times, float(data["rate"]))
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            raise InputError("rig", f"a motion's bones are malformed ({type(exc).__name__}: {exc})") from None
+        if len(skeleton.parents) != n or len(skeleton.joints) != n or len(out.ends) != len(skeleton.ends):
+            raise InputError("rig", "a motion's bones, parents, joints and ends do not match")
+        return out
+
     def world(self, frame: int) -> np.ndarray:
         """(B, 4, 4) each bone's world transform at a frame, Y-up axes."""
         out = np.empty((len(self.bones), 4, 4))
@@ -93,3 +124,8 @@ def rig(motion: Motion, body: object) -> Rig:
     caps[:, :3], caps[:, 3:6] = caps[:, :3] @ TO_Y_UP.T, caps[:, 3:6] @ TO_Y_UP.T
     root = world[:, 0, :3, 3]  # Pinocchio's one root joint is bone 0
     return Rig(skeleton, base, local[:, :, :3, :3], root, ends, caps, np.asarray(motion.times, float), motion.rate)
+
+
+def with_bones(data: dict[str, Any], motion: Motion, body: object) -> dict[str, Any]:
+    """A motion's data (``Motion.to_dict``) with its rig as ``rig``, for a request that asks for bones."""
+    return {**data, "rig": rig(motion, body).to_dict()}

@@ -52,6 +52,7 @@ from reach import protocol as P
 from reach.client import load_curve_key
 from reach.errors import InputError, ReachError, UnknownEffector, UnknownStrategy
 from reach.motion import MotionError, Planner, Timing
+from reach.rig import with_bones
 from reach.select import (
     ERROR,
     HANDOVER,
@@ -399,7 +400,8 @@ class Server:
         deadline = None if req["deadline"] is None else time.perf_counter() + req["deadline"]
         motion = self.planner.plan(req["effector"], np.array(req["goal"]), req["from"], rate=req["rate"],
                                    timing=Timing.from_dict(req["timing"]), miss=req["miss"], deadline=deadline)
-        return self._motion_result(req, P.encode(motion.summary()), P.encode(motion.to_dict()))
+        data = with_bones(motion.to_dict(), motion, self.planner.body(motion.strategy)) if req["bones"] else motion.to_dict()
+        return self._motion_result(req, P.encode(motion.summary()), P.encode(data))
 
     @property
     def planner(self) -> Planner:
@@ -570,7 +572,8 @@ class Server:
         """Hand a motion to the workers, once what they could refuse is checked here."""
         self.selector.check_goals(req["effector"], np.array([req["goal"]]), req["from"])
         Timing.from_dict(req["timing"])
-        return self._defer_whole(req, envelope, "motion", {"rate": req["rate"], "timing": req["timing"], "miss": req["miss"]})
+        return self._defer_whole(req, envelope, "motion", {"rate": req["rate"], "timing": req["timing"], "miss": req["miss"],
+                                                           "bones": req["bones"]})
 
     def _defer_whole(self, req: P.Request, envelope: list[bytes], op: str, options: dict[str, Any]) -> bool:
         """Hand a request a worker answers whole (a motion, a placement) to the workers."""

@@ -276,6 +276,7 @@ def work(address: str, atlas: str, options: dict[str, Any], identity: bytes) -> 
     from reach.motion import MotionError, Planner, Timing
     from reach.place import answer
     from reach.protocol import encode
+    from reach.rig import with_bones
     from reach.select import Selector, orientation_of
     from reach.store import load_atlas
 
@@ -308,7 +309,10 @@ def work(address: str, atlas: str, options: dict[str, Any], identity: bytes) -> 
             try:
                 motion = planner.plan(job["effector"], np.array(job["goals"][0]), job["from"], rate=opts["rate"],
                                       timing=Timing.from_dict(opts["timing"]), miss=opts["miss"], deadline=deadline)
-                sock.send_multipart([encode(motion.summary()), encode(motion.to_dict())])
+                data = motion.to_dict()
+                if opts.get("bones"):
+                    data = with_bones(data, motion, planner.body(motion.strategy))
+                sock.send_multipart([encode(motion.summary()), encode(data)])
             except MotionError as exc:
                 sock.send(FAILED + f" {exc.code}: {exc}".encode())
             except UnknownEffector as exc:

@@ -16,6 +16,7 @@ from reach.atlas import build_atlas
 from reach.config import parse_config
 from reach.errors import InputError
 from reach.motion import INCH, TMU, MotionError, Planner, Timing, minimum_jerk
+from reach.rig import Rig
 from reach.select import Selector, posture_vector
 
 TOL = 0.005  # [m] the reach task's default tolerance
@@ -273,8 +274,6 @@ def test_reach_motion_writes_the_frames_and_names_bad_input(planner, tmp_path, c
     assert data["rate"] == 50 and len(data["frames"]) == data["frame_count"] and data["frames"][-1]["t"] == pytest.approx(data["duration"])
     assert main(["motion", atlas, "0.45", "-0.25", "1.2", "--effector", "right_hand", "-o", str(tmp_path / "reach.fbx")]) == 2
     assert "-o: " in capsys.readouterr().err and not (tmp_path / "reach.fbx").exists()
-    assert main(["motion", "0.45", "-0.25", "1.2", "--effector", "right_hand", "--connect", "tcp://127.0.0.1:9", "-o", str(tmp_path / "r.bvh")]) == 2
-    assert "needs the body's skeleton" in capsys.readouterr().err
     for name in ("reach.bvh", "reach.glb"):
         assert main(["motion", atlas, "0.45", "-0.25", "1.2", "--effector", "right_hand", "-o", str(tmp_path / name)]) == 0
         assert (tmp_path / name).stat().st_size > 1000
@@ -496,3 +495,31 @@ def test_planning_stops_at_its_deadline_within_a_frame(planner, monkeypatch):
     assert m.strategy == "whole" and len(m.times) > 200
     # Three readings of the deadline, then it stopped (and the start posture's own check), long before the end.
     assert stopped <= 3 * motion.CHECK_FRAMES + 1 < sum(checked)
+
+
+@pytest.mark.parametrize("workers", [0, 1])
+def test_reach_motion_over_the_wire_writes_the_same_animation_files(planner, tmp_path, capsys, workers):
+    """Issue 34, item 4: `reach motion --connect ADDR -o FILE.bvh|.glb` asks the server for the motion's bones (the
+    `bones` field; the client has no body) and writes the file the atlas folder writes for the same request."""
+    import threading
+
+    from reach.cli import main
+    from reach.server import Server
+
+    atlas = str(planner.selector.atlas.path)
+    server = Server(atlas, "tcp://127.0.0.1:*", None, workers=workers)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    try:
+        for name in ("reach.bvh", "reach.gltf"):
+            here, there = tmp_path / f"here_{name}", tmp_path / f"there_{name}"
+            assert main(["motion", atlas, "0.45", "-0.25", "1.2", "--effector", "right_hand", "--rate", "40", "-o", str(here)]) == 0
+            assert main(["motion", "0.45", "-0.25", "1.2", "--effector", "right_hand", "--rate", "40", "--connect", server.endpoint,
+                         "-o", str(there)]) == 0
+            assert "frames written to" in capsys.readouterr().out
+            assert there.read_text() == here.read_text()
+    finally:
+        server.stop()
+        thread.join(timeout=10)
+    with pytest.raises(InputError, match="rig: a motion's bones are malformed"):
+        Rig.from_dict({"bones": ["a"]})
