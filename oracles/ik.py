@@ -72,6 +72,7 @@ CUT_ROUNDS = 4
 CUT_WITHIN = 0.02
 CUT_INSIDE = 0.002
 UNUSED = -1.0  # an unused cut slot's lower bound: 0 >= -1
+WORLD_FIXED = frozenset({"obstacles", "tether"})  # tasks that hold something fixed in the world, which a turn would move
 TARGET_RESTARTS = 4  # random starts at least, for a goal that carries a target (see IKOracle._evaluate)
 
 
@@ -182,6 +183,33 @@ class IKOracle(ABC):
         if p.anchor is None or not np.isfinite(p.max_reach):
             return None
         return Ball(p.anchor.copy(), float(p.max_reach))
+
+    def free_turn(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The first active joint's axis when the volume turns freely about it (see :class:`oracles.protocol.Turning`)."""
+        model, p = self.body.model, self.problem
+        if self.strategy.floating or not p.joint_ids or self.body.furniture:
+            return None
+        if any(t.type in WORLD_FIXED for t in self.strategy.tasks):
+            return None
+        first = min(p.joint_ids)
+        for j in p.joint_ids:
+            while j > first:
+                j = int(model.parents[j])
+            if j != first:
+                return None  # an active joint on another branch
+        jm = model.joints[first]
+        full = jm.nq == 2 and jm.nv == 1 or (jm.nq == 1 and model.upperPositionLimit[jm.idx_q] - model.lowerPositionLimit[jm.idx_q] >= 2 * np.pi - 1e-6)
+        if not full:
+            return None
+        data = model.createData()
+        pin.computeJointJacobians(model, data, self.body.q_ref)
+        column = pin.getJointJacobian(model, data, first, pin.LOCAL_WORLD_ALIGNED)[:, jm.idx_v]
+        if np.linalg.norm(column[3:]) < 0.5 or np.linalg.norm(column[:3]) > 1e-9:
+            return None  # not a revolute joint
+        axis = column[3:] / np.linalg.norm(column[3:])
+        if self.strategy.task("floor") is not None and abs(axis[2]) < 1 - 1e-9:
+            return None  # a floor turns with a vertical axis only
+        return data.oMi[first].translation.copy(), axis
 
     def lowest(self) -> float | None:
         """0 when a floor task holds the effector's own capsule above z = 0 (the effector lies inside it), else None."""

@@ -18,6 +18,7 @@ Oracles may also offer optional capabilities, each a protocol of its own;
 * :class:`EffectorPositions`: where postures put the effector (the
   selector's nearest-posture index);
 * :class:`ReachBound`: a ball that holds every reachable point (``box: auto``);
+* :class:`Turning`: the axis a volume turns freely about (the audit's twins);
 * :class:`Shaped`: the body's capsules at a posture, to draw it (``reach view``);
 * :class:`Furnished`: the static boxes around the body (a seat, a table);
 * :class:`KeepOut`: capsules no reachable point lies in (the static parts of
@@ -230,6 +231,17 @@ class ReachBound(Protocol):
 
     def reach_bound(self) -> Ball | tuple[np.ndarray, float] | None:
         """A ball (centre [m], radius [m]) holding every reachable point, or None when unbounded."""
+        ...
+
+
+@runtime_checkable
+class Turning(Protocol):
+    """An oracle whose volume turns freely about an axis (a robot's base joint of a full turn or more)."""
+
+    def free_turn(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """A point [m] and a unit axis (world frame) about which the volume is symmetric: the strategy's first active
+        joint turns about it through a full turn or more, every other active joint lies after it, and no task holds
+        anything fixed in the world that the turn would move (an obstacle, a belt's anchor); else None."""
         ...
 
 

@@ -23,6 +23,22 @@ directions the index calls reached that the referee does not reach (a
 neighbour's agreement inherited wrongly) and of those it calls missed that
 the referee reaches (a quick solve that missed), and the mean index over the
 sampled vertices by the index and by the referee.
+
+Uniform probes miss what hides in a small volume, so three more kinds of
+probe are reported apart:
+
+* ``surface``: points on lattice edges whose two vertices the tree labels
+  differently (the surface crosses them), just inside or just outside it;
+* ``rays``: points along rays from the strategy's reach bound's centre (its
+  anchor: a robot's base, the shoulder) out to the bound; per ray, the
+  farthest point the tree holds against the farthest the referee reaches:
+  a ray where the tree stops more than two of its finest cells short
+  (``short``) is a region the tree lacks (a UR5's tree held nothing above
+  z = 0.888 m; its tool reaches 1.08 m);
+* ``twins`` (a :class:`~oracles.protocol.Turning` oracle: a base joint that
+  turns a full turn): each uniform probe's twin turned 90 deg about that
+  axis; the tree's verdicts on the two should agree, and where they do not,
+  the referee says which one lies.
 """
 
 from __future__ import annotations
@@ -33,13 +49,18 @@ from typing import Any
 
 import numpy as np
 
-from oracles.protocol import Goals, Oracle, OracleSpec, Specified, Tunable
+from oracles.protocol import Ball, Goals, Oracle, OracleSpec, ReachBound, Specified, Tunable, Turning
 from reach.build import warm_hints
 from reach.executor import Executor, InlineExecutor
+from reach.index import spiral
 from reach.store import Atlas
 from reach.tree import FINAL, INNER, KIND_NAMES, OUTER, Policy, VATree
 
 Z95 = 1.959963984540054
+RAYS, RAY_POINTS = 16, 10  # rays from the reach bound's centre, and probes along each (evenly in radius)
+SHORT_CELLS = 2  # a ray whose tree stops this many of its finest cells short of the referee is reported short
+TWIN_TURN = math.pi / 2  # [rad] a probe's twin about a freely turning axis
+TWIN_CHECKS = 24  # disagreeing twin pairs the referee settles at most
 
 
 def wilson(k: int, n: int) -> tuple[float, float]:
@@ -123,9 +144,105 @@ def audit_tree(tree: VATree, referee: Oracle | Executor, samples: int = 300, pol
     fu, fu_ci = _stratified(kind, ~said, truth & ~said, tree)
     out.update(false_reachable=fr, false_unreachable=fu, false_reachable_ci95=fr_ci, false_unreachable_ci95=fu_ci,
                counts={"false_reachable": _rate(~truth, said), "false_unreachable": _rate(truth, ~said)})
+    out["surface"] = audit_surface(tree, referee, max(samples // 3, 1), policy, rng)
+    oracle = getattr(referee, "oracle", referee)  # an executor's local oracle, for its capabilities
+    out["rays"] = audit_rays(tree, referee, oracle, policy)
+    turn = oracle.free_turn() if isinstance(oracle, Turning) else None
+    if turn is not None:
+        out["twins"] = audit_twins(tree, referee, pts, said, turn, policy)
     if tree.index is not None and tree.vertices.posture is not None:
         out["index"] = audit_index(tree, referee, samples, rng)
     return out
+
+
+def _judge(tree: VATree, referee: Oracle | Executor, points: np.ndarray) -> np.ndarray:
+    """The referee's verdicts, warm-started from the tree's nearest reachable postures."""
+    if not len(points):
+        return np.zeros(0, bool)
+    return np.asarray(referee.evaluate(Goals(points, seeds=warm_hints(tree.vertices, tree.lattice, points))).reachable)
+
+
+def audit_surface(tree: VATree, referee: Oracle | Executor, n: int, policy: Policy, rng: np.random.Generator) -> dict[str, Any]:
+    """Probes just inside and just outside the tree's surface: on lattice edges (at every vertex spacing) whose ends the
+    tree labels differently, a quarter of the edge from the reachable end and from the unreachable one."""
+    v, lat = tree.vertices, tree.lattice
+    coords = lat.coords(v.keys)
+    pairs = []
+    for step in (1 << k for k in range(int(tree.depth.max(initial=0)) + 1)):
+        for axis in range(tree.dim):
+            nb = coords.copy()
+            nb[:, axis] += step
+            ok = np.all(nb <= lat.cells, axis=1)
+            rows = np.full(len(coords), -1)
+            rows[ok] = v.index(lat.keys(nb[ok]))
+            found = rows >= 0
+            differ = found & (v.reachable != v.reachable[np.maximum(rows, 0)])
+            pairs.append(np.stack([np.nonzero(differ)[0], rows[differ]], axis=1))
+    edges = np.concatenate(pairs) if pairs else np.zeros((0, 2), int)
+    if not len(edges) or n <= 0:
+        return {"edges": 0}
+    pick = edges[rng.integers(0, len(edges), size=n)]
+    inside = np.where(v.reachable[pick[:, 0]], pick[:, 0], pick[:, 1])
+    outside = np.where(v.reachable[pick[:, 0]], pick[:, 1], pick[:, 0])
+    a, b = lat.points(coords[inside]), lat.points(coords[outside])
+    pts = np.concatenate([a + 0.25 * (b - a), a + 0.75 * (b - a)])
+    said, truth = tree.contains(pts, policy), _judge(tree, referee, pts)
+    near = np.repeat([True, False], n)
+    return {"edges": int(len(edges)), "probes": int(len(pts)),
+            "inside": {"false_reachable": _rate(~truth[near], said[near]), "false_unreachable": _rate(truth[near], ~said[near])},
+            "outside": {"false_reachable": _rate(~truth[~near], said[~near]), "false_unreachable": _rate(truth[~near], ~said[~near])}}
+
+
+def audit_rays(tree: VATree, referee: Oracle | Executor, oracle: Any, policy: Policy) -> dict[str, Any]:
+    """Probes along rays from the reach bound's centre (the box's centre without one) out to the bound (the box's
+    half diagonal); each ray's farthest point held by the tree and reached by the referee (see the module docstring)."""
+    bound = oracle.reach_bound() if isinstance(oracle, ReachBound) else None
+    box = tree.box
+    if bound is not None and not isinstance(bound, Ball):
+        bound = Ball(np.asarray(bound[0], float), float(bound[1]))
+    centre = bound.centre if bound is not None else 0.5 * (box.lo + box.hi)
+    radius = bound.radius if bound is not None else 0.5 * float(np.linalg.norm(box.hi - box.lo))
+    if tree.dim == 3:
+        directions = spiral(RAYS)
+    else:
+        turns = np.linspace(0, 2 * math.pi, RAYS, endpoint=False)
+        directions = np.stack([np.cos(turns), np.sin(turns)], axis=1)
+    radii = radius * (np.arange(RAY_POINTS) + 0.5) / RAY_POINTS
+    pts = (centre[None, None] + directions[:, None] * radii[None, :, None]).reshape(-1, tree.dim)
+    inside = np.all((pts >= box.lo) & (pts <= box.hi), axis=1)
+    said = tree.contains(pts, policy) & inside
+    truth = np.zeros(len(pts), bool)
+    truth[inside] = _judge(tree, referee, pts[inside])
+    cell = float(tree.cell_size(np.array([tree.depth.max(initial=0)])).max())
+    short = []
+    for r, d in enumerate(directions):
+        k = slice(r * RAY_POINTS, (r + 1) * RAY_POINTS)
+        held = radii[said[k]].max(initial=0.0)
+        reached = radii[truth[k]].max(initial=0.0)
+        if reached - held > SHORT_CELLS * cell:
+            short.append({"direction": np.round(d, 4).tolist(), "tree_m": round(float(held), 4), "referee_m": round(float(reached), 4)})
+    return {"rays": RAYS, "probes": int(inside.sum()), "centre": np.round(centre, 4).tolist(), "radius": round(float(radius), 4),
+            "false_reachable": _rate(~truth[inside], said[inside]), "false_unreachable": _rate(truth[inside], ~said[inside]), "short": short}
+
+
+def audit_twins(tree: VATree, referee: Oracle | Executor, pts: np.ndarray, said: np.ndarray, turn: tuple[np.ndarray, np.ndarray],
+                policy: Policy) -> dict[str, Any]:
+    """Each probe's twin turned ``TWIN_TURN`` about the free axis: how often the tree's verdicts disagree, and of the
+    disagreeing pairs (at most ``TWIN_CHECKS``), how often the referee reaches the one the tree calls unreachable."""
+    point, axis = turn
+    c, s = math.cos(TWIN_TURN), math.sin(TWIN_TURN)
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    rot = np.eye(3) + s * k + (1 - c) * (k @ k)  # Rodrigues
+    twins = (pts - point) @ rot.T + point
+    inside = np.all((twins >= tree.box.lo) & (twins <= tree.box.hi), axis=1)
+    twin_said = tree.contains(twins, policy)
+    differ = np.nonzero(inside & (twin_said != said))[0]
+    checked = differ[:TWIN_CHECKS]
+    lying = np.where(said[checked, None], twins[checked], pts[checked])  # the one the tree calls unreachable
+    reached = _judge(tree, referee, lying)
+    return {"axis": np.round(axis, 6).tolist(), "point": np.round(point, 4).tolist(), "turn_deg": math.degrees(TWIN_TURN),
+            "pairs": int(inside.sum()), "disagree": _rate(twin_said != said, inside),
+            "checked": int(len(checked)), "unreachable_but_reached": int(reached.sum())}
 
 
 def audit_index(tree: VATree, referee: Oracle | Executor, samples: int, rng: np.random.Generator) -> dict[str, Any]:

@@ -524,6 +524,22 @@ def cmd_audit(args: argparse.Namespace) -> int:
         fr, fu = r["false_reachable_ci95"], r["false_unreachable_ci95"]
         print(f"{name:<22} {100 * r['false_reachable']:>6.2f} % [{100 * fr[0]:.1f}, {100 * fr[1]:.1f}]  {100 * r['false_unreachable']:>6.2f} % [{100 * fu[0]:.1f}, {100 * fu[1]:.1f}]")
     for name, r in result["strategies"].items():
+        surface, rays, twins = r.get("surface", {}), r.get("rays", {}), r.get("twins")
+        if surface.get("edges"):
+            print(f"{name}: near the surface ({surface['probes']} probes on {surface['edges']} edges it crosses): "
+                  f"just inside, false unreachable {_share(surface['inside']['false_unreachable'])}; "
+                  f"just outside, false reachable {_share(surface['outside']['false_reachable'])}")
+        if rays:
+            print(f"{name}: along {rays['rays']} rays from {rays['centre']} to {rays['radius']} m: false unreachable "
+                  f"{_share(rays['false_unreachable'])}, false reachable {_share(rays['false_reachable'])}")
+            for ray in rays["short"]:
+                print(f"warning: {name}: the tree stops {ray['tree_m']} m out along {ray['direction']}, the referee reaches "
+                      f"{ray['referee_m']} m: a region the tree lacks (build deeper, or check the strategy's box)", file=sys.stderr)
+        if twins:
+            print(f"{name}: twins turned {twins['turn_deg']:.0f} deg about the free axis {twins['axis']}: the tree disagrees on "
+                  f"{_share(twins['disagree'])} of pairs; of {twins['checked']} checked, the referee reaches "
+                  f"{twins['unreachable_but_reached']} the tree calls unreachable")
+    for name, r in result["strategies"].items():
         if "index" in r and r["index"].get("pairs"):
             i = r["index"]
             fr, fu = i["false_reached"], i["false_missed"]
@@ -532,6 +548,11 @@ def cmd_audit(args: argparse.Namespace) -> int:
                   f"[{100 * fu['ci95'][0]:.1f}, {100 * fu['ci95'][1]:.1f}] of {fu['of']}; share {i['share_by_index']:.3f} by the index, "
                   f"{i['share_by_referee']:.3f} by the referee")
     return 0
+
+
+def _share(rate: dict[str, Any]) -> str:
+    """An audit's rate as ``x.x % of n``."""
+    return f"{100 * rate['rate']:.1f} % of {rate['of']}"
 
 
 def _add_executor_arguments(p: argparse.ArgumentParser) -> None:

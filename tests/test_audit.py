@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 
@@ -12,7 +13,8 @@ from reach.audit import audit_tree, referee, wilson
 from reach.build import Refine, build_tree
 from reach.cli import main
 from reach.config import parse_config
-from reach.tree import INNER, Box
+from reach.store import load_atlas
+from reach.tree import FINAL, INNER, OUTER, Box
 
 CUBE = Box([-1, -1, -1], [1, 1, 1])
 HOLE_CENTRE, HOLE_R = (0.25, 0.25, 0.25), 0.2
@@ -135,3 +137,44 @@ def test_retry_turns_an_isolated_failure_into_a_verdict():
     assert fixed.vertices.reachable[fixed.vertices.index(key)][0]
     assert sum(lv["retried"] for lv in fixed.meta["build"]["levels"]) == 1
     assert fixed.volume(INNER) > plain.volume(INNER)
+
+
+TURNTABLE = Path(__file__).parent / "data" / "turntable.urdf"
+
+
+def _turntable(tmp_path: Path) -> Path:
+    config = {"name": "turntable", "body": {"urdf": str(TURNTABLE), "reference": {"extend": 0.1}},
+              "box": {"min": [-0.7, -0.7, -0.2], "max": [0.7, 0.7, 0.9]}, "depth": {"min": 2, "max": 4},
+              "oracle": {"name": "casadi-ik", "params": {"restarts": 1}},
+              "strategies": [{"name": "arm", "effector": "tool", "joints": ["base_turn", "shoulder", "extend"], "tasks": [{"type": "reach"}]}]}
+    build_atlas(parse_config(config, "turntable", "turntable"), tmp_path / "turntable")
+    return tmp_path / "turntable"
+
+
+def _lacking(tree, y: float) -> None:
+    """The tree made to lack the region past ``y`` [m] (cells and vertices), as a build whose starts all missed it would."""
+    leaf = np.isin(tree.kind, [INNER, FINAL])
+    centre = tree.lattice.points(tree.corner) + tree.cell_size(tree.depth) / 2
+    tree.kind[leaf & (centre[:, 1] > y)] = OUTER
+    tree.vertices.reachable[tree.lattice.points(tree.lattice.coords(tree.vertices.keys))[:, 1] > y] = False
+
+
+def test_the_audit_finds_a_region_the_tree_lacks_along_rays_and_by_twins(tmp_path, capsys):
+    """Issue 36, item 2: a UR5's tree lacked everything above 0.888 m and its audit said 1.5 % false unreachable. A
+    turntable arm (a continuous base joint) audited as built: its twins about the base agree and no ray stops short.
+    The same tree made to lack the region y > 0.15 m: rays towards +y stop short of the referee (warned), twins turned
+    90 deg disagree, and the referee reaches the ones the tree calls unreachable."""
+    folder = _turntable(tmp_path)
+    judge = referee(load_atlas(folder).trees["arm"], 2)
+    assert judge.free_turn() is not None and np.allclose(judge.free_turn()[1], [0, 0, 1])
+    whole = audit_tree(load_atlas(folder).trees["arm"], judge, samples=90, seed=4)
+    assert whole["rays"]["short"] == [] and whole["twins"]["disagree"]["rate"] <= 0.1
+    assert whole["surface"]["edges"] > 0 and whole["surface"]["probes"] == 60
+    lacking = load_atlas(folder).trees["arm"]
+    _lacking(lacking, 0.15)
+    cut = audit_tree(lacking, judge, samples=90, seed=4)
+    assert cut["rays"]["short"] and all(ray["direction"][1] > 0 for ray in cut["rays"]["short"])
+    assert cut["twins"]["disagree"]["rate"] >= 0.2 and cut["twins"]["unreachable_but_reached"] >= cut["twins"]["checked"] // 2 > 0
+    assert main(["audit", str(folder), "--samples", "30", "--restarts", "1", "-j", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "along 16 rays from" in out and "twins turned 90 deg about the free axis [0.0, 0.0, 1.0]" in out
