@@ -175,6 +175,7 @@ def main() -> None:
         for workers in (1, 0):
             attacks_bench(atlas, workers)
         overrun_bench(atlas)
+        heavy_bench(atlas)
 
 
 def one_server_bench(atlas: Path, stored: list[bytes], refined: list[bytes], requests: int) -> None:
@@ -433,6 +434,49 @@ def overrun_bench(atlas: Path, runs: int = 5) -> None:
         server.wait(timeout=30)
     emit(bench="server_deadline_overrun", motion_replies=codes, idle_refined_ms=round(idle * 1e3, 1),
          overrun_ms_max=round(max(over) * 1e3, 1), overrun_ms=[round(o * 1e3, 1) for o in over])
+
+
+def heavy_bench(atlas: Path, repeats: int = 10) -> None:
+    """Issue 35, item 4: another client's stored queries while one client sends, one after the other, ``repeats``
+    placements near their limit (1,000 targets x 1,681 candidates) and then ``repeats`` stored batches of 10,000 goals
+    (both answered in the worker): the watcher's median, p99 and longest wait in each phase, and alone."""
+    server, address = serve(atlas, 1)
+    _workers_ready(address, 1)
+    goals = np.random.default_rng(35).uniform([0.1, -0.7, 0.8], [0.6, 0.0, 1.6], (10_000, 3)).round(4).tolist()
+    target = {"point": [0.5, -0.2, 1.1], "effector": "right_hand"}
+    phases = {"alone": None,
+              "place": {"op": "place", "targets": [target] * 1000, "x": [-1.0, 1.0], "y": [-1.0, 1.0], "yaw": [0, 0], "step": 0.05},
+              "stored_batch": {"op": "query", "effector": "right_hand", "goals": goals, "refine": False}}
+    ctx = mp.get_context("spawn")
+    sock = zmq.Context.instance().socket(zmq.DEALER)
+    sock.setsockopt(zmq.LINGER, 0)
+    sock.connect(address)
+    try:
+        for phase, request in phases.items():
+            stop, out = ctx.Event(), ctx.Queue()
+            watcher = ctx.Process(target=watch, args=(address, server.pid, stop, out))
+            watcher.start()
+            time.sleep(1.0)
+            codes: dict[str, int] = {}
+            t0 = time.perf_counter()
+            for k in range(repeats if request is not None else 0):
+                sock.send_multipart([b"", json.dumps({**request, "id": k}).encode()])
+                code = reply_code(sock.recv_multipart()[-1]) if sock.poll(120_000) else "lost"
+                codes[code] = codes.get(code, 0) + 1
+            if request is None:
+                time.sleep(5.0)
+            seconds = time.perf_counter() - t0
+            stop.set()
+            waits, lost, _ = out.get(timeout=60)
+            watcher.join()
+            lat = np.array(waits) * 1e3
+            emit(bench="server_heavy", phase=phase, requests=repeats if request else 0, replies=codes, seconds=round(seconds, 2),
+                 watcher_queries=len(waits), watcher_lost=lost, median_ms=round(float(np.median(lat)), 3),
+                 p99_ms=round(float(np.percentile(lat, 99)), 3), longest_ms=round(float(lat.max()), 1))
+    finally:
+        sock.close(linger=0)
+        server.terminate()
+        server.wait(timeout=30)
 
 
 def watch(address: str, pid: int, stop: Any, out: Any) -> None:
