@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import math
 import shutil
 import time
 import warnings
@@ -46,7 +47,7 @@ from oracles.batch import (
     BatchProgram,
     run_starts,
 )
-from oracles.body import load_body
+from oracles.body import ROOT, load_body
 from oracles.errors import ModelError, OracleError
 from oracles.jit import COMPILER, compiled_nlpsol
 from oracles.kinematics import SymbolicKinematics
@@ -198,7 +199,8 @@ class IKOracle(ABC):
             if j != first:
                 return None  # an active joint on another branch
         jm = model.joints[first]
-        full = jm.nq == 2 and jm.nv == 1 or (jm.nq == 1 and model.upperPositionLimit[jm.idx_q] - model.lowerPositionLimit[jm.idx_q] >= 2 * np.pi - 1e-6)
+        full = str(model.names[first]) in self.body.continuous or (
+            jm.nq == 1 and model.upperPositionLimit[jm.idx_q] - model.lowerPositionLimit[jm.idx_q] >= 2 * np.pi - 1e-6)
         if not full:
             return None
         data = model.createData()
@@ -368,9 +370,13 @@ class IKOracle(ABC):
         out: dict[str, Any] = {"effector": self.strategy.effector, "joints": list(self.strategy.joints),
                                "tasks": [t.describe() for t in self.strategy.tasks]}
         if self._strategy_params["body"].get("reference") == "auto":
-            names = self.body.q_names
-            out["reference"] = {n: round(float(v), 6) for n, v in zip(names, self.body.q_ref, strict=True)
-                                if not n.startswith("root_") and n.split(".")[0] in self.strategy.joints}
+            model, q = self.body.model, self.body.q_ref
+            out["reference"] = {}
+            for name in self.strategy.joints:  # one value per joint: a continuous joint's angle
+                if name != ROOT:
+                    jm = model.joints[model.getJointId(name)]
+                    value = math.atan2(q[jm.idx_q + 1], q[jm.idx_q]) if jm.nq == 2 else q[jm.idx_q]
+                    out["reference"][name] = round(float(value), 6)
         return out
 
     def diagnose(self) -> list[str]:
@@ -444,6 +450,11 @@ class IKOracle(ABC):
         """``direction`` and ``rotation`` for an axis-form orientation task, ``rotation`` for a full one, else none."""
         task = self.orientation
         return () if task is None else ("direction", "rotation") if task.axis is not None else ("rotation",)
+
+    def _unsolved_residuals(self, pts: np.ndarray, residual: np.ndarray, posture: np.ndarray) -> None:
+        """A goal no solve reached before the deadline keeps the reference posture: its true distance, not infinity."""
+        for i in np.nonzero(np.isinf(residual))[0]:
+            residual[i] = self.problem.effector_distance(posture[i], pts[i], self._data)
 
     def starts(self, goal: np.ndarray, hint: np.ndarray | None, call: Call = NO_CALL, restarts: int | None = None) -> list[np.ndarray]:
         """Initial postures: the hint(s), the reference, then seeded random ones (``restarts`` of them, the search's by
@@ -549,8 +560,7 @@ class IKOracle(ABC):
                 if not done[i] and r == 0 and decisive[i] and check.eager_ok and check.residual > give_up:
                     # Given up: no reference start, only the first `rescues` random ones.
                     starts[i] = [starts[i][0], *starts[i][2 : 2 + search.rescues]]
-        for i in np.nonzero(np.isinf(residual))[0]:  # not solved before the deadline: the reference posture is the attempt
-            residual[i] = self.problem.effector_distance(posture[i], pts[i], self._data)
+        self._unsolved_residuals(pts, residual, posture)
         self.stats["reachable"] += int(reach.sum())
         return Verdicts(reach, residual, posture)
 
@@ -933,8 +943,7 @@ class CasadiIK(IKOracle):
             runs.append(run)
             self._keep_reaching(run, pts, targets, reach, residual, posture)
         self._polish_missed(runs, pts, targets, start, deadline, reach, residual, posture, set(np.nonzero(cold)[0].tolist()))
-        for i in np.nonzero(np.isinf(residual))[0]:  # no wave ran in time: the reference posture is the attempt
-            residual[i] = p.effector_distance(posture[i], pts[i], self._data)
+        self._unsolved_residuals(pts, residual, posture)
         self.stats["reachable"] += int(reach.sum())
         return Verdicts(reach, residual, posture)
 

@@ -127,8 +127,8 @@ class Goals:
     def of(goals: Goals | np.ndarray, dim: int = 3) -> Goals:
         """Goals as given, or a plain (N, dim) array of points as goals with nothing else; points checked."""
         if isinstance(goals, Goals):
-            return goals if isinstance(goals.points, np.ndarray) and goals.points.dtype == float else Goals(
-                check_points(goals.points, dim), goals.targets, goals.current, goals.seeds)
+            points = check_points(goals.points, dim)  # the same array when it is already a float (N, dim) one
+            return goals if points is goals.points else Goals(points, goals.targets, goals.current, goals.seeds)
         return Goals(check_points(goals, dim))
 
     @staticmethod
@@ -136,7 +136,8 @@ class Goals:
         """The points of goals for an oracle that holds no target (an analytic volume): (N, dim), checked; raises
         OracleError naming a target's key when the goals carry one."""
         g = Goals.of(goals, dim)
-        for key in g.targets:
+        if g.targets:
+            key = next(iter(g.targets))
             raise OracleError(f"this oracle holds no goal's {key!r}", key=key)
         return g.points
 
@@ -144,18 +145,6 @@ class Goals:
         """The goals at ``index`` (a slice, indices or a mask), each with its own targets and seeds."""
         return Goals(self.points[index], {k: np.asarray(v)[index] for k, v in self.targets.items()}, self.current,
                      None if self.seeds is None else self.seeds[index])
-
-    def hinted(self, seeds: np.ndarray | None) -> Goals:
-        """These goals with other seeds."""
-        return Goals(self.points, self.targets, self.current, seeds)
-
-    @staticmethod
-    def concatenate(parts: list[Goals]) -> Goals:
-        """Join batches of goals that share the same current posture and target keys."""
-        first = parts[0]
-        seeds = None if first.seeds is None else np.concatenate([p.seeds for p in parts])  # type: ignore[misc]
-        return Goals(np.concatenate([p.points for p in parts]), {k: np.concatenate([p.targets[k] for p in parts]) for k in first.targets},
-                     first.current, seeds)
 
 
 @runtime_checkable

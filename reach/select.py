@@ -679,13 +679,12 @@ class Selector:
         if done is not None and name in done:
             q_done, residual_done, outcome = done[name]
             return (q_done, residual_done, outcome) if outcome == REFINED else (q, residual, outcome)
+        if start_joints is None:  # from the stored posture and the best liked near it, as a batch's goals are
+            return self._refine_many(name, goal[None], q[None], [residual], [aim], None)[0]
         oracle, budget = self._tuned(name, 1, aim)
         t0 = time.perf_counter()
-        start = self.start_posture(self.atlas.trees[name], q, start_joints)
-        # From the character's posture when the query gives one; else from the stored posture and the best liked near it.
-        liked = self._best_liked(name, oracle, goal, q) if start is None and isinstance(oracle, Preferring) else None
-        seeds = None if start is not None else np.stack([q] if liked is None else [q, liked])[None]
-        v = oracle.evaluate(Goals(goal[None], {} if aim is None else {"orientation": aim[None]}, start, seeds))
+        start = self.start_posture(self.atlas.trees[name], q, start_joints)  # from the character's posture
+        v = oracle.evaluate(Goals(goal[None], {} if aim is None else {"orientation": aim[None]}, start))
         if v.reachable[0] and v.posture is not None:
             return v.posture[0], float(v.residual[0]), REFINED
         return q, residual, TIMEOUT if time.perf_counter() - t0 >= budget else FAILED
@@ -766,10 +765,9 @@ class Selector:
         best-liked one near it, within m refinements' budgets (and the deadline)."""
         m = len(goals)
         tuned, budget = self._tuned(name, m, aims[0], deadline)
-        oracle = self._oracle(name)
         if budget <= 0:
             return [(q, r, TIMEOUT) for q, r in zip(stored, residuals, strict=True)]
-        liked = [self._best_liked(name, oracle, goal, q) for goal, q in zip(goals, stored, strict=True)] if isinstance(oracle, Preferring) else []
+        liked = [self._best_liked(name, tuned, goal, q) for goal, q in zip(goals, stored, strict=True)] if isinstance(tuned, Preferring) else []
         seeds = stored[:, None]
         if any(q is not None for q in liked):
             seeds = np.stack([stored, np.array([np.full(stored.shape[1], np.nan) if q is None else q for q in liked])], axis=1)

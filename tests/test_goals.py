@@ -107,13 +107,15 @@ def test_a_target_no_task_takes_or_of_the_wrong_shape_is_refused_by_its_key(regi
         task.evaluate(Goals(GOALS, {"elbow_below": np.zeros(2)}))
 
 
-def test_goals_split_and_joined_keep_each_goals_own_targets_and_seeds() -> None:
+def test_goals_split_keep_each_goals_own_targets_and_seeds() -> None:
     seeds = np.arange(3 * 2 * 4, dtype=float).reshape(3, 2, 4)
     g = Goals(GOALS, {"elbow_below": np.array([1.0, 2.0, 3.0])}, np.zeros(4), seeds)
-    back = Goals.concatenate([g.take(slice(0, 1)), g.take(np.array([1, 2]))])
-    assert np.array_equal(back.points, g.points) and np.array_equal(back.seeds, seeds)
-    assert np.array_equal(back.targets["elbow_below"], [1.0, 2.0, 3.0]) and back.current is g.current
-    assert len(g.take(np.array([False, True, True]))) == 2
+    part = g.take(np.array([2, 0]))
+    assert np.array_equal(part.points, GOALS[[2, 0]]) and np.array_equal(part.seeds, seeds[[2, 0]])
+    assert np.array_equal(part.targets["elbow_below"], [3.0, 1.0]) and part.current is g.current
+    assert len(g.take(np.array([False, True, True]))) == 2 and Goals.of(g) is g
+    with pytest.raises(OracleError, match=r"points must have shape \(N, 3\), got \(3, 2\)"):
+        Goals.of(Goals(GOALS[:, :2]))  # a Goals of the wrong shape is checked too
     with pytest.raises(OracleError, match=r"points must have shape \(N, 3\)"):
         Goals.of(np.zeros((2, 2)))
     with pytest.raises(OracleError, match="this oracle holds no goal's 'orientation'"):
