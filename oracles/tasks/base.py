@@ -383,7 +383,13 @@ class SoftTask(Task):
 
     def held_bounds(self, optimum: float) -> tuple[np.ndarray, np.ndarray]:
         """Bounds of :meth:`held` in later stages, given this stage's optimum."""
-        return np.array([-np.inf]), np.array([optimum + self.slack])
+        return np.array([-np.inf]), np.array([max(optimum, self.free) + self.slack])
+
+    @property
+    def free(self) -> float:
+        """The objective's level at or below which the task asks nothing more: later stages may spend up to it (0: every
+        bit of the optimum is kept). The batched engine weighs only the excess over it (:mod:`oracles.batch`)."""
+        return 0.0
 
     def attained(self, optimum: float) -> bool:
         """Whether lower stages can still matter after this optimum (default: yes)."""

@@ -83,9 +83,10 @@ class GazeTask(SoftTask):
         to_goal = sym.goal - pos
         return 1.0 - ca.dot(rot @ ca.DM(self.sight), to_goal) / (ca.norm_2(to_goal) + 1e-9)
 
-    def held_bounds(self, optimum: float) -> tuple[np.ndarray, np.ndarray]:
+    @property
+    def free(self) -> float:
         """Lower stages keep the line of sight within the cone (or the stage's optimum, if wider)."""
-        return np.array([-np.inf]), np.array([max(optimum, 1.0 - math.cos(self.cone)) + self.slack])
+        return 1.0 - math.cos(self.cone)
 
     def level(self, num: Numeric) -> Row:
         assert num.jacobian is not None
