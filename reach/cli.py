@@ -671,7 +671,8 @@ def make_parser() -> argparse.ArgumentParser:
     p.add_argument("--curve-clients", metavar="DIR", help="with --curve-secret-key: let in only the clients whose public-key files (*.key) are in DIR")
     p.add_argument("--workers", type=int, metavar="N", help="refinement worker processes (default: one fewer than the cores, at least 1; 0 refines in the request loop)")
     p.add_argument("--chunk", type=int, default=P.CHUNK_GOALS, metavar="N",
-                   help=f"goals per worker task at most (default {P.CHUNK_GOALS}): smaller shares the workers more finely between clients")
+                   help=f"refined goals per worker task at most (default {P.CHUNK_GOALS}); within it a task is sized to about 20 ms of measured work, "
+                        "so that another client's query waits about that for a busy worker")
     p.add_argument("--allow-reload", metavar="ROOT", help="let clients 'reload' atlases from folders under ROOT (default: reload is refused)")
     _handover_option(p)
     p.set_defaults(func=cmd_serve)

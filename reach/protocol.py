@@ -33,7 +33,7 @@ MAX_MESSAGE_BYTES = 1 << 20  # a request larger than this is refused unread
 MAX_BATCH = 10_000  # goals per query
 POLL_MS = 100  # server poll timeout: how often it checks for a stop request
 PUB_HWM = 1000  # messages queued per subscriber before the PUB socket drops
-CHUNK_GOALS = 1  # goals per worker task at most (reach serve --chunk): a query waits for a busy worker one goal at most (docs/history.md)
+CHUNK_GOALS = 64  # goals per worker task at most (reach serve --chunk); within it a task is sized by its measured cost (reach.workers.Pool.chunk)
 REQUEST_TIMEOUT_MS = 2500  # a client's wait for each reply [ms] (zguide's Lazy Pirate)
 REQUEST_RETRIES = 3  # a client's attempts before it gives up
 

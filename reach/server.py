@@ -144,9 +144,11 @@ class Server:
         curve_clients: With ``curve_secret``, a folder of client public-key
             files (``*.key``): only those clients are let in (pyzmq's ZAP
             authenticator). Without it any client key pair is accepted.
-        chunk: Goals per worker task at most. A query waits for a busy worker
-            to finish its task, so smaller chunks share the workers more
-            finely between clients, at some cost in throughput.
+        chunk: Refined goals per worker task at most. Within it a task is
+            sized by the goals' measured cost to take about one refinement
+            budget (``reach.workers.TASK_SECONDS``): a query waits for a busy
+            worker to finish its task, so the chunks stay small enough to share
+            the workers between clients, and large enough to refine together.
         curve_secret: Path of the server's CURVE secret-key file, or None.
         context: A zmq context (a new one by default).
         workers: Refinement worker processes; 0 refines in the request loop.
@@ -552,7 +554,7 @@ class Server:
         """Hand a query's goals to the workers in chunks (refined, or their stored answers when not ``refine``)."""
         assert self.pool is not None
         n = len(goals)
-        chunk = self.chunk if refine else P.STORED_IN_LOOP  # stored answers cost little each: a chunk is about 0.15 s
+        chunk = self.pool.chunk(self.chunk) if refine else P.STORED_IN_LOOP  # stored answers cost little each: a chunk is about 0.15 s
         size = max(1, min(chunk, math.ceil(n / max(1, self.pool.size))))
         bounds = [(a, min(n, a + size)) for a in range(0, n, size)]
         each = self.budget if req["orientation"] is None else max(self.budget, ORIENTED_BUDGET)  # see reach.select

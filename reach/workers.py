@@ -42,7 +42,9 @@ NICE = 10
 EXPIRED = b"expired"
 FOLDER_PREFIX = "reach-serve-"  # the back-end socket's folder in the temporary directory: reach-serve-<server pid>-<random>
 FAILED = b"failed:"
-GOAL_COST = 0.02  # [s] a refined goal's estimated worker time (the default refinement budget, reach.select.REFINE_BUDGET)
+GOAL_COST = 0.02  # [s] a refined goal's estimated worker time until one is measured (the default refinement budget, reach.select.REFINE_BUDGET)
+TASK_SECONDS = 0.02  # [s] the worker time a task of refined goals is sized to: another client's query waits about this for a busy worker
+MEASURED_SHARE = 0.25  # the weight of the latest task in the running estimate of a refined goal's cost
 MOTION_COST = 0.5  # [s] a motion's (the README's planning times: 0.1-2 s)
 STORED_COST = 1.5e-4  # [s] a stored answer's (1.4-1.8 s for 10,000 in the loop: issue 35)
 PLACE_COST = 1.0  # [s] a placement's (1.9-2.8 s at its limit: issue 35)
@@ -65,14 +67,13 @@ class Task:
     orientation: dict[str, list[float]] | list[dict[str, list[float]]] | None = None  # a query's, as the request gives it (its chunk's)
     refine: bool = True  # a query's goals refined, or their stored answers only (a large batch, out of the loop)
 
-    @property
-    def cost(self) -> float:
+    def cost(self, goal_seconds: float = GOAL_COST) -> float:
         """Estimated worker seconds, charged to the client when the task starts (the time it took replaces it):
-        a goal's refinement budget each (a stored answer's ``STORED_COST``), a motion's ``MOTION_COST``, a placement's
+        ``goal_seconds`` a refined goal (a stored answer's ``STORED_COST``), a motion's ``MOTION_COST``, a placement's
         ``PLACE_COST``."""
         if self.op != "query":
             return MOTION_COST if self.op == "motion" else PLACE_COST
-        return (GOAL_COST if self.refine else STORED_COST) * len(self.goals)
+        return (goal_seconds if self.refine else STORED_COST) * len(self.goals)
 
     def encode(self) -> bytes:
         return json.dumps({"op": self.op, "effector": self.effector, "goals": self.goals, "from": self.start, "deadline": self.deadline,
@@ -118,6 +119,9 @@ class Pool:
     # another's single query (issue 35; a round robin of tasks did, each motion taking seconds).
     served: dict[bytes, float] = field(default_factory=dict)
     started: dict[bytes, tuple[float, float]] = field(default_factory=dict)  # worker -> (dispatch time, estimate charged)
+    # A refined goal's worker seconds, as measured on the last tasks: refined together (the selector's passes, a batched
+    # engine's starts) a goal costs less in a larger task, so the chunks follow what the goals cost here.
+    goal_seconds: float = GOAL_COST
 
     def __post_init__(self) -> None:
         remove_stale_folders()
@@ -199,7 +203,7 @@ class Pool:
                 continue  # abandoned: the request has been answered already
             worker = self.idle.popleft()
             self.busy[worker] = task
-            estimate = task.cost
+            estimate = task.cost(self.goal_seconds)
             self.served[client] = self.served.get(client, 0.0) + estimate
             self.started[worker] = (now, estimate)
             self.backend.send_multipart([worker, task.encode()])
@@ -220,12 +224,21 @@ class Pool:
         self.idle.append(worker)
         task = self.busy.pop(worker, None)
         began = self.started.pop(worker, None)
-        if task is not None and began is not None and task.client in self.served:
-            self.served[task.client] += (time.monotonic() - began[0]) - began[1]  # the estimate replaced by the time it took
+        if task is not None and began is not None:
+            took = time.monotonic() - began[0]
+            if task.client in self.served:
+                self.served[task.client] += took - began[1]  # the estimate replaced by the time it took
+            answered = bool(payload) and payload != [EXPIRED] and not payload[0].startswith(FAILED)
+            if task.op == "query" and task.refine and task.goals and answered:
+                self.goal_seconds += MEASURED_SHARE * (took / len(task.goals) - self.goal_seconds)
         self.dispatch()
         if payload == [READY] or task is None:
             return None
         return task, payload
+
+    def chunk(self, most: int) -> int:
+        """Refined goals per task: as many as take about ``TASK_SECONDS`` at their measured cost, 1 to ``most``."""
+        return max(1, min(most, int(TASK_SECONDS / max(self.goal_seconds, 1e-6))))
 
     @property
     def ready(self) -> int:

@@ -16,7 +16,7 @@ from reach.atlas import build_atlas
 from reach.config import parse_config
 from reach.select import MISS, Selector
 from reach.store import load_atlas
-from reach.workers import EXPIRED, Pool, Task
+from reach.workers import EXPIRED, FAILED, GOAL_COST, TASK_SECONDS, Pool, Task
 
 OPTIONS = {"policy": "vertex", "refine": True, "budget": 0.5, "handover": 0.0, "miss": MISS}
 GOALS = [[0.35, -0.3, 1.1], [0.4, -0.2, 1.3], [0.3, -0.45, 1.0]]
@@ -214,6 +214,39 @@ def test_a_requests_tasks_past_their_deadline_are_dropped_unmade(atlas):
                      time.monotonic() + 60)
         pool.submit(live)
         assert pool.queued == 2 and pool.busy[b"w0"].request == 2  # one taken by the idle worker, two still unmade
+    finally:
+        pool.backend = real
+        pool.close()
+
+
+def test_refined_chunks_follow_the_measured_cost_of_a_goal(atlas):
+    """Issue 34, item 4: a task of refined goals is sized to about TASK_SECONDS of worker time at the goals' measured
+    cost (one goal while a goal is thought to cost a whole budget; more as they prove cheaper refined together), and
+    an expired or failed task measures nothing."""
+    pool = Pool(zmq.Context.instance(), atlas, OPTIONS, 0)
+    real = pool.backend
+    replies: list[list[bytes]] = []
+    pool.backend = type("Backend", (), {"recv_multipart": lambda self: replies.pop(0), "send_multipart": lambda self, frames: None})()
+
+    def finish(goals: int, seconds: float, payload: list[bytes]) -> None:
+        t = Task(1, 0, "right_hand", [[0.3, -0.3, 1.0]] * goals, None, time.monotonic() + 60, client=b"c")
+        pool.busy[b"w0"], pool.started[b"w0"] = t, (time.monotonic() - seconds, 0.0)
+        replies.append([b"w0", *payload])
+        pool.receive()
+        pool.idle.clear()
+
+    try:
+        assert pool.goal_seconds == GOAL_COST and pool.chunk(64) == max(1, int(TASK_SECONDS / GOAL_COST)) == 1
+        finish(10, 10.0, [EXPIRED])  # an expired task, and a failed one, measure nothing
+        finish(10, 10.0, [FAILED + b" internal: x"])
+        assert pool.goal_seconds == GOAL_COST
+        for _ in range(30):  # tasks of 10 goals that take 20 ms: 2 ms a goal
+            finish(10, 0.02, [b"{}"] * 10)
+        assert pool.goal_seconds == pytest.approx(0.002, rel=0.05)
+        assert 9 <= pool.chunk(64) <= 10 and pool.chunk(4) == 4  # about 20 ms a task, within the cap
+        for _ in range(30):  # then a goal costs 50 ms: one goal a task again
+            finish(1, 0.05, [b"{}"])
+        assert pool.chunk(64) == 1
     finally:
         pool.backend = real
         pool.close()
