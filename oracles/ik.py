@@ -29,7 +29,7 @@ import zlib
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import casadi as ca
 import numpy as np
@@ -37,9 +37,11 @@ import pinocchio as pin
 
 from oracles.batch import CONTINUITY as CONTINUITY_WEIGHT
 from oracles.batch import (
+    LOWER_ITER,
     POLISH_FAR,
     POLISH_NEAR,
     POLISHES,
+    REFINE_LOWER_ITER,
     RANDOM_SPREAD,
     STARTS,
     WAVE,
@@ -115,6 +117,7 @@ class IKOracle(ABC):
 
     dim = 3
     name: str  # the registry name
+    extreme_params: ClassVar[dict[str, Any]] = {}  # engine options of reach_extent's probe (it seeks extremes, not postures)
 
     def __init__(self, body: dict[str, Any], effector: str, joints: list[str], tasks: list[dict[str, Any]] | None = None,
                  search: Search | None = None) -> None:
@@ -325,7 +328,7 @@ class IKOracle(ABC):
             return None
         dirs = np.array([d for d in np.ndindex(3, 3, 3) if d != (1, 1, 1)], float) - 1.0
         goals = bound.centre + bound.radius * dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
-        params = {**self.spec.params, "restarts": 1, "secondary": False}
+        params = {**self.spec.params, "restarts": 1, "secondary": False, **self.extreme_params}
         if "jit" in params:
             params["jit"] = False
         probe = OracleSpec(self.name, params).create()
@@ -621,8 +624,10 @@ class CasadiIK(IKOracle):
         secondary_iter: Iteration cap of each lower stage (gaze, posture). A
             lower stage stopped at its cap keeps its last iterate when it
             honours every constraint (else the stage above's posture).
-        solver: ``fatrop`` (default) or ``ipopt``, both interior-point
-            solvers shipped with CasADi. IPOPT is the referee of ``reach audit``.
+        solver: ``batch`` (default: :mod:`oracles.batch`, every goal x start
+            of a call together, fatrop polishing near misses), ``fatrop`` or
+            ``ipopt``, the interior-point solvers shipped with CasADi, one goal
+            from one start at a time. IPOPT is the referee of ``reach audit``.
         jit: Compile the problem's functions to machine code with the system's
             C compiler (``gcc``): ``auto`` compiles when ``gcc`` is on the PATH
             and falls back to CasADi's interpreter if it fails, ``true``
@@ -632,8 +637,11 @@ class CasadiIK(IKOracle):
     """
 
     name = "casadi-ik"
+    # An extreme is sought (reach_extent): fatrop converges on the nearest point to an unreachable goal, where the
+    # batched steps stop once progress stalls (5 mm short below configs/examples/arm7_table.yaml's table).
+    extreme_params: ClassVar[dict[str, Any]] = {"solver": "fatrop"}
 
-    def __init__(self, *args: Any, max_iter: int = 60, solver: str = "fatrop", jit: bool | str = False, secondary_iter: int = 15,
+    def __init__(self, *args: Any, max_iter: int = 60, solver: str = "batch", jit: bool | str = False, secondary_iter: int = 15,
                  starts: int = STARTS, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         if solver not in SOLVERS:
@@ -643,6 +651,7 @@ class CasadiIK(IKOracle):
         if isinstance(starts, bool) or not isinstance(starts, int) or not 1 <= starts <= 256:
             raise OracleError(f"starts must be a whole number from 1 to 256, got {starts!r}", oracle=self.name, key="starts")
         self.max_iter, self.solver, self.secondary_iter, self.starts_per_goal = int(max_iter), solver, int(secondary_iter), starts
+        self.lower_iter = LOWER_ITER  # the batched engine's lower-task iterations (more in a refinement: tune)
         self._batch_cache: dict[tuple[Any, ...], BatchProgram] = {}  # shared with variants, as the programs are
         self._set_jit(jit)
         self._cache: dict[tuple[Any, ...], _Programs] = {}  # shared with variants (a shallow copy keeps the dict)
@@ -674,6 +683,7 @@ class CasadiIK(IKOracle):
             if self.solver != "batch":  # the batched engine's code is compiled once, kept on disk and built at warm-up
                 self._set_jit(False)
             self.secondary_iter = REFINE_SECONDARY_ITER
+            self.lower_iter = REFINE_LOWER_ITER
         elif purpose == "referee":
             self.solver = "ipopt"
         self._set_order()
@@ -873,7 +883,7 @@ class CasadiIK(IKOracle):
             return super()._evaluate(points, hints, start, targets)
         return self._evaluate_batch(points, hints, start, targets)
 
-    def _batch_starts(self, goal: np.ndarray, hint: np.ndarray | None, wave: int = 0) -> list[np.ndarray]:
+    def _batch_starts(self, goal: np.ndarray, hint: np.ndarray | None, wave: int = 0, targeted: bool = False) -> list[np.ndarray]:
         """A goal's K starts: its hints (the neighbour's posture first), the reference and ready postures, then
         random ones seeded by the search's seed and the goal (the same goal gets the same starts in any batch).
         Wave 1 (see :meth:`_evaluate_batch`): ``WAVE`` times K random ones, of the same seed's next draws."""
@@ -890,6 +900,10 @@ class CasadiIK(IKOracle):
         # docs/history.md, session 18).
         spread = RANDOM_SPREAD if self.strategy.floating and wave == 0 else 1.0
         count = max(self.starts_per_goal - len(out), 0) if wave == 0 else WAVE * self.starts_per_goal
+        if targeted and wave == 0:
+            # A goal with a target (an orientation) is seeded with postures found for its position alone: K random
+            # starts besides them (with K in all, 2 of 75 oriented goals the referee reaches on arm7_table were missed).
+            count = max(count, self.starts_per_goal)
         out += [p.x_ref + spread * (p.random_x(rng) - p.x_ref) for _ in range(count)]
         return out
 
@@ -937,7 +951,7 @@ class CasadiIK(IKOracle):
             if not goals.size or time.perf_counter() > deadline:
                 continue
             self.stats[f"wave_{wave}"] = self.stats.get(f"wave_{wave}", 0) + int(goals.size)
-            starts = [self._batch_starts(pts[i], None if hints is None else hints[i], int(wave == "random")) for i in goals]
+            starts = [self._batch_starts(pts[i], None if hints is None else hints[i], int(wave == "random"), targets is not None) for i in goals]
             run = self._run_wave(pts, goals, starts, start, targets, decisive if wave == "starts" else None, None if hints is None else first,
                                  deadline)
             runs.append(run)
@@ -964,11 +978,20 @@ class CasadiIK(IKOracle):
             first_start = np.zeros(b, bool)
             first_start[offsets[:-1][decisive[goals]]] = True
         x, dist, viol, liked, _ = run_starts(self.batch_program(), x0, params, owner, self.strategy.tolerance, search.secondary,
-                                                    start, deadline, self.stats, first_start, search.give_up_distance)
+                                                    start, deadline, self.stats, first_start, search.give_up_distance, self.lower_iter)
+        span = p.upper - p.lower
+        scored = np.isfinite(liked)
+        if scored.any():
+            # A reaching start the lower tasks did not score is liked least (at 0 it was liked best: a whole-body
+            # refinement kept a posture twice as disliked, a joint at its limit).
+            liked = np.where(scored, liked, np.inf)
+        else:
+            # No lower task (secondary: false): the posture nearest the reference is liked best, as fatrop's reach
+            # stage from the reference keeps it (the nearest to the goal was a random start's crouch, its ankle at a limit).
+            liked = np.sum(((x - p.x_ref) / span) ** 2, axis=1)
         if first is not None:
             # Continuity with the neighbour's posture (the first hint) is part of "liked".
-            nearness = np.sum(((x - first[owner]) / (p.upper - p.lower)) ** 2, axis=1)
-            liked = np.where(np.isfinite(liked), liked, 0.0) + CONTINUITY_WEIGHT * nearness
+            liked = liked + CONTINUITY_WEIGHT * np.sum(((x - first[owner]) / span) ** 2, axis=1)
         return _Wave(goals, offsets, x0, x, p.q_of_x_many(x), dist, viol, liked)
 
     def _keep_reaching(self, run: _Wave, pts: np.ndarray, targets: np.ndarray | None, reach: np.ndarray, residual: np.ndarray,
@@ -980,7 +1003,10 @@ class CasadiIK(IKOracle):
             rows = np.arange(run.offsets[j], run.offsets[j + 1])
             target_i = None if targets is None else targets[i]
             near = rows[(run.dist[rows] <= tol) & (run.viol[rows] <= 1e-5)]
-            for r in near[np.lexsort((run.dist[near], run.liked[near]))]:
+            # Best liked first; among postures liked alike (a strategy without lower tasks) the first start's, in the
+            # starts' order (the hint, the reference, the ready posture): by distance, a random start's crouch won a
+            # plain reach (tests/test_motion.py's low reach, an ankle at its limit).
+            for r in near[np.argsort(run.liked[near], kind="stable")]:
                 check = p.check(run.q[r], pts[i], self._data, target_i)
                 if check.reachable:
                     reach[i], residual[i], posture[i] = True, check.residual, run.q[r]
