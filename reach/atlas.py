@@ -326,10 +326,18 @@ def tree_summary(tree: VATree) -> dict[str, Any]:
 
 def summary(atlas: Atlas) -> dict[str, Any]:
     """What ``reach info --json`` prints."""
+    from reach.audit import lacking  # the audit builds on the atlas's modules, not they on it
+
+    strategies = {name: tree_summary(tree) for name, tree in atlas.trees.items()}
+    found = lacking(atlas)
+    for name, lines in found.items():
+        if name in strategies:
+            strategies[name]["audit_warnings"] = lines
     return {
         "name": atlas.manifest.get("name"),
         "path": str(atlas.path),
-        "strategies": {name: tree_summary(tree) for name, tree in atlas.trees.items()},
+        "strategies": strategies,
         "config_warnings": list(atlas.manifest.get("warnings", {}).get("config", [])),
+        "audit_warnings": found.get("", []),
     }
 

@@ -51,9 +51,10 @@ import numpy as np
 
 from oracles.protocol import Ball, Goals, Oracle, OracleSpec, ReachBound, Specified, Tunable, Turning
 from reach.build import warm_hints
+from reach.errors import StoreError
 from reach.executor import Executor, InlineExecutor
 from reach.index import spiral
-from reach.store import Atlas
+from reach.store import Atlas, load_audit
 from reach.tree import FINAL, INNER, KIND_NAMES, OUTER, Policy, VATree
 
 Z95 = 1.959963984540054
@@ -289,3 +290,23 @@ def audit(
         finally:
             runner.close()
     return {"strategies": result, "samples_per_strategy": samples, "policy": policy, "seed": seed}
+
+
+def lacking(atlas: Atlas) -> dict[str, list[str]]:
+    """Warnings of the regions each strategy's tree lacks, by the atlas's last audit (``audit.json``, see
+    :func:`reach.store.save_audit`): every ray along which the tree stops short of the referee, or that the audit is
+    of an earlier build. Empty for an atlas never audited; an unreadable audit file is one warning (key ``""``)."""
+    try:
+        audited = load_audit(atlas)
+    except StoreError as exc:
+        return {"": [str(exc)]}
+    out: dict[str, list[str]] = {}
+    for name, a in audited.items():
+        if not a["current"]:
+            out[name] = [f"the last audit ({a['when']}) is of an earlier build of this tree: run 'reach audit' again"]
+            continue
+        lines = [f"the tree stops {r['tree_m']} m out along {r['direction']}, where the referee reaches {r['referee_m']} m "
+                 f"(reach audit, {a['when']}): a region the tree lacks (build deeper, or check the strategy's box)" for r in a["short"]]
+        if lines:
+            out[name] = lines
+    return out

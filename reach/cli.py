@@ -129,8 +129,12 @@ def cmd_info(args: argparse.Namespace) -> int:
                   + (f" ({i['goals']} goals solved, {i['seconds']:.1f} s)" if i.get("goals") is not None else ""))
         if s["on_faces"]:
             print(f"    warning: {face_text(s['on_faces'])}")
+        for line in s.get("audit_warnings", []):
+            print(f"    warning: {line}")
     for note in info.get("config_warnings", []):
         print(f"  warning (config): {note}")
+    for note in info.get("audit_warnings", []):
+        print(f"  warning (audit): {note}")
     return 0
 
 
@@ -504,7 +508,7 @@ def cmd_place(args: argparse.Namespace) -> int:
 
 def cmd_audit(args: argparse.Namespace) -> int:
     from reach.audit import audit
-    from reach.store import load_atlas
+    from reach.store import load_atlas, save_audit
 
     atlas = load_atlas(args.atlas)
     names = atlas.select(args.strategies.split(",")) if args.strategies else None
@@ -515,10 +519,16 @@ def cmd_audit(args: argparse.Namespace) -> int:
     finally:
         if client is not None:
             client.close()
+    try:
+        saved = save_audit(atlas, result)  # reach info and reach report warn of the regions it finds missing
+    except OSError as exc:
+        saved = None
+        print(f"warning: the audit was not kept beside the atlas ({exc})", file=sys.stderr)
     if args.json:
         _print_json(result)
         return 0
-    print(f"audit of {atlas.path}: {args.samples} probes per strategy, policy {args.policy}, seed {args.seed} ({how})")
+    print(f"audit of {atlas.path}: {args.samples} probes per strategy, policy {args.policy}, seed {args.seed} ({how})"
+          + (f"; kept in {saved}" if saved else ""))
     print(f"{'strategy':<22} {'false reachable':>22} {'false unreachable':>22}")
     for name, r in result["strategies"].items():
         fr, fu = r["false_reachable_ci95"], r["false_unreachable_ci95"]

@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from reach.audit import lacking
 from reach.index import index_at
 from reach.index import summary as index_summary
 from reach.store import Atlas
@@ -66,6 +67,9 @@ def tables(atlas: Atlas) -> dict[str, Any]:
                 "a_minus_b": ta.difference(tb).volume(INNER),
                 "b_minus_a": tb.difference(ta).volume(INNER),
             })
+    for n, lines in lacking(atlas).items():
+        if n in per:
+            per[n]["audit_warnings"] = lines
     return {"strategies": per, "pairs": pairs, "units": "m and m^3, world frame (z up, x forward, y left)"}
 
 
@@ -81,6 +85,10 @@ def markdown(t: dict[str, Any], title: str) -> str:
     if cut:
         lines += ["", "**Warning: the box cuts these volumes** (reachable vertices on its faces; enlarge the box there):", ""]
         lines += [f"- {n}: " + ", ".join(f"{k} on {f}" for f, k in faces.items()) for n, faces in cut.items()]
+    lacks = {n: s["audit_warnings"] for n, s in t["strategies"].items() if s.get("audit_warnings")}
+    if lacks:
+        lines += ["", "**Warning: regions the trees lack**, by the atlas's last `reach audit` (`audit.json`):", ""]
+        lines += [f"- {n}: {w}" for n, ws in lacks.items() for w in ws]
     indexed = {n: s["index"] for n, s in t["strategies"].items() if s.get("index")}
     if indexed:
         lines += ["", "Reachability index (share of approach directions reached at the reachable vertices; `index_<strategy>.png`):", "",

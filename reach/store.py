@@ -14,6 +14,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import time
 import zipfile
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -317,6 +318,41 @@ def _load_trees(folder: Path, manifest: dict[str, Any]) -> dict[str, VATree]:
                 raise StoreError(path, f"holds the tree of {key} {tree.meta[key]!r}, but the manifest lists it for {s[key]!r}; rebuild the atlas")
         trees[s["name"]] = tree
     return trees
+
+
+AUDIT = "audit.json"  # the last `reach audit` of an atlas, beside its manifest
+AUDIT_FORMAT = "reach.audit"
+
+
+def save_audit(atlas: Atlas, result: dict[str, Any]) -> Path:
+    """Keep an audit's result beside the atlas it audited (``audit.json``), each strategy with its tree's digest:
+    ``reach info`` and ``reach report`` then warn of the regions the tree lacks, while the tree is the one audited."""
+    record = {"format": AUDIT_FORMAT, "version": 1, "when": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+              "digests": {name: atlas.trees[name].meta.get("digest") for name in result.get("strategies", {})}, "result": result}
+    path = atlas.path / AUDIT
+    _atomic_write(path, lambda fh: fh.write(json.dumps(record, indent=1).encode()))
+    return path
+
+
+def load_audit(atlas: Atlas) -> dict[str, Any]:
+    """The atlas's last audit (see :func:`save_audit`) by strategy: ``{"when", "current"}`` and, for a tree that is
+    still the one audited (``current``), its short rays (``short``); empty without an audit. A file that cannot be
+    read is a StoreError naming it (it is the audit's, never the atlas's: ``reach audit`` writes it again)."""
+    path = atlas.path / AUDIT
+    if not path.is_file():
+        return {}
+    record = _header(path, path.read_bytes(), AUDIT_FORMAT, 1, "audit")
+    digests, strategies = record.get("digests"), record.get("result", {}).get("strategies")
+    if not isinstance(digests, dict) or not isinstance(strategies, dict):
+        raise StoreError(path, "expected 'digests' and 'result.strategies' objects; run 'reach audit' again")
+    out: dict[str, Any] = {}
+    for name, tree in atlas.trees.items():
+        if name not in digests or name not in strategies:
+            continue
+        current = digests[name] is not None and digests[name] == tree.meta.get("digest")
+        short = strategies[name].get("rays", {}).get("short", []) if current else []
+        out[name] = {"when": record.get("when"), "current": current, "short": short}
+    return out
 
 
 LOCK = ".lock"

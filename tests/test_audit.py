@@ -13,7 +13,7 @@ from reach.audit import audit_tree, referee, wilson
 from reach.build import Refine, build_tree
 from reach.cli import main
 from reach.config import parse_config
-from reach.store import load_atlas
+from reach.store import load_atlas, save_tree
 from reach.tree import FINAL, INNER, OUTER, Box
 
 CUBE = Box([-1, -1, -1], [1, 1, 1])
@@ -178,3 +178,61 @@ def test_the_audit_finds_a_region_the_tree_lacks_along_rays_and_by_twins(tmp_pat
     assert main(["audit", str(folder), "--samples", "30", "--restarts", "1", "-j", "1"]) == 0
     out = capsys.readouterr().out
     assert "along 16 rays from" in out and "twins turned 90 deg about the free axis [0.0, 0.0, 1.0]" in out
+
+
+def _consistent(tree) -> None:
+    """Label the leaves of a tree cut by :func:`_lacking` by their vertices' verdicts, as a build would have (an
+    inner cell's all reachable, an outer cell's none, a boundary cell's some), so that the atlas loads."""
+    leaf = np.nonzero(np.isin(tree.kind, [INNER, FINAL, OUTER]))[0]
+    for d in np.unique(tree.depth[leaf]):
+        cells = leaf[tree.depth[leaf] == d]
+        rows = tree.vertices.index(tree.lattice.node_vertex_keys(tree.corner[cells], int(d)))
+        ok = (rows >= 0) & tree.vertices.reachable[np.maximum(rows, 0)]
+        tree.kind[cells[ok.all(axis=1)]] = INNER
+        tree.kind[cells[~ok.any(axis=1)]] = OUTER
+        tree.kind[cells[ok.any(axis=1) & ~ok.all(axis=1)]] = FINAL
+
+
+def _replace_tree(folder: Path, tree) -> None:
+    """Write a tree into an atlas in place of its strategy's, the manifest naming its digest, and accept it."""
+    save_tree(tree, folder / "arm.npz")
+    manifest = json.loads((folder / "manifest.json").read_text())
+    manifest["strategies"][0]["digest"] = tree.meta["digest"]
+    (folder / "manifest.json").write_text(json.dumps(manifest))
+    assert main(["accept", str(folder)]) == 0
+
+
+def test_reach_info_and_report_warn_of_a_region_the_last_audit_found_missing(tmp_path, capsys):
+    """Issue 36, item 2: `reach audit` keeps its result beside the atlas (audit.json, read back here with the json
+    module); `reach info` and `reach report` then warn of each ray along which the tree stops short of the referee,
+    while the tree is the one audited, and say the audit is stale once the tree is rebuilt."""
+    folder = _turntable(tmp_path)
+    whole = load_atlas(folder).trees["arm"]
+    tree = load_atlas(folder).trees["arm"]
+    _lacking(tree, 0.15)
+    _consistent(tree)
+    _replace_tree(folder, tree)
+    capsys.readouterr()
+    assert main(["info", str(folder)]) == 0
+    assert "reach audit" not in capsys.readouterr().out  # never audited: nothing to say
+    assert main(["audit", str(folder), "--samples", "30", "--restarts", "1", "-j", "1", "--json"]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    kept = json.loads((folder / "audit.json").read_text())
+    assert kept["result"] == printed and kept["digests"] == {"arm": load_atlas(folder).trees["arm"].meta["digest"]}
+    short = printed["strategies"]["arm"]["rays"]["short"]
+    assert short and all(ray["direction"][1] > 0 for ray in short)
+    assert main(["info", str(folder)]) == 0
+    out = capsys.readouterr().out
+    assert out.count("where the referee reaches") == len(short) and f"the tree stops {short[0]['tree_m']} m out along {short[0]['direction']}" in out
+    assert main(["info", str(folder), "--json"]) == 0
+    assert len(json.loads(capsys.readouterr().out)["strategies"]["arm"]["audit_warnings"]) == len(short)
+    assert main(["report", str(folder), "-o", str(tmp_path / "report")]) == 0
+    assert "regions the trees lack" in capsys.readouterr().out
+    _replace_tree(folder, whole)  # another build of the tree: the audit no longer speaks for it
+    capsys.readouterr()
+    assert main(["info", str(folder)]) == 0
+    out = capsys.readouterr().out
+    assert "where the referee reaches" not in out and "is of an earlier build of this tree" in out
+    (folder / "audit.json").write_text("{not json")
+    assert main(["info", str(folder)]) == 0  # a broken audit file is a warning naming it, never a failed info
+    assert "audit.json" in capsys.readouterr().out
