@@ -61,8 +61,12 @@ def package_versions() -> dict[str, str]:
 
 
 def fingerprint(config: Config, strategy: StrategySpec) -> str:
-    """Identifies what a strategy's tree depends on: its oracle, B0 and depths."""
-    parts: dict[str, Any] = {"oracle": strategy.oracle.to_dict(), "box": config.box.to_dict(), "depth": [config.d_min, config.d_max], "refine": config.refine.to_dict()}
+    """Identifies what a strategy's tree depends on: its oracle (with the defaults it fills in), B0 and depths."""
+    # The spec as the oracle completes it (its engine, its search): a tree built by another default engine is not
+    # kept (the spec as written was, when the default solver became the batched engine).
+    oracle = strategy.oracle.create()  # builds no solver
+    spec = oracle.spec.to_dict() if isinstance(oracle, Specified) else strategy.oracle.to_dict()
+    parts: dict[str, Any] = {"oracle": spec, "box": config.box.to_dict(), "depth": [config.d_min, config.d_max], "refine": config.refine.to_dict()}
     if strategy.directions:
         parts["directions"] = strategy.directions
     text = json.dumps(parts, sort_keys=True)
