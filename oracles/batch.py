@@ -259,20 +259,21 @@ class BatchProgram:
             dense = np.where(fixed[:, :, None] | fixed[:, None, :], 0.0, diag)
             idx = np.arange(diag.shape[1])
             dense[:, idx, idx] = np.where(fixed, FIXED, dense[:, idx, idx])
+
+            def h_inv(v: np.ndarray) -> np.ndarray:
+                return np.linalg.solve(dense, v)
         else:
             d_inv = 1.0 / np.where(fixed, FIXED, diag)
+            if jac is not None:
+                middle = np.eye(jac.shape[1]) + (jac * d_inv[:, None, :]) @ np.transpose(jac, (0, 2, 1))
 
-        def h_inv(v: np.ndarray) -> np.ndarray:
-            if diag.ndim == 3:
-                return np.linalg.solve(dense, v)
-            # H^-1 v for v (B, n, k): D^-1 v - D^-1 J' M^-1 J D^-1 v, M = I + J D^-1 J'.
-            dv = d_inv[..., None] * v
-            if jac is None:
-                return dv
-            return dv - d_inv[..., None] * (np.transpose(jac, (0, 2, 1)) @ np.linalg.solve(middle, jac @ dv))
+            def h_inv(v: np.ndarray) -> np.ndarray:
+                # H^-1 v for v (B, n, k): D^-1 v - D^-1 J' M^-1 J D^-1 v, M = I + J D^-1 J'.
+                dv = d_inv[..., None] * v
+                if jac is None:
+                    return dv
+                return dv - d_inv[..., None] * (np.transpose(jac, (0, 2, 1)) @ np.linalg.solve(middle, jac @ dv))
 
-        if jac is not None:
-            middle = np.eye(jac.shape[1]) + (jac * d_inv[:, None, :]) @ np.transpose(jac, (0, 2, 1))
         dx_g = -h_inv(gradient[..., None])[..., 0]  # the objective's part of the step
         dx_r = np.zeros_like(dx_g)  # the constraints' part (the KKT step is linear in the gradient and the rows' need)
         m = c.shape[1]

@@ -60,11 +60,11 @@ def package_versions() -> dict[str, str]:
     return out
 
 
-def fingerprint(config: Config, strategy: StrategySpec) -> str:
-    """Identifies what a strategy's tree depends on: its oracle (with the defaults it fills in), B0 and depths."""
+def fingerprint(config: Config, strategy: StrategySpec, oracle: Oracle) -> str:
+    """Identifies what a strategy's tree depends on: its oracle (the build's, with the defaults it fills in), B0 and
+    depths."""
     # The spec as the oracle completes it (its engine, its search): a tree built by another default engine is not
     # kept (the spec as written was, when the default solver became the batched engine).
-    oracle = strategy.oracle.create()  # builds no solver
     spec = oracle.spec.to_dict() if isinstance(oracle, Specified) else strategy.oracle.to_dict()
     parts: dict[str, Any] = {"oracle": spec, "box": config.box.to_dict(), "depth": [config.d_min, config.d_max], "refine": config.refine.to_dict()}
     if strategy.directions:
@@ -188,7 +188,7 @@ def _build_locked(
     prints: dict[str, str] = {}
     for s in order:
         path, partial = out / f"{s.name}.npz", out / PARTIAL / f"{s.name}.npz"
-        fp = fingerprint(config, s)
+        fp = fingerprint(config, s, oracle_of(s))
         if s.name in subs:  # the tree depends on its sub-strategy's too
             fp = hashlib.sha256(f"{fp} {prints[subs[s.name]]}".encode()).hexdigest()[:16]
         prints[s.name] = fp

@@ -19,6 +19,7 @@ Engines and the verdict compose tasks; they hold no task-specific branch.
 from __future__ import annotations
 
 import fnmatch
+import math
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -387,9 +388,9 @@ class SoftTask(Task):
 
     @property
     def free(self) -> float:
-        """The objective's level at or below which the task asks nothing more: later stages may spend up to it (0: every
-        bit of the optimum is kept). The batched engine weighs only the excess over it (:mod:`oracles.batch`)."""
-        return 0.0
+        """The objective's level at or below which the task asks nothing more: later stages may spend up to it (-inf:
+        every bit of the optimum is kept). The batched engine weighs only the excess over it (:mod:`oracles.batch`)."""
+        return -math.inf
 
     def attained(self, optimum: float) -> bool:
         """Whether lower stages can still matter after this optimum (default: yes)."""
