@@ -51,12 +51,14 @@ from typing import NamedTuple
 
 import casadi as ca
 import numpy as np
+from threadpoolctl import ThreadpoolController
 
 from oracles.jit import compiled_function
 from oracles.tasks import Constraint, SoftTask, Symbolic
 from oracles.tasks.reach import PROXIMAL
 
 CHUNK = 64  # postures per call of the mapped function (padded): large enough to amortise a call, small enough to pad little
+SMALL = 8  # ... and of its small map, for the rest of a batch (a refinement's K starts)
 BUFFER = 0.005  # [m or rad] an inequality row within this of its bound is active (as dls: oracles/tasks/base.py)
 INSIDE = 1e-4  # [m or rad] how far inside its bound an active row is pushed
 DAMPING = 1e-2  # Levenberg-Marquardt damping lambda of the reach steps [m per rad] (dls's is 0.02)
@@ -181,6 +183,10 @@ class BatchProgram:
         self._reach = _Mapped(base, jit, [(self.m, 1), (self.m, self.n), (3, 1), (3, self.n)], self.n, self.np)
         self._full = _Mapped(full, jit, [(self.m, 1), (self.m, self.n), (3, 1), (3, self.n), (1, 1), (self.n, 1), (self.n, self.n)],
                              self.n, self.np) if lower else None
+        # Every matrix the step factors is small (n and m below 100): OpenBLAS's threads only wait on each other, and
+        # beside a second worker process on two cores they spun: eigh of 512 36 x 36 Hessians took 1.1 s, 70 ms on
+        # one thread (measured here, session 21).
+        self.threads = ThreadpoolController()
 
     # -- evaluation -----------------------------------------------------------
     def evaluate(self, x: np.ndarray, p: np.ndarray, lower: bool = False, guard: np.ndarray | None = None) -> State:
@@ -265,14 +271,17 @@ class BatchProgram:
         else:
             d_inv = 1.0 / np.where(fixed, FIXED, diag)
             if jac is not None:
+                # M^-1 in closed form (the reach's 3 rows): M = I + J D^-1 J' is symmetric with eigenvalues >= 1, and a
+                # batched LAPACK solve of 3 x 3 systems cost more in its calls than in its arithmetic.
                 middle = np.eye(jac.shape[1]) + (jac * d_inv[:, None, :]) @ np.transpose(jac, (0, 2, 1))
+                middle_inv = _inverse3(middle) if jac.shape[1] == 3 else np.linalg.inv(middle)
 
             def h_inv(v: np.ndarray) -> np.ndarray:
                 # H^-1 v for v (B, n, k): D^-1 v - D^-1 J' M^-1 J D^-1 v, M = I + J D^-1 J'.
                 dv = d_inv[..., None] * v
                 if jac is None:
                     return dv
-                return dv - d_inv[..., None] * (np.transpose(jac, (0, 2, 1)) @ np.linalg.solve(middle, jac @ dv))
+                return dv - d_inv[..., None] * (np.transpose(jac, (0, 2, 1)) @ (middle_inv @ (jac @ dv)))
 
         dx_g = -h_inv(gradient[..., None])[..., 0]  # the objective's part of the step
         dx_r = np.zeros_like(dx_g)  # the constraints' part (the KKT step is linear in the gradient and the rows' need)
@@ -346,42 +355,69 @@ class BatchProgram:
         return self.clamped_step(x, hessian, None, state.grad, state, radius, (state.je, -state.e), buffer=0.0)
 
 
+def _inverse3(m: np.ndarray) -> np.ndarray:
+    """The inverses of a batch of 3 x 3 matrices (B, 3, 3), by their adjugates."""
+    a, b, c = m[:, 0, 0], m[:, 0, 1], m[:, 0, 2]
+    d, e, f = m[:, 1, 0], m[:, 1, 1], m[:, 1, 2]
+    g, h, i = m[:, 2, 0], m[:, 2, 1], m[:, 2, 2]
+    adj = np.stack([np.stack([e * i - f * h, c * h - b * i, b * f - c * e], axis=1),
+                    np.stack([f * g - d * i, a * i - c * g, c * d - a * f], axis=1),
+                    np.stack([d * h - e * g, b * g - a * h, a * e - b * d], axis=1)], axis=1)
+    det = a * adj[:, 0, 0] + b * adj[:, 1, 0] + c * adj[:, 2, 0]
+    return adj / det[:, None, None]
+
+
 def _rows(constraints: Sequence[Constraint]) -> Rows:
     return Rows(np.array([c.lower for c in constraints for _ in range(c.expr.numel())], float),
                 np.array([c.upper for c in constraints for _ in range(c.expr.numel())], float))
 
 
 class _Mapped:
-    """A function of (x, p) mapped over ``CHUNK`` postures, compiled or interpreted, called through CasADi's
-    buffers (no conversion of its outputs: numpy arrays are written in place)."""
+    """A function of (x, p) over a batch of postures, compiled or interpreted, called through CasADi's buffers (no
+    conversion of its outputs: numpy arrays are written in place).
+
+    The function is compiled once and mapped (CasADi's serial map, a loop in C++) over ``CHUNK`` postures and over
+    ``SMALL``: a refinement's one goal has K = 8 starts, and padded to 64 it paid for eight times the postures it
+    asked for (a motion's end posture spent its whole 0.25 s budget evaluating, session 21)."""
 
     def __init__(self, f: ca.Function, jit: bool, shapes: list[tuple[int, int]], n: int, np_: int) -> None:
-        mapped = f.map(f"{f.name()}_map{CHUNK}", "serial", CHUNK, [], [])
-        self.function = compiled_function(mapped.name(), mapped) if jit else mapped
-        self.shapes, self.n, self.np = shapes, n, np_
-        self.x = np.zeros((CHUNK, n))
-        self.p = np.zeros((CHUNK, np_))
-        self.out = [np.zeros((CHUNK, cols, rows)) for rows, cols in shapes]  # each block column-major
-        self.buffer, self.trigger = self.function.buffer()
-        # CasADi takes the arrays' own memory (the buffer protocol); its stubs type the size argument it does not need.
-        self.buffer.set_arg(0, memoryview(self.x))  # type: ignore[call-arg, arg-type]
-        self.buffer.set_arg(1, memoryview(self.p))  # type: ignore[call-arg, arg-type]
-        for k, o in enumerate(self.out):
-            self.buffer.set_res(k, memoryview(o))  # type: ignore[call-arg, arg-type]
+        base = compiled_function(f.name(), f) if jit else f
+        self.shapes = shapes
+        self.maps = {size: _Buffers(base.map(f"{f.name()}_map{size}", "serial", size, [], []), size, shapes, n, np_) for size in (SMALL, CHUNK)}
 
     def __call__(self, x: np.ndarray, p: np.ndarray) -> list[np.ndarray]:
         """Each output (B, rows, cols) at postures x (B, n) and parameters p (B, np)."""
         b = len(x)
         result = [np.empty((b, rows, cols)) for rows, cols in self.shapes]
-        for k in range(0, b, CHUNK):
-            c = min(CHUNK, b - k)
-            self.x[:c], self.p[:c] = x[k : k + c], p[k : k + c]
-            if c < CHUNK:  # pad with the first posture: every column of the map is evaluated
-                self.x[c:], self.p[c:] = x[k], p[k]
-            self.trigger()
-            for r, o in zip(result, self.out, strict=True):
+        k = 0
+        while k < b:
+            # The large map while it would be at least half used, then the small one.
+            mapped = self.maps[CHUNK if b - k > CHUNK // 2 else SMALL]
+            c = min(mapped.size, b - k)
+            mapped.x[:c], mapped.p[:c] = x[k : k + c], p[k : k + c]
+            if c < mapped.size:  # pad with the first posture: every column of the map is evaluated
+                mapped.x[c:], mapped.p[c:] = x[k], p[k]
+            mapped.trigger()
+            for r, o in zip(result, mapped.out, strict=True):
                 r[k : k + c] = np.transpose(o[:c], (0, 2, 1))
+            k += c
         return result
+
+
+class _Buffers:
+    """One mapped function with the numpy arrays CasADi reads its arguments from and writes its results to."""
+
+    def __init__(self, mapped: ca.Function, size: int, shapes: list[tuple[int, int]], n: int, np_: int) -> None:
+        self.size = size
+        self.x = np.zeros((self.size, n))
+        self.p = np.zeros((self.size, np_))
+        self.out = [np.zeros((self.size, cols, rows)) for rows, cols in shapes]  # each block column-major
+        self.buffer, self.trigger = mapped.buffer()
+        # CasADi takes the arrays' own memory (the buffer protocol); its stubs type the size argument it does not need.
+        self.buffer.set_arg(0, memoryview(self.x))  # type: ignore[call-arg, arg-type]
+        self.buffer.set_arg(1, memoryview(self.p))  # type: ignore[call-arg, arg-type]
+        for k, o in enumerate(self.out):
+            self.buffer.set_res(k, memoryview(o))  # type: ignore[call-arg, arg-type]
 
 
 # -- the search over many starts ------------------------------------------------
@@ -429,6 +465,13 @@ def run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_o
     ``decisive`` (B,) marks the starts whose failure decides their goal (a build's warm start from a neighbour
     near the goal, see :class:`oracles.search.Search`): when one stalls farther than ``give_up`` [m] from its goal,
     its rows held, the goal's other starts stop there (they ran beside it until then)."""
+    with program.threads.limit(limits=1, user_api="blas"):
+        return _run_starts(program, x0, params, goal_of, tolerance, lower, start, deadline, stats, decisive, give_up, lower_iter)
+
+
+def _run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_of: np.ndarray, tolerance: float,
+                lower: bool, start: np.ndarray | None, deadline: float, stats: dict[str, int], decisive: np.ndarray | None,
+                give_up: float, lower_iter: int) -> Ends:
     x = x0.copy()
     b = len(x)
     dist = np.full(b, np.inf)
