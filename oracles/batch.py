@@ -512,7 +512,8 @@ def _run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_
         radius[live[newly]] = MAX_STEP
         merit[newly] = np.inf
         merit_before[live] = merit
-        stalled = (d > tolerance) & (before - merit < STALL * merit) & ~worse & (it > 2)
+        gained = np.where(np.isfinite(before), before - merit, np.inf)  # (a newly guarded start's merit is inf)
+        stalled = (d > tolerance) & (gained < STALL * merit) & ~worse & (it > 2)
         stalled |= radius[live] < MIN_RADIUS
         late = (reached_at[owner[live]] >= 0) & (it - reached_at[owner[live]] >= EXTRA)
         if decisive is not None:

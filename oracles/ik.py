@@ -37,6 +37,7 @@ import pinocchio as pin
 
 from oracles.batch import CONTINUITY as CONTINUITY_WEIGHT
 from oracles.batch import (
+    HARD_TOL,
     LOWER_ITER,
     POLISH_FAR,
     POLISH_NEAR,
@@ -357,6 +358,18 @@ class IKOracle(ABC):
                 return held
         v = self.evaluate(Goals(self.effector_positions(q[None]), current=q))
         return v.posture[0] if v.reachable[0] and v.posture is not None else None
+
+    def hold_many(self, postures: np.ndarray, deadline: float = np.inf) -> np.ndarray:
+        """Each posture (F, nq) held (:meth:`hold` without ``before``), a NaN row where none is found or the deadline
+        (``time.perf_counter()``) passed; engines that advance many postures together hold them as one batch."""
+        out = np.full(np.shape(postures), np.nan)
+        for k, q in enumerate(np.asarray(postures, float)):
+            if time.perf_counter() > deadline:
+                break
+            held = self.hold(q)
+            if held is not None:
+                out[k] = held
+        return out
 
     def limits_near(self, posture: np.ndarray, margin: float) -> list[str]:
         """The joint limits a posture comes within margin [rad or m] of (see :meth:`ReachProblem.limits_near`)."""
@@ -1052,6 +1065,33 @@ class CasadiIK(IKOracle):
                         reach[i], residual[i], posture[i] = check.reachable, check.residual, q
                     if check.reachable:
                         break
+
+    def hold_many(self, postures: np.ndarray, deadline: float = np.inf) -> np.ndarray:
+        """The batched engine's hold: every posture's reach steps from itself, all together, towards its own effector
+        position with its hard rows held and the least change (the reach task's proximal term); a posture is held
+        when the result passes the verdict's own checks (:meth:`faults`). Other engines hold one at a time."""
+        q = np.asarray(postures, float)
+        if self.solver != "batch" or not len(q):
+            return super().hold_many(q, deadline)
+        self.prepare()
+        p = self.problem
+        x0 = np.array([p.x_of_q(v) for v in q])
+        out = np.full(q.shape, np.nan)
+        # Only postures that the strategy's coordinates describe (its other joints at the reference) are held here;
+        # the rest keep the one-at-a-time hold, which moves the whole posture.
+        ours = np.all(np.abs(p.q_of_x_many(x0) - q) <= 1e-9, axis=1)
+        if not ours.any():
+            return out
+        x0, goals = x0[ours], self.effector_positions(q[ours])
+        b = len(x0)
+        params = np.concatenate([goals, x0, np.ones((b, 1)), np.tile(self._default_target, (b, 1))], axis=1)
+        ends = run_starts(self.batch_program(), x0, params, np.arange(b), self.strategy.tolerance, False, x0, deadline, self.stats)
+        held = p.q_of_x_many(ends.x)
+        ok = (ends.dist <= self.strategy.tolerance) & (ends.viol <= HARD_TOL)
+        ok[ok] = [not f for f in self.faults(held[ok])]
+        rows = np.nonzero(ours)[0]
+        out[rows[ok]] = held[ok]
+        return out
 
     def solve(self, goal: np.ndarray, x0: np.ndarray, lower: bool = True, call: Call = NO_CALL) -> np.ndarray:
         self.prepare()

@@ -398,6 +398,11 @@ class Moving(Protocol):
         displacement is the first guess (so that consecutive frames are held alike)."""
         ...
 
+    def hold_many(self, postures: np.ndarray, deadline: float = np.inf) -> np.ndarray:
+        """Each posture (F, nq) held as :meth:`hold` holds it without ``before``, as one batch where the engine can:
+        (F, nq), a NaN row where none is found or the deadline (``time.perf_counter()``) passed."""
+        ...
+
 
 @dataclass(frozen=True)
 class Skeleton:

@@ -461,10 +461,15 @@ class Planner:
         be held, or holding makes a jump: a frame moved more than ``limit``, or a step between frames
         ``JUMP`` times the largest before."""
         out, held = postures.copy(), 0
-        for k, broken in enumerate(self._faults(oracle, postures)):
-            if not broken or k in (0, len(postures) - 1):
-                continue
+        broken = [k for k, f in enumerate(self._faults(oracle, postures)) if f and 0 < k < len(postures) - 1]
+        # The broken frames held together first (one batch); a frame that batch leaves unheld, or moves more than
+        # the limit, is held alone from its neighbour's correction.
+        batch = oracle.hold_many(postures[broken], self._deadline) if broken else np.zeros((0, postures.shape[1]))
+        for k, together in zip(broken, batch, strict=True):
             self._in_time()
+            if np.all(np.isfinite(together)) and np.abs(together - postures[k]).max() <= limit:
+                out[k], held = together, held + 1
+                continue
             fixed = self._held(oracle, postures[k], (postures[k - 1], out[k - 1]), limit)
             if fixed is None:
                 return None

@@ -8,7 +8,7 @@ import pytest
 
 from oracles.batch import CHUNK
 from oracles.ik import CasadiIK
-from oracles.protocol import Goals, OracleSpec
+from oracles.protocol import Goals, OracleSpec, Verdicts
 from oracles.search import Search
 from reach.config import load_config
 from reach.errors import OracleError
@@ -156,3 +156,32 @@ def test_the_lower_tasks_improve_the_reaching_posture_and_never_cost_the_verdict
     liked = [with_lower.preference(q, g) for q, g in zip(a.posture, goals, strict=True)]
     plain = [with_lower.preference(q, g) for q, g in zip(b.posture, goals, strict=True)]
     assert all(x < 0.9 * y for x, y in zip(liked, plain, strict=True)), (liked, plain)
+
+
+def test_a_motions_frames_are_held_as_one_batch(whole):
+    """Frames that break the feet and the balance (reachable postures with the root pushed a few cm) are held together:
+    each held frame keeps its hand within the tolerance of where the frame put it, its feet, balance and ranges (our own
+    forward kinematics), every self-collision pair apart (coal), and moves little; one evaluation of the engine's step
+    serves every frame of an iteration (counted), not one solve per frame."""
+    goals = _goals(whole, 40, 21)
+    v = whole.evaluate(goals)
+    frames = v.posture[v.reachable][:16].copy()
+    assert len(frames) >= 10
+    frames[:, :3] += np.random.default_rng(3).normal(scale=0.03, size=(len(frames), 3))
+    assert all(whole.faults(frames))  # the check can fail: every frame breaks a task
+    hands = whole.effector_positions(frames)
+    before = dict(whole.stats)
+    held = whole.hold_many(frames)
+    # A frame held with a coordinate moved more than the motion's HOLD_STEP (0.25) is held alone by the planner.
+    ok = np.all(np.isfinite(held), axis=1) & (np.abs(np.nan_to_num(held) - frames).max(axis=1) < 0.25)
+    assert ok.sum() >= 0.75 * len(frames)
+    assert whole.stats["iterations"] - before.get("iterations", 0) <= 40 * len(frames)  # iterations counted per posture
+    assert whole.stats.get("solves", 0) == before.get("solves", 0)  # no per-frame solve
+    verdicts = Verdicts(ok, np.zeros(len(frames)), np.where(ok[:, None], held, frames))
+    _assert_reachable_verdicts_hold(whole, hands, verdicts)  # within 5 mm of each frame's own hand
+    task = whole.strategy.task("self_collision")
+    for q in held[ok]:
+        caps = whole.body.capsules_at(q)
+        for pair in task.pairs:
+            a, b = caps[pair.first], caps[pair.second]
+            assert coal_capsule_distance(a[:3], a[3:6], a[6], b[:3], b[3:6], b[6]) >= pair.floor - 1e-6
