@@ -8,8 +8,8 @@ primitive; such a cylinder is read back as the capsule of the same axis and
 radius). A URDF body's own ``<collision>`` elements become capsules:
 cylinders and spheres as they are (a cylinder as the capsule of its axis and
 radius, which encloses it), boxes by the capsule along their longest axis
-that encloses them, meshes by a capsule fitted to the mesh (principal axis,
-radius of the farthest vertex; trimesh reads the file). Mesh paths
+that encloses them, meshes by one to four capsules along the mesh's principal axis (see
+:func:`_mesh_capsules` for the rule; trimesh reads the file). Mesh paths
 ``package://PKG/...`` are resolved against ``package_dirs`` (each a folder
 holding package ``PKG``) and plain relative paths against the URDF's folder.
 
@@ -233,7 +233,15 @@ def _package_parent(package: str, urdf_dir: Path | None) -> Path | None:
     return None
 
 
-def _mesh_capsule(path: Path, scale: np.ndarray, source: str) -> tuple[np.ndarray, np.ndarray, float]:
+MESH_PIECES = 4  # the most capsules one mesh becomes, along its long axis
+PIECES_SLACK = 0.1  # ... the fewest whose volume is within this share of the best of 1..MESH_PIECES
+
+
+def _mesh_capsules(path: Path, scale: np.ndarray, source: str) -> list[tuple[np.ndarray, np.ndarray, float]]:
+    """A mesh as capsules along its principal axis: it is cut into 1 to ``MESH_PIECES`` equal slabs across that axis,
+    each slab's surface fitted by its own capsule, and the fewest pieces are kept whose total volume is within
+    ``PIECES_SLACK`` of the least of them. A capsule's volume beyond its mesh is what overlaps the neighbours' (one
+    capsule over a torso with a wide base was 0.25 m thick all the way up, and overlapped the arms' by 126 mm)."""
     import trimesh
 
     if path.suffix.lower() == ".dae":
@@ -250,12 +258,35 @@ def _mesh_capsule(path: Path, scale: np.ndarray, source: str) -> tuple[np.ndarra
     v = np.asarray(getattr(mesh, "vertices", np.zeros((0, 3))), dtype=np.float64) * scale
     if v.shape[0] == 0:
         raise ModelError(f"mesh {path} has no vertices", source=source)
+    faces = np.asarray(getattr(mesh, "faces", np.zeros((0, 3), int)), int)
+    if len(faces):
+        # Small triangles, each given whole to the slab its centroid lies in: a capsule is convex, so it covers every
+        # triangle whose corners it covers, and the pieces' union covers the surface (not only its vertices).
+        extent = float(np.ptp(v, axis=0).max())
+        v, faces = trimesh.remesh.subdivide_to_size(v, faces, max_edge=max(extent, 1e-9) / (2 * MESH_PIECES), max_iter=12)
+        v, faces = np.asarray(v, float), np.asarray(faces, int)
+    else:
+        faces = np.arange(len(v))[:, None]  # a point cloud: each point its own "face"
     centre = v.mean(axis=0)
     axis = np.linalg.svd(v - centre, full_matrices=False)[2][0]
     t = (v - centre) @ axis
+    t_face = t[faces].mean(axis=1)
+    fits = []
+    for k in range(1, MESH_PIECES + 1):
+        edges = np.linspace(t.min(), t.max(), k + 1)
+        slab = np.clip(np.searchsorted(edges, t_face, side="right") - 1, 0, k - 1)
+        fits.append([_capsule_along(v[np.unique(faces[slab == j])], axis) for j in range(k) if np.any(slab == j)])
+    volume = [sum(math.pi * r**2 * (np.linalg.norm(b - a) + 4.0 * r / 3.0) for a, b, r in fit) for fit in fits]
+    return next(fit for fit, vol in zip(fits, volume, strict=True) if vol <= (1.0 + PIECES_SLACK) * min(volume))
+
+
+def _capsule_along(v: np.ndarray, axis: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """The capsule with the given axis direction that encloses the points v (N, 3): through their centre, its radius
+    the farthest point's distance from that line, its segment the shortest whose hemispherical caps still cover them."""
+    centre = v.mean(axis=0)
+    t = (v - centre) @ axis
     radial = np.linalg.norm((v - centre) - np.outer(t, axis), axis=1)
-    radius = float(radial.max())
-    # The shortest axis whose hemispherical caps still cover every vertex.
+    radius = max(float(radial.max()), 1e-6)
     inner = np.sqrt(np.maximum(radius**2 - radial**2, 0.0))
     lo, hi = float(np.min(t + inner)), float(np.max(t - inner))
     if lo > hi:
@@ -278,6 +309,7 @@ def urdf_capsules(urdf: str, source: str, urdf_dir: Path | None = None, package_
             xyz = np.array([float(v) for v in (origin.get("xyz", "0 0 0") if origin is not None else "0 0 0").split()])
             rpy = np.array([float(v) for v in (origin.get("rpy", "0 0 0") if origin is not None else "0 0 0").split()])
             placement = pin.SE3(pin.rpy.rpyToMatrix(*rpy), xyz)
+            more: list[tuple[np.ndarray, np.ndarray, float]] = []
             geom = col.find("geometry")
             shape = None if geom is None else next(iter(geom), None)
             if shape is None:
@@ -300,12 +332,16 @@ def urdf_capsules(urdf: str, source: str, urdf_dir: Path | None = None, package_
                     a[long], b[long] = -0.5 * size[long], 0.5 * size[long]
                 elif shape.tag == "mesh":
                     scale = np.array([float(v) for v in shape.get("scale", "1 1 1").split()])
-                    a, b, r = _mesh_capsule(_resolve(shape.get("filename", ""), urdf_dir, package_dirs, where), scale, where)
+                    pieces = _mesh_capsules(_resolve(shape.get("filename", ""), urdf_dir, package_dirs, where), scale, where)
+                    (a, b, r), more = pieces[0], pieces[1:]
                 else:
                     raise ModelError(f"{where}: unsupported geometry <{shape.tag}>")
             except ValueError as exc:
                 raise ModelError(f"{where}: malformed <{shape.tag}> ({exc})") from exc
             if not r > 0:
                 raise ModelError(f"{where}: the radius must be positive, got {r}")
-            out.append(Capsule(name, lname, tuple(placement.act(a)), tuple(placement.act(b)), float(r)))  # type: ignore[arg-type]
+            # A mesh's first piece keeps the element's name; the others are NAME_1, NAME_2, ...
+            for j, (end_a, end_b, rad) in enumerate([(a, b, r), *more]):
+                out.append(Capsule(f"{name}_{j}" if j else name, lname, tuple(placement.act(end_a)), tuple(placement.act(end_b)),  # type: ignore[arg-type]
+                                   float(rad)))
     return out

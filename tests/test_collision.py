@@ -251,3 +251,40 @@ def test_the_arms_keep_out_is_the_static_body_and_unreachable():
     assert capsules.shape == (len(names), 7)
     centres = 0.5 * (capsules[:, :3] + capsules[:, 3:6])
     assert not oracle.evaluate(centres).reachable.any()
+
+
+def _point_segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    ab = b - a
+    s = np.clip((p - a) @ ab / max(float(ab @ ab), 1e-300), 0.0, 1.0)
+    return np.linalg.norm(p - (a + s[:, None] * ab), axis=1)
+
+
+def test_a_mesh_gets_capsules_along_its_long_axis_as_its_shape_asks(tmp_path):
+    """Issue 36, item 4: a torso-like mesh (a slim column on a wide base) becomes several capsules, slimmer where the
+    mesh is, whose union still covers every point of its surface (sampled here by trimesh, not the fit's points); a
+    plain rod stays one capsule."""
+    import trimesh
+
+    base = trimesh.creation.box((0.5, 0.5, 0.2))
+    column = trimesh.creation.box((0.15, 0.15, 0.9))
+    column.apply_translation([0, 0, 0.55])
+    trimesh.util.concatenate([base, column]).export(tmp_path / "torso.stl")
+    trimesh.creation.cylinder(radius=0.05, height=0.4).export(tmp_path / "rod.stl")
+    urdf = tmp_path / "robot.urdf"
+    urdf.write_text("""<?xml version="1.0"?><robot name="r">
+      <link name="torso"><collision><geometry><mesh filename="torso.stl"/></geometry></collision></link>
+      <link name="arm"><collision><geometry><mesh filename="rod.stl"/></geometry></collision></link>
+      <joint name="j" type="revolute"><parent link="torso"/><child link="arm"/><origin xyz="0.4 0 0.8"/><axis xyz="0 1 0"/>
+        <limit lower="-1" upper="1" effort="1" velocity="1"/></joint></robot>""")
+    caps = urdf_body(urdf).capsules
+    torso = [c for c in caps if c.link == "torso"]
+    assert [c.name for c in torso][0] == "torso_0" and len(torso) >= 2
+    assert [c.name for c in caps if c.link == "arm"] == ["arm_0"]
+    # One capsule over the whole torso is as thick as the base's half diagonal (0.35 m); the column's pieces are not.
+    assert min(c.radius for c in torso) < 0.15
+    points = trimesh.load(tmp_path / "torso.stl").sample(3000, seed=1)
+    gap = np.min([_point_segment_distance(points, np.array(c.a), np.array(c.b)) - c.radius for c in torso], axis=0)
+    assert gap.max() <= 1e-9
+    volume = sum(np.pi * c.radius**2 * (c.length + 4 * c.radius / 3) for c in torso)
+    one = np.pi * 0.36**2 * (1.0 + 4 * 0.36 / 3)  # about the single capsule's (base half diagonal 0.354, 1.1 m tall)
+    assert volume < 0.6 * one
