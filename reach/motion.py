@@ -460,23 +460,27 @@ class Planner:
         """The postures with each inner one that breaks a task held (and how many), or None when one cannot
         be held, or holding makes a jump: a frame moved more than ``limit``, or a step between frames
         ``JUMP`` times the largest before."""
-        out, held = postures.copy(), 0
         broken = [k for k, f in enumerate(self._faults(oracle, postures)) if f and 0 < k < len(postures) - 1]
-        # The broken frames held together first (one batch); a frame that batch leaves unheld, or moves more than
-        # the limit, is held alone from its neighbour's correction.
-        batch = oracle.hold_many(postures[broken], self._deadline) if broken else np.zeros((0, postures.shape[1]))
-        for k, together in zip(broken, batch, strict=True):
+        if not broken:
+            return postures.copy(), 0
+        # The broken frames held together first, as one batch; when the batch leaves one unheld, moves one more than
+        # the limit, or its frames (each held on its own) make a jump, they are held one at a time, each from its
+        # neighbour's correction, which keeps consecutive frames alike.
+        out = postures.copy()
+        out[broken] = oracle.hold_many(postures[broken], self._deadline)
+        self._in_time()
+        if np.all(np.isfinite(out)) and np.abs(out - postures).max() <= limit and self._steps(out) <= JUMP * self._steps(postures):
+            return out, len(broken)
+        out = postures.copy()
+        for k in broken:
             self._in_time()
-            if np.all(np.isfinite(together)) and np.abs(together - postures[k]).max() <= limit:
-                out[k], held = together, held + 1
-                continue
             fixed = self._held(oracle, postures[k], (postures[k - 1], out[k - 1]), limit)
             if fixed is None:
                 return None
-            out[k], held = fixed, held + 1
-        if held and self._steps(out) > JUMP * self._steps(postures):
+            out[k] = fixed
+        if self._steps(out) > JUMP * self._steps(postures):
             return None
-        return out, held
+        return out, len(broken)
 
     def _faults(self, oracle: Body, postures: np.ndarray) -> Iterator[list[str]]:
         """The oracle's faults of each posture, ``CHECK_FRAMES`` at a time with the deadline read between them."""
