@@ -568,6 +568,8 @@ def _run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_
         if better.any():  # state is y's evaluation throughout
             state = program.evaluate(y, p_low, lower=True)
     for _ in range(RESTORE_ITER):
+        if time.perf_counter() > deadline:
+            break  # (a lower-refined posture left off the goal keeps its reach posture, below)
         d, v = np.linalg.norm(state.e, axis=1), program.violation(state)
         off = np.nonzero((d > 0.5 * tolerance) | (v > HARD_TOL))[0]
         if not off.size:

@@ -103,6 +103,13 @@ REFINE_BUDGET = 0.02  # [s] default time budget of one refinement (a frame at 50
 # starts too; within 20 ms it timed out on 5 of 72 oriented arm7_table goals the referee reaches (docs/history.md). The
 # batched engine's K starts and K random ones take 0.10-0.15 s on an idle machine: 0.2 s timed out on a loaded one (CI).
 ORIENTED_BUDGET = 0.5
+# The share of a refinement's budget its solve gets: the seeding (the best-liked stored posture near the goal), the
+# verdict's checks and the answer take the rest, 6-8 ms around a solve given all of 20 ms (demo atlas, bench/refined.py:
+# its queries took 27-30 ms).
+SOLVE_SHARE = 0.7
+# A refinement left less than this share of one goal's budget is not started (a timeout): a handover after a first
+# choice that took most of the budget took 2-5 ms more for a solve of 1-2 ms (bench/refined.py).
+LEAST_SOLVE = 0.25
 HANDOVER = math.radians(5.0)  # [rad] a joint this near a limit passes the goal on (see the module docstring)
 # A refinement without `from` also starts from the best-liked of this many
 # nearest stored postures (when it is not the nearest's): the nearest can sit
@@ -553,18 +560,21 @@ class Selector:
             gap = float(np.linalg.norm(goal - reached))
             residual = gap if np.isfinite(gap) else None
             q, outcome = tree.vertices.posture[row], SKIPPED  # type: ignore[index]
+            # One budget for all of a goal's refinements (the first choice's, a fallback's, a handover's): the budget is
+            # the query's (each had its own, and a query that fell back or handed over took two to four budgets).
+            deadline = t0 + (self.budget if aim is None else max(self.budget, ORIENTED_BUDGET))
             if refine:
-                q, residual, outcome = self._refine(name, goal, q, residual, start, aim, done)
+                q, residual, outcome = self._refine(name, goal, q, residual, start, aim, done, deadline)
             found = None
             if outcome == FAILED:
                 # The IK says this strategy does not reach the exact goal (its
                 # tree said so from a coarse cell): the next strategy by
                 # priority that does answers; else this one's stored posture.
-                found = self._first_answer(goal, others, refine, start, aim=aim, done=done)
+                found = self._first_answer(goal, others, refine, start, aim=aim, done=done, deadline=deadline)
                 if found is not None:
                     others = others[others.index(found.name) + 1 :]
             elif self.handover and others and outcome in (REFINED, SKIPPED) and (limits := self._limits(name, q)):
-                found = self._first_answer(goal, others, refine, start, below=len(limits), aim=aim, done=done)
+                found = self._first_answer(goal, others, refine, start, below=len(limits), aim=aim, done=done, deadline=deadline)
                 if found is not None:
                     others = [h for h in hits if h != found.name]  # the strategy passed over stays an alternative
                     handover = {"from": name, "limits": limits}
@@ -615,7 +625,8 @@ class Selector:
         return list(oracle.limits_near(q, self.handover)) if isinstance(oracle, Limited) else []
 
     def _first_answer(self, goal: np.ndarray, names: list[str], refine: bool, start: dict[str, float] | None,
-                      below: int | None = None, aim: np.ndarray | None = None, done: Prefetched | None = None) -> Found | None:
+                      below: int | None = None, aim: np.ndarray | None = None, done: Prefetched | None = None,
+                      deadline: float | None = None) -> Found | None:
         """The first of names (by priority) whose refinement reaches the goal (without refinement: whose tree
         holds a posture) and, given ``below``, with fewer joints near their limits: its name, posture,
         residual, refinement outcome and nearest stored row; None if none does (or, given ``below``, the time runs out)."""
@@ -631,7 +642,7 @@ class Selector:
             residual: float | None = gap if np.isfinite(gap) else None
             outcome = SKIPPED
             if refine:
-                q, residual, outcome = self._refine(name, goal, q, residual, start, aim, done)
+                q, residual, outcome = self._refine(name, goal, q, residual, start, aim, done, deadline)
                 if outcome == TIMEOUT:  # out of time: no further strategy is tried
                     # A handover keeps the answer it had; a failed goal is answered by this strategy's
                     # stored posture, marked timeout: its tree holds the goal and nothing said otherwise.
@@ -676,13 +687,15 @@ class Selector:
 
     def _refine(self, name: str, goal: np.ndarray, q: np.ndarray, residual: float | None,
                 start_joints: dict[str, float] | None = None, aim: np.ndarray | None = None,
-                done: Prefetched | None = None) -> Refined:
+                done: Prefetched | None = None, deadline: float | None = None) -> Refined:
         if done is not None and name in done:
             q_done, residual_done, outcome = done[name]
             return (q_done, residual_done, outcome) if outcome == REFINED else (q, residual, outcome)
         if start_joints is None:  # from the stored posture and the best liked near it, as a batch's goals are
-            return self._refine_many(name, goal[None], q[None], [residual], [aim], None)[0]
-        oracle, budget = self._tuned(name, 1, aim)
+            return self._refine_many(name, goal[None], q[None], [residual], [aim], deadline)[0]
+        oracle, budget = self._tuned(name, 1, aim, deadline)
+        if budget < LEAST_SOLVE * self.budget:
+            return q, residual, TIMEOUT
         t0 = time.perf_counter()
         start = self.start_posture(self.atlas.trees[name], q, start_joints)  # from the character's posture
         v = oracle.evaluate(Goals(goal[None], {} if aim is None else {"orientation": aim[None]}, start))
@@ -697,7 +710,8 @@ class Selector:
         budget = goals * (self.budget if aim is None else max(self.budget, ORIENTED_BUDGET))
         if deadline is not None:
             budget = min(budget, deadline - time.perf_counter())
-        if budget != self.budget and budget > 0 and isinstance(oracle, Tunable):
+        budget *= SOLVE_SHARE
+        if budget > 0 and isinstance(oracle, Tunable):
             oracle = oracle.variant("refine", budget=budget)
         return oracle, budget
 
@@ -766,7 +780,7 @@ class Selector:
         best-liked one near it, within m refinements' budgets (and the deadline)."""
         m = len(goals)
         tuned, budget = self._tuned(name, m, aims[0], deadline)
-        if budget <= 0:
+        if budget < LEAST_SOLVE * self.budget:
             return [(q, r, TIMEOUT) for q, r in zip(stored, residuals, strict=True)]
         liked = [self._best_liked(name, tuned, goal, q) for goal, q in zip(goals, stored, strict=True)] if isinstance(tuned, Preferring) else []
         seeds = stored[:, None]
