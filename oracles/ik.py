@@ -37,7 +37,6 @@ import pinocchio as pin
 
 from oracles.batch import CONTINUITY as CONTINUITY_WEIGHT
 from oracles.batch import (
-    HARD_TOL,
     LOWER_ITER,
     POLISH_FAR,
     POLISH_NEAR,
@@ -1091,7 +1090,8 @@ class CasadiIK(IKOracle):
         params = np.concatenate([goals, x0, np.ones((b, 1)), np.tile(self._default_target, (b, 1))], axis=1)
         ends = run_starts(self.batch_program(), x0, params, np.arange(b), self.strategy.tolerance, False, x0, deadline, self.stats)
         held = p.q_of_x_many(ends.x)
-        ok = (ends.dist <= self.strategy.tolerance) & (ends.viol <= HARD_TOL)
+        # The verdict's own checks decide (a held contact row 0.08 mm off, past the engine's 1e-6, holds by its task's).
+        ok = ends.dist <= self.strategy.tolerance
         ok[ok] = [not f for f in self.faults(held[ok])]
         rows = np.nonzero(ours)[0]
         out[rows[ok]] = held[ok]

@@ -523,3 +523,38 @@ def test_reach_motion_over_the_wire_writes_the_same_animation_files(planner, tmp
         thread.join(timeout=10)
     with pytest.raises(InputError, match="rig: a motion's bones are malformed"):
         Rig.from_dict({"bones": ["a"]})
+
+
+def test_a_paths_broken_frames_are_held_as_one_batch_by_the_batched_engine(planner, body, monkeypatch):
+    """Issue 34: the low reach's frames with the root pushed (its feet broken), held by the batched
+    engine, most as one batch (the others alone, from their neighbour's correction): every frame then holds every task by the fatrop
+    oracle's own checks, and independently the soles stay where they stood, the centre of mass over them."""
+    import time
+
+    from oracles.protocol import OracleSpec
+
+    m = planner.plan("right_hand", np.array([0.35, -0.2, 0.45]))
+    fatrop = planner.body("whole")
+    spec = planner.selector.atlas.trees["whole"].meta["oracle"]
+    batch = OracleSpec(spec["name"], {**spec["params"], "solver": "batch"}).create()
+    frames = planner._timed(fatrop, m.names, [m.postures[0], m.postures[-1]], 30.0, Timing())[0].copy()
+    # The root pushed forward along a smooth bump (1 cm at mid-path): the feet slide, as a plain interpolation's do.
+    frames[:, 0] += 0.01 * np.sin(np.pi * np.linspace(0.0, 1.0, len(frames)))
+    broken = [k for k, f in enumerate(fatrop.faults(frames)) if f]
+    assert len(broken) >= 5  # the precondition: the plain path breaks tasks
+    alone = []
+    monkeypatch.setattr(batch, "hold", lambda q, before=None: alone.append(q) or fatrop.hold(q, before))
+    monkeypatch.setattr(planner, "_deadline", time.perf_counter() + 60.0, raising=False)
+    held = planner._hold_path(batch, frames)
+    assert held is not None and held[1] == len(broken)
+    assert len(alone) <= 0.5 * len(broken)  # here 18 of 44 held alone (unheld by the batch, or moved too far), 26 in one batch
+    assert not any(fatrop.faults(held[0]))
+    data = body.model.createData()
+    corners = [body.frame_id(f"{side}_{end}_{edge}") for side in ("right", "left") for end in ("heel", "toe") for edge in ("inner", "outer")]
+    pin.framesForwardKinematics(body.model, data, frames[0])
+    first = np.array([data.oMf[f].translation for f in corners])
+    for q in held[0]:
+        pin.framesForwardKinematics(body.model, data, q)
+        np.testing.assert_allclose([data.oMf[f].translation for f in corners], first, atol=2e-4)
+        com = pin.centerOfMass(body.model, data, q)
+        assert np.all(first[:, :2].min(axis=0) <= com[:2]) and np.all(com[:2] <= first[:, :2].max(axis=0))
