@@ -423,7 +423,10 @@ class _Buffers:
 # -- the search over many starts ------------------------------------------------
 
 WAVE = 2  # a cold goal no start reached (see oracles.ik) gets WAVE x STARTS more random starts
-STARTS = 8  # default starts per goal (K): the hint(s), the reference, the ready posture, seeded random ones (the first guess, not yet tuned)
+# Default starts per goal (K): the hint(s), the reference, the ready posture, seeded random ones. Cold goals (no hint, seed 7;
+# docs/results.md, IK engines): K = 4 / 8 / 12 reached 96 / 97 / 97 of 200 arm goals and 46 / 48 / 48 of 100 whole-body
+# ones, at 3.2 / 4.0 / 4.7 and 21.6 / 39.0 / 39.0 ms each: 8 is the fewest that misses none 12 reaches.
+STARTS = 8
 MAX_ITER = 40  # reach iterations
 LOWER_STARTS = 2  # reaching starts of one goal whose lower tasks are refined, the first in start order (the neighbour's posture in a build first)
 LOWER_ITER = 6  # lower-task iterations of a reaching start, each followed by a step back to the goal: 12 took 16.2 ms a warm whole-body goal against 12.8 ms, for a mean preference of 4.92 against 5.08 (fatrop 5.88; session 20)

@@ -534,7 +534,9 @@ class IKOracle(ABC):
         # A goal with a target (an orientation) gets random starts even in a refinement: the stored postures it is
         # seeded with were found for its position alone (measured on arm7_table: 2 of 24 oriented goals the
         # referee reaches were missed from the four other starts).
-        restarts = max(search.restarts, TARGET_RESTARTS) if targets is not None else None
+        # (Not the index's search, which gives up and tries no random start: its (vertex, direction) goals, half of them
+        # out of reach, each took four more solves, and arm7_table's index 2.5 times as long.)
+        restarts = max(search.restarts, TARGET_RESTARTS) if targets is not None and search.give_up is None else None
         starts = [self.starts(g, None if hints is None else hints[i], call, restarts) if not prefiltered[i] else [] for i, g in enumerate(pts)]
         preferred = np.full(n, np.inf)  # with prefer: the lower tasks' objective of the kept posture
         decisive = np.zeros(n, bool)  # the first start is a warm start from a nearby hint
