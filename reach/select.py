@@ -561,8 +561,14 @@ class Selector:
             residual = gap if np.isfinite(gap) else None
             q, outcome = tree.vertices.posture[row], SKIPPED  # type: ignore[index]
             # One budget for all of a goal's refinements (the first choice's, a fallback's, a handover's): the budget is
-            # the query's (each had its own, and a query that fell back or handed over took two to four budgets).
-            deadline = t0 + (self.budget if aim is None else max(self.budget, ORIENTED_BUDGET))
+            # the query's (each had its own, and a query that fell back or handed over took two to four budgets). It
+            # starts once the strategies that may refine have their solvers (a server's are built at warm-up; `reach
+            # query` builds them here, which took the whole of its 1 s budget).
+            if refine and done is None:
+                for other in hits:
+                    if isinstance(oracle := self._oracle(other), Preparable):
+                        oracle.prepare()
+            deadline = time.perf_counter() + (self.budget if aim is None else max(self.budget, ORIENTED_BUDGET))
             if refine:
                 q, residual, outcome = self._refine(name, goal, q, residual, start, aim, done, deadline)
             found = None
