@@ -21,11 +21,13 @@ Run: ``.venv/bin/python bench/motion.py ATLAS [--goals 20] [--seed 0] [--no-wire
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import platform
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -91,20 +93,31 @@ def in_process(planner: Planner, groups: dict[str, np.ndarray]) -> None:
              frames=int(np.median(frames)) if frames else 0, routed=routed, failed=failed)
 
 
-def over_the_wire(atlas: str, groups: dict[str, np.ndarray]) -> None:
-    proc = subprocess.Popen([sys.executable, "-m", "reach.cli", "serve", atlas, "--bind", "tcp://127.0.0.1:*", "--pub", "none", "--workers", "2"],
-                            stdout=subprocess.PIPE, text=True)
+@contextlib.contextmanager
+def served(atlas: str, workers: int) -> Iterator[zmq.Socket]:
+    """``reach serve`` of the atlas in a process of its own, its workers ready, and a REQ socket to it."""
+    proc = subprocess.Popen([sys.executable, "-m", "reach.cli", "serve", atlas, "--bind", "tcp://127.0.0.1:*", "--pub", "none",
+                             "--workers", str(workers)], stdout=subprocess.PIPE, text=True)
     try:
         line = proc.stdout.readline()  # type: ignore[union-attr]
         address = line.split(" on ")[1].split(",")[0].strip()
         sock = zmq.Context.instance().socket(zmq.REQ)
         sock.setsockopt(zmq.LINGER, 0)
         sock.connect(address)
-        for _ in range(600):  # the workers have loaded the atlas
+        for _ in range(600):  # the workers have loaded the atlas and built their solvers
             sock.send(b'{"op": "health"}')
-            if json.loads(sock.recv())["workers_ready"] >= 2:
+            if json.loads(sock.recv())["workers_ready"] >= workers:
                 break
             time.sleep(0.1)
+        yield sock
+        sock.close()
+    finally:
+        proc.terminate()
+        proc.wait(timeout=30)
+
+
+def over_the_wire(atlas: str, groups: dict[str, np.ndarray]) -> None:
+    with served(atlas, 2) as sock:
         for group, goals in groups.items():
             for goal in goals[:2]:  # each worker's first plan of the strategy
                 sock.send(json.dumps({"op": "motion", "effector": EFFECTOR, "goal": goal.tolist()}).encode())
@@ -119,10 +132,6 @@ def over_the_wire(atlas: str, groups: dict[str, np.ndarray]) -> None:
                 failed += not json.loads(reply).get("ok")
             emit(bench="motion", path="wire_2_workers", group=group, goals=len(goals), **stats(ms), reply_kib=round(float(np.median(sizes)) / 1024, 1),
                  failed=failed)
-        sock.close()
-    finally:
-        proc.terminate()
-        proc.wait(timeout=30)
 
 
 def main() -> None:

@@ -18,14 +18,12 @@ import argparse
 import collections
 import json
 import platform
-import subprocess
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
-import zmq
-from motion import EFFECTOR, goals_by_group, stats
+from motion import EFFECTOR, goals_by_group, served, stats
 
 from reach.select import Selector
 from reach.store import load_atlas
@@ -46,19 +44,7 @@ def main() -> None:
         sys.exit(f"{args.atlas}: no atlas there (make run builds out/demo)")
     emit(machine=platform.processor() or platform.machine(), python=platform.python_version(), workers=args.workers)
     groups = goals_by_group(Selector(load_atlas(args.atlas)), args.goals, np.random.default_rng(args.seed))
-    proc = subprocess.Popen([sys.executable, "-m", "reach.cli", "serve", args.atlas, "--bind", "tcp://127.0.0.1:*", "--pub", "none",
-                             "--workers", str(args.workers)], stdout=subprocess.PIPE, text=True)
-    try:
-        line = proc.stdout.readline()  # type: ignore[union-attr]
-        address = line.split(" on ")[1].split(",")[0].strip()
-        sock = zmq.Context.instance().socket(zmq.REQ)
-        sock.setsockopt(zmq.LINGER, 0)
-        sock.connect(address)
-        for _ in range(600):  # the workers have loaded the atlas and built their solvers
-            sock.send(b'{"op": "health"}')
-            if json.loads(sock.recv())["workers_ready"] >= args.workers:
-                break
-            time.sleep(0.1)
+    with served(args.atlas, args.workers) as sock:
         for group, goals in groups.items():
             for goal in goals[:2]:  # warm: the first refinement of each strategy in each worker
                 sock.send(json.dumps({"op": "query", "effector": EFFECTOR, "goal": goal.tolist()}).encode())
@@ -71,10 +57,6 @@ def main() -> None:
                 ms.append(1e3 * (time.perf_counter() - t0))
                 ended[str(reply.get("refined", reply.get("error")))] += 1
             emit(bench="refined_query", group=group, goals=len(goals), **stats(ms), refined=dict(ended))
-        sock.close()
-    finally:
-        proc.terminate()
-        proc.wait(timeout=30)
 
 
 if __name__ == "__main__":
