@@ -103,10 +103,11 @@ REFINE_BUDGET = 0.02  # [s] default time budget of one refinement (a frame at 50
 # starts too; within 20 ms it timed out on 5 of 72 oriented arm7_table goals the referee reaches (docs/history.md). The
 # batched engine's K starts and K random ones take 0.10-0.15 s on an idle machine: 0.2 s timed out on a loaded one (CI).
 ORIENTED_BUDGET = 0.5
-# The share of a refinement's budget its solve gets: the seeding (the best-liked stored posture near the goal), the
-# verdict's checks and the answer take the rest, 6-8 ms around a solve given all of 20 ms (demo atlas, bench/refined.py:
-# its queries took 27-30 ms).
+# The share of a refinement's budget its solve gets, leaving at most SOLVE_RESERVE [s] for the seeding (the best-liked
+# stored posture near the goal), the verdict's checks and the answer: 6-8 ms around a solve given all of 20 ms (demo
+# atlas, bench/refined.py: its queries took 27-30 ms). An oriented goal's 0.5 s keeps all but that.
 SOLVE_SHARE = 0.7
+SOLVE_RESERVE = 0.006
 # A refinement left less than this share of one goal's budget is not started (a timeout): a handover after a first
 # choice that took most of the budget took 2-5 ms more for a solve of 1-2 ms (bench/refined.py).
 LEAST_SOLVE = 0.25
@@ -716,7 +717,7 @@ class Selector:
         budget = goals * (self.budget if aim is None else max(self.budget, ORIENTED_BUDGET))
         if deadline is not None:
             budget = min(budget, deadline - time.perf_counter())
-        budget *= SOLVE_SHARE
+        budget -= min((1.0 - SOLVE_SHARE) * budget, SOLVE_RESERVE)
         if budget > 0 and isinstance(oracle, Tunable):
             oracle = oracle.variant("refine", budget=budget)
         return oracle, budget
