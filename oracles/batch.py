@@ -515,7 +515,9 @@ def _run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_
         radius[live[newly]] = MAX_STEP
         merit[newly] = np.inf
         merit_before[live] = merit
-        gained = np.where(np.isfinite(before), before - merit, np.inf)  # (a newly guarded start's merit is inf)
+        gained = np.full(len(merit), np.inf)  # (a start's first merit, and a newly guarded start's, are inf)
+        known = np.isfinite(before)
+        gained[known] = before[known] - merit[known]
         stalled = (d > tolerance) & (gained < STALL * merit) & ~worse & (it > 2)
         stalled |= radius[live] < MIN_RADIUS
         late = (reached_at[owner[live]] >= 0) & (it - reached_at[owner[live]] >= EXTRA)
