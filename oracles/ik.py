@@ -359,16 +359,10 @@ class IKOracle(ABC):
         return v.posture[0] if v.reachable[0] and v.posture is not None else None
 
     def hold_many(self, postures: np.ndarray, deadline: float = np.inf) -> np.ndarray:
-        """Each posture (F, nq) held (:meth:`hold` without ``before``), a NaN row where none is found or the deadline
-        (``time.perf_counter()``) passed; engines that advance many postures together hold them as one batch."""
-        out = np.full(np.shape(postures), np.nan)
-        for k, q in enumerate(np.asarray(postures, float)):
-            if time.perf_counter() > deadline:
-                break
-            held = self.hold(q)
-            if held is not None:
-                out[k] = held
-        return out
+        """Each posture (F, nq) held as one batch, a NaN row where none is held. An engine that solves one posture at a
+        time holds none here: the caller holds them with :meth:`hold`, each from its neighbour's correction, as before
+        (held here without it, then again there, a rejected batch cost the motion twice)."""
+        return np.full(np.shape(postures), np.nan)
 
     def limits_near(self, posture: np.ndarray, margin: float) -> list[str]:
         """The joint limits a posture comes within margin [rad or m] of (see :meth:`ReachProblem.limits_near`)."""
@@ -534,8 +528,8 @@ class IKOracle(ABC):
         # A goal with a target (an orientation) gets random starts even in a refinement: the stored postures it is
         # seeded with were found for its position alone (measured on arm7_table: 2 of 24 oriented goals the
         # referee reaches were missed from the four other starts).
-        # (Not the index's search, which gives up and tries no random start: its (vertex, direction) goals, half of them
-        # out of reach, each took four more solves, and arm7_table's index 2.5 times as long.)
+        # (Not the index's search, which gives up and tries no random start: its (vertex, direction) goals, about two
+        # thirds of them out of reach, each took four more solves, and arm7_table's index 2.5 times as long.)
         restarts = max(search.restarts, TARGET_RESTARTS) if targets is not None and search.give_up is None else None
         starts = [self.starts(g, None if hints is None else hints[i], call, restarts) if not prefiltered[i] else [] for i, g in enumerate(pts)]
         preferred = np.full(n, np.inf)  # with prefer: the lower tasks' objective of the kept posture

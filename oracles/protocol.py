@@ -399,8 +399,9 @@ class Moving(Protocol):
         ...
 
     def hold_many(self, postures: np.ndarray, deadline: float = np.inf) -> np.ndarray:
-        """Each posture (F, nq) held as :meth:`hold` holds it without ``before``, as one batch where the engine can:
-        (F, nq), a NaN row where none is found or the deadline (``time.perf_counter()``) passed."""
+        """Each posture (F, nq) held as :meth:`hold` holds it without ``before``, all as one batch: (F, nq), a NaN row
+        where none is found, the deadline (``time.perf_counter()``) passed, or the engine holds one posture at a time
+        (the caller then holds that one with :meth:`hold`)."""
         ...
 
 

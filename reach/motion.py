@@ -471,7 +471,9 @@ class Planner:
         # A batch's frame moved more than a jump between frames would allow is held alone too (each frame held from
         # itself, a few landed in another basin, 0.2-0.5 rad away, where their neighbours did not).
         bound = min(limit, JUMP * self._steps(postures))
-        for guesses in (list(together), [None] * len(broken)):
+        alone: list[np.ndarray | None] = [None] * len(broken)
+        # (An engine without a batched hold held none: the one-at-a-time pass is the only one.)
+        for guesses in ([*together], alone) if np.isfinite(together).all(axis=1).any() else (alone,):
             out = postures.copy()
             for k, fixed in zip(broken, guesses, strict=True):
                 self._in_time()
