@@ -17,11 +17,11 @@ import platform
 import tempfile
 from pathlib import Path
 
-from reach.atlas import build_atlas
-from reach.audit import audit
-from reach.build import Refine
-from reach.config import parse_config, read_yaml
-from reach.executor import ProcessExecutor
+from reach.answers.audit import audit
+from reach.build.atlas import build_atlas
+from reach.build.config import parse_config, read_yaml
+from reach.build.executor import ProcessExecutor
+from reach.build.tree import Refine
 
 ROOT = Path(__file__).resolve().parents[1]
 OPTIONS = {

@@ -20,19 +20,19 @@ from unittest import mock
 
 import yaml
 
-import oracles.body
-import oracles.ik
+import oracles.bodies.body
+import oracles.ik.engine
 
 
 def counting() -> tuple[mock._patch, list[int]]:  # type: ignore[type-arg]
     calls: list[int] = []
-    real = oracles.body.load_body
+    real = oracles.bodies.body.load_body
 
-    def load(spec: dict) -> oracles.body.Body:  # type: ignore[type-arg]
+    def load(spec: dict) -> oracles.bodies.body.Body:  # type: ignore[type-arg]
         calls.append(1)
         return real(spec)
 
-    return mock.patch.object(oracles.ik, "load_body", load), calls
+    return mock.patch.object(oracles.ik.engine, "load_body", load), calls
 
 
 def main() -> None:
@@ -40,10 +40,10 @@ def main() -> None:
     parser.add_argument("--atlas", default="out/demo")
     parser.add_argument("--config", default="configs/demo.yaml")
     args = parser.parse_args()
-    from reach.atlas import build_atlas
-    from reach.config import load_config
-    from reach.select import Selector
-    from reach.store import load_atlas
+    from reach.answers.select import Selector
+    from reach.build.atlas import build_atlas
+    from reach.build.config import load_config
+    from reach.maps.store import load_atlas
 
     patch, calls = counting()
     with patch:

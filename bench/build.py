@@ -23,11 +23,11 @@ from pathlib import Path
 
 import numpy as np
 
-from reach.atlas import build_atlas
-from reach.config import load_config, parse_config, read_yaml
-from reach.executor import DaskExecutor, ProcessExecutor
-from reach.store import load_atlas
-from reach.tree import FINAL, VATree
+from reach.build.atlas import build_atlas
+from reach.build.config import load_config, parse_config, read_yaml
+from reach.build.executor import DaskExecutor, ProcessExecutor
+from reach.maps.store import load_atlas
+from reach.maps.tree import FINAL, VATree
 
 ROOT = Path(__file__).resolve().parents[1]
 

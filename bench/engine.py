@@ -29,9 +29,9 @@ import numpy as np
 import pinocchio as pin
 
 from oracles.protocol import Goals
-from reach.atlas import build_atlas
-from reach.config import parse_config, read_yaml
-from reach.executor import ProcessExecutor
+from reach.build.atlas import build_atlas
+from reach.build.config import parse_config, read_yaml
+from reach.build.executor import ProcessExecutor
 
 ROOT = Path(__file__).resolve().parents[1]
 ENGINES = ("batch", "fatrop")

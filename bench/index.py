@@ -29,9 +29,9 @@ import platform
 import numpy as np
 
 from oracles.protocol import Goals, OracleSpec
-from reach.executor import ProcessExecutor
-from reach.index import spiral
-from reach.store import load_atlas
+from reach.build.executor import ProcessExecutor
+from reach.maps.index import spiral
+from reach.maps.store import load_atlas
 
 
 def reached(ex: ProcessExecutor, points: np.ndarray, postures: np.ndarray, directions: np.ndarray) -> np.ndarray:
@@ -54,10 +54,11 @@ def main() -> None:
     for path in args.atlases:
         atlas = load_atlas(path)
         for name, tree in atlas.trees.items():
-            if tree.index is None:
+            if name not in atlas.indexes:
                 continue
+            reach_index = atlas.indexes[name]
             b, i = tree.meta["build"], tree.meta["index"]
-            n = len(tree.index.directions)
+            n = len(reach_index.directions)
             cost = {"atlas": atlas.manifest["name"], "strategy": name, "directions": n, "tree_calls": b["oracle_calls"], "tree_seconds": round(b["seconds"], 1),
                     "index_goals": i["goals"], "index_seconds": round(i["seconds"], 1), "goals_over_n_calls": round(i["goals"] / (n * b["oracle_calls"]), 3),
                     "seconds_over_tree": round(i["seconds"] / b["seconds"], 2), "mean_index": round(i["mean"], 4), **machine}
@@ -70,11 +71,11 @@ def main() -> None:
             referee = OracleSpec.from_dict(tree.meta["oracle"]).create().variant("referee", restarts=args.restarts)  # type: ignore[attr-defined]
             ex = ProcessExecutor(referee.spec, workers=args.workers)
             try:
-                own = reached(ex, points, postures, tree.index.directions)
+                own = reached(ex, points, postures, reach_index.directions)
                 dense = reached(ex, points, postures, spiral(args.dense))
             finally:
                 ex.close()
-            index = tree.index.reached[sample]
+            index = reach_index.reached[sample]
             share, ref = index.mean(axis=1), dense.mean(axis=1)
             print(json.dumps({"atlas": atlas.manifest["name"], "strategy": name, "sample": len(sample), "dense": args.dense,
                               "error_vs_dense_mean": round(float(np.abs(share - ref).mean()), 4), "error_vs_dense_max": round(float(np.abs(share - ref).max()), 4),

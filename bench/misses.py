@@ -21,10 +21,10 @@ import time
 import numpy as np
 import pinocchio as pin
 
-from oracles.body import load_body
-from reach.select import Selector, posture_vector
-from reach.store import load_atlas
-from reach.tree import FINAL
+from oracles.bodies.body import load_body
+from reach.answers.select import Selector, posture_vector
+from reach.maps.store import load_atlas
+from reach.maps.tree import FINAL
 
 TOLERANCE = 0.005  # [m] the shipped strategies' reach tolerance
 

@@ -33,9 +33,9 @@ from pathlib import Path
 import numpy as np
 import zmq
 
-from reach.motion import MotionError, Planner
-from reach.select import Selector
-from reach.store import load_atlas
+from reach.answers.select import Selector
+from reach.maps.store import load_atlas
+from reach.motion.planner import MotionError, Planner
 
 GROUPS = ("arm", "upper_body", "whole_body", "crouch")
 EFFECTOR = "right_hand"
@@ -96,7 +96,7 @@ def in_process(planner: Planner, groups: dict[str, np.ndarray]) -> None:
 @contextlib.contextmanager
 def served(atlas: str, workers: int) -> Iterator[zmq.Socket]:
     """``reach serve`` of the atlas in a process of its own, its workers ready, and a REQ socket to it."""
-    proc = subprocess.Popen([sys.executable, "-m", "reach.cli", "serve", atlas, "--bind", "tcp://127.0.0.1:*", "--pub", "none",
+    proc = subprocess.Popen([sys.executable, "-m", "reach.tools.cli", "serve", atlas, "--bind", "tcp://127.0.0.1:*", "--pub", "none",
                              "--workers", str(workers)], stdout=subprocess.PIPE, text=True)
     try:
         line = proc.stdout.readline()  # type: ignore[union-attr]

@@ -21,9 +21,9 @@ import time
 
 import numpy as np
 
-from reach.evaluate import Target
-from reach.place import Space, rank, verify
-from reach.store import load_atlas
+from reach.answers.evaluate import Target
+from reach.answers.place import Space, rank, verify
+from reach.maps.store import load_atlas
 
 
 def main() -> None:

@@ -42,14 +42,14 @@ from pathlib import Path
 
 import numpy as np
 
-from oracles.body import load_body
-from oracles.problem import ReachProblem
+from oracles.bodies.body import load_body
+from oracles.ik.problem import ReachProblem
+from oracles.ik.strategy import parse_strategy
 from oracles.protocol import OracleSpec
-from oracles.strategy import parse_strategy
 from oracles.tasks.base import moved
-from reach.select import HANDOVER, Selector
-from reach.store import load_atlas
-from reach.tree import INNER
+from reach.answers.select import HANDOVER, Selector
+from reach.maps.store import load_atlas
+from reach.maps.tree import INNER
 
 SPINE = ("lumbar_", "thoracic_", "neck_")  # the trunk and neck joints of the generated human
 ARM_JOINTS = ("shoulder", "elbow", "forearm", "wrist")

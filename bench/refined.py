@@ -25,8 +25,8 @@ from pathlib import Path
 import numpy as np
 from motion import EFFECTOR, goals_by_group, served, stats
 
-from reach.select import Selector
-from reach.store import load_atlas
+from reach.answers.select import Selector
+from reach.maps.store import load_atlas
 
 
 def emit(**fields: object) -> None:

@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 
 from oracles.protocol import OracleSpec, body_params
-from reach.store import load_atlas
-from reach.tree import FINAL, INNER
+from reach.maps.store import load_atlas
+from reach.maps.tree import FINAL, INNER
 
 ARM7 = Path(__file__).resolve().parents[1] / "configs" / "urdf" / "arm7.urdf"
 DATASHEET_REACH = 0.855  # [m] Franka Emika Panda datasheet, "maximum reach"

@@ -27,9 +27,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from oracles.anthropometry import ANSUR_THUMBTIP_REACH  # noqa: E402
-from oracles.ik import CasadiIK  # noqa: E402
-from oracles.search import Search  # noqa: E402
+from oracles.bodies.anthropometry import ANSUR_THUMBTIP_REACH  # noqa: E402
+from oracles.ik.engine import CasadiIK  # noqa: E402
+from oracles.ik.search import Search  # noqa: E402
 
 ARM = ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"]
 # The examples' trunk strategies (configs/examples/*.yaml): the idle arm's shoulder and elbow move too.

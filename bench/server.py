@@ -41,8 +41,8 @@ from typing import Any
 import numpy as np
 import zmq
 
-from reach.atlas import build_atlas
-from reach.config import parse_config
+from reach.build.atlas import build_atlas
+from reach.build.config import parse_config
 
 ARM = ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"]
 CONFIG = {
@@ -180,7 +180,7 @@ def main() -> None:
 
 def one_server_bench(atlas: Path, stored: list[bytes], refined: list[bytes], requests: int) -> None:
     """Stored and refined latency against the echo, and throughput, from one server with its default workers."""
-    server, address = start([sys.executable, "-m", "reach.cli", "serve", str(atlas), "--bind", "tcp://127.0.0.1:*", "--pub", "tcp://127.0.0.1:*", "--budget-ms", "20"])
+    server, address = start([sys.executable, "-m", "reach.tools.cli", "serve", str(atlas), "--bind", "tcp://127.0.0.1:*", "--pub", "tcp://127.0.0.1:*", "--budget-ms", "20"])
     echo = None
     try:
         _ready(address)  # the workers have loaded the atlas: nothing else runs while we measure
@@ -222,7 +222,7 @@ def analytic_bench(atlas: Path, requests: int) -> None:
 
 def reload_bench(atlas: Path, stored: list[bytes]) -> None:
     """Stored answers alone, then while another client reloads the atlas back to back (no workers, so only the load competes)."""
-    server, address = start([sys.executable, "-m", "reach.cli", "serve", str(atlas), "--bind", "tcp://127.0.0.1:*", "--pub", "none",
+    server, address = start([sys.executable, "-m", "reach.tools.cli", "serve", str(atlas), "--bind", "tcp://127.0.0.1:*", "--pub", "none",
                              "--workers", "0", "--no-refine", "--allow-reload", str(atlas.parent)])
     stop = threading.Event()
     took: list[float] = []
@@ -266,7 +266,7 @@ CHUNK: list[str] = []  # the servers' --chunk option, when given
 
 
 def serve(atlas: Path, workers: int) -> tuple[subprocess.Popen, str]:
-    return start([sys.executable, "-m", "reach.cli", "serve", str(atlas), "--bind", "tcp://127.0.0.1:*", "--pub", "none",
+    return start([sys.executable, "-m", "reach.tools.cli", "serve", str(atlas), "--bind", "tcp://127.0.0.1:*", "--pub", "none",
                   "--budget-ms", "20", "--workers", str(workers), *CHUNK])
 
 

@@ -17,8 +17,9 @@ import time
 import numpy as np
 
 from oracles.shapes import sphere
-from reach.build import build_tree
-from reach.tree import FINAL, Box
+from reach.build.tree import build_tree
+from reach.maps.box import Box
+from reach.maps.tree import FINAL
 
 
 def emit(**fields: object) -> None:

@@ -20,10 +20,10 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pinocchio as pin  # noqa: E402
 
-from oracles.body import load_body  # noqa: E402
+from oracles.bodies.body import load_body  # noqa: E402
 from oracles.protocol import OracleSpec  # noqa: E402
-from reach.select import Selector  # noqa: E402
-from reach.store import load_atlas  # noqa: E402
+from reach.answers.select import Selector  # noqa: E402
+from reach.maps.store import load_atlas  # noqa: E402
 
 GOALS = [
     (0.45, -0.25, 1.25), (0.35, -0.30, 0.95), (0.40, -0.20, 0.75), (0.30, -0.45, 1.45),

@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from reach.store import load_atlas
-from reach.view import Viewer
+from reach.maps.store import load_atlas
+from reach.tools.view import Viewer
 
 ROOT = Path(__file__).resolve().parents[1]
 

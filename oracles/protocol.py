@@ -42,7 +42,7 @@ Oracles may also offer optional capabilities, each a protocol of its own;
 * :class:`Moving`: postures between two postures on the body's own
   configuration space, what a posture breaks (limits, collisions, feet,
   balance), and the posture nearest one that holds every hard task, so that
-  :mod:`reach.motion` plans a reach motion without seeing the model;
+  :mod:`reach.motion.planner` plans a reach motion without seeing the model;
 * :class:`Oriented`: which orientations (an approach direction, a full
   rotation) its goals may carry (``Goals.targets["orientation"]``), for
   queries' ``orientation`` and the reachability index;
@@ -59,10 +59,11 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Literal, NamedTuple, Protocol, runtime_checkable
+from typing import Any, Literal, NamedTuple, Protocol, cast, runtime_checkable
 
 import numpy as np
 
+from oracles import registry
 from oracles.errors import OracleError
 
 # The posture coordinates of a continuous joint (Pinocchio's unbounded revolute, stored as (cos, sin)) are named
@@ -380,7 +381,7 @@ class Bounded(Protocol):
 
 @runtime_checkable
 class Moving(Protocol):
-    """An oracle whose body moves between postures (:mod:`reach.motion`)."""
+    """An oracle whose body moves between postures (:mod:`reach.motion.planner`)."""
 
     def interpolate(self, q0: np.ndarray, q1: np.ndarray, s: np.ndarray) -> np.ndarray:
         """Postures (T, nq) at fractions ``s`` (T,) in [0, 1] of the way from ``q0`` to ``q1`` (nq,), on the
@@ -441,7 +442,7 @@ class Oriented(Protocol):
 
 @runtime_checkable
 class Articulated(Protocol):
-    """An oracle whose body is a tree of bones (:mod:`reach.rig`)."""
+    """An oracle whose body is a tree of bones (:mod:`reach.motion.rig`)."""
 
     def skeleton(self) -> Skeleton:
         """The body's bones, their parents, ends and capsules."""
@@ -456,8 +457,8 @@ def body_params(body: Any, effector: str, joints: Any, tasks: Any) -> dict[str, 
     """The params a config gives a body strategy's oracle, over the oracle's own.
 
     Every body oracle's factory (``casadi-ik``, ``dls``, or a third party's)
-    takes these keyword arguments: the body spec (:func:`oracles.body.load_body`),
-    the effector frame, the active joints and the task list (:mod:`oracles.strategy`).
+    takes these keyword arguments: the body spec (:func:`oracles.bodies.body.load_body`),
+    the effector frame, the active joints and the task list (:mod:`oracles.ik.strategy`).
     """
     return {"body": body, "effector": effector, "joints": joints, "tasks": tasks}
 
@@ -479,9 +480,7 @@ class OracleSpec:
 
     def create(self) -> Oracle:
         """Build the oracle through the registry."""
-        from oracles.registry import create
-
-        return create(self)
+        return cast(Oracle, registry.create(self.name, self.params))
 
     def to_dict(self) -> dict[str, Any]:
         return {"name": self.name, "params": dict(self.params)}

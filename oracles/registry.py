@@ -4,6 +4,8 @@ Built-in oracles are listed here by import path, so that asking for the
 sphere never imports CasADi. Other packages add oracles through the entry-point
 group ``reach.oracles``; each entry point names a factory that takes the
 spec's params as keyword arguments and returns an :class:`~oracles.protocol.Oracle`.
+The registry knows names, not the protocol: :meth:`oracles.protocol.OracleSpec.create`
+asks it, so neither module imports the other back.
 """
 
 from __future__ import annotations
@@ -14,7 +16,6 @@ from importlib.metadata import entry_points
 from typing import Any
 
 from oracles.errors import OracleError
-from oracles.protocol import Oracle, OracleSpec
 
 ENTRY_POINT_GROUP = "reach.oracles"
 
@@ -27,12 +28,12 @@ BUILTIN: dict[str, str] = {
     "union": "oracles.shapes:union",
     "intersection": "oracles.shapes:intersection",
     "difference": "oracles.shapes:difference",
-    "casadi-ik": "oracles.ik:CasadiIK.from_params",
-    "dls": "oracles.dls:DLSIK.from_params",
+    "casadi-ik": "oracles.ik.engine:CasadiIK.from_params",
+    "dls": "oracles.ik.dls:DLSIK.from_params",
 }
 
 
-def _load(target: str) -> Callable[..., Oracle]:
+def _load(target: str) -> Callable[..., Any]:
     module, _, attr = target.partition(":")
     found: Any = importlib.import_module(module)
     for part in attr.split("."):  # a class's factory method, e.g. CasadiIK.from_params
@@ -47,7 +48,7 @@ def available() -> list[str]:
     return sorted(names)
 
 
-def factory(name: str) -> Callable[..., Oracle]:
+def factory(name: str) -> Callable[..., Any]:
     """The factory registered under name."""
     if name in BUILTIN:
         return _load(BUILTIN[name])
@@ -57,12 +58,10 @@ def factory(name: str) -> Callable[..., Oracle]:
     raise OracleError(f"unknown oracle {name!r}; available: {', '.join(available())}", key="name")
 
 
-def create(spec: OracleSpec | dict[str, Any]) -> Oracle:
-    """Build the oracle a spec describes."""
-    if isinstance(spec, dict):
-        spec = OracleSpec.from_dict(spec)
-    make = factory(spec.name)
+def create(name: str, params: dict[str, Any]) -> Any:
+    """Build the oracle registered under name from its factory's keyword arguments (an Oracle)."""
+    make = factory(name)
     try:
-        return make(**spec.params)
+        return make(**params)
     except TypeError as exc:
-        raise OracleError(f"oracle {spec.name!r}: bad parameters {sorted(spec.params)}: {exc}", key="params") from exc
+        raise OracleError(f"oracle {name!r}: bad parameters {sorted(params)}: {exc}", key="params") from exc

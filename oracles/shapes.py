@@ -14,8 +14,7 @@ from typing import Any
 import numpy as np
 
 from oracles.errors import OracleError
-from oracles.protocol import Goals, Oracle, Verdicts
-from oracles.registry import create
+from oracles.protocol import Goals, Oracle, OracleSpec, Verdicts
 
 
 def _vector(name: str, value: Any, dim: int | None = None) -> np.ndarray:
@@ -165,7 +164,7 @@ class Combination:
 def _parts(oracles: list[dict[str, Any]]) -> list[Oracle]:
     if not isinstance(oracles, list):
         raise OracleError(f"'oracles' must be a list of oracle specs, got {type(oracles).__name__}")
-    return [create(spec) for spec in oracles]
+    return [OracleSpec.from_dict(spec).create() for spec in oracles]
 
 
 def union(oracles: list[dict[str, Any]]) -> Combination:

@@ -103,7 +103,7 @@ class ProtocolError(ReachError):
     """A request the server refuses, with the code and message of its error reply.
 
     Attributes:
-        code: One of the error codes of :mod:`reach.protocol`.
+        code: One of the error codes of :mod:`reach.serving.protocol`.
         message: What was wrong and what was expected.
         request_id: The request's ``id`` when it could be read, else None.
     """

@@ -3,7 +3,7 @@
 Design: three layers, of which only the last knows ROS, so that a ROS 2
 (rclpy) version swaps that layer alone.
 
-1. ``reach.client.Client`` talks to the server (Lazy Pirate REQ, timeouts,
+1. ``reach.serving.client.Client`` talks to the server (Lazy Pirate REQ, timeouts,
    reconnection) and a ZeroMQ SUB socket receives the server's stream of
    choices. Neither imports ROS.
 2. ``Relay`` turns answers into plain values (strategy name, joint names and
@@ -49,8 +49,8 @@ from typing import Any
 
 import zmq
 
-from reach import protocol as P
-from reach.client import REQUEST_RETRIES, REQUEST_TIMEOUT_MS, Client, ServerError, ServerUnavailable
+from reach.serving import protocol as P
+from reach.serving.client import REQUEST_RETRIES, REQUEST_TIMEOUT_MS, Client, ServerError, ServerUnavailable
 
 MOTION_TIMEOUT_MS = 20_000
 COLOURS = [(0.84, 0.15, 0.16), (0.17, 0.63, 0.17), (0.12, 0.47, 0.71), (1.0, 0.5, 0.05), (0.58, 0.4, 0.74), (0.55, 0.34, 0.29), (0.89, 0.47, 0.76), (0.09, 0.75, 0.81)]

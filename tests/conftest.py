@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from oracles.protocol import Goals, OracleSpec, Verdicts
-from reach.build import build_tree
-from reach.tree import Box, VATree
+from reach.build.tree import build_tree
+from reach.maps.box import Box
+from reach.maps.tree import VATree
 
 
 class CountingOracle:

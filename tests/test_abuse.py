@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import zmq
 
-from reach import protocol as P
+from reach.serving import protocol as P
 from tests.test_server import HUMAN, Running, _atlas
 
 pytestmark = pytest.mark.slow  # a server with a refinement worker, and hundreds of requests

@@ -14,9 +14,9 @@ import pytest
 import yaml
 from helpers import ARM, LEFT_ARM, human_config, same_tree
 
-from reach.atlas import build_atlas
-from reach.config import load_config, parse_config
-from reach.store import load_atlas
+from reach.build.atlas import build_atlas
+from reach.build.config import load_config, parse_config
+from reach.maps.store import load_atlas
 
 pytestmark = pytest.mark.slow  # builds human atlases, kills and resumes a build
 
@@ -47,7 +47,7 @@ def test_killed_build_resumes_to_the_same_tree(tmp_path):
     cfg.write_text(yaml.safe_dump(human_config(d_max=4)))
     reference = build_atlas(load_config(cfg), tmp_path / "whole").trees["right_arm"]
     out = tmp_path / "killed"
-    cmd = [sys.executable, "-m", "reach.cli", "build", str(cfg), "-o", str(out), "-q", "-j", "1"]
+    cmd = [sys.executable, "-m", "reach.tools.cli", "build", str(cfg), "-o", str(out), "-q", "-j", "1"]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     partial = out / ".partial" / "right_arm.npz"
     deadline = time.monotonic() + 120
@@ -106,7 +106,7 @@ def test_mirrored_left_matches_a_built_left(both_sides):
 
 
 def test_mirrored_postures_reach_the_mirrored_vertices(both_sides):
-    from oracles.body import human_body
+    from oracles.bodies.body import human_body
 
     mirrored, _, _ = both_sides
     tree = mirrored.trees["left_arm"]
@@ -132,10 +132,10 @@ def test_asymmetric_body_is_built_not_mirrored(tmp_path):
 
 def test_mirror_oracle_refuses_a_lopsided_box_and_unknown_vertices():
     from oracles.protocol import OracleSpec
-    from reach.build import build_tree
+    from reach.build.mirror import MirrorOracle
+    from reach.build.tree import build_tree
     from reach.errors import OracleError
-    from reach.mirror import MirrorOracle
-    from reach.tree import Box
+    from reach.maps.box import Box
 
     tree = build_tree(OracleSpec("sphere", {"radius": 0.5}), Box([-1, -0.5, -1], [1, 1, 1]), 1, 2)
     with pytest.raises(OracleError, match="symmetric about y = 0"):
@@ -151,7 +151,7 @@ def test_a_killed_build_leaves_no_worker_behind(tmp_path, sig, group):
     cfg.write_text(yaml.safe_dump(human_config(d_max=5)))
     out = tmp_path / "out"
     # group: the signal reaches the build and its workers, as `kill -- -PGID` or a job control's stop sends it.
-    proc = subprocess.Popen([sys.executable, "-m", "reach.cli", "build", str(cfg), "-o", str(out), "-q", "-j", "2"],
+    proc = subprocess.Popen([sys.executable, "-m", "reach.tools.cli", "build", str(cfg), "-o", str(out), "-q", "-j", "2"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=group)
     deadline = time.monotonic() + 120
     workers: list[int] = []
@@ -178,7 +178,7 @@ def test_a_killed_build_leaves_no_worker_behind(tmp_path, sig, group):
 
 
 def test_sub_strategies_of_the_demo_atlas():
-    from reach.atlas import sub_strategies
+    from reach.build.atlas import sub_strategies
 
     config = load_config(Path(__file__).parent.parent / "configs" / "demo.yaml")
     order = sorted(config.strategies, key=lambda s: s.mirror_of is not None)
@@ -208,7 +208,7 @@ def test_a_crouch_inherits_the_whole_bodys_verified_postures(tmp_path):
     assert c.meta["inherited_from"] == "whole" and b["inherited"] > 0
     assert b["oracle_calls"] == b["distinct_vertices"] - b["inherited"]
     assert any(f"{b['inherited']} reachable vertices inherited from whole" in line for line in lines)
-    from reach.atlas import summary
+    from reach.answers.audit import summary
 
     info = summary(atlas)["strategies"]
     assert info["crouch"]["inherited_from"] == "whole" and info["crouch"]["inherited_vertices"] == b["inherited"]

@@ -8,13 +8,14 @@ from pathlib import Path
 import numpy as np
 
 from oracles.protocol import Goals, OracleSpec
-from reach.atlas import build_atlas
-from reach.audit import audit_tree, referee, wilson
-from reach.build import Refine, build_tree
-from reach.cli import main
-from reach.config import parse_config
-from reach.store import load_atlas, save_tree
-from reach.tree import FINAL, INNER, OUTER, Box
+from reach.answers.audit import audit_tree, referee, wilson
+from reach.build.atlas import build_atlas
+from reach.build.config import parse_config
+from reach.build.tree import Refine, build_tree
+from reach.maps.box import Box
+from reach.maps.store import load_atlas, save_tree
+from reach.maps.tree import FINAL, INNER, OUTER
+from reach.tools.cli import main
 
 CUBE = Box([-1, -1, -1], [1, 1, 1])
 HOLE_CENTRE, HOLE_R = (0.25, 0.25, 0.25), 0.2

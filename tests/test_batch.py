@@ -1,4 +1,4 @@
-"""The batched engine (oracles/batch.py, casadi-ik's ``solver: batch``) against independent truth and fatrop."""
+"""The batched engine (oracles/ik/batch.py, casadi-ik's ``solver: batch``) against independent truth and fatrop."""
 
 from __future__ import annotations
 
@@ -6,11 +6,11 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from oracles.batch import CHUNK
-from oracles.ik import CasadiIK
+from oracles.ik.batch import CHUNK
+from oracles.ik.engine import CasadiIK
+from oracles.ik.search import Search
 from oracles.protocol import Goals, OracleSpec, Verdicts
-from oracles.search import Search
-from reach.config import load_config
+from reach.build.config import load_config
 from reach.errors import OracleError
 from tests.test_collision import coal_capsule_distance
 from tests.test_ik import ARM, HUMAN, PLANTED, WHOLE, _assert_reachable_verdicts_hold

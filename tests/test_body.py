@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from oracles.anthropometry import ANSUR_STATURE, ANSUR_THUMBTIP_REACH, DE_LEVA, stature_at_percentile
-from oracles.body import human_body, load_body, urdf_body
-from reach.cli import main
+from oracles.bodies.anthropometry import ANSUR_STATURE, ANSUR_THUMBTIP_REACH, DE_LEVA, stature_at_percentile
+from oracles.bodies.body import human_body, load_body, urdf_body
 from reach.errors import ModelError
+from reach.tools.cli import main
 
 HERE = Path(__file__).resolve().parent
 
@@ -199,7 +199,7 @@ def test_reach_model_lists_the_capsules_and_each_strategys_pairs(capsys):
 def test_a_urdf_joint_with_lower_above_upper_is_named(tmp_path):
     from pathlib import Path
 
-    from oracles.body import urdf_body
+    from oracles.bodies.body import urdf_body
     from reach.errors import ModelError
 
     text = (Path(__file__).parent / "data" / "all_joints.urdf").read_text()

@@ -1,4 +1,4 @@
-"""Algorithm 1 (reach.build): the paper's worked example, one oracle call per vertex, warm starts, refinements, determinism."""
+"""Algorithm 1 (reach.build.tree): the paper's worked example, one oracle call per vertex, warm starts, refinements, determinism."""
 
 from __future__ import annotations
 
@@ -8,9 +8,10 @@ from helpers import TwoLinkArm, same_tree
 
 from oracles.protocol import OracleSpec
 from oracles.shapes import circle, sphere
-from reach.build import build_tree, warm_hints
+from reach.build.tree import build_tree, warm_hints
 from reach.errors import TreeError
-from reach.tree import FINAL, INNER, OUTER, Box, Lattice
+from reach.maps.box import Box
+from reach.maps.tree import FINAL, INNER, OUTER, Lattice
 
 SQUARE = Box([-1.0, -1.0], [1.0, 1.0])
 CUBE = Box([-1.0, -1.0, -1.0], [1.0, 1.0, 1.0])
@@ -85,7 +86,7 @@ def test_build_is_deterministic():
 
 
 def test_warm_hints_are_the_postures_of_the_nearest_reachable_vertices():
-    from reach.tree import VertexTable
+    from reach.maps.tree import VertexTable
 
     lat = Lattice(CUBE, 2)  # 5 x 5 x 5 vertices, 0.5 m apart
     coords = np.array([[0, 0, 0], [4, 4, 4], [2, 2, 2]])
@@ -121,11 +122,11 @@ def test_d_min_levels_are_all_parents(d_min):
 
 
 def test_meets_errs_towards_meeting_and_agrees_with_coal():
-    """reach.build.meets against coal's capsule-box distance: every box coal finds meeting is flagged, no box
+    """reach.build.tree.meets against coal's capsule-box distance: every box coal finds meeting is flagged, no box
     farther than the sampling slack is."""
     import coal
 
-    from reach.build import meets
+    from reach.build.tree import meets
 
     rng = np.random.default_rng(3)
     a, b, r = np.array([0.1, -0.2, 0.3]), np.array([0.5, 0.3, 0.6]), 0.08
@@ -149,7 +150,7 @@ def test_meets_errs_towards_meeting_and_agrees_with_coal():
 def test_no_inner_cell_meets_a_keep_out_capsule():
     """A ball with a keep-out capsule through it (as the trunk for an arm): the cells the corners alone would
     paint inner over the capsule are split down to D_max and left final."""
-    from reach.build import meets
+    from reach.build.tree import meets
 
     capsule = np.array([[-0.2, 0.0, -0.3, 0.2, 0.0, 0.3, 0.1]])
     plain = build_tree(sphere(radius=0.9), CUBE, 2, 5)
@@ -170,8 +171,8 @@ def test_no_inner_cell_meets_a_keep_out_capsule():
 
 
 def test_a_build_inherits_only_the_verified_reachable_vertices_of_a_sub_strategy():
-    from reach.build import Inherited
-    from reach.tree import VertexTable
+    from reach.build.tree import Inherited
+    from reach.maps.tree import VertexTable
 
     arm = TwoLinkArm(shoulder=(0.0, 0.0, 0.0))
     plain = build_tree(arm, CUBE, 2, 4)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 import reach
-from reach.cli import main
+from reach.tools.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -23,7 +23,7 @@ def test_every_name_in_all_exists():
 
 @pytest.mark.parametrize("command", [[], ["build"], ["info"], ["query"], ["model"], ["serve"]])
 def test_help_on_every_command(command):
-    out = subprocess.run([sys.executable, "-m", "reach.cli", *command, "--help"], capture_output=True, text=True, check=True)
+    out = subprocess.run([sys.executable, "-m", "reach.tools.cli", *command, "--help"], capture_output=True, text=True, check=True)
     assert "usage: reach" in out.stdout
 
 
@@ -127,7 +127,7 @@ def test_query_from_must_be_a_json_object(figure2_atlas, capsys):
 def test_json_output_never_holds_nan():
     import json as _json
 
-    from reach.protocol import finite
+    from reach.serving.protocol import finite
 
     data = {"a": float("nan"), "b": [1.0, float("inf"), {"c": -float("inf")}], "d": "x", "e": 2}
     text = _json.dumps(finite(data), allow_nan=False)  # raises on any NaN left
@@ -135,7 +135,7 @@ def test_json_output_never_holds_nan():
 
 
 def test_serve_refuses_a_negative_worker_count(tmp_path, capsys):
-    from reach.cli import main
+    from reach.tools.cli import main
 
     assert main(["serve", str(tmp_path), "--workers", "-1"]) == 2
     assert "--workers: expected 0 or more worker processes, got -1" in capsys.readouterr().err

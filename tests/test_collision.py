@@ -1,4 +1,4 @@
-"""Collision geometry (oracles.collision) and the tasks built on it: our distances against coal's, the human's
+"""Collision geometry (oracles.bodies.collision) and the tasks built on it: our distances against coal's, the human's
 URDF collision elements read back by an independent parser, URDF primitives and meshes, the pairs checked."""
 
 from __future__ import annotations
@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from helpers import ARM
 
-from oracles.body import human_body, urdf_body
-from oracles.collision import Capsule, nearest_points
-from oracles.problem import ReachProblem
-from oracles.search import Search
-from oracles.strategy import parse_strategy
+from oracles.bodies.body import human_body, urdf_body
+from oracles.bodies.collision import Capsule, nearest_points
+from oracles.ik.problem import ReachProblem
+from oracles.ik.search import Search
+from oracles.ik.strategy import parse_strategy
 from reach.errors import ModelError
 
 
@@ -140,7 +140,7 @@ def test_a_collada_mesh_without_pycollada_names_the_extra(tmp_path, monkeypatch)
 
 
 def test_a_capsule_on_an_unknown_link_is_named():
-    from oracles.collision import CollisionModel
+    from oracles.bodies.collision import CollisionModel
 
     body = human_body()
     with pytest.raises(ModelError, match="capsule 'tail' is on link 'tail_link'"):
@@ -177,7 +177,7 @@ def test_self_collision_cuts_agree_with_coal_in_distance_and_gradient():
 def test_a_robot_on_a_table_no_longer_reaches_through_it():
     from pathlib import Path
 
-    from oracles.ik import CasadiIK
+    from oracles.ik.engine import CasadiIK
 
     ur5 = {"urdf": str(Path(__file__).resolve().parents[1] / "configs" / "urdf" / "ur5.urdf")}
     table = {"type": "obstacles", "boxes": [{"min": [-1.0, -1.0, -0.8], "max": [1.0, 1.0, -0.001]}]}
@@ -207,7 +207,7 @@ def test_reachable_arm_verdicts_are_collision_free_by_an_independent_coal_check(
     """Capsules read from the URDF text with ElementTree, placed with Pinocchio's frames, measured by coal."""
     import pinocchio as pin
 
-    from oracles.ik import CasadiIK
+    from oracles.ik.engine import CasadiIK
 
     oracle = CasadiIK({"human": {"sex": "male", "percentile": 50}}, "right_hand", ARM, [{"type": "reach"}, {"type": "self_collision"}], search=Search(restarts=2))
     body, task = oracle.body, oracle.strategy.task("self_collision")
@@ -240,7 +240,7 @@ def test_reachable_arm_verdicts_are_collision_free_by_an_independent_coal_check(
 
 
 def test_the_arms_keep_out_is_the_static_body_and_unreachable():
-    from oracles.ik import CasadiIK
+    from oracles.ik.engine import CasadiIK
 
     oracle = CasadiIK({"human": {}}, "right_hand", ARM, [{"type": "reach"}, {"type": "self_collision"}], search=Search(restarts=3, give_up=None))
     task = oracle.strategy.task("self_collision")

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import yaml
 
-from reach.config import load_config, parse_config
+from reach.build.config import load_config, parse_config
 from reach.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -110,7 +110,7 @@ def test_box_auto_is_derived_from_the_body():
         "strategies": [{"name": "arm", "effector": "right_hand", "joints": ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"]}],
     }
     config = parse_config(data, "auto", "auto")
-    from oracles.body import human_body
+    from oracles.bodies.body import human_body
 
     body = human_body()
     shoulder = body.frame_positions(names=["right_shoulder"])["right_shoulder"]
@@ -148,7 +148,7 @@ def test_a_tab_gives_one_line_naming_the_place(tmp_path):
 
 def test_a_bodys_oracle_defaults_to_casadi_ik():
     """Issue 36, item 4: a URDF config without `oracle:` was refused ("required key is missing")."""
-    from reach.config import read_yaml
+    from reach.build.config import read_yaml
 
     path = Path(__file__).resolve().parents[1] / "configs" / "examples" / "arm7_table.yaml"
     data = read_yaml(path)

@@ -11,12 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from oracles.search import Search
-from reach.atlas import build_atlas
-from reach.config import load_config, parse_config, read_yaml
-from reach.executor import ProcessExecutor
-from reach.report import extents
-from reach.tree import FINAL, INNER
+from oracles.ik.search import Search
+from reach.build.atlas import build_atlas
+from reach.build.config import load_config, parse_config, read_yaml
+from reach.build.executor import ProcessExecutor
+from reach.maps.tree import FINAL, INNER
+from reach.tools.report import extents
 
 pytestmark = pytest.mark.slow  # builds a human atlas (D_max 4-5) once for the module
 
@@ -62,7 +62,7 @@ def test_balance_costs_upper_front_goals():
     # the upper-body strategy, whose pelvis is fixed, this model's whole body
     # loses none: its hips and ankles reach further than balance takes away;
     # see the README.)
-    from oracles.ik import CasadiIK
+    from oracles.ik.engine import CasadiIK
 
     # The whole-body chain without the idle arm, which the shipped strategy
     # frees so that it can hang: swung back, it is a counterweight that buys

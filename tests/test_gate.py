@@ -1,4 +1,4 @@
-"""The gate in front of the viewer (reach.gate): which request heads pass, and a real connection through it."""
+"""The gate in front of the viewer (reach.tools.gate): which request heads pass, and a real connection through it."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import http.server
 import socket
 import threading
 
-from reach.gate import Gate, allowed_hosts, verdict
+from reach.tools.gate import Gate, allowed_hosts, verdict
 
 
 def head(host: str, origin: str | None = None) -> bytes:

@@ -15,11 +15,11 @@ import pinocchio as pin
 import pytest
 from helpers import ARM, HUMAN
 
-from oracles.ik import CasadiIK
+from oracles.ik.engine import CasadiIK
 from oracles.protocol import Goals
 from oracles.tasks import TASKS, Constraint, HardTask, Numeric, Reference, Row, Scope, Symbolic
+from reach.build.executor import InlineExecutor
 from reach.errors import OracleError
-from reach.executor import InlineExecutor
 
 ELBOW = "right_elbow_flexion"
 SLACK = 1e-4  # [m] the verdict's allowance above the height, as the other hard tasks'

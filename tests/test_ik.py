@@ -10,11 +10,11 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from oracles.dls import DLSIK
-from oracles.ik import Call, CasadiIK
+from oracles.ik.dls import DLSIK
+from oracles.ik.engine import Call, CasadiIK
+from oracles.ik.search import Search
 from oracles.protocol import Goals, OracleSpec
-from oracles.search import Search
-from reach.config import load_config
+from reach.build.config import load_config
 from reach.errors import ModelError, OracleError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -202,8 +202,8 @@ def test_unknown_effector_lists_frames():
 
 
 def test_contacts_are_kept_only_where_an_active_joint_can_move_them():
-    from oracles.body import human_body
-    from oracles.strategy import parse_strategy
+    from oracles.bodies.body import human_body
+    from oracles.ik.strategy import parse_strategy
 
     body = human_body()
     feet = [{"type": "reach"}, {"type": "feet", "heels": "down"}]
@@ -283,7 +283,7 @@ def test_compiled_programs_are_cached_on_disk_and_shared(tmp_path, monkeypatch):
 
 def test_a_failing_compiler_falls_back_to_the_interpreter(tmp_path, monkeypatch):
     monkeypatch.setenv("REACH_JIT_CACHE", str(tmp_path / "jit"))
-    monkeypatch.setattr("oracles.jit.COMPILER", "false")  # runs, and fails
+    monkeypatch.setattr("oracles.ik.jit.COMPILER", "false")  # runs, and fails
     oracle = CasadiIK(HUMAN, "right_hand", ARM, jit="auto")
     with pytest.warns(UserWarning, match="jit compilation failed"):
         assert oracle.evaluate(np.array([[0.4, -0.3, 1.1]])).reachable[0]
@@ -293,7 +293,7 @@ def test_a_failing_compiler_falls_back_to_the_interpreter(tmp_path, monkeypatch)
 
 
 def test_jit_without_a_compiler(monkeypatch):
-    monkeypatch.setattr("oracles.ik.COMPILER", "no-such-compiler")
+    monkeypatch.setattr("oracles.ik.engine.COMPILER", "no-such-compiler")
     assert not CasadiIK(HUMAN, "right_hand", ARM, jit="auto").jit  # falls back to the interpreter
     with pytest.raises(OracleError, match="jit"):
         CasadiIK(HUMAN, "right_hand", ARM, jit=True)

@@ -8,8 +8,8 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from oracles.body import human_body, urdf_body
-from oracles.kinematics import SymbolicKinematics
+from oracles.bodies.body import human_body, urdf_body
+from oracles.bodies.kinematics import SymbolicKinematics
 
 HERE = Path(__file__).resolve().parent
 
@@ -77,8 +77,8 @@ def test_other_joint_types_match_pinocchio(kind):
 
 def test_x_of_q_inverts_q_of_x_for_every_one_axis_joint_type():
     # x holds one coordinate per active joint: a continuous joint's (cos, sin) pair maps back to its angle.
-    from oracles.problem import ReachProblem
-    from oracles.strategy import parse_strategy
+    from oracles.ik.problem import ReachProblem
+    from oracles.ik.strategy import parse_strategy
 
     body = urdf_body(HERE / "data" / "all_joints.urdf")
     joints = ["revolute_skew", "revolute_z", "continuous_x", "prismatic_x", "prismatic_skew"]

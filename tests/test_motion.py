@@ -1,4 +1,4 @@
-"""Reach motion (reach.motion): end postures, timing law, minimum jerk, held tasks, routing, errors."""
+"""Reach motion (reach.motion.planner): end postures, timing law, minimum jerk, held tasks, routing, errors."""
 
 from __future__ import annotations
 
@@ -11,13 +11,13 @@ import pinocchio as pin
 import pytest
 from helpers import ARM, human_config
 
-from oracles.body import human_body
-from reach.atlas import build_atlas
-from reach.config import parse_config
+from oracles.bodies.body import human_body
+from reach.answers.select import Selector, posture_vector
+from reach.build.atlas import build_atlas
+from reach.build.config import parse_config
 from reach.errors import InputError
-from reach.motion import INCH, TMU, MotionError, Planner, Timing, minimum_jerk
-from reach.rig import Rig
-from reach.select import Selector, posture_vector
+from reach.motion.planner import INCH, TMU, MotionError, Planner, Timing, minimum_jerk
+from reach.motion.rig import Rig
 
 TOL = 0.005  # [m] the reach task's default tolerance
 UPPER = [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*"]
@@ -217,8 +217,8 @@ def test_the_motion_operation_over_the_wire(planner, workers):
 
     import zmq
 
-    from reach.client import Client, ServerError
-    from reach.server import Server
+    from reach.serving.client import Client, ServerError
+    from reach.serving.server import Server
 
     server = Server(planner.selector.atlas.path, "tcp://127.0.0.1:*", "tcp://127.0.0.1:*", workers=workers)
     thread = threading.Thread(target=server.serve_forever, daemon=True)
@@ -264,7 +264,7 @@ def test_the_motion_operation_over_the_wire(planner, workers):
 
 
 def test_reach_motion_writes_the_frames_and_names_bad_input(planner, tmp_path, capsys):
-    from reach.cli import main
+    from reach.tools.cli import main
 
     atlas = str(planner.selector.atlas.path)
     out = tmp_path / "reach.json"
@@ -274,7 +274,7 @@ def test_reach_motion_writes_the_frames_and_names_bad_input(planner, tmp_path, c
     assert data["rate"] == 50 and len(data["frames"]) == data["frame_count"] and data["frames"][-1]["t"] == pytest.approx(data["duration"])
     assert main(["motion", atlas, "0.45", "-0.25", "1.2", "--effector", "right_hand", "-o", str(tmp_path / "reach.fbx")]) == 2
     assert "-o: " in capsys.readouterr().err and not (tmp_path / "reach.fbx").exists()
-    for name in ("reach.bvh", "reach.glb"):
+    for name in ("reach.motion.bvh", "reach.glb"):
         assert main(["motion", atlas, "0.45", "-0.25", "1.2", "--effector", "right_hand", "-o", str(tmp_path / name)]) == 0
         assert (tmp_path / name).stat().st_size > 1000
     assert main(["motion", atlas, "0.45", "-0.25", "--effector", "right_hand"]) == 2
@@ -307,10 +307,10 @@ def test_the_skeleton_groups_joints_at_one_point_into_bones(planner):
 def test_a_skeleton_refuses_a_joint_that_translates_and_a_rig_needs_a_skeleton(crouch):
     from pathlib import Path
 
-    from oracles.body import urdf_body
+    from oracles.bodies.body import urdf_body
+    from oracles.bodies.skeleton import build_skeleton
     from oracles.errors import ModelError
-    from oracles.skeleton import build_skeleton
-    from reach.rig import rig
+    from reach.motion.rig import rig
 
     with pytest.raises(ModelError, match="joint 'prismatic_x' is a JointModelPX, which translates; a skeleton's bones only turn"):
         build_skeleton(urdf_body(Path(__file__).parent / "data" / "all_joints.urdf"))
@@ -328,8 +328,8 @@ def test_bvh_round_trip_puts_the_hand_where_pinocchio_does(planner, crouch, tmp_
     """bvhio parses the file (its own Euler-to-rotation reading of the channels); the forward kinematics is this test's."""
     import bvhio
 
-    from reach.bvh import write_bvh
-    from reach.rig import rig
+    from reach.motion.bvh import write_bvh
+    from reach.motion.rig import rig
 
     path = write_bvh(rig(crouch, planner.body(crouch.strategy)), tmp_path / "crouch.bvh")
     parsed = bvhio.readAsBvh(str(path))
@@ -388,8 +388,8 @@ def test_gltf_passes_the_khronos_validator_and_its_hand_follows_pinocchio(planne
 
     import pygltflib
 
-    from reach.gltf import write_gltf
-    from reach.rig import rig
+    from reach.motion.gltf import write_gltf
+    from reach.motion.rig import rig
 
     bones = rig(crouch, planner.body(crouch.strategy))
     files = [write_gltf(bones, tmp_path / "crouch.glb"), write_gltf(bones, tmp_path / "crouch.gltf")]
@@ -470,7 +470,7 @@ def test_planning_stops_at_its_deadline_within_a_frame(planner, monkeypatch):
     """Issue 35, item 2: a worker planned on for 100 s after its request's deadline. The planner reads the clock
     before holding each frame (here a clock that moves 1 s a reading): it stops at the deadline, after a few
     frames of the motion's hundreds, with a timeout."""
-    import reach.motion as motion
+    import reach.motion.planner as motion
 
     class Clock:
         now = 0.0
@@ -503,15 +503,15 @@ def test_reach_motion_over_the_wire_writes_the_same_animation_files(planner, tmp
     `bones` field; the client has no body) and writes the file the atlas folder writes for the same request."""
     import threading
 
-    from reach.cli import main
-    from reach.server import Server
+    from reach.serving.server import Server
+    from reach.tools.cli import main
 
     atlas = str(planner.selector.atlas.path)
     server = Server(atlas, "tcp://127.0.0.1:*", None, workers=workers)
     thread = threading.Thread(target=server.serve_forever, daemon=True)
     thread.start()
     try:
-        for name in ("reach.bvh", "reach.gltf"):
+        for name in ("reach.motion.bvh", "reach.motion.gltf"):
             here, there = tmp_path / f"here_{name}", tmp_path / f"there_{name}"
             assert main(["motion", atlas, "0.45", "-0.25", "1.2", "--effector", "right_hand", "--rate", "40", "-o", str(here)]) == 0
             assert main(["motion", "0.45", "-0.25", "1.2", "--effector", "right_hand", "--rate", "40", "--connect", server.endpoint,

@@ -26,19 +26,19 @@ def test_builtins_are_listed():
 
 def test_unknown_oracle_lists_the_known_ones():
     with pytest.raises(OracleError, match=r"unknown oracle 'nope'; available: .*sphere"):
-        registry.create(OracleSpec("nope"))
+        OracleSpec("nope").create()
 
 
 def test_bad_params_are_named():
     with pytest.raises(OracleError, match=r"oracle 'sphere': bad parameters \['colour'\]"):
-        registry.create(OracleSpec("sphere", {"colour": "red"}))
+        OracleSpec("sphere", {"colour": "red"}).create()
 
 
 def test_entry_points_extend_the_registry(monkeypatch):
     ep = EntryPoint(name="test-ring", value="tests.test_oracles:ring_factory", group=registry.ENTRY_POINT_GROUP)
     monkeypatch.setattr(registry, "entry_points", lambda group: [ep] if group == registry.ENTRY_POINT_GROUP else [])
     assert "test-ring" in registry.available()
-    oracle = registry.create(OracleSpec("test-ring", {"radius": 0.8}))
+    oracle = OracleSpec("test-ring", {"radius": 0.8}).create()
     assert isinstance(oracle, Torus) and oracle.major == 0.8
 
 
@@ -52,9 +52,9 @@ def test_box_oracle_verdicts_and_residuals():
 def test_combinations():
     spec = {"oracles": [{"name": "sphere", "params": {"radius": 1.0}}, {"name": "sphere", "params": {"radius": 0.5}}]}
     pts = np.array([[0.0, 0, 0], [0.75, 0, 0], [2.0, 0, 0]])
-    assert registry.create(OracleSpec("union", spec)).evaluate(pts).reachable.tolist() == [True, True, False]
-    assert registry.create(OracleSpec("intersection", spec)).evaluate(pts).reachable.tolist() == [True, False, False]
-    shell = registry.create(OracleSpec("difference", spec)).evaluate(pts)
+    assert OracleSpec("union", spec).create().evaluate(pts).reachable.tolist() == [True, True, False]
+    assert OracleSpec("intersection", spec).create().evaluate(pts).reachable.tolist() == [True, False, False]
+    shell = OracleSpec("difference", spec).create().evaluate(pts)
     assert shell.reachable.tolist() == [False, True, False]
     assert shell.residual[1] == 0.0
 
@@ -62,7 +62,7 @@ def test_combinations():
 def test_combination_refuses_mixed_dimensions():
     spec = {"oracles": [{"name": "sphere"}, {"name": "circle"}]}
     with pytest.raises(OracleError, match="different dimensions"):
-        registry.create(OracleSpec("union", spec))
+        OracleSpec("union", spec).create()
 
 
 def test_torus_rejects_minor_above_major_and_points_of_wrong_shape():
@@ -82,7 +82,7 @@ def test_verdicts_concatenate():
 def test_errors_live_in_oracles_carry_their_fields_and_reach_re_exports_them():
     import oracles.errors
     import reach.errors
-    from oracles.body import human_body
+    from oracles.bodies.body import human_body
 
     for name in ("ReachError", "OracleError", "ModelError", "TaskError"):
         assert getattr(reach.errors, name) is getattr(oracles.errors, name)

@@ -13,17 +13,18 @@ import pinocchio as pin
 import pytest
 import yaml
 
+from oracles.bodies.kinematics import SymbolicKinematics
 from oracles.errors import OracleError, TaskError
-from oracles.kinematics import SymbolicKinematics
 from oracles.protocol import Goals, OracleSpec, Oriented, body_params
 from oracles.tasks import Symbolic
-from reach.atlas import build_atlas
-from reach.config import parse_config
+from reach.answers.select import Selector, orientation_of
+from reach.build.atlas import build_atlas
+from reach.build.config import parse_config
 from reach.errors import ConfigError, InputError, ProtocolError, StoreError
-from reach.index import ReachIndex, spiral, vertex_levels
-from reach.protocol import parse_request
-from reach.select import Selector, orientation_of
-from reach.store import load_atlas, load_tree, save_tree
+from reach.build.index import vertex_levels
+from reach.maps.index import ReachIndex, spiral
+from reach.maps.store import load_atlas, load_indexed, load_tree, save_tree
+from reach.serving.protocol import parse_request
 
 ROOT = Path(__file__).resolve().parents[1]
 ARM = {"urdf": str(ROOT / "configs" / "urdf" / "arm7.urdf"), "frames": {"tcp": {"parent": "arm7_hand", "xyz": [0, 0, 0.1034]}},
@@ -175,7 +176,7 @@ def arm_atlas(tmp_path_factory):
         ],
     }
     (folder / "arm.yaml").write_text(yaml.safe_dump(config))
-    from reach.config import load_config
+    from reach.build.config import load_config
 
     build_atlas(load_config(folder / "arm.yaml"), folder / "atlas")
     return folder
@@ -186,21 +187,21 @@ def test_the_index_is_stored_and_each_reached_direction_holds(arm_atlas):
     says are reached is reached again by the audit's thorough referee, and of those it says are not, the referee
     reaches few (the quick search's misses)."""
     atlas = load_atlas(arm_atlas / "atlas")
-    tree = atlas.trees["tcp"]
-    assert tree.index is not None and tree.index.reached.shape == (len(tree.vertices), 12)
-    assert not tree.index.reached[~tree.vertices.reachable].any()
-    share = tree.index.share[tree.vertices.reachable]
+    tree, index = atlas.trees["tcp"], atlas.indexes["tcp"]
+    assert index.reached.shape == (len(tree.vertices), 12)
+    assert not index.reached[~tree.vertices.reachable].any()
+    share = index.share[tree.vertices.reachable]
     assert 0.05 < share.mean() < 0.95 and share.max() > share.min()
     assert tree.meta["index"]["goals"] <= 12 * int(tree.vertices.reachable.sum())
-    assert atlas.trees["plain"].index is None
+    assert "plain" not in atlas.indexes and np.isnan(atlas.map("plain").index_at(np.zeros((1, 3)), held=False)).all()
     referee = OracleSpec.from_dict(tree.meta["oracle"]).create().variant("referee", restarts=2)
     rows = np.nonzero(tree.vertices.reachable)[0][::7][:12]
     points = tree.lattice.points(tree.lattice.coords(tree.vertices.keys[rows]))
     yes = no = miss = 0
     for r, p in zip(rows, points, strict=True):
         for j in (0, 5, 11):
-            v = referee.evaluate(Goals(p[None], {"orientation": tree.index.directions[j][None]}, seeds=tree.vertices.posture[r][None]))
-            if tree.index.reached[r, j]:
+            v = referee.evaluate(Goals(p[None], {"orientation": index.directions[j][None]}, seeds=tree.vertices.posture[r][None]))
+            if index.reached[r, j]:
                 yes += 1
                 assert v.reachable[0], (r, j)
             else:
@@ -210,10 +211,11 @@ def test_the_index_is_stored_and_each_reached_direction_holds(arm_atlas):
 
 
 def test_a_damaged_index_is_refused(arm_atlas, tmp_path):
-    tree = load_tree(arm_atlas / "atlas" / "tcp.npz")
-    bad = ReachIndex(tree.index.directions, np.ones_like(tree.index.reached))
+    tree, index = load_indexed(arm_atlas / "atlas" / "tcp.npz")
+    assert index is not None
+    bad = ReachIndex(index.directions, np.ones_like(index.reached))
     with pytest.raises(StoreError, match="unreachable vertices"):
-        load_tree(save_tree(type(tree)(**{**tree.__dict__, "index": bad}), tmp_path / "bad.npz"))
+        load_tree(save_tree(tree, tmp_path / "bad.npz", bad))
     arrays = dict(np.load(arm_atlas / "atlas" / "tcp.npz"))
     arrays["index_bits"] = arrays["index_bits"][:-1]
     with pytest.raises(StoreError, match="bits .* do not match"):
@@ -259,7 +261,7 @@ def test_directions_need_an_orientation_task_with_an_axis():
 def test_the_server_answers_an_oriented_query(arm_atlas, workers):
     """Over ZeroMQ, in the loop and in a worker process: the answer holds the direction (forward kinematics), and
     refine false with an orientation is a bad_request naming the field; the server keeps serving."""
-    from reach.client import Client, ServerError
+    from reach.serving.client import Client, ServerError
     from tests.test_server import Running
 
     r = Running(arm_atlas / "atlas", budget=2.0, workers=workers)
@@ -283,7 +285,7 @@ def test_the_report_draws_the_index_as_a_heat_map(arm_atlas, tmp_path):
     """index_tcp.png (none for the strategy without an index) shows the viridis range; report.md has the index's table."""
     from PIL import Image
 
-    from reach.report import report
+    from reach.tools.report import report
 
     t = report(load_atlas(arm_atlas / "atlas"), tmp_path, level=3)
     assert (tmp_path / "index_tcp.png").is_file() and not (tmp_path / "index_plain.png").exists()
@@ -297,8 +299,7 @@ def test_the_report_draws_the_index_as_a_heat_map(arm_atlas, tmp_path):
 
 
 def test_the_viewer_colours_cells_by_the_index(arm_atlas):
-    from reach.index import index_at
-    from reach.view import Viewer, index_colours
+    from reach.tools.view import Viewer, index_colours
     from tests.test_view import _free_port
 
     assert np.array_equal(index_colours(np.array([0.0, 1.0, np.nan])), [[68, 1, 84], [253, 231, 36], [128, 128, 128]])
@@ -309,7 +310,7 @@ def test_the_viewer_colours_cells_by_the_index(arm_atlas):
         viewer.index_box.value = True
         viewer.show_strategy("tcp", True)
         cells = viewer.visible_cells(0, "tcp")
-        shown = index_at(atlas.trees["tcp"], cells.centre, held=False)
+        shown = atlas.map("tcp").index_at(cells.centre, held=False)
         assert np.isfinite(shown).all() and shown.max() > shown.min()
         assert viewer._drawn[(0, "tcp")][0][3] is True  # drawn with the index's colours
     finally:
@@ -319,7 +320,7 @@ def test_the_viewer_colours_cells_by_the_index(arm_atlas):
 def test_the_audit_covers_the_index(arm_atlas):
     """The audit asks the referee about seeded (vertex, direction) pairs; directions the index calls reached are reached
     (its bits come from verdicts checked by forward kinematics, or from agreeing corners), and the shares are close."""
-    from reach.audit import audit
+    from reach.answers.audit import audit
 
     result = audit(load_atlas(arm_atlas / "atlas"), samples=30, restarts=1, names=["tcp", "plain"])
     i = result["strategies"]["tcp"]["index"]
@@ -335,7 +336,7 @@ def test_the_page_shows_the_index_colours(arm_atlas):
     from selenium import webdriver
     from selenium.webdriver.chrome.service import Service
 
-    from reach.view import Viewer
+    from reach.tools.view import Viewer
     from tests.test_view import CHROMIUM, DRIVER, _free_port, _profile, _shot_until, _wait_for_page
 
     viewer = Viewer([load_atlas(arm_atlas / "atlas")], port=_free_port(), refine=False)
@@ -395,7 +396,7 @@ def arm7_table(tmp_path_factory):
     data["strategies"] = [{k: v for k, v in data["strategies"][0].items() if k != "directions"}]
     folder = tmp_path_factory.mktemp("arm7_table")
     (folder / "arm7_table.yaml").write_text(yaml.safe_dump(data))
-    from reach.config import load_config
+    from reach.build.config import load_config
 
     build_atlas(load_config(folder / "arm7_table.yaml"), folder / "atlas")
     return load_atlas(folder / "atlas")

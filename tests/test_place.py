@@ -8,13 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from reach.atlas import build_atlas
-from reach.cli import main
-from reach.config import parse_config
+from reach.answers.evaluate import Target
+from reach.answers.place import Space, rank, to_body, verify
+from reach.build.atlas import build_atlas
+from reach.build.config import parse_config
 from reach.errors import InputError
-from reach.evaluate import Target
-from reach.place import Space, rank, to_body, verify
-from reach.store import load_atlas
+from reach.maps.store import load_atlas
+from reach.tools.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -150,7 +150,7 @@ def test_the_best_placement_has_margin_not_the_middle_of_the_tie_and_verifies(ta
     best = verify(r, [table_arm], targets, best=3)
     assert [v["reached"] for v in best] == [1.0, 1.0, 1.0] and best[0]["agree"]
     # Without the margin the middle of the tie came first; verifying re-ranks it below a placement that IK confirms.
-    import reach.place as place
+    import reach.answers.place as place
 
     monkeypatch.setattr(place, "margins", lambda atlases, names, taken, points: np.zeros(len(points)))
     plain = rank([table_arm], targets, space)
@@ -163,9 +163,9 @@ def test_the_best_placement_has_margin_not_the_middle_of_the_tie_and_verifies(ta
 
 @pytest.mark.parametrize("workers", [0, 1])
 def test_the_server_places_the_body(balls, workers):
-    """The `place` operation ranks as reach.place does, in the loop or (with workers: seconds of work at its limit)
+    """The `place` operation ranks as reach.answers.place does, in the loop or (with workers: seconds of work at its limit)
     in a worker; a grid over the limit is a bad_request naming the step."""
-    from reach.client import Client, ServerError
+    from reach.serving.client import Client, ServerError
     from tests.test_server import Running
 
     targets = [{"point": [0.6 + 0.4 * math.cos(a), -0.3 + 0.4 * math.sin(a), 0.0], "effector": "hand"} for a in np.linspace(0, 2 * math.pi, 8, endpoint=False)]
@@ -191,7 +191,7 @@ def test_the_server_places_the_body(balls, workers):
 def test_a_seat_track_ranks_positions_and_heights_and_draws_them(balls, tmp_path):
     """A seat slides on x and rises on z, no turn: three targets 0.4 m apart in z at x = 0.7 fit the arm's 0.5 m ball only
     from z = 0.2 and x >= 0.4; the heat map is drawn on the track's (x, z)."""
-    from reach.place import heat_map
+    from reach.tools.report import placement_map as heat_map
 
     targets = [Target("a", (0.7, 0.0, 0.2), "hand"), Target("b", (0.7, 0.0, 0.6), "hand"), Target("c", (0.7, 0.0, -0.2), "hand")]
     r = rank([balls], targets, Space((0.0, 0.6), (0.0, 0.0), (0.0, 0.4), step=0.05, yaw=(0.0, 0.0)))
@@ -204,8 +204,8 @@ def test_a_seat_track_ranks_positions_and_heights_and_draws_them(balls, tmp_path
 
 def test_absurd_steps_and_ranges_are_bad_input_not_an_overflow():
     """Issue 35: a step of 1e-320 or an x range of +-1e308 overflowed (an `internal` reply over the wire)."""
+    from reach.answers.place import Space
     from reach.errors import InputError
-    from reach.place import Space
 
     for kwargs in ({"x": (-1.0, 1.0), "y": (0.0, 0.0), "step": 1e-320}, {"x": (-1e308, 1e308), "y": (0.0, 0.0)}):
         with pytest.raises(InputError, match="values on one axis") as info:

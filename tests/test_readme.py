@@ -15,9 +15,9 @@ from pathlib import Path
 import pytest
 from helpers import ARM, human_config
 
-from reach.atlas import build_atlas
-from reach.cli import main, make_parser
-from reach.config import parse_config
+from reach.build.atlas import build_atlas
+from reach.build.config import parse_config
+from reach.tools.cli import main, make_parser
 
 ROOT = Path(__file__).resolve().parents[1]
 README = (ROOT / "README.md").read_text()
@@ -60,7 +60,7 @@ def test_the_quick_look_at_the_sphere_runs(tmp_path, monkeypatch, capsys):
 @pytest.mark.slow
 def test_every_python_block_of_the_readme_runs(tmp_path, monkeypatch):
     # A small arm atlas stands for the demo's (out/demo), and a server on a random port for the one at 5555.
-    from reach.server import Server
+    from reach.serving.server import Server
 
     monkeypatch.chdir(tmp_path)
     strategies = [{"name": "right_arm", "effector": "right_hand", "joints": ARM, "tasks": [{"type": "reach"}]}]

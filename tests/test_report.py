@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 import trimesh
 
-from reach.atlas import build_atlas
-from reach.cli import main
-from reach.config import load_config, parse_config
+from reach.answers.evaluate import evaluate, load_targets
+from reach.build.atlas import build_atlas
+from reach.build.config import load_config, parse_config
 from reach.errors import ConfigError
-from reach.evaluate import evaluate, load_targets
-from reach.export import mesh
+from reach.tools.cli import main
+from reach.tools.export import mesh
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -102,7 +102,7 @@ def test_unknown_strategy_names_are_errors(balls, tmp_path, capsys):
 
 
 def test_targets_without_an_effector_are_refused(tmp_path):
-    from reach.store import Atlas
+    from reach.maps.store import Atlas
 
     two = Atlas(Path("two"), {"strategies": [{"name": "a", "effector": "left", "priority": 1, "file": "a"},
                                               {"name": "b", "effector": "right", "priority": 1, "file": "b"}]}, {})
@@ -141,7 +141,7 @@ def test_mirror_config_errors():
 def test_figure11_overlays_one_effectors_strategies_by_priority():
     from types import SimpleNamespace
 
-    from reach.report import overlay_names
+    from reach.tools.report import overlay_names
 
     def tree(effector, priority):
         return SimpleNamespace(meta={"effector": effector, "priority": priority})

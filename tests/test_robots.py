@@ -12,12 +12,12 @@ import pinocchio as pin
 import pytest
 import yaml
 
-from oracles.body import load_body
+from oracles.bodies.body import load_body
 from oracles.errors import ModelError
 from oracles.protocol import OracleSpec, body_params
-from reach.cli import main
-from reach.config import load_config, parse_config
+from reach.build.config import load_config, parse_config
 from reach.errors import ConfigError, InputError
+from reach.tools.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 URDF = ROOT / "configs" / "urdf"
@@ -210,9 +210,9 @@ def test_a_box_that_cuts_the_volume_grows_within_its_limit(tmp_path):
     """box: auto's B0 grows on the faces reachable vertices lie on, up to the provable bound, and the atlas is built again."""
     import dataclasses
 
-    from reach.atlas import build_atlas
-    from reach.config import grown
-    from reach.tree import Box
+    from reach.build.atlas import build_atlas
+    from reach.build.config import grown
+    from reach.maps.box import Box
 
     raw = {"box": {"min": [-1.2, -1.2, -1.2], "max": [1.2, 1.2, 1.2]}, "depth": {"min": 1, "max": 3},
            "oracle": {"name": "sphere", "params": {"radius": 1.0}}, "strategies": [{"name": "ball", "effector": "point"}]}
@@ -257,9 +257,9 @@ def test_a_continuous_joint_is_one_angle_in_answers_motions_configs_and_reach_mo
     """Issue 36, item 1: a continuous joint came back as NAME_0 and NAME_1 (its cosine and sine), which a user's
     own forward kinematics read as two joints. It is one angle in (-pi, pi] under the joint's own name, in answers,
     motion frames and a query's ``from``; ``reach model`` shows it as continuous."""
-    from reach.atlas import build_atlas
-    from reach.motion import Planner
-    from reach.select import Selector
+    from reach.answers.select import Selector
+    from reach.build.atlas import build_atlas
+    from reach.motion.planner import Planner
 
     urdf = Path(__file__).parent / "data" / "turntable.urdf"
     config = parse_config({

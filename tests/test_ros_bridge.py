@@ -18,8 +18,8 @@ from pathlib import Path
 
 import pytest
 
-from reach.atlas import build_atlas
-from reach.config import parse_config
+from reach.build.atlas import build_atlas
+from reach.build.config import parse_config
 
 ROOT = Path(__file__).resolve().parents[1]
 SYSTEM_PYTHON = "/usr/bin/python3"
@@ -78,7 +78,7 @@ class Ros:
         raise RuntimeError("roscore did not come up")
 
     def start_server(self) -> subprocess.Popen:
-        proc = subprocess.Popen([sys.executable, "-m", "reach.cli", "serve", str(self.atlas), "--bind", self.req, "--pub", self.pub],
+        proc = subprocess.Popen([sys.executable, "-m", "reach.tools.cli", "serve", str(self.atlas), "--bind", self.req, "--pub", self.pub],
                                 stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
         assert proc.stdout.readline().startswith("serving")
         return proc
@@ -131,7 +131,7 @@ def test_goal_gives_strategy_and_joint_state(ros):
 
 
 def test_choices_of_other_clients_are_relayed(ros):
-    from reach.client import Client
+    from reach.serving.client import Client
 
     listener = subprocess.Popen([SYSTEM_PYTHON, str(ROOT / "tests" / "ros_helper.py"), "listen", "right_hand"],
                                 env=ros.env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -151,7 +151,7 @@ def test_a_motion_goal_gives_a_joint_trajectory_whose_last_point_reaches_it(ros)
     import numpy as np
     import pinocchio as pin
 
-    from oracles.body import human_body
+    from oracles.bodies.body import human_body
 
     goal = np.array([0.4, -0.3, 1.2])
     got = ros.helper("motion", "right_hand", *map(str, goal), timeout=90)

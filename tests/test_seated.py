@@ -11,13 +11,13 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from oracles.body import load_body
-from oracles.environment import parse_box
+from oracles.bodies.body import load_body
+from oracles.bodies.environment import parse_box
 from oracles.errors import ModelError
-from oracles.ik import CasadiIK
-from oracles.search import Search
+from oracles.ik.engine import CasadiIK
+from oracles.ik.search import Search
 from oracles.tasks.reach import TOLERANCE
-from reach.select import Selector
+from reach.answers.select import Selector
 
 ARM = ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"]
 TRUNK = [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*", "neck_*", "root", "*_hip_*", "*_knee_*", "*_ankle_*"]
@@ -197,9 +197,9 @@ def test_the_tether_row_and_its_casadi_constraint_agree_with_pinocchio_and_finit
     distance's gradient (finite differences), and it appears only near or past the webbing's length."""
     import casadi as ca
 
-    from oracles.kinematics import SymbolicKinematics
-    from oracles.problem import ReachProblem
-    from oracles.strategy import parse_strategy
+    from oracles.bodies.kinematics import SymbolicKinematics
+    from oracles.ik.problem import ReachProblem
+    from oracles.ik.strategy import parse_strategy
     from oracles.tasks import Symbolic
     from tests.test_tasks import numeric, random_x
 
@@ -234,8 +234,8 @@ def test_the_tether_row_and_its_casadi_constraint_agree_with_pinocchio_and_finit
 @pytest.fixture(scope="module")
 def seated_atlas(tmp_path_factory):
     """A coarse arm-only atlas of a seated 50th-percentile man at an office chair, right hand."""
-    from reach.atlas import build_atlas
-    from reach.config import parse_config
+    from reach.build.atlas import build_atlas
+    from reach.build.config import parse_config
 
     out = tmp_path_factory.mktemp("seated") / "atlas"
     config = {"body": seated(), "box": {"min": [-0.4, -1.0, 0.2], "max": [1.2, 0.6, 1.8]}, "depth": {"min": 2, "max": 3},
@@ -248,8 +248,8 @@ def seated_atlas(tmp_path_factory):
 
 def test_the_viewer_shows_the_seat_and_the_desk(seated_atlas):
     """The viewer adds the body's furniture and the strategy's obstacles as boxes where the body says they are."""
-    from reach.store import load_atlas
-    from reach.view import Viewer
+    from reach.maps.store import load_atlas
+    from reach.tools.view import Viewer
     from tests.test_view import _free_port
 
     atlas = load_atlas(seated_atlas)
@@ -269,7 +269,7 @@ def test_evaluate_at_moves_the_targets_into_the_body_and_draws_them(seated_atlas
     reach model --figure draws the seated reference."""
     import json
 
-    from reach.cli import main
+    from reach.tools.cli import main
 
     layout = tmp_path / "layout.csv"
     # The body's frame stands at (2, 1, 0) facing +y in the layout: the layout's (1.3, 1.6, 0.9) is 0.6 ahead, 0.7 right.
@@ -289,7 +289,7 @@ def test_evaluate_at_moves_the_targets_into_the_body_and_draws_them(seated_atlas
 def test_reach_model_prints_and_draws_the_fitted_seat(tmp_path, capsys):
     import json
 
-    from reach.cli import main
+    from reach.tools.cli import main
 
     config = Path(__file__).resolve().parents[1] / "configs" / "examples" / "office_seated_female_p05.yaml"
     assert main(["model", str(config), "--figure", str(tmp_path / "m.png"), "--json"]) == 0
@@ -304,8 +304,8 @@ def test_reach_model_prints_and_draws_the_fitted_seat(tmp_path, capsys):
 def test_the_page_draws_the_seat(seated_atlas, browser, tmp_path):
     """In a real browser: with the volumes hidden, the page differs where the seat and the desk are drawn (hidden, then
     shown); the screenshot with them is kept in $REACH_SHOTS to look at."""
-    from reach.store import load_atlas
-    from reach.view import Viewer
+    from reach.maps.store import load_atlas
+    from reach.tools.view import Viewer
     from tests.test_view import _free_port, _shot, _wait_for_page
 
     v = Viewer([load_atlas(seated_atlas)], port=_free_port(), refine=False)
@@ -328,9 +328,9 @@ def test_the_seated_arm_tree_is_the_standing_arm_tree_moved_with_the_shoulder(tm
     """Trees (D_max 4, reach and the arm's coupling only): every point whose standing verdict holds a cell around it
     (an interior point), moved by the clavicle's rigid motion from standing to seated, gets the same verdict from the
     seated tree: the volumes agree within a cell."""
-    from reach.atlas import build_atlas
-    from reach.config import parse_config
-    from reach.store import load_atlas
+    from reach.build.atlas import build_atlas
+    from reach.build.config import parse_config
+    from reach.maps.store import load_atlas
 
     tasks = [{"type": "reach"}, {"type": "coupling"}]
     trees, moves = {}, {}
@@ -362,8 +362,8 @@ def test_evaluate_probes_targets_a_coarse_tree_misses_beside_the_desk(seated_atl
     """Over the lap and the desk, where the coarse tree's cells (D_max 3, 20 cm) meet the body and the desk: targets no
     tree holds are solved thoroughly by IK, marked beyond the trees, and every such verdict puts the hand on the target
     (Pinocchio FK)."""
-    from reach.evaluate import Target, evaluate
-    from reach.store import load_atlas
+    from reach.answers.evaluate import Target, evaluate
+    from reach.maps.store import load_atlas
 
     atlas = load_atlas(seated_atlas)
     tree = atlas.trees["arm"]

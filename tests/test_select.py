@@ -1,4 +1,4 @@
-"""The selector (reach.select): priorities, policies, refinement, errors, determinism, JSON answers."""
+"""The selector (reach.answers.select): priorities, policies, refinement, errors, determinism, JSON answers."""
 
 from __future__ import annotations
 
@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 from helpers import ARM, human_config
 
-from oracles.body import human_body
-from reach.atlas import build_atlas
-from reach.cli import main
-from reach.config import parse_config
+from oracles.bodies.body import human_body
+from reach.answers.select import FAILED, REFINED, SEEDS, SKIPPED, UNAVAILABLE, Answer, Selector
+from reach.build.atlas import build_atlas
+from reach.build.config import parse_config
 from reach.errors import InputError, ModelMismatch, UnknownEffector, UnknownPolicy
-from reach.select import FAILED, REFINED, SEEDS, SKIPPED, UNAVAILABLE, Answer, Selector
+from reach.tools.cli import main
 
 
 @pytest.fixture(scope="module")
@@ -242,7 +242,7 @@ def test_refinement_also_starts_from_the_best_liked_stored_posture_nearby(arm, m
     assert s.select("right_hand", goal).refined == REFINED  # builds the index and the oracle
     oracle = s._oracle(name)
     row = s._nearest_row(name, tree, goal.tolist())[0]  # the stored posture the answer starts from
-    kd, rows, _ = s._kd[name]
+    kd, rows = s._kd[name][:2]
     _, near = kd.query(goal, k=SEEDS)
     postures = tree.vertices.posture
     saved = postures[row].copy()
@@ -270,8 +270,8 @@ def test_refinement_also_starts_from_the_best_liked_stored_posture_nearby(arm, m
 def test_a_requests_orientation_is_scaled_before_it_is_normalised_and_bad_ones_name_the_field():
     """Issue 35: [1e200, 0, 0] overflowed to a zero direction (bad_request without workers, a worker's error with
     them); it is the x axis. A zero, infinite or NaN orientation is refused naming the field, in the loop."""
+    from reach.answers.select import orientation_of
     from reach.errors import InputError
-    from reach.select import orientation_of
 
     assert np.allclose(orientation_of({"direction": [1e200, 0, 0]}), [1, 0, 0])
     assert np.allclose(orientation_of({"quaternion": [0, 0, 0, 1e300]}), np.eye(3))
@@ -284,8 +284,8 @@ def test_a_requests_orientation_is_scaled_before_it_is_normalised_and_bad_ones_n
 
 def test_a_from_root_quaternion_of_huge_components_is_refused_by_name():
     """Issue 35: root_qw = 1e300 overflowed where the quaternion is normalised (an `internal` reply)."""
+    from reach.answers.select import Selector
     from reach.errors import InputError
-    from reach.select import Selector
 
     selector = Selector.__new__(Selector)
     selector.atlas = type("A", (), {"trees": {}})()

@@ -17,15 +17,15 @@ import zmq.auth
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from reach import protocol as P
-from reach.atlas import build_atlas
-from reach.cli import main
-from reach.client import Client, ServerError, ServerUnavailable
-from reach.config import parse_config
+from reach.answers.select import Selector
+from reach.build.atlas import build_atlas
+from reach.build.config import parse_config
 from reach.errors import InputError
-from reach.select import Selector
-from reach.server import Server
-from reach.store import load_atlas
+from reach.maps.store import load_atlas
+from reach.serving import protocol as P
+from reach.serving.client import Client, ServerError, ServerUnavailable
+from reach.serving.server import Server
+from reach.tools.cli import main
 
 RECV_MS = 5000
 
@@ -342,7 +342,7 @@ def test_curve_with_an_allow_list_lets_in_listed_clients_only(balls, tmp_path):
 
 def test_sigterm_stops_the_server_cleanly(balls):
     proc = subprocess.Popen(
-        [sys.executable, "-m", "reach.cli", "serve", str(balls), "--bind", "tcp://127.0.0.1:*", "--pub", "none"],
+        [sys.executable, "-m", "reach.tools.cli", "serve", str(balls), "--bind", "tcp://127.0.0.1:*", "--pub", "none"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
     try:
@@ -363,7 +363,7 @@ def test_a_burst_of_signals_stops_the_server_and_never_blocks_it(balls):
     """Issue 35, item 7: the handler only sets a flag; a hundred SIGTERMs and SIGINTs in a burst (one arriving while
     another is handled) still end the process, with its usual message and status."""
     proc = subprocess.Popen(
-        [sys.executable, "-m", "reach.cli", "serve", str(balls), "--bind", "tcp://127.0.0.1:*", "--pub", "none", "--workers", "0"],
+        [sys.executable, "-m", "reach.tools.cli", "serve", str(balls), "--bind", "tcp://127.0.0.1:*", "--pub", "none", "--workers", "0"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
     try:
@@ -422,7 +422,7 @@ def test_human_posture_is_refined_at_the_exact_goal(tmp_path_factory):
     assert a["strategy"] == "right_arm" and a["refined"] == "ok" and stored["refined"] == "skipped"
     assert set(a["root"]) == {"position", "quaternion"} and "right_elbow_flexion" in a["posture"]
     # Independent check: Pinocchio forward kinematics of the returned joint values.
-    from oracles.body import human_body
+    from oracles.bodies.body import human_body
 
     body = human_body()
     q = body.q_ref.copy()
@@ -621,7 +621,7 @@ def test_published_choices_carry_id_and_tag_and_hello_syncs(human):
 @pytest.mark.slow
 def test_sigterm_under_a_refined_batch_stops_the_server_and_its_workers(human):
     proc = subprocess.Popen(
-        [sys.executable, "-m", "reach.cli", "serve", str(human), "--bind", "tcp://127.0.0.1:*", "--pub", "none", "--workers", "2", "--budget-ms", "500"],
+        [sys.executable, "-m", "reach.tools.cli", "serve", str(human), "--bind", "tcp://127.0.0.1:*", "--pub", "none", "--workers", "2", "--budget-ms", "500"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
     sock = None
@@ -654,7 +654,7 @@ def test_sigterm_under_a_refined_batch_stops_the_server_and_its_workers(human):
 
 
 def test_unreadable_curve_keys_are_named_and_a_sigkilled_servers_folder_is_removed(balls, tmp_path, capsys):
-    from reach.workers import FOLDER_PREFIX, remove_stale_folders
+    from reach.serving.workers import FOLDER_PREFIX, remove_stale_folders
 
     assert main(["serve", str(balls), "--bind", "tcp://127.0.0.1:*", "--pub", "none", "--curve-secret-key", str(tmp_path / "nonexistent")]) == 2
     err = capsys.readouterr().err
@@ -696,7 +696,7 @@ def test_an_internal_error_is_logged_once_a_minute(running, dealer, caplog, monk
         raise RuntimeError("a bug")
 
     monkeypatch.setattr(running.server, "op_health", broken)
-    with caplog.at_level("ERROR", logger="reach.server"):
+    with caplog.at_level("ERROR", logger="reach.serving.server"):
         for _ in range(5):
             reply = ask(dealer, b'{"op": "health", "id": 3}')
             assert reply["error"]["code"] == P.INTERNAL and reply["id"] == 3

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from reach.errors import StoreError
-from reach.store import accept_manifest, load_atlas, load_tree, manifest_digest, save_tree
+from reach.maps.store import accept_manifest, load_atlas, load_tree, manifest_digest, save_tree
 
 
 def test_round_trip_keeps_every_array_and_the_metadata(unit_sphere_tree, tmp_path):
@@ -28,7 +28,8 @@ def test_round_trip_keeps_every_array_and_the_metadata(unit_sphere_tree, tmp_pat
 
 
 def test_postures_round_trip(tmp_path):
-    from reach.tree import Box, VATree, VertexTable, bfs_children
+    from reach.maps.box import Box
+    from reach.maps.tree import VATree, VertexTable, bfs_children
 
     kind = np.array([3], np.uint8)  # a boundary root: its vertices disagree
     table = VertexTable(np.array([0, 3]), np.array([True, False]), np.array([0.0, 0.2]), np.array([[0.1, 0.2], [0.3, 0.4]]), ("a", "b"))
@@ -56,7 +57,7 @@ def test_a_member_that_inflates_past_the_bound_is_refused_before_it_is_inflated(
     archive's directory; here it is lowered so that the test writes little."""
     import zipfile
 
-    import reach.store as store
+    import reach.maps.store as store
 
     path = save_tree(unit_sphere_tree, tmp_path / "z.npz")
     with zipfile.ZipFile(path, "a", compression=zipfile.ZIP_DEFLATED) as archive:
@@ -142,9 +143,9 @@ def test_atlas_without_manifest_is_named(tmp_path):
 
 
 def _checkpoint(tmp_path):
-    from reach.build import BuildState
-    from reach.store import save_state
-    from reach.tree import VertexTable
+    from reach.build.checkpoint import save_state
+    from reach.build.tree import BuildState
+    from reach.maps.tree import VertexTable
 
     state = BuildState(2, np.zeros((4, 3), np.int64), [np.array([3], np.uint8), np.zeros(8, np.uint8)],
                        [np.zeros((1, 3), np.int64), np.zeros((8, 3), np.int64)],
@@ -153,7 +154,7 @@ def _checkpoint(tmp_path):
 
 
 def test_checkpoint_round_trip(tmp_path):
-    from reach.store import load_state
+    from reach.build.checkpoint import load_state
 
     state = load_state(_checkpoint(tmp_path), "fp")
     assert state.depth == 2 and [k.size for k in state.kinds] == [1, 8] and state.vertices.posture_names == ("a", "b")
@@ -167,7 +168,7 @@ def test_checkpoint_round_trip(tmp_path):
     ("depth", None, "checkpoint metadata lacks valid sizes, depth"),
 ])
 def test_corrupt_checkpoint_metadata_is_a_clear_error(tmp_path, field, value, message):
-    from reach.store import load_state
+    from reach.build.checkpoint import load_state
 
     path = _checkpoint(tmp_path)
     with np.load(path) as npz:
@@ -188,7 +189,8 @@ def test_an_impossible_depth_names_the_file(unit_sphere_tree, tmp_path):
 
 
 def test_nan_postures_are_refused(tmp_path):
-    from reach.tree import Box, VATree, VertexTable, bfs_children
+    from reach.maps.box import Box
+    from reach.maps.tree import VATree, VertexTable, bfs_children
 
     kind = np.array([1], np.uint8)
     table = VertexTable(np.array([0, 3]), np.array([True, False]), np.array([0.0, 0.2]), np.array([[0.1, np.nan], [0.3, 0.4]]), ("a", "b"))
@@ -198,9 +200,9 @@ def test_nan_postures_are_refused(tmp_path):
 
 
 def test_two_builds_into_one_folder_are_refused(tmp_path):
-    from reach.atlas import build_atlas
-    from reach.config import parse_config
-    from reach.store import build_lock
+    from reach.build.atlas import build_atlas
+    from reach.build.config import parse_config
+    from reach.maps.store import build_lock
 
     config = parse_config({"box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 1, "max": 3},
                            "oracle": {"name": "sphere", "params": {"radius": 0.9}}, "strategies": [{"name": "ball"}]})
@@ -213,8 +215,8 @@ def test_two_builds_into_one_folder_are_refused(tmp_path):
 def test_a_tree_copied_over_another_is_refused(tmp_path):
     import shutil
 
-    from reach.atlas import build_atlas
-    from reach.config import parse_config
+    from reach.build.atlas import build_atlas
+    from reach.build.config import parse_config
 
     config = parse_config({"box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 1, "max": 2},
                            "oracle": {"name": "sphere", "params": {"radius": 0.9}},
@@ -235,8 +237,8 @@ def test_arrays_altered_after_writing_are_refused_by_their_digest(unit_sphere_tr
 
 
 def test_a_tree_replaced_by_another_build_of_the_same_strategy_is_refused(tmp_path):
-    from reach.atlas import build_atlas
-    from reach.config import parse_config
+    from reach.build.atlas import build_atlas
+    from reach.build.config import parse_config
 
     raw = {"box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 1, "max": 2},
            "oracle": {"name": "sphere", "params": {"radius": 0.9}}, "strategies": [{"name": "ball"}]}
@@ -267,9 +269,9 @@ def test_a_checkpoint_is_at_most_one_and_a_half_times_the_tree(tmp_path):
     Checkpoints are written uncompressed (the build's time), trees compressed."""
     from helpers import TwoLinkArm
 
-    from reach.build import build_tree
-    from reach.store import save_state
-    from reach.tree import Box
+    from reach.build.checkpoint import save_state
+    from reach.build.tree import build_tree
+    from reach.maps.box import Box
 
     states = []
     tree = build_tree(TwoLinkArm(), Box([-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]), 2, 5, on_level=states.append)
@@ -286,8 +288,8 @@ def test_a_checkpoint_is_at_most_one_and_a_half_times_the_tree(tmp_path):
     ("link.npz", "'file' must name a file inside the atlas folder, got 'link.npz'"),
 ])
 def test_manifest_files_are_confined_to_the_atlas_folder(tmp_path, file, message):
-    from reach.atlas import build_atlas
-    from reach.config import parse_config
+    from reach.build.atlas import build_atlas
+    from reach.build.config import parse_config
 
     config = parse_config({"box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 1, "max": 2},
                            "oracle": {"name": "sphere", "params": {"radius": 0.9}}, "strategies": [{"name": "s", "effector": "a"}]})
@@ -310,9 +312,9 @@ def test_manifest_files_are_confined_to_the_atlas_folder(tmp_path, file, message
 
 
 def test_a_hand_edited_manifest_is_refused_until_accepted(tmp_path, capsys):
-    from reach.atlas import build_atlas
-    from reach.cli import main
-    from reach.config import parse_config
+    from reach.build.atlas import build_atlas
+    from reach.build.config import parse_config
+    from reach.tools.cli import main
 
     config = parse_config({"box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 1, "max": 2},
                            "oracle": {"name": "sphere", "params": {"radius": 0.9}},

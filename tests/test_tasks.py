@@ -12,12 +12,12 @@ import pinocchio as pin
 import pytest
 from helpers import ARM
 
-from oracles.body import human_body
-from oracles.kinematics import SymbolicKinematics
-from oracles.problem import ReachProblem
+from oracles.bodies.body import human_body
+from oracles.bodies.kinematics import SymbolicKinematics
+from oracles.ik.problem import ReachProblem
+from oracles.ik.search import Search
+from oracles.ik.strategy import parse_strategy
 from oracles.protocol import Goals
-from oracles.search import Search
-from oracles.strategy import parse_strategy
 from oracles.tasks import TASKS, HardTask, Numeric, SoftTask, Symbolic, table
 from oracles.tasks.base import perpendicular_basis
 from reach.errors import TaskError
@@ -310,7 +310,7 @@ def test_limits_near_counts_range_ends_and_coupled_limits_but_not_the_ends_the_b
 
 @pytest.mark.slow
 def test_a_crouch_reaches_lower_than_the_straight_legged_whole_body():
-    from oracles.ik import CasadiIK
+    from oracles.ik.engine import CasadiIK
 
     straight = [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*", "root", "*_hip_*", "*_ankle_*"]
     tasks = [{"type": "reach"}, {"type": "feet"}, {"type": "balance"}, {"type": "floor"}, {"type": "coupling"}]
@@ -327,7 +327,7 @@ def test_a_crouch_reaches_lower_than_the_straight_legged_whole_body():
 
 
 def test_the_coupling_holds_in_the_solvers_postures():
-    from oracles.ik import CasadiIK
+    from oracles.ik.engine import CasadiIK
 
     straight = [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*", "root", "*_hip_*", "*_ankle_*"]
     tasks = [{"type": "reach"}, {"type": "feet"}, {"type": "balance"}, {"type": "coupling"}]
@@ -352,7 +352,7 @@ def test_collision_and_floor_rows_match_finite_differences():
     rows = task.rows(num)  # a 0.2 m margin makes many pairs active
     assert len(rows) > 5
     eps = 1e-6
-    from oracles.collision import nearest_points
+    from oracles.bodies.collision import nearest_points
 
     def gaps(qq):
         data = model.createData()
@@ -418,7 +418,7 @@ def test_the_idle_arm_hangs_by_default_and_only_when_it_moves():
 
 
 def test_a_robot_hangs_only_the_frames_it_names():
-    from oracles.body import urdf_body
+    from oracles.bodies.body import urdf_body
 
     ur5 = urdf_body(ROOT / "configs" / "urdf" / "ur5.urdf")
     joints = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint"]
@@ -460,7 +460,7 @@ def test_the_hang_row_agrees_with_casadi_pinocchio_and_finite_differences():
 
 @pytest.mark.slow
 def test_a_low_reach_keeps_the_idle_arm_hanging():
-    from oracles.ik import CasadiIK
+    from oracles.ik.engine import CasadiIK
 
     joints = [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*", "root", "*_hip_*", "*_ankle_*", *IDLE_ARM]
     tasks = [{"type": "reach"}, {"type": "feet"}, {"type": "balance", "margin": 0.02}, {"type": "floor"}, {"type": "coupling"}, {"type": "hang"}]
@@ -480,7 +480,7 @@ def test_a_low_reach_keeps_the_idle_arm_hanging():
 
 
 def test_a_current_posture_of_the_wrong_size_is_refused():
-    from oracles.ik import CasadiIK
+    from oracles.ik.engine import CasadiIK
     from reach.errors import OracleError
 
     oracle = CasadiIK({"human": {"sex": "male", "percentile": 50}}, "right_hand", ARM)

@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 
 from oracles.shapes import Ball, Torus, circle, sphere
-from reach.build import build_tree
+from reach.build.tree import build_tree
 from reach.errors import TreeError
-from reach.tree import FINAL, INNER, OUTER, PARENT, Box
+from reach.maps.box import Box
+from reach.maps.tree import FINAL, INNER, OUTER, PARENT
 
 SQUARE = Box([-1.0, -1.0], [1.0, 1.0])
 CUBE = Box([-1.0, -1.0, -1.0], [1.0, 1.0, 1.0])

@@ -1,4 +1,4 @@
-"""The viewer (reach.view): its answers against the selector's and a server's, and the page in a real browser.
+"""The viewer (reach.tools.view): its answers against the selector's and a server's, and the page in a real browser.
 
 The browser tests drive Debian's Chromium headless through Selenium and
 assert on the screenshots' pixels. Without Chromium they skip, saying how to
@@ -15,14 +15,14 @@ import time
 import numpy as np
 import pytest
 
-from reach.atlas import build_atlas
-from reach.config import parse_config
-from reach.select import Selector
-from reach.store import load_atlas
+from reach.answers.select import Selector
+from reach.build.atlas import build_atlas
+from reach.build.config import parse_config
+from reach.maps.store import load_atlas
 
 viser = pytest.importorskip("viser", reason="the viewer needs viser: pip install 'reach[view]'")
 pytestmark = pytest.mark.slow  # builds a body atlas, starts browsers
-from reach.view import BOUNDARY_SHADE, PALETTE, Viewer  # noqa: E402
+from reach.tools.view import BOUNDARY_SHADE, PALETTE, Viewer  # noqa: E402
 
 ARM = ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"]
 CONFIG = {
@@ -87,8 +87,8 @@ def test_the_body_takes_the_answers_posture(viewer):
     """The drawn hand capsule ends where the answer's posture puts it: an independent forward kinematics."""
     import pinocchio as pin
 
-    from oracles.body import human_body
-    from reach.select import posture_vector
+    from oracles.bodies.body import human_body
+    from reach.answers.select import posture_vector
 
     answer = viewer.set_goal(GOALS[0])[0]
     scene = viewer.scenes[0]
@@ -134,7 +134,7 @@ def test_toggling_a_layer_sends_nothing_again(viewer):
 
 
 def test_the_viewer_over_a_server_shows_the_servers_answers(atlas):
-    from reach.server import Server
+    from reach.serving.server import Server
 
     server = Server(atlas.path, "tcp://127.0.0.1:*", None, refine=False)
     thread = threading.Thread(target=server.serve_forever, daemon=True)
@@ -244,8 +244,8 @@ def _hand_capsule(viewer) -> np.ndarray:
 
 
 def test_a_planned_motion_poses_the_body_frame_by_frame_and_ends_in_the_answer(viewer):
-    from reach.motion import Planner
-    from reach.select import posture_vector
+    from reach.answers.select import posture_vector
+    from reach.motion.planner import Planner
 
     viewer._planner = Planner(Selector(viewer.scenes[0].atlas), budget=5.0)  # a budget no machine runs out of: the same answer below
     viewer.set_goal(GOALS[0])
@@ -268,8 +268,8 @@ def test_a_planned_motion_poses_the_body_frame_by_frame_and_ends_in_the_answer(v
 
 @browser_only
 def test_the_motion_plays_in_the_browser_and_ends_in_the_answers_posture(viewer, browser):
-    from reach.motion import Planner
-    from reach.select import posture_vector
+    from reach.answers.select import posture_vector
+    from reach.motion.planner import Planner
 
     viewer._planner = Planner(Selector(viewer.scenes[0].atlas), budget=5.0)  # a budget no machine runs out of: the same answer below
     viewer.show_strategy("right_arm", False)  # the body alone
@@ -297,7 +297,7 @@ def test_the_motion_plays_in_the_browser_and_ends_in_the_answers_posture(viewer,
 
 
 def test_view_command_needs_an_atlas(tmp_path, capsys):
-    from reach.cli import main
+    from reach.tools.cli import main
 
     assert main(["view", str(tmp_path / "none")]) != 0
     assert "none" in capsys.readouterr().err

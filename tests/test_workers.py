@@ -1,4 +1,4 @@
-"""The refinement workers (reach.workers): the broker's pool, its tasks and its worker processes, driven directly."""
+"""The refinement workers (reach.serving.workers): the broker's pool, its tasks and its worker processes, driven directly."""
 
 from __future__ import annotations
 
@@ -12,11 +12,14 @@ import pytest
 import zmq
 from helpers import ARM, human_config
 
-from reach.atlas import build_atlas
-from reach.config import parse_config
-from reach.select import MISS, Selector
-from reach.store import load_atlas
-from reach.workers import EXPIRED, FAILED, GOAL_COST, TASK_SECONDS, Pool, Task
+from reach.answers.select import MISS, Selector
+from reach.build.atlas import build_atlas
+from reach.build.config import parse_config
+from reach.maps.store import load_atlas
+from reach.serving.protocol import OPERATIONS
+from reach.serving.workers import EXPIRED, FAILED, GOAL_COST, TASK_SECONDS, Pool, Task
+
+MOTION_COST = OPERATIONS["motion"].worker.cost  # type: ignore[union-attr]
 
 OPTIONS = {"policy": "vertex", "refine": True, "budget": 0.5, "handover": 0.0, "miss": MISS}
 GOALS = [[0.35, -0.3, 1.1], [0.4, -0.2, 1.3], [0.3, -0.45, 1.0]]
@@ -158,7 +161,7 @@ def test_workers_are_shared_by_cost_so_long_motions_never_starve_a_query(atlas):
     pool.backend = type("Backend", (), {"send_multipart": lambda self, frames: sent.append(json.loads(frames[1])["op"])})()
     try:
         for k in range(3):
-            pool.submit(Task(1, k, "right_hand", [[0.3, -0.3, 1.0]], None, time.monotonic() + 60, client=b"animator", op="motion"))
+            pool.submit(Task(1, k, "right_hand", [[0.3, -0.3, 1.0]], None, time.monotonic() + 60, client=b"animator", op="motion", whole_cost=MOTION_COST))
         for k in range(3):
             pool.submit(Task(2 + k, 0, "right_hand", [[0.3, -0.3, 1.0]], None, time.monotonic() + 60, client=b"ergonomist"))
         for _ in range(6):  # one worker, finishing each task before the next starts
@@ -181,8 +184,8 @@ def test_a_task_is_charged_the_time_it_took():
     replies = [[b"w0", b'{"a": 1}']]
     pool.backend = type("Backend", (), {"send_multipart": lambda self, frames: None,
                                         "recv_multipart": lambda self: replies.pop()})()
-    pool.submit(Task(1, 0, "right_hand", [[0.3, -0.3, 1.0]], None, time.monotonic() + 60, client=b"a", op="motion"))
-    pool.submit(Task(2, 0, "right_hand", [[0.3, -0.3, 1.0]], None, time.monotonic() + 60, client=b"a", op="motion"))
+    pool.submit(Task(1, 0, "right_hand", [[0.3, -0.3, 1.0]], None, time.monotonic() + 60, client=b"a", op="motion", whole_cost=MOTION_COST))
+    pool.submit(Task(2, 0, "right_hand", [[0.3, -0.3, 1.0]], None, time.monotonic() + 60, client=b"a", op="motion", whole_cost=MOTION_COST))
     pool.idle.append(b"w0")
     pool.dispatch()
     assert pool.served[b"a"] == pytest.approx(0.5)  # the motion's estimate
@@ -195,7 +198,7 @@ def test_a_task_is_charged_the_time_it_took():
 def test_a_requests_tasks_past_their_deadline_are_dropped_unmade(atlas):
     """A request's tasks are made as workers take them; once its deadline has passed none of the rest is made
     (10,000 abandoned parts would each have been made and skipped in the loop)."""
-    from reach.workers import Tasks
+    from reach.serving.workers import Tasks
 
     pool = Pool(zmq.Context.instance(), atlas, OPTIONS, 0)
     made: list[int] = []

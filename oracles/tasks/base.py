@@ -29,9 +29,9 @@ import casadi as ca
 import numpy as np
 import pinocchio as pin
 
-from oracles.body import Body
+from oracles.bodies.body import Body
+from oracles.bodies.kinematics import SymbolicKinematics
 from oracles.errors import TaskError
-from oracles.kinematics import SymbolicKinematics
 
 BUFFER = 0.005  # [m] dls: distance from an inequality's bound at which its row becomes active
 INSIDE = 1e-4  # [m] dls: how far inside its bound a violated row is pushed
@@ -330,7 +330,7 @@ class HardTask(Task):
 
     def screened(self, sym: Symbolic) -> list[Constraint]:
         """A lazy task's rows that :meth:`constraints` leaves out, as expressions, for an engine that evaluates them
-        all and keeps the near ones (the batched engine, :mod:`oracles.batch`); none by default (the engine then
+        all and keeps the near ones (the batched engine, :mod:`oracles.ik.batch`); none by default (the engine then
         leaves the task to its verdict and polish)."""
         return []
 
@@ -389,7 +389,7 @@ class SoftTask(Task):
     @property
     def free(self) -> float:
         """The objective's level at or below which the task asks nothing more: later stages may spend up to it (-inf:
-        every bit of the optimum is kept). The batched engine weighs only the excess over it (:mod:`oracles.batch`)."""
+        every bit of the optimum is kept). The batched engine weighs only the excess over it (:mod:`oracles.ik.batch`)."""
         return -math.inf
 
     def attained(self, optimum: float) -> bool:

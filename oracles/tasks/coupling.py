@@ -48,7 +48,7 @@ Without ``rules`` the task applies the couplings of the generated human:
   140 deg for an arm hanging forward), which no person takes: the clinical
   ranges are measured with abduction in the frontal plane and extension
   with the arm at the side (AAOS 1965, via Norkin & White 2016, the
-  model's ranges: ``oracles/anthropometry.py``), the humerus's axial
+  model's ranges: ``oracles/bodies/anthropometry.py``), the humerus's axial
   rotation is about 160 deg in all (-90 to 70 deg here) and is itself
   limited by the arm's direction (Wang, X. et al. (1998), *Three-dimensional
   modelling of the motion range of axial rotation of the upper arm*,

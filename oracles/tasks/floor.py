@@ -28,7 +28,7 @@ from typing import Any, ClassVar
 import casadi as ca
 import numpy as np
 
-from oracles.collision import CollisionModel
+from oracles.bodies.collision import CollisionModel
 from oracles.errors import TaskError
 from oracles.tasks.base import (
     BUFFER,

@@ -2,7 +2,7 @@
 
 A table, a wall, a shelf: boxes [m] in the world frame (axis-aligned, or
 turned about their centre by ``rpy`` [rad]), and the body's own furniture
-(a seated body's seat, :mod:`oracles.seat`: ``boxes`` may then be left out), that
+(a seated body's seat, :mod:`oracles.bodies.seat`: ``boxes`` may then be left out), that
 every collision capsule moved by an active joint keeps ``margin`` [m] away
 from (spheres along the capsule's axis kept out of the box grown by their
 radius; a lazy task, see :class:`~oracles.tasks.base.HardTask`). A capsule already closer at the reference posture (a robot's base
@@ -19,8 +19,8 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from oracles.collision import CollisionModel
-from oracles.environment import Box, parse_box
+from oracles.bodies.collision import CollisionModel
+from oracles.bodies.environment import Box, parse_box
 from oracles.errors import TaskError
 from oracles.tasks.base import (
     BUFFER,

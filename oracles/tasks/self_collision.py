@@ -1,6 +1,6 @@
 """No segment through another: ``{type: self_collision, margin: 0.01, exclude: [[a, b], ...]}``.
 
-Every pair of the body's collision capsules (:mod:`oracles.collision`) keeps
+Every pair of the body's collision capsules (:mod:`oracles.bodies.collision`) keeps
 ``margin`` [m] between them, except
 
 * adjacent segments: capsules on one joint, or on joints with no capsule
@@ -20,7 +20,7 @@ These pairs are listed by ``reach model``.
 
 The task is *lazy* (see :class:`~oracles.tasks.base.HardTask`): a pair's
 distance is the closed form of the nearest points of the two capsules'
-segments (:func:`oracles.collision.nearest_points`) less their radii, and its
+segments (:func:`oracles.bodies.collision.nearest_points`) less their radii, and its
 gradient the difference of the two nearest points' Jacobians along the line
 between them. ``casadi-ik`` solves without the pairs, and when the posture
 collides, again with the near and colliding pairs linearised at it, until it
@@ -39,7 +39,7 @@ from typing import Any, ClassVar
 import numpy as np
 import pinocchio as pin
 
-from oracles.collision import CollisionModel, nearest_points, segment_gap
+from oracles.bodies.collision import CollisionModel, nearest_points, segment_gap
 from oracles.errors import TaskError
 from oracles.tasks.base import (
     BUFFER,
@@ -208,7 +208,7 @@ class SelfCollisionTask(HardTask):
         return []  # lazy: see cuts
 
     def screened(self, sym: Symbolic) -> list[Constraint]:
-        """Every pair's distance less its radii, at least its clearance (:func:`oracles.collision.segment_gap`)."""
+        """Every pair's distance less its radii, at least its clearance (:func:`oracles.bodies.collision.segment_gap`)."""
         assert self._model is not None
         ends = {}
         out = []

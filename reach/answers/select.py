@@ -1,0 +1,827 @@
+"""The paper's priority mechanism: which strategy reaches a goal, and how.
+
+For an effector and a goal, the strategies of that effector are tried in
+priority order; the first whose tree holds the goal is chosen (the boundary
+policy is configurable). The posture starts from the one stored at the
+nearest reachable vertex of that tree, then is refined by the strategy's own
+IK at the exact goal within a time budget: the paper's "additional inverse
+kinematics simulation". If refinement fails or runs out of time, the answer
+keeps the stored posture and says so.
+
+**Answers that hold.** When the chosen strategy's refinement cannot reach
+the exact goal (its tree held the goal from a boundary cell), the goal is
+read as outside that strategy's volume and the next strategy holding it
+answers. When none reaches it, the answer says so, as ``miss`` asks:
+``unreachable`` (the default) answers ``reachable: false`` with the nearest
+point a stored posture reaches and that posture; ``within`` answers
+``reachable: true`` with ``within``. Every answer whose posture was not
+solved at the goal (not refined, out of time, or missed) carries
+``within``: the distance [m] that stored posture stops short of the goal.
+So a "reachable" answer's posture reaches the goal unless ``within`` says
+how near it comes.
+
+**Handover.** A strategy that reaches a goal only with joints at (within
+``handover``, default 5 deg, of) the end of their range or a coupled limit
+passes the goal to the next strategy by priority that reaches it with fewer
+joints at their limits; if none does, it answers itself. Limits the
+reference posture rests at do not count (a straight knee stands at the end
+of its range). This is the
+paper's own future work ("the high-level library could exploit low level
+information (i.e. joint level) that would drive the human to do the
+reaching with another strategy", section 6): without it the upper body,
+first by priority, answered goals at knee height with the lumbar spine at
+its 60 deg limit and the neck fully flexed, the pelvis upright, where a
+person bends at the hips (forward bending is lumbar and hip flexion
+together, the lumbar spine leading only at its start: the lumbopelvic
+rhythm, reviewed by Vazirian, Van Dillen & Bazrgari 2016, Int Musculoskelet
+Med 38:51-58). 5 deg is the margin the project's posture figures count as
+"at a limit" (``bench/posture.py``), a modelling choice. ``handover=0``
+keeps the paper's plain priority.
+
+**Batches.** :meth:`Selector.select_many` refines a batch's goals in passes,
+one evaluate call per strategy each (the oracle's engine then solves them
+together): every goal's first choice, then the next strategy for the goals
+it failed, then the handover's candidates, within the budget of as many
+refinements. The answers are those of one goal at a time. A query with a
+``from`` is refined goal by goal (the omitted joints come from each goal's
+own stored posture).
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import json
+import math
+import time
+from collections import OrderedDict
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple
+
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from oracles.protocol import (
+    COS,
+    SIN,
+    Bounded,
+    EffectorPositions,
+    Goals,
+    Limited,
+    ModelHashed,
+    Oracle,
+    OracleSpec,
+    Oriented,
+    Preferring,
+    Preparable,
+    Tunable,
+)
+from reach.errors import InputError, ModelMismatch, UnknownEffector, UnknownPolicy
+from reach.maps.protocol import DEFAULT_POLICY, POLICIES, Policy, ReachMap
+from reach.maps.store import Atlas
+
+# Outcomes of refinement, in Answer.refined.
+REFINED = "ok"  # the IK reached the exact goal; posture and residual are its own
+FAILED = "failed"  # the IK did not reach it; posture is the stored one
+TIMEOUT = "timeout"  # the budget ran out; posture is the stored one
+SKIPPED = "skipped"  # refinement was not asked for
+UNAVAILABLE = "unavailable"  # the strategy's oracle stores no postures (analytic shapes)
+NONE = "none"  # no strategy reaches the goal: there is no posture to refine
+ERROR = "error"  # the refinement could not run (a server's worker died); posture is the stored one
+MISSES = ("unreachable", "within")  # what a goal the trees hold but no refinement reaches answers (see the module docstring)
+MISS = "unreachable"
+STORED = (SKIPPED, TIMEOUT, FAILED, ERROR)  # outcomes whose posture is the nearest stored one, not one solved at the goal
+FROM_TOLERANCE = math.radians(1.0)  # [rad] (or m) a `from` joint this far past its range is still accepted (rounding in a client)
+FROM_QUATERNION = 1e3  # the largest component of a `from` root quaternion (it is normalised)
+FROM_REACH = 1000.0  # [m] a `from` root farther than this from the world origin is a mistake, not a scene
+POSTURE_CACHE = 4096  # stored postures kept encoded, most recently used first
+REFINE_BUDGET = 0.02  # [s] default time budget of one refinement (a frame at 50 Hz)
+# [s] the least budget of a goal with an orientation: its stored postures hold none, so its refinement tries random
+# starts too; within 20 ms it timed out on 5 of 72 oriented arm7_table goals the referee reaches (docs/history.md). The
+# batched engine's K starts and K random ones take 0.10-0.15 s on an idle machine: 0.2 s timed out on a loaded one (CI).
+ORIENTED_BUDGET = 0.5
+# The share of a refinement's budget its solve gets, leaving at most SOLVE_RESERVE [s] for the seeding (the best-liked
+# stored posture near the goal), the verdict's checks and the answer: 6-8 ms around a solve given all of 20 ms (demo
+# atlas, bench/refined.py: its queries took 27-30 ms). An oriented goal's 0.5 s keeps all but that.
+SOLVE_SHARE = 0.7
+SOLVE_RESERVE = 0.006
+# A refinement left less than this share of one goal's budget is not started (a timeout): a handover after a first
+# choice that took most of the budget took 2-5 ms more for a solve of 1-2 ms (bench/refined.py).
+LEAST_SOLVE = 0.25
+HANDOVER = math.radians(5.0)  # [rad] a joint this near a limit passes the goal on (see the module docstring)
+# A refinement without `from` also starts from the best-liked of this many
+# nearest stored postures (when it is not the nearest's): the nearest can sit
+# in a worse basin of the posture task than its neighbours, and two goals 1 cm
+# apart then ended in different basins (docs/history.md, session 8).
+SEEDS = 8
+
+
+Refined = tuple[np.ndarray, "float | None", str]  # a refinement: the posture, its residual [m] and its outcome
+Prefetched = dict[str, Refined]  # one goal's refinements made ahead, by strategy (see Selector._prefetch)
+
+
+class Found(NamedTuple):
+    """A strategy that answers a goal (see ``Selector._first_answer``)."""
+
+    name: str
+    posture: np.ndarray  # (nq,)
+    residual: float | None  # [m] from the goal
+    outcome: str  # the refinement's, one of the outcomes above
+    row: int  # the nearest stored vertex's row
+
+
+@dataclass(frozen=True)
+class Answer:
+    """The selector's answer for one goal.
+
+    Attributes:
+        effector: The effector asked about.
+        goal: The goal [m] in the atlas's world frame.
+        strategy: The chosen strategy, or None when none reaches.
+        reachable: Whether any strategy reaches the goal.
+        alternatives: Other strategies that also reach it, in priority order
+            (one before the chosen strategy was passed over: its posture had
+            more joints at their limits; see the module docstring).
+        posture: Joint name -> angle [rad] (or length [m] for prisms), or None.
+        root: Pose of a floating base, ``{"position": [x, y, z], "quaternion":
+            [qx, qy, qz, qw]}`` [m], or None.
+        residual: Effector-to-goal distance [m] of that posture, or None.
+        refined: One of ``ok``, ``failed``, ``timeout``, ``skipped``, ``unavailable``, or ``none`` for an unreachable goal.
+        seconds: Time spent answering [s].
+        handover: When a strategy of higher priority passed the goal over,
+            ``{"from": its name, "limits": the limits its posture came
+            near}`` (see the module docstring); else None.
+        within: When the posture is a stored one (refinement skipped, out of
+            time or missed, see ``refined``): the distance [m] it stops short
+            of the goal; None when the posture was solved at the goal (or
+            there is none).
+        nearest: With ``miss="unreachable"``, for a goal the trees hold but
+            no refinement reached: ``{"strategy", "point" [m], "distance"
+            [m], "posture", "root"}``, the nearest point a stored posture of
+            the first such strategy reaches; else None.
+        index: The reachability index (see :mod:`reach.maps.index`) of the chosen
+            strategy's nearest reachable stored vertex, the share of
+            approach directions reached there, when its tree has one; else None.
+    """
+
+    effector: str
+    goal: tuple[float, ...]
+    strategy: str | None
+    reachable: bool
+    alternatives: tuple[str, ...] = ()
+    posture: dict[str, float] | None = None
+    root: dict[str, list[float]] | None = None
+    residual: float | None = None
+    refined: str = SKIPPED
+    seconds: float = 0.0
+    handover: dict[str, Any] | None = None
+    within: float | None = None
+    nearest: dict[str, Any] | None = None
+    posture_json: bytes | None = field(default=None, repr=False, compare=False)
+    index: float | None = None
+
+    def to_json(self) -> bytes:
+        """UTF-8 JSON of to_dict(), reusing the posture's cached encoding when there is one."""
+        if self.posture_json is None:
+            return json.dumps(self.to_dict(), allow_nan=False, separators=(",", ":")).encode()
+        head = {k: v for k, v in self.to_dict().items() if k not in ("posture", "root")}
+        return json.dumps(head, allow_nan=False, separators=(",", ":")).encode()[:-1] + b"," + self.posture_json + b"}"
+
+    def as_start(self) -> dict[str, float] | None:
+        """This answer's posture as the next query's ``from``: joint values and,
+        for a floating base, ``root_x`` ... ``root_qw``; None when it has no posture."""
+        if self.posture is None:
+            return None
+        start = dict(self.posture)
+        if self.root is not None:
+            start.update(zip(("root_x", "root_y", "root_z"), self.root["position"], strict=True))
+            start.update(zip(("root_qx", "root_qy", "root_qz", "root_qw"), self.root["quaternion"], strict=True))
+        return start
+
+    def to_dict(self) -> dict[str, Any]:
+        # By hand rather than dataclasses.asdict, whose deep copies cost more than the lookup.
+        return {
+            "effector": self.effector, "goal": list(self.goal), "strategy": self.strategy, "reachable": self.reachable,
+            "alternatives": list(self.alternatives), "posture": self.posture, "root": self.root,
+            "residual": self.residual, "refined": self.refined, "seconds": self.seconds, "handover": self.handover,
+            "within": self.within, "nearest": self.nearest, "index": self.index,
+        }
+
+
+def _timed_out(answer: Answer, late: bool) -> Answer:
+    """An answer not refined because its request's deadline had passed: its stored posture, marked ``timeout``."""
+    return dataclasses.replace(answer, refined=TIMEOUT) if late and answer.refined == SKIPPED else answer
+
+
+def orientation_of(wire: dict[str, list[float]] | list[dict[str, list[float]]] | None) -> np.ndarray | list[np.ndarray] | None:
+    """A request's ``orientation`` as the selector takes it: a unit direction (3,) or a rotation (3, 3) from a
+    quaternion ``[qx, qy, qz, qw]`` (normalised), or a list of them, one per goal; None stays None."""
+    if wire is None:
+        return None
+    if isinstance(wire, list):
+        return [orientation_of(w) for w in wire]  # type: ignore[misc]
+    key = "direction" if "direction" in wire else "quaternion"
+    v = np.asarray(wire[key], float)
+    # Scaled by the largest component before normalising: [1e200, 0, 0]'s norm overflowed to a zero direction.
+    top = np.abs(v).max(initial=0.0)
+    if not np.all(np.isfinite(v)) or top == 0.0:
+        raise InputError(f"orientation.{key}", f"expected finite numbers, not all zero, got {wire[key]!r}")
+    v = v / top
+    if key == "direction":
+        return v / np.linalg.norm(v)  # type: ignore[no-any-return]
+    return np.asarray(Rotation.from_quat(v).as_matrix())
+
+
+def split_posture(names: tuple[str, ...], q: np.ndarray) -> tuple[dict[str, float], dict[str, list[float]] | None]:
+    """Joint name -> value [rad or m], and the root pose when the names carry one. A continuous joint's
+    coordinates (``NAME.cos``, ``NAME.sin``) are its one angle ``NAME``, in (-pi, pi]."""
+    joints: dict[str, float] = {}
+    for k, n in enumerate(names):
+        if n.startswith("root_") or n.endswith(SIN):
+            continue
+        if n.endswith(COS):
+            angle = math.atan2(float(q[k + 1]), float(q[k]))
+            joints[n[: -len(COS)]] = math.pi if angle <= -math.pi else angle
+        else:
+            joints[n] = float(q[k])
+    if "root_x" not in names:
+        return joints, None
+    i = names.index("root_x")
+    return joints, {"position": [float(v) for v in q[i : i + 3]], "quaternion": [float(v) for v in q[i + 3 : i + 7]]}
+
+
+def joint_names(names: tuple[str, ...]) -> list[str]:
+    """The names :func:`split_posture` gives values of: the joints, and the root's coordinates (``root_x`` ...)."""
+    return [n[: -len(COS)] if n.endswith(COS) else n for n in names if not n.endswith(SIN)]
+
+
+def set_joints(names: tuple[str, ...], q: np.ndarray, joints: dict[str, float], field: str = "posture") -> np.ndarray:
+    """q (nq,) with the given joints' values [rad or m] (a continuous joint by its angle); returns q. Raises
+    InputError naming ``field`` for a name that is none of :func:`joint_names`."""
+    index = {n: k for k, n in enumerate(names)}
+    for n, v in joints.items():
+        if n in index:
+            q[index[n]] = v
+        elif n + COS in index:
+            q[index[n + COS]], q[index[n + SIN]] = math.cos(v), math.sin(v)
+        else:
+            raise InputError(field, f"unknown joint {n!r}; the posture's names are {', '.join(joint_names(names))}")
+    return q
+
+
+def posture_vector(names: tuple[str, ...], reference: np.ndarray, joints: dict[str, float] | None, root: dict[str, list[float]] | None) -> np.ndarray:
+    """The inverse of :func:`split_posture`: a posture (nq,) from an answer's joints and root, ``reference`` elsewhere."""
+    q = set_joints(names, np.array(reference, float), joints or {})
+    index = {n: k for k, n in enumerate(names)}
+    if root is not None and "root_x" in index:
+        i = index["root_x"]
+        q[i : i + 3], q[i + 3 : i + 7] = root["position"], root["quaternion"]
+    return q
+
+
+class Selector:
+    """Answers goals from an atlas; per-tree lookup structures are built once.
+
+    Args:
+        atlas: The loaded atlas.
+        policy: How boundary cells answer (see :meth:`reach.maps.protocol.ReachMap.contains`).
+        refine: Refine postures by IK at the exact goal by default.
+        budget: Time budget of one refinement [s].
+        handover: [rad] A posture with joints this near their limits passes
+            the goal to the next strategy that reaches it with fewer (see the
+            module docstring); 0 keeps the plain priority.
+        miss: What a goal the trees hold but no refinement reaches answers:
+            ``unreachable`` or ``within`` (see the module docstring).
+    """
+
+    def __init__(self, atlas: Atlas, policy: Policy = DEFAULT_POLICY, refine: bool = True, budget: float = REFINE_BUDGET,
+                 handover: float = HANDOVER, miss: str = MISS) -> None:
+        if miss not in MISSES:
+            raise InputError("miss", f"expected one of {', '.join(MISSES)}, got {miss!r}")
+        self.miss = miss
+        if policy not in POLICIES:
+            raise UnknownPolicy(policy, POLICIES)
+        if not (math.isfinite(handover) and handover >= 0):
+            raise InputError("handover", f"expected a margin of 0 rad or more, got {handover!r}")
+        self.handover = float(handover)
+        self.atlas = atlas
+        self.policy = policy
+        self.refine = refine
+        self.budget = budget
+        self.order = [(s["name"], s["effector"]) for s in sorted(atlas.strategies, key=lambda s: s["priority"])]
+        self._by_effector: dict[str, list[str]] = {}
+        for name, effector in self.order:
+            self._by_effector.setdefault(effector, []).append(name)
+        # Per strategy: a k-d tree of its stored goals, their ids, and by id the effector positions and goals.
+        self._kd: dict[str, tuple[cKDTree, np.ndarray, np.ndarray, np.ndarray] | None] = {}
+        self._oracles: dict[str, Oracle] = {}
+        self._postures: OrderedDict[tuple[str, int], tuple[dict[str, float], dict[str, list[float]] | None, bytes]] = OrderedDict()
+        for m in atlas.maps.values():
+            m.prepare()  # the batch lookup table now, not on the first batch
+
+    def warm_up(self) -> Selector:
+        """Build every strategy's refinement oracle (with its solvers) and posture index now, not on the first request."""
+        for name, m in self.atlas.maps.items():
+            if m.posture_names:
+                oracle = self._oracle(name)
+                if isinstance(oracle, Preparable):
+                    oracle.prepare()
+                self._stored(name, m, m.box.lo[None])
+        return self
+
+    @property
+    def effectors(self) -> list[str]:
+        return sorted(self._by_effector)
+
+    def strategies_for(self, effector: str) -> list[str]:
+        names = self._by_effector.get(effector)
+        if not names:
+            raise UnknownEffector(effector, self.effectors)
+        return names
+
+    def check_goals(self, effector: str, goals: np.ndarray, start: dict[str, float] | None = None) -> list[str]:
+        """The effector's strategies, once the goals (N, d) and the ``from`` joints are known to be valid for them.
+
+        Raises UnknownEffector, or InputError naming the field: what a query
+        would refuse, checked before any work is queued.
+        """
+        names = self.strategies_for(effector)
+        dim = self.atlas.maps[names[0]].dim
+        if goals.ndim != 2 or goals.shape[1] != dim:
+            raise InputError("goals", f"expected {dim} coordinates [m] each, got shape {list(goals.shape)}")
+        if start:
+            self._check_start(names, start)
+        return names
+
+    def _check_start(self, names: list[str], start: dict[str, float]) -> None:
+        """A ``from`` names the posture's coordinates, within their ranges (``FROM_TOLERANCE``); a root's
+        position is within ``FROM_REACH`` of the origin and its quaternion is not zero."""
+        quat = [start[f"root_q{c}"] for c in "xyzw" if f"root_q{c}" in start]
+        if any(abs(v) > FROM_QUATERNION for v in quat):  # 1e300 overflowed where the quaternion is normalised
+            raise InputError("from", f"the root's quaternion components must be within +-{FROM_QUATERNION:g} (a unit quaternion, "
+                                     f"normalised if off by a little), got {quat}")
+        posed = [s for s in names if self.atlas.maps[s].posture_names]
+        known = {n for s in posed for n in joint_names(self.atlas.maps[s].posture_names)}
+        unknown = sorted(set(start) - known)
+        if unknown:
+            raise InputError("from", f"unknown joints {unknown[:5]}; the posture's names are {', '.join(sorted(known))}")
+        for s in posed:
+            oracle = self._oracle(s)
+            if not isinstance(oracle, Bounded):
+                continue
+            lower, upper = oracle.posture_bounds()
+            for k, n in enumerate(self.atlas.maps[s].posture_names):
+                if n in start and not lower[k] - FROM_TOLERANCE <= start[n] <= upper[k] + FROM_TOLERANCE:
+                    raise InputError("from", f"{n} = {start[n]:.6g} is outside its range [{lower[k]:.4f}, {upper[k]:.4f}] rad or m")
+            break  # the strategies of an effector share a body
+        if any(abs(start.get(f"root_{c}", 0.0)) > FROM_REACH for c in "xyz"):
+            raise InputError("from", f"the root's position must be within {FROM_REACH:g} m of the world origin")
+        quat = [start[f"root_q{c}"] for c in "xyzw" if f"root_q{c}" in start]
+        if len(quat) == 4 and math.hypot(*quat) < 1e-9:
+            raise InputError("from", "the root's quaternion (root_qx, root_qy, root_qz, root_qw) must not be zero")
+
+    def needs_ik(self, effector: str, goals: np.ndarray, start: dict[str, float] | None = None) -> bool:
+        """Whether refining these goals would solve any IK: some strategy that stores postures holds one of them.
+
+        Validates the request as :meth:`check_goals` does.
+        """
+        names = [n for n in self.check_goals(effector, goals, start) if self.atlas.maps[n].posture_names]
+        if len(goals) == 1:
+            point = goals[0].tolist()
+            return any(self.atlas.maps[n].contains_one(point, self.policy) for n in names)
+        return any(bool(self.atlas.maps[n].contains(goals, self.policy).any()) for n in names)
+
+    def _stored(self, name: str, tree: ReachMap, goals: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """Ids of the nearest reachable stored postures and where they put the effector [m].
+
+        The k-d tree and the effector positions are computed once per strategy
+        (at warm-up for a server), so a request costs one k-d tree query.
+        """
+        if name not in self._kd:
+            found = tree.stored()
+            self._kd[name] = None
+            if found is not None and len(found.ids):
+                # By id: a stored posture's effector position and the goal it was stored for.
+                size = int(found.ids.max()) + 1
+                reached, points = np.full((size, 3), np.nan), np.full((size, tree.dim), np.nan)
+                reached[found.ids] = self._effector_positions(name, found.postures)
+                points[found.ids] = found.points
+                self._kd[name] = (cKDTree(found.points), found.ids, reached, points)
+        kd = self._kd[name]
+        if kd is None:
+            return None
+        _, i = kd[0].query(goals)
+        rows = kd[1][np.asarray(i)]
+        return rows, kd[2][rows]
+
+    def _nearest_row(self, name: str, tree: ReachMap, goal: list[float]) -> tuple[int, np.ndarray] | None:
+        """The nearest reachable stored posture of one goal: its id and effector position.
+
+        Usually the map's sample nearest to the goal is reachable and found
+        by one lookup; otherwise the k-d tree answers.
+        """
+        if name not in self._kd:
+            self._stored(name, tree, np.asarray([goal]))
+        found = self._kd[name]
+        if found is None:
+            return None
+        row = tree.nearest_stored(goal)
+        if row >= 0:
+            return row, found[2][row]
+        rows, eff = self._stored(name, tree, np.asarray([goal]))  # type: ignore[misc]
+        return int(rows[0]), eff[0]
+
+    def _index_of(self, name: str, row: int) -> float | None:
+        """The reachability index where a stored posture was stored (None when the map has none)."""
+        found = self._kd.get(name)
+        if found is None or row < 0:
+            return None
+        value = float(self.atlas.maps[name].index_at(found[3][row][None], held=False)[0])
+        return None if math.isnan(value) else value
+
+    def _effector_positions(self, name: str, postures: np.ndarray) -> np.ndarray:
+        """Effector positions [m] of postures (n, nq); NaN when the oracle cannot tell (no posture is then used)."""
+        oracle = self._oracle(name)
+        if isinstance(oracle, EffectorPositions):
+            return np.asarray(oracle.effector_positions(postures), dtype=float)
+        return np.full((len(postures), self.atlas.maps[name].dim), np.nan)
+
+    def with_budget(self, budget: float) -> Selector:
+        """This selector with another refinement budget [s], sharing its atlas, indexes and solvers
+        (each oracle's ``"refine"`` variant with that budget)."""
+        twin = copy.copy(self)
+        twin.budget = float(budget)
+        twin._oracles = {n: o.variant("refine", budget=budget) if isinstance(o, Tunable) else o for n, o in self._oracles.items()}
+        return twin
+
+    def oracle(self, name: str) -> Oracle:
+        """The strategy's oracle as answers use it (its ``"refine"`` variant)."""
+        return self._oracle(name)
+
+    def _oracle(self, name: str) -> Oracle:
+        """The strategy's oracle for refinement (its ``"refine"`` variant), built once from the tree's own spec."""
+        if name not in self._oracles:
+            meta = self.atlas.maps[name].meta
+            oracle = OracleSpec.from_dict(meta["oracle"]).create()
+            stored_hash = meta.get("model_hash")
+            if stored_hash and isinstance(oracle, ModelHashed) and oracle.model_hash != stored_hash:
+                raise ModelMismatch(self.atlas.path, name, stored_hash, oracle.model_hash)
+            self._oracles[name] = oracle.variant("refine", budget=self.budget) if isinstance(oracle, Tunable) else oracle
+        return self._oracles[name]
+
+    def oriented(self, effector: str, orientation: np.ndarray) -> list[str]:
+        """The effector's strategies that hold a goal's orientation of this kind ((3,) direction or (3, 3) rotation), by priority."""
+        kind = "direction" if orientation.shape == (3,) else "rotation"
+        names = [n for n in self.strategies_for(effector) if isinstance(o := self._oracle(n), Oriented) and kind in o.orientation_kinds()]
+        if not names:
+            raise InputError("orientation", f"no strategy of {effector!r} holds a goal's {kind}: give it an orientation task"
+                             + (" with an axis" if kind == "direction" else ""))
+        return names
+
+    def select_many(self, effector: str, goals: np.ndarray, refine: bool | None = None, start: dict[str, float] | None = None,
+                    miss: str | None = None, orientation: np.ndarray | list[np.ndarray] | None = None,
+                    deadline: float | None = None) -> list[Answer]:
+        """Answers for goals (N, d) [m], one tree lookup per strategy for the whole batch.
+
+        ``start`` is the character's current posture (joint name -> rad or m;
+        ``root_x`` ... ``root_qw`` for a floating base), a query's ``from``:
+        refinement then starts from it, with a small cost on displacement from
+        it, so that the answer is the natural posture reached from there.
+        Joints it omits keep the stored posture's values. ``miss`` overrides
+        the selector's (see the module docstring). ``orientation``, a world
+        direction (3,) of the effector's approach axis or its rotation (3, 3),
+        holds every goal's orientation (a list of them: one per goal, of one
+        kind): only the strategies with an orientation task answer, always by
+        refinement, and a goal no refinement reaches with it is unreachable.
+        ``deadline`` (a ``time.perf_counter()`` value): goals whose turn comes after it are not refined;
+        their answers are the stored ones, marked ``timeout``.
+        """
+        t0 = time.perf_counter()
+        g = np.asarray(goals, dtype=float)
+        names = self.check_goals(effector, g, start)
+        refine = self.refine if refine is None else refine
+        aims: list[np.ndarray | None] = [None] * len(g)
+        if orientation is not None:
+            if not refine:
+                raise InputError("refine", "a goal with an orientation is always refined (the trees hold positions); leave refine out or true")
+            each = orientation if isinstance(orientation, list) else [orientation] * len(g)
+            if len(each) != len(g) or len({np.shape(a) for a in each}) != 1 or np.shape(each[0]) not in ((3,), (3, 3)):
+                raise InputError("orientation", f"expected one direction (3,) or rotation (3, 3), or a list of one per goal ({len(g)}), of one kind")
+            aims = [np.asarray(a, float) for a in each]
+            names = self.oriented(effector, np.asarray(each[0], float))
+        miss = self.miss if miss is None else miss
+        if miss not in MISSES:
+            raise InputError("miss", f"expected one of {', '.join(MISSES)}, got {miss!r}")
+        def late() -> bool:
+            return deadline is not None and time.perf_counter() > deadline
+
+        if len(g) == 1:
+            out_of_time = refine and late()
+            return [_timed_out(self._select_one(effector, names, g[0], refine and not out_of_time, t0, start, miss, aims[0]), out_of_time)]
+        hits = np.stack([self.atlas.maps[n].contains(g, self.policy) for n in names])
+        chosen = np.where(hits.any(axis=0), hits.argmax(axis=0), -1)
+        nearest: dict[int, tuple[int, np.ndarray] | None] = {}
+        for k in np.unique(chosen[chosen >= 0]):  # one k-d tree query per chosen strategy
+            sel = np.nonzero(chosen == k)[0]
+            found = self._stored(names[k], self.atlas.maps[names[k]], g[sel])
+            for m, i in enumerate(sel):
+                nearest[int(i)] = None if found is None else (int(found[0][m]), found[1][m])
+        # Without a `from` (whose omitted joints each goal's stored posture fills in), every refinement is made ahead
+        # in one evaluate call per strategy and pass; with one, goal by goal.
+        batched = refine and start is None
+        done, unrefined = self._prefetch(g, names, hits, nearest, aims, deadline) if batched else ([None] * len(g), None)
+        out = []
+        for n_goal in range(len(g)):
+            # With a deadline, each goal is refined only while there is time.
+            out_of_time = bool(unrefined[n_goal]) if unrefined is not None else refine and late()
+            answer = self._answer(effector, g[n_goal], [n for j, n in enumerate(names) if hits[j, n_goal]], nearest.get(n_goal),
+                                  refine and not out_of_time, time.perf_counter(), start, miss, aims[n_goal], done[n_goal])
+            out.append(_timed_out(answer, out_of_time))
+        return out
+
+    def _select_one(self, effector: str, names: list[str], goal: np.ndarray, refine: bool, t0: float, start: dict[str, float] | None,
+                    miss: str, aim: np.ndarray | None = None) -> Answer:
+        """select_many for one goal, in plain Python: the server's per-request path."""
+        point = goal.tolist()
+        hits = [n for n in names if self.atlas.maps[n].contains_one(point, self.policy)]
+        nearest = self._nearest_row(hits[0], self.atlas.maps[hits[0]], point) if hits else None
+        return self._answer(effector, goal, hits, nearest, refine, t0, start, miss, aim)
+
+    def _answer(self, effector: str, goal: np.ndarray, hits: list[str], nearest: tuple[int, np.ndarray] | None, refine: bool, t0: float,
+                start: dict[str, float] | None = None, miss: str = MISS, aim: np.ndarray | None = None,
+                done: Prefetched | None = None) -> Answer:
+        """The answer for one goal, given the strategies that hold it (by priority) and the chosen one's nearest stored vertex
+        (``done``: the refinements already made for it, by strategy; see :meth:`_prefetch`)."""
+        if not hits:
+            return Answer(effector, tuple(goal.tolist()), None, False, refined=NONE, seconds=time.perf_counter() - t0)
+        name, tree = hits[0], self.atlas.maps[hits[0]]
+        posture = root = residual = fragment = None
+        handover: dict[str, Any] | None = None
+        outcome = UNAVAILABLE
+        others = hits[1:]
+        row = -1
+        if nearest is not None:
+            row, reached = nearest
+            # The stored residual is the vertex's own; what matters is the distance to this goal
+            # (unknown when the oracle cannot place its effector).
+            gap = float(np.linalg.norm(goal - reached))
+            residual = gap if np.isfinite(gap) else None
+            q, outcome = tree.postures(row), SKIPPED
+            # One budget for all of a goal's refinements (the first choice's, a fallback's, a handover's): the budget is
+            # the query's (each had its own, and a query that fell back or handed over took two to four budgets). It
+            # starts once the strategies that may refine have their solvers (a server's are built at warm-up; `reach
+            # query` builds them here, which took the whole of its 1 s budget).
+            if refine and done is None:
+                for other in hits:
+                    if isinstance(oracle := self._oracle(other), Preparable):
+                        oracle.prepare()
+            deadline = time.perf_counter() + (self.budget if aim is None else max(self.budget, ORIENTED_BUDGET))
+            if refine:
+                q, residual, outcome = self._refine(name, goal, q, residual, start, aim, done, deadline)
+            found = None
+            if outcome == FAILED:
+                # The IK says this strategy does not reach the exact goal (its
+                # tree said so from a coarse cell): the next strategy by
+                # priority that does answers; else this one's stored posture.
+                found = self._first_answer(goal, others, refine, start, aim=aim, done=done, deadline=deadline)
+                if found is not None:
+                    others = others[others.index(found.name) + 1 :]
+            elif self.handover and others and outcome in (REFINED, SKIPPED) and (limits := self._limits(name, q)):
+                found = self._first_answer(goal, others, refine, start, below=len(limits), aim=aim, done=done, deadline=deadline)
+                if found is not None:
+                    others = [h for h in hits if h != found.name]  # the strategy passed over stays an alternative
+                    handover = {"from": name, "limits": limits}
+            if found is not None:
+                name, q, residual, outcome, row = found
+                tree = self.atlas.maps[name]
+            elif aim is not None and outcome != REFINED:
+                # A stored posture holds no goal's orientation: what no refinement reached with it is unreachable.
+                return Answer(effector, tuple(goal.tolist()), None, False, refined=outcome, seconds=time.perf_counter() - t0)
+            elif outcome == FAILED and miss == "unreachable":
+                # No strategy's refinement reaches the goal: not reachable, and the nearest point a stored posture reaches.
+                joints, pose, _ = self._stored_posture(name, tree, row)
+                point = [float(v) for v in reached] if np.all(np.isfinite(reached)) else None
+                return Answer(effector, tuple(goal.tolist()), None, False, refined=FAILED, seconds=time.perf_counter() - t0,
+                              nearest={"strategy": name, "point": point, "distance": residual, "posture": joints, "root": pose})
+            if outcome == REFINED:
+                posture, root = split_posture(tree.posture_names, q)
+            else:
+                posture, root, fragment = self._stored_posture(name, tree, row)
+        within = residual if outcome in STORED else None  # a posture that was not refined at this goal says how near it comes
+        return Answer(effector, tuple(goal.tolist()), name, True, tuple(others), posture, root, residual, outcome, time.perf_counter() - t0,
+                      handover, within, None, fragment, self._index_of(name, row))
+
+    def probe(self, effector: str, goal: np.ndarray, restarts: int = 8) -> Answer | None:
+        """For a goal no tree holds: the first strategy of the effector, by priority, whose thorough solve (its
+        ``"referee"`` variant, ``restarts`` random starts besides its stored posture nearest the goal) reaches it, or
+        None. Offline (``reach evaluate``): a coarse tree beside a thin obstacle (a counter's top) misses goals a
+        posture reaches; the server never probes."""
+        t0 = time.perf_counter()
+        goal = np.asarray(goal, float)
+        for name in self.strategies_for(effector):
+            tree = self.atlas.maps[name]
+            nearest = self._nearest_row(name, tree, goal.tolist())
+            hint = None if nearest is None else tree.postures(nearest[0])[None]
+            meta = tree.meta
+            oracle = OracleSpec.from_dict(meta["oracle"]).create()
+            thorough = oracle.variant("referee", restarts=restarts) if isinstance(oracle, Tunable) else oracle
+            v = thorough.evaluate(Goals(goal[None], seeds=hint))
+            if v.reachable[0] and v.posture is not None:
+                posture, root = split_posture(tree.posture_names, v.posture[0])
+                return Answer(effector, tuple(goal.tolist()), name, True, (), posture, root, float(v.residual[0]), REFINED,
+                              time.perf_counter() - t0)
+        return None
+
+    def _limits(self, name: str, q: np.ndarray) -> list[str]:
+        """The joint limits a posture of a strategy comes within ``handover`` of (none when its oracle cannot tell)."""
+        oracle = self._oracle(name)
+        return list(oracle.limits_near(q, self.handover)) if isinstance(oracle, Limited) else []
+
+    def _first_answer(self, goal: np.ndarray, names: list[str], refine: bool, start: dict[str, float] | None,
+                      below: int | None = None, aim: np.ndarray | None = None, done: Prefetched | None = None,
+                      deadline: float | None = None) -> Found | None:
+        """The first of names (by priority) whose refinement reaches the goal (without refinement: whose tree
+        holds a posture) and, given ``below``, with fewer joints near their limits: its name, posture,
+        residual, refinement outcome and nearest stored row; None if none does (or, given ``below``, the time runs out)."""
+        point = goal.tolist()
+        for name in names:
+            tree = self.atlas.maps[name]
+            nearest = self._nearest_row(name, tree, point)
+            if nearest is None:
+                continue
+            row, reached = nearest
+            q: np.ndarray = tree.postures(row)
+            gap = float(np.linalg.norm(goal - reached))
+            residual: float | None = gap if np.isfinite(gap) else None
+            outcome = SKIPPED
+            if refine:
+                q, residual, outcome = self._refine(name, goal, q, residual, start, aim, done, deadline)
+                if outcome == TIMEOUT:  # out of time: no further strategy is tried
+                    # A handover keeps the answer it had; a failed goal is answered by this strategy's
+                    # stored posture, marked timeout: its tree holds the goal and nothing said otherwise.
+                    return None if below is not None else Found(name, q, residual, outcome, row)
+                if outcome != REFINED:
+                    continue
+            if below is None or len(self._limits(name, q)) < below:
+                return Found(name, q, residual, outcome, row)
+        return None
+
+    def _stored_posture(self, name: str, tree: ReachMap, row: int) -> tuple[dict[str, float], dict[str, list[float]] | None, bytes]:
+        """The stored posture of a vertex as dicts and as encoded JSON, from a bounded cache.
+
+        The dicts are shared between answers: treat them as read-only.
+        """
+        key = (name, row)
+        hit = self._postures.get(key)
+        if hit is None:
+            posture, root = split_posture(tree.posture_names, tree.postures(row))
+            fragment = json.dumps({"posture": posture, "root": root}, separators=(",", ":")).encode()[1:-1]
+            hit = self._postures[key] = (posture, root, fragment)
+            if len(self._postures) > POSTURE_CACHE:
+                self._postures.popitem(last=False)
+        else:
+            self._postures.move_to_end(key)
+        return hit
+
+    @staticmethod
+    def start_posture(tree: ReachMap, stored: np.ndarray, start: dict[str, float] | None) -> np.ndarray | None:
+        """The query's ``from`` as a full posture: the stored one with the given joints replaced."""
+        if start is None:
+            return None
+        names = tree.posture_names
+        unknown = sorted(set(start) - set(joint_names(names)))
+        if unknown:
+            raise InputError("from", f"unknown joints {unknown[:5]}; the posture's names are {', '.join(joint_names(names))}")
+        q = set_joints(names, stored.copy(), start, "from")
+        if "root_qx" in names:  # a client's quaternion, rounded, made a rotation again
+            i = names.index("root_qx")
+            q[i : i + 4] /= np.linalg.norm(q[i : i + 4])
+        return q
+
+    def _refine(self, name: str, goal: np.ndarray, q: np.ndarray, residual: float | None,
+                start_joints: dict[str, float] | None = None, aim: np.ndarray | None = None,
+                done: Prefetched | None = None, deadline: float | None = None) -> Refined:
+        if done is not None and name in done:
+            q_done, residual_done, outcome = done[name]
+            return (q_done, residual_done, outcome) if outcome == REFINED else (q, residual, outcome)
+        if start_joints is None:  # from the stored posture and the best liked near it, as a batch's goals are
+            return self._refine_many(name, goal[None], q[None], [residual], [aim], deadline)[0]
+        oracle, budget = self._tuned(name, 1, aim, deadline)
+        if budget < LEAST_SOLVE * self.budget:
+            return q, residual, TIMEOUT
+        t0 = time.perf_counter()
+        start = self.start_posture(self.atlas.maps[name], q, start_joints)  # from the character's posture
+        v = oracle.evaluate(Goals(goal[None], {} if aim is None else {"orientation": aim[None]}, start))
+        if v.reachable[0] and v.posture is not None:
+            return v.posture[0], float(v.residual[0]), REFINED
+        return q, residual, TIMEOUT if time.perf_counter() - t0 >= budget else FAILED
+
+    def _tuned(self, name: str, goals: int, aim: np.ndarray | None, deadline: float | None = None) -> tuple[Oracle, float]:
+        """The strategy's refinement oracle for ``goals`` goals and its budget [s]: theirs pooled, each at least
+        ``ORIENTED_BUDGET`` with an orientation, within the deadline."""
+        oracle = self._oracle(name)
+        budget = goals * (self.budget if aim is None else max(self.budget, ORIENTED_BUDGET))
+        if deadline is not None:
+            budget = min(budget, deadline - time.perf_counter())
+        budget -= min((1.0 - SOLVE_SHARE) * budget, SOLVE_RESERVE)
+        if budget > 0 and isinstance(oracle, Tunable):
+            oracle = oracle.variant("refine", budget=budget)
+        return oracle, budget
+
+    def _prefetch(self, g: np.ndarray, names: list[str], hits: np.ndarray, nearest: dict[int, tuple[int, np.ndarray] | None],
+                  aims: list[np.ndarray | None], deadline: float | None) -> tuple[list[Prefetched], np.ndarray]:
+        """Every refinement the answers of a batch will ask for, made in passes of one evaluate call per strategy:
+        each goal's first choice; then, for the goals it failed, the next strategy by priority (again, while
+        some fail); then, for goals answered with a joint near its limit, the next strategies until one comes
+        nearer fewer limits (the handover). Returns each goal's refinements by strategy, and which goals the
+        deadline left unrefined (their turn came after it)."""
+        n = len(g)
+        done: list[Prefetched] = [{} for _ in range(n)]
+        late = np.zeros(n, bool)
+        held = [[name for j, name in enumerate(names) if hits[j, i]] for i in range(n)]
+        first = [(i, held[i][0], nearest[i]) for i in range(n) if held[i] and nearest.get(i) is not None]
+        self._refine_pass(g, first, aims, deadline, done, late)
+        # What is left to try after the first choice: the other strategies, and the limits to beat (None: a fallback).
+        pending: dict[int, tuple[list[str], int | None]] = {}
+        for i, name, _ in first:
+            if name not in done[i]:
+                continue  # its turn came after the deadline
+            q, _, outcome = done[i][name]
+            if outcome == FAILED:
+                pending[i] = (held[i][1:], None)
+            elif outcome == REFINED and self.handover and len(held[i]) > 1 and (limits := self._limits(name, q)):
+                pending[i] = (held[i][1:], len(limits))
+        while pending:
+            items = []
+            for i, (rest, _) in pending.items():
+                while rest and (row := self._nearest_row(rest[0], self.atlas.maps[rest[0]], g[i].tolist())) is None:
+                    rest.pop(0)  # a strategy with no stored posture is passed over, as _first_answer does
+                if rest:
+                    items.append((i, rest[0], row))
+            self._refine_pass(g, items, aims, deadline, done, None)
+            for i, name, _ in items:
+                rest, below = pending[i]
+                q, _, outcome = done[i][name]
+                rest.pop(0)
+                if outcome == TIMEOUT or (outcome == REFINED and (below is None or len(self._limits(name, q)) < below)):
+                    rest.clear()  # answered, or out of time: no further strategy is tried
+            pending = {i: p for i, p in pending.items() if p[0]}
+        return done, late
+
+    def _refine_pass(self, g: np.ndarray, items: list[tuple[int, str, tuple[int, np.ndarray] | None]], aims: list[np.ndarray | None],
+                     deadline: float | None, done: list[Prefetched], late: np.ndarray | None) -> None:
+        """One pass of :meth:`_prefetch`: (goal, strategy, nearest stored row) items refined in one call per strategy.
+        Past the deadline a first pass (``late`` given) marks its goals late; a later pass records them ``timeout``."""
+        for name in dict.fromkeys(name for _, name, _ in items):
+            mine = [(i, row) for i, other, row in items if other == name and row is not None]
+            if not mine:
+                continue
+            if late is not None and deadline is not None and time.perf_counter() > deadline:
+                late[[i for i, _ in mine]] = True
+                continue
+            idx = np.array([i for i, _ in mine])
+            stored = self.atlas.maps[name].postures(np.array([row for _, (row, _) in mine]))
+            gaps = [float(np.linalg.norm(g[i] - reached)) for i, (_, reached) in mine]
+            found = self._refine_many(name, g[idx], stored, [gap if np.isfinite(gap) else None for gap in gaps],
+                                      [aims[i] for i in idx], deadline)
+            for i, refined in zip(idx, found, strict=True):
+                done[i][name] = refined
+
+    def _refine_many(self, name: str, goals: np.ndarray, stored: np.ndarray, residuals: list[float | None],
+                     aims: list[np.ndarray | None], deadline: float | None) -> list[Refined]:
+        """:meth:`_refine` for a strategy's goals (m, 3) in one evaluate call: each from its stored posture and the
+        best-liked one near it, within m refinements' budgets (and the deadline)."""
+        m = len(goals)
+        tuned, budget = self._tuned(name, m, aims[0], deadline)
+        if budget < LEAST_SOLVE * self.budget:
+            return [(q, r, TIMEOUT) for q, r in zip(stored, residuals, strict=True)]
+        liked = [self._best_liked(name, tuned, goal, q) for goal, q in zip(goals, stored, strict=True)] if isinstance(tuned, Preferring) else []
+        seeds = stored[:, None]
+        if any(q is not None for q in liked):
+            seeds = np.stack([stored, np.array([np.full(stored.shape[1], np.nan) if q is None else q for q in liked])], axis=1)
+        t0 = time.perf_counter()
+        v = tuned.evaluate(Goals(goals, {} if aims[0] is None else {"orientation": np.stack(aims)}, None, seeds))  # type: ignore[arg-type]
+        over = time.perf_counter() - t0 >= budget
+        return [(v.posture[k], float(v.residual[k]), REFINED) if v.reachable[k] and v.posture is not None
+                else (stored[k], residuals[k], TIMEOUT if over else FAILED) for k in range(m)]
+
+    def _best_liked(self, name: str, oracle: Preferring, goal: np.ndarray, q: np.ndarray) -> np.ndarray | None:
+        """The stored posture the oracle likes best among the ``SEEDS`` reachable vertices nearest the goal,
+        None when that is ``q`` itself or the oracle likes them all alike (it cannot tell; see ``SEEDS``)."""
+        found = self._kd.get(name)
+        if found is None:
+            return None
+        kd, rows = found[0], found[1]
+        _, near = kd.query(goal, k=min(SEEDS, len(rows)))
+        candidates = list(self.atlas.maps[name].postures(rows[np.atleast_1d(near)]))
+        liked = [oracle.preference(c, goal) for c in candidates]
+        if min(liked) == max(liked):
+            return None  # no preference: another start would only cost a solve
+        best = candidates[int(np.argmin(liked))]
+        return None if np.array_equal(best, q) else best
+
+    def select(self, effector: str, goal: np.ndarray, refine: bool | None = None, start: dict[str, float] | None = None,
+               miss: str | None = None, orientation: np.ndarray | None = None) -> Answer:
+        """Choose a strategy for one goal [m] (``start``, ``miss``, ``orientation``: see :meth:`select_many`)."""
+        return self.select_many(effector, np.asarray(goal, dtype=float).reshape(1, -1), refine, start, miss, orientation)[0]

@@ -1,0 +1,330 @@
+"""Atlases: one tree per strategy of a configuration, built and summarised.
+
+``build_atlas`` runs Algorithm 1 for every strategy of a config and writes
+the trees and the manifest. It checkpoints each strategy after every depth
+(``OUT/.partial/<name>.npz``), so a killed build resumes where it stopped
+(``resume=True``); finished trees whose fingerprint matches are kept.
+A strategy with ``mirror_of`` is derived by mirroring when the body passes
+the symmetry check (:mod:`reach.build.mirror`), unless ``mirror=False``. A
+strategy built after a *sub-strategy* (same body and effector, a subset of
+its joints; the crouch after the whole body) inherits that tree's reachable
+vertices once its own oracle has verified their postures
+(:class:`reach.build.tree.Inherited`), unless ``inherit=False``.
+``summary`` is what ``reach info`` prints.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import platform
+import time
+from collections.abc import Callable
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from oracles.protocol import (
+    Described,
+    KeepOut,
+    Mirrorable,
+    ModelHashed,
+    Oracle,
+    OracleSpec,
+    Specified,
+    Tunable,
+    Verifying,
+)
+from reach.build.checkpoint import load_state, save_state
+from reach.build.config import Config, StrategySpec, grown
+from reach.build.executor import Executor, InlineExecutor
+from reach.build.index import compute_index
+from reach.build.tree import Inherited, build_tree
+from reach.errors import ModelError, StoreError
+from reach.maps.index import ReachIndex, spiral
+from reach.maps.index import summary as index_summary
+from reach.maps.store import Atlas, build_lock, load_atlas, load_indexed, save_tree, write_manifest
+from reach.maps.tree import FINAL, INNER, VATree
+
+PARTIAL = ".partial"
+
+
+def package_versions() -> dict[str, str]:
+    out = {"python": platform.python_version()}
+    for pkg in ("reach", "numpy", "scipy", "pin", "casadi", "pyzmq"):
+        try:
+            out[pkg] = version(pkg)
+        except PackageNotFoundError:
+            pass
+    return out
+
+
+def fingerprint(config: Config, strategy: StrategySpec, oracle: Oracle) -> str:
+    """Identifies what a strategy's tree depends on: its oracle (the build's, with the defaults it fills in), B0 and
+    depths."""
+    # The spec as the oracle completes it (its engine, its search): a tree built by another default engine is not
+    # kept (the spec as written was, when the default solver became the batched engine).
+    spec = oracle.spec.to_dict() if isinstance(oracle, Specified) else strategy.oracle.to_dict()
+    parts: dict[str, Any] = {"oracle": spec, "box": config.box.to_dict(), "depth": [config.d_min, config.d_max], "refine": config.refine.to_dict()}
+    if strategy.directions:
+        parts["directions"] = strategy.directions
+    text = json.dumps(parts, sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def sub_strategies(order: list[StrategySpec], oracle_of: Callable[[StrategySpec], Oracle] | None = None) -> dict[str, str]:
+    """For each strategy, the sub-strategy it inherits from, if any: built before it, on the same body and
+    effector, with a subset of its active joints (the largest such subset; the earliest among equals).
+
+    ``oracle_of`` gives a strategy's oracle (a build's own, made once); by default each is made here."""
+    seen: dict[str, tuple[str, str, frozenset[str], tuple[str, ...]]] = {}
+    for s in order:
+        oracle = oracle_of(s) if oracle_of is not None else s.oracle.create()  # builds no solver
+        if isinstance(oracle, Described) and isinstance(oracle, ModelHashed):
+            seen[s.name] = (oracle.model_hash, s.effector, frozenset(oracle.describe()["joints"]), tuple(oracle.posture_names))
+    out: dict[str, str] = {}
+    for k, s in enumerate(order):
+        if s.name not in seen:
+            continue
+        body, effector, joints, names = seen[s.name]
+        subs = [t.name for t in order[:k] if t.name in seen and seen[t.name][:2] == (body, effector) and seen[t.name][3] == names
+                and seen[t.name][2] < joints]
+        if subs:
+            out[s.name] = max(subs, key=lambda n: (len(seen[n][2]), -subs.index(n)))
+    return out
+
+
+def _mirror_source(s: StrategySpec, built: dict[str, VATree], oracle_of: Callable[[str], Oracle], log: Callable[[str], None]) -> tuple[VATree, Any] | None:
+    """The source tree and posture mirror if s may be derived by mirroring, else None (with the reason logged)."""
+    if s.mirror_of is None or s.mirror_of not in built:
+        return None
+    source = built[s.mirror_of]
+    oracle = oracle_of(s.mirror_of)  # builds no solver
+    if not isinstance(oracle, Mirrorable):
+        log(f"{s.name}: built, not mirrored: its oracle has no body whose symmetry could be checked")
+        return None
+    try:
+        mirror = oracle.mirror()
+    except ModelError as exc:
+        log(f"{s.name}: built, not mirrored: {exc}")
+        return None
+    return source, mirror
+
+
+GROWS = 3  # box: auto: how many times B0 may grow after a build whose reachable vertices lie on its faces
+
+
+def face_text(faces: dict[str, int]) -> str:
+    """The warning for reachable vertices on faces of B0 (see :meth:`VATree.faces`)."""
+    listed = ", ".join(f"{n} on {f}" for f, n in faces.items())
+    return f"reachable vertices lie on faces of the box ({listed}): the box cuts the volume there; enlarge it on those faces"
+
+
+def build_atlas(
+    config: Config,
+    out: str | Path,
+    *,
+    executor_factory: Callable[[OracleSpec], Executor] | None = None,
+    progress: bool = False,
+    log: Callable[[str], None] | None = None,
+    resume: bool = False,
+    mirror: bool = True,
+    inherit: bool = True,
+) -> Atlas:
+    """Build every strategy's tree of a config into the folder out.
+
+    Args:
+        config: The validated configuration.
+        out: Output folder; created if needed.
+        executor_factory: Called with an OracleSpec, returns an Executor;
+            inline by default.
+        progress: Show progress bars.
+        log: Receives one line of text per strategy.
+        resume: Keep finished trees and continue from checkpoints.
+        mirror: Derive ``mirror_of`` strategies by mirroring when allowed.
+        inherit: Let a strategy inherit a sub-strategy's reachable vertices (see :func:`sub_strategies`).
+    """
+    say = log or (lambda _line: None)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    with build_lock(out):
+        atlas = _build_locked(config, out, executor_factory, progress, say, resume, mirror, inherit)
+        for _ in range(GROWS if config.limit is not None else 0):
+            cut = {f for w in atlas.manifest["warnings"]["faces"] for f in w["faces"]}
+            if any(s.mirror_of for s in config.strategies) and cut & {"y-", "y+"}:
+                cut |= {"y-", "y+"}  # a mirrored atlas keeps its box symmetric about y = 0
+            box = grown(config.box, config.limit, cut) if cut and config.limit is not None else None
+            if box is None:
+                break
+            say(f"box: auto: reachable vertices lie on {', '.join(sorted(cut))}; B0 grows to min {box.lo.tolist()} max {box.hi.tolist()} [m], "
+                "and every strategy is built again")
+            config = dataclasses.replace(config, box=box)
+            atlas = _build_locked(config, out, executor_factory, progress, say, resume, mirror, inherit)
+        return atlas
+
+
+def _build_locked(
+    config: Config, out: Path, executor_factory: Callable[[OracleSpec], Executor] | None, progress: bool,
+    say: Callable[[str], None], resume: bool, mirror: bool, inherit: bool,
+) -> Atlas:
+    """build_atlas's work, with the folder locked."""
+    from reach.build.mirror import MirrorOracle
+    entries = []
+    warnings: list[dict[str, Any]] = []
+    built: dict[str, VATree] = {}
+    t0 = time.perf_counter()
+    # Mirror sources first, so that their trees exist when their images are made.
+    order = sorted(config.strategies, key=lambda s: s.mirror_of is not None)
+    made: dict[str, Oracle] = {}  # each strategy's oracle, made once for this build (a body each)
+
+    def oracle_of(s: StrategySpec) -> Oracle:
+        if s.name not in made:
+            made[s.name] = s.oracle.create()
+        return made[s.name]
+
+    by_name = {s.name: s for s in order}
+    subs = sub_strategies(order, oracle_of) if inherit else {}
+    prints: dict[str, str] = {}
+    for s in order:
+        path, partial = out / f"{s.name}.npz", out / PARTIAL / f"{s.name}.npz"
+        fp = fingerprint(config, s, oracle_of(s))
+        if s.name in subs:  # the tree depends on its sub-strategy's too
+            fp = hashlib.sha256(f"{fp} {prints[subs[s.name]]}".encode()).hexdigest()[:16]
+        prints[s.name] = fp
+        meta: dict[str, Any] = {"name": s.name, "atlas": config.name, "effector": s.effector, "priority": s.priority, "oracle": s.oracle.to_dict(), "fingerprint": fp}
+        tree, index = None, None
+        if resume and path.is_file():
+            try:
+                old, old_index = load_indexed(path)
+                if old.meta.get("fingerprint") == fp:
+                    tree, index = old, old_index
+                    say(f"{s.name}: kept the finished tree")
+                else:
+                    # The strategy, its oracle, the body or a sub-strategy it inherits from changed.
+                    say(f"{s.name}: rebuilding (the config changed since {path.name} was built)")
+            except StoreError as exc:
+                say(f"{s.name}: rebuilding ({exc})")
+        source = _mirror_source(s, built, lambda name: oracle_of(by_name[name]), say) if tree is None and mirror else None
+        if tree is None and source is not None:
+            tree = build_tree(MirrorOracle(*source), config.box, config.d_min, config.d_max, meta={**meta, "mirrored_from": s.mirror_of},
+                              keep_out=_keep_out(oracle_of(s)))
+            # The mirror oracle only looks verdicts up: no oracle call is made.
+            tree.meta["build"].update(mirrored_from=s.mirror_of, lookups=tree.meta["build"]["oracle_calls"], oracle_calls=0)
+            if "model_hash" in source[0].meta:
+                tree.meta["model_hash"] = source[0].meta["model_hash"]
+            say(f"{s.name}: mirrored from {s.mirror_of} ({len(tree)} nodes, no oracle call)")
+        if tree is None:
+            sub = subs.get(s.name)
+            parent = (sub, built[sub]) if sub is not None and sub in built else None
+            tree = _build_one(config, s, meta, partial, fp, executor_factory, progress, resume, parent, oracle_of(s))
+            b = tree.meta["build"]
+            also = f", {b['inherited']} reachable vertices inherited from {sub}" if "inherited_from" in tree.meta else ""
+            say(f"{s.name}: {b['oracle_calls']} oracle calls{also}, {len(tree)} nodes, inner volume {tree.volume(INNER):.6g}, {b['seconds']:.2f} s")
+        if s.directions and index is None and tree.vertices.posture is not None:
+            tree, index = _index_one(config, s, tree, executor_factory, progress, oracle_of(s))
+            i = tree.meta["index"]
+            say(f"{s.name}: reachability index over {s.directions} directions: {i['goals']} goals solved, mean {i['mean']:.3f} at reachable "
+                f"vertices, {i['seconds']:.2f} s")
+        save_tree(tree, path, index)
+        partial.unlink(missing_ok=True)
+        built[s.name] = tree
+        faces = tree.faces()
+        if faces:
+            warnings.append({"strategy": s.name, "faces": faces})
+            say(f"warning: {s.name}: {face_text(faces)}")
+        entries.append({"name": s.name, "effector": s.effector, "priority": s.priority, "file": path.name, "oracle": s.oracle.to_dict(), "fingerprint": fp,
+                        "digest": tree.meta["digest"]})
+    entries.sort(key=lambda e: (e["priority"], e["name"]))
+    manifest = {
+        "name": config.name,
+        "config": config.raw,
+        "source": config.source,
+        "strategies": entries,
+        "model_hashes": sorted({t.meta["model_hash"] for t in built.values() if "model_hash" in t.meta}),
+        "versions": package_versions(),
+        "build_seconds": time.perf_counter() - t0,
+        "warnings": {"config": list(config.notes), "faces": warnings},
+    }
+    write_manifest(out, manifest)
+    if (out / PARTIAL).is_dir() and not any((out / PARTIAL).iterdir()):
+        (out / PARTIAL).rmdir()
+    return load_atlas(out)
+
+
+def _build_one(
+    config: Config, s: StrategySpec, meta: dict[str, Any], partial: Path, fp: str,
+    executor_factory: Callable[[OracleSpec], Executor] | None, progress: bool, resume: bool, parent: tuple[str, VATree] | None = None,
+    oracle: Oracle | None = None,
+) -> VATree:
+    state = load_state(partial, fp) if resume and partial.is_file() else None
+    ex: Executor = executor_factory(s.oracle) if executor_factory else InlineExecutor(oracle or s.oracle, config.chunk_size)
+    try:
+        if isinstance(ex.oracle, ModelHashed):
+            meta["model_hash"] = ex.oracle.model_hash
+        inherit = None
+        if parent is not None and isinstance(ex.oracle, Verifying):
+            inherit = Inherited(parent[0], parent[1].vertices, ex.oracle.verify)
+            meta["inherited_from"] = parent[0]
+        return build_tree(
+            s.oracle, config.box, config.d_min, config.d_max, executor=ex, progress=s.name if progress else False, meta=meta, state=state,
+            on_level=lambda st: save_state(st, partial, fp), refine=config.refine, keep_out=_keep_out(ex.oracle), inherit=inherit,
+        )
+    finally:
+        ex.close()
+
+
+def _index_one(config: Config, s: StrategySpec, tree: VATree, executor_factory: Callable[[OracleSpec], Executor] | None, progress: bool,
+               oracle: Oracle) -> tuple[VATree, ReachIndex]:
+    """The tree, its meta counting the index's cost, and its reachability index (see :mod:`reach.maps.index`), solved by the strategy's ``index`` variant."""
+    assert isinstance(oracle, Tunable)  # the config checked it
+    variant = oracle.variant("index")
+    ex: Executor = executor_factory(variant.spec) if executor_factory and isinstance(variant, Specified) else InlineExecutor(variant, config.chunk_size)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(unit="goal", leave=False, dynamic_ncols=True, desc=f"{s.name} index")
+    t0 = time.perf_counter()
+    try:
+        index, solved = compute_index(tree, ex, spiral(s.directions), None if bar is None else bar.update)
+    finally:
+        ex.close()
+        if bar is not None:
+            bar.close()
+    reachable = tree.vertices.reachable
+    meta = {**tree.meta, "index": {"directions": s.directions, "goals": solved, "seconds": time.perf_counter() - t0,
+                                   "mean": float(index.share[reachable].mean()) if reachable.any() else 0.0}}
+    return dataclasses.replace(tree, meta=meta), index
+
+
+def _keep_out(oracle: object) -> np.ndarray | None:
+    """The oracle's keep-out capsules (see :class:`oracles.protocol.KeepOut`), or None."""
+    return oracle.keep_out() if isinstance(oracle, KeepOut) else None
+
+
+def tree_summary(tree: VATree, index: ReachIndex | None = None) -> dict[str, Any]:
+    """The per-strategy block of ``reach info --json``."""
+    ext, reach = tree.extent(), tree.reachable_extent()
+    build = tree.meta.get("build", {})
+    return {
+        "nodes": {str(d): counts for d, counts in tree.node_counts().items()},
+        "oracle_calls": tree.oracle_calls,
+        "lattice_vertices": tree.lattice.vertex_count,
+        "volume": {"inner": tree.volume(INNER), "boundary": tree.volume(FINAL)},
+        "extent": {"min": ext[0].tolist(), "max": ext[1].tolist()} if ext else None,
+        "reachable_extent": {"min": reach[0].tolist(), "max": reach[1].tolist()} if reach else None,
+        "on_faces": tree.faces(),
+        "effector": tree.meta.get("effector"),
+        "priority": tree.meta.get("priority"),
+        "box": tree.box.to_dict(),
+        "depth": {"min": tree.d_min, "max": tree.d_max},
+        "resolution": tree.lattice.resolution.tolist(),
+        "build_seconds": build.get("seconds"),
+        "mirrored_from": build.get("mirrored_from"),
+        "inherited_from": tree.meta.get("inherited_from"),
+        "inherited_vertices": int(build.get("inherited", 0)),
+        "index": index_summary(tree, index),
+    }

@@ -1,0 +1,414 @@
+"""Build configurations: YAML files validated into frozen specs.
+
+A configuration names the box B0, the depths, the default oracle and the
+strategies, and for bodies the body (see :func:`oracles.bodies.body.load_body`) and
+each strategy's ``joints`` and ``tasks`` (see :mod:`oracles.ik.strategy`).
+Example (``configs/sphere.yaml``)::
+
+    name: sphere
+    box: {min: [-1.0, -1.0, -1.0], max: [1.0, 1.0, 1.0]}   # metres, or: box: auto
+    depth: {min: 2, max: 7}
+    oracle: {name: sphere, params: {center: [0, 0, 0], radius: 1.0}}
+    strategies:
+      - {name: sphere, effector: point, priority: 1}
+
+``box: auto`` (or ``box: {auto: {margin: 0.05, floor: auto}}``) derives B0
+from the body's size: the union of every strategy's reach bound (a ball
+about its fixed anchor: the first moving joint, or a planted foot), plus the
+margin [m], and symmetric about y = 0 when a strategy is mirrored. The world
+is z-up (a body's ``up`` turns it so). With ``floor: auto`` a strategy's
+ball is cut at z = 0 when its floor task keeps the effector above the floor;
+``true`` cuts every ball there, ``false`` none.
+
+Strategies are tried in increasing ``priority`` (1 first); the default is
+their order in the file. A strategy's ``oracle.params`` are merged over the
+default oracle's params, and its ``oracle.name`` replaces the default's.
+
+Every error names the file and the dotted key, and says what was expected.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from oracles.protocol import Diagnosed, Floored, Oracle, OracleSpec, Oriented, Probing, ReachBound, Tunable, body_params
+from reach.build.executor import CHUNK_SIZE
+from reach.build.tree import Refine
+from reach.errors import ConfigError, ModelError, ReachError, TreeError
+from reach.maps.box import Box
+from reach.maps.index import MAX_DIRECTIONS
+from reach.maps.tree import MAX_DEPTH
+
+DEFAULT_BODY_ORACLE = "casadi-ik"
+TOP_KEYS = {"name", "description", "base", "body", "box", "depth", "oracle", "strategies", "build"}
+STRATEGY_KEYS = {"name", "effector", "priority", "oracle", "description", "joints", "tasks", "mirror_of", "directions"}
+BUILD_KEYS = {"chunk_size", "refine"}
+REFINE_KEYS = {"centres", "faces", "isolated"}
+
+
+@dataclass(frozen=True)
+class StrategySpec:
+    """One way to reach: an effector, a priority and the oracle that decides.
+
+    Attributes:
+        name: Unique name; the tree file is ``<name>.npz``.
+        effector: What reaches (a frame name such as ``right_hand``).
+        priority: Rank among strategies of the same effector; lower is tried first.
+        oracle: The oracle deciding reachability for this strategy.
+        mirror_of: A strategy whose tree, mirrored about y = 0, may stand for
+            this one's when the body is mirror-symmetric.
+        directions: Approach directions of the reachability index (0: none; see :mod:`reach.maps.index`).
+    """
+
+    name: str
+    effector: str
+    priority: int
+    oracle: OracleSpec
+    description: str = ""
+    mirror_of: str | None = None
+    directions: int = 0
+
+
+@dataclass(frozen=True)
+class Config:
+    """A validated build configuration."""
+
+    name: str
+    source: str
+    box: Box
+    d_min: int
+    d_max: int
+    strategies: tuple[StrategySpec, ...]
+    chunk_size: int = CHUNK_SIZE
+    refine: Refine = field(default_factory=Refine)
+    raw: dict[str, Any] = field(default_factory=dict, compare=False)
+    notes: tuple[str, ...] = field(default=(), compare=False)  # load-time warnings (see Diagnosed), each naming its strategies
+    limit: Box | None = None  # box: auto: the provable bound B0 may grow to when reachable vertices lie on its faces
+
+    def strategy(self, name: str) -> StrategySpec:
+        for s in self.strategies:
+            if s.name == name:
+                return s
+        raise ConfigError(self.source, "strategies", f"no strategy {name!r}; known: {[s.name for s in self.strategies]}")
+
+
+class _Checker:
+    """Type checks that name the file and key."""
+
+    def __init__(self, source: str) -> None:
+        self.source = source
+
+    def fail(self, key: str, reason: str) -> ConfigError:
+        return ConfigError(self.source, key, reason)
+
+    def mapping(self, value: Any, key: str, allowed: set[str], required: set[str] = frozenset()) -> dict[str, Any]:  # type: ignore[assignment]
+        if not isinstance(value, Mapping):
+            raise self.fail(key, f"expected a mapping, got {type(value).__name__}")
+        prefix = f"{key}." if key else ""
+        for k in value:
+            if k not in allowed:
+                raise self.fail(f"{prefix}{k}", f"unknown key; allowed: {', '.join(sorted(allowed))}")
+        for k in sorted(required):
+            if k not in value:
+                raise self.fail(f"{prefix}{k}", "required key is missing")
+        return dict(value)
+
+    def integer(self, value: Any, key: str, lo: int, hi: int) -> int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise self.fail(key, f"expected an integer, got {value!r}")
+        if not lo <= value <= hi:
+            raise self.fail(key, f"expected an integer in [{lo}, {hi}], got {value}")
+        return value
+
+    def string(self, value: Any, key: str) -> str:
+        if not isinstance(value, str) or not value.strip():
+            raise self.fail(key, f"expected a non-empty string, got {value!r}")
+        return value
+
+    def vector(self, value: Any, key: str) -> list[float]:
+        if not isinstance(value, list) or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+            raise self.fail(key, f"expected a list of numbers [m], got {value!r}")
+        return [float(v) for v in value]
+
+
+def _oracle(check: _Checker, value: Any, key: str, base: OracleSpec | None) -> OracleSpec:
+    spec = check.mapping(value, key, {"name", "params"}, set() if base else {"name"})
+    params = spec.get("params", {})
+    if not isinstance(params, Mapping):
+        raise check.fail(f"{key}.params", f"expected a mapping, got {type(params).__name__}")
+    name = check.string(spec["name"], f"{key}.name") if "name" in spec else base.name  # type: ignore[union-attr]
+    merged = {**(base.params if base and base.name == name else {}), **params}
+    return OracleSpec(name, merged)
+
+
+def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atlas") -> Config:
+    """Validate a parsed YAML document into a :class:`Config`."""
+    check = _Checker(source)
+    top = check.mapping(data, "", TOP_KEYS, {"box", "depth", "strategies"} | (set() if isinstance(data, dict) and "body" in data else {"oracle"}))
+    name = check.string(top.get("name", default_name), "name")
+    if not name.replace("_", "").replace("-", "").replace(".", "").isalnum() or name.startswith("."):
+        # It names the default output folder (out/<name>): no separators, no "..".
+        raise check.fail("name", f"use letters, digits, '-', '_' and '.' only, not first (it names the folder out/<name>), got {name!r}")
+    auto = _auto_box(check, top["box"])
+    if auto is None:
+        box_raw = check.mapping(top["box"], "box", {"min", "max"}, {"min", "max"})
+        lo, hi = check.vector(box_raw["min"], "box.min"), check.vector(box_raw["max"], "box.max")
+        if len(lo) not in (2, 3) or len(lo) != len(hi):
+            raise check.fail("box", f"min and max must both have 2 or 3 coordinates, got {len(lo)} and {len(hi)}")
+        try:
+            box = Box(np.array(lo), np.array(hi))
+        except TreeError as exc:
+            raise check.fail("box", str(exc)) from exc
+    else:
+        box = Box(-np.ones(3), np.ones(3))  # a stand-in until the oracles give the real one
+    limit = None
+    depth = check.mapping(top["depth"], "depth", {"min", "max"}, {"min", "max"})
+    d_max = check.integer(depth["max"], "depth.max", 0, MAX_DEPTH)
+    d_min = check.integer(depth["min"], "depth.min", 0, MAX_DEPTH)
+    if d_min > d_max:
+        raise check.fail("depth.min", f"D_min ({d_min}) must not exceed D_max ({d_max})")
+    # A body's oracle defaults to casadi-ik, the reference engine; an analytic atlas names its shape.
+    default = _oracle(check, top.get("oracle", {"name": DEFAULT_BODY_ORACLE}), "oracle", None)
+    raw_strategies = top["strategies"]
+    if not isinstance(raw_strategies, list) or not raw_strategies:
+        raise check.fail("strategies", "expected a non-empty list of strategies")
+    strategies = []
+    seen: set[str] = set()
+    for i, item in enumerate(raw_strategies):
+        key = f"strategies[{i}]"
+        s = check.mapping(item, key, STRATEGY_KEYS, {"name"})
+        sname = check.string(s["name"], f"{key}.name")
+        if sname in seen:
+            raise check.fail(f"{key}.name", f"duplicate strategy name {sname!r}")
+        if not sname.replace("_", "").replace("-", "").isalnum():
+            raise check.fail(f"{key}.name", f"use letters, digits, '-' and '_' only (it names a file), got {sname!r}")
+        seen.add(sname)
+        effector = check.string(s.get("effector", "point"), f"{key}.effector")
+        priority = check.integer(s.get("priority", i + 1), f"{key}.priority", 0, 10**6)
+        oracle = _oracle(check, s["oracle"], f"{key}.oracle", default) if "oracle" in s else default
+        if "joints" in s or "tasks" in s or "body" in top:
+            # A body strategy: the IK oracle receives the body, the effector, the joints and the tasks.
+            if "body" not in top:
+                raise check.fail(f"{key}.joints", "joints and tasks need a top-level 'body'")
+            if "joints" not in s:
+                raise check.fail(f"{key}.joints", "required key is missing (the joints this strategy may move)")
+            oracle = OracleSpec(oracle.name, {**oracle.params, **body_params(top["body"], effector, s["joints"], s.get("tasks"))})
+        mirror_of = check.string(s["mirror_of"], f"{key}.mirror_of") if "mirror_of" in s else None
+        directions = check.integer(s.get("directions", 0), f"{key}.directions", 0, MAX_DIRECTIONS)
+        strategies.append(StrategySpec(sname, effector, priority, oracle, str(s.get("description", "")), mirror_of, directions))
+    build = check.mapping(top.get("build", {}), "build", BUILD_KEYS)
+    chunk = check.integer(build.get("chunk_size", CHUNK_SIZE), "build.chunk_size", 1, 10**7)
+    refine_raw = check.mapping(build.get("refine", {}), "build.refine", REFINE_KEYS)
+    for k, v in refine_raw.items():
+        if not isinstance(v, bool):
+            raise check.fail(f"build.refine.{k}", f"expected true or false, got {v!r}")
+    refine = Refine(**refine_raw)
+    oracles = _check_oracles(check, strategies, box.dim)
+    for i, (spec, made) in enumerate(zip(strategies, oracles, strict=True)):
+        if spec.directions and not (isinstance(made, Oriented) and isinstance(made, Tunable) and "direction" in made.orientation_kinds()):
+            raise check.fail(f"strategies[{i}].directions", "the reachability index needs an orientation task with an axis (the effector's "
+                             "approach axis whose directions it counts), e.g. {type: orientation, axis: z}")
+    notes = _diagnose(strategies, oracles)
+    if auto is not None:
+        box, limit = _derive_box(check, oracles, auto, any(spec.mirror_of for spec in strategies))
+    names = {spec.name for spec in strategies}
+    for i, spec in enumerate(strategies):
+        if spec.mirror_of is not None and (spec.mirror_of not in names or spec.mirror_of == spec.name):
+            raise check.fail(f"strategies[{i}].mirror_of", f"expected the name of another strategy, got {spec.mirror_of!r}")
+        if spec.mirror_of is not None and box.dim == 3 and box.lo[1] != -box.hi[1]:
+            raise check.fail(f"strategies[{i}].mirror_of", f"mirroring needs a box symmetric about y = 0, got y in [{box.lo[1]}, {box.hi[1]}]")
+    strategies.sort(key=lambda spec: spec.priority)
+    return Config(name, source, box, d_min, d_max, tuple(strategies), chunk, refine, dict(top), notes, limit)
+
+
+def _diagnose(strategies: list[StrategySpec], oracles: list[Oracle]) -> tuple[str, ...]:
+    """Each oracle's load-time findings (see :class:`~oracles.protocol.Diagnosed`), once each, naming the strategies it concerns."""
+    found: dict[str, list[str]] = {}
+    for s, oracle in zip(strategies, oracles, strict=True):
+        if isinstance(oracle, Diagnosed):
+            for finding in oracle.diagnose():
+                found.setdefault(finding, []).append(s.name)
+    return tuple(f"{'strategy' if len(names) == 1 else 'strategies'} {', '.join(names)}: {finding}" for finding, names in found.items())
+
+
+def _check_oracles(check: _Checker, strategies: list[StrategySpec], dim: int) -> list[Oracle]:
+    """Build each oracle once so that bad params fail at load time, naming the key.
+
+    Building an oracle validates it (a body oracle builds its body and
+    parses its tasks) but solves and compiles nothing.
+    """
+    out = []
+    for i, s in enumerate(strategies):
+        try:
+            oracle = s.oracle.create()
+        except ModelError as exc:
+            # A body oracle's error names where in the body or strategy it lies: name it as the config writes it.
+            key = exc.key if exc.key and exc.key.split(".")[0].split("[")[0] == "body" else f"strategies[{i}].{exc.key or 'oracle'}"
+            raise check.fail(key, f"{exc.source}: {exc.reason}" if exc.source else exc.reason) from exc
+        except ReachError as exc:
+            raise check.fail(f"strategies[{i}].oracle", str(exc)) from exc
+        if oracle.dim != dim:
+            raise check.fail("box", f"box is {dim}-D but strategy {s.name!r} uses a {oracle.dim}-D oracle")
+        out.append(oracle)
+    return out
+
+
+def _auto_box(check: _Checker, value: Any) -> dict[str, Any] | None:
+    """Options of a derived box (``box: auto`` or ``box: {auto: {margin: m, floor: auto}}``), or None for a given one."""
+    if value == "auto":
+        return {"margin": 0.05, "floor": "auto"}
+    if isinstance(value, Mapping) and "auto" in value:
+        check.mapping(value, "box", {"auto"})
+        opts = check.mapping(value["auto"] if value["auto"] is not True else {}, "box.auto", {"margin", "floor"})
+        margin = opts.get("margin", 0.05)
+        if isinstance(margin, bool) or not isinstance(margin, (int, float)) or not 0 <= margin <= 2:
+            raise check.fail("box.auto.margin", f"expected a number of metres in [0, 2], got {margin!r}")
+        floor = opts.get("floor", "auto")
+        if floor not in (True, False, "auto"):
+            raise check.fail("box.auto.floor", f"expected auto, true or false, got {floor!r}")
+        return {"margin": float(margin), "floor": floor}
+    return None
+
+
+PROBE_PAD = 0.15  # of a probed extent, added on each side: the 26 probes find the extremes along their own directions only
+
+
+def _derive_box(check: _Checker, oracles: list[Oracle], auto: dict[str, Any], symmetric: bool) -> tuple[Box, Box]:
+    """B0 from the bodies' size, and the provable bound it may grow to (see :func:`grown`).
+
+    Each strategy's reach bound (a ball about its fixed anchor) bounds its
+    volume; where the oracle can probe its extent (:class:`~oracles.protocol.Probing`),
+    the probed extent padded by ``PROBE_PAD`` of itself and the margin,
+    within the ball, sizes its box instead (a standing body's ball about a
+    foot is 4 m wide; its reach is not).
+    """
+    lows, highs, limit_lo, limit_hi = [], [], [], []
+    for o in oracles:
+        bound = o.reach_bound() if isinstance(o, ReachBound) else None
+        if bound is None:
+            raise check.fail("box", "box: auto needs body strategies whose reach is bounded (a fixed root, or feet on the floor); give box.min and box.max")
+        centre, radius = bound
+        ball_lo, ball_hi = np.asarray(centre - radius - auto["margin"], float), np.asarray(centre + radius + auto["margin"], float)
+        # The floor z = 0 cuts a strategy's box where the strategy itself keeps its effector above it (auto),
+        # or everywhere (true); a robot without a floor task reaches below its base's plane.
+        floor = (o.lowest() if isinstance(o, Floored) else None) if auto["floor"] == "auto" else (0.0 if auto["floor"] else None)
+        if floor is not None:
+            ball_lo[2] = max(ball_lo[2], floor)
+        low, high = ball_lo.copy(), ball_hi.copy()
+        extent = o.reach_extent() if isinstance(o, Probing) else None
+        if extent is not None:
+            pad = PROBE_PAD * (extent[1] - extent[0]) + auto["margin"]
+            low, high = np.maximum(extent[0] - pad, ball_lo), np.minimum(extent[1] + pad, ball_hi)
+        lows.append(low)
+        highs.append(high)
+        limit_lo.append(ball_lo)
+        limit_hi.append(ball_hi)
+    lo, hi = np.min(lows, axis=0), np.max(highs, axis=0)
+    top_lo, top_hi = np.min(limit_lo, axis=0), np.max(limit_hi, axis=0)
+    if symmetric:
+        for a, b in ((lo, hi), (top_lo, top_hi)):
+            half = max(-a[1], b[1])
+            a[1], b[1] = -half, half
+    return Box(np.round(lo, 4), np.round(hi, 4)), Box(np.round(top_lo, 4), np.round(top_hi, 4))
+
+
+GROW = 0.25  # of the box's extent, by which a face that reachable vertices lie on moves out (within the limit)
+
+
+def grown(box: Box, limit: Box, faces: set[str]) -> Box | None:
+    """B0 with each named face (``x-``, ``z+`` ...) moved out by ``GROW`` of the box's extent, within limit; None if none can move."""
+    lo, hi = box.lo.copy(), box.hi.copy()
+    size = hi - lo
+    for face in faces:
+        axis = "xyz".index(face[0])
+        if face[1] == "-":
+            lo[axis] = max(limit.lo[axis], lo[axis] - GROW * size[axis])
+        else:
+            hi[axis] = min(limit.hi[axis], hi[axis] + GROW * size[axis])
+    if np.array_equal(lo, box.lo) and np.array_equal(hi, box.hi):
+        return None
+    return Box(np.round(lo, 4), np.round(hi, 4))
+
+
+def _merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
+    """Mappings merge key by key; anything else in over replaces base."""
+    out = dict(base)
+    for k, v in over.items():
+        out[k] = _merge(out[k], v) if isinstance(v, Mapping) and isinstance(out.get(k), Mapping) else v
+    return out
+
+
+class _DuplicateKey(Exception):
+    def __init__(self, key: str, line: int) -> None:
+        super().__init__(key)
+        self.key, self.line = key, line
+
+
+class _StrictLoader(yaml.SafeLoader):
+    """PyYAML's safe loader, refusing a mapping that gives a key twice (PyYAML keeps the last silently)."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+        seen: set[Any] = set()
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)  # type: ignore[no-untyped-call]
+            if key in seen:
+                raise _DuplicateKey(str(key), key_node.start_mark.line + 1)
+            seen.add(key)
+        return super().construct_mapping(node, deep)  # type: ignore[no-any-return]
+
+
+def _one_line(exc: yaml.YAMLError) -> str:
+    """A YAML error as one line: what is wrong, and where (PyYAML's own message spans several lines)."""
+    problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+    mark = getattr(exc, "problem_mark", None)
+    where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+    hint = " (YAML indents with spaces, not tabs)" if "'\\t'" in str(problem) else ""
+    return f"{problem}{where}{hint}"
+
+
+def read_yaml(path: Path, seen: tuple[Path, ...] = ()) -> Any:
+    """A config document, with its ``base`` (a config it extends) merged under it.
+
+    Relative paths (``base``, ``body.urdf``) are relative to the file naming them.
+    """
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ConfigError(path, "", f"cannot read: {exc.strerror or exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise ConfigError(path, "", f"not UTF-8 text (byte {exc.start}): a config is a YAML file in UTF-8") from None
+    try:
+        data = yaml.load(text, Loader=_StrictLoader)  # a SafeLoader subclass: safe
+    except _DuplicateKey as exc:
+        raise ConfigError(path, exc.key, f"duplicate key (line {exc.line}); give each key once") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(path, "", f"not valid YAML: {_one_line(exc)}") from None
+    if not isinstance(data, Mapping):
+        return data
+    data = dict(data)
+    body = data.get("body")
+    if isinstance(body, Mapping) and isinstance(body.get("urdf"), str) and not Path(body["urdf"]).is_absolute():
+        data["body"] = {**body, "urdf": str((path.parent / body["urdf"]).resolve())}
+    if "base" in data:
+        if not isinstance(data["base"], str):
+            raise ConfigError(path, "base", f"expected the path of a config to extend, got {data['base']!r}")
+        base_path = (path.parent / data.pop("base")).resolve()
+        if base_path in seen:
+            raise ConfigError(path, "base", f"{base_path} extends itself")
+        base = read_yaml(base_path, (*seen, path.resolve()))
+        if not isinstance(base, Mapping):
+            raise ConfigError(base_path, "", "expected a mapping")
+        data = _merge({k: v for k, v in base.items() if k != "name"}, data)
+    return data
+
+
+def load_config(path: str | Path) -> Config:
+    """Read and validate a YAML configuration file."""
+    path = Path(path)
+    return parse_config(read_yaml(path), str(path), path.stem)

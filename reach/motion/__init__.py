@@ -1,0 +1,1 @@
+"""Motion: paths between postures along a map, and their files (the rig, BVH and glTF)."""

@@ -1,0 +1,825 @@
+"""``reach serve``: the real-time strategy selector over ZeroMQ.
+
+One ROUTER socket answers requests (REQ and DEALER clients alike); one PUB
+socket publishes every choice, topic = the effector, with the request's id
+and tag. One poll loop with a timeout; nothing a client sends can stop it:
+every malformed request gets a structured error reply (see
+:mod:`reach.serving.protocol` and docs/protocol.md), and an unexpected exception
+becomes an ``internal`` error reply. SIGINT and SIGTERM stop the loop
+cleanly when the server runs in the main thread.
+
+With ``workers`` > 0 the loop is a load-balancing broker (zguide, chapter
+3): it answers ``health``, ``strategies``, ``cells`` and stored-posture
+queries itself, at once, and hands every query that needs IK refinement to
+worker processes (:mod:`reach.serving.workers`), split into chunks; it works on
+many requests concurrently. A request's ``deadline`` (or a default of the
+budget per goal plus 5 s) bounds it: when it passes, the goals not yet
+refined keep their stored postures, marked ``timeout``, the reply goes, and
+the request's queued work is dropped. A resend of a pending request (same
+client, same id) is answered once.
+
+``reload`` (only with ``allow_reload``) loads the new atlas in a thread
+while the current one answers, and the loop swaps it in when it is ready.
+
+Binds to 127.0.0.1 by default. With a CURVE secret-key file (as written by
+``zmq.auth.create_certificates``) both sockets encrypt, and clients must
+know the server's public key.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import dataclasses
+import gc
+import logging
+import math
+import signal
+import sys
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import zmq
+import zmq.auth
+
+from reach import __version__
+from reach.answers.select import (
+    ERROR,
+    HANDOVER,
+    MISS,
+    ORIENTED_BUDGET,
+    REFINE_BUDGET,
+    SKIPPED,
+    TIMEOUT,
+    Answer,
+    Selector,
+    orientation_of,
+)
+from reach.errors import InputError, ReachError, UnknownEffector, UnknownStrategy
+from reach.maps.protocol import DEFAULT_POLICY, raster
+from reach.maps.store import load_atlas
+from reach.motion.planner import MotionError, Planner, Timing
+from reach.motion.rig import with_bones
+from reach.serving import protocol as P
+from reach.serving.client import load_curve_key
+from reach.serving.services import placements
+from reach.serving.workers import EXPIRED, Pool, Task, Tasks
+from reach.serving.workers import FAILED as WORKER_FAILED
+
+log = logging.getLogger("reach.serving.server")
+SLACK = 5.0  # [s] a request's default deadline: the budget per goal, plus this ...
+MAX_WAIT = 60.0  # [s] ... and at most this: a client that vanished without a deadline of its own holds the workers no longer
+LOG_EVERY = 60.0  # [s] an identical internal error's traceback is logged at most this often
+REVIVE_EVERY = 0.5  # [s] how often the loop looks for dead workers
+FAILED_TASK = WORKER_FAILED + b" the worker died"
+# Choices published per pass of the loop (about 5 ms of it: 5 us a message, measured): a 10,000-goal batch's
+# publications held the loop 135 ms in one pass.
+PUBLISH_SLICE = 1000
+PUB_MORE, PUB_LAST = int(zmq.NOBLOCK | zmq.SNDMORE), int(zmq.NOBLOCK)  # plain ints: pyzmq's flag enums cost 3 us a message
+ZERO_COPY = 1 << 16  # [bytes] replies this large or larger are sent without copying (pyzmq: copy=False)
+EXPIRE_SLICE = 100  # stored answers an expired request gets per pass of the loop (about 15 ms of it: 0.15 ms a goal, measured)
+
+
+@dataclass
+class Reloading:
+    """An atlas loading in the background for a ``reload`` request."""
+
+    envelope: list[bytes]
+    request: P.Request
+    path: Path
+    future: concurrent.futures.Future
+
+
+@dataclass
+class Pending:
+    """A query the workers are refining."""
+
+    envelope: list[bytes]
+    request: P.Request
+    key: tuple[bytes, bytes] | None  # (client, id): a resend of it is not computed again
+    deadline: float
+    parts: list[list[bytes] | None]
+    bounds: list[tuple[int, int]]
+    goals: int = 0  # the goals it holds of its client's share (0: a request answered whole counts as a request)
+
+
+
+def check_endpoint(address: str, flag: str) -> None:
+    """A ZeroMQ address a server may bind, or an InputError naming the flag: ``tcp://HOST:PORT`` (PORT 1-65535, or
+    ``*`` for any free one), ``ipc://PATH`` or ``inproc://NAME``. libzmq itself took port 99999 as another port."""
+    scheme, sep, rest = address.partition("://")
+    if not sep or scheme not in ("tcp", "ipc", "inproc") or not rest or "\0" in rest:
+        raise InputError(flag, f"expected tcp://HOST:PORT, ipc://PATH or inproc://NAME, got {address!r}")
+    if scheme == "tcp":
+        host, colon, port = rest.rpartition(":")
+        if not colon or not host or not (port == "*" or (port.isdigit() and 1 <= int(port) <= 65535)):
+            raise InputError(flag, f"expected tcp://HOST:PORT with PORT from 1 to 65535 or *, got {address!r}")
+
+
+def _bind(socket: zmq.Socket, address: str, flag: str) -> None:  # type: ignore[type-arg]
+    try:
+        socket.bind(address)
+    except zmq.ZMQError as exc:
+        raise InputError(flag, f"cannot bind {address}: {exc.strerror}") from None
+
+class Server:
+    """The selector behind a ROUTER and a PUB socket.
+
+    Args:
+        atlas: Atlas folder to serve.
+        bind: Address of the request socket.
+        pub: Address of the publishing socket, or None for none.
+        policy: Boundary-cell policy of the selector.
+        refine: Refine postures by IK unless a request says otherwise.
+        budget: Time budget of one refinement [s] (per goal).
+        handover: [rad] A strategy whose posture has joints this near their
+            limits hands the goal over (see :mod:`reach.answers.select`); 0: plain priority.
+        miss: What a goal the trees hold but no refinement reaches answers,
+            ``unreachable`` or ``within`` (see :mod:`reach.answers.select`), unless a request says.
+        allow_reload: The folder under which ``reload`` may load atlases; None
+            (the default) refuses every ``reload``.
+        curve_clients: With ``curve_secret``, a folder of client public-key
+            files (``*.key``): only those clients are let in (pyzmq's ZAP
+            authenticator). Without it any client key pair is accepted.
+        chunk: Refined goals per worker task at most. Within it a task is
+            sized by the goals' measured cost to take about one refinement
+            budget (``reach.serving.workers.TASK_SECONDS``): a query waits for a busy
+            worker to finish its task, so the chunks stay small enough to share
+            the workers between clients, and large enough to refine together.
+        curve_secret: Path of the server's CURVE secret-key file, or None.
+        context: A zmq context (a new one by default).
+        workers: Refinement worker processes; 0 refines in the request loop.
+    """
+
+    def __init__(
+        self, atlas: str | Path, bind: str = P.DEFAULT_BIND, pub: str | None = P.DEFAULT_PUB, *, policy: str = DEFAULT_POLICY,
+        refine: bool = True, budget: float = REFINE_BUDGET, curve_secret: str | Path | None = None, context: zmq.Context | None = None,
+        workers: int = 0, handover: float = HANDOVER, miss: str = MISS, allow_reload: str | Path | None = None,
+        curve_clients: str | Path | None = None, chunk: int = P.CHUNK_GOALS,
+    ) -> None:
+        if isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1:
+            raise InputError("--chunk", f"expected a whole number of goals >= 1, got {chunk!r}")
+        self.chunk = chunk
+        # reload is off unless the operator names the folder under which atlases may be loaded.
+        self.reload_root = None if allow_reload is None else Path(allow_reload).resolve()
+        keys = load_curve_key(curve_secret, secret=True, what="--curve-secret-key") if curve_secret else None  # before any socket
+        if curve_clients is not None and (keys is None or not Path(curve_clients).is_dir()):
+            raise InputError("--curve-clients", f"{curve_clients}: expected a folder of client public-key files, with --curve-secret-key")
+        if curve_clients is not None:
+            # Each file the authenticator will read (pyzmq reads *.key), checked now: one malformed file emptied the
+            # allow-list after "serving" was printed, and every client was refused.
+            for key_file in sorted(Path(curve_clients).glob("*.key")):
+                load_curve_key(key_file, secret=False, what="--curve-clients")
+        check_endpoint(bind, "--bind")
+        if pub:
+            check_endpoint(pub, "--pub")
+        self.atlas_path = Path(atlas)
+        self.refine, self.budget = refine, budget
+        # The selector's options, as the workers' selectors get them too.
+        self.options: dict[str, Any] = {"policy": policy, "refine": refine, "budget": budget, "handover": handover, "miss": miss}
+        self.selector = Selector(load_atlas(self.atlas_path), **self.options).warm_up()
+        self.context = context or zmq.Context.instance()
+        self.router = self.context.socket(zmq.ROUTER)
+        self.router.setsockopt(zmq.LINGER, 0)
+        # A hard cap far above the protocol limit: larger requests still get a
+        # too_large reply; only absurd ones drop the connection.
+        self.router.setsockopt(zmq.MAXMSGSIZE, 64 * P.MAX_MESSAGE_BYTES)
+        # A client that reconnects under its identity (a Lazy Pirate resend) takes it over.
+        self.router.setsockopt(zmq.ROUTER_HANDOVER, 1)
+        # What one client can make the server hold unread: RCVHWM messages of at most 1 MiB each (the default of
+        # 1000 let 40 requests of 60 MiB take the loop from 311 MB to 3.19 GB).
+        self.router.setsockopt(zmq.RCVHWM, P.RCVHWM)
+        self.publisher = self.context.socket(zmq.PUB) if pub else None
+        sockets = [self.router] + ([self.publisher] if self.publisher else [])
+        self.authenticator = None
+        if curve_clients is not None:
+            from zmq.auth.thread import ThreadAuthenticator
+
+            # ZAP: libzmq asks this thread about every CURVE handshake; keys not in the folder are refused.
+            self.authenticator = ThreadAuthenticator(self.context, log=logging.getLogger("reach.serving.server.auth"))
+            self.authenticator.start()
+            self.authenticator.configure_curve(domain="*", location=str(curve_clients))
+        if keys is not None:
+            for s in sockets:
+                s.curve_secretkey, s.curve_publickey, s.curve_server = keys[1], keys[0], True
+        self.pub_endpoint = None
+        try:
+            _bind(self.router, bind, "--bind")
+            self.endpoint = self.router.getsockopt(zmq.LAST_ENDPOINT).decode()
+            if self.publisher is not None:
+                self.publisher.setsockopt(zmq.LINGER, 0)
+                self.publisher.setsockopt(zmq.SNDHWM, P.PUB_HWM)
+                _bind(self.publisher, pub, "--pub")  # type: ignore[arg-type]
+                self.pub_endpoint = self.publisher.getsockopt(zmq.LAST_ENDPOINT).decode()
+        except InputError:
+            # Nothing of a server that could not bind is left behind: its sockets, and the CURVE thread.
+            for s in sockets:
+                s.close(linger=0)
+            if self.authenticator is not None:
+                self.authenticator.stop()
+            raise
+        self._stop = threading.Event()
+        self._signalled = False  # set by SIGINT/SIGTERM: a handler that only assigns can never deadlock (Event.set locks)
+        self.started = time.monotonic()
+        self.requests = 0
+        self.errors = 0
+        self.resends = 0
+        self._logged: dict[str, float] = {}
+        self.pending: dict[int, Pending] = {}
+        self.by_key: dict[tuple[bytes, bytes], int] = {}
+        self.expiring: deque[int] = deque()  # requests past their deadline, answered from the store slice by slice
+        self.publishing: deque[tuple[bytes, bytes, list[bytes], int]] = deque()  # (topic, head, bodies, next): choices to publish
+        self.held: dict[bytes, int] = {}  # goals each client has pending (see _admit)
+        self.held_requests: dict[bytes, int] = {}
+        self._seq = 0
+        self.pool = Pool(self.context, self.atlas_path, self.options, int(workers)) if workers > 0 else None
+        # reload loads in this thread, so no request waits for it; the loop swaps the atlas in when it is ready.
+        self._loader: concurrent.futures.ThreadPoolExecutor | None = None
+        self.reloading: Reloading | None = None
+        self._planner: Planner | None = None  # motions without workers, made on the first
+
+    # -- lifecycle ---------------------------------------------------------
+    def stop(self) -> None:
+        """Ask the loop to finish (thread- and signal-safe)."""
+        self._stop.set()
+
+    def handle_signals(self) -> None:
+        """Make SIGINT and SIGTERM end the loop (from the main thread only; before "serving" is printed, so that a
+        signal sent as soon as it is seen is the server's)."""
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                signal.signal(sig, self._on_signal)
+
+    def _on_signal(self, signum: int, frame: object) -> None:
+        # Only a flag: Event.set() takes a lock, and a second signal arriving inside it blocked the process for good.
+        self._signalled = True
+
+    @property
+    def running(self) -> bool:
+        """Whether the loop goes on: neither stop() nor a signal has asked it to end."""
+        return not (self._signalled or self._stop.is_set())
+
+    def close(self) -> None:
+        if self._loader is not None:
+            self._loader.shutdown(wait=True, cancel_futures=True)
+        if self.pool is not None:
+            self.pool.close()
+        self.router.close(linger=0)
+        if self.publisher is not None:
+            self.publisher.close(linger=0)
+        if self.authenticator is not None:
+            self.authenticator.stop()
+
+    def serve_forever(self) -> None:
+        """Poll and answer until stop() or SIGINT/SIGTERM."""
+        self.handle_signals()
+        # What is loaded now lives as long as the server: keep it out of the
+        # garbage collector's scans, which otherwise show in the latency tail.
+        gc.collect()
+        gc.freeze()
+        try:
+            if self.pool is None:
+                # A blocking receive with a timeout wakes fastest; the timeout lets the
+                # loop see a stop request within POLL_MS.
+                self.router.setsockopt(zmq.RCVTIMEO, P.POLL_MS)
+                while self.running:
+                    try:
+                        frames = self.router.recv_multipart()
+                    except zmq.Again:
+                        frames = None
+                    if frames is not None:
+                        self.handle(frames)
+                    if self.reloading is not None and self.reloading.future.done():
+                        self._swap()
+            else:
+                self._broker()
+        finally:
+            self.close()
+
+    def _broker(self) -> None:
+        """The loop with workers: clients in front, workers behind, deadlines in between."""
+        assert self.pool is not None
+        poller = zmq.Poller()
+        poller.register(self.router, zmq.POLLIN)
+        backend = None
+        next_check = time.monotonic() + REVIVE_EVERY
+        while self.running:
+            if backend is not self.pool.backend:  # a reload replaced the workers
+                if backend is not None:
+                    poller.unregister(backend)
+                backend = self.pool.backend
+                poller.register(backend, zmq.POLLIN)
+            soonest = min((p.deadline for p in self.pending.values()), default=math.inf)
+            wait = 0.0 if self.expiring or self.publishing else max(0.0, min(P.POLL_MS / 1000.0, soonest - time.monotonic()))
+            events = dict(poller.poll(int(math.ceil(wait * 1000))))
+            if self.router in events:
+                for _ in range(64):  # clients first: a stored answer never waits behind workers' results
+                    try:
+                        frames = self.router.recv_multipart(zmq.NOBLOCK)
+                    except zmq.Again:
+                        break
+                    self.handle(frames)
+            while backend in events and backend.poll(0):  # everything the workers have sent
+                got = self.pool.receive()
+                if got is not None:
+                    self._finished(*got)
+            if time.monotonic() >= next_check:
+                next_check = time.monotonic() + REVIVE_EVERY
+                for task in self.pool.revive():  # a crashed worker's chunk is answered from the store
+                    log.error("a refinement worker died; restarted it")
+                    self._finished(task, [FAILED_TASK])
+            self._expire()
+            self._drain_publications()
+            if self.reloading is not None and self.reloading.future.done():
+                self._swap()
+
+    # -- one request -------------------------------------------------------
+    def handle(self, frames: list[bytes]) -> None:
+        """Answer one multipart message; never raises for anything a client sent."""
+        identity, rest = frames[0], frames[1:]
+        envelope = [identity]
+        if rest and rest[0] == b"" and len(rest) >= 2:
+            envelope.append(b"")  # a REQ client's delimiter, echoed back
+            rest = rest[1:]
+        self.requests += 1
+        if len(rest) != 1:
+            reply: bytes | None = P.error_reply(P.BAD_FRAMES, f"expected one payload frame after the envelope, got {len(rest)}")
+        else:
+            reply = self.respond(rest[0], envelope)
+        if reply is not None:
+            self._send(envelope, reply)
+
+    def _send(self, envelope: list[bytes], reply: bytes) -> None:
+        try:
+            # A large reply is handed to libzmq without a copy (pyzmq's advice past about 64 KB).
+            self.router.send_multipart([*envelope, reply], zmq.NOBLOCK, copy=len(reply) < ZERO_COPY)
+        except zmq.ZMQError as exc:  # the peer vanished, or its queue is full
+            log.warning("reply dropped: %s", exc)
+
+    def respond(self, payload: bytes, envelope: list[bytes] | None = None) -> bytes | None:
+        """The reply to one payload, or None when the workers will answer it."""
+        rid = None
+        try:
+            req = P.parse_request(payload)
+            rid = req.id
+            later = P.OPERATIONS[req.op].later
+            if envelope is not None and (self._deferred(req, envelope) or (later is not None and getattr(self, later)(req, envelope))):
+                return None
+            return P.ok_reply(self.dispatch(req), rid)
+        except Exception as exc:  # noqa: BLE001 - nothing a client sends may stop the server
+            return self._error(exc, rid)
+
+    def _error(self, exc: Exception, rid: Any) -> bytes:
+        """The error reply of an exception raised while answering a request (a bug's is logged as ``internal``)."""
+        self.errors += 1
+        if isinstance(exc, P.ProtocolError):
+            return P.error_reply(exc.code, exc.message, exc.request_id if exc.request_id is not None else rid)
+        if isinstance(exc, MotionError):
+            return P.error_reply(exc.code, str(exc), rid)
+        if isinstance(exc, ReachError):
+            code = P.UNKNOWN_EFFECTOR if isinstance(exc, UnknownEffector) else P.UNKNOWN_STRATEGY if isinstance(exc, UnknownStrategy) else P.BAD_REQUEST
+            return P.error_reply(code, str(exc), rid)
+        self._log_internal(exc)
+        return P.error_reply(P.INTERNAL, f"{type(exc).__name__}: {exc}", rid)
+
+    def dispatch(self, req: P.Request) -> bytes:
+        """The encoded result object of a valid request, from its operation's handler."""
+        result = getattr(self, P.OPERATIONS[req.op].handler)(req)
+        return result if isinstance(result, bytes) else P.encode(result)
+
+    # -- the operations' handlers (declared in reach.serving.protocol.OPERATIONS) -----
+    def op_query(self, req: P.Request) -> bytes:
+        # Without workers the loop refines; a deadline stops it refining, and later goals get their stored postures.
+        deadline = None if req["deadline"] is None else time.perf_counter() + req["deadline"]
+        answers = self.selector.select_many(req["effector"], np.array(req["goals"]), req["refine"], start=req["from"], miss=req["miss"],
+                                            orientation=orientation_of(req["orientation"]), deadline=deadline)
+        return self._result(req, [a.to_json() for a in answers])
+
+    def op_motion(self, req: P.Request) -> bytes:
+        # Without workers the loop plans; a deadline stops it (a timeout error), as a worker's does.
+        deadline = None if req["deadline"] is None else time.perf_counter() + req["deadline"]
+        motion = self.planner.plan(req["effector"], np.array(req["goal"]), req["from"], rate=req["rate"],
+                                   timing=Timing.from_dict(req["timing"]), miss=req["miss"], deadline=deadline)
+        data = with_bones(motion.to_dict(), motion, self.planner.body(motion.strategy)) if req["bones"] else motion.to_dict()
+        return self._motion_result(req, P.encode(motion.summary()), P.encode(data))
+
+    @property
+    def planner(self) -> Planner:
+        """The motion planner on the selector served now (made again after a reload)."""
+        if self._planner is None or self._planner.served is not self.selector:
+            self._planner = Planner(self.selector)
+        return self._planner
+
+    def _motion_result(self, req: P.Request, summary: bytes, body: bytes) -> bytes:
+        """Publish a motion's summary (everything but its frames) on the effector's topic; the reply is the whole motion."""
+        self._publish(req["effector"].encode(), [summary], req)
+        return body
+
+    def op_hello(self, req: P.Request) -> dict[str, Any]:
+        self._publish(b"hello", [b"{}"], req)
+        return {"published": self.publisher is not None}
+
+    def op_version(self, req: P.Request) -> dict[str, Any]:
+        return {"protocol": P.VERSION, "reach": __version__, "operations": list(P.OPS)}
+
+    def op_health(self, req: P.Request) -> dict[str, Any]:
+        return {
+            "status": "serving", "protocol": P.VERSION, "atlas": str(self.atlas_path), "strategies": len(self.selector.order),
+            "uptime": time.monotonic() - self.started, "requests": self.requests, "errors": self.errors,
+            "workers": 0 if self.pool is None else self.pool.size, "pending": len(self.pending), "resends": self.resends,
+            "worker_restarts": 0 if self.pool is None else self.pool.restarts,
+            "workers_ready": 0 if self.pool is None else self.pool.ready,
+        }
+
+    def op_strategies(self, req: P.Request) -> dict[str, Any]:
+        trees = self.selector.atlas.trees
+        return {"strategies": [
+            {"name": n, "effector": e, "priority": int(trees[n].meta.get("priority", 0)), "box": trees[n].box.to_dict(), "d_max": trees[n].d_max}
+            for n, e in self.selector.order
+        ], "effectors": self.selector.effectors, "frame": "world: z up, x forward, y left; metres, radians"}
+
+    def op_reload(self, req: P.Request) -> dict[str, Any]:
+        """Load and swap at once (an in-process call; over the socket the load runs in the background)."""
+        path = self._reload_path(req)
+        return self._install(req, path, lambda: self._load(path))
+
+    def _reload_path(self, req: P.Request) -> Path:
+        if self.reload_root is None:
+            raise P.ProtocolError(P.FORBIDDEN, "reload is off; the operator allows it with reach serve --allow-reload ROOT", req.id)
+        if "\0" in (req["path"] or ""):
+            raise P.ProtocolError(P.BAD_REQUEST, "path: a NUL character cannot be in a file path", req.id)
+        # Checked before the path is touched: a refused path reveals nothing of what exists there.
+        path = (self.reload_root / req["path"]).resolve() if req["path"] else self.atlas_path
+        if not path.is_relative_to(self.reload_root):
+            raise P.ProtocolError(P.FORBIDDEN, f"reload loads atlases under {self.reload_root} only", req.id)
+        return path
+
+    def _load(self, path: Path) -> Selector:
+        return Selector(load_atlas(path), **self.options).warm_up()
+
+    def _reload_later(self, req: P.Request, envelope: list[bytes]) -> bool:
+        """Start loading a ``reload``'s atlas in the background; its reply goes when the loop has swapped it in."""
+        path = self._reload_path(req)
+        if self.reloading is not None:
+            raise P.ProtocolError(P.RELOAD_FAILED, f"kept the current atlas: another reload ({self.reloading.path}) is loading", req.id)
+        if self._loader is None:
+            self._loader = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="reach-reload")
+        self.reloading = Reloading(envelope, req, path, self._loader.submit(self._load, path))
+        return True
+
+    def _swap(self) -> None:
+        """Serve the atlas a background reload has loaded, and answer its request."""
+        job, self.reloading = self.reloading, None
+        assert job is not None
+        try:
+            reply = P.ok_reply(P.encode(self._install(job.request, job.path, job.future.result)), job.request.id)
+        except Exception as exc:  # noqa: BLE001 - the reload's error reply; the current atlas stays
+            reply = self._error(exc, job.request.id)
+        self._send(job.envelope, reply)
+
+    def _install(self, req: P.Request, path: Path, loaded: Callable[[], Selector]) -> dict[str, Any]:
+        """Swap in the selector ``loaded`` gives (one assignment, between two requests); the workers restart on it."""
+        try:
+            selector = loaded()
+        except ReachError as exc:
+            raise P.ProtocolError(P.RELOAD_FAILED, f"kept the current atlas: {exc}", req.id) from None
+        self.selector, self.atlas_path = selector, path
+        if self.pool is not None:
+            # The workers hold the old atlas: answer their requests from the store, and start new ones.
+            for seq in list(self.pending):
+                self.pending[seq].deadline = 0.0
+            self._expire(slice_goals=sys.maxsize)  # all at once: the old atlas's workers go
+            self.pool.close()
+            self.pool = Pool(self.context, path, self.options, self.pool.size)
+        return {"atlas": str(path), "strategies": len(selector.order)}
+
+    def op_place(self, req: P.Request) -> dict[str, Any]:
+        """Placements of the served body ranked by its trees against the request's targets (see :mod:`reach.answers.place`);
+        with workers a worker answers it (seconds at its limit, which held the loop)."""
+        return placements(self.selector.atlas, req.args, self.selector.policy)  # type: ignore[arg-type]
+
+    def op_cells(self, req: P.Request) -> dict[str, Any]:
+        """Centres of the reachable cells of each strategy on a regular grid (for markers in RViz)."""
+        atlas = self.selector.atlas
+        out = {}
+        for name in atlas.select([req["strategy"]] if req["strategy"] else None):
+            tree = atlas.trees[name]
+            level = min(req["level"], tree.d_max)
+            occ, edges = raster(atlas.map(name), level)
+            centres = np.stack(np.meshgrid(*[0.5 * (e[1:] + e[:-1]) for e in edges], indexing="ij"), axis=-1)[occ]
+            out[name] = {"effector": tree.meta.get("effector"), "priority": tree.meta.get("priority"),
+                         "size": (tree.box.size / (1 << level)).tolist(), "centres": np.round(centres, 6).tolist()}
+        return {"cells": out, "level": req["level"]}
+
+    def _result(self, req: P.Request, bodies: list[bytes]) -> bytes:
+        self._publish(req["effector"].encode(), bodies, req)
+        return bodies[0] if req["single"] else P.batch_body(bodies)
+
+    # -- with workers ----------------------------------------------------------
+    def _deferred(self, req: P.Request, envelope: list[bytes]) -> bool:
+        """Hand a request that needs IK to the workers; False when the loop answers it itself.
+
+        Everything a worker could refuse is checked here first (the effector,
+        the goals' dimension, the ``from`` joints), so a worker only fails on a bug.
+        """
+        service = P.OPERATIONS[req.op].worker
+        if self.pool is None or service is None:
+            return False
+        return bool(getattr(self, service.defer)(req, envelope))
+
+    def _defer_query(self, req: P.Request, envelope: list[bytes]) -> bool:
+        """Hand a query's goals to the workers when they need IK or are many; False when the loop answers at once."""
+        goals = np.array(req["goals"])
+        refine = self.refine if req["refine"] is None else req["refine"]
+        if refine:
+            if req["orientation"] is not None:
+                aims = orientation_of(req["orientation"])
+                self.selector.oriented(req["effector"], aims[0] if isinstance(aims, list) else aims)  # type: ignore[arg-type]
+            # Nothing to refine (an analytic atlas, or no strategy holds a goal): stored answers.
+            refine = self.selector.needs_ik(req["effector"], goals, req["from"])
+        elif len(goals) > P.STORED_IN_LOOP:
+            self.selector.check_goals(req["effector"], goals, req["from"])
+        if not refine and len(goals) <= P.STORED_IN_LOOP:
+            return False  # answered at once; a larger stored batch (1.4-1.8 s for 10,000 in the loop) goes to the workers
+        return self._defer_goals(req, envelope, goals, refine)
+
+    def _defer_goals(self, req: P.Request, envelope: list[bytes], goals: np.ndarray, refine: bool) -> bool:
+        """Hand a query's goals to the workers in chunks (refined, or their stored answers when not ``refine``)."""
+        assert self.pool is not None
+        n = len(goals)
+        chunk = self.pool.chunk(self.chunk) if refine else P.STORED_IN_LOOP  # stored answers cost little each: a chunk is about 0.15 s
+        size = max(1, min(chunk, math.ceil(n / max(1, self.pool.size))))
+        bounds = [(a, min(n, a + size)) for a in range(0, n, size)]
+        each = self.budget if req["orientation"] is None else max(self.budget, ORIENTED_BUDGET)  # see reach.answers.select
+        seq = self._pend(req, envelope, min(n * each + SLACK, MAX_WAIT) if refine else MAX_WAIT, bounds, n)
+        if seq is not None:
+            deadline, orientation = self.pending[seq].deadline, req["orientation"]
+
+            def make(part: int) -> Task:
+                a, b = bounds[part]
+                return Task(seq, part, req["effector"], req["goals"][a:b].tolist(), req["from"], deadline, req["miss"], envelope[0],
+                            orientation=orientation[a:b] if isinstance(orientation, list) else orientation, refine=refine)
+
+            self.pool.submit(Tasks(make, len(bounds), seq, envelope[0], deadline))
+        return True
+
+    def _defer_motion(self, req: P.Request, envelope: list[bytes]) -> bool:
+        """Hand a motion to the workers, once what they could refuse is checked here."""
+        self.selector.check_goals(req["effector"], np.array([req["goal"]]), req["from"])
+        Timing.from_dict(req["timing"])
+        options = {"rate": req["rate"], "timing": req["timing"], "miss": req["miss"], "bones": req["bones"]}
+        return self._defer_whole(req, envelope, [req["goal"]], options)
+
+    def _defer_place(self, req: P.Request, envelope: list[bytes]) -> bool:
+        """Hand a placement to the workers."""
+        return self._defer_whole(req, envelope, [], {"fields": req.args})
+
+    def _defer_whole(self, req: P.Request, envelope: list[bytes], goals: list[list[float]], options: dict[str, Any]) -> bool:
+        """Hand a request a worker answers whole (a motion, a placement) to the workers; it counts as a request, not
+        as goals, against what a client may hold (MAX_CLIENT_REQUESTS)."""
+        assert self.pool is not None
+        service = P.OPERATIONS[req.op].worker
+        assert service is not None
+        seq = self._pend(req, envelope, MAX_WAIT, [(0, 1)], 0)
+        if seq is not None:
+            self.pool.submit(Task(seq, 0, req.args.get("effector") or "", goals, req.args.get("from"), self.pending[seq].deadline, None,
+                                  envelope[0], req.op, options, whole_cost=service.cost))
+        return True
+
+    def _pend(self, req: P.Request, envelope: list[bytes], wait: float, bounds: list[tuple[int, int]], goals: int) -> int | None:
+        """Register a request the workers will answer in ``bounds`` parts, by its deadline (``wait`` [s] unless it
+        gives one), holding ``goals`` of its client's share; its sequence number, or None for a resend of a request
+        being worked on (answered once)."""
+        key = (envelope[0], P.encode_value(req.id)) if req.id is not None else None
+        if key is not None and key in self.by_key:
+            self.resends += 1
+            return None
+        self._admit(envelope[0], goals, req.id)
+        if goals:
+            # One array, not a list of lists: a held 10,000-goal batch was 40,000 objects for the garbage collector
+            # to scan on every full collection, in the loop.
+            req.args["goals"] = np.asarray(req["goals"], float)
+        given = req.args.get("deadline")  # place has none
+        deadline = time.monotonic() + (given if given is not None else wait)
+        self._seq += 1
+        self.pending[self._seq] = Pending(envelope, req, key, deadline, [None] * len(bounds), bounds, goals)
+        self.held[envelope[0]] = self.held.get(envelope[0], 0) + goals
+        self.held_requests[envelope[0]] = self.held_requests.get(envelope[0], 0) + 1
+        if key is not None:
+            self.by_key[key] = self._seq
+        return self._seq
+
+    def _admit(self, client: bytes, goals: int, rid: Any) -> None:
+        """Refuse with ``busy`` work that would take a client, or every client together, over what the server holds
+        queued (docs/protocol.md, limits): memory is bounded whatever the deadlines, and a client that left holds
+        at most its share until its requests' deadlines."""
+        mine, requests, total = self.held.get(client, 0), self.held_requests.get(client, 0), sum(self.held.values())
+        server_full = total + goals > P.MAX_QUEUED_GOALS
+        if not server_full and mine + goals <= P.MAX_CLIENT_GOALS and requests + 1 <= P.MAX_CLIENT_REQUESTS:
+            return
+        what = (f"the server has {total} goals queued (at most {P.MAX_QUEUED_GOALS})" if server_full else
+                f"this client has {mine} goals in {requests} requests queued (at most {P.MAX_CLIENT_GOALS} goals, {P.MAX_CLIENT_REQUESTS} requests)")
+        # By its deadline at the latest, the soonest of the work counted is answered (an expiring one: within passes).
+        now = time.monotonic()
+        soonest = min((min(p.deadline, now) for p in self.pending.values() if server_full or p.envelope[0] == client), default=now)
+        retry = max(0.1, round(soonest - now, 1))
+        raise P.ProtocolError(P.BUSY, f"{what}; retry in about {retry:g} s, when some of it is answered", rid)
+
+    def _release(self, pending: Pending) -> None:
+        """Forget a pending request's share of its client's held work (it is answered)."""
+        client = pending.envelope[0]
+        left = self.held.get(client, 0) - pending.goals
+        requests = self.held_requests.get(client, 0) - 1
+        if left > 0 or requests > 0:
+            self.held[client], self.held_requests[client] = max(left, 0), max(requests, 0)
+        else:
+            self.held.pop(client, None)
+            self.held_requests.pop(client, None)
+
+    def _stored(self, req: P.Request, a: int, b: int, outcome: str) -> list[bytes]:
+        """The stored answers of goals a..b, marked with why they were not refined."""
+        return self._stored_at(req, np.arange(a, b), outcome)
+
+    def _stored_at(self, req: P.Request, index: np.ndarray, outcome: str) -> list[bytes]:
+        """The stored answers of the request's goals at ``index`` (one lookup for them all), marked with why they
+        were not refined."""
+        goals = np.asarray(req["goals"], float)[index]
+        if not len(goals):
+            return []
+        if req["orientation"] is not None:  # a stored posture holds no goal's orientation
+            return [Answer(req["effector"], tuple(g.tolist()), None, False, refined=outcome).to_json() for g in goals]
+        answers = self.selector.select_many(req["effector"], goals, False)
+        return [dataclasses.replace(x, refined=outcome).to_json() if x.refined == SKIPPED else x.to_json() for x in answers]
+
+    def _finished(self, task: Task, frames: list[bytes]) -> None:
+        pending = self.pending.get(task.request)
+        if pending is None:
+            return  # answered already (its deadline passed)
+        service = P.OPERATIONS[pending.request.op].worker
+        assert service is not None
+        getattr(self, service.finish)(task.request, pending, frames, task.part)
+
+    def _finish_goals(self, seq: int, pending: Pending, frames: list[bytes], part: int) -> None:
+        """A worker's answers to a part of a query's goals (one frame each); its stored answers when it failed."""
+        a, b = pending.bounds[part]
+        if frames == [EXPIRED]:
+            # Its deadline has passed: the part is answered from the store with the request's others, slice by slice.
+            if pending.deadline != math.inf:
+                pending.deadline = 0.0
+            return
+        try:
+            if len(frames) != b - a or not frames[0].startswith(b"{"):  # a worker's failure, not answers
+                log.error("worker failed: %s", b"".join(frames)[:500].decode(errors="replace"))
+                frames = self._stored(pending.request, a, b, ERROR)
+        except Exception as exc:  # noqa: BLE001 - this request's error reply; the others go on
+            self._answer_now(seq, self._error(exc, pending.request.id))
+            return
+        pending.parts[part] = frames
+        if all(p is not None for p in pending.parts):
+            self._reply(seq)
+
+    def _finish_motion(self, seq: int, pending: Pending, frames: list[bytes], part: int = 0) -> None:
+        """A worker's motion: two frames of JSON, its summary (published) and the whole motion (the reply)."""
+        self._finish_whole(seq, pending, frames, 2, "the motion was not planned", "the motion could not be planned",
+                           lambda f: self._motion_result(pending.request, *f))
+
+    def _finish_place(self, seq: int, pending: Pending, frames: list[bytes], part: int = 0) -> None:
+        """A worker's placements: one frame of JSON."""
+        self._finish_whole(seq, pending, frames, 1, "the placements were not ranked", "the placements could not be ranked", lambda f: f[0])
+
+    def _finish_whole(self, seq: int, pending: Pending, frames: list[bytes], count: int, late: str, failed: str,
+                      reply: Callable[[list[bytes]], bytes]) -> None:
+        """A request a worker answers whole: its ``count`` frames of JSON make the reply, or its error
+        (``failed: code: message``) or the deadline's ``expired`` answer it."""
+        rid = pending.request.id
+        if frames == [EXPIRED]:
+            self._answer_now(seq, P.error_reply(P.TIMEOUT, f"{late} by its deadline", rid))
+        elif len(frames) == count and frames[0].startswith(b"{"):
+            self._answer_now(seq, P.ok_reply(reply(frames), rid))
+        else:
+            code, _, message = b"".join(frames)[len(WORKER_FAILED):].decode(errors="replace").strip().partition(": ")
+            if code not in P.WORKER_ERRORS:
+                log.error("worker failed: %s", message[:500])
+                code, message = P.INTERNAL, failed
+            self.errors += 1
+            self._answer_now(seq, P.error_reply(code, message, rid))
+
+    def _answer_now(self, seq: int, reply: bytes) -> None:
+        """Answer a pending request with ``reply`` now (an error, or a motion) and drop its queued work."""
+        pending = self.pending.pop(seq)
+        self._release(pending)
+        if pending.key is not None:
+            self.by_key.pop(pending.key, None)
+        if self.pool is not None:
+            self.pool.cancel(seq)
+        self._send(pending.envelope, reply)
+
+    def _expire(self, slice_goals: int = EXPIRE_SLICE) -> None:
+        """Answer the requests whose deadline has passed: a motion or placement with ``timeout``, a query's goals
+        not yet refined with their stored postures, marked ``timeout``. The stored answers are looked up at most
+        ``slice_goals`` at a time, one slice a pass of the loop (a vectorised lookup of 10,000 goals still held the
+        loop 1.4 s): the request's reply goes when its last slice is in."""
+        now = time.monotonic()
+        for seq in [s for s, p in self.pending.items() if p.deadline <= now]:
+            pending = self.pending[seq]
+            assert self.pool is not None
+            self.pool.cancel(seq)
+            service = P.OPERATIONS[pending.request.op].worker
+            assert service is not None
+            getattr(self, service.expire)(seq, pending)
+        budget = slice_goals
+        while self.expiring and budget > 0:
+            seq = self.expiring[0]
+            found = self.pending.get(seq)
+            missing = [] if found is None else [part for part, done in enumerate(found.parts) if done is None]
+            if found is None or not missing:
+                self.expiring.popleft()
+                if found is not None:
+                    self._reply(seq)
+                continue
+            pending = found
+            # Whole parts, as many as the slice holds (at least one).
+            take: list[int] = []
+            goals = 0
+            for part in missing:
+                size = pending.bounds[part][1] - pending.bounds[part][0]
+                if take and goals + size > budget:
+                    break
+                take.append(part)
+                goals += size
+            budget -= goals
+            try:
+                index = np.concatenate([np.arange(*pending.bounds[part]) for part in take])
+                answers = self._stored_at(pending.request, index, TIMEOUT)
+                k = 0
+                for part in take:
+                    a, b = pending.bounds[part]
+                    pending.parts[part], k = answers[k : k + b - a], k + b - a
+            except Exception as exc:  # noqa: BLE001 - this request's error reply; the others go on
+                self.expiring.popleft()
+                self._answer_now(seq, self._error(exc, pending.request.id))
+
+    def _expire_whole(self, seq: int, pending: Pending) -> None:
+        """A request answered whole, past its deadline: a ``timeout`` error."""
+        service = P.OPERATIONS[pending.request.op].worker
+        assert service is not None
+        getattr(self, service.finish)(seq, pending, [EXPIRED], 0)
+
+    def _expire_goals(self, seq: int, pending: Pending) -> None:
+        """A query past its deadline: its goals not yet refined are answered from the store, slice by slice."""
+        pending.deadline = math.inf
+        self.expiring.append(seq)
+
+    def _reply(self, seq: int) -> None:
+        pending = self.pending.pop(seq)
+        self._release(pending)
+        if pending.key is not None:
+            self.by_key.pop(pending.key, None)
+        bodies = [body for part in pending.parts if part is not None for body in part]
+        try:
+            req = pending.request
+            self._publish(req["effector"].encode(), bodies, req)
+            self._send(pending.envelope, P.ok_reply(bodies[0], req.id) if req["single"] else P.ok_batch_reply(bodies, req.id))
+        except Exception as exc:  # a bug must not stop the server
+            self._log_internal(exc)
+            self._send(pending.envelope, P.error_reply(P.INTERNAL, "the reply could not be made", pending.request.id))
+
+    def _log_internal(self, exc: Exception) -> None:
+        """Log a bug's traceback, each distinct one at most once a minute (a client repeating a request must not flood the log)."""
+        key = f"{type(exc).__name__}: {exc}"[:300]
+        now = time.monotonic()
+        if now - self._logged.get(key, -math.inf) >= LOG_EVERY:
+            self._logged[key] = now
+            log.error("internal error", exc_info=exc)
+
+    def _publish(self, topic: bytes, bodies: list[bytes], req: P.Request) -> None:
+        """Publish each encoded choice with the request's id and tag, in order; a slow subscriber costs a dropped message,
+        never a blocked reply. With workers, at most ``PUBLISH_SLICE`` go now and the rest one slice a pass of the loop."""
+        if self.publisher is None:
+            return
+        head = b'{"id":' + P.encode_value(req.id) + b',"tag":' + P.encode_value(req["tag"])
+        self.publishing.append((topic, head, bodies, 0))
+        self._drain_publications(PUBLISH_SLICE if self.pool is not None else math.inf)
+
+    def _drain_publications(self, limit: float = PUBLISH_SLICE) -> None:
+        """Publish up to ``limit`` queued choices, oldest first."""
+        send = self.publisher.send if self.publisher is not None else None
+        while self.publishing and limit > 0 and send is not None:
+            topic, head, bodies, k = self.publishing[0]
+            end = int(min(len(bodies), k + limit))
+            for body in bodies[k:end]:
+                try:
+                    send(topic, PUB_MORE)
+                    send(head + (b"," + body[1:] if body != b"{}" else b"}"), PUB_LAST)
+                except zmq.Again:
+                    pass
+            limit -= end - k
+            if end < len(bodies):
+                self.publishing[0] = (topic, head, bodies, end)
+            else:
+                self.publishing.popleft()

@@ -1,0 +1,80 @@
+"""What a worker runs for each operation the workers answer (zguide's Majordomo: a service is a worker).
+
+Each operation's :class:`~reach.serving.protocol.Service` names its hook here;
+a hook takes the worker's :class:`Context`, the task as the server encoded it
+(``reach.serving.workers.Task.encode``) and its deadline on the
+``time.perf_counter`` clock, and returns the frames of its reply. An error
+raised is the worker's ``failed: CODE: message``, its code by
+:func:`failure_code`. Adding an operation the workers answer is its row in
+the table of operations, its hook here and the server's hooks it names.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from reach.answers.evaluate import Target
+from reach.answers.place import Space, rank
+from reach.answers.select import Selector, orientation_of
+from reach.errors import ReachError, UnknownEffector
+from reach.maps.protocol import Policy
+from reach.maps.store import Atlas
+from reach.motion.planner import Planner, Timing
+from reach.motion.rig import with_bones
+from reach.serving import protocol as P
+
+
+@dataclass
+class Context:
+    """What a worker holds for its tasks: the atlas's selector (its oracles' refine variants) and a motion planner."""
+
+    selector: Selector
+    planner: Planner
+
+
+def failure_code(exc: Exception) -> str:
+    """The reply's error code for an exception a hook raised: its own ``code`` (a motion's), an unknown effector's,
+    a bad request's for any other ReachError, else ``internal``."""
+    code = getattr(exc, "code", None)
+    if isinstance(code, str) and code in P.WORKER_ERRORS:
+        return code
+    if isinstance(exc, UnknownEffector):
+        return P.UNKNOWN_EFFECTOR
+    return P.BAD_REQUEST if isinstance(exc, ReachError) else P.INTERNAL
+
+
+def run_query(ctx: Context, job: dict[str, Any], deadline: float) -> list[bytes]:
+    """A chunk of a query's goals: one answer's JSON per goal."""
+    answers = ctx.selector.select_many(job["effector"], np.array(job["goals"]), job["refine"], start=job["from"], miss=job["miss"],
+                                       orientation=orientation_of(job["orientation"]), deadline=deadline)
+    return [a.to_json() for a in answers]
+
+
+def run_motion(ctx: Context, job: dict[str, Any], deadline: float) -> list[bytes]:
+    """A motion: its summary (what the server publishes), then the whole motion."""
+    opts = job["options"]
+    motion = ctx.planner.plan(job["effector"], np.array(job["goals"][0]), job["from"], rate=opts["rate"],
+                              timing=Timing.from_dict(opts["timing"]), miss=opts["miss"], deadline=deadline)
+    data = motion.to_dict()
+    if opts.get("bones"):
+        data = with_bones(data, motion, ctx.planner.body(motion.strategy))
+    return [P.encode(motion.summary()), P.encode(data)]
+
+
+def run_place(ctx: Context, job: dict[str, Any], deadline: float) -> list[bytes]:
+    """A placement's result, one frame."""
+    return [P.encode(placements(ctx.selector.atlas, job["options"]["fields"], ctx.selector.policy))]
+
+
+def placements(atlas: Atlas, fields: dict[str, Any], policy: Policy = "vertex") -> dict[str, Any]:
+    """A ``place`` request's result (see docs/protocol.md): the fields as the protocol parsed them (degrees for
+    ``yaw`` and ``yaw_step``), the placements of the served body ranked by its trees."""
+    targets = [Target(t["name"], tuple(t["point"]), t["effector"]) for t in fields["targets"]]
+    space = Space(tuple(fields["x"]), tuple(fields["y"]), tuple(fields["z"]), (math.radians(fields["yaw"][0]), math.radians(fields["yaw"][1])),
+                  fields["step"], math.radians(fields["yaw_step"]), max_candidates=P.MAX_PLACE_POINTS // len(targets))
+    ranking = rank([atlas], targets, space, policy=policy)
+    return {"candidates": len(ranking.placements), "ranked": [ranking.row(k, targets) for k in range(min(fields["top"], len(ranking.placements)))]}

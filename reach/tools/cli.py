@@ -1,0 +1,56 @@
+"""The ``reach`` command line.
+
+Every command has ``--help``. Errors from reach (bad configs, files, names)
+print one line naming what was wrong and exit with status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from reach.errors import ReachError
+from reach.tools.commands import answers, build, serving
+from reach.tools.commands.build import cmd_build
+from reach.tools.commands.common import Terminated
+
+
+def make_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="reach",
+        description="Reachable volumes as adaptive octrees (VATrees): build, inspect and query them.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    for commands in (build, answers, serving):
+        commands.register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = make_parser().parse_args(argv)
+    try:
+        return int(args.func(args))
+    except ReachError as exc:
+        print(f"reach: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt as exc:
+        # A build keeps its checkpoint of the last finished depth: --resume goes on from there.
+        hint = "; run the same build with --resume to go on from its last finished depth" if args.func is cmd_build else ""
+        if isinstance(exc, Terminated):
+            print(f"reach: terminated{hint}", file=sys.stderr)
+            return 143
+        print(f"reach: interrupted{hint}", file=sys.stderr)
+        return 130
+    except BrokenPipeError:
+        # The reader went away (``reach info ... | head``): not an error of ours.
+        # Point stdout at /dev/null so that Python's exit flush does not raise again.
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

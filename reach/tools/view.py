@@ -1,0 +1,507 @@
+"""``reach view``: an atlas and its answers in the browser, on viser.
+
+viser serves a three.js page from the Python process (its client ships in
+the wheel: the page works offline). The scene, in the atlas's world frame
+(z up, x forward, metres):
+
+* each strategy's volume, one layer per strategy in priority order, coloured
+  by strategy: inner cells, boundary (final) cells or both, drawn as boxes
+  (the paper's Figure 10), dots or wireframe (Figure 11), one instanced
+  mesh per layer; optionally only the cells a higher-priority strategy does
+  not already hold (Figure 8's "first strategy by priority"), and only those
+  a slice plane cuts;
+* the body, drawn from its collision capsules, in the reference posture and
+  then in each answer's posture, and its furniture (a seated body's seat,
+  the obstacles task's boxes) in grey;
+* a goal to drag (a transform gizmo) or to type; every move asks the
+  selector (or a running ``reach serve``, ``--connect``), and the panel shows
+  the strategy, its colour, the alternatives, whether the posture was
+  refined and its residual, the strategy that handed the goal over and the
+  limits its posture came near, or that the goal is unreachable;
+* the answer's reach motion (:mod:`reach.motion.planner`, or the server's
+  ``motion`` operation with ``--connect``): planned on demand from the
+  reference posture, played in real time (or slower), paused, or scrubbed frame by
+  frame on the first atlas's body, with the hand's path drawn as a line.
+
+Several atlases (a population study) stand side by side, ``spacing`` metres
+apart along y, each with its own colours. :class:`Viewer` is also the
+Python API the tests drive.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from oracles.protocol import Furnished, OracleSpec, Shaped
+from reach.answers.select import Selector, posture_vector
+from reach.errors import InputError, ServerError, ServerUnavailable
+from reach.maps.protocol import DEFAULT_POLICY, POLICIES
+from reach.maps.store import Atlas
+from reach.maps.tree import FINAL, INNER, VATree
+from reach.tools.gate import Gate, guarded_websockets
+
+# Strategy colours (RGB), in priority order: matplotlib's tab10, the report's palette.
+PALETTE = np.array([(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
+                    (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207)], np.uint8)
+BODY = (230, 200, 170)  # skin
+FURNITURE = (140, 140, 148)  # a seat, a table: grey
+UNREACHABLE = (200, 0, 0)
+BOUNDARY_SHADE = 0.75  # boundary (final) cells are drawn this much darker than inner ones
+STYLES = ("boxes", "dots", "wireframe")
+CELLS = ("inner", "boundary", "both")
+SLICE_AXES = ("none", "x", "y", "z")
+
+
+def cube() -> tuple[np.ndarray, np.ndarray]:
+    """A unit cube centred on the origin: vertices (8, 3) and triangles (12, 3)."""
+    v = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)], np.float32)
+    f = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                  [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]], np.uint32)
+    return v, f
+
+
+def index_colours(index: np.ndarray) -> np.ndarray:
+    """uint8 RGB (n, 3) of reachability indices in [0, 1] on matplotlib's viridis; NaN (no index there) grey."""
+    from matplotlib import colormaps
+
+    rgb = (colormaps["viridis"](np.nan_to_num(index, nan=0.0))[:, :3] * 255).astype(np.uint8)
+    rgb[~np.isfinite(index)] = 128
+    return rgb  # type: ignore[no-any-return]
+
+
+def quaternion_z_to(axis: np.ndarray) -> np.ndarray:
+    """(w, x, y, z) of the smallest rotation taking +z to a unit axis (a capsule mesh is built along z)."""
+    rotation, _ = Rotation.align_vectors(np.asarray(axis, float)[None], [[0.0, 0.0, 1.0]])
+    x, y, z, w = rotation.as_quat()
+    return np.array([w, x, y, z])
+
+
+@dataclass
+class Cells:
+    """The cells of one tree to draw: centres and edges [m], and which are inner."""
+
+    centre: np.ndarray
+    size: np.ndarray
+    inner: np.ndarray
+
+    @classmethod
+    def of(cls, tree: VATree) -> Cells:
+        rows = np.nonzero((tree.kind == INNER) | (tree.kind == FINAL))[0]
+        size = tree.cell_size(tree.depth[rows])
+        lo = tree.lattice.points(tree.corner[rows])
+        return cls(lo + 0.5 * size, size, tree.kind[rows] == INNER)
+
+    def select(self, mask: np.ndarray) -> Cells:
+        return Cells(self.centre[mask], self.size[mask], self.inner[mask])
+
+
+@dataclass
+class Scene:
+    """One atlas in the view: its selector (or server), trees, colours, body and offset."""
+
+    atlas: Atlas
+    offset: np.ndarray
+    colours: np.ndarray  # (strategies, 3)
+    cells: dict[str, Cells] = field(default_factory=dict)
+    covered: dict[str, np.ndarray] = field(default_factory=dict)  # cells a higher-priority strategy holds
+    shaper: Any = None
+    capsules: list[Any] = field(default_factory=list)
+    furniture: list[Any] = field(default_factory=list)  # box handles: the seat, the obstacles
+
+
+class Viewer:
+    """The viewer's state and its viser scene (see the module docstring).
+
+    Args:
+        atlases: One or more atlases (side by side).
+        host, port: Where the page is served (127.0.0.1 by default: not on the network).
+        connect: A running ``reach serve`` request address to take answers from
+            (the atlases still give the volumes and the body).
+        spacing: Distance [m] between atlases along y.
+        policy: The selector's policy for boundary cells.
+        refine: Refine answers by IK at the exact goal (the selector's default).
+    """
+
+    def __init__(self, atlases: Sequence[Atlas], host: str = "127.0.0.1", port: int = 8080, connect: str | None = None,
+                 spacing: float = 1.5, policy: str = DEFAULT_POLICY, refine: bool = True) -> None:
+        import viser  # the optional dependency: pip install 'reach[view]'
+
+        if not atlases:
+            raise InputError("atlas", "at least one atlas is needed")
+        if policy not in POLICIES:
+            raise InputError("policy", f"expected one of {', '.join(POLICIES)}, got {policy!r}")
+        # viser listens on a loopback port of its own; the gate, where the user asked, lets only this server's origin
+        # through, and viser's port lets through only what the gate passed on (its Host is the gate's): the gate is
+        # the only door (a rebound name reaches viser's port as well as the gate's).
+        gate_names: set[str] = set()
+        with guarded_websockets(lambda: gate_names) as guarded:
+            self.server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+        if not guarded:
+            self.server.stop()
+            raise InputError("viser", f"viser {viser.__version__} did not start its server through websockets' serve, so its own port "
+                              "cannot be guarded; install a viser that does (1.1 does)")
+        self.gate = Gate(host, port, self.server.get_port())
+        gate_names.update(self.gate.hosts)
+        self.host, self.port = host, self.gate.port
+        self.refine, self.policy = refine, policy
+        self.client = None
+        if connect is not None:
+            from reach.serving.client import Client
+
+            self.client = Client(connect)
+        self._lock = threading.Lock()
+        self._drawn: dict[tuple[int, str], tuple[tuple[Any, ...], Any]] = {}  # layer -> (the settings it was drawn with, its handle)
+        self.scenes: list[Scene] = []
+        for k, atlas in enumerate(atlases):
+            names = list(atlas.trees)
+            # Atlas k takes every k-th colour family: a darker shade for the second atlas, and so on.
+            colours = (PALETTE[np.arange(len(names)) % len(PALETTE)] * (1.0 - 0.35 * k)).astype(np.uint8)
+            scene = Scene(atlas, np.array([0.0, spacing * k, 0.0]), colours)
+            scene.cells = {n: Cells.of(t) for n, t in atlas.trees.items()}
+            self.scenes.append(scene)
+        self.selectors = [Selector(s.atlas, policy=policy, refine=refine) for s in self.scenes]  # type: ignore[arg-type]
+        effectors = self.selectors[0].effectors
+        self.effector = "right_hand" if "right_hand" in effectors else effectors[0]
+        self.answers: list[dict[str, Any]] = []
+        self.goal = np.array([0.45, -0.25, 1.2])
+        self.motion: dict[str, Any] | None = None  # the planned motion: its summary, times and postures (the shaper's order)
+        self._path: Any = None
+        self._planner: Any = None
+        self._player: threading.Thread | None = None
+        self._stop = threading.Event()
+        self.frame = 0  # the motion's frame shown
+        self._gui()
+        for k, scene in enumerate(self.scenes):
+            self._body(k, scene)
+        self.draw()
+        self.set_goal(self.goal)
+
+    # -- the page -----------------------------------------------------------
+    @property
+    def url(self) -> str:
+        return f"http://{self.host}:{self.port}"
+
+    def _gui(self) -> None:
+        gui = self.server.gui
+        with gui.add_folder("Goal"):
+            self.effector_box = gui.add_dropdown("effector", self.selectors[0].effectors, initial_value=self.effector)
+            self.goal_box = gui.add_vector3("goal [m]", tuple(self.goal), step=0.01)
+            self.policy_box = gui.add_dropdown("policy", list(POLICIES), initial_value=self.policy, disabled=self.client is not None,
+                                               hint="the server's own policy applies with --connect" if self.client else None)
+            self.answer_box = gui.add_markdown("")
+        with gui.add_folder("Motion"):
+            self.plan_button = gui.add_button("plan the reach motion", hint="from the reference posture to the answer (the first atlas)")
+            self.play_button = gui.add_button("play / pause", disabled=True)
+            self.frame_slider = gui.add_slider("frame", 0, 1, 1, 0, disabled=True)
+            self.speed_slider = gui.add_slider("speed", 0.1, 1.0, 0.05, 1.0, hint="playback speed: 1 is real time")
+            self.motion_box = gui.add_markdown("")
+        with gui.add_folder("Volumes"):
+            self.style_box = gui.add_dropdown("style", list(STYLES), initial_value="boxes")
+            self.cells_box = gui.add_dropdown("cells", list(CELLS), initial_value="boundary")
+            self.first_box = gui.add_checkbox("first strategy by priority", False, hint="each cell in the colour of the first strategy that holds it (the paper's Figure 8)")
+            self.index_box = gui.add_checkbox("reachability index", False, hint="colour the cells of strategies built with `directions: N` by the share "
+                                              "of approach directions reached (viridis: dark 0, yellow 1)")
+            self.slice_axis = gui.add_dropdown("slice axis", list(SLICE_AXES), initial_value="none")
+            lo, hi = self.scenes[0].atlas.trees[next(iter(self.scenes[0].atlas.trees))].box.lo, self.scenes[0].atlas.trees[next(iter(self.scenes[0].atlas.trees))].box.hi
+            self.slice_at = gui.add_slider("slice at [m]", float(lo.min()), float(hi.max()), 0.01, 1.0)
+            self.layer_boxes: dict[tuple[int, str], Any] = {}
+            for k, scene in enumerate(self.scenes):
+                label = scene.atlas.manifest.get("name", f"atlas {k}")
+                gui.add_markdown(f"**{label}**")
+                first = next((n for n, t in scene.atlas.trees.items() if t.meta.get("effector") == self.effector), None)
+                for i, name in enumerate(scene.atlas.trees):
+                    r, g, b = (int(c) for c in scene.colours[i])
+                    box = gui.add_checkbox(name, name == first, hint=f"colour rgb({r}, {g}, {b})")
+                    box.on_update(lambda _e: self.draw())
+                    self.layer_boxes[(k, name)] = box
+        for handle in (self.style_box, self.cells_box, self.first_box, self.index_box, self.slice_axis, self.slice_at):
+            handle.on_update(lambda _e: self.draw())
+        self.goal_box.on_update(lambda e: self._from_panel())
+        self.plan_button.on_click(lambda _e: self._plan_clicked())
+        self.play_button.on_click(lambda _e: self.pause() if self.playing else self.play())
+        self.frame_slider.on_update(lambda _e: self.show_frame(int(self.frame_slider.value)))
+        self.effector_box.on_update(lambda e: self.set_effector(self.effector_box.value))
+        self.policy_box.on_update(lambda e: self.set_policy(self.policy_box.value))
+        self.gizmo = self.server.scene.add_transform_controls("/goal", scale=0.25, disable_rotations=True, position=tuple(self.goal))
+        # One marker per atlas: the gizmo's own for the first, the same goal beside each other body.
+        self.goal_markers = [self.server.scene.add_icosphere("/goal/marker", radius=0.025, color=(20, 20, 20))]
+        self.goal_markers += [self.server.scene.add_icosphere(f"/atlas{k}/goal", radius=0.025, color=(20, 20, 20))
+                              for k in range(1, len(self.scenes))]
+        self.gizmo.on_update(lambda _e: self._from_gizmo())
+        self.server.scene.add_grid("/floor", width=3.0, height=3.0 + self.scenes[-1].offset[1], cell_size=0.25,
+                                   position=(0.2, 0.5 * self.scenes[-1].offset[1], 0.0))
+        middle = 0.5 * self.scenes[-1].offset[1]
+
+        @self.server.on_client_connect
+        def _camera(client: Any) -> None:  # in front of the body, to its right, looking at the chest
+            client.camera.up_direction = (0.0, 0.0, 1.0)
+            client.camera.position = (2.2, -1.9 + middle, 1.7)
+            client.camera.look_at = (0.2, middle, 1.0)
+
+    def _body(self, k: int, scene: Scene) -> None:
+        """The body's capsules, one mesh each, moved to postures by their transforms."""
+        import trimesh
+
+        spec = next(iter(scene.atlas.trees.values())).meta["oracle"]
+        shaper = OracleSpec.from_dict(spec).create()
+        if not isinstance(shaper, Shaped):
+            return  # an oracle without a body to draw
+        scene.shaper = shaper
+        names, caps = shaper.shape(shaper.reference_posture())
+        for name, cap in zip(names, caps, strict=True):
+            length = float(np.linalg.norm(cap[3:6] - cap[:3]))
+            mesh = trimesh.creation.capsule(height=max(length, 1e-6), radius=float(cap[6]), count=[12, 12])
+            scene.capsules.append(self.server.scene.add_mesh_simple(
+                f"/atlas{k}/body/{name}", np.asarray(mesh.vertices, np.float32), np.asarray(mesh.faces, np.uint32), color=BODY))
+        self._pose(scene, caps)
+        if isinstance(shaper, Furnished):
+            for name, box in zip(*shaper.furniture(), strict=True):
+                scene.furniture.append(self.server.scene.add_box(
+                    f"/atlas{k}/furniture/{name}", color=FURNITURE, dimensions=tuple(2 * box[3:6]), wxyz=tuple(box[6:10]),
+                    position=tuple(box[:3] + scene.offset), opacity=0.6))
+
+    def _pose(self, scene: Scene, caps: np.ndarray) -> None:
+        for handle, cap in zip(scene.capsules, caps, strict=True):
+            axis = cap[3:6] - cap[:3]
+            n = float(np.linalg.norm(axis))
+            handle.position = tuple(0.5 * (cap[:3] + cap[3:6]) + scene.offset)
+            handle.wxyz = tuple(quaternion_z_to(axis / n) if n > 1e-9 else np.array([1.0, 0.0, 0.0, 0.0]))
+
+    # -- volumes --------------------------------------------------------------
+    def _covered(self, scene: Scene, name: str) -> np.ndarray:
+        """Which of a strategy's cells a strategy of higher priority (same effector) already holds."""
+        if name not in scene.covered:
+            trees = scene.atlas.trees
+            effector = trees[name].meta.get("effector")
+            higher = [n for n in trees if n != name and trees[n].meta.get("effector") == effector
+                      and (trees[n].meta.get("priority", 0), n) < (trees[name].meta.get("priority", 0), name)]
+            centres = scene.cells[name].centre
+            mask = np.zeros(len(centres), bool)
+            for n in higher:
+                mask |= scene.atlas.maps[n].contains(centres, self.policy)  # type: ignore[arg-type]
+            scene.covered[name] = mask
+        return scene.covered[name]
+
+    def visible_cells(self, k: int, name: str) -> Cells:
+        """The cells of a layer that the panel's settings show."""
+        scene = self.scenes[k]
+        cells = scene.cells[name]
+        mask = np.ones(len(cells.centre), bool)
+        if self.cells_box.value == "inner":
+            mask &= cells.inner
+        elif self.cells_box.value == "boundary":
+            mask &= ~cells.inner
+        if self.first_box.value:
+            mask &= ~self._covered(scene, name)
+        axis = SLICE_AXES.index(self.slice_axis.value) - 1
+        if axis >= 0:
+            at = float(self.slice_at.value)
+            mask &= np.abs(cells.centre[:, axis] - at) <= 0.5 * cells.size[:, axis]
+        return cells.select(mask)
+
+    def _settings(self) -> tuple[Any, ...]:
+        return (self.style_box.value, self.cells_box.value, self.first_box.value, self.index_box.value, self.slice_axis.value, self.slice_at.value,
+                self.policy)
+
+    def draw(self) -> None:
+        """Bring every layer in line with the panel: a layer drawn with today's settings is only shown or
+        hidden (nothing is sent again); one drawn with others, or never, is sent anew."""
+        with self._lock:
+            settings = self._settings()
+            for k, scene in enumerate(self.scenes):
+                for i, name in enumerate(scene.atlas.trees):
+                    visible = bool(self.layer_boxes[(k, name)].value)
+                    drawn = self._drawn.get((k, name))
+                    if drawn is not None and drawn[0] == settings:
+                        if drawn[1] is not None:
+                            drawn[1].visible = visible
+                        continue
+                    path = f"/atlas{k}/volumes/{name}"
+                    self.server.scene.remove_by_name(path)
+                    self._drawn.pop((k, name), None)
+                    if visible:
+                        self._drawn[(k, name)] = (settings, self._layer(k, i, name, path))
+
+    def _layer(self, k: int, i: int, name: str, path: str) -> Any:
+        """Send one layer to the page: one instanced mesh (or point cloud) of its visible cells; None when it has none."""
+        scene = self.scenes[k]
+        cells = self.visible_cells(k, name)
+        if not len(cells.centre):
+            return None
+        centre = (cells.centre + scene.offset).astype(np.float32)
+        if self.index_box.value and name in scene.atlas.indexes:
+            colour = index_colours(scene.atlas.map(name).index_at(cells.centre, held=False))
+        else:
+            colour = np.tile(scene.colours[i], (len(centre), 1))
+            colour[~cells.inner] = (colour[~cells.inner] * BOUNDARY_SHADE).astype(np.uint8)
+        if self.style_box.value == "dots":
+            return self.server.scene.add_point_cloud(path, centre, colour, point_size=float(cells.size.min()) * 0.5, point_shape="circle", point_shading="flat")
+        vertices, faces = cube()
+        return self.server.scene.add_batched_meshes_simple(
+            path, vertices, faces, np.tile([1.0, 0.0, 0.0, 0.0], (len(centre), 1)), centre,
+            batched_scales=(cells.size * 0.96).astype(np.float32), batched_colors=colour,
+            wireframe=self.style_box.value == "wireframe", opacity=0.3 if self.style_box.value == "boxes" else None,
+            cast_shadow=False, receive_shadow=False)
+
+    def show_strategy(self, name: str, visible: bool, atlas: int = 0) -> None:
+        """Show or hide a strategy's layer (as its panel checkbox does)."""
+        self.layer_boxes[(atlas, name)].value = visible
+        self.draw()
+
+    # -- answers --------------------------------------------------------------
+    def _from_gizmo(self) -> None:
+        self.set_goal(np.array(self.gizmo.position))
+
+    def _from_panel(self) -> None:
+        goal = np.array(self.goal_box.value, float)
+        if not np.allclose(goal, self.goal):
+            self.set_goal(goal)
+
+    def set_effector(self, effector: str) -> None:
+        self.effector = effector
+        self.set_goal(self.goal)
+
+    def set_policy(self, policy: str) -> None:
+        self.policy = policy
+        self.selectors = [Selector(s.atlas, policy=policy, refine=self.refine) for s in self.scenes]  # type: ignore[arg-type]
+        self._planner = None
+        for s in self.scenes:
+            s.covered.clear()
+        self.draw()
+        self.set_goal(self.goal)
+
+    def answer(self, k: int, goal: np.ndarray) -> dict[str, Any]:
+        """Atlas k's answer for a goal [m] in its own frame: the selector's, or the server's with ``connect``."""
+        if self.client is not None:
+            reply = self.client.query(self.effector, [float(v) for v in goal], self.refine)
+            return {k: v for k, v in reply.items() if k not in ("id", "ok")}
+        return self.selectors[k].select(self.effector, goal).to_dict()
+
+    def set_goal(self, goal: np.ndarray) -> list[dict[str, Any]]:
+        """Move the goal [m, world frame of the first atlas]: answer it for every atlas and show the answers."""
+        goal = np.asarray(goal, float).reshape(3)
+        self.goal = goal
+        if self.motion is not None:  # a new goal: the motion shown was to the old one
+            self.pause()
+            self.motion = None
+            self._path.remove()
+            self._path = None
+            self.play_button.disabled = self.frame_slider.disabled = True
+            self.motion_box.content = ""
+        self.answers = [self.answer(k, goal) for k in range(len(self.scenes))]
+        if not np.allclose(self.gizmo.position, goal):
+            self.gizmo.position = tuple(goal)
+        if not np.allclose(self.goal_box.value, goal):
+            self.goal_box.value = (float(goal[0]), float(goal[1]), float(goal[2]))  # type: ignore[misc]  # settable at run time
+        lines = []
+        for k, (scene, a) in enumerate(zip(self.scenes, self.answers, strict=True)):
+            label = scene.atlas.manifest.get("name", f"atlas {k}")
+            if k:
+                self.goal_markers[k].position = tuple(goal + scene.offset)
+            if not a["reachable"]:
+                lines.append(f"**{label}**: unreachable")
+                self.goal_markers[k].color = UNREACHABLE
+                continue
+            names = list(scene.atlas.trees)
+            r, g, b = (int(c) for c in scene.colours[names.index(a["strategy"])])
+            alt = ", ".join(a["alternatives"]) or "none"
+            residual = "n/a" if a["residual"] is None else f"{1000 * a['residual']:.1f} mm"
+            passed = f"  \nhanded over by {a['handover']['from']} (at its limits: {', '.join(a['handover']['limits'])})" if a.get("handover") else ""
+            lines.append(f"**{label}**: <span style='color: rgb({r},{g},{b})'>&#9632;</span> **{a['strategy']}**  \n"
+                         f"alternatives: {alt}  \nrefined: {a['refined']}, residual {residual}{passed}")
+            self.goal_markers[k].color = (r, g, b)
+            if scene.shaper is not None and a["posture"] is not None:
+                q = posture_vector(scene.shaper.posture_names, scene.shaper.reference_posture(), a["posture"], a["root"])
+                self._pose(scene, scene.shaper.shape(q)[1])
+        self.answer_box.content = "\n\n".join(lines)
+        return self.answers
+
+    # -- motion -----------------------------------------------------------------
+    @property
+    def playing(self) -> bool:
+        return self._player is not None and self._player.is_alive()
+
+    def plan_motion(self) -> dict[str, Any]:
+        """Plan the motion to the goal on the first atlas (its planner, or the server's ``motion``), draw the
+        hand's path and show its first frame; returns the motion's summary."""
+        from reach.motion.planner import MotionError, Planner
+
+        self.pause()
+        scene = self.scenes[0]
+        if scene.shaper is None:
+            raise InputError("motion", "this atlas has no body to move")
+        try:
+            if self.client is not None:
+                data = {k: v for k, v in self.client.motion(effector=self.effector, goal=[float(v) for v in self.goal]).items() if k not in ("id", "ok")}
+            else:
+                if self._planner is None:  # its own selector: a motion ends in a refined answer, whatever the view shows
+                    self._planner = Planner(Selector(scene.atlas, policy=self.policy))  # type: ignore[arg-type]
+                data = self._planner.plan(self.effector, self.goal).to_dict()
+        except (MotionError, InputError, ServerError, ServerUnavailable) as exc:  # shown on the panel: the page lives on
+            self.motion_box.content = f"no motion: {exc}"
+            return {"error": str(exc)}
+        ref, names = scene.shaper.reference_posture(), scene.shaper.posture_names
+        frames = data.pop("frames")
+        postures = np.array([posture_vector(names, ref, f["posture"], f["root"]) for f in frames])
+        path = np.array([f["effector"] for f in frames], float) + scene.offset
+        self.motion = {**data, "times": np.array([f["t"] for f in frames]), "postures": postures, "path": path}
+        if self._path is not None:
+            self._path.remove()
+        segments = np.stack([path[:-1], path[1:]], axis=1) if len(path) > 1 else np.stack([path, path], axis=1)
+        self._path = self.server.scene.add_line_segments("/atlas0/motion/path", segments, (20, 20, 20), thickness=0.006)
+        last = len(postures) - 1
+        self.frame_slider.max, self.frame_slider.disabled, self.play_button.disabled = max(last, 1), False, False
+        self.motion_box.content = (f"**{data['strategy']}**, {data['outcome']}: {data['duration']:.2f} s, {len(postures)} frames at {data['rate']:g} Hz  \n"
+                                   f"{data['waypoints']} stored postures on the way, {data['held']} frames held")
+        self.frame_slider.value = 0  # type: ignore[misc]  # settable at run time
+        self.show_frame(0)
+        return data
+
+    def _plan_clicked(self) -> None:
+        self.plan_motion()
+
+    def show_frame(self, k: int) -> None:
+        """Pose the first atlas's body at frame k of the planned motion."""
+        if self.motion is None:
+            return
+        scene = self.scenes[0]
+        k = int(np.clip(k, 0, len(self.motion["postures"]) - 1))
+        self._pose(scene, scene.shaper.shape(self.motion["postures"][k])[1])
+        self.frame = k
+
+    def play(self) -> None:
+        """Play the motion at its rate from the slider's frame (from the start when at the end)."""
+        if self.motion is None or self.playing:
+            return
+        self._stop.clear()
+        start = 0 if int(self.frame_slider.value) >= len(self.motion["postures"]) - 1 else int(self.frame_slider.value)
+        self._player = threading.Thread(target=self._play, args=(start,), daemon=True)
+        self._player.start()
+
+    def _play(self, start: int) -> None:
+        assert self.motion is not None
+        rate, t0 = float(self.motion["rate"]) * float(self.speed_slider.value), time.monotonic()
+        for k in range(start, len(self.motion["postures"])):
+            if self._stop.wait(max(0.0, t0 + (k - start) / rate - time.monotonic())):
+                return
+            self.frame_slider.value = k  # type: ignore[misc]  # settable at run time; its update poses the body
+
+    def pause(self) -> None:
+        self._stop.set()
+        if self._player is not None:
+            self._player.join(timeout=5)
+        self._player = None
+
+    def close(self) -> None:
+        self.pause()
+        self.gate.close()
+        self.server.stop()
+        if self.client is not None:
+            self.client.close()
