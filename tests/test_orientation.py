@@ -20,8 +20,8 @@ from oracles.tasks import Symbolic
 from reach.answers.select import Selector, orientation_of
 from reach.build.atlas import build_atlas
 from reach.build.config import parse_config
-from reach.errors import ConfigError, InputError, ProtocolError, StoreError
 from reach.build.index import vertex_levels
+from reach.errors import ConfigError, InputError, ProtocolError, StoreError
 from reach.maps.index import ReachIndex, spiral
 from reach.maps.store import load_atlas, load_indexed, load_tree, save_tree
 from reach.serving.protocol import parse_request
