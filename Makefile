@@ -40,9 +40,12 @@ sphere: $(VENV)/.installed
 	$(VENV)/bin/reach info out/sphere
 	$(VENV)/bin/reach query out/sphere 0.5 0.2 -0.3
 
+# ruff (E501 at 120 characters among its rules), mypy, and the layers and cycles of the house (import-linter's
+# contracts in pyproject.toml: tools -> serving -> motion -> answers -> build -> maps -> oracles, no cycles).
 lint: $(VENV)/.installed-test
-	$(VENV)/bin/ruff check reach oracles ros_bridge tests bench
+	$(VENV)/bin/ruff check reach oracles ros_bridge tests bench docs
 	$(VENV)/bin/mypy
+	$(VENV)/bin/lint-imports
 
 test: lint
 	$(PY) -m pytest -q

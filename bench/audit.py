@@ -43,7 +43,8 @@ def main() -> None:
     parser.add_argument("--strategies", default="right_arm,right_upper_body")
     parser.add_argument("--config", default=str(ROOT / "configs" / "demo.yaml"))
     args = parser.parse_args()
-    emit(bench="machine", python=platform.python_version(), processor=platform.processor() or platform.machine(), cores=os.cpu_count())
+    emit(bench="machine", python=platform.python_version(), processor=platform.processor() or platform.machine(),
+         cores=os.cpu_count())
     names = args.strategies.split(",")
     data = read_yaml(Path(args.config))
     data["strategies"] = [s for s in data["strategies"] if s["name"] in names]
@@ -53,13 +54,17 @@ def main() -> None:
         data["build"] = {**data.get("build", {}), "refine": refine.to_dict()}
         config = parse_config(data, label, "audit")
         with tempfile.TemporaryDirectory() as tmp:
-            atlas = build_atlas(config, Path(tmp) / "a", executor_factory=lambda s, c=config: ProcessExecutor(s, os.cpu_count(), c.chunk_size))
+            atlas = build_atlas(config, Path(tmp) / "a", executor_factory=lambda s,
+                                c=config: ProcessExecutor(s, os.cpu_count(), c.chunk_size))
             result = audit(atlas, args.samples, "vertex", seed=0)
         for name in names:
             r = result["strategies"][name]
-            emit(bench="audit", option=label, strategy=name, oracle_calls=atlas.trees[name].oracle_calls, probes=r["probes"],
-                 false_reachable=round(r["false_reachable"], 4), false_reachable_ci95=[round(v, 4) for v in r["false_reachable_ci95"]],
-                 false_unreachable=round(r["false_unreachable"], 4), false_unreachable_ci95=[round(v, 4) for v in r["false_unreachable_ci95"]])
+            emit(bench="audit", option=label, strategy=name, oracle_calls=atlas.trees[name].oracle_calls,
+                 probes=r["probes"],
+                 false_reachable=round(r["false_reachable"], 4),
+                     false_reachable_ci95=[round(v, 4) for v in r["false_reachable_ci95"]],
+                 false_unreachable=round(r["false_unreachable"], 4),
+                     false_unreachable_ci95=[round(v, 4) for v in r["false_unreachable_ci95"]])
 
 
 if __name__ == "__main__":

@@ -49,7 +49,8 @@ def main() -> None:
     with patch:
         atlas = load_atlas(args.atlas)
         Selector(atlas).warm_up()
-    print(json.dumps({"case": "Selector(atlas).warm_up()", "atlas": args.atlas, "strategies": len(atlas.trees), "bodies": len(calls)}))
+    print(json.dumps({"case": "Selector(atlas).warm_up()", "atlas": args.atlas, "strategies": len(atlas.trees),
+                      "bodies": len(calls)}))
     config = Path(args.config).resolve()
     data = yaml.safe_load(config.read_text())
     with tempfile.TemporaryDirectory() as tmp:
@@ -60,7 +61,8 @@ def main() -> None:
             cfg = load_config(shallow)
             loaded = len(calls)
             build_atlas(cfg, Path(tmp) / "out")
-    print(json.dumps({"case": "reach build (inline, depths 1-2)", "config": args.config, "strategies": len(data["strategies"]),
+    print(json.dumps({"case": "reach build (inline, depths 1-2)", "config": args.config,
+                      "strategies": len(data["strategies"]),
                       "bodies": len(calls), "of_which_load_config": loaded}))
 
 

@@ -43,7 +43,8 @@ def emit_trees(config: str, trees: dict[str, VATree]) -> None:
         emit(
             bench="build", config=config, strategy=name, d_max=tree.d_max, oracle_calls=b["oracle_calls"],
             mirrored_from=b.get("mirrored_from"), seconds=round(b["seconds"], 2),
-            vertices_per_s=round(b["oracle_calls"] / b["seconds"], 1) if b["seconds"] and b["oracle_calls"] and not b.get("mirrored_from") else None,
+            vertices_per_s=round(b["oracle_calls"] / b["seconds"], 1) if b["seconds"] and b["oracle_calls"]
+                and not b.get("mirrored_from") else None,
             full_lattice=tree.lattice.vertex_count, final_cell_vertices=int(final),
             calls_over_full=round(b.get("lookups", b["oracle_calls"]) / tree.lattice.vertex_count, 4),
             calls_over_final=round(b.get("lookups", b["oracle_calls"]) / max(final, 1), 3),
@@ -60,18 +61,21 @@ def main() -> None:
     parser.add_argument("--dask-depth", type=int, default=5)
     args = parser.parse_args()
     workers = os.cpu_count() or 1
-    emit(bench="machine", python=platform.python_version(), processor=platform.processor() or platform.machine(), cores=workers)
+    emit(bench="machine", python=platform.python_version(), processor=platform.processor() or platform.machine(),
+         cores=workers)
     if args.atlas:
         # Figures of an atlas built earlier (e.g. by `reach build`), read from its trees and manifest.
         atlas = load_atlas(args.atlas)
         name = str(atlas.manifest.get("name", args.atlas))
         emit_trees(name, atlas.trees)
-        emit(bench="atlas", config=name, wall_s=round(float(atlas.manifest.get("build_seconds", float("nan"))), 1), from_manifest=True)
+        emit(bench="atlas", config=name, wall_s=round(float(atlas.manifest.get("build_seconds", float("nan"))), 1),
+             from_manifest=True)
     else:
         config = load_config(args.config)
         with tempfile.TemporaryDirectory() as tmp:
             t0 = time.perf_counter()
-            built = build_atlas(config, Path(tmp) / "atlas", executor_factory=lambda s: ProcessExecutor(s, workers, config.chunk_size))
+            built = build_atlas(config, Path(tmp) / "atlas",
+                                executor_factory=lambda s: ProcessExecutor(s, workers, config.chunk_size))
             total = time.perf_counter() - t0
             emit_trees(config.name, built.trees)
             emit(bench="atlas", config=config.name, workers=workers, wall_s=round(total, 1))
@@ -85,11 +89,14 @@ def main() -> None:
     one = parse_config(data, "dask", "dask")
     times = {}
     for n in (1, 2):
-        with tempfile.TemporaryDirectory() as tmp, LocalCluster(n_workers=n, threads_per_worker=1, dashboard_address=None) as cluster, Client(cluster) as client:
+        with (tempfile.TemporaryDirectory() as tmp,
+              LocalCluster(n_workers=n, threads_per_worker=1, dashboard_address=None) as cluster,
+              Client(cluster) as client):
             t0 = time.perf_counter()
             build_atlas(one, Path(tmp) / "a", executor_factory=lambda s, c=client: DaskExecutor(s, c, one.chunk_size))
             times[n] = time.perf_counter() - t0
-    emit(bench="dask", strategy=args.dask_strategy, d_max=args.dask_depth, one_worker_s=round(times[1], 2), two_workers_s=round(times[2], 2),
+    emit(bench="dask", strategy=args.dask_strategy, d_max=args.dask_depth, one_worker_s=round(times[1], 2),
+         two_workers_s=round(times[2], 2),
          speedup=round(times[1] / times[2], 2))
 
 

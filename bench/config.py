@@ -25,7 +25,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeat", type=int, default=5)
     args = parser.parse_args()
-    print(json.dumps({"bench": "machine", "python": platform.python_version(), "processor": platform.processor() or platform.machine(),
+    print(json.dumps({"bench": "machine", "python": platform.python_version(), "processor": platform.processor()
+                      or platform.machine(),
                       "gcc": shutil.which("gcc") is not None}))
     for path in sorted((ROOT / "configs").glob("*.yaml")):
         load_config(path)
@@ -35,7 +36,8 @@ def main() -> None:
             config = load_config(path)
             seconds.append(time.perf_counter() - t0)
         print(json.dumps({"bench": "load_config", "config": path.name, "strategies": len(config.strategies),
-                          "median_s": round(float(np.median(seconds)), 4), "max_s": round(max(seconds), 4)}), flush=True)
+                          "median_s": round(float(np.median(seconds)), 4), "max_s": round(max(seconds), 4)}),
+                              flush=True)
 
 
 if __name__ == "__main__":

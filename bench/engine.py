@@ -85,20 +85,24 @@ def calls(data: dict, names: list[str], goals: int, chunk: int) -> None:
             fkj = fk_jacobian_seconds(oracle)
             for label, h in (("cold", None), ("warm", hints)):
                 t0, c0 = time.perf_counter(), time.process_time()
-                parts = [oracle.evaluate(Goals(goals_at[k : k + chunk], seeds=None if h is None else h[k : k + chunk])) for k in range(0, goals, chunk)]
+                parts = [oracle.evaluate(Goals(goals_at[k : k + chunk], seeds=None if h is None
+                                               else h[k : k + chunk])) for k in range(0, goals, chunk)]
                 wall, spent = time.perf_counter() - t0, time.process_time() - c0
                 reach = np.concatenate([p.reachable for p in parts])
                 posture = np.concatenate([p.posture for p in parts])
                 verified = oracle.verify(goals_at[reach], posture[reach]) if reach.any() else np.zeros(0, bool)
-                emit(bench="engine_calls", engine=engine, strategy=name, start=label, goals=goals, cpu_ms_per_goal=round(1e3 * spent / goals, 3),
+                emit(bench="engine_calls", engine=engine, strategy=name, start=label, goals=goals,
+                     cpu_ms_per_goal=round(1e3 * spent / goals, 3),
                      wall_ms_per_goal=round(1e3 * wall / goals, 3), fk_jacobian_us=round(1e6 * fkj, 2),
-                     calls_over_fk_jacobian=round(spent / goals / fkj, 1), reachable=int(reach.sum()), verified=int(verified.sum()),
+                     calls_over_fk_jacobian=round(spent / goals / fkj, 1), reachable=int(reach.sum()),
+                         verified=int(verified.sum()),
                      starts=getattr(oracle, "starts_per_goal", 1) if engine == "batch" else None)
                 np.save(Path(tempfile.gettempdir()) / f"engine_{engine}_{name}_{label}.npy", reach)
     for name in names:
         for label in ("cold", "warm"):
             a, b = (np.load(Path(tempfile.gettempdir()) / f"engine_{e}_{name}_{label}.npy") for e in ENGINES)
-            emit(bench="engine_agreement", strategy=name, start=label, both=int((a & b).sum()), batch_only=int((a & ~b).sum()),
+            emit(bench="engine_agreement", strategy=name, start=label, both=int((a & b).sum()),
+                 batch_only=int((a & ~b).sum()),
                  fatrop_only=int((b & ~a).sum()))
 
 
@@ -107,13 +111,16 @@ def builds(data: dict, workers: int) -> None:
         config = parse_config(with_engine(data, engine), str(data.get("name", "bench")), "bench")
         with tempfile.TemporaryDirectory() as tmp:
             t0, c0 = time.perf_counter(), cpu()
-            atlas = build_atlas(config, Path(tmp) / "atlas", executor_factory=lambda s, c=config: ProcessExecutor(s, workers, c.chunk_size))
+            atlas = build_atlas(config, Path(tmp) / "atlas", executor_factory=lambda s,
+                                c=config: ProcessExecutor(s, workers, c.chunk_size))
             wall, spent = time.perf_counter() - t0, cpu() - c0
             for name, tree in atlas.trees.items():
                 b = tree.meta["build"]
-                emit(bench="engine_build_tree", engine=engine, strategy=name, oracle_calls=b["oracle_calls"], seconds=round(b["seconds"], 1),
+                emit(bench="engine_build_tree", engine=engine, strategy=name, oracle_calls=b["oracle_calls"],
+                     seconds=round(b["seconds"], 1),
                      reachable_vertices=int(tree.vertices.reachable.sum()), mirrored=b.get("mirrored_from") is not None)
-            emit(bench="engine_build", engine=engine, config=config.name, workers=workers, wall_s=round(wall, 1), cpu_s=round(spent, 1))
+            emit(bench="engine_build", engine=engine, config=config.name, workers=workers, wall_s=round(wall, 1),
+                 cpu_s=round(spent, 1))
 
 
 def main() -> None:
@@ -125,7 +132,8 @@ def main() -> None:
     parser.add_argument("--skip-build", action="store_true")
     args = parser.parse_args()
     workers = os.cpu_count() or 1
-    emit(bench="machine", python=platform.python_version(), processor=platform.processor() or platform.machine(), cores=workers)
+    emit(bench="machine", python=platform.python_version(), processor=platform.processor() or platform.machine(),
+         cores=workers)
     data = read_yaml(Path(args.config))
     if not args.skip_calls:
         calls(data, args.strategies.split(","), args.goals, int(data.get("build", {}).get("chunk_size", 256)))

@@ -28,7 +28,8 @@ from reach.build.config import load_config
 ROOT = Path(__file__).resolve().parents[1]
 # Engines by label: registry name and parameters over the strategy's own.
 # The strategy's own "jit" is replaced by each engine's (dls takes none).
-ENGINES = {"casadi-ik": ("casadi-ik", {"solver": "fatrop", "jit": "auto"}), "casadi-ik/ipopt": ("casadi-ik", {"solver": "ipopt", "jit": "auto"}),
+ENGINES = {"casadi-ik": ("casadi-ik", {"solver": "fatrop", "jit": "auto"}),
+           "casadi-ik/ipopt": ("casadi-ik", {"solver": "ipopt", "jit": "auto"}),
            "casadi-ik/interpreted": ("casadi-ik", {"solver": "fatrop", "jit": False}), "dls": ("dls", {})}
 STRATEGIES = ["right_arm", "right_upper_body", "right_whole_body", "right_crouch", "right_tiptoe", "right_foot"]
 
@@ -59,7 +60,10 @@ def main() -> None:
     for name in STRATEGIES:
         spec = config.strategy(name).oracle
         params = {k: v for k, v in spec.params.items() if k != "jit"}
-        lo, hi = (np.array([-0.4, -0.9, 0.6]), np.array([0.9, 0.4, 2.1])) if "foot" not in name else (np.array([-0.5, -0.7, 0.0]), np.array([0.8, 0.2, 1.2]))
+        if "foot" not in name:
+            lo, hi = np.array([-0.4, -0.9, 0.6]), np.array([0.9, 0.4, 2.1])
+        else:
+            lo, hi = np.array([-0.5, -0.7, 0.0]), np.array([0.8, 0.2, 1.2])
         goals = rng.uniform(lo, hi, (args.points, 3))
         near = goals + rng.normal(size=goals.shape) * (0.02 / np.sqrt(3))
         verdicts = {}
@@ -73,8 +77,10 @@ def main() -> None:
             verdicts[label] = reach | reach_warm
             emit(
                 bench="ik", strategy=name, oracle=label, points=len(goals),
-                cold_median_ms=round(1e3 * float(np.median(cold)), 3), cold_p90_ms=round(1e3 * float(np.percentile(cold, 90)), 3),
-                warm_median_ms=round(1e3 * float(np.median(warm)), 3), warm_p90_ms=round(1e3 * float(np.percentile(warm, 90)), 3),
+                cold_median_ms=round(1e3 * float(np.median(cold)), 3),
+                    cold_p90_ms=round(1e3 * float(np.percentile(cold, 90)), 3),
+                warm_median_ms=round(1e3 * float(np.median(warm)), 3),
+                    warm_p90_ms=round(1e3 * float(np.percentile(warm, 90)), 3),
                 solved_points=int(solved.sum()),
                 solved_cold_median_ms=round(1e3 * float(np.median(cold[solved])), 3) if solved.any() else None,
                 solved_warm_median_ms=round(1e3 * float(np.median(warm[solved])), 3) if solved.any() else None,
@@ -86,9 +92,11 @@ def main() -> None:
             best |= strong.evaluate(goals).reachable
         for oracle_name, found in verdicts.items():
             emit(bench="success", strategy=name, oracle=oracle_name, best_known_reachable=int(best.sum()),
-                 found=int((found & best).sum()), success_rate=round(float((found & best).sum() / max(best.sum(), 1)), 4))
+                 found=int((found & best).sum()),
+                     success_rate=round(float((found & best).sum() / max(best.sum(), 1)), 4))
         for a, b in (("casadi-ik", "casadi-ik/ipopt"), ("casadi-ik", "dls")):
-            emit(bench="agreement", strategy=name, pair=[a, b], agree=round(float(np.mean(verdicts[a] == verdicts[b])), 4))
+            emit(bench="agreement", strategy=name, pair=[a, b],
+                 agree=round(float(np.mean(verdicts[a] == verdicts[b])), 4))
 
 
 if __name__ == "__main__":

@@ -37,7 +37,8 @@ from reach.maps.store import load_atlas
 def reached(ex: ProcessExecutor, points: np.ndarray, postures: np.ndarray, directions: np.ndarray) -> np.ndarray:
     """(m, n) whether the referee reaches each point with each direction, from the point's stored posture."""
     m, n = len(points), len(directions)
-    verdicts = ex.evaluate(Goals(np.repeat(points, n, axis=0), {"orientation": np.tile(directions, (m, 1))}, seeds=np.repeat(postures, n, axis=0)))
+    verdicts = ex.evaluate(Goals(np.repeat(points, n, axis=0), {"orientation": np.tile(directions, (m, 1))},
+                                 seeds=np.repeat(postures, n, axis=0)))
     return verdicts.reachable.reshape(m, n)
 
 
@@ -59,16 +60,20 @@ def main() -> None:
             reach_index = atlas.indexes[name]
             b, i = tree.meta["build"], tree.meta["index"]
             n = len(reach_index.directions)
-            cost = {"atlas": atlas.manifest["name"], "strategy": name, "directions": n, "tree_calls": b["oracle_calls"], "tree_seconds": round(b["seconds"], 1),
-                    "index_goals": i["goals"], "index_seconds": round(i["seconds"], 1), "goals_over_n_calls": round(i["goals"] / (n * b["oracle_calls"]), 3),
-                    "seconds_over_tree": round(i["seconds"] / b["seconds"], 2), "mean_index": round(i["mean"], 4), **machine}
+            cost = {"atlas": atlas.manifest["name"], "strategy": name, "directions": n,
+                    "tree_calls": b["oracle_calls"], "tree_seconds": round(b["seconds"], 1),
+                    "index_goals": i["goals"], "index_seconds": round(i["seconds"], 1),
+                        "goals_over_n_calls": round(i["goals"] / (n * b["oracle_calls"]), 3),
+                    "seconds_over_tree": round(i["seconds"] / b["seconds"], 2), "mean_index": round(i["mean"], 4),
+                        **machine}
             print(json.dumps(cost), flush=True)
             rows = np.nonzero(tree.vertices.reachable)[0]
             rng = np.random.default_rng(args.seed)
             sample = np.sort(rng.choice(rows, size=min(args.sample, rows.size), replace=False))
             points = tree.lattice.points(tree.lattice.coords(tree.vertices.keys[sample]))
             postures = tree.vertices.posture[sample]  # type: ignore[index]
-            referee = OracleSpec.from_dict(tree.meta["oracle"]).create().variant("referee", restarts=args.restarts)  # type: ignore[attr-defined]
+            referee = OracleSpec.from_dict(tree.meta["oracle"]).create().variant("referee",
+                restarts=args.restarts)  # type: ignore[attr-defined]
             ex = ProcessExecutor(referee.spec, workers=args.workers)
             try:
                 own = reached(ex, points, postures, reach_index.directions)
@@ -77,11 +82,14 @@ def main() -> None:
                 ex.close()
             index = reach_index.reached[sample]
             share, ref = index.mean(axis=1), dense.mean(axis=1)
-            print(json.dumps({"atlas": atlas.manifest["name"], "strategy": name, "sample": len(sample), "dense": args.dense,
-                              "error_vs_dense_mean": round(float(np.abs(share - ref).mean()), 4), "error_vs_dense_max": round(float(np.abs(share - ref).max()), 4),
+            print(json.dumps({"atlas": atlas.manifest["name"], "strategy": name, "sample": len(sample),
+                              "dense": args.dense,
+                              "error_vs_dense_mean": round(float(np.abs(share - ref).mean()), 4),
+                                  "error_vs_dense_max": round(float(np.abs(share - ref).max()), 4),
                               "bias_vs_dense": round(float((share - ref).mean()), 4),
                               "error_vs_own_mean": round(float(np.abs(share - own.mean(axis=1)).mean()), 4),
-                              "index_not_referee": int((index & ~own).sum()), "referee_not_index": int((~index & own).sum()), "pairs": int(own.size),
+                              "index_not_referee": int((index & ~own).sum()),
+                                  "referee_not_index": int((~index & own).sum()), "pairs": int(own.size),
                               **machine}), flush=True)
 
 

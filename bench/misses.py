@@ -35,7 +35,8 @@ def main() -> None:
     parser.add_argument("--goals", type=int, default=60, help="goals per strategy (default 60)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--strategies", nargs="*", help="default: every right-hand strategy")
-    parser.add_argument("--budget-ms", type=float, default=20.0, help="refinement budget per goal [ms] (default 20, the server's; reach query: 1000)")
+    parser.add_argument("--budget-ms", type=float, default=20.0, help="refinement budget per goal [ms] (default 20, "
+        "the server's; reach query: 1000)")
     args = parser.parse_args()
     atlas = load_atlas(args.atlas)
     selector = Selector(atlas, budget=args.budget_ms / 1000.0).warm_up()
@@ -73,11 +74,15 @@ def main() -> None:
             gap = float(np.linalg.norm(pin.updateFramePlacement(model, data, fid).translation - goal))
             if gap > TOLERANCE:
                 misses.append(gap)
-        print(json.dumps({"strategy": name, "budget_ms": args.budget_ms, "goals": args.goals, "reachable": reachable, "unreachable": unreachable, "within": within,
-                          "reachable_but_missed": len(misses), "worst_mm": round(1e3 * max(misses), 1) if misses else None,
-                          "median_mm": round(1e3 * float(np.median(misses)), 1) if misses else None, "refined": outcomes}), flush=True)
+        print(json.dumps({"strategy": name, "budget_ms": args.budget_ms, "goals": args.goals, "reachable": reachable,
+                          "unreachable": unreachable, "within": within,
+                          "reachable_but_missed": len(misses), "worst_mm": round(1e3 * max(misses), 1) if misses
+                              else None,
+                          "median_mm": round(1e3 * float(np.median(misses)), 1) if misses else None,
+                              "refined": outcomes}), flush=True)
     lat = np.array(seconds) * 1e3
-    print(json.dumps({"latency_ms": {"median": round(float(np.median(lat)), 2), "p99": round(float(np.percentile(lat, 99)), 2),
+    print(json.dumps({"latency_ms": {"median": round(float(np.median(lat)), 2),
+                                     "p99": round(float(np.percentile(lat, 99)), 2),
                                      "max": round(float(lat.max()), 2)}, "answers": len(lat)}))
 
 

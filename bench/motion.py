@@ -66,7 +66,8 @@ def goals_by_group(selector: Selector, per_group: int, rng: np.random.Generator)
 
 
 def stats(ms: list[float]) -> dict[str, float]:
-    return {"median_ms": round(float(np.median(ms)), 1), "p99_ms": round(float(np.percentile(ms, 99)), 1), "max_ms": round(float(np.max(ms)), 1)}
+    return {"median_ms": round(float(np.median(ms)), 1), "p99_ms": round(float(np.percentile(ms, 99)), 1),
+            "max_ms": round(float(np.max(ms)), 1)}
 
 
 def in_process(planner: Planner, groups: dict[str, np.ndarray]) -> None:
@@ -89,14 +90,16 @@ def in_process(planner: Planner, groups: dict[str, np.ndarray]) -> None:
             durations.append(m.duration)
             frames.append(len(m.times))
             routed += m.waypoints > 0
-        emit(bench="motion", path="in_process", group=group, goals=len(goals), **stats(ms), duration_s=round(float(np.median(durations)), 3),
+        emit(bench="motion", path="in_process", group=group, goals=len(goals), **stats(ms),
+             duration_s=round(float(np.median(durations)), 3),
              frames=int(np.median(frames)) if frames else 0, routed=routed, failed=failed)
 
 
 @contextlib.contextmanager
 def served(atlas: str, workers: int) -> Iterator[zmq.Socket]:
     """``reach serve`` of the atlas in a process of its own, its workers ready, and a REQ socket to it."""
-    proc = subprocess.Popen([sys.executable, "-m", "reach.tools.cli", "serve", atlas, "--bind", "tcp://127.0.0.1:*", "--pub", "none",
+    proc = subprocess.Popen([sys.executable, "-m", "reach.tools.cli", "serve", atlas, "--bind", "tcp://127.0.0.1:*",
+                             "--pub", "none",
                              "--workers", str(workers)], stdout=subprocess.PIPE, text=True)
     try:
         line = proc.stdout.readline()  # type: ignore[union-attr]
@@ -130,7 +133,8 @@ def over_the_wire(atlas: str, groups: dict[str, np.ndarray]) -> None:
                 ms.append(1e3 * (time.perf_counter() - t0))
                 sizes.append(len(reply))
                 failed += not json.loads(reply).get("ok")
-            emit(bench="motion", path="wire_2_workers", group=group, goals=len(goals), **stats(ms), reply_kib=round(float(np.median(sizes)) / 1024, 1),
+            emit(bench="motion", path="wire_2_workers", group=group, goals=len(goals), **stats(ms),
+                 reply_kib=round(float(np.median(sizes)) / 1024, 1),
                  failed=failed)
 
 

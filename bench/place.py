@@ -52,7 +52,8 @@ def main() -> None:
     verify_s = time.perf_counter() - t0
     machine = {"machine": platform.processor() or platform.machine(), "cores": os.cpu_count()}
     best = ranking.row(0, targets)
-    print(json.dumps({"bodies": len(atlases), "targets": len(targets), "placements": len(ranking.placements), "rank_seconds": [round(s, 3) for s in seconds],
+    print(json.dumps({"bodies": len(atlases), "targets": len(targets), "placements": len(ranking.placements),
+                      "rank_seconds": [round(s, 3) for s in seconds],
                       "goal_s": 1.0, "verify_best": args.verify, "verify_seconds": round(verify_s, 2),
                       "best": {k: best[k] for k in ("position", "yaw_deg", "accommodated", "reached", "preference")},
                       "verified": checked, **machine}), flush=True)

@@ -28,7 +28,8 @@ Prints JSON lines:
   height found by bisection with the strategy's referee at three points.
 
 The selector hands goals over as a server does (``--handover-deg``, default
-5; 0 for the paper's plain priority). Goals are drawn with fixed seeds, one stream per measure, so figures are repeatable and
+5; 0 for the paper's plain priority). Goals are drawn with fixed seeds, one stream per measure, so figures are
+repeatable and
 every atlas is measured on the same goals.
 """
 
@@ -87,11 +88,14 @@ def main() -> None:
     # boundary between two postures' basins (low in front, same atlas: 3.8 deg
     # on 94 pairs, 19.0 deg on 293).
     parser.add_argument("--pairs", type=int, default=300, help="pairs of goals 1 cm apart per region (default 300)")
-    parser.add_argument("--budget", type=float, default=0.5, help="refinement budget [s] (generous: figures, not latency)")
-    parser.add_argument("--handover-deg", type=float, default=math.degrees(HANDOVER), help="the selector's handover margin [deg]")
+    parser.add_argument("--budget", type=float, default=0.5, help="refinement budget [s] (generous: figures, not "
+        "latency)")
+    parser.add_argument("--handover-deg", type=float, default=math.degrees(HANDOVER), help="the selector's handover "
+        "margin [deg]")
     args = parser.parse_args()
     atlas = load_atlas(args.atlas)
-    emit(bench="machine", python=platform.python_version(), processor=platform.processor() or platform.machine(), atlas=str(Path(args.atlas)),
+    emit(bench="machine", python=platform.python_version(), processor=platform.processor() or platform.machine(),
+         atlas=str(Path(args.atlas)),
          handover_deg=args.handover_deg)
     rng = np.random.default_rng(0)
     specs = {name: OracleSpec.from_dict(tree.meta["oracle"]) for name, tree in atlas.trees.items()}
@@ -111,7 +115,8 @@ def main() -> None:
         ok = np.nonzero(tree.vertices.reachable)[0]
         rows = rng.choice(ok, size=min(500, ok.size), replace=False)
         floors = np.array([pr.floor for pr in task.pairs])
-        colliding = [bool(np.any(task.distances(q) < floors)) for q in tree.vertices.posture[rows]] if task.pairs else [False]
+        colliding = ([bool(np.any(task.distances(q) < floors)) for q in tree.vertices.posture[rows]] if task.pairs
+                     else [False])
         emit(bench="inside_body", strategy=name, static_capsules=len(static), share=share)
         emit(bench="stored_collisions", strategy=name, postures=int(rows.size), share=float(np.mean(colliding)))
 
@@ -142,7 +147,8 @@ def main() -> None:
             frames = body.frame_positions(q, ["right_shoulder"])
             elbow = elbow_position(body, q)
             elbow_high += int(elbow[2] > frames["right_shoulder"][2])
-    emit(bench="elbow", goals_in_front_below_shoulder=front_low, elbow_above_shoulder=elbow_high, share=elbow_high / max(front_low, 1))
+    emit(bench="elbow", goals_in_front_below_shoulder=front_low, elbow_above_shoulder=elbow_high,
+         share=elbow_high / max(front_low, 1))
     emit(bench="near_limits", answers=answered, within_5deg=near, share=near / max(answered, 1))
     # Low in front the trunk strategies answer, and at the edges of their
     # volumes the spine bends and twists to its limits (README, "Found and left").
@@ -171,7 +177,8 @@ def main() -> None:
                 if a.reachable and b.reachable and a.strategy == b.strategy and a.posture and b.posture:
                     changes.append(max(abs(a.posture[k] - b.posture[k]) for k in a.posture))
                     used.add(a.strategy)
-                switches += int(a.reachable and b.reachable and a.strategy != b.strategy)  # a change of strategy: a jump of its own
+                # a change of strategy: a jump of its own
+                switches += int(a.reachable and b.reachable and a.strategy != b.strategy)
             c = np.degrees(changes) if changes else np.zeros(1)
             emit(bench="neighbours", region=region, mode=mode, pairs=len(changes), strategies=sorted(used),
                  p99_deg=round(float(np.percentile(c, 99)), 2), max_deg=round(float(c.max()), 2),
@@ -186,7 +193,8 @@ def main() -> None:
         front = v.reachable & (pts[:, 0] >= 0.1) & (pts[:, 0] <= 0.5) & (np.abs(pts[:, 1]) <= 0.3)
         # Independent of the tree's resolution: bisect the height at points in
         # front of the feet with the strategy's thorough referee.
-        referee = OracleSpec.from_dict(tree.meta["oracle"]).create().variant("referee", restarts=6)  # type: ignore[attr-defined]
+        referee = OracleSpec.from_dict(tree.meta["oracle"]).create().variant("referee",
+            restarts=6)  # type: ignore[attr-defined]
         lowest = []
         for x, y in LOW_POINTS:
             lo, hi = 0.0, 0.6

@@ -34,7 +34,9 @@ SHOULDER = 0.333  # [m] joint 2's height above the base (the Panda's d1)
 def arm_reach() -> dict[str, float]:
     """The flange's farthest reach along +x at the shoulder's height, by bisection on direct IK [m]."""
     body = {"urdf": str(ARM7), "reference": {"arm7_joint4": -2.356194, "arm7_joint6": 1.570796}}
-    oracle = OracleSpec("casadi-ik", {**body_params(body, "arm7_flange", ["arm7_joint*"], [{"type": "reach"}]), "jit": False}).create()
+    oracle = OracleSpec("casadi-ik",
+                        {**body_params(body, "arm7_flange", ["arm7_joint*"], [{"type": "reach"}]),
+                         "jit": False}).create()
     referee = oracle.variant("referee")  # type: ignore[attr-defined]
     lo, hi = 0.5, 1.2
     while hi - lo > 1e-4:
@@ -43,7 +45,8 @@ def arm_reach() -> dict[str, float]:
             lo = mid
         else:
             hi = mid
-    return {"ik_reach_m": round(lo, 4), "datasheet_m": DATASHEET_REACH, "difference_mm": round(1000 * (lo - DATASHEET_REACH), 1)}
+    return {"ik_reach_m": round(lo, 4), "datasheet_m": DATASHEET_REACH,
+            "difference_mm": round(1000 * (lo - DATASHEET_REACH), 1)}
 
 
 def main() -> None:
@@ -55,13 +58,17 @@ def main() -> None:
         atlas = load_atlas(path)
         for name, tree in atlas.trees.items():
             b = tree.meta["build"]
-            print(json.dumps({"atlas": atlas.manifest["name"], "strategy": name, "seconds": round(b["seconds"], 1), "oracle_calls": b["oracle_calls"],
-                              "inner_m3": round(tree.volume(INNER), 4), "boundary_m3": round(tree.volume(FINAL), 4), "d_max": tree.d_max,
-                              "box": [tree.box.lo.tolist(), tree.box.hi.tolist()], "on_faces": tree.faces(), **machine}), flush=True)
+            print(json.dumps({"atlas": atlas.manifest["name"], "strategy": name, "seconds": round(b["seconds"], 1),
+                              "oracle_calls": b["oracle_calls"],
+                              "inner_m3": round(tree.volume(INNER), 4), "boundary_m3": round(tree.volume(FINAL), 4),
+                                  "d_max": tree.d_max,
+                              "box": [tree.box.lo.tolist(), tree.box.hi.tolist()], "on_faces": tree.faces(),
+                                  **machine}), flush=True)
             if name == "tcp":  # the arm example: its tree along +x at the shoulder's height
                 xs = np.linspace(0.0, 1.2, 1201)
                 inside = tree.contains(np.stack([xs, np.zeros_like(xs), np.full_like(xs, SHOULDER)], 1), "vertex")
-                print(json.dumps({"atlas": atlas.manifest["name"], "strategy": name, "tree_reach_along_x_m": float(xs[inside].max()) if inside.any() else None}))
+                print(json.dumps({"atlas": atlas.manifest["name"], "strategy": name,
+                                  "tree_reach_along_x_m": float(xs[inside].max()) if inside.any() else None}))
     print(json.dumps({"arm7_flange_reach": arm_reach(), **machine}), flush=True)
 
 

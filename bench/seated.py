@@ -10,7 +10,8 @@ For each body (the 5th-percentile woman, the 50th-percentile man and woman, the 
 * ``lean``: how much farther the trunk-free strategy (the pelvis turning on the seat) reaches on the
   same seated line, and the belted strategy on a car seat (a locked shoulder belt) against the unbelted.
 
-Each reach is the farthest distance IK verdicts (3 random restarts) find: a scan in 0.1 m steps, then a bisection to 5 mm.
+Each reach is the farthest distance IK verdicts (3 random restarts) find: a scan in 0.1 m steps, then a bisection to
+5 mm.
 
     python bench/seated.py [--bodies female:5,male:95]
 """
@@ -35,17 +36,25 @@ ARM = ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"]
 # The examples' trunk strategies (configs/examples/*.yaml): the idle arm's shoulder and elbow move too.
 TRUNK = [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*", "neck_*", "root", "*_hip_*", "*_knee_*", "*_ankle_*",
          "left_shoulder_flexion", "left_shoulder_abduction", "left_elbow_flexion"]
-SUPPORT = ["right_ischium", "left_ischium", "right_thigh_rest", "left_thigh_rest", "right_heel_inner", "right_heel_outer", "right_toe_inner",
+SUPPORT = ["right_ischium", "left_ischium", "right_thigh_rest", "left_thigh_rest", "right_heel_inner",
+           "right_heel_outer", "right_toe_inner",
            "right_toe_outer", "left_heel_inner", "left_heel_outer", "left_toe_inner", "left_toe_outer"]
-COMMON = [{"type": "balance", "margin": 0.02}, {"type": "self_collision"}, {"type": "obstacles"}, {"type": "floor"}, {"type": "coupling"},
+COMMON = [{"type": "balance", "margin": 0.02}, {"type": "self_collision"}, {"type": "obstacles"}, {"type": "floor"},
+          {"type": "coupling"},
           {"type": "hang", "frames": ["left_shoulder", "left_elbow_flexion"]}]
-LEAN = [{"type": "reach"}, {"type": "contacts", "hinge": ["right_ischium", "left_ischium"], "fixed": ["right_foot", "left_foot"], "support": SUPPORT},
+LEAN = [{"type": "reach"},
+        {"type": "contacts", "hinge": ["right_ischium", "left_ischium"], "fixed": ["right_foot", "left_foot"],
+         "support": SUPPORT},
         *COMMON]
-BELTED = [{"type": "reach"}, {"type": "contacts", "fixed": ["right_ischium", "left_ischium", "right_foot", "left_foot"], "support": SUPPORT},
-          {"type": "tether", "anchor": [-0.25, 0.30, 0.85], "frames": ["sternum", "left_shoulder"], "slack": 0.02}, *COMMON]
+BELTED = [{"type": "reach"},
+          {"type": "contacts", "fixed": ["right_ischium", "left_ischium", "right_foot", "left_foot"],
+           "support": SUPPORT},
+          {"type": "tether", "anchor": [-0.25, 0.30, 0.85], "frames": ["sternum", "left_shoulder"], "slack": 0.02},
+              *COMMON]
 
 
-def farthest(oracle: CasadiIK, start: np.ndarray, direction: np.ndarray, lo: float = 0.2, hi: float = 1.6, tol: float = 0.005) -> float:
+def farthest(oracle: CasadiIK, start: np.ndarray, direction: np.ndarray, lo: float = 0.2, hi: float = 1.6,
+             tol: float = 0.005) -> float:
     """The farthest t [m] with start + t direction reached: a scan in 0.1 m steps from lo for the last reached
     distance before the first missed one, then a bisection between them."""
     steps = np.arange(lo, hi, 0.1)
@@ -70,7 +79,8 @@ def seated(sex: str, percentile: float, kind: str) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--bodies", default="female:5,female:50,male:50,male:95", help="sex:percentile, comma-separated")
+    parser.add_argument("--bodies", default="female:5,female:50,male:50,male:95",
+                        help="sex:percentile, comma-separated")
     args = parser.parse_args()
     search = Search(restarts=3, seed=0)
     for item in args.bodies.split(","):
@@ -83,7 +93,8 @@ def main() -> None:
         t = farthest(stand, shoulder, np.array([1.0, 0.0, 0.0]))
         standing = t + shoulder[0] - back[0]
         spec = seated(sex, percentile, "chair")
-        arm = CasadiIK(spec, "right_hand", ARM, [{"type": "reach"}, {"type": "coupling"}, {"type": "obstacles"}], search=search)
+        arm = CasadiIK(spec, "right_hand", ARM, [{"type": "reach"}, {"type": "coupling"}, {"type": "obstacles"}],
+                       search=search)
         beta = math.radians(15.0)
         normal = np.array([math.cos(beta), 0.0, math.sin(beta)])
         s = arm.body.frame_positions()["right_shoulder"]
@@ -105,7 +116,8 @@ def main() -> None:
         print(json.dumps({"bench": "seated", "measure": "lean", "sex": sex, "percentile": percentile,
                           "chair_arm_mm": round(1000 * t_arm, 1), "chair_lean_mm": round(1000 * t_lean, 1),
                           "lean_adds_mm": round(1000 * (t_lean - t_arm), 1),
-                          "car_belted_mm": round(1000 * t_belted, 1), "car_unbelted_mm": round(1000 * t_free, 1)}), flush=True)
+                          "car_belted_mm": round(1000 * t_belted, 1), "car_unbelted_mm": round(1000 * t_free, 1)}),
+                              flush=True)
 
 
 if __name__ == "__main__":

@@ -154,17 +154,22 @@ def stats(name: str, lat: np.ndarray, **extra: object) -> dict[str, float]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--requests", type=int, default=3000)
-    parser.add_argument("--chunk", type=int, default=None, help="the servers' --chunk (goals per worker task; default: the server's)")
-    parser.add_argument("--only", choices=["workers", "attacks"], help="run only the benchmarks with workers, or only the attacks")
+    parser.add_argument("--chunk", type=int, default=None, help="the servers' --chunk (goals per worker task; "
+                                                                "default: the server's)")
+    parser.add_argument("--only", choices=["workers", "attacks"], help="run only the benchmarks with workers, or "
+        "only the attacks")
     args = parser.parse_args()
-    emit(bench="machine", python=platform.python_version(), processor=platform.processor() or platform.machine(), pyzmq=zmq.__version__)
+    emit(bench="machine", python=platform.python_version(), processor=platform.processor() or platform.machine(),
+         pyzmq=zmq.__version__)
     with tempfile.TemporaryDirectory() as tmp:
         atlas = Path(tmp) / "atlas"
         build_atlas(parse_config(CONFIG, "bench", "bench"), atlas)
         rng = np.random.default_rng(0)
         goals = rng.uniform([0.1, -0.6, 0.9], [0.6, 0.0, 1.6], (args.requests, 3))
-        stored = [json.dumps({"op": "query", "id": i, "effector": "right_hand", "goal": g.tolist(), "refine": False}).encode() for i, g in enumerate(goals)]
-        refined = [json.dumps({"op": "query", "id": i, "effector": "right_hand", "goal": g.tolist(), "refine": True}).encode() for i, g in enumerate(goals)]
+        stored = [json.dumps({"op": "query", "id": i, "effector": "right_hand", "goal": g.tolist(),
+                              "refine": False}).encode() for i, g in enumerate(goals)]
+        refined = [json.dumps({"op": "query", "id": i, "effector": "right_hand", "goal": g.tolist(),
+                               "refine": True}).encode() for i, g in enumerate(goals)]
         CHUNK[:] = [] if args.chunk is None else ["--chunk", str(args.chunk)]
         if args.only is None:
             one_server_bench(atlas, stored, refined, args.requests)
@@ -180,7 +185,8 @@ def main() -> None:
 
 def one_server_bench(atlas: Path, stored: list[bytes], refined: list[bytes], requests: int) -> None:
     """Stored and refined latency against the echo, and throughput, from one server with its default workers."""
-    server, address = start([sys.executable, "-m", "reach.tools.cli", "serve", str(atlas), "--bind", "tcp://127.0.0.1:*", "--pub", "tcp://127.0.0.1:*", "--budget-ms", "20"])
+    server, address = start([sys.executable, "-m", "reach.tools.cli", "serve", str(atlas), "--bind",
+                             "tcp://127.0.0.1:*", "--pub", "tcp://127.0.0.1:*", "--budget-ms", "20"])
     echo = None
     try:
         _ready(address)  # the workers have loaded the atlas: nothing else runs while we measure
@@ -197,21 +203,24 @@ def one_server_bench(atlas: Path, stored: list[bytes], refined: list[bytes], req
             if proc is not None:
                 proc.terminate()
                 proc.wait()
-    emit(bench="goals", stored_p99_over_echo_p99=round(s["p99"] / e["p99"], 3), stored_p99_ms=round(s["p99"], 4), refined_p99_ms=round(r["p99"], 4))
+    emit(bench="goals", stored_p99_over_echo_p99=round(s["p99"] / e["p99"], 3), stored_p99_ms=round(s["p99"], 4),
+         refined_p99_ms=round(r["p99"], 4))
 
 
 def analytic_bench(atlas: Path, requests: int) -> None:
     """Default-option queries of an analytic atlas (no IK) from a server with workers, against the echo."""
     build_atlas(parse_config(SPHERE, "sphere", "sphere"), atlas)
     goals = np.random.default_rng(1).uniform(-1, 1, (requests, 3))
-    payloads = [json.dumps({"op": "query", "id": i, "effector": "point", "goal": g.tolist()}).encode() for i, g in enumerate(goals)]
+    payloads = [json.dumps({"op": "query", "id": i, "effector": "point", "goal": g.tolist()}).encode()
+                for i, g in enumerate(goals)]
     server, address = serve(atlas, 2)
     echo = None
     try:
         _workers_ready(address, 2)  # no worker starting up beside the measure
         echo, echo_address, size = echo_beside(address, payloads[0])
         lat, lat_echo = latencies([address, echo_address], payloads)
-        a, e = stats("analytic_default_options_2_workers", lat, reply_bytes=size), stats("echo_analytic", lat_echo, reply_bytes=size)
+        a, e = stats("analytic_default_options_2_workers", lat, reply_bytes=size), stats("echo_analytic", lat_echo,
+            reply_bytes=size)
         emit(bench="goals", analytic_default_p99_over_echo_p99=round(a["p99"] / e["p99"], 3))
     finally:
         for proc in (server, echo):
@@ -221,8 +230,10 @@ def analytic_bench(atlas: Path, requests: int) -> None:
 
 
 def reload_bench(atlas: Path, stored: list[bytes]) -> None:
-    """Stored answers alone, then while another client reloads the atlas back to back (no workers, so only the load competes)."""
-    server, address = start([sys.executable, "-m", "reach.tools.cli", "serve", str(atlas), "--bind", "tcp://127.0.0.1:*", "--pub", "none",
+    """Stored answers alone, then while another client reloads the atlas back to back (no workers, so only the load
+    competes)."""
+    server, address = start([sys.executable, "-m", "reach.tools.cli", "serve", str(atlas), "--bind",
+                             "tcp://127.0.0.1:*", "--pub", "none",
                              "--workers", "0", "--no-refine", "--allow-reload", str(atlas.parent)])
     stop = threading.Event()
     took: list[float] = []
@@ -252,7 +263,8 @@ def reload_bench(atlas: Path, stored: list[bytes]) -> None:
 
 
 def echo_beside(address: str, payload: bytes) -> tuple[subprocess.Popen, str, int]:
-    """A bare echo server whose reply has the size of the server's reply to payload: its process, address and that size."""
+    """A bare echo server whose reply has the size of the server's reply to payload: its process, address and that
+    size."""
     sock = zmq.Context.instance().socket(zmq.REQ)
     sock.connect(address)
     sock.send(payload)
@@ -266,7 +278,8 @@ CHUNK: list[str] = []  # the servers' --chunk option, when given
 
 
 def serve(atlas: Path, workers: int) -> tuple[subprocess.Popen, str]:
-    return start([sys.executable, "-m", "reach.tools.cli", "serve", str(atlas), "--bind", "tcp://127.0.0.1:*", "--pub", "none",
+    return start([sys.executable, "-m", "reach.tools.cli", "serve", str(atlas), "--bind", "tcp://127.0.0.1:*",
+                  "--pub", "none",
                   "--budget-ms", "20", "--workers", str(workers), *CHUNK])
 
 
@@ -309,7 +322,9 @@ def _batch(address: str, goals: np.ndarray, deadline: float = 3600) -> zmq.Socke
     sock = zmq.Context.instance().socket(zmq.DEALER)
     sock.setsockopt(zmq.LINGER, 0)
     sock.connect(address)
-    sock.send_multipart([b"", json.dumps({"op": "query", "id": "batch", "effector": "right_hand", "goals": goals.tolist(), "deadline": deadline}).encode()])
+    sock.send_multipart([b"",
+                         json.dumps({"op": "query", "id": "batch", "effector": "right_hand", "goals": goals.tolist(),
+                                     "deadline": deadline}).encode()])
     return sock
 
 
@@ -324,8 +339,10 @@ def mixed(address: str, stored: list[bytes], workers: int) -> None:
     for proc in refiners:
         proc.kill()
         proc.wait()
-    a, b = stats(f"stored_alone_{workers}_workers", alone), stats(f"stored_while_2_clients_refine_{workers}_workers", loaded)
-    emit(bench="goals", workers=workers, mixed_p99_ms=round(b["p99"], 4), mixed_over_alone_p99=round(b["p99"] / a["p99"], 3))
+    a, b = stats(f"stored_alone_{workers}_workers", alone), stats(f"stored_while_2_clients_refine_{workers}_workers",
+        loaded)
+    emit(bench="goals", workers=workers, mixed_p99_ms=round(b["p99"], 4),
+         mixed_over_alone_p99=round(b["p99"] / a["p99"], 3))
 
 
 def workers_bench(atlas: Path, goals: np.ndarray, stored: list[bytes]) -> None:
@@ -341,13 +358,15 @@ def workers_bench(atlas: Path, goals: np.ndarray, stored: list[bytes]) -> None:
     try:
         _ready(address)
         mixed(address, stored, 2)
-        refined = [json.dumps({"op": "query", "id": i, "effector": "right_hand", "goal": g.tolist()}).encode() for i, g in enumerate(goals[:300])]
+        refined = [json.dumps({"op": "query", "id": i, "effector": "right_hand", "goal": g.tolist()}).encode()
+                   for i, g in enumerate(goals[:300])]
         single_alone = latencies([address], refined)[0]
         huge = _batch(address, np.tile(goals, (1 + 10_000 // len(goals), 1))[:10_000])
         time.sleep(0.5)
         single_behind = latencies([address], refined)[0]
         huge.close(linger=0)  # the batch's client goes away; its work is dropped by its deadline, shared meanwhile
-        a1, b1 = stats("refined_single_alone", single_alone), stats("refined_single_during_another_clients_10000_goal_batch", single_behind)
+        a1, b1 = stats("refined_single_alone",
+                       single_alone), stats("refined_single_during_another_clients_10000_goal_batch", single_behind)
         emit(bench="goals", fair_p99_over_alone_p99=round(b1["p99"] / a1["p99"], 3))
         _idle(address)
         big = _batch(address, np.tile(goals, (1 + 2000 // len(goals), 1))[:2000])
@@ -445,7 +464,8 @@ def heavy_bench(atlas: Path, repeats: int = 10) -> None:
     goals = np.random.default_rng(35).uniform([0.1, -0.7, 0.8], [0.6, 0.0, 1.6], (10_000, 3)).round(4).tolist()
     target = {"point": [0.5, -0.2, 1.1], "effector": "right_hand"}
     phases = {"alone": None,
-              "place": {"op": "place", "targets": [target] * 1000, "x": [-1.0, 1.0], "y": [-1.0, 1.0], "yaw": [0, 0], "step": 0.05},
+              "place": {"op": "place", "targets": [target] * 1000, "x": [-1.0, 1.0], "y": [-1.0, 1.0], "yaw": [0, 0],
+                        "step": 0.05},
               "stored_batch": {"op": "query", "effector": "right_hand", "goals": goals, "refine": False}}
     ctx = mp.get_context("spawn")
     sock = zmq.Context.instance().socket(zmq.DEALER)
@@ -470,7 +490,8 @@ def heavy_bench(atlas: Path, repeats: int = 10) -> None:
             waits, lost, _ = out.get(timeout=60)
             watcher.join()
             lat = np.array(waits) * 1e3
-            emit(bench="server_heavy", phase=phase, requests=repeats if request else 0, replies=codes, seconds=round(seconds, 2),
+            emit(bench="server_heavy", phase=phase, requests=repeats if request else 0, replies=codes,
+                 seconds=round(seconds, 2),
                  watcher_queries=len(waits), watcher_lost=lost, median_ms=round(float(np.median(lat)), 3),
                  p99_ms=round(float(np.percentile(lat, 99)), 3), longest_ms=round(float(lat.max()), 1))
     finally:
@@ -552,7 +573,8 @@ def attacks_bench(atlas: Path, workers: int) -> None:
         server.terminate()
         server.wait(timeout=30)
     lat = np.array(waits) * 1e3
-    emit(bench="server_attacks", workers=workers, attacks=len(attacks), replies=codes, watcher_queries=len(waits), watcher_lost=lost,
+    emit(bench="server_attacks", workers=workers, attacks=len(attacks), replies=codes, watcher_queries=len(waits),
+         watcher_lost=lost,
          longest_wait_ms=round(float(lat.max()), 1), watcher_p99_ms=round(float(np.percentile(lat, 99)), 2),
          server_rss_max_mb=round(memory / 2**20, 1))
 

@@ -59,14 +59,16 @@ def figure(planner: Planner, body, name: str, goal: tuple[float, ...], out: Path
     length = float(np.linalg.norm(np.diff(m.path, axis=0), axis=1).sum())
     ax = fig.add_subplot(grid[1, :])
     ax.plot(mid, speed, "o-", ms=3, color="#c44e52", label="hand speed (frames)")
-    ax.plot(mid, length / m.duration * 30 * u**2 * (1 - u) ** 2, "--", color="#444", label="minimum jerk, same path length")
+    ax.plot(mid, length / m.duration * 30 * u**2 * (1 - u) ** 2, "--", color="#444", label="minimum jerk, same path "
+        "length")
     ax.set_xlabel("t [s]")
     ax.set_ylabel("speed [m/s]")
     ax.set_xlim(0, m.duration)
     ax.legend(fontsize=8, loc="upper right")
     parts = ", ".join(f"{k} {v:.1f} TMU" for k, v in m.parts.items())
-    fig.suptitle(f"right hand to ({goal[0]:.2f}, {goal[1]:.2f}, {goal[2]:.2f}) m: {m.strategy}, {m.duration:.2f} s ({parts}), "
-                 f"{len(m.times)} frames at {m.rate:g} Hz, {m.waypoints} stored postures on the way, {m.held} frames held", fontsize=9)
+    fig.suptitle(f"right hand to ({goal[0]:.2f}, {goal[1]:.2f}, {goal[2]:.2f}) m: {m.strategy}, {m.duration:.2f} s "
+                 f"({parts}), {len(m.times)} frames at {m.rate:g} Hz, {m.waypoints} stored postures on the way, "
+                 f"{m.held} frames held", fontsize=9)
     fig.tight_layout()
     path = out / f"motion_{name}.png"
     fig.savefig(path, dpi=80)

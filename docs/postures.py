@@ -65,7 +65,8 @@ def main() -> None:
                         help="goals [m] of the right hand, world frame, ';'-separated (default: the README's twelve); "
                              "write --goals=... when the first value is negative")
     parser.add_argument("--chain", action="store_true",
-                        help="ask each goal with the previous answer as the current posture (`from`), as an animation does")
+                        help="ask each goal with the previous answer as the current posture (`from`), as an "
+                             "animation does")
     args = parser.parse_args()
     goals = args.goals
     atlas = load_atlas(args.atlas)

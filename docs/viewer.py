@@ -40,7 +40,8 @@ def main() -> None:
     viewer.set_goal(np.array([0.55, -0.45, 1.25]))
     opts = webdriver.ChromeOptions()
     opts.binary_location = "/usr/bin/chromium"
-    for flag in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
+    for flag in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                 "--disable-background-networking",
                  "--disable-component-update", "--disable-sync", "--window-size=1400,850", "--use-angle=swiftshader",
                  "--enable-unsafe-swiftshader", f"--user-data-dir={tempfile.mkdtemp(prefix='reach-chromium-')}"):
         opts.add_argument(flag)
@@ -49,7 +50,8 @@ def main() -> None:
         driver.get(viewer.url)
         time.sleep(8)
         # The page's "software WebGL" notice is the headless browser's, not the viewer's: close it.
-        for button in driver.find_elements("css selector", "button.mantine-Notification-closeButton, button[aria-label='Close']"):
+        for button in driver.find_elements("css selector", "button.mantine-Notification-closeButton, "
+                                                           "button[aria-label='Close']"):
             try:
                 button.click()
             except Exception:  # noqa: BLE001, S110 - a notice already gone

@@ -43,7 +43,8 @@ class ModelError(ReachError):
             the error passes up (a config then names the key as written).
     """
 
-    def __init__(self, reason: str, *, source: str | Path | None = None, name: str | None = None, key: str | None = None) -> None:
+    def __init__(self, reason: str, *, source: str | Path | None = None, name: str | None = None,
+                 key: str | None = None) -> None:
         self.reason, self.source, self.name, self.key = reason, None if source is None else str(source), name, key
         super().__init__(reason)
 

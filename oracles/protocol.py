@@ -240,7 +240,8 @@ class Probing(Protocol):
     """An oracle that can estimate its volume's bounds by reaching far in a few directions (``box: auto``)."""
 
     def reach_extent(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """Lowest and highest effector positions [m] (3,) found reaching far: an estimate, not a bound; None if none was found."""
+        """Lowest and highest effector positions [m] (3,) found reaching far: an estimate, not a bound; None if none
+        was found."""
         ...
 
 
@@ -270,7 +271,8 @@ class Shaped(Protocol):
 
 @runtime_checkable
 class Furnished(Protocol):
-    """An oracle whose body comes with static boxes (a seated body's seat) or whose strategy keeps out of some (a table)."""
+    """An oracle whose body comes with static boxes (a seated body's seat) or whose strategy keeps out of some (a
+    table)."""
 
     def furniture(self) -> tuple[list[str], np.ndarray]:
         """Names and boxes (K, 10: centre [m], half sizes [m], orientation quaternion w, x, y, z; world frame)."""
@@ -291,7 +293,8 @@ class Verifying(Protocol):
     """An oracle that can check a posture found elsewhere (by another strategy's oracle on the same body)."""
 
     def verify(self, points: np.ndarray, postures: np.ndarray) -> np.ndarray:
-        """Whether each posture (N, nq) puts the effector on its point (N, 3) with every hard task of this oracle held."""
+        """Whether each posture (N, nq) puts the effector on its point (N, 3) with every hard task of this oracle
+        held."""
         ...
 
 

@@ -14,8 +14,10 @@ from pathlib import Path
 from oracles.errors import ModelError, OracleError, ReachError, TaskError
 
 __all__ = [
-    "ConfigError", "InputError", "ModelError", "ModelMismatch", "OracleError", "ProtocolError", "ReachError", "ServerError",
-    "ServerUnavailable", "StoreError", "TaskError", "TreeError", "UnknownEffector", "UnknownName", "UnknownPolicy", "UnknownStrategy",
+    "ConfigError", "InputError", "ModelError", "ModelMismatch", "OracleError", "ProtocolError", "ReachError",
+        "ServerError",
+    "ServerUnavailable", "StoreError", "TaskError", "TreeError", "UnknownEffector", "UnknownName", "UnknownPolicy",
+        "UnknownStrategy",
 ]
 
 
@@ -96,7 +98,8 @@ class ModelMismatch(ReachError):
 
     def __init__(self, path: str | Path, strategy: str, stored: str, current: str) -> None:
         self.path, self.strategy, self.stored, self.current = str(path), strategy, stored, current
-        super().__init__(f"{self.path}: strategy {strategy!r} was built for model {stored}, but its body now builds model {current}; rebuild the atlas")
+        super().__init__(f"{self.path}: strategy {strategy!r} was built for model {stored}, but its body now builds "
+                         f"model {current}; rebuild the atlas")
 
 
 class ProtocolError(ReachError):

@@ -35,7 +35,8 @@ node keeps running; markers are retried until they are published.
 Parameters (private, with defaults): ``~server`` (tcp://127.0.0.1:5555),
 ``~pub`` (tcp://127.0.0.1:5556; empty to not relay), ``~frame`` (world),
 ``~prefix`` (/reach), ``~effectors`` (all the server has), ``~timeout_ms``
-(2500), ``~motion_timeout_ms`` (20000: a whole-body motion takes seconds to plan), ``~retries`` (3), ``~marker_level`` (4: 2**4 cells per axis),
+(2500), ``~motion_timeout_ms`` (20000: a whole-body motion takes seconds to plan), ``~retries`` (3),
+``~marker_level`` (4: 2**4 cells per axis),
 ``~relay_hz`` (100: how often the stream is polled), ``~marker_retry_s`` (2).
 """
 
@@ -53,7 +54,8 @@ from reach.serving import protocol as P
 from reach.serving.client import REQUEST_RETRIES, REQUEST_TIMEOUT_MS, Client, ServerError, ServerUnavailable
 
 MOTION_TIMEOUT_MS = 20_000
-COLOURS = [(0.84, 0.15, 0.16), (0.17, 0.63, 0.17), (0.12, 0.47, 0.71), (1.0, 0.5, 0.05), (0.58, 0.4, 0.74), (0.55, 0.34, 0.29), (0.89, 0.47, 0.76), (0.09, 0.75, 0.81)]
+COLOURS = [(0.84, 0.15, 0.16), (0.17, 0.63, 0.17), (0.12, 0.47, 0.71), (1.0, 0.5, 0.05), (0.58, 0.4, 0.74),
+           (0.55, 0.34, 0.29), (0.89, 0.47, 0.76), (0.09, 0.75, 0.81)]
 
 
 class Relay:
@@ -71,7 +73,8 @@ class Relay:
 
     @staticmethod
     def key(answer: dict[str, Any]) -> tuple[str, tuple[float, ...], str | None]:
-        return str(answer.get("effector")), tuple(round(float(v), 9) for v in answer.get("goal", [])), answer.get("strategy")
+        return str(answer.get("effector")), tuple(round(float(v), 9)
+                                                  for v in answer.get("goal", [])), answer.get("strategy")
 
     @staticmethod
     def values(answer: dict[str, Any]) -> tuple[str, list[str], list[float], bool]:
@@ -113,14 +116,16 @@ class Bridge:
         from visualization_msgs.msg import MarkerArray
 
         self.rospy = rospy
-        self.msgs = {"JointState": JointState, "String": String, "Bool": Bool, "JointTrajectory": JointTrajectory, "JointTrajectoryPoint": JointTrajectoryPoint}
+        self.msgs = {"JointState": JointState, "String": String, "Bool": Bool, "JointTrajectory": JointTrajectory,
+                     "JointTrajectoryPoint": JointTrajectoryPoint}
         p = rospy.get_param
         self.server = p("~server", P.DEFAULT_BIND)
         self.pub_address = p("~pub", P.DEFAULT_PUB)
         self.frame = p("~frame", P.WORLD_FRAME)
         self.prefix = p("~prefix", "/reach").rstrip("/")
         self.marker_level = int(p("~marker_level", 4))
-        self.client = Client(self.server, timeout=int(p("~timeout_ms", REQUEST_TIMEOUT_MS)), retries=int(p("~retries", REQUEST_RETRIES)))
+        self.client = Client(self.server, timeout=int(p("~timeout_ms", REQUEST_TIMEOUT_MS)),
+                             retries=int(p("~retries", REQUEST_RETRIES)))
         # Motions on their own connection: one takes seconds, and a REQ socket is one thread's.
         self.motions = Client(self.server, timeout=int(p("~motion_timeout_ms", MOTION_TIMEOUT_MS)), retries=1)
         self.motion_lock = threading.Lock()
@@ -141,7 +146,8 @@ class Bridge:
                 "motion": rospy.Publisher(f"{self.prefix}/{e}/motion", JointTrajectory, queue_size=10),
             }
             rospy.Subscriber(f"{self.prefix}/{e}/goal", PointStamped, self.on_goal, callback_args=e, queue_size=10)
-            rospy.Subscriber(f"{self.prefix}/{e}/motion_goal", PointStamped, self.on_motion_goal, callback_args=e, queue_size=10)
+            rospy.Subscriber(f"{self.prefix}/{e}/motion_goal", PointStamped, self.on_motion_goal, callback_args=e,
+                             queue_size=10)
         self.markers = rospy.Publisher(f"{self.prefix}/markers", MarkerArray, queue_size=1, latch=True)
         self.markers_done = False
         rospy.Timer(rospy.Duration(float(p("~marker_retry_s", 2.0))), self.publish_markers)
@@ -158,7 +164,8 @@ class Bridge:
         """The goal of a PointStamped [m], or None (logged) when it is in another frame."""
         frame = msg.header.frame_id
         if frame != self.frame:
-            self.rospy.logerr("reach bridge: goal for %s in frame %r ignored; goals must be in frame %r", effector, frame, self.frame)
+            self.rospy.logerr("reach bridge: goal for %s in frame %r ignored; goals must be in frame %r", effector,
+                              frame, self.frame)
             return None
         return [msg.point.x, msg.point.y, msg.point.z]
 
@@ -175,7 +182,8 @@ class Bridge:
         self.pubs[effector]["motion"].publish(self.trajectory(motion))
 
     def trajectory(self, motion: dict[str, Any]) -> Any:
-        """A motion's frames as a JointTrajectory: the joints in name order, positions [rad or m] at each frame's time."""
+        """A motion's frames as a JointTrajectory: the joints in name order, positions [rad or m] at each frame's
+        time."""
         names = sorted(motion["frames"][0]["posture"])
         out = self.msgs["JointTrajectory"]()
         out.header.stamp = self.rospy.Time.now()

@@ -53,7 +53,8 @@ def browser():
     opts = webdriver.ChromeOptions()
     opts.binary_location = CHROMIUM
     # As the machine's notes say: no background networking (the network is closed), software WebGL.
-    for flag in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
+    for flag in ("--headless=new", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                 "--disable-background-networking",
                  "--disable-component-update", "--disable-sync", "--window-size=1200,800", "--use-angle=swiftshader",
                  "--enable-unsafe-swiftshader", f"--user-data-dir={_profile()}"):
         opts.add_argument(flag)

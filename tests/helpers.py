@@ -18,7 +18,8 @@ def human_config(d_max=3, strategies=None, name="arm"):
         # speed) its interior point keeps the raw reach off the joint bounds, where the batched engine's clamped steps
         # end on them (any posture that reaches is right there; the motion tests' frames were measured on fatrop's).
         "oracle": {"name": "casadi-ik", "params": {"restarts": 1, "secondary": False, "solver": "fatrop"}},
-        "strategies": strategies or [{"name": "right_arm", "effector": "right_hand", "joints": ARM, "tasks": [{"type": "reach"}]}],
+        "strategies": strategies
+            or [{"name": "right_arm", "effector": "right_hand", "joints": ARM, "tasks": [{"type": "reach"}]}],
     }
 
 
@@ -44,7 +45,8 @@ class TwoLinkArm:
     dim = 3
     posture_names = ("yaw", "pitch", "elbow")
 
-    def __init__(self, upper: float = 0.3, fore: float = 0.25, shoulder: tuple[float, float, float] = (0.0, 0.0, 1.0), refine: bool = False) -> None:
+    def __init__(self, upper: float = 0.3, fore: float = 0.25, shoulder: tuple[float, float, float] = (0.0, 0.0, 1.0),
+                 refine: bool = False) -> None:
         self.upper, self.fore = float(upper), float(fore)
         self.shoulder = np.asarray(shoulder, float)
         self.refining = bool(refine)
@@ -70,7 +72,9 @@ class TwoLinkArm:
     def spec(self):  # noqa: ANN201
         from oracles.protocol import OracleSpec
 
-        return OracleSpec("two-link-arm", {"upper": self.upper, "fore": self.fore, "shoulder": self.shoulder.tolist(), "refine": self.refining})
+        return OracleSpec("two-link-arm",
+                          {"upper": self.upper, "fore": self.fore, "shoulder": self.shoulder.tolist(),
+                           "refine": self.refining})
 
     def effector_positions(self, postures: np.ndarray) -> np.ndarray:
         yaw, pitch, elbow = np.asarray(postures, float).T

@@ -43,7 +43,8 @@ def goal(effector: str, x: float, y: float, z: float, frame: str, timeout: float
     pub = rospy.Publisher(f"/reach/{effector}/goal", PointStamped, queue_size=1, latch=True)
     # Publish only once the bridge hears us and we hear it, or its answers could be missed.
     deadline = rospy.Time.now() + rospy.Duration(TIMEOUT)
-    while (pub.get_num_connections() == 0 or any(s.get_num_connections() == 0 for s in subs)) and rospy.Time.now() < deadline:
+    while (pub.get_num_connections() == 0
+           or any(s.get_num_connections() == 0 for s in subs)) and rospy.Time.now() < deadline:
         rospy.sleep(0.05)
     msg = PointStamped()
     msg.header.frame_id = frame
@@ -80,7 +81,8 @@ def motion(effector: str, x: float, y: float, z: float) -> None:
         return
     t = got[0]
     print(json.dumps({"received": True, "frame": t.header.frame_id, "names": list(t.joint_names),
-                      "times": [p.time_from_start.to_sec() for p in t.points], "positions": [list(p.positions) for p in t.points]}), flush=True)
+                      "times": [p.time_from_start.to_sec() for p in t.points],
+                          "positions": [list(p.positions) for p in t.points]}), flush=True)
 
 
 def listen(effector: str) -> None:
@@ -102,7 +104,8 @@ if __name__ == "__main__":
     if mode == "motion":
         motion(sys.argv[2], float(sys.argv[3]), float(sys.argv[4]), float(sys.argv[5]))
     elif mode == "goal":
-        goal(sys.argv[2], float(sys.argv[3]), float(sys.argv[4]), float(sys.argv[5]), sys.argv[6], *map(float, sys.argv[7:8]))
+        goal(sys.argv[2], float(sys.argv[3]), float(sys.argv[4]), float(sys.argv[5]), sys.argv[6],
+             *map(float, sys.argv[7:8]))
     elif mode == "listen":
         listen(sys.argv[2])
     elif mode == "markers":

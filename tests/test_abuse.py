@@ -43,28 +43,38 @@ def _payloads(workers: int) -> list[tuple[str, bytes]]:
         return json.dumps(fields).encode()
 
     out = [
-        ("an expired 10,000-goal refined batch", req(op="query", id=1, effector="right_hand", goals=GOALS, deadline=0.2)),
+        ("an expired 10,000-goal refined batch",
+         req(op="query", id=1, effector="right_hand", goals=GOALS, deadline=0.2)),
         ("a stored 10,000-goal batch", req(op="query", id=2, effector="right_hand", goals=GOALS, refine=False)),
-        ("a motion timed past its bound", req(op="motion", id=3, effector="right_hand", goal=[0.4, -0.3, 1.1], rate=240, timing={"tmu": 36})),
-        ("a motion at 240 Hz past its deadline", req(op="motion", id=4, effector="right_hand", goal=[0.4, -0.3, 1.1], rate=240, deadline=1e-6)),
+        ("a motion timed past its bound",
+         req(op="motion", id=3, effector="right_hand", goal=[0.4, -0.3, 1.1], rate=240, timing={"tmu": 36})),
+        ("a motion at 240 Hz past its deadline",
+         req(op="motion", id=4, effector="right_hand", goal=[0.4, -0.3, 1.1], rate=240, deadline=1e-6)),
         ("timing 1e300", req(op="motion", id=5, effector="right_hand", goal=[0.4, -0.3, 1.1], timing={"tmu": 1e300})),
-        ("past_30 1e300 to a far goal", req(op="motion", id=6, effector="right_hand", goal=[3.0, 0.0, 1.0], timing={"past_30": 1e300})),
-        ("place at its limit", req(op="place", id=7, targets=[{"point": [0.5, -0.2, 1.1], "effector": "right_hand"}] * 1000,
+        ("past_30 1e300 to a far goal",
+         req(op="motion", id=6, effector="right_hand", goal=[3.0, 0.0, 1.0], timing={"past_30": 1e300})),
+        ("place at its limit",
+         req(op="place", id=7, targets=[{"point": [0.5, -0.2, 1.1], "effector": "right_hand"}] * 1000,
                                    x=[-1.0, 1.0], y=[-1.0, 1.0], yaw=[0, 0], step=0.05)),
-        ("place with a denormal step", req(op="place", id=8, targets=[{"point": [0.5, -0.2, 1.1], "effector": "right_hand"}], x=[0, 1],
+        ("place with a denormal step",
+         req(op="place", id=8, targets=[{"point": [0.5, -0.2, 1.1], "effector": "right_hand"}], x=[0, 1],
                                            y=[0, 1], step=1e-320)),
-        ("place over +-1e308", req(op="place", id=9, targets=[{"point": [0.5, -0.2, 1.1], "effector": "right_hand"}], x=[-1e308, 1e308],
+        ("place over +-1e308",
+         req(op="place", id=9, targets=[{"point": [0.5, -0.2, 1.1], "effector": "right_hand"}], x=[-1e308, 1e308],
                                    y=[0, 1])),
         ("a root quaternion of 1e300", req(op="query", id=10, effector="right_hand", goal=[0.4, -0.3, 1.1],
                                            **{"from": {"root_qx": 1e300, "root_qy": 0, "root_qz": 0, "root_qw": 1}})),
-        ("an orientation of 1e200", req(op="query", id=11, effector="right_hand", goal=[0.4, -0.3, 1.1], orientation={"direction": [1e200, 0, 0]})),
+        ("an orientation of 1e200",
+         req(op="query", id=11, effector="right_hand", goal=[0.4, -0.3, 1.1],
+             orientation={"direction": [1e200, 0, 0]})),
         ("a NUL in a reload path", req(op="reload", id=12, path="a\u0000b")),
         ("a request over 1 MiB", b'{"op": "health", "pad": "' + b"x" * (P.MAX_MESSAGE_BYTES + 10) + b'"}'),
     ]
     # 10,000-goal refined batches with an hour's deadline (a hundred held 580 MB): past the client's share of the
     # workers' queue they are refused, not held. (Without workers the loop would refine each for 500 s.)
     if workers:
-        out += [(f"a held batch {k}", req(op="query", id=100 + k, effector="right_hand", goals=GOALS, deadline=3600)) for k in range(HELD)]
+        out += [(f"a held batch {k}", req(op="query", id=100 + k, effector="right_hand", goals=GOALS, deadline=3600))
+                for k in range(HELD)]
     return out
 
 
@@ -88,11 +98,13 @@ def test_the_attacks_leave_the_server_answering_bounded_and_without_internal_err
             attacker.send_multipart([b"", payload])
             # The watcher's health and stored query are answered before the attacker's next request goes.
             watcher.send_multipart([b"", b'{"op": "health", "id": "h"}'])
-            watcher.send_multipart([b"", b'{"op": "query", "id": "s", "effector": "right_hand", "goal": [0.4, -0.3, 1.1], "refine": false}'])
+            watcher.send_multipart([b"", b'{"op": "query", "id": "s", "effector": "right_hand", "goal": [0.4, -0.3, '
+                                         b'1.1], "refine": false}'])
             got = [json.loads(watcher.recv_multipart()[-1]) for _ in range(2)]
             assert {g["id"] for g in got} == {"h", "s"} and all(g["ok"] for g in got), what
         # Every attack is answered but the held batches the server took (its share of the queue: refined for an hour).
-        expected = {json.loads(p)["id"] if p.startswith(b'{"op"') and len(p) < P.MAX_MESSAGE_BYTES else None for _, p in payloads}
+        expected = {json.loads(p)["id"] if p.startswith(b'{"op"') and len(p) < P.MAX_MESSAGE_BYTES else None
+                    for _, p in payloads}
         held = {100 + k for k in range(HELD)} if workers else set()
         while not expected <= set(replies) | held or len(held & set(replies)) < len(held) - 2:
             reply = json.loads(attacker.recv_multipart()[-1])
@@ -105,12 +117,14 @@ def test_the_attacks_leave_the_server_answering_bounded_and_without_internal_err
         r.stop()
     codes = {rid: (rep["error"]["code"] if not rep["ok"] else "ok") for rid, rep in replies.items()}
     assert P.INTERNAL not in codes.values(), codes
-    # Answered by its deadline from the store: a few goals refined before it passed (at 0.05 s each), most marked timeout.
+    # Answered by its deadline from the store: a few goals refined before it passed (at 0.05 s each), most marked
+    # timeout.
     refined = [a["refined"] for a in replies[1]["answers"]]
     assert codes[1] == "ok" and refined.count("ok") + refined.count("failed") < 100 and refined.count("timeout") > 5000
     assert codes[2] == "ok" and len(replies[2]["answers"]) == 10_000
     assert codes[3] == codes[5] == P.BAD_REQUEST and "timing" in replies[3]["error"]["message"]
-    assert codes[6] == "ok" and replies[6]["outcome"] == "nearest"  # its hand's path is short: the coefficient never applies
+    # its hand's path is short: the coefficient never applies
+    assert codes[6] == "ok" and replies[6]["outcome"] == "nearest"
     assert codes[4] == P.TIMEOUT
     assert codes[7] == "ok" and codes[8] == codes[9] == codes[10] == codes[11] == P.BAD_REQUEST, codes
     assert codes[12] == P.FORBIDDEN and codes[None] == P.TOO_LARGE  # this server allows no reload

@@ -76,7 +76,8 @@ def test_killed_build_resumes_to_the_same_tree(tmp_path):
 def both_sides(tmp_path_factory):
     strategies = [
         {"name": "right_arm", "effector": "right_hand", "joints": ARM, "tasks": [{"type": "reach"}]},
-        {"name": "left_arm", "effector": "left_hand", "joints": LEFT_ARM, "tasks": [{"type": "reach"}], "mirror_of": "right_arm"},
+        {"name": "left_arm", "effector": "left_hand", "joints": LEFT_ARM, "tasks": [{"type": "reach"}],
+         "mirror_of": "right_arm"},
     ]
     # D_max 4 (10-12 cm cells): at D_max 3 one vertex flips a 20 cm cell, too
     # coarse to compare volumes. Three restarts: at these spacings no hint is
@@ -120,7 +121,8 @@ def test_mirrored_postures_reach_the_mirrored_vertices(both_sides):
 def test_asymmetric_body_is_built_not_mirrored(tmp_path):
     strategies = [
         {"name": "right_arm", "effector": "right_hand", "joints": ARM, "tasks": [{"type": "reach"}]},
-        {"name": "left_arm", "effector": "left_hand", "joints": LEFT_ARM, "tasks": [{"type": "reach"}], "mirror_of": "right_arm"},
+        {"name": "left_arm", "effector": "left_hand", "joints": LEFT_ARM, "tasks": [{"type": "reach"}],
+         "mirror_of": "right_arm"},
     ]
     data = human_config(d_max=1, strategies=strategies)
     data["body"]["ranges"] = {"right_elbow_flexion": [0.0, 1.0]}
@@ -151,7 +153,8 @@ def test_a_killed_build_leaves_no_worker_behind(tmp_path, sig, group):
     cfg.write_text(yaml.safe_dump(human_config(d_max=5)))
     out = tmp_path / "out"
     # group: the signal reaches the build and its workers, as `kill -- -PGID` or a job control's stop sends it.
-    proc = subprocess.Popen([sys.executable, "-m", "reach.tools.cli", "build", str(cfg), "-o", str(out), "-q", "-j", "2"],
+    proc = subprocess.Popen([sys.executable, "-m", "reach.tools.cli", "build", str(cfg), "-o", str(out), "-q", "-j",
+                             "2"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=group)
     deadline = time.monotonic() + 120
     workers: list[int] = []

@@ -85,7 +85,8 @@ def test_isolated_vertices_are_retried_from_their_neighbours(tmp_path):
         "oracle": {"name": "casadi-ik", "params": {"restarts": 0, "secondary": False}},
         "build": {"refine": {"isolated": True}},
         "strategies": [{"name": "right_arm", "effector": "right_hand",
-                        "joints": ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"], "tasks": [{"type": "reach"}]}],
+                        "joints": ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"],
+                            "tasks": [{"type": "reach"}]}],
     }
     tree = build_atlas(parse_config(data, "iso", "iso"), tmp_path / "iso").trees["right_arm"]
     b = tree.meta["build"]
@@ -109,7 +110,8 @@ def test_reach_audit_cli_json(tmp_path, capsys):
 
 
 class StubbornBall:
-    """A ball oracle with postures that fails one vertex the first time it is asked: an IK local minimum in miniature."""
+    """A ball oracle with postures that fails one vertex the first time it is asked: an IK local minimum in
+    miniature."""
 
     dim = 3
     posture_names = ("x",)
@@ -147,13 +149,15 @@ def _turntable(tmp_path: Path) -> Path:
     config = {"name": "turntable", "body": {"urdf": str(TURNTABLE), "reference": {"extend": 0.1}},
               "box": {"min": [-0.7, -0.7, -0.2], "max": [0.7, 0.7, 0.9]}, "depth": {"min": 2, "max": 4},
               "oracle": {"name": "casadi-ik", "params": {"restarts": 1}},
-              "strategies": [{"name": "arm", "effector": "tool", "joints": ["base_turn", "shoulder", "extend"], "tasks": [{"type": "reach"}]}]}
+              "strategies": [{"name": "arm", "effector": "tool", "joints": ["base_turn", "shoulder", "extend"],
+                              "tasks": [{"type": "reach"}]}]}
     build_atlas(parse_config(config, "turntable", "turntable"), tmp_path / "turntable")
     return tmp_path / "turntable"
 
 
 def _lacking(tree, y: float) -> None:
-    """The tree made to lack the region past ``y`` [m] (cells and vertices), as a build whose starts all missed it would."""
+    """The tree made to lack the region past ``y`` [m] (cells and vertices), as a build whose starts all missed it
+    would."""
     leaf = np.isin(tree.kind, [INNER, FINAL])
     centre = tree.lattice.points(tree.corner) + tree.cell_size(tree.depth) / 2
     tree.kind[leaf & (centre[:, 1] > y)] = OUTER
@@ -175,7 +179,8 @@ def test_the_audit_finds_a_region_the_tree_lacks_along_rays_and_by_twins(tmp_pat
     _lacking(lacking, 0.15)
     cut = audit_tree(lacking, judge, samples=90, seed=4)
     assert cut["rays"]["short"] and all(ray["direction"][1] > 0 for ray in cut["rays"]["short"])
-    assert cut["twins"]["disagree"]["rate"] >= 0.2 and cut["twins"]["unreachable_but_reached"] >= cut["twins"]["checked"] // 2 > 0
+    assert (cut["twins"]["disagree"]["rate"] >= 0.2
+            and cut["twins"]["unreachable_but_reached"] >= cut["twins"]["checked"] // 2 > 0)
     assert main(["audit", str(folder), "--samples", "30", "--restarts", "1", "-j", "1"]) == 0
     out = capsys.readouterr().out
     assert "along 16 rays from" in out and "twins turned 90 deg about the free axis [0.0, 0.0, 1.0]" in out
@@ -224,7 +229,8 @@ def test_reach_info_and_report_warn_of_a_region_the_last_audit_found_missing(tmp
     assert short and all(ray["direction"][1] > 0 for ray in short)
     assert main(["info", str(folder)]) == 0
     out = capsys.readouterr().out
-    assert out.count("where the referee reaches") == len(short) and f"the tree stops {short[0]['tree_m']} m out along {short[0]['direction']}" in out
+    assert out.count("where the referee reaches") == len(short)
+    assert f"the tree stops {short[0]['tree_m']} m out along {short[0]['direction']}" in out
     assert main(["info", str(folder), "--json"]) == 0
     assert len(json.loads(capsys.readouterr().out)["strategies"]["arm"]["audit_warnings"]) == len(short)
     assert main(["report", str(folder), "-o", str(tmp_path / "report")]) == 0

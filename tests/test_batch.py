@@ -34,7 +34,8 @@ def whole():
 
 def _goals(oracle, n: int, seed: int) -> np.ndarray:  # noqa: ANN001
     bound = oracle.reach_bound()
-    lo, hi = np.maximum([-1.1, -1.2, 0.0], bound.centre - bound.radius), np.minimum([1.4, 1.2, 2.4], bound.centre + bound.radius)
+    lo, hi = np.maximum([-1.1, -1.2, 0.0], bound.centre - bound.radius), np.minimum([1.4, 1.2, 2.4],
+        bound.centre + bound.radius)
     return np.random.default_rng(seed).uniform(lo, hi, (n, 3))
 
 
@@ -90,7 +91,8 @@ def test_the_same_goals_give_the_same_postures_in_any_batch(arm):
 def test_many_starts_reach_what_one_start_misses(arm):
     """The reason for K starts: with one start (the reference) some goals are called unreachable that the
     default starts reach, and never the other way round."""
-    one = _batch(ARM, [{"type": "reach"}, {"type": "self_collision"}, {"type": "coupling"}, {"type": "posture"}], starts=1)
+    one = _batch(ARM, [{"type": "reach"}, {"type": "self_collision"}, {"type": "coupling"}, {"type": "posture"}],
+                 starts=1)
     goals = _goals(arm, 150, 8)
     many, single = arm.evaluate(goals), one.evaluate(goals)
     assert (many.reachable & ~single.reachable).sum() >= 1
@@ -150,7 +152,8 @@ def test_the_lower_tasks_improve_the_reaching_posture_and_never_cost_the_verdict
     params = dict(config.strategy("right_whole_body").oracle.params)
     with_lower = OracleSpec("casadi-ik", {**params, "solver": "batch"}).create()
     bare = OracleSpec("casadi-ik", {**params, "solver": "batch", "secondary": False}).create()
-    goals = np.array([[0.45, -0.25, 1.25], [0.35, -0.30, 0.95], [0.60, -0.20, 1.00], [0.30, -0.45, 1.45], [0.40, 0.10, 1.10]])
+    goals = np.array([[0.45, -0.25, 1.25], [0.35, -0.30, 0.95], [0.60, -0.20, 1.00], [0.30, -0.45, 1.45],
+                      [0.40, 0.10, 1.10]])
     a, b = with_lower.evaluate(goals), bare.evaluate(goals)
     assert a.reachable.all() and np.array_equal(a.reachable, b.reachable)
     liked = [with_lower.preference(q, g) for q, g in zip(a.posture, goals, strict=True)]

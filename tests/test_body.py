@@ -38,7 +38,8 @@ def test_thumbtip_reach_is_within_one_sd_of_ansur(sex):
     # Arm stretched forward at shoulder height (flexion 90 deg); horizontal
     # distance from a wall touching the back of the shoulders to the grip centre.
     body = human_body(sex)
-    frames = body.frame_positions(_set(body, right_shoulder_flexion=np.pi / 2), ["right_hand", "back", "right_shoulder"])
+    frames = body.frame_positions(_set(body, right_shoulder_flexion=np.pi / 2),
+                                  ["right_hand", "back", "right_shoulder"])
     reach_mm = 1000 * (frames["right_hand"][0] - frames["back"][0])
     mean, sd = ANSUR_THUMBTIP_REACH[sex]
     assert abs(reach_mm - mean) <= sd
@@ -61,7 +62,8 @@ def test_default_mass_is_ansur_mean(man, woman):
 
 def test_stature_percentiles_follow_ansur():
     assert stature_at_percentile("male", 50) == pytest.approx(ANSUR_STATURE["male"][0] / 1000)
-    assert stature_at_percentile("female", 5) < stature_at_percentile("female", 50) < stature_at_percentile("female", 95)
+    assert stature_at_percentile("female", 5) < stature_at_percentile("female", 50) < stature_at_percentile("female",
+        95)
     assert stature_at_percentile("male", 95) == pytest.approx((1756.3 + 1.6449 * 68.6) / 1000, abs=1e-4)
 
 
@@ -144,12 +146,14 @@ def test_malformed_urdf_and_unknown_names_are_named(tmp_path, man):
         urdf_body(tmp_path / "absent.urdf")
     # Issue 35: a negative mass and a zero joint axis were accepted.
     for fault, message in (("<mass value='-2'/>", r"link 'a': mass '-2'; expected a finite number >= 0"),):
-        bad.write_text(f"<robot name='x'><link name='a'><inertial>{fault}<inertia ixx='1' iyy='1' izz='1' ixy='0' ixz='0' iyz='0'/>"
+        bad.write_text(f"<robot name='x'><link name='a'><inertial>{fault}<inertia ixx='1' iyy='1' izz='1' ixy='0' "
+                       "ixz='0' iyz='0'/>"
                        "</inertial></link></robot>")
         with pytest.raises(ModelError, match=message):
             urdf_body(bad)
-    bad.write_text("<robot name='x'><link name='a'/><link name='b'/><joint name='j' type='revolute'><parent link='a'/><child link='b'/>"
-                   "<axis xyz='0 0 0'/><limit lower='-1' upper='1' effort='1' velocity='1'/></joint></robot>")
+    bad.write_text("<robot name='x'><link name='a'/><link name='b'/><joint name='j' type='revolute'><parent "
+                   "link='a'/><child link='b'/><axis xyz='0 0 0'/><limit lower='-1' upper='1' effort='1' "
+                   "velocity='1'/></joint></robot>")
     with pytest.raises(ModelError, match=r"joint 'j': axis '0 0 0'; expected three finite numbers, not all zero"):
         urdf_body(bad)
     # Issue 35: these gave tracebacks (or read for ever).
@@ -192,8 +196,10 @@ def test_reach_model_lists_the_capsules_and_each_strategys_pairs(capsys):
     assert "17 collision capsules" in text and "right_arm: 42 pairs checked" in text
     # The coupled limits each strategy applies (the arm: the shoulder's rule alone).
     coupling = next(t for t in info["strategies"]["right_arm"]["tasks"] if t["type"] == "coupling")
-    assert coupling["rules"] == [{"joints": ["right_shoulder_abduction"], "by": "right_shoulder_flexion", "limit": pytest.approx(np.pi), "slope": 2.0}]
-    assert "right_arm: coupled limits [rad]: right_shoulder_abduction <= 3.1416 + 2.0000 x right_shoulder_flexion" in text
+    assert coupling["rules"] == [{"joints": ["right_shoulder_abduction"], "by": "right_shoulder_flexion",
+                                  "limit": pytest.approx(np.pi), "slope": 2.0}]
+    coupled = "right_arm: coupled limits [rad]: right_shoulder_abduction <= 3.1416 + 2.0000 x right_shoulder_flexion"
+    assert coupled in text
 
 
 def test_a_urdf_joint_with_lower_above_upper_is_named(tmp_path):
@@ -204,7 +210,9 @@ def test_a_urdf_joint_with_lower_above_upper_is_named(tmp_path):
 
     text = (Path(__file__).parent / "data" / "all_joints.urdf").read_text()
     bad = tmp_path / "bad.urdf"
-    bad.write_text(text.replace('<axis xyz="0 0 1"/><limit lower="-2" upper="2"', '<axis xyz="0 0 1"/><limit lower="2" upper="-2"', 1))
-    with pytest.raises(ModelError, match=r"bad\.urdf: joint 'revolute_z' has limits lower 2\.0 > upper -2\.0; expected lower <= upper") as err:
+    bad.write_text(text.replace('<axis xyz="0 0 1"/><limit lower="-2" upper="2"', '<axis xyz="0 0 1"/><limit '
+        'lower="2" upper="-2"', 1))
+    with pytest.raises(ModelError, match=r"bad\.urdf: joint 'revolute_z' has limits lower 2\.0 > upper -2\.0; "
+                                         r"expected lower <= upper") as err:
         urdf_body(bad)
     assert err.value.name == "revolute_z"

@@ -1,4 +1,5 @@
-"""Algorithm 1 (reach.build.tree): the paper's worked example, one oracle call per vertex, warm starts, refinements, determinism."""
+"""Algorithm 1 (reach.build.tree): the paper's worked example, one oracle call per vertex, warm starts, refinements,
+determinism."""
 
 from __future__ import annotations
 
@@ -167,7 +168,8 @@ def test_no_inner_cell_meets_a_keep_out_capsule():
     assert inner_meeting(plain) > 0  # the corners alone paint it inner
     assert inner_meeting(kept) == 0
     assert kept.volume(INNER) < plain.volume(INNER)
-    assert kept.volume(INNER) + kept.volume(FINAL) >= plain.volume(INNER)  # nothing reachable is lost: it is final instead
+    # nothing reachable is lost: it is final instead
+    assert kept.volume(INNER) + kept.volume(FINAL) >= plain.volume(INNER)
 
 
 def test_a_build_inherits_only_the_verified_reachable_vertices_of_a_sub_strategy():

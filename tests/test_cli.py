@@ -23,7 +23,8 @@ def test_every_name_in_all_exists():
 
 @pytest.mark.parametrize("command", [[], ["build"], ["info"], ["query"], ["model"], ["serve"]])
 def test_help_on_every_command(command):
-    out = subprocess.run([sys.executable, "-m", "reach.tools.cli", *command, "--help"], capture_output=True, text=True, check=True)
+    out = subprocess.run([sys.executable, "-m", "reach.tools.cli", *command, "--help"], capture_output=True,
+                         text=True, check=True)
     assert "usage: reach" in out.stdout
 
 
@@ -51,19 +52,22 @@ def test_info_json_has_the_documented_keys(figure2_atlas, capsys):
     assert s["volume"]["inner"] <= 3.141592653589793 <= s["volume"]["inner"] + s["volume"]["boundary"]
     assert s["extent"] == {"min": [-1.0, -1.0], "max": [1.0, 1.0]}
     assert s["reachable_extent"] == {"min": [-1.0, -1.0], "max": [1.0, 1.0]}
-    assert s["on_faces"] == {"x-": 1, "x+": 1, "y-": 1, "y+": 1}  # the inscribed circle touches each face at one lattice vertex
+    # the inscribed circle touches each face at one lattice vertex
+    assert s["on_faces"] == {"x-": 1, "x+": 1, "y-": 1, "y+": 1}
 
 
 def test_info_warns_when_reachable_vertices_lie_on_the_box(tmp_path, capsys):
     raw = {"box": {"min": [-1, -1, 0], "max": [1, 1, 1]}, "depth": {"min": 1, "max": 3},
-           "oracle": {"name": "sphere", "params": {"radius": 0.9}}, "strategies": [{"name": "ball", "effector": "point"}]}
+           "oracle": {"name": "sphere", "params": {"radius": 0.9}},
+               "strategies": [{"name": "ball", "effector": "point"}]}
     config = tmp_path / "cut.json"  # JSON is YAML
     config.write_text(json.dumps(raw))
     assert main(["build", str(config), "-o", str(tmp_path / "cut"), "--quiet"]) == 0
     capsys.readouterr()
     assert main(["info", str(tmp_path / "cut"), "--json"]) == 0
     s = json.loads(capsys.readouterr().out)["strategies"]["ball"]
-    # At most the lattice vertices on z = 0 inside the ball (9 x 9 at depth 3, 0.25 m apart): the tree asks the oracle of some only.
+    # At most the lattice vertices on z = 0 inside the ball (9 x 9 at depth 3, 0.25 m apart): the tree asks the oracle
+    # of some only.
     g = np.linspace(-1, 1, 9)
     x, y = np.meshgrid(g, g)
     assert list(s["on_faces"]) == ["z-"] and 0 < s["on_faces"]["z-"] <= int(np.count_nonzero(x**2 + y**2 <= 0.81))
@@ -75,11 +79,14 @@ def test_info_warns_when_reachable_vertices_lie_on_the_box(tmp_path, capsys):
     assert manifest["warnings"]["faces"] == [{"strategy": "ball", "faces": s["on_faces"]}]
     assert main(["report", str(tmp_path / "cut"), "-o", str(tmp_path / "report"), "--level", "2"]) == 0
     out = capsys.readouterr()
-    assert "the box cuts these volumes" in (tmp_path / "report" / "report.md").read_text() and "warning: ball:" in out.err
-    assert json.loads((tmp_path / "report" / "report.json").read_text())["strategies"]["ball"]["on_faces"] == s["on_faces"]
+    assert ("the box cuts these volumes" in (tmp_path / "report" / "report.md").read_text()
+            and "warning: ball:" in out.err)
+    assert json.loads((tmp_path / "report"
+                       / "report.json").read_text())["strategies"]["ball"]["on_faces"] == s["on_faces"]
     assert main(["build", str(config), "-o", str(tmp_path / "strict"), "--quiet", "--strict"]) == 2
     out = capsys.readouterr()
-    assert "warning: ball: reachable vertices lie on faces of the box" in out.out and "--strict makes that an error" in out.err
+    assert ("warning: ball: reachable vertices lie on faces of the box" in out.out
+            and "--strict makes that an error" in out.err)
     assert (tmp_path / "strict" / "ball.npz").is_file()
     raw["box"] = {"min": [-1, -1, -1], "max": [1, 1, 1]}
     config.write_text(json.dumps(raw))
@@ -101,7 +108,8 @@ def test_query_text(figure2_atlas, capsys):
 
 def test_errors_exit_2_with_one_line(tmp_path, capsys):
     bad = tmp_path / "bad.yaml"
-    bad.write_text("box: {min: [0, 0], max: [1, 1]}\ndepth: {min: 3, max: 1}\noracle: {name: circle}\nstrategies: [{name: a}]\n")
+    bad.write_text("box: {min: [0, 0], max: [1, 1]}\ndepth: {min: 3, max: 1}\noracle: {name: circle}\nstrategies: "
+                   "[{name: a}]\n")
     assert main(["build", str(bad), "-o", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
     assert err.startswith("reach: error: ") and "bad.yaml: depth.min" in err

@@ -59,7 +59,8 @@ def test_the_humans_urdf_collision_elements_are_its_capsules():
     assert len(found) == len(body.capsules) == 17
     for c in body.capsules:
         link, radius, length = found[f"capsule_{c.name}"]
-        assert link == c.link and radius == pytest.approx(c.radius, abs=1e-9) and length == pytest.approx(c.length, abs=1e-9)
+        assert (link == c.link and radius == pytest.approx(c.radius, abs=1e-9)
+                and length == pytest.approx(c.length, abs=1e-9))
     # Sizes from the tables: the forearm thinner than the upper arm, the thorax the widest.
     r = {c.name: c.radius for c in body.capsules}
     assert r["right_hand"] < r["right_forearm"] < r["right_upper_arm"] < r["right_thigh"] < r["thorax"]
@@ -95,7 +96,9 @@ def test_pairs_skip_adjacent_and_rigidly_joined_segments():
     assert frozenset(("left_thigh", "thorax")) not in names  # nothing the arm moves
     close = {frozenset(c[:2]) for c in task.at_reference}
     assert frozenset(("right_hand", "right_thigh")) in close  # the hanging hand touches the thigh: keeps its clearance
-    pair = next(p for p in task.pairs if {body.collision.placed[p.first].name, body.collision.placed[p.second].name} == {"right_hand", "right_thigh"})
+    pair = next(p for p in task.pairs
+                if {body.collision.placed[p.first].name, body.collision.placed[p.second].name} == {"right_hand",
+                    "right_thigh"})
     assert pair.clearance < 0
 
 
@@ -108,7 +111,8 @@ def test_urdf_primitives_and_meshes_become_capsules(tmp_path):
     urdf = tmp_path / "robot.urdf"
     urdf.write_text("""<?xml version="1.0"?><robot name="r">
       <link name="base"><collision><geometry><box size="0.2 0.1 0.6"/></geometry></collision></link>
-      <link name="arm"><collision><origin xyz="0 0 0.2"/><geometry><cylinder radius="0.04" length="0.3"/></geometry></collision>
+      <link name="arm"><collision><origin xyz="0 0 0.2"/>
+        <geometry><cylinder radius="0.04" length="0.3"/></geometry></collision>
         <collision><geometry><sphere radius="0.07"/></geometry></collision>
         <collision><geometry><mesh filename="package://pkg/meshes/rod.stl"/></geometry></collision></link>
       <joint name="j" type="revolute"><parent link="base"/><child link="arm"/><origin xyz="0 0 0.3"/><axis xyz="0 1 0"/>
@@ -117,12 +121,14 @@ def test_urdf_primitives_and_meshes_become_capsules(tmp_path):
     caps = {c.name: c for c in body.capsules}
     box = caps["base_0"]
     assert box.radius == pytest.approx(0.5 * np.hypot(0.2, 0.1)) and box.length == pytest.approx(0.6)
-    assert caps["arm_0"].radius == 0.04 and np.allclose(caps["arm_0"].a, [0, 0, 0.05]) and np.allclose(caps["arm_0"].b, [0, 0, 0.35])
+    assert (caps["arm_0"].radius == 0.04 and np.allclose(caps["arm_0"].a, [0, 0, 0.05])
+            and np.allclose(caps["arm_0"].b, [0, 0, 0.35]))
     assert caps["arm_1"].length == 0.0 and caps["arm_1"].radius == 0.07
     rod = caps["arm_2"]
     # The rim of a cylinder needs the whole axis: the caps then enclose its flat ends.
     assert rod.radius == pytest.approx(0.05, rel=0.02) and rod.length == pytest.approx(0.4, abs=0.01)
-    with pytest.raises(ModelError, match=r"package_dirs: mesh 'package://pkg/meshes/rod.stl' not found in \[\]: give package_dirs the folder that holds the package folder 'pkg'"):
+    with pytest.raises(ModelError, match=r"package_dirs: mesh 'package://pkg/meshes/rod.stl' not found in \[\]: give "
+                                         r"package_dirs the folder that holds the package folder 'pkg'"):
         urdf_body(urdf)
 
 
@@ -135,7 +141,8 @@ def test_a_collada_mesh_without_pycollada_names_the_extra(tmp_path, monkeypatch)
     urdf.write_text("""<?xml version="1.0"?><robot name="r">
       <link name="base"><collision><geometry><mesh filename="part.dae"/></geometry></collision></link></robot>""")
     monkeypatch.setitem(sys.modules, "collada", None)  # as if pycollada were not installed
-    with pytest.raises(ModelError, match=r"part.dae is COLLADA \(.dae\), which needs pycollada: pip install 'reach\[meshes\]'"):
+    with pytest.raises(ModelError, match=r"part.dae is COLLADA \(.dae\), which needs pycollada: pip install "
+                                         r"'reach\[meshes\]'"):
         urdf_body(urdf)
 
 
@@ -198,7 +205,8 @@ def test_obstacle_errors_name_the_key():
 
     body = human_body()
     with pytest.raises(TaskError, match=r"tasks\[1\]\.boxes\[0\]: min must be below max"):
-        parse_strategy(body, "right_hand", ARM, [{"type": "reach"}, {"type": "obstacles", "boxes": [{"min": [0, 0, 1], "max": [1, 1, 0]}]}])
+        parse_strategy(body, "right_hand", ARM,
+                       [{"type": "reach"}, {"type": "obstacles", "boxes": [{"min": [0, 0, 1], "max": [1, 1, 0]}]}])
     with pytest.raises(TaskError, match=r"tasks\[1\]\.boxes: expected a non-empty list"):
         parse_strategy(body, "right_hand", ARM, [{"type": "reach"}, {"type": "obstacles"}])
 
@@ -209,7 +217,8 @@ def test_reachable_arm_verdicts_are_collision_free_by_an_independent_coal_check(
 
     from oracles.ik.engine import CasadiIK
 
-    oracle = CasadiIK({"human": {"sex": "male", "percentile": 50}}, "right_hand", ARM, [{"type": "reach"}, {"type": "self_collision"}], search=Search(restarts=2))
+    oracle = CasadiIK({"human": {"sex": "male", "percentile": 50}}, "right_hand", ARM,
+                      [{"type": "reach"}, {"type": "self_collision"}], search=Search(restarts=2))
     body, task = oracle.body, oracle.strategy.task("self_collision")
     shapes = {}
     for link in ET.fromstring(body.urdf).iter("link"):
@@ -217,7 +226,9 @@ def test_reachable_arm_verdicts_are_collision_free_by_an_independent_coal_check(
             origin, cyl = col.find("origin"), col.find("geometry/cylinder")
             rpy = [float(v) for v in origin.get("rpy").split()]
             local = pin.SE3(pin.rpy.rpyToMatrix(*rpy), np.array([float(v) for v in origin.get("xyz").split()]))
-            shapes[col.get("name").removeprefix("capsule_")] = (link.get("name"), local, coal.Capsule(float(cyl.get("radius")), float(cyl.get("length"))))
+            shapes[col.get("name").removeprefix("capsule_")] = (link.get("name"), local,
+                                                                coal.Capsule(float(cyl.get("radius")),
+                                                                    float(cyl.get("length"))))
     goals = np.random.default_rng(4).uniform([-0.3, -0.6, 0.7], [0.5, 0.4, 1.6], (30, 3))
     v = oracle.evaluate(goals)
     assert 8 <= v.reachable.sum()
@@ -242,7 +253,8 @@ def test_reachable_arm_verdicts_are_collision_free_by_an_independent_coal_check(
 def test_the_arms_keep_out_is_the_static_body_and_unreachable():
     from oracles.ik.engine import CasadiIK
 
-    oracle = CasadiIK({"human": {}}, "right_hand", ARM, [{"type": "reach"}, {"type": "self_collision"}], search=Search(restarts=3, give_up=None))
+    oracle = CasadiIK({"human": {}}, "right_hand", ARM, [{"type": "reach"}, {"type": "self_collision"}],
+                      search=Search(restarts=3, give_up=None))
     task = oracle.strategy.task("self_collision")
     names = {oracle.body.collision.placed[i].name for i in task.static}
     assert {"thorax", "abdomen", "pelvis", "head", "left_upper_arm"} <= names
@@ -274,7 +286,8 @@ def test_a_mesh_gets_capsules_along_its_long_axis_as_its_shape_asks(tmp_path):
     urdf.write_text("""<?xml version="1.0"?><robot name="r">
       <link name="torso"><collision><geometry><mesh filename="torso.stl"/></geometry></collision></link>
       <link name="arm"><collision><geometry><mesh filename="rod.stl"/></geometry></collision></link>
-      <joint name="j" type="revolute"><parent link="torso"/><child link="arm"/><origin xyz="0.4 0 0.8"/><axis xyz="0 1 0"/>
+      <joint name="j" type="revolute"><parent link="torso"/><child link="arm"/>
+        <origin xyz="0.4 0 0.8"/><axis xyz="0 1 0"/>
         <limit lower="-1" upper="1" effort="1" velocity="1"/></joint></robot>""")
     caps = urdf_body(urdf).capsules
     torso = [c for c in caps if c.link == "torso"]

@@ -48,7 +48,8 @@ def test_shipped_configs_load(name):
 
 
 def test_good_config_and_priority_order(tmp_path):
-    data = mutate(strategies=[{"name": "late", "priority": 5}, {"name": "early", "priority": 1, "oracle": {"params": {"radius": 0.2}}}])
+    data = mutate(strategies=[{"name": "late", "priority": 5},
+                              {"name": "early", "priority": 1, "oracle": {"params": {"radius": 0.2}}}])
     config = load_config(write(tmp_path, data))
     assert [s.name for s in config.strategies] == ["early", "late"]
     assert config.strategies[0].oracle.params == {"radius": 0.2}
@@ -67,8 +68,10 @@ def test_good_config_and_priority_order(tmp_path):
         ({"box__min": "low"}, "box.min", "list of numbers"),
         ({"oracle__name": "teapot"}, "strategies[0].oracle", "unknown oracle 'teapot'"),
         ({"oracle__params": {"radius": -1}}, "strategies[0].oracle", "radius must be a positive number"),
-        ({"oracle__params": {"radius": "big"}}, "strategies[0].oracle", "radius must be a positive number \\[m\\], got 'big'"),
-        ({"oracle__params": {"center": ["a", 0, 0]}}, "strategies[0].oracle", "center must be a list of finite numbers, got"),
+        ({"oracle__params": {"radius": "big"}}, "strategies[0].oracle", "radius must be a positive number \\[m\\], "
+            "got 'big'"),
+        ({"oracle__params": {"center": ["a", 0, 0]}}, "strategies[0].oracle", "center must be a list of finite "
+            "numbers, got"),
         ({"oracle__name": "circle", "oracle__params": {}}, "box", "box is 3-D but strategy 'a' uses a 2-D oracle"),
         ({"strategies": []}, "strategies", "non-empty list"),
         ({"strategies": [{"name": "a"}, {"name": "a"}]}, "strategies[1].name", "duplicate"),
@@ -105,9 +108,11 @@ def test_not_yaml_and_not_a_mapping(tmp_path):
 
 def test_box_auto_is_derived_from_the_body():
     data = {
-        "body": {"human": {"sex": "male", "percentile": 50}}, "box": {"auto": {"margin": 0.1}}, "depth": {"min": 1, "max": 3},
+        "body": {"human": {"sex": "male", "percentile": 50}}, "box": {"auto": {"margin": 0.1}},
+            "depth": {"min": 1, "max": 3},
         "oracle": {"name": "casadi-ik"},
-        "strategies": [{"name": "arm", "effector": "right_hand", "joints": ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"]}],
+        "strategies": [{"name": "arm", "effector": "right_hand",
+                        "joints": ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"]}],
     }
     config = parse_config(data, "auto", "auto")
     from oracles.bodies.body import human_body
@@ -119,9 +124,11 @@ def test_box_auto_is_derived_from_the_body():
     assert arm <= bound <= arm + 0.03  # the chain's stretched length, about the shoulder
     # The ball (plus the margin) is the limit B0 may grow to; B0 itself holds what the probes reached, within it.
     limit = config.limit
-    assert np.allclose(limit.lo, shoulder - bound - 0.1, atol=1e-3) and np.allclose(limit.hi, shoulder + bound + 0.1, atol=1e-3)
+    assert (np.allclose(limit.lo, shoulder - bound - 0.1, atol=1e-3)
+            and np.allclose(limit.hi, shoulder + bound + 0.1, atol=1e-3))
     lo, hi = config.strategies[0].oracle.create().reach_extent()
-    assert np.all(limit.lo <= config.box.lo) and np.all(config.box.lo <= lo) and np.all(hi <= config.box.hi) and np.all(config.box.hi <= limit.hi)
+    assert (np.all(limit.lo <= config.box.lo) and np.all(config.box.lo <= lo) and np.all(hi <= config.box.hi)
+            and np.all(config.box.hi <= limit.hi))
     data["box"] = "auto"
     data["oracle"] = {"name": "sphere"}
     data["strategies"] = [{"name": "ball", "effector": "point"}]
@@ -155,7 +162,8 @@ def test_a_bodys_oracle_defaults_to_casadi_ik():
     data.pop("oracle", None)
     config = parse_config(data, str(path), "arm7_table")
     assert {config.strategy(s.name).oracle.name for s in config.strategies} == {"casadi-ik"}
-    analytic = {"box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 1, "max": 2}, "strategies": [{"name": "a"}]}
+    analytic = {"box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 1, "max": 2},
+                "strategies": [{"name": "a"}]}
     with pytest.raises(ConfigError, match="required key is missing") as info:  # an analytic atlas names its shape
         parse_config(analytic, "x", "x")
     assert info.value.key == "oracle"

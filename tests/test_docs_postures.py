@@ -1,4 +1,5 @@
-"""docs/postures.py (the README's answer-posture figure): a malformed --goals is refused with a message, before any atlas is read."""
+"""docs/postures.py (the README's answer-posture figure): a malformed --goals is refused with a message, before any
+atlas is read."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ SCRIPT = Path(__file__).resolve().parents[1] / "docs" / "postures.py"
 
 @pytest.mark.parametrize("goals", ["1,2", "0.4,-0.2,x", ";"])
 def test_malformed_goals_are_refused_naming_the_format(tmp_path, goals):
-    run = subprocess.run([sys.executable, str(SCRIPT), str(tmp_path / "no-atlas"), "--goals", goals], capture_output=True, text=True)
+    run = subprocess.run([sys.executable, str(SCRIPT), str(tmp_path / "no-atlas"), "--goals", goals],
+                         capture_output=True, text=True)
     assert run.returncode == 2
     assert "argument --goals: expected X,Y,Z;X,Y,Z... in metres" in run.stderr

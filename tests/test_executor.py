@@ -1,4 +1,5 @@
-"""Executors (reach.build.executor): every executor gives the same verdicts, chunks cover batches, malformed verdicts are refused."""
+"""Executors (reach.build.executor): every executor gives the same verdicts, chunks cover batches, malformed verdicts
+are refused."""
 
 from __future__ import annotations
 
@@ -19,10 +20,14 @@ def test_every_executor_gives_the_same_tree(tmp_path):
     from distributed import Client, LocalCluster
 
     config = parse_config(human_config(d_max=2), "arm", "arm")
-    inline = build_atlas(config, tmp_path / "inline", executor_factory=lambda s: InlineExecutor(s, 7)).trees["right_arm"]
-    procs = build_atlas(config, tmp_path / "procs", executor_factory=lambda s: ProcessExecutor(s, 2, 13)).trees["right_arm"]
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster, Client(cluster) as client:
-        dask = build_atlas(config, tmp_path / "dask", executor_factory=lambda s: DaskExecutor(s, client, 11)).trees["right_arm"]
+    inline = build_atlas(config, tmp_path / "inline",
+                         executor_factory=lambda s: InlineExecutor(s, 7)).trees["right_arm"]
+    procs = build_atlas(config, tmp_path / "procs",
+                        executor_factory=lambda s: ProcessExecutor(s, 2, 13)).trees["right_arm"]
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                      dashboard_address=None) as cluster, Client(cluster) as client:
+        dask = build_atlas(config, tmp_path / "dask",
+                           executor_factory=lambda s: DaskExecutor(s, client, 11)).trees["right_arm"]
     same_tree(inline, procs)
     same_tree(inline, dask)
     assert inline.oracle_calls == len(inline.vertices) > 50

@@ -29,7 +29,8 @@ def atlas(tmp_path_factory):
     data["depth"] = {"min": 2, "max": 4}
     data["name"] = "findings"
     config = parse_config(data, "findings", "findings")
-    return build_atlas(config, tmp_path_factory.mktemp("findings") / "atlas", executor_factory=lambda s: ProcessExecutor(s, 2, 64))
+    return build_atlas(config, tmp_path_factory.mktemp("findings") / "atlas",
+                       executor_factory=lambda s: ProcessExecutor(s, 2, 64))
 
 
 def cells(tree, kinds=(INNER,)):
@@ -67,11 +68,13 @@ def test_balance_costs_upper_front_goals():
     # The whole-body chain without the idle arm, which the shipped strategy
     # frees so that it can hang: swung back, it is a counterweight that buys
     # back some of these goals.
-    joints = [j for j in read_yaml(ROOT / "configs" / "demo.yaml")["strategies"][4]["joints"] if not j.startswith("left_")]
+    joints = [j for j in read_yaml(ROOT / "configs" / "demo.yaml")["strategies"][4]["joints"]
+              if not j.startswith("left_")]
     planted = [{"type": "reach"}, {"type": "feet", "heels": "down"}]
     body = {"human": {"sex": "male", "percentile": 50}}
     free = CasadiIK(body, "right_hand", joints, planted, search=Search(restarts=2))
-    balanced = CasadiIK(body, "right_hand", joints, [*planted, {"type": "balance", "margin": 0.02}], search=Search(restarts=2))
+    balanced = CasadiIK(body, "right_hand", joints, [*planted, {"type": "balance", "margin": 0.02}],
+                        search=Search(restarts=2))
     goals = np.array([[1.1, -0.2, 1.6], [1.2, -0.2, 1.4], [1.0, -0.2, 1.8]])
     assert free.evaluate(goals).reachable.all()
     assert not balanced.evaluate(goals).reachable.any()

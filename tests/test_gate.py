@@ -17,10 +17,13 @@ def head(host: str, origin: str | None = None) -> bytes:
 def test_only_this_servers_names_and_origin_pass():
     hosts = allowed_hosts("127.0.0.1", 8080)
     assert hosts == {"127.0.0.1:8080", "localhost:8080", "[::1]:8080"}
-    assert verdict(head("127.0.0.1:8080"), hosts) is None and verdict(head("LOCALHOST:8080", "http://localhost:8080"), hosts) is None
-    assert "Host 'evil.example:8080' is not this server" in verdict(head("evil.example:8080"), hosts)  # type: ignore[operator]
+    assert (verdict(head("127.0.0.1:8080"), hosts) is None
+            and verdict(head("LOCALHOST:8080", "http://localhost:8080"), hosts) is None)
+    assert "Host 'evil.example:8080' is not this server" in verdict(head("evil.example:8080"),
+        hosts)  # type: ignore[operator]
     assert "Host '127.0.0.1' is not" in verdict(head("127.0.0.1"), hosts)  # type: ignore[operator]
-    assert "Origin 'http://evil.example' is not" in verdict(head("127.0.0.1:8080", "http://evil.example"), hosts)  # type: ignore[operator]
+    assert "Origin 'http://evil.example' is not" in verdict(head("127.0.0.1:8080", "http://evil.example"),
+                                                            hosts)  # type: ignore[operator]
     assert "Origin 'null' is not" in verdict(head("127.0.0.1:8080", "null"), hosts)  # type: ignore[operator]
     assert "Host '' is not" in verdict(b"GET / HTTP/1.1\r\n\r\n", hosts)  # type: ignore[operator]
     assert allowed_hosts("0.0.0.0", 9000) == {"127.0.0.1:9000", "localhost:9000", "[::1]:9000"}

@@ -77,7 +77,8 @@ def _elbow_heights(oracle: CasadiIK, postures: np.ndarray) -> np.ndarray:
 
 @pytest.mark.parametrize("solver", ["fatrop", "batch"])
 def test_a_goal_kind_declared_by_a_test_task_is_held_by_both_engines(registered: None, solver: str) -> None:
-    oracle = CasadiIK.from_params(body=HUMAN, effector="right_hand", joints=ARM, tasks=[{"type": "reach"}, {"type": "elbow_below"}],
+    oracle = CasadiIK.from_params(body=HUMAN, effector="right_hand", joints=ARM,
+                                  tasks=[{"type": "reach"}, {"type": "elbow_below"}],
                                   solver=solver)
     free = oracle.evaluate(Goals(GOALS))
     assert free.reachable.all()
@@ -97,7 +98,8 @@ def test_a_goal_kind_declared_by_a_test_task_is_held_by_both_engines(registered:
 
 def test_a_target_no_task_takes_or_of_the_wrong_shape_is_refused_by_its_key(registered: None) -> None:
     plain = CasadiIK(HUMAN, "right_hand", ARM)
-    with pytest.raises(OracleError, match="no task of this strategy takes a goal's 'elbow_below'; add a task {type: elbow_below") as err:
+    with pytest.raises(OracleError, match="no task of this strategy takes a goal's 'elbow_below'; add a task {type: "
+                                          "elbow_below") as err:
         plain.evaluate(Goals(GOALS, {"elbow_below": np.zeros(3)}))
     assert err.value.key == "elbow_below"
     with pytest.raises(OracleError, match="add a task {type: orientation"):

@@ -46,7 +46,8 @@ def _independent_fk(oracle, q: np.ndarray) -> dict[str, np.ndarray]:
     model = oracle.body.model
     data = model.createData()
     pin.framesForwardKinematics(model, data, q)
-    return {str(f.name): data.oMf[i].translation.copy() for i, f in enumerate(model.frames)}, pin.centerOfMass(model, data, q)
+    return {str(f.name): data.oMf[i].translation.copy() for i, f in enumerate(model.frames)}, pin.centerOfMass(model,
+        data, q)
 
 
 def _assert_reachable_verdicts_hold(oracle, points, verdicts):
@@ -57,7 +58,8 @@ def _assert_reachable_verdicts_hold(oracle, points, verdicts):
             continue
         frames, com = _independent_fk(oracle, q)
         assert np.linalg.norm(frames[oracle.strategy.effector] - goal) <= 0.005
-        assert np.all(q[7:] >= model.lowerPositionLimit[7:] - 1e-6) and np.all(q[7:] <= model.upperPositionLimit[7:] + 1e-6)
+        assert (np.all(q[7:] >= model.lowerPositionLimit[7:] - 1e-6)
+                and np.all(q[7:] <= model.upperPositionLimit[7:] + 1e-6))
         for held in oracle.strategy.held_frames:
             assert np.linalg.norm(frames[held] - frames_ref[held]) <= 1e-4
         balance = oracle.strategy.task("balance")
@@ -85,12 +87,14 @@ def test_known_points_for_the_arm(arm):
     v = arm.evaluate(np.array([
         [0.45, -0.2, 1.25],   # in front at chest height
         [0.0, -0.2, 2.5],     # 2.5 m up
-        [-0.4, -0.4, 1.46],   # behind the back, above the shoulder: over the head (fatrop and IPOPT with 8 restarts reach it too)
+        # behind the back, above the shoulder: over the head (fatrop and IPOPT with 8 restarts reach it too)
+        [-0.4, -0.4, 1.46],
         [-0.2, 0.4, 1.46],    # behind the left shoulder
         [0.35, -0.15, 0.05],  # the floor in front of the feet
     ]))
     assert v.reachable.tolist() == [True, False, True, False, False]
-    _assert_reachable_verdicts_hold(arm, np.array([[0.45, -0.2, 1.25], [-0.4, -0.4, 1.46]]), type(v)(v.reachable[[0, 2]], v.residual[[0, 2]], v.posture[[0, 2]]))
+    _assert_reachable_verdicts_hold(arm, np.array([[0.45, -0.2, 1.25], [-0.4, -0.4, 1.46]]),
+                                    type(v)(v.reachable[[0, 2]], v.residual[[0, 2]], v.posture[[0, 2]]))
 
 
 def test_floor_in_front_needs_crouch_not_arm(arm, crouch):
@@ -128,7 +132,8 @@ def test_determinism():
 def test_gaze_aims_the_eyes_without_degrading_reach():
     goal = np.array([[0.5, -0.3, 1.0]])
     plain = CasadiIK(HUMAN, "right_hand", UPPER, [{"type": "reach"}]).evaluate(goal)
-    gazing = CasadiIK(HUMAN, "right_hand", UPPER, [{"type": "reach"}, {"type": "gaze", "frame": "eyes"}, {"type": "comfort"}])
+    gazing = CasadiIK(HUMAN, "right_hand", UPPER,
+                      [{"type": "reach"}, {"type": "gaze", "frame": "eyes"}, {"type": "comfort"}])
     v = gazing.evaluate(goal)
     assert plain.reachable[0] and v.reachable[0]
     model = gazing.body.model
@@ -138,14 +143,18 @@ def test_gaze_aims_the_eyes_without_degrading_reach():
     to_goal = (goal[0] - eye.translation) / np.linalg.norm(goal[0] - eye.translation)
     # The line of sight rests 15 deg below the eyes' x axis (gaze's down; z up, so a turn about y).
     down = pin.utils.rotate("y", np.radians(15.0)) @ np.array([1.0, 0.0, 0.0])
-    assert np.degrees(np.arccos(np.clip((eye.rotation @ down) @ to_goal, -1, 1))) < 15.0 + 2.0  # the eyes turn the last 15 deg
-    exact = CasadiIK(HUMAN, "right_hand", UPPER, [{"type": "reach"}, {"type": "gaze", "frame": "eyes", "cone": 0}, {"type": "comfort"}])
+    # the eyes turn the last 15 deg
+    assert np.degrees(np.arccos(np.clip((eye.rotation @ down) @ to_goal, -1, 1))) < 15.0 + 2.0
+    exact = CasadiIK(HUMAN, "right_hand", UPPER,
+                     [{"type": "reach"}, {"type": "gaze", "frame": "eyes", "cone": 0}, {"type": "comfort"}])
     w = exact.evaluate(goal)
     pin.framesForwardKinematics(model, data, w.posture[0])
     eye = data.oMf[model.getFrameId("eyes")]
     to_goal = (goal[0] - eye.translation) / np.linalg.norm(goal[0] - eye.translation)
-    assert np.degrees(np.arccos(np.clip((eye.rotation @ down) @ to_goal, -1, 1))) < 2.0  # cone 0: the line of sight aims
-    level = CasadiIK(HUMAN, "right_hand", UPPER, [{"type": "reach"}, {"type": "gaze", "frame": "eyes", "cone": 0, "down": 0}, {"type": "comfort"}])
+    # cone 0: the line of sight aims
+    assert np.degrees(np.arccos(np.clip((eye.rotation @ down) @ to_goal, -1, 1))) < 2.0
+    level = CasadiIK(HUMAN, "right_hand", UPPER,
+                     [{"type": "reach"}, {"type": "gaze", "frame": "eyes", "cone": 0, "down": 0}, {"type": "comfort"}])
     pin.framesForwardKinematics(model, data, level.evaluate(goal).posture[0])
     eye = data.oMf[model.getFrameId("eyes")]
     to_goal = (goal[0] - eye.translation) / np.linalg.norm(goal[0] - eye.translation)
@@ -218,7 +227,8 @@ def test_give_up_skips_restarts_after_a_decisive_warm_solve():
     # Behind and across the body at shoulder height the arm's joint limits
     # end the volume about 0.4 m left of the shoulder; this goal is beyond.
     thorough = CasadiIK(HUMAN, "right_hand", ARM, solver="fatrop", search=Search(restarts=2, give_up=None))
-    hasty = CasadiIK(HUMAN, "right_hand", ARM, solver="fatrop", search=Search(restarts=2))  # gives up after any failed decisive warm start
+    # gives up after any failed decisive warm start
+    hasty = CasadiIK(HUMAN, "right_hand", ARM, solver="fatrop", search=Search(restarts=2))
     goal = (thorough.problem.anchor + [-0.1, 0.5, 0.0])[None]
     assert thorough.problem.prefilter(goal[0]) == 0.0  # the solver, not the pre-filter, decides
     best = thorough.evaluate(goal)
@@ -276,7 +286,8 @@ def test_compiled_programs_are_cached_on_disk_and_shared(tmp_path, monkeypatch):
     stamps = [lib.stat().st_mtime_ns for lib in libraries]
     second = CasadiIK(HUMAN, "right_hand", ARM, [{"type": "reach"}, {"type": "posture"}], jit=True, solver="fatrop")
     b = second.evaluate(goals)
-    assert sorted((tmp_path / "jit").glob("*.so")) == libraries and [lib.stat().st_mtime_ns for lib in libraries] == stamps
+    assert (sorted((tmp_path / "jit").glob("*.so")) == libraries
+            and [lib.stat().st_mtime_ns for lib in libraries] == stamps)
     assert np.array_equal(a.reachable, b.reachable) and np.array_equal(a.posture, b.posture)
     assert a.reachable.tolist() == [True, True, False]
 
@@ -308,7 +319,8 @@ def test_rescues_are_random_restarts_after_giving_up():
     rescuing = CasadiIK(HUMAN, "right_hand", ARM, solver="fatrop", search=Search(restarts=2, rescues=1))
     assert not rescuing.evaluate(Goals(goal, seeds=hint)).reachable[0]
     assert rescuing.stats["solves"] == 2  # the hint, then one random restart (no reference start)
-    near_miss = CasadiIK(HUMAN, "right_hand", ARM, solver="fatrop", search=Search(restarts=2, give_up=1.0))  # every failure counts as a near miss
+    # every failure counts as a near miss
+    near_miss = CasadiIK(HUMAN, "right_hand", ARM, solver="fatrop", search=Search(restarts=2, give_up=1.0))
     near_miss.evaluate(Goals(goal, seeds=hint))
     assert near_miss.stats["solves"] == 4  # the hint, the reference and both restarts
 
@@ -321,7 +333,8 @@ def test_jit_leaves_no_files_behind(tmp_path, monkeypatch):
     assert os.getcwd() == str(tmp_path) and list(tmp_path.iterdir()) == []
 
 
-@pytest.mark.parametrize("params", [{"rescues": -1}, {"restarts": -2}, {"give_up": -0.01}, {"settle": -0.01}, {"decisive": -0.1},
+@pytest.mark.parametrize("params",
+                         [{"rescues": -1}, {"restarts": -2}, {"give_up": -0.01}, {"settle": -0.01}, {"decisive": -0.1},
                                     {"restarts": 1.5}, {"prefer": "yes"}, {"max_seconds": float("nan")}])
 def test_bad_search_parameters_are_refused_naming_the_key(params):
     key = next(iter(params))
@@ -338,7 +351,8 @@ def test_refinement_starts_from_the_reference_unless_a_current_posture_is_given(
     x_hint = oracle.problem.x_of_q(hint)
     assert np.allclose(oracle.starts(goal, hint)[0], x_hint)  # builds: the neighbour's posture first
     starts = refine.starts(goal, hint)
-    assert np.allclose(starts[0], refine.problem.x_ref) and np.allclose(starts[1], refine.problem.x_ready)  # queries: reference, ready
+    # queries: reference, ready
+    assert np.allclose(starts[0], refine.problem.x_ref) and np.allclose(starts[1], refine.problem.x_ready)
     elbow = refine.problem.x_names.index("right_elbow_flexion")
     assert refine.problem.x_ref[elbow] == 0.0 < refine.problem.x_ready[elbow]  # off the straight elbow
     # With a current posture (Goals.current), the hint (that posture) comes first, for continuity.
@@ -369,7 +383,8 @@ def test_with_a_current_posture_the_reach_stage_moves_it_the_least(monkeypatch):
 
     def change(proximal: float, solver: str = "fatrop") -> float:
         monkeypatch.setattr(reach_task, "PROXIMAL", proximal)
-        refine = OracleSpec(spec.name, {**spec.params, "jit": False, "solver": solver}).create().variant("refine", budget=None)
+        refine = OracleSpec(spec.name, {**spec.params, "jit": False, "solver": solver}).create().variant("refine",
+            budget=None)
         a = refine.evaluate(first)
         b = refine.evaluate(Goals(second, current=a.posture[0]))
         assert a.reachable[0] and b.reachable[0]
@@ -378,7 +393,8 @@ def test_with_a_current_posture_the_reach_stage_moves_it_the_least(monkeypatch):
 
     assert change(reach_task.PROXIMAL) < 5.0
     assert change(0.0) > 10.0  # without the term, fatrop's reach stage jumps: the jump the term removes
-    assert change(reach_task.PROXIMAL, "batch") < 5.0  # the batched engine holds it too (it starts from the current posture)
+    # the batched engine holds it too (it starts from the current posture)
+    assert change(reach_task.PROXIMAL, "batch") < 5.0
 
 
 def test_a_settled_warm_start_solves_reach_alone_and_keeps_the_hints_choices(monkeypatch):
@@ -424,7 +440,8 @@ def test_a_settled_reach_stage_runs_its_own_program_with_a_smaller_barrier():
     settled = CasadiIK(HUMAN, "right_hand", ARM, tasks, solver="fatrop", search=Search(restarts=0, settle=0.03))
     settled.prepare()
     assert set(settled.programs.settling) == {0}  # the plain program's twin; the cut one is built with the cuts
-    for other in (CasadiIK(HUMAN, "right_hand", ARM, tasks, solver="fatrop", search=Search(restarts=0)), CasadiIK(HUMAN, "right_hand", ARM, tasks, solver="ipopt", search=Search(restarts=0, settle=0.03))):
+    for other in (CasadiIK(HUMAN, "right_hand", ARM, tasks, solver="fatrop", search=Search(restarts=0)),
+                  CasadiIK(HUMAN, "right_hand", ARM, tasks, solver="ipopt", search=Search(restarts=0, settle=0.03))):
         other.prepare()
         assert other.programs.settling == {}  # nothing settles, or the option is fatrop's
     goal = settled.problem.anchor + [0.35, -0.1, -0.25]
@@ -470,7 +487,8 @@ def test_the_lazy_hard_tasks_are_checked_only_when_asked_and_at_their_own_postur
 
 def test_a_settling_builds_variants_never_settle(monkeypatch):
     # A build settles; an answer from the character's current posture solves every stage, and the referee as always.
-    builder = CasadiIK(HUMAN, "right_hand", ARM, [{"type": "reach"}, {"type": "posture"}], solver="fatrop", search=Search(restarts=0, settle=0.07))
+    builder = CasadiIK(HUMAN, "right_hand", ARM, [{"type": "reach"}, {"type": "posture"}], solver="fatrop",
+                       search=Search(restarts=0, settle=0.07))
     refine, referee = builder.variant("refine", budget=None), builder.variant("referee")
     assert builder.search.settle == 0.07 and refine.search.settle == 0.0 and referee.search.settle == 0.0
     stages: list[int] = []

@@ -65,7 +65,9 @@ def test_every_urdf_joint_type_matches_pinocchio():
     _check(body.model, seed=1)
 
 
-@pytest.mark.parametrize("kind", ["JointModelSpherical", "JointModelSphericalZYX", "JointModelTranslation", "JointModelRevoluteUnboundedUnaligned"])
+@pytest.mark.parametrize("kind",
+                         ["JointModelSpherical", "JointModelSphericalZYX", "JointModelTranslation",
+                          "JointModelRevoluteUnboundedUnaligned"])
 def test_other_joint_types_match_pinocchio(kind):
     model = pin.Model()
     joint = getattr(pin, kind)()

@@ -22,9 +22,12 @@ from reach.motion.rig import Rig
 TOL = 0.005  # [m] the reach task's default tolerance
 UPPER = [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*"]
 STRATEGIES = [
-    {"name": "arm", "effector": "right_hand", "priority": 1, "joints": ARM, "tasks": [{"type": "reach"}, {"type": "self_collision"}]},
-    {"name": "whole", "effector": "right_hand", "priority": 2, "joints": [*UPPER, "root", "*_hip_*", "*_knee_*", "*_ankle_*"],
-     "tasks": [{"type": "reach"}, {"type": "self_collision"}, {"type": "posture"}, {"type": "feet", "heels": "down"}, {"type": "balance"},
+    {"name": "arm", "effector": "right_hand", "priority": 1, "joints": ARM,
+     "tasks": [{"type": "reach"}, {"type": "self_collision"}]},
+    {"name": "whole", "effector": "right_hand", "priority": 2,
+     "joints": [*UPPER, "root", "*_hip_*", "*_knee_*", "*_ankle_*"],
+     "tasks": [{"type": "reach"}, {"type": "self_collision"}, {"type": "posture"}, {"type": "feet", "heels": "down"},
+               {"type": "balance"},
                {"type": "coupling"}]},
 ]
 
@@ -32,7 +35,8 @@ STRATEGIES = [
 @pytest.fixture(scope="module")
 def planner(tmp_path_factory):
     config = human_config(d_max=3, strategies=STRATEGIES, name="motion")
-    config["box"], config["depth"] = {"min": [-0.2, -0.7, 0.3], "max": [0.7, 0.3, 1.6]}, {"min": 2, "max": 4}  # the arm needs depth 4 to hold its volume
+    # the arm needs depth 4 to hold its volume
+    config["box"], config["depth"] = {"min": [-0.2, -0.7, 0.3], "max": [0.7, 0.3, 1.6]}, {"min": 2, "max": 4}
     atlas = build_atlas(parse_config(config, "motion", "motion"), tmp_path_factory.mktemp("motion") / "atlas")
     # A budget no machine runs out of: the same request then gives the same frames.
     return Planner(Selector(atlas, policy="optimistic").warm_up(), budget=5.0)
@@ -73,7 +77,8 @@ def test_an_arm_reach_starts_at_the_start_ends_at_the_answer_and_is_minimum_jerk
     names = m.names
     assert m.strategy == answer.strategy == "arm" and m.outcome == "reached" and m.refined == "ok"
     np.testing.assert_allclose(m.postures[0], body.q_ref, atol=1e-12)  # the reference posture by default
-    np.testing.assert_allclose(m.postures[-1], posture_vector(names, body.q_ref, answer.posture, answer.root), atol=1e-9)
+    np.testing.assert_allclose(m.postures[-1], posture_vector(names, body.q_ref, answer.posture, answer.root),
+                               atol=1e-9)
     assert np.linalg.norm(hand(body, m.postures[-1]) - goal) <= TOL  # by our own forward kinematics
     np.testing.assert_allclose(m.path, [hand(body, q) for q in m.postures], atol=1e-9)
     # Timing: MTM-1 for the hand's path, frames at 30 Hz from 0 to the duration.
@@ -113,7 +118,8 @@ def test_a_low_reach_holds_the_feet_and_balance_at_every_frame_and_adds_a_stoop(
     assert np.abs(speed - law).max() < 0.01 * law.max()  # here 0.2 %; timed by the posture's path, 2.1 %
     # Independently: the soles' frames stay where they stood, and the centre of mass over the feet.
     data = body.model.createData()
-    corners = [body.frame_id(f"{side}_{end}_{edge}") for side in ("right", "left") for end in ("heel", "toe") for edge in ("inner", "outer")]
+    corners = [body.frame_id(f"{side}_{end}_{edge}") for side in ("right", "left") for end in ("heel", "toe")
+               for edge in ("inner", "outer")]
     first = None
     for q in m.postures:
         pin.framesForwardKinematics(body.model, data, q)
@@ -121,8 +127,10 @@ def test_a_low_reach_holds_the_feet_and_balance_at_every_frame_and_adds_a_stoop(
         first = where if first is None else first
         np.testing.assert_allclose(where, first, atol=2e-4)
         com = pin.centerOfMass(body.model, data, q)
-        assert np.all(first[:, :2].min(axis=0) <= com[:2]) and np.all(com[:2] <= first[:, :2].max(axis=0))  # within the soles' bounds
-    # Pinocchio's own interpolation between the end postures slides the feet; the oracle's, moving from the foot, does not.
+        # within the soles' bounds
+        assert np.all(first[:, :2].min(axis=0) <= com[:2]) and np.all(com[:2] <= first[:, :2].max(axis=0))
+    # Pinocchio's own interpolation between the end postures slides the feet; the oracle's, moving from the foot, does
+    # not.
     plain = [pin.interpolate(body.model, m.postures[0], m.postures[-1], u) for u in np.linspace(0, 1, 11)]
     slide = []
     for q in plain:
@@ -204,7 +212,8 @@ def test_bad_start_postures_and_options_are_refused_by_name(planner):
         planner.plan("right_hand", [0.45, -0.25, 1.2], start={"right_elbow_flexion": 9.0})
     with pytest.raises(InputError, match="from: the start posture breaks .*self_collision"):
         # The upper arm drawn in across the trunk.
-        planner.plan("right_hand", [0.45, -0.25, 1.2], start={"right_shoulder_abduction": -0.3, "right_elbow_flexion": 2.0})
+        planner.plan("right_hand", [0.45, -0.25, 1.2],
+                     start={"right_shoulder_abduction": -0.3, "right_elbow_flexion": 2.0})
     with pytest.raises(InputError, match=r"rate: expected frames per second in \[1, 240\]"):
         planner.plan("right_hand", [0.45, -0.25, 1.2], rate=0)
     with pytest.raises(InputError, match="miss: expected one of nearest, error"):
@@ -243,7 +252,8 @@ def test_the_motion_operation_over_the_wire(planner, workers):
             assert m["frames"] == json.loads(json.dumps(local.frames()))  # the same frames as in-process
             topic, body = sub.recv_multipart()
             published = json.loads(body)
-            assert topic == b"right_hand" and published["tag"] == "t1" and published["duration"] == m["duration"] and "frames" not in published
+            assert (topic == b"right_hand" and published["tag"] == "t1" and published["duration"] == m["duration"]
+                    and "frames" not in published)
             with pytest.raises(ServerError, match="unreachable"):
                 c.motion(effector="right_hand", goal=[2.0, 0.0, 1.0], miss="error")
             with pytest.raises(ServerError, match="bad_request: .*rate"):
@@ -268,21 +278,26 @@ def test_reach_motion_writes_the_frames_and_names_bad_input(planner, tmp_path, c
 
     atlas = str(planner.selector.atlas.path)
     out = tmp_path / "reach.json"
-    assert main(["motion", atlas, "0.45", "-0.25", "1.2", "--effector", "right_hand", "--rate", "50", "-o", str(out)]) == 0
+    assert main(["motion", atlas, "0.45", "-0.25", "1.2", "--effector", "right_hand", "--rate", "50", "-o",
+                 str(out)]) == 0
     assert "reaches [0.45, -0.25, 1.2] with strategy arm" in capsys.readouterr().out
     data = json.loads(out.read_text())
-    assert data["rate"] == 50 and len(data["frames"]) == data["frame_count"] and data["frames"][-1]["t"] == pytest.approx(data["duration"])
-    assert main(["motion", atlas, "0.45", "-0.25", "1.2", "--effector", "right_hand", "-o", str(tmp_path / "reach.fbx")]) == 2
+    assert (data["rate"] == 50 and len(data["frames"]) == data["frame_count"]
+            and data["frames"][-1]["t"] == pytest.approx(data["duration"]))
+    assert main(["motion", atlas, "0.45", "-0.25", "1.2", "--effector", "right_hand", "-o",
+                 str(tmp_path / "reach.fbx")]) == 2
     assert "-o: " in capsys.readouterr().err and not (tmp_path / "reach.fbx").exists()
     for name in ("reach.motion.bvh", "reach.glb"):
-        assert main(["motion", atlas, "0.45", "-0.25", "1.2", "--effector", "right_hand", "-o", str(tmp_path / name)]) == 0
+        assert main(["motion", atlas, "0.45", "-0.25", "1.2", "--effector", "right_hand", "-o",
+                     str(tmp_path / name)]) == 0
         assert (tmp_path / name).stat().st_size > 1000
     assert main(["motion", atlas, "0.45", "-0.25", "--effector", "right_hand"]) == 2
     assert "goal: a motion's goal has 3 coordinates" in capsys.readouterr().err
 
 
 # -- animation files ---------------------------------------------------------
-Y_UP = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])  # the files' axes in the world's: x' = y, y' = z, z' = x
+# the files' axes in the world's: x' = y, y' = z, z' = x
+Y_UP = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
 
 
 @pytest.fixture(scope="module")
@@ -312,7 +327,8 @@ def test_a_skeleton_refuses_a_joint_that_translates_and_a_rig_needs_a_skeleton(c
     from oracles.errors import ModelError
     from reach.motion.rig import rig
 
-    with pytest.raises(ModelError, match="joint 'prismatic_x' is a JointModelPX, which translates; a skeleton's bones only turn"):
+    with pytest.raises(ModelError, match="joint 'prismatic_x' is a JointModelPX, which translates; a skeleton's "
+                                         "bones only turn"):
         build_skeleton(urdf_body(Path(__file__).parent / "data" / "all_joints.urdf"))
     with pytest.raises(InputError, match="has no skeleton .no Articulated capability.: write the motion as .json"):
         rig(crouch, object())
@@ -325,7 +341,8 @@ def _quat_matrix(w: float, x: float, y: float, z: float) -> np.ndarray:
 
 
 def test_bvh_round_trip_puts_the_hand_where_pinocchio_does(planner, crouch, tmp_path):
-    """bvhio parses the file (its own Euler-to-rotation reading of the channels); the forward kinematics is this test's."""
+    """bvhio parses the file (its own Euler-to-rotation reading of the channels); the forward kinematics is this
+    test's."""
     import bvhio
 
     from reach.motion.bvh import write_bvh
@@ -344,8 +361,10 @@ def test_bvh_round_trip_puts_the_hand_where_pinocchio_does(planner, crouch, tmp_
         return []
 
     arm = chain(parsed.Root, "right_palm")
-    assert [j.Name for j in arm] == ["pelvis", "abdomen", "thorax", "right_clavicle", "right_upper_arm", "right_forearm", "right_palm"]
-    assert arm[0].Channels[:3] == ["Xposition", "Yposition", "Zposition"] and arm[4].Channels == ["Zrotation", "Xrotation", "Yrotation"]
+    assert [j.Name for j in arm] == ["pelvis", "abdomen", "thorax", "right_clavicle", "right_upper_arm",
+                                     "right_forearm", "right_palm"]
+    assert (arm[0].Channels[:3] == ["Xposition", "Yposition", "Zposition"]
+            and arm[4].Channels == ["Zrotation", "Xrotation", "Yrotation"])
     error = []
     for k in range(parsed.FrameCount):
         world = np.eye(4)
@@ -395,7 +414,8 @@ def test_gltf_passes_the_khronos_validator_and_its_hand_follows_pinocchio(planne
     files = [write_gltf(bones, tmp_path / "crouch.glb"), write_gltf(bones, tmp_path / "crouch.gltf")]
     modules = _gltf_validator()
     script = Path(__file__).parent / "tools" / "gltf_validate.js"
-    out = subprocess.run(["node", str(script), *map(str, files)], capture_output=True, text=True, check=True, env={**os.environ, "NODE_PATH": str(modules)})
+    out = subprocess.run(["node", str(script), *map(str, files)], capture_output=True, text=True, check=True,
+                         env={**os.environ, "NODE_PATH": str(modules)})
     reports = [json.loads(line) for line in out.stdout.splitlines()]
     assert [r["errors"] for r in reports] == [0, 0], reports
     assert reports[0]["info"]["animationCount"] == 1 and reports[0]["info"]["hasSkins"]
@@ -408,7 +428,8 @@ def test_gltf_passes_the_khronos_validator_and_its_hand_follows_pinocchio(planne
     tracks = {}
     for ch in anim.channels:
         sampler = anim.samplers[ch.sampler]
-        tracks[(ch.target.node, ch.target.path)] = (_accessor(doc, blob, sampler.input)[:, 0], _accessor(doc, blob, sampler.output))
+        tracks[(ch.target.node, ch.target.path)] = (_accessor(doc, blob, sampler.input)[:, 0],
+                                                    _accessor(doc, blob, sampler.output))
     keys = tracks[(0, "rotation")][0]
     np.testing.assert_allclose(keys, crouch.times, atol=1e-6)
     hand_node = [n.name for n in doc.nodes].index("right_hand")
@@ -423,19 +444,23 @@ def test_gltf_passes_the_khronos_validator_and_its_hand_follows_pinocchio(planne
     error = [np.linalg.norm(Y_UP.T @ world(hand_node, k)[:3, 3] - crouch.path[k]) for k in range(len(keys))]
     assert max(error) < 0.001
 
-    # The skin: each capsule's vertices, moved by their bone to the last key, lie on that capsule as Pinocchio places it.
+    # The skin: each capsule's vertices, moved by their bone to the last key, lie on that capsule as Pinocchio places
+    # it.
     (prim,) = doc.meshes[0].primitives
-    verts, joints = _accessor(doc, blob, prim.attributes.POSITION), _accessor(doc, blob, prim.attributes.JOINTS_0)[:, 0].astype(int)
+    verts, joints = _accessor(doc, blob, prim.attributes.POSITION), _accessor(doc, blob,
+        prim.attributes.JOINTS_0)[:, 0].astype(int)
     ibm = _accessor(doc, blob, doc.skins[0].inverseBindMatrices).reshape(-1, 4, 4).transpose(0, 2, 1)
     last = len(keys) - 1
-    skinned = np.array([(world(doc.skins[0].joints[j], last) @ ibm[j] @ np.append(v, 1.0))[:3] for v, j in zip(verts, joints, strict=True)])
+    skinned = np.array([(world(doc.skins[0].joints[j], last) @ ibm[j] @ np.append(v, 1.0))[:3]
+                        for v, j in zip(verts, joints, strict=True)])
     names, capsules = planner.body(crouch.strategy).shape(crouch.postures[-1])
     per = len(verts) // len(names)
     for i, (a, b, r) in enumerate((c[:3], c[3:6], c[6]) for c in capsules):
         p = skinned[i * per : (i + 1) * per] @ Y_UP  # back to the world's axes
         u = np.clip((p - a) @ (b - a) / max((b - a) @ (b - a), 1e-12), 0, 1)
         dist = np.linalg.norm(p - (a + u[:, None] * (b - a)), axis=1)
-        assert np.abs(dist - r).max() < 1e-4, names[i]  # the mesh's vertices are on the capsule's surface (float32 file)
+        # the mesh's vertices are on the capsule's surface (float32 file)
+        assert np.abs(dist - r).max() < 1e-4, names[i]
 
 
 def test_a_motion_is_reached_only_when_its_last_frame_reaches_the_goal(planner, body):
@@ -460,7 +485,8 @@ def test_a_motion_is_reached_only_when_its_last_frame_reaches_the_goal(planner, 
 def test_timing_coefficients_cannot_make_a_motion_longer_than_its_bound(planner):
     """Issue 35, item 1: duration was capped but not the law's coefficients (tmu: 36 planned for 100 s; 1e300 was
     an internal error). Both are refused, naming the timing."""
-    for timing, goal in (({"tmu": 36.0}, [0.4, -0.3, 1.0]), ({"tmu": 1e300}, [0.4, -0.3, 1.0]), ({"past_30": 1e300}, [2.0, -0.3, 1.2])):
+    for timing, goal in (({"tmu": 36.0}, [0.4, -0.3, 1.0]), ({"tmu": 1e300}, [0.4, -0.3, 1.0]),
+                         ({"past_30": 1e300}, [2.0, -0.3, 1.2])):
         with pytest.raises(InputError, match="a motion lasts at most"):
             planner.plan("right_hand", goal, rate=240, timing=Timing.from_dict(timing))
     assert planner.plan("right_hand", [0.4, -0.3, 1.0], timing=Timing.from_dict({"tmu": 0.036})).duration < 20
@@ -513,8 +539,10 @@ def test_reach_motion_over_the_wire_writes_the_same_animation_files(planner, tmp
     try:
         for name in ("reach.motion.bvh", "reach.motion.gltf"):
             here, there = tmp_path / f"here_{name}", tmp_path / f"there_{name}"
-            assert main(["motion", atlas, "0.45", "-0.25", "1.2", "--effector", "right_hand", "--rate", "40", "-o", str(here)]) == 0
-            assert main(["motion", "0.45", "-0.25", "1.2", "--effector", "right_hand", "--rate", "40", "--connect", server.endpoint,
+            assert main(["motion", atlas, "0.45", "-0.25", "1.2", "--effector", "right_hand", "--rate", "40", "-o",
+                         str(here)]) == 0
+            assert main(["motion", "0.45", "-0.25", "1.2", "--effector", "right_hand", "--rate", "40", "--connect",
+                         server.endpoint,
                          "-o", str(there)]) == 0
             assert "frames written to" in capsys.readouterr().out
             assert there.read_text() == here.read_text()
@@ -527,7 +555,8 @@ def test_reach_motion_over_the_wire_writes_the_same_animation_files(planner, tmp
 
 def test_a_paths_broken_frames_are_held_as_one_batch_by_the_batched_engine(planner, body, monkeypatch):
     """Issue 34: the low reach's frames with the root pushed (its feet broken), held by the batched
-    engine, most as one batch (the others alone, from their neighbour's correction): every frame then holds every task by the fatrop
+    engine, most as one batch (the others alone, from their neighbour's correction): every frame then holds every
+    task by the fatrop
     oracle's own checks, and independently the soles stay where they stood, the centre of mass over them."""
     import time
 
@@ -547,10 +576,12 @@ def test_a_paths_broken_frames_are_held_as_one_batch_by_the_batched_engine(plann
     monkeypatch.setattr(planner, "_deadline", time.perf_counter() + 60.0, raising=False)
     held = planner._hold_path(batch, frames)
     assert held is not None and held[1] == len(broken)
-    assert len(alone) <= 0.5 * len(broken)  # here 18 of 44 held alone (unheld by the batch, or moved too far), 26 in one batch
+    # here 18 of 44 held alone (unheld by the batch, or moved too far), 26 in one batch
+    assert len(alone) <= 0.5 * len(broken)
     assert not any(fatrop.faults(held[0]))
     data = body.model.createData()
-    corners = [body.frame_id(f"{side}_{end}_{edge}") for side in ("right", "left") for end in ("heel", "toe") for edge in ("inner", "outer")]
+    corners = [body.frame_id(f"{side}_{end}_{edge}") for side in ("right", "left") for end in ("heel", "toe")
+               for edge in ("inner", "outer")]
     pin.framesForwardKinematics(body.model, data, frames[0])
     first = np.array([data.oMf[f].translation for f in corners])
     for q in held[0]:

@@ -90,8 +90,11 @@ def test_errors_live_in_oracles_carry_their_fields_and_reach_re_exports_them():
         human_body().frame_id("wing")
     assert err.value.name == "wing" and err.value.source and err.value.reason.startswith("no frame 'wing'")
     with pytest.raises(reach.errors.OracleError) as bad:
-        OracleSpec("casadi-ik", {"body": {"human": {}}, "effector": "right_hand", "joints": ["right_elbow_flexion"], "solver": "snopt"}).create()
-    assert (bad.value.oracle, bad.value.key) == ("casadi-ik", "solver") and str(bad.value).startswith("casadi-ik: solver must be one of")
+        OracleSpec("casadi-ik",
+                   {"body": {"human": {}}, "effector": "right_hand", "joints": ["right_elbow_flexion"],
+                    "solver": "snopt"}).create()
+    assert (bad.value.oracle, bad.value.key) == ("casadi-ik", "solver") and str(bad.value).startswith("casadi-ik: "
+        "solver must be one of")
 
 
 def test_nothing_in_oracles_imports_reach():
@@ -99,5 +102,6 @@ def test_nothing_in_oracles_imports_reach():
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[1] / "oracles"
-    offenders = [str(p) for p in root.rglob("*.py") if re.search(r"^\s*(from|import) reach\b", p.read_text(), flags=re.M)]
+    offenders = [str(p) for p in root.rglob("*.py")
+                 if re.search(r"^\s*(from|import) reach\b", p.read_text(), flags=re.M)]
     assert offenders == []

@@ -27,8 +27,10 @@ from reach.maps.store import load_atlas, load_indexed, load_tree, save_tree
 from reach.serving.protocol import parse_request
 
 ROOT = Path(__file__).resolve().parents[1]
-ARM = {"urdf": str(ROOT / "configs" / "urdf" / "arm7.urdf"), "frames": {"tcp": {"parent": "arm7_hand", "xyz": [0, 0, 0.1034]}},
-       "reference": {"arm7_joint2": -0.785398, "arm7_joint4": -2.356194, "arm7_joint6": 1.570796, "arm7_joint7": 0.785398}}
+ARM = {"urdf": str(ROOT / "configs" / "urdf" / "arm7.urdf"),
+       "frames": {"tcp": {"parent": "arm7_hand", "xyz": [0, 0, 0.1034]}},
+       "reference": {"arm7_joint2": -0.785398, "arm7_joint4": -2.356194, "arm7_joint6": 1.570796,
+                     "arm7_joint7": 0.785398}}
 TABLE = {"type": "obstacles", "boxes": [{"min": [-0.5, -1.0, -0.1], "max": [1.2, 1.0, 0.0]}]}
 
 
@@ -79,7 +81,8 @@ def test_a_free_task_holds_each_goals_own_direction_and_the_tree_stays_position_
     for g, q, ok in zip(GOALS[:3], v.posture, v.reachable, strict=True):
         if ok:
             pose = _pose(oracle, q)
-            assert np.linalg.norm(pose.translation - g) <= 0.005 and (pose.rotation @ [0, 0, 1])[0] >= math.cos(math.radians(5)) - 1e-3
+            assert (np.linalg.norm(pose.translation - g) <= 0.005
+                    and (pose.rotation @ [0, 0, 1])[0] >= math.cos(math.radians(5)) - 1e-3)
     with pytest.raises(OracleError, match="orientations have shape"):
         oracle.evaluate(Goals(GOALS[:2], {"orientation": np.zeros((3, 3))}))
     with pytest.raises(OracleError, match="not zero"):
@@ -108,7 +111,8 @@ def test_the_casadi_row_is_the_cosine_pinocchio_gives():
     task = oracle.strategy.task("orientation")  # type: ignore[attr-defined]
     p = oracle.problem  # type: ignore[attr-defined]
     aim, on = ca.SX.sym("aim", 3, 3), ca.SX.sym("on")
-    sym = Symbolic(SymbolicKinematics(oracle.body.model, p.q_sym), p.x_sym, ca.SX.sym("g", 3), p.x_ref, p.upper - p.lower,  # type: ignore[attr-defined]
+    sym = Symbolic(SymbolicKinematics(oracle.body.model, p.q_sym), p.x_sym, ca.SX.sym("g", 3), p.x_ref,
+                   p.upper - p.lower,  # type: ignore[attr-defined]
                    targets={"orientation": ca.vertcat(ca.vec(aim), on)})
     row = ca.Function("row", [p.x_sym, aim, on], [task.constraints(sym)[0].expr])
     rng = np.random.default_rng(0)
@@ -138,14 +142,18 @@ def test_orientation_task_errors_name_the_key():
 
 
 def test_the_protocols_orientation_field():
-    req = parse_request(json.dumps({"op": "query", "effector": "tcp", "goal": [0.5, 0, 0.3], "orientation": {"direction": [0, 0, -2]}}).encode())
+    req = parse_request(json.dumps({"op": "query", "effector": "tcp", "goal": [0.5, 0, 0.3],
+                                    "orientation": {"direction": [0, 0, -2]}}).encode())
     assert np.allclose(orientation_of(req["orientation"]), [0, 0, -1])
-    req = parse_request(json.dumps({"op": "query", "effector": "tcp", "goal": [0.5, 0, 0.3], "orientation": {"quaternion": [1, 0, 0, 0]}}).encode())
-    assert np.allclose(orientation_of(req["orientation"]), np.diag([1.0, -1.0, -1.0]))  # 180 deg about x, [qx, qy, qz, qw]
+    req = parse_request(json.dumps({"op": "query", "effector": "tcp", "goal": [0.5, 0, 0.3],
+                                    "orientation": {"quaternion": [1, 0, 0, 0]}}).encode())
+    # 180 deg about x, [qx, qy, qz, qw]
+    assert np.allclose(orientation_of(req["orientation"]), np.diag([1.0, -1.0, -1.0]))
     for bad, says in (({"direction": [0, 0, 0]}, "not zero"), ({"direction": [0, 1]}, "3 finite numbers"),
                       ({"direction": [0, 0, 1], "quaternion": [0, 0, 0, 1]}, "one of"), ({"rpy": [0, 0, 0]}, "one of")):
         with pytest.raises(ProtocolError, match=says):
-            parse_request(json.dumps({"op": "query", "effector": "tcp", "goal": [0.5, 0, 0.3], "orientation": bad}).encode())
+            parse_request(json.dumps({"op": "query", "effector": "tcp", "goal": [0.5, 0, 0.3],
+                                      "orientation": bad}).encode())
 
 
 def test_spiral_points_cover_the_sphere_evenly():
@@ -167,12 +175,14 @@ def arm_atlas(tmp_path_factory):
     """A small atlas of the arm: position-only with a 12-direction index, and the tool pointing down."""
     folder = tmp_path_factory.mktemp("arm")
     config = {
-        "name": "arm_small", "body": ARM, "box": {"min": [-0.9, -0.9, 0.0], "max": [0.9, 0.9, 1.3]}, "depth": {"min": 2, "max": 3},
+        "name": "arm_small", "body": ARM, "box": {"min": [-0.9, -0.9, 0.0], "max": [0.9, 0.9, 1.3]},
+            "depth": {"min": 2, "max": 3},
         "oracle": {"name": "casadi-ik", "params": {"restarts": 1, "jit": False}},
         "strategies": [
             {"name": "tcp", "effector": "tcp", "joints": ["arm7_joint*"], "directions": 12,
              "tasks": [{"type": "reach"}, TABLE, {"type": "orientation", "axis": "z"}]},
-            {"name": "plain", "effector": "tcp", "joints": ["arm7_joint*"], "priority": 5, "tasks": [{"type": "reach"}, TABLE]},
+            {"name": "plain", "effector": "tcp", "joints": ["arm7_joint*"], "priority": 5,
+             "tasks": [{"type": "reach"}, TABLE]},
         ],
     }
     (folder / "arm.yaml").write_text(yaml.safe_dump(config))
@@ -200,7 +210,8 @@ def test_the_index_is_stored_and_each_reached_direction_holds(arm_atlas):
     yes = no = miss = 0
     for r, p in zip(rows, points, strict=True):
         for j in (0, 5, 11):
-            v = referee.evaluate(Goals(p[None], {"orientation": index.directions[j][None]}, seeds=tree.vertices.posture[r][None]))
+            v = referee.evaluate(Goals(p[None], {"orientation": index.directions[j][None]},
+                                       seeds=tree.vertices.posture[r][None]))
             if index.reached[r, j]:
                 yes += 1
                 assert v.reachable[0], (r, j)
@@ -234,7 +245,8 @@ def test_queries_hold_the_goals_orientation(arm_atlas):
     q = np.array([a.posture.get(n, 0.0) for n in atlas.trees["tcp"].vertices.posture_names])
     q[:7] = [*a.root["position"], *a.root["quaternion"]]
     pose = _pose(oracle, q)
-    assert np.linalg.norm(pose.translation - [0.45, 0.1, 0.25]) <= 0.005 and -(pose.rotation @ [0, 0, 1])[2] >= math.cos(math.radians(5)) - 1e-3
+    assert (np.linalg.norm(pose.translation - [0.45, 0.1, 0.25]) <= 0.005
+            and -(pose.rotation @ [0, 0, 1])[2] >= math.cos(math.radians(5)) - 1e-3)
     assert a.index is not None and 0.0 <= a.index <= 1.0
     up = selector.select("tcp", np.array([0.5, 0.2, 0.03]), orientation=np.array([0.0, 0.0, 1.0]))
     assert not up.reachable and up.posture is None
@@ -249,8 +261,10 @@ def test_queries_hold_the_goals_orientation(arm_atlas):
 
 def test_directions_need_an_orientation_task_with_an_axis():
     config = {"name": "x", "body": ARM, "box": {"min": [-1, -1, 0], "max": [1, 1, 1.3]}, "depth": {"min": 1, "max": 2},
-              "oracle": {"name": "casadi-ik"}, "strategies": [{"name": "tcp", "effector": "tcp", "joints": ["arm7_joint*"], "directions": 20}]}
-    with pytest.raises(ConfigError, match=r"strategies\[0\]\.directions: the reachability index needs an orientation task with an axis"):
+              "oracle": {"name": "casadi-ik"},
+                  "strategies": [{"name": "tcp", "effector": "tcp", "joints": ["arm7_joint*"], "directions": 20}]}
+    with pytest.raises(ConfigError, match=r"strategies\[0\]\.directions: the reachability index needs an orientation "
+                                          r"task with an axis"):
         parse_config(config, "x.yaml")
     config["strategies"][0]["directions"] = -1
     with pytest.raises(ConfigError, match=r"strategies\[0\]\.directions"):
@@ -273,7 +287,8 @@ def test_the_server_answers_an_oriented_query(arm_atlas, workers):
             q = np.array([a["posture"].get(n, 0.0) for n in names])
             q[:7] = [*a["root"]["position"], *a["root"]["quaternion"]]
             pose = _pose(_oracle({"type": "orientation", "axis": "z"}), q)
-            assert np.linalg.norm(pose.translation - [0.45, 0.1, 0.25]) <= 0.005 and (pose.rotation @ [0, 0, 1])[0] >= math.cos(math.radians(5)) - 1e-3
+            assert (np.linalg.norm(pose.translation - [0.45, 0.1, 0.25]) <= 0.005
+                    and (pose.rotation @ [0, 0, 1])[0] >= math.cos(math.radians(5)) - 1e-3)
             with pytest.raises(ServerError, match="refine"):
                 client.query("tcp", [0.45, 0.1, 0.25], refine=False, orientation={"direction": [1.0, 0.0, 0.0]})
             assert client.call("health")["ok"]
@@ -282,7 +297,8 @@ def test_the_server_answers_an_oriented_query(arm_atlas, workers):
 
 
 def test_the_report_draws_the_index_as_a_heat_map(arm_atlas, tmp_path):
-    """index_tcp.png (none for the strategy without an index) shows the viridis range; report.md has the index's table."""
+    """index_tcp.png (none for the strategy without an index) shows the viridis range; report.md has the index's
+    table."""
     from PIL import Image
 
     from reach.tools.report import report
@@ -329,7 +345,8 @@ def test_the_audit_covers_the_index(arm_atlas):
     assert "index" not in result["strategies"]["plain"]
 
 
-@pytest.mark.skipif(not Path("/usr/bin/chromium").exists(), reason="no browser (apt-get install chromium chromium-driver)")
+@pytest.mark.skipif(not Path("/usr/bin/chromium").exists(), reason="no browser (apt-get install chromium "
+    "chromium-driver)")
 def test_the_page_shows_the_index_colours(arm_atlas):
     """In a real browser: a slice of the arm's cells as dots in the index's colours, the dark violet of the edge
     (index near 0) and the greens of the ring within; without the index, the strategy's own colour instead."""
@@ -406,7 +423,8 @@ def test_oriented_refinement_tries_hard_enough_where_the_referee_reaches(arm7_ta
     """Issue 36, item 5: an oriented goal is refined from its stored postures, which hold no orientation, within the
     server's 20 ms budget: on arm7_table it timed out on 5 of the 72 goals of these three seeds that the referee
     (IPOPT, 8 random restarts) reaches. With random starts for a goal that carries a target and a budget of at least
-    0.5 s (the batched engine's K starts and K random ones; 0.2 s timed out under load), 1 of 75 is missed (above the base, where IPOPT finds what the starts do not), and every goal called
+    0.5 s (the batched engine's K starts and K random ones; 0.2 s timed out under load), 1 of 75 is missed (above the
+    base, where IPOPT finds what the starts do not), and every goal called
     reachable holds its orientation by forward kinematics."""
     selector = Selector(arm7_table)  # the default 20 ms budget: oriented goals get ORIENTED_BUDGET
     tree = arm7_table.trees["tcp"]
@@ -428,5 +446,6 @@ def test_oriented_refinement_tries_hard_enough_where_the_referee_reaches(arm7_ta
                 q = np.array([a.posture.get(n, 0.0) for n in tree.vertices.posture_names])
                 q[:7] = [*a.root["position"], *a.root["quaternion"]]
                 pose = _pose(oracle, q)
-                assert np.linalg.norm(pose.translation - p) <= 0.005 and (pose.rotation @ [0, 0, 1]) @ d >= math.cos(math.radians(5)) - 1e-3
+                assert (np.linalg.norm(pose.translation - p) <= 0.005
+                        and (pose.rotation @ [0, 0, 1]) @ d >= math.cos(math.radians(5)) - 1e-3)
     assert reached >= 60 and missed <= 1, (reached, missed)

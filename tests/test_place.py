@@ -22,26 +22,33 @@ ROOT = Path(__file__).resolve().parents[1]
 def _atlas(tmp_path_factory, name: str, strategies: list[dict]) -> object:
     out = tmp_path_factory.mktemp(name) / name
     build_atlas(parse_config({"box": {"min": [-1.2, -1.2, -1.2], "max": [1.2, 1.2, 1.2]}, "depth": {"min": 2, "max": 5},
-                              "oracle": {"name": "sphere", "params": {"radius": 1.0}}, "strategies": strategies}, name, name), out)
+                              "oracle": {"name": "sphere", "params": {"radius": 1.0}}, "strategies": strategies},
+                                  name, name), out)
     return load_atlas(out)
 
 
 @pytest.fixture(scope="module")
 def balls(tmp_path_factory):
     """An arm-only ball of 0.5 m (priority 1) inside a whole-body ball of 1 m, about the body's origin."""
-    return _atlas(tmp_path_factory, "balls", [{"name": "arm", "effector": "hand", "oracle": {"params": {"radius": 0.5}}},
+    return _atlas(tmp_path_factory, "balls",
+                  [{"name": "arm", "effector": "hand", "oracle": {"params": {"radius": 0.5}}},
                                               {"name": "body", "effector": "hand"}])
 
 
 @pytest.fixture(scope="module")
 def front(tmp_path_factory):
-    """A volume in front of the body only: the box x in [0.3, 0.9], |y| <= 0.3, |z| <= 0.3 (a robot's reach over a table)."""
-    return _atlas(tmp_path_factory, "front", [{"name": "front", "effector": "hand", "oracle": {"name": "box", "params": {"min": [0.3, -0.3, -0.3], "max": [0.9, 0.3, 0.3]}}}])
+    """A volume in front of the body only: the box x in [0.3, 0.9], |y| <= 0.3, |z| <= 0.3 (a robot's reach over a
+    table)."""
+    return _atlas(tmp_path_factory, "front",
+                  [{"name": "front", "effector": "hand",
+                    "oracle": {"name": "box", "params": {"min": [0.3, -0.3, -0.3], "max": [0.9, 0.3, 0.3]}}}])
 
 
 @pytest.fixture(scope="module")
 def nothing(tmp_path_factory):
-    return _atlas(tmp_path_factory, "nothing", [{"name": "none", "effector": "hand", "oracle": {"name": "box", "params": {"min": [5, 5, 5], "max": [6, 6, 6]}}}])
+    return _atlas(tmp_path_factory, "nothing",
+                  [{"name": "none", "effector": "hand",
+                    "oracle": {"name": "box", "params": {"min": [5, 5, 5], "max": [6, 6, 6]}}}])
 
 
 def test_to_body_moves_and_turns_the_targets():
@@ -54,7 +61,8 @@ def test_a_ring_of_targets_puts_the_body_at_its_centre(balls):
     """Eight targets on a 0.4 m ring about (0.6, -0.3) at the body's height: every target within the arm's 0.5 m ball
     only within 0.1 m of the centre; the best placement is the centre (the middle of the tied ones), arm only."""
     angles = np.linspace(0, 2 * math.pi, 8, endpoint=False)
-    targets = [Target(f"t{k}", (0.6 + 0.4 * math.cos(a), -0.3 + 0.4 * math.sin(a), 0.0), "hand") for k, a in enumerate(angles)]
+    targets = [Target(f"t{k}", (0.6 + 0.4 * math.cos(a), -0.3 + 0.4 * math.sin(a), 0.0), "hand")
+               for k, a in enumerate(angles)]
     r = rank([balls], targets, Space((0.0, 1.2), (-0.9, 0.3), step=0.05, yaw=(0.0, 0.0)))
     assert np.allclose(r.placements[0, :2], [0.6, -0.3], atol=0.051)
     assert r.accommodated[0] == 1.0 and r.preference[0] == 1.0  # the arm reaches them all
@@ -64,8 +72,10 @@ def test_a_ring_of_targets_puts_the_body_at_its_centre(balls):
 
 def test_a_robot_turns_to_face_targets_on_one_side(front):
     """Targets 0.6 m to the left of a base held near the origin: only a heading of +90 deg reaches them."""
-    targets = [Target(f"t{k}", (dx, 0.6, dz), "hand") for k, (dx, dz) in enumerate([(-0.1, 0.0), (0.1, 0.0), (0.0, 0.1), (0.0, -0.1)])]
-    r = rank([front], targets, Space((-0.1, 0.1), (-0.1, 0.1), step=0.05, yaw=(-math.pi, math.pi), yaw_step=math.radians(15)))
+    targets = [Target(f"t{k}", (dx, 0.6, dz), "hand")
+               for k, (dx, dz) in enumerate([(-0.1, 0.0), (0.1, 0.0), (0.0, 0.1), (0.0, -0.1)])]
+    r = rank([front], targets,
+             Space((-0.1, 0.1), (-0.1, 0.1), step=0.05, yaw=(-math.pi, math.pi), yaw_step=math.radians(15)))
     assert r.reached[0] == 1.0 and abs(math.degrees(r.placements[0, 3]) - 90.0) < 16.0
     behind = np.abs(np.angle(np.exp(1j * (r.placements[:, 3] + math.pi / 2)))) < 0.3
     assert (r.reached[behind] == 0).all()
@@ -91,25 +101,33 @@ def test_bad_spaces_and_targets_are_refused_naming_the_field(balls):
 @pytest.fixture(scope="module")
 def arm(tmp_path_factory):
     folder = tmp_path_factory.mktemp("arm")
-    body = {"urdf": str(ROOT / "configs" / "urdf" / "arm7.urdf"), "frames": {"tcp": {"parent": "arm7_hand", "xyz": [0, 0, 0.1034]}},
-            "reference": {"arm7_joint2": -0.785398, "arm7_joint4": -2.356194, "arm7_joint6": 1.570796, "arm7_joint7": 0.785398}}
-    build_atlas(parse_config({"name": "arm", "body": body, "box": {"min": [-1.0, -1.0, -0.4], "max": [1.0, 1.0, 1.3]}, "depth": {"min": 2, "max": 4},
+    body = {"urdf": str(ROOT / "configs" / "urdf" / "arm7.urdf"),
+            "frames": {"tcp": {"parent": "arm7_hand", "xyz": [0, 0, 0.1034]}},
+            "reference": {"arm7_joint2": -0.785398, "arm7_joint4": -2.356194, "arm7_joint6": 1.570796,
+                          "arm7_joint7": 0.785398}}
+    build_atlas(parse_config({"name": "arm", "body": body, "box": {"min": [-1.0, -1.0, -0.4], "max": [1.0, 1.0, 1.3]},
+                              "depth": {"min": 2, "max": 4},
                               "oracle": {"name": "casadi-ik", "params": {"restarts": 1, "jit": False}},
-                              "strategies": [{"name": "tcp", "effector": "tcp", "joints": ["arm7_joint*"]}]}, "arm", "arm"), folder / "atlas")
+                              "strategies": [{"name": "tcp", "effector": "tcp", "joints": ["arm7_joint*"]}]}, "arm",
+                                  "arm"), folder / "atlas")
     return load_atlas(folder / "atlas")
 
 
 def test_ik_verifies_the_best_placement_of_a_robot_on_a_table(arm, tmp_path, capsys):
     """Targets on a shelf 1.2 m ahead of the layout's origin: the base moves towards them; IK at the best placement
     reaches what the trees claim; `reach place` prints the ranking and writes the heat map."""
-    targets = [Target(f"t{k}", (1.2, y, z), "tcp") for k, (y, z) in enumerate([(-0.2, 0.3), (0.0, 0.3), (0.2, 0.3), (0.0, 0.5)])]
-    r = rank([arm], targets, Space((0.0, 1.0), (-0.3, 0.3), step=0.1, yaw=(-math.pi / 2, math.pi / 2), yaw_step=math.radians(30)))
+    targets = [Target(f"t{k}", (1.2, y, z), "tcp")
+               for k, (y, z) in enumerate([(-0.2, 0.3), (0.0, 0.3), (0.2, 0.3), (0.0, 0.5)])]
+    r = rank([arm], targets,
+             Space((0.0, 1.0), (-0.3, 0.3), step=0.1, yaw=(-math.pi / 2, math.pi / 2), yaw_step=math.radians(30)))
     assert r.reached[0] == 1.0 and r.placements[0, 0] > 0.3
     checked = verify(r, [arm], targets, best=2)
     assert checked[0]["reached"] == 1.0 and checked[0]["agree"]
     csv = tmp_path / "shelf.csv"
-    csv.write_text("name,x,y,z,effector\n" + "".join(f"{t.name},{t.point[0]},{t.point[1]},{t.point[2]},tcp\n" for t in targets))
-    assert main(["place", str(arm.path), "--targets", str(csv), "--x", "0", "1", "--y", "-0.3", "0.3", "--step", "0.1", "--yaw", "-90", "90",
+    csv.write_text("name,x,y,z,effector\n" + "".join(f"{t.name},{t.point[0]},{t.point[1]},{t.point[2]},tcp\n"
+                                                     for t in targets))
+    assert main(["place", str(arm.path), "--targets", str(csv), "--x", "0", "1", "--y", "-0.3", "0.3", "--step",
+                 "0.1", "--yaw", "-90", "90",
                  "--yaw-step", "30", "--verify", "1", "--figure", str(tmp_path / "floor.png")]) == 0
     out = capsys.readouterr().out
     assert "rank 1 verified by IK: 100% of targets reached" in out and (tmp_path / "floor.png").stat().st_size > 10_000
@@ -119,14 +137,22 @@ def test_ik_verifies_the_best_placement_of_a_robot_on_a_table(arm, tmp_path, cap
 def table_arm(tmp_path_factory):
     """The arm on a table top (z = 0), clear of itself and of the table: it cannot reach among its own base."""
     folder = tmp_path_factory.mktemp("table_arm")
-    body = {"urdf": str(ROOT / "configs" / "urdf" / "arm7.urdf"), "frames": {"tcp": {"parent": "arm7_hand", "xyz": [0, 0, 0.1034]}},
-            "reference": {"arm7_joint2": -0.785398, "arm7_joint4": -2.356194, "arm7_joint6": 1.570796, "arm7_joint7": 0.785398}}
-    tasks = [{"type": "reach"}, {"type": "self_collision"}, {"type": "obstacles", "boxes": [{"min": [-1.5, -1.5, -0.1], "max": [1.5, 1.5, 0.0]}]}]
-    build_atlas(parse_config({"name": "table_arm", "body": body, "box": {"min": [-1.0, -1.0, -0.4], "max": [1.0, 1.0, 1.3]},
-                              # fatrop: the trap below (the trees hold all six targets at the tray, IK reaches some) is its tree's; the
+    body = {"urdf": str(ROOT / "configs" / "urdf" / "arm7.urdf"),
+            "frames": {"tcp": {"parent": "arm7_hand", "xyz": [0, 0, 0.1034]}},
+            "reference": {"arm7_joint2": -0.785398, "arm7_joint4": -2.356194, "arm7_joint6": 1.570796,
+                          "arm7_joint7": 0.785398}}
+    tasks = [{"type": "reach"}, {"type": "self_collision"},
+             {"type": "obstacles", "boxes": [{"min": [-1.5, -1.5, -0.1], "max": [1.5, 1.5, 0.0]}]}]
+    build_atlas(parse_config({"name": "table_arm", "body": body,
+                              "box": {"min": [-1.0, -1.0, -0.4], "max": [1.0, 1.0, 1.3]},
+                              # fatrop: the trap below (the trees hold all six targets at the tray, IK reaches some) is
+                              # its tree's; the
                               # batched engine's tree holds two of six there, as IK does.
-                              "depth": {"min": 2, "max": 4}, "oracle": {"name": "casadi-ik", "params": {"restarts": 1, "jit": False, "solver": "fatrop"}},
-                              "strategies": [{"name": "tcp", "effector": "tcp", "joints": ["arm7_joint*"], "tasks": tasks}]}, "t", "t"),
+                              "depth": {"min": 2, "max": 4},
+                                  "oracle": {"name": "casadi-ik",
+                                             "params": {"restarts": 1, "jit": False, "solver": "fatrop"}},
+                              "strategies": [{"name": "tcp", "effector": "tcp", "joints": ["arm7_joint*"],
+                                              "tasks": tasks}]}, "t", "t"),
                 folder / "atlas")
     return load_atlas(folder / "atlas")
 
@@ -141,7 +167,8 @@ def test_the_best_placement_has_margin_not_the_middle_of_the_tie_and_verifies(ta
     targets = [Target(f"t{k}", (0.12 * math.cos(a), 0.12 * math.sin(a), 0.08), "tcp") for k, a in enumerate(angles)]
     space = Space((-0.6, 0.6), (-0.6, 0.6), step=0.05, yaw=(0.0, 0.0))
     middle = rank([table_arm], targets, Space((0.0, 0.0), (0.0, 0.0)))
-    assert middle.reached[0] == 1.0 and verify(middle, [table_arm], targets, best=1)[0]["reached"] < 1.0  # the trap is there
+    # the trap is there
+    assert middle.reached[0] == 1.0 and verify(middle, [table_arm], targets, best=1)[0]["reached"] < 1.0
     r = rank([table_arm], targets, space)
     tied = np.isfinite(r.margin)
     assert tied.sum() > 100 and r.reached[tied].min() == 1.0  # a wide tie, with the tray's middle inside it
@@ -163,12 +190,14 @@ def test_the_best_placement_has_margin_not_the_middle_of_the_tie_and_verifies(ta
 
 @pytest.mark.parametrize("workers", [0, 1])
 def test_the_server_places_the_body(balls, workers):
-    """The `place` operation ranks as reach.answers.place does, in the loop or (with workers: seconds of work at its limit)
+    """The `place` operation ranks as reach.answers.place does, in the loop or (with workers: seconds of work at its
+    limit)
     in a worker; a grid over the limit is a bad_request naming the step."""
     from reach.serving.client import Client, ServerError
     from tests.test_server import Running
 
-    targets = [{"point": [0.6 + 0.4 * math.cos(a), -0.3 + 0.4 * math.sin(a), 0.0], "effector": "hand"} for a in np.linspace(0, 2 * math.pi, 8, endpoint=False)]
+    targets = [{"point": [0.6 + 0.4 * math.cos(a), -0.3 + 0.4 * math.sin(a), 0.0], "effector": "hand"}
+               for a in np.linspace(0, 2 * math.pi, 8, endpoint=False)]
     r = Running(balls.path, workers=workers)
     sent: list[str] = []
     if workers:
@@ -179,7 +208,8 @@ def test_the_server_places_the_body(balls, workers):
             got = c.call("place", targets=targets, x=[0.0, 1.2], y=[-0.9, 0.3], yaw=[0, 0], step=0.05, top=3)
             assert got["candidates"] == 25 * 25 and len(got["ranked"]) == 3
             best = got["ranked"][0]
-            assert np.allclose(best["position"][:2], [0.6, -0.3], atol=0.051) and best["reached"] == 1.0 and best["strategies"][0]["t0"] == "arm"
+            assert (np.allclose(best["position"][:2], [0.6, -0.3], atol=0.051) and best["reached"] == 1.0
+                    and best["strategies"][0]["t0"] == "arm")
             with pytest.raises(ServerError, match="step"):
                 c.call("place", targets=targets, x=[-10, 10], y=[-10, 10], step=0.01)
             assert c.call("health")["ok"]
@@ -189,11 +219,13 @@ def test_the_server_places_the_body(balls, workers):
 
 
 def test_a_seat_track_ranks_positions_and_heights_and_draws_them(balls, tmp_path):
-    """A seat slides on x and rises on z, no turn: three targets 0.4 m apart in z at x = 0.7 fit the arm's 0.5 m ball only
+    """A seat slides on x and rises on z, no turn: three targets 0.4 m apart in z at x = 0.7 fit the arm's 0.5 m ball
+    only
     from z = 0.2 and x >= 0.4; the heat map is drawn on the track's (x, z)."""
     from reach.tools.report import placement_map as heat_map
 
-    targets = [Target("a", (0.7, 0.0, 0.2), "hand"), Target("b", (0.7, 0.0, 0.6), "hand"), Target("c", (0.7, 0.0, -0.2), "hand")]
+    targets = [Target("a", (0.7, 0.0, 0.2), "hand"), Target("b", (0.7, 0.0, 0.6), "hand"),
+               Target("c", (0.7, 0.0, -0.2), "hand")]
     r = rank([balls], targets, Space((0.0, 0.6), (0.0, 0.0), (0.0, 0.4), step=0.05, yaw=(0.0, 0.0)))
     assert r.preference[0] == 1.0 and r.reached[0] == 1.0
     assert r.placements[0, 1] == 0.0 and r.placements[0, 3] == 0.0

@@ -73,7 +73,8 @@ def test_the_plugin_declares_the_optional_capabilities(plugin):
 
 def test_builtin_body_oracles_declare_every_capability():
     oracle = OracleSpec("casadi-ik", {"body": HUMAN, "effector": "right_hand", "joints": ARM}).create()
-    for capability in (Specified, ModelHashed, EffectorPositions, ReachBound, Tunable, Preparable, Mirrorable, Described, Verifying):
+    for capability in (Specified, ModelHashed, EffectorPositions, ReachBound, Tunable, Preparable, Mirrorable,
+                       Described, Verifying):
         assert isinstance(oracle, capability), capability.__name__
     refine = oracle.variant("refine", budget=0.01)
     assert refine.spec.params["max_seconds"] == 0.01 and refine.spec.params["jit"] is False
@@ -159,9 +160,11 @@ def test_a_thousand_refined_goals_across_four_strategies_cost_a_few_evaluate_cal
         if a.reachable:
             k = int(a.strategy[3:])
             q = np.array([a.posture[n] for n in TwoLinkArm.posture_names])
-            assert np.linalg.norm(TwoLinkArm(UPPER, FORE, tuple(shoulders[k])).effector_positions(q[None])[0] - g) <= 1e-6
+            assert np.linalg.norm(TwoLinkArm(UPPER, FORE,
+                                             tuple(shoulders[k])).effector_positions(q[None])[0] - g) <= 1e-6
     calls.clear()
-    for a, g in zip(answers[:60], goals[:60], strict=True):  # one goal at a time: the same answers, a call per refinement
+    # one goal at a time: the same answers, a call per refinement
+    for a, g in zip(answers[:60], goals[:60], strict=True):
         one = selector.select("hand", g)
         assert (one.strategy, one.reachable, one.refined) == (a.strategy, a.reachable, a.refined)
     assert len(calls) >= sum(a.refined == REFINED for a in answers[:60])
@@ -205,7 +208,8 @@ def test_every_declared_field_is_checked_and_named_in_the_error():
     assert ok.args == {"strategy": None, "level": 4} and ok.id == 1
     q = P.parse_request(b'{"op": "query", "effector": "right_hand", "goal": [0.4, 0.2, 1.0]}')
     assert q["single"] and q["goals"] == [[0.4, 0.2, 1.0]] and q["from"] is None
-    for payload, field in ((b'{"op": "cells", "level": 9}', "level"), (b'{"op": "query", "goal": [0, 0, 0]}', "effector"),
+    for payload, field in ((b'{"op": "cells", "level": 9}', "level"),
+                           (b'{"op": "query", "goal": [0, 0, 0]}', "effector"),
                            (b'{"op": "query", "effector": "h", "goal": [1, 2, 3, 4]}', "goal"),
                            (b'{"op": "query", "effector": "h", "goals": [[1, 2, 3], [1, 2]]}', "goals"),
                            (b'{"op": "query", "effector": "h", "goal": [1, 2, 3], "deadline": 0}', "deadline"),

@@ -64,7 +64,8 @@ def test_every_python_block_of_the_readme_runs(tmp_path, monkeypatch):
 
     monkeypatch.chdir(tmp_path)
     strategies = [{"name": "right_arm", "effector": "right_hand", "joints": ARM, "tasks": [{"type": "reach"}]}]
-    build_atlas(parse_config(human_config(d_max=3, strategies=strategies, name="demo"), "demo", "demo"), tmp_path / "out" / "demo")
+    build_atlas(parse_config(human_config(d_max=3, strategies=strategies, name="demo"), "demo", "demo"),
+                tmp_path / "out" / "demo")
     server = Server(tmp_path / "out" / "demo", "tcp://127.0.0.1:*", None)
     thread = threading.Thread(target=server.serve_forever, daemon=True)
     thread.start()

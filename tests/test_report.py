@@ -25,7 +25,8 @@ def balls(tmp_path_factory):
         "name": "balls", "box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 2, "max": 5},
         "oracle": {"name": "sphere", "params": {"radius": 0.8}},
         "strategies": [
-            {"name": "small", "effector": "point", "priority": 1, "oracle": {"params": {"radius": 0.4, "center": [0.2, 0, 0]}}},
+            {"name": "small", "effector": "point", "priority": 1,
+             "oracle": {"params": {"radius": 0.4, "center": [0.2, 0, 0]}}},
             {"name": "large", "effector": "point", "priority": 2},
         ],
     }
@@ -149,7 +150,8 @@ def test_figure11_overlays_one_effectors_strategies_by_priority():
     # Atlas order is by priority, so the two arms come first; the overlay
     # nests one hand's arm, upper body and whole body, as the paper's Figure 11.
     trees = {"left_arm": tree("left_hand", 1), "right_arm": tree("right_hand", 1), "left_upper": tree("left_hand", 2),
-             "right_upper": tree("right_hand", 2), "right_whole": tree("right_hand", 3), "left_whole": tree("left_hand", 3),
+             "right_upper": tree("right_hand", 2), "right_whole": tree("right_hand", 3),
+                 "left_whole": tree("left_hand", 3),
              "left_crouch": tree("left_hand", 4)}
     assert overlay_names(trees) == ["left_arm", "left_upper", "left_whole"]
     assert overlay_names({"a": tree("p", 1), "b": tree("p", 1)}) == ["a"]

@@ -39,7 +39,8 @@ def test_up_and_forward_place_the_model_as_a_rotated_wrapper_urdf_does(tmp_path)
                            '<joint name="turn" type="fixed"><parent link="base"/><child link="pelvis"/>'
                            f'<origin xyz="0 0 1.0" rpy="{math.pi / 2} 0 {math.pi / 2}"/></joint>')
     (tmp_path / "wrapped.urdf").write_text(wrapper)
-    turned = load_body({"urdf": str(URDF / "yup_humanoid.urdf"), "up": "y", "forward": "z", "root_position": [0, 0, 1.0]})
+    turned = load_body({"urdf": str(URDF / "yup_humanoid.urdf"), "up": "y", "forward": "z",
+                        "root_position": [0, 0, 1.0]})
     wrapped = load_body({"urdf": str(tmp_path / "wrapped.urdf")})
     a, b = turned.frame_positions(), wrapped.frame_positions()
     for name in ("head", "right_hand", "left_hand", "right_shoulder", "chest"):
@@ -74,7 +75,8 @@ def test_root_rpy_turns_the_root_about_the_world_axes():
 
 def test_frames_are_added_on_their_parent():
     body = load_body({"urdf": str(URDF / "arm7.urdf"), "frames": {"tcp": {"parent": "arm7_hand", "xyz": [0, 0, 0.1034]},
-                                                                   "side": {"parent": "arm7_link3", "xyz": [0.1, 0, 0], "rpy": [0, 0, 1.0]}}})
+                                                                   "side": {"parent": "arm7_link3",
+                                                                       "xyz": [0.1, 0, 0], "rpy": [0, 0, 1.0]}}})
     model = body.model
     data = model.createData()
     pin.framesForwardKinematics(model, data, body.q_ref)
@@ -96,13 +98,15 @@ def test_reference_posture_given_clipped_or_refused():
     clipped = load_body({"urdf": str(URDF / "arm7.urdf")})
     j4 = clipped.model.joints[clipped.joint_id("arm7_joint4")].idx_q
     assert clipped.q_ref[j4] == pytest.approx(-0.0698)
-    assert clipped.notes == ("reference: joint 'arm7_joint4' at 0 is outside its range [-3.0718, -0.0698]; it stands at -0.0698 "
-                             "(give body.reference to choose)",)
-    ready = load_body({"urdf": str(URDF / "arm7.urdf"), "reference": {"arm7_joint4": -2.356194, "arm7_joint6": 1.570796}})
+    assert clipped.notes == ("reference: joint 'arm7_joint4' at 0 is outside its range [-3.0718, -0.0698]; it stands "
+                             "at -0.0698 (give body.reference to choose)",)
+    ready = load_body({"urdf": str(URDF / "arm7.urdf"),
+                       "reference": {"arm7_joint4": -2.356194, "arm7_joint6": 1.570796}})
     assert ready.q_ref[j4] == pytest.approx(-2.356194) and ready.notes == ()
     middle = load_body({"urdf": str(URDF / "arm7.urdf"), "reference": "middle"})
     assert middle.q_ref[j4] == pytest.approx(0.5 * (-3.0718 - 0.0698))
-    with pytest.raises(ModelError, match=r"reference.arm7_joint4: -3.5 is outside the joint's range \[-3.0718, -0.0698\]"):
+    with pytest.raises(ModelError, match=r"reference.arm7_joint4: -3.5 is outside the joint's range \[-3.0718, "
+                                         r"-0.0698\]"):
         load_body({"urdf": str(URDF / "arm7.urdf"), "reference": {"arm7_joint4": -3.5}})
     with pytest.raises(ModelError, match=r"reference.elbow: no such joint; joints are: arm7_joint1"):
         load_body({"urdf": str(URDF / "arm7.urdf"), "reference": {"elbow": 0.1}})
@@ -113,8 +117,8 @@ def test_package_dirs_error_names_the_folder_to_give(tmp_path):
     pkg = tmp_path / "ws" / "my_robot"
     (pkg / "urdf").mkdir(parents=True)
     urdf = pkg / "urdf" / "r.urdf"
-    urdf.write_text('<robot name="r"><link name="a"><collision><geometry><mesh filename="package://my_robot/meshes/a.stl"/>'
-                    '</geometry></collision></link></robot>')
+    urdf.write_text('<robot name="r"><link name="a"><collision><geometry><mesh '
+                    'filename="package://my_robot/meshes/a.stl"/></geometry></collision></link></robot>')
     with pytest.raises(ModelError) as err:
         load_body({"urdf": str(urdf), "package_dirs": [str(pkg)]})
     assert err.value.key == "package_dirs"
@@ -123,11 +127,13 @@ def test_package_dirs_error_names_the_folder_to_give(tmp_path):
 
 
 def _config(body: dict, strategies: list[dict], box: object = "auto") -> dict:
-    return {"name": "t", "body": body, "box": box, "depth": {"min": 1, "max": 2}, "oracle": {"name": "casadi-ik"}, "strategies": strategies}
+    return {"name": "t", "body": body, "box": box, "depth": {"min": 1, "max": 2}, "oracle": {"name": "casadi-ik"},
+            "strategies": strategies}
 
 
 def test_config_errors_name_the_key_where_it_was_written():
-    arm = {"name": "a", "effector": "ee_link", "joints": ["*_joint"], "tasks": [{"type": "reach"}, {"type": "self_collision", "margn": 1}]}
+    arm = {"name": "a", "effector": "ee_link", "joints": ["*_joint"],
+           "tasks": [{"type": "reach"}, {"type": "self_collision", "margn": 1}]}
     with pytest.raises(ConfigError, match=r"strategies\[0\]\.tasks\[1\]: unknown keys \['margn'\]"):
         parse_config(_config({"urdf": str(URDF / "ur5.urdf")}, [arm]))
     arm["tasks"] = [{"type": "reach"}]
@@ -144,7 +150,8 @@ def test_config_errors_name_the_key_where_it_was_written():
 
 
 def test_load_time_warnings_name_the_joint_pair_and_task():
-    arm = {"name": "arm", "effector": "arm7_flange", "joints": ["arm7_joint*"], "tasks": [{"type": "reach"}, {"type": "self_collision"}]}
+    arm = {"name": "arm", "effector": "arm7_flange", "joints": ["arm7_joint*"],
+           "tasks": [{"type": "reach"}, {"type": "self_collision"}]}
     # The Panda's zero posture folds its hand into its forearm once joint 4 is clipped: both are said.
     notes = parse_config(_config({"urdf": str(URDF / "arm7.urdf")}, [arm])).notes
     assert any("joint 'arm7_joint4' at 0 is outside its range" in n for n in notes)
@@ -160,12 +167,14 @@ def test_load_time_warnings_name_the_joint_pair_and_task():
     bare[1] = {"type": "feet", "frames": ["r_sole", "l_sole"]}
     notes = parse_config({**raw, "strategies": [{**whole, "tasks": bare}]}).notes
     assert any("foot 'r_sole' has no sole corners" in n for n in notes)
-    with pytest.raises(ConfigError, match=r"strategies\[0\]\.tasks\[4\]: balance needs a support polygon of 3 frames or more.*soles"):
+    with pytest.raises(ConfigError, match=r"strategies\[0\]\.tasks\[4\]: balance needs a support polygon of 3 frames "
+                                          r"or more.*soles"):
         parse_config({**raw, "strategies": [{**whole, "tasks": [*bare, {"type": "balance"}]}]})
     # A floor that the planted feet's own capsules go through at the reference: no posture near it holds it.
     floored = [*(t for t in bare if t["type"] != "floor"), {"type": "floor", "exclude": []}]
     notes = parse_config({**raw, "strategies": [{**whole, "tasks": floored}]}).notes
-    assert any("the reference posture breaks the hard tasks ['floor'] and no posture near it holds them" in n for n in notes)
+    assert any("the reference posture breaks the hard tasks ['floor'] and no posture near it holds them" in n
+               for n in notes)
 
 
 def test_the_floor_stands_the_held_segments_of_any_robot():
@@ -193,7 +202,8 @@ def test_box_auto_cuts_the_floor_only_where_a_floor_task_holds_the_effector():
 
 
 def test_reach_model_takes_a_urdfs_placement_and_prints_frames_and_warnings(capsys):
-    assert main(["model", str(URDF / "yup_humanoid.urdf"), "--up", "y", "--forward", "z", "--root-position", "0", "0", "1", "--json"]) == 0
+    assert main(["model", str(URDF / "yup_humanoid.urdf"), "--up", "y", "--forward", "z", "--root-position", "0", "0",
+                 "1", "--json"]) == 0
     info = json.loads(capsys.readouterr().out)
     assert info["frames"]["head"][2] > 1.5 and info["warnings"] == []
     assert main(["model", str(URDF / "arm7.urdf")]) == 0
@@ -207,7 +217,8 @@ def test_reach_model_takes_a_urdfs_placement_and_prints_frames_and_warnings(caps
 
 
 def test_a_box_that_cuts_the_volume_grows_within_its_limit(tmp_path):
-    """box: auto's B0 grows on the faces reachable vertices lie on, up to the provable bound, and the atlas is built again."""
+    """box: auto's B0 grows on the faces reachable vertices lie on, up to the provable bound, and the atlas is built
+    again."""
     import dataclasses
 
     from reach.build.atlas import build_atlas
@@ -215,7 +226,8 @@ def test_a_box_that_cuts_the_volume_grows_within_its_limit(tmp_path):
     from reach.maps.box import Box
 
     raw = {"box": {"min": [-1.2, -1.2, -1.2], "max": [1.2, 1.2, 1.2]}, "depth": {"min": 1, "max": 3},
-           "oracle": {"name": "sphere", "params": {"radius": 1.0}}, "strategies": [{"name": "ball", "effector": "point"}]}
+           "oracle": {"name": "sphere", "params": {"radius": 1.0}},
+               "strategies": [{"name": "ball", "effector": "point"}]}
     config = parse_config(raw)
     small = Box(np.array([-0.6, -1.2, -1.2]), np.array([1.2, 1.2, 1.2]))  # cuts the unit ball on x-
     assert grown(small, config.box, {"x-"}) == Box(np.array([-1.05, -1.2, -1.2]), np.array([1.2, 1.2, 1.2]))
@@ -242,7 +254,8 @@ def test_build_strict_refuses_a_config_with_warnings_before_building(tmp_path, c
     config.write_text(yaml.safe_dump(raw))
     assert main(["build", str(config), "-o", str(tmp_path / "out"), "--strict"]) == 2
     err = capsys.readouterr().err
-    assert "warning: " in err and "joint 'arm7_joint4' at 0 is outside its range" in err and "--strict makes them errors" in err
+    assert "warning: " in err and "joint 'arm7_joint4' at 0 is outside its range" in err
+    assert "--strict makes them errors" in err
     assert not (tmp_path / "out" / "tcp.npz").exists()
 
 
@@ -250,7 +263,8 @@ def _turntable_tool(joints: dict[str, float]) -> np.ndarray:
     """The turntable's tool [m] by its own geometry (tests/data/turntable.urdf), not Pinocchio's: the arm's length
     0.35 m plus the extension, raised by the shoulder about -y at 0.3 m, turned by the base about z."""
     length, s, t = 0.35 + joints["extend"], joints["shoulder"], joints["base_turn"]
-    return np.array([length * math.cos(s) * math.cos(t), length * math.cos(s) * math.sin(t), 0.3 + length * math.sin(s)])
+    return np.array([length * math.cos(s) * math.cos(t), length * math.cos(s) * math.sin(t),
+                     0.3 + length * math.sin(s)])
 
 
 def test_a_continuous_joint_is_one_angle_in_answers_motions_configs_and_reach_model(tmp_path, capsys):
@@ -265,7 +279,8 @@ def test_a_continuous_joint_is_one_angle_in_answers_motions_configs_and_reach_mo
     config = parse_config({
         "name": "turntable", "body": {"urdf": str(urdf), "reference": {"base_turn": 0.5, "extend": 0.1}},
         "box": {"min": [-0.7, -0.7, -0.2], "max": [0.7, 0.7, 0.9]}, "depth": {"min": 2, "max": 3},
-        "strategies": [{"name": "arm", "effector": "tool", "joints": ["base_turn", "shoulder", "extend"], "tasks": [{"type": "reach"}]}],
+        "strategies": [{"name": "arm", "effector": "tool", "joints": ["base_turn", "shoulder", "extend"],
+                        "tasks": [{"type": "reach"}]}],
     }, "turntable", "turntable")
     atlas = build_atlas(config, tmp_path / "turntable")
     assert atlas.trees["arm"].vertices.posture_names[-4:] == ("base_turn.cos", "base_turn.sin", "shoulder", "extend")
@@ -279,36 +294,44 @@ def test_a_continuous_joint_is_one_angle_in_answers_motions_configs_and_reach_mo
     # A query's `from` gives the angle; the raw coordinates are not joints.
     start = selector.select("tool", goals[0], start={"base_turn": 3.0, "shoulder": 0.2, "extend": 0.05})
     assert start.reachable and np.linalg.norm(_turntable_tool(start.posture) - goals[0]) <= 0.005
-    with pytest.raises(InputError, match=r"from: unknown joints \['base_turn.cos'\]; the posture's names are .*base_turn, extend"):
+    with pytest.raises(InputError, match=r"from: unknown joints \['base_turn.cos'\]; the posture's names are "
+                                         r".*base_turn, extend"):
         selector.select("tool", goals[0], start={"base_turn.cos": 1.0})
     frames = Planner(selector).plan("tool", goals[1], start={"base_turn": 0.5}).frames()
     assert frames[0]["posture"]["base_turn"] == pytest.approx(0.5) and "base_turn.sin" not in frames[-1]["posture"]
     assert np.linalg.norm(_turntable_tool(frames[-1]["posture"]) - goals[1]) <= 0.005
     assert main(["model", str(urdf)]) == 0
     out = capsys.readouterr().out
-    assert re.search(r"base_turn\s+continuous \(-pi, pi\]", out) and re.search(r"extend\s+\[\+0\.0000, \+0\.2500\]", out)
+    assert (re.search(r"base_turn\s+continuous \(-pi, pi\]", out)
+            and re.search(r"extend\s+\[\+0\.0000, \+0\.2500\]", out))
 
 
 def test_reference_auto_finds_a_posture_holding_each_strategys_hard_tasks(tmp_path, capsys):
     """Issue 36, item 4: a strategy holding the tool pointing down started from a reference that breaks it, and the
     user had to solve a posture by hand. ``reference: auto`` starts from the middle of the ranges and finds, per
     strategy, the nearest posture that holds its hard tasks; ``reach model`` prints it; Pinocchio agrees."""
-    body = {"urdf": str(URDF / "arm7.urdf"), "frames": {"tcp": {"parent": "arm7_hand", "xyz": [0, 0, 0.1034]}}, "reference": "auto"}
+    body = {"urdf": str(URDF / "arm7.urdf"), "frames": {"tcp": {"parent": "arm7_hand", "xyz": [0, 0, 0.1034]}},
+            "reference": "auto"}
     down = [{"type": "reach"}, {"type": "orientation", "axis": "z", "direction": "-z", "cone": 5}]
     oracle = OracleSpec("casadi-ik", {**body_params(body, "tcp", ["arm7_joint*"], down), "restarts": 1}).create()
     middle = load_body({**body, "reference": "middle"}).q_ref
     q = oracle.body.q_ref  # type: ignore[attr-defined]
-    assert not np.allclose(q, middle) and oracle.faults(middle[None])[0] == ["orientation"] and oracle.faults(q[None])[0] == []  # type: ignore[attr-defined]
+    assert (not np.allclose(q, middle) and oracle.faults(middle[None])[0] == ["orientation"]
+            and oracle.faults(q[None])[0] == [])  # type: ignore[attr-defined]
     tool = _frames(oracle.body.model, q)["tcp"]  # type: ignore[attr-defined]
     assert np.allclose(tool, _frames(oracle.body.model, middle)["tcp"], atol=1e-3)  # the tool turned where it stood
     data = oracle.body.model.createData()  # type: ignore[attr-defined]
     pin.framesForwardKinematics(oracle.body.model, data, q)  # type: ignore[attr-defined]
-    assert (data.oMf[oracle.body.model.getFrameId("tcp")].rotation @ [0, 0, 1])[2] <= -math.cos(math.radians(5))  # type: ignore[attr-defined]
+    assert (data.oMf[oracle.body.model.getFrameId("tcp")].rotation @ [0, 0,
+        1])[2] <= -math.cos(math.radians(5))  # type: ignore[attr-defined]
     assert oracle.diagnose() == [] and "reference" in oracle.describe()  # type: ignore[attr-defined]
-    free = OracleSpec("casadi-ik", {**body_params(body, "tcp", ["arm7_joint*"], [{"type": "reach"}]), "restarts": 1}).create()
+    free = OracleSpec("casadi-ik",
+                      {**body_params(body, "tcp", ["arm7_joint*"], [{"type": "reach"}]), "restarts": 1}).create()
     assert np.allclose(free.body.q_ref, middle)  # type: ignore[attr-defined]  # nothing to hold: the middle itself
     config = tmp_path / "auto.yaml"
-    config.write_text(yaml.safe_dump({"name": "auto", "body": body, "box": {"min": [-1, -1, 0], "max": [1, 1, 1.2]}, "depth": {"min": 1, "max": 2},
-                                      "strategies": [{"name": "down", "effector": "tcp", "joints": ["arm7_joint*"], "tasks": down}]}))
+    config.write_text(yaml.safe_dump({"name": "auto", "body": body, "box": {"min": [-1, -1, 0], "max": [1, 1, 1.2]},
+                                      "depth": {"min": 1, "max": 2},
+                                      "strategies": [{"name": "down", "effector": "tcp", "joints": ["arm7_joint*"],
+                                                      "tasks": down}]}))
     assert main(["model", str(config)]) == 0
     assert re.search(r"down: reference \(auto\) arm7_joint1 [+-]\d\.\d{4}, arm7_joint2", capsys.readouterr().out)

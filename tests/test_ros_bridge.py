@@ -30,8 +30,11 @@ INSTALL = ("apt-get install ros-core python3-rospy python3-geometry-msgs python3
 def ros_missing() -> str | None:
     if not shutil.which("roscore"):
         return "roscore not found"
-    probe = subprocess.run([SYSTEM_PYTHON, "-c", "import rospy, zmq, sensor_msgs.msg, visualization_msgs.msg, trajectory_msgs.msg"], capture_output=True, text=True)
-    return None if probe.returncode == 0 else f"{SYSTEM_PYTHON} cannot import rospy: {probe.stderr.strip().splitlines()[-1:]}"
+    probe = subprocess.run([SYSTEM_PYTHON, "-c", "import rospy, zmq, sensor_msgs.msg, visualization_msgs.msg, "
+                                                 "trajectory_msgs.msg"], capture_output=True, text=True)
+    if probe.returncode == 0:
+        return None
+    return f"{SYSTEM_PYTHON} cannot import rospy: {probe.stderr.strip().splitlines()[-1:]}"
 
 
 _missing = ros_missing()
@@ -59,32 +62,37 @@ class Ros:
         port = self.env["ROS_MASTER_URI"].rsplit(":", 1)[1]
         self.atlas = atlas
         self.req, self.pub = f"tcp://127.0.0.1:{free_port()}", f"tcp://127.0.0.1:{free_port()}"
-        self.core = subprocess.Popen(["roscore", "-p", port], env=self.env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        self.core = subprocess.Popen(["roscore", "-p", port], env=self.env, stdout=subprocess.DEVNULL,
+                                     stderr=subprocess.DEVNULL)
         self.wait_master()
         self.server = self.start_server()
         self.bridge_log = open(tmp / "bridge.log", "w")
         self.bridge = subprocess.Popen(
-            [SYSTEM_PYTHON, "-m", "ros_bridge", f"_server:={self.req}", f"_pub:={self.pub}", "_frame:=world", "_timeout_ms:=5000", "_retries:=2", "_marker_level:=3"],
+            [SYSTEM_PYTHON, "-m", "ros_bridge", f"_server:={self.req}", f"_pub:={self.pub}", "_frame:=world",
+             "_timeout_ms:=5000", "_retries:=2", "_marker_level:=3"],
             env=self.env, stdout=self.bridge_log, stderr=subprocess.STDOUT,
         )
 
     def wait_master(self) -> None:
         deadline = time.monotonic() + 30
         while time.monotonic() < deadline:
-            ok = subprocess.run([SYSTEM_PYTHON, "-c", "import rosgraph, sys; sys.exit(0 if rosgraph.is_master_online() else 1)"], env=self.env)
+            ok = subprocess.run([SYSTEM_PYTHON, "-c", "import rosgraph, sys; sys.exit(0 if "
+                                                      "rosgraph.is_master_online() else 1)"], env=self.env)
             if ok.returncode == 0:
                 return
             time.sleep(0.3)
         raise RuntimeError("roscore did not come up")
 
     def start_server(self) -> subprocess.Popen:
-        proc = subprocess.Popen([sys.executable, "-m", "reach.tools.cli", "serve", str(self.atlas), "--bind", self.req, "--pub", self.pub],
+        proc = subprocess.Popen([sys.executable, "-m", "reach.tools.cli", "serve", str(self.atlas), "--bind",
+                                 self.req, "--pub", self.pub],
                                 stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
         assert proc.stdout.readline().startswith("serving")
         return proc
 
     def helper(self, *args: str, timeout: float = 40) -> dict:
-        out = subprocess.run([SYSTEM_PYTHON, str(ROOT / "tests" / "ros_helper.py"), *args], env=self.env, capture_output=True, text=True, timeout=timeout)
+        out = subprocess.run([SYSTEM_PYTHON, str(ROOT / "tests" / "ros_helper.py"), *args], env=self.env,
+                             capture_output=True, text=True, timeout=timeout)
         assert out.returncode == 0, out.stderr[-2000:]
         return json.loads(out.stdout.strip().splitlines()[-1])
 
@@ -111,7 +119,8 @@ def ros(tmp_path_factory):
         "box": {"min": [-0.5, -1.0, 0.6], "max": [0.9, 0.4, 2.1]}, "depth": {"min": 1, "max": 3},
         "oracle": {"name": "casadi-ik", "params": {"restarts": 1, "secondary": False}},
         "strategies": [{"name": "right_arm", "effector": "right_hand",
-                        "joints": ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"], "tasks": [{"type": "reach"}]}],
+                        "joints": ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"],
+                            "tasks": [{"type": "reach"}]}],
     }
     atlas = tmp / "atlas"
     build_atlas(parse_config(data, "bridge", "bridge"), atlas)
@@ -173,7 +182,8 @@ def test_a_motion_goal_gives_a_joint_trajectory_whose_last_point_reaches_it(ros)
 def test_markers_are_published_latched(ros):
     got = ros.helper("markers")
     (marker,) = got["markers"]
-    assert marker["ns"] == "right_arm" and marker["type"] == 6 and marker["points"] > 10 and marker["frame"] == "world"  # 6: CUBE_LIST
+    # 6: CUBE_LIST
+    assert marker["ns"] == "right_arm" and marker["type"] == 6 and marker["points"] > 10 and marker["frame"] == "world"
 
 
 def test_bad_frame_is_logged_and_the_node_lives(ros):

@@ -1,5 +1,6 @@
 """Seated bodies: the seat's geometry and reference posture, postures that never pass through the seat (coal),
-the buttocks held on the pan, a locked belt, and the seated arm's volume as the standing arm's moved with the shoulder."""
+the buttocks held on the pan, a locked belt, and the seated arm's volume as the standing arm's moved with the
+shoulder."""
 
 from __future__ import annotations
 
@@ -21,14 +22,21 @@ from reach.answers.select import Selector
 
 ARM = ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"]
 TRUNK = [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*", "neck_*", "root", "*_hip_*", "*_knee_*", "*_ankle_*"]
-SUPPORT = ["right_ischium", "left_ischium", "right_thigh_rest", "left_thigh_rest", "right_heel_inner", "right_heel_outer", "right_toe_inner",
+SUPPORT = ["right_ischium", "left_ischium", "right_thigh_rest", "left_thigh_rest", "right_heel_inner",
+           "right_heel_outer", "right_toe_inner",
            "right_toe_outer", "left_heel_inner", "left_heel_outer", "left_toe_inner", "left_toe_outer"]
-LEAN = [{"type": "reach"}, {"type": "contacts", "hinge": ["right_ischium", "left_ischium"], "fixed": ["right_foot", "left_foot"], "support": SUPPORT},
-        {"type": "balance", "margin": 0.02}, {"type": "self_collision"}, {"type": "obstacles"}, {"type": "floor"}, {"type": "coupling"}]
+LEAN = [{"type": "reach"},
+        {"type": "contacts", "hinge": ["right_ischium", "left_ischium"], "fixed": ["right_foot", "left_foot"],
+         "support": SUPPORT},
+        {"type": "balance", "margin": 0.02}, {"type": "self_collision"}, {"type": "obstacles"}, {"type": "floor"},
+            {"type": "coupling"}]
 ANCHOR = [-0.25, 0.30, 0.85]
-BELTED = [{"type": "reach"}, {"type": "contacts", "fixed": ["right_ischium", "left_ischium", "right_foot", "left_foot"], "support": SUPPORT},
+BELTED = [{"type": "reach"},
+          {"type": "contacts", "fixed": ["right_ischium", "left_ischium", "right_foot", "left_foot"],
+           "support": SUPPORT},
           {"type": "tether", "anchor": ANCHOR, "frames": ["sternum", "left_shoulder"], "slack": 0.02},
-          {"type": "balance", "margin": 0.02}, {"type": "self_collision"}, {"type": "obstacles"}, {"type": "floor"}, {"type": "coupling"}]
+          {"type": "balance", "margin": 0.02}, {"type": "self_collision"}, {"type": "obstacles"}, {"type": "floor"},
+              {"type": "coupling"}]
 
 
 def seated(kind: str = "chair", sex: str = "male", percentile: float = 50, **seat) -> dict:
@@ -48,7 +56,9 @@ def _coal_gap(capsule: np.ndarray, box) -> float:
                                coal.Transform3s(box.matrix, box.centre), coal.DistanceRequest(), coal.DistanceResult()))
 
 
-@pytest.mark.parametrize("kind,sex,percentile", [("chair", "female", 5), ("chair", "male", 95), ("wheelchair", "male", 50), ("car", "female", 5)])
+@pytest.mark.parametrize("kind,sex,percentile",
+                         [("chair", "female", 5), ("chair", "male", 95), ("wheelchair", "male", 50),
+                          ("car", "female", 5)])
 def test_the_seated_reference_rests_on_the_pan_against_the_backrest(kind, sex, percentile):
     """Coal: no capsule passes into the seat; the lowest of the pelvis's and thighs' capsules touches the pan, the trunk
     the backrest; the soles lie on their rest; the ischia lie on the pan."""
@@ -62,7 +72,8 @@ def test_the_seated_reference_rests_on_the_pan_against_the_backrest(kind, sex, p
     assert min(gaps[(n, "backrest")] for n in ("pelvis", "abdomen", "thorax")) == pytest.approx(0.0, abs=0.003)
     frames = body.frame_positions()
     pan_top = boxes["seat_pan"].hi[2]
-    assert frames["right_ischium"][2] == pytest.approx(pan_top, abs=1e-6) and frames["left_ischium"][2] == pytest.approx(pan_top, abs=1e-6)
+    assert (frames["right_ischium"][2] == pytest.approx(pan_top, abs=1e-6)
+            and frames["left_ischium"][2] == pytest.approx(pan_top, abs=1e-6))
     sole = 0.0 if kind != "wheelchair" else boxes["footrest"].hi[2]
     assert frames["right_heel"][2] == pytest.approx(sole, abs=1e-6)
     if kind != "car":  # the car's feet rest on the heel point, toes up on the pedal
@@ -108,7 +119,8 @@ def lean():
     return CasadiIK(seated(), "right_hand", TRUNK, LEAN, search=Search(restarts=3, seed=0))
 
 
-GOALS = np.array([[0.75, -0.2, 0.95], [0.6, -0.45, 0.45], [0.45, -0.35, 0.15], [0.9, -0.1, 0.7], [0.3, 0.25, 0.9], [0.55, -0.2, 0.5]])
+GOALS = np.array([[0.75, -0.2, 0.95], [0.6, -0.45, 0.45], [0.45, -0.35, 0.15], [0.9, -0.1, 0.7], [0.3, 0.25, 0.9],
+                  [0.55, -0.2, 0.5]])
 
 
 def test_lean_postures_never_pass_through_the_seat_and_keep_the_buttocks_on_it(lean):
@@ -130,13 +142,15 @@ def test_lean_postures_never_pass_through_the_seat_and_keep_the_buttocks_on_it(l
             assert min(_coal_gap(cap, b) for b in boxes) > -0.01
         com = body.center_of_mass(q)
         support = np.array([ref[f][:2] for f in SUPPORT])
-        assert support[:, 0].min() <= com[0] <= support[:, 0].max() and support[:, 1].min() <= com[1] <= support[:, 1].max()
+        assert (support[:, 0].min() <= com[0] <= support[:, 0].max()
+                and support[:, 1].min() <= com[1] <= support[:, 1].max())
 
 
 def test_the_pelvis_turns_on_the_seat_and_the_lean_reaches_past_the_arm(lean):
     """A goal 0.2 m beyond the arm's reach straight ahead at shoulder height: the arm alone misses it, the lean reaches
     it with the pelvis pitched forward about the ischia (its orientation changes) and the trunk off the backrest."""
-    arm = CasadiIK(seated(), "right_hand", ARM, [{"type": "reach"}, {"type": "obstacles"}], search=Search(restarts=3, seed=0))
+    arm = CasadiIK(seated(), "right_hand", ARM, [{"type": "reach"}, {"type": "obstacles"}],
+                   search=Search(restarts=3, seed=0))
     shoulder = lean.body.frame_positions()["right_shoulder"]
     far = shoulder + np.array([0.62 + 0.2, 0.0, 0.0])
     assert not arm.evaluate(far[None]).reachable[0]
@@ -148,7 +162,8 @@ def test_the_pelvis_turns_on_the_seat_and_the_lean_reaches_past_the_arm(lean):
 
 
 def test_a_locked_belt_holds_the_chest_and_reaches_no_farther():
-    """Belted: the sternum and the outboard shoulder within their webbing (+2 cm) of the anchor, by Pinocchio FK; straight
+    """Belted: the sternum and the outboard shoulder within their webbing (+2 cm) of the anchor, by Pinocchio FK;
+    straight
     ahead at shoulder height, the belted reach is no longer than the unbelted lean's."""
     body = seated("car")
     belted = CasadiIK(body, "right_hand", TRUNK, BELTED, search=Search(restarts=2, seed=0))
@@ -171,7 +186,8 @@ def test_the_seated_arm_volume_is_the_standing_arm_volume_moved_with_the_shoulde
     """The same arm on another trunk posture: goals around the shoulder, moved by the clavicle's rigid motion from
     standing to seated, get the same verdicts (reach and the arm's coupling only, no seat or legs in the way)."""
     tasks = [{"type": "reach"}, {"type": "coupling"}]
-    stand = CasadiIK({"human": {"sex": "male", "percentile": 50}}, "right_hand", ARM, tasks, search=Search(restarts=3, seed=0))
+    stand = CasadiIK({"human": {"sex": "male", "percentile": 50}}, "right_hand", ARM, tasks,
+                     search=Search(restarts=3, seed=0))
     sit = CasadiIK(seated("car"), "right_hand", ARM, tasks, search=Search(restarts=3, seed=0))
 
     def clavicle(oracle):
@@ -213,9 +229,12 @@ def test_the_tether_row_and_its_casadi_constraint_agree_with_pinocchio_and_finit
     for f in ("sternum", "left_shoulder"):
         d = body.frame_positions(q)[f] - anchor
         tether._length[f] = float(np.linalg.norm(d)) - 0.001  # just past: the row is active
-    sym = Symbolic(SymbolicKinematics(body.model, problem.q_sym), problem.x_sym, ca.SX.sym("g", 3), problem.x_ref, problem.upper - problem.lower)
+    sym = Symbolic(SymbolicKinematics(body.model, problem.q_sym), problem.x_sym, ca.SX.sym("g", 3), problem.x_ref,
+                   problem.upper - problem.lower)
     values = ca.Function("c", [sym.x], [ca.vertcat(*[c.expr for c in tether.constraints(sym)])])(x)
-    assert np.allclose(np.array(values).ravel(), [np.sum((body.frame_positions(q)[f] - anchor) ** 2) for f in ("sternum", "left_shoulder")], atol=1e-9)
+    assert np.allclose(np.array(values).ravel(),
+                       [np.sum((body.frame_positions(q)[f] - anchor) ** 2) for f in ("sternum", "left_shoulder")],
+                           atol=1e-9)
     rows = tether.rows(num)
     assert len(rows) == 2
     eps = 1e-6
@@ -238,10 +257,14 @@ def seated_atlas(tmp_path_factory):
     from reach.build.config import parse_config
 
     out = tmp_path_factory.mktemp("seated") / "atlas"
-    config = {"body": seated(), "box": {"min": [-0.4, -1.0, 0.2], "max": [1.2, 0.6, 1.8]}, "depth": {"min": 2, "max": 3},
+    config = {"body": seated(), "box": {"min": [-0.4, -1.0, 0.2], "max": [1.2, 0.6, 1.8]},
+              "depth": {"min": 2, "max": 3},
               "oracle": {"name": "casadi-ik", "params": {"restarts": 1, "seed": 0}},
               "strategies": [{"name": "arm", "effector": "right_hand", "joints": ARM,
-                              "tasks": [{"type": "reach"}, {"type": "obstacles", "boxes": [{"name": "desk", "min": [0.55, -0.8, 0.69], "max": [1.3, 0.8, 0.72]}]}]}]}
+                              "tasks": [{"type": "reach"},
+                                        {"type": "obstacles",
+                                         "boxes": [{"name": "desk", "min": [0.55, -0.8, 0.69],
+                                                    "max": [1.3, 0.8, 0.72]}]}]}]}
     build_atlas(parse_config(config, "seated", "seated"), out)
     return out
 
@@ -259,7 +282,8 @@ def test_the_viewer_shows_the_seat_and_the_desk(seated_atlas):
         assert set(boxes) == {"seat_pan", "backrest", "desk"}
         body = load_body(seated())
         pan = next(b for b in body.furniture if b.name == "seat_pan")
-        assert np.allclose(boxes["seat_pan"].position, pan.centre) and np.allclose(boxes["desk"].position, [0.925, 0.0, 0.705])
+        assert (np.allclose(boxes["seat_pan"].position, pan.centre)
+                and np.allclose(boxes["desk"].position, [0.925, 0.0, 0.705]))
     finally:
         v.close()
 
@@ -272,15 +296,18 @@ def test_evaluate_at_moves_the_targets_into_the_body_and_draws_them(seated_atlas
     from reach.tools.cli import main
 
     layout = tmp_path / "layout.csv"
-    # The body's frame stands at (2, 1, 0) facing +y in the layout: the layout's (1.3, 1.6, 0.9) is 0.6 ahead, 0.7 right.
+    # The body's frame stands at (2, 1, 0) facing +y in the layout: the layout's (1.3, 1.6, 0.9) is 0.6 ahead, 0.7
+    # right.
     layout.write_text("name,x,y,z,effector\nahead,1.3,1.6,0.9,right_hand\nbehind,2.0,0.0,0.9,right_hand\n")
     body_frame = tmp_path / "body.csv"
     body_frame.write_text("name,x,y,z,effector\nahead,0.6,0.7,0.9,right_hand\nbehind,-1.0,0.0,0.9,right_hand\n")
-    assert main(["evaluate", str(seated_atlas), "--targets", str(layout), "--at", "2", "1", "0", "90", "--json", "--figure", str(tmp_path / "f.png")]) == 0
+    assert main(["evaluate", str(seated_atlas), "--targets", str(layout), "--at", "2", "1", "0", "90", "--json",
+                 "--figure", str(tmp_path / "f.png")]) == 0
     moved = json.loads(capsys.readouterr().out)
     assert main(["evaluate", str(seated_atlas), "--targets", str(body_frame), "--json"]) == 0
     direct = json.loads(capsys.readouterr().out)
-    assert [r["reachable"] for r in moved["atlases"][0]["rows"]] == [r["reachable"] for r in direct["atlases"][0]["rows"]]
+    assert [r["reachable"] for r in moved["atlases"][0]["rows"]] == [r["reachable"]
+        for r in direct["atlases"][0]["rows"]]
     assert [r["strategy"] for r in moved["atlases"][0]["rows"]] == [r["strategy"] for r in direct["atlases"][0]["rows"]]
     assert not moved["atlases"][0]["rows"][1]["reachable"]  # 1 m behind the backrest
     assert (tmp_path / "f.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -300,7 +327,8 @@ def test_reach_model_prints_and_draws_the_fitted_seat(tmp_path, capsys):
     assert (tmp_path / "m.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-@pytest.mark.skipif(not Path("/usr/bin/chromium").exists(), reason="no browser (apt-get install chromium chromium-driver)")
+@pytest.mark.skipif(not Path("/usr/bin/chromium").exists(), reason="no browser (apt-get install chromium "
+    "chromium-driver)")
 def test_the_page_draws_the_seat(seated_atlas, browser, tmp_path):
     """In a real browser: with the volumes hidden, the page differs where the seat and the desk are drawn (hidden, then
     shown); the screenshot with them is kept in $REACH_SHOTS to look at."""
@@ -337,7 +365,8 @@ def test_the_seated_arm_tree_is_the_standing_arm_tree_moved_with_the_shoulder(tm
     for name, body in (("stand", {"human": {"sex": "male", "percentile": 50}}), ("sit", seated("car"))):
         oracle = CasadiIK(body, "right_hand", ARM, tasks)
         shoulder = oracle.body.frame_positions()["right_shoulder"]
-        config = {"body": body, "box": {"min": (shoulder - 0.8).tolist(), "max": (shoulder + 0.8).tolist()}, "depth": {"min": 2, "max": 4},
+        config = {"body": body, "box": {"min": (shoulder - 0.8).tolist(), "max": (shoulder + 0.8).tolist()},
+                  "depth": {"min": 2, "max": 4},
                   "oracle": {"name": "casadi-ik", "params": {"restarts": 2, "seed": 0}},
                   "strategies": [{"name": "arm", "effector": "right_hand", "joints": ARM, "tasks": tasks}]}
         build_atlas(parse_config(config, name, name), tmp_path / name)

@@ -35,7 +35,8 @@ NATURAL_ARM = [{"name": "right_arm", "effector": "right_hand", "joints": ARM,
 
 @pytest.fixture(scope="module")
 def arm(tmp_path_factory):
-    return build_atlas(parse_config(human_config(d_max=3, strategies=NATURAL_ARM), "arm", "arm"), tmp_path_factory.mktemp("arm") / "arm")
+    return build_atlas(parse_config(human_config(d_max=3, strategies=NATURAL_ARM), "arm", "arm"),
+                       tmp_path_factory.mktemp("arm") / "arm")
 
 
 def hand_of(answer, body) -> np.ndarray:
@@ -150,9 +151,12 @@ def test_a_strategy_whose_ik_misses_the_exact_goal_gives_way_to_the_next(tmp_pat
     # 10 cm beyond the arm's reach; its refinement fails, and the upper body,
     # next by priority, reaches it by leaning.
     upper = [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*"]
-    strategies = [{"name": "arm", "effector": "right_hand", "priority": 1, "joints": ARM, "tasks": [{"type": "reach"}, {"type": "self_collision"}]},
-                  {"name": "upper", "effector": "right_hand", "priority": 2, "joints": upper, "tasks": [{"type": "reach"}, {"type": "self_collision"}]}]
-    atlas = build_atlas(parse_config(human_config(d_max=2, strategies=strategies, name="coarse"), "coarse", "coarse"), tmp_path / "coarse")
+    strategies = [{"name": "arm", "effector": "right_hand", "priority": 1, "joints": ARM,
+                   "tasks": [{"type": "reach"}, {"type": "self_collision"}]},
+                  {"name": "upper", "effector": "right_hand", "priority": 2, "joints": upper,
+                   "tasks": [{"type": "reach"}, {"type": "self_collision"}]}]
+    atlas = build_atlas(parse_config(human_config(d_max=2, strategies=strategies, name="coarse"), "coarse", "coarse"),
+                        tmp_path / "coarse")
     body = human_body()
     shoulder = body.frame_positions(names=["right_shoulder"])["right_shoulder"]
     s = Selector(atlas, policy="optimistic", budget=2.0).warm_up()
@@ -168,27 +172,33 @@ def test_a_strategy_whose_ik_misses_the_exact_goal_gives_way_to_the_next(tmp_pat
 
 def test_a_goal_no_refinement_reaches_is_never_a_bare_reachable(tmp_path, capsys):
     # The arm alone, coarse and optimistic: its tree holds a goal 10 cm beyond its reach, and no strategy is left.
-    strategies = [{"name": "arm", "effector": "right_hand", "priority": 1, "joints": ARM, "tasks": [{"type": "reach"}, {"type": "self_collision"}]}]
-    atlas = build_atlas(parse_config(human_config(d_max=2, strategies=strategies, name="lone"), "lone", "lone"), tmp_path / "lone")
+    strategies = [{"name": "arm", "effector": "right_hand", "priority": 1, "joints": ARM,
+                   "tasks": [{"type": "reach"}, {"type": "self_collision"}]}]
+    atlas = build_atlas(parse_config(human_config(d_max=2, strategies=strategies, name="lone"), "lone", "lone"),
+                        tmp_path / "lone")
     body = human_body()
     goal = body.frame_positions(names=["right_shoulder"])["right_shoulder"] + [0.75, 0.0, 0.0]
     s = Selector(atlas, policy="optimistic", budget=2.0).warm_up()
     stored = s.select("right_hand", goal, refine=False)
-    assert stored.reachable and stored.refined == SKIPPED and stored.within == stored.residual > 0.005  # the tree's word, said how near
+    # the tree's word, said how near
+    assert stored.reachable and stored.refined == SKIPPED and stored.within == stored.residual > 0.005
     no = s.select("right_hand", goal)  # the default: unreachable, with the nearest point a stored posture reaches
     assert not no.reachable and no.strategy is None and no.refined == FAILED and no.posture is None
     near = no.nearest
-    assert near["strategy"] == "arm" and near["distance"] == pytest.approx(np.linalg.norm(np.array(near["point"]) - goal))
+    assert (near["strategy"] == "arm"
+            and near["distance"] == pytest.approx(np.linalg.norm(np.array(near["point"]) - goal)))
     reached = hand_of(Answer("right_hand", tuple(goal), "arm", True, posture=near["posture"], root=near["root"]), body)
     assert np.linalg.norm(reached - near["point"]) < 1e-3  # independent FK: the posture reaches that point
     within = s.select("right_hand", goal, miss="within")
-    assert within.reachable and within.refined == FAILED and within.within == pytest.approx(near["distance"]) and within.within > 0.005
+    assert (within.reachable and within.refined == FAILED and within.within == pytest.approx(near["distance"])
+            and within.within > 0.005)
     assert np.linalg.norm(hand_of(within, body) - goal) == pytest.approx(within.within, abs=1e-6)
     reached_goal = s.select("right_hand", goal - [0.3, 0.0, 0.1])
     assert reached_goal.refined == REFINED and reached_goal.within is None  # solved at the goal: no `within`
     with pytest.raises(InputError, match="miss: expected one of unreachable, within"):
         s.select("right_hand", goal, miss="maybe")
-    assert main(["query", str(tmp_path / "lone"), *map(str, goal), "--effector", "right_hand", "--policy", "optimistic"]) == 0
+    assert main(["query", str(tmp_path / "lone"), *map(str, goal), "--effector", "right_hand", "--policy",
+                 "optimistic"]) == 0
     assert "not reachable: arm's tree holds it but no refinement reached it" in capsys.readouterr().out
 
 
@@ -204,7 +214,8 @@ def test_a_strategy_at_its_joint_limits_hands_the_goal_to_the_next(tmp_path, cap
         {"name": "whole", "effector": "right_hand", "priority": 2, "joints": [*upper, "root", "*_hip_*", "*_ankle_*"],
          "tasks": [*natural, {"type": "feet", "heels": "down"}, {"type": "balance"}, {"type": "coupling"}]},
     ]
-    atlas = build_atlas(parse_config(human_config(d_max=2, strategies=strategies, name="bend"), "bend", "bend"), tmp_path / "bend")
+    atlas = build_atlas(parse_config(human_config(d_max=2, strategies=strategies, name="bend"), "bend", "bend"),
+                        tmp_path / "bend")
     body = human_body()
     low, chest = [0.35, -0.2, 0.6], [0.35, -0.25, 1.1]
     plain = Selector(atlas, policy="optimistic", budget=2.0, handover=0.0).warm_up()
@@ -217,7 +228,8 @@ def test_a_strategy_at_its_joint_limits_hands_the_goal_to_the_next(tmp_path, cap
     assert answer.strategy == "whole" and answer.alternatives == ("upper",) and answer.refined == REFINED
     assert answer.handover == {"from": "upper", "limits": strained} and first.handover is None
     assert json.loads(answer.to_json())["handover"] == {"from": "upper", "limits": strained}
-    assert len(s._oracle("whole").limits_near(body.configuration(answer.posture, answer.root), np.radians(5.0))) < len(strained)
+    assert len(s._oracle("whole").limits_near(body.configuration(answer.posture, answer.root),
+                                              np.radians(5.0))) < len(strained)
     assert np.linalg.norm(hand_of(answer, body) - low) <= 0.005
     assert s.select("right_hand", low).posture == answer.posture  # the same request, the same answer
     # A goal at chest height, which the upper body reaches clear of its limits, stays with it.
@@ -228,11 +240,13 @@ def test_a_strategy_at_its_joint_limits_hands_the_goal_to_the_next(tmp_path, cap
     query = ["query", str(tmp_path / "bend"), *map(str, low), "--effector", "right_hand", "--policy", "optimistic"]
     assert main(query) == 0
     out = capsys.readouterr().out
-    assert "strategy whole" in out and f"handed over by upper, whose posture came near these limits: {', '.join(strained)}" in out
+    assert "strategy whole" in out
+    assert f"handed over by upper, whose posture came near these limits: {', '.join(strained)}" in out
     assert main([*query, "--handover-deg", "0"]) == 0
     out = capsys.readouterr().out
     assert "strategy upper" in out and "handed over" not in out
-    assert main([*query, "--handover-deg", "-5"]) == 2 and "--handover-deg: expected 0 or more degrees" in capsys.readouterr().err
+    assert (main([*query, "--handover-deg", "-5"]) == 2
+            and "--handover-deg: expected 0 or more degrees" in capsys.readouterr().err)
 
 
 def test_refinement_also_starts_from_the_best_liked_stored_posture_nearby(arm, monkeypatch):
@@ -259,7 +273,8 @@ def test_refinement_also_starts_from_the_best_liked_stored_posture_nearby(arm, m
         monkeypatch.undo()
         seeded: list[tuple[int, ...]] = []
         real = type(oracle).evaluate
-        monkeypatch.setattr(type(oracle), "evaluate", lambda self, goals: seeded.append(goals.seeds.shape) or real(self, goals))
+        monkeypatch.setattr(type(oracle), "evaluate", lambda self, goals: seeded.append(goals.seeds.shape)
+                            or real(self, goals))
         answer = Selector(arm, budget=0.5).select("right_hand", goal)
         assert answer.refined == REFINED and seeded == [(1, 2, len(tree.vertices.posture_names))]
         assert np.linalg.norm(hand_of(answer, human_body()) - goal) <= 0.005
@@ -275,7 +290,8 @@ def test_a_requests_orientation_is_scaled_before_it_is_normalised_and_bad_ones_n
 
     assert np.allclose(orientation_of({"direction": [1e200, 0, 0]}), [1, 0, 0])
     assert np.allclose(orientation_of({"quaternion": [0, 0, 0, 1e300]}), np.eye(3))
-    for wire, field in (({"direction": [0, 0, 0]}, "orientation.direction"), ({"direction": [float("inf"), 0, 0]}, "orientation.direction"),
+    for wire, field in (({"direction": [0, 0, 0]}, "orientation.direction"),
+                        ({"direction": [float("inf"), 0, 0]}, "orientation.direction"),
                         ({"quaternion": [0, 0, 0, 0]}, "orientation.quaternion")):
         with pytest.raises(InputError) as info:
             orientation_of(wire)

@@ -155,7 +155,8 @@ def test_health_and_strategies(running):
         (b'{"op": "query", "effector": "point", "goal": [0, 0, 0], "colour": 1}', P.BAD_REQUEST),
         (b'{"op": "query", "effector": "point", "goal": [0, 0, 0], "id": true}', P.BAD_REQUEST),
         (b'{"op": "query", "effector": "point", "goal": [0, 0, 0], "from": [0.1, 0.2]}', P.BAD_REQUEST),
-        (b'{"op": "query", "effector": "point", "goal": [0, 0, 0], "from": {"right_elbow_flexion": "bent"}}', P.BAD_REQUEST),
+        (b'{"op": "query", "effector": "point", "goal": [0, 0, 0], "from": {"right_elbow_flexion": "bent"}}',
+         P.BAD_REQUEST),
         (b'{"op": "fly"}', P.UNKNOWN_OP),
         (b'{"op": "query", "effector": "left_hand", "goal": [0, 0, 0]}', P.UNKNOWN_EFFECTOR),
         (b'{"op": "reload", "path": "/nonexistent/atlas"}', P.FORBIDDEN),
@@ -326,14 +327,17 @@ def test_curve_with_an_allow_list_lets_in_listed_clients_only(balls, tmp_path):
         with Client(r.server.endpoint, curve_server_key=server_public, curve_client_key=listed_secret) as c:
             assert c.query("point", [0.0, 0.0, 0.0])["ok"]
         for key in (stranger_secret, None):  # an unlisted pair, and a fresh random one, get nothing
-            with Client(r.server.endpoint, timeout=300, retries=1, curve_server_key=server_public, curve_client_key=key) as c:
+            with Client(r.server.endpoint, timeout=300, retries=1, curve_server_key=server_public,
+                        curve_client_key=key) as c:
                 with pytest.raises(ServerUnavailable):
                     c.health()
-        with Client(r.server.endpoint, timeout=300, retries=1, curve_server_key=server_secret, curve_client_key=listed_secret) as c:
+        with Client(r.server.endpoint, timeout=300, retries=1, curve_server_key=server_secret,
+                    curve_client_key=listed_secret) as c:
             assert c.health()["ok"]  # the secret file's public half is the server's key too (it holds both)
     finally:
         r.stop()
-    with pytest.raises(InputError, match="--curve-clients: .*expected a folder of client public-key files, with --curve-secret-key"):
+    with pytest.raises(InputError, match="--curve-clients: .*expected a folder of client public-key files, with "
+                                         "--curve-secret-key"):
         Server(balls, "tcp://127.0.0.1:*", None, curve_clients=allowed)
     (allowed / "broken.key").write_text("not a certificate\n")  # issue 35: emptied the allow-list after "serving"
     with pytest.raises(InputError, match=r"--curve-clients: .*broken\.key: cannot read a CURVE key file"):
@@ -363,7 +367,8 @@ def test_a_burst_of_signals_stops_the_server_and_never_blocks_it(balls):
     """Issue 35, item 7: the handler only sets a flag; a hundred SIGTERMs and SIGINTs in a burst (one arriving while
     another is handled) still end the process, with its usual message and status."""
     proc = subprocess.Popen(
-        [sys.executable, "-m", "reach.tools.cli", "serve", str(balls), "--bind", "tcp://127.0.0.1:*", "--pub", "none", "--workers", "0"],
+        [sys.executable, "-m", "reach.tools.cli", "serve", str(balls), "--bind", "tcp://127.0.0.1:*", "--pub", "none",
+         "--workers", "0"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
     try:
@@ -402,7 +407,8 @@ HUMAN = {
     "box": {"min": [-0.5, -1.0, 0.6], "max": [0.9, 0.4, 2.1]}, "depth": {"min": 1, "max": 3},
     "oracle": {"name": "casadi-ik", "params": {"restarts": 1, "secondary": False}},
     "strategies": [{"name": "right_arm", "effector": "right_hand",
-                    "joints": ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"], "tasks": [{"type": "reach"}]}],
+                    "joints": ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"],
+                        "tasks": [{"type": "reach"}]}],
 }
 
 
@@ -414,7 +420,8 @@ def test_human_posture_is_refined_at_the_exact_goal(tmp_path_factory):
             goal = [0.4, -0.3, 1.2]
             a = c.query("right_hand", goal)
             stored = c.query("right_hand", goal, refine=False)
-            again = c.query("right_hand", goal, start=a["posture"])  # from the answer itself: nearly the same posture back
+            # from the answer itself: nearly the same posture back
+            again = c.query("right_hand", goal, start=a["posture"])
             with pytest.raises(ServerError, match="bad_request: from: unknown joints"):
                 c.query("right_hand", goal, start={"right_tail": 1.0})
     finally:
@@ -433,7 +440,8 @@ def test_human_posture_is_refined_at_the_exact_goal(tmp_path_factory):
     assert np.linalg.norm(hand - goal) <= 0.005 and a["residual"] <= 0.005
     assert stored["residual"] > a["residual"]  # the stored vertex posture is a cell away
     # This strategy has no posture task to pin its null space, so the solver may drift a little within the tolerance.
-    assert again["refined"] == "ok" and max(abs(again["posture"][k] - v) for k, v in a["posture"].items()) < np.radians(5.0)
+    assert (again["refined"] == "ok"
+            and max(abs(again["posture"][k] - v) for k, v in a["posture"].items()) < np.radians(5.0))
 
 
 # -- refinement in worker processes --------------------------------------------
@@ -465,17 +473,25 @@ GOALS = np.random.default_rng(4).uniform([0.1, -0.7, 0.8], [0.6, 0.0, 1.6], (60,
 # Requests a worker would refuse (found killing the server: a worker's InputError re-raised by the broker's
 # fallback outside any handler). With workers and without, each gets the same error and the server lives.
 WORKER_PATH_ERRORS = [
-    (b'{"op": "query", "id": 1, "effector": "right_hand", "goal": [0.4, 0.2]}', P.BAD_REQUEST, "goals: expected 3 coordinates"),
-    (b'{"op": "query", "id": 2, "effector": "right_hand", "goals": [[0.4, 0.2, 1.0, 1.0]]}', P.BAD_REQUEST, "'goals' must be"),
-    (b'{"op": "query", "id": 3, "effector": "right_hand", "goal": [0.4, -0.2, 1.1], "from": {"wing": 0.1}}', P.BAD_REQUEST, "from: unknown joints ['wing']"),
-    (b'{"op": "query", "id": 4, "effector": "tail", "goal": [0.4, -0.2, 1.1]}', P.UNKNOWN_EFFECTOR, "unknown effector 'tail'"),
-    (b'{"op": "query", "id": 5, "effector": "right_hand", "goal": [0.4, -0.2, 1.1], "from": {"right_elbow_flexion": 1e6}}', P.BAD_REQUEST,
+    (b'{"op": "query", "id": 1, "effector": "right_hand", "goal": [0.4, 0.2]}', P.BAD_REQUEST, "goals: expected 3 "
+        "coordinates"),
+    (b'{"op": "query", "id": 2, "effector": "right_hand", "goals": [[0.4, 0.2, 1.0, 1.0]]}', P.BAD_REQUEST, "'goals' "
+        "must be"),
+    (b'{"op": "query", "id": 3, "effector": "right_hand", "goal": [0.4, -0.2, 1.1], "from": {"wing": 0.1}}',
+     P.BAD_REQUEST, "from: unknown joints ['wing']"),
+    (b'{"op": "query", "id": 4, "effector": "tail", "goal": [0.4, -0.2, 1.1]}', P.UNKNOWN_EFFECTOR, "unknown "
+        "effector 'tail'"),
+    (b'{"op": "query", "id": 5, "effector": "right_hand", "goal": [0.4, -0.2, 1.1], "from": {"right_elbow_flexion": '
+     b'1e6}}', P.BAD_REQUEST,
      "from: right_elbow_flexion = 1e+06 is outside its range [0.0000, "),
-    (b'{"op": "query", "id": 6, "effector": "right_hand", "goal": [0.4, -0.2, 1.1], "from": {"root_z": 1e300}}', P.BAD_REQUEST,
+    (b'{"op": "query", "id": 6, "effector": "right_hand", "goal": [0.4, -0.2, 1.1], "from": {"root_z": 1e300}}',
+     P.BAD_REQUEST,
      "from: the root's position must be within 1000 m"),
-    (b'{"op": "query", "id": 7, "effector": "right_hand", "goal": [0.4, -0.2, 1.1], "from": {"root_qx": 0, "root_qy": 0, "root_qz": 0, "root_qw": 0}}',
+    (b'{"op": "query", "id": 7, "effector": "right_hand", "goal": [0.4, -0.2, 1.1], "from": {"root_qx": 0, '
+     b'"root_qy": 0, "root_qz": 0, "root_qw": 0}}',
      P.BAD_REQUEST, "quaternion (root_qx, root_qy, root_qz, root_qw) must not be zero"),
-    (b'{"op": "query", "id": 8, "effector": "right_hand", "goal": [0.4, -0.2, 1.1], "refine": false, "from": {"right_elbow_flexion": -3}}', P.BAD_REQUEST,
+    (b'{"op": "query", "id": 8, "effector": "right_hand", "goal": [0.4, -0.2, 1.1], "refine": false, "from": '
+     b'{"right_elbow_flexion": -3}}', P.BAD_REQUEST,
      "from: right_elbow_flexion = -3 is outside its range"),
 ]
 
@@ -489,7 +505,8 @@ def test_requests_a_worker_would_refuse_are_refused_alike_on_every_path(human, w
     try:
         for payload, code, message in WORKER_PATH_ERRORS:
             reply = ask(sock, payload)
-            assert reply["ok"] is False and reply["error"]["code"] == code and message in reply["error"]["message"], reply
+            assert (reply["ok"] is False and reply["error"]["code"] == code
+                    and message in reply["error"]["message"]), reply
             assert reply["id"] == json.loads(payload)["id"]
         assert ask(sock, b'{"op": "health"}')["ok"] and r.thread.is_alive()
     finally:
@@ -516,7 +533,9 @@ def test_the_loop_answers_while_workers_refine(human):
     r = Running(human, budget=0.5, workers=2)
     batch = _dealer(r.server.endpoint)
     try:
-        batch.send_multipart([b"", json.dumps({"op": "query", "id": "batch", "effector": "right_hand", "goals": GOALS}).encode()])
+        batch.send_multipart([b"",
+                              json.dumps({"op": "query", "id": "batch", "effector": "right_hand",
+                                          "goals": GOALS}).encode()])
         with Client(r.server.endpoint) as c:
             health = _pending_health(c)  # answered by the loop while the batch is with the workers
             stored = c.query("right_hand", GOALS[0], refine=False)
@@ -615,13 +634,15 @@ def test_published_choices_carry_id_and_tag_and_hello_syncs(human):
         sub.close(linger=0)
         r.stop()
     msg = json.loads(body)
-    assert topic == b"right_hand" and msg["tag"] == "character-3" and isinstance(msg["id"], int) and msg["goal"] == GOALS[0]
+    assert (topic == b"right_hand" and msg["tag"] == "character-3" and isinstance(msg["id"], int)
+            and msg["goal"] == GOALS[0])
 
 
 @pytest.mark.slow
 def test_sigterm_under_a_refined_batch_stops_the_server_and_its_workers(human):
     proc = subprocess.Popen(
-        [sys.executable, "-m", "reach.tools.cli", "serve", str(human), "--bind", "tcp://127.0.0.1:*", "--pub", "none", "--workers", "2", "--budget-ms", "500"],
+        [sys.executable, "-m", "reach.tools.cli", "serve", str(human), "--bind", "tcp://127.0.0.1:*", "--pub", "none",
+         "--workers", "2", "--budget-ms", "500"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
     sock = None
@@ -656,14 +677,20 @@ def test_sigterm_under_a_refined_batch_stops_the_server_and_its_workers(human):
 def test_unreadable_curve_keys_are_named_and_a_sigkilled_servers_folder_is_removed(balls, tmp_path, capsys):
     from reach.serving.workers import FOLDER_PREFIX, remove_stale_folders
 
-    assert main(["serve", str(balls), "--bind", "tcp://127.0.0.1:*", "--pub", "none", "--curve-secret-key", str(tmp_path / "nonexistent")]) == 2
+    assert main(["serve", str(balls), "--bind", "tcp://127.0.0.1:*", "--pub", "none", "--curve-secret-key",
+                 str(tmp_path / "nonexistent")]) == 2
     err = capsys.readouterr().err
-    assert "--curve-secret-key: " in err and "nonexistent: cannot read a CURVE key file" in err and "Traceback" not in err
+    assert ("--curve-secret-key: " in err and "nonexistent: cannot read a CURVE key file" in err
+            and "Traceback" not in err)
     with pytest.raises(InputError, match="curve_server_key: .*cannot read a CURVE key file"):
         Client("tcp://127.0.0.1:5599", curve_server_key=tmp_path / "none.key")
-    # A server killed with SIGKILL leaves its back-end folder; the next server's pool removes it (not a living server's).
-    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True, check=True)
-    stale, alive, legacy = (tmp_path / f"{FOLDER_PREFIX}{dead.stdout.strip()}-x1"), tmp_path / f"{FOLDER_PREFIX}{os.getpid()}-x2", tmp_path / f"{FOLDER_PREFIX}abc123"
+    # A server killed with SIGKILL leaves its back-end folder; the next server's pool removes it (not a living
+    # server's).
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True,
+                          check=True)
+    stale = tmp_path / f"{FOLDER_PREFIX}{dead.stdout.strip()}-x1"
+    alive = tmp_path / f"{FOLDER_PREFIX}{os.getpid()}-x2"
+    legacy = tmp_path / f"{FOLDER_PREFIX}abc123"
     for folder in (stale, alive, legacy):
         folder.mkdir()
         (folder / "refine").write_text("")
@@ -707,7 +734,8 @@ def test_an_internal_error_is_logged_once_a_minute(running, dealer, caplog, monk
 def test_a_lazy_pirate_resend_of_a_slow_request_is_computed_once(human):
     r = Running(human, budget=0.5, workers=1)
     try:
-        with Client(r.server.endpoint, timeout=300, retries=40) as c:  # gives up waiting after 0.3 s, reconnects, resends
+        # gives up waiting after 0.3 s, reconnects, resends
+        with Client(r.server.endpoint, timeout=300, retries=40) as c:
             reply = c.call("query", effector="right_hand", goals=GOALS)
             first = c.socket
         with Client(r.server.endpoint) as c:
@@ -770,7 +798,8 @@ def test_a_crashed_worker_is_replaced_and_its_work_answered(human):
             assert c.query("right_hand", GOALS[0])["refined"] == "ok"  # the worker is up
             pid = r.server.pool.processes[0].pid
             os.kill(pid, signal.SIGKILL)  # as a crash in native code would
-            again = c.query("right_hand", GOALS[0])  # answered: from the store if the dead worker held it, else by its successor
+            # answered: from the store if the dead worker held it, else by its successor
+            again = c.query("right_hand", GOALS[0])
             later = c.query("right_hand", GOALS[0])
             health = c.health()
     finally:
@@ -779,7 +808,8 @@ def test_a_crashed_worker_is_replaced_and_its_work_answered(human):
     assert later["refined"] == "ok" and health["worker_restarts"] == 1 and r.server.pool is not None
 
 
-JUNK = st.one_of(st.none(), st.booleans(), st.integers(-10, 10), st.floats(allow_nan=False, allow_infinity=False), st.text(max_size=5),
+JUNK = st.one_of(st.none(), st.booleans(), st.integers(-10, 10), st.floats(allow_nan=False, allow_infinity=False),
+                 st.text(max_size=5),
                  st.lists(st.integers(), max_size=2), st.dictionaries(st.text(max_size=3), st.integers(), max_size=2))
 POINT = st.lists(st.floats(-1.5, 2.5), min_size=1, max_size=4)
 FIELD_VALUES = {
@@ -788,7 +818,8 @@ FIELD_VALUES = {
     "goals": st.lists(POINT, min_size=0, max_size=4),
     "refine": st.booleans(),
     "bones": st.booleans(),
-    "from": st.dictionaries(st.sampled_from(["right_elbow_flexion", "right_shoulder_flexion", "root_z", "root_qw", "wing"]), st.floats(-10, 10), max_size=3),
+    "from": st.dictionaries(st.sampled_from(["right_elbow_flexion", "right_shoulder_flexion", "root_z", "root_qw",
+                                             "wing"]), st.floats(-10, 10), max_size=3),
     "deadline": st.floats(-1.0, 2.0),
     "miss": st.sampled_from(["unreachable", "within", "maybe", "nearest", "error"]),
     "rate": st.floats(-10.0, 500.0),
@@ -797,7 +828,8 @@ FIELD_VALUES = {
     "strategy": st.sampled_from(["right_arm", "nope"]),
     "level": st.integers(0, 8),
     "path": st.sampled_from(["/etc", "..", "human_workers"]),
-    "targets": st.lists(st.fixed_dictionaries({"point": POINT, "effector": st.sampled_from(["right_hand", "nope"])}), min_size=0, max_size=3),
+    "targets": st.lists(st.fixed_dictionaries({"point": POINT, "effector": st.sampled_from(["right_hand", "nope"])}),
+                        min_size=0, max_size=3),
     "x": st.lists(st.floats(-1, 1), min_size=1, max_size=3),
     "y": st.lists(st.floats(-1, 1), min_size=1, max_size=3),
     "z": st.lists(st.floats(-1, 1), min_size=2, max_size=2),
@@ -805,7 +837,8 @@ FIELD_VALUES = {
     "step": st.floats(-0.1, 0.5),
     "yaw_step": st.floats(-10, 90),
     "top": st.integers(-1, 200),
-    "orientation": st.one_of(st.fixed_dictionaries({"direction": POINT}), st.fixed_dictionaries({"quaternion": st.lists(st.floats(-1, 1), min_size=3, max_size=5)}),
+    "orientation": st.one_of(st.fixed_dictionaries({"direction": POINT}),
+                             st.fixed_dictionaries({"quaternion": st.lists(st.floats(-1, 1), min_size=3, max_size=5)}),
                              st.lists(st.fixed_dictionaries({"direction": POINT}), min_size=0, max_size=3)),
 }
 
@@ -863,7 +896,9 @@ def test_a_clients_queued_work_is_capped_and_refused_with_busy(human, monkeypatc
         sock.setsockopt(zmq.RCVTIMEO, 60_000)
     try:
         def send(sock, rid, goals):  # noqa: ANN001, ANN202
-            sock.send_multipart([b"", json.dumps({"op": "query", "id": rid, "effector": "right_hand", "goals": goals, "deadline": 30}).encode()])
+            sock.send_multipart([b"",
+                                 json.dumps({"op": "query", "id": rid, "effector": "right_hand", "goals": goals,
+                                             "deadline": 30}).encode()])
 
         send(a, "a1", GOALS)
         send(a, "a2", GOALS)  # 120 goals for this client: over its 100

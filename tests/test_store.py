@@ -32,8 +32,10 @@ def test_postures_round_trip(tmp_path):
     from reach.maps.tree import VATree, VertexTable, bfs_children
 
     kind = np.array([3], np.uint8)  # a boundary root: its vertices disagree
-    table = VertexTable(np.array([0, 3]), np.array([True, False]), np.array([0.0, 0.2]), np.array([[0.1, 0.2], [0.3, 0.4]]), ("a", "b"))
-    tree = VATree(Box([0, 0], [1, 1]), 0, 1, np.zeros(1, np.uint8), np.zeros((1, 2), np.int64), kind, bfs_children(kind, 2), table)
+    table = VertexTable(np.array([0, 3]), np.array([True, False]), np.array([0.0, 0.2]),
+                        np.array([[0.1, 0.2], [0.3, 0.4]]), ("a", "b"))
+    tree = VATree(Box([0, 0], [1, 1]), 0, 1, np.zeros(1, np.uint8), np.zeros((1, 2), np.int64), kind,
+                  bfs_children(kind, 2), table)
     back = load_tree(save_tree(tree, tmp_path / "p.npz"))
     assert back.vertices.posture_names == ("a", "b")
     assert np.array_equal(back.vertices.posture, table.posture)
@@ -52,7 +54,8 @@ def test_truncated_file_is_a_clear_error(unit_sphere_tree, tmp_path):
         load_tree(path)
 
 
-def test_a_member_that_inflates_past_the_bound_is_refused_before_it_is_inflated(unit_sphere_tree, tmp_path, monkeypatch):
+def test_a_member_that_inflates_past_the_bound_is_refused_before_it_is_inflated(unit_sphere_tree, tmp_path,
+    monkeypatch):
     """Issue 35: a 2 GiB member of zeros (megabytes on disk) was decompressed on load. The bound is read from the
     archive's directory; here it is lowered so that the test writes little."""
     import zipfile
@@ -149,7 +152,8 @@ def _checkpoint(tmp_path):
 
     state = BuildState(2, np.zeros((4, 3), np.int64), [np.array([3], np.uint8), np.zeros(8, np.uint8)],
                        [np.zeros((1, 3), np.int64), np.zeros((8, 3), np.int64)],
-                       VertexTable(np.array([1, 5]), np.array([True, False]), np.zeros(2), np.ones((2, 2)), ("a", "b")), [{"depth": 0}])
+                       VertexTable(np.array([1, 5]), np.array([True, False]), np.zeros(2), np.ones((2, 2)),
+                                   ("a", "b")), [{"depth": 0}])
     return save_state(state, tmp_path / "s.npz", "fp")
 
 
@@ -193,8 +197,10 @@ def test_nan_postures_are_refused(tmp_path):
     from reach.maps.tree import VATree, VertexTable, bfs_children
 
     kind = np.array([1], np.uint8)
-    table = VertexTable(np.array([0, 3]), np.array([True, False]), np.array([0.0, 0.2]), np.array([[0.1, np.nan], [0.3, 0.4]]), ("a", "b"))
-    tree = VATree(Box([0, 0], [1, 1]), 0, 1, np.zeros(1, np.uint8), np.zeros((1, 2), np.int64), kind, bfs_children(kind, 2), table)
+    table = VertexTable(np.array([0, 3]), np.array([True, False]), np.array([0.0, 0.2]),
+                        np.array([[0.1, np.nan], [0.3, 0.4]]), ("a", "b"))
+    tree = VATree(Box([0, 0], [1, 1]), 0, 1, np.zeros(1, np.uint8), np.zeros((1, 2), np.int64), kind,
+                  bfs_children(kind, 2), table)
     with pytest.raises(StoreError, match="1 stored postures hold NaN or infinite values"):
         load_tree(save_tree(tree, tmp_path / "nan.npz"))
 
@@ -207,7 +213,8 @@ def test_two_builds_into_one_folder_are_refused(tmp_path):
     config = parse_config({"box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 1, "max": 3},
                            "oracle": {"name": "sphere", "params": {"radius": 0.9}}, "strategies": [{"name": "ball"}]})
     (tmp_path / "out").mkdir()
-    with build_lock(tmp_path / "out"), pytest.raises(StoreError, match=r"another build is writing into this folder \(pid \d+\)"):
+    with build_lock(tmp_path / "out"), pytest.raises(StoreError, match=r"another build is writing into this folder "
+        r"\(pid \d+\)"):
         build_atlas(config, tmp_path / "out")
     assert build_atlas(config, tmp_path / "out").trees["ball"].volume() > 0  # released: the next build runs
 
@@ -223,7 +230,8 @@ def test_a_tree_copied_over_another_is_refused(tmp_path):
                            "strategies": [{"name": "right", "effector": "a"}, {"name": "left", "effector": "b"}]})
     build_atlas(config, tmp_path / "out")
     shutil.copy(tmp_path / "out" / "left.npz", tmp_path / "out" / "right.npz")
-    with pytest.raises(StoreError, match=r"right\.npz: holds the tree of name 'left', but the manifest lists it for 'right'"):
+    with pytest.raises(StoreError, match=r"right\.npz: holds the tree of name 'left', but the manifest lists it for "
+                                         r"'right'"):
         load_atlas(tmp_path / "out")
 
 
@@ -244,7 +252,8 @@ def test_a_tree_replaced_by_another_build_of_the_same_strategy_is_refused(tmp_pa
            "oracle": {"name": "sphere", "params": {"radius": 0.9}}, "strategies": [{"name": "ball"}]}
     build_atlas(parse_config(raw), tmp_path / "a")
     build_atlas(parse_config({**raw, "depth": {"min": 1, "max": 3}}), tmp_path / "b")
-    assert load_atlas(tmp_path / "a").manifest["strategies"][0]["digest"] == load_atlas(tmp_path / "a").trees["ball"].meta["digest"]
+    assert load_atlas(tmp_path / "a").manifest["strategies"][0]["digest"] == load_atlas(tmp_path
+        / "a").trees["ball"].meta["digest"]
     import shutil
 
     shutil.copy(tmp_path / "b" / "ball.npz", tmp_path / "a" / "ball.npz")
@@ -292,7 +301,8 @@ def test_manifest_files_are_confined_to_the_atlas_folder(tmp_path, file, message
     from reach.build.config import parse_config
 
     config = parse_config({"box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 1, "max": 2},
-                           "oracle": {"name": "sphere", "params": {"radius": 0.9}}, "strategies": [{"name": "s", "effector": "a"}]})
+                           "oracle": {"name": "sphere", "params": {"radius": 0.9}},
+                               "strategies": [{"name": "s", "effector": "a"}]})
     out = tmp_path / "out"
     build_atlas(config, out)
     (out / "link.npz").symlink_to(out / "s.npz")
@@ -318,7 +328,8 @@ def test_a_hand_edited_manifest_is_refused_until_accepted(tmp_path, capsys):
 
     config = parse_config({"box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 1, "max": 2},
                            "oracle": {"name": "sphere", "params": {"radius": 0.9}},
-                           "strategies": [{"name": "a", "effector": "p", "priority": 1}, {"name": "b", "effector": "p", "priority": 2}]})
+                           "strategies": [{"name": "a", "effector": "p", "priority": 1},
+                                          {"name": "b", "effector": "p", "priority": 2}]})
     out = tmp_path / "out"
     build_atlas(config, out)
     manifest = json.loads((out / "manifest.json").read_text())
@@ -332,7 +343,8 @@ def test_a_hand_edited_manifest_is_refused_until_accepted(tmp_path, capsys):
         else:
             del edited["digest"]
         (out / "manifest.json").write_text(json.dumps(edited))
-        with pytest.raises(StoreError, match="does not match its digest: it was edited after 'reach build' wrote it.*reach accept ATLAS"):
+        with pytest.raises(StoreError, match="does not match its digest: it was edited after 'reach build' wrote "
+                                             "it.*reach accept ATLAS"):
             load_atlas(out)
     assert main(["accept", str(out)]) == 0  # the last edit (no digest) accepted deliberately
     assert "manifest accepted as it is (2 strategies: a, b)" in capsys.readouterr().out

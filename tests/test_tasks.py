@@ -24,7 +24,8 @@ from reach.errors import TaskError
 
 ROOT = Path(__file__).resolve().parents[1]
 WHOLE = [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*", "neck_*", "root", "*_hip_*", "*_ankle_*", "*_knee_*"]
-ALL = [{"type": "reach"}, {"type": "feet", "heels": "down"}, {"type": "balance", "margin": 0.01}, {"type": "gaze"}, {"type": "comfort"}]
+ALL = [{"type": "reach"}, {"type": "feet", "heels": "down"}, {"type": "balance", "margin": 0.01}, {"type": "gaze"},
+       {"type": "comfort"}]
 
 
 @pytest.fixture(scope="module")
@@ -42,7 +43,8 @@ def numeric(problem, q, goal, data=None):
     lwa = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
     return Numeric(model, data, q, goal, jacobian=lambda fid: pin.getFrameJacobian(model, data, fid, lwa)[:, cols],
                    joint_jacobian=lambda j: pin.getJointJacobian(model, data, j, lwa)[:, cols], columns=cols,
-                   joint_columns=np.arange(6, cols.size), joint_q=np.array([model.joints[j].idx_q for j in problem.joint_ids]), x_ref=problem.x_ref)
+                   joint_columns=np.arange(6, cols.size),
+                       joint_q=np.array([model.joints[j].idx_q for j in problem.joint_ids]), x_ref=problem.x_ref)
 
 
 def random_x(problem, seed):
@@ -65,7 +67,8 @@ def test_soft_objectives_in_casadi_match_pinocchio(problem):
     s = problem.strategy
     goal_v = np.array([0.5, -0.3, 1.1])
     goal = ca.SX.sym("goal", 3)
-    sym = Symbolic(SymbolicKinematics(problem.body.model, problem.q_sym), problem.x_sym, goal, problem.x_ref, problem.upper - problem.lower)
+    sym = Symbolic(SymbolicKinematics(problem.body.model, problem.q_sym), problem.x_sym, goal, problem.x_ref,
+                   problem.upper - problem.lower)
     for seed in range(3):
         x = random_x(problem, seed)
         q = problem.q_of_x(x)
@@ -102,7 +105,8 @@ def test_the_reach_stage_measures_the_distance_alone_when_it_pulls_towards_a_cur
 
 def test_hard_constraints_in_casadi_hold_at_the_reference_and_agree_with_the_checks(problem):
     goal = ca.SX.sym("goal", 3)
-    sym = Symbolic(SymbolicKinematics(problem.body.model, problem.q_sym), problem.x_sym, goal, problem.x_ref, problem.upper - problem.lower)
+    sym = Symbolic(SymbolicKinematics(problem.body.model, problem.q_sym), problem.x_sym, goal, problem.x_ref,
+                   problem.upper - problem.lower)
     for task in problem.strategy.hard:
         rows = task.constraints(sym)
         g = ca.Function("g", [problem.x_sym, goal], [ca.vertcat(*[r.expr for r in rows])])
@@ -150,7 +154,8 @@ def test_dls_jacobians_match_finite_differences(problem):
 
 
 def test_perpendicular_basis_is_orthonormal_and_normal_to_the_axis():
-    for axis in (np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0]), np.array([1.0, 2.0, -0.5]) / np.linalg.norm([1.0, 2.0, -0.5])):
+    for axis in (np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0]),
+                 np.array([1.0, 2.0, -0.5]) / np.linalg.norm([1.0, 2.0, -0.5])):
         b = perpendicular_basis(axis)
         assert np.allclose(b @ b.T, np.eye(2)) and np.allclose(b @ axis, 0.0)
 
@@ -159,25 +164,39 @@ def test_perpendicular_basis_is_orthonormal_and_normal_to_the_axis():
     ("tasks", "message"),
     [
         ([{"type": "reach"}, {"type": "gaze", "frame": 3}], r"tasks\[1\]\.frame: expected a frame name, got 3"),
-        ([{"type": "reach"}, {"type": "gaze", "frame": "third_eye"}], r"tasks\[1\]\.frame: human: no frame 'third_eye'"),
-        ([{"type": "reach"}, {"type": "gaze", "cone": 90}], r"tasks\[1\]\.cone: expected a number in \[0.0, 60.0\], got 90"),
-        ([{"type": "reach"}, {"type": "gaze", "down": "low"}], r"tasks\[1\]\.down: expected a number in \[-45.0, 60.0\], got 'low'"),
+        ([{"type": "reach"}, {"type": "gaze", "frame": "third_eye"}],
+         r"tasks\[1\]\.frame: human: no frame 'third_eye'"),
+        ([{"type": "reach"}, {"type": "gaze", "cone": 90}], r"tasks\[1\]\.cone: expected a number in \[0.0, 60.0\], "
+                                                            r"got 90"),
+        ([{"type": "reach"}, {"type": "gaze", "down": "low"}], r"tasks\[1\]\.down: expected a number in \[-45.0, "
+                                                               r"60.0\], got 'low'"),
         ([{"type": "reach"}, {"type": "reach"}], r"tasks\[1\]: a second reach task"),
         ([{"type": "reach", "tolerance": 2}], r"tasks\[0\]\.tolerance: expected a number in \[1e-06, 1.0\], got 2"),
         ([{"type": "reach", "priority": "high"}], r"tasks\[0\]\.priority: expected a number"),
-        ([{"type": "reach"}, {"type": "contacts", "fixed": "right_foot"}], r"tasks\[1\]\.fixed: expected a list of frame names"),
-        ([{"type": "reach"}, {"type": "balance", "support": ["right_foot", "left_foot"]}], r"tasks\[1\]: balance needs a support polygon"),
-        ([{"type": "reach"}, {"type": "coupling", "rules": [{"joint": "*_hip_flexion"}]}], r"tasks\[1\]\.rules\[0\]: expected \{joint: name"),
+        ([{"type": "reach"}, {"type": "contacts", "fixed": "right_foot"}], r"tasks\[1\]\.fixed: expected a list of "
+            r"frame names"),
+        ([{"type": "reach"}, {"type": "balance", "support": ["right_foot", "left_foot"]}], r"tasks\[1\]: balance "
+            r"needs a support polygon"),
+        ([{"type": "reach"}, {"type": "coupling", "rules": [{"joint": "*_hip_flexion"}]}], r"tasks\[1\]\.rules\[0\]: "
+            r"expected \{joint: name"),
         ([{"type": "reach"}, {"type": "coupling", "rules": [{"joint": "tail", "by": "x", "limit": 1, "slope": 0}]}],
          r"tasks\[1\]\.rules\[0\]\.joint: no joint matches 'tail'"),
-        ([{"type": "reach"}, {"type": "self_collision", "exclude": ["right_hand"]}], r"tasks\[1\]\.exclude: expected a list of \[capsule, capsule\] pairs"),
-        ([{"type": "reach"}, {"type": "self_collision", "exclude": [["right_hand", "tail"]]}], r"tasks\[1\]\.exclude: no capsule matches 'tail'"),
-        ([{"type": "reach"}, {"type": "self_collision", "only": ["wing"]}], r"tasks\[1\]\.only: no capsule matches 'wing'"),
-        ([{"type": "reach"}, {"type": "floor", "exclude": "feet"}], r"tasks\[1\]\.exclude: expected a list of capsule names"),
-        ([{"type": "reach"}, {"type": "posture", "weights": {"*_elbow_*": -1}}], r"tasks\[1\]\.weights\.\*_elbow_\*: expected a number in \[0.0, 1000.0\]"),
-        ([{"type": "reach"}, {"type": "hang", "frames": ["left_shoulder"]}], r"tasks\[1\]\.frames: expected at least two frames"),
-        ([{"type": "reach"}, {"type": "hang", "frames": ["left_shoulder", "paw"]}], r"tasks\[1\]\.frames: human: no frame 'paw'"),
-        ([{"type": "reach"}, {"type": "hang", "cone": 120}], r"tasks\[1\]\.cone: expected a number in \[0.0, 90.0\], got 120"),
+        ([{"type": "reach"}, {"type": "self_collision", "exclude": ["right_hand"]}], r"tasks\[1\]\.exclude: expected "
+            r"a list of \[capsule, capsule\] pairs"),
+        ([{"type": "reach"}, {"type": "self_collision", "exclude": [["right_hand", "tail"]]}],
+         r"tasks\[1\]\.exclude: no capsule matches 'tail'"),
+        ([{"type": "reach"}, {"type": "self_collision", "only": ["wing"]}], r"tasks\[1\]\.only: no capsule matches "
+            r"'wing'"),
+        ([{"type": "reach"}, {"type": "floor", "exclude": "feet"}], r"tasks\[1\]\.exclude: expected a list of "
+            r"capsule names"),
+        ([{"type": "reach"}, {"type": "posture", "weights": {"*_elbow_*": -1}}], r"tasks\[1\]\.weights\.\*_elbow_\*: "
+            r"expected a number in \[0.0, 1000.0\]"),
+        ([{"type": "reach"}, {"type": "hang", "frames": ["left_shoulder"]}], r"tasks\[1\]\.frames: expected at least "
+            r"two frames"),
+        ([{"type": "reach"}, {"type": "hang", "frames": ["left_shoulder", "paw"]}], r"tasks\[1\]\.frames: human: no "
+            r"frame 'paw'"),
+        ([{"type": "reach"}, {"type": "hang", "cone": 120}], r"tasks\[1\]\.cone: expected a number in \[0.0, 90.0\], "
+                                                             r"got 120"),
     ],
 )
 def test_task_errors_name_the_key(tasks, message):
@@ -188,7 +207,8 @@ def test_task_errors_name_the_key(tasks, message):
 
 def test_priorities_order_the_soft_tasks_and_a_zero_weight_drops_comfort():
     body = human_body()
-    s = parse_strategy(body, "right_hand", WHOLE, [{"type": "comfort", "priority": 0}, {"type": "gaze"}, {"type": "reach"}])
+    s = parse_strategy(body, "right_hand", WHOLE,
+                       [{"type": "comfort", "priority": 0}, {"type": "gaze"}, {"type": "reach"}])
     assert [t.type for t in s.soft] == ["comfort", "reach", "gaze"]
     s = parse_strategy(body, "right_hand", WHOLE, [{"type": "reach"}, {"type": "comfort", "weight": 0}])
     assert [t.type for t in s.tasks] == ["reach"]
@@ -196,12 +216,14 @@ def test_priorities_order_the_soft_tasks_and_a_zero_weight_drops_comfort():
 
 def test_rising_heels_are_hinged_and_kept_above_the_floor():
     body = human_body()
-    tiptoe = parse_strategy(body, "right_hand", WHOLE, [{"type": "reach"}, {"type": "feet", "heels": "rise"}, {"type": "balance"}])
+    tiptoe = parse_strategy(body, "right_hand", WHOLE,
+                            [{"type": "reach"}, {"type": "feet", "heels": "rise"}, {"type": "balance"}])
     problem = ReachProblem(body, tiptoe)
     feet = problem.strategy.task("feet")
     assert [c.mode for c in feet.contacts] == ["hinge", "hinge"] and feet.above_floor == ("right_heel", "left_heel")
     balance = problem.strategy.task("balance")
-    assert set(balance.polygon_frames) == {f"{s}_{p}" for s in ("right", "left") for p in ("ball_inner", "ball_outer", "toe_inner", "toe_outer")}
+    assert set(balance.polygon_frames) == {f"{s}_{p}" for s in ("right", "left")
+                                           for p in ("ball_inner", "ball_outer", "toe_inner", "toe_outer")}
 
 
 def test_the_hamstrings_couple_hip_flexion_to_the_knee():
@@ -263,30 +285,40 @@ def test_hip_and_lumbar_flexion_share_a_limit_with_the_knees_straight():
     coupling = s.task("coupling")
     summed = [r for r in coupling.rules if len(r.joints) > 1]
     assert {r.joints for r in summed} == {(f"{side}_hip_flexion", "lumbar_flexion") for side in ("right", "left")}
-    idx = {n: body.model.joints[body.joint_id(n)].idx_q for n in ("right_hip_flexion", "lumbar_flexion", "right_knee_flexion")}
+    idx = {n: body.model.joints[body.joint_id(n)].idx_q
+           for n in ("right_hip_flexion", "lumbar_flexion", "right_knee_flexion")}
 
     def holds(hip: float, lumbar: float, knee: float) -> bool:
         q = body.q_ref.copy()
-        q[idx["right_hip_flexion"]], q[idx["lumbar_flexion"]], q[idx["right_knee_flexion"]] = np.radians([hip, lumbar, knee])
+        q[idx["right_hip_flexion"]], q[idx["lumbar_flexion"]], q[idx["right_knee_flexion"]] = np.radians([hip, lumbar,
+            knee])
         return coupling.holds(numeric(problem, q, np.zeros(3)))
 
     # Knees straight: 90 deg between them, however split; bent 90 deg: each joint's own range.
-    assert holds(80.0, 9.0, 0.0) and holds(30.0, 59.0, 0.0) and not holds(80.0, 12.0, 0.0) and not holds(40.0, 55.0, 0.0)
+    assert (holds(80.0, 9.0, 0.0) and holds(30.0, 59.0, 0.0) and not holds(80.0, 12.0, 0.0)
+            and not holds(40.0, 55.0, 0.0))
     assert holds(119.0, 59.0, 90.0) and not holds(100.0, 40.0, 45.0) and holds(90.0, 40.0, 45.0)
     # The same rule by hand, on a list of joints, and its errors.
     rule = {"joint": ["*_hip_flexion", "lumbar_flexion"], "by": "*_knee_flexion", "limit": 1.0, "slope": 0.5}
-    mine = parse_strategy(body, "right_hand", WHOLE, [{"type": "reach"}, {"type": "coupling", "rules": [rule]}]).task("coupling")
-    assert sorted(r.joints for r in mine.rules) == [("left_hip_flexion", "lumbar_flexion"), ("right_hip_flexion", "lumbar_flexion")]
+    mine = parse_strategy(body, "right_hand", WHOLE,
+                          [{"type": "reach"}, {"type": "coupling", "rules": [rule]}]).task("coupling")
+    assert sorted(r.joints
+                  for r in mine.rules) == [("left_hip_flexion", "lumbar_flexion"),
+                                           ("right_hip_flexion", "lumbar_flexion")]
     with pytest.raises(TaskError, match=r"rules\[0\]\.joint: .*no joint 'tail'"):
-        parse_strategy(body, "right_hand", WHOLE, [{"type": "reach"}, {"type": "coupling", "rules": [{**rule, "joint": ["*_hip_flexion", "tail"]}]}])
+        parse_strategy(body, "right_hand", WHOLE,
+                       [{"type": "reach"},
+                        {"type": "coupling", "rules": [{**rule, "joint": ["*_hip_flexion", "tail"]}]}])
     with pytest.raises(TaskError, match=r"rules\[0\]: expected"):
-        parse_strategy(body, "right_hand", WHOLE, [{"type": "reach"}, {"type": "coupling", "rules": [{**rule, "joint": []}]}])
+        parse_strategy(body, "right_hand", WHOLE,
+                       [{"type": "reach"}, {"type": "coupling", "rules": [{**rule, "joint": []}]}])
 
 
 def test_limits_near_counts_range_ends_and_coupled_limits_but_not_the_ends_the_body_rests_at():
     body = human_body()
     problem = ReachProblem(body, parse_strategy(body, "right_hand", WHOLE, [{"type": "reach"}, {"type": "coupling"}]))
-    idx = {n: body.model.joints[body.joint_id(n)].idx_q for n in ("lumbar_flexion", "right_knee_flexion", "right_hip_flexion", "neck_flexion")}
+    idx = {n: body.model.joints[body.joint_id(n)].idx_q
+           for n in ("lumbar_flexion", "right_knee_flexion", "right_hip_flexion", "neck_flexion")}
     margin = np.radians(5.0)
     # At the reference the knees stand straight, at the end of their range: that is rest, not strain.
     assert body.model.lowerPositionLimit[idx["right_knee_flexion"]] == body.q_ref[idx["right_knee_flexion"]]
@@ -331,7 +363,8 @@ def test_the_coupling_holds_in_the_solvers_postures():
 
     straight = [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*", "root", "*_hip_*", "*_ankle_*"]
     tasks = [{"type": "reach"}, {"type": "feet"}, {"type": "balance"}, {"type": "coupling"}]
-    oracle = CasadiIK({"human": {"sex": "male", "percentile": 50}}, "right_hand", straight, tasks, search=Search(restarts=2))
+    oracle = CasadiIK({"human": {"sex": "male", "percentile": 50}}, "right_hand", straight, tasks,
+                      search=Search(restarts=2))
     hip = oracle.body.model.joints[oracle.body.joint_id("right_hip_flexion")].idx_q
     goals = np.array([[0.35, -0.2, 0.35], [0.45, -0.2, 0.5], [0.3, -0.3, 0.6]])
     v = oracle.evaluate(goals)
@@ -343,7 +376,8 @@ def test_the_coupling_holds_in_the_solvers_postures():
 
 def test_collision_and_floor_rows_match_finite_differences():
     body = human_body()
-    s = parse_strategy(body, "right_hand", WHOLE, [{"type": "reach"}, {"type": "self_collision", "margin": 0.2}, {"type": "floor"}])
+    s = parse_strategy(body, "right_hand", WHOLE,
+                       [{"type": "reach"}, {"type": "self_collision", "margin": 0.2}, {"type": "floor"}])
     problem = ReachProblem(body, s)
     model = body.model
     q = problem.q_of_x(random_x(problem, 3))
@@ -366,7 +400,8 @@ def test_collision_and_floor_rows_match_finite_differences():
 
     base = gaps(q)
     active = [k for k, p in enumerate(task.pairs)
-              if base[k] - body.collision.placed[p.first].radius - body.collision.placed[p.second].radius < p.clearance + 0.005]
+              if base[k] - body.collision.placed[p.first].radius - body.collision.placed[p.second].radius
+                  < p.clearance + 0.005]
     fd = np.zeros((len(active), num.columns.size))
     for k in range(num.columns.size):
         v = np.zeros(model.nv)
@@ -414,7 +449,8 @@ def test_the_idle_arm_hangs_by_default_and_only_when_it_moves():
     hang = parse_strategy(body, "right_hand", [*WHOLE, *IDLE_ARM], [{"type": "reach"}, {"type": "hang"}]).task("hang")
     assert hang.chains == (("left_shoulder", "left_elbow_flexion", "left_wrist_flexion"),)
     # The arm that reaches, or an idle arm whose joints are locked, is no chain: the task is dropped.
-    assert [t.type for t in parse_strategy(body, "right_hand", WHOLE, [{"type": "reach"}, {"type": "hang"}]).tasks] == ["reach"]
+    assert [t.type for t in parse_strategy(body, "right_hand", WHOLE,
+                                           [{"type": "reach"}, {"type": "hang"}]).tasks] == ["reach"]
 
 
 def test_a_robot_hangs_only_the_frames_it_names():
@@ -424,7 +460,9 @@ def test_a_robot_hangs_only_the_frames_it_names():
     joints = ["shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint"]
     with pytest.raises(TaskError, match=r"tasks\[1\]\.frames: .*no human arm .* give the chain's frames"):
         parse_strategy(ur5, "ee_link", joints, [{"type": "reach"}, {"type": "hang"}])
-    hang = parse_strategy(ur5, "ee_link", joints, [{"type": "reach"}, {"type": "hang", "frames": ["upper_arm_link", "forearm_link"]}]).task("hang")
+    hang = parse_strategy(ur5, "ee_link", joints,
+                          [{"type": "reach"},
+                           {"type": "hang", "frames": ["upper_arm_link", "forearm_link"]}]).task("hang")
     assert hang.chains == (("upper_arm_link", "forearm_link"),)
 
 
@@ -434,7 +472,8 @@ def test_the_hang_row_agrees_with_casadi_pinocchio_and_finite_differences():
     problem = ReachProblem(body, s)
     task, model = s.task("hang"), body.model
     goal = ca.SX.sym("goal", 3)
-    sym = Symbolic(SymbolicKinematics(model, problem.q_sym), problem.x_sym, goal, problem.x_ref, problem.upper - problem.lower)
+    sym = Symbolic(SymbolicKinematics(model, problem.q_sym), problem.x_sym, goal, problem.x_ref,
+                   problem.upper - problem.lower)
     g = ca.Function("g", [problem.x_sym], [ca.vertcat(*[c.expr for c in task.constraints(sym)])])
     flexion = problem.x_names.index("left_shoulder_flexion")
     for angle, holds in ((0.0, True), (25.0, True), (35.0, False), (-35.0, False), (150.0, False)):
@@ -445,7 +484,8 @@ def test_the_hang_row_agrees_with_casadi_pinocchio_and_finite_differences():
         # Independently: the upper arm's angle from straight down, by Pinocchio's frames.
         data = model.createData()
         pin.framesForwardKinematics(model, data, q)
-        d = data.oMf[body.frame_id("left_elbow_flexion")].translation - data.oMf[body.frame_id("left_shoulder")].translation
+        d = (data.oMf[body.frame_id("left_elbow_flexion")].translation
+             - data.oMf[body.frame_id("left_shoulder")].translation)
         assert np.degrees(np.arccos(-d[2] / np.linalg.norm(d))) == pytest.approx(abs(angle), abs=1.0)
         assert task.holds(num) == holds
         assert bool(np.all(np.asarray(g(x)).ravel() >= -1e-9)) == holds
@@ -463,8 +503,10 @@ def test_a_low_reach_keeps_the_idle_arm_hanging():
     from oracles.ik.engine import CasadiIK
 
     joints = [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*", "root", "*_hip_*", "*_ankle_*", *IDLE_ARM]
-    tasks = [{"type": "reach"}, {"type": "feet"}, {"type": "balance", "margin": 0.02}, {"type": "floor"}, {"type": "coupling"}, {"type": "hang"}]
-    oracle = CasadiIK({"human": {"sex": "male", "percentile": 50}}, "right_hand", joints, tasks, search=Search(restarts=2))
+    tasks = [{"type": "reach"}, {"type": "feet"}, {"type": "balance", "margin": 0.02}, {"type": "floor"},
+             {"type": "coupling"}, {"type": "hang"}]
+    oracle = CasadiIK({"human": {"sex": "male", "percentile": 50}}, "right_hand", joints, tasks,
+                      search=Search(restarts=2))
     model = oracle.body.model
     # The lower edge of the straight-legged stoop in front, where the free
     # arm was thrown behind the back as a counterweight.
@@ -475,7 +517,8 @@ def test_a_low_reach_keeps_the_idle_arm_hanging():
         if ok:
             data = model.createData()
             pin.framesForwardKinematics(model, data, q)
-            z = [data.oMf[oracle.body.frame_id(n)].translation[2] for n in ("left_shoulder", "left_elbow_flexion", "left_wrist_flexion")]
+            z = [data.oMf[oracle.body.frame_id(n)].translation[2]
+                 for n in ("left_shoulder", "left_elbow_flexion", "left_wrist_flexion")]
             assert z[0] > z[1] > z[2]
 
 

@@ -30,8 +30,10 @@ CONFIG = {
     "box": {"min": [-0.5, -1.0, 0.6], "max": [0.9, 0.4, 2.1]}, "depth": {"min": 2, "max": 4},
     "oracle": {"name": "casadi-ik", "params": {"restarts": 1, "secondary": False}},
     "strategies": [
-        {"name": "right_arm", "effector": "right_hand", "priority": 1, "joints": ARM, "tasks": [{"type": "reach"}, {"type": "self_collision"}]},
-        {"name": "right_upper_body", "effector": "right_hand", "priority": 2, "joints": [*ARM, "lumbar_*", "thoracic_*"],
+        {"name": "right_arm", "effector": "right_hand", "priority": 1, "joints": ARM,
+         "tasks": [{"type": "reach"}, {"type": "self_collision"}]},
+        {"name": "right_upper_body", "effector": "right_hand", "priority": 2,
+         "joints": [*ARM, "lumbar_*", "thoracic_*"],
          "tasks": [{"type": "reach"}, {"type": "self_collision"}]},
     ],
 }
@@ -102,7 +104,8 @@ def test_the_body_takes_the_answers_posture(viewer):
     w, x, y, z = hand.wxyz  # the mesh is built along +z: its rotation takes +z onto the capsule's axis
     assert np.allclose(pin.Quaternion(w, x, y, z).toRotationMatrix()[:, 2], (b - a) / np.linalg.norm(b - a), atol=1e-6)
     grip = data.oMf[body.frame_id("right_hand")].translation
-    assert np.linalg.norm(grip - GOALS[0]) == pytest.approx(answer["residual"], abs=1e-6)  # the stored posture of a nearby vertex
+    # the stored posture of a nearby vertex
+    assert np.linalg.norm(grip - GOALS[0]) == pytest.approx(answer["residual"], abs=1e-6)
 
 
 def test_layers_slices_and_first_by_priority_choose_cells(viewer, atlas):
@@ -145,7 +148,8 @@ def test_the_viewer_over_a_server_shows_the_servers_answers(atlas):
         for goal in GOALS[:2]:
             assert _same(v.set_goal(goal)[0], selector.select("right_hand", goal).to_dict())
         v.effector = "nose"  # the server refuses the motion: the panel says why, the viewer lives on
-        assert "error" in v.plan_motion() and v.motion_box.content.startswith("no motion: ") and "nose" in v.motion_box.content
+        assert ("error" in v.plan_motion() and v.motion_box.content.startswith("no motion: ")
+                and "nose" in v.motion_box.content)
     finally:
         v.close()
         server.stop()
@@ -159,7 +163,8 @@ def test_two_atlases_stand_side_by_side(atlas):
         assert _same(answers[0], answers[1])
         a, b = (np.array(s.capsules[0].position) for s in v.scenes)
         assert np.allclose(b - a, [0.0, 1.5, 0.0])
-        assert np.allclose(v.goal_markers[1].position, GOALS[0] + [0.0, 1.5, 0.0])  # the goal beside the second body too
+        # the goal beside the second body too
+        assert np.allclose(v.goal_markers[1].position, GOALS[0] + [0.0, 1.5, 0.0])
         assert not np.array_equal(v.scenes[0].colours, v.scenes[1].colours)
     finally:
         v.close()
@@ -231,7 +236,8 @@ def test_moving_the_goal_moves_the_drawn_arm_and_names_the_strategy(viewer, brow
     text = browser.find_element("tag name", "body").text
     assert "right_arm" in text
     viewer.set_goal(GOALS[1])  # reached only by bending the trunk
-    after = _shot_until(browser, "goal_after", lambda im: (np.abs(im[:, :760] - before[:, :760]).max(axis=2) > 30).sum() > 300)
+    after = _shot_until(browser, "goal_after",
+                        lambda im: (np.abs(im[:, :760] - before[:, :760]).max(axis=2) > 30).sum() > 300)
     assert "right_upper_body" in viewer.answer_box.content  # (the layers' checkboxes name every strategy on the page)
     changed = np.abs(after[:, :760] - before[:, :760]).max(axis=2) > 30
     assert changed.sum() > 300  # the body moved on screen
@@ -240,27 +246,33 @@ def test_moving_the_goal_moves_the_drawn_arm_and_names_the_strategy(viewer, brow
 
 
 def _hand_capsule(viewer) -> np.ndarray:
-    return np.array(viewer.scenes[0].capsules[list(viewer.scenes[0].shaper.shape(viewer.scenes[0].shaper.reference_posture())[0]).index("right_hand")].position)
+    scene = viewer.scenes[0]
+    names = list(scene.shaper.shape(scene.shaper.reference_posture())[0])
+    return np.array(scene.capsules[names.index("right_hand")].position)
 
 
 def test_a_planned_motion_poses_the_body_frame_by_frame_and_ends_in_the_answer(viewer):
     from reach.answers.select import posture_vector
     from reach.motion.planner import Planner
 
-    viewer._planner = Planner(Selector(viewer.scenes[0].atlas), budget=5.0)  # a budget no machine runs out of: the same answer below
+    # a budget no machine runs out of: the same answer below
+    viewer._planner = Planner(Selector(viewer.scenes[0].atlas), budget=5.0)
     viewer.set_goal(GOALS[0])
     summary = viewer.plan_motion()
     # The motion ends in the planner's answer: refined at the goal (the viewer's own answers here are stored postures).
     answer = viewer._planner.selector.select("right_hand", GOALS[0], True, miss="unreachable").to_dict()
     shaper = viewer.scenes[0].shaper
-    names, at_answer = shaper.shape(posture_vector(shaper.posture_names, shaper.reference_posture(), answer["posture"], answer["root"]))
+    names, at_answer = shaper.shape(posture_vector(shaper.posture_names, shaper.reference_posture(),
+                                                   answer["posture"], answer["root"]))
     frames = len(viewer.motion["postures"])
-    assert summary["strategy"] == answer["strategy"] and summary["frame_count"] == frames and viewer.frame_slider.max == frames - 1
+    assert (summary["strategy"] == answer["strategy"] and summary["frame_count"] == frames
+            and viewer.frame_slider.max == frames - 1)
     hand = names.index("right_hand")
     start = shaper.shape(shaper.reference_posture())[1][hand]
     assert np.allclose(_hand_capsule(viewer), 0.5 * (start[:3] + start[3:6]))  # the first frame: the reference posture
     viewer.show_frame(frames - 1)
-    assert np.allclose(_hand_capsule(viewer), 0.5 * (at_answer[hand, :3] + at_answer[hand, 3:6]), atol=1e-6)  # the last: the answer's
+    # the last: the answer's
+    assert np.allclose(_hand_capsule(viewer), 0.5 * (at_answer[hand, :3] + at_answer[hand, 3:6]), atol=1e-6)
     np.testing.assert_allclose(viewer._path.points[-1, 1], viewer.motion["path"][-1])  # the path ends at the hand
     viewer.set_goal(GOALS[1])  # another goal: the motion shown was to the old one
     assert viewer.motion is None and viewer.play_button.disabled
@@ -271,7 +283,8 @@ def test_the_motion_plays_in_the_browser_and_ends_in_the_answers_posture(viewer,
     from reach.answers.select import posture_vector
     from reach.motion.planner import Planner
 
-    viewer._planner = Planner(Selector(viewer.scenes[0].atlas), budget=5.0)  # a budget no machine runs out of: the same answer below
+    # a budget no machine runs out of: the same answer below
+    viewer._planner = Planner(Selector(viewer.scenes[0].atlas), budget=5.0)
     viewer.show_strategy("right_arm", False)  # the body alone
     viewer.set_goal(GOALS[1])  # the trunk bends: a motion a screenshot sees
     _wait_for_page(browser, viewer)
@@ -291,7 +304,9 @@ def test_the_motion_plays_in_the_browser_and_ends_in_the_answers_posture(viewer,
     answer = viewer._planner.selector.select("right_hand", GOALS[1], True, miss="unreachable")
     assert answer.strategy == "right_upper_body" and viewer.motion["outcome"] == "reached"
     shaper = viewer.scenes[0].shaper
-    viewer._pose(viewer.scenes[0], shaper.shape(posture_vector(shaper.posture_names, shaper.reference_posture(), answer.posture, answer.root))[1])
+    viewer._pose(viewer.scenes[0],
+                 shaper.shape(posture_vector(shaper.posture_names, shaper.reference_posture(), answer.posture,
+                                             answer.root))[1])
     posed = _shot(browser, "motion_answer")
     assert moved(start, posed) > 300 and moved(end, posed) < 0.05 * moved(start, posed)
 
@@ -306,7 +321,8 @@ def test_view_command_needs_an_atlas(tmp_path, capsys):
 
 def test_an_analytic_atlas_is_viewed_without_a_body(tmp_path):
     raw = {"box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 1, "max": 3},
-           "oracle": {"name": "sphere", "params": {"radius": 0.9}}, "strategies": [{"name": "ball", "effector": "point"}]}
+           "oracle": {"name": "sphere", "params": {"radius": 0.9}},
+               "strategies": [{"name": "ball", "effector": "point"}]}
     build_atlas(parse_config(raw, "ball", "ball"), tmp_path / "ball")
     v = Viewer([load_atlas(tmp_path / "ball")], port=_free_port())
     try:
@@ -332,7 +348,8 @@ def _get(port: int, host_header: str, origin: str | None = None, upgrade: bool =
     if origin is not None:
         head.append(f"Origin: {origin}")
     if upgrade:
-        head = [*head[:2], "Connection: Upgrade", "Upgrade: websocket", "Sec-WebSocket-Version: 13", "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==",
+        head = [*head[:2], "Connection: Upgrade", "Upgrade: websocket", "Sec-WebSocket-Version: 13",
+                "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==",
                 f"Sec-WebSocket-Protocol: viser-v{viser_version()}", *head[3:]]
     with socket.create_connection(("127.0.0.1", port), timeout=10) as s:
         s.sendall(("\r\n".join(head) + "\r\n\r\n").encode())
@@ -353,7 +370,8 @@ def test_the_viewer_answers_only_its_own_origin(viewer):
     assert _get(port, f"127.0.0.1:{port + 1}")[0] == 403  # another port's name
     status, text = _get(port, f"127.0.0.1:{port}", origin="http://evil.example", upgrade=True)  # a cross-site WebSocket
     assert status == 403 and b"forbidden: Origin 'http://evil.example' is not this server's" in text
-    assert _get(port, f"127.0.0.1:{port}", origin=f"http://127.0.0.1:{port}", upgrade=True)[0] == 101  # its own page's WebSocket
+    # its own page's WebSocket
+    assert _get(port, f"127.0.0.1:{port}", origin=f"http://127.0.0.1:{port}", upgrade=True)[0] == 101
 
 
 def test_vipers_own_port_refuses_what_the_gate_did_not_pass_on(viewer):
@@ -361,12 +379,14 @@ def test_vipers_own_port_refuses_what_the_gate_did_not_pass_on(viewer):
     even this machine's own name for that port are refused there; only what came through the gate gets in."""
     inner = viewer.server.get_port()
     assert inner != viewer.port
-    for host, origin in ((f"evil.example:{inner}", None), (f"127.0.0.1:{inner}", None), (f"127.0.0.1:{inner}", "http://evil.example")):
+    for host, origin in ((f"evil.example:{inner}", None), (f"127.0.0.1:{inner}", None),
+                         (f"127.0.0.1:{inner}", "http://evil.example")):
         for upgrade in (False, True):
             status, text = _get(inner, host, origin=origin, upgrade=upgrade)
             assert status == 403 and b"forbidden:" in text, (host, origin, upgrade, text[:200])
     # The gate's own names, as the gate passes them on, still reach viser.
-    assert _get(viewer.port, f"127.0.0.1:{viewer.port}", origin=f"http://127.0.0.1:{viewer.port}", upgrade=True)[0] == 101
+    assert _get(viewer.port, f"127.0.0.1:{viewer.port}", origin=f"http://127.0.0.1:{viewer.port}",
+                upgrade=True)[0] == 101
 
 
 @browser_only

@@ -1,4 +1,5 @@
-"""The refinement workers (reach.serving.workers): the broker's pool, its tasks and its worker processes, driven directly."""
+"""The refinement workers (reach.serving.workers): the broker's pool, its tasks and its worker processes, driven
+directly."""
 
 from __future__ import annotations
 
@@ -63,7 +64,8 @@ def task(request: int, part: int, goals=GOALS, deadline: float | None = None, st
 @pytest.mark.slow
 def test_workers_answer_as_the_selector_does_and_a_task_round_trips_as_json(atlas):
     t = task(1, 0, start={"right_elbow_flexion": 0.4})
-    assert json.loads(t.encode()) == {"effector": "right_hand", "goals": GOALS, "from": {"right_elbow_flexion": 0.4}, "deadline": t.deadline, "miss": None,
+    assert json.loads(t.encode()) == {"effector": "right_hand", "goals": GOALS, "from": {"right_elbow_flexion": 0.4},
+                                      "deadline": t.deadline, "miss": None,
                                        "op": "query", "options": None, "orientation": None, "refine": True}
     pool = Pool(zmq.Context.instance(), atlas, OPTIONS, 2)
     try:
@@ -78,7 +80,8 @@ def test_workers_answer_as_the_selector_does_and_a_task_round_trips_as_json(atla
     local = Selector(load_atlas(atlas), **OPTIONS)
     for frame, goal in zip(got[0][1], GOALS, strict=True):
         answer, expected = json.loads(frame), local.select("right_hand", np.array(goal)).to_dict()
-        assert answer["goal"] == goal and answer["strategy"] == expected["strategy"] and answer["refined"] == expected["refined"]
+        assert (answer["goal"] == goal and answer["strategy"] == expected["strategy"]
+                and answer["refined"] == expected["refined"])
         assert answer["posture"] == pytest.approx(expected["posture"])  # the same request, the same answer
 
 
@@ -131,7 +134,9 @@ def test_clients_are_served_in_turn(atlas):
     pool = Pool(zmq.Context.instance(), atlas, OPTIONS, 0)
     sent: list[tuple[bytes, int]] = []
     real = pool.backend
-    pool.backend = type("Backend", (), {"send_multipart": lambda self, frames: sent.append((frames[0], json.loads(frames[1])["goals"][0][0]))})()
+    pool.backend = type("Backend", (),
+                        {"send_multipart": lambda self,
+                         frames: sent.append((frames[0], json.loads(frames[1])["goals"][0][0]))})()
     try:
         for k in range(4):
             pool.submit(Task(1, k, "right_hand", [[float(k), 0.0, 0.0]], None, time.monotonic() + 60, client=b"big"))
@@ -158,12 +163,15 @@ def test_workers_are_shared_by_cost_so_long_motions_never_starve_a_query(atlas):
     pool = Pool(zmq.Context.instance(), atlas, OPTIONS, 0)
     sent: list[str] = []
     real = pool.backend
-    pool.backend = type("Backend", (), {"send_multipart": lambda self, frames: sent.append(json.loads(frames[1])["op"])})()
+    pool.backend = type("Backend", (),
+                        {"send_multipart": lambda self, frames: sent.append(json.loads(frames[1])["op"])})()
     try:
         for k in range(3):
-            pool.submit(Task(1, k, "right_hand", [[0.3, -0.3, 1.0]], None, time.monotonic() + 60, client=b"animator", op="motion", whole_cost=MOTION_COST))
+            pool.submit(Task(1, k, "right_hand", [[0.3, -0.3, 1.0]], None, time.monotonic() + 60, client=b"animator",
+                             op="motion", whole_cost=MOTION_COST))
         for k in range(3):
-            pool.submit(Task(2 + k, 0, "right_hand", [[0.3, -0.3, 1.0]], None, time.monotonic() + 60, client=b"ergonomist"))
+            pool.submit(Task(2 + k, 0, "right_hand", [[0.3, -0.3, 1.0]], None, time.monotonic() + 60,
+                             client=b"ergonomist"))
         for _ in range(6):  # one worker, finishing each task before the next starts
             pool.idle.append(b"w0")
             pool.dispatch()
@@ -184,8 +192,10 @@ def test_a_task_is_charged_the_time_it_took():
     replies = [[b"w0", b'{"a": 1}']]
     pool.backend = type("Backend", (), {"send_multipart": lambda self, frames: None,
                                         "recv_multipart": lambda self: replies.pop()})()
-    pool.submit(Task(1, 0, "right_hand", [[0.3, -0.3, 1.0]], None, time.monotonic() + 60, client=b"a", op="motion", whole_cost=MOTION_COST))
-    pool.submit(Task(2, 0, "right_hand", [[0.3, -0.3, 1.0]], None, time.monotonic() + 60, client=b"a", op="motion", whole_cost=MOTION_COST))
+    pool.submit(Task(1, 0, "right_hand", [[0.3, -0.3, 1.0]], None, time.monotonic() + 60, client=b"a", op="motion",
+                     whole_cost=MOTION_COST))
+    pool.submit(Task(2, 0, "right_hand", [[0.3, -0.3, 1.0]], None, time.monotonic() + 60, client=b"a", op="motion",
+                     whole_cost=MOTION_COST))
     pool.idle.append(b"w0")
     pool.dispatch()
     assert pool.served[b"a"] == pytest.approx(0.5)  # the motion's estimate
@@ -213,7 +223,8 @@ def test_a_requests_tasks_past_their_deadline_are_dropped_unmade(atlas):
         pool.idle.append(b"w0")
         pool.dispatch()
         assert made == [] and pool.queued == 0 and pool.busy == {}
-        live = Tasks(lambda part: Task(2, part, "right_hand", [[0.3, -0.3, 1.0]], None, time.monotonic() + 60, client=b"b"), 3, 2, b"b",
+        live = Tasks(lambda part: Task(2, part, "right_hand", [[0.3, -0.3, 1.0]], None, time.monotonic() + 60,
+                                       client=b"b"), 3, 2, b"b",
                      time.monotonic() + 60)
         pool.submit(live)
         assert pool.queued == 2 and pool.busy[b"w0"].request == 2  # one taken by the idle worker, two still unmade
@@ -229,7 +240,8 @@ def test_refined_chunks_follow_the_measured_cost_of_a_goal(atlas):
     pool = Pool(zmq.Context.instance(), atlas, OPTIONS, 0)
     real = pool.backend
     replies: list[list[bytes]] = []
-    pool.backend = type("Backend", (), {"recv_multipart": lambda self: replies.pop(0), "send_multipart": lambda self, frames: None})()
+    pool.backend = type("Backend", (),
+                        {"recv_multipart": lambda self: replies.pop(0), "send_multipart": lambda self, frames: None})()
 
     def finish(goals: int, seconds: float, payload: list[bytes]) -> None:
         t = Task(1, 0, "right_hand", [[0.3, -0.3, 1.0]] * goals, None, time.monotonic() + 60, client=b"c")

@@ -184,7 +184,8 @@ def stature_at_percentile(sex: Sex, percentile: float) -> float:
     return NormalDist(mean, sd).inv_cdf(percentile / 100.0) / 1000.0
 
 
-def anthropometry(sex: Sex = "male", stature: float | None = None, percentile: float | None = None, mass: float | None = None) -> Anthropometry:
+def anthropometry(sex: Sex = "male", stature: float | None = None, percentile: float | None = None,
+                  mass: float | None = None) -> Anthropometry:
     """Dimensions of a body scaled from de Leva's reference subject.
 
     Args:
@@ -219,7 +220,8 @@ def anthropometry(sex: Sex = "male", stature: float | None = None, percentile: f
     fit = (stature * (1.0 - ANKLE_HEIGHT)) / sum(lengths[k] for k in vertical)
     for k in vertical:
         lengths[k] *= fit
-    total = sum(v[1] for v in table.values()) + sum(table[k][1] for k in ("upper_arm", "forearm", "hand", "thigh", "shank", "foot"))
+    total = sum(v[1] for v in table.values()) + sum(table[k][1]
+                                                    for k in ("upper_arm", "forearm", "hand", "thigh", "shank", "foot"))
     masses = {k: mass * v[1] / total for k, v in table.items()}
     com = {k: v[2] / 100.0 for k, v in table.items()}
     girths = {k: v / 1000.0 * stature / mean_h for k, v in ANSUR_GIRTHS[sex].items()}

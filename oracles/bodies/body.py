@@ -96,11 +96,13 @@ class Body:
         return CollisionModel(self.model, self.capsules, self.source)
 
     def capsules_at(self, q: np.ndarray | None = None) -> np.ndarray:
-        """The collision capsules (K, 7: end points a, b [m], radius [m]; world frame) at a posture (the reference by default)."""
+        """The collision capsules (K, 7: end points a, b [m], radius [m]; world frame) at a posture (the reference by
+        default)."""
         col = self.collision
         data = self.model.createData()
         pin.forwardKinematics(self.model, data, self.q_ref if q is None else np.asarray(q, float))
-        return np.array([[*np.concatenate(col.world(data, i)), p.radius] for i, p in enumerate(col.placed)]).reshape(-1, 7)
+        return np.array([[*np.concatenate(col.world(data, i)), p.radius]
+                         for i, p in enumerate(col.placed)]).reshape(-1, 7)
 
     @property
     def joint_names(self) -> list[str]:
@@ -115,7 +117,8 @@ class Body:
         for j in range(2, self.model.njoints):
             jm = self.model.joints[j]
             n = str(self.model.names[j])
-            names += [n] if jm.nq == 1 else [n + COS, n + SIN] if _continuous(jm) else [f"{n}_{k}" for k in range(jm.nq)]
+            names += ([n] if jm.nq == 1 else [n + COS, n + SIN] if _continuous(jm)
+                      else [f"{n}_{k}" for k in range(jm.nq)])
         return names
 
     @property
@@ -142,7 +145,8 @@ class Body:
 
     def joint_id(self, name: str) -> int:
         if name not in self.joint_names:
-            raise ModelError(f"no joint {name!r}; joints are: {', '.join(self.joint_names)}", source=self.source, name=name)
+            raise ModelError(f"no joint {name!r}; joints are: {', '.join(self.joint_names)}", source=self.source,
+                             name=name)
         return int(self.model.getJointId(name))
 
     def configuration(self, joints: dict[str, float], root: dict[str, list[float]] | None = None) -> np.ndarray:
@@ -168,7 +172,8 @@ class Body:
         return np.array(pin.centerOfMass(self.model, data, self.q_ref if q is None else q))
 
     def describe(self) -> dict[str, Any]:
-        """What ``reach model`` prints: source, hash, mass [kg], joints and ranges [rad, m], frames [m], centre of mass [m]."""
+        """What ``reach model`` prints: source, hash, mass [kg], joints and ranges [rad, m], frames [m], centre of
+        mass [m]."""
         continuous = self.continuous
         info: dict[str, Any] = {
             "source": self.source,
@@ -180,7 +185,8 @@ class Body:
             "frames": {name: pos.round(6).tolist() for name, pos in self.frame_positions().items()},
             "center_of_mass": self.center_of_mass().round(6).tolist(),
             "capsules": [{"name": c.name, "link": c.link, "radius": round(c.radius, 6), "length": round(c.length, 6),
-                          "a": [round(float(v), 6) for v in c.a], "b": [round(float(v), 6) for v in c.b]} for c in self.capsules],
+                          "a": [round(float(v), 6) for v in c.a], "b": [round(float(v), 6) for v in c.b]}
+                              for c in self.capsules],
             "units": {"length": "m", "angle": "rad", "mass": "kg"},
         }
         if self.anthropometry is not None:
@@ -191,7 +197,8 @@ class Body:
             seat = fit(self.anthropometry, parse_seat(human.get("seat")))
             if seat.feet_x is not None and math.isnan(seat.feet_x):  # fitted with the legs: where the heel came to rest
                 seat = replace(seat, feet_x=round(float(info["frames"]["right_heel"][0]), 4))
-            info["seat"] = {k: round(math.degrees(v), 3) if k in ("back_angle", "ankle") and v is not None else v for k, v in asdict(seat).items()}
+            info["seat"] = {k: round(math.degrees(v), 3) if k in ("back_angle", "ankle") and v is not None else v
+                            for k, v in asdict(seat).items()}
         if self.furniture:
             info["furniture"] = [b.to_dict() for b in self.furniture]
         return info
@@ -199,7 +206,8 @@ class Body:
     @property
     def continuous(self) -> frozenset[str]:
         """The continuous joints (turning without limit; their angle is given in (-pi, pi])."""
-        return frozenset(str(self.model.names[j]) for j in range(2, self.model.njoints) if _continuous(self.model.joints[j]))
+        return frozenset(str(self.model.names[j]) for j in range(2, self.model.njoints)
+                         if _continuous(self.model.joints[j]))
 
     def limits(self) -> list[tuple[str, float, float]]:
         """(name, lower, upper) of every joint after the root [rad or m]; a continuous joint's angle is (-pi, pi]."""
@@ -211,7 +219,8 @@ class Body:
                 continue
             for k in range(nq):  # a planar or free joint (not one a strategy moves) by its coordinates
                 name = str(self.model.names[j]) if nq == 1 else f"{self.model.names[j]}_{k}"
-                out.append((name, float(self.model.lowerPositionLimit[i + k]), float(self.model.upperPositionLimit[i + k])))
+                out.append((name, float(self.model.lowerPositionLimit[i + k]),
+                            float(self.model.upperPositionLimit[i + k])))
         return out
 
 
@@ -237,7 +246,8 @@ def _check_xml(urdf: str, source: str) -> None:
             except ValueError:
                 value = math.nan
             if not (math.isfinite(value) and value >= 0):
-                raise ModelError(f"link {link.get('name')!r}: mass {mass.get('value')!r}; expected a finite number >= 0 [kg]", source=source)
+                raise ModelError(f"link {link.get('name')!r}: mass {mass.get('value')!r}; expected a finite number "
+                                 ">= 0 [kg]", source=source)
     for joint in root.iter("joint"):
         axis = joint.find("axis")
         if axis is not None and joint.get("type") in ("revolute", "continuous", "prismatic"):
@@ -246,7 +256,8 @@ def _check_xml(urdf: str, source: str) -> None:
             except ValueError:
                 xyz = []
             if len(xyz) != 3 or not all(math.isfinite(v) for v in xyz) or math.hypot(*xyz) < 1e-9:
-                raise ModelError(f"joint {joint.get('name')!r}: axis {axis.get('xyz')!r}; expected three finite numbers, not all zero",
+                raise ModelError(f"joint {joint.get('name')!r}: axis {axis.get('xyz')!r}; expected three finite "
+                                 "numbers, not all zero",
                                  source=source)
 
 
@@ -263,20 +274,25 @@ def _apply_ranges(model: pin.Model, ranges: dict[str, Any], source: str) -> None
     for pattern, value in ranges.items():
         hits = [n for n in names if fnmatch.fnmatchcase(n, pattern)]
         if not hits:
-            raise ModelError(f"no joint matches; joints are: {', '.join(names)}", source=source, key=f"ranges.{pattern}")
+            raise ModelError(f"no joint matches; joints are: {', '.join(names)}", source=source,
+                             key=f"ranges.{pattern}")
         for n in hits:
             jm = model.joints[model.getJointId(n)]
             if jm.nq != 1:
-                raise ModelError(f"joint {n!r} has {jm.nq} coordinates; only 1-coordinate joints take ranges", source=source,
+                raise ModelError(f"joint {n!r} has {jm.nq} coordinates; only 1-coordinate joints take ranges",
+                                 source=source,
                                  key=f"ranges.{pattern}")
             i = jm.idx_q
-            if isinstance(value, dict) and set(value) == {"scale"} and isinstance(value["scale"], (int, float)) and 0 < value["scale"] <= 1:
+            if (isinstance(value, dict) and set(value) == {"scale"} and isinstance(value["scale"], (int, float))
+                and 0 < value["scale"] <= 1):
                 model.lowerPositionLimit[i] *= value["scale"]
                 model.upperPositionLimit[i] *= value["scale"]
-            elif isinstance(value, (list, tuple)) and len(value) == 2 and all(isinstance(v, (int, float)) for v in value) and value[0] <= value[1]:
+            elif (isinstance(value, (list, tuple)) and len(value) == 2
+                  and all(isinstance(v, (int, float)) for v in value) and value[0] <= value[1]):
                 model.lowerPositionLimit[i], model.upperPositionLimit[i] = float(value[0]), float(value[1])
             else:
-                raise ModelError(f"expected [lower, upper] in radians or {{scale: f}} with 0 < f <= 1, got {value!r}", source=source,
+                raise ModelError(f"expected [lower, upper] in radians or {{scale: f}} with 0 < f <= 1, got {value!r}",
+                                 source=source,
                                  key=f"ranges.{pattern}")
 
 
@@ -289,11 +305,13 @@ def _check_limits(model: pin.Model, source: str) -> None:
         lo, hi = float(model.lowerPositionLimit[jm.idx_q]), float(model.upperPositionLimit[jm.idx_q])
         if np.isnan(lo) or np.isnan(hi) or lo > hi:
             name = str(model.names[j])
-            raise ModelError(f"joint {name!r} has limits lower {lo} > upper {hi}; expected lower <= upper [rad or m]", source=source, name=name)
+            raise ModelError(f"joint {name!r} has limits lower {lo} > upper {hi}; expected lower <= upper [rad or m]",
+                             source=source, name=name)
 
 
 # A model's own axes, as ``up`` and ``forward`` name them.
-AXES = {"x": (1.0, 0.0, 0.0), "-x": (-1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "-y": (0.0, -1.0, 0.0), "z": (0.0, 0.0, 1.0), "-z": (0.0, 0.0, -1.0)}
+AXES = {"x": (1.0, 0.0, 0.0), "-x": (-1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "-y": (0.0, -1.0, 0.0),
+        "z": (0.0, 0.0, 1.0), "-z": (0.0, 0.0, -1.0)}
 
 
 def _numbers(value: Any, n: int, key: str, unit: str, source: str) -> np.ndarray:
@@ -307,13 +325,15 @@ def _root_rotation(spec: dict[str, Any], source: str) -> np.ndarray:
     """The root's orientation: the model's ``up`` onto the world's z and its ``forward`` onto x, then ``root_rpy``."""
     up = spec.get("up", "z")
     if up not in AXES:
-        raise ModelError(f"expected one of {', '.join(AXES)} (the model's own up axis), got {up!r}", source=source, key="up")
+        raise ModelError(f"expected one of {', '.join(AXES)} (the model's own up axis), got {up!r}", source=source,
+                         key="up")
     u = np.array(AXES[up])
     # By default the model's x stays forward, or its z for a model whose x is up.
     forward = spec.get("forward", "x" if up not in ("x", "-x") else "z")
     if forward not in AXES or abs(float(np.dot(AXES[forward], u))) > 0.5:
-        raise ModelError(f"expected one of {', '.join(a for a in AXES if abs(float(np.dot(AXES[a], u))) < 0.5)} (the model's own forward "
-                         f"axis, perpendicular to up {up}), got {forward!r}", source=source, key="forward")
+        raise ModelError(f"expected one of {', '.join(a for a in AXES if abs(float(np.dot(AXES[a], u))) < 0.5)} (the "
+                         f"model's own forward axis, perpendicular to up {up}), got {forward!r}", source=source,
+                             key="forward")
     f = np.array(AXES[forward])
     turn = np.stack([f, np.cross(u, f), u])  # rows: model axes that become the world's x, y, z
     rpy = _numbers(spec.get("root_rpy", [0, 0, 0]), 3, "root_rpy", "rad", source)
@@ -323,11 +343,13 @@ def _root_rotation(spec: dict[str, Any], source: str) -> np.ndarray:
 def _add_frames(model: pin.Model, frames: Any, source: str) -> None:
     """Frames the spec adds on existing ones (fixed placements: grip points, tool centre points, sole corners)."""
     if not isinstance(frames, dict):
-        raise ModelError(f"expected a mapping of name to {{parent, xyz, rpy}}, got {frames!r}", source=source, key="frames")
+        raise ModelError(f"expected a mapping of name to {{parent, xyz, rpy}}, got {frames!r}", source=source,
+                         key="frames")
     for name, raw in frames.items():
         key = f"frames.{name}"
         if not isinstance(raw, dict) or "parent" not in raw or set(raw) - {"parent", "xyz", "rpy"}:
-            raise ModelError(f"expected {{parent: FRAME, xyz: [x, y, z], rpy: [r, p, y]}}, got {raw!r}", source=source, key=key)
+            raise ModelError(f"expected {{parent: FRAME, xyz: [x, y, z], rpy: [r, p, y]}}, got {raw!r}",
+                             source=source, key=key)
         if model.existFrame(str(name)):
             raise ModelError(f"the model already has a frame {name!r}; choose another name", source=source, key=key)
         parent = raw["parent"]
@@ -350,7 +372,8 @@ def _reference(model: pin.Model, q: np.ndarray, reference: Any, source: str) -> 
     elif isinstance(reference, dict):
         given = dict(reference)
     else:
-        raise ModelError(f"expected zero, middle, auto or a mapping of joint name to value [rad or m], got {reference!r}",
+        raise ModelError("expected zero, middle, auto or a mapping of joint name to value [rad or m], got "
+                         f"{reference!r}",
                          source=source, key="reference")
     names = [str(n) for n in model.names[2:]]
     for name in given:
@@ -381,7 +404,8 @@ def _reference(model: pin.Model, q: np.ndarray, reference: Any, source: str) -> 
     return notes
 
 
-def _finish(model: pin.Model, urdf: str, source: str, spec: dict[str, Any], root: np.ndarray, capsules: list[Capsule], anthro: Anthropometry | None = None,
+def _finish(model: pin.Model, urdf: str, source: str, spec: dict[str, Any], root: np.ndarray, capsules: list[Capsule],
+            anthro: Anthropometry | None = None,
             sitting: Seated | None = None) -> Body:
     _check_limits(model, source)
     _apply_ranges(model, dict(spec.get("ranges", {})), source)
@@ -399,13 +423,16 @@ def _finish(model: pin.Model, urdf: str, source: str, spec: dict[str, Any], root
     else:
         q = _seated_q(model, sitting)
     notes = _reference(model, q, spec.get("reference"), source)
-    return Body(model, q, source, spec, urdf, anthro, tuple(capsules), tuple(notes), () if sitting is None else sitting.furniture)
+    return Body(model, q, source, spec, urdf, anthro, tuple(capsules), tuple(notes), () if sitting is None
+                else sitting.furniture)
 
 
-def human_body(sex: str = "male", stature: float | None = None, percentile: float | None = None, mass: float | None = None,
+def human_body(sex: str = "male", stature: float | None = None, percentile: float | None = None,
+               mass: float | None = None,
                ranges: dict[str, Any] | None = None, frames: dict[str, Any] | None = None, reference: Any = None,
                posture: str | None = None, seat: dict[str, Any] | None = None) -> Body:
-    """The generated human (see :mod:`oracles.bodies.human`), standing on z = 0, facing +x; or seated (``posture: seated``)
+    """The generated human (see :mod:`oracles.bodies.human`), standing on z = 0, facing +x; or seated (``posture:
+    seated``)
     on a seat (see :mod:`oracles.bodies.seat`)."""
     anthro = anthropometry(sex, stature, percentile, mass)  # type: ignore[arg-type]
     human = {"sex": sex, "stature": stature, "percentile": percentile, "mass": mass, "posture": posture, "seat": seat}
@@ -418,7 +445,8 @@ def human_body(sex: str = "male", stature: float | None = None, percentile: floa
     if posture != "seated":
         if seat is not None:
             raise ModelError("a seat needs posture: seated", source="human", key="human.seat")
-        return _finish(model, urdf, "human", spec, np.array([0.0, 0.0, root_height(anthro)]), human_capsules(anthro), anthro)
+        return _finish(model, urdf, "human", spec, np.array([0.0, 0.0, root_height(anthro)]), human_capsules(anthro),
+                       anthro)
     sitting = seated(anthro, parse_seat(seat))
     _frames_at(model, sitting)
     body = _finish(model, urdf, "human", spec, sitting.root, human_capsules(anthro), anthro, sitting)
@@ -435,8 +463,10 @@ def _frames_at(model: pin.Model, sitting: Seated) -> None:
         pid = model.getFrameId(parent)
         on = model.frames[pid]
         joint = data.oMi[on.parentJoint]
-        # Axes parallel to the world's in the seated reference (a hinge about the frame's y pitches about the world's y).
-        model.addFrame(pin.Frame(name, on.parentJoint, pid, pin.SE3(joint.rotation.T, joint.actInv(point)), pin.FrameType.OP_FRAME))
+        # Axes parallel to the world's in the seated reference (a hinge about the frame's y pitches about the world's
+        # y).
+        model.addFrame(pin.Frame(name, on.parentJoint, pid, pin.SE3(joint.rotation.T, joint.actInv(point)),
+                                 pin.FrameType.OP_FRAME))
 
 
 def _seated_q(model: pin.Model, sitting: Seated) -> np.ndarray:
@@ -449,7 +479,8 @@ def _seated_q(model: pin.Model, sitting: Seated) -> np.ndarray:
 
 
 def _check_seat(body: Body) -> None:
-    """No segment passes through the seat in the seated reference posture (coal), or the seat's dimensions do not fit the body."""
+    """No segment passes through the seat in the seated reference posture (coal), or the seat's dimensions do not fit
+    the body."""
     import coal
 
     model = body.collision
@@ -458,11 +489,14 @@ def _check_seat(body: Body) -> None:
     for i, obj in enumerate(model.geometry.geometryObjects):
         placement = data.oMi[obj.parentJoint] * obj.placement
         for box in body.furniture:
-            d = coal.distance(obj.geometry, coal.Transform3s(placement.rotation, placement.translation), coal.Box(*(2 * box.half)),
+            d = coal.distance(obj.geometry, coal.Transform3s(placement.rotation, placement.translation),
+                              coal.Box(*(2 * box.half)),
                               coal.Transform3s(box.matrix, box.centre), coal.DistanceRequest(), coal.DistanceResult())
             if d < -0.005:
-                raise ModelError(f"seated, the {model.placed[i].name} passes {-d:.3f} m into the seat's {box.name}: the seat does not fit "
-                                 "this body (check its depth, height, back_angle and feet)", source="human", key="human.seat")
+                raise ModelError(f"seated, the {model.placed[i].name} passes {-d:.3f} m into the seat's {box.name}: "
+                                 "the seat does not fit "
+                                 "this body (check its depth, height, back_angle and feet)", source="human",
+                                     key="human.seat")
 
 
 def _given(**keys: Any) -> dict[str, Any]:
@@ -474,7 +508,8 @@ URDF_MAX_BYTES = 64 * 1024 * 1024  # a URDF's XML: the largest in example-robot-
 
 
 def urdf_body(path: str | Path, root_position: list[float] | None = None, ranges: dict[str, Any] | None = None,
-              package_dirs: list[str] | None = None, *, up: str | None = None, forward: str | None = None, root_rpy: list[float] | None = None,
+              package_dirs: list[str] | None = None, *, up: str | None = None, forward: str | None = None,
+                  root_rpy: list[float] | None = None,
               frames: dict[str, Any] | None = None, reference: Any = None) -> Body:
     """Any URDF, with a floating root at root_position [m] turned by ``up`` and root_rpy; its collision geometry
     becomes capsules (meshes found by ``package://`` in package_dirs, or relative to the URDF's folder)."""
@@ -485,7 +520,8 @@ def urdf_body(path: str | Path, root_position: list[float] | None = None, ranges
             raise ModelError("not a regular file: a URDF is an XML file", source=path)
         size = path.stat().st_size
         if size > URDF_MAX_BYTES:
-            raise ModelError(f"{size} bytes: a URDF is at most {URDF_MAX_BYTES} bytes here (meshes live in their own files)", source=path)
+            raise ModelError(f"{size} bytes: a URDF is at most {URDF_MAX_BYTES} bytes here (meshes live in their own "
+                             "files)", source=path)
         urdf = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise ModelError(f"cannot read URDF ({exc.strerror or exc})", source=path) from exc
@@ -493,14 +529,16 @@ def urdf_body(path: str | Path, root_position: list[float] | None = None, ranges
         raise ModelError(f"not UTF-8 text (byte {exc.start}): a URDF is an XML file in UTF-8", source=path) from None
     spec: dict[str, Any] = {"urdf": str(path)}
     spec.update(_given(root_position=None if root_position is None else list(root_position), ranges=ranges,
-                       package_dirs=None if package_dirs is None else list(package_dirs), up=up, forward=forward, root_rpy=root_rpy,
+                       package_dirs=None if package_dirs is None else list(package_dirs), up=up, forward=forward,
+                           root_rpy=root_rpy,
                        frames=frames, reference=reference))
     root = np.zeros(3) if root_position is None else _numbers(root_position, 3, "root_position", "m", str(path))
     capsules = urdf_capsules(urdf, str(path), path.parent, package_dirs or ())
     return _finish(_parse(urdf, str(path)), urdf, str(path), spec, root, capsules)
 
 
-BODY_KEYS = {"human", "urdf", "root_position", "ranges", "package_dirs", "up", "forward", "root_rpy", "frames", "reference"}
+BODY_KEYS = {"human", "urdf", "root_position", "ranges", "package_dirs", "up", "forward", "root_rpy", "frames",
+             "reference"}
 URDF_ONLY = {"root_position", "package_dirs", "up", "forward", "root_rpy"}
 HUMAN_KEYS = {"sex", "stature", "percentile", "mass", "posture", "seat"}
 PLACING = ("up", "forward", "root_rpy", "frames", "reference")  # keys that move the body's frames: part of its hash
@@ -528,5 +566,6 @@ def load_body(spec: dict[str, Any]) -> Body:
     dirs = spec.get("package_dirs")
     if dirs is not None and (not isinstance(dirs, list) or not all(isinstance(d, str) for d in dirs)):
         raise ModelError(f"expected a list of folders, got {dirs!r}", key="package_dirs")
-    return urdf_body(spec["urdf"], spec.get("root_position"), ranges, dirs, up=spec.get("up"), forward=spec.get("forward"), root_rpy=spec.get("root_rpy"),
+    return urdf_body(spec["urdf"], spec.get("root_position"), ranges, dirs, up=spec.get("up"),
+                     forward=spec.get("forward"), root_rpy=spec.get("root_rpy"),
                      frames=spec.get("frames"), reference=spec.get("reference"))

@@ -52,7 +52,8 @@ class Capsule:
         return float(np.linalg.norm(np.subtract(self.b, self.a)))
 
     def samples(self, spacing: float | None = None) -> np.ndarray:
-        """Centres (n, 3) of spheres of the capsule's radius along its axis, at most ``spacing`` apart (default: the radius).
+        """Centres (n, 3) of spheres of the capsule's radius along its axis, at most ``spacing`` apart (default: the
+        radius).
 
         Their union lies inside the capsule and misses at most
         ``radius - sqrt(radius^2 - (spacing/2)^2)`` (13 % of the radius) of its surface.
@@ -99,10 +100,12 @@ class CollisionModel:
         self.placed: list[Placed] = []
         for c in capsules:
             if not model.existFrame(c.link):
-                raise ModelError(f"capsule {c.name!r} is on link {c.link!r}, which the model does not have", source=source)
+                raise ModelError(f"capsule {c.name!r} is on link {c.link!r}, which the model does not have",
+                                 source=source)
             frame = model.frames[model.getFrameId(c.link)]
             m = frame.placement
-            self.placed.append(Placed(c, int(frame.parentJoint), m.act(np.asarray(c.a, float)), m.act(np.asarray(c.b, float))))
+            self.placed.append(Placed(c, int(frame.parentJoint), m.act(np.asarray(c.a, float)),
+                                      m.act(np.asarray(c.b, float))))
         self.index = {p.name: i for i, p in enumerate(self.placed)}
         self._checks: dict[tuple[tuple[int, int], ...], tuple[pin.GeometryModel, pin.GeometryData, pin.Data]] = {}
         # The last answer per pair set: an IK engine's cut loop and the verdict's
@@ -170,7 +173,8 @@ def nearest_points(p: np.ndarray, q: np.ndarray, a: np.ndarray, b: np.ndarray) -
     return x, y, float(np.linalg.norm(x - y))
 
 
-def segment_gap(p: ca.SX, q: ca.SX, a: ca.SX, b: ca.SX, aa: float, ee: float) -> tuple[ca.SX, tuple[tuple[ca.SX, ca.SX], ...]]:
+def segment_gap(p: ca.SX, q: ca.SX, a: ca.SX, b: ca.SX, aa: float,
+                ee: float) -> tuple[ca.SX, tuple[tuple[ca.SX, ca.SX], ...]]:
     """Distance [m] between segments p-q and a-b as a CasADi expression: :func:`nearest_points`'s closed form,
     its branches as ``if_else``. ``aa`` and ``ee`` are the squared lengths of the two segments, constants of
     rigid capsules, so that a sphere's branch is chosen here rather than in the expression.
@@ -190,14 +194,16 @@ def segment_gap(p: ca.SX, q: ca.SX, a: ca.SX, b: ca.SX, aa: float, ee: float) ->
         s, t = ca.SX(0.0), clip(f / ee)
     else:
         den = aa * ee - bb * bb
-        # Parallel axes (den -> 0): any s is as near; nearest_points takes s = 0 (relative threshold: den scales as aa ee).
+        # Parallel axes (den -> 0): any s is as near; nearest_points takes s = 0 (relative threshold: den scales as aa
+        # ee).
         s0 = ca.if_else(den > 1e-12 * aa * ee, clip((bb * f - c * ee) / ca.fmax(den, 1e-300)), 0.0)
         t0 = (bb * s0 + f) / ee
         t = clip(t0)
         s = ca.if_else(t0 != t, clip((t * bb - c) / aa), s0)
     s_sym, t_sym = ca.SX.sym("s"), ca.SX.sym("t")
     gap = (p + s_sym * d1) - (a + t_sym * d2)
-    # The square root's derivative is infinite at 0 (crossing axes, deep inside a pair's radii): a floor keeps it finite.
+    # The square root's derivative is infinite at 0 (crossing axes, deep inside a pair's radii): a floor keeps it
+    # finite.
     return ca.sqrt(ca.dot(gap, gap) + 1e-12), ((s_sym, s), (t_sym, t))
 
 
@@ -213,8 +219,9 @@ def _resolve(filename: str, urdf_dir: Path | None, package_dirs: Sequence[str | 
         package = rest.split("/", 1)[0]
         found = _package_parent(package, urdf_dir)
         hint = f"; {found} holds a folder {package!r}: give it" if found else ""
-        raise ModelError(f"mesh {filename!r} not found in {[str(d) for d in package_dirs]}: give package_dirs the folder that "
-                         f"holds the package folder {package!r} (the folder above it){hint}", source=source, key="package_dirs")
+        raise ModelError(f"mesh {filename!r} not found in {[str(d) for d in package_dirs]}: give package_dirs the "
+                         f"folder that holds the package folder {package!r} (the folder above it){hint}",
+                             source=source, key="package_dirs")
     path = Path(filename.removeprefix("file://"))
     if not path.is_absolute() and urdf_dir is not None:
         path = urdf_dir / path
@@ -263,7 +270,8 @@ def _mesh_capsules(path: Path, scale: np.ndarray, source: str) -> list[tuple[np.
         # Small triangles, each given whole to the slab its centroid lies in: a capsule is convex, so it covers every
         # triangle whose corners it covers, and the pieces' union covers the surface (not only its vertices).
         extent = float(np.ptp(v, axis=0).max())
-        v, faces = trimesh.remesh.subdivide_to_size(v, faces, max_edge=max(extent, 1e-9) / (2 * MESH_PIECES), max_iter=12)
+        v, faces = trimesh.remesh.subdivide_to_size(v, faces, max_edge=max(extent, 1e-9) / (2 * MESH_PIECES),
+                                                    max_iter=12)
         v, faces = np.asarray(v, float), np.asarray(faces, int)
     else:
         faces = np.arange(len(v))[:, None]  # a point cloud: each point its own "face"
@@ -294,7 +302,8 @@ def _capsule_along(v: np.ndarray, axis: np.ndarray) -> tuple[np.ndarray, np.ndar
     return centre + lo * axis, centre + hi * axis, radius
 
 
-def urdf_capsules(urdf: str, source: str, urdf_dir: Path | None = None, package_dirs: Sequence[str | Path] = ()) -> list[Capsule]:
+def urdf_capsules(urdf: str, source: str, urdf_dir: Path | None = None,
+                  package_dirs: Sequence[str | Path] = ()) -> list[Capsule]:
     """Capsules of a URDF's ``<collision>`` elements (see the module docstring)."""
     try:
         root = ET.fromstring(urdf)
@@ -332,7 +341,8 @@ def urdf_capsules(urdf: str, source: str, urdf_dir: Path | None = None, package_
                     a[long], b[long] = -0.5 * size[long], 0.5 * size[long]
                 elif shape.tag == "mesh":
                     scale = np.array([float(v) for v in shape.get("scale", "1 1 1").split()])
-                    pieces = _mesh_capsules(_resolve(shape.get("filename", ""), urdf_dir, package_dirs, where), scale, where)
+                    pieces = _mesh_capsules(_resolve(shape.get("filename", ""), urdf_dir, package_dirs, where), scale,
+                                            where)
                     (a, b, r), more = pieces[0], pieces[1:]
                 else:
                     raise ModelError(f"{where}: unsupported geometry <{shape.tag}>")
@@ -342,6 +352,7 @@ def urdf_capsules(urdf: str, source: str, urdf_dir: Path | None = None, package_
                 raise ModelError(f"{where}: the radius must be positive, got {r}")
             # A mesh's first piece keeps the element's name; the others are NAME_1, NAME_2, ...
             for j, (end_a, end_b, rad) in enumerate([(a, b, r), *more]):
-                out.append(Capsule(f"{name}_{j}" if j else name, lname, tuple(placement.act(end_a)), tuple(placement.act(end_b)),  # type: ignore[arg-type]
+                out.append(Capsule(f"{name}_{j}" if j else name, lname, tuple(placement.act(end_a)),
+                                   tuple(placement.act(end_b)),  # type: ignore[arg-type]
                                    float(rad)))
     return out

@@ -81,12 +81,15 @@ def turned(lo: np.ndarray, hi: np.ndarray, rpy: tuple[float, float, float], name
 def parse_box(value: Any, where: str) -> Box:
     """``{min: [x, y, z], max: [x, y, z], rpy: [r, p, y]}`` [m, rad]; rpy (optional) turns the box about its centre."""
     if not isinstance(value, dict) or not {"min", "max"} <= set(value) or set(value) - {"min", "max", "rpy", "name"}:
-        raise TaskError(where, f"expected {{min: [x, y, z], max: [x, y, z]}} in metres (and optionally rpy: [r, p, y] in radians), got {value!r}")
+        raise TaskError(where, f"expected {{min: [x, y, z], max: [x, y, z]}} in metres (and optionally rpy: [r, p, "
+                               f"y] in radians), got {value!r}")
     vectors = {}
     for key in ("min", "max", "rpy"):
         v = value.get(key, [0.0, 0.0, 0.0])
-        if not isinstance(v, list) or len(v) != 3 or not all(isinstance(c, (int, float)) and not isinstance(c, bool) and np.isfinite(c) for c in v):
-            raise TaskError(f"{where}.{key}", f"expected [x, y, z] in {'radians' if key == 'rpy' else 'metres'}, got {v!r}")
+        if not isinstance(v, list) or len(v) != 3 or not all(isinstance(c, (int, float)) and not isinstance(c, bool)
+                                                             and np.isfinite(c) for c in v):
+            raise TaskError(f"{where}.{key}", f"expected [x, y, z] in {'radians' if key == 'rpy' else 'metres'}, got "
+                                              f"{v!r}")
         vectors[key] = np.array(v, float)
     lo, hi = vectors["min"], vectors["max"]
     if not np.all(lo < hi):

@@ -46,10 +46,12 @@ class _Urdf:
 
     capsules: dict[str, list[Capsule]] = field(default_factory=dict)
 
-    def link(self, name: str, mass: float = 0.0, com: tuple[float, float, float] = (0, 0, 0), length: float = 0.1) -> None:
+    def link(self, name: str, mass: float = 0.0, com: tuple[float, float, float] = (0, 0, 0),
+             length: float = 0.1) -> None:
         collisions = "".join(self.collision(c) for c in self.capsules.get(name, []))
         if mass <= 0.0:
-            self.parts.append(f"<link name={quoteattr(name)}>{collisions}</link>" if collisions else f"<link name={quoteattr(name)}/>")
+            self.parts.append(f"<link name={quoteattr(name)}>{collisions}</link>" if collisions else "<link "
+                f"name={quoteattr(name)}/>")
             return
         # Inertia of a solid cylinder of radius 0.15 L along z: an
         # approximation; static reach depends on masses and CoMs only.
@@ -58,18 +60,21 @@ class _Urdf:
         izz = mass * r * r / 2.0
         self.parts.append(
             f'<link name={quoteattr(name)}><inertial><origin xyz="{_v(com)}" rpy="0 0 0"/><mass value="{mass:.6f}"/>'
-            f'<inertia ixx="{ixx:.6g}" iyy="{ixx:.6g}" izz="{izz:.6g}" ixy="0" ixz="0" iyz="0"/></inertial>{collisions}</link>'
+            f'<inertia ixx="{ixx:.6g}" iyy="{ixx:.6g}" izz="{izz:.6g}" ixy="0" ixz="0" '
+            f'iyz="0"/></inertial>{collisions}</link>'
         )
 
-    def revolute(self, name: str, parent: str, child: str, xyz: tuple[float, float, float], axis: tuple[float, float, float]) -> None:
+    def revolute(self, name: str, parent: str, child: str, xyz: tuple[float, float, float],
+                 axis: tuple[float, float, float]) -> None:
         lo, hi = A.RANGES[_anatomical(name)]
         self.parts.append(
-            f'<joint name={quoteattr(name)} type="revolute"><parent link={quoteattr(parent)}/><child link={quoteattr(child)}/>'
-            f'<origin xyz="{_v(xyz)}" rpy="0 0 0"/><axis xyz="{_v(axis)}"/>'
+            f'<joint name={quoteattr(name)} type="revolute"><parent link={quoteattr(parent)}/><child '
+            f'link={quoteattr(child)}/><origin xyz="{_v(xyz)}" rpy="0 0 0"/><axis xyz="{_v(axis)}"/>'
             f'<limit lower="{lo:.9f}" upper="{hi:.9f}" effort="1000" velocity="10"/></joint>'
         )
 
-    def chain(self, joints: list[tuple[str, tuple[float, float, float]]], parent: str, child: str, xyz: tuple[float, float, float]) -> None:
+    def chain(self, joints: list[tuple[str, tuple[float, float, float]]], parent: str, child: str,
+              xyz: tuple[float, float, float]) -> None:
         """Consecutive revolute joints at one point, joined by massless links."""
         for i, (jname, axis) in enumerate(joints):
             last = i == len(joints) - 1
@@ -99,8 +104,9 @@ class _Urdf:
         yaw = math.atan2(d[1], d[0]) if abs(d[0]) + abs(d[1]) > 1e-12 else 0.0
         pitch = math.atan2((d[0] ** 2 + d[1] ** 2) ** 0.5, d[2])
         return (
-            f'<collision name={quoteattr(CAPSULE_PREFIX + capsule.name)}><origin xyz="{_v(mid)}" rpy="0 {pitch:.9f} {yaw:.9f}"/>'
-            f'<geometry><cylinder radius="{capsule.radius:.9f}" length="{length:.9f}"/></geometry></collision>'
+            f'<collision name={quoteattr(CAPSULE_PREFIX + capsule.name)}><origin xyz="{_v(mid)}" rpy="0 {pitch:.9f} '
+            f'{yaw:.9f}"/><geometry><cylinder radius="{capsule.radius:.9f}" '
+            f'length="{length:.9f}"/></geometry></collision>'
         )
 
     def xml(self) -> str:
@@ -132,9 +138,11 @@ def human_urdf(body: Anthropometry, name: str = "human") -> str:
     # Pelvis: the lower trunk (OMPH-MIDH), origin at mid-hip (MIDH).
     u.link("pelvis", M["lower_trunk"], (0, 0, (1 - C["lower_trunk"]) * L["lower_trunk"]), L["lower_trunk"])
     u.link("abdomen", M["middle_trunk"], (0, 0, (1 - C["middle_trunk"]) * L["middle_trunk"]), L["middle_trunk"])
-    u.chain([("lumbar_flexion", (0, 1, 0)), ("lumbar_lateral", (1, 0, 0))], "pelvis", "abdomen", (0, 0, L["lower_trunk"]))
+    u.chain([("lumbar_flexion", (0, 1, 0)), ("lumbar_lateral", (1, 0, 0))], "pelvis", "abdomen",
+            (0, 0, L["lower_trunk"]))
     u.link("thorax", M["upper_trunk"], (0, 0, (1 - C["upper_trunk"]) * L["upper_trunk"]), L["upper_trunk"])
-    u.chain([("thoracic_flexion", (0, 1, 0)), ("thoracic_rotation", (0, 0, 1))], "abdomen", "thorax", (0, 0, L["middle_trunk"]))
+    u.chain([("thoracic_flexion", (0, 1, 0)), ("thoracic_rotation", (0, 0, 1))], "abdomen", "thorax",
+            (0, 0, L["middle_trunk"]))
     u.link("head", M["head"], (0, 0, (1 - C["head"]) * L["head"]), L["head"])
     u.chain([("neck_flexion", (0, 1, 0)), ("neck_rotation", (0, 0, 1))], "thorax", "head", (0, 0, L["upper_trunk"]))
     eye_z = A.EYE_HEIGHT * H - (hip_z + L["lower_trunk"] + L["middle_trunk"] + L["upper_trunk"])
@@ -155,13 +163,16 @@ def human_urdf(body: Anthropometry, name: str = "human") -> str:
         u.frame(f"{p}shoulder", f"{p}clavicle", sjc)
         u.link(f"{p}upper_arm", M["upper_arm"], (0, 0, -C["upper_arm"] * L["upper_arm"]), L["upper_arm"])
         u.chain(
-            [(f"{p}shoulder_flexion", (0, -1, 0)), (f"{p}shoulder_abduction", (s, 0, 0)), (f"{p}shoulder_rotation", (0, 0, -s))],
+            [(f"{p}shoulder_flexion", (0, -1, 0)), (f"{p}shoulder_abduction", (s, 0, 0)),
+             (f"{p}shoulder_rotation", (0, 0, -s))],
             f"{p}clavicle", f"{p}upper_arm", sjc,
         )
         u.link(f"{p}forearm", M["forearm"], (0, 0, -C["forearm"] * L["forearm"]), L["forearm"])
-        u.chain([(f"{p}elbow_flexion", (0, -1, 0)), (f"{p}forearm_pronation", (0, 0, -s))], f"{p}upper_arm", f"{p}forearm", (0, 0, -L["upper_arm"]))
+        u.chain([(f"{p}elbow_flexion", (0, -1, 0)), (f"{p}forearm_pronation", (0, 0, -s))], f"{p}upper_arm",
+                f"{p}forearm", (0, 0, -L["upper_arm"]))
         u.link(f"{p}palm", M["hand"], (0, 0, -C["hand"] * L["hand"]), L["hand"])
-        u.chain([(f"{p}wrist_flexion", (-s, 0, 0)), (f"{p}wrist_deviation", (0, -1, 0))], f"{p}forearm", f"{p}palm", (0, 0, -L["forearm"]))
+        u.chain([(f"{p}wrist_flexion", (-s, 0, 0)), (f"{p}wrist_deviation", (0, -1, 0))], f"{p}forearm", f"{p}palm",
+                (0, 0, -L["forearm"]))
         # Palm faces the thigh in the reference posture: palmar is medial (-s).
         u.frame(f"{p}hand", f"{p}palm", (0.0, -s * A.GRIP_PALMAR * L["hand"], -A.GRIP_ALONG * L["hand"]))
 
@@ -176,7 +187,8 @@ def human_urdf(body: Anthropometry, name: str = "human") -> str:
         lf = L["foot"]
         heel_x = -A.ANKLE_FROM_HEEL * lf
         u.link(f"{p}sole", M["foot"], (heel_x + C["foot"] * lf, 0, -0.5 * ankle_z), lf)
-        u.chain([(f"{p}ankle_flexion", (0, -1, 0)), (f"{p}ankle_inversion", (-s, 0, 0))], f"{p}shank", f"{p}sole", (0, 0, -L["shank"]))
+        u.chain([(f"{p}ankle_flexion", (0, -1, 0)), (f"{p}ankle_inversion", (-s, 0, 0))], f"{p}shank", f"{p}sole",
+                (0, 0, -L["shank"]))
         half = 0.5 * A.FOOT_BREADTH * H
         ball_x, toe_x = heel_x + A.BALL_FROM_HEEL * lf, heel_x + lf
         u.frame(f"{p}foot", f"{p}sole", (ball_x, 0.0, -ankle_z))
@@ -215,7 +227,8 @@ def human_capsules(body: Anthropometry) -> list[Capsule]:
     across("pelvis", "pelvis", 0.35 * L["lower_trunk"], G["waist_breadth"], G["waist_depth"])
     across("abdomen", "abdomen", 0.5 * L["middle_trunk"], G["waist_breadth"], G["waist_depth"])
     back = -A.SHOULDER_BACK_DEPTH * H
-    across("thorax", "thorax", 0.5 * L["upper_trunk"], G["chest_breadth"], G["chest_depth"], back + 0.5 * G["chest_depth"])
+    across("thorax", "thorax", 0.5 * L["upper_trunk"], G["chest_breadth"], G["chest_depth"],
+           back + 0.5 * G["chest_depth"])
     r_head = 0.5 * G["head_breadth"]
     head_half = max(0.5 * G["head_length"] - r_head, 0.0)
     z_head = L["head"] - r_head
@@ -231,7 +244,8 @@ def human_capsules(body: Anthropometry) -> list[Capsule]:
         out.append(Capsule(f"{p}forearm", f"{p}forearm", (0.0, 0.0, 0.0), (0.0, 0.0, -L["forearm"]), r_fore))
         r_hand = HAND_RADIUS * G["hand_breadth"]
         grip_y = -s * A.GRIP_PALMAR * L["hand"]
-        out.append(Capsule(f"{p}hand", f"{p}palm", (0.0, 0.5 * grip_y, -r_hand), (0.0, grip_y, -(A.GRIP_ALONG + 0.2) * L["hand"]), r_hand))
+        out.append(Capsule(f"{p}hand", f"{p}palm", (0.0, 0.5 * grip_y, -r_hand),
+                           (0.0, grip_y, -(A.GRIP_ALONG + 0.2) * L["hand"]), r_hand))
         r_thigh = TAPER["thigh"] * G["thigh_circumference"] / two_pi
         out.append(Capsule(f"{p}thigh", f"{p}thigh", (0.0, 0.0, 0.0), (0.0, 0.0, -L["thigh"]), r_thigh))
         r_shank = TAPER["shank"] * G["calf_circumference"] / two_pi
@@ -239,7 +253,8 @@ def human_capsules(body: Anthropometry) -> list[Capsule]:
         r_foot = 0.5 * ankle_z
         heel_x = -A.ANKLE_FROM_HEEL * L["foot"]
         z = -ankle_z + r_foot
-        out.append(Capsule(f"{p}foot", f"{p}sole", (heel_x + r_foot, 0.0, z), (heel_x + L["foot"] - r_foot, 0.0, z), r_foot))
+        out.append(Capsule(f"{p}foot", f"{p}sole", (heel_x + r_foot, 0.0, z), (heel_x + L["foot"] - r_foot, 0.0, z),
+                           r_foot))
     return out
 
 

@@ -43,7 +43,8 @@ class MirrorMap:
             if j.nq != 1 or k.nq != 1:
                 raise ModelError(f"mirroring supports one-coordinate joints only ({n!r})", source=body.source)
             self.perm[j.idx_q] = k.idx_q
-        self.frames = [str(f.name) for f in model.frames if str(f.name) != "universe" and _counterpart(str(f.name)) in {str(g.name) for g in model.frames}]
+        self.frames = [str(f.name) for f in model.frames if str(f.name) != "universe"
+                       and _counterpart(str(f.name)) in {str(g.name) for g in model.frames}]
         # Central joints: pick the sign that mirrors the frames; side joints keep theirs.
         for n in names:
             if _counterpart(n) == n:
@@ -61,7 +62,8 @@ class MirrorMap:
         mhi = np.where(self.sign[7:] > 0, hi, -lo)[self.perm[7:] - 7]
         bad = [names[i] for i in range(len(names)) if not (np.isclose(mlo[i], lo[i]) and np.isclose(mhi[i], hi[i]))]
         if bad:
-            raise ModelError(f"joint ranges are not mirror-symmetric ({', '.join(sorted(bad)[:4])}); build both sides instead", source=body.source)
+            raise ModelError(f"joint ranges are not mirror-symmetric ({', '.join(sorted(bad)[:4])}); build both "
+                             "sides instead", source=body.source)
         rng = np.random.default_rng(seed)
         for _ in range(samples):
             q = body.q_ref.copy()
@@ -70,7 +72,8 @@ class MirrorMap:
             q[3:7] = pin.Quaternion(pin.rpy.rpyToMatrix(*rng.normal(scale=0.2, size=3))).coeffs()
             err = self._error(q)
             if err > tol:
-                raise ModelError(f"the model is not mirror-symmetric about y = 0 (frames differ by {err:.3g} m); build both sides instead", source=body.source)
+                raise ModelError(f"the model is not mirror-symmetric about y = 0 (frames differ by {err:.3g} m); "
+                                 "build both sides instead", source=body.source)
 
     def mirror_q(self, q: np.ndarray) -> np.ndarray:
         """The mirror image of configuration(s) q, shape (..., nq)."""

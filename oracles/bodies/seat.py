@@ -69,18 +69,22 @@ from oracles.errors import ModelError
 # A40 is typically 22-25 deg), heels 0.85 m forward.
 KINDS: dict[str, dict[str, Any]] = {
     "chair": {"height": "fit", "depth": "fit", "width": 0.48, "back_angle": 15.0, "back_height": 0.50, "feet": {}},
-    "wheelchair": {"height": 0.485, "depth": 0.406, "width": 0.457, "back_angle": 10.0, "back_height": 0.406, "feet": {"height": "fit"}},
-    "car": {"height": 0.20, "depth": 0.50, "width": 0.50, "back_angle": 23.0, "back_height": 0.60, "feet": {"x": "fit", "ankle": -10.0}},
+    "wheelchair": {"height": 0.485, "depth": 0.406, "width": 0.457, "back_angle": 10.0, "back_height": 0.406,
+                   "feet": {"height": "fit"}},
+    "car": {"height": 0.20, "depth": 0.50, "width": 0.50, "back_angle": 23.0, "back_height": 0.60,
+            "feet": {"x": "fit", "ankle": -10.0}},
 }
 SEAT_KEYS = {"kind", "height", "depth", "width", "thickness", "back_angle", "back_height", "feet"}
 FEET_KEYS = {"height", "x", "ankle"}
 SHANK_FORWARD = math.radians(10.0)  # the shank's lean forward of vertical where a seat is fitted (modelling choice)
-DRIVER_KNEE = math.radians(60.0)  # knee flexion where a car's heel point is fitted: a knee angle of 120 deg (modelling choice)
+# knee flexion where a car's heel point is fitted: a knee angle of 120 deg (modelling choice)
+DRIVER_KNEE = math.radians(60.0)
 # Between the pan's front edge and the back of the knee, where a seat's depth is fitted: about
 # three fingers' breadth, the clearance wheelchair fitting guides ask for (2 in, orthopaedicprinciples.com).
 POPLITEAL_CLEARANCE = 0.05
 FIT = float("nan")  # a dimension fitted to the body (see ``fit``)
-WHEEL_DIAMETER = 0.61  # a 24 in rear wheel, the usual adult size (ADAAG Fig. A3's 26 in overall width fits two beside an 18 in seat)
+# a 24 in rear wheel, the usual adult size (ADAAG Fig. A3's 26 in overall width fits two beside an 18 in seat)
+WHEEL_DIAMETER = 0.61
 ARM_FORWARD = 0.2  # [rad] upper arm forward of vertical in the seated reference (modelling choice)
 ARM_OUT = 0.2  # [rad] upper arm abducted so that it hangs clear of the reclined abdomen (modelling choice)
 ELBOW = 1.3  # [rad] elbow flexion in the seated reference: forearm about level over the lap (modelling choice)
@@ -126,14 +130,16 @@ def parse_seat(raw: Any) -> Seat:
     """A seat from ``human.seat`` (a mapping; None for a chair's defaults)."""
     raw = {} if raw is None else raw
     if not isinstance(raw, dict) or set(raw) - SEAT_KEYS:
-        raise ModelError(f"expected a mapping with keys among {sorted(SEAT_KEYS)}, got {raw!r}", source="human", key="human.seat")
+        raise ModelError(f"expected a mapping with keys among {sorted(SEAT_KEYS)}, got {raw!r}", source="human",
+                         key="human.seat")
     kind = raw.get("kind", "chair")
     if kind not in KINDS:
         raise ModelError(f"expected one of {', '.join(KINDS)}, got {kind!r}", source="human", key="human.seat.kind")
     given = {**KINDS[kind], **{k: v for k, v in raw.items() if k != "feet"}}
     feet = {**KINDS[kind]["feet"], **(raw.get("feet") or {})}
     if not isinstance(raw.get("feet", {}), dict) or set(feet) - FEET_KEYS:
-        raise ModelError(f"expected a mapping with keys among {sorted(FEET_KEYS)}, got {raw.get('feet')!r}", source="human", key="human.seat.feet")
+        raise ModelError(f"expected a mapping with keys among {sorted(FEET_KEYS)}, got {raw.get('feet')!r}",
+                         source="human", key="human.seat.feet")
     k = "human.seat."
     return Seat(
         kind,
@@ -145,7 +151,8 @@ def parse_seat(raw: Any) -> Seat:
         _number(given.get("thickness", 0.06), k + "thickness", 0.01, 0.2, "m"),
         _number(feet.get("height", 0.0), k + "feet.height", 0.0, 0.5, "m"),
         None if feet.get("x") is None else _number(feet["x"], k + "feet.x", 0.1, 1.5, "m"),
-        None if feet.get("ankle") is None else math.radians(_number(feet["ankle"], k + "feet.ankle", -50.0, 20.0, "deg")),
+        None if feet.get("ankle") is None
+            else math.radians(_number(feet["ankle"], k + "feet.ankle", -50.0, 20.0, "deg")),
     )
 
 
@@ -183,11 +190,13 @@ def seated(body: Anthropometry, seat: Seat) -> Seated:
         d = ankle - hip
         dist = float(np.linalg.norm(d))
         if dist > lt + ls - 1e-3:
-            raise ModelError(f"the heels {seat.feet_x} m forward are out of this body's reach from the seat (hip to ankle {dist:.3f} m, "
-                             f"legs {lt + ls:.3f} m): bring human.seat.feet.x back", source="human", key="human.seat.feet.x")
+            raise ModelError(f"the heels {seat.feet_x} m forward are out of this body's reach from the seat (hip to "
+                             f"ankle {dist:.3f} m, legs {lt + ls:.3f} m): bring human.seat.feet.x back",
+                                 source="human", key="human.seat.feet.x")
         alpha = math.acos(max(-1.0, min(1.0, (lt * lt + dist * dist - ls * ls) / (2 * lt * dist))))
         e = d / dist
-        knee_dir = np.array([e[0] * math.cos(alpha) - e[2] * math.sin(alpha), 0.0, e[0] * math.sin(alpha) + e[2] * math.cos(alpha)])
+        knee_dir = np.array([e[0] * math.cos(alpha) - e[2] * math.sin(alpha), 0.0,
+                             e[0] * math.sin(alpha) + e[2] * math.cos(alpha)])
         knee = hip + lt * knee_dir
         return _down_angle(knee - hip), _down_angle(ankle - knee)
 
@@ -195,14 +204,16 @@ def seated(body: Anthropometry, seat: Seat) -> Seated:
     if seat.feet_x is None:
         drop = hip_z - (sole_z + ankle_z)
         if drop > ls:
-            raise ModelError(f"the pan {seat.height} m high is above this body's lower leg (the shank, {ls:.3f} m, would leave the feet "
-                             f"{drop - ls:.3f} m above their rest): lower human.seat.height or raise human.seat.feet.height",
+            raise ModelError(f"the pan {seat.height} m high is above this body's lower leg (the shank, {ls:.3f} m, "
+                             f"would leave the feet {drop - ls:.3f} m above their rest): lower human.seat.height or "
+                             "raise human.seat.feet.height",
                              source="human", key="human.seat.height")
         theta_t, theta_s = math.pi / 2, math.asin(math.sqrt(max(ls * ls - drop * drop, 0.0)) / ls)
         ankle_flex = -theta_s
         heel = hip + np.array([lt + ls * math.sin(theta_s), 0.0, -ls * math.cos(theta_s)]) - heel_to_ankle
     else:
-        # The sole pitches toe-up by the shank's angle plus the ankle's flexion, which moves the ankle about the heel: iterate.
+        # The sole pitches toe-up by the shank's angle plus the ankle's flexion, which moves the ankle about the heel:
+        # iterate.
         ankle_flex = 0.0 if seat.ankle is None else seat.ankle
         # The knee flexed 60 deg where the heel point is fitted: hip to ankle is the triangle's third side.
         reach = math.sqrt(lt * lt + ls * ls + 2 * lt * ls * math.cos(DRIVER_KNEE))
@@ -213,7 +224,8 @@ def seated(body: Anthropometry, seat: Seat) -> Seated:
             if math.isnan(seat.feet_x):
                 rise = hip_z - (sole_z + to_ankle[2])
                 if reach <= rise:
-                    raise ModelError(f"the pan {seat.height} m high is too high to fit a heel point with the knee flexed 60 deg: "
+                    raise ModelError(f"the pan {seat.height} m high is too high to fit a heel point with the knee "
+                                     "flexed 60 deg: "
                                      "give human.seat.feet.x", source="human", key="human.seat.feet.x")
                 heel[0] = hip_x + math.sqrt(reach * reach - rise * rise) - to_ankle[0]
             theta_t, theta_s = legs(heel + to_ankle)
@@ -223,14 +235,16 @@ def seated(body: Anthropometry, seat: Seat) -> Seated:
     hip_flex, knee_flex = theta_t - beta, theta_t - theta_s
     joints = {"neck_flexion": beta}
     for side in ("right", "left"):
-        joints.update({f"{side}_hip_flexion": hip_flex, f"{side}_knee_flexion": knee_flex, f"{side}_ankle_flexion": ankle_flex,
+        joints.update({f"{side}_hip_flexion": hip_flex, f"{side}_knee_flexion": knee_flex,
+                       f"{side}_ankle_flexion": ankle_flex,
                        f"{side}_shoulder_flexion": ARM_FORWARD - beta, f"{side}_shoulder_abduction": ARM_OUT,
                        f"{side}_elbow_flexion": ELBOW})
     for name, value in joints.items():
         lo, hi = A.RANGES[name.removeprefix("right_").removeprefix("left_")]
         if not lo - 1e-9 <= value <= hi + 1e-9:
             raise ModelError(f"seated on this seat, {name} would be {math.degrees(value):.1f} deg, outside its range "
-                             f"[{math.degrees(lo):.0f}, {math.degrees(hi):.0f}] deg: change human.seat's back_angle, height or feet",
+                             f"[{math.degrees(lo):.0f}, {math.degrees(hi):.0f}] deg: change human.seat's back_angle, "
+                             "height or feet",
                              source="human", key="human.seat")
 
     thigh_dir = np.array([math.sin(theta_t), 0.0, -math.cos(theta_t)])
@@ -240,9 +254,11 @@ def seated(body: Anthropometry, seat: Seat) -> Seated:
     for side, s in (("right", -1.0), ("left", 1.0)):
         y = s * A.HIP_Y * H
         frames[f"{side}_ischium"] = ("pelvis", np.array([hip_x, y, seat.height]))
-        frames[f"{side}_thigh_rest"] = (f"{side}_thigh", hip + along * thigh_dir + thigh.radius * under + np.array([0.0, y, 0.0]))
+        frames[f"{side}_thigh_rest"] = (f"{side}_thigh",
+                                        hip + along * thigh_dir + thigh.radius * under + np.array([0.0, y, 0.0]))
     chest = body.girths["chest_depth"]
-    sternum_local = np.array([-A.SHOULDER_BACK_DEPTH * H + chest, 0.0, L["lower_trunk"] + L["middle_trunk"] + 0.5 * L["upper_trunk"]])
+    sternum_local = np.array([-A.SHOULDER_BACK_DEPTH * H + chest, 0.0,
+                              L["lower_trunk"] + L["middle_trunk"] + 0.5 * L["upper_trunk"]])
     frames["sternum"] = ("thorax", hip + trunk @ sternum_local)
     return Seated(hip, -beta, joints, frames, furniture(seat, up, normal, heel))
 
@@ -255,10 +271,12 @@ def _hip_above_pan(caps: dict[str, Any], beta: float) -> float:
 
 
 def _hip_forward(caps: dict[str, Any], lengths: dict[str, float], seat: Seat) -> float:
-    """The hip joint centres' distance [m] forward of the backrest's foot where the trunk's capsules touch the backrest's
+    """The hip joint centres' distance [m] forward of the backrest's foot where the trunk's capsules touch the
+    backrest's
     front face (a segment in the mid-plane; the trunk's capsules lie across the body): bisection on the least gap."""
     above = _hip_above_pan(caps, seat.back_angle)
-    base = {"pelvis": 0.0, "abdomen": lengths["lower_trunk"], "thorax": lengths["lower_trunk"] + lengths["middle_trunk"]}
+    base = {"pelvis": 0.0, "abdomen": lengths["lower_trunk"],
+            "thorax": lengths["lower_trunk"] + lengths["middle_trunk"]}
     trunk = _pitch(-seat.back_angle)
     up = np.array([-math.sin(seat.back_angle), 0.0, math.cos(seat.back_angle)])
     foot = np.array([0.0, 0.0, seat.height])
@@ -295,7 +313,8 @@ def fit(body: Anthropometry, seat: Seat, caps: dict[str, Any] | None = None) -> 
     if math.isnan(seat.feet_height):
         rest = seat.height + above - drop
         if rest < 0.0:
-            raise ModelError(f"the pan {seat.height} m high is below this body's lower leg (the feet would rest {-rest:.3f} m under the floor): "
+            raise ModelError(f"the pan {seat.height} m high is below this body's lower leg (the feet would rest "
+                             f"{-rest:.3f} m under the floor): "
                              "raise human.seat.height", source="human", key="human.seat.height")
         seat = replace(seat, feet_height=round(rest, 4))
     return seat

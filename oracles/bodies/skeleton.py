@@ -51,7 +51,8 @@ def build_skeleton(body: Body, effector: str | None = None) -> tuple[Skeleton, t
     parents: list[int] = []
     for j in range(1, model.njoints):  # Pinocchio numbers a parent before its children
         p = int(model.parents[j])
-        merge = (j != 1 and np.linalg.norm(model.jointPlacements[j].translation) < SHARED and children[p] == [j] and p not in hung
+        merge = (j != 1 and np.linalg.norm(model.jointPlacements[j].translation) < SHARED and children[p] == [j]
+                 and p not in hung
                  and p != 1)
         if merge:
             bone_of[j] = bone_of[p]
@@ -65,13 +66,15 @@ def build_skeleton(body: Body, effector: str | None = None) -> tuple[Skeleton, t
     ends: list[tuple[str, int, tuple[float, float, float]]] = []
     leaves = set(range(len(chains))) - set(parents)
     for b in sorted(leaves):
-        frames = [f for f in model.frames if int(f.parentJoint) == last[b] and f.type in (pin.FrameType.BODY, pin.FrameType.OP_FRAME)]
+        frames = [f for f in model.frames if int(f.parentJoint) == last[b]
+                  and f.type in (pin.FrameType.BODY, pin.FrameType.OP_FRAME)]
         if last[b] == eff_joint:  # a leaf holds one end: the effector's, when it is on it
             frames = [model.frames[body.frame_id(str(effector))]]
         if frames:
             reach = max(float(np.linalg.norm(f.placement.translation)) for f in frames)
             # Of frames within a centimetre of the farthest, the plainest name: the toe, not the toe's inner edge.
-            far = min((f for f in frames if np.linalg.norm(f.placement.translation) > reach - NEAR), key=lambda f: (len(f.name), f.name))
+            far = min((f for f in frames if np.linalg.norm(f.placement.translation) > reach - NEAR),
+                      key=lambda f: (len(f.name), f.name))
             ends.append((str(far.name), b, _xyz(far.placement.translation)))
         else:
             ends.append((names[b] + "_end", b, (0.0, 0.0, 0.0)))
@@ -80,7 +83,8 @@ def build_skeleton(body: Body, effector: str | None = None) -> tuple[Skeleton, t
         ends.append((effector, bone_of[int(f.parentJoint)], _xyz(f.placement.translation)))
     capsules = np.array([[*p.a, *p.b, p.radius] for p in body.collision.placed], float).reshape(-1, 7)
     capsule_bones = tuple(bone_of[p.joint] for p in body.collision.placed)
-    skeleton = Skeleton(names, tuple(tuple(str(model.names[j]) for j in c) for c in chains), tuple(parents), tuple(ends),
+    skeleton = Skeleton(names, tuple(tuple(str(model.names[j]) for j in c) for c in chains), tuple(parents),
+                        tuple(ends),
                         tuple(p.name for p in body.collision.placed), capsules, capsule_bones)
     return skeleton, last
 

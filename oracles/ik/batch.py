@@ -57,7 +57,8 @@ from oracles.ik.jit import compiled_function
 from oracles.tasks import Constraint, SoftTask, Symbolic
 from oracles.tasks.reach import PROXIMAL
 
-CHUNK = 64  # postures per call of the mapped function (padded): large enough to amortise a call, small enough to pad little
+# postures per call of the mapped function (padded): large enough to amortise a call, small enough to pad little
+CHUNK = 64
 SMALL = 8  # ... and of its small map, for the rest of a batch (a refinement's K starts)
 BUFFER = 0.005  # [m or rad] an inequality row within this of its bound is active (as dls: oracles/tasks/base.py)
 INSIDE = 1e-4  # [m or rad] how far inside its bound an active row is pushed
@@ -67,11 +68,14 @@ REGULAR = 1e-10  # KKT regularisation of the constraint block: contradictory or 
 MAX_STEP = 0.4  # [rad or m] largest step norm of one iteration (a start's trust radius at most)
 MIN_RADIUS = 1e-3  # [rad or m] a start whose trust radius has shrunk below this has stalled
 MAX_REACH_STEP = 0.25  # [m] largest reach error pursued in one iteration
-FREE_SMOOTH = 1e-3  # the smoothing of a lower task's hinge at its free level (in its objective's units; the gaze's: 1 - cos, about 2.6 deg)
+# the smoothing of a lower task's hinge at its free level (in its objective's units; the gaze's: 1 - cos, about 2.6 deg)
+FREE_SMOOTH = 1e-3
 LOWER_WEIGHT = 0.1  # weight of each lower task relative to the one above it
 FIXED = 1e8  # the diagonal that holds a clamped coordinate still
 GROUP = 8  # lazy rows per compiled Jacobian (a group is evaluated only where one of its rows is near)
-SCREEN = 0.05  # [m] a lazy row (a collision pair, a capsule over the floor) this near its bound gives the step a row (a step moves a hand a few cm)
+# [m] a lazy row (a collision pair, a capsule over the floor) this near its bound gives the step a row (a step moves a
+# hand a few cm)
+SCREEN = 0.05
 HARD_TOL = 1e-6  # [m or rad] a hard row this far past its bound still holds (the interior-point programs' tolerance)
 
 
@@ -109,7 +113,8 @@ class State:
 
     def take(self, index: np.ndarray) -> State:
         """The state of some postures of the batch (the lower tasks' terms left out)."""
-        return State(self.g[index], self.jg[index], self.e[index], self.je[index], self.rows, self.lazy_violation[index])
+        return State(self.g[index], self.jg[index], self.e[index], self.je[index], self.rows,
+                     self.lazy_violation[index])
 
     def take_lower(self, index: np.ndarray) -> State:
         """The state of some postures of the batch, the lower tasks' terms with them."""
@@ -134,7 +139,8 @@ class BatchProgram:
         name: A prefix for the compiled functions' names.
     """
 
-    def __init__(self, sym: Symbolic, params: ca.SX, hard: Sequence[Constraint], reach: ca.SX, lower: Sequence[SoftTask],
+    def __init__(self, sym: Symbolic, params: ca.SX, hard: Sequence[Constraint], reach: ca.SX,
+                 lower: Sequence[SoftTask],
                  lower_bound: np.ndarray, upper_bound: np.ndarray, span: np.ndarray, jit: bool, name: str,
                  screened: Sequence[Constraint] = ()) -> None:
         x = sym.x
@@ -153,11 +159,13 @@ class BatchProgram:
             jac = ca.jacobian(lazy, x)
             if held:
                 lazy, jac = ca.substitute([lazy, jac], [ca.vertcat(*symbols)], [ca.vertcat(*values)])
-            self._lazy = _Mapped(ca.Function(f"{name}_lazy", [x, params], [ca.densify(lazy)]), jit, [(self.lazy_m, 1)], self.n, int(params.numel()))
+            self._lazy = _Mapped(ca.Function(f"{name}_lazy", [x, params], [ca.densify(lazy)]), jit,
+                                 [(self.lazy_m, 1)], self.n, int(params.numel()))
             # The Jacobian by groups of rows, each evaluated only for the postures with one of its rows near: all
             # 147 rows of the whole body cost 69 us a posture, about ten times the reach's (measured here).
             self._lazy_groups = [
-                (k, _Mapped(ca.Function(f"{name}_lazy_jac{k}", [x, params], [ca.densify(jac[k : min(k + GROUP, self.lazy_m), :])]), jit,
+                (k, _Mapped(ca.Function(f"{name}_lazy_jac{k}", [x, params],
+                                        [ca.densify(jac[k : min(k + GROUP, self.lazy_m), :])]), jit,
                             [(min(GROUP, self.lazy_m - k), self.n)], self.n, int(params.numel())))
                 for k in range(0, self.lazy_m, GROUP)
             ]
@@ -181,7 +189,9 @@ class BatchProgram:
         base = ca.Function(f"{name}_reach", [x, params], [ca.densify(o) for o in outs])
         full = ca.Function(f"{name}_lower", [x, params], [ca.densify(o) for o in [*outs, f, grad, hess]])
         self._reach = _Mapped(base, jit, [(self.m, 1), (self.m, self.n), (3, 1), (3, self.n)], self.n, self.np)
-        self._full = _Mapped(full, jit, [(self.m, 1), (self.m, self.n), (3, 1), (3, self.n), (1, 1), (self.n, 1), (self.n, self.n)],
+        self._full = _Mapped(full, jit,
+                             [(self.m, 1), (self.m, self.n), (3, 1), (3, self.n), (1, 1), (self.n, 1),
+                              (self.n, self.n)],
                              self.n, self.np) if lower else None
         # Every matrix the step factors is small (n and m below 100): OpenBLAS's threads only wait on each other, and
         # beside a second worker process on two cores they spun: eigh of 512 36 x 36 Hessians took 1.1 s, 70 ms on
@@ -211,7 +221,8 @@ class BatchProgram:
                     if some.size:
                         jac[some[:, None], mine] = group(x[some], p[some])[0][:, cols[mine] - k]
                 g, jg = np.concatenate([g, values[:, cols]], axis=1), np.concatenate([jg, jac], axis=1)
-                rows = Rows(np.concatenate([rows.lower, self.lazy_rows.lower[cols]]), np.concatenate([rows.upper, self.lazy_rows.upper[cols]]))
+                rows = Rows(np.concatenate([rows.lower, self.lazy_rows.lower[cols]]),
+                            np.concatenate([rows.upper, self.lazy_rows.upper[cols]]))
         state = State(g, jg, out[2][..., 0], out[3], rows, lazy_violation)
         if lower and self._full is not None:
             state.f, state.grad, state.hess = out[4][:, 0, 0], out[5][..., 0], out[6]
@@ -229,7 +240,8 @@ class BatchProgram:
         if ahead is not None:
             low |= ahead < lo
             high |= ahead > hi
-        target = np.where(eq, lo, np.where(low & ~high, lo + INSIDE, np.where(high & ~low, hi - INSIDE, 0.5 * (lo + hi))))
+        target = np.where(eq, lo,
+                          np.where(low & ~high, lo + INSIDE, np.where(high & ~low, hi - INSIDE, 0.5 * (lo + hi))))
         act = eq | low | high
         return act, np.where(act, target - g, 0.0)
 
@@ -239,8 +251,10 @@ class BatchProgram:
         eager = np.maximum(np.maximum(self.rows.lower - g, g - self.rows.upper), 0.0).max(axis=1, initial=0.0)
         return np.maximum(eager, state.lazy_violation) if lazy else eager
 
-    def step(self, diag: np.ndarray, jac: np.ndarray | None, gradient: np.ndarray, state: State, fixed: np.ndarray, radius: np.ndarray,
-             extra: tuple[np.ndarray, np.ndarray] | None = None, ahead: np.ndarray | None = None, buffer: float = BUFFER) -> np.ndarray:
+    def step(self, diag: np.ndarray, jac: np.ndarray | None, gradient: np.ndarray, state: State, fixed: np.ndarray,
+             radius: np.ndarray,
+             extra: tuple[np.ndarray, np.ndarray] | None = None, ahead: np.ndarray | None = None,
+                 buffer: float = BUFFER) -> np.ndarray:
         """The KKT step (B, n) of min 1/2 dx' H dx + gradient' dx subject to the active hard rows (and ``extra``
         rows C dx = r, the reach held below it), H = diag(diag) + jac' jac (or ``diag`` itself when it is a whole
         (B, n, n) Hessian), coordinates in ``fixed`` (B, n) held still.
@@ -261,7 +275,8 @@ class BatchProgram:
             cs.append(extra[0])
             rs.append(extra[1])
         c, r = np.concatenate(cs, axis=1), np.concatenate(rs, axis=1)
-        if diag.ndim == 3:  # a whole Hessian (the lower tasks'): a fixed coordinate's row and column are the identity's times FIXED
+        # a whole Hessian (the lower tasks'): a fixed coordinate's row and column are the identity's times FIXED
+        if diag.ndim == 3:
             dense = np.where(fixed[:, :, None] | fixed[:, None, :], 0.0, diag)
             idx = np.arange(diag.shape[1])
             dense[:, idx, idx] = np.where(fixed, FIXED, dense[:, idx, idx])
@@ -307,7 +322,8 @@ class BatchProgram:
         return np.where(np.isfinite(dx).all(axis=1, keepdims=True), dx, 0.0)  # a singular solve moves nothing
 
     def clamped_step(self, x: np.ndarray, diag: np.ndarray, jac: np.ndarray | None, gradient: np.ndarray, state: State,
-                     radius: np.ndarray, extra: tuple[np.ndarray, np.ndarray] | None = None, buffer: float = BUFFER) -> np.ndarray:
+                     radius: np.ndarray, extra: tuple[np.ndarray, np.ndarray] | None = None,
+                         buffer: float = BUFFER) -> np.ndarray:
         """:meth:`step`, solved again where it would push coordinates past their bounds (held there) or carry
         inactive hard rows past theirs (made active): an active set of one look ahead."""
         fixed = np.zeros(x.shape, bool)
@@ -319,11 +335,13 @@ class BatchProgram:
         if again.size:
             sub = state.take(again)
             ex = None if extra is None else (extra[0][again], extra[1][again])
-            dx[again] = self.step(diag[again], None if jac is None else jac[again], gradient[again], sub, over[again], radius[again], ex,
+            dx[again] = self.step(diag[again], None if jac is None else jac[again], gradient[again], sub, over[again],
+                                  radius[again], ex,
                                   ahead[again], buffer)
         return np.clip(x + dx, self.lower_bound, self.upper_bound)
 
-    def reach_step(self, x: np.ndarray, state: State, start: np.ndarray | None, start_weight: np.ndarray, radius: np.ndarray) -> np.ndarray:
+    def reach_step(self, x: np.ndarray, state: State, start: np.ndarray | None, start_weight: np.ndarray,
+                   radius: np.ndarray) -> np.ndarray:
         """One Gauss-Newton iteration of every posture towards its goal (reach as objective, hard rows held)."""
         e, je = state.e, state.je
         dist = np.linalg.norm(e, axis=1, keepdims=True)
@@ -347,7 +365,8 @@ class BatchProgram:
         worse)."""
         assert state.hess is not None and state.grad is not None
         # Newton on the whole Hessian, its eigenvalues made positive (the energy and gaze terms couple the joints: on
-        # the diagonal alone the steps overshot and stalled, 8 of 25 whole-body postures 10 % worse liked than fatrop's).
+        # the diagonal alone the steps overshot and stalled, 8 of 25 whole-body postures 10 % worse liked than
+        # fatrop's).
         w, v = np.linalg.eigh(0.5 * (state.hess + np.transpose(state.hess, (0, 2, 1))))
         w = np.abs(w)
         w = w + LOWER_DAMPING * w.mean(axis=1, keepdims=True) + 1e-6
@@ -383,7 +402,8 @@ class _Mapped:
     def __init__(self, f: ca.Function, jit: bool, shapes: list[tuple[int, int]], n: int, np_: int) -> None:
         base = compiled_function(f.name(), f) if jit else f
         self.shapes = shapes
-        self.maps = {size: _Buffers(base.map(f"{f.name()}_map{size}", "serial", size, [], []), size, shapes, n, np_) for size in (SMALL, CHUNK)}
+        self.maps = {size: _Buffers(base.map(f"{f.name()}_map{size}", "serial", size, [], []), size, shapes, n, np_)
+                     for size in (SMALL, CHUNK)}
 
     def __call__(self, x: np.ndarray, p: np.ndarray) -> list[np.ndarray]:
         """Each output (B, rows, cols) at postures x (B, n) and parameters p (B, np)."""
@@ -423,19 +443,27 @@ class _Buffers:
 # -- the search over many starts ------------------------------------------------
 
 WAVE = 2  # a cold goal no start reached (see oracles.ik.engine) gets WAVE x STARTS more random starts
-# Default starts per goal (K): the hint(s), the reference, the ready posture, seeded random ones. Cold goals (no hint, seed 7;
+# Default starts per goal (K): the hint(s), the reference, the ready posture, seeded random ones. Cold goals (no hint,
+# seed 7;
 # docs/results.md, IK engines): K = 4 / 8 / 12 reached 96 / 97 / 97 of 200 arm goals and 46 / 48 / 48 of 100 whole-body
 # ones, at 3.2 / 4.0 / 4.7 and 21.6 / 39.0 / 39.0 ms each: 8 is the fewest that misses none 12 reaches.
 STARTS = 8
 MAX_ITER = 40  # reach iterations
-LOWER_STARTS = 2  # reaching starts of one goal whose lower tasks are refined, the first in start order (the neighbour's posture in a build first)
-LOWER_ITER = 6  # lower-task iterations of a reaching start, each followed by a step back to the goal: 12 took 16.2 ms a warm whole-body goal against 12.8 ms, for a mean preference of 4.92 against 5.08 (fatrop 5.88; session 20)
-REFINE_LOWER_ITER = 24  # ... of a refinement (its budget bounds them): from a stored posture a cell away, 6 left the whole body's lower tasks at twice the preference fatrop's stages reach (tests/test_select.py's handover)
+# reaching starts of one goal whose lower tasks are refined, the first in start order (the neighbour's posture in a
+# build first)
+LOWER_STARTS = 2
+# lower-task iterations of a reaching start, each followed by a step back to the goal: 12 took 16.2 ms a warm whole-body
+# goal against 12.8 ms, for a mean preference of 4.92 against 5.08 (fatrop 5.88; session 20)
+LOWER_ITER = 6
+# ... of a refinement (its budget bounds them): from a stored posture a cell away, 6 left the whole body's lower tasks
+# at twice the preference fatrop's stages reach (tests/test_select.py's handover)
+REFINE_LOWER_ITER = 24
 RESTORE_ITER = 4  # Gauss-Newton steps back to the goal and the hard rows after them, at most
 RANDOM_SPREAD = 0.5  # a floating body's random starts: this share of the way from the reference to a uniform posture
 DECIDES = 1e-3  # [m or rad] a decisive start decides its goal only with its hard rows held this well
 STALL = 0.02  # a start whose distance to the goal shrinks by less than this share in an iteration has stalled
-EXTRA = 2  # iterations the other starts of a goal get once one has reached, to find a better-liked posture (a choice, not tuned)
+# iterations the other starts of a goal get once one has reached, to find a better-liked posture (a choice, not tuned)
+EXTRA = 2
 CONVERGED = 0.1  # share of the tolerance within which a start has reached and stops iterating
 # [m] a goal whose best start ends this near (but does not reach) is polished by the interior-point programs:
 # at the volume's boundary a Gauss-Newton step slows down where fatrop's second derivatives still find the way
@@ -444,7 +472,8 @@ CONVERGED = 0.1  # share of the tolerance within which a start has reached and s
 POLISH_NEAR = 0.1
 WAVE_NEAR = 0.25  # [m] the random wave is for goals the K starts ended this near (farther: outside, as a rule)
 POLISH_FAR = 0.25  # [m] ... or this near, for a cold goal that both waves missed (see oracles.ik.engine)
-POLISHES = 6  # the most fatrop polishes of one goal (its reaching postures that break a lazy task, its nearest, its random starts)
+# the most fatrop polishes of one goal (its reaching postures that break a lazy task, its nearest, its random starts)
+POLISHES = 6
 CONTINUITY = 1.0  # weight of the range-normalised distance to the first hint (the neighbour's posture) in "liked"
 
 
@@ -460,7 +489,8 @@ class Ends(NamedTuple):
 
 
 def run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_of: np.ndarray, tolerance: float,
-               lower: bool, start: np.ndarray | None, deadline: float, stats: dict[str, int], decisive: np.ndarray | None = None,
+               lower: bool, start: np.ndarray | None, deadline: float, stats: dict[str, int],
+                   decisive: np.ndarray | None = None,
                give_up: float = np.inf, lower_iter: int = LOWER_ITER) -> Ends:
     """Iterate every start (B, n) with its parameters (B, np) together (see :class:`Ends`), with ``lower_iter``
     iterations of the lower tasks from a reaching posture.
@@ -469,11 +499,13 @@ def run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_o
     near the goal, see :class:`oracles.ik.search.Search`): when one stalls farther than ``give_up`` [m] from its goal,
     its rows held, the goal's other starts stop there (they ran beside it until then)."""
     with program.threads.limit(limits=1, user_api="blas"):
-        return _run_starts(program, x0, params, goal_of, tolerance, lower, start, deadline, stats, decisive, give_up, lower_iter)
+        return _run_starts(program, x0, params, goal_of, tolerance, lower, start, deadline, stats, decisive, give_up,
+                           lower_iter)
 
 
 def _run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_of: np.ndarray, tolerance: float,
-                lower: bool, start: np.ndarray | None, deadline: float, stats: dict[str, int], decisive: np.ndarray | None,
+                lower: bool, start: np.ndarray | None, deadline: float, stats: dict[str, int],
+                    decisive: np.ndarray | None,
                 give_up: float, lower_iter: int) -> Ends:
     x = x0.copy()
     b = len(x)
@@ -503,8 +535,10 @@ def _run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_
         first = owner[live[done]]
         reached_at[first[reached_at[first] < 0]] = it
         # A start stops when it has reached; when it stalls away from the goal (its distance plus its rows' violation
-        # shrinks by less than STALL of itself in an iteration); or EXTRA iterations after another start of its goal reached.
-        # [m, with rad as m] progress counts the return to the hard rows as well as towards the goal (the lazy ones once guarded)
+        # shrinks by less than STALL of itself in an iteration); or EXTRA iterations after another start of its goal
+        # reached.
+        # [m, with rad as m] progress counts the return to the hard rows as well as towards the goal (the lazy ones once
+        # guarded)
         merit = d + np.where(guarded[live], v, program.violation(state, lazy=False))
         newly = ~guarded[live] & (d <= tolerance) & (state.lazy_violation > HARD_TOL)
         worse = merit > before
@@ -530,7 +564,8 @@ def _run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_
             break
         sub = np.nonzero(keep & ~newly)[0]
         moving = live[sub]
-        x[moving] = program.reach_step(x[moving], state.take(sub), None if starts is None else starts[moving], start_weight[moving],
+        x[moving] = program.reach_step(x[moving], state.take(sub), None if starts is None else starts[moving],
+                                       start_weight[moving],
                                        radius[moving])
         live = live[keep]
     f = np.full(b, np.inf)
@@ -539,7 +574,8 @@ def _run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_
     reached = np.nonzero((dist <= tolerance) & (viol <= HARD_TOL))[0]
     # The lower tasks refine at most LOWER_STARTS reaching starts per goal, the first in the order of the starts
     # (the hint, the reference, the ready posture, then the random ones): the rest keep their reach posture.
-    # (reached is in start order, and a goal's starts are contiguous: a start's rank is its distance from its goal's first.)
+    # (reached is in start order, and a goal's starts are contiguous: a start's rank is its distance from its goal's
+    # first.)
     rank = np.arange(len(reached)) - np.searchsorted(owner[reached], owner[reached], side="left")
     reached = reached[rank < LOWER_STARTS]
     if not reached.size:
@@ -563,11 +599,13 @@ def _run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_
         on = np.nonzero(r_low >= MIN_RADIUS)[0]
         stats["iterations"] = stats.get("iterations", 0) + 2 * int(on.size)
         trial = program.lower_step(y[on], state.take_lower(on), r_low[on])
-        trial = program.reach_step(trial, program.evaluate(trial, p_low[on]), None if s_low is None else s_low[on], w_low[on],
+        trial = program.reach_step(trial, program.evaluate(trial, p_low[on]), None if s_low is None else s_low[on],
+                                   w_low[on],
                                    np.full(len(on), MAX_STEP))
         after = program.evaluate(trial, p_low[on], lower=True)
         assert after.f is not None
-        better = (after.f < best[on]) & (np.linalg.norm(after.e, axis=1) <= tolerance) & (program.violation(after) <= 1e-4)
+        better = (after.f < best[on]) & (np.linalg.norm(after.e,
+                                                        axis=1) <= tolerance) & (program.violation(after) <= 1e-4)
         y[on[better]], best[on[better]] = trial[better], after.f[better]
         r_low[on] = np.where(better, np.minimum(MAX_STEP, 1.5 * r_low[on]), 0.5 * r_low[on])
         if better.any():  # state is y's evaluation throughout
@@ -579,10 +617,12 @@ def _run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_
         off = np.nonzero((d > 0.5 * tolerance) | (v > HARD_TOL))[0]
         if not off.size:
             break
-        y[off] = program.reach_step(y[off], state.take(off), None if s_low is None else s_low[off], w_low[off], np.full(len(off), MAX_STEP))
+        y[off] = program.reach_step(y[off], state.take(off), None if s_low is None else s_low[off], w_low[off],
+                                    np.full(len(off), MAX_STEP))
         state = program.evaluate(y, p_low, lower=True)
     d, v = np.linalg.norm(state.e, axis=1), program.violation(state)
-    # The lower tasks never cost the verdict: a start whose lower steps leave the goal or a hard row keeps its reach posture.
+    # The lower tasks never cost the verdict: a start whose lower steps leave the goal or a hard row keeps its reach
+    # posture.
     ok = (d <= 0.5 * tolerance) & (v <= HARD_TOL)
     assert state.f is not None
     x[reached[ok]], dist[reached[ok]], viol[reached[ok]] = y[ok], d[ok], v[ok]

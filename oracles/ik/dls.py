@@ -64,7 +64,8 @@ class DLSIK(IKOracle):
 
     name = "dls"
 
-    def __init__(self, *args: Any, max_iter: int = 150, damping: float = 0.02, max_step: float = 0.3, max_reach_step: float = 0.05, **kwargs: Any) -> None:
+    def __init__(self, *args: Any, max_iter: int = 150, damping: float = 0.02, max_step: float = 0.3,
+                 max_reach_step: float = 0.05, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         self.max_iter, self.damping, self.max_step = int(max_iter), float(damping), float(max_step)
         self.max_reach_step = float(max_reach_step)
@@ -83,7 +84,8 @@ class DLSIK(IKOracle):
         self.unbounded = np.array([model.joints[j].nq == 2 for j in p.joint_ids], dtype=bool)
 
     def engine_params(self) -> dict[str, Any]:
-        return {"max_iter": self.max_iter, "damping": self.damping, "max_step": self.max_step, "max_reach_step": self.max_reach_step}
+        return {"max_iter": self.max_iter, "damping": self.damping, "max_step": self.max_step,
+                "max_reach_step": self.max_reach_step}
 
     def _levels(self, q: np.ndarray, goal: np.ndarray, soft: int, call: Call) -> tuple[list[Row], int]:
         """The (jacobian, error) of the hard level and the first soft levels at q, columns restricted to x,
@@ -116,7 +118,8 @@ class DLSIK(IKOracle):
                 proj = proj - span.T @ span
         return dq
 
-    def _iterate(self, q: np.ndarray, goal: np.ndarray, soft: int, max_iter: int, call: Call, tol: float | None = None) -> np.ndarray:
+    def _iterate(self, q: np.ndarray, goal: np.ndarray, soft: int, max_iter: int, call: Call,
+                 tol: float | None = None) -> np.ndarray:
         """Iterate the stack truncated after the first soft levels until its rows are within ``tol`` [m or rad]
         (default: 5 % of the reach tolerance); returns q."""
         model = self.body.model
@@ -154,12 +157,14 @@ class DLSIK(IKOracle):
         pin.framesForwardKinematics(model, data, q)
         goal = data.oMf[self.problem.effector_id].translation.copy()
         # Rows closed well within the contacts' own checks (0.1 mm, 1 mrad): a frame 0.1 mm off is held, not kept.
-        return self._iterate(np.array(q if start is None else start, float), goal, self.reach_level + 1, max_iter, NO_CALL, tol=HELD)
+        return self._iterate(np.array(q if start is None else start, float), goal, self.reach_level + 1, max_iter,
+                             NO_CALL, tol=HELD)
 
     def solve(self, goal: np.ndarray, x0: np.ndarray, lower: bool = True, call: Call = NO_CALL) -> np.ndarray:
         """Lexicographic like casadi-ik: first the tasks down to reach, then the lower ones."""
         q = self._iterate(self.problem.q_of_x(x0), goal, self.reach_level + 1, self.max_iter, call)
-        if lower and self.search.secondary and len(self.soft) > self.reach_level + 1 and self.problem.check(q, goal, self._data, call.target).reachable:
+        if (lower and self.search.secondary and len(self.soft) > self.reach_level + 1
+            and self.problem.check(q, goal, self._data, call.target).reachable):
             refined = self._iterate(q.copy(), goal, len(self.soft), self.max_iter // 3, call)
             if self.problem.check(refined, goal, self._data, call.target).reachable:
                 q = refined  # the lower tasks never cost the verdict

@@ -99,7 +99,8 @@ class _Programs:
 
     stages: list[ca.Function] = field(default_factory=list)
     cut_stages: list[ca.Function] = field(default_factory=list)  # the same with cut rows, built on the first cut
-    settling: dict[int, ca.Function] = field(default_factory=dict)  # the settled reach stage (see Search.settle), by cut slots
+    # the settled reach stage (see Search.settle), by cut slots
+    settling: dict[int, ca.Function] = field(default_factory=dict)
     bounds: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)  # row bounds by number of cut slots
     objectives: list[ca.Function] = field(default_factory=list)  # each stage's measure, at (x, params)
 
@@ -135,16 +136,20 @@ class CasadiIK(IKOracle):
     # batched steps stop once progress stalls (5 mm short below configs/examples/arm7_table.yaml's table).
     extreme_params: ClassVar[dict[str, Any]] = {"solver": "fatrop"}
 
-    def __init__(self, *args: Any, max_iter: int = 60, solver: str = "batch", jit: bool | str = False, secondary_iter: int = 15,
+    def __init__(self, *args: Any, max_iter: int = 60, solver: str = "batch", jit: bool | str = False,
+                 secondary_iter: int = 15,
                  starts: int = STARTS, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         if solver not in SOLVERS:
-            raise OracleError(f"solver must be one of {sorted(SOLVERS)}, got {solver!r}", oracle=self.name, key="solver")
+            raise OracleError(f"solver must be one of {sorted(SOLVERS)}, got {solver!r}", oracle=self.name,
+                              key="solver")
         if jit not in (True, False, "auto"):
             raise OracleError(f"jit must be true, false or 'auto', got {jit!r}", oracle=self.name, key="jit")
         if isinstance(starts, bool) or not isinstance(starts, int) or not 1 <= starts <= 256:
-            raise OracleError(f"starts must be a whole number from 1 to 256, got {starts!r}", oracle=self.name, key="starts")
-        self.max_iter, self.solver, self.secondary_iter, self.starts_per_goal = int(max_iter), solver, int(secondary_iter), starts
+            raise OracleError(f"starts must be a whole number from 1 to 256, got {starts!r}", oracle=self.name,
+                              key="starts")
+        self.max_iter, self.solver, self.secondary_iter, self.starts_per_goal = (int(max_iter), solver,
+            int(secondary_iter), starts)
         self.lower_iter = LOWER_ITER  # the batched engine's lower-task iterations (more in a refinement: tune)
         self._batch_cache: dict[tuple[Any, ...], BatchProgram] = {}  # shared with variants, as the programs are
         self._set_jit(jit)
@@ -155,12 +160,14 @@ class CasadiIK(IKOracle):
     def _set_jit(self, jit: bool | str) -> None:
         has_compiler = shutil.which(COMPILER) is not None
         if jit is True and not has_compiler:
-            raise OracleError(f"jit needs the C compiler {COMPILER} on the PATH; install it or set jit: false", oracle=self.name, key="jit")
+            raise OracleError(f"jit needs the C compiler {COMPILER} on the PATH; install it or set jit: false",
+                              oracle=self.name, key="jit")
         self.jit_asked = jit
         self.jit = jit is True or (jit == "auto" and has_compiler)
 
     def engine_params(self) -> dict[str, Any]:
-        out = {"max_iter": self.max_iter, "solver": self.solver, "jit": self.jit_asked, "secondary_iter": self.secondary_iter}
+        out = {"max_iter": self.max_iter, "solver": self.solver, "jit": self.jit_asked,
+               "secondary_iter": self.secondary_iter}
         return {**out, "starts": self.starts_per_goal} if self.solver == "batch" else out
 
     @property
@@ -194,7 +201,8 @@ class CasadiIK(IKOracle):
     @property
     def programs(self) -> _Programs:
         """The programs of this oracle's engine options (those a variant with the same options shares)."""
-        key = (self.nlp_solver, self.jit_asked, self.max_iter, self.secondary_iter, len(self.order), self.search.settle > 0,
+        key = (self.nlp_solver, self.jit_asked, self.max_iter, self.secondary_iter, len(self.order),
+               self.search.settle > 0,
                self.search.max_seconds if self.nlp_solver == "ipopt" else None)
         found = self._cache.get(key)
         if found is None:
@@ -222,10 +230,12 @@ class CasadiIK(IKOracle):
             nlp = {"x": x, "p": ca.vertcat(params, ca.vec(cut)), "f": task.objective(sym), "g": ca.vertcat(g, *earlier)}
             iters = self.max_iter if k == 0 else self.secondary_iter
             solver = self.nlp_solver
-            stages.append(self._nlpsol(f"stage_{task.type}{'_cut' if slots else ''}", solver, nlp, self._options(solver, iters)))
+            stages.append(self._nlpsol(f"stage_{task.type}{'_cut' if slots else ''}", solver, nlp,
+                                       self._options(solver, iters)))
             if k == 0 and self.search.settle > 0 and solver == "fatrop":
                 opts = {**self._options(solver, iters), "fatrop.mu_init": SETTLE_MU}
-                programs.settling[slots] = self._nlpsol(f"stage_{task.type}_settle{'_cut' if slots else ''}", solver, nlp, opts)
+                programs.settling[slots] = self._nlpsol(f"stage_{task.type}_settle{'_cut' if slots else ''}", solver,
+                                                        nlp, opts)
         programs.objectives = [ca.Function(t.type, [x, params], [t.measure(sym)]) for t in order]
         return stages
 
@@ -234,7 +244,8 @@ class CasadiIK(IKOracle):
         p = self.problem
         goal, start, weight = ca.SX.sym("goal", 3), ca.SX.sym("start", p.nx), ca.SX.sym("start_weight", 1)
         target = ca.SX.sym("target", self.strategy.target_size)
-        sym = Symbolic(SymbolicKinematics(self.body.model, p.q_sym), p.x_sym, goal, p.x_ref, p.upper - p.lower, tuple(p.x_names), p.lower, start,
+        sym = Symbolic(SymbolicKinematics(self.body.model, p.q_sym), p.x_sym, goal, p.x_ref, p.upper - p.lower,
+                       tuple(p.x_names), p.lower, start,
                        weight, self.strategy.target_dict(target))
         return sym, ca.vertcat(goal, start, weight, target)
 
@@ -245,7 +256,8 @@ class CasadiIK(IKOracle):
             except RuntimeError as exc:
                 reason = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
                 if self.jit_asked is True:
-                    raise OracleError(f"jit compilation with {COMPILER} failed ({reason}); set jit: false", oracle=self.name, key="jit") from exc
+                    raise OracleError(f"jit compilation with {COMPILER} failed ({reason}); set jit: false",
+                                      oracle=self.name, key="jit") from exc
                 warnings.warn(f"casadi-ik: jit compilation failed, using CasADi's interpreter ({reason})", stacklevel=2)
                 self.jit = False
         return ca.nlpsol(name, solver, nlp, opts)
@@ -255,18 +267,22 @@ class CasadiIK(IKOracle):
             # No structure detection: the problem is one stage, not an
             # optimal-control horizon. A small initial barrier parameter suits
             # warm starts, which most build solves are (docs/history.md).
-            return {"print_time": 0, "structure_detection": "none", "fatrop.print_level": 0, "fatrop.tol": 1e-6, "fatrop.mu_init": 1e-4, "fatrop.max_iter": max_iter}
+            return {"print_time": 0, "structure_detection": "none", "fatrop.print_level": 0, "fatrop.tol": 1e-6,
+                    "fatrop.mu_init": 1e-4, "fatrop.max_iter": max_iter}
         seconds = self.search.max_seconds
         budget = {"ipopt.max_wall_time": seconds} if seconds else {}
-        return {**budget, "print_time": 0, "ipopt.print_level": 0, "ipopt.sb": "yes", "ipopt.max_iter": max_iter, "ipopt.tol": 1e-6, "ipopt.acceptable_tol": 1e-4}
+        return {**budget, "print_time": 0, "ipopt.print_level": 0, "ipopt.sb": "yes", "ipopt.max_iter": max_iter,
+                "ipopt.tol": 1e-6, "ipopt.acceptable_tol": 1e-4}
 
-    def _stage(self, k: int, x: np.ndarray, params: np.ndarray, optimum: list[float], cuts: _Cuts | None, settled: bool = False) -> np.ndarray | None:
+    def _stage(self, k: int, x: np.ndarray, params: np.ndarray, optimum: list[float], cuts: _Cuts | None,
+               settled: bool = False) -> np.ndarray | None:
         """Stage k's solution from x (settled: the reach stage of a settled start), or None when the solver
         fails or (below the first stage) breaks a constraint."""
         p, programs = self.problem, self.programs
         slots = CUT_SLOTS if cuts is not None else 0
         if cuts is not None and not programs.cut_stages:
-            programs.cut_stages = self._build(programs, CUT_SLOTS)  # on the first collision: many problems never need them
+            # on the first collision: many problems never need them
+            programs.cut_stages = self._build(programs, CUT_SLOTS)
         lbg, ubg = programs.bounds[slots]
         lo, hi = [lbg], [ubg]
         if cuts is not None:
@@ -284,7 +300,8 @@ class CasadiIK(IKOracle):
             if cuts is None:
                 sol = program(x0=x, p=params, lbx=p.lower, ubx=p.upper, lbg=low, ubg=high)
             else:
-                sol = program(x0=x, p=np.concatenate([params, cuts.matrix.ravel(order="F")]), lbx=p.lower, ubx=p.upper, lbg=low, ubg=high)
+                sol = program(x0=x, p=np.concatenate([params, cuts.matrix.ravel(order="F")]), lbx=p.lower,
+                              ubx=p.upper, lbg=low, ubg=high)
         except RuntimeError:
             return None  # a numerical failure of the solver
         if k > 0:
@@ -368,12 +385,15 @@ class CasadiIK(IKOracle):
             reach = self.strategy.reach
             lower = list(soft[soft.index(reach) + 1 :])
             p = self.problem
-            # Named by what the functions depend on (the body, effector, joints and tasks, and the stages kept), not by the
-            # search: a refinement's variant (another budget) shares the build's compiled code on disk (named by the whole
+            # Named by what the functions depend on (the body, effector, joints and tasks, and the stages kept), not by
+            # the
+            # search: a refinement's variant (another budget) shares the build's compiled code on disk (named by the
+            # whole
             # spec, the first `reach query` of each strategy compiled for 30-60 s).
             name = f"batch_{zlib.crc32(repr((self._strategy_params, key[1])).encode()):08x}"
             screened = [c for t in self.strategy.hard for c in t.screened(sym)]
-            found = BatchProgram(sym, params, hard, reach.held(sym), lower, p.lower, p.upper, p.upper - p.lower, self.jit, name, screened)
+            found = BatchProgram(sym, params, hard, reach.held(sym), lower, p.lower, p.upper, p.upper - p.lower,
+                                 self.jit, name, screened)
             self._batch_cache[key] = found
         return found
 
@@ -383,12 +403,14 @@ class CasadiIK(IKOracle):
         twin.solver = "fatrop"
         return twin
 
-    def _evaluate(self, points: np.ndarray, hints: np.ndarray | None, start: np.ndarray | None, targets: np.ndarray | None = None) -> Verdicts:
+    def _evaluate(self, points: np.ndarray, hints: np.ndarray | None, start: np.ndarray | None,
+                  targets: np.ndarray | None = None) -> Verdicts:
         if self.solver != "batch":
             return super()._evaluate(points, hints, start, targets)
         return self._evaluate_batch(points, hints, start, targets)
 
-    def _batch_starts(self, goal: np.ndarray, hint: np.ndarray | None, wave: int = 0, targeted: bool = False) -> list[np.ndarray]:
+    def _batch_starts(self, goal: np.ndarray, hint: np.ndarray | None, wave: int = 0,
+                      targeted: bool = False) -> list[np.ndarray]:
         """A goal's K starts: its hints (the neighbour's posture first), the reference and ready postures, then
         random ones seeded by the search's seed and the goal (the same goal gets the same starts in any batch).
         Wave 1 (see :meth:`_evaluate_batch`): ``WAVE`` times K random ones, of the same seed's next draws."""
@@ -412,7 +434,8 @@ class CasadiIK(IKOracle):
         out += [p.x_ref + spread * (p.random_x(rng) - p.x_ref) for _ in range(count)]
         return out
 
-    def _evaluate_batch(self, points: np.ndarray, hints: np.ndarray | None, start: np.ndarray | None, targets: np.ndarray | None) -> Verdicts:
+    def _evaluate_batch(self, points: np.ndarray, hints: np.ndarray | None, start: np.ndarray | None,
+                        targets: np.ndarray | None) -> Verdicts:
         """Every goal's K starts iterated together by the batched engine (:mod:`oracles.ik.batch`); the verdict is the
         Pinocchio check, in order of how well each reaching posture is liked. A cold goal (no hint, or a search that
         never gives up) that none reaches but some ended within ``WAVE_NEAR`` of gets a second wave of ``WAVE`` x K
@@ -422,7 +445,8 @@ class CasadiIK(IKOracle):
         hints = None if hints is None else np.asarray(hints, float)
         p, search, n = self.problem, self.search, len(pts)
         self.stats["points"] += n
-        residual = np.zeros(n) if p.anchor is None else np.maximum(np.linalg.norm(pts - p.anchor, axis=1) - p.max_reach, 0.0)
+        residual = (np.zeros(n) if p.anchor is None
+                    else np.maximum(np.linalg.norm(pts - p.anchor, axis=1) - p.max_reach, 0.0))
         prefiltered = residual > self.strategy.tolerance
         self.stats["prefiltered"] += int(prefiltered.sum())
         reach = np.zeros(n, bool)
@@ -437,7 +461,8 @@ class CasadiIK(IKOracle):
         # A goal's first start is decisive when it is a hint whose effector lies within `decisive` of the goal.
         decisive = np.zeros(n, bool)
         if first_hint is not None and np.isfinite(search.give_up_distance):
-            decisive[todo] = [hinted[i] and p.effector_distance(first_hint[i], pts[i], self._data) <= search.decisive for i in todo]
+            decisive[todo] = [hinted[i] and p.effector_distance(first_hint[i], pts[i], self._data) <= search.decisive
+                              for i in todo]
         first = np.tile(p.x_ref, (n, 1))  # each goal's first hint, as x: continuity with it is liked
         for i in todo[hinted[todo]]:
             first[i] = p.x_of_q(first_hint[i])  # type: ignore[index]
@@ -456,18 +481,22 @@ class CasadiIK(IKOracle):
             if not goals.size or time.perf_counter() > deadline:
                 continue
             self.stats[f"wave_{wave}"] = self.stats.get(f"wave_{wave}", 0) + int(goals.size)
-            starts = [self._batch_starts(pts[i], None if hints is None else hints[i], int(wave == "random"), targets is not None) for i in goals]
-            run = self._run_wave(pts, goals, starts, start, targets, decisive if wave == "starts" else None, None if hints is None else first,
+            starts = [self._batch_starts(pts[i], None if hints is None else hints[i], int(wave == "random"),
+                                         targets is not None) for i in goals]
+            run = self._run_wave(pts, goals, starts, start, targets, decisive if wave == "starts" else None, None
+                                 if hints is None else first,
                                  deadline)
             runs.append(run)
             self._keep_reaching(run, pts, targets, reach, residual, posture)
-        self._polish_missed(runs, pts, targets, start, deadline, reach, residual, posture, set(np.nonzero(cold)[0].tolist()))
+        self._polish_missed(runs, pts, targets, start, deadline, reach, residual, posture,
+                            set(np.nonzero(cold)[0].tolist()))
         self._unsolved_residuals(pts, residual, posture)
         self.stats["reachable"] += int(reach.sum())
         return Verdicts(reach, residual, posture)
 
     def _run_wave(self, pts: np.ndarray, goals: np.ndarray, starts: list[list[np.ndarray]], start: np.ndarray | None,
-                  targets: np.ndarray | None, decisive: np.ndarray | None, first: np.ndarray | None, deadline: float) -> _Wave:
+                  targets: np.ndarray | None, decisive: np.ndarray | None, first: np.ndarray | None,
+                      deadline: float) -> _Wave:
         """The goals' starts iterated together (:func:`oracles.ik.batch.run_starts`)."""
         p, search = self.problem, self.search
         owner = np.concatenate([np.full(len(s), i) for i, s in zip(goals, starts, strict=True)])
@@ -476,14 +505,17 @@ class CasadiIK(IKOracle):
         b = len(x0)
         self.stats["solves"] += b
         target = np.tile(self._default_target, (b, 1)) if targets is None else targets[owner]
-        params = np.concatenate([pts[owner], x0 if start is None else np.tile(start, (b, 1)), np.full((b, 1), 0.0 if start is None else 1.0),
+        params = np.concatenate([pts[owner], x0 if start is None else np.tile(start, (b, 1)),
+                                 np.full((b, 1), 0.0 if start is None else 1.0),
                                  target], axis=1)
         first_start = None
         if decisive is not None and decisive.any():
             first_start = np.zeros(b, bool)
             first_start[offsets[:-1][decisive[goals]]] = True
-        x, dist, viol, liked, _ = run_starts(self.batch_program(), x0, params, owner, self.strategy.tolerance, search.secondary,
-                                                    start, deadline, self.stats, first_start, search.give_up_distance, self.lower_iter)
+        x, dist, viol, liked, _ = run_starts(self.batch_program(), x0, params, owner, self.strategy.tolerance,
+                                             search.secondary,
+                                                    start, deadline, self.stats, first_start, search.give_up_distance,
+                                                        self.lower_iter)
         span = p.upper - p.lower
         scored = np.isfinite(liked)
         if scored.any():
@@ -492,14 +524,16 @@ class CasadiIK(IKOracle):
             liked = np.where(scored, liked, np.inf)
         else:
             # No lower task (secondary: false): the posture nearest the reference is liked best, as fatrop's reach
-            # stage from the reference keeps it (the nearest to the goal was a random start's crouch, its ankle at a limit).
+            # stage from the reference keeps it (the nearest to the goal was a random start's crouch, its ankle at a
+            # limit).
             liked = np.sum(((x - p.x_ref) / span) ** 2, axis=1)
         if first is not None:
             # Continuity with the neighbour's posture (the first hint) is part of "liked".
             liked = liked + CONTINUITY_WEIGHT * np.sum(((x - first[owner]) / span) ** 2, axis=1)
         return _Wave(goals, offsets, x0, x, p.q_of_x_many(x), dist, viol, liked)
 
-    def _keep_reaching(self, run: _Wave, pts: np.ndarray, targets: np.ndarray | None, reach: np.ndarray, residual: np.ndarray,
+    def _keep_reaching(self, run: _Wave, pts: np.ndarray, targets: np.ndarray | None, reach: np.ndarray,
+                       residual: np.ndarray,
                        posture: np.ndarray) -> None:
         """For each goal of a wave, the best-liked posture that passes the verdict's check; or, when none does and
         none did before, the nearest attempt."""
@@ -523,7 +557,8 @@ class CasadiIK(IKOracle):
             if check.residual < residual[i]:
                 residual[i], posture[i] = check.residual, run.q[r]
 
-    def _polish_missed(self, runs: list[_Wave], pts: np.ndarray, targets: np.ndarray | None, start: np.ndarray | None, deadline: float,
+    def _polish_missed(self, runs: list[_Wave], pts: np.ndarray, targets: np.ndarray | None, start: np.ndarray | None,
+                       deadline: float,
                        reach: np.ndarray, residual: np.ndarray, posture: np.ndarray, far: set[int]) -> None:
         """fatrop from a missed goal's best ends: its reaching postures that break a lazy task, then its random
         starts themselves (fatrop's own restarts: another basin), or a near miss (no start reached) from its
@@ -574,7 +609,8 @@ class CasadiIK(IKOracle):
         x0, goals = x0[ours], self.effector_positions(q[ours])
         b = len(x0)
         params = np.concatenate([goals, x0, np.ones((b, 1)), np.tile(self._default_target, (b, 1))], axis=1)
-        ends = run_starts(self.batch_program(), x0, params, np.arange(b), self.strategy.tolerance, False, x0, deadline, self.stats)
+        ends = run_starts(self.batch_program(), x0, params, np.arange(b), self.strategy.tolerance, False, x0,
+                          deadline, self.stats)
         held = p.q_of_x_many(ends.x)
         # The verdict's own checks decide (a held contact row 0.08 mm off, past the engine's 1e-6, holds by its task's).
         ok = ends.dist <= self.strategy.tolerance

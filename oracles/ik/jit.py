@@ -71,7 +71,8 @@ def _library(name: str, generate: Any) -> Path:
         finally:
             os.chdir(home)
         code = source.read_bytes()
-        key = hashlib.sha256(code + str(ca.CasadiMeta.version()).encode() + " ".join((COMPILER, *FLAGS)).encode()).hexdigest()[:24]
+        key = hashlib.sha256(code + str(ca.CasadiMeta.version()).encode() + " ".join((COMPILER,
+            *FLAGS)).encode()).hexdigest()[:24]
         folder = cache_folder()
         folder.mkdir(parents=True, exist_ok=True)
         library = folder / f"{name}-{key}.so"
@@ -81,7 +82,8 @@ def _library(name: str, generate: Any) -> Path:
                 if not library.exists():
                     built = Path(scratch) / library.name
                     try:
-                        subprocess.run([COMPILER, *FLAGS, str(source), "-o", str(built)], check=True, capture_output=True, text=True)
+                        subprocess.run([COMPILER, *FLAGS, str(source), "-o", str(built)], check=True,
+                                       capture_output=True, text=True)
                     except FileNotFoundError as exc:
                         raise RuntimeError(f"{COMPILER} not found") from exc
                     except subprocess.CalledProcessError as exc:

@@ -32,7 +32,8 @@ from oracles.ik.strategy import parse_strategy
 from oracles.protocol import Ball, Goals, OracleSpec, Purpose, Skeleton, Verdicts, check_points, check_purpose
 from oracles.tasks import ContactsTask, FloorTask, Numeric, ObstaclesTask, OrientationTask
 
-WORLD_FIXED = frozenset({"obstacles", "tether"})  # tasks that hold something fixed in the world, which a turn would move
+# tasks that hold something fixed in the world, which a turn would move
+WORLD_FIXED = frozenset({"obstacles", "tether"})
 TARGET_RESTARTS = 4  # random starts at least, for a goal that carries a target (see IKOracle._evaluate)
 
 
@@ -75,9 +76,11 @@ class IKOracle(ABC):
 
     dim = 3
     name: str  # the registry name
-    extreme_params: ClassVar[dict[str, Any]] = {}  # engine options of reach_extent's probe (it seeks extremes, not postures)
+    # engine options of reach_extent's probe (it seeks extremes, not postures)
+    extreme_params: ClassVar[dict[str, Any]] = {}
 
-    def __init__(self, body: dict[str, Any], effector: str, joints: list[str], tasks: list[dict[str, Any]] | None = None,
+    def __init__(self, body: dict[str, Any], effector: str, joints: list[str],
+                 tasks: list[dict[str, Any]] | None = None,
                  search: Search | None = None) -> None:
         self.search = search if search is not None else Search()
         self._strategy_params: dict[str, Any] = {"body": body, "effector": effector, "joints": joints, "tasks": tasks}
@@ -93,9 +96,11 @@ class IKOracle(ABC):
             self._auto_reference(body, effector, joints, tasks)
         self.stats = _stats()
         self._bones: tuple[Skeleton, tuple[int, ...]] | None = None
-        self._projector: Any = None  # the damped-least-squares twin that holds a posture's hard tasks (built on first use)
+        # the damped-least-squares twin that holds a posture's hard tasks (built on first use)
+        self._projector: Any = None
 
-    def _auto_reference(self, body: dict[str, Any], effector: str, joints: list[str], tasks: list[dict[str, Any]] | None) -> None:
+    def _auto_reference(self, body: dict[str, Any], effector: str, joints: list[str],
+                        tasks: list[dict[str, Any]] | None) -> None:
         """``reference: auto``: the middle of the ranges, moved by damped least squares on this strategy's hard tasks
         (the effector kept where it is) to the nearest posture that holds them all, when the middle breaks one
         (a tool held pointing down, a tether); kept as it is when none is found (``diagnose`` then warns)."""
@@ -103,7 +108,9 @@ class IKOracle(ABC):
         if not self.faults(q[None])[0]:
             return
         # The dls engine by its registry name: it is an IKOracle itself, so importing it here would be a cycle.
-        twin = registry.create("dls", {"body": {**body, "reference": "middle"}, "effector": effector, "joints": joints, "tasks": tasks})
+        twin = registry.create("dls",
+                               {"body": {**body, "reference": "middle"}, "effector": effector, "joints": joints,
+                                "tasks": tasks})
         held = twin.project(q, q)
         if self.faults(held[None])[0]:
             return
@@ -147,7 +154,8 @@ class IKOracle(ABC):
         return Ball(p.anchor.copy(), float(p.max_reach))
 
     def free_turn(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """The first active joint's axis when the volume turns freely about it (see :class:`oracles.protocol.Turning`)."""
+        """The first active joint's axis when the volume turns freely about it (see
+        :class:`oracles.protocol.Turning`)."""
         model, p = self.body.model, self.problem
         if self.strategy.floating or not p.joint_ids or self.body.furniture:
             return None
@@ -195,10 +203,12 @@ class IKOracle(ABC):
     def verify(self, points: np.ndarray, postures: np.ndarray) -> np.ndarray:
         """The verdict's own check (Pinocchio forward kinematics, every hard task) of postures found elsewhere."""
         pts = check_points(points, 3)
-        return np.array([self.problem.check(np.asarray(q, float), g, self._data).reachable for g, q in zip(pts, postures, strict=True)], bool)
+        return np.array([self.problem.check(np.asarray(q, float), g, self._data).reachable
+                         for g, q in zip(pts, postures, strict=True)], bool)
 
     def posture_bounds(self) -> tuple[np.ndarray, np.ndarray]:
-        """The model's joint ranges per posture coordinate; a floating base's position and a continuous joint are unbounded."""
+        """The model's joint ranges per posture coordinate; a floating base's position and a continuous joint are
+        unbounded."""
         model = self.body.model
         lower, upper = model.lowerPositionLimit.astype(float).copy(), model.upperPositionLimit.astype(float).copy()
         for j in range(1, model.njoints):
@@ -271,7 +281,8 @@ class IKOracle(ABC):
         return self._projector
 
     def _project(self, posture: np.ndarray, guess: np.ndarray) -> np.ndarray:
-        """Damped least squares on the hard tasks' rows alone, from guess, pulled towards posture (may still break them)."""
+        """Damped least squares on the hard tasks' rows alone, from guess, pulled towards posture (may still break
+        them)."""
         return np.asarray(self._dls().project(posture, guess))
 
     def reach_extent(self) -> tuple[np.ndarray, np.ndarray] | None:
@@ -354,8 +365,10 @@ class IKOracle(ABC):
         # A start that breaks a hard task is common (one foot's balance from two feet) and the search leaves
         # it; only when the nearest posture holding the hard tasks cannot be found is the volume at risk.
         if broken and self.faults(self._project(q, q)[None])[0]:
-            out.append(f"the reference posture breaks the hard tasks {broken} and no posture near it holds them: every search starts "
-                       "there, so the volume may come out empty; give body.reference (a posture that holds them) or change the tasks")
+            out.append(f"the reference posture breaks the hard tasks {broken} and no posture near it holds them: "
+                       "every search starts "
+                       "there, so the volume may come out empty; give body.reference (a posture that holds them) or "
+                       "change the tasks")
         return out
 
     def variant(self, purpose: Purpose, *, budget: float | None = None, restarts: int = 6) -> IKOracle:
@@ -385,7 +398,8 @@ class IKOracle(ABC):
 
     @abstractmethod
     def solve(self, goal: np.ndarray, x0: np.ndarray, lower: bool = True, call: Call = NO_CALL) -> np.ndarray:
-        """A configuration q that tries to put the effector at goal, starting from x0 (with the lower tasks, or reach alone)."""
+        """A configuration q that tries to put the effector at goal, starting from x0 (with the lower tasks, or reach
+        alone)."""
 
     def preference(self, posture: np.ndarray, goal: np.ndarray, call: Call = NO_CALL) -> float:
         """How much the lower tasks dislike a posture (lower is better; 0 when the engine cannot tell)."""
@@ -421,7 +435,8 @@ class IKOracle(ABC):
         for i in np.nonzero(np.isinf(residual))[0]:
             residual[i] = self.problem.effector_distance(posture[i], pts[i], self._data)
 
-    def starts(self, goal: np.ndarray, hint: np.ndarray | None, call: Call = NO_CALL, restarts: int | None = None) -> list[np.ndarray]:
+    def starts(self, goal: np.ndarray, hint: np.ndarray | None, call: Call = NO_CALL,
+               restarts: int | None = None) -> list[np.ndarray]:
         """Initial postures: the hint(s), the reference, then seeded random ones (``restarts`` of them, the search's by
         default).
 
@@ -461,7 +476,8 @@ class IKOracle(ABC):
             seeds = np.tile(current, (n, 1)) if seeds is None else seeds
         return self._evaluate(g.points, seeds, start, targets)
 
-    def _evaluate(self, points: np.ndarray, hints: np.ndarray | None, start: np.ndarray | None, targets: np.ndarray | None = None) -> Verdicts:
+    def _evaluate(self, points: np.ndarray, hints: np.ndarray | None, start: np.ndarray | None,
+                  targets: np.ndarray | None = None) -> Verdicts:
         """Rounds of solves from each point's next start until it reaches, gives up or runs out of starts
         (each goal held to its targets (N, T), ``Strategy.target_rows``, when given).
 
@@ -478,7 +494,8 @@ class IKOracle(ABC):
         self.stats["prefiltered"] += int(prefiltered.sum())
         reach = np.zeros(n, bool)
         done = np.zeros(n, bool)  # reached, or given up
-        kept: list[Check | None] = [None] * n  # the check of the posture kept so far (a pre-filtered point keeps the reference)
+        # the check of the posture kept so far (a pre-filtered point keeps the reference)
+        kept: list[Check | None] = [None] * n
         posture = np.tile(self.body.q_ref, (n, 1))
         residual[~prefiltered] = np.inf
         # A goal with a target (an orientation) gets random starts even in a refinement: the stored postures it is
@@ -487,7 +504,8 @@ class IKOracle(ABC):
         # (Not the index's search, which gives up and tries no random start: its (vertex, direction) goals, about two
         # thirds of them out of reach, each took four more solves, and arm7_table's index 2.5 times as long.)
         restarts = max(search.restarts, TARGET_RESTARTS) if targets is not None and search.give_up is None else None
-        starts = [self.starts(g, None if hints is None else hints[i], call, restarts) if not prefiltered[i] else [] for i, g in enumerate(pts)]
+        starts = [self.starts(g, None if hints is None else hints[i], call, restarts) if not prefiltered[i] else []
+                  for i, g in enumerate(pts)]
         preferred = np.full(n, np.inf)  # with prefer: the lower tasks' objective of the kept posture
         decisive = np.zeros(n, bool)  # the first start is a warm start from a nearby hint
         settled = np.zeros(n, bool)  # ... so near that it solves the reach stage alone (see Search.settle)
@@ -502,7 +520,8 @@ class IKOracle(ABC):
             todo = np.array([i for i in range(n) if not done[i] and len(starts[i]) > r], dtype=int)
             if todo.size == 0 or time.perf_counter() > call.deadline:
                 break
-            q = self.solve_batch(pts[todo], np.array([starts[i][r] for i in todo]), ~settled[todo] if r == 0 else None, call,
+            q = self.solve_batch(pts[todo], np.array([starts[i][r] for i in todo]), ~settled[todo] if r == 0
+                                 else None, call,
                                  None if targets is None else targets[todo])
             todo = todo[: len(q)]  # the goals solved before the deadline
             self.stats["solves"] += int(todo.size)

@@ -24,7 +24,8 @@ from oracles.ik.strategy import Strategy
 from oracles.tasks import Numeric, Reference
 
 LIMIT_TOL = 1e-6  # [rad or m] joint limit overshoot the verdict accepts
-READY = 0.3  # how far the ready start moves each joint from the reference towards its range's middle (a modelling choice)
+# how far the ready start moves each joint from the reference towards its range's middle (a modelling choice)
+READY = 0.3
 
 
 class Check:
@@ -55,11 +56,13 @@ class Check:
 def _rpy_quat(r: ca.SX, p: ca.SX, y: ca.SX) -> ca.SX:
     """Quaternion (x, y, z, w) of R = Rz(y) Ry(p) Rx(r)."""
     cr, sr, cp, sp, cy, sy = ca.cos(r / 2), ca.sin(r / 2), ca.cos(p / 2), ca.sin(p / 2), ca.cos(y / 2), ca.sin(y / 2)
-    return ca.vertcat(sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy, cr * cp * cy + sr * sp * sy)
+    return ca.vertcat(sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy,
+                      cr * cp * cy + sr * sp * sy)
 
 
 def _compose(a: np.ndarray, b: ca.SX) -> ca.SX:
-    """Quaternion (x, y, z, w) of the rotation a then b in a's frame (a b), a constant; b itself when a is the identity."""
+    """Quaternion (x, y, z, w) of the rotation a then b in a's frame (a b), a constant; b itself when a is the
+    identity."""
     if np.allclose(a, [0.0, 0.0, 0.0, 1.0]):
         return b
     ax, ay, az, aw = (float(v) for v in a)
@@ -92,7 +95,8 @@ class ReachProblem:
             j = body.joint_id(name)
             jm = model.joints[j]
             if jm.nv != 1:
-                raise ModelError(f"joint {name!r} has {jm.nv} degrees of freedom; only the root and one-axis joints can be active", source=body.source)
+                raise ModelError(f"joint {name!r} has {jm.nv} degrees of freedom; only the root and one-axis joints "
+                                 "can be active", source=body.source)
             self.joint_ids.append(j)
             self.x_names.append(name)
             limited.append(jm.nq == 1)
@@ -276,15 +280,18 @@ class ReachProblem:
     # -- the verdict -------------------------------------------------------
     def within_limits(self, q: np.ndarray) -> bool:
         model = self.body.model
-        return bool(np.all(q[7:] >= model.lowerPositionLimit[7:] - LIMIT_TOL) and np.all(q[7:] <= model.upperPositionLimit[7:] + LIMIT_TOL))
+        return bool(np.all(q[7:] >= model.lowerPositionLimit[7:] - LIMIT_TOL)
+                    and np.all(q[7:] <= model.upperPositionLimit[7:] + LIMIT_TOL))
 
     def out_of_limits(self, q: np.ndarray) -> list[str]:
         """The posture coordinates of q outside their ranges (beyond the verdict's tolerance), by name."""
         model = self.body.model
-        bad = np.nonzero((q[7:] < model.lowerPositionLimit[7:] - LIMIT_TOL) | (q[7:] > model.upperPositionLimit[7:] + LIMIT_TOL))[0]
+        bad = np.nonzero((q[7:] < model.lowerPositionLimit[7:] - LIMIT_TOL)
+                         | (q[7:] > model.upperPositionLimit[7:] + LIMIT_TOL))[0]
         return [self.body.q_names[7 + k] for k in bad] if bad.size else []
 
-    def check(self, q: np.ndarray, goal: np.ndarray, data: pin.Data | None = None, target: np.ndarray | None = None) -> Check:
+    def check(self, q: np.ndarray, goal: np.ndarray, data: pin.Data | None = None,
+              target: np.ndarray | None = None) -> Check:
         """Independent Pinocchio check of a posture: each task's own check, and the joint limits (target: the
         goal's task targets, a row of ``Strategy.target_rows``, when it carries any)."""
         model = self.body.model

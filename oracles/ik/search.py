@@ -60,7 +60,8 @@ class Search:
         for name in ("restarts", "seed", "rescues"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or (name != "seed" and value < 0):
-                raise OracleError(f"{name} must be a whole number{'' if name == 'seed' else ' >= 0'}, got {value!r}", key=name)
+                raise OracleError(f"{name} must be a whole number{'' if name == 'seed' else ' >= 0'}, got {value!r}",
+                                  key=name)
         for name in ("give_up", "decisive", "settle", "max_seconds"):
             value = getattr(self, name)
             if value is None and name in ("give_up", "max_seconds"):
@@ -80,7 +81,8 @@ class Search:
     def split(cls, params: dict[str, Any]) -> tuple[Search, dict[str, Any]]:
         """The Search named by a flat params mapping, and the params left for the engine."""
         names = {f.name for f in dataclasses.fields(cls)}
-        return cls(**{k: v for k, v in params.items() if k in names}), {k: v for k, v in params.items() if k not in names}
+        return cls(**{k: v for k, v in params.items() if k in names}), {k: v for k, v in params.items()
+            if k not in names}
 
     def to_params(self) -> dict[str, Any]:
         """The flat params this Search is written as in a spec."""
@@ -97,9 +99,11 @@ class Search:
         goal solves the reach stage alone (see :mod:`reach.maps.index`).
         """
         if purpose == "index":
-            return dataclasses.replace(self, restarts=0, give_up=0.0, rescues=0, decisive=max(self.decisive, NEAR_HINT), secondary=False,
+            return dataclasses.replace(self, restarts=0, give_up=0.0, rescues=0,
+                                       decisive=max(self.decisive, NEAR_HINT), secondary=False,
                                        prefer=False, reference_first=False, settle=max(self.settle, INDEX_SETTLE))
         if purpose == "refine":
             return dataclasses.replace(self, restarts=0, give_up=None, secondary=True, max_seconds=budget, prefer=True,
                                        reference_first=True, settle=0.0)
-        return dataclasses.replace(self, restarts=max(self.restarts, int(restarts)), give_up=None, secondary=False, settle=0.0)
+        return dataclasses.replace(self, restarts=max(self.restarts, int(restarts)), give_up=None, secondary=False,
+                                   settle=0.0)

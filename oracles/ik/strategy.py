@@ -150,7 +150,8 @@ def parse_task(raw: Any, where: str, scope: Scope) -> Task:
     cls = TASKS[raw["type"]]
     unknown = set(raw) - cls.allowed_keys()
     if unknown:
-        raise TaskError(where, f"unknown keys {sorted(unknown)} for a {cls.type} task; allowed: {sorted(cls.allowed_keys())}")
+        raise TaskError(where, f"unknown keys {sorted(unknown)} for a {cls.type} task; allowed: "
+                               f"{sorted(cls.allowed_keys())}")
     return cls.parse(raw, where, scope)
 
 

@@ -42,7 +42,8 @@ class BalanceTask(HardTask):
 
     type: ClassVar[str] = "balance"
     keys: ClassVar[frozenset[str]] = frozenset({"margin", "support"})
-    summary: ClassVar[str] = "the centre of mass's ground projection inside the support polygon of the feet, shrunk by `margin` [m]"
+    summary: ClassVar[str] = ("the centre of mass's ground projection inside the support polygon of the feet, shrunk "
+                              "by `margin` [m]")
 
     margin: float = 0.02
     polygon_frames: tuple[str, ...] = ()
@@ -58,7 +59,9 @@ class BalanceTask(HardTask):
     def resolve(self, tasks: Sequence[Task], where: str) -> BalanceTask:
         support = self.polygon_frames or tuple(dict.fromkeys(f for t in tasks for f in t.support))
         if len(set(support)) < 3:
-            raise TaskError(where, f"balance needs a support polygon of 3 frames or more, got {list(dict.fromkeys(support))}: give the feet task soles (each foot's corner frames; "
+            raise TaskError(where, "balance needs a support polygon of 3 frames or more, got "
+                                   f"{list(dict.fromkeys(support))}: give the feet task soles (each foot's corner "
+                                   "frames; "
                                   "add them with the body's frames), a contacts task's support, or balance.support")
         return replace(self, polygon_frames=support)
 
@@ -79,7 +82,8 @@ class BalanceTask(HardTask):
         jcom = pin.jacobianCenterOfMass(num.model, num.data, num.q, False)[:2, num.columns]
         com = num.data.com[0][:2]
         viol = self.polygon[:, :2] @ com + self.polygon[:, 2]
-        return [Row(self.polygon[row, None, :2] @ jcom, np.array([min(0.0, -viol[row] - INSIDE)])) for row in np.nonzero(viol > -BUFFER)[0]]
+        return [Row(self.polygon[row, None, :2] @ jcom, np.array([min(0.0, -viol[row] - INSIDE)]))
+                for row in np.nonzero(viol > -BUFFER)[0]]
 
     def holds(self, num: Numeric) -> bool:
         com = pin.centerOfMass(num.model, num.data, num.q, False)

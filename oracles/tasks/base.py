@@ -74,7 +74,8 @@ class Cut(NamedTuple):
 
 def rows_of_cuts(cuts: Sequence[Cut]) -> list[Row]:
     """The ``dls`` rows of a lazy task: each cut within ``BUFFER`` of its bound, pushed ``INSIDE`` it."""
-    return [Row(c.jacobian[None], np.array([max(0.0, c.need + INSIDE - c.gap)])) for c in cuts if c.gap < c.need + BUFFER]
+    return [Row(c.jacobian[None], np.array([max(0.0, c.need + INSIDE - c.gap)])) for c in cuts
+            if c.gap < c.need + BUFFER]
 
 
 @dataclass(frozen=True)
@@ -146,7 +147,8 @@ class Numeric:
     q: np.ndarray
     goal: np.ndarray
     jacobian: Callable[[int], np.ndarray] | None = None
-    joint_jacobian: Callable[[int], np.ndarray] | None = None  # a joint's (6, n_x) Jacobian at its origin, world-aligned
+    # a joint's (6, n_x) Jacobian at its origin, world-aligned
+    joint_jacobian: Callable[[int], np.ndarray] | None = None
     columns: np.ndarray | None = None  # velocity indices of x's coordinates
     joint_columns: np.ndarray | None = None  # positions within x of the joint coordinates
     joint_q: np.ndarray | None = None  # configuration indices of those joints
@@ -156,7 +158,8 @@ class Numeric:
     span: np.ndarray | None = None
     start: np.ndarray | None = None  # the character's current posture as x, when a query gives one
     start_weight: float = 0.0
-    targets: Mapping[str, np.ndarray] = field(default_factory=dict)  # the goal's targets by key (Task.target_key), as parameters
+    # the goal's targets by key (Task.target_key), as parameters
+    targets: Mapping[str, np.ndarray] = field(default_factory=dict)
 
     def frame(self, frame_id: int) -> pin.SE3:
         return self.data.oMf[frame_id]
@@ -289,11 +292,13 @@ class Task(ABC):
         """The independent check of the verdict, on Pinocchio's evaluation of a posture."""
 
     def describe(self) -> dict[str, Any]:
-        """What ``reach model`` prints of the task (JSON-compatible); its ``text``, when given, is the line it prints."""
+        """What ``reach model`` prints of the task (JSON-compatible); its ``text``, when given, is the line it
+        prints."""
         return {"type": self.type, "hard": self.hard}
 
     def warnings(self) -> list[str]:
-        """What the task, bound to the reference posture, finds suspect there (one sentence each; see ``IKOracle.diagnose``)."""
+        """What the task, bound to the reference posture, finds suspect there (one sentence each; see
+        ``IKOracle.diagnose``)."""
         return []
 
 
@@ -339,7 +344,8 @@ class HardTask(Task):
         return []
 
     def limit_slacks(self, q: np.ndarray) -> dict[str, float]:
-        """How far [rad or m] configuration q keeps from each joint limit this task sets, by the limit's name (none: empty)."""
+        """How far [rad or m] configuration q keeps from each joint limit this task sets, by the limit's name (none:
+        empty)."""
         return {}
 
 
@@ -389,7 +395,8 @@ class SoftTask(Task):
     @property
     def free(self) -> float:
         """The objective's level at or below which the task asks nothing more: later stages may spend up to it (-inf:
-        every bit of the optimum is kept). The batched engine weighs only the excess over it (:mod:`oracles.ik.batch`)."""
+        every bit of the optimum is kept). The batched engine weighs only the excess over it
+        (:mod:`oracles.ik.batch`)."""
         return -math.inf
 
     def attained(self, optimum: float) -> bool:

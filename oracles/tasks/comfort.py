@@ -44,7 +44,8 @@ class ComfortTask(SoftTask):
         return self.weight * ca.sumsqr((sym.x - sym.x_ref) / sym.span) / max(nx, 1)
 
     def level(self, num: Numeric) -> Row:
-        assert num.columns is not None and num.joint_columns is not None and num.joint_q is not None and num.x_ref is not None
+        assert (num.columns is not None and num.joint_columns is not None and num.joint_q is not None
+                and num.x_ref is not None)
         select = np.zeros((num.joint_columns.size, num.columns.size))
         select[np.arange(num.joint_columns.size), num.joint_columns] = 1.0
         return Row(DLS_GAIN * select, DLS_GAIN * (num.x_ref[num.joint_columns] - num.q[num.joint_q]))

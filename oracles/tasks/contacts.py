@@ -94,7 +94,8 @@ class ContactsTask(HardTask):
             out.append(Constraint(pos - ref.translation.reshape(3, 1), 0.0, 0.0))
             if c.mode == "fixed":
                 rel = ca.SX(ref.rotation.T) @ rot
-                out.append(Constraint(ca.vertcat(rel[2, 1] - rel[1, 2], rel[0, 2] - rel[2, 0], rel[1, 0] - rel[0, 1]), 0.0, 0.0))
+                out.append(Constraint(ca.vertcat(rel[2, 1] - rel[1, 2], rel[0, 2] - rel[2, 0], rel[1, 0] - rel[0, 1]),
+                                      0.0, 0.0))
             else:
                 b1, b2 = perpendicular_basis(ref.rotation @ np.asarray(c.axis))
                 w = rot @ ca.SX(np.asarray(c.axis))

@@ -79,7 +79,8 @@ from oracles.tasks.base import BUFFER, INSIDE, Constraint, HardTask, Numeric, Ro
 LIMIT_TOL = 1e-6  # [rad] overshoot the verdict accepts
 HAMSTRINGS = {"joint": "*_hip_flexion", "by": "*_knee_flexion", "limit": math.radians(80.0), "slope": 40.0 / 90.0}
 # Calibrated on the 50th-percentile man (see the module docstring).
-LUMBOPELVIC = {"joint": ["*_hip_flexion", "lumbar_flexion"], "by": "*_knee_flexion", "limit": math.radians(90.0), "slope": 1.0}
+LUMBOPELVIC = {"joint": ["*_hip_flexion", "lumbar_flexion"], "by": "*_knee_flexion", "limit": math.radians(90.0),
+               "slope": 1.0}
 # A modelling choice against the Euler sequence's second cover (see the module docstring).
 SHOULDER = {"joint": "*_shoulder_abduction", "by": "*_shoulder_flexion", "limit": math.pi, "slope": 2.0}
 DEFAULT_RULES = [HAMSTRINGS, LUMBOPELVIC, SHOULDER]
@@ -109,8 +110,8 @@ class CouplingTask(HardTask):
     type: ClassVar[str] = "coupling"
     keys: ClassVar[frozenset[str]] = frozenset({"rules"})
     summary: ClassVar[str] = ("coupled joint limits, sum(q[joints]) <= limit + slope q[by]; by default the hamstrings' "
-                               "(hip flexion 80 deg, hip + lumbar flexion 90 deg, with the knee straight) and the shoulder's "
-                               "(abduction <= 180 deg + 2 flexion: no extended arm swung up past the side)")
+                               "(hip flexion 80 deg, hip + lumbar flexion 90 deg, with the knee straight) and the "
+                               "shoulder's (abduction <= 180 deg + 2 flexion: no extended arm swung up past the side)")
 
     rules: tuple[Rule, ...] = ()
 
@@ -129,7 +130,9 @@ class CouplingTask(HardTask):
             if isinstance(summed, str):
                 summed = [summed]
             if not ok or not isinstance(summed, list) or not summed or not all(isinstance(n, str) for n in summed):
-                raise TaskError(here, f"expected {{joint: name or [names, summed], by: name, limit: rad, slope: number}}, got {r!r}")
+                raise TaskError(here, "expected "
+                                      f"{{joint: name or [names, summed], by: name, limit: rad, slope: number}}, got "
+                                      f"{r!r}")
             limit = number(r["limit"], f"{here}.limit", -4 * math.pi, 4 * math.pi)
             slope = number(r["slope"], f"{here}.slope", -10.0, 10.0)
             hits = matching(names, summed[0])
@@ -140,11 +143,13 @@ class CouplingTask(HardTask):
                 side = joint[: len(joint) - len(summed[0]) + 1] if summed[0].startswith("*") else ""
                 group = [joint, *(n.replace("*", side, 1) for n in summed[1:])]
                 by = r["by"].replace("*", side, 1) if "*" in r["by"] else r["by"]
-                missing = [(n, field) for n, field in [*((n, "joint") for n in group[1:]), (by, "by")] if n not in names]
+                missing = [(n, field) for n, field in [*((n, "joint") for n in group[1:]), (by, "by")]
+                           if n not in names]
                 if missing and "rules" not in raw:
                     continue  # a default rule about joints this body lacks
                 if missing:
-                    raise TaskError(f"{here}.{missing[0][1]}", f"{scope.body.source}: no joint {missing[0][0]!r} pairs with {joint!r}")
+                    raise TaskError(f"{here}.{missing[0][1]}", f"{scope.body.source}: no joint {missing[0][0]!r} "
+                                                               f"pairs with {joint!r}")
                 if not any(n in scope.active for n in (*group, by)):
                     continue  # nothing moves: the reference posture decides, once and for all
                 iq = tuple(int(model.joints[model.getJointId(n)].idx_q) for n in group)
@@ -179,6 +184,9 @@ class CouplingTask(HardTask):
         return all(sum(num.q[i] for i in r.iq) - r.slope * num.q[r.iby] <= r.limit + LIMIT_TOL for r in self.rules)
 
     def describe(self) -> dict[str, Any]:
-        rules = "; ".join(f"{' + '.join(r.joints)} <= {r.limit:.4f} {'-' if r.slope < 0 else '+'} {abs(r.slope):.4f} x {r.by}" for r in self.rules)
-        return {**super().describe(), "rules": [{"joints": list(r.joints), "by": r.by, "limit": r.limit, "slope": r.slope} for r in self.rules],
+        rules = "; ".join(f"{' + '.join(r.joints)} <= {r.limit:.4f} {'-' if r.slope < 0 else '+'} {abs(r.slope):.4f} "
+                          f"x {r.by}" for r in self.rules)
+        return {**super().describe(),
+                "rules": [{"joints": list(r.joints), "by": r.by, "limit": r.limit, "slope": r.slope}
+                          for r in self.rules],
                 **({"text": f"coupled limits [rad]: {rules}"} if self.rules else {})}

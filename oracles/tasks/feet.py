@@ -43,7 +43,8 @@ class FeetTask(ContactsTask):
 
     type: ClassVar[str] = "feet"
     keys: ClassVar[frozenset[str]] = frozenset({"frames", "heels", "support", "soles"})
-    summary: ClassVar[str] = "feet held flat where they stand (`heels: down`), or on their balls, pivoting, heels at z >= 0 (`heels: rise`)"
+    summary: ClassVar[str] = ("feet held flat where they stand (`heels: down`), or on their balls, pivoting, heels at "
+                              "z >= 0 (`heels: rise`)")
 
     bare: tuple[str, ...] = ()  # feet with no sole corners: each stands on its own frame alone
 
@@ -55,13 +56,15 @@ class FeetTask(ContactsTask):
             raise TaskError(f"{where}.heels", f"expected 'down' or 'rise', got {heels!r}")
         soles = raw.get("soles", {})
         if not isinstance(soles, dict) or set(soles) - set(feet):
-            raise TaskError(f"{where}.soles", f"expected a mapping of foot frame (one of {list(feet)}) to its corner frames, got {soles!r}")
+            raise TaskError(f"{where}.soles", f"expected a mapping of foot frame (one of {list(feet)}) to its corner "
+                                              f"frames, got {soles!r}")
         contacts, above, support, bare = [], [], [], []
         for f in feet:
             if f in soles:
                 corners = list(frames(scope, soles[f], f"{where}.soles.{f}"))
                 if len(set(corners)) < 3:
-                    raise TaskError(f"{where}.soles.{f}", f"expected 3 corner frames or more (a polygon), got {corners!r}")
+                    raise TaskError(f"{where}.soles.{f}", "expected 3 corner frames or more (a polygon), got "
+                                                          f"{corners!r}")
             else:
                 corners = _side_frames(scope, f, DOWN_SUPPORT if heels == "down" else RISE_SUPPORT)
                 bare += [f] if corners == [f] else []
@@ -79,6 +82,7 @@ class FeetTask(ContactsTask):
         return replace(task, bare=tuple(bare))
 
     def warnings(self) -> list[str]:
-        return [f"foot {f!r} has no sole corners (no frames named as the feet task's docs say, no soles.{f}): it stands on its own "
-                f"frame alone, a point, and balance has no polygon from it; give soles: {{{f}: [corner frames]}}"
+        return [f"foot {f!r} has no sole corners (no frames named as the feet task's docs say, no soles.{f}): it "
+                "stands on its own frame alone, a point, and balance has no polygon from it; give soles: "
+                f"{{{f}: [corner frames]}}"
                 for f in self.bare]

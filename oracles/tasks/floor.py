@@ -61,7 +61,8 @@ class FloorTask(HardTask):
 
     capsules: tuple[int, ...] = ()
     eager: tuple[int, ...] = ()  # the effector's capsules: constraint rows, not cuts
-    standing: bool = False  # no exclude given: the segments that hold the strategy's contacts stand on the floor (see resolve)
+    # no exclude given: the segments that hold the strategy's contacts stand on the floor (see resolve)
+    standing: bool = False
     _model: CollisionModel | None = field(default=None, repr=False, compare=False)
 
     @classmethod
@@ -74,9 +75,11 @@ class FloorTask(HardTask):
             skip = set(model.names(exclude))
         except Exception as exc:
             raise TaskError(f"{where}.exclude", str(exc)) from exc
-        keep = [i for i, p in enumerate(model.placed) if p.name not in skip and moved(scope.body.model, p.joint, scope.active)]
+        keep = [i for i, p in enumerate(model.placed) if p.name not in skip
+                and moved(scope.body.model, p.joint, scope.active)]
         effector = int(scope.body.model.frames[scope.body.frame_id(scope.effector)].parentJoint)
-        return cls(tuple(keep), tuple(i for i in keep if model.placed[i].joint == effector), "exclude" not in raw, scope.body.collision)
+        return cls(tuple(keep), tuple(i for i in keep if model.placed[i].joint == effector), "exclude" not in raw,
+                   scope.body.collision)
 
     def resolve(self, tasks: Sequence[Task], where: str) -> FloorTask:
         """Without ``exclude``, the capsules on the segments holding a contacts or feet task's frames (a robot's
@@ -126,9 +129,11 @@ class FloorTask(HardTask):
             p = self._model.placed[i]
             for end in self._model.world(num.data, i):
                 if end[2] - p.radius < BUFFER:
-                    out.append(Row(num.point_jacobian(p.joint, end)[2:3], np.array([max(0.0, p.radius + INSIDE - end[2])])))
+                    out.append(Row(num.point_jacobian(p.joint, end)[2:3],
+                                   np.array([max(0.0, p.radius + INSIDE - end[2])])))
         return out
 
     def holds(self, num: Numeric) -> bool:
         assert self._model is not None
-        return all(min(e[2] for e in self._model.world(num.data, i)) - self._model.placed[i].radius >= -CONTACT_TOL for i in self.capsules)
+        return all(min(e[2] for e in self._model.world(num.data, i)) - self._model.placed[i].radius >= -CONTACT_TOL
+                   for i in self.capsules)

@@ -41,7 +41,9 @@ import numpy as np
 from oracles.tasks.base import Numeric, Reference, Row, Scope, SoftTask, Symbolic, frame, number
 
 CONE = 15.0  # [deg] the eyes' easy rotation (MIL-STD-1472; see the module docstring)
-DOWN = 15.0  # [deg] the line of sight below the head's x axis (Kroemer & Hill 1986: 29 +- 11.6 deg preferred; see the module docstring)
+# [deg] the line of sight below the head's x axis (Kroemer & Hill 1986: 29 +- 11.6 deg preferred; see the module
+# docstring)
+DOWN = 15.0
 
 
 @dataclass
@@ -50,10 +52,11 @@ class GazeTask(SoftTask):
 
     type: ClassVar[str] = "gaze"
     keys: ClassVar[frozenset[str]] = frozenset({"frame", "cone", "down"})
-    summary: ClassVar[str] = ("the line of sight of `frame` (default the `eyes`: its x axis turned `down` deg, default 15) within `cone` deg "
-                              "(default 15: the eyes' easy rotation) of the goal")
+    summary: ClassVar[str] = ("the line of sight of `frame` (default the `eyes`: its x axis turned `down` deg, "
+                              "default 15) within `cone` deg (default 15: the eyes' easy rotation) of the goal")
     default_priority: ClassVar[int] = 2
-    slack: ClassVar[float] = 1e-4  # [1 - cos of the gaze error]: about 0.8 deg beyond the cone (or from a perfect aim with none)
+    # [1 - cos of the gaze error]: about 0.8 deg beyond the cone (or from a perfect aim with none)
+    slack: ClassVar[float] = 1e-4
 
     frame: str
     priority: float = 2.0
@@ -65,10 +68,12 @@ class GazeTask(SoftTask):
     def parse(cls, raw: dict[str, Any], where: str, scope: Scope) -> GazeTask:
         cone = number(raw.get("cone", CONE), f"{where}.cone", 0.0, 60.0)
         down = number(raw.get("down", DOWN), f"{where}.down", -45.0, 60.0)
-        return cls(frame(scope, raw.get("frame", "eyes"), f"{where}.frame"), cls.priority_of(raw, where), math.radians(cone), math.radians(down))
+        return cls(frame(scope, raw.get("frame", "eyes"), f"{where}.frame"), cls.priority_of(raw, where),
+                   math.radians(cone), math.radians(down))
 
     def describe(self) -> dict[str, Any]:
-        return {**super().describe(), "frame": self.frame, "cone_deg": round(math.degrees(self.cone), 3), "down_deg": round(math.degrees(self.down), 3)}
+        return {**super().describe(), "frame": self.frame, "cone_deg": round(math.degrees(self.cone), 3),
+                "down_deg": round(math.degrees(self.down), 3)}
 
     @property
     def sight(self) -> np.ndarray:
@@ -97,4 +102,5 @@ class GazeTask(SoftTask):
         # Turn the line of sight towards the goal by what the cone leaves over (nothing inside it).
         axis = np.cross(d, u)
         scale = max(angle - self.cone, 0.0) / angle if angle > 1e-9 else 0.0
-        return Row(num.jacobian(self._id)[3:], axis / (np.linalg.norm(axis) + 1e-12) * angle * scale if scale else np.zeros(3))
+        return Row(num.jacobian(self._id)[3:], axis / (np.linalg.norm(axis) + 1e-12) * angle * scale if scale
+                   else np.zeros(3))

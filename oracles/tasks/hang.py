@@ -59,7 +59,8 @@ class HangTask(HardTask):
 
     type: ClassVar[str] = "hang"
     keys: ClassVar[frozenset[str]] = frozenset({"frames", "cone"})
-    summary: ClassVar[str] = ("an idle arm hangs: each of `frames` below the one before, within `cone` deg (default 45) of "
+    summary: ClassVar[str] = ("an idle arm hangs: each of `frames` below the one before, within `cone` deg (default "
+                              "45) of "
                                "straight down; by default the human's arms that do not reach")
 
     chains: tuple[tuple[str, ...], ...] = ()
@@ -72,12 +73,14 @@ class HangTask(HardTask):
         if "frames" in raw:
             chain = frames(scope, raw["frames"], f"{where}.frames")
             if len(chain) < 2:
-                raise TaskError(f"{where}.frames", f"expected at least two frames (a chain, top first), got {list(chain)!r}")
+                raise TaskError(f"{where}.frames", "expected at least two frames (a chain, top first), got "
+                                                   f"{list(chain)!r}")
             return cls((chain,), cone)
         model = scope.body.model
         arms = [tuple(n.format(side=side) for n in HUMAN_ARM) for side in ("left", "right")]
         if not any(all(model.existFrame(n) for n in arm) for arm in arms):
-            raise TaskError(f"{where}.frames", f"{scope.body.source}: no human arm ({', '.join(HUMAN_ARM)}) to hang by default; "
+            raise TaskError(f"{where}.frames", f"{scope.body.source}: no human arm ({', '.join(HUMAN_ARM)}) to hang "
+                                               "by default; "
                             "give the chain's frames, top first")
         chains = []
         for chain in arms:
@@ -125,4 +128,5 @@ class HangTask(HardTask):
         return all(self._slack(num, a, b)[0] >= -HOLD_TOL for a, b in self._links())
 
     def describe(self) -> dict[str, Any]:
-        return {**super().describe(), "chains": [list(c) for c in self.chains], "cone_deg": round(math.degrees(self.cone), 3)}
+        return {**super().describe(), "chains": [list(c) for c in self.chains],
+                "cone_deg": round(math.degrees(self.cone), 3)}

@@ -1,11 +1,13 @@
-"""Static boxes in the world: ``{type: obstacles, boxes: [{min: [x, y, z], max: [x, y, z], rpy: [r, p, y]}], margin: 0.01}``.
+"""Static boxes in the world: ``{type: obstacles, boxes: [{min: [x, y, z], max: [x, y, z], rpy: [r, p, y]}], margin:
+0.01}``.
 
 A table, a wall, a shelf: boxes [m] in the world frame (axis-aligned, or
 turned about their centre by ``rpy`` [rad]), and the body's own furniture
 (a seated body's seat, :mod:`oracles.bodies.seat`: ``boxes`` may then be left out), that
 every collision capsule moved by an active joint keeps ``margin`` [m] away
 from (spheres along the capsule's axis kept out of the box grown by their
-radius; a lazy task, see :class:`~oracles.tasks.base.HardTask`). A capsule already closer at the reference posture (a robot's base
+radius; a lazy task, see :class:`~oracles.tasks.base.HardTask`). A capsule already closer at the reference posture (a
+robot's base
 link on its table) keeps its reference clearance instead. The verdict is
 coal's distance between the capsules and the boxes.
 """
@@ -56,7 +58,8 @@ class ObstaclesTask(HardTask):
     type: ClassVar[str] = "obstacles"
     lazy: ClassVar[bool] = True
     keys: ClassVar[frozenset[str]] = frozenset({"boxes", "margin"})
-    summary: ClassVar[str] = "every moving segment `margin` [m] (default 1 cm) away from static `boxes` (a table, a wall, a shelf) and the body's seat"
+    summary: ClassVar[str] = ("every moving segment `margin` [m] (default 1 cm) away from static `boxes` (a table, "
+                              "a wall, a shelf) and the body's seat")
 
     boxes: tuple[Box, ...] = ()
     margin: float = MARGIN
@@ -90,7 +93,8 @@ class ObstaclesTask(HardTask):
     def bind(self, reference: Reference) -> None:
         self._model = reference.body.collision
 
-    def distance(self, model: CollisionModel, q: np.ndarray, capsule: int, box: int, data: pin.Data | None = None) -> float:
+    def distance(self, model: CollisionModel, q: np.ndarray, capsule: int, box: int,
+                 data: pin.Data | None = None) -> float:
         """Coal's distance [m] between a capsule at q and a box (``data``: joint placements at q already computed)."""
         if data is None:
             data = model.model.createData()

@@ -50,7 +50,8 @@ def _vector(value: Any, where: str) -> np.ndarray:
     """A unit vector from an axis name (``x``, ``-z``, ...) or three numbers."""
     if isinstance(value, str) and value in AXES:
         return np.array(AXES[value])
-    if (isinstance(value, list) and len(value) == 3 and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
+    if (isinstance(value, list) and len(value) == 3
+        and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
             and np.all(np.isfinite(value)) and np.linalg.norm(value) > 1e-9):
         v = np.asarray(value, float)
         return v / np.linalg.norm(v)  # type: ignore[no-any-return]
@@ -59,7 +60,8 @@ def _vector(value: Any, where: str) -> np.ndarray:
 
 def rotation_to(axis: np.ndarray, direction: np.ndarray) -> np.ndarray:
     """The least rotation (3, 3) taking unit ``axis`` onto unit ``direction``."""
-    return np.asarray(pin.Quaternion.FromTwoVectors(np.asarray(axis, float), np.asarray(direction, float)).toRotationMatrix())
+    return np.asarray(pin.Quaternion.FromTwoVectors(np.asarray(axis, float),
+                                                    np.asarray(direction, float)).toRotationMatrix())
 
 
 @dataclass
@@ -72,9 +74,10 @@ class OrientationTask(HardTask):
     target_key: ClassVar[str | None] = "orientation"
     target_size: ClassVar[int] = 10
     keys: ClassVar[frozenset[str]] = frozenset({"axis", "direction", "cone", "rpy", "tolerance"})
-    summary: ClassVar[str] = ("the effector's `axis` (its frame; `x`, `-z` or [x, y, z]) within `cone` deg (default 5) of the world "
-                              "`direction`, or its rotation within `tolerance` deg of `rpy` [rad]; without `direction`/`rpy`, only a "
-                              "goal's orientation (a query's, the reachability index's) is held")
+    summary: ClassVar[str] = ("the effector's `axis` (its frame; `x`, `-z` or [x, y, z]) within `cone` deg (default "
+                              "5) of the world `direction`, or its rotation within `tolerance` deg of `rpy` [rad]; "
+                              "without `direction`/`rpy`, only a goal's orientation (a query's, the reachability "
+                              "index's) is held")
 
     effector: str
     axis: np.ndarray | None  # unit, in the effector's frame (axis form); None: the full form
@@ -87,9 +90,11 @@ class OrientationTask(HardTask):
         if "axis" in raw:
             for bad in ("rpy", "tolerance"):
                 if bad in raw:
-                    raise TaskError(f"{where}.{bad}", "an axis form takes axis, direction and cone; give rpy and tolerance without axis")
+                    raise TaskError(f"{where}.{bad}", "an axis form takes axis, direction and cone; give rpy and "
+                                                      "tolerance without axis")
             axis = _vector(raw["axis"], f"{where}.axis")
-            target = None if "direction" not in raw else rotation_to(axis, _vector(raw["direction"], f"{where}.direction"))
+            target = (None if "direction" not in raw
+                      else rotation_to(axis, _vector(raw["direction"], f"{where}.direction")))
             cone = number(raw.get("cone", LIMIT), f"{where}.cone", 0.5, 90.0)
             return cls(scope.effector, axis, target, math.radians(cone))
         for bad in ("direction", "cone"):
@@ -98,7 +103,8 @@ class OrientationTask(HardTask):
         target = None
         if "rpy" in raw:
             rpy = raw["rpy"]
-            if not (isinstance(rpy, list) and len(rpy) == 3 and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in rpy)):
+            if not (isinstance(rpy, list) and len(rpy) == 3
+                    and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in rpy)):
                 raise TaskError(f"{where}.rpy", f"expected [roll, pitch, yaw] [rad], got {rpy!r}")
             target = np.asarray(pin.rpy.rpyToMatrix(*(float(v) for v in rpy)))
         tolerance = number(raw.get("tolerance", LIMIT), f"{where}.tolerance", 0.5, 90.0)
@@ -117,7 +123,8 @@ class OrientationTask(HardTask):
         if direction is None:
             raise ValueError("give a direction or a rotation")
         if self.axis is None:
-            raise ValueError("this strategy's orientation task holds a full orientation (rpy); give a quaternion, not a direction")
+            raise ValueError("this strategy's orientation task holds a full orientation (rpy); give a quaternion, "
+                             "not a direction")
         d = np.asarray(direction, float)
         return rotation_to(self.axis, d / np.linalg.norm(d))
 
@@ -127,7 +134,8 @@ class OrientationTask(HardTask):
 
     def targets(self, raw: np.ndarray | None, n: int) -> np.ndarray:
         """Goals' orientations, (n, 3) world directions of the axis or (n, 3, 3) effector rotations (None: the
-        configured one, or none for a free task), as the programs' parameters: rotation (column-major) and 1 (0: none)."""
+        configured one, or none for a free task), as the programs' parameters: rotation (column-major) and 1 (0:
+        none)."""
         if raw is None:
             aims, on = np.tile(self.default_aim(), (n, 1, 1)), float(not self.free)
         elif raw.shape == (n, 3):
@@ -135,18 +143,21 @@ class OrientationTask(HardTask):
                 raise ValueError("directions must be finite and not zero")
             aims, on = np.array([self.aim(direction=d) for d in raw]).reshape(n, 3, 3), 1.0
         elif raw.shape == (n, 3, 3):
-            if not np.all(np.isfinite(raw)) or np.abs(np.einsum("nij,nkj->nik", raw, raw) - np.eye(3)).max(initial=0.0) > 1e-6:
+            if (not np.all(np.isfinite(raw))
+                or np.abs(np.einsum("nij,nkj->nik", raw, raw) - np.eye(3)).max(initial=0.0) > 1e-6):
                 raise ValueError("rotations must be orthonormal 3 x 3 matrices")
             aims, on = raw, 1.0
         else:
-            raise ValueError(f"orientations have shape {raw.shape}, expected ({n}, 3) directions or ({n}, 3, 3) rotations")
+            raise ValueError(f"orientations have shape {raw.shape}, expected ({n}, 3) directions or ({n}, 3, 3) "
+                             "rotations")
         return np.concatenate([np.transpose(aims, (0, 2, 1)).reshape(n, 9), np.full((n, 1), on)], axis=1)
 
     def bind(self, reference: Reference) -> None:
         self._id = reference.body.frame_id(self.effector)
 
     def describe(self) -> dict[str, Any]:
-        out = {**super().describe(), "form": "axis" if self.axis is not None else "full", "limit_deg": round(math.degrees(self.limit), 3),
+        out = {**super().describe(), "form": "axis" if self.axis is not None else "full",
+               "limit_deg": round(math.degrees(self.limit), 3),
                "free": self.free}
         if self.axis is not None:
             out["axis"] = self.axis.round(6).tolist()
@@ -168,7 +179,9 @@ class OrientationTask(HardTask):
     def constraints(self, sym: Symbolic) -> list[Constraint]:
         target = sym.targets[self.type]
         rot = sym.kin.frame(self.effector)[0]
-        return [Constraint(self._cosine(rot, ca.reshape(target[:9], 3, 3)) - math.cos(self.limit) + OFF * (1.0 - target[9]), 0.0, np.inf)]
+        return [Constraint(self._cosine(rot,
+                                        ca.reshape(target[:9], 3,
+                                                   3)) - math.cos(self.limit) + OFF * (1.0 - target[9]), 0.0, np.inf)]
 
     def _aim_of(self, num: Numeric) -> np.ndarray | None:
         """The rotation the posture is held to: the goal's, else the configured one (None: nothing applies)."""
@@ -197,7 +210,8 @@ class OrientationTask(HardTask):
             now, want = rot @ self.axis, aim @ self.axis
             turn = np.cross(now, want)
             norm = np.linalg.norm(turn)
-            turn = turn / norm if norm > 1e-12 else np.cross(now, [1.0, 0.0, 0.0] if abs(now[0]) < 0.9 else [0.0, 1.0, 0.0])
+            turn = turn / norm if norm > 1e-12 else np.cross(now, [1.0, 0.0, 0.0] if abs(now[0]) < 0.9
+                                                             else [0.0, 1.0, 0.0])
         else:
             log = pin.log3(aim @ rot.T)  # world-frame rotation vector from the effector's rotation to the aim
             turn = log / max(np.linalg.norm(log), 1e-12)

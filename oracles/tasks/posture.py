@@ -64,7 +64,8 @@ WEIGHTS: dict[str, float] = {
     "root_roll": 3.0, "root_pitch": 3.0, "root_yaw": 1.0, "root_x": 0.0, "root_y": 0.0, "root_z": 0.0,
 }
 ENERGY_SCALE = 0.1  # [m] a segment's rise that costs as much as its mass share
-ENERGY = 5.0  # default weight of the energy term: an idle arm left at 60 deg from hanging costs ten times its shoulder's displacement
+# default weight of the energy term: an idle arm left at 60 deg from hanging costs ten times its shoulder's displacement
+ENERGY = 5.0
 # Default weight of the displacement from the character's current posture: a
 # 10 deg change of one joint then costs about as much as a 3 cm rise of the
 # forearm, so that 1-cm goal steps move the joints by degrees, not tens of them
@@ -80,8 +81,9 @@ class PostureTask(SoftTask):
 
     type: ClassVar[str] = "posture"
     keys: ClassVar[frozenset[str]] = frozenset({"weights", "energy", "limits", "start"})
-    summary: ClassVar[str] = ("a natural posture: weighted joint displacement, the energy of lifting segments, discomfort near joint limits, "
-                              "and nearness to the character's current posture (`weights`, `energy`, `limits`, `start`)")
+    summary: ClassVar[str] = ("a natural posture: weighted joint displacement, the energy of lifting segments, "
+                              "discomfort near joint limits, and nearness to the character's current posture "
+                              "(`weights`, `energy`, `limits`, `start`)")
     default_priority: ClassVar[int] = 3
     slack: ClassVar[float] = 1e-6
 
@@ -90,7 +92,8 @@ class PostureTask(SoftTask):
     limits: float = 1.0
     start: float = START
     priority: float = 3.0
-    _segments: list[tuple[int, np.ndarray, float, int, float]] = field(default_factory=list, init=False, repr=False, compare=False)
+    _segments: list[tuple[int, np.ndarray, float, int, float]] = field(default_factory=list, init=False, repr=False,
+        compare=False)
 
     @classmethod
     def parse(cls, raw: dict[str, Any], where: str, scope: Scope) -> PostureTask:
@@ -142,7 +145,8 @@ class PostureTask(SoftTask):
                 rises.append(share * (0.5 * (rise + ca.sqrt(rise**2 + 1e-4))) ** 2)
             f += self.energy * ca.sum1(ca.vertcat(*rises))
         if self.limits > 0 and sym.lower is not None:
-            joint = np.array([not n.startswith("root_") for n in sym.names]) if sym.names else np.ones(sym.x.numel(), bool)
+            joint = (np.array([not n.startswith("root_") for n in sym.names]) if sym.names
+                     else np.ones(sym.x.numel(), bool))
             mid = sym.lower + 0.5 * sym.span
             dist = (sym.x - mid) / (0.5 * sym.span)
             f += self.limits * ca.dot(ca.SX(joint.astype(float)), dist**LIMIT_POWER) / max(int(joint.sum()), 1)
@@ -153,7 +157,8 @@ class PostureTask(SoftTask):
     def level(self, num: Numeric) -> Row:
         # dls approximates the task by its displacement terms: a pull towards the
         # neutral posture (and the start, when given), weighted per joint.
-        assert num.columns is not None and num.joint_columns is not None and num.joint_q is not None and num.x_ref is not None
+        assert (num.columns is not None and num.joint_columns is not None and num.joint_q is not None
+                and num.x_ref is not None)
         target = num.x_ref[num.joint_columns]
         if num.start is not None and num.start_weight > 0:
             a = self.start * num.start_weight

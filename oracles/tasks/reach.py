@@ -40,7 +40,8 @@ class ReachTask(SoftTask):
 
     @classmethod
     def parse(cls, raw: dict[str, Any], where: str, scope: Scope) -> ReachTask:
-        return cls(scope.effector, number(raw.get("tolerance", TOLERANCE), f"{where}.tolerance", 1e-6, 1.0), cls.priority_of(raw, where))
+        return cls(scope.effector, number(raw.get("tolerance", TOLERANCE), f"{where}.tolerance", 1e-6, 1.0),
+                   cls.priority_of(raw, where))
 
     def bind(self, reference: Reference) -> None:
         self._id = reference.body.frame_id(self.effector)

@@ -110,7 +110,8 @@ def _keep_out(scope: Scope, model: CollisionModel, pairs: list[Pair]) -> tuple[i
     out = set()
     for pair in pairs:
         for e, other in ((pair.first, pair.second), (pair.second, pair.first)):
-            if depth.get(e, -1.0) > 0 and pair.floor > -depth[e] and not moved(pm, model.placed[other].joint, scope.active):
+            if (depth.get(e, -1.0) > 0 and pair.floor > -depth[e]
+                and not moved(pm, model.placed[other].joint, scope.active)):
                 out.add(other)
     return tuple(sorted(out))
 
@@ -122,11 +123,13 @@ class SelfCollisionTask(HardTask):
     type: ClassVar[str] = "self_collision"
     lazy: ClassVar[bool] = True
     keys: ClassVar[frozenset[str]] = frozenset({"margin", "exclude", "only"})
-    summary: ClassVar[str] = "no two non-adjacent segments' capsules closer than `margin` [m] (default 1 cm); `exclude` more pairs"
+    summary: ClassVar[str] = ("no two non-adjacent segments' capsules closer than `margin` [m] (default 1 cm); "
+                              "`exclude` more pairs")
 
     margin: float = MARGIN
     pairs: tuple[Pair, ...] = ()
-    at_reference: tuple[tuple[str, str, float], ...] = ()  # pairs closer than the margin at the reference: names, distance [m]
+    # pairs closer than the margin at the reference: names, distance [m]
+    at_reference: tuple[tuple[str, str, float], ...] = ()
     static: tuple[int, ...] = ()  # capsules that no active joint moves and the effector may not enter (see keep_out)
     tissue: bool = False  # capsules of flesh (the generated human), whose contacts at rest are by design
     _model: CollisionModel | None = field(default=None, repr=False, compare=False)
@@ -142,7 +145,8 @@ class SelfCollisionTask(HardTask):
             raise TaskError(where, f"{scope.body.source}: the body has no collision geometry")
         excluded: set[frozenset[str]] = set()
         exclude = raw.get("exclude", [])
-        if not isinstance(exclude, list) or not all(isinstance(e, list) and len(e) == 2 and all(isinstance(n, str) for n in e) for e in exclude):
+        if not isinstance(exclude, list) or not all(isinstance(e, list) and len(e) == 2
+                                                    and all(isinstance(n, str) for n in e) for e in exclude):
             raise TaskError(f"{where}.exclude", f"expected a list of [capsule, capsule] pairs, got {exclude!r}")
         try:
             for a, b in exclude:
@@ -174,8 +178,10 @@ class SelfCollisionTask(HardTask):
             clearance = margin if d >= margin else float(d)
             if d < margin:
                 close.append((model.placed[i].name, model.placed[j].name, round(float(d), 4)))
-            pairs.append(Pair(i, j, clearance, clearance - CHECK_TOL if d >= margin else min(0.0, clearance) - CONTACT_GIVE))
-        return cls(margin, tuple(pairs), tuple(close), _keep_out(scope, model, pairs), scope.body.anthropometry is not None)
+            pairs.append(Pair(i, j, clearance, clearance - CHECK_TOL if d >= margin
+                              else min(0.0, clearance) - CONTACT_GIVE))
+        return cls(margin, tuple(pairs), tuple(close), _keep_out(scope, model, pairs),
+                   scope.body.anthropometry is not None)
 
     def bind(self, reference: Reference) -> None:
         self._model = reference.body.collision
@@ -191,7 +197,8 @@ class SelfCollisionTask(HardTask):
             "pairs": [[names[p.first], names[p.second]] for p in self.pairs] if names else len(self.pairs),
             "at_reference": [{"pair": [a, b], "distance": d} for a, b, d in self.at_reference],
             "keep_out": [names[i] for i in self.static] if names else len(self.static),
-            "text": f"{len(self.pairs)} pairs checked; closer than the margin at the reference (keep that clearance): {close or 'none'}",
+            "text": f"{len(self.pairs)} pairs checked; closer than the margin at the reference (keep that "
+                    f"clearance): {close or 'none'}",
         }
 
     def warnings(self) -> list[str]:
@@ -200,15 +207,16 @@ class SelfCollisionTask(HardTask):
         # itself, and the pair then keeps that overlap as its clearance.
         if self.tissue:
             return []
-        return [f"capsules {a} and {b} overlap by {-d * 1000:.0f} mm at the reference posture; the pair keeps that clearance instead "
-                f"of the margin: give body.reference where they are apart, or exclude [{a}, {b}]"
+        return [f"capsules {a} and {b} overlap by {-d * 1000:.0f} mm at the reference posture; the pair keeps that "
+                f"clearance instead of the margin: give body.reference where they are apart, or exclude [{a}, {b}]"
                 for a, b, d in self.at_reference if d < -CONTACT_GIVE]
 
     def constraints(self, sym: Symbolic) -> list[Constraint]:
         return []  # lazy: see cuts
 
     def screened(self, sym: Symbolic) -> list[Constraint]:
-        """Every pair's distance less its radii, at least its clearance (:func:`oracles.bodies.collision.segment_gap`)."""
+        """Every pair's distance less its radii, at least its clearance
+        (:func:`oracles.bodies.collision.segment_gap`)."""
         assert self._model is not None
         ends = {}
         out = []
@@ -216,7 +224,8 @@ class SelfCollisionTask(HardTask):
             for i in (pair.first, pair.second):
                 if i not in ends:
                     p = self._model.placed[i]
-                    ends[i] = (world_point(sym, p.joint, p.a), world_point(sym, p.joint, p.b), float(np.sum((np.subtract(p.b, p.a)) ** 2)))
+                    ends[i] = (world_point(sym, p.joint, p.a), world_point(sym, p.joint, p.b),
+                               float(np.sum((np.subtract(p.b, p.a)) ** 2)))
             (pa, pb, aa), (qa, qb, ee) = ends[pair.first], ends[pair.second]
             radii = self._model.placed[pair.first].radius + self._model.placed[pair.second].radius
             gap, frozen = segment_gap(pa, pb, qa, qb, aa, ee)
@@ -251,7 +260,8 @@ class SelfCollisionTask(HardTask):
             # Crossing axes (gap = -radii) have no nearest direction: push along the first capsule's normal.
             n = ps - po if np.linalg.norm(ps - po) > 1e-9 else np.cross(pb - pa, qb - qa)
             n = n / max(float(np.linalg.norm(n)), 1e-12)
-            out.append(Cut(n @ (num.point_jacobian(s.joint, ps) - num.point_jacobian(o.joint, po)), float(gap), pair.clearance))
+            out.append(Cut(n @ (num.point_jacobian(s.joint, ps) - num.point_jacobian(o.joint, po)), float(gap),
+                           pair.clearance))
         return out
 
     def rows(self, num: Numeric) -> list[Row]:

@@ -42,8 +42,8 @@ class TetherTask(HardTask):
 
     type: ClassVar[str] = "tether"
     keys: ClassVar[frozenset[str]] = frozenset({"anchor", "frames", "slack"})
-    summary: ClassVar[str] = ("a locked belt: `frames` stay within their reference distance of `anchor` [m] plus `slack` [m] "
-                              "(default 2 cm)")
+    summary: ClassVar[str] = ("a locked belt: `frames` stay within their reference distance of `anchor` [m] plus "
+                              "`slack` [m] (default 2 cm)")
 
     anchor: tuple[float, float, float] = (0.0, 0.0, 0.0)
     held: tuple[str, ...] = ()
@@ -56,15 +56,18 @@ class TetherTask(HardTask):
         anchor = raw.get("anchor")
         if (not isinstance(anchor, list) or len(anchor) != 3
                 or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) for v in anchor)):
-            raise TaskError(f"{where}.anchor", f"expected [x, y, z] in metres (the belt's anchor, world frame), got {anchor!r}")
+            raise TaskError(f"{where}.anchor", "expected [x, y, z] in metres (the belt's anchor, world frame), got "
+                                               f"{anchor!r}")
         if "frames" not in raw:
             raise TaskError(f"{where}.frames", "expected the frames the belt holds (e.g. [sternum, left_shoulder])")
         held = tuple(f for f in frames(scope, raw["frames"], f"{where}.frames") if scope.moves(f))
-        return cls(tuple(float(v) for v in anchor), held, number(raw.get("slack", 0.02), f"{where}.slack", 0.0, 0.5))  # type: ignore[arg-type]
+        point = tuple(float(v) for v in anchor)
+        return cls(point, held, number(raw.get("slack", 0.02), f"{where}.slack", 0.0, 0.5))  # type: ignore[arg-type]
 
     def bind(self, reference: Reference) -> None:
         a = np.asarray(self.anchor)
-        self._length = {f: float(np.linalg.norm(reference.placement(f).translation - a)) + self.slack for f in self.held}
+        self._length = {f: float(np.linalg.norm(reference.placement(f).translation - a)) + self.slack
+                        for f in self.held}
         self._ids = {f: reference.body.frame_id(f) for f in self.held}
 
     def constraints(self, sym: Symbolic) -> list[Constraint]:
@@ -87,5 +90,6 @@ class TetherTask(HardTask):
         return out
 
     def holds(self, num: Numeric) -> bool:
-        return all(float(np.linalg.norm(num.frame(self._ids[f]).translation - np.asarray(self.anchor))) <= self._length[f] + TETHER_TOL
+        return all(float(np.linalg.norm(num.frame(self._ids[f]).translation - np.asarray(self.anchor)))
+                   <= self._length[f] + TETHER_TOL
                    for f in self.held)

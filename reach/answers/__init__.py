@@ -1,1 +1,2 @@
-"""Answers from maps: which strategy reaches a goal and how (select), placements, target evaluations and audits against the oracle."""
+"""Answers from maps: which strategy reaches a goal and how (select), placements, target evaluations and audits
+against the oracle."""

@@ -141,10 +141,12 @@ def audit_tree(tree: VATree, referee: Oracle | Executor, samples: int = 300, pol
     for k in (INNER, FINAL, OUTER):
         m = kind == k
         out["by_type"][KIND_NAMES[k]] = {"probes": int(m.sum()), "volume": tree.volume(k),
-                                         "false_reachable": _rate(~truth[m], said[m]), "false_unreachable": _rate(truth[m], ~said[m])}
+                                         "false_reachable": _rate(~truth[m], said[m]),
+                                             "false_unreachable": _rate(truth[m], ~said[m])}
     for d in np.unique(depth):
         m = depth == d
-        out["by_depth"][str(int(d))] = {"probes": int(m.sum()), "false_reachable": _rate(~truth[m], said[m]), "false_unreachable": _rate(truth[m], ~said[m])}
+        out["by_depth"][str(int(d))] = {"probes": int(m.sum()), "false_reachable": _rate(~truth[m], said[m]),
+                                        "false_unreachable": _rate(truth[m], ~said[m])}
     fr, fr_ci = _stratified(kind, said, ~truth & said, tree)
     fu, fu_ci = _stratified(kind, ~said, truth & ~said, tree)
     out.update(false_reachable=fr, false_unreachable=fu, false_reachable_ci95=fr_ci, false_unreachable_ci95=fu_ci,
@@ -167,7 +169,8 @@ def _judge(tree: VATree, referee: Oracle | Executor, points: np.ndarray) -> np.n
     return np.asarray(referee.evaluate(Goals(points, seeds=warm_hints(tree.vertices, tree.lattice, points))).reachable)
 
 
-def audit_surface(tree: VATree, referee: Oracle | Executor, n: int, policy: Policy, rng: np.random.Generator) -> dict[str, Any]:
+def audit_surface(tree: VATree, referee: Oracle | Executor, n: int, policy: Policy,
+                  rng: np.random.Generator) -> dict[str, Any]:
     """Probes just inside and just outside the tree's surface: on lattice edges (at every vertex spacing) whose ends the
     tree labels differently, a quarter of the edge from the reachable end and from the unreachable one."""
     v, lat = tree.vertices, tree.lattice
@@ -194,8 +197,10 @@ def audit_surface(tree: VATree, referee: Oracle | Executor, n: int, policy: Poli
     said, truth = tree.contains(pts, policy), _judge(tree, referee, pts)
     near = np.repeat([True, False], n)
     return {"edges": int(len(edges)), "probes": int(len(pts)),
-            "inside": {"false_reachable": _rate(~truth[near], said[near]), "false_unreachable": _rate(truth[near], ~said[near])},
-            "outside": {"false_reachable": _rate(~truth[~near], said[~near]), "false_unreachable": _rate(truth[~near], ~said[~near])}}
+            "inside": {"false_reachable": _rate(~truth[near], said[near]),
+                       "false_unreachable": _rate(truth[near], ~said[near])},
+            "outside": {"false_reachable": _rate(~truth[~near], said[~near]),
+                        "false_unreachable": _rate(truth[~near], ~said[~near])}}
 
 
 def audit_rays(tree: VATree, referee: Oracle | Executor, oracle: Any, policy: Policy) -> dict[str, Any]:
@@ -225,12 +230,16 @@ def audit_rays(tree: VATree, referee: Oracle | Executor, oracle: Any, policy: Po
         held = radii[said[k]].max(initial=0.0)
         reached = radii[truth[k]].max(initial=0.0)
         if reached - held > SHORT_CELLS * cell:
-            short.append({"direction": np.round(d, 4).tolist(), "tree_m": round(float(held), 4), "referee_m": round(float(reached), 4)})
-    return {"rays": RAYS, "probes": int(inside.sum()), "centre": np.round(centre, 4).tolist(), "radius": round(float(radius), 4),
-            "false_reachable": _rate(~truth[inside], said[inside]), "false_unreachable": _rate(truth[inside], ~said[inside]), "short": short}
+            short.append({"direction": np.round(d, 4).tolist(), "tree_m": round(float(held), 4),
+                          "referee_m": round(float(reached), 4)})
+    return {"rays": RAYS, "probes": int(inside.sum()), "centre": np.round(centre, 4).tolist(),
+            "radius": round(float(radius), 4),
+            "false_reachable": _rate(~truth[inside], said[inside]),
+                "false_unreachable": _rate(truth[inside], ~said[inside]), "short": short}
 
 
-def audit_twins(tree: VATree, referee: Oracle | Executor, pts: np.ndarray, said: np.ndarray, turn: tuple[np.ndarray, np.ndarray],
+def audit_twins(tree: VATree, referee: Oracle | Executor, pts: np.ndarray, said: np.ndarray,
+                turn: tuple[np.ndarray, np.ndarray],
                 policy: Policy) -> dict[str, Any]:
     """Each probe's twin turned ``TWIN_TURN`` about the free axis: how often the tree's verdicts disagree, and of the
     disagreeing pairs (at most ``TWIN_CHECKS``), how often the referee reaches the one the tree calls unreachable."""
@@ -245,12 +254,14 @@ def audit_twins(tree: VATree, referee: Oracle | Executor, pts: np.ndarray, said:
     checked = differ[:TWIN_CHECKS]
     lying = np.where(said[checked, None], twins[checked], pts[checked])  # the one the tree calls unreachable
     reached = _judge(tree, referee, lying)
-    return {"axis": np.round(axis, 6).tolist(), "point": np.round(point, 4).tolist(), "turn_deg": math.degrees(TWIN_TURN),
+    return {"axis": np.round(axis, 6).tolist(), "point": np.round(point, 4).tolist(),
+            "turn_deg": math.degrees(TWIN_TURN),
             "pairs": int(inside.sum()), "disagree": _rate(twin_said != said, inside),
             "checked": int(len(checked)), "unreachable_but_reached": int(reached.sum())}
 
 
-def audit_index(tree: VATree, index: ReachIndex, referee: Oracle | Executor, samples: int, rng: np.random.Generator) -> dict[str, Any]:
+def audit_index(tree: VATree, index: ReachIndex, referee: Oracle | Executor, samples: int,
+                rng: np.random.Generator) -> dict[str, Any]:
     """The index against the referee on ``samples`` (vertex, direction) pairs (see the module docstring)."""
     assert tree.vertices.posture is not None
     rows = np.nonzero(tree.vertices.reachable)[0]
@@ -263,7 +274,8 @@ def audit_index(tree: VATree, index: ReachIndex, referee: Oracle | Executor, sam
     truth = referee.evaluate(Goals(points, {"orientation": aims}, seeds=tree.vertices.posture[v])).reachable
     said = index.reached[v, d]
     return {"pairs": int(samples), "directions": len(index.directions), "false_reached": _rate(~truth, said),
-            "false_missed": _rate(truth, ~said), "share_by_index": float(said.mean()), "share_by_referee": float(truth.mean())}
+            "false_missed": _rate(truth, ~said), "share_by_index": float(said.mean()),
+                "share_by_referee": float(truth.mean())}
 
 
 def referee(tree: VATree, restarts: int) -> Oracle:
@@ -279,16 +291,19 @@ def referee(tree: VATree, restarts: int) -> Oracle:
 
 
 def audit(
-    atlas: Atlas, samples: int = 300, policy: Policy = "vertex", seed: int = 0, restarts: int = 6, names: list[str] | None = None,
+    atlas: Atlas, samples: int = 300, policy: Policy = "vertex", seed: int = 0, restarts: int = 6,
+        names: list[str] | None = None,
     executor_factory: Callable[[OracleSpec], Executor] | None = None,
 ) -> dict[str, Any]:
-    """Audit every (or the named) strategy of an atlas; the referee runs in this process or on the executors made by executor_factory."""
+    """Audit every (or the named) strategy of an atlas; the referee runs in this process or on the executors made by
+    executor_factory."""
     result = {}
     for name in names or list(atlas.trees):
         tree = atlas.trees[name]
         judge = referee(tree, restarts)
         # Executors rebuild the referee from its spec in their workers.
-        runner = executor_factory(judge.spec) if executor_factory and isinstance(judge, Specified) else InlineExecutor(judge)
+        runner = (executor_factory(judge.spec) if executor_factory and isinstance(judge, Specified)
+                  else InlineExecutor(judge))
         try:
             result[name] = audit_tree(tree, runner, samples, policy, seed, atlas.indexes.get(name))
         finally:
@@ -298,7 +313,8 @@ def audit(
 
 def lacking(atlas: Atlas) -> dict[str, list[str]]:
     """Warnings of the regions each strategy's tree lacks, by the atlas's last audit (``audit.json``, see
-    :func:`reach.maps.store.save_audit`): every ray along which the tree stops short of the referee, or that the audit is
+    :func:`reach.maps.store.save_audit`): every ray along which the tree stops short of the referee, or that the
+    audit is
     of an earlier build. Empty for an atlas never audited; an unreadable audit file is one warning (key ``""``)."""
     try:
         audited = load_audit(atlas)
@@ -309,8 +325,9 @@ def lacking(atlas: Atlas) -> dict[str, list[str]]:
         if not a["current"]:
             out[name] = [f"the last audit ({a['when']}) is of an earlier build of this tree: run 'reach audit' again"]
             continue
-        lines = [f"the tree stops {r['tree_m']} m out along {r['direction']}, where the referee reaches {r['referee_m']} m "
-                 f"(reach audit, {a['when']}): a region the tree lacks (build deeper, or check the strategy's box)" for r in a["short"]]
+        lines = [f"the tree stops {r['tree_m']} m out along {r['direction']}, where the referee reaches "
+                 f"{r['referee_m']} m (reach audit, {a['when']}): a region the tree lacks (build deeper, or check "
+                 "the strategy's box)" for r in a["short"]]
         if lines:
             out[name] = lines
     return out

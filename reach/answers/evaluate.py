@@ -46,13 +46,15 @@ def load_targets(path: str | Path) -> list[Target]:
     rows = list(csv.DictReader(text.splitlines()))
     need = {"name", "x", "y", "z"}
     if not rows or not need <= set(rows[0]):
-        raise ConfigError(path, "header", f"expected the columns name, x, y, z (and optionally effector), got {sorted(rows[0]) if rows else 'nothing'}")
+        raise ConfigError(path, "header", "expected the columns name, x, y, z (and optionally effector), got "
+                                          f"{sorted(rows[0]) if rows else 'nothing'}")
     out = []
     for i, row in enumerate(rows, start=2):
         try:
             point = (float(row["x"]), float(row["y"]), float(row["z"]))
         except (TypeError, ValueError):
-            raise ConfigError(path, f"row {i}", f"x, y and z must be numbers in metres, got {row.get('x')!r}, {row.get('y')!r}, {row.get('z')!r}") from None
+            raise ConfigError(path, f"row {i}", f"x, y and z must be numbers in metres, got {row.get('x')!r}, "
+                                                f"{row.get('y')!r}, {row.get('z')!r}") from None
         if not all(np.isfinite(point)):
             raise ConfigError(path, f"row {i}", "x, y and z must be finite")
         out.append(Target(row["name"], point, (row.get("effector") or "").strip() or None))
@@ -72,7 +74,8 @@ def to_body(targets: np.ndarray, placements: np.ndarray) -> np.ndarray:
 EVALUATE_BUDGET = 1.0  # [s] refinement budget per target: an offline question, no frame to keep
 
 
-def evaluate(atlases: list[Atlas], targets: list[Target], effector: str | None = None, policy: str = "vertex", refine: bool = True,
+def evaluate(atlases: list[Atlas], targets: list[Target], effector: str | None = None, policy: str = "vertex",
+             refine: bool = True,
              budget: float = EVALUATE_BUDGET, placements: np.ndarray | None = None) -> dict[str, Any]:
     """Per atlas and target: the chosen strategy, the alternatives, whether a posture reaches it; and a summary.
 
@@ -84,7 +87,8 @@ def evaluate(atlases: list[Atlas], targets: list[Target], effector: str | None =
     if placements is not None:
         placements = np.asarray(placements, float).reshape(-1, 4)
         if len(placements) not in (1, len(atlases)):
-            raise ConfigError("--at", "", f"expected one placement or one per atlas ({len(atlases)}), got {len(placements)}")
+            raise ConfigError("--at", "", f"expected one placement or one per atlas ({len(atlases)}), got "
+                                          f"{len(placements)}")
     for k, atlas in enumerate(atlases):
         selector = Selector(atlas, policy, refine=refine, budget=budget, miss="unreachable")  # type: ignore[arg-type]
         rows: list[dict[str, Any]] = []
@@ -92,7 +96,8 @@ def evaluate(atlases: list[Atlas], targets: list[Target], effector: str | None =
         for t, point in zip(targets, seen, strict=True):
             eff = t.effector or effector or (selector.effectors[0] if len(selector.effectors) == 1 else None)
             if eff is None:
-                raise ConfigError("targets", t.name, f"no effector: give an effector column or --effector (one of {', '.join(selector.effectors)})")
+                raise ConfigError("targets", t.name, "no effector: give an effector column or --effector (one of "
+                                                     f"{', '.join(selector.effectors)})")
             a = selector.select(eff, point)
             probed = False
             if refine and not a.reachable and a.refined == "none":
@@ -100,17 +105,21 @@ def evaluate(atlases: list[Atlas], targets: list[Target], effector: str | None =
                 found = selector.probe(eff, point)
                 if found is not None:
                     a, probed = found, True
-            rows.append({"target": t.name, "effector": eff, "point": list(t.point), "strategy": a.strategy, "reachable": a.reachable,
+            rows.append({"target": t.name, "effector": eff, "point": list(t.point), "strategy": a.strategy,
+                         "reachable": a.reachable,
                          "also": list(a.alternatives), "refined": a.refined, "within": a.within, "beyond_trees": probed,
-                         "nearest": None if a.nearest is None else {k: a.nearest[k] for k in ("strategy", "point", "distance")}})
+                         "nearest": None if a.nearest is None
+                             else {k: a.nearest[k] for k in ("strategy", "point", "distance")}})
         reached = sum(r["reachable"] for r in rows)
         by_strategy: dict[str, int] = {}
         for r in rows:
             key = r["strategy"] or "none"
             by_strategy[key] = by_strategy.get(key, 0) + 1
-        at = None if placements is None else dict(zip(PLACE_KEYS, placements[min(k, len(placements) - 1)].tolist(), strict=True))
+        at = (None if placements is None
+              else dict(zip(PLACE_KEYS, placements[min(k, len(placements) - 1)].tolist(), strict=True)))
         results["atlases"].append({"atlas": str(atlas.path), "name": atlas.manifest.get("name"), "rows": rows, "at": at,
-                                   "summary": {"targets": len(rows), "reachable": reached, "unreachable": len(rows) - reached, "by_strategy": by_strategy}})
+                                   "summary": {"targets": len(rows), "reachable": reached,
+                                               "unreachable": len(rows) - reached, "by_strategy": by_strategy}})
     return results
 
 
@@ -123,9 +132,12 @@ def text_table(results: dict[str, Any]) -> str:
     for i, t in enumerate(results["targets"]):
         cells = [_cell(a["rows"][i]).ljust(c) for a, c in zip(results["atlases"], cols, strict=True)]
         lines.append("  ".join([t.ljust(width), *cells]))
-    lines.append("  ".join(["reachable".ljust(width), *(f"{a['summary']['reachable']}/{a['summary']['targets']}".ljust(c) for a, c in zip(results["atlases"], cols, strict=True))]))
+    lines.append("  ".join(["reachable".ljust(width),
+                            *(f"{a['summary']['reachable']}/{a['summary']['targets']}".ljust(c)
+                              for a, c in zip(results["atlases"], cols, strict=True))]))
     if any(r.get("beyond_trees") for a in results["atlases"] for r in a["rows"]):
-        lines.append("* no tree holds the target; a thorough IK solve (8 random restarts and the nearest stored posture) reaches it")
+        lines.append("* no tree holds the target; a thorough IK solve (8 random restarts and the nearest stored "
+                     "posture) reaches it")
     return "\n".join(lines)
 
 

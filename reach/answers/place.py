@@ -51,7 +51,8 @@ from reach.errors import InputError
 from reach.maps.protocol import POLICIES, Policy
 from reach.maps.store import Atlas
 
-WEIGHT_STEP = 0.2  # each later strategy by priority weighs this much less (a modelling choice; see the module docstring)
+# each later strategy by priority weighs this much less (a modelling choice; see the module docstring)
+WEIGHT_STEP = 0.2
 WEIGHT_FLOOR = 0.2  # ... and never less than this
 MAX_CANDIDATES = 1_000_000  # candidates of one ranking at most
 VERIFY_BUDGET = 1.0  # [s] refinement budget per target when verifying
@@ -84,13 +85,15 @@ class Space:
             raise InputError("step", f"expected positive steps, got {self.step!r} m and {self.yaw_step!r} rad")
         count = math.prod(len(a) for a in self._axes())
         if count > self.max_candidates:
-            raise InputError("step", f"{count} candidates; at most {self.max_candidates}: coarsen the steps or narrow the ranges")
+            raise InputError("step", f"{count} candidates; at most {self.max_candidates}: coarsen the steps or "
+                                     "narrow the ranges")
 
     @staticmethod
     def _axis(lo: float, hi: float, step: float, turn: bool = False) -> np.ndarray:
         count = (hi - lo) / step  # inf for a step of 1e-320 or a range of +-1e308: refused below, not an overflow
         if not math.isfinite(count) or count + 1 > MAX_CANDIDATES:
-            raise InputError("step", f"{count + 1:.3g} values on one axis; at most {MAX_CANDIDATES} candidates: coarsen the steps or narrow the ranges")
+            raise InputError("step", f"{count + 1:.3g} values on one axis; at most {MAX_CANDIDATES} candidates: "
+                                     "coarsen the steps or narrow the ranges")
         n = int(math.floor(count + 1e-9)) + 1
         values = lo + step * np.arange(n)
         if turn and hi - lo >= 2 * math.pi - 1e-9:
@@ -98,7 +101,8 @@ class Space:
         return values
 
     def _axes(self) -> list[np.ndarray]:
-        return [self._axis(*self.x, self.step), self._axis(*self.y, self.step), self._axis(*self.z, self.step), self._axis(*self.yaw, self.yaw_step, turn=True)]
+        return [self._axis(*self.x, self.step), self._axis(*self.y, self.step), self._axis(*self.z, self.step),
+                self._axis(*self.yaw, self.yaw_step, turn=True)]
 
     def candidates(self) -> np.ndarray:
         """(C, 4) placements: x, y, z [m] and yaw [rad]."""
@@ -133,10 +137,13 @@ class Ranking:
     def row(self, k: int, targets: Sequence[Target]) -> dict[str, Any]:
         """Candidate k as a JSON-compatible dict."""
         x, y, z, yaw = (float(v) for v in self.placements[k])
-        by = [{t.name: (names[s] if s >= 0 else None) for t, s in zip(targets, self.strategies[k, b], strict=True)} for b, names in enumerate(self.names)]
+        by = [{t.name: (names[s] if s >= 0 else None) for t, s in zip(targets, self.strategies[k, b], strict=True)}
+              for b, names in enumerate(self.names)]
         margin = float(self.margin[k]) if k < len(self.margin) and np.isfinite(self.margin[k]) else None
-        return {"rank": k + 1, "position": [x, y, z], "yaw_deg": math.degrees(yaw), "accommodated": float(self.accommodated[k]),
-                "reached": float(self.reached[k]), "preference": float(self.preference[k]), "margin": margin, "strategies": by}
+        return {"rank": k + 1, "position": [x, y, z], "yaw_deg": math.degrees(yaw),
+                "accommodated": float(self.accommodated[k]),
+                "reached": float(self.reached[k]), "preference": float(self.preference[k]), "margin": margin,
+                    "strategies": by}
 
 
 def weights_of(atlas: Atlas, effector: str, overrides: dict[str, float] | None = None) -> tuple[list[str], np.ndarray]:
@@ -151,7 +158,8 @@ def weights_of(atlas: Atlas, effector: str, overrides: dict[str, float] | None =
     return names, w
 
 
-def rank(atlases: Sequence[Atlas], targets: Sequence[Target], space: Space, effector: str | None = None, policy: Policy = "vertex",
+def rank(atlases: Sequence[Atlas], targets: Sequence[Target], space: Space, effector: str | None = None,
+         policy: Policy = "vertex",
          weights: dict[str, float] | None = None) -> Ranking:
     """Score every candidate of the space against the targets by the trees (see the module docstring); best first."""
     if not atlases or not targets:
@@ -185,19 +193,22 @@ def rank(atlases: Sequence[Atlas], targets: Sequence[Target], space: Space, effe
     accommodated = reached_bt.all(axis=2).mean(axis=1)
     reached = reached_bt.mean(axis=(1, 2))
     preference = weight.mean(axis=(1, 2))
-    # Lexicographic, best first; ties broken by the margin, then by nearness to the tied candidates' centroid (positions,
+    # Lexicographic, best first; ties broken by the margin, then by nearness to the tied candidates' centroid
+    # (positions,
     # and headings on the circle).
     key = np.round(np.stack([accommodated, reached, preference], axis=1), 9)
     top = np.all(key == key[np.lexsort(key.T[::-1])[-1]], axis=1)
     centre = placements[top, :3].mean(axis=0)
     heading = math.atan2(np.sin(placements[top, 3]).mean(), np.cos(placements[top, 3]).mean())
-    spread = np.linalg.norm(placements[:, :3] - centre, axis=1) + 0.1 * np.abs(np.angle(np.exp(1j * (placements[:, 3] - heading))))
+    spread = np.linalg.norm(placements[:, :3] - centre,
+                            axis=1) + 0.1 * np.abs(np.angle(np.exp(1j * (placements[:, 3] - heading))))
     margin = np.full(n_c, np.nan)
     tied = np.nonzero(top)[0]
     tied = tied[np.argsort(spread[tied], kind="stable")][:MARGIN_TIES]
     margin[tied] = margins(atlases, all_names, taken[tied], body.reshape(n_c, n_t, 3)[tied])
     order = np.lexsort((spread, -np.nan_to_num(margin, nan=-np.inf), -preference, -reached, -accommodated))
-    return Ranking(placements[order], accommodated[order], reached[order], preference[order], taken[order], all_names, margin[order])
+    return Ranking(placements[order], accommodated[order], reached[order], preference[order], taken[order], all_names,
+                   margin[order])
 
 
 def margins(atlases: Sequence[Atlas], names: list[list[str]], taken: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -218,7 +229,8 @@ def margins(atlases: Sequence[Atlas], names: list[list[str]], taken: np.ndarray,
     return out
 
 
-def verify(ranking: Ranking, atlases: Sequence[Atlas], targets: Sequence[Target], best: int = 5, effector: str | None = None,
+def verify(ranking: Ranking, atlases: Sequence[Atlas], targets: Sequence[Target], best: int = 5,
+           effector: str | None = None,
            policy: Policy = "vertex", budget: float = VERIFY_BUDGET) -> list[dict[str, Any]]:
     """The best placements checked by IK: per placement, the share of bodies accommodated and of targets reached when
     each target, moved into the body's frame, is answered by the selector with refinement (unreached when no posture
@@ -229,9 +241,12 @@ def verify(ranking: Ranking, atlases: Sequence[Atlas], targets: Sequence[Target]
     count = min(best, len(ranking.placements))
     for k in range(count):
         body = to_body(points, ranking.placements[k : k + 1])[0]
-        ok = np.array([[s.select(t.effector or effector or "", p).reachable for t, p in zip(targets, body, strict=True)] for s in selectors])
-        out.append({"rank": k + 1, "trees_rank": k + 1, "accommodated": float(ok.all(axis=1).mean()), "reached": float(ok.mean()),
-                    "claimed_reached": float(ranking.reached[k]), "agree": bool(np.isclose(ok.mean(), ranking.reached[k]))})
+        ok = np.array([[s.select(t.effector or effector or "", p).reachable
+                        for t, p in zip(targets, body, strict=True)] for s in selectors])
+        out.append({"rank": k + 1, "trees_rank": k + 1, "accommodated": float(ok.all(axis=1).mean()),
+                    "reached": float(ok.mean()),
+                    "claimed_reached": float(ranking.reached[k]),
+                        "agree": bool(np.isclose(ok.mean(), ranking.reached[k]))})
     # The verified candidates ranked again by what IK verified (stable: the trees' order breaks ties).
     again = sorted(range(count), key=lambda k: (-out[k]["accommodated"], -out[k]["reached"]))
     if again != list(range(count)):

@@ -89,10 +89,13 @@ SKIPPED = "skipped"  # refinement was not asked for
 UNAVAILABLE = "unavailable"  # the strategy's oracle stores no postures (analytic shapes)
 NONE = "none"  # no strategy reaches the goal: there is no posture to refine
 ERROR = "error"  # the refinement could not run (a server's worker died); posture is the stored one
-MISSES = ("unreachable", "within")  # what a goal the trees hold but no refinement reaches answers (see the module docstring)
+# what a goal the trees hold but no refinement reaches answers (see the module docstring)
+MISSES = ("unreachable", "within")
 MISS = "unreachable"
-STORED = (SKIPPED, TIMEOUT, FAILED, ERROR)  # outcomes whose posture is the nearest stored one, not one solved at the goal
-FROM_TOLERANCE = math.radians(1.0)  # [rad] (or m) a `from` joint this far past its range is still accepted (rounding in a client)
+# outcomes whose posture is the nearest stored one, not one solved at the goal
+STORED = (SKIPPED, TIMEOUT, FAILED, ERROR)
+# [rad] (or m) a `from` joint this far past its range is still accepted (rounding in a client)
+FROM_TOLERANCE = math.radians(1.0)
 FROM_QUATERNION = 1e3  # the largest component of a `from` root quaternion (it is normalised)
 FROM_REACH = 1000.0  # [m] a `from` root farther than this from the world origin is a mistake, not a scene
 POSTURE_CACHE = 4096  # stored postures kept encoded, most recently used first
@@ -147,7 +150,8 @@ class Answer:
         root: Pose of a floating base, ``{"position": [x, y, z], "quaternion":
             [qx, qy, qz, qw]}`` [m], or None.
         residual: Effector-to-goal distance [m] of that posture, or None.
-        refined: One of ``ok``, ``failed``, ``timeout``, ``skipped``, ``unavailable``, or ``none`` for an unreachable goal.
+        refined: One of ``ok``, ``failed``, ``timeout``, ``skipped``, ``unavailable``, or ``none`` for an unreachable
+            goal.
         seconds: Time spent answering [s].
         handover: When a strategy of higher priority passed the goal over,
             ``{"from": its name, "limits": the limits its posture came
@@ -214,7 +218,9 @@ def _timed_out(answer: Answer, late: bool) -> Answer:
     return dataclasses.replace(answer, refined=TIMEOUT) if late and answer.refined == SKIPPED else answer
 
 
-def orientation_of(wire: dict[str, list[float]] | list[dict[str, list[float]]] | None) -> np.ndarray | list[np.ndarray] | None:
+def orientation_of(wire: dict[str,
+                              list[float]] | list[dict[str,
+                                                       list[float]]] | None) -> np.ndarray | list[np.ndarray] | None:
     """A request's ``orientation`` as the selector takes it: a unit direction (3,) or a rotation (3, 3) from a
     quaternion ``[qx, qy, qz, qw]`` (normalised), or a list of them, one per goal; None stays None."""
     if wire is None:
@@ -270,8 +276,10 @@ def set_joints(names: tuple[str, ...], q: np.ndarray, joints: dict[str, float], 
     return q
 
 
-def posture_vector(names: tuple[str, ...], reference: np.ndarray, joints: dict[str, float] | None, root: dict[str, list[float]] | None) -> np.ndarray:
-    """The inverse of :func:`split_posture`: a posture (nq,) from an answer's joints and root, ``reference`` elsewhere."""
+def posture_vector(names: tuple[str, ...], reference: np.ndarray, joints: dict[str, float] | None,
+                   root: dict[str, list[float]] | None) -> np.ndarray:
+    """The inverse of :func:`split_posture`: a posture (nq,) from an answer's joints and root, ``reference``
+    elsewhere."""
     q = set_joints(names, np.array(reference, float), joints or {})
     index = {n: k for k, n in enumerate(names)}
     if root is not None and "root_x" in index:
@@ -295,7 +303,8 @@ class Selector:
             ``unreachable`` or ``within`` (see the module docstring).
     """
 
-    def __init__(self, atlas: Atlas, policy: Policy = DEFAULT_POLICY, refine: bool = True, budget: float = REFINE_BUDGET,
+    def __init__(self, atlas: Atlas, policy: Policy = DEFAULT_POLICY, refine: bool = True,
+                 budget: float = REFINE_BUDGET,
                  handover: float = HANDOVER, miss: str = MISS) -> None:
         if miss not in MISSES:
             raise InputError("miss", f"expected one of {', '.join(MISSES)}, got {miss!r}")
@@ -316,12 +325,14 @@ class Selector:
         # Per strategy: a k-d tree of its stored goals, their ids, and by id the effector positions and goals.
         self._kd: dict[str, tuple[cKDTree, np.ndarray, np.ndarray, np.ndarray] | None] = {}
         self._oracles: dict[str, Oracle] = {}
-        self._postures: OrderedDict[tuple[str, int], tuple[dict[str, float], dict[str, list[float]] | None, bytes]] = OrderedDict()
+        self._postures: OrderedDict[tuple[str, int],
+                                    tuple[dict[str, float], dict[str, list[float]] | None, bytes]] = OrderedDict()
         for m in atlas.maps.values():
             m.prepare()  # the batch lookup table now, not on the first batch
 
     def warm_up(self) -> Selector:
-        """Build every strategy's refinement oracle (with its solvers) and posture index now, not on the first request."""
+        """Build every strategy's refinement oracle (with its solvers) and posture index now, not on the first
+        request."""
         for name, m in self.atlas.maps.items():
             if m.posture_names:
                 oracle = self._oracle(name)
@@ -359,13 +370,14 @@ class Selector:
         position is within ``FROM_REACH`` of the origin and its quaternion is not zero."""
         quat = [start[f"root_q{c}"] for c in "xyzw" if f"root_q{c}" in start]
         if any(abs(v) > FROM_QUATERNION for v in quat):  # 1e300 overflowed where the quaternion is normalised
-            raise InputError("from", f"the root's quaternion components must be within +-{FROM_QUATERNION:g} (a unit quaternion, "
-                                     f"normalised if off by a little), got {quat}")
+            raise InputError("from", f"the root's quaternion components must be within +-{FROM_QUATERNION:g} (a unit "
+                                     f"quaternion, normalised if off by a little), got {quat}")
         posed = [s for s in names if self.atlas.maps[s].posture_names]
         known = {n for s in posed for n in joint_names(self.atlas.maps[s].posture_names)}
         unknown = sorted(set(start) - known)
         if unknown:
-            raise InputError("from", f"unknown joints {unknown[:5]}; the posture's names are {', '.join(sorted(known))}")
+            raise InputError("from",
+                             f"unknown joints {unknown[:5]}; the posture's names are {', '.join(sorted(known))}")
         for s in posed:
             oracle = self._oracle(s)
             if not isinstance(oracle, Bounded):
@@ -373,7 +385,8 @@ class Selector:
             lower, upper = oracle.posture_bounds()
             for k, n in enumerate(self.atlas.maps[s].posture_names):
                 if n in start and not lower[k] - FROM_TOLERANCE <= start[n] <= upper[k] + FROM_TOLERANCE:
-                    raise InputError("from", f"{n} = {start[n]:.6g} is outside its range [{lower[k]:.4f}, {upper[k]:.4f}] rad or m")
+                    raise InputError("from", f"{n} = {start[n]:.6g} is outside its range [{lower[k]:.4f}, "
+                                             f"{upper[k]:.4f}] rad or m")
             break  # the strategies of an effector share a body
         if any(abs(start.get(f"root_{c}", 0.0)) > FROM_REACH for c in "xyz"):
             raise InputError("from", f"the root's position must be within {FROM_REACH:g} m of the world origin")
@@ -452,7 +465,8 @@ class Selector:
         (each oracle's ``"refine"`` variant with that budget)."""
         twin = copy.copy(self)
         twin.budget = float(budget)
-        twin._oracles = {n: o.variant("refine", budget=budget) if isinstance(o, Tunable) else o for n, o in self._oracles.items()}
+        twin._oracles = {n: o.variant("refine", budget=budget) if isinstance(o, Tunable) else o
+                         for n, o in self._oracles.items()}
         return twin
 
     def oracle(self, name: str) -> Oracle:
@@ -467,19 +481,24 @@ class Selector:
             stored_hash = meta.get("model_hash")
             if stored_hash and isinstance(oracle, ModelHashed) and oracle.model_hash != stored_hash:
                 raise ModelMismatch(self.atlas.path, name, stored_hash, oracle.model_hash)
-            self._oracles[name] = oracle.variant("refine", budget=self.budget) if isinstance(oracle, Tunable) else oracle
+            self._oracles[name] = (oracle.variant("refine", budget=self.budget) if isinstance(oracle, Tunable)
+                                   else oracle)
         return self._oracles[name]
 
     def oriented(self, effector: str, orientation: np.ndarray) -> list[str]:
-        """The effector's strategies that hold a goal's orientation of this kind ((3,) direction or (3, 3) rotation), by priority."""
+        """The effector's strategies that hold a goal's orientation of this kind ((3,) direction or (3, 3) rotation),
+        by priority."""
         kind = "direction" if orientation.shape == (3,) else "rotation"
-        names = [n for n in self.strategies_for(effector) if isinstance(o := self._oracle(n), Oriented) and kind in o.orientation_kinds()]
+        names = [n for n in self.strategies_for(effector) if isinstance(o := self._oracle(n), Oriented)
+                 and kind in o.orientation_kinds()]
         if not names:
-            raise InputError("orientation", f"no strategy of {effector!r} holds a goal's {kind}: give it an orientation task"
+            raise InputError("orientation", f"no strategy of {effector!r} holds a goal's {kind}: give it an "
+                                            "orientation task"
                              + (" with an axis" if kind == "direction" else ""))
         return names
 
-    def select_many(self, effector: str, goals: np.ndarray, refine: bool | None = None, start: dict[str, float] | None = None,
+    def select_many(self, effector: str, goals: np.ndarray, refine: bool | None = None,
+                    start: dict[str, float] | None = None,
                     miss: str | None = None, orientation: np.ndarray | list[np.ndarray] | None = None,
                     deadline: float | None = None) -> list[Answer]:
         """Answers for goals (N, d) [m], one tree lookup per strategy for the whole batch.
@@ -504,10 +523,12 @@ class Selector:
         aims: list[np.ndarray | None] = [None] * len(g)
         if orientation is not None:
             if not refine:
-                raise InputError("refine", "a goal with an orientation is always refined (the trees hold positions); leave refine out or true")
+                raise InputError("refine", "a goal with an orientation is always refined (the trees hold positions); "
+                                           "leave refine out or true")
             each = orientation if isinstance(orientation, list) else [orientation] * len(g)
             if len(each) != len(g) or len({np.shape(a) for a in each}) != 1 or np.shape(each[0]) not in ((3,), (3, 3)):
-                raise InputError("orientation", f"expected one direction (3,) or rotation (3, 3), or a list of one per goal ({len(g)}), of one kind")
+                raise InputError("orientation", "expected one direction (3,) or rotation (3, 3), or a list of one "
+                                                f"per goal ({len(g)}), of one kind")
             aims = [np.asarray(a, float) for a in each]
             names = self.oriented(effector, np.asarray(each[0], float))
         miss = self.miss if miss is None else miss
@@ -518,7 +539,8 @@ class Selector:
 
         if len(g) == 1:
             out_of_time = refine and late()
-            return [_timed_out(self._select_one(effector, names, g[0], refine and not out_of_time, t0, start, miss, aims[0]), out_of_time)]
+            return [_timed_out(self._select_one(effector, names, g[0], refine and not out_of_time, t0, start, miss,
+                                                aims[0]), out_of_time)]
         hits = np.stack([self.atlas.maps[n].contains(g, self.policy) for n in names])
         chosen = np.where(hits.any(axis=0), hits.argmax(axis=0), -1)
         nearest: dict[int, tuple[int, np.ndarray] | None] = {}
@@ -530,17 +552,21 @@ class Selector:
         # Without a `from` (whose omitted joints each goal's stored posture fills in), every refinement is made ahead
         # in one evaluate call per strategy and pass; with one, goal by goal.
         batched = refine and start is None
-        done, unrefined = self._prefetch(g, names, hits, nearest, aims, deadline) if batched else ([None] * len(g), None)
+        done, unrefined = (self._prefetch(g, names, hits, nearest, aims, deadline) if batched
+                           else ([None] * len(g), None))
         out = []
         for n_goal in range(len(g)):
             # With a deadline, each goal is refined only while there is time.
             out_of_time = bool(unrefined[n_goal]) if unrefined is not None else refine and late()
-            answer = self._answer(effector, g[n_goal], [n for j, n in enumerate(names) if hits[j, n_goal]], nearest.get(n_goal),
-                                  refine and not out_of_time, time.perf_counter(), start, miss, aims[n_goal], done[n_goal])
+            answer = self._answer(effector, g[n_goal], [n for j, n in enumerate(names) if hits[j, n_goal]],
+                                  nearest.get(n_goal),
+                                  refine and not out_of_time, time.perf_counter(), start, miss, aims[n_goal],
+                                      done[n_goal])
             out.append(_timed_out(answer, out_of_time))
         return out
 
-    def _select_one(self, effector: str, names: list[str], goal: np.ndarray, refine: bool, t0: float, start: dict[str, float] | None,
+    def _select_one(self, effector: str, names: list[str], goal: np.ndarray, refine: bool, t0: float,
+                    start: dict[str, float] | None,
                     miss: str, aim: np.ndarray | None = None) -> Answer:
         """select_many for one goal, in plain Python: the server's per-request path."""
         point = goal.tolist()
@@ -548,10 +574,12 @@ class Selector:
         nearest = self._nearest_row(hits[0], self.atlas.maps[hits[0]], point) if hits else None
         return self._answer(effector, goal, hits, nearest, refine, t0, start, miss, aim)
 
-    def _answer(self, effector: str, goal: np.ndarray, hits: list[str], nearest: tuple[int, np.ndarray] | None, refine: bool, t0: float,
+    def _answer(self, effector: str, goal: np.ndarray, hits: list[str], nearest: tuple[int, np.ndarray] | None,
+                refine: bool, t0: float,
                 start: dict[str, float] | None = None, miss: str = MISS, aim: np.ndarray | None = None,
                 done: Prefetched | None = None) -> Answer:
-        """The answer for one goal, given the strategies that hold it (by priority) and the chosen one's nearest stored vertex
+        """The answer for one goal, given the strategies that hold it (by priority) and the chosen one's nearest
+        stored vertex
         (``done``: the refinements already made for it, by strategy; see :meth:`_prefetch`)."""
         if not hits:
             return Answer(effector, tuple(goal.tolist()), None, False, refined=NONE, seconds=time.perf_counter() - t0)
@@ -588,7 +616,8 @@ class Selector:
                 if found is not None:
                     others = others[others.index(found.name) + 1 :]
             elif self.handover and others and outcome in (REFINED, SKIPPED) and (limits := self._limits(name, q)):
-                found = self._first_answer(goal, others, refine, start, below=len(limits), aim=aim, done=done, deadline=deadline)
+                found = self._first_answer(goal, others, refine, start, below=len(limits), aim=aim, done=done,
+                                           deadline=deadline)
                 if found is not None:
                     others = [h for h in hits if h != found.name]  # the strategy passed over stays an alternative
                     handover = {"from": name, "limits": limits}
@@ -597,19 +626,25 @@ class Selector:
                 tree = self.atlas.maps[name]
             elif aim is not None and outcome != REFINED:
                 # A stored posture holds no goal's orientation: what no refinement reached with it is unreachable.
-                return Answer(effector, tuple(goal.tolist()), None, False, refined=outcome, seconds=time.perf_counter() - t0)
+                return Answer(effector, tuple(goal.tolist()), None, False, refined=outcome,
+                              seconds=time.perf_counter() - t0)
             elif outcome == FAILED and miss == "unreachable":
-                # No strategy's refinement reaches the goal: not reachable, and the nearest point a stored posture reaches.
+                # No strategy's refinement reaches the goal: not reachable, and the nearest point a stored posture
+                # reaches.
                 joints, pose, _ = self._stored_posture(name, tree, row)
                 point = [float(v) for v in reached] if np.all(np.isfinite(reached)) else None
-                return Answer(effector, tuple(goal.tolist()), None, False, refined=FAILED, seconds=time.perf_counter() - t0,
-                              nearest={"strategy": name, "point": point, "distance": residual, "posture": joints, "root": pose})
+                return Answer(effector, tuple(goal.tolist()), None, False, refined=FAILED,
+                              seconds=time.perf_counter() - t0,
+                              nearest={"strategy": name, "point": point, "distance": residual, "posture": joints,
+                                       "root": pose})
             if outcome == REFINED:
                 posture, root = split_posture(tree.posture_names, q)
             else:
                 posture, root, fragment = self._stored_posture(name, tree, row)
-        within = residual if outcome in STORED else None  # a posture that was not refined at this goal says how near it comes
-        return Answer(effector, tuple(goal.tolist()), name, True, tuple(others), posture, root, residual, outcome, time.perf_counter() - t0,
+        # a posture that was not refined at this goal says how near it comes
+        within = residual if outcome in STORED else None
+        return Answer(effector, tuple(goal.tolist()), name, True, tuple(others), posture, root, residual, outcome,
+                      time.perf_counter() - t0,
                       handover, within, None, fragment, self._index_of(name, row))
 
     def probe(self, effector: str, goal: np.ndarray, restarts: int = 8) -> Answer | None:
@@ -629,7 +664,8 @@ class Selector:
             v = thorough.evaluate(Goals(goal[None], seeds=hint))
             if v.reachable[0] and v.posture is not None:
                 posture, root = split_posture(tree.posture_names, v.posture[0])
-                return Answer(effector, tuple(goal.tolist()), name, True, (), posture, root, float(v.residual[0]), REFINED,
+                return Answer(effector, tuple(goal.tolist()), name, True, (), posture, root, float(v.residual[0]),
+                              REFINED,
                               time.perf_counter() - t0)
         return None
 
@@ -643,7 +679,8 @@ class Selector:
                       deadline: float | None = None) -> Found | None:
         """The first of names (by priority) whose refinement reaches the goal (without refinement: whose tree
         holds a posture) and, given ``below``, with fewer joints near their limits: its name, posture,
-        residual, refinement outcome and nearest stored row; None if none does (or, given ``below``, the time runs out)."""
+        residual, refinement outcome and nearest stored row; None if none does (or, given ``below``, the time runs
+        out)."""
         point = goal.tolist()
         for name in names:
             tree = self.atlas.maps[name]
@@ -667,7 +704,8 @@ class Selector:
                 return Found(name, q, residual, outcome, row)
         return None
 
-    def _stored_posture(self, name: str, tree: ReachMap, row: int) -> tuple[dict[str, float], dict[str, list[float]] | None, bytes]:
+    def _stored_posture(self, name: str, tree: ReachMap,
+                        row: int) -> tuple[dict[str, float], dict[str, list[float]] | None, bytes]:
         """The stored posture of a vertex as dicts and as encoded JSON, from a bounded cache.
 
         The dicts are shared between answers: treat them as read-only.
@@ -692,7 +730,8 @@ class Selector:
         names = tree.posture_names
         unknown = sorted(set(start) - set(joint_names(names)))
         if unknown:
-            raise InputError("from", f"unknown joints {unknown[:5]}; the posture's names are {', '.join(joint_names(names))}")
+            raise InputError("from", f"unknown joints {unknown[:5]}; the posture's names are "
+                                     f"{', '.join(joint_names(names))}")
         q = set_joints(names, stored.copy(), start, "from")
         if "root_qx" in names:  # a client's quaternion, rounded, made a rotation again
             i = names.index("root_qx")
@@ -717,7 +756,8 @@ class Selector:
             return v.posture[0], float(v.residual[0]), REFINED
         return q, residual, TIMEOUT if time.perf_counter() - t0 >= budget else FAILED
 
-    def _tuned(self, name: str, goals: int, aim: np.ndarray | None, deadline: float | None = None) -> tuple[Oracle, float]:
+    def _tuned(self, name: str, goals: int, aim: np.ndarray | None,
+               deadline: float | None = None) -> tuple[Oracle, float]:
         """The strategy's refinement oracle for ``goals`` goals and its budget [s]: theirs pooled, each at least
         ``ORIENTED_BUDGET`` with an orientation, within the deadline."""
         oracle = self._oracle(name)
@@ -729,7 +769,8 @@ class Selector:
             oracle = oracle.variant("refine", budget=budget)
         return oracle, budget
 
-    def _prefetch(self, g: np.ndarray, names: list[str], hits: np.ndarray, nearest: dict[int, tuple[int, np.ndarray] | None],
+    def _prefetch(self, g: np.ndarray, names: list[str], hits: np.ndarray,
+                  nearest: dict[int, tuple[int, np.ndarray] | None],
                   aims: list[np.ndarray | None], deadline: float | None) -> tuple[list[Prefetched], np.ndarray]:
         """Every refinement the answers of a batch will ask for, made in passes of one evaluate call per strategy:
         each goal's first choice; then, for the goals it failed, the next strategy by priority (again, while
@@ -769,7 +810,8 @@ class Selector:
             pending = {i: p for i, p in pending.items() if p[0]}
         return done, late
 
-    def _refine_pass(self, g: np.ndarray, items: list[tuple[int, str, tuple[int, np.ndarray] | None]], aims: list[np.ndarray | None],
+    def _refine_pass(self, g: np.ndarray, items: list[tuple[int, str, tuple[int, np.ndarray] | None]],
+                     aims: list[np.ndarray | None],
                      deadline: float | None, done: list[Prefetched], late: np.ndarray | None) -> None:
         """One pass of :meth:`_prefetch`: (goal, strategy, nearest stored row) items refined in one call per strategy.
         Past the deadline a first pass (``late`` given) marks its goals late; a later pass records them ``timeout``."""
@@ -796,12 +838,15 @@ class Selector:
         tuned, budget = self._tuned(name, m, aims[0], deadline)
         if budget < LEAST_SOLVE * self.budget:
             return [(q, r, TIMEOUT) for q, r in zip(stored, residuals, strict=True)]
-        liked = [self._best_liked(name, tuned, goal, q) for goal, q in zip(goals, stored, strict=True)] if isinstance(tuned, Preferring) else []
+        liked = ([self._best_liked(name, tuned, goal, q) for goal, q in zip(goals, stored, strict=True)]
+                 if isinstance(tuned, Preferring) else [])
         seeds = stored[:, None]
         if any(q is not None for q in liked):
-            seeds = np.stack([stored, np.array([np.full(stored.shape[1], np.nan) if q is None else q for q in liked])], axis=1)
+            seeds = np.stack([stored,
+                              np.array([np.full(stored.shape[1], np.nan) if q is None else q for q in liked])], axis=1)
         t0 = time.perf_counter()
-        v = tuned.evaluate(Goals(goals, {} if aims[0] is None else {"orientation": np.stack(aims)}, None, seeds))  # type: ignore[arg-type]
+        targets = {} if aims[0] is None else {"orientation": np.stack(aims)}  # type: ignore[arg-type]
+        v = tuned.evaluate(Goals(goals, targets, None, seeds))
         over = time.perf_counter() - t0 >= budget
         return [(v.posture[k], float(v.residual[k]), REFINED) if v.reachable[k] and v.posture is not None
                 else (stored[k], residuals[k], TIMEOUT if over else FAILED) for k in range(m)]
@@ -824,4 +869,5 @@ class Selector:
     def select(self, effector: str, goal: np.ndarray, refine: bool | None = None, start: dict[str, float] | None = None,
                miss: str | None = None, orientation: np.ndarray | None = None) -> Answer:
         """Choose a strategy for one goal [m] (``start``, ``miss``, ``orientation``: see :meth:`select_many`)."""
-        return self.select_many(effector, np.asarray(goal, dtype=float).reshape(1, -1), refine, start, miss, orientation)[0]
+        return self.select_many(effector, np.asarray(goal, dtype=float).reshape(1, -1), refine, start, miss,
+                                orientation)[0]

@@ -1,1 +1,2 @@
-"""Building maps: a VATree refined by an oracle, the atlas of a config's strategies, the executors that run the oracle, the index's and the mirror's derivation."""
+"""Building maps: a VATree refined by an oracle, the atlas of a config's strategies, the executors that run the
+oracle, the index's and the mirror's derivation."""

@@ -68,14 +68,16 @@ def fingerprint(config: Config, strategy: StrategySpec, oracle: Oracle) -> str:
     # The spec as the oracle completes it (its engine, its search): a tree built by another default engine is not
     # kept (the spec as written was, when the default solver became the batched engine).
     spec = oracle.spec.to_dict() if isinstance(oracle, Specified) else strategy.oracle.to_dict()
-    parts: dict[str, Any] = {"oracle": spec, "box": config.box.to_dict(), "depth": [config.d_min, config.d_max], "refine": config.refine.to_dict()}
+    parts: dict[str, Any] = {"oracle": spec, "box": config.box.to_dict(), "depth": [config.d_min, config.d_max],
+                             "refine": config.refine.to_dict()}
     if strategy.directions:
         parts["directions"] = strategy.directions
     text = json.dumps(parts, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
-def sub_strategies(order: list[StrategySpec], oracle_of: Callable[[StrategySpec], Oracle] | None = None) -> dict[str, str]:
+def sub_strategies(order: list[StrategySpec],
+                   oracle_of: Callable[[StrategySpec], Oracle] | None = None) -> dict[str, str]:
     """For each strategy, the sub-strategy it inherits from, if any: built before it, on the same body and
     effector, with a subset of its active joints (the largest such subset; the earliest among equals).
 
@@ -84,20 +86,23 @@ def sub_strategies(order: list[StrategySpec], oracle_of: Callable[[StrategySpec]
     for s in order:
         oracle = oracle_of(s) if oracle_of is not None else s.oracle.create()  # builds no solver
         if isinstance(oracle, Described) and isinstance(oracle, ModelHashed):
-            seen[s.name] = (oracle.model_hash, s.effector, frozenset(oracle.describe()["joints"]), tuple(oracle.posture_names))
+            seen[s.name] = (oracle.model_hash, s.effector, frozenset(oracle.describe()["joints"]),
+                            tuple(oracle.posture_names))
     out: dict[str, str] = {}
     for k, s in enumerate(order):
         if s.name not in seen:
             continue
         body, effector, joints, names = seen[s.name]
-        subs = [t.name for t in order[:k] if t.name in seen and seen[t.name][:2] == (body, effector) and seen[t.name][3] == names
+        subs = [t.name for t in order[:k] if t.name in seen and seen[t.name][:2] == (body, effector)
+                and seen[t.name][3] == names
                 and seen[t.name][2] < joints]
         if subs:
             out[s.name] = max(subs, key=lambda n: (len(seen[n][2]), -subs.index(n)))
     return out
 
 
-def _mirror_source(s: StrategySpec, built: dict[str, VATree], oracle_of: Callable[[str], Oracle], log: Callable[[str], None]) -> tuple[VATree, Any] | None:
+def _mirror_source(s: StrategySpec, built: dict[str, VATree], oracle_of: Callable[[str], Oracle],
+                   log: Callable[[str], None]) -> tuple[VATree, Any] | None:
     """The source tree and posture mirror if s may be derived by mirroring, else None (with the reason logged)."""
     if s.mirror_of is None or s.mirror_of not in built:
         return None
@@ -120,7 +125,8 @@ GROWS = 3  # box: auto: how many times B0 may grow after a build whose reachable
 def face_text(faces: dict[str, int]) -> str:
     """The warning for reachable vertices on faces of B0 (see :meth:`VATree.faces`)."""
     listed = ", ".join(f"{n} on {f}" for f, n in faces.items())
-    return f"reachable vertices lie on faces of the box ({listed}): the box cuts the volume there; enlarge it on those faces"
+    return (f"reachable vertices lie on faces of the box ({listed}): the box cuts the volume there; enlarge it on "
+            "those faces")
 
 
 def build_atlas(
@@ -159,7 +165,8 @@ def build_atlas(
             box = grown(config.box, config.limit, cut) if cut and config.limit is not None else None
             if box is None:
                 break
-            say(f"box: auto: reachable vertices lie on {', '.join(sorted(cut))}; B0 grows to min {box.lo.tolist()} max {box.hi.tolist()} [m], "
+            say(f"box: auto: reachable vertices lie on {', '.join(sorted(cut))}; B0 grows to min {box.lo.tolist()} "
+                f"max {box.hi.tolist()} [m], "
                 "and every strategy is built again")
             config = dataclasses.replace(config, box=box)
             atlas = _build_locked(config, out, executor_factory, progress, say, resume, mirror, inherit)
@@ -194,7 +201,8 @@ def _build_locked(
         if s.name in subs:  # the tree depends on its sub-strategy's too
             fp = hashlib.sha256(f"{fp} {prints[subs[s.name]]}".encode()).hexdigest()[:16]
         prints[s.name] = fp
-        meta: dict[str, Any] = {"name": s.name, "atlas": config.name, "effector": s.effector, "priority": s.priority, "oracle": s.oracle.to_dict(), "fingerprint": fp}
+        meta: dict[str, Any] = {"name": s.name, "atlas": config.name, "effector": s.effector, "priority": s.priority,
+                                "oracle": s.oracle.to_dict(), "fingerprint": fp}
         tree, index = None, None
         if resume and path.is_file():
             try:
@@ -207,12 +215,15 @@ def _build_locked(
                     say(f"{s.name}: rebuilding (the config changed since {path.name} was built)")
             except StoreError as exc:
                 say(f"{s.name}: rebuilding ({exc})")
-        source = _mirror_source(s, built, lambda name: oracle_of(by_name[name]), say) if tree is None and mirror else None
+        source = (_mirror_source(s, built, lambda name: oracle_of(by_name[name]), say) if tree is None and mirror
+                  else None)
         if tree is None and source is not None:
-            tree = build_tree(MirrorOracle(*source), config.box, config.d_min, config.d_max, meta={**meta, "mirrored_from": s.mirror_of},
+            tree = build_tree(MirrorOracle(*source), config.box, config.d_min, config.d_max,
+                              meta={**meta, "mirrored_from": s.mirror_of},
                               keep_out=_keep_out(oracle_of(s)))
             # The mirror oracle only looks verdicts up: no oracle call is made.
-            tree.meta["build"].update(mirrored_from=s.mirror_of, lookups=tree.meta["build"]["oracle_calls"], oracle_calls=0)
+            tree.meta["build"].update(mirrored_from=s.mirror_of, lookups=tree.meta["build"]["oracle_calls"],
+                                      oracle_calls=0)
             if "model_hash" in source[0].meta:
                 tree.meta["model_hash"] = source[0].meta["model_hash"]
             say(f"{s.name}: mirrored from {s.mirror_of} ({len(tree)} nodes, no oracle call)")
@@ -221,13 +232,15 @@ def _build_locked(
             parent = (sub, built[sub]) if sub is not None and sub in built else None
             tree = _build_one(config, s, meta, partial, fp, executor_factory, progress, resume, parent, oracle_of(s))
             b = tree.meta["build"]
-            also = f", {b['inherited']} reachable vertices inherited from {sub}" if "inherited_from" in tree.meta else ""
-            say(f"{s.name}: {b['oracle_calls']} oracle calls{also}, {len(tree)} nodes, inner volume {tree.volume(INNER):.6g}, {b['seconds']:.2f} s")
+            also = (f", {b['inherited']} reachable vertices inherited from {sub}" if "inherited_from" in tree.meta
+                    else "")
+            say(f"{s.name}: {b['oracle_calls']} oracle calls{also}, {len(tree)} nodes, inner volume "
+                f"{tree.volume(INNER):.6g}, {b['seconds']:.2f} s")
         if s.directions and index is None and tree.vertices.posture is not None:
             tree, index = _index_one(config, s, tree, executor_factory, progress, oracle_of(s))
             i = tree.meta["index"]
-            say(f"{s.name}: reachability index over {s.directions} directions: {i['goals']} goals solved, mean {i['mean']:.3f} at reachable "
-                f"vertices, {i['seconds']:.2f} s")
+            say(f"{s.name}: reachability index over {s.directions} directions: {i['goals']} goals solved, mean "
+                f"{i['mean']:.3f} at reachable vertices, {i['seconds']:.2f} s")
         save_tree(tree, path, index)
         partial.unlink(missing_ok=True)
         built[s.name] = tree
@@ -235,7 +248,8 @@ def _build_locked(
         if faces:
             warnings.append({"strategy": s.name, "faces": faces})
             say(f"warning: {s.name}: {face_text(faces)}")
-        entries.append({"name": s.name, "effector": s.effector, "priority": s.priority, "file": path.name, "oracle": s.oracle.to_dict(), "fingerprint": fp,
+        entries.append({"name": s.name, "effector": s.effector, "priority": s.priority, "file": path.name,
+                        "oracle": s.oracle.to_dict(), "fingerprint": fp,
                         "digest": tree.meta["digest"]})
     entries.sort(key=lambda e: (e["priority"], e["name"]))
     manifest = {
@@ -256,11 +270,13 @@ def _build_locked(
 
 def _build_one(
     config: Config, s: StrategySpec, meta: dict[str, Any], partial: Path, fp: str,
-    executor_factory: Callable[[OracleSpec], Executor] | None, progress: bool, resume: bool, parent: tuple[str, VATree] | None = None,
+    executor_factory: Callable[[OracleSpec], Executor] | None, progress: bool, resume: bool,
+        parent: tuple[str, VATree] | None = None,
     oracle: Oracle | None = None,
 ) -> VATree:
     state = load_state(partial, fp) if resume and partial.is_file() else None
-    ex: Executor = executor_factory(s.oracle) if executor_factory else InlineExecutor(oracle or s.oracle, config.chunk_size)
+    ex: Executor = executor_factory(s.oracle) if executor_factory else InlineExecutor(oracle or s.oracle,
+        config.chunk_size)
     try:
         if isinstance(ex.oracle, ModelHashed):
             meta["model_hash"] = ex.oracle.model_hash
@@ -269,19 +285,24 @@ def _build_one(
             inherit = Inherited(parent[0], parent[1].vertices, ex.oracle.verify)
             meta["inherited_from"] = parent[0]
         return build_tree(
-            s.oracle, config.box, config.d_min, config.d_max, executor=ex, progress=s.name if progress else False, meta=meta, state=state,
-            on_level=lambda st: save_state(st, partial, fp), refine=config.refine, keep_out=_keep_out(ex.oracle), inherit=inherit,
+            s.oracle, config.box, config.d_min, config.d_max, executor=ex, progress=s.name if progress else False,
+                meta=meta, state=state,
+            on_level=lambda st: save_state(st, partial, fp), refine=config.refine, keep_out=_keep_out(ex.oracle),
+                inherit=inherit,
         )
     finally:
         ex.close()
 
 
-def _index_one(config: Config, s: StrategySpec, tree: VATree, executor_factory: Callable[[OracleSpec], Executor] | None, progress: bool,
+def _index_one(config: Config, s: StrategySpec, tree: VATree,
+               executor_factory: Callable[[OracleSpec], Executor] | None, progress: bool,
                oracle: Oracle) -> tuple[VATree, ReachIndex]:
-    """The tree, its meta counting the index's cost, and its reachability index (see :mod:`reach.maps.index`), solved by the strategy's ``index`` variant."""
+    """The tree, its meta counting the index's cost, and its reachability index (see :mod:`reach.maps.index`), solved
+    by the strategy's ``index`` variant."""
     assert isinstance(oracle, Tunable)  # the config checked it
     variant = oracle.variant("index")
-    ex: Executor = executor_factory(variant.spec) if executor_factory and isinstance(variant, Specified) else InlineExecutor(variant, config.chunk_size)
+    ex: Executor = (executor_factory(variant.spec) if executor_factory and isinstance(variant, Specified)
+                    else InlineExecutor(variant, config.chunk_size))
     bar = None
     if progress:
         from tqdm import tqdm

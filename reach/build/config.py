@@ -88,14 +88,16 @@ class Config:
     chunk_size: int = CHUNK_SIZE
     refine: Refine = field(default_factory=Refine)
     raw: dict[str, Any] = field(default_factory=dict, compare=False)
-    notes: tuple[str, ...] = field(default=(), compare=False)  # load-time warnings (see Diagnosed), each naming its strategies
+    # load-time warnings (see Diagnosed), each naming its strategies
+    notes: tuple[str, ...] = field(default=(), compare=False)
     limit: Box | None = None  # box: auto: the provable bound B0 may grow to when reachable vertices lie on its faces
 
     def strategy(self, name: str) -> StrategySpec:
         for s in self.strategies:
             if s.name == name:
                 return s
-        raise ConfigError(self.source, "strategies", f"no strategy {name!r}; known: {[s.name for s in self.strategies]}")
+        raise ConfigError(self.source, "strategies",
+                          f"no strategy {name!r}; known: {[s.name for s in self.strategies]}")
 
 
 class _Checker:
@@ -107,7 +109,8 @@ class _Checker:
     def fail(self, key: str, reason: str) -> ConfigError:
         return ConfigError(self.source, key, reason)
 
-    def mapping(self, value: Any, key: str, allowed: set[str], required: set[str] = frozenset()) -> dict[str, Any]:  # type: ignore[assignment]
+    def mapping(self, value: Any, key: str, allowed: set[str],
+                required: set[str] = frozenset()) -> dict[str, Any]:  # type: ignore[assignment]
         if not isinstance(value, Mapping):
             raise self.fail(key, f"expected a mapping, got {type(value).__name__}")
         prefix = f"{key}." if key else ""
@@ -132,7 +135,8 @@ class _Checker:
         return value
 
     def vector(self, value: Any, key: str) -> list[float]:
-        if not isinstance(value, list) or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value):
+        if not isinstance(value, list) or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                                  for v in value):
             raise self.fail(key, f"expected a list of numbers [m], got {value!r}")
         return [float(v) for v in value]
 
@@ -150,11 +154,14 @@ def _oracle(check: _Checker, value: Any, key: str, base: OracleSpec | None) -> O
 def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atlas") -> Config:
     """Validate a parsed YAML document into a :class:`Config`."""
     check = _Checker(source)
-    top = check.mapping(data, "", TOP_KEYS, {"box", "depth", "strategies"} | (set() if isinstance(data, dict) and "body" in data else {"oracle"}))
+    top = check.mapping(data, "", TOP_KEYS,
+                        {"box", "depth", "strategies"} | (set() if isinstance(data, dict) and "body" in data
+                                                          else {"oracle"}))
     name = check.string(top.get("name", default_name), "name")
     if not name.replace("_", "").replace("-", "").replace(".", "").isalnum() or name.startswith("."):
         # It names the default output folder (out/<name>): no separators, no "..".
-        raise check.fail("name", f"use letters, digits, '-', '_' and '.' only, not first (it names the folder out/<name>), got {name!r}")
+        raise check.fail("name", "use letters, digits, '-', '_' and '.' only, not first (it names the folder "
+                                 f"out/<name>), got {name!r}")
     auto = _auto_box(check, top["box"])
     if auto is None:
         box_raw = check.mapping(top["box"], "box", {"min", "max"}, {"min", "max"})
@@ -198,10 +205,12 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
                 raise check.fail(f"{key}.joints", "joints and tasks need a top-level 'body'")
             if "joints" not in s:
                 raise check.fail(f"{key}.joints", "required key is missing (the joints this strategy may move)")
-            oracle = OracleSpec(oracle.name, {**oracle.params, **body_params(top["body"], effector, s["joints"], s.get("tasks"))})
+            oracle = OracleSpec(oracle.name,
+                                {**oracle.params, **body_params(top["body"], effector, s["joints"], s.get("tasks"))})
         mirror_of = check.string(s["mirror_of"], f"{key}.mirror_of") if "mirror_of" in s else None
         directions = check.integer(s.get("directions", 0), f"{key}.directions", 0, MAX_DIRECTIONS)
-        strategies.append(StrategySpec(sname, effector, priority, oracle, str(s.get("description", "")), mirror_of, directions))
+        strategies.append(StrategySpec(sname, effector, priority, oracle, str(s.get("description", "")), mirror_of,
+                                       directions))
     build = check.mapping(top.get("build", {}), "build", BUILD_KEYS)
     chunk = check.integer(build.get("chunk_size", CHUNK_SIZE), "build.chunk_size", 1, 10**7)
     refine_raw = check.mapping(build.get("refine", {}), "build.refine", REFINE_KEYS)
@@ -211,8 +220,10 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
     refine = Refine(**refine_raw)
     oracles = _check_oracles(check, strategies, box.dim)
     for i, (spec, made) in enumerate(zip(strategies, oracles, strict=True)):
-        if spec.directions and not (isinstance(made, Oriented) and isinstance(made, Tunable) and "direction" in made.orientation_kinds()):
-            raise check.fail(f"strategies[{i}].directions", "the reachability index needs an orientation task with an axis (the effector's "
+        if spec.directions and not (isinstance(made, Oriented) and isinstance(made, Tunable)
+                                    and "direction" in made.orientation_kinds()):
+            raise check.fail(f"strategies[{i}].directions", "the reachability index needs an orientation task with "
+                                                            "an axis (the effector's "
                              "approach axis whose directions it counts), e.g. {type: orientation, axis: z}")
     notes = _diagnose(strategies, oracles)
     if auto is not None:
@@ -220,21 +231,25 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
     names = {spec.name for spec in strategies}
     for i, spec in enumerate(strategies):
         if spec.mirror_of is not None and (spec.mirror_of not in names or spec.mirror_of == spec.name):
-            raise check.fail(f"strategies[{i}].mirror_of", f"expected the name of another strategy, got {spec.mirror_of!r}")
+            raise check.fail(f"strategies[{i}].mirror_of", "expected the name of another strategy, got "
+                                                           f"{spec.mirror_of!r}")
         if spec.mirror_of is not None and box.dim == 3 and box.lo[1] != -box.hi[1]:
-            raise check.fail(f"strategies[{i}].mirror_of", f"mirroring needs a box symmetric about y = 0, got y in [{box.lo[1]}, {box.hi[1]}]")
+            raise check.fail(f"strategies[{i}].mirror_of", "mirroring needs a box symmetric about y = 0, got y in "
+                                                           f"[{box.lo[1]}, {box.hi[1]}]")
     strategies.sort(key=lambda spec: spec.priority)
     return Config(name, source, box, d_min, d_max, tuple(strategies), chunk, refine, dict(top), notes, limit)
 
 
 def _diagnose(strategies: list[StrategySpec], oracles: list[Oracle]) -> tuple[str, ...]:
-    """Each oracle's load-time findings (see :class:`~oracles.protocol.Diagnosed`), once each, naming the strategies it concerns."""
+    """Each oracle's load-time findings (see :class:`~oracles.protocol.Diagnosed`), once each, naming the strategies
+    it concerns."""
     found: dict[str, list[str]] = {}
     for s, oracle in zip(strategies, oracles, strict=True):
         if isinstance(oracle, Diagnosed):
             for finding in oracle.diagnose():
                 found.setdefault(finding, []).append(s.name)
-    return tuple(f"{'strategy' if len(names) == 1 else 'strategies'} {', '.join(names)}: {finding}" for finding, names in found.items())
+    return tuple(f"{'strategy' if len(names) == 1 else 'strategies'} {', '.join(names)}: {finding}"
+                 for finding, names in found.items())
 
 
 def _check_oracles(check: _Checker, strategies: list[StrategySpec], dim: int) -> list[Oracle]:
@@ -249,7 +264,8 @@ def _check_oracles(check: _Checker, strategies: list[StrategySpec], dim: int) ->
             oracle = s.oracle.create()
         except ModelError as exc:
             # A body oracle's error names where in the body or strategy it lies: name it as the config writes it.
-            key = exc.key if exc.key and exc.key.split(".")[0].split("[")[0] == "body" else f"strategies[{i}].{exc.key or 'oracle'}"
+            key = (exc.key if exc.key and exc.key.split(".")[0].split("[")[0] == "body"
+                   else f"strategies[{i}].{exc.key or 'oracle'}")
             raise check.fail(key, f"{exc.source}: {exc.reason}" if exc.source else exc.reason) from exc
         except ReachError as exc:
             raise check.fail(f"strategies[{i}].oracle", str(exc)) from exc
@@ -260,7 +276,8 @@ def _check_oracles(check: _Checker, strategies: list[StrategySpec], dim: int) ->
 
 
 def _auto_box(check: _Checker, value: Any) -> dict[str, Any] | None:
-    """Options of a derived box (``box: auto`` or ``box: {auto: {margin: m, floor: auto}}``), or None for a given one."""
+    """Options of a derived box (``box: auto`` or ``box: {auto: {margin: m, floor: auto}}``), or None for a given
+    one."""
     if value == "auto":
         return {"margin": 0.05, "floor": "auto"}
     if isinstance(value, Mapping) and "auto" in value:
@@ -276,7 +293,8 @@ def _auto_box(check: _Checker, value: Any) -> dict[str, Any] | None:
     return None
 
 
-PROBE_PAD = 0.15  # of a probed extent, added on each side: the 26 probes find the extremes along their own directions only
+# of a probed extent, added on each side: the 26 probes find the extremes along their own directions only
+PROBE_PAD = 0.15
 
 
 def _derive_box(check: _Checker, oracles: list[Oracle], auto: dict[str, Any], symmetric: bool) -> tuple[Box, Box]:
@@ -292,12 +310,15 @@ def _derive_box(check: _Checker, oracles: list[Oracle], auto: dict[str, Any], sy
     for o in oracles:
         bound = o.reach_bound() if isinstance(o, ReachBound) else None
         if bound is None:
-            raise check.fail("box", "box: auto needs body strategies whose reach is bounded (a fixed root, or feet on the floor); give box.min and box.max")
+            raise check.fail("box", "box: auto needs body strategies whose reach is bounded (a fixed root, or feet "
+                                    "on the floor); give box.min and box.max")
         centre, radius = bound
-        ball_lo, ball_hi = np.asarray(centre - radius - auto["margin"], float), np.asarray(centre + radius + auto["margin"], float)
+        ball_lo, ball_hi = np.asarray(centre - radius - auto["margin"],
+                                      float), np.asarray(centre + radius + auto["margin"], float)
         # The floor z = 0 cuts a strategy's box where the strategy itself keeps its effector above it (auto),
         # or everywhere (true); a robot without a floor task reaches below its base's plane.
-        floor = (o.lowest() if isinstance(o, Floored) else None) if auto["floor"] == "auto" else (0.0 if auto["floor"] else None)
+        floor = (o.lowest() if isinstance(o, Floored) else None) if auto["floor"] == "auto" else (0.0
+            if auto["floor"] else None)
         if floor is not None:
             ball_lo[2] = max(ball_lo[2], floor)
         low, high = ball_lo.copy(), ball_hi.copy()
@@ -322,7 +343,8 @@ GROW = 0.25  # of the box's extent, by which a face that reachable vertices lie 
 
 
 def grown(box: Box, limit: Box, faces: set[str]) -> Box | None:
-    """B0 with each named face (``x-``, ``z+`` ...) moved out by ``GROW`` of the box's extent, within limit; None if none can move."""
+    """B0 with each named face (``x-``, ``z+`` ...) moved out by ``GROW`` of the box's extent, within limit; None if
+    none can move."""
     lo, hi = box.lo.copy(), box.hi.copy()
     size = hi - lo
     for face in faces:

@@ -11,7 +11,8 @@ from reach.build.executor import Executor
 from reach.maps.index import ReachIndex
 from reach.maps.tree import VATree, corner_offsets
 
-AGREE = 0.5  # the least share of a cell's corners, reachable and known, whose agreement on a direction a new vertex inherits
+# the least share of a cell's corners, reachable and known, whose agreement on a direction a new vertex inherits
+AGREE = 0.5
 
 
 def vertex_levels(coords: np.ndarray, d_max: int) -> np.ndarray:
@@ -23,8 +24,10 @@ def vertex_levels(coords: np.ndarray, d_max: int) -> np.ndarray:
     return out
 
 
-def compute_index(tree: VATree, executor: Executor, directions: np.ndarray, progress: Callable[[int], None] | None = None) -> tuple[ReachIndex, int]:
-    """The index of a tree's reachable vertices, by an executor of the strategy's ``index`` variant; and the number of goals it solved.
+def compute_index(tree: VATree, executor: Executor, directions: np.ndarray,
+                  progress: Callable[[int], None] | None = None) -> tuple[ReachIndex, int]:
+    """The index of a tree's reachable vertices, by an executor of the strategy's ``index`` variant; and the number
+    of goals it solved.
 
     Coarse to fine, as Algorithm 1 of the paper labels cells: a vertex that
     first appears at depth k lies in a cell of depth k - 1 whose eight
@@ -41,7 +44,8 @@ def compute_index(tree: VATree, executor: Executor, directions: np.ndarray, prog
     coords = lattice.coords(v.keys[rows])
     levels = vertex_levels(coords, tree.d_max)
     known = np.zeros(len(v), bool)
-    posed = np.full((len(v), n, v.posture.shape[1]), np.nan, np.float32)  # the posture that reached each direction (a hint for the finer vertices)
+    # the posture that reached each direction (a hint for the finer vertices)
+    posed = np.full((len(v), n, v.posture.shape[1]), np.nan, np.float32)
     offsets = corner_offsets(tree.dim)
     solved = 0
     for k in np.unique(levels):
@@ -53,7 +57,8 @@ def compute_index(tree: VATree, executor: Executor, directions: np.ndarray, prog
             step = 1 << (tree.d_max - k + 1)
             corner_rows = v.index(lattice.keys((at // step * step)[:, None, :] + offsets[None] * step))  # (m, 2**dim)
             safe = np.maximum(corner_rows, 0)
-            usable = (corner_rows >= 0) & v.reachable[safe] & known[safe]  # (m, 2**dim): the corners whose directions are known
+            # (m, 2**dim): the corners whose directions are known
+            usable = (corner_rows >= 0) & v.reachable[safe] & known[safe]
             corner = reached[safe] & usable[:, :, None]  # (m, 2**dim, n)
             some = corner.any(axis=1)
             every = corner.sum(axis=1) == usable.sum(axis=1)[:, None]
@@ -70,7 +75,8 @@ def compute_index(tree: VATree, executor: Executor, directions: np.ndarray, prog
             if not pick.size:
                 continue
             seeds = np.stack([hint[pick, j], base[pick]], axis=1)
-            goals = Goals(lattice.points(at[pick]), {"orientation": np.tile(directions[j], (len(pick), 1))}, seeds=seeds)
+            goals = Goals(lattice.points(at[pick]), {"orientation": np.tile(directions[j], (len(pick), 1))},
+                          seeds=seeds)
             verdicts = executor.evaluate(goals, progress)
             solved += len(pick)
             reached[sel[pick], j] = verdicts.reachable

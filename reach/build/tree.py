@@ -139,9 +139,11 @@ class Refine:
 
 
 def _evaluate(
-    keys: np.ndarray, table: VertexTable, lattice: Lattice, executor: Executor, progress: Any, label: str, inherit: Inherited | None = None,
+    keys: np.ndarray, table: VertexTable, lattice: Lattice, executor: Executor, progress: Any, label: str,
+        inherit: Inherited | None = None,
 ) -> tuple[VertexTable, int]:
-    """Ask the oracle about keys not yet in the table (one batch), after those inherited; the grown table and how many were inherited."""
+    """Ask the oracle about keys not yet in the table (one batch), after those inherited; the grown table and how
+    many were inherited."""
     new = np.unique(keys)
     new = new[table.index(new) < 0]
     if new.size == 0:
@@ -159,11 +161,13 @@ def _evaluate(
     if progress is not None:
         progress.reset(total=int(new.size))
         progress.set_description(f"{getattr(progress, 'label', '')} {label}".strip())
-    verdicts = executor.evaluate(Goals(pts, seeds=warm_hints(table, lattice, pts)), progress.update if progress is not None else None)
+    verdicts = executor.evaluate(Goals(pts, seeds=warm_hints(table, lattice, pts)), progress.update
+                                 if progress is not None else None)
     return table.merged(new, verdicts.reachable, verdicts.residual, verdicts.posture), taken
 
 
-def _retry_isolated(keys: np.ndarray, table: VertexTable, lattice: Lattice, step: int, executor: Executor) -> tuple[VertexTable, int]:
+def _retry_isolated(keys: np.ndarray, table: VertexTable, lattice: Lattice, step: int,
+                    executor: Executor) -> tuple[VertexTable, int]:
     """Retry unreachable keys whose evaluated neighbours at distance step are all reachable."""
     if table.posture is None or keys.size == 0:
         return table, 0
@@ -216,7 +220,8 @@ def meets(lo: np.ndarray, hi: np.ndarray, capsules: np.ndarray) -> np.ndarray:
 
 
 def build_level(
-    state: BuildState, lattice: Lattice, d_min: int, executor: Executor, progress: Any = None, refine: Refine | None = None,
+    state: BuildState, lattice: Lattice, d_min: int, executor: Executor, progress: Any = None,
+        refine: Refine | None = None,
     keep_out: np.ndarray | None = None, inherit: Inherited | None = None,
 ) -> BuildState:
     """Process the frontier at state.depth; return the state for the next depth.
@@ -240,7 +245,8 @@ def build_level(
             table, retried = _retry_isolated(np.unique(vkeys), table, lattice, 1 << (lattice.d_max - d), executor)
         inside = table.reachable[table.index(vkeys)]
         n_in = inside.sum(axis=1)
-        kinds = np.where(n_in == inside.shape[1], INNER, np.where(n_in == 0, OUTER, np.where(d == lattice.d_max, FINAL, PARENT)))
+        kinds = np.where(n_in == inside.shape[1], INNER,
+                         np.where(n_in == 0, OUTER, np.where(d == lattice.d_max, FINAL, PARENT)))
         kinds = kinds.astype(np.uint8)
         if keep_out is not None and len(keep_out) and lattice.dim == 3:
             inner = np.nonzero(kinds == INNER)[0]
@@ -248,7 +254,8 @@ def build_level(
             lo = lattice.points(frontier[inner])
             kinds[inner[meets(lo, lo + size, keep_out)]] = FINAL if d == lattice.d_max else PARENT
         if refine and (refine.centres or refine.faces) and d < lattice.d_max:
-            kinds, table, probed, taken = _probe_inner(frontier, kinds, d, table, lattice, executor, progress, refine, inherit)
+            kinds, table, probed, taken = _probe_inner(frontier, kinds, d, table, lattice, executor, progress, refine,
+                                                       inherit)
             inherited += taken
     par = frontier[kinds == PARENT]
     step = 1 << (lattice.d_max - d - 1) if d < lattice.d_max else 0
@@ -259,7 +266,8 @@ def build_level(
 
 
 def _probe_inner(
-    frontier: np.ndarray, kinds: np.ndarray, d: int, table: VertexTable, lattice: Lattice, executor: Executor, progress: Any, refine: Refine,
+    frontier: np.ndarray, kinds: np.ndarray, d: int, table: VertexTable, lattice: Lattice, executor: Executor,
+        progress: Any, refine: Refine,
     inherit: Inherited | None = None,
 ) -> tuple[np.ndarray, VertexTable, int, int]:
     """Downgrade to parent the inner cells whose centre (or face-centre) probes fail."""
@@ -292,14 +300,16 @@ def assemble(state: BuildState, box: Box, d_min: int, d_max: int, meta: dict[str
     meta["build"] = {
         **meta.get("build", {}),
         # Each distinct vertex once, plus the retries of isolated vertices, less those inherited.
-        "oracle_calls": len(state.vertices) + sum(int(lv.get("retried", 0)) - int(lv.get("inherited", 0)) for lv in state.levels),
+        "oracle_calls": len(state.vertices) + sum(int(lv.get("retried", 0)) - int(lv.get("inherited", 0))
+                                                  for lv in state.levels),
         "inherited": sum(int(lv.get("inherited", 0)) for lv in state.levels),
         "distinct_vertices": len(state.vertices),
         "lattice_vertices": Lattice(box, d_max).vertex_count,
         "levels": state.levels,
         "seconds": float(sum(lv["seconds"] for lv in state.levels)),
     }
-    return VATree(box, d_min, d_max, depth, np.concatenate(state.corners), kind, bfs_children(kind, box.dim), state.vertices, meta)
+    return VATree(box, d_min, d_max, depth, np.concatenate(state.corners), kind, bfs_children(kind, box.dim),
+                  state.vertices, meta)
 
 
 def build_tree(

@@ -20,7 +20,8 @@ class Box:
         lo = np.asarray(self.lo, dtype=float).reshape(-1)
         hi = np.asarray(self.hi, dtype=float).reshape(-1)
         if lo.shape != hi.shape or lo.shape[0] not in (2, 3):
-            raise TreeError(f"box min and max must both have 2 or 3 coordinates, got {lo.shape} and {hi.shape}", what="box")
+            raise TreeError(f"box min and max must both have 2 or 3 coordinates, got {lo.shape} and {hi.shape}",
+                            what="box")
         if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
             raise TreeError("box coordinates must be finite", what="box")
         if np.any(hi <= lo):

@@ -69,7 +69,8 @@ class ReachIndex:
     @property
     def share(self) -> np.ndarray:
         """(V,) the index: the share of directions each vertex reaches, in [0, 1]."""
-        return self.reached.mean(axis=1) if self.reached.size else np.zeros(len(self.reached))  # type: ignore[no-any-return]
+        return (self.reached.mean(axis=1) if self.reached.size
+                else np.zeros(len(self.reached)))  # type: ignore[no-any-return]
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         return {"index_directions": self.directions.astype(float), "index_bits": np.packbits(self.reached, axis=1)}
@@ -82,10 +83,12 @@ class ReachIndex:
         if "index_directions" not in arrays or "index_bits" not in arrays:
             raise StoreError(where, "the reachability index lacks its directions or its bits")
         d, bits = np.asarray(arrays["index_directions"]), np.asarray(arrays["index_bits"])
-        if d.ndim != 2 or d.shape[1] != 3 or not np.all(np.isfinite(d)) or np.abs(np.linalg.norm(d, axis=1) - 1.0).max(initial=0.0) > 1e-6:
+        if (d.ndim != 2 or d.shape[1] != 3 or not np.all(np.isfinite(d))
+            or np.abs(np.linalg.norm(d, axis=1) - 1.0).max(initial=0.0) > 1e-6):
             raise StoreError(where, f"the reachability index's directions {d.shape} are not unit [x, y, z] rows")
         if bits.dtype != np.uint8 or bits.shape != (vertices, -(-len(d) // 8)):
-            raise StoreError(where, f"the reachability index's bits {bits.shape} do not match {vertices} vertices x {len(d)} directions")
+            raise StoreError(where, f"the reachability index's bits {bits.shape} do not match {vertices} vertices x "
+                                    f"{len(d)} directions")
         return ReachIndex(d, np.unpackbits(bits, axis=1, count=len(d)).astype(bool))
 
 
@@ -162,11 +165,13 @@ class IndexedTree:
 
 
 def summary(tree: VATree, index: ReachIndex | None) -> dict[str, Any] | None:
-    """The index's figures for reports and ``reach info``: directions, its mean and quartiles over reachable vertices, its cost."""
+    """The index's figures for reports and ``reach info``: directions, its mean and quartiles over reachable
+    vertices, its cost."""
     if index is None:
         return None
     share = index.share[tree.vertices.reachable]
     q = np.percentile(share, [25, 50, 75]) if share.size else np.full(3, np.nan)
     meta = tree.meta.get("index", {})
-    return {"directions": len(index.directions), "mean": float(share.mean()) if share.size else None, "quartiles": q.round(4).tolist(),
+    return {"directions": len(index.directions), "mean": float(share.mean()) if share.size else None,
+            "quartiles": q.round(4).tolist(),
             "goals": meta.get("goals"), "seconds": meta.get("seconds")}

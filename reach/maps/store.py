@@ -105,8 +105,8 @@ def read_arrays(path: Path) -> dict[str, np.ndarray]:
         with zipfile.ZipFile(path) as archive:
             for info in archive.infolist():
                 if info.file_size > MAX_MEMBER_BYTES:
-                    raise StoreError(path, f"member {info.filename!r} inflates to {info.file_size} bytes, more than the "
-                                           f"{MAX_MEMBER_BYTES} a tree's array may hold")
+                    raise StoreError(path, f"member {info.filename!r} inflates to {info.file_size} bytes, more than "
+                                           f"the {MAX_MEMBER_BYTES} a tree's array may hold")
         with np.load(path, allow_pickle=False) as data:
             return {name: data[name] for name in data.files}
     except StoreError:
@@ -131,7 +131,8 @@ def read_header(path: Path, raw: bytes, fmt: str, version: int, what: str) -> di
         found = meta.get("format") if isinstance(meta, dict) else None
         raise StoreError(path, f"not a reach {what} (format {found!r}, expected {fmt!r})")
     if meta.get("version") != version:
-        raise StoreError(path, f"{what} format version {meta.get('version')!r}, this reach reads version {version}; rebuild it")
+        raise StoreError(path, f"{what} format version {meta.get('version')!r}, this reach reads version {version}; "
+                               "rebuild it")
     return meta
 
 
@@ -140,7 +141,8 @@ def checked_field(path: Path, arrays: dict[str, np.ndarray], name: str, dtype: A
         raise StoreError(path, f"missing array {name!r}")
     arr = arrays[name]
     if arr.ndim != ndim or not np.can_cast(arr.dtype, dtype, casting="same_kind"):
-        raise StoreError(path, f"array {name!r} has dtype {arr.dtype} and {arr.ndim} dimensions, expected {np.dtype(dtype)} with {ndim}")
+        raise StoreError(path, f"array {name!r} has dtype {arr.dtype} and {arr.ndim} dimensions, expected "
+                               f"{np.dtype(dtype)} with {ndim}")
     return arr.astype(dtype, copy=False)
 
 
@@ -158,7 +160,8 @@ def load_indexed(path: str | Path) -> tuple[VATree, ReachIndex | None]:
     """
     path = Path(path)
     arrays = read_arrays(path)
-    meta = read_header(path, checked_field(path, arrays, "meta", np.uint8, 1).tobytes(), TREE_FORMAT, TREE_VERSION, "tree")
+    meta = read_header(path, checked_field(path, arrays, "meta", np.uint8, 1).tobytes(), TREE_FORMAT, TREE_VERSION,
+                       "tree")
     try:
         box = Box(np.asarray(meta["box"]["min"], float), np.asarray(meta["box"]["max"], float))
         d_min, d_max = int(meta["d_min"]), int(meta["d_max"])
@@ -185,23 +188,27 @@ def load_indexed(path: str | Path) -> tuple[VATree, ReachIndex | None]:
     if posture is not None and posture.shape != (keys.shape[0], len(names)):
         problems.append(f"postures {posture.shape} do not match {keys.shape[0]} vertices x {len(names)} names")
     elif posture is not None and not np.all(np.isfinite(posture)):
-        problems.append(f"{int(np.sum(~np.all(np.isfinite(posture), axis=1)))} stored postures hold NaN or infinite values")
+        problems.append(f"{int(np.sum(~np.all(np.isfinite(posture), axis=1)))} stored postures hold NaN or infinite "
+                        "values")
     if problems:
         raise StoreError(path, "; ".join(problems))
     if "digest" in meta and meta["digest"] != digest({k: v for k, v in arrays.items() if k != "meta"}):
-        raise StoreError(path, "its arrays do not match the digest in its metadata (altered after it was written?); rebuild it")
+        raise StoreError(path, "its arrays do not match the digest in its metadata (altered after it was written?); "
+                               "rebuild it")
     meta = {k: v for k, v in meta.items() if k not in ("format", "version", "box", "d_min", "d_max", "posture_names")}
     vertices = VertexTable(keys, reach_, residual, posture, names)
     wrong = _labels_contradicting_verdicts(Lattice(box, d_max), depth, corner, kind, vertices)
     if wrong:
-        raise StoreError(path, f"{wrong} inner or outer cells contradict their vertices' verdicts (inverted verdicts or shifted corners?)")
+        raise StoreError(path, f"{wrong} inner or outer cells contradict their vertices' verdicts (inverted verdicts "
+                               "or shifted corners?)")
     index = ReachIndex.from_arrays(arrays, keys.shape[0], path)
     if index is not None and np.any(index.reached[~reach_]):
         raise StoreError(path, "the reachability index holds directions reached at unreachable vertices")
     return VATree(box, d_min, d_max, depth, corner, kind, bfs_children(kind, dim), vertices, meta), index
 
 
-def _labels_contradicting_verdicts(lattice: Lattice, depth: np.ndarray, corner: np.ndarray, kind: np.ndarray, vertices: VertexTable) -> int:
+def _labels_contradicting_verdicts(lattice: Lattice, depth: np.ndarray, corner: np.ndarray, kind: np.ndarray,
+                                   vertices: VertexTable) -> int:
     """How many inner cells have a vertex not reachable (or never evaluated), and outer cells one reachable."""
     wrong = 0
     for label, want in ((INNER, True), (OUTER, False)):
@@ -290,8 +297,9 @@ def read_manifest(folder: str | Path) -> dict[str, Any]:
     manifest = read_header(path, path.read_bytes(), ATLAS_FORMAT, ATLAS_VERSION, "atlas")
     if manifest.get("digest") != manifest_digest(manifest):
         # Priorities, strategies or model hashes edited by hand would change the answers silently.
-        raise StoreError(path, "its content does not match its digest: it was edited after 'reach build' wrote it (or written by an "
-                               "older reach); rebuild the atlas, or accept the manifest as it is with 'reach accept ATLAS'")
+        raise StoreError(path, "its content does not match its digest: it was edited after 'reach build' wrote it "
+                               "(or written by an older reach); rebuild the atlas, or accept the manifest as it is "
+                               "with 'reach accept ATLAS'")
     _check_strategies(path, folder, manifest)
     return manifest
 
@@ -299,19 +307,23 @@ def read_manifest(folder: str | Path) -> dict[str, Any]:
 def _check_strategies(path: Path, folder: Path, manifest: dict[str, Any]) -> None:
     """A manifest's strategy list: at least one, each a name and a tree file inside the atlas folder."""
     strategies = manifest.get("strategies")
-    if not isinstance(strategies, list) or not all(isinstance(s, dict) and "name" in s and "file" in s for s in strategies):
+    if not isinstance(strategies, list) or not all(isinstance(s, dict) and "name" in s and "file" in s
+                                                   for s in strategies):
         raise StoreError(path, "'strategies' must be a list of objects with 'name' and 'file'")
     if not strategies:
         raise StoreError(path, "'strategies' is empty: an atlas holds at least one tree; rebuild it with 'reach build'")
     for s in strategies:
-        # A tree file is a plain name inside the atlas folder: a path out of it (../, absolute, a link) is refused unread.
+        # A tree file is a plain name inside the atlas folder: a path out of it (../, absolute, a link) is refused
+        # unread.
         name = s["file"]
         if not isinstance(name, str) or Path(name).name != name or name in (".", "..") or (folder / name).is_symlink():
-            raise StoreError(path, f"strategy {s.get('name')!r}: 'file' must name a file inside the atlas folder, got {name!r}")
+            raise StoreError(path, f"strategy {s.get('name')!r}: 'file' must name a file inside the atlas folder, "
+                                   f"got {name!r}")
 
 
 def accept_manifest(folder: str | Path) -> Atlas:
-    """Accept an atlas's manifest as it now is (a deliberate hand edit): stamp its digest, once the atlas loads with it."""
+    """Accept an atlas's manifest as it now is (a deliberate hand edit): stamp its digest, once the atlas loads with
+    it."""
     folder = Path(folder)
     path = folder / MANIFEST
     if not path.is_file():
@@ -340,7 +352,8 @@ def _load_trees(folder: Path, manifest: dict[str, Any]) -> tuple[dict[str, VATre
         # A tree file copied over another's would otherwise be served under the wrong name.
         for key in ("name", "effector", "fingerprint", "digest"):
             if key in s and key in tree.meta and tree.meta[key] != s[key]:
-                raise StoreError(path, f"holds the tree of {key} {tree.meta[key]!r}, but the manifest lists it for {s[key]!r}; rebuild the atlas")
+                raise StoreError(path, f"holds the tree of {key} {tree.meta[key]!r}, but the manifest lists it for "
+                                       f"{s[key]!r}; rebuild the atlas")
         trees[s["name"]] = tree
     return trees, indexes
 
@@ -353,7 +366,8 @@ def save_audit(atlas: Atlas, result: dict[str, Any]) -> Path:
     """Keep an audit's result beside the atlas it audited (``audit.json``), each strategy with its tree's digest:
     ``reach info`` and ``reach report`` then warn of the regions the tree lacks, while the tree is the one audited."""
     record = {"format": AUDIT_FORMAT, "version": 1, "when": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-              "digests": {name: atlas.trees[name].meta.get("digest") for name in result.get("strategies", {})}, "result": result}
+              "digests": {name: atlas.trees[name].meta.get("digest") for name in result.get("strategies", {})},
+                  "result": result}
     path = atlas.path / AUDIT
     atomic_write(path, lambda fh: fh.write(json.dumps(record, indent=1).encode()))
     return path
@@ -400,7 +414,8 @@ def build_lock(folder: str | Path) -> Iterator[None]:
         fh.seek(0)
         holder = fh.read().strip() or "another process"
         fh.close()
-        raise StoreError(folder, f"another build is writing into this folder ({holder}); wait for it or choose another output folder") from None
+        raise StoreError(folder, f"another build is writing into this folder ({holder}); wait for it or choose "
+                                 "another output folder") from None
     try:
         fh.seek(0)
         fh.truncate()

@@ -140,7 +140,8 @@ class VertexTable:
         pos = np.minimum(pos, len(self) - 1)
         return np.where(self.keys[pos] == keys, pos, -1)
 
-    def merged(self, keys: np.ndarray, reachable: np.ndarray, residual: np.ndarray, posture: np.ndarray | None) -> VertexTable:
+    def merged(self, keys: np.ndarray, reachable: np.ndarray, residual: np.ndarray,
+               posture: np.ndarray | None) -> VertexTable:
         """A new table with new (not yet present) keys added."""
         all_keys = np.concatenate([self.keys, keys])
         order = np.argsort(all_keys, kind="stable")
@@ -287,7 +288,8 @@ class VATree:
             depth += 1
         return node
 
-    def _descend(self, cells: np.ndarray, node: np.ndarray, active: np.ndarray, depth: int, stop: int | None = None) -> np.ndarray:
+    def _descend(self, cells: np.ndarray, node: np.ndarray, active: np.ndarray, depth: int,
+                 stop: int | None = None) -> np.ndarray:
         """Walk the active rows from their nodes (at depth) down to leaves, or to depth stop."""
         weights = 1 << np.arange(self.dim, dtype=np.int64)
         while active.size and (stop is None or depth < stop):
@@ -367,7 +369,8 @@ class VATree:
         """Vertex-table row of the finest-lattice vertex nearest to one point, -1 if never evaluated (plain Python)."""
         lat = self.lattice
         key = 0
-        for p, lo, res, stride in zip(point, self.box.lo.tolist(), lat.resolution.tolist(), lat.strides.tolist(), strict=True):
+        for p, lo, res, stride in zip(point, self.box.lo.tolist(), lat.resolution.tolist(), lat.strides.tolist(),
+                                      strict=True):
             key += min(max(round((p - lo) / res), 0), lat.cells) * stride
         keys = self.vertices.keys
         row = int(np.searchsorted(keys, key))

@@ -45,7 +45,8 @@ def bvh_text(rig: Rig) -> str:
         lines.append(f"{pad}{'ROOT' if root else 'JOINT'} {sk.bones[b]}")
         lines.append(pad + "{")
         lines.append(f"{pad}  OFFSET {_vec(rig.offsets[b])}")
-        lines.append(f"{pad}  CHANNELS 6 Xposition Yposition Zposition {channels}" if root else f"{pad}  CHANNELS 3 {channels}")
+        lines.append(f"{pad}  CHANNELS 6 Xposition Yposition Zposition {channels}" if root else f"{pad}  CHANNELS 3 "
+            f"{channels}")
         for c in children[b]:
             write(c, depth + 1)
         if not children[b]:

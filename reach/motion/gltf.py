@@ -51,25 +51,31 @@ def gltf_document(rig: Rig):  # -> pygltflib.GLTF2
     for b, p in enumerate(sk.parents):
         if p >= 0:
             doc.nodes[p].children.append(b)
-    joint_world = np.concatenate([first, [first[bone] @ _translation(rig.ends[e]) for e, (_, bone, _) in enumerate(sk.ends)]])
+    joint_world = np.concatenate([first,
+                                  [first[bone] @ _translation(rig.ends[e]) for e, (_, bone, _) in enumerate(sk.ends)]])
     ibm = blob.add(np.linalg.inv(joint_world).transpose(0, 2, 1).reshape(-1, 16).astype(np.float32), None)
     doc.accessors.append(g.Accessor(bufferView=ibm, componentType=FLOAT, count=nb + ne, type="MAT4"))
-    doc.skins.append(g.Skin(name="body", joints=list(range(nb + ne)), skeleton=0, inverseBindMatrices=len(doc.accessors) - 1))
+    doc.skins.append(g.Skin(name="body", joints=list(range(nb + ne)), skeleton=0,
+                            inverseBindMatrices=len(doc.accessors) - 1))
 
     if len(rig.capsules):
         _add_mesh(doc, blob, rig, first)
     doc.scenes.append(g.Scene(nodes=[0] + ([len(doc.nodes) - 1] if len(rig.capsules) else [])))
 
     times = rig.times.astype(np.float32)
-    doc.accessors.append(g.Accessor(bufferView=blob.add(times, None), componentType=FLOAT, count=len(times), type="SCALAR",
+    doc.accessors.append(g.Accessor(bufferView=blob.add(times, None), componentType=FLOAT, count=len(times),
+                                    type="SCALAR",
                                     min=[float(times[0])], max=[float(times[-1])]))
     clock = len(doc.accessors) - 1
     animation = g.Animation(name="reach")
     tracks = [(b, "rotation", quats[:, b], "VEC4") for b in range(nb)] + [(0, "translation", rig.root, "VEC3")]
     for node, path, values, kind in tracks:
-        doc.accessors.append(g.Accessor(bufferView=blob.add(values.astype(np.float32), None), componentType=FLOAT, count=len(values), type=kind))
-        animation.samplers.append(g.AnimationSampler(input=clock, output=len(doc.accessors) - 1, interpolation="LINEAR"))
-        animation.channels.append(g.AnimationChannel(sampler=len(animation.samplers) - 1, target=g.AnimationChannelTarget(node=node, path=path)))
+        doc.accessors.append(g.Accessor(bufferView=blob.add(values.astype(np.float32), None), componentType=FLOAT,
+                                        count=len(values), type=kind))
+        animation.samplers.append(g.AnimationSampler(input=clock, output=len(doc.accessors) - 1,
+                                                     interpolation="LINEAR"))
+        animation.channels.append(g.AnimationChannel(sampler=len(animation.samplers) - 1,
+                                                     target=g.AnimationChannelTarget(node=node, path=path)))
     doc.animations.append(animation)
     doc.bufferViews = blob.views
     doc.buffers.append(g.Buffer(byteLength=len(blob.data)))
@@ -99,7 +105,8 @@ def _add_mesh(doc, blob: _Blob, rig: Rig, first: np.ndarray) -> None:
     attributes = g.Attributes()
     for key, data, target in (("POSITION", positions, ARRAY_BUFFER), ("NORMAL", normals, ARRAY_BUFFER)):
         data = data.astype(np.float32)  # min and max as the file holds the values
-        doc.accessors.append(g.Accessor(bufferView=blob.add(data, target), componentType=FLOAT, count=len(data), type="VEC3",
+        doc.accessors.append(g.Accessor(bufferView=blob.add(data, target), componentType=FLOAT, count=len(data),
+                                        type="VEC3",
                                         min=_floats(data.min(axis=0)), max=_floats(data.max(axis=0))))
         setattr(attributes, key, len(doc.accessors) - 1)
     view = blob.add(np.column_stack([joints, np.zeros((len(joints), 3), int)]).astype(np.uint16), ARRAY_BUFFER)
@@ -107,12 +114,17 @@ def _add_mesh(doc, blob: _Blob, rig: Rig, first: np.ndarray) -> None:
     attributes.JOINTS_0 = len(doc.accessors) - 1
     weights = np.zeros((len(joints), 4), np.float32)
     weights[:, 0] = 1.0
-    doc.accessors.append(g.Accessor(bufferView=blob.add(weights, ARRAY_BUFFER), componentType=FLOAT, count=len(joints), type="VEC4"))
+    doc.accessors.append(g.Accessor(bufferView=blob.add(weights, ARRAY_BUFFER), componentType=FLOAT,
+                                    count=len(joints), type="VEC4"))
     attributes.WEIGHTS_0 = len(doc.accessors) - 1
     view = blob.add(faces.reshape(-1).astype(np.uint32), ELEMENT_ARRAY_BUFFER)
     doc.accessors.append(g.Accessor(bufferView=view, componentType=UNSIGNED_INT, count=faces.size, type="SCALAR"))
-    doc.materials.append(g.Material(name="skin", pbrMetallicRoughness=g.PbrMetallicRoughness(baseColorFactor=SKIN_COLOUR, metallicFactor=0.0)))
-    doc.meshes.append(g.Mesh(name="capsules", primitives=[g.Primitive(attributes=attributes, indices=len(doc.accessors) - 1, material=0)]))
+    doc.materials.append(g.Material(name="skin",
+                                    pbrMetallicRoughness=g.PbrMetallicRoughness(baseColorFactor=SKIN_COLOUR,
+                                        metallicFactor=0.0)))
+    doc.meshes.append(g.Mesh(name="capsules",
+                             primitives=[g.Primitive(attributes=attributes, indices=len(doc.accessors) - 1,
+                                                     material=0)]))
     doc.nodes.append(g.Node(name="body", mesh=0, skin=0))
 
 
@@ -153,7 +165,8 @@ def _capsules(rig: Rig, world: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.n
 
 
 def _quaternions(rotations: np.ndarray) -> np.ndarray:
-    """(T, B, 4) unit quaternions (x, y, z, w) of rotations (T, B, 3, 3), each bone's kept on one hemisphere frame to frame."""
+    """(T, B, 4) unit quaternions (x, y, z, w) of rotations (T, B, 3, 3), each bone's kept on one hemisphere frame to
+    frame."""
     t, b = rotations.shape[:2]
     q = Rotation.from_matrix(rotations.reshape(-1, 3, 3)).as_quat().reshape(t, b, 4)
     for k in range(1, t):

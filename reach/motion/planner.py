@@ -59,8 +59,10 @@ from reach.errors import InputError, ReachError
 TMU = 0.036  # [s] one time measurement unit, 0.00001 h (MTM-1 data card)
 INCH = 0.0254  # [m]
 # MTM-1 Reach, case A (to an object in a fixed location): TMU by the distance the hand moves [in] (MTM-1 data card).
-REACH_A = ((0.0, 0.0), (0.75, 2.0), (1, 2.5), (2, 4.0), (3, 5.3), (4, 6.1), (5, 6.5), (6, 7.0), (7, 7.4), (8, 7.9), (9, 8.3),
-           (10, 8.7), (12, 9.6), (14, 10.5), (16, 11.4), (18, 12.3), (20, 13.1), (22, 14.0), (24, 14.9), (26, 15.8), (28, 16.7), (30, 17.5))
+REACH_A = ((0.0, 0.0), (0.75, 2.0), (1, 2.5), (2, 4.0), (3, 5.3), (4, 6.1), (5, 6.5), (6, 7.0), (7, 7.4), (8, 7.9),
+           (9, 8.3),
+           (10, 8.7), (12, 9.6), (14, 10.5), (16, 11.4), (18, 12.3), (20, 13.1), (22, 14.0), (24, 14.9), (26, 15.8),
+               (28, 16.7), (30, 17.5))
 PAST_30 = 0.4  # TMU per inch past 30 in (same table)
 STOOP = 29.0  # TMU: bend, stoop or kneel on one knee (B, S, KOK; MTM-1 body motions)
 FOOT = 8.5  # TMU: foot motion pivoted at the ankle (FM), the MTM-1 element nearest a rise onto the toes
@@ -71,20 +73,27 @@ RATE = 30.0  # [Hz] frames per second by default
 MAX_RATE = 240.0  # [Hz]
 MAX_DURATION = 20.0  # [s] an explicit duration at most this
 CHECK_FRAMES = 16  # frames checked between two readings of the deadline (about 2 ms of the whole body's checks)
-BUDGET = 0.25  # [s] the end posture's refinement budget: a motion is not a 50 Hz query, and a stored posture stops short
-HOLD_STEP = 0.25  # [rad or m] a frame that holding moves more than this (any coordinate) leaves the path: it is routed instead
-JUMP = 2.0  # a held path whose largest step between frames is this many times the unheld path's has a jump: it is routed instead
+# [s] the end posture's refinement budget: a motion is not a 50 Hz query, and a stored posture stops short
+BUDGET = 0.25
+# [rad or m] a frame that holding moves more than this (any coordinate) leaves the path: it is routed instead
+HOLD_STEP = 0.25
+# a held path whose largest step between frames is this many times the unheld path's has a jump: it is routed instead
+JUMP = 2.0
 EDGE_STEP = 0.1  # [rad] posture distance between the checked postures of a routed segment
-EDGE_HOLD = 0.05  # [rad or m] a routed segment's checked posture that holding moves more than this would jump between frames
+# [rad or m] a routed segment's checked posture that holding moves more than this would jump between frames
+EDGE_HOLD = 0.05
 NEIGHBOURS = 10  # stored vertices each one links to in the routing graph
 ENTRIES = 12  # stored vertices tried as the route's first and last waypoints
 ROUNDS = 100  # shortest paths tried before the route is given up
 FINE = 128  # postures sampled along a path to measure the hand's path and time it
-BLEND = 0.4  # share of each segment beside an inner waypoint that its rounded corner takes (under half: corners never overlap)
+# share of each segment beside an inner waypoint that its rounded corner takes (under half: corners never overlap)
+BLEND = 0.4
 BLEND_SAMPLES = 9  # postures along each rounded corner
 POSTURE_SHARE = 0.1  # the posture path's share in a motion's progress (a modelling choice: the rest is the hand's path)
 REACHED, NEAREST = "reached", "nearest"
-REACH_TOLERANCE = 0.005  # [m] a motion's end this near its goal reaches it, for oracles without a verdict of their own (the reach task's default)
+# [m] a motion's end this near its goal reaches it, for oracles without a verdict of their own (the reach task's
+# default)
+REACH_TOLERANCE = 0.005
 MOTION_MISSES = ("nearest", "error")
 
 
@@ -151,7 +160,8 @@ class Timing:
         d, t = zip(*REACH_A, strict=True)
         return float(np.interp(inches, d, t))
 
-    def seconds(self, hand_path: float, root_drop: float, root_tilt: float, root_lift: float) -> tuple[float, dict[str, float]]:
+    def seconds(self, hand_path: float, root_drop: float, root_tilt: float,
+                root_lift: float) -> tuple[float, dict[str, float]]:
         """The duration [s] and its parts [TMU]: the reach, and the body motions the root's excursion calls for."""
         if self.duration is not None:
             return self.duration, {}
@@ -229,8 +239,10 @@ class Motion:
     def summary(self) -> dict[str, Any]:
         """Everything but the frames."""
         return {"effector": self.effector, "goal": list(self.goal), "strategy": self.strategy, "outcome": self.outcome,
-                "point": list(self.point), "refined": self.refined, "within": self.within, "duration": self.duration, "rate": self.rate,
-                "frame_count": len(self.times), "waypoints": self.waypoints, "held": self.held, "timing_tmu": self.parts}
+                "point": list(self.point), "refined": self.refined, "within": self.within, "duration": self.duration,
+                    "rate": self.rate,
+                "frame_count": len(self.times), "waypoints": self.waypoints, "held": self.held,
+                    "timing_tmu": self.parts}
 
     def to_dict(self) -> dict[str, Any]:
         return {**self.summary(), "frames": self.frames()}
@@ -251,7 +263,8 @@ class Planner:
         self._graphs: dict[str, tuple[cKDTree, np.ndarray, np.ndarray, csr_matrix]] = {}
         self._deadline = math.inf  # time.perf_counter() past which the plan in progress stops (see plan)
 
-    def plan(self, effector: str, goal: np.ndarray | list[float], start: dict[str, float] | None = None, *, rate: float = RATE,
+    def plan(self, effector: str, goal: np.ndarray | list[float], start: dict[str, float] | None = None, *,
+             rate: float = RATE,
              timing: Timing | None = None, miss: str = "nearest", deadline: float | None = None) -> Motion:
         """The motion from ``start`` (joint name -> rad or m, ``root_*`` for the base; the reference posture
         where omitted) to the answer for ``goal`` [m], at ``rate`` frames per second.
@@ -269,7 +282,8 @@ class Planner:
         finally:
             self._deadline = math.inf
 
-    def _plan(self, effector: str, goal: np.ndarray | list[float], start: dict[str, float] | None, rate: float, timing: Timing | None,
+    def _plan(self, effector: str, goal: np.ndarray | list[float], start: dict[str, float] | None, rate: float,
+              timing: Timing | None,
               miss: str) -> Motion:
         if not (isinstance(rate, (int, float)) and math.isfinite(rate) and 1.0 <= rate <= MAX_RATE):
             raise InputError("rate", f"expected frames per second in [1, {MAX_RATE:g}], got {rate!r}")
@@ -279,12 +293,14 @@ class Planner:
         g = np.asarray(goal, float).reshape(1, -1)
         names = [n for n in self.selector.check_goals(effector, g, start) if self.selector.atlas.maps[n].posture_names]
         if not names:
-            raise MotionError(f"the strategies of {effector!r} store no postures: there is no body to move", "no_motion")
+            raise MotionError(f"the strategies of {effector!r} store no postures: there is no body to move",
+                              "no_motion")
         answer = self.selector.select(effector, g[0], True, start=start, miss="unreachable")
         if answer.reachable:
             name, outcome, q1 = answer.strategy, REACHED, None
         elif miss == "error":
-            raise MotionError(f"{effector} cannot reach {g[0].tolist()}: no strategy's posture reaches it", "unreachable")
+            raise MotionError(f"{effector} cannot reach {g[0].tolist()}: no strategy's posture reaches it",
+                              "unreachable")
         elif answer.nearest is not None:
             name, outcome = answer.nearest["strategy"], NEAREST
         else:
@@ -307,9 +323,11 @@ class Planner:
         times = postures[1]
         path = np.asarray(oracle.effector_positions(postures[0]))
         if outcome == REACHED and not self._reaches(oracle, g[0], postures[0][-1], path[-1]):
-            outcome = NEAREST  # honest: held frames (or a stored end posture) that stop short of the goal did not reach it
+            # honest: held frames (or a stored end posture) that stop short of the goal did not reach it
+            outcome = NEAREST
         within = answer.within if outcome == REACHED else float(np.linalg.norm(path[-1] - g[0]))
-        return Motion(effector, tuple(g[0].tolist()), name, outcome, tuple(path[-1].tolist()), labels, float(rate), times, postures[0], path,
+        return Motion(effector, tuple(g[0].tolist()), name, outcome, tuple(path[-1].tolist()), labels, float(rate),
+                      times, postures[0], path,
                       answer.refined, within, waypoints, held, postures[2])
 
     @staticmethod
@@ -338,7 +356,8 @@ class Planner:
 
     def _timed(self, oracle: Body, names: tuple[str, ...], waypoints: list[np.ndarray], rate: float,
                timing: Timing) -> tuple[np.ndarray, np.ndarray, dict[str, float]]:
-        """Frames k / rate apart along the waypoints, timed by minimum jerk along the hand's path, and the duration's parts."""
+        """Frames k / rate apart along the waypoints, timed by minimum jerk along the hand's path, and the duration's
+        parts."""
         return next(self._timings(oracle, names, waypoints, rate, timing))
 
     def _timings(self, oracle: Body, names: tuple[str, ...], waypoints: list[np.ndarray], rate: float,
@@ -359,14 +378,16 @@ class Planner:
         seconds, parts = timing.seconds(float(steps.sum()), drop, tilt, lift)
         if not math.isfinite(seconds) or seconds > MAX_DURATION:
             # Bounded whatever the coefficients (issue 35): a motion is at most MAX_DURATION x rate frames.
-            raise InputError("timing", f"these coefficients time this motion at {seconds:.3g} s; a motion lasts at most {MAX_DURATION:g} s")
+            raise InputError("timing", f"these coefficients time this motion at {seconds:.3g} s; a motion lasts at "
+                                       f"most {MAX_DURATION:g} s")
         frames = max(1, int(math.ceil(seconds * rate - 1e-9)))  # the law's duration, rounded up to a whole frame
         times = np.arange(frames + 1) / rate
         # Minimum jerk is a law of the hand's path (Flash and Hogan 1985): progress is the share of the hand's path
         # covered, with a little of the posture's share so that a stretch where the hand stays still takes time too.
         share = minimum_jerk(times / times[-1])
         if steps.sum() > 0.0:
-            progress = (1.0 - POSTURE_SHARE) * np.concatenate([[0.0], np.cumsum(steps)]) / steps.sum() + POSTURE_SHARE * along
+            progress = (1.0 - POSTURE_SHARE) * np.concatenate([[0.0],
+                                                               np.cumsum(steps)]) / steps.sum() + POSTURE_SHARE * along
             yield self._along(oracle, waypoints, np.interp(share, progress, along)), times, parts
         yield self._along(oracle, waypoints, share), times, parts
 
@@ -401,20 +422,25 @@ class Planner:
             a = np.repeat(np.arange(len(rows)), k - 1)
             b = near[:, 1:].ravel()
             w = np.linalg.norm(postures[a] - postures[b], axis=1) + 1e-9
-            graph = csr_matrix((np.concatenate([w, w]), (np.concatenate([a, b]), np.concatenate([b, a]))), shape=(len(rows), len(rows)))
+            graph = csr_matrix((np.concatenate([w, w]), (np.concatenate([a, b]), np.concatenate([b, a]))),
+                               shape=(len(rows), len(rows)))
             self._graphs[name] = (kd, postures, points, graph)
         return self._graphs[name]
 
     def _route(self, name: str, oracle: Body, q0: np.ndarray, q1: np.ndarray) -> list[np.ndarray]:
-        """Waypoints from q0 to q1 through stored postures whose segments hold every task (lazily checked), then shortened."""
+        """Waypoints from q0 to q1 through stored postures whose segments hold every task (lazily checked), then
+        shortened."""
         kd, postures, _, graph = self._graph(name)
         graph = graph.tolil()
         ends = np.asarray(oracle.effector_positions(np.stack([q0, q1])))
         # The route's ends link by segments held as closely as its inner ones, or failing that as closely as frames are.
-        firsts = self._entries(kd, postures, ends[0], q0, oracle, True) or self._entries(kd, postures, ends[0], q0, oracle, True, HOLD_STEP)
-        lasts = self._entries(kd, postures, ends[1], q1, oracle, False) or self._entries(kd, postures, ends[1], q1, oracle, False, HOLD_STEP)
+        firsts = self._entries(kd, postures, ends[0], q0, oracle, True) or self._entries(kd, postures, ends[0], q0,
+            oracle, True, HOLD_STEP)
+        lasts = self._entries(kd, postures, ends[1], q1, oracle, False) or self._entries(kd, postures, ends[1], q1,
+            oracle, False, HOLD_STEP)
         if not firsts or not lasts:
-            raise MotionError(f"no motion of strategy {name} found: no stored posture near the start or the end links to it")
+            raise MotionError(f"no motion of strategy {name} found: no stored posture near the start or the end "
+                              "links to it")
         good: set[tuple[int, int]] = set()
         for _ in range(ROUNDS):
             dist, pred = dijkstra(graph.tocsr(), indices=firsts[0], return_predecessors=True)
@@ -443,7 +469,9 @@ class Planner:
         nearest in posture first: one for the route's start, up to three for its end."""
         _, near = kd.query(point, k=min(ENTRIES, len(postures)))
         near = sorted(np.atleast_1d(near).tolist(), key=lambda i: float(np.linalg.norm(postures[i] - q)))
-        linked = (i for i in near if (self._clear(oracle, q, postures[i], limit) if first else self._clear(oracle, postures[i], q, limit)))
+        linked = (i for i in near
+                  if (self._clear(oracle, q, postures[i], limit) if first
+                      else self._clear(oracle, postures[i], q, limit)))
         return list(itertools.islice(linked, 1 if first else 3))
 
     def _clear(self, oracle: Body, a: np.ndarray, b: np.ndarray, limit: float = EDGE_HOLD) -> bool:
@@ -516,7 +544,8 @@ class Planner:
             share = np.array([BLEND])
             a, b = oracle.interpolate(corner, before, share)[0], oracle.interpolate(corner, after, share)[0]
             for t in np.linspace(0.0, 1.0, BLEND_SAMPLES)[:, None]:
-                out.append(oracle.interpolate(oracle.interpolate(a, corner, t)[0], oracle.interpolate(corner, b, t)[0], t)[0])
+                out.append(oracle.interpolate(oracle.interpolate(a, corner, t)[0],
+                                              oracle.interpolate(corner, b, t)[0], t)[0])
         out.append(waypoints[-1])
         return out
 
@@ -524,7 +553,8 @@ class Planner:
         """Drop every waypoint that a direct segment between its neighbours can skip (greedy, farthest first)."""
         out, i = [waypoints[0]], 0
         while i < len(waypoints) - 1:
-            j = next((j for j in range(len(waypoints) - 1, i + 1, -1) if self._clear(oracle, waypoints[i], waypoints[j])), i + 1)
+            j = next((j for j in range(len(waypoints) - 1, i + 1, -1)
+                      if self._clear(oracle, waypoints[i], waypoints[j])), i + 1)
             out.append(waypoints[j])
             i = j
         return out
@@ -534,7 +564,8 @@ class Planner:
         """The oracle of strategy ``name``, which moves its body (:class:`~oracles.protocol.Moving`)."""
         oracle = self.selector.oracle(name)
         if not isinstance(oracle, Body):
-            raise MotionError(f"strategy {name}'s oracle cannot plan motions (it offers no Moving capability)", "no_motion")
+            raise MotionError(f"strategy {name}'s oracle cannot plan motions (it offers no Moving capability)",
+                              "no_motion")
         return oracle
 
     @staticmethod

@@ -61,25 +61,33 @@ class Rig:
         """The rig as JSON-compatible data (a motion reply's ``rig``; :meth:`from_dict` reads it back)."""
         sk = self.skeleton
         return {"bones": list(sk.bones), "joints": [list(j) for j in sk.joints], "parents": list(sk.parents),
-                "ends": [[name, bone, list(offset)] for name, bone, offset in sk.ends], "capsule_names": list(sk.capsule_names),
+                "ends": [[name, bone, list(offset)] for name, bone, offset in sk.ends],
+                    "capsule_names": list(sk.capsule_names),
                 "capsule_bones": list(sk.capsule_bones), "bone_capsules": np.asarray(sk.capsules, float).tolist(),
                 "offsets": self.offsets.tolist(), "rotations": self.rotations.tolist(), "root": self.root.tolist(),
-                "end_offsets": self.ends.tolist(), "capsules": self.capsules.tolist(), "times": self.times.tolist(), "rate": self.rate}
+                "end_offsets": self.ends.tolist(), "capsules": self.capsules.tolist(), "times": self.times.tolist(),
+                    "rate": self.rate}
 
     @staticmethod
     def from_dict(data: Any) -> Rig:
-        """A rig from :meth:`to_dict`'s data (a server's motion reply); raises InputError naming ``rig`` when malformed."""
+        """A rig from :meth:`to_dict`'s data (a server's motion reply); raises InputError naming ``rig`` when
+        malformed."""
         try:
             bones = tuple(str(b) for b in data["bones"])
             n = len(bones)
-            skeleton = Skeleton(bones, tuple(tuple(str(j) for j in js) for js in data["joints"]), tuple(int(p) for p in data["parents"]),
-                                tuple((str(e[0]), int(e[1]), (float(e[2][0]), float(e[2][1]), float(e[2][2]))) for e in data["ends"]),
-                                tuple(str(c) for c in data["capsule_names"]), np.asarray(data["bone_capsules"], float).reshape(-1, 7),
+            skeleton = Skeleton(bones, tuple(tuple(str(j) for j in js) for js in data["joints"]),
+                                tuple(int(p) for p in data["parents"]),
+                                tuple((str(e[0]), int(e[1]), (float(e[2][0]), float(e[2][1]), float(e[2][2])))
+                                      for e in data["ends"]),
+                                tuple(str(c) for c in data["capsule_names"]),
+                                    np.asarray(data["bone_capsules"], float).reshape(-1, 7),
                                 tuple(int(b) for b in data["capsule_bones"]))
             times = np.asarray(data["times"], float).reshape(-1)
             t = len(times)
-            out = Rig(skeleton, np.asarray(data["offsets"], float).reshape(n, 3), np.asarray(data["rotations"], float).reshape(t, n, 3, 3),
-                      np.asarray(data["root"], float).reshape(t, 3), np.asarray(data["end_offsets"], float).reshape(-1, 3),
+            out = Rig(skeleton, np.asarray(data["offsets"], float).reshape(n, 3),
+                      np.asarray(data["rotations"], float).reshape(t, n, 3, 3),
+                      np.asarray(data["root"], float).reshape(t, 3),
+                          np.asarray(data["end_offsets"], float).reshape(-1, 3),
                       np.asarray(data["capsules"], float).reshape(-1, 7), times, float(data["rate"]))
         except (KeyError, TypeError, ValueError, IndexError) as exc:
             raise InputError("rig", f"a motion's bones are malformed ({type(exc).__name__}: {exc})") from None
@@ -116,7 +124,8 @@ def rig(motion: Motion, body: object) -> Rig:
     spread = np.abs(offsets - offsets[:1]).max(axis=(0, 2))
     moving = [skeleton.bones[b] for b in np.flatnonzero(child & (spread > RIGID))]
     if moving:
-        raise InputError("output", f"bones {', '.join(moving)} change length during the motion: not a skeleton's motion")
+        raise InputError("output",
+                         f"bones {', '.join(moving)} change length during the motion: not a skeleton's motion")
     base = offsets[0].copy()
     base[~child] = 0.0
     ends = np.array([TO_Y_UP @ np.asarray(off) for _, _, off in skeleton.ends]).reshape(-1, 3)

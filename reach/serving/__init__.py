@@ -1,1 +1,2 @@
-"""Serving over ZeroMQ: the wire protocol and its table of operations, the broker (server), the workers and the client."""
+"""Serving over ZeroMQ: the wire protocol and its table of operations, the broker (server), the workers and the
+client."""

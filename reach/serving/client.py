@@ -32,9 +32,11 @@ def load_curve_key(path: str | Path, *, secret: bool, what: str) -> tuple[bytes,
     try:
         public, secret_key = zmq.auth.load_certificate(str(path))
     except (OSError, ValueError) as exc:
-        raise InputError(what, f"{path}: cannot read a CURVE key file ({exc}); write one with `reach keys DIR`") from None
+        raise InputError(what,
+                         f"{path}: cannot read a CURVE key file ({exc}); write one with `reach keys DIR`") from None
     if secret and secret_key is None:
-        raise InputError(what, f"{path}: not a CURVE secret-key file (expected the .key_secret written by `reach keys DIR`)")
+        raise InputError(what, f"{path}: not a CURVE secret-key file (expected the .key_secret written by `reach "
+                               "keys DIR`)")
     return public, secret_key
 
 
@@ -106,7 +108,8 @@ class Client:
             raise InputError("op", f"unknown operation {op!r}; operations are {', '.join(P.OPS)}")
         extra = sorted(set(fields) - {f.name for f in known.fields})
         if extra:
-            raise InputError(op, f"unknown fields {extra}; {op} takes {', '.join(f.name for f in known.fields) or 'none'}")
+            raise InputError(op, f"unknown fields {extra}; {op} takes "
+                                 f"{', '.join(f.name for f in known.fields) or 'none'}")
         rid = next(self._ids)
         payload = json.dumps({"op": op, "id": rid, **fields}).encode()
         for _ in range(self.retries):
@@ -129,11 +132,13 @@ class Client:
         """One goal [m]; ``start`` is the character's current posture (joint name -> rad or m), the query's ``from``;
         ``miss``: ``unreachable`` or ``within``; ``orientation``: ``{"direction": [x, y, z]}`` or
         ``{"quaternion": [qx, qy, qz, qw]}`` (see docs/protocol.md)."""
-        return self.call("query", **self._fields(effector, refine, start, miss, orientation), goal=[float(v) for v in goal])
+        return self.call("query", **self._fields(effector, refine, start, miss, orientation),
+                         goal=[float(v) for v in goal])
 
     def query_many(self, effector: str, goals: list[list[float]], refine: bool | None = None,
                    start: dict[str, float] | None = None, miss: str | None = None,
-                   orientation: dict[str, list[float]] | list[dict[str, list[float]]] | None = None) -> list[dict[str, Any]]:
+                   orientation: dict[str, list[float]] | list[dict[str, list[float]]] | None = None) -> list[dict[str,
+                       Any]]:
         """Goals [m] (``orientation``: one for all, or a list of one per goal; the rest as :meth:`query`)."""
         fields = self._fields(effector, refine, start, miss, orientation)
         return list(self.call("query", **fields, goals=[[float(v) for v in g] for g in goals])["answers"])

@@ -33,7 +33,9 @@ MAX_MESSAGE_BYTES = 1 << 20  # a request larger than this is refused unread
 MAX_BATCH = 10_000  # goals per query
 POLL_MS = 100  # server poll timeout: how often it checks for a stop request
 PUB_HWM = 1000  # messages queued per subscriber before the PUB socket drops
-CHUNK_GOALS = 64  # goals per worker task at most (reach serve --chunk); within it a task is sized by its measured cost (reach.serving.workers.Pool.chunk)
+# goals per worker task at most (reach serve --chunk); within it a task is sized by its measured cost
+# (reach.serving.workers.Pool.chunk)
+CHUNK_GOALS = 64
 REQUEST_TIMEOUT_MS = 2500  # a client's wait for each reply [ms] (zguide's Lazy Pirate)
 REQUEST_RETRIES = 3  # a client's attempts before it gives up
 
@@ -72,7 +74,8 @@ NO_MOTION = "no_motion"  # no motion found that holds every task at every frame
 TIMEOUT = "timeout"  # a motion not planned by its deadline
 BUSY = "busy"  # the client (or all clients together) has as much work queued as the server holds; retry later
 INTERNAL = "internal"  # a bug: the server logs it and keeps serving
-WORKER_ERRORS = (BAD_REQUEST, UNREACHABLE, NO_MOTION, UNKNOWN_EFFECTOR, TIMEOUT)  # a worker's failure answers with these; others are bugs
+# a worker's failure answers with these; others are bugs
+WORKER_ERRORS = (BAD_REQUEST, UNREACHABLE, NO_MOTION, UNKNOWN_EFFECTOR, TIMEOUT)
 
 
 def _reject_constant(name: str) -> float:
@@ -213,7 +216,8 @@ def check_orientation(value: Any) -> dict[str, list[float]] | list[dict[str, lis
 def _one_orientation(value: Any) -> dict[str, list[float]]:
     kinds = ("direction", "quaternion")
     if not isinstance(value, dict) or len(value) != 1 or next(iter(value)) not in kinds:
-        raise Invalid('an object with one of "direction": [x, y, z] (the effector\'s approach axis in the world) or "quaternion": [qx, qy, qz, qw]')
+        raise Invalid('an object with one of "direction": [x, y, z] (the effector\'s approach axis in the world) or '
+                      '"quaternion": [qx, qy, qz, qw]')
     kind, raw = next(iter(value.items()))
     n = 3 if kind == "direction" else 4
     if not isinstance(raw, list) or len(raw) != n:
@@ -229,7 +233,8 @@ def _one_orientation(value: Any) -> dict[str, list[float]]:
 
 def _targets(value: Any) -> list[dict[str, Any]]:
     if not isinstance(value, list) or not value or len(value) > MAX_TARGETS:
-        raise Invalid(f'a list of 1 to {MAX_TARGETS} targets, each {{"point": [x, y, z], "effector": name, "name": optional}}')
+        raise Invalid(f'a list of 1 to {MAX_TARGETS} targets, each '
+                      f'{{"point": [x, y, z], "effector": name, "name": optional}}')
     out = []
     for i, t in enumerate(value):
         if not isinstance(t, dict) or not {"point", "effector"} <= set(t) or set(t) - {"point", "effector", "name"}:
@@ -357,11 +362,12 @@ def _one_goal_or_many(args: dict[str, Any]) -> None:
     if args["single"]:
         args["goals"] = [args["goal"]]
     if isinstance(args.get("orientation"), list) and len(args["orientation"]) != len(args["goals"]):
-        raise Invalid(f"'orientation' must be one object for every goal or a list of one per goal: {len(args['orientation'])} for "
-                      f"{len(args['goals'])} goals")
+        raise Invalid("'orientation' must be one object for every goal or a list of one per goal: "
+                      f"{len(args['orientation'])} for {len(args['goals'])} goals")
 
 
-TAG = Field("tag", "string", _string(MAX_TAG), f"the client's label (at most {MAX_TAG} characters), published with its choices")
+TAG = Field("tag", "string", _string(MAX_TAG), f"the client's label (at most {MAX_TAG} characters), published with "
+                                               "its choices")
 OPERATIONS: dict[str, Operation] = {op.name: op for op in (
     Operation("query", (
         Field("effector", "string", _string(MAX_NAME), "the effector's frame, e.g. `right_hand`", required=True),
@@ -370,22 +376,28 @@ OPERATIONS: dict[str, Operation] = {op.name: op for op in (
         Field("refine", "bool", _bool, "refine by IK at the exact goal (default: the server's)"),
         Field("from", "{joint: rad or m}", _posture, "the character's current posture; refinement starts from it"),
         Field("deadline", "s", _deadline, f"answer within this many seconds of arrival (0 to {MAX_DEADLINE:g})"),
-        Field("miss", "string", _choice(MISSES), "a goal the trees hold but no refinement reaches: `unreachable` or `within` (default: the server's)"),
-        Field("orientation", "{direction: [x, y, z]} or {quaternion: [qx, qy, qz, qw]}, or a list of one per goal", check_orientation,
-              "hold the goals' effector orientation: its approach axis's world direction, or its rotation; only strategies with an "
-              "`orientation` task answer, always refined"),
+        Field("miss", "string", _choice(MISSES), "a goal the trees hold but no refinement reaches: `unreachable` or "
+                                                 "`within` (default: the server's)"),
+        Field("orientation", "{direction: [x, y, z]} or {quaternion: [qx, qy, qz, qw]}, or a list of one per goal",
+              check_orientation,
+              "hold the goals' effector orientation: its approach axis's world direction, or its rotation; only "
+              "strategies with an `orientation` task answer, always refined"),
         TAG,
     ), "which strategy reaches each goal, and in which posture", "op_query",
         worker=Service("_defer_query", "run_query", "_finish_goals", "_expire_goals"), check=_one_goal_or_many),
     Operation("motion", (
         Field("effector", "string", _string(MAX_NAME), "the effector's frame, e.g. `right_hand`", required=True),
         Field("goal", "[x, y, z] m", _point, "the goal in the world frame", required=True),
-        Field("from", "{joint: rad or m}", _posture, "the character's current posture, the first frame (default: the reference posture)"),
+        Field("from", "{joint: rad or m}", _posture, "the character's current posture, the first frame (default: the "
+                                                     "reference posture)"),
         Field("rate", "Hz", _rate, f"frames per second, 1 to {MAX_RATE:g}", default=30.0),
-        Field("timing", "{name: number}", _timing, "overrides of the movement-time law: `tmu`, `past_30`, `stoop`, `foot`, `drop`, `tilt`, `lift`, `duration`"),
-        Field("miss", "string", _choice(MOTION_MISSES), "a goal out of reach: `nearest` (move towards the nearest reachable point) or `error`",
+        Field("timing", "{name: number}", _timing, "overrides of the movement-time law: `tmu`, `past_30`, `stoop`, "
+                                                   "`foot`, `drop`, `tilt`, `lift`, `duration`"),
+        Field("miss", "string", _choice(MOTION_MISSES), "a goal out of reach: `nearest` (move towards the nearest "
+                                                        "reachable point) or `error`",
               default="nearest"),
-        Field("bones", "bool", _bool, "also the motion as bones (`rig`: each bone's offset and rotation per frame, Y up), "
+        Field("bones", "bool", _bool, "also the motion as bones (`rig`: each bone's offset and rotation per frame, Y "
+                                      "up), "
               "from which a client writes BVH or glTF", default=False),
         Field("deadline", "s", _deadline, f"answer within this many seconds of arrival (0 to {MAX_DEADLINE:g})"),
         TAG,
@@ -393,7 +405,8 @@ OPERATIONS: dict[str, Operation] = {op.name: op for op in (
         # A motion's cost: the README's planning times, 0.1-2 s.
         worker=Service("_defer_motion", "run_motion", "_finish_motion", "_expire_whole", cost=0.5)),
     Operation("place", (
-        Field("targets", "[{point, effector, name}]", _targets, f"the layout's targets [m] (at most {MAX_TARGETS})", required=True),
+        Field("targets", "[{point, effector, name}]", _targets, f"the layout's targets [m] (at most {MAX_TARGETS})",
+              required=True),
         Field("x", "[min, max] m", _range, "range of the body's x", required=True),
         Field("y", "[min, max] m", _range, "range of the body's y", required=True),
         Field("z", "[min, max] m", _range, "range of its height (default [0, 0])", default=[0.0, 0.0]),
@@ -401,7 +414,8 @@ OPERATIONS: dict[str, Operation] = {op.name: op for op in (
         Field("step", "m", _positive, "position step (default 0.05)", default=0.05),
         Field("yaw_step", "deg", _positive, "heading step (default 15)", default=15.0),
         Field("top", "int", _top, f"placements returned, 1 to {MAX_TOP} (default 10)", default=10),
-    ), f"where to place the body to reach the targets: placements ranked by the trees (candidates x targets at most {MAX_PLACE_POINTS:,})",
+    ), "where to place the body to reach the targets: placements ranked by the trees (candidates x targets at most "
+       f"{MAX_PLACE_POINTS:,})",
         # A placement's cost: 1.9-2.8 s at its limit (issue 35).
         "op_place", worker=Service("_defer_place", "run_place", "_finish_place", "_expire_whole", cost=1.0)),
     Operation("strategies", (), "the atlas's strategies, effectors, boxes and world frame", "op_strategies"),
@@ -411,8 +425,10 @@ OPERATIONS: dict[str, Operation] = {op.name: op for op in (
     ), "centres of each strategy's reachable cells on a regular grid", "op_cells"),
     Operation("health", (), "status and counters", "op_health"),
     Operation("hello", (TAG,), "publish `hello` with the tag: a subscriber's sync", "op_hello"),
-    Operation("reload", (Field("path", "string", _string(4096), "the atlas folder, under the server's `--allow-reload` root (default: the one served)"),),
-              "load an atlas and serve it (only with `reach serve --allow-reload ROOT`)", "op_reload", later="_reload_later"),
+    Operation("reload", (Field("path", "string", _string(4096), "the atlas folder, under the server's "
+                                                                "`--allow-reload` root (default: the one served)"),),
+              "load an atlas and serve it (only with `reach serve --allow-reload ROOT`)", "op_reload",
+                  later="_reload_later"),
     Operation("version", (), "the protocol's version, the server's and its operations", "op_version"),
 )}
 OPS = tuple(OPERATIONS)

@@ -73,16 +73,19 @@ from reach.serving.workers import FAILED as WORKER_FAILED
 
 log = logging.getLogger("reach.serving.server")
 SLACK = 5.0  # [s] a request's default deadline: the budget per goal, plus this ...
-MAX_WAIT = 60.0  # [s] ... and at most this: a client that vanished without a deadline of its own holds the workers no longer
+# [s] ... and at most this: a client that vanished without a deadline of its own holds the workers no longer
+MAX_WAIT = 60.0
 LOG_EVERY = 60.0  # [s] an identical internal error's traceback is logged at most this often
 REVIVE_EVERY = 0.5  # [s] how often the loop looks for dead workers
 FAILED_TASK = WORKER_FAILED + b" the worker died"
 # Choices published per pass of the loop (about 5 ms of it: 5 us a message, measured): a 10,000-goal batch's
 # publications held the loop 135 ms in one pass.
 PUBLISH_SLICE = 1000
-PUB_MORE, PUB_LAST = int(zmq.NOBLOCK | zmq.SNDMORE), int(zmq.NOBLOCK)  # plain ints: pyzmq's flag enums cost 3 us a message
+# plain ints: pyzmq's flag enums cost 3 us a message
+PUB_MORE, PUB_LAST = int(zmq.NOBLOCK | zmq.SNDMORE), int(zmq.NOBLOCK)
 ZERO_COPY = 1 << 16  # [bytes] replies this large or larger are sent without copying (pyzmq: copy=False)
-EXPIRE_SLICE = 100  # stored answers an expired request gets per pass of the loop (about 15 ms of it: 0.15 ms a goal, measured)
+# stored answers an expired request gets per pass of the loop (about 15 ms of it: 0.15 ms a goal, measured)
+EXPIRE_SLICE = 100
 
 
 @dataclass
@@ -157,8 +160,10 @@ class Server:
     """
 
     def __init__(
-        self, atlas: str | Path, bind: str = P.DEFAULT_BIND, pub: str | None = P.DEFAULT_PUB, *, policy: str = DEFAULT_POLICY,
-        refine: bool = True, budget: float = REFINE_BUDGET, curve_secret: str | Path | None = None, context: zmq.Context | None = None,
+        self, atlas: str | Path, bind: str = P.DEFAULT_BIND, pub: str | None = P.DEFAULT_PUB, *,
+            policy: str = DEFAULT_POLICY,
+        refine: bool = True, budget: float = REFINE_BUDGET, curve_secret: str | Path | None = None,
+            context: zmq.Context | None = None,
         workers: int = 0, handover: float = HANDOVER, miss: str = MISS, allow_reload: str | Path | None = None,
         curve_clients: str | Path | None = None, chunk: int = P.CHUNK_GOALS,
     ) -> None:
@@ -167,9 +172,11 @@ class Server:
         self.chunk = chunk
         # reload is off unless the operator names the folder under which atlases may be loaded.
         self.reload_root = None if allow_reload is None else Path(allow_reload).resolve()
-        keys = load_curve_key(curve_secret, secret=True, what="--curve-secret-key") if curve_secret else None  # before any socket
+        # before any socket
+        keys = load_curve_key(curve_secret, secret=True, what="--curve-secret-key") if curve_secret else None
         if curve_clients is not None and (keys is None or not Path(curve_clients).is_dir()):
-            raise InputError("--curve-clients", f"{curve_clients}: expected a folder of client public-key files, with --curve-secret-key")
+            raise InputError("--curve-clients", f"{curve_clients}: expected a folder of client public-key files, "
+                                                "with --curve-secret-key")
         if curve_clients is not None:
             # Each file the authenticator will read (pyzmq reads *.key), checked now: one malformed file emptied the
             # allow-list after "serving" was printed, and every client was refused.
@@ -181,7 +188,8 @@ class Server:
         self.atlas_path = Path(atlas)
         self.refine, self.budget = refine, budget
         # The selector's options, as the workers' selectors get them too.
-        self.options: dict[str, Any] = {"policy": policy, "refine": refine, "budget": budget, "handover": handover, "miss": miss}
+        self.options: dict[str, Any] = {"policy": policy, "refine": refine, "budget": budget, "handover": handover,
+                                        "miss": miss}
         self.selector = Selector(load_atlas(self.atlas_path), **self.options).warm_up()
         self.context = context or zmq.Context.instance()
         self.router = self.context.socket(zmq.ROUTER)
@@ -224,7 +232,8 @@ class Server:
                 self.authenticator.stop()
             raise
         self._stop = threading.Event()
-        self._signalled = False  # set by SIGINT/SIGTERM: a handler that only assigns can never deadlock (Event.set locks)
+        # set by SIGINT/SIGTERM: a handler that only assigns can never deadlock (Event.set locks)
+        self._signalled = False
         self.started = time.monotonic()
         self.requests = 0
         self.errors = 0
@@ -233,7 +242,8 @@ class Server:
         self.pending: dict[int, Pending] = {}
         self.by_key: dict[tuple[bytes, bytes], int] = {}
         self.expiring: deque[int] = deque()  # requests past their deadline, answered from the store slice by slice
-        self.publishing: deque[tuple[bytes, bytes, list[bytes], int]] = deque()  # (topic, head, bodies, next): choices to publish
+        # (topic, head, bodies, next): choices to publish
+        self.publishing: deque[tuple[bytes, bytes, list[bytes], int]] = deque()
         self.held: dict[bytes, int] = {}  # goals each client has pending (see _admit)
         self.held_requests: dict[bytes, int] = {}
         self._seq = 0
@@ -315,7 +325,8 @@ class Server:
                 backend = self.pool.backend
                 poller.register(backend, zmq.POLLIN)
             soonest = min((p.deadline for p in self.pending.values()), default=math.inf)
-            wait = 0.0 if self.expiring or self.publishing else max(0.0, min(P.POLL_MS / 1000.0, soonest - time.monotonic()))
+            wait = (0.0 if self.expiring or self.publishing
+                    else max(0.0, min(P.POLL_MS / 1000.0, soonest - time.monotonic())))
             events = dict(poller.poll(int(math.ceil(wait * 1000))))
             if self.router in events:
                 for _ in range(64):  # clients first: a stored answer never waits behind workers' results
@@ -348,7 +359,8 @@ class Server:
             rest = rest[1:]
         self.requests += 1
         if len(rest) != 1:
-            reply: bytes | None = P.error_reply(P.BAD_FRAMES, f"expected one payload frame after the envelope, got {len(rest)}")
+            reply: bytes | None = P.error_reply(P.BAD_FRAMES, "expected one payload frame after the envelope, got "
+                                                              f"{len(rest)}")
         else:
             reply = self.respond(rest[0], envelope)
         if reply is not None:
@@ -368,7 +380,8 @@ class Server:
             req = P.parse_request(payload)
             rid = req.id
             later = P.OPERATIONS[req.op].later
-            if envelope is not None and (self._deferred(req, envelope) or (later is not None and getattr(self, later)(req, envelope))):
+            if envelope is not None and (self._deferred(req, envelope)
+                                         or (later is not None and getattr(self, later)(req, envelope))):
                 return None
             return P.ok_reply(self.dispatch(req), rid)
         except Exception as exc:  # noqa: BLE001 - nothing a client sends may stop the server
@@ -382,7 +395,8 @@ class Server:
         if isinstance(exc, MotionError):
             return P.error_reply(exc.code, str(exc), rid)
         if isinstance(exc, ReachError):
-            code = P.UNKNOWN_EFFECTOR if isinstance(exc, UnknownEffector) else P.UNKNOWN_STRATEGY if isinstance(exc, UnknownStrategy) else P.BAD_REQUEST
+            code = (P.UNKNOWN_EFFECTOR if isinstance(exc, UnknownEffector) else P.UNKNOWN_STRATEGY
+                    if isinstance(exc, UnknownStrategy) else P.BAD_REQUEST)
             return P.error_reply(code, str(exc), rid)
         self._log_internal(exc)
         return P.error_reply(P.INTERNAL, f"{type(exc).__name__}: {exc}", rid)
@@ -396,7 +410,8 @@ class Server:
     def op_query(self, req: P.Request) -> bytes:
         # Without workers the loop refines; a deadline stops it refining, and later goals get their stored postures.
         deadline = None if req["deadline"] is None else time.perf_counter() + req["deadline"]
-        answers = self.selector.select_many(req["effector"], np.array(req["goals"]), req["refine"], start=req["from"], miss=req["miss"],
+        answers = self.selector.select_many(req["effector"], np.array(req["goals"]), req["refine"], start=req["from"],
+                                            miss=req["miss"],
                                             orientation=orientation_of(req["orientation"]), deadline=deadline)
         return self._result(req, [a.to_json() for a in answers])
 
@@ -405,7 +420,8 @@ class Server:
         deadline = None if req["deadline"] is None else time.perf_counter() + req["deadline"]
         motion = self.planner.plan(req["effector"], np.array(req["goal"]), req["from"], rate=req["rate"],
                                    timing=Timing.from_dict(req["timing"]), miss=req["miss"], deadline=deadline)
-        data = with_bones(motion.to_dict(), motion, self.planner.body(motion.strategy)) if req["bones"] else motion.to_dict()
+        data = (with_bones(motion.to_dict(), motion, self.planner.body(motion.strategy)) if req["bones"]
+                else motion.to_dict())
         return self._motion_result(req, P.encode(motion.summary()), P.encode(data))
 
     @property
@@ -416,7 +432,8 @@ class Server:
         return self._planner
 
     def _motion_result(self, req: P.Request, summary: bytes, body: bytes) -> bytes:
-        """Publish a motion's summary (everything but its frames) on the effector's topic; the reply is the whole motion."""
+        """Publish a motion's summary (everything but its frames) on the effector's topic; the reply is the whole
+        motion."""
         self._publish(req["effector"].encode(), [summary], req)
         return body
 
@@ -429,9 +446,11 @@ class Server:
 
     def op_health(self, req: P.Request) -> dict[str, Any]:
         return {
-            "status": "serving", "protocol": P.VERSION, "atlas": str(self.atlas_path), "strategies": len(self.selector.order),
+            "status": "serving", "protocol": P.VERSION, "atlas": str(self.atlas_path),
+                "strategies": len(self.selector.order),
             "uptime": time.monotonic() - self.started, "requests": self.requests, "errors": self.errors,
-            "workers": 0 if self.pool is None else self.pool.size, "pending": len(self.pending), "resends": self.resends,
+            "workers": 0 if self.pool is None else self.pool.size, "pending": len(self.pending),
+                "resends": self.resends,
             "worker_restarts": 0 if self.pool is None else self.pool.restarts,
             "workers_ready": 0 if self.pool is None else self.pool.ready,
         }
@@ -439,7 +458,8 @@ class Server:
     def op_strategies(self, req: P.Request) -> dict[str, Any]:
         trees = self.selector.atlas.trees
         return {"strategies": [
-            {"name": n, "effector": e, "priority": int(trees[n].meta.get("priority", 0)), "box": trees[n].box.to_dict(), "d_max": trees[n].d_max}
+            {"name": n, "effector": e, "priority": int(trees[n].meta.get("priority", 0)),
+             "box": trees[n].box.to_dict(), "d_max": trees[n].d_max}
             for n, e in self.selector.order
         ], "effectors": self.selector.effectors, "frame": "world: z up, x forward, y left; metres, radians"}
 
@@ -450,7 +470,8 @@ class Server:
 
     def _reload_path(self, req: P.Request) -> Path:
         if self.reload_root is None:
-            raise P.ProtocolError(P.FORBIDDEN, "reload is off; the operator allows it with reach serve --allow-reload ROOT", req.id)
+            raise P.ProtocolError(P.FORBIDDEN, "reload is off; the operator allows it with reach serve "
+                                               "--allow-reload ROOT", req.id)
         if "\0" in (req["path"] or ""):
             raise P.ProtocolError(P.BAD_REQUEST, "path: a NUL character cannot be in a file path", req.id)
         # Checked before the path is touched: a refused path reveals nothing of what exists there.
@@ -466,7 +487,8 @@ class Server:
         """Start loading a ``reload``'s atlas in the background; its reply goes when the loop has swapped it in."""
         path = self._reload_path(req)
         if self.reloading is not None:
-            raise P.ProtocolError(P.RELOAD_FAILED, f"kept the current atlas: another reload ({self.reloading.path}) is loading", req.id)
+            raise P.ProtocolError(P.RELOAD_FAILED, f"kept the current atlas: another reload ({self.reloading.path}) "
+                                                   "is loading", req.id)
         if self._loader is None:
             self._loader = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="reach-reload")
         self.reloading = Reloading(envelope, req, path, self._loader.submit(self._load, path))
@@ -499,7 +521,8 @@ class Server:
         return {"atlas": str(path), "strategies": len(selector.order)}
 
     def op_place(self, req: P.Request) -> dict[str, Any]:
-        """Placements of the served body ranked by its trees against the request's targets (see :mod:`reach.answers.place`);
+        """Placements of the served body ranked by its trees against the request's targets (see
+        :mod:`reach.answers.place`);
         with workers a worker answers it (seconds at its limit, which held the loop)."""
         return placements(self.selector.atlas, req.args, self.selector.policy)  # type: ignore[arg-type]
 
@@ -539,31 +562,37 @@ class Server:
         if refine:
             if req["orientation"] is not None:
                 aims = orientation_of(req["orientation"])
-                self.selector.oriented(req["effector"], aims[0] if isinstance(aims, list) else aims)  # type: ignore[arg-type]
+                self.selector.oriented(req["effector"], aims[0] if isinstance(aims, list)
+                                       else aims)  # type: ignore[arg-type]
             # Nothing to refine (an analytic atlas, or no strategy holds a goal): stored answers.
             refine = self.selector.needs_ik(req["effector"], goals, req["from"])
         elif len(goals) > P.STORED_IN_LOOP:
             self.selector.check_goals(req["effector"], goals, req["from"])
         if not refine and len(goals) <= P.STORED_IN_LOOP:
-            return False  # answered at once; a larger stored batch (1.4-1.8 s for 10,000 in the loop) goes to the workers
+            # answered at once; a larger stored batch (1.4-1.8 s for 10,000 in the loop) goes to the workers
+            return False
         return self._defer_goals(req, envelope, goals, refine)
 
     def _defer_goals(self, req: P.Request, envelope: list[bytes], goals: np.ndarray, refine: bool) -> bool:
         """Hand a query's goals to the workers in chunks (refined, or their stored answers when not ``refine``)."""
         assert self.pool is not None
         n = len(goals)
-        chunk = self.pool.chunk(self.chunk) if refine else P.STORED_IN_LOOP  # stored answers cost little each: a chunk is about 0.15 s
+        # stored answers cost little each: a chunk is about 0.15 s
+        chunk = self.pool.chunk(self.chunk) if refine else P.STORED_IN_LOOP
         size = max(1, min(chunk, math.ceil(n / max(1, self.pool.size))))
         bounds = [(a, min(n, a + size)) for a in range(0, n, size)]
-        each = self.budget if req["orientation"] is None else max(self.budget, ORIENTED_BUDGET)  # see reach.answers.select
+        # see reach.answers.select
+        each = self.budget if req["orientation"] is None else max(self.budget, ORIENTED_BUDGET)
         seq = self._pend(req, envelope, min(n * each + SLACK, MAX_WAIT) if refine else MAX_WAIT, bounds, n)
         if seq is not None:
             deadline, orientation = self.pending[seq].deadline, req["orientation"]
 
             def make(part: int) -> Task:
                 a, b = bounds[part]
-                return Task(seq, part, req["effector"], req["goals"][a:b].tolist(), req["from"], deadline, req["miss"], envelope[0],
-                            orientation=orientation[a:b] if isinstance(orientation, list) else orientation, refine=refine)
+                return Task(seq, part, req["effector"], req["goals"][a:b].tolist(), req["from"], deadline,
+                            req["miss"], envelope[0],
+                            orientation=orientation[a:b] if isinstance(orientation, list) else orientation,
+                                refine=refine)
 
             self.pool.submit(Tasks(make, len(bounds), seq, envelope[0], deadline))
         return True
@@ -579,7 +608,8 @@ class Server:
         """Hand a placement to the workers."""
         return self._defer_whole(req, envelope, [], {"fields": req.args})
 
-    def _defer_whole(self, req: P.Request, envelope: list[bytes], goals: list[list[float]], options: dict[str, Any]) -> bool:
+    def _defer_whole(self, req: P.Request, envelope: list[bytes], goals: list[list[float]],
+                     options: dict[str, Any]) -> bool:
         """Hand a request a worker answers whole (a motion, a placement) to the workers; it counts as a request, not
         as goals, against what a client may hold (MAX_CLIENT_REQUESTS)."""
         assert self.pool is not None
@@ -587,11 +617,13 @@ class Server:
         assert service is not None
         seq = self._pend(req, envelope, MAX_WAIT, [(0, 1)], 0)
         if seq is not None:
-            self.pool.submit(Task(seq, 0, req.args.get("effector") or "", goals, req.args.get("from"), self.pending[seq].deadline, None,
+            self.pool.submit(Task(seq, 0, req.args.get("effector") or "", goals, req.args.get("from"),
+                                  self.pending[seq].deadline, None,
                                   envelope[0], req.op, options, whole_cost=service.cost))
         return True
 
-    def _pend(self, req: P.Request, envelope: list[bytes], wait: float, bounds: list[tuple[int, int]], goals: int) -> int | None:
+    def _pend(self, req: P.Request, envelope: list[bytes], wait: float, bounds: list[tuple[int, int]],
+              goals: int) -> int | None:
         """Register a request the workers will answer in ``bounds`` parts, by its deadline (``wait`` [s] unless it
         gives one), holding ``goals`` of its client's share; its sequence number, or None for a resend of a request
         being worked on (answered once)."""
@@ -623,10 +655,12 @@ class Server:
         if not server_full and mine + goals <= P.MAX_CLIENT_GOALS and requests + 1 <= P.MAX_CLIENT_REQUESTS:
             return
         what = (f"the server has {total} goals queued (at most {P.MAX_QUEUED_GOALS})" if server_full else
-                f"this client has {mine} goals in {requests} requests queued (at most {P.MAX_CLIENT_GOALS} goals, {P.MAX_CLIENT_REQUESTS} requests)")
+                f"this client has {mine} goals in {requests} requests queued (at most {P.MAX_CLIENT_GOALS} goals, "
+                f"{P.MAX_CLIENT_REQUESTS} requests)")
         # By its deadline at the latest, the soonest of the work counted is answered (an expiring one: within passes).
         now = time.monotonic()
-        soonest = min((min(p.deadline, now) for p in self.pending.values() if server_full or p.envelope[0] == client), default=now)
+        soonest = min((min(p.deadline, now) for p in self.pending.values() if server_full or p.envelope[0] == client),
+                      default=now)
         retry = max(0.1, round(soonest - now, 1))
         raise P.ProtocolError(P.BUSY, f"{what}; retry in about {retry:g} s, when some of it is answered", rid)
 
@@ -654,7 +688,8 @@ class Server:
         if req["orientation"] is not None:  # a stored posture holds no goal's orientation
             return [Answer(req["effector"], tuple(g.tolist()), None, False, refined=outcome).to_json() for g in goals]
         answers = self.selector.select_many(req["effector"], goals, False)
-        return [dataclasses.replace(x, refined=outcome).to_json() if x.refined == SKIPPED else x.to_json() for x in answers]
+        return [dataclasses.replace(x, refined=outcome).to_json() if x.refined == SKIPPED else x.to_json()
+                for x in answers]
 
     def _finished(self, task: Task, frames: list[bytes]) -> None:
         pending = self.pending.get(task.request)
@@ -690,7 +725,8 @@ class Server:
 
     def _finish_place(self, seq: int, pending: Pending, frames: list[bytes], part: int = 0) -> None:
         """A worker's placements: one frame of JSON."""
-        self._finish_whole(seq, pending, frames, 1, "the placements were not ranked", "the placements could not be ranked", lambda f: f[0])
+        self._finish_whole(seq, pending, frames, 1, "the placements were not ranked", "the placements could not be "
+            "ranked", lambda f: f[0])
 
     def _finish_whole(self, seq: int, pending: Pending, frames: list[bytes], count: int, late: str, failed: str,
                       reply: Callable[[list[bytes]], bytes]) -> None:
@@ -784,13 +820,15 @@ class Server:
         try:
             req = pending.request
             self._publish(req["effector"].encode(), bodies, req)
-            self._send(pending.envelope, P.ok_reply(bodies[0], req.id) if req["single"] else P.ok_batch_reply(bodies, req.id))
+            self._send(pending.envelope, P.ok_reply(bodies[0], req.id) if req["single"]
+                       else P.ok_batch_reply(bodies, req.id))
         except Exception as exc:  # a bug must not stop the server
             self._log_internal(exc)
             self._send(pending.envelope, P.error_reply(P.INTERNAL, "the reply could not be made", pending.request.id))
 
     def _log_internal(self, exc: Exception) -> None:
-        """Log a bug's traceback, each distinct one at most once a minute (a client repeating a request must not flood the log)."""
+        """Log a bug's traceback, each distinct one at most once a minute (a client repeating a request must not
+        flood the log)."""
         key = f"{type(exc).__name__}: {exc}"[:300]
         now = time.monotonic()
         if now - self._logged.get(key, -math.inf) >= LOG_EVERY:
@@ -798,8 +836,10 @@ class Server:
             log.error("internal error", exc_info=exc)
 
     def _publish(self, topic: bytes, bodies: list[bytes], req: P.Request) -> None:
-        """Publish each encoded choice with the request's id and tag, in order; a slow subscriber costs a dropped message,
-        never a blocked reply. With workers, at most ``PUBLISH_SLICE`` go now and the rest one slice a pass of the loop."""
+        """Publish each encoded choice with the request's id and tag, in order; a slow subscriber costs a dropped
+        message,
+        never a blocked reply. With workers, at most ``PUBLISH_SLICE`` go now and the rest one slice a pass of the
+        loop."""
         if self.publisher is None:
             return
         head = b'{"id":' + P.encode_value(req.id) + b',"tag":' + P.encode_value(req["tag"])

@@ -49,7 +49,8 @@ def failure_code(exc: Exception) -> str:
 
 def run_query(ctx: Context, job: dict[str, Any], deadline: float) -> list[bytes]:
     """A chunk of a query's goals: one answer's JSON per goal."""
-    answers = ctx.selector.select_many(job["effector"], np.array(job["goals"]), job["refine"], start=job["from"], miss=job["miss"],
+    answers = ctx.selector.select_many(job["effector"], np.array(job["goals"]), job["refine"], start=job["from"],
+                                       miss=job["miss"],
                                        orientation=orientation_of(job["orientation"]), deadline=deadline)
     return [a.to_json() for a in answers]
 
@@ -74,7 +75,9 @@ def placements(atlas: Atlas, fields: dict[str, Any], policy: Policy = "vertex") 
     """A ``place`` request's result (see docs/protocol.md): the fields as the protocol parsed them (degrees for
     ``yaw`` and ``yaw_step``), the placements of the served body ranked by its trees."""
     targets = [Target(t["name"], tuple(t["point"]), t["effector"]) for t in fields["targets"]]
-    space = Space(tuple(fields["x"]), tuple(fields["y"]), tuple(fields["z"]), (math.radians(fields["yaw"][0]), math.radians(fields["yaw"][1])),
+    space = Space(tuple(fields["x"]), tuple(fields["y"]), tuple(fields["z"]),
+                  (math.radians(fields["yaw"][0]), math.radians(fields["yaw"][1])),
                   fields["step"], math.radians(fields["yaw_step"]), max_candidates=P.MAX_PLACE_POINTS // len(targets))
     ranking = rank([atlas], targets, space, policy=policy)
-    return {"candidates": len(ranking.placements), "ranked": [ranking.row(k, targets) for k in range(min(fields["top"], len(ranking.placements)))]}
+    return {"candidates": len(ranking.placements),
+            "ranked": [ranking.row(k, targets) for k in range(min(fields["top"], len(ranking.placements)))]}

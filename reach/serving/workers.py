@@ -40,10 +40,14 @@ READY = b"READY"
 # for a CPU (a nice of 10 alone was not enough: docs/history.md).
 NICE = 10
 EXPIRED = b"expired"
-FOLDER_PREFIX = "reach-serve-"  # the back-end socket's folder in the temporary directory: reach-serve-<server pid>-<random>
+# the back-end socket's folder in the temporary directory: reach-serve-<server pid>-<random>
+FOLDER_PREFIX = "reach-serve-"
 FAILED = b"failed:"
-GOAL_COST = 0.02  # [s] a refined goal's estimated worker time until one is measured (the default refinement budget, reach.answers.select.REFINE_BUDGET)
-TASK_SECONDS = 0.02  # [s] the worker time a task of refined goals is sized to: another client's query waits about this for a busy worker
+# [s] a refined goal's estimated worker time until one is measured (the default refinement budget,
+# reach.answers.select.REFINE_BUDGET)
+GOAL_COST = 0.02
+# [s] the worker time a task of refined goals is sized to: another client's query waits about this for a busy worker
+TASK_SECONDS = 0.02
 MEASURED_SHARE = 0.25  # the weight of the latest task in the running estimate of a refined goal's cost
 STORED_COST = 1.5e-4  # [s] a stored answer's (1.4-1.8 s for 10,000 in the loop: issue 35)
 
@@ -62,7 +66,8 @@ class Task:
     client: bytes = b""  # who asked (the request's routing identity): the queues are served in turn
     op: str = "query"  # the operation (its row of reach.serving.protocol.OPERATIONS names the worker's hook)
     options: dict[str, Any] | None = None  # a motion's rate, timing and miss; a placement's fields
-    orientation: dict[str, list[float]] | list[dict[str, list[float]]] | None = None  # a query's, as the request gives it (its chunk's)
+    # a query's, as the request gives it (its chunk's)
+    orientation: dict[str, list[float]] | list[dict[str, list[float]]] | None = None
     refine: bool = True  # a query's goals refined, or their stored answers only (a large batch, out of the loop)
     whole_cost: float | None = None  # [s] a request answered whole (its Service's cost); None: a chunk of goals
 
@@ -74,8 +79,10 @@ class Task:
         return (goal_seconds if self.refine else STORED_COST) * len(self.goals)
 
     def encode(self) -> bytes:
-        return json.dumps({"op": self.op, "effector": self.effector, "goals": self.goals, "from": self.start, "deadline": self.deadline,
-                           "miss": self.miss, "options": self.options, "orientation": self.orientation, "refine": self.refine}).encode()
+        return json.dumps({"op": self.op, "effector": self.effector, "goals": self.goals, "from": self.start,
+                           "deadline": self.deadline,
+                           "miss": self.miss, "options": self.options, "orientation": self.orientation,
+                               "refine": self.refine}).encode()
 
 
 class Tasks:
@@ -88,7 +95,8 @@ class Tasks:
     """
 
     def __init__(self, make: Callable[[int], Task], parts: int, request: int, client: bytes, deadline: float) -> None:
-        self.make, self.next, self.parts, self.request, self.client, self.deadline = make, 0, parts, request, client, deadline
+        self.make, self.next, self.parts, self.request, self.client, self.deadline = (make, 0, parts, request, client,
+            deadline)
 
     def __len__(self) -> int:
         return self.parts - self.next
@@ -116,7 +124,8 @@ class Pool:
     # the queued one of the client that has had the least, so that one client's long motions cannot starve
     # another's single query (issue 35; a round robin of tasks did, each motion taking seconds).
     served: dict[bytes, float] = field(default_factory=dict)
-    started: dict[bytes, tuple[float, float]] = field(default_factory=dict)  # worker -> (dispatch time, estimate charged)
+    # worker -> (dispatch time, estimate charged)
+    started: dict[bytes, tuple[float, float]] = field(default_factory=dict)
     # A refined goal's worker seconds, as measured on the last tasks: refined together (the selector's passes, a batched
     # engine's starts) a goal costs less in a larger task, so the chunks follow what the goals cost here.
     goal_seconds: float = GOAL_COST
@@ -134,7 +143,9 @@ class Pool:
 
     def _start(self, k: int) -> Any:
         """Worker k, a fresh interpreter (no copy of the server's sockets), known to the broker as ``w<k>``."""
-        p = mp.get_context("spawn").Process(target=work, args=(self._address, str(self.atlas), self.options, f"w{k}".encode()), daemon=True)
+        p = mp.get_context("spawn").Process(target=work,
+                                            args=(self._address, str(self.atlas), self.options, f"w{k}".encode()),
+                                                daemon=True)
         p.start()
         return p
 
@@ -317,6 +328,8 @@ def work(address: str, atlas: str, options: dict[str, Any], identity: bytes) -> 
         assert service is not None  # the server hands over only the operations the workers answer
         try:
             sock.send_multipart(getattr(services, service.run)(context, job, deadline))
-        except Exception as exc:  # noqa: BLE001 - reported to the broker, which answers with an error (or stored answers)
+        # The broker answers a failure with an error (or, for a query, with stored answers).
+        except Exception as exc:  # noqa: BLE001
             code = services.failure_code(exc)
-            sock.send(FAILED + (f" {code}: {exc}" if code != "internal" else f" internal: {type(exc).__name__}: {exc}").encode())
+            sock.send(FAILED + (f" {code}: {exc}" if code != "internal"
+                                else f" internal: {type(exc).__name__}: {exc}").encode())

@@ -37,7 +37,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     except KeyboardInterrupt as exc:
         # A build keeps its checkpoint of the last finished depth: --resume goes on from there.
-        hint = "; run the same build with --resume to go on from its last finished depth" if args.func is cmd_build else ""
+        hint = ("; run the same build with --resume to go on from its last finished depth" if args.func is cmd_build
+                else "")
         if isinstance(exc, Terminated):
             print(f"reach: terminated{hint}", file=sys.stderr)
             return 143

@@ -62,7 +62,8 @@ def fields_verdict(fields: dict[str, str], hosts: Iterable[str]) -> str | None:
 
 
 class Gate:
-    """Listens on ``host:port`` (the next free port upwards) and passes allowed connections to ``upstream_port`` on 127.0.0.1.
+    """Listens on ``host:port`` (the next free port upwards) and passes allowed connections to ``upstream_port`` on
+    127.0.0.1.
 
     Attributes:
         port: The port it listens on.

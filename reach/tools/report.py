@@ -55,7 +55,8 @@ def tables(atlas: Atlas) -> dict[str, Any]:
     """Volumes, extents and pairwise booleans of every strategy."""
     names = list(atlas.trees)
     per = {
-        n: {"effector": t.meta.get("effector"), "priority": t.meta.get("priority"), "volume_inner": t.volume(INNER), "volume_boundary": t.volume(FINAL), **extents(t),
+        n: {"effector": t.meta.get("effector"), "priority": t.meta.get("priority"), "volume_inner": t.volume(INNER),
+            "volume_boundary": t.volume(FINAL), **extents(t),
             "on_faces": t.faces(), "index": index_summary(t, atlas.indexes.get(n))}
         for n, t in atlas.trees.items()
     }
@@ -81,13 +82,18 @@ def markdown(t: dict[str, Any], title: str) -> str:
     def f(v: Any) -> str:
         return "-" if v is None else f"{v:.3f}"
 
-    lines = [f"# Reach report: {title}", "", "Volumes [m^3] (inner cells; boundary cells apart) and extents [m] of the inner and boundary cells.", "",
-             "| strategy | effector | priority | inner | boundary | highest | lowest | forward | left | right |", "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    lines = [f"# Reach report: {title}", "", "Volumes [m^3] (inner cells; boundary cells apart) and extents [m] of "
+                                             "the inner and boundary cells.", "",
+             "| strategy | effector | priority | inner | boundary | highest | lowest | forward | left | right |", "| "
+                 "--- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for n, s in t["strategies"].items():
-        lines.append(f"| {n} | {s['effector']} | {s['priority']} | {f(s['volume_inner'])} | {f(s['volume_boundary'])} | {f(s.get('highest'))} | {f(s.get('lowest'))} | {f(s['forward'])} | {f(s['left'])} | {f(s['right'])} |")
+        lines.append(f"| {n} | {s['effector']} | {s['priority']} | {f(s['volume_inner'])} | "
+                     f"{f(s['volume_boundary'])} | {f(s.get('highest'))} | {f(s.get('lowest'))} | {f(s['forward'])} "
+                     f"| {f(s['left'])} | {f(s['right'])} |")
     cut = {n: s["on_faces"] for n, s in t["strategies"].items() if s.get("on_faces")}
     if cut:
-        lines += ["", "**Warning: the box cuts these volumes** (reachable vertices on its faces; enlarge the box there):", ""]
+        lines += ["", "**Warning: the box cuts these volumes** (reachable vertices on its faces; enlarge the box "
+                      "there):", ""]
         lines += [f"- {n}: " + ", ".join(f"{k} on {f}" for f, k in faces.items()) for n, faces in cut.items()]
     lacks = {n: s["audit_warnings"] for n, s in t["strategies"].items() if s.get("audit_warnings")}
     if lacks:
@@ -95,10 +101,13 @@ def markdown(t: dict[str, Any], title: str) -> str:
         lines += [f"- {n}: {w}" for n, ws in lacks.items() for w in ws]
     indexed = {n: s["index"] for n, s in t["strategies"].items() if s.get("index")}
     if indexed:
-        lines += ["", "Reachability index (share of approach directions reached at the reachable vertices; `index_<strategy>.png`):", "",
+        lines += ["", "Reachability index (share of approach directions reached at the reachable vertices; "
+                      "`index_<strategy>.png`):", "",
                   "| strategy | directions | mean | quartiles |", "| --- | --- | --- | --- |"]
-        lines += [f"| {n} | {i['directions']} | {f(i['mean'])} | {', '.join(f(v) for v in i['quartiles'])} |" for n, i in indexed.items()]
-    lines += ["", "Pairwise volumes [m^3] (inner cells of the boolean trees):", "", "| a | b | a and b | a not b | b not a |", "| --- | --- | --- | --- | --- |"]
+        lines += [f"| {n} | {i['directions']} | {f(i['mean'])} | {', '.join(f(v) for v in i['quartiles'])} |"
+                  for n, i in indexed.items()]
+    lines += ["", "Pairwise volumes [m^3] (inner cells of the boolean trees):", "", "| a | b | a and b | a not b | b "
+        "not a |", "| --- | --- | --- | --- | --- |"]
     for p in t["pairs"]:
         lines.append(f"| {p['a']} | {p['b']} | {p['intersection']:.3f} | {p['a_minus_b']:.3f} | {p['b_minus_a']:.3f} |")
     return "\n".join(lines) + "\n"
@@ -127,7 +136,8 @@ def overlay_names(trees: dict[str, VATree]) -> list[str]:
     """
     names = list(trees)
     effector = trees[names[0]].meta.get("effector")
-    mine = sorted((n for n in names if trees[n].meta.get("effector") == effector), key=lambda n: trees[n].meta.get("priority", 0))
+    mine = sorted((n for n in names if trees[n].meta.get("effector") == effector),
+                  key=lambda n: trees[n].meta.get("priority", 0))
     out: list[str] = []
     for n in mine:
         if not out or trees[n].meta.get("priority") != trees[out[-1]].meta.get("priority"):
@@ -135,7 +145,8 @@ def overlay_names(trees: dict[str, VATree]) -> list[str]:
     return out[:3]
 
 
-def figures(atlas: Atlas, out: Path, level: int = 4, names: list[str] | None = None, planes: tuple[float | None, float | None] = (None, None)) -> list[Path]:
+def figures(atlas: Atlas, out: Path, level: int = 4, names: list[str] | None = None,
+            planes: tuple[float | None, float | None] = (None, None)) -> list[Path]:
     """Write the PNG figures; returns their paths."""
     import matplotlib
 
@@ -167,13 +178,17 @@ def figures(atlas: Atlas, out: Path, level: int = 4, names: list[str] | None = N
         occ = grids[n][0] & ~taken
         taken |= grids[n][0]
         if occ.any():
-            ax.voxels(x, y, z, occ, facecolors=COLOURS[names.index(n) % len(COLOURS)], edgecolors="k", linewidth=0.1, alpha=0.7)
-    ax.legend(handles=[plt.Rectangle((0, 0), 1, 1, color=COLOURS[names.index(n) % len(COLOURS)]) for n in ordered], labels=ordered, fontsize=7, loc="upper left")
+            ax.voxels(x, y, z, occ, facecolors=COLOURS[names.index(n) % len(COLOURS)], edgecolors="k", linewidth=0.1,
+                      alpha=0.7)
+    ax.legend(handles=[plt.Rectangle((0, 0), 1, 1, color=COLOURS[names.index(n) % len(COLOURS)]) for n in ordered],
+              labels=ordered, fontsize=7, loc="upper left")
     written.append(_save(fig, out / "figure8.png"))
     # Figure 11: boxes, dots and a wireframe together.
     overlay = overlay_names(trees)
     fig = plt.figure(figsize=(7, 7))
-    ax = _axes3d(fig, 111, "Overlay: " + ", ".join(f"{n} ({s})" for n, s in zip(overlay, ("boxes", "dots", "wireframe"), strict=False)), first)
+    ax = _axes3d(fig, 111,
+                 "Overlay: " + ", ".join(f"{n} ({s})"
+                                         for n, s in zip(overlay, ("boxes", "dots", "wireframe"), strict=False)), first)
     for k, n in enumerate(overlay):
         occ, edges = grids[n]
         colour = COLOURS[k % len(COLOURS)]
@@ -187,13 +202,16 @@ def figures(atlas: Atlas, out: Path, level: int = 4, names: list[str] | None = N
             ax.voxels(x, y, z, occ, facecolors=(0, 0, 0, 0), edgecolors=colour, linewidth=0.3)
     written.append(_save(fig, out / "figure11.png"))
     written.append(slices(trees, out / "slices.png", level, *planes))
-    written += [heat_map(n, atlas.map(n), out / f"index_{n}.png", level, *planes, directions=len(atlas.indexes[n].directions))
+    written += [heat_map(n, atlas.map(n), out / f"index_{n}.png", level, *planes,
+                         directions=len(atlas.indexes[n].directions))
                 for n in trees if n in atlas.indexes]
     return written
 
 
-def heat_map(name: str, tree: ReachMap, path: Path, level: int, z: float | None = None, y: float | None = None, directions: int = 0) -> Path:
-    """The reachability index on the horizontal and sagittal slices (planes as :func:`slices`), nearest vertex's, blank outside."""
+def heat_map(name: str, tree: ReachMap, path: Path, level: int, z: float | None = None, y: float | None = None,
+             directions: int = 0) -> Path:
+    """The reachability index on the horizontal and sagittal slices (planes as :func:`slices`), nearest vertex's,
+    blank outside."""
     import matplotlib.pyplot as plt
 
     lo, hi = tree.box.lo, tree.box.hi
@@ -310,7 +328,8 @@ def placement_map(ranking: Ranking, targets: Sequence[Target], path: Any, title:
     else:
         bx, by, _, yaw = best
         ax.scatter(t[:, 0], t[:, 1], marker="x", color="red", label="targets")
-        ax.arrow(bx, by, 0.15 * math.cos(yaw), 0.15 * math.sin(yaw), width=0.01, color="white", length_includes_head=True)
+        ax.arrow(bx, by, 0.15 * math.cos(yaw), 0.15 * math.sin(yaw), width=0.01, color="white",
+                 length_includes_head=True)
         ax.plot([bx], [by], "o", color="white", label=f"best: ({bx:.2f}, {by:.2f}) m, {math.degrees(yaw):.0f} deg")
         ax.set_aspect("equal")
         ax.set_xlabel("x [m]")

@@ -20,8 +20,10 @@ SKIN = (0.90, 0.78, 0.67)
 FURNITURE = (0.55, 0.55, 0.58)
 
 
-def draw_capsules(ax: Any, capsules: np.ndarray, view: str = "side", colour: Any = SKIN, edge: Any = (0.45, 0.35, 0.3)) -> None:
-    """Capsules (K, 7: end points a, b [m], radius [m]) as their outlines projected on the view's plane, far ones first."""
+def draw_capsules(ax: Any, capsules: np.ndarray, view: str = "side", colour: Any = SKIN,
+                  edge: Any = (0.45, 0.35, 0.3)) -> None:
+    """Capsules (K, 7: end points a, b [m], radius [m]) as their outlines projected on the view's plane, far ones
+    first."""
     from matplotlib.patches import Circle, Polygon
 
     i, j = AXES[view]
@@ -34,9 +36,12 @@ def draw_capsules(ax: Any, capsules: np.ndarray, view: str = "side", colour: Any
         n = float(np.linalg.norm(d))
         if n > 1e-9:
             normal = np.array([-d[1], d[0]]) / n * r
-            ax.add_patch(Polygon([a + normal, b + normal, b - normal, a - normal], closed=True, facecolor=colour, edgecolor="none", zorder=3))
-            ax.plot([a[0] + normal[0], b[0] + normal[0]], [a[1] + normal[1], b[1] + normal[1]], color=edge, lw=0.6, zorder=4)
-            ax.plot([a[0] - normal[0], b[0] - normal[0]], [a[1] - normal[1], b[1] - normal[1]], color=edge, lw=0.6, zorder=4)
+            ax.add_patch(Polygon([a + normal, b + normal, b - normal, a - normal], closed=True, facecolor=colour,
+                                 edgecolor="none", zorder=3))
+            ax.plot([a[0] + normal[0], b[0] + normal[0]], [a[1] + normal[1], b[1] + normal[1]], color=edge, lw=0.6,
+                    zorder=4)
+            ax.plot([a[0] - normal[0], b[0] - normal[0]], [a[1] - normal[1], b[1] - normal[1]], color=edge, lw=0.6,
+                    zorder=4)
         for end in (a, b):
             ax.add_patch(Circle(tuple(end), r, facecolor=colour, edgecolor=edge, lw=0.6, zorder=3))
 
@@ -50,7 +55,8 @@ def draw_boxes(ax: Any, boxes: Sequence[Box], view: str = "side", colour: Any = 
     for box in boxes:
         pts = box.corners()[:, [i, j]]
         hull = ConvexHull(pts)
-        ax.add_patch(Polygon(pts[hull.vertices], closed=True, facecolor=colour, edgecolor="k", lw=0.5, alpha=0.8, zorder=2))
+        ax.add_patch(Polygon(pts[hull.vertices], closed=True, facecolor=colour, edgecolor="k", lw=0.5, alpha=0.8,
+                             zorder=2))
 
 
 def body_figure(capsules: np.ndarray, boxes: Sequence[Box], path: Any, title: str = "") -> Any:
@@ -98,7 +104,8 @@ def from_row(row: np.ndarray) -> Box:
     import pinocchio as pin
 
     rotation = pin.Quaternion(float(row[6]), float(row[7]), float(row[8]), float(row[9])).toRotationMatrix()
-    return Box(tuple(row[:3] - row[3:6]), tuple(row[:3] + row[3:6]), tuple(tuple(float(v) for v in r) for r in rotation))  # type: ignore[arg-type,misc]
+    return Box(tuple(row[:3] - row[3:6]), tuple(row[:3] + row[3:6]),
+               tuple(tuple(float(v) for v in r) for r in rotation))  # type: ignore[arg-type,misc]
 
 
 def layout_figure(atlases: Sequence[Any], results: dict[str, Any], path: Any, resolution: float = 0.01) -> Any:
@@ -147,7 +154,8 @@ def layout_figure(atlases: Sequence[Any], results: dict[str, Any], path: Any, re
                 taken |= held
                 rgba = matplotlib.colors.to_rgba(colour[n], 0.35)
                 image.reshape(-1, 4)[held] = rgba
-            ax.imshow(np.transpose(image, (1, 0, 2)), origin="lower", extent=(lo[i], hi[i], lo[j], hi[j]), zorder=1, interpolation="nearest")
+            ax.imshow(np.transpose(image, (1, 0, 2)), origin="lower", extent=(lo[i], hi[i], lo[j], hi[j]), zorder=1,
+                      interpolation="nearest")
             draw_boxes(ax, boxes, view)
             draw_capsules(ax, capsules, view)
             for r, p in zip(result["rows"], points, strict=True):
@@ -157,7 +165,8 @@ def layout_figure(atlases: Sequence[Any], results: dict[str, Any], path: Any, re
                     ax.scatter([p[i]], [p[j]], s=50, marker="x", color="red", zorder=6)
             frame(ax, view, capsules, boxes, points)
             which = "y" if view == "side" else "z"
-            ax.set_title(f"{result['name'] or atlas.path.name}: {view}, volumes at {which} = {shoulder[3 - i - j]:.2f} m (right shoulder)", fontsize=9)
+            ax.set_title(f"{result['name'] or atlas.path.name}: {view}, volumes at {which} = "
+                         f"{shoulder[3 - i - j]:.2f} m (right shoulder)", fontsize=9)
         handles: list[Any] = [plt.Rectangle((0, 0), 1, 1, color=colour[n], alpha=0.6) for n in names]
         handles.append(plt.Line2D([], [], marker="x", color="red", linestyle=""))
         axes[row, 0].legend(handles, [*names, "unreachable"], fontsize=8, loc="upper right")

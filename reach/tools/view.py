@@ -145,7 +145,8 @@ class Viewer:
             self.server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
         if not guarded:
             self.server.stop()
-            raise InputError("viser", f"viser {viser.__version__} did not start its server through websockets' serve, so its own port "
+            raise InputError("viser", f"viser {viser.__version__} did not start its server through websockets' "
+                                      "serve, so its own port "
                               "cannot be guarded; install a viser that does (1.1 does)")
         self.gate = Gate(host, port, self.server.get_port())
         gate_names.update(self.gate.hosts)
@@ -157,7 +158,8 @@ class Viewer:
 
             self.client = Client(connect)
         self._lock = threading.Lock()
-        self._drawn: dict[tuple[int, str], tuple[tuple[Any, ...], Any]] = {}  # layer -> (the settings it was drawn with, its handle)
+        # layer -> (the settings it was drawn with, its handle)
+        self._drawn: dict[tuple[int, str], tuple[tuple[Any, ...], Any]] = {}
         self.scenes: list[Scene] = []
         for k, atlas in enumerate(atlases):
             names = list(atlas.trees)
@@ -171,7 +173,8 @@ class Viewer:
         self.effector = "right_hand" if "right_hand" in effectors else effectors[0]
         self.answers: list[dict[str, Any]] = []
         self.goal = np.array([0.45, -0.25, 1.2])
-        self.motion: dict[str, Any] | None = None  # the planned motion: its summary, times and postures (the shaper's order)
+        # the planned motion: its summary, times and postures (the shaper's order)
+        self.motion: dict[str, Any] | None = None
         self._path: Any = None
         self._planner: Any = None
         self._player: threading.Thread | None = None
@@ -193,11 +196,14 @@ class Viewer:
         with gui.add_folder("Goal"):
             self.effector_box = gui.add_dropdown("effector", self.selectors[0].effectors, initial_value=self.effector)
             self.goal_box = gui.add_vector3("goal [m]", tuple(self.goal), step=0.01)
-            self.policy_box = gui.add_dropdown("policy", list(POLICIES), initial_value=self.policy, disabled=self.client is not None,
-                                               hint="the server's own policy applies with --connect" if self.client else None)
+            self.policy_box = gui.add_dropdown("policy", list(POLICIES), initial_value=self.policy,
+                                               disabled=self.client is not None,
+                                               hint="the server's own policy applies with --connect" if self.client
+                                                   else None)
             self.answer_box = gui.add_markdown("")
         with gui.add_folder("Motion"):
-            self.plan_button = gui.add_button("plan the reach motion", hint="from the reference posture to the answer (the first atlas)")
+            self.plan_button = gui.add_button("plan the reach motion", hint="from the reference posture to the "
+                "answer (the first atlas)")
             self.play_button = gui.add_button("play / pause", disabled=True)
             self.frame_slider = gui.add_slider("frame", 0, 1, 1, 0, disabled=True)
             self.speed_slider = gui.add_slider("speed", 0.1, 1.0, 0.05, 1.0, hint="playback speed: 1 is real time")
@@ -205,11 +211,14 @@ class Viewer:
         with gui.add_folder("Volumes"):
             self.style_box = gui.add_dropdown("style", list(STYLES), initial_value="boxes")
             self.cells_box = gui.add_dropdown("cells", list(CELLS), initial_value="boundary")
-            self.first_box = gui.add_checkbox("first strategy by priority", False, hint="each cell in the colour of the first strategy that holds it (the paper's Figure 8)")
-            self.index_box = gui.add_checkbox("reachability index", False, hint="colour the cells of strategies built with `directions: N` by the share "
+            self.first_box = gui.add_checkbox("first strategy by priority", False, hint="each cell in the colour of "
+                "the first strategy that holds it (the paper's Figure 8)")
+            self.index_box = gui.add_checkbox("reachability index", False, hint="colour the cells of strategies "
+                "built with `directions: N` by the share "
                                               "of approach directions reached (viridis: dark 0, yellow 1)")
             self.slice_axis = gui.add_dropdown("slice axis", list(SLICE_AXES), initial_value="none")
-            lo, hi = self.scenes[0].atlas.trees[next(iter(self.scenes[0].atlas.trees))].box.lo, self.scenes[0].atlas.trees[next(iter(self.scenes[0].atlas.trees))].box.hi
+            lo, hi = (self.scenes[0].atlas.trees[next(iter(self.scenes[0].atlas.trees))].box.lo,
+                      self.scenes[0].atlas.trees[next(iter(self.scenes[0].atlas.trees))].box.hi)
             self.slice_at = gui.add_slider("slice at [m]", float(lo.min()), float(hi.max()), 0.01, 1.0)
             self.layer_boxes: dict[tuple[int, str], Any] = {}
             for k, scene in enumerate(self.scenes):
@@ -229,7 +238,8 @@ class Viewer:
         self.frame_slider.on_update(lambda _e: self.show_frame(int(self.frame_slider.value)))
         self.effector_box.on_update(lambda e: self.set_effector(self.effector_box.value))
         self.policy_box.on_update(lambda e: self.set_policy(self.policy_box.value))
-        self.gizmo = self.server.scene.add_transform_controls("/goal", scale=0.25, disable_rotations=True, position=tuple(self.goal))
+        self.gizmo = self.server.scene.add_transform_controls("/goal", scale=0.25, disable_rotations=True,
+                                                              position=tuple(self.goal))
         # One marker per atlas: the gizmo's own for the first, the same goal beside each other body.
         self.goal_markers = [self.server.scene.add_icosphere("/goal/marker", radius=0.025, color=(20, 20, 20))]
         self.goal_markers += [self.server.scene.add_icosphere(f"/atlas{k}/goal", radius=0.025, color=(20, 20, 20))
@@ -259,12 +269,14 @@ class Viewer:
             length = float(np.linalg.norm(cap[3:6] - cap[:3]))
             mesh = trimesh.creation.capsule(height=max(length, 1e-6), radius=float(cap[6]), count=[12, 12])
             scene.capsules.append(self.server.scene.add_mesh_simple(
-                f"/atlas{k}/body/{name}", np.asarray(mesh.vertices, np.float32), np.asarray(mesh.faces, np.uint32), color=BODY))
+                f"/atlas{k}/body/{name}", np.asarray(mesh.vertices, np.float32), np.asarray(mesh.faces, np.uint32),
+                    color=BODY))
         self._pose(scene, caps)
         if isinstance(shaper, Furnished):
             for name, box in zip(*shaper.furniture(), strict=True):
                 scene.furniture.append(self.server.scene.add_box(
-                    f"/atlas{k}/furniture/{name}", color=FURNITURE, dimensions=tuple(2 * box[3:6]), wxyz=tuple(box[6:10]),
+                    f"/atlas{k}/furniture/{name}", color=FURNITURE, dimensions=tuple(2 * box[3:6]),
+                        wxyz=tuple(box[6:10]),
                     position=tuple(box[:3] + scene.offset), opacity=0.6))
 
     def _pose(self, scene: Scene, caps: np.ndarray) -> None:
@@ -307,7 +319,8 @@ class Viewer:
         return cells.select(mask)
 
     def _settings(self) -> tuple[Any, ...]:
-        return (self.style_box.value, self.cells_box.value, self.first_box.value, self.index_box.value, self.slice_axis.value, self.slice_at.value,
+        return (self.style_box.value, self.cells_box.value, self.first_box.value, self.index_box.value,
+                self.slice_axis.value, self.slice_at.value,
                 self.policy)
 
     def draw(self) -> None:
@@ -330,7 +343,8 @@ class Viewer:
                         self._drawn[(k, name)] = (settings, self._layer(k, i, name, path))
 
     def _layer(self, k: int, i: int, name: str, path: str) -> Any:
-        """Send one layer to the page: one instanced mesh (or point cloud) of its visible cells; None when it has none."""
+        """Send one layer to the page: one instanced mesh (or point cloud) of its visible cells; None when it has
+        none."""
         scene = self.scenes[k]
         cells = self.visible_cells(k, name)
         if not len(cells.centre):
@@ -342,7 +356,8 @@ class Viewer:
             colour = np.tile(scene.colours[i], (len(centre), 1))
             colour[~cells.inner] = (colour[~cells.inner] * BOUNDARY_SHADE).astype(np.uint8)
         if self.style_box.value == "dots":
-            return self.server.scene.add_point_cloud(path, centre, colour, point_size=float(cells.size.min()) * 0.5, point_shape="circle", point_shading="flat")
+            return self.server.scene.add_point_cloud(path, centre, colour, point_size=float(cells.size.min()) * 0.5,
+                                                     point_shape="circle", point_shading="flat")
         vertices, faces = cube()
         return self.server.scene.add_batched_meshes_simple(
             path, vertices, faces, np.tile([1.0, 0.0, 0.0, 0.0], (len(centre), 1)), centre,
@@ -370,7 +385,9 @@ class Viewer:
 
     def set_policy(self, policy: str) -> None:
         self.policy = policy
-        self.selectors = [Selector(s.atlas, policy=policy, refine=self.refine) for s in self.scenes]  # type: ignore[arg-type]
+        self.selectors = [
+            Selector(s.atlas, policy=policy, refine=self.refine) for s in self.scenes  # type: ignore[arg-type]
+        ]
         self._planner = None
         for s in self.scenes:
             s.covered.clear()
@@ -399,7 +416,8 @@ class Viewer:
         if not np.allclose(self.gizmo.position, goal):
             self.gizmo.position = tuple(goal)
         if not np.allclose(self.goal_box.value, goal):
-            self.goal_box.value = (float(goal[0]), float(goal[1]), float(goal[2]))  # type: ignore[misc]  # settable at run time
+            # settable at run time
+            self.goal_box.value = (float(goal[0]), float(goal[1]), float(goal[2]))  # type: ignore[misc]
         lines = []
         for k, (scene, a) in enumerate(zip(self.scenes, self.answers, strict=True)):
             label = scene.atlas.manifest.get("name", f"atlas {k}")
@@ -413,12 +431,14 @@ class Viewer:
             r, g, b = (int(c) for c in scene.colours[names.index(a["strategy"])])
             alt = ", ".join(a["alternatives"]) or "none"
             residual = "n/a" if a["residual"] is None else f"{1000 * a['residual']:.1f} mm"
-            passed = f"  \nhanded over by {a['handover']['from']} (at its limits: {', '.join(a['handover']['limits'])})" if a.get("handover") else ""
+            passed = (f"  \nhanded over by {a['handover']['from']} (at its limits: "
+                      f"{', '.join(a['handover']['limits'])})" if a.get("handover") else "")
             lines.append(f"**{label}**: <span style='color: rgb({r},{g},{b})'>&#9632;</span> **{a['strategy']}**  \n"
                          f"alternatives: {alt}  \nrefined: {a['refined']}, residual {residual}{passed}")
             self.goal_markers[k].color = (r, g, b)
             if scene.shaper is not None and a["posture"] is not None:
-                q = posture_vector(scene.shaper.posture_names, scene.shaper.reference_posture(), a["posture"], a["root"])
+                q = posture_vector(scene.shaper.posture_names, scene.shaper.reference_posture(), a["posture"],
+                                   a["root"])
                 self._pose(scene, scene.shaper.shape(q)[1])
         self.answer_box.content = "\n\n".join(lines)
         return self.answers
@@ -439,12 +459,16 @@ class Viewer:
             raise InputError("motion", "this atlas has no body to move")
         try:
             if self.client is not None:
-                data = {k: v for k, v in self.client.motion(effector=self.effector, goal=[float(v) for v in self.goal]).items() if k not in ("id", "ok")}
+                data = {k: v for k, v in self.client.motion(effector=self.effector,
+                                                            goal=[float(v) for v in self.goal]).items()
+                                                                if k not in ("id", "ok")}
             else:
-                if self._planner is None:  # its own selector: a motion ends in a refined answer, whatever the view shows
+                # its own selector: a motion ends in a refined answer, whatever the view shows
+                if self._planner is None:
                     self._planner = Planner(Selector(scene.atlas, policy=self.policy))  # type: ignore[arg-type]
                 data = self._planner.plan(self.effector, self.goal).to_dict()
-        except (MotionError, InputError, ServerError, ServerUnavailable) as exc:  # shown on the panel: the page lives on
+        # shown on the panel: the page lives on
+        except (MotionError, InputError, ServerError, ServerUnavailable) as exc:
             self.motion_box.content = f"no motion: {exc}"
             return {"error": str(exc)}
         ref, names = scene.shaper.reference_posture(), scene.shaper.posture_names
@@ -458,8 +482,9 @@ class Viewer:
         self._path = self.server.scene.add_line_segments("/atlas0/motion/path", segments, (20, 20, 20), thickness=0.006)
         last = len(postures) - 1
         self.frame_slider.max, self.frame_slider.disabled, self.play_button.disabled = max(last, 1), False, False
-        self.motion_box.content = (f"**{data['strategy']}**, {data['outcome']}: {data['duration']:.2f} s, {len(postures)} frames at {data['rate']:g} Hz  \n"
-                                   f"{data['waypoints']} stored postures on the way, {data['held']} frames held")
+        self.motion_box.content = (f"**{data['strategy']}**, {data['outcome']}: {data['duration']:.2f} s, "
+                                   f"{len(postures)} frames at {data['rate']:g} Hz  \n{data['waypoints']} stored "
+                                   f"postures on the way, {data['held']} frames held")
         self.frame_slider.value = 0  # type: ignore[misc]  # settable at run time
         self.show_frame(0)
         return data

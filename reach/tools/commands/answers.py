@@ -54,8 +54,10 @@ def _start(value: str | None) -> dict[str, float] | None:
     try:
         data = json.loads(text)
     except ValueError as exc:
-        raise InputError("--from", f"expected a JSON object of joint name -> value [rad or m] or a file holding one ({exc})") from exc
-    if not isinstance(data, dict) or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in data.values()):
+        raise InputError("--from", "expected a JSON object of joint name -> value [rad or m] or a file holding one "
+                                   f"({exc})") from exc
+    if not isinstance(data, dict) or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                             for v in data.values()):
         raise InputError("--from", f"expected a JSON object of joint name -> number, got {text[:80]!r}")
     return {str(k): float(v) for k, v in data.items()}
 
@@ -64,7 +66,8 @@ def cmd_query(args: argparse.Namespace) -> int:
     atlas, goal = _goal(args.values, args.connect is None)
     refine = None if args.refine is None else args.refine == "on"
     start = _start(args.start)
-    wire = {"direction": args.direction} if args.direction else {"quaternion": args.quaternion} if args.quaternion else None
+    wire = ({"direction": args.direction} if args.direction else {"quaternion": args.quaternion} if args.quaternion
+            else None)
     if wire is not None:
         try:
             P.check_orientation(wire)  # the server's own check of the field
@@ -75,17 +78,19 @@ def cmd_query(args: argparse.Namespace) -> int:
     if args.connect:
         from reach.serving.client import Client
 
-        with Client(args.connect, timeout=args.timeout, curve_server_key=args.curve_server_key, curve_client_key=args.curve_client_key) as client:
+        with Client(args.connect, timeout=args.timeout, curve_server_key=args.curve_server_key,
+                    curve_client_key=args.curve_client_key) as client:
             effectors = [args.effector] if args.effector else client.strategies()["effectors"]
             # The reply's envelope fields are not part of the answer.
-            answers = [{k: v for k, v in client.query(e, goal, refine, start, miss=args.miss, orientation=wire).items() if k not in ("ok", "id")}
-                       for e in effectors]
+            replies = [client.query(e, goal, refine, start, miss=args.miss, orientation=wire) for e in effectors]
+            answers = [{k: v for k, v in reply.items() if k not in ("ok", "id")} for reply in replies]
     else:
         from reach.answers.select import Selector, orientation_of
         from reach.maps.store import load_atlas
 
-        selector = Selector(load_atlas(atlas), policy=args.policy, refine=refine is not False, budget=args.budget_ms / 1000.0,  # type: ignore[arg-type]
-                            handover=handover_margin(args), miss=args.miss)
+        selector = Selector(load_atlas(atlas), policy=args.policy,  # type: ignore[arg-type]
+                            refine=refine is not False, budget=args.budget_ms / 1000.0, handover=handover_margin(args),
+                            miss=args.miss)
         effectors = [args.effector] if args.effector else selector.effectors
         aim = orientation_of(wire)
         assert not isinstance(aim, list)  # one goal, one orientation
@@ -98,19 +103,23 @@ def cmd_query(args: argparse.Namespace) -> int:
             also = f" (also: {', '.join(a['alternatives'])})" if a["alternatives"] else ""
             print(f"{a['effector']}: goal {a['goal']} reachable with strategy {a['strategy']}{also}")
             if a.get("handover"):
-                print(f"  handed over by {a['handover']['from']}, whose posture came near these limits: {', '.join(a['handover']['limits'])}")
+                print(f"  handed over by {a['handover']['from']}, whose posture came near these limits: "
+                      f"{', '.join(a['handover']['limits'])}")
             if a.get("within") is not None:
-                print(f"  within {1000 * a['within']:.1f} mm only: no refinement reached the goal; the posture is the nearest stored one")
+                print(f"  within {1000 * a['within']:.1f} mm only: no refinement reached the goal; the posture is "
+                      "the nearest stored one")
             if a.get("posture"):
                 moved = {k: round(v, 4) for k, v in a["posture"].items() if abs(v) > 1e-9}
                 print(f"  posture [rad] (refined: {a['refined']}, residual {a['residual']:.2e} m): {moved}")
             if a.get("root"):
                 r = a["root"]
-                print(f"  root: position {np.round(r['position'], 4).tolist()} [m], quaternion (x, y, z, w) {np.round(r['quaternion'], 5).tolist()}")
+                print(f"  root: position {np.round(r['position'], 4).tolist()} [m], quaternion (x, y, z, w) "
+                      f"{np.round(r['quaternion'], 5).tolist()}")
         elif a.get("nearest"):
             n = a["nearest"]
-            print(f"{a['effector']}: goal {a['goal']} not reachable: {n['strategy']}'s tree holds it but no refinement reached it; "
-                  f"the nearest point a stored posture reaches is {n['point']}, {1000 * n['distance']:.1f} mm away")
+            print(f"{a['effector']}: goal {a['goal']} not reachable: {n['strategy']}'s tree holds it but no "
+                  f"refinement reached it; the nearest point a stored posture reaches is {n['point']}, "
+                  f"{1000 * n['distance']:.1f} mm away")
         else:
             print(f"{a['effector']}: goal {a['goal']} not reachable by any strategy")
     return 0
@@ -124,26 +133,31 @@ def add_query(sub: Any) -> None:
         "'reach query ATLAS X Y [Z]' reads the atlas, 'reach query --connect ADDR X Y [Z]' asks a running server.",
     )
     p.usage = "reach query [options] ATLAS X Y [Z]\n       reach query --connect ADDR [options] X Y [Z]"
-    p.add_argument("values", nargs="+", metavar="ATLAS X Y [Z]", help="atlas folder (omitted with --connect) and one goal [m]")
-    p.add_argument("--connect", metavar="ADDR", help=f"ask the server at ADDR (e.g. {P.DEFAULT_BIND}) instead of reading an atlas")
+    p.add_argument("values", nargs="+", metavar="ATLAS X Y [Z]", help="atlas folder (omitted with --connect) and one "
+        "goal [m]")
+    p.add_argument("--connect", metavar="ADDR", help=f"ask the server at ADDR (e.g. {P.DEFAULT_BIND}) instead of "
+                                                     "reading an atlas")
     p.add_argument("--effector", help="effector to ask about (default: every effector of the atlas)")
     policy_option(p)
     p.add_argument("--refine", choices=["on", "off"], help="refine the posture by IK at the exact goal (default: on)")
     p.add_argument("--from", dest="start", metavar="POSTURE",
-                   help="the character's current posture, a JSON object of joint name -> value [rad or m] (or a file holding one): "
-                        "the answer is the natural posture reached from it")
+                   help="the character's current posture, a JSON object of joint name -> value [rad or m] (or a file "
+                        "holding one): the answer is the natural posture reached from it")
     aim = p.add_mutually_exclusive_group()
     aim.add_argument("--direction", nargs=3, type=float, metavar=("X", "Y", "Z"),
-                     help="hold the effector's approach axis along this world direction (strategies with an orientation task that has an axis)")
+                     help="hold the effector's approach axis along this world direction (strategies with an "
+                          "orientation task that has an axis)")
     aim.add_argument("--quaternion", nargs=4, type=float, metavar=("QX", "QY", "QZ", "QW"),
                      help="hold the effector's rotation in the world (strategies with an orientation task)")
     p.add_argument("--budget-ms", type=float, default=QUERY_BUDGET * 1000,
-                   help=f"reading an atlas: time budget of the IK refinement [ms] (default {QUERY_BUDGET * 1000:g}: a one-off question "
-                        f"lets it converge; a server's default is {REFINE_BUDGET * 1000:g}, a frame)")
+                   help=f"reading an atlas: time budget of the IK refinement [ms] (default {QUERY_BUDGET * 1000:g}: a "
+                        f"one-off question lets it converge; a server's default is {REFINE_BUDGET * 1000:g}, a frame)")
     handover_option(p, "reading an atlas: ")
-    p.add_argument("--timeout", type=int, default=P.REQUEST_TIMEOUT_MS, help=f"with --connect: ms to wait for each reply (default {P.REQUEST_TIMEOUT_MS})")
+    p.add_argument("--timeout", type=int, default=P.REQUEST_TIMEOUT_MS, help="with --connect: ms to wait for each "
+        f"reply (default {P.REQUEST_TIMEOUT_MS})")
     p.add_argument("--curve-server-key", metavar="FILE", help="with --connect: the server's CURVE public-key file")
-    p.add_argument("--curve-client-key", metavar="FILE", help="with --curve-server-key: this client's secret-key file (for a server with --curve-clients)")
+    p.add_argument("--curve-client-key", metavar="FILE", help="with --curve-server-key: this client's secret-key "
+                                                              "file (for a server with --curve-clients)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_query)
 
@@ -178,7 +192,8 @@ def cmd_motion(args: argparse.Namespace) -> int:
 
         # The solvers are built (warm_up) before planning starts, so the end posture's budget is not spent on them.
         planner = Planner(Selector(load_atlas(atlas), policy=args.policy).warm_up())  # type: ignore[arg-type]
-        motion = planner.plan(args.effector, goal, start, rate=args.rate, timing=Timing.from_dict(timing, "--duration"), miss=args.miss)
+        motion = planner.plan(args.effector, goal, start, rate=args.rate,
+                              timing=Timing.from_dict(timing, "--duration"), miss=args.miss)
         data = motion.to_dict()
         if kind in ANIMATION_FILES:
             from reach.motion.rig import rig
@@ -190,9 +205,13 @@ def cmd_motion(args: argparse.Namespace) -> int:
     if args.json:
         print_json(summary)
         return 0
-    where = f"reaches {summary['goal']}" if summary["outcome"] == "reached" else f"goes towards {summary['goal']}, out of reach, ending at {[round(v, 4) for v in summary['point']]}"
+    if summary["outcome"] == "reached":
+        where = f"reaches {summary['goal']}"
+    else:
+        where = f"goes towards {summary['goal']}, out of reach, ending at {[round(v, 4) for v in summary['point']]}"
     print(f"{summary['effector']} {where} with strategy {summary['strategy']} in {summary['duration']:.3f} s "
-          f"({summary['frame_count']} frames at {args.rate:g} Hz; {summary['waypoints']} stored postures on the way, {summary['held']} frames held)")
+          f"({summary['frame_count']} frames at {args.rate:g} Hz; {summary['waypoints']} stored postures on the way, "
+          f"{summary['held']} frames held)")
     if summary.get("within") is not None:
         print(f"  the end posture stops {1000 * summary['within']:.1f} mm short of the goal")
     if summary["timing_tmu"]:
@@ -206,20 +225,27 @@ def add_motion(sub: Any) -> None:
     """Register ``reach motion``."""
     p = sub.add_parser(
         "motion", help="the timed reach motion to a goal",
-        description="Plan the reach motion of an effector to the goal X Y Z (metres, atlas world frame) from a posture (the reference by default): "
-        "the strategy chosen as a query chooses it, MTM-1 timing, minimum-jerk, collision-free frames holding feet and balance.",
+        description="Plan the reach motion of an effector to the goal X Y Z (metres, atlas world frame) from a "
+                    "posture (the reference by default): "
+        "the strategy chosen as a query chooses it, MTM-1 timing, minimum-jerk, collision-free frames holding feet "
+        "and balance.",
     )
-    p.add_argument("values", nargs="+", metavar="ATLAS X Y Z", help="atlas folder (omitted with --connect) and goal [m]")
+    p.add_argument("values", nargs="+", metavar="ATLAS X Y Z",
+                   help="atlas folder (omitted with --connect) and goal [m]")
     p.add_argument("--effector", required=True, help="the effector that reaches, e.g. right_hand")
     p.add_argument("--connect", metavar="ADDR", help="ask the server at ADDR instead of reading an atlas")
-    p.add_argument("--from", dest="start", metavar="POSTURE", help="the first frame's posture: a JSON object of joint name -> value [rad or m], or a file holding one")
+    p.add_argument("--from", dest="start", metavar="POSTURE", help="the first frame's posture: a JSON object of "
+        "joint name -> value [rad or m], or a file holding one")
     p.add_argument("--rate", type=float, default=30.0, help="frames per second (default 30)")
     p.add_argument("--duration", type=float, help="the motion's duration [s] instead of MTM-1's")
-    p.add_argument("--miss", choices=["nearest", "error"], default="nearest", help="a goal out of reach: move towards the nearest reachable point (default), or fail")
-    p.add_argument("-o", "--output", metavar="FILE", help="write the frames: .json (time, posture, root, effector), .bvh (Biovision hierarchy), "
+    p.add_argument("--miss", choices=["nearest", "error"], default="nearest", help="a goal out of reach: move "
+        "towards the nearest reachable point (default), or fail")
+    p.add_argument("-o", "--output", metavar="FILE", help="write the frames: .json (time, posture, root, effector), "
+                                                          ".bvh (Biovision hierarchy), "
                    ".glb or .gltf (glTF 2.0: skinned capsules and their animation)")
     policy_option(p)
-    p.add_argument("--timeout", type=int, default=P.REQUEST_TIMEOUT_MS, help=f"with --connect: ms to wait for the reply (default {P.REQUEST_TIMEOUT_MS})")
+    p.add_argument("--timeout", type=int, default=P.REQUEST_TIMEOUT_MS, help="with --connect: ms to wait for the "
+        f"reply (default {P.REQUEST_TIMEOUT_MS})")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=cmd_motion)
 
@@ -247,18 +273,23 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 def add_evaluate(sub: Any) -> None:
     """Register ``reach evaluate``."""
-    p = sub.add_parser("evaluate", help="which strategy reaches each target, per atlas", description="For each target of a CSV (name, x, y, z [m], optional effector), which strategy each atlas chooses; several atlases give a population table.")
+    p = sub.add_parser("evaluate", help="which strategy reaches each target, per atlas", description="For each "
+        "target of a CSV (name, x, y, z [m], optional effector), which strategy each atlas chooses; several atlases "
+        "give a population table.")
     p.add_argument("atlas", nargs="+", help="atlas folders")
     p.add_argument("--targets", required=True, help="CSV file with name, x, y, z[, effector]")
     p.add_argument("--effector", help="effector for targets without one")
     policy_option(p)
     p.add_argument("--no-refine", action="store_true",
-                   help="take the trees' word: no IK at the targets (a target counts as reachable when a tree holds it)")
+                   help=("take the trees' word: no IK at the targets (a target counts as reachable when a tree holds "
+                         "it)"))
     p.add_argument("--at", type=float, nargs=4, action="append", metavar=("X", "Y", "Z", "YAW"),
-                   help="where the body's frame stands in the targets' frame: position [m] and heading [deg]; once for every atlas, or "
-                        "once per atlas in order (a driver's seat slid to her heel point); default: the targets are in the body's frame")
-    p.add_argument("--figure", metavar="PNG", help="per atlas, side and top views of the body, its furniture, the volumes through the right "
-                                                   "shoulder and the targets coloured by the strategy that reaches them")
+                   help="where the body's frame stands in the targets' frame: position [m] and heading [deg]; once "
+                        "for every atlas, or once per atlas in order (a driver's seat slid to her heel point); "
+                        "default: the targets are in the body's frame")
+    p.add_argument("--figure", metavar="PNG", help="per atlas, side and top views of the body, its furniture, the "
+                                                   "volumes through the right shoulder and the targets coloured by "
+                                                   "the strategy that reaches them")
     p.add_argument("--json", action="store_true", help="machine-readable output")
     p.set_defaults(func=cmd_evaluate)
 
@@ -279,7 +310,8 @@ def cmd_place(args: argparse.Namespace) -> int:
             weights[name] = float(value)
         except ValueError:
             raise InputError("--weight", f"expected STRATEGY=NUMBER, got {item!r}") from None
-    space = Space(tuple(args.x), tuple(args.y), tuple(args.z), (math.radians(args.yaw[0]), math.radians(args.yaw[1])), args.step,
+    space = Space(tuple(args.x), tuple(args.y), tuple(args.z), (math.radians(args.yaw[0]), math.radians(args.yaw[1])),
+                  args.step,
                   math.radians(args.yaw_step))
     ranking = rank(atlases, targets, space, args.effector, args.policy, weights)
     if args.verify:
@@ -290,16 +322,19 @@ def cmd_place(args: argparse.Namespace) -> int:
     if args.json:
         print_json({"candidates": len(ranking.placements), "ranked": rows, "verified": ranking.verified})
         return 0
-    print(f"{len(ranking.placements)} placements of {len(atlases)} bodies against {len(targets)} targets (trees' word; best first)")
-    print(f"{'rank':>4}  {'x [m]':>7} {'y [m]':>7} {'z [m]':>7} {'yaw':>6}  {'bodies':>7} {'targets':>7} {'weight':>7} {'margin':>7}")
+    print(f"{len(ranking.placements)} placements of {len(atlases)} bodies against {len(targets)} targets (trees' "
+          "word; best first)")
+    print(f"{'rank':>4}  {'x [m]':>7} {'y [m]':>7} {'z [m]':>7} {'yaw':>6}  {'bodies':>7} {'targets':>7} "
+          f"{'weight':>7} {'margin':>7}")
     for r in rows:
         x, y, z = r["position"]
         margin = "" if r["margin"] is None else f"{r['margin']:>7.3f}"
-        print(f"{r['rank']:>4}  {x:>7.3f} {y:>7.3f} {z:>7.3f} {r['yaw_deg']:>5.0f}°  {100 * r['accommodated']:>6.0f}% {100 * r['reached']:>6.0f}% "
-              f"{r['preference']:>7.3f} {margin}")
+        print(f"{r['rank']:>4}  {x:>7.3f} {y:>7.3f} {z:>7.3f} {r['yaw_deg']:>5.0f}°  "
+              f"{100 * r['accommodated']:>6.0f}% {100 * r['reached']:>6.0f}% {r['preference']:>7.3f} {margin}")
     for v in ranking.verified:
         moved = f", the trees' rank {v['trees_rank']}" if v["trees_rank"] != v["rank"] else ""
-        print(f"rank {v['rank']} verified by IK: {100 * v['reached']:.0f}% of targets reached, {100 * v['accommodated']:.0f}% of bodies accommodated "
+        print(f"rank {v['rank']} verified by IK: {100 * v['reached']:.0f}% of targets reached, "
+              f"{100 * v['accommodated']:.0f}% of bodies accommodated "
               f"(trees: {100 * v['claimed_reached']:.0f}%{moved})")
     if args.figure:
         print(f"figure: {args.figure}")
@@ -309,19 +344,23 @@ def cmd_place(args: argparse.Namespace) -> int:
 def add_place(sub: Any) -> None:
     """Register ``reach place``."""
     p = sub.add_parser("place", help="where the body should stand, sit or be mounted to reach a layout's targets",
-                       description="Score a grid of placements (position [m] and heading [deg] of the body's frame in the layout's frame) of one "
-                       "body or a population (several atlases) against a targets CSV by the trees, rank them (bodies accommodated, targets "
-                       "reached, strategies needed), and verify the best by IK.")
+                       description="Score a grid of placements (position [m] and heading [deg] of the body's frame "
+                                   "in the layout's frame) of one "
+                       "body or a population (several atlases) against a targets CSV by the trees, rank them (bodies "
+                       "accommodated, targets reached, strategies needed), and verify the best by IK.")
     p.add_argument("atlas", nargs="+", help="atlas folders (several: a population)")
     p.add_argument("--targets", required=True, help="CSV file with name, x, y, z[, effector] in the layout's frame [m]")
     p.add_argument("--effector", help="effector for targets without one")
     p.add_argument("--x", nargs=2, type=float, required=True, metavar=("MIN", "MAX"), help="range of the body's x [m]")
     p.add_argument("--y", nargs=2, type=float, required=True, metavar=("MIN", "MAX"), help="range of the body's y [m]")
-    p.add_argument("--z", nargs=2, type=float, default=[0.0, 0.0], metavar=("MIN", "MAX"), help="range of its height [m] (default 0: on the floor)")
-    p.add_argument("--yaw", nargs=2, type=float, default=[-180.0, 180.0], metavar=("MIN", "MAX"), help="range of its heading [deg] (default a full turn)")
+    p.add_argument("--z", nargs=2, type=float, default=[0.0, 0.0], metavar=("MIN", "MAX"), help="range of its height "
+        "[m] (default 0: on the floor)")
+    p.add_argument("--yaw", nargs=2, type=float, default=[-180.0, 180.0], metavar=("MIN", "MAX"), help="range of its "
+        "heading [deg] (default a full turn)")
     p.add_argument("--step", type=float, default=0.05, help="position step [m] (default 0.05)")
     p.add_argument("--yaw-step", type=float, default=15.0, help="heading step [deg] (default 15)")
-    p.add_argument("--weight", action="append", metavar="STRATEGY=W", help="a strategy's weight (default: 1, 0.8, 0.6, ... by priority)")
+    p.add_argument("--weight", action="append", metavar="STRATEGY=W", help="a strategy's weight (default: 1, 0.8, "
+        "0.6, ... by priority)")
     p.add_argument("--top", type=int, default=10, help="placements to print (default 10)")
     p.add_argument("--verify", type=int, default=5, help="the best placements to verify by IK (default 5; 0: none)")
     p.add_argument("--figure", metavar="PNG", help="write the floor heat map (share of targets reached per position)")

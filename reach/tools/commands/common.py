@@ -28,11 +28,13 @@ def on_terminate(signum: int, frame: Any) -> None:
 
 def handover_option(p: argparse.ArgumentParser, where: str = "") -> None:
     p.add_argument("--handover-deg", type=float, default=math.degrees(HANDOVER), metavar="DEG",
-                   help=f"{where}a strategy whose posture has joints within DEG of their limits hands the goal to the next that "
-                        f"reaches it with fewer (default {math.degrees(HANDOVER):g}; 0: the paper's plain priority)")
+                   help=f"{where}a strategy whose posture has joints within DEG of their limits hands the goal to "
+                        f"the next that reaches it with fewer (default {math.degrees(HANDOVER):g}; 0: the paper's "
+                        "plain priority)")
     p.add_argument("--miss", choices=MISSES, default=MISS,
-                   help="a goal the trees hold but no refinement reaches answers 'unreachable' with the nearest point a stored posture "
-                        "reaches (default), or 'within': reachable, with the distance the posture stops short")
+                   help="a goal the trees hold but no refinement reaches answers 'unreachable' with the nearest "
+                        "point a stored posture reaches (default), or 'within': reachable, with the distance the "
+                        "posture stops short")
 
 
 def handover_margin(args: argparse.Namespace) -> float:
@@ -42,4 +44,5 @@ def handover_margin(args: argparse.Namespace) -> float:
 
 
 def policy_option(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--policy", default=DEFAULT_POLICY, choices=POLICIES, help=f"how boundary cells answer (default: {DEFAULT_POLICY})")
+    p.add_argument("--policy", default=DEFAULT_POLICY, choices=POLICIES, help="how boundary cells answer (default: "
+        f"{DEFAULT_POLICY})")

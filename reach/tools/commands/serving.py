@@ -26,10 +26,12 @@ def cmd_serve(args: argparse.Namespace) -> int:
     if workers < 0:
         raise InputError("--workers", f"expected 0 or more worker processes, got {workers}")
     server = Server(args.atlas, args.bind, None if args.pub == "none" else args.pub, policy=args.policy,
-                    refine=not args.no_refine, budget=args.budget_ms / 1000.0, curve_secret=args.curve_secret_key, workers=workers, curve_clients=args.curve_clients, chunk=args.chunk,
+                    refine=not args.no_refine, budget=args.budget_ms / 1000.0, curve_secret=args.curve_secret_key,
+                        workers=workers, curve_clients=args.curve_clients, chunk=args.chunk,
                     handover=handover_margin(args), miss=args.miss, allow_reload=args.allow_reload)
     server.handle_signals()
-    print(f"serving {args.atlas} on {server.endpoint}" + (f", publishing on {server.pub_endpoint}" if server.pub_endpoint else ""), flush=True)
+    print(f"serving {args.atlas} on {server.endpoint}" + (f", publishing on {server.pub_endpoint}"
+                                                          if server.pub_endpoint else ""), flush=True)
     server.serve_forever()
     print("server stopped", flush=True)
     return 0
@@ -39,21 +41,29 @@ def add_serve(sub: Any) -> None:
     """Register ``reach serve``."""
     p = sub.add_parser(
         "serve", help="answer queries over ZeroMQ",
-        description="Serve an atlas: JSON requests on a ROUTER socket (REQ or DEALER clients), every choice published on a PUB socket. See docs/protocol.md.",
+        description="Serve an atlas: JSON requests on a ROUTER socket (REQ or DEALER clients), every choice "
+                    "published on a PUB socket. See docs/protocol.md.",
     )
     p.add_argument("atlas", help="atlas folder written by 'reach build'")
     p.add_argument("--bind", default=P.DEFAULT_BIND, help=f"request address (default {P.DEFAULT_BIND})")
     p.add_argument("--pub", default=P.DEFAULT_PUB, help=f"publishing address, or 'none' (default {P.DEFAULT_PUB})")
     policy_option(p)
-    p.add_argument("--no-refine", action="store_true", help="answer with stored postures; no IK refinement unless a request asks")
-    p.add_argument("--budget-ms", type=float, default=REFINE_BUDGET * 1000, help=f"time budget of one IK refinement [ms] (default {REFINE_BUDGET * 1000:g})")
-    p.add_argument("--curve-secret-key", metavar="FILE", help="encrypt with CURVE, using this server secret-key file (zmq.auth.create_certificates)")
-    p.add_argument("--curve-clients", metavar="DIR", help="with --curve-secret-key: let in only the clients whose public-key files (*.key) are in DIR")
-    p.add_argument("--workers", type=int, metavar="N", help="refinement worker processes (default: one fewer than the cores, at least 1; 0 refines in the request loop)")
+    p.add_argument("--no-refine", action="store_true", help="answer with stored postures; no IK refinement unless a "
+                                                            "request asks")
+    p.add_argument("--budget-ms", type=float, default=REFINE_BUDGET * 1000, help="time budget of one IK refinement "
+        f"[ms] (default {REFINE_BUDGET * 1000:g})")
+    p.add_argument("--curve-secret-key", metavar="FILE", help="encrypt with CURVE, using this server secret-key file "
+                                                              "(zmq.auth.create_certificates)")
+    p.add_argument("--curve-clients", metavar="DIR", help="with --curve-secret-key: let in only the clients whose "
+                                                          "public-key files (*.key) are in DIR")
+    p.add_argument("--workers", type=int, metavar="N", help="refinement worker processes (default: one fewer than "
+                                                            "the cores, at least 1; 0 refines in the request loop)")
     p.add_argument("--chunk", type=int, default=P.CHUNK_GOALS, metavar="N",
-                   help=f"refined goals per worker task at most (default {P.CHUNK_GOALS}); within it a task is sized to about 20 ms of measured work, "
+                   help=f"refined goals per worker task at most (default {P.CHUNK_GOALS}); within it a task is sized "
+                        "to about 20 ms of measured work, "
                         "so that another client's query waits about that for a busy worker")
-    p.add_argument("--allow-reload", metavar="ROOT", help="let clients 'reload' atlases from folders under ROOT (default: reload is refused)")
+    p.add_argument("--allow-reload", metavar="ROOT", help="let clients 'reload' atlases from folders under ROOT "
+                                                          "(default: reload is refused)")
     handover_option(p)
     p.set_defaults(func=cmd_serve)
 
@@ -65,7 +75,8 @@ def cmd_keys(args: argparse.Namespace) -> int:
     folder.mkdir(parents=True, exist_ok=True)
     for suffix in ("key", "key_secret"):
         if (folder / f"{args.name}.{suffix}").exists():
-            raise InputError(str(folder / f"{args.name}.{suffix}"), "exists; choose another --name or folder (keys are never overwritten)")
+            raise InputError(str(folder / f"{args.name}.{suffix}"), "exists; choose another --name or folder (keys "
+                "are never overwritten)")
     public, secret = zmq.auth.create_certificates(str(folder), args.name)
     os.chmod(secret, 0o600)
     print(f"public key: {public}\nsecret key: {secret} (keep it private; reach serve --curve-secret-key {secret})")
@@ -74,7 +85,9 @@ def cmd_keys(args: argparse.Namespace) -> int:
 
 def add_keys(sub: Any) -> None:
     """Register ``reach keys``."""
-    p = sub.add_parser("keys", help="write a CURVE key pair", description="Write a CURVE key pair (ZeroMQ certificate files NAME.key and NAME.key_secret) for 'reach serve --curve-secret-key' and its clients. See docs/protocol.md.")
+    p = sub.add_parser("keys", help="write a CURVE key pair", description="Write a CURVE key pair (ZeroMQ "
+        "certificate files NAME.key and NAME.key_secret) for 'reach serve --curve-secret-key' and its clients. See "
+        "docs/protocol.md.")
     p.add_argument("folder", help="folder to write the two files into")
     p.add_argument("--name", default="server", help="base name of the files (default: server)")
     p.set_defaults(func=cmd_keys)
@@ -106,13 +119,15 @@ def add_view(sub: Any) -> None:
     """Register ``reach view``."""
     p = sub.add_parser(
         "view", help="interactive 3-D view in the browser",
-        description="Serve a 3-D view of one or more atlases (viser): volumes per strategy, the body, and a goal to drag whose answer "
-                    "(strategy, posture) is shown. Open the printed address in a browser; the page works offline.",
+        description="Serve a 3-D view of one or more atlases (viser): volumes per strategy, the body, and a goal to "
+                    "drag whose answer (strategy, posture) is shown. Open the printed address in a browser; the page "
+                    "works offline.",
     )
     p.add_argument("atlas", nargs="+", help="atlas folder(s); several stand side by side (a population study)")
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1: this machine only)")
     p.add_argument("--port", type=int, default=8080, help="port (default 8080; the next free one if taken)")
-    p.add_argument("--connect", metavar="ADDR", help="take answers from a running 'reach serve' at ADDR, e.g. tcp://127.0.0.1:5555")
+    p.add_argument("--connect", metavar="ADDR", help="take answers from a running 'reach serve' at ADDR, e.g. "
+                                                     "tcp://127.0.0.1:5555")
     p.add_argument("--spacing", type=float, default=1.5, help="distance between atlases along y [m] (default 1.5)")
     policy_option(p)
     p.add_argument("--no-refine", action="store_true", help="show stored postures; no IK refinement")
