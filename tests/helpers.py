@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 HUMAN = {"human": {"sex": "male", "percentile": 50}}
@@ -93,3 +95,14 @@ class TwoLinkArm:
 def two_link_arm(**params) -> TwoLinkArm:  # noqa: ANN003
     """The plug-in's factory, named by its entry point."""
     return TwoLinkArm(**params)
+
+
+def strategies_service(context, job: dict, deadline: float) -> list[bytes]:  # noqa: ANN001
+    """A worker hook a test adds as an operation (tests/test_server.py): the served strategies of an effector, and
+    which of them hold a point, answered in a worker process."""
+    import json
+
+    selector = context.selector
+    names = [n for n, e in selector.order if e == job["effector"]]
+    held = [n for n in names if selector.atlas.map(n).contains_one(job["goals"][0], selector.policy)]
+    return [json.dumps({"strategies": names, "held": held, "pid": os.getpid()}).encode()]

@@ -944,3 +944,30 @@ def test_a_large_stored_batch_goes_to_the_workers_and_answers_as_the_loop_would(
     local = Selector(load_atlas(balls), refine=False).select_many("point", goals, False)
     assert [a["strategy"] for a in big] == [a.strategy for a in local] and [a["goal"] for a in big] == goals.tolist()
     assert [a["strategy"] for a in small] == [a.strategy for a in local[:10]]
+
+
+def test_an_operation_the_workers_answer_is_added_as_a_service(balls, monkeypatch):
+    """Adding a worker operation touches its row in the table of operations, its worker hook and the server's hooks it
+    names, and nothing else: here all three come from this test (the hook from tests/helpers.py, imported by the
+    worker process by its ``module:function`` name), and a worker answers it."""
+    service = P.Service("_defer_held", "helpers:strategies_service", "_finish_held", "_expire_whole", cost=0.01)
+    fields = tuple(f for f in P.OPERATIONS["motion"].fields if f.name in ("effector", "goal"))  # both required
+    op = P.Operation("held", fields, "which strategies hold a point, from a worker", "op_held", worker=service)
+    monkeypatch.setitem(P.OPERATIONS, "held", op)
+    monkeypatch.setattr(Server, "_defer_held", lambda self, req, envelope: self._defer_whole(
+        req, envelope, [req["goal"]], {}), raising=False)
+    monkeypatch.setattr(Server, "_finish_held", lambda self, seq, pending, frames, part=0: self._finish_whole(
+        seq, pending, frames, 1, "not answered in time", "could not be answered", lambda f: f[0]), raising=False)
+    r = Running(balls, workers=1)
+    sock = _dealer(r.server.endpoint)
+    sock.setsockopt(zmq.RCVTIMEO, 60_000)
+    try:
+        reply = ask(sock, b'{"op": "held", "id": 7, "effector": "point", "goal": [0.5, 0.0, 0.0]}')
+        assert reply["ok"] and reply["id"] == 7, reply
+        # Only the far ball holds a point 0.5 from the centre (the near one's radius is 0.4), as the tree says.
+        assert reply["strategies"] == ["near", "far"] and reply["held"] == ["far"] and reply["pid"] != os.getpid()
+        bad = ask(sock, b'{"op": "held", "effector": "point"}')
+        assert not bad["ok"] and bad["error"]["code"] == P.BAD_REQUEST and "goal" in bad["error"]["message"]
+    finally:
+        sock.close(linger=0)
+        r.stop()

@@ -314,7 +314,8 @@ class Field:
 class Service:
     """How the workers answer an operation (zguide's Majordomo: a service is a worker), as hooks named here so that
     this module imports nothing of them: the server hands a request over with ``Server.<defer>(request, envelope)``,
-    a worker answers each task with ``reach.serving.services.<run>(context, job, deadline)``, and the server answers
+    a worker answers each task with ``reach.serving.services.<run>(context, job, deadline)`` (or ``module:function``,
+    see :func:`reach.serving.services.hook`), and the server answers
     the request with ``Server.<finish>(seq, pending, frames, part)`` from the worker's frames, or with
     ``Server.<expire>(seq, pending)`` once its deadline has passed.
 

@@ -161,10 +161,9 @@ class Server:
 
     def __init__(
         self, atlas: str | Path, bind: str = P.DEFAULT_BIND, pub: str | None = P.DEFAULT_PUB, *,
-            policy: str = DEFAULT_POLICY,
-        refine: bool = True, budget: float = REFINE_BUDGET, curve_secret: str | Path | None = None,
-            context: zmq.Context | None = None,
-        workers: int = 0, handover: float = HANDOVER, miss: str = MISS, allow_reload: str | Path | None = None,
+        policy: str = DEFAULT_POLICY, refine: bool = True, budget: float = REFINE_BUDGET,
+        curve_secret: str | Path | None = None, context: zmq.Context | None = None, workers: int = 0,
+        handover: float = HANDOVER, miss: str = MISS, allow_reload: str | Path | None = None,
         curve_clients: str | Path | None = None, chunk: int = P.CHUNK_GOALS,
     ) -> None:
         if isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1:
@@ -586,13 +585,13 @@ class Server:
         seq = self._pend(req, envelope, min(n * each + SLACK, MAX_WAIT) if refine else MAX_WAIT, bounds, n)
         if seq is not None:
             deadline, orientation = self.pending[seq].deadline, req["orientation"]
+            run = P.OPERATIONS[req.op].worker.run  # type: ignore[union-attr]
 
             def make(part: int) -> Task:
                 a, b = bounds[part]
                 return Task(seq, part, req["effector"], req["goals"][a:b].tolist(), req["from"], deadline,
-                            req["miss"], envelope[0],
-                            orientation=orientation[a:b] if isinstance(orientation, list) else orientation,
-                                refine=refine)
+                            req["miss"], envelope[0], refine=refine, run=run,
+                            orientation=orientation[a:b] if isinstance(orientation, list) else orientation)
 
             self.pool.submit(Tasks(make, len(bounds), seq, envelope[0], deadline))
         return True
@@ -618,8 +617,8 @@ class Server:
         seq = self._pend(req, envelope, MAX_WAIT, [(0, 1)], 0)
         if seq is not None:
             self.pool.submit(Task(seq, 0, req.args.get("effector") or "", goals, req.args.get("from"),
-                                  self.pending[seq].deadline, None,
-                                  envelope[0], req.op, options, whole_cost=service.cost))
+                                  self.pending[seq].deadline, None, envelope[0], req.op, options,
+                                  whole_cost=service.cost, run=service.run))
         return True
 
     def _pend(self, req: P.Request, envelope: list[bytes], wait: float, bounds: list[tuple[int, int]],

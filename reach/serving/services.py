@@ -11,7 +11,10 @@ the table of operations, its hook here and the server's hooks it names.
 
 from __future__ import annotations
 
+import importlib
 import math
+import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -34,6 +37,16 @@ class Context:
 
     selector: Selector
     planner: Planner
+
+
+def hook(name: str) -> Callable[[Context, dict[str, Any], float], list[bytes]]:
+    """A worker's hook by its Service's ``run``: a function of this module, or ``module:function`` elsewhere (an
+    operation a plugin or a test adds; its module is importable in the worker, which inherits ``sys.path``)."""
+    module, _, attr = name.rpartition(":")
+    found = getattr(importlib.import_module(module) if module else sys.modules[__name__], attr, None)
+    if not callable(found):
+        raise ValueError(f"no worker hook {name!r}")
+    return found  # type: ignore[no-any-return]
 
 
 def failure_code(exc: Exception) -> str:
