@@ -45,6 +45,7 @@ import fnmatch
 import hashlib
 import json
 import math
+import xml.etree.ElementTree as ET
 from dataclasses import asdict, dataclass, replace
 from functools import cached_property
 from pathlib import Path
@@ -232,8 +233,6 @@ def _continuous(joint: pin.JointModel) -> bool:
 def _check_xml(urdf: str, source: str) -> None:
     """What urdfdom accepts silently or reports over many lines: not XML, a negative or non-finite mass, a zero
     joint axis. Each is one line naming the link or joint."""
-    import xml.etree.ElementTree as ET
-
     try:
         root = ET.fromstring(urdf)
     except ET.ParseError as exc:
@@ -481,6 +480,7 @@ def _seated_q(model: pin.Model, sitting: Seated) -> np.ndarray:
 def _check_seat(body: Body) -> None:
     """No segment passes through the seat in the seated reference posture (coal), or the seat's dimensions do not fit
     the body."""
+    # coal only when its distances are computed
     import coal
 
     model = body.collision

@@ -249,6 +249,7 @@ def _mesh_capsules(path: Path, scale: np.ndarray, source: str) -> list[tuple[np.
     each slab's surface fitted by its own capsule, and the fewest pieces are kept whose total volume is within
     ``PIECES_SLACK`` of the least of them. A capsule's volume beyond its mesh is what overlaps the neighbours' (one
     capsule over a torso with a wide base was 0.25 m thick all the way up, and overlapped the arms' by 126 mm)."""
+    # trimesh only when meshes are read or written
     import trimesh
 
     if path.suffix.lower() == ".dae":

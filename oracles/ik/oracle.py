@@ -24,6 +24,7 @@ import pinocchio as pin
 
 from oracles import registry
 from oracles.bodies.body import ROOT, load_body
+from oracles.bodies.mirror import MirrorMap
 from oracles.bodies.skeleton import bone_frames, build_skeleton
 from oracles.errors import ModelError, OracleError
 from oracles.ik.problem import Check, ReachProblem
@@ -389,8 +390,6 @@ class IKOracle(ABC):
 
     def mirror(self) -> Any:
         """The map of postures to their mirror images about y = 0 (raises ModelError for an asymmetric body)."""
-        from oracles.bodies.mirror import MirrorMap
-
         return MirrorMap(self.body).mirror_q
 
     def prepare(self) -> None:  # noqa: B027 - engines without solvers to build need nothing

@@ -42,6 +42,7 @@ from reach.build.checkpoint import load_state, save_state
 from reach.build.config import Config, StrategySpec, grown
 from reach.build.executor import Executor, InlineExecutor
 from reach.build.index import compute_index
+from reach.build.mirror import MirrorOracle
 from reach.build.tree import Inherited, build_tree
 from reach.errors import ModelError, StoreError
 from reach.maps.index import ReachIndex, spiral
@@ -178,7 +179,6 @@ def _build_locked(
     say: Callable[[str], None], resume: bool, mirror: bool, inherit: bool,
 ) -> Atlas:
     """build_atlas's work, with the folder locked."""
-    from reach.build.mirror import MirrorOracle
     entries = []
     warnings: list[dict[str, Any]] = []
     built: dict[str, VATree] = {}
@@ -305,6 +305,7 @@ def _index_one(config: Config, s: StrategySpec, tree: VATree,
                     else InlineExecutor(variant, config.chunk_size))
     bar = None
     if progress:
+        # tqdm only when progress is drawn
         from tqdm import tqdm
 
         bar = tqdm(unit="goal", leave=False, dynamic_ncols=True, desc=f"{s.name} index")

@@ -10,7 +10,7 @@ import numpy as np
 
 from reach.build.tree import BuildState
 from reach.errors import StoreError
-from reach.maps.store import TREE_VERSION, atomic_write, checked_field, read_arrays, read_header
+from reach.maps.store import TREE_VERSION, atomic_write, checked_field, read_arrays, read_header, read_vertices
 from reach.maps.tree import VertexTable
 
 STATE_FORMAT = "reach.buildstate"
@@ -58,10 +58,7 @@ def load_state(path: str | Path, fingerprint: str) -> Any:
                          f"checkpoint metadata lacks valid sizes, depth, posture names or levels ({exc})") from exc
     kinds = checked_field(path, arrays, "kinds", np.uint8, 1)
     corners = checked_field(path, arrays, "corners", np.int64, 2)
-    keys = checked_field(path, arrays, "vertex_keys", np.int64, 1)
-    reachable = checked_field(path, arrays, "vertex_reachable", bool, 1)
-    residual = checked_field(path, arrays, "vertex_residual", float, 1)
-    posture = checked_field(path, arrays, "vertex_posture", float, 2) if "vertex_posture" in arrays else None
+    keys, reachable, residual, posture = read_vertices(path, arrays)
     if any(k < 0 for k in sizes) or sum(sizes) != kinds.shape[0] or corners.shape[0] != kinds.shape[0]:
         raise StoreError(path, f"checkpoint sizes {sizes} do not match {kinds.shape[0]} kinds and {corners.shape[0]} "
                                "corners")

@@ -8,8 +8,10 @@ so heavy solver objects are never pickled per task.
 
 from __future__ import annotations
 
+import ctypes
 import json
 import os
+import signal
 import sys
 import threading
 from abc import ABC, abstractmethod
@@ -79,8 +81,6 @@ def die_with_parent() -> None:
     SIGKILL, so that a killed parent leaves no process behind (Linux; elsewhere a no-op)."""
     if not sys.platform.startswith("linux"):
         return
-    import ctypes
-    import signal
 
     try:
         ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
@@ -93,8 +93,6 @@ def die_with_parent() -> None:
 def build_worker() -> None:
     """A build's pool worker: dies with its parent; Ctrl-C (which reaches the whole group) is the
     parent's to handle, and SIGTERM ends the worker at once (a group's SIGTERM stops the build, not only its parent)."""
-    import signal
-
     die_with_parent()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)  # the parent's handler, inherited by fork, would only fail the chunk

@@ -359,6 +359,7 @@ def build_tree(
         state = BuildState(0, np.zeros((1, box.dim), np.int64), vertices=VertexTable.empty(ex.posture_names))
     bar = None
     if progress:
+        # tqdm only when progress is drawn
         from tqdm import tqdm
 
         bar = tqdm(total=0, unit="vertex", leave=False, dynamic_ncols=True)

@@ -11,6 +11,7 @@ zip traceback never reaches the user, and nothing is ever unpickled.
 
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import json
 import os
@@ -146,6 +147,16 @@ def checked_field(path: Path, arrays: dict[str, np.ndarray], name: str, dtype: A
     return arr.astype(dtype, copy=False)
 
 
+def read_vertices(path: Path, arrays: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                                    np.ndarray | None]:
+    """A vertex table's arrays as a tree or a build's checkpoint stores them: keys, verdicts, residuals, postures."""
+    keys = checked_field(path, arrays, "vertex_keys", np.int64, 1)
+    reachable = checked_field(path, arrays, "vertex_reachable", bool, 1)
+    residual = checked_field(path, arrays, "vertex_residual", float, 1)
+    posture = checked_field(path, arrays, "vertex_posture", float, 2) if "vertex_posture" in arrays else None
+    return keys, reachable, residual, posture
+
+
 def load_tree(path: str | Path) -> VATree:
     """Read a tree written by :func:`save_tree` (without its index: see :func:`load_indexed`)."""
     return load_indexed(path)[0]
@@ -173,10 +184,7 @@ def load_indexed(path: str | Path) -> tuple[VATree, ReachIndex | None]:
     depth = checked_field(path, arrays, "depth", np.uint8, 1)
     corner = checked_field(path, arrays, "corner", np.int64, 2)
     kind = checked_field(path, arrays, "kind", np.uint8, 1)
-    keys = checked_field(path, arrays, "vertex_keys", np.int64, 1)
-    reach_ = checked_field(path, arrays, "vertex_reachable", bool, 1)
-    residual = checked_field(path, arrays, "vertex_residual", float, 1)
-    posture = checked_field(path, arrays, "vertex_posture", float, 2) if "vertex_posture" in arrays else None
+    keys, reach_, residual, posture = read_vertices(path, arrays)
     n, dim = kind.shape[0], box.dim
     problems = []
     if n == 0 or depth.shape != (n,) or corner.shape != (n, dim):
@@ -404,8 +412,6 @@ def build_lock(folder: str | Path) -> Iterator[None]:
     An advisory ``flock`` on ``FOLDER/.lock``: the operating system releases
     it when the holder exits, even when killed, so no stale lock remains.
     """
-    import fcntl
-
     path = Path(folder) / LOCK
     fh = path.open("a+")
     try:

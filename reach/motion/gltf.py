@@ -34,6 +34,7 @@ SKIN_COLOUR = [0.80, 0.62, 0.50, 1.0]
 
 def gltf_document(rig: Rig):  # -> pygltflib.GLTF2
     """The glTF document, its binary data set as its blob."""
+    # pygltflib only when a glTF file is written
     import pygltflib as g
 
     sk = rig.skeleton
@@ -85,6 +86,7 @@ def gltf_document(rig: Rig):  # -> pygltflib.GLTF2
 
 def write_gltf(rig: Rig, path: str | Path) -> Path:
     """Write ``.glb`` (binary) or ``.gltf`` (JSON, the data embedded as a data URI)."""
+    # pygltflib only when a glTF file is written
     import pygltflib as g
 
     path = Path(path)
@@ -99,6 +101,7 @@ def write_gltf(rig: Rig, path: str | Path) -> Path:
 
 def _add_mesh(doc, blob: _Blob, rig: Rig, first: np.ndarray) -> None:
     """The capsules as one skinned mesh, in the bind pose (the first frame), and the node that holds it."""
+    # pygltflib only when a glTF file is written
     import pygltflib as g
 
     positions, normals, joints, faces = _capsules(rig, first)
@@ -132,6 +135,7 @@ class _Blob:
     """The binary buffer and its views, each view 4-byte aligned as glTF asks."""
 
     def __init__(self) -> None:
+        # pygltflib only when a glTF file is written
         import pygltflib as g
 
         self._view = g.BufferView

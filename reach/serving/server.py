@@ -205,6 +205,7 @@ class Server:
         sockets = [self.router] + ([self.publisher] if self.publisher else [])
         self.authenticator = None
         if curve_clients is not None:
+            # the CURVE authenticator only when keys are given
             from zmq.auth.thread import ThreadAuthenticator
 
             # ZAP: libzmq asks this thread about every CURVE handshake; keys not in the folder are refused.

@@ -23,8 +23,8 @@ def make_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    for commands in (build, answers, serving):
-        commands.register(sub)
+    for add in (*build.COMMANDS, *answers.COMMANDS, *serving.COMMANDS):
+        add(sub)
     return parser
 
 

@@ -21,6 +21,7 @@ MAX_GRID = 1 << 24  # vertices; above this the lattice is sampled coarser
 
 def mesh(tree: VATree, level: int | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Vertices (n, 3) [m] and triangles (m, 3) of the volume's surface."""
+    # scikit-image only when a mesh is exported
     from skimage.measure import marching_cubes
 
     if tree.dim != 3:
@@ -44,6 +45,7 @@ def mesh(tree: VATree, level: int | None = None) -> tuple[np.ndarray, np.ndarray
 
 def export_mesh(tree: VATree, path: str | Path, level: int | None = None) -> Path:
     """Write the surface as .stl or .ply (chosen by the file's extension)."""
+    # trimesh only when meshes are read or written
     import trimesh
 
     path = Path(path)

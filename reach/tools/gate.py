@@ -158,6 +158,7 @@ def guarded_websockets(hosts: Callable[[], Iterable[str]]) -> Iterator[list[int]
     list that holds one entry per server guarded, so that a caller can refuse to go on when none was (a viser
     that no longer starts its server this way).
     """
+    # the websockets server only behind the viewer's gate
     import websockets.asyncio.server as ws_server
 
     def guard(inner: Callable[..., Any] | None) -> Callable[..., Any]:

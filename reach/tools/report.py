@@ -35,6 +35,7 @@ from reach.maps.index import summary as index_summary
 from reach.maps.protocol import ReachMap, raster
 from reach.maps.store import Atlas
 from reach.maps.tree import FINAL, INNER, VATree
+from reach.serving.protocol import finite
 
 COLOURS = ["#d62728", "#2ca02c", "#1f77b4", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf", "#bcbd22", "#7f7f7f"]
 
@@ -148,9 +149,11 @@ def overlay_names(trees: dict[str, VATree]) -> list[str]:
 def figures(atlas: Atlas, out: Path, level: int = 4, names: list[str] | None = None,
             planes: tuple[float | None, float | None] = (None, None)) -> list[Path]:
     """Write the PNG figures; returns their paths."""
+    # matplotlib (about half a second) only when a figure is drawn
     import matplotlib
 
     matplotlib.use("Agg")
+    # matplotlib (about half a second) only when a figure is drawn
     import matplotlib.pyplot as plt
 
     names = names or list(atlas.trees)
@@ -212,6 +215,7 @@ def heat_map(name: str, tree: ReachMap, path: Path, level: int, z: float | None 
              directions: int = 0) -> Path:
     """The reachability index on the horizontal and sagittal slices (planes as :func:`slices`), nearest vertex's,
     blank outside."""
+    # matplotlib (about half a second) only when a figure is drawn
     import matplotlib.pyplot as plt
 
     lo, hi = tree.box.lo, tree.box.hi
@@ -244,6 +248,7 @@ def _planes(tree: ReachMap, z: float | None, y: float | None) -> tuple[float, fl
 
 def slices(trees: dict[str, VATree], path: Path, level: int, z: float | None = None, y: float | None = None) -> Path:
     """Horizontal (z = const, default the box's middle) and sagittal (y = const, default 0) slices of every strategy."""
+    # matplotlib (about half a second) only when a figure is drawn
     import matplotlib.pyplot as plt
 
     first = next(iter(trees.values()))
@@ -276,6 +281,7 @@ def slices(trees: dict[str, VATree], path: Path, level: int, z: float | None = N
 
 
 def _save(fig: Any, path: Path, tight: bool = True) -> Path:
+    # matplotlib (about half a second) only when a figure is drawn
     import matplotlib.pyplot as plt
 
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -295,7 +301,6 @@ def report(atlas: Atlas, out: str | Path, level: int = 4, names: list[str] | Non
     t = tables(atlas)
     (out / "report.md").write_text(markdown(t, str(atlas.manifest.get("name", atlas.path))))
     t["figures"] = [str(p) for p in figures(atlas, out, level, names, planes)]
-    from reach.serving.protocol import finite
 
     (out / "report.json").write_text(json.dumps(finite(t), indent=2, allow_nan=False))
     return t
@@ -304,9 +309,11 @@ def report(atlas: Atlas, out: str | Path, level: int = 4, names: list[str] | Non
 def placement_map(ranking: Ranking, targets: Sequence[Target], path: Any, title: str = "") -> Any:
     """A figure of the floor (x, y): per position, the best share of targets reached over headings and heights, the
     targets, and the best placement's position and heading; or of a seat's track (x, z) when y is fixed and z is not."""
+    # matplotlib (about half a second) only when a figure is drawn
     import matplotlib
 
     matplotlib.use("Agg")
+    # matplotlib (about half a second) only when a figure is drawn
     import matplotlib.pyplot as plt
 
     p = ranking.placements

@@ -14,6 +14,9 @@ from typing import Any
 import numpy as np
 
 from oracles.bodies.environment import Box
+from oracles.protocol import Furnished, OracleSpec, Shaped
+from reach.answers.evaluate import to_body
+from reach.tools.report import COLOURS
 
 AXES = {"side": (0, 2), "top": (0, 1)}
 SKIN = (0.90, 0.78, 0.67)
@@ -24,6 +27,7 @@ def draw_capsules(ax: Any, capsules: np.ndarray, view: str = "side", colour: Any
                   edge: Any = (0.45, 0.35, 0.3)) -> None:
     """Capsules (K, 7: end points a, b [m], radius [m]) as their outlines projected on the view's plane, far ones
     first."""
+    # matplotlib (about half a second) only when a figure is drawn
     from matplotlib.patches import Circle, Polygon
 
     i, j = AXES[view]
@@ -48,6 +52,7 @@ def draw_capsules(ax: Any, capsules: np.ndarray, view: str = "side", colour: Any
 
 def draw_boxes(ax: Any, boxes: Sequence[Box], view: str = "side", colour: Any = FURNITURE) -> None:
     """Boxes as the outline of their corners projected on the view's plane (their convex hull)."""
+    # matplotlib (about half a second) only when a figure is drawn
     from matplotlib.patches import Polygon
     from scipy.spatial import ConvexHull
 
@@ -61,9 +66,11 @@ def draw_boxes(ax: Any, boxes: Sequence[Box], view: str = "side", colour: Any = 
 
 def body_figure(capsules: np.ndarray, boxes: Sequence[Box], path: Any, title: str = "") -> Any:
     """Side and top views of a posture's capsules and the furniture, written to a PNG."""
+    # matplotlib (about half a second) only when a figure is drawn
     import matplotlib
 
     matplotlib.use("Agg")
+    # matplotlib (about half a second) only when a figure is drawn
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 2, figsize=(11, 5.5))
@@ -101,6 +108,7 @@ def frame(ax: Any, view: str, capsules: np.ndarray, boxes: Sequence[Box], points
 
 def from_row(row: np.ndarray) -> Box:
     """A box from a Furnished row: centre [m], half sizes [m], quaternion (w, x, y, z)."""
+    # Pinocchio only when a body is loaded
     import pinocchio as pin
 
     rotation = pin.Quaternion(float(row[6]), float(row[7]), float(row[8]), float(row[9])).toRotationMatrix()
@@ -112,13 +120,12 @@ def layout_figure(atlases: Sequence[Any], results: dict[str, Any], path: Any, re
     """Per atlas (a row): side and top views of the body in its reference posture, its furniture, the volumes' slices
     through the right shoulder (each cell in the colour of the first strategy, by priority, that holds it), and the
     targets (body frame) coloured by the strategy that reaches them, a red cross where none does."""
+    # matplotlib (about half a second) only when a figure is drawn
     import matplotlib
 
     matplotlib.use("Agg")
+    # matplotlib (about half a second) only when a figure is drawn
     import matplotlib.pyplot as plt
-
-    from oracles.protocol import Furnished, OracleSpec, Shaped
-    from reach.tools.report import COLOURS
 
     fig, axes = plt.subplots(len(atlases), 2, figsize=(12, 5.5 * len(atlases)), squeeze=False)
     for row, (atlas, result) in enumerate(zip(atlases, results["atlases"], strict=True)):
@@ -129,8 +136,6 @@ def layout_figure(atlases: Sequence[Any], results: dict[str, Any], path: Any, re
         boxes = [from_row(b) for b in oracle.furniture()[1]] if isinstance(oracle, Furnished) else []
         points = np.array([r["point"] for r in result["rows"]], float).reshape(-1, 3)
         if result.get("at"):
-            from reach.answers.evaluate import to_body
-
             a = result["at"]
             points = to_body(points, np.array([[a["x"], a["y"], a["z"], a["yaw"]]]))[0]
         names_of = oracle.shape(oracle.reference_posture())[0] if isinstance(oracle, Shaped) else []

@@ -45,6 +45,8 @@ from reach.errors import InputError, ServerError, ServerUnavailable
 from reach.maps.protocol import DEFAULT_POLICY, POLICIES
 from reach.maps.store import Atlas
 from reach.maps.tree import FINAL, INNER, VATree
+from reach.motion.planner import MotionError, Planner
+from reach.serving.client import Client
 from reach.tools.gate import Gate, guarded_websockets
 
 # Strategy colours (RGB), in priority order: matplotlib's tab10, the report's palette.
@@ -69,6 +71,7 @@ def cube() -> tuple[np.ndarray, np.ndarray]:
 
 def index_colours(index: np.ndarray) -> np.ndarray:
     """uint8 RGB (n, 3) of reachability indices in [0, 1] on matplotlib's viridis; NaN (no index there) grey."""
+    # matplotlib (about half a second) only when a figure is drawn
     from matplotlib import colormaps
 
     rgb = (colormaps["viridis"](np.nan_to_num(index, nan=0.0))[:, :3] * 255).astype(np.uint8)
@@ -154,8 +157,6 @@ class Viewer:
         self.refine, self.policy = refine, policy
         self.client = None
         if connect is not None:
-            from reach.serving.client import Client
-
             self.client = Client(connect)
         self._lock = threading.Lock()
         # layer -> (the settings it was drawn with, its handle)
@@ -257,6 +258,7 @@ class Viewer:
 
     def _body(self, k: int, scene: Scene) -> None:
         """The body's capsules, one mesh each, moved to postures by their transforms."""
+        # trimesh only when meshes are read or written
         import trimesh
 
         spec = next(iter(scene.atlas.trees.values())).meta["oracle"]
@@ -451,8 +453,6 @@ class Viewer:
     def plan_motion(self) -> dict[str, Any]:
         """Plan the motion to the goal on the first atlas (its planner, or the server's ``motion``), draw the
         hand's path and show its first frame; returns the motion's summary."""
-        from reach.motion.planner import MotionError, Planner
-
         self.pause()
         scene = self.scenes[0]
         if scene.shaper is None:

@@ -1,1 +1,1 @@
-"""The command line's commands, by concern: each module's ``register`` adds its subparsers, one function each."""
+"""The command line's commands, by concern: each module's ``COMMANDS`` register their subparsers, one function each."""

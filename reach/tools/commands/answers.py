@@ -37,10 +37,12 @@ def _goal(values: list[str], with_atlas: bool) -> tuple[str | None, list[float]]
 def _write_animation(path: str, kind: str, bones: Any) -> None:
     """A motion's rig (:class:`reach.motion.rig.Rig`) as BVH or glTF."""
     if kind == ".bvh":
+        # loaded when the command runs: `reach --help` starts without the answers' machinery
         from reach.motion.bvh import write_bvh
 
         write_bvh(bones, path)
     else:
+        # loaded when the command runs: `reach --help` starts without the answers' machinery
         from reach.motion.gltf import write_gltf
 
         write_gltf(bones, path)
@@ -76,6 +78,7 @@ def cmd_query(args: argparse.Namespace) -> int:
         if not args.effector:
             raise InputError("--effector", "give the effector with --direction or --quaternion")
     if args.connect:
+        # loaded when the command runs: `reach --help` starts without the answers' machinery
         from reach.serving.client import Client
 
         with Client(args.connect, timeout=args.timeout, curve_server_key=args.curve_server_key,
@@ -85,6 +88,7 @@ def cmd_query(args: argparse.Namespace) -> int:
             replies = [client.query(e, goal, refine, start, miss=args.miss, orientation=wire) for e in effectors]
             answers = [{k: v for k, v in reply.items() if k not in ("ok", "id")} for reply in replies]
     else:
+        # loaded when the command runs: `reach --help` starts without the answers' machinery
         from reach.answers.select import Selector, orientation_of
         from reach.maps.store import load_atlas
 
@@ -173,6 +177,7 @@ def cmd_motion(args: argparse.Namespace) -> int:
         raise InputError("-o", f"{args.output}: expected a {', '.join(MOTION_FILES)} file")
     timing = {"duration": args.duration} if args.duration is not None else None
     if args.connect:
+        # loaded when the command runs: `reach --help` starts without the answers' machinery
         from reach.serving.client import Client
 
         with Client(args.connect, timeout=args.timeout) as client:
@@ -182,10 +187,12 @@ def cmd_motion(args: argparse.Namespace) -> int:
                 fields["bones"] = True  # the server's body gives the skeleton
             data = {k: v for k, v in client.call("motion", **fields).items() if k not in ("ok", "id")}
         if kind in ANIMATION_FILES:
+            # loaded when the command runs: `reach --help` starts without the answers' machinery
             from reach.motion.rig import Rig
 
             _write_animation(args.output, kind, Rig.from_dict(data.pop("rig", None)))
     else:
+        # loaded when the command runs: `reach --help` starts without the answers' machinery
         from reach.answers.select import Selector
         from reach.maps.store import load_atlas
         from reach.motion.planner import Planner, Timing
@@ -196,6 +203,7 @@ def cmd_motion(args: argparse.Namespace) -> int:
                               timing=Timing.from_dict(timing, "--duration"), miss=args.miss)
         data = motion.to_dict()
         if kind in ANIMATION_FILES:
+            # loaded when the command runs: `reach --help` starts without the answers' machinery
             from reach.motion.rig import rig
 
             _write_animation(args.output, kind, rig(motion, planner.body(motion.strategy)))
@@ -251,6 +259,7 @@ def add_motion(sub: Any) -> None:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
+    # loaded when the command runs: `reach --help` starts without the answers' machinery
     from reach.answers.evaluate import evaluate, load_targets, text_table
     from reach.maps.store import load_atlas
 
@@ -259,6 +268,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     results = evaluate(atlases, load_targets(args.targets), args.effector, args.policy, refine=not args.no_refine,
                        placements=at)
     if args.figure:
+        # loaded when the command runs: `reach --help` starts without the answers' machinery
         from reach.tools.sketch import layout_figure
 
         layout_figure(atlases, results, Path(args.figure))
@@ -296,6 +306,7 @@ def add_evaluate(sub: Any) -> None:
 
 def cmd_place(args: argparse.Namespace) -> int:
     """Rank placements of the body (a population of atlases) against a layout's targets; verify the best by IK."""
+    # loaded when the command runs: `reach --help` starts without the answers' machinery
     from reach.answers.evaluate import load_targets
     from reach.answers.place import Space, rank, verify
     from reach.maps.store import load_atlas
@@ -369,9 +380,5 @@ def add_place(sub: Any) -> None:
     p.set_defaults(func=cmd_place)
 
 
-def register(sub: Any) -> None:
-    """Register this module's commands on the CLI's subparsers."""
-    add_query(sub)
-    add_motion(sub)
-    add_evaluate(sub)
-    add_place(sub)
+# Each registers its command's subparser.
+COMMANDS = (add_query, add_motion, add_evaluate, add_place)

@@ -4,8 +4,11 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
+import signal
 import sys
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -19,10 +22,12 @@ from reach.tools.commands.common import on_terminate, policy_option, print_json
 def _executor_factory(args: argparse.Namespace, chunk_size: int) -> tuple[Any, Any, str]:
     """The executor factory the build options ask for, the Dask client if any, and a description."""
 
+    # loaded when the command runs: `reach --help` starts without the answers' machinery
     from reach.build.executor import DaskExecutor, InlineExecutor, ProcessExecutor
 
     workers = args.workers or os.cpu_count() or 1
     if args.scheduler or args.dask:
+        # Dask only when a build runs on it
         from distributed import Client, LocalCluster
 
         if args.scheduler:
@@ -50,6 +55,7 @@ def _add_executor_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def cmd_build(args: argparse.Namespace) -> int:
+    # loaded when the command runs: `reach --help` starts without the answers' machinery
     from reach.build.atlas import build_atlas
     from reach.build.config import load_config
 
@@ -59,8 +65,7 @@ def cmd_build(args: argparse.Namespace) -> int:
     if args.strict and config.notes:
         raise ConfigError(config.source, "", f"{len(config.notes)} warning(s) above, and --strict makes them errors")
     if args.refine_centres or args.refine_faces or args.retry_isolated:
-        import dataclasses
-
+        # loaded when the command runs: `reach --help` starts without the answers' machinery
         from reach.build.tree import Refine
 
         r = config.refine
@@ -69,8 +74,6 @@ def cmd_build(args: argparse.Namespace) -> int:
                                                    r.isolated or args.retry_isolated))
     out = Path(args.output) if args.output else Path("out") / config.name
     factory, client, how = _executor_factory(args, config.chunk_size)
-    import signal
-    import threading
 
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, on_terminate)  # as Ctrl-C: the checkpoints stay, a message, status 143
@@ -120,6 +123,7 @@ def add_build(sub: Any) -> None:
 
 
 def cmd_info(args: argparse.Namespace) -> int:
+    # loaded when the command runs: `reach --help` starts without the answers' machinery
     from reach.answers.audit import summary
     from reach.build.atlas import face_text
     from reach.maps.store import load_atlas
@@ -172,6 +176,7 @@ def add_info(sub: Any) -> None:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
+    # loaded when the command runs: `reach --help` starts without the answers' machinery
     from reach.build.atlas import face_text
     from reach.maps.store import load_atlas
     from reach.tools.report import markdown, report
@@ -204,6 +209,7 @@ def add_report(sub: Any) -> None:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
+    # loaded when the command runs: `reach --help` starts without the answers' machinery
     from reach.maps.store import load_atlas
     from reach.tools.export import export_mesh
 
@@ -225,6 +231,7 @@ def add_export(sub: Any) -> None:
 
 
 def cmd_audit(args: argparse.Namespace) -> int:
+    # loaded when the command runs: `reach --help` starts without the answers' machinery
     from reach.answers.audit import audit
     from reach.maps.store import load_atlas, save_audit
 
@@ -300,6 +307,7 @@ def add_audit(sub: Any) -> None:
 
 
 def cmd_accept(args: argparse.Namespace) -> int:
+    # loaded when the command runs: `reach --help` starts without the answers' machinery
     from reach.maps.store import accept_manifest
 
     atlas = accept_manifest(args.atlas)
@@ -318,6 +326,7 @@ def add_accept(sub: Any) -> None:
 
 
 def cmd_model(args: argparse.Namespace) -> int:
+    # loaded when the command runs: `reach --help` starts without the answers' machinery
     from oracles.bodies.body import human_body, load_body
     from oracles.protocol import Described
 
@@ -333,6 +342,7 @@ def cmd_model(args: argparse.Namespace) -> int:
     if spec == "human":
         body = human_body(args.sex, args.stature, args.percentile, args.mass)
     elif spec.endswith((".yaml", ".yml")):
+        # loaded when the command runs: `reach --help` starts without the answers' machinery
         from reach.build.config import load_config, read_yaml
 
         config = load_config(spec)  # errors name the file and the key
@@ -351,6 +361,7 @@ def cmd_model(args: argparse.Namespace) -> int:
     info = {**body.describe(), "world_frame": P.WORLD_AXES, "warnings": warnings,
             **({"strategies": strategies} if strategies else {})}
     if args.figure:
+        # loaded when the command runs: `reach --help` starts without the answers' machinery
         from reach.tools.sketch import body_figure
 
         body_figure(body.capsules_at(), body.furniture, Path(args.figure), Path(spec).stem if spec != "human"
@@ -419,12 +430,5 @@ def add_model(sub: Any) -> None:
     p.set_defaults(func=cmd_model)
 
 
-def register(sub: Any) -> None:
-    """Register this module's commands on the CLI's subparsers."""
-    add_build(sub)
-    add_info(sub)
-    add_report(sub)
-    add_export(sub)
-    add_audit(sub)
-    add_accept(sub)
-    add_model(sub)
+# Each registers its command's subparser.
+COMMANDS = (add_build, add_info, add_report, add_export, add_audit, add_accept, add_model)

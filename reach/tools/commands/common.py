@@ -13,6 +13,7 @@ from reach.maps.protocol import DEFAULT_POLICY, POLICIES
 
 
 def print_json(data: Any) -> None:
+    # loaded when the command runs: `reach --help` starts without the answers' machinery
     from reach.serving.protocol import finite
 
     print(json.dumps(finite(data), indent=2, sort_keys=True, allow_nan=False))

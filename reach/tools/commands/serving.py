@@ -4,7 +4,9 @@
 from __future__ import annotations
 
 import argparse
+import logging
 import os
+import time
 from pathlib import Path
 from typing import Any
 
@@ -15,8 +17,7 @@ from reach.tools.commands.common import handover_margin, handover_option, policy
 
 
 def cmd_serve(args: argparse.Namespace) -> int:
-    import logging
-
+    # loaded when the command runs: `reach --help` starts without the answers' machinery
     from reach.serving.server import Server
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
@@ -69,6 +70,7 @@ def add_serve(sub: Any) -> None:
 
 
 def cmd_keys(args: argparse.Namespace) -> int:
+    # the CURVE authenticator only when keys are given
     import zmq.auth
 
     folder = Path(args.folder)
@@ -94,11 +96,11 @@ def add_keys(sub: Any) -> None:
 
 
 def cmd_view(args: argparse.Namespace) -> int:
-    import time
-
+    # loaded when the command runs: `reach --help` starts without the answers' machinery
     from reach.maps.store import load_atlas
 
     try:
+        # loaded when the command runs: `reach --help` starts without the answers' machinery
         from reach.tools.view import Viewer
     except ImportError as exc:  # viser is an extra
         raise ReachError(f"reach view needs viser: pip install 'reach[view]' ({exc})") from exc
@@ -134,8 +136,5 @@ def add_view(sub: Any) -> None:
     p.set_defaults(func=cmd_view)
 
 
-def register(sub: Any) -> None:
-    """Register this module's commands on the CLI's subparsers."""
-    add_serve(sub)
-    add_keys(sub)
-    add_view(sub)
+# Each registers its command's subparser.
+COMMANDS = (add_serve, add_keys, add_view)
