@@ -65,8 +65,8 @@ def task(request: int, part: int, goals=GOALS, deadline: float | None = None, st
 def test_workers_answer_as_the_selector_does_and_a_task_round_trips_as_json(atlas):
     t = task(1, 0, start={"right_elbow_flexion": 0.4})
     assert json.loads(t.encode()) == {"effector": "right_hand", "goals": GOALS, "from": {"right_elbow_flexion": 0.4},
-                                      "deadline": t.deadline, "miss": None,
-                                       "op": "query", "options": None, "orientation": None, "refine": True}
+                                      "deadline": t.deadline, "miss": None, "op": "query", "options": None,
+                                      "orientation": None, "refine": True, "run": "run_query"}
     pool = Pool(zmq.Context.instance(), atlas, OPTIONS, 2)
     try:
         ready(pool)
