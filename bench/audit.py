@@ -25,11 +25,9 @@ from reach.build.tree import Refine
 
 ROOT = Path(__file__).resolve().parents[1]
 OPTIONS = {
-    "plain": Refine(),
-    "centres": Refine(centres=True),
+    "plain": Refine(), "centres": Refine(centres=True),
     "centres+faces": Refine(centres=True, faces=True),
-    "isolated": Refine(isolated=True),
-    "centres+isolated": Refine(centres=True, isolated=True),
+    "isolated": Refine(isolated=True), "centres+isolated": Refine(centres=True, isolated=True),
 }
 
 
@@ -60,11 +58,10 @@ def main() -> None:
         for name in names:
             r = result["strategies"][name]
             emit(bench="audit", option=label, strategy=name, oracle_calls=atlas.trees[name].oracle_calls,
-                 probes=r["probes"],
-                 false_reachable=round(r["false_reachable"], 4),
-                     false_reachable_ci95=[round(v, 4) for v in r["false_reachable_ci95"]],
+                 probes=r["probes"], false_reachable=round(r["false_reachable"], 4),
+                 false_reachable_ci95=[round(v, 4) for v in r["false_reachable_ci95"]],
                  false_unreachable=round(r["false_unreachable"], 4),
-                     false_unreachable_ci95=[round(v, 4) for v in r["false_unreachable_ci95"]])
+                 false_unreachable_ci95=[round(v, 4) for v in r["false_unreachable_ci95"]])
 
 
 if __name__ == "__main__":

@@ -62,8 +62,7 @@ def main() -> None:
             loaded = len(calls)
             build_atlas(cfg, Path(tmp) / "out")
     print(json.dumps({"case": "reach build (inline, depths 1-2)", "config": args.config,
-                      "strategies": len(data["strategies"]),
-                      "bodies": len(calls), "of_which_load_config": loaded}))
+                      "strategies": len(data["strategies"]), "bodies": len(calls), "of_which_load_config": loaded}))
 
 
 if __name__ == "__main__":

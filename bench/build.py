@@ -44,7 +44,7 @@ def emit_trees(config: str, trees: dict[str, VATree]) -> None:
             bench="build", config=config, strategy=name, d_max=tree.d_max, oracle_calls=b["oracle_calls"],
             mirrored_from=b.get("mirrored_from"), seconds=round(b["seconds"], 2),
             vertices_per_s=round(b["oracle_calls"] / b["seconds"], 1) if b["seconds"] and b["oracle_calls"]
-                and not b.get("mirrored_from") else None,
+            and not b.get("mirrored_from") else None,
             full_lattice=tree.lattice.vertex_count, final_cell_vertices=int(final),
             calls_over_full=round(b.get("lookups", b["oracle_calls"]) / tree.lattice.vertex_count, 4),
             calls_over_final=round(b.get("lookups", b["oracle_calls"]) / max(final, 1), 3),
@@ -96,8 +96,7 @@ def main() -> None:
             build_atlas(one, Path(tmp) / "a", executor_factory=lambda s, c=client: DaskExecutor(s, c, one.chunk_size))
             times[n] = time.perf_counter() - t0
     emit(bench="dask", strategy=args.dask_strategy, d_max=args.dask_depth, one_worker_s=round(times[1], 2),
-         two_workers_s=round(times[2], 2),
-         speedup=round(times[1] / times[2], 2))
+         two_workers_s=round(times[2], 2), speedup=round(times[1] / times[2], 2))
 
 
 if __name__ == "__main__":

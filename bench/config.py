@@ -26,8 +26,7 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=5)
     args = parser.parse_args()
     print(json.dumps({"bench": "machine", "python": platform.python_version(), "processor": platform.processor()
-                      or platform.machine(),
-                      "gcc": shutil.which("gcc") is not None}))
+                      or platform.machine(), "gcc": shutil.which("gcc") is not None}))
     for path in sorted((ROOT / "configs").glob("*.yaml")):
         load_config(path)
         seconds = []

@@ -95,15 +95,14 @@ def calls(data: dict, names: list[str], goals: int, chunk: int) -> None:
                      cpu_ms_per_goal=round(1e3 * spent / goals, 3),
                      wall_ms_per_goal=round(1e3 * wall / goals, 3), fk_jacobian_us=round(1e6 * fkj, 2),
                      calls_over_fk_jacobian=round(spent / goals / fkj, 1), reachable=int(reach.sum()),
-                         verified=int(verified.sum()),
+                     verified=int(verified.sum()),
                      starts=getattr(oracle, "starts_per_goal", 1) if engine == "batch" else None)
                 np.save(Path(tempfile.gettempdir()) / f"engine_{engine}_{name}_{label}.npy", reach)
     for name in names:
         for label in ("cold", "warm"):
             a, b = (np.load(Path(tempfile.gettempdir()) / f"engine_{e}_{name}_{label}.npy") for e in ENGINES)
             emit(bench="engine_agreement", strategy=name, start=label, both=int((a & b).sum()),
-                 batch_only=int((a & ~b).sum()),
-                 fatrop_only=int((b & ~a).sum()))
+                 batch_only=int((a & ~b).sum()), fatrop_only=int((b & ~a).sum()))
 
 
 def builds(data: dict, workers: int) -> None:

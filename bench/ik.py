@@ -78,9 +78,9 @@ def main() -> None:
             emit(
                 bench="ik", strategy=name, oracle=label, points=len(goals),
                 cold_median_ms=round(1e3 * float(np.median(cold)), 3),
-                    cold_p90_ms=round(1e3 * float(np.percentile(cold, 90)), 3),
+                cold_p90_ms=round(1e3 * float(np.percentile(cold, 90)), 3),
                 warm_median_ms=round(1e3 * float(np.median(warm)), 3),
-                    warm_p90_ms=round(1e3 * float(np.percentile(warm, 90)), 3),
+                warm_p90_ms=round(1e3 * float(np.percentile(warm, 90)), 3),
                 solved_points=int(solved.sum()),
                 solved_cold_median_ms=round(1e3 * float(np.median(cold[solved])), 3) if solved.any() else None,
                 solved_warm_median_ms=round(1e3 * float(np.median(warm[solved])), 3) if solved.any() else None,
@@ -93,7 +93,7 @@ def main() -> None:
         for oracle_name, found in verdicts.items():
             emit(bench="success", strategy=name, oracle=oracle_name, best_known_reachable=int(best.sum()),
                  found=int((found & best).sum()),
-                     success_rate=round(float((found & best).sum() / max(best.sum(), 1)), 4))
+                 success_rate=round(float((found & best).sum() / max(best.sum(), 1)), 4))
         for a, b in (("casadi-ik", "casadi-ik/ipopt"), ("casadi-ik", "dls")):
             emit(bench="agreement", strategy=name, pair=[a, b],
                  agree=round(float(np.mean(verdicts[a] == verdicts[b])), 4))

@@ -63,9 +63,9 @@ def main() -> None:
             cost = {"atlas": atlas.manifest["name"], "strategy": name, "directions": n,
                     "tree_calls": b["oracle_calls"], "tree_seconds": round(b["seconds"], 1),
                     "index_goals": i["goals"], "index_seconds": round(i["seconds"], 1),
-                        "goals_over_n_calls": round(i["goals"] / (n * b["oracle_calls"]), 3),
+                    "goals_over_n_calls": round(i["goals"] / (n * b["oracle_calls"]), 3),
                     "seconds_over_tree": round(i["seconds"] / b["seconds"], 2), "mean_index": round(i["mean"], 4),
-                        **machine}
+                    **machine}
             print(json.dumps(cost), flush=True)
             rows = np.nonzero(tree.vertices.reachable)[0]
             rng = np.random.default_rng(args.seed)
@@ -83,13 +83,12 @@ def main() -> None:
             index = reach_index.reached[sample]
             share, ref = index.mean(axis=1), dense.mean(axis=1)
             print(json.dumps({"atlas": atlas.manifest["name"], "strategy": name, "sample": len(sample),
-                              "dense": args.dense,
-                              "error_vs_dense_mean": round(float(np.abs(share - ref).mean()), 4),
-                                  "error_vs_dense_max": round(float(np.abs(share - ref).max()), 4),
+                              "dense": args.dense, "error_vs_dense_mean": round(float(np.abs(share - ref).mean()), 4),
+                              "error_vs_dense_max": round(float(np.abs(share - ref).max()), 4),
                               "bias_vs_dense": round(float((share - ref).mean()), 4),
                               "error_vs_own_mean": round(float(np.abs(share - own.mean(axis=1)).mean()), 4),
                               "index_not_referee": int((index & ~own).sum()),
-                                  "referee_not_index": int((~index & own).sum()), "pairs": int(own.size),
+                              "referee_not_index": int((~index & own).sum()), "pairs": int(own.size),
                               **machine}), flush=True)
 
 

@@ -77,9 +77,8 @@ def main() -> None:
         print(json.dumps({"strategy": name, "budget_ms": args.budget_ms, "goals": args.goals, "reachable": reachable,
                           "unreachable": unreachable, "within": within,
                           "reachable_but_missed": len(misses), "worst_mm": round(1e3 * max(misses), 1) if misses
-                              else None,
-                          "median_mm": round(1e3 * float(np.median(misses)), 1) if misses else None,
-                              "refined": outcomes}), flush=True)
+                          else None, "median_mm": round(1e3 * float(np.median(misses)), 1) if misses else None,
+                          "refined": outcomes}), flush=True)
     lat = np.array(seconds) * 1e3
     print(json.dumps({"latency_ms": {"median": round(float(np.median(lat)), 2),
                                      "p99": round(float(np.percentile(lat, 99)), 2),

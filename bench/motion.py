@@ -99,8 +99,7 @@ def in_process(planner: Planner, groups: dict[str, np.ndarray]) -> None:
 def served(atlas: str, workers: int) -> Iterator[zmq.Socket]:
     """``reach serve`` of the atlas in a process of its own, its workers ready, and a REQ socket to it."""
     proc = subprocess.Popen([sys.executable, "-m", "reach.tools.cli", "serve", atlas, "--bind", "tcp://127.0.0.1:*",
-                             "--pub", "none",
-                             "--workers", str(workers)], stdout=subprocess.PIPE, text=True)
+                             "--pub", "none", "--workers", str(workers)], stdout=subprocess.PIPE, text=True)
     try:
         line = proc.stdout.readline()  # type: ignore[union-attr]
         address = line.split(" on ")[1].split(",")[0].strip()

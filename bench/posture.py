@@ -95,8 +95,7 @@ def main() -> None:
     args = parser.parse_args()
     atlas = load_atlas(args.atlas)
     emit(bench="machine", python=platform.python_version(), processor=platform.processor() or platform.machine(),
-         atlas=str(Path(args.atlas)),
-         handover_deg=args.handover_deg)
+         atlas=str(Path(args.atlas)), handover_deg=args.handover_deg)
     rng = np.random.default_rng(0)
     specs = {name: OracleSpec.from_dict(tree.meta["oracle"]) for name, tree in atlas.trees.items()}
     body = load_body(next(iter(specs.values())).params["body"])

@@ -61,9 +61,9 @@ def main() -> None:
             print(json.dumps({"atlas": atlas.manifest["name"], "strategy": name, "seconds": round(b["seconds"], 1),
                               "oracle_calls": b["oracle_calls"],
                               "inner_m3": round(tree.volume(INNER), 4), "boundary_m3": round(tree.volume(FINAL), 4),
-                                  "d_max": tree.d_max,
+                              "d_max": tree.d_max,
                               "box": [tree.box.lo.tolist(), tree.box.hi.tolist()], "on_faces": tree.faces(),
-                                  **machine}), flush=True)
+                              **machine}), flush=True)
             if name == "tcp":  # the arm example: its tree along +x at the shoulder's height
                 xs = np.linspace(0.0, 1.2, 1201)
                 inside = tree.contains(np.stack([xs, np.zeros_like(xs), np.full_like(xs, SHOULDER)], 1), "vertex")

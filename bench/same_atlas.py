@@ -24,15 +24,13 @@ def compare(a_path: str, b_path: str) -> bool:
         ta, tb = a.trees[name], b.trees[name]
         va, vb = ta.vertices, tb.vertices
         row = {
-            "strategy": name,
-            "oracle_calls": [ta.oracle_calls, tb.oracle_calls],
-            "nodes": [len(ta), len(tb)],
-            "node_counts_equal": ta.node_counts() == tb.node_counts(),
+            "strategy": name, "oracle_calls": [ta.oracle_calls, tb.oracle_calls],
+            "nodes": [len(ta), len(tb)], "node_counts_equal": ta.node_counts() == tb.node_counts(),
             "kinds_equal": bool(np.array_equal(ta.kind, tb.kind) and np.array_equal(ta.corner, tb.corner)),
             "vertex_keys_equal": bool(np.array_equal(va.keys, vb.keys)),
             "verdicts_equal": bool(np.array_equal(va.keys, vb.keys) and np.array_equal(va.reachable, vb.reachable)),
             "postures_max_abs_diff": None if va.posture is None or vb.posture is None
-                or va.posture.shape != vb.posture.shape
+            or va.posture.shape != vb.posture.shape
             else float(np.max(np.abs(va.posture - vb.posture), initial=0.0)),
         }
         ok = row["oracle_calls"][0] == row["oracle_calls"][1] and row["nodes"][0] == row["nodes"][1] and all(

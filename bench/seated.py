@@ -40,8 +40,7 @@ SUPPORT = ["right_ischium", "left_ischium", "right_thigh_rest", "left_thigh_rest
            "right_heel_outer", "right_toe_inner",
            "right_toe_outer", "left_heel_inner", "left_heel_outer", "left_toe_inner", "left_toe_outer"]
 COMMON = [{"type": "balance", "margin": 0.02}, {"type": "self_collision"}, {"type": "obstacles"}, {"type": "floor"},
-          {"type": "coupling"},
-          {"type": "hang", "frames": ["left_shoulder", "left_elbow_flexion"]}]
+          {"type": "coupling"}, {"type": "hang", "frames": ["left_shoulder", "left_elbow_flexion"]}]
 LEAN = [{"type": "reach"},
         {"type": "contacts", "hinge": ["right_ischium", "left_ischium"], "fixed": ["right_foot", "left_foot"],
          "support": SUPPORT},
@@ -50,7 +49,7 @@ BELTED = [{"type": "reach"},
           {"type": "contacts", "fixed": ["right_ischium", "left_ischium", "right_foot", "left_foot"],
            "support": SUPPORT},
           {"type": "tether", "anchor": [-0.25, 0.30, 0.85], "frames": ["sternum", "left_shoulder"], "slack": 0.02},
-              *COMMON]
+          *COMMON]
 
 
 def farthest(oracle: CasadiIK, start: np.ndarray, direction: np.ndarray, lo: float = 0.2, hi: float = 1.6,

@@ -279,8 +279,7 @@ CHUNK: list[str] = []  # the servers' --chunk option, when given
 
 def serve(atlas: Path, workers: int) -> tuple[subprocess.Popen, str]:
     return start([sys.executable, "-m", "reach.tools.cli", "serve", str(atlas), "--bind", "tcp://127.0.0.1:*",
-                  "--pub", "none",
-                  "--budget-ms", "20", "--workers", str(workers), *CHUNK])
+                  "--pub", "none", "--budget-ms", "20", "--workers", str(workers), *CHUNK])
 
 
 def _ready(address: str) -> None:

@@ -12,10 +12,8 @@ import importlib
 from typing import Any
 
 _EXPORTS = {
-    "Oracle": "oracles.protocol",
-    "OracleSpec": "oracles.protocol",
-    "Verdicts": "oracles.protocol",
-    "available": "oracles.registry",
+    "Oracle": "oracles.protocol", "OracleSpec": "oracles.protocol",
+    "Verdicts": "oracles.protocol", "available": "oracles.registry",
     "create": "oracles.registry",
 }
 

@@ -15,9 +15,9 @@ from oracles.errors import ModelError, OracleError, ReachError, TaskError
 
 __all__ = [
     "ConfigError", "InputError", "ModelError", "ModelMismatch", "OracleError", "ProtocolError", "ReachError",
-        "ServerError",
+    "ServerError",
     "ServerUnavailable", "StoreError", "TaskError", "TreeError", "UnknownEffector", "UnknownName", "UnknownPolicy",
-        "UnknownStrategy",
+    "UnknownStrategy",
 ]
 
 

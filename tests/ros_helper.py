@@ -82,7 +82,7 @@ def motion(effector: str, x: float, y: float, z: float) -> None:
     t = got[0]
     print(json.dumps({"received": True, "frame": t.header.frame_id, "names": list(t.joint_names),
                       "times": [p.time_from_start.to_sec() for p in t.points],
-                          "positions": [list(p.positions) for p in t.points]}), flush=True)
+                      "positions": [list(p.positions) for p in t.points]}), flush=True)
 
 
 def listen(effector: str) -> None:

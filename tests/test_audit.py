@@ -86,7 +86,7 @@ def test_isolated_vertices_are_retried_from_their_neighbours(tmp_path):
         "build": {"refine": {"isolated": True}},
         "strategies": [{"name": "right_arm", "effector": "right_hand",
                         "joints": ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"],
-                            "tasks": [{"type": "reach"}]}],
+                        "tasks": [{"type": "reach"}]}],
     }
     tree = build_atlas(parse_config(data, "iso", "iso"), tmp_path / "iso").trees["right_arm"]
     b = tree.meta["build"]

@@ -59,7 +59,7 @@ def test_info_json_has_the_documented_keys(figure2_atlas, capsys):
 def test_info_warns_when_reachable_vertices_lie_on_the_box(tmp_path, capsys):
     raw = {"box": {"min": [-1, -1, 0], "max": [1, 1, 1]}, "depth": {"min": 1, "max": 3},
            "oracle": {"name": "sphere", "params": {"radius": 0.9}},
-               "strategies": [{"name": "ball", "effector": "point"}]}
+           "strategies": [{"name": "ball", "effector": "point"}]}
     config = tmp_path / "cut.json"  # JSON is YAML
     config.write_text(json.dumps(raw))
     assert main(["build", str(config), "-o", str(tmp_path / "cut"), "--quiet"]) == 0

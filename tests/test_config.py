@@ -13,10 +13,8 @@ from reach.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
 GOOD = {
-    "name": "t",
-    "box": {"min": [-1, -1, -1], "max": [1, 1, 1]},
-    "depth": {"min": 1, "max": 4},
-    "oracle": {"name": "sphere", "params": {"radius": 0.5}},
+    "name": "t", "box": {"min": [-1, -1, -1], "max": [1, 1, 1]},
+    "depth": {"min": 1, "max": 4}, "oracle": {"name": "sphere", "params": {"radius": 0.5}},
     "strategies": [{"name": "a", "effector": "point"}],
 }
 
@@ -57,8 +55,7 @@ def test_good_config_and_priority_order(tmp_path):
 
 
 @pytest.mark.parametrize(
-    ("changes", "key", "message"),
-    [
+    ("changes", "key", "message"), [
         ({"colour": "red"}, "colour", "unknown key"),
         ({"depth__max": "seven"}, "depth.max", "expected an integer"),
         ({"depth__min": 5, "depth__max": 3}, "depth.min", r"D_min \(5\) must not exceed D_max \(3\)"),
@@ -109,8 +106,7 @@ def test_not_yaml_and_not_a_mapping(tmp_path):
 def test_box_auto_is_derived_from_the_body():
     data = {
         "body": {"human": {"sex": "male", "percentile": 50}}, "box": {"auto": {"margin": 0.1}},
-            "depth": {"min": 1, "max": 3},
-        "oracle": {"name": "casadi-ik"},
+        "depth": {"min": 1, "max": 3}, "oracle": {"name": "casadi-ik"},
         "strategies": [{"name": "arm", "effector": "right_hand",
                         "joints": ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"]}],
     }

@@ -27,8 +27,7 @@ STRATEGIES = [
     {"name": "whole", "effector": "right_hand", "priority": 2,
      "joints": [*UPPER, "root", "*_hip_*", "*_knee_*", "*_ankle_*"],
      "tasks": [{"type": "reach"}, {"type": "self_collision"}, {"type": "posture"}, {"type": "feet", "heels": "down"},
-               {"type": "balance"},
-               {"type": "coupling"}]},
+               {"type": "balance"}, {"type": "coupling"}]},
 ]
 
 
@@ -542,8 +541,7 @@ def test_reach_motion_over_the_wire_writes_the_same_animation_files(planner, tmp
             assert main(["motion", atlas, "0.45", "-0.25", "1.2", "--effector", "right_hand", "--rate", "40", "-o",
                          str(here)]) == 0
             assert main(["motion", "0.45", "-0.25", "1.2", "--effector", "right_hand", "--rate", "40", "--connect",
-                         server.endpoint,
-                         "-o", str(there)]) == 0
+                         server.endpoint, "-o", str(there)]) == 0
             assert "frames written to" in capsys.readouterr().out
             assert there.read_text() == here.read_text()
     finally:

@@ -176,8 +176,7 @@ def arm_atlas(tmp_path_factory):
     folder = tmp_path_factory.mktemp("arm")
     config = {
         "name": "arm_small", "body": ARM, "box": {"min": [-0.9, -0.9, 0.0], "max": [0.9, 0.9, 1.3]},
-            "depth": {"min": 2, "max": 3},
-        "oracle": {"name": "casadi-ik", "params": {"restarts": 1, "jit": False}},
+        "depth": {"min": 2, "max": 3}, "oracle": {"name": "casadi-ik", "params": {"restarts": 1, "jit": False}},
         "strategies": [
             {"name": "tcp", "effector": "tcp", "joints": ["arm7_joint*"], "directions": 12,
              "tasks": [{"type": "reach"}, TABLE, {"type": "orientation", "axis": "z"}]},
@@ -262,7 +261,7 @@ def test_queries_hold_the_goals_orientation(arm_atlas):
 def test_directions_need_an_orientation_task_with_an_axis():
     config = {"name": "x", "body": ARM, "box": {"min": [-1, -1, 0], "max": [1, 1, 1.3]}, "depth": {"min": 1, "max": 2},
               "oracle": {"name": "casadi-ik"},
-                  "strategies": [{"name": "tcp", "effector": "tcp", "joints": ["arm7_joint*"], "directions": 20}]}
+              "strategies": [{"name": "tcp", "effector": "tcp", "joints": ["arm7_joint*"], "directions": 20}]}
     with pytest.raises(ConfigError, match=r"strategies\[0\]\.directions: the reachability index needs an orientation "
                                           r"task with an axis"):
         parse_config(config, "x.yaml")

@@ -148,8 +148,7 @@ def table_arm(tmp_path_factory):
                               # fatrop: the trap below (the trees hold all six targets at the tray, IK reaches some) is
                               # its tree's; the
                               # batched engine's tree holds two of six there, as IK does.
-                              "depth": {"min": 2, "max": 4},
-                                  "oracle": {"name": "casadi-ik",
+                              "depth": {"min": 2, "max": 4}, "oracle": {"name": "casadi-ik",
                                              "params": {"restarts": 1, "jit": False, "solver": "fatrop"}},
                               "strategies": [{"name": "tcp", "effector": "tcp", "joints": ["arm7_joint*"],
                                               "tasks": tasks}]}, "t", "t"),

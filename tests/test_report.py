@@ -114,8 +114,7 @@ def test_targets_without_an_effector_are_refused(tmp_path):
 
 
 @pytest.mark.parametrize(
-    ("doc", "key", "message"),
-    [
+    ("doc", "key", "message"), [
         ("base: 3\n", "base", "expected the path of a config to extend"),
         ("base: loop.yaml\n", "base", "extends itself"),
     ],
@@ -151,7 +150,6 @@ def test_figure11_overlays_one_effectors_strategies_by_priority():
     # nests one hand's arm, upper body and whole body, as the paper's Figure 11.
     trees = {"left_arm": tree("left_hand", 1), "right_arm": tree("right_hand", 1), "left_upper": tree("left_hand", 2),
              "right_upper": tree("right_hand", 2), "right_whole": tree("right_hand", 3),
-                 "left_whole": tree("left_hand", 3),
-             "left_crouch": tree("left_hand", 4)}
+             "left_whole": tree("left_hand", 3), "left_crouch": tree("left_hand", 4)}
     assert overlay_names(trees) == ["left_arm", "left_upper", "left_whole"]
     assert overlay_names({"a": tree("p", 1), "b": tree("p", 1)}) == ["a"]

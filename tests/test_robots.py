@@ -227,7 +227,7 @@ def test_a_box_that_cuts_the_volume_grows_within_its_limit(tmp_path):
 
     raw = {"box": {"min": [-1.2, -1.2, -1.2], "max": [1.2, 1.2, 1.2]}, "depth": {"min": 1, "max": 3},
            "oracle": {"name": "sphere", "params": {"radius": 1.0}},
-               "strategies": [{"name": "ball", "effector": "point"}]}
+           "strategies": [{"name": "ball", "effector": "point"}]}
     config = parse_config(raw)
     small = Box(np.array([-0.6, -1.2, -1.2]), np.array([1.2, 1.2, 1.2]))  # cuts the unit ball on x-
     assert grown(small, config.box, {"x-"}) == Box(np.array([-1.05, -1.2, -1.2]), np.array([1.2, 1.2, 1.2]))

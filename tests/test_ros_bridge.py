@@ -120,7 +120,7 @@ def ros(tmp_path_factory):
         "oracle": {"name": "casadi-ik", "params": {"restarts": 1, "secondary": False}},
         "strategies": [{"name": "right_arm", "effector": "right_hand",
                         "joints": ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"],
-                            "tasks": [{"type": "reach"}]}],
+                        "tasks": [{"type": "reach"}]}],
     }
     atlas = tmp / "atlas"
     build_atlas(parse_config(data, "bridge", "bridge"), atlas)

@@ -29,14 +29,14 @@ LEAN = [{"type": "reach"},
         {"type": "contacts", "hinge": ["right_ischium", "left_ischium"], "fixed": ["right_foot", "left_foot"],
          "support": SUPPORT},
         {"type": "balance", "margin": 0.02}, {"type": "self_collision"}, {"type": "obstacles"}, {"type": "floor"},
-            {"type": "coupling"}]
+        {"type": "coupling"}]
 ANCHOR = [-0.25, 0.30, 0.85]
 BELTED = [{"type": "reach"},
           {"type": "contacts", "fixed": ["right_ischium", "left_ischium", "right_foot", "left_foot"],
            "support": SUPPORT},
           {"type": "tether", "anchor": ANCHOR, "frames": ["sternum", "left_shoulder"], "slack": 0.02},
           {"type": "balance", "margin": 0.02}, {"type": "self_collision"}, {"type": "obstacles"}, {"type": "floor"},
-              {"type": "coupling"}]
+          {"type": "coupling"}]
 
 
 def seated(kind: str = "chair", sex: str = "male", percentile: float = 50, **seat) -> dict:
@@ -234,7 +234,7 @@ def test_the_tether_row_and_its_casadi_constraint_agree_with_pinocchio_and_finit
     values = ca.Function("c", [sym.x], [ca.vertcat(*[c.expr for c in tether.constraints(sym)])])(x)
     assert np.allclose(np.array(values).ravel(),
                        [np.sum((body.frame_positions(q)[f] - anchor) ** 2) for f in ("sternum", "left_shoulder")],
-                           atol=1e-9)
+                       atol=1e-9)
     rows = tether.rows(num)
     assert len(rows) == 2
     eps = 1e-6
@@ -258,8 +258,7 @@ def seated_atlas(tmp_path_factory):
 
     out = tmp_path_factory.mktemp("seated") / "atlas"
     config = {"body": seated(), "box": {"min": [-0.4, -1.0, 0.2], "max": [1.2, 0.6, 1.8]},
-              "depth": {"min": 2, "max": 3},
-              "oracle": {"name": "casadi-ik", "params": {"restarts": 1, "seed": 0}},
+              "depth": {"min": 2, "max": 3}, "oracle": {"name": "casadi-ik", "params": {"restarts": 1, "seed": 0}},
               "strategies": [{"name": "arm", "effector": "right_hand", "joints": ARM,
                               "tasks": [{"type": "reach"},
                                         {"type": "obstacles",
@@ -366,8 +365,7 @@ def test_the_seated_arm_tree_is_the_standing_arm_tree_moved_with_the_shoulder(tm
         oracle = CasadiIK(body, "right_hand", ARM, tasks)
         shoulder = oracle.body.frame_positions()["right_shoulder"]
         config = {"body": body, "box": {"min": (shoulder - 0.8).tolist(), "max": (shoulder + 0.8).tolist()},
-                  "depth": {"min": 2, "max": 4},
-                  "oracle": {"name": "casadi-ik", "params": {"restarts": 2, "seed": 0}},
+                  "depth": {"min": 2, "max": 4}, "oracle": {"name": "casadi-ik", "params": {"restarts": 2, "seed": 0}},
                   "strategies": [{"name": "arm", "effector": "right_hand", "joints": ARM, "tasks": tasks}]}
         build_atlas(parse_config(config, name, name), tmp_path / name)
         trees[name] = load_atlas(tmp_path / name).trees["arm"]

@@ -137,12 +137,9 @@ def test_health_and_strategies(running):
 
 
 @pytest.mark.parametrize(
-    ("payload", "code"),
-    [
-        (b"not json", P.BAD_JSON),
-        (b"\xff\xfe", P.BAD_JSON),
-        (b"[1, 2]", P.BAD_REQUEST),
-        (b'{"op": 3}', P.BAD_REQUEST),
+    ("payload", "code"), [
+        (b"not json", P.BAD_JSON), (b"\xff\xfe", P.BAD_JSON),
+        (b"[1, 2]", P.BAD_REQUEST), (b'{"op": 3}', P.BAD_REQUEST),
         (b'{"op": "query", "effector": "point", "goal": "here"}', P.BAD_REQUEST),
         (b'{"op": "query", "effector": "point", "goal": [0, "a", 0]}', P.BAD_REQUEST),
         (b'{"op": "query", "effector": 7, "goal": [0, 0, 0]}', P.BAD_REQUEST),
@@ -408,7 +405,7 @@ HUMAN = {
     "oracle": {"name": "casadi-ik", "params": {"restarts": 1, "secondary": False}},
     "strategies": [{"name": "right_arm", "effector": "right_hand",
                     "joints": ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"],
-                        "tasks": [{"type": "reach"}]}],
+                    "tasks": [{"type": "reach"}]}],
 }
 
 
@@ -482,11 +479,9 @@ WORKER_PATH_ERRORS = [
     (b'{"op": "query", "id": 4, "effector": "tail", "goal": [0.4, -0.2, 1.1]}', P.UNKNOWN_EFFECTOR, "unknown "
         "effector 'tail'"),
     (b'{"op": "query", "id": 5, "effector": "right_hand", "goal": [0.4, -0.2, 1.1], "from": {"right_elbow_flexion": '
-     b'1e6}}', P.BAD_REQUEST,
-     "from: right_elbow_flexion = 1e+06 is outside its range [0.0000, "),
+     b'1e6}}', P.BAD_REQUEST, "from: right_elbow_flexion = 1e+06 is outside its range [0.0000, "),
     (b'{"op": "query", "id": 6, "effector": "right_hand", "goal": [0.4, -0.2, 1.1], "from": {"root_z": 1e300}}',
-     P.BAD_REQUEST,
-     "from: the root's position must be within 1000 m"),
+     P.BAD_REQUEST, "from: the root's position must be within 1000 m"),
     (b'{"op": "query", "id": 7, "effector": "right_hand", "goal": [0.4, -0.2, 1.1], "from": {"root_qx": 0, '
      b'"root_qy": 0, "root_qz": 0, "root_qw": 0}}',
      P.BAD_REQUEST, "quaternion (root_qx, root_qy, root_qz, root_qw) must not be zero"),
@@ -814,30 +809,23 @@ JUNK = st.one_of(st.none(), st.booleans(), st.integers(-10, 10), st.floats(allow
 POINT = st.lists(st.floats(-1.5, 2.5), min_size=1, max_size=4)
 FIELD_VALUES = {
     "effector": st.sampled_from(["right_hand", "left_hand", "", "x" * 300]),
-    "goal": POINT,
-    "goals": st.lists(POINT, min_size=0, max_size=4),
-    "refine": st.booleans(),
-    "bones": st.booleans(),
+    "goal": POINT, "goals": st.lists(POINT, min_size=0, max_size=4),
+    "refine": st.booleans(), "bones": st.booleans(),
     "from": st.dictionaries(st.sampled_from(["right_elbow_flexion", "right_shoulder_flexion", "root_z", "root_qw",
                                              "wing"]), st.floats(-10, 10), max_size=3),
-    "deadline": st.floats(-1.0, 2.0),
-    "miss": st.sampled_from(["unreachable", "within", "maybe", "nearest", "error"]),
+    "deadline": st.floats(-1.0, 2.0), "miss": st.sampled_from(["unreachable", "within", "maybe", "nearest", "error"]),
     "rate": st.floats(-10.0, 500.0),
     "timing": st.dictionaries(st.sampled_from(["tmu", "duration", "speed"]), st.floats(-1.0, 5.0), max_size=2),
-    "tag": st.text(max_size=8),
-    "strategy": st.sampled_from(["right_arm", "nope"]),
-    "level": st.integers(0, 8),
-    "path": st.sampled_from(["/etc", "..", "human_workers"]),
+    "tag": st.text(max_size=8), "strategy": st.sampled_from(["right_arm", "nope"]),
+    "level": st.integers(0, 8), "path": st.sampled_from(["/etc", "..", "human_workers"]),
     "targets": st.lists(st.fixed_dictionaries({"point": POINT, "effector": st.sampled_from(["right_hand", "nope"])}),
                         min_size=0, max_size=3),
     "x": st.lists(st.floats(-1, 1), min_size=1, max_size=3),
     "y": st.lists(st.floats(-1, 1), min_size=1, max_size=3),
     "z": st.lists(st.floats(-1, 1), min_size=2, max_size=2),
     "yaw": st.lists(st.floats(-200, 200), min_size=2, max_size=2),
-    "step": st.floats(-0.1, 0.5),
-    "yaw_step": st.floats(-10, 90),
-    "top": st.integers(-1, 200),
-    "orientation": st.one_of(st.fixed_dictionaries({"direction": POINT}),
+    "step": st.floats(-0.1, 0.5), "yaw_step": st.floats(-10, 90),
+    "top": st.integers(-1, 200), "orientation": st.one_of(st.fixed_dictionaries({"direction": POINT}),
                              st.fixed_dictionaries({"quaternion": st.lists(st.floats(-1, 1), min_size=3, max_size=5)}),
                              st.lists(st.fixed_dictionaries({"direction": POINT}), min_size=0, max_size=3)),
 }

@@ -302,7 +302,7 @@ def test_manifest_files_are_confined_to_the_atlas_folder(tmp_path, file, message
 
     config = parse_config({"box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 1, "max": 2},
                            "oracle": {"name": "sphere", "params": {"radius": 0.9}},
-                               "strategies": [{"name": "s", "effector": "a"}]})
+                           "strategies": [{"name": "s", "effector": "a"}]})
     out = tmp_path / "out"
     build_atlas(config, out)
     (out / "link.npz").symlink_to(out / "s.npz")

@@ -44,7 +44,7 @@ def numeric(problem, q, goal, data=None):
     return Numeric(model, data, q, goal, jacobian=lambda fid: pin.getFrameJacobian(model, data, fid, lwa)[:, cols],
                    joint_jacobian=lambda j: pin.getJointJacobian(model, data, j, lwa)[:, cols], columns=cols,
                    joint_columns=np.arange(6, cols.size),
-                       joint_q=np.array([model.joints[j].idx_q for j in problem.joint_ids]), x_ref=problem.x_ref)
+                   joint_q=np.array([model.joints[j].idx_q for j in problem.joint_ids]), x_ref=problem.x_ref)
 
 
 def random_x(problem, seed):
@@ -161,8 +161,7 @@ def test_perpendicular_basis_is_orthonormal_and_normal_to_the_axis():
 
 
 @pytest.mark.parametrize(
-    ("tasks", "message"),
-    [
+    ("tasks", "message"), [
         ([{"type": "reach"}, {"type": "gaze", "frame": 3}], r"tasks\[1\]\.frame: expected a frame name, got 3"),
         ([{"type": "reach"}, {"type": "gaze", "frame": "third_eye"}],
          r"tasks\[1\]\.frame: human: no frame 'third_eye'"),
@@ -401,7 +400,7 @@ def test_collision_and_floor_rows_match_finite_differences():
     base = gaps(q)
     active = [k for k, p in enumerate(task.pairs)
               if base[k] - body.collision.placed[p.first].radius - body.collision.placed[p.second].radius
-                  < p.clearance + 0.005]
+              < p.clearance + 0.005]
     fd = np.zeros((len(active), num.columns.size))
     for k in range(num.columns.size):
         v = np.zeros(model.nv)

@@ -322,7 +322,7 @@ def test_view_command_needs_an_atlas(tmp_path, capsys):
 def test_an_analytic_atlas_is_viewed_without_a_body(tmp_path):
     raw = {"box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 1, "max": 3},
            "oracle": {"name": "sphere", "params": {"radius": 0.9}},
-               "strategies": [{"name": "ball", "effector": "point"}]}
+           "strategies": [{"name": "ball", "effector": "point"}]}
     build_atlas(parse_config(raw, "ball", "ball"), tmp_path / "ball")
     v = Viewer([load_atlas(tmp_path / "ball")], port=_free_port())
     try:

@@ -177,10 +177,8 @@ class Body:
         mass [m]."""
         continuous = self.continuous
         info: dict[str, Any] = {
-            "source": self.source,
-            "hash": self.hash,
-            "mass": self.mass,
-            "nq": int(self.model.nq),
+            "source": self.source, "hash": self.hash,
+            "mass": self.mass, "nq": int(self.model.nq),
             "joints": [{"name": n, "lower": lo, "upper": hi, **({"continuous": True} if n in continuous else {})}
                        for n, lo, hi in self.limits()],
             "frames": {name: pos.round(6).tolist() for name, pos in self.frame_positions().items()},
@@ -256,8 +254,7 @@ def _check_xml(urdf: str, source: str) -> None:
                 xyz = []
             if len(xyz) != 3 or not all(math.isfinite(v) for v in xyz) or math.hypot(*xyz) < 1e-9:
                 raise ModelError(f"joint {joint.get('name')!r}: axis {axis.get('xyz')!r}; expected three finite "
-                                 "numbers, not all zero",
-                                 source=source)
+                                 "numbers, not all zero", source=source)
 
 
 def _parse(urdf: str, source: str) -> pin.Model:
@@ -279,8 +276,7 @@ def _apply_ranges(model: pin.Model, ranges: dict[str, Any], source: str) -> None
             jm = model.joints[model.getJointId(n)]
             if jm.nq != 1:
                 raise ModelError(f"joint {n!r} has {jm.nq} coordinates; only 1-coordinate joints take ranges",
-                                 source=source,
-                                 key=f"ranges.{pattern}")
+                                 source=source, key=f"ranges.{pattern}")
             i = jm.idx_q
             if (isinstance(value, dict) and set(value) == {"scale"} and isinstance(value["scale"], (int, float))
                 and 0 < value["scale"] <= 1):
@@ -291,8 +287,7 @@ def _apply_ranges(model: pin.Model, ranges: dict[str, Any], source: str) -> None
                 model.lowerPositionLimit[i], model.upperPositionLimit[i] = float(value[0]), float(value[1])
             else:
                 raise ModelError(f"expected [lower, upper] in radians or {{scale: f}} with 0 < f <= 1, got {value!r}",
-                                 source=source,
-                                 key=f"ranges.{pattern}")
+                                 source=source, key=f"ranges.{pattern}")
 
 
 def _check_limits(model: pin.Model, source: str) -> None:
@@ -332,7 +327,7 @@ def _root_rotation(spec: dict[str, Any], source: str) -> np.ndarray:
     if forward not in AXES or abs(float(np.dot(AXES[forward], u))) > 0.5:
         raise ModelError(f"expected one of {', '.join(a for a in AXES if abs(float(np.dot(AXES[a], u))) < 0.5)} (the "
                          f"model's own forward axis, perpendicular to up {up}), got {forward!r}", source=source,
-                             key="forward")
+                         key="forward")
     f = np.array(AXES[forward])
     turn = np.stack([f, np.cross(u, f), u])  # rows: model axes that become the world's x, y, z
     rpy = _numbers(spec.get("root_rpy", [0, 0, 0]), 3, "root_rpy", "rad", source)
@@ -372,8 +367,7 @@ def _reference(model: pin.Model, q: np.ndarray, reference: Any, source: str) -> 
         given = dict(reference)
     else:
         raise ModelError("expected zero, middle, auto or a mapping of joint name to value [rad or m], got "
-                         f"{reference!r}",
-                         source=source, key="reference")
+                         f"{reference!r}", source=source, key="reference")
     names = [str(n) for n in model.names[2:]]
     for name in given:
         if name not in names:
@@ -404,8 +398,7 @@ def _reference(model: pin.Model, q: np.ndarray, reference: Any, source: str) -> 
 
 
 def _finish(model: pin.Model, urdf: str, source: str, spec: dict[str, Any], root: np.ndarray, capsules: list[Capsule],
-            anthro: Anthropometry | None = None,
-            sitting: Seated | None = None) -> Body:
+            anthro: Anthropometry | None = None, sitting: Seated | None = None) -> Body:
     _check_limits(model, source)
     _apply_ranges(model, dict(spec.get("ranges", {})), source)
     _add_frames(model, spec.get("frames", {}), source)
@@ -496,7 +489,7 @@ def _check_seat(body: Body) -> None:
                 raise ModelError(f"seated, the {model.placed[i].name} passes {-d:.3f} m into the seat's {box.name}: "
                                  "the seat does not fit "
                                  "this body (check its depth, height, back_angle and feet)", source="human",
-                                     key="human.seat")
+                                 key="human.seat")
 
 
 def _given(**keys: Any) -> dict[str, Any]:
@@ -509,8 +502,7 @@ URDF_MAX_BYTES = 64 * 1024 * 1024  # a URDF's XML: the largest in example-robot-
 
 def urdf_body(path: str | Path, root_position: list[float] | None = None, ranges: dict[str, Any] | None = None,
               package_dirs: list[str] | None = None, *, up: str | None = None, forward: str | None = None,
-                  root_rpy: list[float] | None = None,
-              frames: dict[str, Any] | None = None, reference: Any = None) -> Body:
+              root_rpy: list[float] | None = None, frames: dict[str, Any] | None = None, reference: Any = None) -> Body:
     """Any URDF, with a floating root at root_position [m] turned by ``up`` and root_rpy; its collision geometry
     becomes capsules (meshes found by ``package://`` in package_dirs, or relative to the URDF's folder)."""
     path = Path(path)
@@ -530,8 +522,7 @@ def urdf_body(path: str | Path, root_position: list[float] | None = None, ranges
     spec: dict[str, Any] = {"urdf": str(path)}
     spec.update(_given(root_position=None if root_position is None else list(root_position), ranges=ranges,
                        package_dirs=None if package_dirs is None else list(package_dirs), up=up, forward=forward,
-                           root_rpy=root_rpy,
-                       frames=frames, reference=reference))
+                       root_rpy=root_rpy, frames=frames, reference=reference))
     root = np.zeros(3) if root_position is None else _numbers(root_position, 3, "root_position", "m", str(path))
     capsules = urdf_capsules(urdf, str(path), path.parent, package_dirs or ())
     return _finish(_parse(urdf, str(path)), urdf, str(path), spec, root, capsules)

@@ -221,7 +221,7 @@ def _resolve(filename: str, urdf_dir: Path | None, package_dirs: Sequence[str | 
         hint = f"; {found} holds a folder {package!r}: give it" if found else ""
         raise ModelError(f"mesh {filename!r} not found in {[str(d) for d in package_dirs]}: give package_dirs the "
                          f"folder that holds the package folder {package!r} (the folder above it){hint}",
-                             source=source, key="package_dirs")
+                         source=source, key="package_dirs")
     path = Path(filename.removeprefix("file://"))
     if not path.is_absolute() and urdf_dir is not None:
         path = urdf_dir / path

@@ -142,8 +142,7 @@ def parse_seat(raw: Any) -> Seat:
                          source="human", key="human.seat.feet")
     k = "human.seat."
     return Seat(
-        kind,
-        _number(given["height"], k + "height", 0.05, 1.2, "m"),
+        kind, _number(given["height"], k + "height", 0.05, 1.2, "m"),
         _number(given["depth"], k + "depth", 0.2, 0.8, "m"),
         _number(given["width"], k + "width", 0.3, 1.0, "m"),
         math.radians(_number(given["back_angle"], k + "back_angle", 0.0, 40.0, "deg")),
@@ -152,7 +151,7 @@ def parse_seat(raw: Any) -> Seat:
         _number(feet.get("height", 0.0), k + "feet.height", 0.0, 0.5, "m"),
         None if feet.get("x") is None else _number(feet["x"], k + "feet.x", 0.1, 1.5, "m"),
         None if feet.get("ankle") is None
-            else math.radians(_number(feet["ankle"], k + "feet.ankle", -50.0, 20.0, "deg")),
+        else math.radians(_number(feet["ankle"], k + "feet.ankle", -50.0, 20.0, "deg")),
     )
 
 
@@ -192,7 +191,7 @@ def seated(body: Anthropometry, seat: Seat) -> Seated:
         if dist > lt + ls - 1e-3:
             raise ModelError(f"the heels {seat.feet_x} m forward are out of this body's reach from the seat (hip to "
                              f"ankle {dist:.3f} m, legs {lt + ls:.3f} m): bring human.seat.feet.x back",
-                                 source="human", key="human.seat.feet.x")
+                             source="human", key="human.seat.feet.x")
         alpha = math.acos(max(-1.0, min(1.0, (lt * lt + dist * dist - ls * ls) / (2 * lt * dist))))
         e = d / dist
         knee_dir = np.array([e[0] * math.cos(alpha) - e[2] * math.sin(alpha), 0.0,
@@ -206,8 +205,7 @@ def seated(body: Anthropometry, seat: Seat) -> Seated:
         if drop > ls:
             raise ModelError(f"the pan {seat.height} m high is above this body's lower leg (the shank, {ls:.3f} m, "
                              f"would leave the feet {drop - ls:.3f} m above their rest): lower human.seat.height or "
-                             "raise human.seat.feet.height",
-                             source="human", key="human.seat.height")
+                             "raise human.seat.feet.height", source="human", key="human.seat.height")
         theta_t, theta_s = math.pi / 2, math.asin(math.sqrt(max(ls * ls - drop * drop, 0.0)) / ls)
         ankle_flex = -theta_s
         heel = hip + np.array([lt + ls * math.sin(theta_s), 0.0, -ls * math.cos(theta_s)]) - heel_to_ankle
@@ -244,8 +242,7 @@ def seated(body: Anthropometry, seat: Seat) -> Seated:
         if not lo - 1e-9 <= value <= hi + 1e-9:
             raise ModelError(f"seated on this seat, {name} would be {math.degrees(value):.1f} deg, outside its range "
                              f"[{math.degrees(lo):.0f}, {math.degrees(hi):.0f}] deg: change human.seat's back_angle, "
-                             "height or feet",
-                             source="human", key="human.seat")
+                             "height or feet", source="human", key="human.seat")
 
     thigh_dir = np.array([math.sin(theta_t), 0.0, -math.cos(theta_t)])
     under = np.array([thigh_dir[2], 0.0, -thigh_dir[0]])  # the thigh's underside, perpendicular to it

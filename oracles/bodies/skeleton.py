@@ -84,8 +84,7 @@ def build_skeleton(body: Body, effector: str | None = None) -> tuple[Skeleton, t
     capsules = np.array([[*p.a, *p.b, p.radius] for p in body.collision.placed], float).reshape(-1, 7)
     capsule_bones = tuple(bone_of[p.joint] for p in body.collision.placed)
     skeleton = Skeleton(names, tuple(tuple(str(model.names[j]) for j in c) for c in chains), tuple(parents),
-                        tuple(ends),
-                        tuple(p.name for p in body.collision.placed), capsules, capsule_bones)
+                        tuple(ends), tuple(p.name for p in body.collision.placed), capsules, capsule_bones)
     return skeleton, last
 
 

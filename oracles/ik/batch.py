@@ -252,9 +252,8 @@ class BatchProgram:
         return np.maximum(eager, state.lazy_violation) if lazy else eager
 
     def step(self, diag: np.ndarray, jac: np.ndarray | None, gradient: np.ndarray, state: State, fixed: np.ndarray,
-             radius: np.ndarray,
-             extra: tuple[np.ndarray, np.ndarray] | None = None, ahead: np.ndarray | None = None,
-                 buffer: float = BUFFER) -> np.ndarray:
+             radius: np.ndarray, extra: tuple[np.ndarray, np.ndarray] | None = None, ahead: np.ndarray | None = None,
+             buffer: float = BUFFER) -> np.ndarray:
         """The KKT step (B, n) of min 1/2 dx' H dx + gradient' dx subject to the active hard rows (and ``extra``
         rows C dx = r, the reach held below it), H = diag(diag) + jac' jac (or ``diag`` itself when it is a whole
         (B, n, n) Hessian), coordinates in ``fixed`` (B, n) held still.
@@ -323,7 +322,7 @@ class BatchProgram:
 
     def clamped_step(self, x: np.ndarray, diag: np.ndarray, jac: np.ndarray | None, gradient: np.ndarray, state: State,
                      radius: np.ndarray, extra: tuple[np.ndarray, np.ndarray] | None = None,
-                         buffer: float = BUFFER) -> np.ndarray:
+                     buffer: float = BUFFER) -> np.ndarray:
         """:meth:`step`, solved again where it would push coordinates past their bounds (held there) or carry
         inactive hard rows past theirs (made active): an active set of one look ahead."""
         fixed = np.zeros(x.shape, bool)
@@ -336,8 +335,7 @@ class BatchProgram:
             sub = state.take(again)
             ex = None if extra is None else (extra[0][again], extra[1][again])
             dx[again] = self.step(diag[again], None if jac is None else jac[again], gradient[again], sub, over[again],
-                                  radius[again], ex,
-                                  ahead[again], buffer)
+                                  radius[again], ex, ahead[again], buffer)
         return np.clip(x + dx, self.lower_bound, self.upper_bound)
 
     def reach_step(self, x: np.ndarray, state: State, start: np.ndarray | None, start_weight: np.ndarray,
@@ -490,8 +488,7 @@ class Ends(NamedTuple):
 
 def run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_of: np.ndarray, tolerance: float,
                lower: bool, start: np.ndarray | None, deadline: float, stats: dict[str, int],
-                   decisive: np.ndarray | None = None,
-               give_up: float = np.inf, lower_iter: int = LOWER_ITER) -> Ends:
+               decisive: np.ndarray | None = None, give_up: float = np.inf, lower_iter: int = LOWER_ITER) -> Ends:
     """Iterate every start (B, n) with its parameters (B, np) together (see :class:`Ends`), with ``lower_iter``
     iterations of the lower tasks from a reaching posture.
 
@@ -505,8 +502,7 @@ def run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_o
 
 def _run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_of: np.ndarray, tolerance: float,
                 lower: bool, start: np.ndarray | None, deadline: float, stats: dict[str, int],
-                    decisive: np.ndarray | None,
-                give_up: float, lower_iter: int) -> Ends:
+                decisive: np.ndarray | None, give_up: float, lower_iter: int) -> Ends:
     x = x0.copy()
     b = len(x)
     dist = np.full(b, np.inf)
@@ -565,8 +561,7 @@ def _run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_
         sub = np.nonzero(keep & ~newly)[0]
         moving = live[sub]
         x[moving] = program.reach_step(x[moving], state.take(sub), None if starts is None else starts[moving],
-                                       start_weight[moving],
-                                       radius[moving])
+                                       start_weight[moving], radius[moving])
         live = live[keep]
     f = np.full(b, np.inf)
     if not (lower and program.has_lower):
@@ -600,8 +595,7 @@ def _run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_
         stats["iterations"] = stats.get("iterations", 0) + 2 * int(on.size)
         trial = program.lower_step(y[on], state.take_lower(on), r_low[on])
         trial = program.reach_step(trial, program.evaluate(trial, p_low[on]), None if s_low is None else s_low[on],
-                                   w_low[on],
-                                   np.full(len(on), MAX_STEP))
+                                   w_low[on], np.full(len(on), MAX_STEP))
         after = program.evaluate(trial, p_low[on], lower=True)
         assert after.f is not None
         better = (after.f < best[on]) & (np.linalg.norm(after.e,

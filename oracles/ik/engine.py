@@ -137,8 +137,7 @@ class CasadiIK(IKOracle):
     extreme_params: ClassVar[dict[str, Any]] = {"solver": "fatrop"}
 
     def __init__(self, *args: Any, max_iter: int = 60, solver: str = "batch", jit: bool | str = False,
-                 secondary_iter: int = 15,
-                 starts: int = STARTS, **kwargs: Any) -> None:
+                 secondary_iter: int = 15, starts: int = STARTS, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         if solver not in SOLVERS:
             raise OracleError(f"solver must be one of {sorted(SOLVERS)}, got {solver!r}", oracle=self.name,
@@ -202,8 +201,7 @@ class CasadiIK(IKOracle):
     def programs(self) -> _Programs:
         """The programs of this oracle's engine options (those a variant with the same options shares)."""
         key = (self.nlp_solver, self.jit_asked, self.max_iter, self.secondary_iter, len(self.order),
-               self.search.settle > 0,
-               self.search.max_seconds if self.nlp_solver == "ipopt" else None)
+               self.search.settle > 0, self.search.max_seconds if self.nlp_solver == "ipopt" else None)
         found = self._cache.get(key)
         if found is None:
             found = self._cache[key] = _Programs()
@@ -245,8 +243,7 @@ class CasadiIK(IKOracle):
         goal, start, weight = ca.SX.sym("goal", 3), ca.SX.sym("start", p.nx), ca.SX.sym("start_weight", 1)
         target = ca.SX.sym("target", self.strategy.target_size)
         sym = Symbolic(SymbolicKinematics(self.body.model, p.q_sym), p.x_sym, goal, p.x_ref, p.upper - p.lower,
-                       tuple(p.x_names), p.lower, start,
-                       weight, self.strategy.target_dict(target))
+                       tuple(p.x_names), p.lower, start, weight, self.strategy.target_dict(target))
         return sym, ca.vertcat(goal, start, weight, target)
 
     def _nlpsol(self, name: str, solver: str, nlp: dict[str, Any], opts: dict[str, Any]) -> ca.Function:
@@ -484,8 +481,7 @@ class CasadiIK(IKOracle):
             starts = [self._batch_starts(pts[i], None if hints is None else hints[i], int(wave == "random"),
                                          targets is not None) for i in goals]
             run = self._run_wave(pts, goals, starts, start, targets, decisive if wave == "starts" else None, None
-                                 if hints is None else first,
-                                 deadline)
+                                 if hints is None else first, deadline)
             runs.append(run)
             self._keep_reaching(run, pts, targets, reach, residual, posture)
         self._polish_missed(runs, pts, targets, start, deadline, reach, residual, posture,
@@ -496,7 +492,7 @@ class CasadiIK(IKOracle):
 
     def _run_wave(self, pts: np.ndarray, goals: np.ndarray, starts: list[list[np.ndarray]], start: np.ndarray | None,
                   targets: np.ndarray | None, decisive: np.ndarray | None, first: np.ndarray | None,
-                      deadline: float) -> _Wave:
+                  deadline: float) -> _Wave:
         """The goals' starts iterated together (:func:`oracles.ik.batch.run_starts`)."""
         p, search = self.problem, self.search
         owner = np.concatenate([np.full(len(s), i) for i, s in zip(goals, starts, strict=True)])
@@ -515,7 +511,7 @@ class CasadiIK(IKOracle):
         x, dist, viol, liked, _ = run_starts(self.batch_program(), x0, params, owner, self.strategy.tolerance,
                                              search.secondary,
                                                     start, deadline, self.stats, first_start, search.give_up_distance,
-                                                        self.lower_iter)
+                                                    self.lower_iter)
         span = p.upper - p.lower
         scored = np.isfinite(liked)
         if scored.any():
@@ -533,8 +529,7 @@ class CasadiIK(IKOracle):
         return _Wave(goals, offsets, x0, x, p.q_of_x_many(x), dist, viol, liked)
 
     def _keep_reaching(self, run: _Wave, pts: np.ndarray, targets: np.ndarray | None, reach: np.ndarray,
-                       residual: np.ndarray,
-                       posture: np.ndarray) -> None:
+                       residual: np.ndarray, posture: np.ndarray) -> None:
         """For each goal of a wave, the best-liked posture that passes the verdict's check; or, when none does and
         none did before, the nearest attempt."""
         p, tol = self.problem, self.strategy.tolerance

@@ -520,8 +520,7 @@ class IKOracle(ABC):
             if todo.size == 0 or time.perf_counter() > call.deadline:
                 break
             q = self.solve_batch(pts[todo], np.array([starts[i][r] for i in todo]), ~settled[todo] if r == 0
-                                 else None, call,
-                                 None if targets is None else targets[todo])
+                                 else None, call, None if targets is None else targets[todo])
             todo = todo[: len(q)]  # the goals solved before the deadline
             self.stats["solves"] += int(todo.size)
             for k, i in enumerate(todo):

@@ -52,7 +52,7 @@ def _vector(value: Any, where: str) -> np.ndarray:
         return np.array(AXES[value])
     if (isinstance(value, list) and len(value) == 3
         and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)
-            and np.all(np.isfinite(value)) and np.linalg.norm(value) > 1e-9):
+        and np.all(np.isfinite(value)) and np.linalg.norm(value) > 1e-9):
         v = np.asarray(value, float)
         return v / np.linalg.norm(v)  # type: ignore[no-any-return]
     raise TaskError(where, f"expected one of {', '.join(AXES)} or [x, y, z] (not zero), got {value!r}")

@@ -142,7 +142,7 @@ def audit_tree(tree: VATree, referee: Oracle | Executor, samples: int = 300, pol
         m = kind == k
         out["by_type"][KIND_NAMES[k]] = {"probes": int(m.sum()), "volume": tree.volume(k),
                                          "false_reachable": _rate(~truth[m], said[m]),
-                                             "false_unreachable": _rate(truth[m], ~said[m])}
+                                         "false_unreachable": _rate(truth[m], ~said[m])}
     for d in np.unique(depth):
         m = depth == d
         out["by_depth"][str(int(d))] = {"probes": int(m.sum()), "false_reachable": _rate(~truth[m], said[m]),
@@ -233,14 +233,12 @@ def audit_rays(tree: VATree, referee: Oracle | Executor, oracle: Any, policy: Po
             short.append({"direction": np.round(d, 4).tolist(), "tree_m": round(float(held), 4),
                           "referee_m": round(float(reached), 4)})
     return {"rays": RAYS, "probes": int(inside.sum()), "centre": np.round(centre, 4).tolist(),
-            "radius": round(float(radius), 4),
-            "false_reachable": _rate(~truth[inside], said[inside]),
-                "false_unreachable": _rate(truth[inside], ~said[inside]), "short": short}
+            "radius": round(float(radius), 4), "false_reachable": _rate(~truth[inside], said[inside]),
+            "false_unreachable": _rate(truth[inside], ~said[inside]), "short": short}
 
 
 def audit_twins(tree: VATree, referee: Oracle | Executor, pts: np.ndarray, said: np.ndarray,
-                turn: tuple[np.ndarray, np.ndarray],
-                policy: Policy) -> dict[str, Any]:
+                turn: tuple[np.ndarray, np.ndarray], policy: Policy) -> dict[str, Any]:
     """Each probe's twin turned ``TWIN_TURN`` about the free axis: how often the tree's verdicts disagree, and of the
     disagreeing pairs (at most ``TWIN_CHECKS``), how often the referee reaches the one the tree calls unreachable."""
     point, axis = turn
@@ -275,7 +273,7 @@ def audit_index(tree: VATree, index: ReachIndex, referee: Oracle | Executor, sam
     said = index.reached[v, d]
     return {"pairs": int(samples), "directions": len(index.directions), "false_reached": _rate(~truth, said),
             "false_missed": _rate(truth, ~said), "share_by_index": float(said.mean()),
-                "share_by_referee": float(truth.mean())}
+            "share_by_referee": float(truth.mean())}
 
 
 def referee(tree: VATree, restarts: int) -> Oracle:
@@ -292,8 +290,7 @@ def referee(tree: VATree, restarts: int) -> Oracle:
 
 def audit(
     atlas: Atlas, samples: int = 300, policy: Policy = "vertex", seed: int = 0, restarts: int = 6,
-        names: list[str] | None = None,
-    executor_factory: Callable[[OracleSpec], Executor] | None = None,
+    names: list[str] | None = None, executor_factory: Callable[[OracleSpec], Executor] | None = None,
 ) -> dict[str, Any]:
     """Audit every (or the named) strategy of an atlas; the referee runs in this process or on the executors made by
     executor_factory."""
@@ -341,10 +338,8 @@ def summary(atlas: Atlas) -> dict[str, Any]:
         if name in strategies:
             strategies[name]["audit_warnings"] = lines
     return {
-        "name": atlas.manifest.get("name"),
-        "path": str(atlas.path),
-        "strategies": strategies,
-        "config_warnings": list(atlas.manifest.get("warnings", {}).get("config", [])),
+        "name": atlas.manifest.get("name"), "path": str(atlas.path),
+        "strategies": strategies, "config_warnings": list(atlas.manifest.get("warnings", {}).get("config", [])),
         "audit_warnings": found.get("", []),
     }
 

@@ -109,7 +109,7 @@ def evaluate(atlases: list[Atlas], targets: list[Target], effector: str | None =
                          "reachable": a.reachable,
                          "also": list(a.alternatives), "refined": a.refined, "within": a.within, "beyond_trees": probed,
                          "nearest": None if a.nearest is None
-                             else {k: a.nearest[k] for k in ("strategy", "point", "distance")}})
+                         else {k: a.nearest[k] for k in ("strategy", "point", "distance")}})
         reached = sum(r["reachable"] for r in rows)
         by_strategy: dict[str, int] = {}
         for r in rows:

@@ -143,7 +143,7 @@ class Ranking:
         return {"rank": k + 1, "position": [x, y, z], "yaw_deg": math.degrees(yaw),
                 "accommodated": float(self.accommodated[k]),
                 "reached": float(self.reached[k]), "preference": float(self.preference[k]), "margin": margin,
-                    "strategies": by}
+                "strategies": by}
 
 
 def weights_of(atlas: Atlas, effector: str, overrides: dict[str, float] | None = None) -> tuple[list[str], np.ndarray]:
@@ -159,8 +159,7 @@ def weights_of(atlas: Atlas, effector: str, overrides: dict[str, float] | None =
 
 
 def rank(atlases: Sequence[Atlas], targets: Sequence[Target], space: Space, effector: str | None = None,
-         policy: Policy = "vertex",
-         weights: dict[str, float] | None = None) -> Ranking:
+         policy: Policy = "vertex", weights: dict[str, float] | None = None) -> Ranking:
     """Score every candidate of the space against the targets by the trees (see the module docstring); best first."""
     if not atlases or not targets:
         raise InputError("targets" if atlases else "atlases", "expected at least one atlas and one target")
@@ -244,9 +243,8 @@ def verify(ranking: Ranking, atlases: Sequence[Atlas], targets: Sequence[Target]
         ok = np.array([[s.select(t.effector or effector or "", p).reachable
                         for t, p in zip(targets, body, strict=True)] for s in selectors])
         out.append({"rank": k + 1, "trees_rank": k + 1, "accommodated": float(ok.all(axis=1).mean()),
-                    "reached": float(ok.mean()),
-                    "claimed_reached": float(ranking.reached[k]),
-                        "agree": bool(np.isclose(ok.mean(), ranking.reached[k]))})
+                    "reached": float(ok.mean()), "claimed_reached": float(ranking.reached[k]),
+                    "agree": bool(np.isclose(ok.mean(), ranking.reached[k]))})
     # The verified candidates ranked again by what IK verified (stable: the trees' order breaks ties).
     again = sorted(range(count), key=lambda k: (-out[k]["accommodated"], -out[k]["reached"]))
     if again != list(range(count)):

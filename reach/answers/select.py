@@ -304,8 +304,7 @@ class Selector:
     """
 
     def __init__(self, atlas: Atlas, policy: Policy = DEFAULT_POLICY, refine: bool = True,
-                 budget: float = REFINE_BUDGET,
-                 handover: float = HANDOVER, miss: str = MISS) -> None:
+                 budget: float = REFINE_BUDGET, handover: float = HANDOVER, miss: str = MISS) -> None:
         if miss not in MISSES:
             raise InputError("miss", f"expected one of {', '.join(MISSES)}, got {miss!r}")
         self.miss = miss
@@ -561,13 +560,12 @@ class Selector:
             answer = self._answer(effector, g[n_goal], [n for j, n in enumerate(names) if hits[j, n_goal]],
                                   nearest.get(n_goal),
                                   refine and not out_of_time, time.perf_counter(), start, miss, aims[n_goal],
-                                      done[n_goal])
+                                  done[n_goal])
             out.append(_timed_out(answer, out_of_time))
         return out
 
     def _select_one(self, effector: str, names: list[str], goal: np.ndarray, refine: bool, t0: float,
-                    start: dict[str, float] | None,
-                    miss: str, aim: np.ndarray | None = None) -> Answer:
+                    start: dict[str, float] | None, miss: str, aim: np.ndarray | None = None) -> Answer:
         """select_many for one goal, in plain Python: the server's per-request path."""
         point = goal.tolist()
         hits = [n for n in names if self.atlas.maps[n].contains_one(point, self.policy)]
@@ -644,8 +642,7 @@ class Selector:
         # a posture that was not refined at this goal says how near it comes
         within = residual if outcome in STORED else None
         return Answer(effector, tuple(goal.tolist()), name, True, tuple(others), posture, root, residual, outcome,
-                      time.perf_counter() - t0,
-                      handover, within, None, fragment, self._index_of(name, row))
+                      time.perf_counter() - t0, handover, within, None, fragment, self._index_of(name, row))
 
     def probe(self, effector: str, goal: np.ndarray, restarts: int = 8) -> Answer | None:
         """For a goal no tree holds: the first strategy of the effector, by priority, whose thorough solve (its
@@ -665,8 +662,7 @@ class Selector:
             if v.reachable[0] and v.posture is not None:
                 posture, root = split_posture(tree.posture_names, v.posture[0])
                 return Answer(effector, tuple(goal.tolist()), name, True, (), posture, root, float(v.residual[0]),
-                              REFINED,
-                              time.perf_counter() - t0)
+                              REFINED, time.perf_counter() - t0)
         return None
 
     def _limits(self, name: str, q: np.ndarray) -> list[str]:

@@ -131,14 +131,9 @@ def face_text(faces: dict[str, int]) -> str:
 
 
 def build_atlas(
-    config: Config,
-    out: str | Path,
-    *,
-    executor_factory: Callable[[OracleSpec], Executor] | None = None,
-    progress: bool = False,
-    log: Callable[[str], None] | None = None,
-    resume: bool = False,
-    mirror: bool = True,
+    config: Config, out: str | Path, *, executor_factory: Callable[[OracleSpec], Executor] | None = None,
+    progress: bool = False, log: Callable[[str], None] | None = None,
+    resume: bool = False, mirror: bool = True,
     inherit: bool = True,
 ) -> Atlas:
     """Build every strategy's tree of a config into the folder out.
@@ -253,13 +248,10 @@ def _build_locked(
                         "digest": tree.meta["digest"]})
     entries.sort(key=lambda e: (e["priority"], e["name"]))
     manifest = {
-        "name": config.name,
-        "config": config.raw,
-        "source": config.source,
-        "strategies": entries,
+        "name": config.name, "config": config.raw,
+        "source": config.source, "strategies": entries,
         "model_hashes": sorted({t.meta["model_hash"] for t in built.values() if "model_hash" in t.meta}),
-        "versions": package_versions(),
-        "build_seconds": time.perf_counter() - t0,
+        "versions": package_versions(), "build_seconds": time.perf_counter() - t0,
         "warnings": {"config": list(config.notes), "faces": warnings},
     }
     write_manifest(out, manifest)
@@ -271,7 +263,7 @@ def _build_locked(
 def _build_one(
     config: Config, s: StrategySpec, meta: dict[str, Any], partial: Path, fp: str,
     executor_factory: Callable[[OracleSpec], Executor] | None, progress: bool, resume: bool,
-        parent: tuple[str, VATree] | None = None,
+    parent: tuple[str, VATree] | None = None,
     oracle: Oracle | None = None,
 ) -> VATree:
     state = load_state(partial, fp) if resume and partial.is_file() else None
@@ -286,9 +278,9 @@ def _build_one(
             meta["inherited_from"] = parent[0]
         return build_tree(
             s.oracle, config.box, config.d_min, config.d_max, executor=ex, progress=s.name if progress else False,
-                meta=meta, state=state,
+            meta=meta, state=state,
             on_level=lambda st: save_state(st, partial, fp), refine=config.refine, keep_out=_keep_out(ex.oracle),
-                inherit=inherit,
+            inherit=inherit,
         )
     finally:
         ex.close()
@@ -333,19 +325,15 @@ def tree_summary(tree: VATree, index: ReachIndex | None = None) -> dict[str, Any
     build = tree.meta.get("build", {})
     return {
         "nodes": {str(d): counts for d, counts in tree.node_counts().items()},
-        "oracle_calls": tree.oracle_calls,
-        "lattice_vertices": tree.lattice.vertex_count,
+        "oracle_calls": tree.oracle_calls, "lattice_vertices": tree.lattice.vertex_count,
         "volume": {"inner": tree.volume(INNER), "boundary": tree.volume(FINAL)},
         "extent": {"min": ext[0].tolist(), "max": ext[1].tolist()} if ext else None,
         "reachable_extent": {"min": reach[0].tolist(), "max": reach[1].tolist()} if reach else None,
-        "on_faces": tree.faces(),
-        "effector": tree.meta.get("effector"),
-        "priority": tree.meta.get("priority"),
-        "box": tree.box.to_dict(),
+        "on_faces": tree.faces(), "effector": tree.meta.get("effector"),
+        "priority": tree.meta.get("priority"), "box": tree.box.to_dict(),
         "depth": {"min": tree.d_min, "max": tree.d_max},
         "resolution": tree.lattice.resolution.tolist(),
-        "build_seconds": build.get("seconds"),
-        "mirrored_from": build.get("mirrored_from"),
+        "build_seconds": build.get("seconds"), "mirrored_from": build.get("mirrored_from"),
         "inherited_from": tree.meta.get("inherited_from"),
         "inherited_vertices": int(build.get("inherited", 0)),
         "index": index_summary(tree, index),

@@ -22,13 +22,13 @@ def save_state(state: Any, path: str | Path, fingerprint: str) -> Path:
     v = state.vertices
     meta = {"format": STATE_FORMAT, "version": TREE_VERSION, "depth": state.depth, "levels": state.levels,
             "fingerprint": fingerprint, "posture_names": list(v.posture_names),
-                "sizes": [int(k.shape[0]) for k in state.kinds]}
+            "sizes": [int(k.shape[0]) for k in state.kinds]}
     arrays = {
         "meta": np.frombuffer(json.dumps(meta).encode(), np.uint8),
         "frontier": state.frontier.astype(np.int64),
         "kinds": np.concatenate(state.kinds).astype(np.uint8) if state.kinds else np.zeros(0, np.uint8),
         "corners": np.concatenate(state.corners).astype(np.int64) if state.corners
-            else np.zeros((0, state.frontier.shape[1]), np.int64),
+        else np.zeros((0, state.frontier.shape[1]), np.int64),
         "vertex_keys": v.keys, "vertex_reachable": v.reachable, "vertex_residual": v.residual,
     }
     if v.posture is not None:
@@ -69,6 +69,6 @@ def load_state(path: str | Path, fingerprint: str) -> Any:
     return BuildState(
         depth, checked_field(path, arrays, "frontier", np.int64, 2),
         [kinds[a:b] for a, b in zip(bounds, bounds[1:], strict=False)],
-            [corners[a:b] for a, b in zip(bounds, bounds[1:], strict=False)],
+        [corners[a:b] for a, b in zip(bounds, bounds[1:], strict=False)],
         VertexTable(keys, reachable, residual, posture, names), levels,
     )

@@ -179,8 +179,7 @@ class DaskExecutor(_Pooled):
     def submit(self, goals: Goals) -> tuple[list[slice], list[Any]]:
         slices = self.slices(len(goals))
         futures = self.client.map(_worker_evaluate, [self.spec] * len(slices), [self.key] * len(slices),
-                                  [goals.take(sl) for sl in slices],
-                                  pure=False)
+                                  [goals.take(sl) for sl in slices], pure=False)
         return slices, futures
 
     def close(self) -> None:

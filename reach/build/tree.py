@@ -140,7 +140,7 @@ class Refine:
 
 def _evaluate(
     keys: np.ndarray, table: VertexTable, lattice: Lattice, executor: Executor, progress: Any, label: str,
-        inherit: Inherited | None = None,
+    inherit: Inherited | None = None,
 ) -> tuple[VertexTable, int]:
     """Ask the oracle about keys not yet in the table (one batch), after those inherited; the grown table and how
     many were inherited."""
@@ -221,8 +221,7 @@ def meets(lo: np.ndarray, hi: np.ndarray, capsules: np.ndarray) -> np.ndarray:
 
 def build_level(
     state: BuildState, lattice: Lattice, d_min: int, executor: Executor, progress: Any = None,
-        refine: Refine | None = None,
-    keep_out: np.ndarray | None = None, inherit: Inherited | None = None,
+    refine: Refine | None = None, keep_out: np.ndarray | None = None, inherit: Inherited | None = None,
 ) -> BuildState:
     """Process the frontier at state.depth; return the state for the next depth.
 
@@ -267,8 +266,7 @@ def build_level(
 
 def _probe_inner(
     frontier: np.ndarray, kinds: np.ndarray, d: int, table: VertexTable, lattice: Lattice, executor: Executor,
-        progress: Any, refine: Refine,
-    inherit: Inherited | None = None,
+    progress: Any, refine: Refine, inherit: Inherited | None = None,
 ) -> tuple[np.ndarray, VertexTable, int, int]:
     """Downgrade to parent the inner cells whose centre (or face-centre) probes fail."""
     inner = np.nonzero(kinds == INNER)[0]
@@ -305,28 +303,19 @@ def assemble(state: BuildState, box: Box, d_min: int, d_max: int, meta: dict[str
         "inherited": sum(int(lv.get("inherited", 0)) for lv in state.levels),
         "distinct_vertices": len(state.vertices),
         "lattice_vertices": Lattice(box, d_max).vertex_count,
-        "levels": state.levels,
-        "seconds": float(sum(lv["seconds"] for lv in state.levels)),
+        "levels": state.levels, "seconds": float(sum(lv["seconds"] for lv in state.levels)),
     }
     return VATree(box, d_min, d_max, depth, np.concatenate(state.corners), kind, bfs_children(kind, box.dim),
                   state.vertices, meta)
 
 
 def build_tree(
-    oracle: Oracle | OracleSpec,
-    box: Box,
-    d_min: int,
-    d_max: int,
-    *,
-    executor: Executor | None = None,
-    chunk_size: int = CHUNK_SIZE,
-    progress: bool | str = False,
-    meta: dict[str, Any] | None = None,
-    state: BuildState | None = None,
-    on_level: LevelCallback | None = None,
-    refine: Refine | None = None,
-    keep_out: np.ndarray | None = None,
-    inherit: Inherited | None = None,
+    oracle: Oracle | OracleSpec, box: Box, d_min: int,
+    d_max: int, *, executor: Executor | None = None,
+    chunk_size: int = CHUNK_SIZE, progress: bool | str = False,
+    meta: dict[str, Any] | None = None, state: BuildState | None = None,
+    on_level: LevelCallback | None = None, refine: Refine | None = None,
+    keep_out: np.ndarray | None = None, inherit: Inherited | None = None,
 ) -> VATree:
     """Build a VATree (Algorithm 1).
 

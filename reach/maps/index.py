@@ -173,5 +173,4 @@ def summary(tree: VATree, index: ReachIndex | None) -> dict[str, Any] | None:
     q = np.percentile(share, [25, 50, 75]) if share.size else np.full(3, np.nan)
     meta = tree.meta.get("index", {})
     return {"directions": len(index.directions), "mean": float(share.mean()) if share.size else None,
-            "quartiles": q.round(4).tolist(),
-            "goals": meta.get("goals"), "seconds": meta.get("seconds")}
+            "quartiles": q.round(4).tolist(), "goals": meta.get("goals"), "seconds": meta.get("seconds")}

@@ -63,19 +63,13 @@ def save_tree(tree: VATree, path: str | Path, index: ReachIndex | None = None) -
     in its metadata; returns the path."""
     path = Path(path)
     meta = {
-        **tree.meta,
-        "format": TREE_FORMAT,
-        "version": TREE_VERSION,
-        "box": tree.box.to_dict(),
-        "d_min": tree.d_min,
-        "d_max": tree.d_max,
-        "posture_names": list(tree.vertices.posture_names),
+        **tree.meta, "format": TREE_FORMAT, "version": TREE_VERSION,
+        "box": tree.box.to_dict(), "d_min": tree.d_min,
+        "d_max": tree.d_max, "posture_names": list(tree.vertices.posture_names),
     }
     arrays: dict[str, np.ndarray] = {
-        "depth": tree.depth.astype(np.uint8),
-        "corner": tree.corner.astype(np.int64),
-        "kind": tree.kind.astype(np.uint8),
-        "vertex_keys": tree.vertices.keys.astype(np.int64),
+        "depth": tree.depth.astype(np.uint8), "corner": tree.corner.astype(np.int64),
+        "kind": tree.kind.astype(np.uint8), "vertex_keys": tree.vertices.keys.astype(np.int64),
         "vertex_reachable": tree.vertices.reachable.astype(bool),
         "vertex_residual": tree.vertices.residual.astype(float),
     }
@@ -375,7 +369,7 @@ def save_audit(atlas: Atlas, result: dict[str, Any]) -> Path:
     ``reach info`` and ``reach report`` then warn of the regions the tree lacks, while the tree is the one audited."""
     record = {"format": AUDIT_FORMAT, "version": 1, "when": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
               "digests": {name: atlas.trees[name].meta.get("digest") for name in result.get("strategies", {})},
-                  "result": result}
+              "result": result}
     path = atlas.path / AUDIT
     atomic_write(path, lambda fh: fh.write(json.dumps(record, indent=1).encode()))
     return path

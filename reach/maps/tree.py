@@ -149,11 +149,9 @@ class VertexTable:
         if self.posture is not None and posture is not None:
             post = np.concatenate([self.posture, posture])[order]
         return VertexTable(
-            all_keys[order],
-            np.concatenate([self.reachable, reachable])[order],
+            all_keys[order], np.concatenate([self.reachable, reachable])[order],
             np.concatenate([self.residual, residual])[order],
-            post,
-            self.posture_names,
+            post, self.posture_names,
         )
 
 

@@ -65,8 +65,7 @@ def gltf_document(rig: Rig):  # -> pygltflib.GLTF2
 
     times = rig.times.astype(np.float32)
     doc.accessors.append(g.Accessor(bufferView=blob.add(times, None), componentType=FLOAT, count=len(times),
-                                    type="SCALAR",
-                                    min=[float(times[0])], max=[float(times[-1])]))
+                                    type="SCALAR", min=[float(times[0])], max=[float(times[-1])]))
     clock = len(doc.accessors) - 1
     animation = g.Animation(name="reach")
     tracks = [(b, "rotation", quats[:, b], "VEC4") for b in range(nb)] + [(0, "translation", rig.root, "VEC3")]
@@ -109,8 +108,7 @@ def _add_mesh(doc, blob: _Blob, rig: Rig, first: np.ndarray) -> None:
     for key, data, target in (("POSITION", positions, ARRAY_BUFFER), ("NORMAL", normals, ARRAY_BUFFER)):
         data = data.astype(np.float32)  # min and max as the file holds the values
         doc.accessors.append(g.Accessor(bufferView=blob.add(data, target), componentType=FLOAT, count=len(data),
-                                        type="VEC3",
-                                        min=_floats(data.min(axis=0)), max=_floats(data.max(axis=0))))
+                                        type="VEC3", min=_floats(data.min(axis=0)), max=_floats(data.max(axis=0))))
         setattr(attributes, key, len(doc.accessors) - 1)
     view = blob.add(np.column_stack([joints, np.zeros((len(joints), 3), int)]).astype(np.uint16), ARRAY_BUFFER)
     doc.accessors.append(g.Accessor(bufferView=view, componentType=UNSIGNED_SHORT, count=len(joints), type="VEC4"))

@@ -62,7 +62,7 @@ INCH = 0.0254  # [m]
 REACH_A = ((0.0, 0.0), (0.75, 2.0), (1, 2.5), (2, 4.0), (3, 5.3), (4, 6.1), (5, 6.5), (6, 7.0), (7, 7.4), (8, 7.9),
            (9, 8.3),
            (10, 8.7), (12, 9.6), (14, 10.5), (16, 11.4), (18, 12.3), (20, 13.1), (22, 14.0), (24, 14.9), (26, 15.8),
-               (28, 16.7), (30, 17.5))
+           (28, 16.7), (30, 17.5))
 PAST_30 = 0.4  # TMU per inch past 30 in (same table)
 STOOP = 29.0  # TMU: bend, stoop or kneel on one knee (B, S, KOK; MTM-1 body motions)
 FOOT = 8.5  # TMU: foot motion pivoted at the ankle (FM), the MTM-1 element nearest a rise onto the toes
@@ -240,9 +240,8 @@ class Motion:
         """Everything but the frames."""
         return {"effector": self.effector, "goal": list(self.goal), "strategy": self.strategy, "outcome": self.outcome,
                 "point": list(self.point), "refined": self.refined, "within": self.within, "duration": self.duration,
-                    "rate": self.rate,
-                "frame_count": len(self.times), "waypoints": self.waypoints, "held": self.held,
-                    "timing_tmu": self.parts}
+                "rate": self.rate, "frame_count": len(self.times), "waypoints": self.waypoints, "held": self.held,
+                "timing_tmu": self.parts}
 
     def to_dict(self) -> dict[str, Any]:
         return {**self.summary(), "frames": self.frames()}
@@ -283,8 +282,7 @@ class Planner:
             self._deadline = math.inf
 
     def _plan(self, effector: str, goal: np.ndarray | list[float], start: dict[str, float] | None, rate: float,
-              timing: Timing | None,
-              miss: str) -> Motion:
+              timing: Timing | None, miss: str) -> Motion:
         if not (isinstance(rate, (int, float)) and math.isfinite(rate) and 1.0 <= rate <= MAX_RATE):
             raise InputError("rate", f"expected frames per second in [1, {MAX_RATE:g}], got {rate!r}")
         if miss not in MOTION_MISSES:
@@ -327,8 +325,7 @@ class Planner:
             outcome = NEAREST
         within = answer.within if outcome == REACHED else float(np.linalg.norm(path[-1] - g[0]))
         return Motion(effector, tuple(g[0].tolist()), name, outcome, tuple(path[-1].tolist()), labels, float(rate),
-                      times, postures[0], path,
-                      answer.refined, within, waypoints, held, postures[2])
+                      times, postures[0], path, answer.refined, within, waypoints, held, postures[2])
 
     @staticmethod
     def _reaches(oracle: Body, goal: np.ndarray, end: np.ndarray, point: np.ndarray) -> bool:

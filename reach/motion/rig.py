@@ -62,11 +62,11 @@ class Rig:
         sk = self.skeleton
         return {"bones": list(sk.bones), "joints": [list(j) for j in sk.joints], "parents": list(sk.parents),
                 "ends": [[name, bone, list(offset)] for name, bone, offset in sk.ends],
-                    "capsule_names": list(sk.capsule_names),
+                "capsule_names": list(sk.capsule_names),
                 "capsule_bones": list(sk.capsule_bones), "bone_capsules": np.asarray(sk.capsules, float).tolist(),
                 "offsets": self.offsets.tolist(), "rotations": self.rotations.tolist(), "root": self.root.tolist(),
                 "end_offsets": self.ends.tolist(), "capsules": self.capsules.tolist(), "times": self.times.tolist(),
-                    "rate": self.rate}
+                "rate": self.rate}
 
     @staticmethod
     def from_dict(data: Any) -> Rig:
@@ -80,14 +80,14 @@ class Rig:
                                 tuple((str(e[0]), int(e[1]), (float(e[2][0]), float(e[2][1]), float(e[2][2])))
                                       for e in data["ends"]),
                                 tuple(str(c) for c in data["capsule_names"]),
-                                    np.asarray(data["bone_capsules"], float).reshape(-1, 7),
+                                np.asarray(data["bone_capsules"], float).reshape(-1, 7),
                                 tuple(int(b) for b in data["capsule_bones"]))
             times = np.asarray(data["times"], float).reshape(-1)
             t = len(times)
             out = Rig(skeleton, np.asarray(data["offsets"], float).reshape(n, 3),
                       np.asarray(data["rotations"], float).reshape(t, n, 3, 3),
                       np.asarray(data["root"], float).reshape(t, 3),
-                          np.asarray(data["end_offsets"], float).reshape(-1, 3),
+                      np.asarray(data["end_offsets"], float).reshape(-1, 3),
                       np.asarray(data["capsules"], float).reshape(-1, 7), times, float(data["rate"]))
         except (KeyError, TypeError, ValueError, IndexError) as exc:
             raise InputError("rig", f"a motion's bones are malformed ({type(exc).__name__}: {exc})") from None

@@ -429,7 +429,7 @@ OPERATIONS: dict[str, Operation] = {op.name: op for op in (
     Operation("reload", (Field("path", "string", _string(4096), "the atlas folder, under the server's "
                                                                 "`--allow-reload` root (default: the one served)"),),
               "load an atlas and serve it (only with `reach serve --allow-reload ROOT`)", "op_reload",
-                  later="_reload_later"),
+              later="_reload_later"),
     Operation("version", (), "the protocol's version, the server's and its operations", "op_version"),
 )}
 OPS = tuple(OPERATIONS)

@@ -447,11 +447,10 @@ class Server:
     def op_health(self, req: P.Request) -> dict[str, Any]:
         return {
             "status": "serving", "protocol": P.VERSION, "atlas": str(self.atlas_path),
-                "strategies": len(self.selector.order),
+            "strategies": len(self.selector.order),
             "uptime": time.monotonic() - self.started, "requests": self.requests, "errors": self.errors,
             "workers": 0 if self.pool is None else self.pool.size, "pending": len(self.pending),
-                "resends": self.resends,
-            "worker_restarts": 0 if self.pool is None else self.pool.restarts,
+            "resends": self.resends, "worker_restarts": 0 if self.pool is None else self.pool.restarts,
             "workers_ready": 0 if self.pool is None else self.pool.ready,
         }
 

@@ -145,7 +145,7 @@ class Pool:
         """Worker k, a fresh interpreter (no copy of the server's sockets), known to the broker as ``w<k>``."""
         p = mp.get_context("spawn").Process(target=work,
                                             args=(self._address, str(self.atlas), self.options, f"w{k}".encode()),
-                                                daemon=True)
+                                            daemon=True)
         p.start()
         return p
 

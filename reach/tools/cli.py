@@ -18,8 +18,7 @@ from reach.tools.commands.common import Terminated
 
 def make_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
-        prog="reach",
-        description="Reachable volumes as adaptive octrees (VATrees): build, inspect and query them.",
+        prog="reach", description="Reachable volumes as adaptive octrees (VATrees): build, inspect and query them.",
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 

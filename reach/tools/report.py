@@ -68,8 +68,7 @@ def tables(atlas: Atlas) -> dict[str, Any]:
             if ta.box != tb.box or ta.d_max != tb.d_max:
                 continue
             pairs.append({
-                "a": a, "b": b,
-                "intersection": ta.intersection(tb).volume(INNER),
+                "a": a, "b": b, "intersection": ta.intersection(tb).volume(INNER),
                 "a_minus_b": ta.difference(tb).volume(INNER),
                 "b_minus_a": tb.difference(ta).volume(INNER),
             })
@@ -86,7 +85,7 @@ def markdown(t: dict[str, Any], title: str) -> str:
     lines = [f"# Reach report: {title}", "", "Volumes [m^3] (inner cells; boundary cells apart) and extents [m] of "
                                              "the inner and boundary cells.", "",
              "| strategy | effector | priority | inner | boundary | highest | lowest | forward | left | right |", "| "
-                 "--- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+             "--- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for n, s in t["strategies"].items():
         lines.append(f"| {n} | {s['effector']} | {s['priority']} | {f(s['volume_inner'])} | "
                      f"{f(s['volume_boundary'])} | {f(s.get('highest'))} | {f(s.get('lowest'))} | {f(s['forward'])} "

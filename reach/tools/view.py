@@ -200,7 +200,7 @@ class Viewer:
             self.policy_box = gui.add_dropdown("policy", list(POLICIES), initial_value=self.policy,
                                                disabled=self.client is not None,
                                                hint="the server's own policy applies with --connect" if self.client
-                                                   else None)
+                                               else None)
             self.answer_box = gui.add_markdown("")
         with gui.add_folder("Motion"):
             self.plan_button = gui.add_button("plan the reach motion", hint="from the reference posture to the "
@@ -272,14 +272,13 @@ class Viewer:
             mesh = trimesh.creation.capsule(height=max(length, 1e-6), radius=float(cap[6]), count=[12, 12])
             scene.capsules.append(self.server.scene.add_mesh_simple(
                 f"/atlas{k}/body/{name}", np.asarray(mesh.vertices, np.float32), np.asarray(mesh.faces, np.uint32),
-                    color=BODY))
+                color=BODY))
         self._pose(scene, caps)
         if isinstance(shaper, Furnished):
             for name, box in zip(*shaper.furniture(), strict=True):
                 scene.furniture.append(self.server.scene.add_box(
                     f"/atlas{k}/furniture/{name}", color=FURNITURE, dimensions=tuple(2 * box[3:6]),
-                        wxyz=tuple(box[6:10]),
-                    position=tuple(box[:3] + scene.offset), opacity=0.6))
+                    wxyz=tuple(box[6:10]), position=tuple(box[:3] + scene.offset), opacity=0.6))
 
     def _pose(self, scene: Scene, caps: np.ndarray) -> None:
         for handle, cap in zip(scene.capsules, caps, strict=True):

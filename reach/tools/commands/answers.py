@@ -322,8 +322,7 @@ def cmd_place(args: argparse.Namespace) -> int:
         except ValueError:
             raise InputError("--weight", f"expected STRATEGY=NUMBER, got {item!r}") from None
     space = Space(tuple(args.x), tuple(args.y), tuple(args.z), (math.radians(args.yaw[0]), math.radians(args.yaw[1])),
-                  args.step,
-                  math.radians(args.yaw_step))
+                  args.step, math.radians(args.yaw_step))
     ranking = rank(atlases, targets, space, args.effector, args.policy, weights)
     if args.verify:
         verify(ranking, atlases, targets, args.verify, args.effector, args.policy)

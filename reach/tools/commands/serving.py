@@ -28,7 +28,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
         raise InputError("--workers", f"expected 0 or more worker processes, got {workers}")
     server = Server(args.atlas, args.bind, None if args.pub == "none" else args.pub, policy=args.policy,
                     refine=not args.no_refine, budget=args.budget_ms / 1000.0, curve_secret=args.curve_secret_key,
-                        workers=workers, curve_clients=args.curve_clients, chunk=args.chunk,
+                    workers=workers, curve_clients=args.curve_clients, chunk=args.chunk,
                     handover=handover_margin(args), miss=args.miss, allow_reload=args.allow_reload)
     server.handle_signals()
     print(f"serving {args.atlas} on {server.endpoint}" + (f", publishing on {server.pub_endpoint}"
