@@ -22,7 +22,8 @@ import numpy as np
 import pinocchio as pin
 
 from oracles.bodies.body import load_body
-from reach.answers.select import Selector, posture_vector
+from reach.answers.answer import posture_vector
+from reach.answers.select import Selector
 from reach.maps.store import load_atlas
 from reach.maps.tree import FINAL
 

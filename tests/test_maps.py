@@ -13,7 +13,8 @@ from scipy.spatial import cKDTree
 
 from oracles.bodies.body import human_body
 from oracles.protocol import OracleSpec
-from reach.answers.select import REFINED, Selector
+from reach.answers.answer import REFINED
+from reach.answers.select import Selector
 from reach.build.atlas import build_atlas
 from reach.build.config import parse_config
 from reach.maps.box import Box

@@ -12,7 +12,8 @@ import pytest
 from helpers import ARM, human_config
 
 from oracles.bodies.body import human_body
-from reach.answers.select import Selector, posture_vector
+from reach.answers.answer import posture_vector
+from reach.answers.select import Selector
 from reach.build.atlas import build_atlas
 from reach.build.config import parse_config
 from reach.errors import InputError

@@ -17,7 +17,8 @@ from oracles.bodies.kinematics import SymbolicKinematics
 from oracles.errors import OracleError, TaskError
 from oracles.protocol import Goals, OracleSpec, Oriented, body_params
 from oracles.tasks import Symbolic
-from reach.answers.select import Selector, orientation_of
+from reach.answers.answer import orientation_of
+from reach.answers.select import Selector
 from reach.build.atlas import build_atlas
 from reach.build.config import parse_config
 from reach.build.index import vertex_levels

@@ -30,8 +30,9 @@ from oracles.protocol import (
     Verifying,
     check_verdicts,
 )
+from reach.answers.answer import REFINED
 from reach.answers.audit import audit
-from reach.answers.select import REFINED, Selector
+from reach.answers.select import Selector
 from reach.build.atlas import build_atlas
 from reach.build.config import parse_config
 from reach.errors import OracleError

@@ -9,7 +9,8 @@ import pytest
 from helpers import ARM, human_config
 
 from oracles.bodies.body import human_body
-from reach.answers.select import FAILED, REFINED, SEEDS, SKIPPED, UNAVAILABLE, Answer, Selector
+from reach.answers.answer import FAILED, REFINED, SKIPPED, UNAVAILABLE, Answer
+from reach.answers.select import SEEDS, Selector
 from reach.build.atlas import build_atlas
 from reach.build.config import parse_config
 from reach.errors import InputError, ModelMismatch, UnknownEffector, UnknownPolicy
@@ -285,7 +286,7 @@ def test_refinement_also_starts_from_the_best_liked_stored_posture_nearby(arm, m
 def test_a_requests_orientation_is_scaled_before_it_is_normalised_and_bad_ones_name_the_field():
     """Issue 35: [1e200, 0, 0] overflowed to a zero direction (bad_request without workers, a worker's error with
     them); it is the x axis. A zero, infinite or NaN orientation is refused naming the field, in the loop."""
-    from reach.answers.select import orientation_of
+    from reach.answers.answer import orientation_of
     from reach.errors import InputError
 
     assert np.allclose(orientation_of({"direction": [1e200, 0, 0]}), [1, 0, 0])

@@ -90,7 +90,7 @@ def test_the_body_takes_the_answers_posture(viewer):
     import pinocchio as pin
 
     from oracles.bodies.body import human_body
-    from reach.answers.select import posture_vector
+    from reach.answers.answer import posture_vector
 
     answer = viewer.set_goal(GOALS[0])[0]
     scene = viewer.scenes[0]
@@ -252,7 +252,7 @@ def _hand_capsule(viewer) -> np.ndarray:
 
 
 def test_a_planned_motion_poses_the_body_frame_by_frame_and_ends_in_the_answer(viewer):
-    from reach.answers.select import posture_vector
+    from reach.answers.answer import posture_vector
     from reach.motion.planner import Planner
 
     # a budget no machine runs out of: the same answer below
@@ -280,7 +280,7 @@ def test_a_planned_motion_poses_the_body_frame_by_frame_and_ends_in_the_answer(v
 
 @browser_only
 def test_the_motion_plays_in_the_browser_and_ends_in_the_answers_posture(viewer, browser):
-    from reach.answers.select import posture_vector
+    from reach.answers.answer import posture_vector
     from reach.motion.planner import Planner
 
     # a budget no machine runs out of: the same answer below

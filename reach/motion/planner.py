@@ -53,7 +53,8 @@ from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
 from oracles.protocol import EffectorPositions, Moving, Shaped, Verifying
-from reach.answers.select import Selector, posture_vector, split_posture
+from reach.answers.answer import posture_vector, split_posture
+from reach.answers.select import Selector
 from reach.errors import InputError, ReachError
 
 TMU = 0.036  # [s] one time measurement unit, 0.00001 h (MTM-1 data card)

@@ -48,18 +48,8 @@ import zmq
 import zmq.auth
 
 from reach import __version__
-from reach.answers.select import (
-    ERROR,
-    HANDOVER,
-    MISS,
-    ORIENTED_BUDGET,
-    REFINE_BUDGET,
-    SKIPPED,
-    TIMEOUT,
-    Answer,
-    Selector,
-    orientation_of,
-)
+from reach.answers.answer import ERROR, SKIPPED, TIMEOUT, Answer, orientation_of
+from reach.answers.select import HANDOVER, MISS, ORIENTED_BUDGET, REFINE_BUDGET, Selector
 from reach.errors import InputError, ReachError, UnknownEffector, UnknownStrategy
 from reach.maps.protocol import DEFAULT_POLICY, raster
 from reach.maps.store import load_atlas

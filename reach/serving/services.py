@@ -20,9 +20,10 @@ from typing import Any
 
 import numpy as np
 
+from reach.answers.answer import orientation_of
 from reach.answers.evaluate import Target
 from reach.answers.place import Space, rank
-from reach.answers.select import Selector, orientation_of
+from reach.answers.select import Selector
 from reach.errors import ReachError, UnknownEffector
 from reach.maps.protocol import Policy
 from reach.maps.store import Atlas

@@ -11,7 +11,7 @@ import sys
 from collections.abc import Sequence
 
 from reach.errors import ReachError
-from reach.tools.commands import answers, build, serving
+from reach.tools.commands import answers, build, inspection, serving
 from reach.tools.commands.build import cmd_build
 from reach.tools.commands.common import Terminated
 
@@ -22,7 +22,7 @@ def make_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    for add in (*build.COMMANDS, *answers.COMMANDS, *serving.COMMANDS):
+    for add in (*build.COMMANDS, *inspection.COMMANDS, *answers.COMMANDS, *serving.COMMANDS):
         add(sub)
     return parser
 

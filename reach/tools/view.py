@@ -40,7 +40,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from oracles.protocol import Furnished, OracleSpec, Shaped
-from reach.answers.select import Selector, posture_vector
+from reach.answers.answer import posture_vector
+from reach.answers.select import Selector
 from reach.errors import InputError, ServerError, ServerUnavailable
 from reach.maps.protocol import DEFAULT_POLICY, POLICIES
 from reach.maps.store import Atlas

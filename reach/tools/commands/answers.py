@@ -89,7 +89,8 @@ def cmd_query(args: argparse.Namespace) -> int:
             answers = [{k: v for k, v in reply.items() if k not in ("ok", "id")} for reply in replies]
     else:
         # loaded when the command runs: `reach --help` starts without the answers' machinery
-        from reach.answers.select import Selector, orientation_of
+        from reach.answers.answer import orientation_of
+        from reach.answers.select import Selector
         from reach.maps.store import load_atlas
 
         selector = Selector(load_atlas(atlas), policy=args.policy,  # type: ignore[arg-type]

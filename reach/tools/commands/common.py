@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 from typing import Any
 
 from reach.answers.select import HANDOVER, MISS, MISSES
@@ -47,3 +48,33 @@ def handover_margin(args: argparse.Namespace) -> float:
 def policy_option(p: argparse.ArgumentParser) -> None:
     p.add_argument("--policy", default=DEFAULT_POLICY, choices=POLICIES, help="how boundary cells answer (default: "
         f"{DEFAULT_POLICY})")
+
+
+def executor_factory(args: argparse.Namespace, chunk_size: int) -> tuple[Any, Any, str]:
+    """The executor factory the build options ask for, the Dask client if any, and a description."""
+
+    # loaded when the command runs: `reach --help` starts without the answers' machinery
+    from reach.build.executor import DaskExecutor, InlineExecutor, ProcessExecutor
+
+    workers = args.workers or os.cpu_count() or 1
+    if args.scheduler or args.dask:
+        # Dask only when a build runs on it
+        from distributed import Client, LocalCluster
+
+        if args.scheduler:
+            client = Client(args.scheduler)
+            how = f"Dask scheduler {args.scheduler}"
+        else:
+            client = Client(LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                         dashboard_address=None))
+            how = f"Dask LocalCluster, {workers} workers"
+        return (lambda spec: DaskExecutor(spec, client, chunk_size)), client, how
+    if workers == 1:
+        return (lambda spec: InlineExecutor(spec, chunk_size)), None, "inline"
+    return (lambda spec: ProcessExecutor(spec, workers, chunk_size)), None, f"{workers} processes"
+
+
+def add_executor_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("-j", "--workers", type=int, help="worker processes (default: all cores; 1 runs inline)")
+    p.add_argument("--dask", action="store_true", help="run on a Dask LocalCluster of --workers processes")
+    p.add_argument("--scheduler", metavar="ADDR", help="run on the Dask cluster at ADDR, e.g. tcp://10.0.0.5:8786")
