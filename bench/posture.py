@@ -29,8 +29,7 @@ Prints JSON lines:
 
 The selector hands goals over as a server does (``--handover-deg``, default
 5; 0 for the paper's plain priority). Goals are drawn with fixed seeds, one stream per measure, so figures are
-repeatable and
-every atlas is measured on the same goals.
+repeatable and every atlas is measured on the same goals.
 """
 
 from __future__ import annotations

@@ -442,9 +442,8 @@ class _Buffers:
 
 WAVE = 2  # a cold goal no start reached (see oracles.ik.engine) gets WAVE x STARTS more random starts
 # Default starts per goal (K): the hint(s), the reference, the ready posture, seeded random ones. Cold goals (no hint,
-# seed 7;
-# docs/results.md, IK engines): K = 4 / 8 / 12 reached 96 / 97 / 97 of 200 arm goals and 46 / 48 / 48 of 100 whole-body
-# ones, at 3.2 / 4.0 / 4.7 and 21.6 / 39.0 / 39.0 ms each: 8 is the fewest that misses none 12 reaches.
+# seed 7; docs/results.md, IK engines): K = 4 / 8 / 12 reached 96 / 97 / 97 of 200 arm goals and 46 / 48 / 48 of 100
+# whole-body ones, at 3.2 / 4.0 / 4.7 and 21.6 / 39.0 / 39.0 ms each: 8 is the fewest that misses none 12 reaches.
 STARTS = 8
 MAX_ITER = 40  # reach iterations
 # reaching starts of one goal whose lower tasks are refined, the first in start order (the neighbour's posture in a

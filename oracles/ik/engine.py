@@ -383,10 +383,8 @@ class CasadiIK(IKOracle):
             lower = list(soft[soft.index(reach) + 1 :])
             p = self.problem
             # Named by what the functions depend on (the body, effector, joints and tasks, and the stages kept), not by
-            # the
-            # search: a refinement's variant (another budget) shares the build's compiled code on disk (named by the
-            # whole
-            # spec, the first `reach query` of each strategy compiled for 30-60 s).
+            # the search: a refinement's variant (another budget) shares the build's compiled code on disk (named by the
+            # whole spec, the first `reach query` of each strategy compiled for 30-60 s).
             name = f"batch_{zlib.crc32(repr((self._strategy_params, key[1])).encode()):08x}"
             screened = [c for t in self.strategy.hard for c in t.screened(sym)]
             found = BatchProgram(sym, params, hard, reach.held(sym), lower, p.lower, p.upper, p.upper - p.lower,

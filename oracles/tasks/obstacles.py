@@ -7,8 +7,7 @@ turned about their centre by ``rpy`` [rad]), and the body's own furniture
 every collision capsule moved by an active joint keeps ``margin`` [m] away
 from (spheres along the capsule's axis kept out of the box grown by their
 radius; a lazy task, see :class:`~oracles.tasks.base.HardTask`). A capsule already closer at the reference posture (a
-robot's base
-link on its table) keeps its reference clearance instead. The verdict is
+robot's base link on its table) keeps its reference clearance instead. The verdict is
 coal's distance between the capsules and the boxes.
 """
 

@@ -193,8 +193,7 @@ def rank(atlases: Sequence[Atlas], targets: Sequence[Target], space: Space, effe
     reached = reached_bt.mean(axis=(1, 2))
     preference = weight.mean(axis=(1, 2))
     # Lexicographic, best first; ties broken by the margin, then by nearness to the tied candidates' centroid
-    # (positions,
-    # and headings on the circle).
+    # (positions, and headings on the circle).
     key = np.round(np.stack([accommodated, reached, preference], axis=1), 9)
     top = np.all(key == key[np.lexsort(key.T[::-1])[-1]], axis=1)
     centre = placements[top, :3].mean(axis=0)

@@ -826,9 +826,8 @@ class Server:
 
     def _publish(self, topic: bytes, bodies: list[bytes], req: P.Request) -> None:
         """Publish each encoded choice with the request's id and tag, in order; a slow subscriber costs a dropped
-        message,
-        never a blocked reply. With workers, at most ``PUBLISH_SLICE`` go now and the rest one slice a pass of the
-        loop."""
+        message, never a blocked reply. With workers, at most ``PUBLISH_SLICE`` go now and the rest one slice a pass
+        of the loop."""
         if self.publisher is None:
             return
         head = b'{"id":' + P.encode_value(req.id) + b',"tag":' + P.encode_value(req["tag"])
