@@ -25,7 +25,8 @@ from reach.build.tree import Refine
 
 ROOT = Path(__file__).resolve().parents[1]
 OPTIONS = {
-    "plain": Refine(), "centres": Refine(centres=True),
+    "plain": Refine(),
+    "centres": Refine(centres=True),
     "centres+faces": Refine(centres=True, faces=True),
     "isolated": Refine(isolated=True), "centres+isolated": Refine(centres=True, isolated=True),
 }

@@ -43,7 +43,7 @@ def main() -> None:
     from reach.answers.select import Selector
     from reach.build.atlas import build_atlas
     from reach.build.config import load_config
-    from reach.maps.store import load_atlas
+    from reach.maps.atlas import load_atlas
 
     patch, calls = counting()
     with patch:

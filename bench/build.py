@@ -26,7 +26,7 @@ import numpy as np
 from reach.build.atlas import build_atlas
 from reach.build.config import load_config, parse_config, read_yaml
 from reach.build.executor import DaskExecutor, ProcessExecutor
-from reach.maps.store import load_atlas
+from reach.maps.atlas import load_atlas
 from reach.maps.tree import FINAL, VATree
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -30,8 +30,8 @@ import numpy as np
 
 from oracles.protocol import Goals, OracleSpec
 from reach.build.executor import ProcessExecutor
+from reach.maps.atlas import load_atlas
 from reach.maps.index import spiral
-from reach.maps.store import load_atlas
 
 
 def reached(ex: ProcessExecutor, points: np.ndarray, postures: np.ndarray, directions: np.ndarray) -> np.ndarray:

@@ -24,7 +24,7 @@ import pinocchio as pin
 from oracles.bodies.body import load_body
 from reach.answers.answer import posture_vector
 from reach.answers.select import Selector
-from reach.maps.store import load_atlas
+from reach.maps.atlas import load_atlas
 from reach.maps.tree import FINAL
 
 TOLERANCE = 0.005  # [m] the shipped strategies' reach tolerance

@@ -34,7 +34,7 @@ import numpy as np
 import zmq
 
 from reach.answers.select import Selector
-from reach.maps.store import load_atlas
+from reach.maps.atlas import load_atlas
 from reach.motion.planner import MotionError, Planner
 
 GROUPS = ("arm", "upper_body", "whole_body", "crouch")

@@ -23,7 +23,7 @@ import numpy as np
 
 from reach.answers.evaluate import Target
 from reach.answers.place import Space, rank, verify
-from reach.maps.store import load_atlas
+from reach.maps.atlas import load_atlas
 
 
 def main() -> None:

@@ -48,7 +48,7 @@ from oracles.ik.strategy import parse_strategy
 from oracles.protocol import OracleSpec
 from oracles.tasks.base import moved
 from reach.answers.select import HANDOVER, Selector
-from reach.maps.store import load_atlas
+from reach.maps.atlas import load_atlas
 from reach.maps.tree import INNER
 
 SPINE = ("lumbar_", "thoracic_", "neck_")  # the trunk and neck joints of the generated human

@@ -26,7 +26,7 @@ import numpy as np
 from motion import EFFECTOR, goals_by_group, served, stats
 
 from reach.answers.select import Selector
-from reach.maps.store import load_atlas
+from reach.maps.atlas import load_atlas
 
 
 def emit(**fields: object) -> None:

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from oracles.protocol import OracleSpec, body_params
-from reach.maps.store import load_atlas
+from reach.maps.atlas import load_atlas
 from reach.maps.tree import FINAL, INNER
 
 ARM7 = Path(__file__).resolve().parents[1] / "configs" / "urdf" / "arm7.urdf"

@@ -14,7 +14,7 @@ import sys
 
 import numpy as np
 
-from reach.maps.store import load_atlas
+from reach.maps.atlas import load_atlas
 
 
 def compare(a_path: str, b_path: str) -> bool:

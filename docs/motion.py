@@ -28,7 +28,7 @@ from postures import draw  # noqa: E402
 from oracles.bodies.body import load_body  # noqa: E402
 from oracles.protocol import OracleSpec  # noqa: E402
 from reach.answers.select import Selector  # noqa: E402
-from reach.maps.store import load_atlas  # noqa: E402
+from reach.maps.atlas import load_atlas
 from reach.motion.planner import Planner  # noqa: E402
 
 MOTIONS = {"arm": (0.45, -0.25, 1.20), "crouch": (0.35, -0.15, 0.05)}

@@ -23,7 +23,7 @@ import pinocchio as pin  # noqa: E402
 from oracles.bodies.body import load_body  # noqa: E402
 from oracles.protocol import OracleSpec  # noqa: E402
 from reach.answers.select import Selector  # noqa: E402
-from reach.maps.store import load_atlas  # noqa: E402
+from reach.maps.atlas import load_atlas
 
 GOALS = [
     (0.45, -0.25, 1.25), (0.35, -0.30, 0.95), (0.40, -0.20, 0.75), (0.30, -0.45, 1.45),

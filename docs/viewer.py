@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from reach.maps.store import load_atlas
+from reach.maps.atlas import load_atlas
 from reach.tools.view import Viewer
 
 ROOT = Path(__file__).resolve().parents[1]

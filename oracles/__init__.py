@@ -12,8 +12,10 @@ import importlib
 from typing import Any
 
 _EXPORTS = {
-    "Oracle": "oracles.protocol", "OracleSpec": "oracles.protocol",
-    "Verdicts": "oracles.protocol", "available": "oracles.registry",
+    "Oracle": "oracles.protocol",
+    "OracleSpec": "oracles.protocol",
+    "Verdicts": "oracles.protocol",
+    "available": "oracles.registry",
     "create": "oracles.registry",
 }
 

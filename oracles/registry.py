@@ -20,9 +20,12 @@ from oracles.errors import OracleError
 ENTRY_POINT_GROUP = "reach.oracles"
 
 BUILTIN: dict[str, str] = {
-    "circle": "oracles.shapes:circle", "sphere": "oracles.shapes:sphere",
-    "ball": "oracles.shapes:Ball", "box": "oracles.shapes:BoxOracle",
-    "torus": "oracles.shapes:Torus", "union": "oracles.shapes:union",
+    "circle": "oracles.shapes:circle",
+    "sphere": "oracles.shapes:sphere",
+    "ball": "oracles.shapes:Ball",
+    "box": "oracles.shapes:BoxOracle",
+    "torus": "oracles.shapes:Torus",
+    "union": "oracles.shapes:union",
     "intersection": "oracles.shapes:intersection",
     "difference": "oracles.shapes:difference",
     "casadi-ik": "oracles.ik.engine:CasadiIK.from_params",

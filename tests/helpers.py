@@ -13,7 +13,8 @@ LEFT_ARM = [j.replace("right_", "left_") for j in ARM]
 
 def human_config(d_max=3, strategies=None, name="arm"):
     return {
-        "name": name, "body": dict(HUMAN),
+        "name": name,
+        "body": dict(HUMAN),
         "box": {"min": [-0.6, -1.0, 0.5], "max": [0.9, 1.0, 2.1]}, "depth": {"min": 1, "max": d_max},
         # fatrop, the engine these small fixtures' figures were written on: without lower tasks (secondary: false, for
         # speed) its interior point keeps the raw reach off the joint bounds, where the batched engine's clamped steps

@@ -16,7 +16,7 @@ from helpers import ARM, LEFT_ARM, human_config, same_tree
 
 from reach.build.atlas import build_atlas
 from reach.build.config import load_config, parse_config
-from reach.maps.store import load_atlas
+from reach.maps.atlas import load_atlas
 
 pytestmark = pytest.mark.slow  # builds human atlases, kills and resumes a build
 

@@ -12,8 +12,9 @@ from reach.answers.audit import audit_tree, referee, wilson
 from reach.build.atlas import build_atlas
 from reach.build.config import parse_config
 from reach.build.tree import Refine, build_tree
+from reach.maps.atlas import load_atlas
 from reach.maps.box import Box
-from reach.maps.store import load_atlas, save_tree
+from reach.maps.store import save_tree
 from reach.maps.tree import FINAL, INNER, OUTER
 from reach.tools.cli import main
 

@@ -55,7 +55,8 @@ def test_good_config_and_priority_order(tmp_path):
 
 
 @pytest.mark.parametrize(
-    ("changes", "key", "message"), [
+    ("changes", "key", "message"),
+    [
         ({"colour": "red"}, "colour", "unknown key"),
         ({"depth__max": "seven"}, "depth.max", "expected an integer"),
         ({"depth__min": 5, "depth__max": 3}, "depth.min", r"D_min \(5\) must not exceed D_max \(3\)"),

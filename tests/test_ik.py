@@ -190,7 +190,8 @@ def test_shipped_human_strategies_load():
 
 
 @pytest.mark.parametrize(
-    ("joints", "tasks", "message"), [
+    ("joints", "tasks", "message"),
+    [
         (["right_tail_*"], None, "no joint matches 'right_tail_\\*'"),
         (ARM, [{"type": "gaze"}], "needs a reach task"),
         (ARM, [{"type": "reach"}, {"type": "dance"}], r"tasks\[1\]: expected a mapping with type"),

@@ -17,10 +17,10 @@ from reach.answers.answer import REFINED
 from reach.answers.select import Selector
 from reach.build.atlas import build_atlas
 from reach.build.config import parse_config
+from reach.maps.atlas import Atlas
 from reach.maps.box import Box
 from reach.maps.index import IndexedTree, ReachIndex
 from reach.maps.protocol import ReachMap, Stored, raster
-from reach.maps.store import Atlas
 from reach.motion.planner import Planner
 
 STRATEGY = [{"name": "right_arm", "effector": "right_hand", "joints": ARM,

@@ -23,8 +23,9 @@ from reach.build.atlas import build_atlas
 from reach.build.config import parse_config
 from reach.build.index import vertex_levels
 from reach.errors import ConfigError, InputError, ProtocolError, StoreError
+from reach.maps.atlas import load_atlas
 from reach.maps.index import ReachIndex, spiral
-from reach.maps.store import load_atlas, load_indexed, load_tree, save_tree
+from reach.maps.store import load_indexed, load_tree, save_tree
 from reach.serving.protocol import parse_request
 
 ROOT = Path(__file__).resolve().parents[1]

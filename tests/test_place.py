@@ -13,7 +13,7 @@ from reach.answers.place import Space, rank, to_body, verify
 from reach.build.atlas import build_atlas
 from reach.build.config import parse_config
 from reach.errors import InputError
-from reach.maps.store import load_atlas
+from reach.maps.atlas import load_atlas
 from reach.tools.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -103,7 +103,7 @@ def test_unknown_strategy_names_are_errors(balls, tmp_path, capsys):
 
 
 def test_targets_without_an_effector_are_refused(tmp_path):
-    from reach.maps.store import Atlas
+    from reach.maps.atlas import Atlas
 
     two = Atlas(Path("two"), {"strategies": [{"name": "a", "effector": "left", "priority": 1, "file": "a"},
                                               {"name": "b", "effector": "right", "priority": 1, "file": "b"}]}, {})
@@ -114,7 +114,8 @@ def test_targets_without_an_effector_are_refused(tmp_path):
 
 
 @pytest.mark.parametrize(
-    ("doc", "key", "message"), [
+    ("doc", "key", "message"),
+    [
         ("base: 3\n", "base", "expected the path of a config to extend"),
         ("base: loop.yaml\n", "base", "extends itself"),
     ],

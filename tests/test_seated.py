@@ -270,7 +270,7 @@ def seated_atlas(tmp_path_factory):
 
 def test_the_viewer_shows_the_seat_and_the_desk(seated_atlas):
     """The viewer adds the body's furniture and the strategy's obstacles as boxes where the body says they are."""
-    from reach.maps.store import load_atlas
+    from reach.maps.atlas import load_atlas
     from reach.tools.view import Viewer
     from tests.test_view import _free_port
 
@@ -331,7 +331,7 @@ def test_reach_model_prints_and_draws_the_fitted_seat(tmp_path, capsys):
 def test_the_page_draws_the_seat(seated_atlas, browser, tmp_path):
     """In a real browser: with the volumes hidden, the page differs where the seat and the desk are drawn (hidden, then
     shown); the screenshot with them is kept in $REACH_SHOTS to look at."""
-    from reach.maps.store import load_atlas
+    from reach.maps.atlas import load_atlas
     from reach.tools.view import Viewer
     from tests.test_view import _free_port, _shot, _wait_for_page
 
@@ -357,7 +357,7 @@ def test_the_seated_arm_tree_is_the_standing_arm_tree_moved_with_the_shoulder(tm
     seated tree: the volumes agree within a cell."""
     from reach.build.atlas import build_atlas
     from reach.build.config import parse_config
-    from reach.maps.store import load_atlas
+    from reach.maps.atlas import load_atlas
 
     tasks = [{"type": "reach"}, {"type": "coupling"}]
     trees, moves = {}, {}
@@ -390,7 +390,7 @@ def test_evaluate_probes_targets_a_coarse_tree_misses_beside_the_desk(seated_atl
     tree holds are solved thoroughly by IK, marked beyond the trees, and every such verdict puts the hand on the target
     (Pinocchio FK)."""
     from reach.answers.evaluate import Target, evaluate
-    from reach.maps.store import load_atlas
+    from reach.maps.atlas import load_atlas
 
     atlas = load_atlas(seated_atlas)
     tree = atlas.trees["arm"]

@@ -21,7 +21,7 @@ from reach.answers.select import Selector
 from reach.build.atlas import build_atlas
 from reach.build.config import parse_config
 from reach.errors import InputError
-from reach.maps.store import load_atlas
+from reach.maps.atlas import load_atlas
 from reach.serving import protocol as P
 from reach.serving.client import Client, ServerError, ServerUnavailable
 from reach.serving.server import Server
@@ -137,9 +137,12 @@ def test_health_and_strategies(running):
 
 
 @pytest.mark.parametrize(
-    ("payload", "code"), [
-        (b"not json", P.BAD_JSON), (b"\xff\xfe", P.BAD_JSON),
-        (b"[1, 2]", P.BAD_REQUEST), (b'{"op": 3}', P.BAD_REQUEST),
+    ("payload", "code"),
+    [
+        (b"not json", P.BAD_JSON),
+        (b"\xff\xfe", P.BAD_JSON),
+        (b"[1, 2]", P.BAD_REQUEST),
+        (b'{"op": 3}', P.BAD_REQUEST),
         (b'{"op": "query", "effector": "point", "goal": "here"}', P.BAD_REQUEST),
         (b'{"op": "query", "effector": "point", "goal": [0, "a", 0]}', P.BAD_REQUEST),
         (b'{"op": "query", "effector": 7, "goal": [0, 0, 0]}', P.BAD_REQUEST),
@@ -810,7 +813,8 @@ POINT = st.lists(st.floats(-1.5, 2.5), min_size=1, max_size=4)
 FIELD_VALUES = {
     "effector": st.sampled_from(["right_hand", "left_hand", "", "x" * 300]),
     "goal": POINT, "goals": st.lists(POINT, min_size=0, max_size=4),
-    "refine": st.booleans(), "bones": st.booleans(),
+    "refine": st.booleans(),
+    "bones": st.booleans(),
     "from": st.dictionaries(st.sampled_from(["right_elbow_flexion", "right_shoulder_flexion", "root_z", "root_qw",
                                              "wing"]), st.floats(-10, 10), max_size=3),
     "deadline": st.floats(-1.0, 2.0), "miss": st.sampled_from(["unreachable", "within", "maybe", "nearest", "error"]),
@@ -824,7 +828,8 @@ FIELD_VALUES = {
     "y": st.lists(st.floats(-1, 1), min_size=1, max_size=3),
     "z": st.lists(st.floats(-1, 1), min_size=2, max_size=2),
     "yaw": st.lists(st.floats(-200, 200), min_size=2, max_size=2),
-    "step": st.floats(-0.1, 0.5), "yaw_step": st.floats(-10, 90),
+    "step": st.floats(-0.1, 0.5),
+    "yaw_step": st.floats(-10, 90),
     "top": st.integers(-1, 200), "orientation": st.one_of(st.fixed_dictionaries({"direction": POINT}),
                              st.fixed_dictionaries({"quaternion": st.lists(st.floats(-1, 1), min_size=3, max_size=5)}),
                              st.lists(st.fixed_dictionaries({"direction": POINT}), min_size=0, max_size=3)),

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from reach.errors import StoreError
-from reach.maps.store import accept_manifest, load_atlas, load_tree, manifest_digest, save_tree
+from reach.maps.atlas import accept_manifest, load_atlas, manifest_digest
+from reach.maps.store import load_tree, save_tree
 
 
 def test_round_trip_keeps_every_array_and_the_metadata(unit_sphere_tree, tmp_path):
@@ -208,7 +209,7 @@ def test_nan_postures_are_refused(tmp_path):
 def test_two_builds_into_one_folder_are_refused(tmp_path):
     from reach.build.atlas import build_atlas
     from reach.build.config import parse_config
-    from reach.maps.store import build_lock
+    from reach.maps.atlas import build_lock
 
     config = parse_config({"box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 1, "max": 3},
                            "oracle": {"name": "sphere", "params": {"radius": 0.9}}, "strategies": [{"name": "ball"}]})

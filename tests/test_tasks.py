@@ -161,7 +161,8 @@ def test_perpendicular_basis_is_orthonormal_and_normal_to_the_axis():
 
 
 @pytest.mark.parametrize(
-    ("tasks", "message"), [
+    ("tasks", "message"),
+    [
         ([{"type": "reach"}, {"type": "gaze", "frame": 3}], r"tasks\[1\]\.frame: expected a frame name, got 3"),
         ([{"type": "reach"}, {"type": "gaze", "frame": "third_eye"}],
          r"tasks\[1\]\.frame: human: no frame 'third_eye'"),

@@ -18,7 +18,7 @@ import pytest
 from reach.answers.select import Selector
 from reach.build.atlas import build_atlas
 from reach.build.config import parse_config
-from reach.maps.store import load_atlas
+from reach.maps.atlas import load_atlas
 
 viser = pytest.importorskip("viser", reason="the viewer needs viser: pip install 'reach[view]'")
 pytestmark = pytest.mark.slow  # builds a body atlas, starts browsers

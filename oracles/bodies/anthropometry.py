@@ -46,18 +46,28 @@ REFERENCE = {"male": (1741.0, 73.0), "female": (1735.0, 61.9)}
 # head from VERT to CERV; hand from WJC to MET3; foot from HEEL to TTIP.
 DE_LEVA: dict[str, dict[str, tuple[float, float, float]]] = {
     "male": {
-        "head": (242.9, 6.94, 59.76), "upper_trunk": (242.1, 15.96, 29.99),
-        "middle_trunk": (215.5, 16.33, 45.02), "lower_trunk": (145.7, 11.17, 61.15),
-        "upper_arm": (281.7, 2.71, 57.72), "forearm": (268.9, 1.62, 45.74),
-        "hand": (86.2, 0.61, 79.00), "thigh": (422.2, 14.16, 40.95),
-        "shank": (434.0, 4.33, 44.59), "foot": (258.1, 1.37, 44.15),
+        "head": (242.9, 6.94, 59.76),
+        "upper_trunk": (242.1, 15.96, 29.99),
+        "middle_trunk": (215.5, 16.33, 45.02),
+        "lower_trunk": (145.7, 11.17, 61.15),
+        "upper_arm": (281.7, 2.71, 57.72),
+        "forearm": (268.9, 1.62, 45.74),
+        "hand": (86.2, 0.61, 79.00),
+        "thigh": (422.2, 14.16, 40.95),
+        "shank": (434.0, 4.33, 44.59),
+        "foot": (258.1, 1.37, 44.15),
     },
     "female": {
-        "head": (243.7, 6.68, 58.94), "upper_trunk": (228.0, 15.45, 20.77),
-        "middle_trunk": (205.3, 14.65, 45.12), "lower_trunk": (181.5, 12.47, 49.20),
-        "upper_arm": (275.1, 2.55, 57.54), "forearm": (264.3, 1.38, 45.59),
-        "hand": (78.0, 0.56, 74.74), "thigh": (368.5, 14.78, 36.12),
-        "shank": (432.3, 4.81, 44.16), "foot": (228.3, 1.29, 40.14),
+        "head": (243.7, 6.68, 58.94),
+        "upper_trunk": (228.0, 15.45, 20.77),
+        "middle_trunk": (205.3, 14.65, 45.12),
+        "lower_trunk": (181.5, 12.47, 49.20),
+        "upper_arm": (275.1, 2.55, 57.54),
+        "forearm": (264.3, 1.38, 45.59),
+        "hand": (78.0, 0.56, 74.74),
+        "thigh": (368.5, 14.78, 36.12),
+        "shank": (432.3, 4.81, 44.16),
+        "foot": (228.3, 1.29, 40.14),
     },
 }
 
@@ -121,18 +131,25 @@ def _deg(lo: float, hi: float) -> tuple[float, float]:
 # extension 25, lateral bending 35, rotation 45 deg) are split between the
 # lumbar and thoracic joints of the model.
 RANGES: dict[str, tuple[float, float]] = {
-    "lumbar_flexion": _deg(-15, 60), "lumbar_lateral": _deg(-35, 35),
-    "thoracic_flexion": _deg(-10, 20), "thoracic_rotation": _deg(-45, 45),
-    "neck_flexion": _deg(-45, 45), "neck_rotation": _deg(-60, 60),
-    "clavicle_elevation": _deg(-10, 45), "clavicle_protraction": _deg(-30, 15),
-    "shoulder_flexion": _deg(-60, 180), "shoulder_abduction": _deg(-30, 180),
+    "lumbar_flexion": _deg(-15, 60),
+    "lumbar_lateral": _deg(-35, 35),
+    "thoracic_flexion": _deg(-10, 20),
+    "thoracic_rotation": _deg(-45, 45),
+    "neck_flexion": _deg(-45, 45),
+    "neck_rotation": _deg(-60, 60),
+    "clavicle_elevation": _deg(-10, 45),
+    "clavicle_protraction": _deg(-30, 15),
+    "shoulder_flexion": _deg(-60, 180),
+    "shoulder_abduction": _deg(-30, 180),
     "shoulder_rotation": _deg(-90, 70),  # external (-) / internal (+)
     "elbow_flexion": _deg(0, 150),
     "forearm_pronation": _deg(-80, 80),  # supination (-) / pronation (+)
     "wrist_flexion": _deg(-70, 80),
     "wrist_deviation": _deg(-30, 20),  # ulnar (-) / radial (+)
-    "hip_flexion": _deg(-30, 120), "hip_abduction": _deg(-30, 45),
-    "hip_rotation": _deg(-45, 45), "knee_flexion": _deg(0, 135),
+    "hip_flexion": _deg(-30, 120),
+    "hip_abduction": _deg(-30, 45),
+    "hip_rotation": _deg(-45, 45),
+    "knee_flexion": _deg(0, 135),
     "ankle_flexion": _deg(-50, 20),  # plantarflexion (-) / dorsiflexion (+)
     "ankle_inversion": _deg(-15, 35),
 }

@@ -177,8 +177,10 @@ class Body:
         mass [m]."""
         continuous = self.continuous
         info: dict[str, Any] = {
-            "source": self.source, "hash": self.hash,
-            "mass": self.mass, "nq": int(self.model.nq),
+            "source": self.source,
+            "hash": self.hash,
+            "mass": self.mass,
+            "nq": int(self.model.nq),
             "joints": [{"name": n, "lower": lo, "upper": hi, **({"continuous": True} if n in continuous else {})}
                        for n, lo, hi in self.limits()],
             "frames": {name: pos.round(6).tolist() for name, pos in self.frame_positions().items()},

@@ -54,9 +54,9 @@ from reach.build.atlas import tree_summary
 from reach.build.executor import Executor, InlineExecutor
 from reach.build.tree import warm_hints
 from reach.errors import StoreError
+from reach.maps.atlas import Atlas, load_audit
 from reach.maps.index import ReachIndex, spiral
 from reach.maps.protocol import Policy
-from reach.maps.store import Atlas, load_audit
 from reach.maps.tree import FINAL, INNER, KIND_NAMES, OUTER, VATree
 
 Z95 = 1.959963984540054
@@ -338,7 +338,8 @@ def summary(atlas: Atlas) -> dict[str, Any]:
         if name in strategies:
             strategies[name]["audit_warnings"] = lines
     return {
-        "name": atlas.manifest.get("name"), "path": str(atlas.path),
+        "name": atlas.manifest.get("name"),
+        "path": str(atlas.path),
         "strategies": strategies, "config_warnings": list(atlas.manifest.get("warnings", {}).get("config", [])),
         "audit_warnings": found.get("", []),
     }

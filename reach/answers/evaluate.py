@@ -26,7 +26,7 @@ import numpy as np
 
 from reach.answers.select import Selector
 from reach.errors import ConfigError
-from reach.maps.store import Atlas
+from reach.maps.atlas import Atlas
 
 
 @dataclass(frozen=True)

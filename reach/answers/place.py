@@ -48,8 +48,8 @@ from scipy.spatial import cKDTree
 from reach.answers.evaluate import Target, to_body
 from reach.answers.select import Selector
 from reach.errors import InputError
+from reach.maps.atlas import Atlas
 from reach.maps.protocol import POLICIES, Policy
-from reach.maps.store import Atlas
 
 # each later strategy by priority weighs this much less (a modelling choice; see the module docstring)
 WEIGHT_STEP = 0.2

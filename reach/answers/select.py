@@ -87,8 +87,8 @@ from reach.answers.answer import (
     timed_out,
 )
 from reach.errors import InputError, ModelMismatch, UnknownEffector, UnknownPolicy
+from reach.maps.atlas import Atlas
 from reach.maps.protocol import DEFAULT_POLICY, POLICIES, Policy, ReachMap
-from reach.maps.store import Atlas
 
 # what a goal the trees hold but no refinement reaches answers (see the module docstring)
 MISSES = ("unreachable", "within")

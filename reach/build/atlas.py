@@ -45,9 +45,10 @@ from reach.build.index import compute_index
 from reach.build.mirror import MirrorOracle
 from reach.build.tree import Inherited, build_tree
 from reach.errors import ModelError, StoreError
+from reach.maps.atlas import Atlas, build_lock, load_atlas, write_manifest
 from reach.maps.index import ReachIndex, spiral
 from reach.maps.index import summary as index_summary
-from reach.maps.store import Atlas, build_lock, load_atlas, load_indexed, save_tree, write_manifest
+from reach.maps.store import load_indexed, save_tree
 from reach.maps.tree import FINAL, INNER, VATree
 
 PARTIAL = ".partial"
@@ -133,7 +134,8 @@ def face_text(faces: dict[str, int]) -> str:
 def build_atlas(
     config: Config, out: str | Path, *, executor_factory: Callable[[OracleSpec], Executor] | None = None,
     progress: bool = False, log: Callable[[str], None] | None = None,
-    resume: bool = False, mirror: bool = True,
+    resume: bool = False,
+    mirror: bool = True,
     inherit: bool = True,
 ) -> Atlas:
     """Build every strategy's tree of a config into the folder out.
@@ -248,8 +250,10 @@ def _build_locked(
                         "digest": tree.meta["digest"]})
     entries.sort(key=lambda e: (e["priority"], e["name"]))
     manifest = {
-        "name": config.name, "config": config.raw,
-        "source": config.source, "strategies": entries,
+        "name": config.name,
+        "config": config.raw,
+        "source": config.source,
+        "strategies": entries,
         "model_hashes": sorted({t.meta["model_hash"] for t in built.values() if "model_hash" in t.meta}),
         "versions": package_versions(), "build_seconds": time.perf_counter() - t0,
         "warnings": {"config": list(config.notes), "faces": warnings},
@@ -329,8 +333,10 @@ def tree_summary(tree: VATree, index: ReachIndex | None = None) -> dict[str, Any
         "volume": {"inner": tree.volume(INNER), "boundary": tree.volume(FINAL)},
         "extent": {"min": ext[0].tolist(), "max": ext[1].tolist()} if ext else None,
         "reachable_extent": {"min": reach[0].tolist(), "max": reach[1].tolist()} if reach else None,
-        "on_faces": tree.faces(), "effector": tree.meta.get("effector"),
-        "priority": tree.meta.get("priority"), "box": tree.box.to_dict(),
+        "on_faces": tree.faces(),
+        "effector": tree.meta.get("effector"),
+        "priority": tree.meta.get("priority"),
+        "box": tree.box.to_dict(),
         "depth": {"min": tree.d_min, "max": tree.d_max},
         "resolution": tree.lattice.resolution.tolist(),
         "build_seconds": build.get("seconds"), "mirrored_from": build.get("mirrored_from"),

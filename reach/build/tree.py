@@ -221,7 +221,9 @@ def meets(lo: np.ndarray, hi: np.ndarray, capsules: np.ndarray) -> np.ndarray:
 
 def build_level(
     state: BuildState, lattice: Lattice, d_min: int, executor: Executor, progress: Any = None,
-    refine: Refine | None = None, keep_out: np.ndarray | None = None, inherit: Inherited | None = None,
+    refine: Refine | None = None,
+    keep_out: np.ndarray | None = None,
+    inherit: Inherited | None = None,
 ) -> BuildState:
     """Process the frontier at state.depth; return the state for the next depth.
 
@@ -310,11 +312,18 @@ def assemble(state: BuildState, box: Box, d_min: int, d_max: int, meta: dict[str
 
 
 def build_tree(
-    oracle: Oracle | OracleSpec, box: Box, d_min: int,
-    d_max: int, *, executor: Executor | None = None,
-    chunk_size: int = CHUNK_SIZE, progress: bool | str = False,
-    meta: dict[str, Any] | None = None, state: BuildState | None = None,
-    on_level: LevelCallback | None = None, refine: Refine | None = None,
+    oracle: Oracle | OracleSpec,
+    box: Box,
+    d_min: int,
+    d_max: int,
+    *,
+    executor: Executor | None = None,
+    chunk_size: int = CHUNK_SIZE,
+    progress: bool | str = False,
+    meta: dict[str, Any] | None = None,
+    state: BuildState | None = None,
+    on_level: LevelCallback | None = None,
+    refine: Refine | None = None,
     keep_out: np.ndarray | None = None, inherit: Inherited | None = None,
 ) -> VATree:
     """Build a VATree (Algorithm 1).

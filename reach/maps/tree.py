@@ -151,7 +151,8 @@ class VertexTable:
         return VertexTable(
             all_keys[order], np.concatenate([self.reachable, reachable])[order],
             np.concatenate([self.residual, residual])[order],
-            post, self.posture_names,
+            post,
+            self.posture_names,
         )
 
 

@@ -51,8 +51,8 @@ from reach import __version__
 from reach.answers.answer import ERROR, SKIPPED, TIMEOUT, Answer, orientation_of
 from reach.answers.select import HANDOVER, MISS, ORIENTED_BUDGET, REFINE_BUDGET, Selector
 from reach.errors import InputError, ReachError, UnknownEffector, UnknownStrategy
+from reach.maps.atlas import load_atlas
 from reach.maps.protocol import DEFAULT_POLICY, raster
-from reach.maps.store import load_atlas
 from reach.motion.planner import MotionError, Planner, Timing
 from reach.motion.rig import with_bones
 from reach.serving import protocol as P

@@ -25,8 +25,8 @@ from reach.answers.evaluate import Target
 from reach.answers.place import Space, rank
 from reach.answers.select import Selector
 from reach.errors import ReachError, UnknownEffector
+from reach.maps.atlas import Atlas
 from reach.maps.protocol import Policy
-from reach.maps.store import Atlas
 from reach.motion.planner import Planner, Timing
 from reach.motion.rig import with_bones
 from reach.serving import protocol as P

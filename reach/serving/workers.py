@@ -296,7 +296,7 @@ def work(address: str, atlas: str, options: dict[str, Any], identity: bytes) -> 
     # Only a worker process needs the answers' machinery; the broker's side of this module (Pool) starts without it.
     from reach.answers.select import Selector
     from reach.build.executor import die_with_parent
-    from reach.maps.store import load_atlas
+    from reach.maps.atlas import load_atlas
     from reach.motion.planner import Planner
     from reach.serving import services
 

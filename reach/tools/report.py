@@ -31,9 +31,9 @@ import numpy as np
 from reach.answers.audit import lacking
 from reach.answers.evaluate import Target
 from reach.answers.place import Ranking
+from reach.maps.atlas import Atlas
 from reach.maps.index import summary as index_summary
 from reach.maps.protocol import ReachMap, raster
-from reach.maps.store import Atlas
 from reach.maps.tree import FINAL, INNER, VATree
 from reach.serving.protocol import finite
 

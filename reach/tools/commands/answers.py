@@ -91,7 +91,7 @@ def cmd_query(args: argparse.Namespace) -> int:
         # loaded when the command runs: `reach --help` starts without the answers' machinery
         from reach.answers.answer import orientation_of
         from reach.answers.select import Selector
-        from reach.maps.store import load_atlas
+        from reach.maps.atlas import load_atlas
 
         selector = Selector(load_atlas(atlas), policy=args.policy,  # type: ignore[arg-type]
                             refine=refine is not False, budget=args.budget_ms / 1000.0, handover=handover_margin(args),
@@ -195,7 +195,7 @@ def cmd_motion(args: argparse.Namespace) -> int:
     else:
         # loaded when the command runs: `reach --help` starts without the answers' machinery
         from reach.answers.select import Selector
-        from reach.maps.store import load_atlas
+        from reach.maps.atlas import load_atlas
         from reach.motion.planner import Planner, Timing
 
         # The solvers are built (warm_up) before planning starts, so the end posture's budget is not spent on them.
@@ -262,7 +262,7 @@ def add_motion(sub: Any) -> None:
 def cmd_evaluate(args: argparse.Namespace) -> int:
     # loaded when the command runs: `reach --help` starts without the answers' machinery
     from reach.answers.evaluate import evaluate, load_targets, text_table
-    from reach.maps.store import load_atlas
+    from reach.maps.atlas import load_atlas
 
     at = None if not args.at else np.array([[x, y, z, math.radians(yaw)] for x, y, z, yaw in args.at])
     atlases = [load_atlas(a) for a in args.atlas]
@@ -310,7 +310,7 @@ def cmd_place(args: argparse.Namespace) -> int:
     # loaded when the command runs: `reach --help` starts without the answers' machinery
     from reach.answers.evaluate import load_targets
     from reach.answers.place import Space, rank, verify
-    from reach.maps.store import load_atlas
+    from reach.maps.atlas import load_atlas
     from reach.tools.report import placement_map
 
     atlases = [load_atlas(a) for a in args.atlas]

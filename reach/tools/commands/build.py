@@ -94,7 +94,7 @@ def add_build(sub: Any) -> None:
 
 def cmd_accept(args: argparse.Namespace) -> int:
     # loaded when the command runs: `reach --help` starts without the answers' machinery
-    from reach.maps.store import accept_manifest
+    from reach.maps.atlas import accept_manifest
 
     atlas = accept_manifest(args.atlas)
     print(f"{atlas.path}: manifest accepted as it is ({len(atlas.trees)} strategies: {', '.join(atlas.trees)})")

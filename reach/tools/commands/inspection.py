@@ -27,7 +27,7 @@ def cmd_info(args: argparse.Namespace) -> int:
     # loaded when the command runs: `reach --help` starts without the answers' machinery
     from reach.answers.audit import summary
     from reach.build.atlas import face_text
-    from reach.maps.store import load_atlas
+    from reach.maps.atlas import load_atlas
 
     info = summary(load_atlas(args.atlas))
     if args.json:
@@ -79,7 +79,7 @@ def add_info(sub: Any) -> None:
 def cmd_report(args: argparse.Namespace) -> int:
     # loaded when the command runs: `reach --help` starts without the answers' machinery
     from reach.build.atlas import face_text
-    from reach.maps.store import load_atlas
+    from reach.maps.atlas import load_atlas
     from reach.tools.report import markdown, report
 
     atlas = load_atlas(args.atlas)
@@ -111,7 +111,7 @@ def add_report(sub: Any) -> None:
 
 def cmd_export(args: argparse.Namespace) -> int:
     # loaded when the command runs: `reach --help` starts without the answers' machinery
-    from reach.maps.store import load_atlas
+    from reach.maps.atlas import load_atlas
     from reach.tools.export import export_mesh
 
     atlas = load_atlas(args.atlas)
@@ -134,7 +134,7 @@ def add_export(sub: Any) -> None:
 def cmd_audit(args: argparse.Namespace) -> int:
     # loaded when the command runs: `reach --help` starts without the answers' machinery
     from reach.answers.audit import audit
-    from reach.maps.store import load_atlas, save_audit
+    from reach.maps.atlas import load_atlas, save_audit
 
     atlas = load_atlas(args.atlas)
     names = atlas.select(args.strategies.split(",")) if args.strategies else None

@@ -97,7 +97,7 @@ def add_keys(sub: Any) -> None:
 
 def cmd_view(args: argparse.Namespace) -> int:
     # loaded when the command runs: `reach --help` starts without the answers' machinery
-    from reach.maps.store import load_atlas
+    from reach.maps.atlas import load_atlas
 
     try:
         # loaded when the command runs: `reach --help` starts without the answers' machinery
