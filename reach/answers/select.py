@@ -125,6 +125,15 @@ Refined = tuple[np.ndarray, "float | None", str]  # a refinement: the posture, i
 Prefetched = dict[str, Refined]  # one goal's refinements made ahead, by strategy (see Selector._prefetch)
 
 
+class Lookup(NamedTuple):
+    """A strategy's stored postures as the selector looks them up (built once, at warm-up for a server)."""
+
+    kd: cKDTree  # over the goals the stored postures reach
+    ids: np.ndarray  # (n,) their ids in the map, in the k-d tree's order
+    reached: np.ndarray  # (size, 3) by id: where each posture puts the effector [m] (NaN for no stored posture)
+    share: np.ndarray  # (size,) by id: the reachability index where it was stored (NaN: the map has none)
+
+
 class Found(NamedTuple):
     """A strategy that answers a goal (see ``Selector._first_answer``)."""
 
@@ -168,8 +177,7 @@ class Selector:
         self._by_effector: dict[str, list[str]] = {}
         for name, effector in self.order:
             self._by_effector.setdefault(effector, []).append(name)
-        # Per strategy: a k-d tree of its stored goals, their ids, and by id the effector positions and goals.
-        self._kd: dict[str, tuple[cKDTree, np.ndarray, np.ndarray, np.ndarray] | None] = {}
+        self._kd: dict[str, Lookup | None] = {}
         self._oracles: dict[str, Oracle] = {}
         self._postures: OrderedDict[tuple[str, int],
                                     tuple[dict[str, float], dict[str, list[float]] | None, bytes]] = OrderedDict()
@@ -261,18 +269,18 @@ class Selector:
             found = tree.stored()
             self._kd[name] = None
             if found is not None and len(found.ids):
-                # By id: a stored posture's effector position and the goal it was stored for.
                 size = int(found.ids.max()) + 1
-                reached, points = np.full((size, 3), np.nan), np.full((size, tree.dim), np.nan)
+                reached, index = np.full((size, 3), np.nan), np.full(size, np.nan)
                 reached[found.ids] = self._effector_positions(name, found.postures)
-                points[found.ids] = found.points
-                self._kd[name] = (cKDTree(found.points), found.ids, reached, points)
-        kd = self._kd[name]
-        if kd is None:
+                # Once here, not per answer: the index at each stored goal (its own vertex's for a tree).
+                index[found.ids] = tree.index_at(found.points, held=False)
+                self._kd[name] = Lookup(cKDTree(found.points), found.ids, reached, index)
+        lookup = self._kd[name]
+        if lookup is None:
             return None
-        _, i = kd[0].query(goals)
-        rows = kd[1][np.asarray(i)]
-        return rows, kd[2][rows]
+        _, i = lookup.kd.query(goals)
+        rows = lookup.ids[np.asarray(i)]
+        return rows, lookup.reached[rows]
 
     def _nearest_row(self, name: str, tree: ReachMap, goal: list[float]) -> tuple[int, np.ndarray] | None:
         """The nearest reachable stored posture of one goal: its id and effector position.
@@ -287,7 +295,7 @@ class Selector:
             return None
         row = tree.nearest_stored(goal)
         if row >= 0:
-            return row, found[2][row]
+            return row, found.reached[row]
         rows, eff = self._stored(name, tree, np.asarray([goal]))  # type: ignore[misc]
         return int(rows[0]), eff[0]
 
@@ -296,7 +304,7 @@ class Selector:
         found = self._kd.get(name)
         if found is None or row < 0:
             return None
-        value = float(self.atlas.maps[name].index_at(found[3][row][None], held=False)[0])
+        value = float(found.share[row])
         return None if math.isnan(value) else value
 
     def _effector_positions(self, name: str, postures: np.ndarray) -> np.ndarray:
@@ -700,9 +708,8 @@ class Selector:
         found = self._kd.get(name)
         if found is None:
             return None
-        kd, rows = found[0], found[1]
-        _, near = kd.query(goal, k=min(SEEDS, len(rows)))
-        candidates = list(self.atlas.maps[name].postures(rows[np.atleast_1d(near)]))
+        _, near = found.kd.query(goal, k=min(SEEDS, len(found.ids)))
+        candidates = list(self.atlas.maps[name].postures(found.ids[np.atleast_1d(near)]))
         liked = [oracle.preference(c, goal) for c in candidates]
         if min(liked) == max(liked):
             return None  # no preference: another start would only cost a solve
