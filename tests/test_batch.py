@@ -6,6 +6,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+from oracles.ik import batch
 from oracles.ik.batch import CHUNK
 from oracles.ik.engine import CasadiIK
 from oracles.ik.search import Search
@@ -188,3 +189,15 @@ def test_a_motions_frames_are_held_as_one_batch(whole):
         for pair in task.pairs:
             a, b = caps[pair.first], caps[pair.second]
             assert coal_capsule_distance(a[:3], a[3:6], a[6], b[:3], b[3:6], b[6]) >= pair.floor - 1e-6
+
+
+def test_an_iteration_starts_only_when_one_as_long_as_the_last_ends_before_the_deadline(monkeypatch):
+    """The batched engine's pace (on a clock of our own, not the wall's): with iterations of 3 s and a deadline at
+    10 s, the iterations that start at 3 and 6 s end by 9 s; the one that would start at 9 s would end at 12 and does
+    not start. Checking the deadline alone started it (the overrun a refinement's answer paid)."""
+    clock = iter([0.0, 3.0, 6.0, 9.0, 9.5, 20.0])
+    monkeypatch.setattr(batch.time, "perf_counter", lambda: next(clock))
+    pace = batch._Pace(10.0)
+    assert [pace.out(), pace.out(), pace.out()] == [False, False, True]
+    assert pace.step == 3.0
+    assert not batch._Pace(float("inf")).out()  # a build has no deadline: every iteration runs
