@@ -80,11 +80,15 @@ class Verdicts(NamedTuple):
             (0 for analytic oracles inside the volume).
         posture: (N, nq) float configurations, or None for oracles without
             postures. Rows of unreachable points hold the best attempt.
+        spent: (N,) float, the work [s] each goal spent of a budgeted call's (``Search.max_seconds``), all of it
+            where the budget ran out; None from oracles whose budget is the clock. A budget of work, not time, gives
+            the same request the same answer on any machine (see ``oracles.ik.batch.Meter``).
     """
 
     reachable: np.ndarray
     residual: np.ndarray
     posture: np.ndarray | None
+    spent: np.ndarray | None = None
 
     @staticmethod
     def concatenate(parts: list[Verdicts]) -> Verdicts:
@@ -98,6 +102,7 @@ class Verdicts(NamedTuple):
             np.concatenate([p.reachable for p in parts]),
             np.concatenate([p.residual for p in parts]),
             posture,
+            None if any(p.spent is None for p in parts) else np.concatenate([p.spent for p in parts]),  # type: ignore[misc]
         )
 
 

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import json
+import time
 
 import numpy as np
 import pytest
 from helpers import ARM, human_config
 
 from oracles.bodies.body import human_body
+from oracles.ik import engine
 from reach.answers.answer import FAILED, REFINED, SKIPPED, UNAVAILABLE, Answer
 from reach.answers.select import SEEDS, Selector
 from reach.build.atlas import build_atlas
@@ -309,3 +311,29 @@ def test_a_from_root_quaternion_of_huge_components_is_refused_by_name():
     with pytest.raises(InputError, match="quaternion components must be within") as info:
         selector._check_start([], {"root_qx": 0.0, "root_qy": 0.0, "root_qz": 0.0, "root_qw": 1e300})
     assert info.value.field == "from"
+
+
+def test_a_refined_answer_does_not_depend_on_the_clock(tmp_path, monkeypatch):
+    """The standard's "the same request, the same answer" under the server's 20 ms budget: the batched engine spends a
+    budget of work (oracles.ik.batch.Meter), not of time. Cut by the clock, the same 30 demo goals asked twice on an
+    idle machine gave 8 different arm postures (session 23). Here the same requests are answered again on a clock
+    running ten times as fast, as a machine ten times as slow would see it (the clock's guard set aside): the answers
+    are the same, goal by goal and in a batch. With a budget of time they would have had a tenth of their rounds; and
+    the budget binds (a larger one answers some goals otherwise), so the test could fail."""
+    config = human_config(d_max=3, strategies=NATURAL_ARM)
+    config["oracle"] = {"name": "casadi-ik", "params": {"restarts": 1}}  # the batched engine, with its lower tasks
+    atlas = build_atlas(parse_config(config, "arm", "arm"), tmp_path / "arm")
+    goals = np.random.default_rng(5).uniform([0.1, -0.6, 0.8], [0.6, 0.0, 1.6], (8, 3))
+
+    def answers(selector: Selector) -> list[dict]:
+        one = [selector.select("right_hand", g).to_dict() | {"seconds": 0} for g in goals]
+        return one + [a.to_dict() | {"seconds": 0} for a in selector.select_many("right_hand", goals)]
+
+    first = answers(Selector(atlas).warm_up())
+    assert sum(a["refined"] == REFINED for a in first) >= 8  # refined answers, whose rounds the budget counts
+    ample = answers(Selector(atlas, budget=5.0).warm_up())
+    assert any(a["posture"] != b["posture"] for a, b in zip(first, ample, strict=True))  # the budget binds
+    monkeypatch.setattr(engine, "GUARD", 1e9)
+    real = time.perf_counter
+    monkeypatch.setattr(time, "perf_counter", lambda: 10.0 * real())
+    assert answers(Selector(atlas).warm_up()) == first

@@ -492,6 +492,69 @@ class _Pace:
         return now + self.step > self.deadline
 
 
+# A refinement's budget is work, not time, so that the same request gets the same answer on any machine and load
+# (its rounds cut by the clock, 8 of 30 arm answers asked twice differed, by up to 0.1 rad; session 23). [s] what one
+# start's round costs on the reference machine (AMD EPYC, one core; docs/results.md, "Refined queries"): a reach round
+# 155-211 us for the demo's strategies (7 to 36 coordinates), a round of the lower tasks (their step, the step back to
+# the goal, two evaluations) 1.27, 1.97, 2.26 and 2.37 ms for 7, 18, 34 and 36 coordinates; both times SCALE for what
+# a call spends beside its rounds (the starts' checks, the liked scores), which grows with the coordinates: a call's
+# time over its rounds' cost was 0.85, 1.26, 1.61 and 1.72 (medians of 30 refinements a strategy).
+REACH_COST = 2.0e-4
+LOWER_COST = 1.2e-3
+LOWER_COST_PER_COORD = 3.5e-5
+
+
+def cost_scale(n: int) -> float:
+    """The share of a call's time its rounds' cost leaves out, for ``n`` coordinates (fit to the figures above)."""
+    return 0.6 + 0.03 * n
+
+
+POLISH_COST = 5e-3  # [s] a fatrop polish, charged whole (it is not cut: a solve's result must not depend on the clock)
+WAVE_ROUNDS = 3  # a goal's random wave is started when its budget pays this many rounds of the wave's starts
+GUARD = 3.0  # the clock's guard of a work budget: this many times the budget (an overloaded machine still answers)
+
+
+class Meter:
+    """Each goal's work budget [s of the reference machine's time, see REACH_COST], spent by rounds of its starts:
+    a goal whose budget cannot pay its starts' next round stops there (``cut``). The wall clock is only a guard
+    (``deadline``: an overloaded machine still answers in bounded time, then not deterministically)."""
+
+    def __init__(self, budgets: np.ndarray, deadline: float = np.inf) -> None:
+        self.left = np.asarray(budgets, float).copy()
+        self.cut = np.zeros(len(self.left), bool)
+        self.pace = _Pace(deadline)
+
+    @staticmethod
+    def unlimited(goals: int, deadline: float = np.inf) -> Meter:
+        """No work budget (a build, a hold), the clock's guard alone."""
+        return Meter(np.full(goals, np.inf), deadline)
+
+    def pay(self, goals: np.ndarray, cost: float) -> np.ndarray:
+        """Charge each of ``goals`` (a goal index per start, repeated) ``cost`` a start; returns which starts are paid
+        for: those of the goals that can pay them all (the others are cut)."""
+        if self.pace.out():
+            self.cut[goals] = True
+            return np.zeros(len(goals), bool)
+        need = np.bincount(goals, minlength=len(self.left)) * cost
+        can = self.left >= need
+        broke = ~can & (need > 0)
+        self.cut |= broke
+        self.left[can] -= need[can]
+        return can[goals]  # type: ignore[no-any-return]
+
+    def late(self) -> bool:
+        """Whether the guard's deadline has passed."""
+        return time.perf_counter() > self.pace.deadline
+
+    def afford(self, goal: int, cost: float) -> bool:
+        """Charge one goal ``cost`` when it can pay it (a fatrop polish, a wave's first round)."""
+        if self.late() or self.left[goal] < cost:
+            self.cut[goal] = True
+            return False
+        self.left[goal] -= cost
+        return True
+
+
 class Ends(NamedTuple):
     """Where a batch's starts ended: postures x (B, n), reach distances, hard-row violations and the lower tasks'
     values (B,) (inf where not computed), and which goals a decisive start gave up (indexed by goal)."""
@@ -504,21 +567,22 @@ class Ends(NamedTuple):
 
 
 def run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_of: np.ndarray, tolerance: float,
-               lower: bool, start: np.ndarray | None, deadline: float, stats: dict[str, int],
+               lower: bool, start: np.ndarray | None, meter: Meter, stats: dict[str, int],
                decisive: np.ndarray | None = None, give_up: float = np.inf, lower_iter: int = LOWER_ITER) -> Ends:
     """Iterate every start (B, n) with its parameters (B, np) together (see :class:`Ends`), with ``lower_iter``
     iterations of the lower tasks from a reaching posture.
 
     ``decisive`` (B,) marks the starts whose failure decides their goal (a build's warm start from a neighbour
     near the goal, see :class:`oracles.ik.search.Search`): when one stalls farther than ``give_up`` [m] from its goal,
-    its rows held, the goal's other starts stop there (they ran beside it until then)."""
+    its rows held, the goal's other starts stop there (they ran beside it until then). ``meter`` holds each goal's
+    (``goal_of``'s) work budget: a goal stops where it cannot pay its starts' next round."""
     with program.threads.limit(limits=1, user_api="blas"):
-        return _run_starts(program, x0, params, goal_of, tolerance, lower, start, deadline, stats, decisive, give_up,
+        return _run_starts(program, x0, params, goal_of, tolerance, lower, start, meter, stats, decisive, give_up,
                            lower_iter)
 
 
 def _run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_of: np.ndarray, tolerance: float,
-                lower: bool, start: np.ndarray | None, deadline: float, stats: dict[str, int],
+                lower: bool, start: np.ndarray | None, meter: Meter, stats: dict[str, int],
                 decisive: np.ndarray | None, give_up: float, lower_iter: int) -> Ends:
     x = x0.copy()
     b = len(x)
@@ -536,9 +600,10 @@ def _run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_
     # reach across the body stopped against the trunk (12 of 99 goals fatrop reaches missed, against 4 unguarded).
     guarded = np.zeros(b, bool)
     merit_before = np.full(b, np.inf)
-    pace = _Pace(deadline)
+    reach_cost = REACH_COST * cost_scale(program.n)
     for it in range(MAX_ITER + 1):
-        if not live.size or pace.out():
+        live = live[meter.pay(owner[live], reach_cost)] if live.size else live
+        if not live.size:
             break
         state = program.evaluate(x[live], params[live], guard=guarded[live])
         stats["iterations"] = stats.get("iterations", 0) + int(live.size)
@@ -600,10 +665,11 @@ def _run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_
     state = program.evaluate(y, p_low, lower=True)
     assert state.f is not None
     best = state.f.copy()
-    # (the first lower iteration is paced by the time since the last reach iteration: that and the evaluation above,
-    # about the three evaluations of a lower iteration)
+    low_cost = (LOWER_COST + LOWER_COST_PER_COORD * program.n) * cost_scale(program.n)
     for _ in range(lower_iter):
-        if pace.out() or not np.any(r_low >= MIN_RADIUS):
+        going = np.nonzero(r_low >= MIN_RADIUS)[0]
+        r_low[going[~meter.pay(owner[reached[going]], low_cost)]] = 0.0  # a goal that cannot pay stops
+        if not np.any(r_low >= MIN_RADIUS):
             break
 
         # Each lower step is linearised: a Gauss-Newton step back to the goal and the hard rows follows it (without,
@@ -625,8 +691,9 @@ def _run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_
         if better.any():  # state is y's evaluation throughout
             state = program.evaluate(y, p_low, lower=True)
     for _ in range(RESTORE_ITER):
-        if time.perf_counter() > deadline:
-            break  # (a lower-refined posture left off the goal keeps its reach posture, below)
+        if meter.pace.out():
+            break  # (a lower-refined posture left off the goal keeps its reach posture, below; the guard only: these
+            # few steps are the lower rounds' own, paid with them)
         d, v = np.linalg.norm(state.e, axis=1), program.violation(state)
         off = np.nonzero((d > 0.5 * tolerance) | (v > HARD_TOL))[0]
         if not off.size:

@@ -28,16 +28,22 @@ from oracles.bodies.kinematics import SymbolicKinematics
 from oracles.errors import OracleError
 from oracles.ik.batch import CONTINUITY as CONTINUITY_WEIGHT
 from oracles.ik.batch import (
+    GUARD,
     LOWER_ITER,
+    POLISH_COST,
     POLISH_FAR,
     POLISH_NEAR,
     POLISHES,
     RANDOM_SPREAD,
+    REACH_COST,
     REFINE_LOWER_ITER,
     STARTS,
     WAVE,
     WAVE_NEAR,
+    WAVE_ROUNDS,
     BatchProgram,
+    Meter,
+    cost_scale,
     run_starts,
 )
 from oracles.ik.jit import COMPILER, compiled_nlpsol
@@ -448,9 +454,13 @@ class CasadiIK(IKOracle):
         posture = np.tile(self.body.q_ref, (n, 1))
         todo = np.nonzero(~prefiltered)[0]
         if not todo.size:
-            return Verdicts(reach, residual, posture)
+            return Verdicts(reach, residual, posture, None if search.max_seconds is None else np.zeros(n))
         self.prepare()  # compiling (seconds, once) is not the call's budget
-        deadline = np.inf if search.max_seconds is None else time.perf_counter() + search.max_seconds
+        # Each goal's work budget, its share of the call's (see oracles.ik.batch.Meter); the clock is a guard at
+        # GUARD times the budget.
+        meter = (Meter.unlimited(n) if search.max_seconds is None
+                 else Meter(np.full(n, search.max_seconds / n), time.perf_counter() + GUARD * search.max_seconds))
+        budgets = meter.left.copy()
         first_hint = None if hints is None else hints[:, 0] if hints.ndim == 3 else hints
         hinted = np.zeros(n, bool) if first_hint is None else np.all(np.isfinite(first_hint), axis=1)
         # A goal's first start is decisive when it is a hint whose effector lies within `decisive` of the goal.
@@ -473,24 +483,30 @@ class CasadiIK(IKOracle):
         # Search.give_up says); then WAVE x K random ones for a cold goal that the K starts ended near.
         for wave in ("starts", "random"):
             goals = todo if wave == "starts" else todo[~reach[todo] & cold[todo] & (residual[todo] <= WAVE_NEAR)]
-            if not goals.size or time.perf_counter() > deadline:
+            if wave == "random":
+                # a goal's random wave when it can pay a few rounds of its starts (not one, which could not reach)
+                goals = goals[[not meter.late() and meter.left[i] >= WAVE_ROUNDS * WAVE * self.starts_per_goal
+                               * REACH_COST * cost_scale(p.nx) for i in goals]] if goals.size else goals
+            if not goals.size:
                 continue
             self.stats[f"wave_{wave}"] = self.stats.get(f"wave_{wave}", 0) + int(goals.size)
             starts = [self._batch_starts(pts[i], None if hints is None else hints[i], int(wave == "random"),
                                          targets is not None) for i in goals]
             run = self._run_wave(pts, goals, starts, start, targets, decisive if wave == "starts" else None, None
-                                 if hints is None else first, deadline)
+                                 if hints is None else first, meter)
             runs.append(run)
             self._keep_reaching(run, pts, targets, reach, residual, posture)
-        self._polish_missed(runs, pts, targets, start, deadline, reach, residual, posture,
+        self._polish_missed(runs, pts, targets, start, meter, reach, residual, posture,
                             set(np.nonzero(cold)[0].tolist()))
         self._unsolved_residuals(pts, residual, posture)
         self.stats["reachable"] += int(reach.sum())
-        return Verdicts(reach, residual, posture)
+        # (a goal its budget cut, or the clock's guard, spent all of it: the caller's "timeout")
+        return Verdicts(reach, residual, posture, None if search.max_seconds is None
+                        else np.where(meter.cut, budgets, budgets - meter.left))
 
     def _run_wave(self, pts: np.ndarray, goals: np.ndarray, starts: list[list[np.ndarray]], start: np.ndarray | None,
                   targets: np.ndarray | None, decisive: np.ndarray | None, first: np.ndarray | None,
-                  deadline: float) -> _Wave:
+                  meter: Meter) -> _Wave:
         """The goals' starts iterated together (:func:`oracles.ik.batch.run_starts`)."""
         p, search = self.problem, self.search
         owner = np.concatenate([np.full(len(s), i) for i, s in zip(goals, starts, strict=True)])
@@ -508,7 +524,7 @@ class CasadiIK(IKOracle):
             first_start[offsets[:-1][decisive[goals]]] = True
         x, dist, viol, liked, _ = run_starts(self.batch_program(), x0, params, owner, self.strategy.tolerance,
                                              search.secondary,
-                                                    start, deadline, self.stats, first_start, search.give_up_distance,
+                                                    start, meter, self.stats, first_start, search.give_up_distance,
                                                     self.lower_iter)
         span = p.upper - p.lower
         scored = np.isfinite(liked)
@@ -551,7 +567,7 @@ class CasadiIK(IKOracle):
                 residual[i], posture[i] = check.residual, run.q[r]
 
     def _polish_missed(self, runs: list[_Wave], pts: np.ndarray, targets: np.ndarray | None, start: np.ndarray | None,
-                       deadline: float,
+                       meter: Meter,
                        reach: np.ndarray, residual: np.ndarray, posture: np.ndarray, far: set[int]) -> None:
         """fatrop from a missed goal's best ends: its reaching postures that break a lazy task, then its random
         starts themselves (fatrop's own restarts: another basin), or a near miss (no start reached) from its
@@ -581,10 +597,10 @@ class CasadiIK(IKOracle):
                 else:
                     tries = ends[:1]
                 for guess in tries:
-                    if time.perf_counter() > deadline:
-                        return
+                    if not meter.afford(i, POLISH_COST):
+                        break  # its work budget spent (or the clock's guard passed)
                     polisher = polisher or self._polisher()
-                    q = polisher.solve(pts[i], guess, self.search.secondary, Call(start, deadline, target_i))
+                    q = polisher.solve(pts[i], guess, self.search.secondary, Call(start, meter.pace.deadline, target_i))
                     self.stats["polished"] = self.stats.get("polished", 0) + 1
                     check = self.problem.check(q, pts[i], self._data, target_i)
                     if check.reachable or check.residual < residual[i]:
@@ -612,7 +628,7 @@ class CasadiIK(IKOracle):
         b = len(x0)
         params = np.concatenate([goals, x0, np.ones((b, 1)), np.tile(self._default_target, (b, 1))], axis=1)
         ends = run_starts(self.batch_program(), x0, params, np.arange(b), self.strategy.tolerance, False, x0,
-                          deadline, self.stats)
+                          Meter.unlimited(b, deadline), self.stats)
         held = p.q_of_x_many(ends.x)
         # The verdict's own checks decide (a held contact row 0.08 mm off, past the engine's 1e-6, holds by its task's).
         ok = ends.dist <= self.strategy.tolerance

@@ -54,6 +54,7 @@ import json
 import math
 import time
 from collections import OrderedDict
+from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -71,6 +72,7 @@ from oracles.protocol import (
     Preferring,
     Preparable,
     Tunable,
+    Verdicts,
 )
 from reach.answers.answer import (
     ERROR,
@@ -142,6 +144,19 @@ class Found(NamedTuple):
     residual: float | None  # [m] from the goal
     outcome: str  # the refinement's, one of the outcomes above
     row: int  # the nearest stored vertex's row
+
+
+@dataclass
+class Purse:
+    """One goal's refinement budget [s], shared by its refinements (the first choice's, a fallback's, a handover's):
+    each pays the work its oracle says it spent (``Verdicts.spent``; an oracle whose budget is the clock, the time it
+    took) and the reserve kept for its seeding and checks. Paid by work, what is left is the same for the same
+    request on any machine, and so is the answer."""
+
+    left: float
+
+    def pay(self, spent: float) -> None:
+        self.left = max(self.left - spent, 0.0)
 
 
 class Selector:
@@ -457,20 +472,20 @@ class Selector:
                 for other in hits:
                     if isinstance(oracle := self._oracle(other), Preparable):
                         oracle.prepare()
-            deadline = time.perf_counter() + (self.budget if aim is None else max(self.budget, ORIENTED_BUDGET))
+            purse = Purse(self.budget if aim is None else max(self.budget, ORIENTED_BUDGET))
             if refine:
-                q, residual, outcome = self._refine(name, goal, q, residual, start, aim, done, deadline)
+                q, residual, outcome = self._refine(name, goal, q, residual, start, aim, done, purse)
             found = None
             if outcome == FAILED:
                 # The IK says this strategy does not reach the exact goal (its
                 # tree said so from a coarse cell): the next strategy by
                 # priority that does answers; else this one's stored posture.
-                found = self._first_answer(goal, others, refine, start, aim=aim, done=done, deadline=deadline)
+                found = self._first_answer(goal, others, refine, start, aim=aim, done=done, purse=purse)
                 if found is not None:
                     others = others[others.index(found.name) + 1 :]
             elif self.handover and others and outcome in (REFINED, SKIPPED) and (limits := self._limits(name, q)):
                 found = self._first_answer(goal, others, refine, start, below=len(limits), aim=aim, done=done,
-                                           deadline=deadline)
+                                           purse=purse)
                 if found is not None:
                     others = [h for h in hits if h != found.name]  # the strategy passed over stays an alternative
                     handover = {"from": name, "limits": limits}
@@ -527,7 +542,7 @@ class Selector:
 
     def _first_answer(self, goal: np.ndarray, names: list[str], refine: bool, start: dict[str, float] | None,
                       below: int | None = None, aim: np.ndarray | None = None, done: Prefetched | None = None,
-                      deadline: float | None = None) -> Found | None:
+                      purse: Purse | None = None) -> Found | None:
         """The first of names (by priority) whose refinement reaches the goal (without refinement: whose tree
         holds a posture) and, given ``below``, with fewer joints near their limits: its name, posture,
         residual, refinement outcome and nearest stored row; None if none does (or, given ``below``, the time runs
@@ -544,8 +559,8 @@ class Selector:
             residual: float | None = gap if np.isfinite(gap) else None
             outcome = SKIPPED
             if refine:
-                q, residual, outcome = self._refine(name, goal, q, residual, start, aim, done, deadline)
-                if outcome == TIMEOUT:  # out of time: no further strategy is tried
+                q, residual, outcome = self._refine(name, goal, q, residual, start, aim, done, purse)
+                if outcome == TIMEOUT:  # out of budget: no further strategy is tried
                     # A handover keeps the answer it had; a failed goal is answered by this strategy's
                     # stored posture, marked timeout: its tree holds the goal and nothing said otherwise.
                     return None if below is not None else Found(name, q, residual, outcome, row)
@@ -591,34 +606,48 @@ class Selector:
 
     def _refine(self, name: str, goal: np.ndarray, q: np.ndarray, residual: float | None,
                 start_joints: dict[str, float] | None = None, aim: np.ndarray | None = None,
-                done: Prefetched | None = None, deadline: float | None = None) -> Refined:
+                done: Prefetched | None = None, purse: Purse | None = None) -> Refined:
         if done is not None and name in done:
             q_done, residual_done, outcome = done[name]
             return (q_done, residual_done, outcome) if outcome == REFINED else (q, residual, outcome)
         if start_joints is None:  # from the stored posture and the best liked near it, as a batch's goals are
-            return self._refine_many(name, goal[None], q[None], [residual], [aim], deadline)[0]
-        oracle, budget = self._tuned(name, 1, aim, deadline)
+            return self._refine_many(name, goal[None], q[None], [residual], [aim], None, purse)[0]
+        oracle, budget, reserve = self._tuned(name, 1, aim, purse)
         if budget < LEAST_SOLVE * self.budget:
             return q, residual, TIMEOUT
         t0 = time.perf_counter()
         start = self.start_posture(self.atlas.maps[name], q, start_joints)  # from the character's posture
         v = oracle.evaluate(Goals(goal[None], {} if aim is None else {"orientation": aim[None]}, start))
+        over = self._spent(v, budget, t0, purse, reserve)[0]
         if v.reachable[0] and v.posture is not None:
             return v.posture[0], float(v.residual[0]), REFINED
-        return q, residual, TIMEOUT if time.perf_counter() - t0 >= budget else FAILED
+        return q, residual, TIMEOUT if over else FAILED
+
+    @staticmethod
+    def _spent(v: Verdicts, budget: float, t0: float, purse: Purse | None, reserve: float) -> np.ndarray:
+        """Which goals of a refinement call spent their budget (``budget`` pooled over them): by the work the oracle
+        reports, else by the clock; the goal's purse (a single goal's) pays that and the reserve."""
+        n = len(v.reachable)
+        spent = (np.full(n, (time.perf_counter() - t0) / n) if v.spent is None
+                 else np.asarray(v.spent, float))
+        if purse is not None:
+            purse.pay(float(spent.sum()) + reserve)
+        return spent >= budget / n * (1.0 - 1e-9)  # type: ignore[no-any-return]
 
     def _tuned(self, name: str, goals: int, aim: np.ndarray | None,
-               deadline: float | None = None) -> tuple[Oracle, float]:
-        """The strategy's refinement oracle for ``goals`` goals and its budget [s]: theirs pooled, each at least
-        ``ORIENTED_BUDGET`` with an orientation, within the deadline."""
+               purse: Purse | None = None) -> tuple[Oracle, float, float]:
+        """The strategy's refinement oracle for ``goals`` goals, its solve's budget [s] (theirs pooled, each at least
+        ``ORIENTED_BUDGET`` with an orientation; a single goal's, what its purse has left) and the reserve [s] kept
+        from it for the seeding and checks."""
         oracle = self._oracle(name)
         budget = goals * (self.budget if aim is None else max(self.budget, ORIENTED_BUDGET))
-        if deadline is not None:
-            budget = min(budget, deadline - time.perf_counter())
-        budget -= min((1.0 - SOLVE_SHARE) * budget, SOLVE_RESERVE)
+        if purse is not None:
+            budget = min(budget, purse.left)
+        reserve = min((1.0 - SOLVE_SHARE) * budget, SOLVE_RESERVE)
+        budget -= reserve
         if budget > 0 and isinstance(oracle, Tunable):
             oracle = oracle.variant("refine", budget=budget)
-        return oracle, budget
+        return oracle, budget, reserve
 
     def _prefetch(self, g: np.ndarray, names: list[str], hits: np.ndarray,
                   nearest: dict[int, tuple[int, np.ndarray] | None],
@@ -682,11 +711,20 @@ class Selector:
                 done[i][name] = refined
 
     def _refine_many(self, name: str, goals: np.ndarray, stored: np.ndarray, residuals: list[float | None],
-                     aims: list[np.ndarray | None], deadline: float | None) -> list[Refined]:
+                     aims: list[np.ndarray | None], deadline: float | None,
+                     purse: Purse | None = None) -> list[Refined]:
         """:meth:`_refine` for a strategy's goals (m, 3) in one evaluate call: each from its stored posture and the
-        best-liked one near it, within m refinements' budgets (and the deadline)."""
+        best-liked one near it, within m refinements' budgets. A batch's ``deadline`` leaves its budget whole for as
+        many goals, in order, as it has time for; the others are not refined (``timeout``). (Shrunk to the time left,
+        the budget was each goal's share of it: a deadline too short for all refined none.)"""
         m = len(goals)
-        tuned, budget = self._tuned(name, m, aims[0], deadline)
+        if deadline is not None:
+            each = self.budget if aims[0] is None else max(self.budget, ORIENTED_BUDGET)
+            k = min(m, max(int((deadline - time.perf_counter()) / each), 0))
+            if k < m:
+                first = self._refine_many(name, goals[:k], stored[:k], residuals[:k], aims[:k], None) if k else []
+                return [*first, *[(q, r, TIMEOUT) for q, r in zip(stored[k:], residuals[k:], strict=True)]]
+        tuned, budget, reserve = self._tuned(name, m, aims[0], purse)
         if budget < LEAST_SOLVE * self.budget:
             return [(q, r, TIMEOUT) for q, r in zip(stored, residuals, strict=True)]
         liked = ([self._best_liked(name, tuned, goal, q) for goal, q in zip(goals, stored, strict=True)]
@@ -698,9 +736,9 @@ class Selector:
         t0 = time.perf_counter()
         targets = {} if aims[0] is None else {"orientation": np.stack(aims)}  # type: ignore[arg-type]
         v = tuned.evaluate(Goals(goals, targets, None, seeds))
-        over = time.perf_counter() - t0 >= budget
+        over = self._spent(v, budget, t0, purse, reserve)
         return [(v.posture[k], float(v.residual[k]), REFINED) if v.reachable[k] and v.posture is not None
-                else (stored[k], residuals[k], TIMEOUT if over else FAILED) for k in range(m)]
+                else (stored[k], residuals[k], TIMEOUT if over[k] else FAILED) for k in range(m)]
 
     def _best_liked(self, name: str, oracle: Preferring, goal: np.ndarray, q: np.ndarray) -> np.ndarray | None:
         """The stored posture the oracle likes best among the ``SEEDS`` reachable vertices nearest the goal,
