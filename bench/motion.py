@@ -6,7 +6,7 @@ answer chooses that strategy, so each group is what a query of that kind of
 goal plans: an arm reach, an upper-body reach, a whole-body reach, a crouch.
 Each goal's motion at 30 Hz from the reference posture is timed:
 
-* in-process (``Planner.plan``, the server's 250 ms refinement budget);
+* in-process (``Planner.plan``, the server's 0.4 s refinement budget);
 * over the wire: a ``motion`` request to ``reach serve`` with 2 workers
   (the request and its whole reply, frames included), one client.
 
