@@ -884,6 +884,25 @@ def test_a_clients_queued_work_is_capped_and_refused_with_busy(human, monkeypatc
     monkeypatch.setattr(P, "MAX_CLIENT_GOALS", 100)
     monkeypatch.setattr(P, "MAX_QUEUED_GOALS", 150)
     r = Running(human, budget=0.5, workers=1)
+    # The workers get no task until the caps are checked: with them answering, a1's goals were being released while
+    # b1 and c1 came in (its refinements a budget of work, some 20 ms a goal), and c1 was taken (CI, session 23).
+    # Held in the server's own thread, the tasks go to the pool at its next pass once released.
+    held: list = []
+    release = threading.Event()
+    submit, expire = r.server.pool.submit, r.server._expire
+
+    def holding(tasks):  # noqa: ANN001, ANN202
+        held.append(tasks)
+
+    def expiring(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
+        if release.is_set():
+            r.server.pool.submit = submit  # type: ignore[union-attr]
+            while held:
+                submit(held.pop(0))
+        return expire(*args, **kwargs)
+
+    r.server.pool.submit = holding  # type: ignore[union-attr]
+    r.server._expire = expiring  # type: ignore[method-assign]
     a, b, c = (_dealer(r.server.endpoint) for _ in range(3))
     for sock in (a, b, c):
         sock.setsockopt(zmq.RCVTIMEO, 60_000)
@@ -902,6 +921,7 @@ def test_a_clients_queued_work_is_capped_and_refused_with_busy(human, monkeypatc
         send(c, "c1", GOALS)  # 170 in all: over the server's 150
         full = json.loads(c.recv_multipart()[-1])
         assert full["error"]["code"] == "busy" and "the server has 110 goals queued" in full["error"]["message"]
+        release.set()
         first = json.loads(a.recv_multipart()[-1])
         assert first["id"] == "a1" and len(first["answers"]) == len(GOALS)
         send(a, "a3", GOALS)  # its first batch answered: taken
