@@ -25,7 +25,7 @@ Oracles may also offer optional capabilities, each a protocol of its own;
   the body), so that the builder never labels a cell that meets them inner;
 * :class:`Tunable`: a variant set up for a purpose, ``"refine"`` (the
   selector's quick solve at the exact goal, secondary tasks on, within a
-  time budget), ``"referee"`` (the audit's thorough solve) or ``"index"``
+  budget: see :class:`Verdicts`' ``spent``), ``"referee"`` (the audit's thorough solve) or ``"index"``
   (the reachability index's quick verdicts from neighbouring postures);
 * :class:`Described`: what the oracle checks, for ``reach model``;
 * :class:`Preparable`: build now what the first evaluate would build;

@@ -4,9 +4,10 @@ For an effector and a goal, the strategies of that effector are tried in
 priority order; the first whose tree holds the goal is chosen (the boundary
 policy is configurable). The posture starts from the one stored at the
 nearest reachable vertex of that tree, then is refined by the strategy's own
-IK at the exact goal within a time budget: the paper's "additional inverse
-kinematics simulation". If refinement fails or runs out of time, the answer
-keeps the stored posture and says so.
+IK at the exact goal within a budget (of work with the batched engine: the same
+answer on any machine; see oracles.ik.batch.Meter): the paper's "additional
+inverse kinematics simulation". If refinement fails or runs out of budget, the
+answer keeps the stored posture and says so.
 
 **Answers that hold.** When the chosen strategy's refinement cannot reach
 the exact goal (its tree held the goal from a boundary cell), the goal is
@@ -102,7 +103,7 @@ FROM_TOLERANCE = math.radians(1.0)
 FROM_QUATERNION = 1e3  # the largest component of a `from` root quaternion (it is normalised)
 FROM_REACH = 1000.0  # [m] a `from` root farther than this from the world origin is a mistake, not a scene
 POSTURE_CACHE = 4096  # stored postures kept encoded, most recently used first
-REFINE_BUDGET = 0.02  # [s] default time budget of one refinement (a frame at 50 Hz)
+REFINE_BUDGET = 0.02  # [s] default budget of one refinement (a frame at 50 Hz; work, priced in seconds)
 # [s] the least budget of a goal with an orientation: its stored postures hold none, so its refinement tries random
 # starts too; within 20 ms it timed out on 5 of 72 oriented arm7_table goals the referee reaches (docs/history.md). The
 # batched engine's K starts and K random ones take 0.10-0.15 s on an idle machine: 0.2 s timed out on a loaded one (CI).

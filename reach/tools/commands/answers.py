@@ -155,7 +155,8 @@ def add_query(sub: Any) -> None:
     aim.add_argument("--quaternion", nargs=4, type=float, metavar=("QX", "QY", "QZ", "QW"),
                      help="hold the effector's rotation in the world (strategies with an orientation task)")
     p.add_argument("--budget-ms", type=float, default=QUERY_BUDGET * 1000,
-                   help=f"reading an atlas: time budget of the IK refinement [ms] (default {QUERY_BUDGET * 1000:g}: a "
+                   help="reading an atlas: budget of the IK refinement [ms], work priced in the reference machine's "
+                        f"time (default {QUERY_BUDGET * 1000:g}: a "
                         f"one-off question lets it converge; a server's default is {REFINE_BUDGET * 1000:g}, a frame)")
     handover_option(p, "reading an atlas: ")
     p.add_argument("--timeout", type=int, default=P.REQUEST_TIMEOUT_MS, help="with --connect: ms to wait for each "

@@ -51,8 +51,9 @@ def add_serve(sub: Any) -> None:
     policy_option(p)
     p.add_argument("--no-refine", action="store_true", help="answer with stored postures; no IK refinement unless a "
                                                             "request asks")
-    p.add_argument("--budget-ms", type=float, default=REFINE_BUDGET * 1000, help="time budget of one IK refinement "
-        f"[ms] (default {REFINE_BUDGET * 1000:g})")
+    p.add_argument("--budget-ms", type=float, default=REFINE_BUDGET * 1000,
+                   help="budget of one IK refinement [ms]: work priced in the reference machine's time, so an answer "
+                        f"does not depend on the load (default {REFINE_BUDGET * 1000:g})")
     p.add_argument("--curve-secret-key", metavar="FILE", help="encrypt with CURVE, using this server secret-key file "
                                                               "(zmq.auth.create_certificates)")
     p.add_argument("--curve-clients", metavar="DIR", help="with --curve-secret-key: let in only the clients whose "
