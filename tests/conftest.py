@@ -45,10 +45,11 @@ def unit_sphere_tree() -> VATree:
 @pytest.fixture
 def browser():
     """Headless Chromium (Debian's) driven by Selenium, for the viewer's page (tests/test_view.py's constants)."""
+    from helpers import CHROMIUM, DRIVER
     from selenium import webdriver
     from selenium.webdriver.chrome.service import Service
 
-    from tests.test_view import CHROMIUM, DRIVER, _profile
+    from tests.test_view import _profile
 
     opts = webdriver.ChromeOptions()
     opts.binary_location = CHROMIUM

@@ -5,10 +5,19 @@ from __future__ import annotations
 import os
 
 import numpy as np
+import pytest
 
 HUMAN = {"human": {"sex": "male", "percentile": 50}}
 ARM = ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"]
 LEFT_ARM = [j.replace("right_", "left_") for j in ARM]
+
+# Debian's Chromium and ChromeDriver, for the tests that look at the viewer's page: without them those tests skip,
+# saying how to install them; in CI (CI=true) a missing browser fails instead.
+CHROMIUM, DRIVER = "/usr/bin/chromium", "/usr/bin/chromedriver"
+INSTALL = "apt-get install chromium chromium-driver"
+BROWSER_MISSING = None if os.path.exists(CHROMIUM) and os.path.exists(DRIVER) else f"{CHROMIUM} or {DRIVER} not found"
+browser_only = pytest.mark.skipif(BROWSER_MISSING is not None and os.environ.get("CI") != "true",
+                                  reason=f"no browser ({BROWSER_MISSING}); install it with: {INSTALL}")
 
 
 def human_config(d_max=3, strategies=None, name="arm"):

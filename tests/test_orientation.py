@@ -12,6 +12,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 import yaml
+from helpers import CHROMIUM, DRIVER, browser_only
 
 from oracles.bodies.kinematics import SymbolicKinematics
 from oracles.errors import OracleError, TaskError
@@ -346,8 +347,7 @@ def test_the_audit_covers_the_index(arm_atlas):
     assert "index" not in result["strategies"]["plain"]
 
 
-@pytest.mark.skipif(not Path("/usr/bin/chromium").exists(), reason="no browser (apt-get install chromium "
-    "chromium-driver)")
+@browser_only
 def test_the_page_shows_the_index_colours(arm_atlas):
     """In a real browser: a slice of the arm's cells as dots in the index's colours, the dark violet of the edge
     (index near 0) and the greens of the ring within; without the index, the strategy's own colour instead."""
@@ -355,7 +355,7 @@ def test_the_page_shows_the_index_colours(arm_atlas):
     from selenium.webdriver.chrome.service import Service
 
     from reach.tools.view import Viewer
-    from tests.test_view import CHROMIUM, DRIVER, _free_port, _profile, _shot_until, _wait_for_page
+    from tests.test_view import _free_port, _profile, _shot_until, _wait_for_page
 
     viewer = Viewer([load_atlas(arm_atlas / "atlas")], port=_free_port(), refine=False)
     opts = webdriver.ChromeOptions()

@@ -11,6 +11,7 @@ import coal
 import numpy as np
 import pinocchio as pin
 import pytest
+from helpers import browser_only
 
 from oracles.bodies.body import load_body
 from oracles.bodies.environment import parse_box
@@ -326,8 +327,7 @@ def test_reach_model_prints_and_draws_the_fitted_seat(tmp_path, capsys):
     assert (tmp_path / "m.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-@pytest.mark.skipif(not Path("/usr/bin/chromium").exists(), reason="no browser (apt-get install chromium "
-    "chromium-driver)")
+@browser_only
 def test_the_page_draws_the_seat(seated_atlas, browser, tmp_path):
     """In a real browser: with the volumes hidden, the page differs where the seat and the desk are drawn (hidden, then
     shown); the screenshot with them is kept in $REACH_SHOTS to look at."""

@@ -14,6 +14,7 @@ import time
 
 import numpy as np
 import pytest
+from helpers import BROWSER_MISSING, INSTALL, browser_only
 
 from reach.answers.select import Selector
 from reach.build.atlas import build_atlas
@@ -37,12 +38,8 @@ CONFIG = {
          "tasks": [{"type": "reach"}, {"type": "self_collision"}]},
     ],
 }
-CHROMIUM, DRIVER = "/usr/bin/chromium", "/usr/bin/chromedriver"
-INSTALL = "apt-get install chromium chromium-driver"
-_missing = None if os.path.exists(CHROMIUM) and os.path.exists(DRIVER) else f"{CHROMIUM} or {DRIVER} not found"
-if _missing and os.environ.get("CI") == "true":
-    raise RuntimeError(f"Chromium is required in CI but {_missing}; .ci/run must install it ({INSTALL})")
-browser_only = pytest.mark.skipif(_missing is not None, reason=f"no browser ({_missing}); install it with: {INSTALL}")
+if BROWSER_MISSING and os.environ.get("CI") == "true":
+    raise RuntimeError(f"Chromium is required in CI but {BROWSER_MISSING}; .ci/run must install it ({INSTALL})")
 GOALS = np.array([[0.45, -0.25, 1.2], [0.3, -0.55, 0.9], [0.1, -0.9, 1.9], [0.85, 0.35, 0.65]])
 
 
