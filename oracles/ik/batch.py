@@ -496,17 +496,27 @@ class _Pace:
 # (its rounds cut by the clock, 8 of 30 arm answers asked twice differed, by up to 0.1 rad; session 23). [s] what one
 # start's round costs on the reference machine (AMD EPYC, one core; docs/results.md, "Refined queries"): a reach round
 # 155-211 us for the demo's strategies (7 to 36 coordinates), a round of the lower tasks (their step, the step back to
-# the goal, two evaluations) 1.27, 1.97, 2.26 and 2.37 ms for 7, 18, 34 and 36 coordinates; both times SCALE for what
-# a call spends beside its rounds (the starts' checks, the liked scores), which grows with the coordinates: a call's
+# the goal, two evaluations) 1.27, 1.97, 2.26 and 2.37 ms for 7, 18, 34 and 36 coordinates; both scaled for what a
+# call spends beside its rounds (the starts' checks, the liked scores), which grows with the coordinates: a call's
 # time over its rounds' cost was 0.85, 1.26, 1.61 and 1.72 (medians of 30 refinements a strategy).
 REACH_COST = 2.0e-4
 LOWER_COST = 1.2e-3
 LOWER_COST_PER_COORD = 3.5e-5
 
 
-def cost_scale(n: int) -> float:
+def _cost_scale(n: int) -> float:
     """The share of a call's time its rounds' cost leaves out, for ``n`` coordinates (fit to the figures above)."""
     return 0.6 + 0.03 * n
+
+
+def reach_cost(n: int) -> float:
+    """[s] a start's reach round at ``n`` coordinates, what a call spends beside it included."""
+    return REACH_COST * _cost_scale(n)
+
+
+def lower_cost(n: int) -> float:
+    """[s] a start's round of the lower tasks at ``n`` coordinates, what a call spends beside it included."""
+    return (LOWER_COST + LOWER_COST_PER_COORD * n) * _cost_scale(n)
 
 
 POLISH_COST = 5e-3  # [s] a fatrop polish, charged whole (it is not cut: a solve's result must not depend on the clock)
@@ -547,7 +557,7 @@ class Meter:
         return time.perf_counter() > self.pace.deadline
 
     def afford(self, goal: int, cost: float) -> bool:
-        """Charge one goal ``cost`` when it can pay it (a fatrop polish, a wave's first round)."""
+        """Charge one goal ``cost`` when it can pay it (a fatrop polish)."""
         if self.late() or self.left[goal] < cost:
             self.cut[goal] = True
             return False
@@ -600,9 +610,9 @@ def _run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_
     # reach across the body stopped against the trunk (12 of 99 goals fatrop reaches missed, against 4 unguarded).
     guarded = np.zeros(b, bool)
     merit_before = np.full(b, np.inf)
-    reach_cost = REACH_COST * cost_scale(program.n)
+    price = reach_cost(program.n)
     for it in range(MAX_ITER + 1):
-        live = live[meter.pay(owner[live], reach_cost)] if live.size else live
+        live = live[meter.pay(owner[live], price)] if live.size else live
         if not live.size:
             break
         state = program.evaluate(x[live], params[live], guard=guarded[live])
@@ -665,7 +675,7 @@ def _run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_
     state = program.evaluate(y, p_low, lower=True)
     assert state.f is not None
     best = state.f.copy()
-    low_cost = (LOWER_COST + LOWER_COST_PER_COORD * program.n) * cost_scale(program.n)
+    low_cost = lower_cost(program.n)
     for _ in range(lower_iter):
         going = np.nonzero(r_low >= MIN_RADIUS)[0]
         r_low[going[~meter.pay(owner[reached[going]], low_cost)]] = 0.0  # a goal that cannot pay stops
@@ -692,8 +702,8 @@ def _run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_
             state = program.evaluate(y, p_low, lower=True)
     for _ in range(RESTORE_ITER):
         if meter.pace.out():
-            break  # (a lower-refined posture left off the goal keeps its reach posture, below; the guard only: these
-            # few steps are the lower rounds' own, paid with them)
+            break  # (a lower-refined posture left off the goal keeps its reach posture, below; these few steps back to
+            # the goal are not priced: the clock's guard alone)
         d, v = np.linalg.norm(state.e, axis=1), program.violation(state)
         off = np.nonzero((d > 0.5 * tolerance) | (v > HARD_TOL))[0]
         if not off.size:

@@ -35,7 +35,6 @@ from oracles.ik.batch import (
     POLISH_NEAR,
     POLISHES,
     RANDOM_SPREAD,
-    REACH_COST,
     REFINE_LOWER_ITER,
     STARTS,
     WAVE,
@@ -43,7 +42,7 @@ from oracles.ik.batch import (
     WAVE_ROUNDS,
     BatchProgram,
     Meter,
-    cost_scale,
+    reach_cost,
     run_starts,
 )
 from oracles.ik.jit import COMPILER, compiled_nlpsol
@@ -485,8 +484,8 @@ class CasadiIK(IKOracle):
             goals = todo if wave == "starts" else todo[~reach[todo] & cold[todo] & (residual[todo] <= WAVE_NEAR)]
             if wave == "random":
                 # a goal's random wave when it can pay a few rounds of its starts (not one, which could not reach)
-                goals = goals[[not meter.late() and meter.left[i] >= WAVE_ROUNDS * WAVE * self.starts_per_goal
-                               * REACH_COST * cost_scale(p.nx) for i in goals]] if goals.size else goals
+                wave_cost = WAVE_ROUNDS * WAVE * self.starts_per_goal * reach_cost(p.nx)
+                goals = goals[meter.left[goals] >= wave_cost] if goals.size and not meter.late() else goals[:0]
             if not goals.size:
                 continue
             self.stats[f"wave_{wave}"] = self.stats.get(f"wave_{wave}", 0) + int(goals.size)

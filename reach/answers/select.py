@@ -473,7 +473,7 @@ class Selector:
                 for other in hits:
                     if isinstance(oracle := self._oracle(other), Preparable):
                         oracle.prepare()
-            purse = Purse(self.budget if aim is None else max(self.budget, ORIENTED_BUDGET))
+            purse = Purse(self._goal_budget(aim))
             if refine:
                 q, residual, outcome = self._refine(name, goal, q, residual, start, aim, done, purse)
             found = None
@@ -635,13 +635,17 @@ class Selector:
             purse.pay(float(spent.sum()) + reserve)
         return spent >= budget / n * (1.0 - 1e-9)  # type: ignore[no-any-return]
 
+    def _goal_budget(self, aim: np.ndarray | None) -> float:
+        """One goal's refinement budget [s]: the selector's, at least ``ORIENTED_BUDGET`` with an orientation."""
+        return self.budget if aim is None else max(self.budget, ORIENTED_BUDGET)
+
     def _tuned(self, name: str, goals: int, aim: np.ndarray | None,
                purse: Purse | None = None) -> tuple[Oracle, float, float]:
         """The strategy's refinement oracle for ``goals`` goals, its solve's budget [s] (theirs pooled, each at least
         ``ORIENTED_BUDGET`` with an orientation; a single goal's, what its purse has left) and the reserve [s] kept
         from it for the seeding and checks."""
         oracle = self._oracle(name)
-        budget = goals * (self.budget if aim is None else max(self.budget, ORIENTED_BUDGET))
+        budget = goals * self._goal_budget(aim)
         if purse is not None:
             budget = min(budget, purse.left)
         reserve = min((1.0 - SOLVE_SHARE) * budget, SOLVE_RESERVE)
@@ -720,8 +724,7 @@ class Selector:
         the budget was each goal's share of it: a deadline too short for all refined none.)"""
         m = len(goals)
         if deadline is not None:
-            each = self.budget if aims[0] is None else max(self.budget, ORIENTED_BUDGET)
-            k = min(m, max(int((deadline - time.perf_counter()) / each), 0))
+            k = min(m, max(int((deadline - time.perf_counter()) / self._goal_budget(aims[0])), 0))
             if k < m:
                 first = self._refine_many(name, goals[:k], stored[:k], residuals[:k], aims[:k], None) if k else []
                 return [*first, *[(q, r, TIMEOUT) for q, r in zip(stored[k:], residuals[k:], strict=True)]]
