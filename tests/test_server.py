@@ -148,7 +148,7 @@ def test_health_and_strategies(running):
         (b'{"op": "query", "effector": 7, "goal": [0, 0, 0]}', P.BAD_REQUEST),
         (b'{"op": "query", "effector": "point", "goal": [NaN, 0, 0]}', P.BAD_JSON),
         (b'{"op": "query", "effector": "point", "goal": [Infinity, 0, 0]}', P.BAD_JSON),
-        (b'{"op": "query", "effector": "point", "goal": [1e999, 0, 0]}', P.BAD_REQUEST),
+        (b'{"op": "query", "effector": "point", "goal": [1e999, 0, 0]}', P.BAD_JSON),  # past a double's range
         (b'{"op": "query", "effector": "point", "goal": [0, 0]}', P.BAD_REQUEST),
         (b'{"op": "query", "effector": "point"}', P.BAD_REQUEST),
         (b'{"op": "query", "effector": "point", "goal": [0, 0, 0], "goals": [[0, 0, 0]]}', P.BAD_REQUEST),
@@ -189,6 +189,43 @@ def test_huge_numbers_and_deep_nesting_are_refused_not_internal(dealer, running)
     deep = ask(dealer, b"[" * 50_000 + b"]" * 50_000)
     assert deep["error"]["code"] == P.BAD_JSON and "nested too deeply" in deep["error"]["message"]
     assert ask(dealer, b'{"op": "health"}')["status"] == "serving"
+
+
+BAD_NUMBERS = [b"1e999", b"-1e999", b"1e308", b"-1e308", b"9" * 400, b"-" + b"9" * 400, b"1e-400", b"5e-324"]
+
+
+def _with_number(value: bytes) -> list[bytes]:
+    """A field's value built around one number: alone, in a point, and in an object."""
+    return [value, b"[" + value + b", 0, 1]", b'{"tmu": ' + value + b', "direction": [' + value + b", 0, 0]}"]
+
+
+@pytest.mark.parametrize("workers", [0, 1])
+def test_no_number_a_client_sends_ends_the_server(balls, workers):
+    """Issue 46, item 1: ``{"op":"health","id":1e999}`` (27 bytes) ended the loop: Python reads 1e999 as infinity,
+    which no reply can encode, and the error path raised outside any catch. Every op's every field and its id get
+    non-finite, huge and denormal numbers; each is answered with a documented code and the server lives."""
+    r = Running(balls, workers=workers)
+    sock = zmq.Context.instance().socket(zmq.DEALER)
+    sock.setsockopt(zmq.LINGER, 0)
+    sock.setsockopt(zmq.RCVTIMEO, 30_000)
+    sock.connect(r.server.endpoint)
+    try:
+        assert ask(sock, b'{"op":"health","id":1e999}')["error"]["code"] == P.BAD_JSON
+        for number in BAD_NUMBERS:
+            reply = ask(sock, b'{"op": "health", "id": ' + number + b"}")
+            assert reply["ok"] or reply["error"]["code"] in (P.BAD_JSON, P.BAD_REQUEST), (number, reply)
+            for op in P.OPS:
+                for f in P.OPERATIONS[op].fields:
+                    for value in _with_number(number):
+                        payload = b'{"op": "%s", "id": "n", "%s": %s}' % (op.encode(), f.name.encode(), value)
+                        reply = ask(sock, payload)
+                        assert reply["id"] in ("n", None), payload
+                        assert reply["ok"] or reply["error"]["code"] != P.INTERNAL, (payload, reply)
+        health = ask(sock, b'{"op": "health", "id": 1}')
+        assert health["ok"] and r.thread.is_alive()
+    finally:
+        sock.close(linger=0)
+        r.stop()
 
 
 def test_oversized_batch_and_message(dealer):

@@ -62,7 +62,7 @@ MAX_TIMING = 16  # keys in a motion's "timing"
 # Error codes, in replies' "error": {"code": ..., "message": ...}.
 BAD_FRAMES = "bad_frames"  # wrong number of frames or an empty payload
 TOO_LARGE = "too_large"  # message or batch over the limits
-BAD_JSON = "bad_json"  # not UTF-8 JSON, or NaN/Infinity literals
+BAD_JSON = "bad_json"  # not UTF-8 JSON, NaN/Infinity literals, or a number past a double's range (1e999)
 BAD_REQUEST = "bad_request"  # not an object, missing or ill-typed fields
 UNKNOWN_OP = "unknown_op"
 UNKNOWN_EFFECTOR = "unknown_effector"
@@ -80,6 +80,20 @@ WORKER_ERRORS = (BAD_REQUEST, UNREACHABLE, NO_MOTION, UNKNOWN_EFFECTOR, TIMEOUT)
 
 def _reject_constant(name: str) -> float:
     raise ValueError(f"{name} is not allowed")
+
+
+def _finite_float(text: str) -> float:
+    """A JSON number as a float, refused when it overflows: ``1e999`` is valid JSON that Python reads as infinity,
+    which no reply can encode (an infinite id once ended the loop)."""
+    value = float(text)
+    if not math.isfinite(value):
+        raise ValueError(f"the number {text[:40]} is out of a double's range")
+    return value
+
+
+def loads(text: str | bytes) -> Any:
+    """Strict JSON for anything a client sends: no NaN or Infinity literals, no number that overflows a double."""
+    return json.loads(text, parse_constant=_reject_constant, parse_float=_finite_float)
 
 
 class Invalid(ValueError):
@@ -454,7 +468,7 @@ def parse_request(payload: bytes) -> Request:
     if not payload:
         raise ProtocolError(BAD_FRAMES, "empty request frame")
     try:
-        data = json.loads(payload.decode("utf-8"), parse_constant=_reject_constant)
+        data = loads(payload.decode("utf-8"))
     except (UnicodeDecodeError, ValueError) as exc:
         raise ProtocolError(BAD_JSON, f"request is not UTF-8 JSON: {exc}") from None
     except RecursionError:
@@ -554,7 +568,14 @@ def encode_value(value: Any) -> bytes:
 
 
 def error_reply(code: str, message: str, request_id: Any = None) -> bytes:
-    return encode({"id": request_id, "ok": False, "error": {"code": code, "message": message}})
+    """An error reply; it cannot raise: an id or message that does not encode is replaced (the error path runs
+    outside any other catch, so a raise here would end the loop)."""
+    try:
+        return encode({"id": request_id, "ok": False, "error": {"code": code, "message": message}})
+    except (TypeError, ValueError, RecursionError):
+        safe = request_id if isinstance(request_id, str) else None
+        return json.dumps({"id": safe, "ok": False, "error": {"code": code, "message": repr(message)[:2000]}},
+                          ensure_ascii=True).encode()
 
 
 if __name__ == "__main__":

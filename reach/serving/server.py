@@ -348,11 +348,15 @@ class Server:
             envelope.append(b"")  # a REQ client's delimiter, echoed back
             rest = rest[1:]
         self.requests += 1
-        if len(rest) != 1:
-            reply: bytes | None = P.error_reply(P.BAD_FRAMES, "expected one payload frame after the envelope, got "
-                                                              f"{len(rest)}")
-        else:
-            reply = self.respond(rest[0], envelope)
+        try:
+            if len(rest) != 1:
+                reply: bytes | None = P.error_reply(P.BAD_FRAMES, "expected one payload frame after the envelope, "
+                                                                  f"got {len(rest)}")
+            else:
+                reply = self.respond(rest[0], envelope)
+        except Exception as exc:  # noqa: BLE001 - the last guard: respond() catches, but nothing may end the loop
+            self._log_internal(exc)
+            reply = P.error_reply(P.INTERNAL, "the reply could not be made")
         if reply is not None:
             self._send(envelope, reply)
 
