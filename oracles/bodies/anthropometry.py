@@ -12,10 +12,13 @@ Sources, cited where each number is used:
   parameters*, Report 1166-03, New York University, as reproduced in Winter,
   D.A. (2009), *Biomechanics and Motor Control of Human Movement*, 4th ed.,
   **Figure 4.1** (segment lengths as fractions of stature H).
-* Stature distribution: Gordon, C.C. et al. (2014), *2012 Anthropometric
-  Survey of U.S. Army Personnel (ANSUR II)*, NATICK/TR-15/007: stature mean
-  and standard deviation, men and women, and mean body mass. Stature at a
-  percentile assumes a normal distribution.
+* Measured people: Gordon, C.C. et al. (2014), *2012 Anthropometric Survey
+  of U.S. Army Personnel (ANSUR II)*, NATICK/TR-15/007, its public data
+  carried in ``data/`` (:mod:`oracles.bodies.ansur`). A body is built from
+  its dimensions (given, a subject's, or regressed on those given: by
+  default on stature alone); each landmark's joint centre is set below.
+  Stature at a percentile assumes a normal distribution (the report's mean
+  and SD).
 * Joint ranges of motion: American Academy of Orthopaedic Surgeons (1965),
   *Joint Motion: Method of Measuring and Recording*, as tabulated in Norkin,
   C.C. & White, D.J. (2016), *Measurement of Joint Motion*, 5th ed.,
@@ -24,6 +27,11 @@ Sources, cited where each number is used:
   10 deg, protraction 15 deg, retraction 30 deg).
 
 All lengths here are metres, angles radians, masses kilograms.
+
+Two builds (``proportions``): ``ansur`` (the default) from measured
+dimensions; ``de_leva``, the stature-scaled body of earlier versions (every
+segment de Leva's reference scaled by stature), kept so that trees built
+with it still refine.
 """
 
 from __future__ import annotations
@@ -31,8 +39,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from statistics import NormalDist
-from typing import Literal
+from typing import Any, Literal
 
+from oracles.bodies import ansur
 from oracles.errors import ModelError
 
 Sex = Literal["male", "female"]
@@ -111,8 +120,9 @@ SHOULDER_BACK_DEPTH = 0.080  # back of the shoulders, behind the shoulder centre
 HIP_Y = 0.050
 EYE_FORWARD = 0.055
 EYE_Y = 0.018
-# Grip centre: the axis of a gripped handle lies beyond MET3 and palmar of
-# the hand's long axis: 1.40 and 0.25 hand lengths (WJC-MET3) from the wrist.
+# de_leva bodies' grip (their one hand frame): beyond MET3 and palmar of the
+# hand's long axis, 1.40 and 0.25 hand lengths (WJC-MET3) from the wrist: a
+# pinch point more than a grip (issue 51), kept for trees built with it.
 GRIP_ALONG = 1.40
 GRIP_PALMAR = 0.25
 # Foot points, fractions of foot length from the heel: the ankle (LMAL)
@@ -155,12 +165,81 @@ RANGES: dict[str, tuple[float, float]] = {
 }
 
 
+# -- measured bodies: landmark to joint centre ---------------------------------------------------------------------
+# Knee: the flexion axis runs close to the femur's transepicondylar axis (Churchill, D.L. et al. 1998, "The
+# transepicondylar axis approximates the optimal flexion axis of the knee", Clin. Orthop. 356:111-118; not read in
+# its source here), so the knee centre is at ANSUR's lateral femoral epicondyle height.
+# Ankle: the talocrural axis passes just below the tips of the malleoli (Inman, V.T. 1976, *The Joints of the
+# Ankle*; not read in its source here): the ankle centre is at the lateral malleolus height.
+# Hip: the tip of the greater trochanter lies level with the centre of the femoral head (the clinical landmark of hip
+# arthroplasty; as quoted, not read in a source here): the hip centre is at ANSUR's trochanterion height.
+# Shoulder: the glenohumeral centre lies below the acromion by 17 % of the biacromial breadth (Rab, G., Petuskey, K.
+# & Bagley, A. 2002, "A method for determination of upper extremity kinematics", Gait & Posture 15:113-119; as
+# quoted, not read in its source here), in the thorax's frontal plane under the acromion.
+SJC_BELOW_ACROMION = 0.17  # of biacromial breadth
+# Elbow and wrist: the elbow centre at radiale, the wrist centre at stylion (modelling choices: both landmarks lie
+# within about a centimetre of the joints' axes). The hanging arm then puts the wrist within 10 mm of ANSUR's mean
+# wrist height (men 837 against 847.5 mm; computed from the carried data).
+# Hand (wrist crease at the wrist centre): the grip centre, the axis of a rod held in the fist, lies hand length minus
+# (forearm-hand length minus forearm-centre-of-grip length) past the wrist: ANSUR II's own measures (men 62 +- 7 mm,
+# women 59 +- 7 mm, from the carried data). The pinch (thumb tip against the index finger) at 65 % of hand length
+# (Drillis & Contini 1966, as quoted in issue 51: not read in its source here); the middle fingertip at hand length.
+PINCH_ALONG = 0.65
+# The grip and pinch palmar of the hand's long axis by a quarter of the WJC-MET3 length (modelling choice: a rod's
+# axis lies in the closed fist, in front of the metacarpals).
+HAND_PALMAR = 0.25
+# de Leva's hand (WJC to MET3, Table 4) as a share of hand length (wrist crease to fingertip): his reference subjects'
+# 86.2 / 78.0 mm over ANSUR II's mean hand lengths 193.3 / 181.1 mm (men / women), for the palm's inertia only.
+MET3_SHARE = {"male": 86.2 / 193.3, "female": 78.0 / 181.1}
+# The capsules' sizes by ANSUR II's names (Anthropometry.girths keys).
+GIRTH_NAMES = {
+    "chest_breadth": "chestbreadth", "chest_depth": "chestdepth", "waist_breadth": "waistbreadth",
+    "waist_depth": "waistdepth", "hip_breadth": "hipbreadth",
+    "biceps_circumference_flexed": "bicepscircumferenceflexed",
+    "forearm_circumference_flexed": "forearmcircumferenceflexed", "wrist_circumference": "wristcircumference",
+    "thigh_circumference": "thighcircumference", "calf_circumference": "calfcircumference",
+    "head_breadth": "headbreadth", "head_length": "headlength", "neck_circumference": "neckcircumference",
+    "hand_breadth": "handbreadth",
+}
+PROPORTIONS = ("ansur", "de_leva")
+
+
+@dataclass(frozen=True)
+class Placement:
+    """Where joint centres and frames sit, from the body's landmarks [m].
+
+    ``sjc_below_cerv``: shoulder centres below C7 (cervicale); ``shoulder_y``: a shoulder centre's distance from
+    the mid-plane; ``back_depth``: the back of the shoulders behind the shoulder centres (the wall of a thumb-tip
+    reach); ``hip_y``: a hip centre from the mid-plane; ``eye_height``: standing; ``grip``, ``pinch``,
+    ``fingertip``: along the hand from the wrist centre, ``palmar``: the grip's and pinch's depth in front of the
+    hand's axis; ``hip_above_seat``: the hip centres above a hard flat seat, ``buttock_back``: the buttocks behind
+    the hip centres, seated (None for de_leva bodies: their seat contact is their capsules'); ``acromion``: the
+    acromion above the shoulder centre.
+    """
+
+    sjc_below_cerv: float
+    shoulder_y: float
+    back_depth: float
+    hip_y: float
+    eye_height: float
+    grip: float
+    pinch: float
+    fingertip: float
+    palmar: float
+    acromion: float
+    hip_above_seat: float | None = None
+    buttock_back: float | None = None
+
+
 @dataclass(frozen=True)
 class Anthropometry:
     """Segment dimensions [m] and masses [kg] of one body.
 
     ``lengths`` and ``com`` (fraction from the proximal end) are keyed by the
-    de Leva segment names; ``masses`` likewise.
+    de Leva segment names; ``masses`` likewise. ``dims``: every ANSUR II
+    dimension as built (metres, ``weightkg`` in kg); ``asked``: those given;
+    ``spread``: each dimension's residual SD given the asked ones (0 for an
+    asked one).
     """
 
     sex: Sex
@@ -169,11 +248,13 @@ class Anthropometry:
     lengths: dict[str, float]
     masses: dict[str, float]
     com: dict[str, float]
-    girths: dict[str, float] = field(default_factory=dict)  # ANSUR_GIRTHS scaled [m]
-
-    @property
-    def ankle_height(self) -> float:
-        return ANKLE_HEIGHT * self.stature
+    girths: dict[str, float]  # [m]
+    ankle_height: float
+    place: Placement
+    proportions: str
+    dims: dict[str, float] = field(default_factory=dict)
+    asked: dict[str, float] = field(default_factory=dict)
+    spread: dict[str, float] = field(default_factory=dict)
 
 
 def stature_at_percentile(sex: Sex, percentile: float) -> float:
@@ -185,25 +266,113 @@ def stature_at_percentile(sex: Sex, percentile: float) -> float:
 
 
 def anthropometry(sex: Sex = "male", stature: float | None = None, percentile: float | None = None,
-                  mass: float | None = None) -> Anthropometry:
-    """Dimensions of a body scaled from de Leva's reference subject.
+                  mass: float | None = None, dims: dict[str, float] | None = None, subject: int | None = None,
+                  proportions: str = "ansur") -> Anthropometry:
+    """Dimensions of a body: measured (``proportions: ansur``) or scaled from de Leva's reference (``de_leva``).
 
     Args:
         sex: ``male`` or ``female``.
         stature: Standing height [m]; exclusive with percentile.
-        percentile: Stature percentile of ANSUR II; default 50.
-        mass: Body mass [kg]; default the ANSUR II mean mass scaled by
-            (stature / mean stature)^2 (constant body-mass index).
+        percentile: Stature percentile of ANSUR II; default 50 when no stature, dimension or subject is given.
+        mass: Body mass [kg] (ANSUR II's ``weightkg``).
+        dims: ANSUR II dimensions by name [m] (:data:`oracles.bodies.ansur.COLUMNS`).
+        subject: An ANSUR II subject id of that sex: its measures, under any given above.
+        proportions: ``ansur`` or ``de_leva`` (stature and mass only).
 
-    Lengths scale with stature (isometric scaling); the vertical chain
-    (shank, thigh, trunk, head) is then adjusted so that ankle height plus
-    that chain equals the stature exactly. Masses are de Leva's percentages of
-    the body mass.
+    An ``ansur`` body's dimensions not given are ANSUR II's regression on those given (:mod:`oracles.bodies.ansur`);
+    the URDF puts its joint centres where the landmarks imply (this module's constants, each with its source).
     """
     if sex not in DE_LEVA:
         raise ModelError(f"sex must be 'male' or 'female', got {sex!r}", name="sex")
     if stature is not None and percentile is not None:
         raise ModelError("give stature or percentile, not both", name="stature")
+    if proportions not in PROPORTIONS:
+        raise ModelError(f"expected one of {', '.join(PROPORTIONS)}, got {proportions!r}", key="human.proportions")
+    if proportions == "de_leva":
+        if dims or subject is not None:
+            raise ModelError("de_leva proportions scale stature alone: no dimensions or subject",
+                             key="human.proportions")
+        return _de_leva(sex, stature, percentile, mass)
+    survey = ansur.sample(sex)
+    given: dict[str, float] = dict(survey.subject(subject)) if subject is not None else {}
+    asked: dict[str, float] = {}
+    for name, value in (dims or {}).items():
+        if name not in ansur.COLUMNS or name == ansur.MASS:
+            known = ", ".join(c for c in ansur.COLUMNS if c != ansur.MASS)
+            raise ModelError(f"unknown dimension; ANSUR II's are {known} (and mass [kg])", key=f"human.{name}")
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ModelError(f"expected a length in metres, got {value!r}", key=f"human.{name}")
+        asked[name] = float(value)
+    if percentile is not None:
+        asked["stature"] = stature_at_percentile(sex, percentile)
+    elif stature is not None:
+        asked["stature"] = float(stature)
+    if mass is not None:
+        asked[ansur.MASS] = float(mass)
+    if not asked and subject is None:
+        asked["stature"] = stature_at_percentile(sex, 50.0)
+    for name, value in asked.items():
+        key = "stature" if name == "stature" else "mass" if name == ansur.MASS else name
+        try:
+            survey.check(name, value)
+        except ModelError as exc:
+            raise ModelError(str(exc).split(": ", 1)[-1], key=f"human.{key}") from None
+    given.update(asked)
+    dims_built, spread = survey.predict(given)
+    return _measured(sex, dims_built, asked if subject is None else given, spread)
+
+
+def _measured(sex: Sex, d: dict[str, float], asked: dict[str, float], spread: dict[str, float]) -> Anthropometry:
+    """A body whose joint centres sit where its ANSUR II landmarks imply (see the constants above)."""
+    H, mass = d["stature"], d[ansur.MASS]
+    ankle, knee, hip = d["lateralmalleolusheight"], d["lateralfemoralepicondyleheight"], d["trochanterionheight"]
+    table = DE_LEVA[sex]
+    lengths = {k: v[0] / 1000.0 for k, v in table.items()}
+    lengths["shank"], lengths["thigh"] = knee - ankle, hip - knee
+    lengths["head"] = H - d["cervicaleheight"]
+    # The trunk from the hip centres to C7, shared among de Leva's three parts as in his reference subjects.
+    parts = ("lower_trunk", "middle_trunk", "upper_trunk")
+    trunk = d["cervicaleheight"] - hip
+    ref = sum(table[k][0] for k in parts)
+    for k in parts:
+        lengths[k] = trunk * table[k][0] / ref
+    drop = SJC_BELOW_ACROMION * d["biacromialbreadth"]
+    lengths["upper_arm"] = d["acromionradialelength"] - drop
+    lengths["forearm"] = d["radialestylionlength"]
+    hand = d["handlength"]
+    lengths["hand"] = MET3_SHARE[sex] * hand
+    lengths["foot"] = d["footlength"]
+    pinch = PINCH_ALONG * hand
+    knee_front = d["kneeheightsitting"] - knee  # the thigh's top over the knee centre, seated (thigh level)
+    place = Placement(
+        sjc_below_cerv=d["cervicaleheight"] - (d["acromialheight"] - drop),
+        shoulder_y=0.5 * d["biacromialbreadth"],
+        # The wall of a thumb-tip reach (the shoulder blades) behind the shoulder centre: the reach less the arm.
+        back_depth=d["thumbtipreach"] - (lengths["upper_arm"] + lengths["forearm"] + pinch),
+        hip_y=HIP_Y * H,
+        eye_height=H - (d["sittingheight"] - d["eyeheightsitting"]),
+        grip=hand - (d["forearmhandlength"] - d["forearmcenterofgriplength"]),
+        pinch=pinch, fingertip=hand, palmar=HAND_PALMAR * lengths["hand"], acromion=drop,
+        hip_above_seat=d["sittingheight"] - (H - hip),
+        buttock_back=d["buttockkneelength"] - lengths["thigh"] - knee_front,
+    )
+    total = sum(v[1] for v in table.values()) + sum(table[k][1]
+                                                    for k in ("upper_arm", "forearm", "hand", "thigh", "shank", "foot"))
+    masses = {k: mass * v[1] / total for k, v in table.items()}
+    com = {k: v[2] / 100.0 for k, v in table.items()}
+    girths = {k: d[v] for k, v in GIRTH_NAMES.items()}
+    return Anthropometry(sex, H, mass, lengths, masses, com, girths, ankle, place, "ansur", d, asked, spread)
+
+
+def _de_leva(sex: Sex, stature: float | None, percentile: float | None, mass: float | None) -> Anthropometry:
+    """Dimensions of a body scaled from de Leva's reference subject (the body of earlier versions).
+
+    Lengths scale with stature (isometric scaling); the vertical chain
+    (shank, thigh, trunk, head) is then adjusted so that ankle height plus
+    that chain equals the stature exactly. Masses are de Leva's percentages of
+    the body mass; by default the ANSUR II mean mass scaled by (stature / mean
+    stature)^2 (constant body-mass index).
+    """
     if stature is None:
         stature = stature_at_percentile(sex, 50.0 if percentile is None else percentile)
     if not 1.0 <= stature <= 2.5:
@@ -225,4 +394,22 @@ def anthropometry(sex: Sex = "male", stature: float | None = None, percentile: f
     masses = {k: mass * v[1] / total for k, v in table.items()}
     com = {k: v[2] / 100.0 for k, v in table.items()}
     girths = {k: v / 1000.0 * stature / mean_h for k, v in ANSUR_GIRTHS[sex].items()}
-    return Anthropometry(sex, stature, mass, lengths, masses, com, girths)
+    H = stature
+    grip = GRIP_ALONG * lengths["hand"]
+    place = Placement(SHOULDER_BELOW_CERV * H, SHOULDER_Y * H, SHOULDER_BACK_DEPTH * H, HIP_Y * H, EYE_HEIGHT * H,
+                      grip, grip, grip, GRIP_PALMAR * lengths["hand"], 0.0)
+    return Anthropometry(sex, stature, mass, lengths, masses, com, girths, ANKLE_HEIGHT * H, place, "de_leva")
+
+
+def legacy_body(spec: Any) -> tuple[Any, str | None]:
+    """A stored body spec as this version rebuilds the body it was written with, and a note when it changed.
+
+    A human spec without ``proportions`` was written before bodies were built from ANSUR II measures (issue 51): its
+    body is the stature-scaled ``de_leva`` one, whose URDF this version still writes.
+    """
+    if not isinstance(spec, dict) or not isinstance(spec.get("human"), dict) or "proportions" in spec["human"]:
+        return spec, None
+    return ({**spec, "human": {**spec["human"], "proportions": "de_leva"}},
+            "built with the stature-scaled human of earlier versions (proportions: de_leva: de Leva's segments scaled "
+            "by stature, the hand frame 34-54 mm past the grip); it refines with that body. Rebuild for a body from "
+            "ANSUR II measures (docs/bodies.md)")

@@ -8,7 +8,10 @@ into its range); for the generated human that is standing, soles on z = 0.
 
 A body is described by a JSON-compatible spec, so that workers can rebuild it:
 
-* ``{"human": {"sex": "male", "percentile": 50, "mass": 80}}``
+* ``{"human": {"sex": "male", "percentile": 50, "mass": 80}}``; a human takes
+  ANSUR II's dimensions by name [m] (``acromialheight: 1.44``), a subject
+  (``ansur: {sex: female, subject: 10037}``) and ``proportions`` (``ansur``,
+  the default, or ``de_leva``): see :mod:`oracles.bodies.anthropometry`
 * ``{"urdf": "path/to/robot.urdf", "root_position": [0, 0, 0.5], "up": "y"}``
 
 The world frame is z-up, in metres. A URDF body takes
@@ -54,6 +57,8 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
+from oracles.bodies.ansur import COLUMNS as ANSUR_COLUMNS
+from oracles.bodies.ansur import MASS as ANSUR_MASS
 from oracles.bodies.anthropometry import Anthropometry, anthropometry
 from oracles.bodies.collision import Capsule, CollisionModel, urdf_capsules
 from oracles.bodies.environment import Box
@@ -421,15 +426,31 @@ def _finish(model: pin.Model, urdf: str, source: str, spec: dict[str, Any], root
                 else sitting.furniture)
 
 
-def human_body(sex: str = "male", stature: float | None = None, percentile: float | None = None,
+def human_body(sex: str | None = None, stature: float | None = None, percentile: float | None = None,
                mass: float | None = None,
                ranges: dict[str, Any] | None = None, frames: dict[str, Any] | None = None, reference: Any = None,
-               posture: str | None = None, seat: dict[str, Any] | None = None) -> Body:
+               posture: str | None = None, seat: dict[str, Any] | None = None, ansur: dict[str, Any] | None = None,
+               proportions: str = "ansur", dims: dict[str, float] | None = None) -> Body:
     """The generated human (see :mod:`oracles.bodies.human`), standing on z = 0, facing +x; or seated (``posture:
-    seated``)
-    on a seat (see :mod:`oracles.bodies.seat`)."""
-    anthro = anthropometry(sex, stature, percentile, mass)  # type: ignore[arg-type]
-    human = {"sex": sex, "stature": stature, "percentile": percentile, "mass": mass, "posture": posture, "seat": seat}
+    seated``) on a seat (see :mod:`oracles.bodies.seat`). ``dims``: ANSUR II dimensions by name [m]; ``ansur``:
+    ``{sex, subject}``, a surveyed person."""
+    subject = None
+    if ansur is not None:
+        if not isinstance(ansur, dict) or set(ansur) - {"sex", "subject"} or "subject" not in ansur:
+            raise ModelError(f"expected {{sex: male|female, subject: ID}}, got {ansur!r}", source="human",
+                             key="human.ansur")
+        subject = ansur["subject"]
+        if isinstance(subject, bool) or not isinstance(subject, int):
+            raise ModelError(f"expected a subject id (an integer), got {subject!r}", source="human",
+                             key="human.ansur.subject")
+        if sex is not None and ansur.get("sex", sex) != sex:
+            raise ModelError(f"the subject's sex {ansur.get('sex')!r} is not human.sex {sex!r}", source="human",
+                             key="human.ansur.sex")
+        sex = ansur.get("sex", sex)
+    sex = "male" if sex is None else sex
+    anthro = anthropometry(sex, stature, percentile, mass, dims, subject, proportions)  # type: ignore[arg-type]
+    human = {"sex": sex, "stature": stature, "percentile": percentile, "mass": mass, "posture": posture, "seat": seat,
+             "ansur": ansur, "proportions": proportions, **(dims or {})}
     spec: dict[str, Any] = {"human": {k: v for k, v in human.items() if v is not None}}
     spec.update(_given(ranges=ranges, frames=frames, reference=reference))
     urdf = human_urdf(anthro)
@@ -533,7 +554,8 @@ def urdf_body(path: str | Path, root_position: list[float] | None = None, ranges
 BODY_KEYS = {"human", "urdf", "root_position", "ranges", "package_dirs", "up", "forward", "root_rpy", "frames",
              "reference"}
 URDF_ONLY = {"root_position", "package_dirs", "up", "forward", "root_rpy"}
-HUMAN_KEYS = {"sex", "stature", "percentile", "mass", "posture", "seat"}
+HUMAN_KEYS = {"sex", "stature", "percentile", "mass", "posture", "seat", "ansur", "proportions"}
+DIMENSIONS = frozenset(ANSUR_COLUMNS) - {"stature", ANSUR_MASS}  # a human's measures by ANSUR II's names [m]
 PLACING = ("up", "forward", "root_rpy", "frames", "reference")  # keys that move the body's frames: part of its hash
 
 
@@ -550,8 +572,16 @@ def load_body(spec: dict[str, Any]) -> Body:
         raise ModelError(f"expected a mapping of joint name to range, got {ranges!r}", key="ranges")
     if "human" in spec:
         human = spec["human"] or {}
-        if not isinstance(human, dict) or set(human) - HUMAN_KEYS:
+        if not isinstance(human, dict):
             raise ModelError(f"expected a mapping with keys among {sorted(HUMAN_KEYS)}, got {human!r}", key="human")
+        strange = sorted(set(human) - HUMAN_KEYS - DIMENSIONS)
+        if strange:
+            raise ModelError(f"unknown key; a human takes {', '.join(sorted(HUMAN_KEYS))} and ANSUR II's dimensions "
+                             f"by name [m]: {', '.join(sorted(DIMENSIONS))}", key=f"human.{strange[0]}")
+        dims = {k: v for k, v in human.items() if k in DIMENSIONS}
+        human = {k: v for k, v in human.items() if k in HUMAN_KEYS}
+        if dims:
+            human["dims"] = dims
         placed = sorted(set(spec) & URDF_ONLY)
         if placed:
             raise ModelError("a URDF body's key; the generated human stands on z = 0 facing +x", key=placed[0])
@@ -562,3 +592,4 @@ def load_body(spec: dict[str, Any]) -> Body:
     return urdf_body(spec["urdf"], spec.get("root_position"), ranges, dirs, up=spec.get("up"),
                      forward=spec.get("forward"), root_rpy=spec.get("root_rpy"),
                      frames=spec.get("frames"), reference=spec.get("reference"))
+

@@ -10,12 +10,22 @@ Joint angles are positive in the anatomical direction their names give
 dorsiflexion, inversion, clavicle elevation and protraction; lateral bending
 to the right; axial rotation of the spine and neck to the left).
 
-Frames: ``right_hand``/``left_hand`` at the grip centre; ``right_foot`` and
+Frames: ``right_hand``/``left_hand`` at the grip centre (the axis of a rod
+held in the fist, where ANSUR II puts it), and the same point as
+``right_grip``/``left_grip``; ``right_pinch``/``left_pinch`` at the thumb tip
+pinching the index finger; ``right_fingertip``/``left_fingertip`` at the
+middle fingertip; ``right_acromion``/``left_acromion`` and ``vertex`` (the
+top of the head) where ANSUR II measures them; ``right_foot`` and
 ``left_foot`` at the ball of the foot on the sole; ``*_heel`` and ``*_toe``
 and their ``_inner``/``_outer`` corners on the sole for the support polygon;
 ``eyes`` (cyclopean, x along the line of sight), ``left_eye``,
 ``right_eye``; ``right_shoulder``/``left_shoulder`` at the shoulder joint
 centres; ``back`` on the back of the shoulders, on the mid-sagittal plane.
+
+A ``de_leva`` body (``proportions: de_leva``, the body of earlier versions)
+has its one hand frame ``right_hand`` 1.40 WJC-MET3 lengths past the wrist (a
+pinch point more than a grip) and none of the grip, pinch, fingertip,
+acromion or vertex frames: its URDF is the one its trees were built with.
 """
 
 from __future__ import annotations
@@ -34,6 +44,9 @@ from oracles.bodies.collision import CAPSULE_PREFIX, Capsule
 # Modelling choices, not table values.
 TAPER = {"upper_arm": 0.9, "thigh": 0.7, "shank": 0.85}
 HAND_RADIUS = 0.3  # fist radius as a fraction of hand breadth (modelling choice)
+# [m] how far a measured body's thigh capsule may sink into a hard seat (within the seat check's 5 mm): soft tissue
+# that ANSUR's sitting height, measured on a hard seat, has already compressed (modelling choice).
+SEAT_SINK = 0.004
 
 
 @dataclass
@@ -127,13 +140,14 @@ def _anatomical(joint: str) -> str:
 
 def human_urdf(body: Anthropometry, name: str = "human") -> str:
     """URDF text of the generated human (see the module docstring for frames)."""
-    H, L, M, C = body.stature, body.lengths, body.masses, body.com
+    H, L, M, C, P = body.stature, body.lengths, body.masses, body.com, body.place
+    measured = body.proportions != "de_leva"
     u = _Urdf(name)
     for c in human_capsules(body):
         u.capsules.setdefault(c.link, []).append(c)
     ankle_z = body.ankle_height
     hip_z = ankle_z + L["shank"] + L["thigh"]
-    sjc_from_xyph = L["upper_trunk"] - A.SHOULDER_BELOW_CERV * H
+    sjc_from_xyph = L["upper_trunk"] - P.sjc_below_cerv
 
     # Pelvis: the lower trunk (OMPH-MIDH), origin at mid-hip (MIDH).
     u.link("pelvis", M["lower_trunk"], (0, 0, (1 - C["lower_trunk"]) * L["lower_trunk"]), L["lower_trunk"])
@@ -145,11 +159,13 @@ def human_urdf(body: Anthropometry, name: str = "human") -> str:
             (0, 0, L["middle_trunk"]))
     u.link("head", M["head"], (0, 0, (1 - C["head"]) * L["head"]), L["head"])
     u.chain([("neck_flexion", (0, 1, 0)), ("neck_rotation", (0, 0, 1))], "thorax", "head", (0, 0, L["upper_trunk"]))
-    eye_z = A.EYE_HEIGHT * H - (hip_z + L["lower_trunk"] + L["middle_trunk"] + L["upper_trunk"])
+    eye_z = P.eye_height - (hip_z + L["lower_trunk"] + L["middle_trunk"] + L["upper_trunk"])
     u.frame("eyes", "head", (A.EYE_FORWARD * H, 0.0, eye_z))
     u.frame("left_eye", "head", (A.EYE_FORWARD * H, A.EYE_Y * H, eye_z))
     u.frame("right_eye", "head", (A.EYE_FORWARD * H, -A.EYE_Y * H, eye_z))
-    u.frame("back", "thorax", (-A.SHOULDER_BACK_DEPTH * H, 0.0, sjc_from_xyph))
+    u.frame("back", "thorax", (-P.back_depth, 0.0, sjc_from_xyph))
+    if measured:
+        u.frame("vertex", "head", (0.0, 0.0, L["head"]))
 
     for side, s in (("right", -1.0), ("left", 1.0)):
         p = f"{side}_"
@@ -159,8 +175,10 @@ def human_urdf(body: Anthropometry, name: str = "human") -> str:
             [(f"{p}clavicle_elevation", (s, 0, 0)), (f"{p}clavicle_protraction", (0, 0, -s))],
             "thorax", f"{p}clavicle", (0.0, s * A.STERNOCLAVICULAR_Y * H, sjc_from_xyph),
         )
-        sjc = (0.0, s * (A.SHOULDER_Y - A.STERNOCLAVICULAR_Y) * H, 0.0)
+        sjc = (0.0, s * (P.shoulder_y - A.STERNOCLAVICULAR_Y * H), 0.0)
         u.frame(f"{p}shoulder", f"{p}clavicle", sjc)
+        if measured:
+            u.frame(f"{p}acromion", f"{p}clavicle", (0.0, sjc[1], P.acromion))
         u.link(f"{p}upper_arm", M["upper_arm"], (0, 0, -C["upper_arm"] * L["upper_arm"]), L["upper_arm"])
         u.chain(
             [(f"{p}shoulder_flexion", (0, -1, 0)), (f"{p}shoulder_abduction", (s, 0, 0)),
@@ -174,13 +192,17 @@ def human_urdf(body: Anthropometry, name: str = "human") -> str:
         u.chain([(f"{p}wrist_flexion", (-s, 0, 0)), (f"{p}wrist_deviation", (0, -1, 0))], f"{p}forearm", f"{p}palm",
                 (0, 0, -L["forearm"]))
         # Palm faces the thigh in the reference posture: palmar is medial (-s).
-        u.frame(f"{p}hand", f"{p}palm", (0.0, -s * A.GRIP_PALMAR * L["hand"], -A.GRIP_ALONG * L["hand"]))
+        u.frame(f"{p}hand", f"{p}palm", (0.0, -s * P.palmar, -P.grip))
+        if measured:
+            u.frame(f"{p}grip", f"{p}palm", (0.0, -s * P.palmar, -P.grip))
+            u.frame(f"{p}pinch", f"{p}palm", (0.0, -s * P.palmar, -P.pinch))
+            u.frame(f"{p}fingertip", f"{p}palm", (0.0, 0.0, -P.fingertip))
 
         # Leg: hip, knee, ankle.
         u.link(f"{p}thigh", M["thigh"], (0, 0, -C["thigh"] * L["thigh"]), L["thigh"])
         u.chain(
             [(f"{p}hip_flexion", (0, -1, 0)), (f"{p}hip_abduction", (s, 0, 0)), (f"{p}hip_rotation", (0, 0, -s))],
-            "pelvis", f"{p}thigh", (0.0, s * A.HIP_Y * H, 0.0),
+            "pelvis", f"{p}thigh", (0.0, s * P.hip_y, 0.0),
         )
         u.link(f"{p}shank", M["shank"], (0, 0, -C["shank"] * L["shank"]), L["shank"])
         u.chain([(f"{p}knee_flexion", (0, 1, 0))], f"{p}thigh", f"{p}shank", (0, 0, -L["thigh"]))
@@ -204,7 +226,8 @@ def human_urdf(body: Anthropometry, name: str = "human") -> str:
 def human_capsules(body: Anthropometry) -> list[Capsule]:
     """One capsule per segment, in its link's frame (the reference posture's axes: z up, x forward, y left).
 
-    Sizes (ANSUR II girths, :data:`oracles.bodies.anthropometry.ANSUR_GIRTHS`):
+    Sizes (ANSUR II girths: the body's own, or for a de_leva body
+    :data:`oracles.bodies.anthropometry.ANSUR_GIRTHS` scaled by stature):
     the trunk's three parts are horizontal capsules across the body, of
     radius half the depth and total width the breadth (chest, waist; the
     pelvis takes the waist's, its bony width below the hips' soft tissue),
@@ -215,7 +238,7 @@ def human_capsules(body: Anthropometry) -> list[Capsule]:
     fist from the wrist past the grip centre; the foot a capsule heel to toe
     resting on the sole.
     """
-    H, L, G = body.stature, body.lengths, body.girths
+    L, G, P = body.lengths, body.girths, body.place
     two_pi = 2.0 * math.pi
     out: list[Capsule] = []
 
@@ -224,9 +247,15 @@ def human_capsules(body: Anthropometry) -> list[Capsule]:
         half = max(0.5 * breadth - r, 0.0)
         out.append(Capsule(name, link, (x, -half, z), (x, half, z), r))
 
-    across("pelvis", "pelvis", 0.35 * L["lower_trunk"], G["waist_breadth"], G["waist_depth"])
+    # A measured body's buttocks lie where its buttock-knee length puts them (Placement.buttock_back).
+    # Its pelvis no lower than its seat: ANSUR's sitting height puts the hip centres P.hip_above_seat over a hard seat.
+    pelvis_x, pelvis_z = 0.0, 0.35 * L["lower_trunk"]
+    if P.buttock_back is not None and P.hip_above_seat is not None:
+        pelvis_x = 0.5 * G["waist_depth"] - P.buttock_back
+        pelvis_z = max(pelvis_z, 0.5 * G["waist_depth"] - P.hip_above_seat)
+    across("pelvis", "pelvis", pelvis_z, G["waist_breadth"], G["waist_depth"], pelvis_x)
     across("abdomen", "abdomen", 0.5 * L["middle_trunk"], G["waist_breadth"], G["waist_depth"])
-    back = -A.SHOULDER_BACK_DEPTH * H
+    back = -P.back_depth
     across("thorax", "thorax", 0.5 * L["upper_trunk"], G["chest_breadth"], G["chest_depth"],
            back + 0.5 * G["chest_depth"])
     r_head = 0.5 * G["head_breadth"]
@@ -243,10 +272,14 @@ def human_capsules(body: Anthropometry) -> list[Capsule]:
         r_fore = 0.5 * (G["forearm_circumference_flexed"] + G["wrist_circumference"]) / two_pi
         out.append(Capsule(f"{p}forearm", f"{p}forearm", (0.0, 0.0, 0.0), (0.0, 0.0, -L["forearm"]), r_fore))
         r_hand = HAND_RADIUS * G["hand_breadth"]
-        grip_y = -s * A.GRIP_PALMAR * L["hand"]
-        out.append(Capsule(f"{p}hand", f"{p}palm", (0.0, 0.5 * grip_y, -r_hand),
-                           (0.0, grip_y, -(A.GRIP_ALONG + 0.2) * L["hand"]), r_hand))
+        grip_y = -s * P.palmar
+        # A measured hand's fist ends at the pinch (its surface a finger's radius past it); a de_leva hand's past its
+        # grip by 0.2 WJC-MET3 lengths.
+        end = P.pinch if body.proportions != "de_leva" else (A.GRIP_ALONG + 0.2) * L["hand"]
+        out.append(Capsule(f"{p}hand", f"{p}palm", (0.0, 0.5 * grip_y, -r_hand), (0.0, grip_y, -end), r_hand))
         r_thigh = TAPER["thigh"] * G["thigh_circumference"] / two_pi
+        if P.hip_above_seat is not None:  # compressed on a hard seat, as ANSUR measures sitting height
+            r_thigh = min(r_thigh, P.hip_above_seat + SEAT_SINK)
         out.append(Capsule(f"{p}thigh", f"{p}thigh", (0.0, 0.0, 0.0), (0.0, 0.0, -L["thigh"]), r_thigh))
         r_shank = TAPER["shank"] * G["calf_circumference"] / two_pi
         out.append(Capsule(f"{p}shank", f"{p}shank", (0.0, 0.0, 0.0), (0.0, 0.0, -L["shank"]), r_shank))

@@ -53,7 +53,7 @@ import numpy as np
 from oracles.bodies import anthropometry as A
 from oracles.bodies.anthropometry import Anthropometry
 from oracles.bodies.environment import Box, turned
-from oracles.bodies.human import human_capsules
+from oracles.bodies.human import SEAT_SINK, human_capsules
 from oracles.errors import ModelError
 
 # Defaults by kind. chair: ANSI/HFES 100-2007, ch. 8 (seat height adjustable
@@ -168,7 +168,7 @@ def _down_angle(v: np.ndarray) -> float:
 
 def seated(body: Anthropometry, seat: Seat) -> Seated:
     """The seated reference posture of a body on a seat (see the module docstring)."""
-    H, L = body.stature, body.lengths
+    L = body.lengths
     caps = {c.name: c for c in human_capsules(body)}
     seat = fit(body, seat, caps)
     beta = seat.back_angle
@@ -176,9 +176,9 @@ def seated(body: Anthropometry, seat: Seat) -> Seated:
     normal = np.array([math.cos(beta), 0.0, math.sin(beta)])  # out of the backrest, forwards
     trunk = _pitch(-beta)
     # The trunk's back: the deepest of its capsules behind the pelvis's axis.
-    hip_z = seat.height + _hip_above_pan(caps, beta)
+    hip_z = seat.height + _hip_above_pan(caps, beta, body.place)
     thigh = caps["right_thigh"]
-    hip_x = _hip_forward(caps, L, seat)
+    hip_x = _hip_forward(caps, L, seat, body.place)
     hip = np.array([hip_x, 0.0, hip_z])
     lt, ls, lf = L["thigh"], L["shank"], L["foot"]
     ankle_z = body.ankle_height
@@ -249,29 +249,33 @@ def seated(body: Anthropometry, seat: Seat) -> Seated:
     along = min(0.75 * lt, max(seat.depth - 0.03 - hip_x, 0.05) / max(thigh_dir[0], 0.1))
     frames: dict[str, tuple[str, np.ndarray]] = {}
     for side, s in (("right", -1.0), ("left", 1.0)):
-        y = s * A.HIP_Y * H
+        y = s * body.place.hip_y
         frames[f"{side}_ischium"] = ("pelvis", np.array([hip_x, y, seat.height]))
         frames[f"{side}_thigh_rest"] = (f"{side}_thigh",
                                         hip + along * thigh_dir + thigh.radius * under + np.array([0.0, y, 0.0]))
     chest = body.girths["chest_depth"]
-    sternum_local = np.array([-A.SHOULDER_BACK_DEPTH * H + chest, 0.0,
+    sternum_local = np.array([-body.place.back_depth + chest, 0.0,
                               L["lower_trunk"] + L["middle_trunk"] + 0.5 * L["upper_trunk"]])
     frames["sternum"] = ("thorax", hip + trunk @ sternum_local)
     return Seated(hip, -beta, joints, frames, furniture(seat, up, normal, heel))
 
 
-def _hip_above_pan(caps: dict[str, Any], beta: float) -> float:
-    """The hip joint centres' height [m] above the pan: the lowest of the pelvis's and thighs' capsules rests on it."""
+def _hip_above_pan(caps: dict[str, Any], beta: float, place: A.Placement | None = None) -> float:
+    """The hip joint centres' height [m] above the pan: a measured body's where its sitting height puts them, a
+    de_leva body's where the lowest of the pelvis's and thighs' capsules rests on it."""
     pelvis, thigh = caps["pelvis"], caps["right_thigh"]
     lowest_pelvis = float((_pitch(-beta) @ np.asarray(pelvis.a))[2]) - pelvis.radius
+    if place is not None and place.hip_above_seat is not None:
+        # Reclined, the pelvis rolls back onto the sacrum: its capsule may lift the hips above their upright height.
+        return max(place.hip_above_seat, -lowest_pelvis - SEAT_SINK)
     return max(thigh.radius, -lowest_pelvis)
 
 
-def _hip_forward(caps: dict[str, Any], lengths: dict[str, float], seat: Seat) -> float:
+def _hip_forward(caps: dict[str, Any], lengths: dict[str, float], seat: Seat, place: A.Placement) -> float:
     """The hip joint centres' distance [m] forward of the backrest's foot where the trunk's capsules touch the
     backrest's
     front face (a segment in the mid-plane; the trunk's capsules lie across the body): bisection on the least gap."""
-    above = _hip_above_pan(caps, seat.back_angle)
+    above = _hip_above_pan(caps, seat.back_angle, place)
     base = {"pelvis": 0.0, "abdomen": lengths["lower_trunk"],
             "thorax": lengths["lower_trunk"] + lengths["middle_trunk"]}
     trunk = _pitch(-seat.back_angle)
@@ -300,12 +304,12 @@ def fit(body: Anthropometry, seat: Seat, caps: dict[str, Any] | None = None) -> 
     """The seat with its ``fit`` dimensions set for this body (see the module docstring)."""
     caps = caps or {c.name: c for c in human_capsules(body)}
     ls, lt, ankle_z = body.lengths["shank"], body.lengths["thigh"], body.ankle_height
-    above = _hip_above_pan(caps, seat.back_angle)
+    above = _hip_above_pan(caps, seat.back_angle, body.place)
     drop = ls * math.cos(SHANK_FORWARD) + ankle_z  # hip to sole with level thighs and the shank 10 deg forward
     if math.isnan(seat.height):
         seat = replace(seat, height=round(seat.feet_height + drop - above, 4))
     if math.isnan(seat.depth):
-        popliteal = _hip_forward(caps, body.lengths, seat) + lt - caps["right_shank"].radius
+        popliteal = _hip_forward(caps, body.lengths, seat, body.place) + lt - caps["right_shank"].radius
         seat = replace(seat, depth=round(popliteal - POPLITEAL_CLEARANCE, 4))
     if math.isnan(seat.feet_height):
         rest = seat.height + above - drop
