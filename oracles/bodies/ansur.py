@@ -1,6 +1,6 @@
 """The ANSUR II survey: its measured people, and the regression of any of their dimensions on the others.
 
-Data: 38 dimensions of the 4,082 men and 1,986 women of the public ANSUR II working data (Gordon et al. 2014,
+Data: 39 dimensions of the 4,082 men and 1,986 women of the public ANSUR II working data (Gordon et al. 2014,
 NATICK/TR-15/007), carried in ``data/ansur2.csv.gz`` with their provenance (``data/README.md``).
 
 Names are the survey's own (``acromialheight``, ``buttockkneelength`` ...). Here every length is in metres and
@@ -44,6 +44,7 @@ COLUMNS = (
     "forearmhandlength",
     "forearmcenterofgriplength",
     "thumbtipreach",
+    "span",
     "biacromialbreadth",
     "sittingheight",
     "eyeheightsitting",

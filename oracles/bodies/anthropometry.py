@@ -175,7 +175,7 @@ RANGES: dict[str, tuple[float, float]] = {
 # arthroplasty; as quoted, not read in a source here): the hip centre is at ANSUR's trochanterion height.
 # Shoulder: the glenohumeral centre lies below the acromion by 17 % of the biacromial breadth (Rab, G., Petuskey, K.
 # & Bagley, A. 2002, "A method for determination of upper extremity kinematics", Gait & Posture 15:113-119; as
-# quoted, not read in its source here), in the thorax's frontal plane under the acromion.
+# quoted, not read in its source here), in the thorax's frontal plane.
 SJC_BELOW_ACROMION = 0.17  # of biacromial breadth
 # Elbow and wrist: the elbow centre at radiale, the wrist centre at stylion (modelling choices: both landmarks lie
 # within about a centimetre of the joints' axes). The hanging arm then puts the wrist within 10 mm of ANSUR's mean
@@ -213,8 +213,8 @@ class Placement:
     reach); ``hip_y``: a hip centre from the mid-plane; ``eye_height``: standing; ``grip``, ``pinch``,
     ``fingertip``: along the hand from the wrist centre, ``palmar``: the grip's and pinch's depth in front of the
     hand's axis; ``hip_above_seat``: the hip centres above a hard flat seat, ``buttock_back``: the buttocks behind
-    the hip centres, seated (None for de_leva bodies: their seat contact is their capsules'); ``acromion``: the
-    acromion above the shoulder centre.
+    the hip centres, seated, ``knee_front``: the front of the knee ahead of its centre (None for de_leva bodies: their
+    seat contact is their capsules'); ``acromion``: the acromion above the shoulder centre.
     """
 
     sjc_below_cerv: float
@@ -229,6 +229,7 @@ class Placement:
     acromion: float
     hip_above_seat: float | None = None
     buttock_back: float | None = None
+    knee_front: float | None = None
 
 
 @dataclass(frozen=True)
@@ -346,7 +347,10 @@ def _measured(sex: Sex, d: dict[str, float], asked: dict[str, float], spread: di
     knee_front = d["kneeheightsitting"] - knee  # the thigh's top over the knee centre, seated (thigh level)
     place = Placement(
         sjc_below_cerv=d["cervicaleheight"] - (d["acromialheight"] - drop),
-        shoulder_y=0.5 * d["biacromialbreadth"],
+        # The shoulder centres' breadth: the span (arms out to the sides, fingertip to fingertip) less two arms.
+        # Across the survey it puts them 26 mm (men) and 24 mm (women) inside the acromions' lateral tips (biacromial
+        # breadth), as the humeral head lies under the acromion's edge (computed from the carried data).
+        shoulder_y=0.5 * d["span"] - (lengths["upper_arm"] + lengths["forearm"] + hand),
         # The wall of a thumb-tip reach (the shoulder blades) behind the shoulder centre: the reach less the arm.
         back_depth=d["thumbtipreach"] - (lengths["upper_arm"] + lengths["forearm"] + pinch),
         hip_y=HIP_Y * H,
@@ -354,7 +358,7 @@ def _measured(sex: Sex, d: dict[str, float], asked: dict[str, float], spread: di
         grip=hand - (d["forearmhandlength"] - d["forearmcenterofgriplength"]),
         pinch=pinch, fingertip=hand, palmar=HAND_PALMAR * lengths["hand"], acromion=drop,
         hip_above_seat=d["sittingheight"] - (H - hip),
-        buttock_back=d["buttockkneelength"] - lengths["thigh"] - knee_front,
+        buttock_back=d["buttockkneelength"] - lengths["thigh"] - knee_front, knee_front=knee_front,
     )
     total = sum(v[1] for v in table.values()) + sum(table[k][1]
                                                     for k in ("upper_arm", "forearm", "hand", "thigh", "shank", "foot"))

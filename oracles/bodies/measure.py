@@ -1,0 +1,119 @@
+"""A human body measured as ANSUR II measures people: each dimension by Pinocchio's forward kinematics of the model in
+the survey's posture for it (Gordon et al. 2014, NATICK/TR-15/007, the dimensions' definitions).
+
+What ``reach model`` prints as built and ``bench/validation.py`` compares with the survey and other published
+figures. Lengths in metres. Seated dimensions are measured on the upright trunk, the hips where the body's seat
+contact puts them (:class:`oracles.bodies.anthropometry.Placement`), without a seat's geometry.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pinocchio as pin
+
+from oracles.bodies.body import Body
+from oracles.bodies.seat import _hip_above_pan
+from oracles.errors import ModelError
+
+# The dimensions measured on a model (ANSUR II's names), and what each one's posture and points are.
+MEASURES = {
+    "stature": "standing: the top of the head (vertex) above the floor",
+    "acromialheight": "standing: the right acromion above the floor",
+    "wristheight": "standing, arms hanging: the right wrist centre above the floor",
+    "thumbtipreach": "standing, the right arm forward at shoulder height (flexion 90 deg): the thumb tip (pinch) ahead "
+                     "of the wall behind the shoulders (the back frame)",
+    "span": "standing, both arms out to the sides (abduction 90 deg): fingertip to fingertip",
+    "sittingheight": "seated upright: the vertex above the seat",
+    "eyeheightsitting": "seated upright: the eyes above the seat",
+    "buttockkneelength": "seated, hips and knees at 90 deg: the buttocks' back (the pelvis capsule) to the front of "
+                         "the knee",
+    "overheadfingertipreachsitting": "seated upright, the right arm straight up (shoulder flexion 180 deg, the "
+                                     "clavicle at its elevation limit): the middle fingertip above the seat",
+    "grip": "the grip centre past the wrist centre, along the hand (ANSUR: hand length - (forearm-hand length - "
+            "forearm-centre-of-grip length))",
+}
+
+
+def measure(body: Body) -> dict[str, float]:
+    """The body's dimensions as ANSUR II measures them (:data:`MEASURES`) [m]; a generated human only."""
+    anthro = body.anthropometry
+    if anthro is None:
+        raise ModelError("only a generated human is measured as ANSUR II measures people", source=body.source)
+    place = anthro.place
+    measured = anthro.proportions != "de_leva"
+    # A de_leva body has no vertex, acromion, pinch or fingertip frames: its head ends at its stature, its one hand
+    # frame stands for the thumb tip.
+    pinch, tip = ("right_pinch", "right_fingertip") if measured else ("right_hand", "right_hand")
+    stand = _points(body)
+    hip = float(body.q_ref[2])
+    vertex = float(stand["vertex"][2]) if measured else anthro.stature
+    seat = (place.hip_above_seat if place.hip_above_seat is not None
+            else _hip_above_pan({c.name: c for c in body.capsules}, 0.0))
+    out = {
+        "stature": vertex,
+        "wristheight": float(stand["joint:right_wrist_flexion"][2]),
+        "sittingheight": vertex - hip + seat,
+        "eyeheightsitting": float(stand["eyes"][2]) - hip + seat,
+    }
+    if measured:
+        out["acromialheight"] = float(stand["right_acromion"][2])
+    forward = _points(body, right_shoulder_flexion=math.pi / 2)
+    out["thumbtipreach"] = float(forward[pinch][0] - forward["back"][0])
+    wide = _points(body, right_shoulder_abduction=math.pi / 2, left_shoulder_abduction=math.pi / 2)
+    out["span"] = float(wide["left_" + tip.removeprefix("right_")][1] - wide[tip][1])
+    out["overheadfingertipreachsitting"] = _highest(body, tip) - hip + seat
+    if place.knee_front is not None:
+        bent = {"right_hip_flexion": math.pi / 2, "right_knee_flexion": math.pi / 2}
+        capsules = body.capsules_at(_q(body, **bent))
+        pelvis = capsules[[c.name for c in body.collision.placed].index("pelvis")]
+        back = min(pelvis[0], pelvis[3]) - pelvis[6]
+        out["buttockkneelength"] = float(_points(body, **bent)["joint:right_knee_flexion"][0] + place.knee_front
+                                         - back)
+    if measured:
+        wrist = stand["joint:right_wrist_flexion"]
+        out["grip"] = float(abs(stand["right_grip"][2] - wrist[2]))
+    return out
+
+
+def _q(body: Body, **angles: float) -> np.ndarray:
+    q = body.q_ref.copy()
+    for name, value in angles.items():
+        q[body.model.joints[body.joint_id(name)].idx_q] = value
+    return q
+
+
+def _points(body: Body, **angles: float) -> dict[str, np.ndarray]:
+    """World positions [m] of every frame, and of every joint as ``joint:NAME``, at the reference with angles set."""
+    data = body.model.createData()
+    pin.framesForwardKinematics(body.model, data, _q(body, **angles))
+    out = {str(f.name): np.array(data.oMf[i].translation) for i, f in enumerate(body.model.frames)}
+    for j in range(1, body.model.njoints):
+        out["joint:" + str(body.model.names[j])] = np.array(data.oMi[j].translation)
+    return out
+
+
+OVERHEAD = ("right_clavicle_elevation", "right_clavicle_protraction", "right_shoulder_flexion",
+            "right_shoulder_abduction", "right_elbow_flexion", "right_wrist_flexion")
+
+
+def _highest(body: Body, frame: str) -> float:
+    """The highest a frame goes [m] with the right shoulder girdle, arm and wrist free within their ranges, the rest at
+    the reference: the overhead reach the model can make (the survey's subject raises the shoulder too)."""
+    # scipy only where the overhead reach is measured
+    from scipy.optimize import minimize
+
+    limits = {n: (lo, hi) for n, lo, hi in body.limits()}
+    data = body.model.createData()
+    fid = body.frame_id(frame)
+
+    def height(x: np.ndarray) -> float:
+        q = _q(body, **dict(zip(OVERHEAD, map(float, x), strict=True)))
+        pin.framesForwardKinematics(body.model, data, q)
+        return -float(data.oMf[fid].translation[2])
+
+    start = np.array([0.0, 0.0, math.pi - 0.1, 0.0, 0.0, 0.0])
+    best = minimize(height, np.clip(start, *np.array([limits[n] for n in OVERHEAD]).T),
+                    bounds=[limits[n] for n in OVERHEAD], method="L-BFGS-B")
+    return -float(best.fun)
