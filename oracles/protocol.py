@@ -205,6 +205,15 @@ class ModelHashed(Protocol):
 
 
 @runtime_checkable
+class Rebuilt(Protocol):
+    """An oracle that can rebuild itself with the body model a stored tree was built with, where this version of its
+    spec builds another (a human from before ANSUR II bodies)."""
+
+    def as_built(self, model_hash: str) -> tuple[Oracle, str] | None:
+        """The oracle on the model of that hash and a note of what changed, or None when it cannot be built."""
+
+
+@runtime_checkable
 class EffectorPositions(Protocol):
     """An oracle whose postures can be mapped to effector positions."""
 

@@ -512,12 +512,12 @@ def test_planning_stops_at_its_deadline_within_a_frame(planner, monkeypatch):
     monkeypatch.setattr(oracle, "faults", lambda postures: checked.append(len(postures)) or real(postures))
     monkeypatch.setattr(motion, "time", clock)
     with pytest.raises(MotionError, match="deadline") as err:
-        planner.plan("right_hand", [0.35, -0.2, 0.45], rate=240, deadline=3.5)
+        planner.plan("right_hand", [0.35, -0.2, 0.5], rate=240, deadline=3.5)
     assert err.value.code == "timeout" and clock.now <= 5.0
     stopped = sum(checked)
     monkeypatch.setattr(motion, "time", __import__("time"))
     checked.clear()
-    m = planner.plan("right_hand", [0.35, -0.2, 0.45], rate=240)  # the same motion, without a deadline
+    m = planner.plan("right_hand", [0.35, -0.2, 0.5], rate=240)  # the same motion, without a deadline
     assert m.strategy == "whole" and len(m.times) > 200
     # Three readings of the deadline, then it stopped (and the start posture's own check), long before the end.
     assert stopped <= 3 * motion.CHECK_FRAMES + 1 < sum(checked)
@@ -561,7 +561,7 @@ def test_a_paths_broken_frames_are_held_as_one_batch_by_the_batched_engine(plann
 
     from oracles.protocol import OracleSpec
 
-    m = planner.plan("right_hand", np.array([0.35, -0.2, 0.45]))
+    m = planner.plan("right_hand", np.array([0.35, -0.2, 0.5]))
     fatrop = planner.body("whole")
     spec = planner.selector.atlas.trees["whole"].meta["oracle"]
     batch = OracleSpec(spec["name"], {**spec["params"], "solver": "batch"}).create()

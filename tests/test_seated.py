@@ -69,10 +69,17 @@ def test_the_seated_reference_rests_on_the_pan_against_the_backrest(kind, sex, p
     boxes = {b.name: b for b in body.furniture}
     gaps = {(n, b): _coal_gap(c, boxes[b]) for n, c in zip(names, caps, strict=True) for b in boxes}
     assert min(gaps.values()) > -0.005
-    assert min(gaps[(n, "seat_pan")] for n in ("pelvis", "right_thigh", "left_thigh")) == pytest.approx(0.0, abs=0.003)
+    # The hips sit where the body's sitting height puts them over a hard seat (ANSUR II), or higher where the reclined
+    # pelvis's capsule lifts them; the lowest capsule then rests on the pan, sunk by at most the soft tissue's 4 mm.
+    place = body.anthropometry.place
+    pan_top = boxes["seat_pan"].hi[2]
+    assert body.q_ref[2] - pan_top >= place.hip_above_seat - 1e-9
+    lowest = min(gaps[(n, "seat_pan")] for n in ("pelvis", "right_thigh", "left_thigh"))
+    assert -0.0045 < lowest < 0.02
+    if body.q_ref[2] - pan_top > place.hip_above_seat + 1e-6:
+        assert lowest == pytest.approx(-0.004, abs=1e-3)
     assert min(gaps[(n, "backrest")] for n in ("pelvis", "abdomen", "thorax")) == pytest.approx(0.0, abs=0.003)
     frames = body.frame_positions()
-    pan_top = boxes["seat_pan"].hi[2]
     assert (frames["right_ischium"][2] == pytest.approx(pan_top, abs=1e-6)
             and frames["left_ischium"][2] == pytest.approx(pan_top, abs=1e-6))
     sole = 0.0 if kind != "wheelchair" else boxes["footrest"].hi[2]

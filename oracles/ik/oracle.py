@@ -23,6 +23,7 @@ import numpy as np
 import pinocchio as pin
 
 from oracles import registry
+from oracles.bodies.anthropometry import legacy_body
 from oracles.bodies.body import ROOT, load_body
 from oracles.bodies.mirror import MirrorMap
 from oracles.bodies.skeleton import bone_frames, build_skeleton
@@ -30,7 +31,7 @@ from oracles.errors import ModelError, OracleError
 from oracles.ik.problem import Check, ReachProblem
 from oracles.ik.search import Search
 from oracles.ik.strategy import parse_strategy
-from oracles.protocol import Ball, Goals, OracleSpec, Purpose, Skeleton, Verdicts, check_points, check_purpose
+from oracles.protocol import Ball, Goals, Oracle, OracleSpec, Purpose, Skeleton, Verdicts, check_points, check_purpose
 from oracles.tasks import ContactsTask, FloorTask, Numeric, ObstaclesTask, OrientationTask
 
 # tasks that hold something fixed in the world, which a turn would move
@@ -137,6 +138,16 @@ class IKOracle(ABC):
     @property
     def model_hash(self) -> str:
         return self.body.hash
+
+    def as_built(self, model_hash: str) -> tuple[Oracle, str] | None:
+        """This oracle on the body a stored tree was built with: a human spec read as earlier versions built it
+        (``proportions: de_leva``), when that body's hash is the tree's."""
+        body, note = legacy_body(self._strategy_params["body"])
+        if note is None:
+            return None
+        spec = self.spec.to_dict()
+        oracle = OracleSpec.from_dict({**spec, "params": {**spec["params"], "body": body}}).create()
+        return (oracle, note) if isinstance(oracle, IKOracle) and oracle.model_hash == model_hash else None
 
     def effector_positions(self, postures: np.ndarray) -> np.ndarray:
         """Effector positions [m] (N, 3) of postures (N, nq), by Pinocchio."""

@@ -52,6 +52,7 @@ from __future__ import annotations
 
 import copy
 import json
+import logging
 import math
 import time
 from collections import OrderedDict
@@ -72,6 +73,7 @@ from oracles.protocol import (
     Oriented,
     Preferring,
     Preparable,
+    Rebuilt,
     Tunable,
     Verdicts,
 )
@@ -92,6 +94,8 @@ from reach.answers.answer import (
 from reach.errors import InputError, ModelMismatch, UnknownEffector, UnknownPolicy
 from reach.maps.atlas import Atlas
 from reach.maps.protocol import DEFAULT_POLICY, POLICIES, Policy, ReachMap
+
+log = logging.getLogger(__name__)
 
 # what a goal the trees hold but no refinement reaches answers (see the module docstring)
 MISSES = ("unreachable", "within")
@@ -195,6 +199,7 @@ class Selector:
             self._by_effector.setdefault(effector, []).append(name)
         self._kd: dict[str, Lookup | None] = {}
         self._oracles: dict[str, Oracle] = {}
+        self.notes: list[str] = []  # what changed in the bodies of trees from earlier versions (Rebuilt)
         self._postures: OrderedDict[tuple[str, int],
                                     tuple[dict[str, float], dict[str, list[float]] | None, bytes]] = OrderedDict()
         for m in atlas.maps.values():
@@ -350,10 +355,23 @@ class Selector:
             oracle = OracleSpec.from_dict(meta["oracle"]).create()
             stored_hash = meta.get("model_hash")
             if stored_hash and isinstance(oracle, ModelHashed) and oracle.model_hash != stored_hash:
-                raise ModelMismatch(self.atlas.path, name, stored_hash, oracle.model_hash)
+                oracle = self._legacy(name, oracle, stored_hash)
             self._oracles[name] = (oracle.variant("refine", budget=self.budget) if isinstance(oracle, Tunable)
                                    else oracle)
         return self._oracles[name]
+
+    def _legacy(self, name: str, oracle: Oracle, stored: str) -> Oracle:
+        """The oracle of a tree built with a body this version builds otherwise: a human from before ANSUR II bodies
+        refines with the stature-scaled body it was built with, noted in ``notes`` and the log; any other is
+        refused."""
+        built = oracle.as_built(stored) if isinstance(oracle, Rebuilt) else None
+        if built is None:
+            raise ModelMismatch(self.atlas.path, name, stored, oracle.model_hash if isinstance(oracle, ModelHashed)
+                                else "?")
+        note = f"{self.atlas.path}: strategy {name!r} was {built[1]}"
+        log.warning("%s", note)
+        self.notes.append(note)
+        return built[0]
 
     def oriented(self, effector: str, orientation: np.ndarray) -> list[str]:
         """The effector's strategies that hold a goal's orientation of this kind ((3,) direction or (3, 3) rotation),

@@ -19,7 +19,6 @@ from typing import Any
 
 import numpy as np
 
-from oracles.bodies.anthropometry import legacy_body
 from reach.errors import StoreError, TreeError
 from reach.maps.box import Box
 from reach.maps.index import ReachIndex
@@ -193,7 +192,6 @@ def load_indexed(path: str | Path) -> tuple[VATree, ReachIndex | None]:
         raise StoreError(path, "its arrays do not match the digest in its metadata (altered after it was written?); "
                                "rebuild it")
     meta = {k: v for k, v in meta.items() if k not in ("format", "version", "box", "d_min", "d_max", "posture_names")}
-    meta = _current(meta)
     vertices = VertexTable(keys, reach_, residual, posture, names)
     wrong = _labels_contradicting_verdicts(Lattice(box, d_max), depth, corner, kind, vertices)
     if wrong:
@@ -203,20 +201,6 @@ def load_indexed(path: str | Path) -> tuple[VATree, ReachIndex | None]:
     if index is not None and np.any(index.reached[~reach_]):
         raise StoreError(path, "the reachability index holds directions reached at unreachable vertices")
     return VATree(box, d_min, d_max, depth, corner, kind, bfs_children(kind, dim), vertices, meta), index
-
-
-def _current(meta: dict[str, Any]) -> dict[str, Any]:
-    """A tree's metadata with its oracle's body spec as this version rebuilds the body the tree was built with (a human
-    from before ANSUR II bodies: ``proportions: de_leva``); the change is noted in ``meta["notes"]``."""
-    oracle = meta.get("oracle")
-    params = oracle.get("params") if isinstance(oracle, dict) else None
-    if not isinstance(oracle, dict) or not isinstance(params, dict) or "body" not in params:
-        return meta
-    body, note = legacy_body(params["body"])
-    if note is None:
-        return meta
-    notes = [n for n in meta.get("notes", []) if isinstance(n, str)] if isinstance(meta.get("notes"), list) else []
-    return {**meta, "oracle": {**oracle, "params": {**params, "body": body}}, "notes": [*notes, note]}
 
 
 def _labels_contradicting_verdicts(lattice: Lattice, depth: np.ndarray, corner: np.ndarray, kind: np.ndarray,

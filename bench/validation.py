@@ -1,0 +1,163 @@
+"""The generated human against published figures: one JSON line a row, and docs/validation.md's tables.
+
+Rows, each with its source:
+
+* the shipped stature-percentile bodies (p05 women, p50 and p95 men), built from ANSUR II measures (``ansur``) and
+  as earlier versions built them (``de_leva``), each dimension measured on the model as the survey measures it
+  (:mod:`oracles.bodies.measure`) against ANSUR II's regression of that dimension on stature, with its residual SD
+  (Gordon et al. 2014; the regression fitted on the public data the project carries);
+* the wrist-to-grip offset against ANSUR II's (hand length - (forearm-hand length - forearm-centre-of-grip length)),
+  mean and SD by sex;
+* N ANSUR II subjects of each sex drawn at random (``--seed``): bodies built from each subject's record, every
+  measured dimension against the subject's own; and bodies built from the 14 dimensions issue 51 lists alone, the
+  rest regressed, against the subject's own (how well the regression predicts what was not given).
+
+Verdict: ``within`` when the deviation is within the published scatter (1 SD, or the stated tolerance), ``outside``
+otherwise; every ``outside`` row is explained in docs/validation.md.
+
+Run: ``.venv/bin/python bench/validation.py [--subjects 20] [--seed 51] [--markdown docs/validation.md]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+
+from oracles.bodies import ansur
+from oracles.bodies.anthropometry import stature_at_percentile
+from oracles.bodies.body import human_body
+from oracles.bodies.measure import MEASURES, measure
+
+BODIES = (("female", 5), ("male", 50), ("male", 95))
+# Issue 51's list of the dimensions that set reach: a body built from these alone.
+GIVEN = ("stature", "acromialheight", "acromionradialelength", "radialestylionlength", "handlength",
+         "biacromialbreadth", "sittingheight", "eyeheightsitting", "buttockkneelength", "buttockpopliteallength",
+         "poplitealheight", "kneeheightsitting", "footlength", "weightkg")
+CHECKED = ("thumbtipreach", "acromialheight", "sittingheight", "buttockkneelength")  # issue 51's subject check
+TOLERANCE = 0.015  # [m] p95 of a subject body's errors (issue 51)
+
+
+def grip_offsets(sex: str) -> np.ndarray:
+    s = ansur.sample(sex)  # type: ignore[arg-type]
+    return s.column("handlength") - (s.column("forearmhandlength") - s.column("forearmcenterofgriplength"))
+
+
+def percentile_rows() -> list[dict]:
+    rows = []
+    for sex, pct in BODIES:
+        stature = stature_at_percentile(sex, pct)  # type: ignore[arg-type]
+        expected, spread = ansur.sample(sex).predict({"stature": stature})  # type: ignore[arg-type]
+        built = {p: measure(human_body(sex, percentile=pct, proportions=p)) for p in ("de_leva", "ansur")}
+        for name in MEASURES:
+            if name in ("stature", "grip"):
+                continue
+            row = {"table": "percentile", "body": f"{sex} p{pct:g}", "dimension": name,
+                   "published_mm": round(1000 * expected[name], 1), "sd_mm": round(1000 * spread[name], 1),
+                   "source": "ANSUR II (Gordon et al. 2014): regression on stature, residual SD"}
+            for p, m in built.items():
+                if name in m:
+                    dev = 1000 * (m[name] - expected[name])
+                    row[f"{p}_mm"] = round(1000 * m[name], 1)
+                    row[f"{p}_dev_mm"] = round(dev, 1)
+                    row[f"{p}_verdict"] = "within" if abs(dev) <= 1000 * spread[name] else "outside"
+            rows.append(row)
+        offsets = grip_offsets(sex)
+        m = built["ansur"]["grip"]
+        dev = 1000 * (m - offsets.mean())
+        old = human_body(sex, percentile=pct, proportions="de_leva").anthropometry
+        old_grip = 1.40 * old.lengths["hand"]  # the de_leva hand frame's distance along the hand
+        rows.append({"table": "percentile", "body": f"{sex} p{pct:g}", "dimension": "grip",
+                     "published_mm": round(1000 * offsets.mean(), 1), "sd_mm": round(1000 * offsets.std(), 1),
+                     "source": "ANSUR II: hand length - (forearm-hand length - forearm-centre-of-grip length), "
+                               "sex's mean and SD",
+                     "de_leva_mm": round(1000 * old_grip, 1),
+                     "de_leva_dev_mm": round(1000 * (old_grip - offsets.mean()), 1),
+                     "de_leva_verdict": "within" if abs(old_grip - offsets.mean()) <= offsets.std() else "outside",
+                     "ansur_mm": round(1000 * m, 1), "ansur_dev_mm": round(dev, 1),
+                     "ansur_verdict": "within" if abs(dev) <= 1000 * offsets.std() else "outside"})
+    return rows
+
+
+def subject_rows(count: int, seed: int) -> list[dict]:
+    rng = np.random.default_rng(seed)
+    rows = []
+    for sex in ("female", "male"):
+        s = ansur.sample(sex)  # type: ignore[arg-type]
+        for subject in rng.choice(s.ids, size=count, replace=False):
+            own = s.subject(int(subject))
+            whole = measure(human_body(ansur={"sex": sex, "subject": int(subject)}))
+            given = {k: own[k] for k in GIVEN}
+            dims = {k: v for k, v in given.items() if k not in ("stature", "weightkg")}
+            partial = measure(human_body(sex, stature=given["stature"], mass=given["weightkg"], dims=dims))
+            for name in MEASURES:
+                if name == "grip" or name not in whole:
+                    continue
+                rows.append({"table": "subject", "sex": sex, "subject": int(subject), "dimension": name,
+                             "own_mm": round(1000 * own[name], 1) if name in own else None,
+                             "record_err_mm": round(1000 * (whole[name] - own[name]), 2) if name in own else None,
+                             "given14_err_mm": round(1000 * (partial[name] - own[name]), 2) if name in own else None})
+    return rows
+
+
+def summary(rows: list[dict]) -> list[dict]:
+    out = []
+    for sex in ("female", "male"):
+        for name in MEASURES:
+            errs = [r for r in rows if r["sex"] == sex and r["dimension"] == name and r["record_err_mm"] is not None]
+            if not errs:
+                continue
+            rec = np.abs([r["record_err_mm"] for r in errs])
+            part = np.abs([r["given14_err_mm"] for r in errs])
+            out.append({"table": "subjects", "sex": sex, "dimension": name, "n": len(errs),
+                        "record_p95_mm": round(float(np.percentile(rec, 95)), 1),
+                        "given14_p95_mm": round(float(np.percentile(part, 95)), 1),
+                        "verdict": ("within" if np.percentile(rec, 95) <= 1000 * TOLERANCE else "outside")
+                        if name in CHECKED else "-"})
+    return out
+
+
+def markdown(percentile: list[dict], subjects: list[dict], count: int, seed: int) -> str:
+    lines = ["| body | dimension | published [mm] | SD [mm] | de_leva (before) [mm] | dev | verdict | ansur (now) "
+             "[mm] | dev | verdict |", "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for r in percentile:
+        before = (f"{r['de_leva_mm']} | {r['de_leva_dev_mm']:+} | {r['de_leva_verdict']}" if "de_leva_mm" in r
+                  else "no such frame | - | -")
+        lines.append(f"| {r['body']} | `{r['dimension']}` | {r['published_mm']} | {r['sd_mm']} | {before} | "
+                     f"{r['ansur_mm']} | {r['ansur_dev_mm']:+} | {r['ansur_verdict']} |")
+    lines += ["", f"{count} subjects of each sex drawn with seed {seed}: p95 of |model - subject| [mm], bodies built "
+              "from the subject's whole record, and from issue 51's 14 dimensions alone (the rest regressed). "
+              f"Tolerance: {1000 * TOLERANCE:g} mm for {', '.join(CHECKED)}.", "",
+              "| sex | dimension | whole record: p95 | the 14 given: p95 | verdict |",
+              "| --- | --- | --- | --- | --- |"]
+    for r in subjects:
+        lines.append(f"| {r['sex']} | `{r['dimension']}` | {r['record_p95_mm']} | {r['given14_p95_mm']} | "
+                     f"{r['verdict']} |")
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--subjects", type=int, default=20, help="subjects of each sex drawn from ANSUR II")
+    parser.add_argument("--seed", type=int, default=51)
+    parser.add_argument("--markdown", type=Path, help="write the tables to this file's generated section")
+    args = parser.parse_args()
+    percentile = percentile_rows()
+    subjects = subject_rows(args.subjects, args.seed)
+    summaries = summary(subjects)
+    for row in percentile + summaries:
+        print(json.dumps(row))
+    if args.markdown:
+        begin = "<!-- generated by bench/validation.py: begin -->"
+        end = "<!-- generated by bench/validation.py: end -->"
+        text = args.markdown.read_text() if args.markdown.exists() else f"{begin}\n{end}\n"
+        head, rest = text.split(begin, 1)
+        tail = rest.split(end, 1)[1]
+        args.markdown.write_text(f"{head}{begin}\n{markdown(percentile, summaries, args.subjects, args.seed)}{end}"
+                                 f"{tail}")
+
+
+if __name__ == "__main__":
+    main()
