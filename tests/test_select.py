@@ -125,6 +125,26 @@ def test_a_tree_of_another_model_is_refused(arm):
         tree.meta["model_hash"] = saved
 
 
+def test_a_tree_of_the_earlier_human_refines_with_that_body_and_says_so(arm):
+    """Issue 51: a tree built before bodies came from ANSUR II measures (its human spec names no ``proportions``, its
+    model hash is the stature-scaled body's) refines with the body it was built with, noted; the answer's posture puts
+    that body's hand at the goal by Pinocchio's forward kinematics."""
+    tree = arm.trees["right_arm"]
+    old = human_body("male", percentile=50, proportions="de_leva")
+    saved = tree.meta["model_hash"]
+    tree.meta["model_hash"] = old.hash  # what the earlier version stored for {human: {sex: male, percentile: 50}}
+    try:
+        s = Selector(arm, budget=0.5)
+        answer = s.select("right_hand", np.array([0.35, -0.3, 1.1]))
+        assert answer.refined == REFINED and len(s.notes) == 1 and "proportions: de_leva" in s.notes[0]
+        assert np.linalg.norm(hand_of(answer, old) - [0.35, -0.3, 1.1]) < 0.005
+        tree.meta["model_hash"] = "0123456789abcdef"  # neither body's: refused
+        with pytest.raises(ModelMismatch):
+            Selector(arm).warm_up()
+    finally:
+        tree.meta["model_hash"] = saved
+
+
 def test_answers_from_the_current_posture_are_continuous_along_a_line(arm):
     # Walk a line of goals 1 cm apart, each asked from the previous answer: no joint jumps.
     s = Selector(arm, budget=0.5)

@@ -198,6 +198,7 @@ class Body:
         if self.anthropometry is not None:
             info["stature"] = self.anthropometry.stature
             info["sex"] = self.anthropometry.sex
+            info["proportions"] = self.anthropometry.proportions
         human = self.spec.get("human") or {}
         if human.get("posture") == "seated" and self.anthropometry is not None:
             seat = fit(self.anthropometry, parse_seat(human.get("seat")))

@@ -33,6 +33,13 @@ MEASURES = {
                                      "clavicle at its elevation limit): the middle fingertip above the seat",
     "grip": "the grip centre past the wrist centre, along the hand (ANSUR: hand length - (forearm-hand length - "
             "forearm-centre-of-grip length))",
+    "trochanterionheight": "standing: the right hip centre above the floor (at the trochanterion's height)",
+    "lateralfemoralepicondyleheight": "standing: the right knee centre above the floor (at the epicondyle's)",
+    "lateralmalleolusheight": "standing: the right ankle centre above the floor (at the malleolus's)",
+    "acromionradialelength": "standing, arms hanging: the right acromion to the elbow centre (at radiale)",
+    "radialestylionlength": "standing, arms hanging: the right elbow centre to the wrist centre (at stylion)",
+    "handlength": "the right wrist centre to the middle fingertip",
+    "footlength": "the right heel to the toe tip",
 }
 
 
@@ -71,8 +78,16 @@ def measure(body: Body) -> dict[str, float]:
         back = min(pelvis[0], pelvis[3]) - pelvis[6]
         out["buttockkneelength"] = float(_points(body, **bent)["joint:right_knee_flexion"][0] + place.knee_front
                                          - back)
+    for name, joint in (("trochanterionheight", "right_hip_flexion"),
+                        ("lateralfemoralepicondyleheight", "right_knee_flexion"),
+                        ("lateralmalleolusheight", "right_ankle_flexion")):
+        out[name] = float(stand["joint:" + joint][2])
+    elbow, wrist = stand["joint:right_elbow_flexion"], stand["joint:right_wrist_flexion"]
+    out["radialestylionlength"] = float(np.linalg.norm(wrist - elbow))
+    out["footlength"] = float(np.linalg.norm(stand["right_toe"] - stand["right_heel"]))
     if measured:
-        wrist = stand["joint:right_wrist_flexion"]
+        out["acromionradialelength"] = float(np.linalg.norm(stand["right_acromion"] - elbow))
+        out["handlength"] = float(np.linalg.norm(stand["right_fingertip"] - wrist))
         out["grip"] = float(abs(stand["right_grip"][2] - wrist[2]))
     return out
 

@@ -126,7 +126,15 @@ def cmd_model(args: argparse.Namespace) -> int:
         raise InputError(given[0], "options for a URDF (a config gives them in its body; the generated human stands "
                                    "on z = 0 facing +x)")
     if spec == "human":
-        body = human_body(args.sex, args.stature, args.percentile, args.mass)
+        dims = {}
+        for item in args.dim:
+            name, _, value = item.partition("=")
+            try:
+                dims[name.strip()] = float(value)
+            except ValueError:
+                raise InputError("--dim", f"expected NAME=METRES, got {item!r}") from None
+        body = human_body(args.sex, args.stature, args.percentile, args.mass, dims=dims, proportions=args.proportions,
+                          ansur=None if args.subject is None else {"sex": args.sex, "subject": args.subject})
     elif spec.endswith((".yaml", ".yml")):
         # loaded when the command runs: `reach --help` starts without the answers' machinery
         from reach.build.config import load_config, read_yaml
@@ -146,6 +154,8 @@ def cmd_model(args: argparse.Namespace) -> int:
         warnings = list(body.notes)
     info = {**body.describe(), "world_frame": P.WORLD_AXES, "warnings": warnings,
             **({"strategies": strategies} if strategies else {})}
+    if body.anthropometry is not None:
+        info["dimensions"] = _dimensions(body)
     if args.figure:
         # loaded when the command runs: `reach --help` starts without the answers' machinery
         from reach.tools.sketch import body_figure
@@ -161,6 +171,14 @@ def cmd_model(args: argparse.Namespace) -> int:
     for j in info["joints"]:
         print(f"  {j['name']:<28} " + ("continuous (-pi, pi]" if j.get("continuous") else f"[{j['lower']:+.4f}, "
             f"{j['upper']:+.4f}]"))
+    if "dimensions" in info:
+        print(f"  {info['proportions']} body; ANSUR II dimensions [m; weightkg in kg]: asked, regressed (residual SD), "
+              "measured on the model (- where it has no such measure; oracles/bodies/measure.py)")
+        for name, d in info["dimensions"].items():
+            asked = "" if d["asked"] is None else f"{d['asked']:.4f}"
+            built = "-" if d["measured"] is None else f"{d['measured']:.4f}"
+            regressed = "-" if d["regressed"] is None else f"{d['regressed']:.4f} ({d['sd']:.4f})"
+            print(f"    {name:<32} {asked:>8} {regressed:>17} {built:>8}")
     print(f"  centre of mass {info['center_of_mass']}")
     print(f"  {len(info['frames'])} frames at the reference posture [m]:")
     for name, pos in info["frames"].items():
@@ -186,6 +204,20 @@ def cmd_model(args: argparse.Namespace) -> int:
     return 0
 
 
+def _dimensions(body: Any) -> dict[str, dict[str, float | None]]:
+    """A human's ANSUR II dimensions: asked for, as regressed (and the residual SD), and measured on the model as the
+    survey measures people (oracles.bodies.measure), the reach-setting ones first."""
+    # loaded when the command runs: `reach --help` starts without Pinocchio
+    from oracles.bodies.ansur import COLUMNS, REACH
+    from oracles.bodies.measure import measure
+
+    a = body.anthropometry
+    measured = measure(body)
+    names = [*REACH, *(c for c in COLUMNS if c not in REACH)] if a.dims else list(measured)
+    return {n: {"asked": a.asked.get(n), "regressed": a.dims.get(n), "sd": a.spread.get(n),
+                "measured": measured.get(n)} for n in names}
+
+
 def add_model(sub: Any) -> None:
     """Register ``reach model``."""
     p = sub.add_parser(
@@ -198,7 +230,15 @@ def add_model(sub: Any) -> None:
     group = p.add_mutually_exclusive_group()
     group.add_argument("--percentile", type=float, help="for 'human': stature percentile of ANSUR II (default 50)")
     group.add_argument("--stature", type=float, help="for 'human': stature [m]")
-    p.add_argument("--mass", type=float, help="for 'human': body mass [kg] (default: ANSUR II mean at constant BMI)")
+    p.add_argument("--mass", type=float, help="for 'human': body mass [kg] (default: ANSUR II's regression on what is "
+                                              "given)")
+    p.add_argument("--dim", action="append", metavar="NAME=M", default=[],
+                   help="for 'human': an ANSUR II dimension by its name [m] (acromialheight=1.44); repeatable; those "
+                        "not given are the survey's regression on those given")
+    p.add_argument("--subject", type=int, metavar="ID", help="for 'human': an ANSUR II subject of --sex, by id")
+    p.add_argument("--proportions", choices=["ansur", "de_leva"], default="ansur",
+                   help="for 'human': ansur (from measured dimensions; default) or de_leva (stature-scaled, the body of "
+                        "earlier versions)")
     p.add_argument("--up", help="for a URDF: the model's own up axis (z, -z, y, -y, x, -x; default z), turned onto "
                                 "the world's z")
     p.add_argument("--forward", help="for a URDF: the model's own forward axis, turned onto the world's x (default "
