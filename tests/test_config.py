@@ -141,6 +141,25 @@ def test_a_duplicate_key_is_refused_with_its_line(tmp_path):
         load_config(path)
 
 
+def test_nested_aliases_and_deep_nesting_are_refused_before_they_expand(tmp_path):
+    """Issue 46, item 8: 796 bytes of nested YAML aliases in ``name`` ran 53-120 s to 2.7 GB and a MemoryError
+    traceback. The aliases are counted expanded before anything is built: one line naming the file, at once (the
+    count stops past the bound: no expansion is made)."""
+    levels = ["a: &a [" + ", ".join(['"lol"'] * 9) + "]"]
+    for prev, name in zip("abcdefgh", "bcdefghi", strict=True):
+        levels.append(f"{name}: &{name} [" + ", ".join([f"*{prev}"] * 9) + "]")
+    bomb = tmp_path / "bomb.yaml"
+    bomb.write_text("\n".join([*levels, "name: *i"]) + "\n")
+    with pytest.raises(ConfigError, match=r"bomb\.yaml: holds over 200,000 values with its aliases"):
+        load_config(bomb)
+    deep = tmp_path / "deep.yaml"
+    deep.write_text("[" * 5000 + "]" * 5000)
+    with pytest.raises(ConfigError, match=r"deep\.yaml: nested too deeply"):
+        load_config(deep)
+    # A few aliases, as configs use them for shared task lists, still load.
+    assert load_config(Path(__file__).parent.parent / "configs" / "demo.yaml").strategies
+
+
 def test_a_tab_gives_one_line_naming_the_place(tmp_path):
     path = tmp_path / "tab.yaml"
     path.write_text("name: a\nbox:\n\tmin: [0, 0, 0]\n")

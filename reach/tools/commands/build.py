@@ -237,8 +237,8 @@ def add_model(sub: Any) -> None:
                         "not given are the survey's regression on those given")
     p.add_argument("--subject", type=int, metavar="ID", help="for 'human': an ANSUR II subject of --sex, by id")
     p.add_argument("--proportions", choices=["ansur", "de_leva"], default="ansur",
-                   help="for 'human': ansur (from measured dimensions; default) or de_leva (stature-scaled, the body of "
-                        "earlier versions)")
+                   help="for 'human': ansur (from measured dimensions; default) or de_leva (stature-scaled, the "
+                        "body of earlier versions)")
     p.add_argument("--up", help="for a URDF: the model's own up axis (z, -z, y, -y, x, -x; default z), turned onto "
                                 "the world's z")
     p.add_argument("--forward", help="for a URDF: the model's own forward axis, turned onto the world's x (default "
