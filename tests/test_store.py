@@ -65,10 +65,34 @@ def test_a_member_that_inflates_past_the_bound_is_refused_before_it_is_inflated(
 
     path = save_tree(unit_sphere_tree, tmp_path / "z.npz")
     with zipfile.ZipFile(path, "a", compression=zipfile.ZIP_DEFLATED) as archive:
-        archive.writestr("padding.npy", bytes(10**7))
+        archive.writestr("vertex_posture.npy", bytes(10**7))  # a member trees hold (this tree has no postures)
     assert path.stat().st_size < 10**6  # megabytes of zeros take kilobytes
     monkeypatch.setattr(store, "MAX_MEMBER_BYTES", 8 * 10**6)
-    with pytest.raises(StoreError, match=r"z\.npz: member 'padding\.npy' inflates to 10000000 bytes"):
+    with pytest.raises(StoreError, match=r"z\.npz: member 'vertex_posture\.npy' inflates to 10000000 bytes"):
+        load_tree(path)
+
+
+def test_members_a_tree_does_not_hold_are_never_inflated_and_all_are_bounded_together(unit_sphere_tree, tmp_path,
+                                                                                      monkeypatch):
+    """Issue 46, item 8: a 3 MB atlas with three 1 GiB members took every command to 4.2 GB before it refused it
+    (each member was bounded, not their sum, and unused members were inflated too). Bounds lowered here so that the
+    test writes little."""
+    import reach.maps.store as store
+
+    path = save_tree(unit_sphere_tree, tmp_path / "z.npz")
+    with zipfile.ZipFile(path, "a", compression=zipfile.ZIP_DEFLATED) as archive:
+        for k in range(3):
+            archive.writestr(f"padding{k}.npy", bytes(10**7))
+        archive.writestr("notes.txt", b"not an array")
+    monkeypatch.setattr(store, "MAX_MEMBER_BYTES", 2 * 10**7)
+    monkeypatch.setattr(store, "MAX_TOTAL_BYTES", 2 * 10**7)
+    assert load_tree(path).vertices.keys.shape == unit_sphere_tree.vertices.keys.shape  # the padding is never read
+    with pytest.raises(StoreError, match=r"member 'notes\.txt' is not an \.npy array"):
+        store.read_arrays(path)  # a reader of every member (a build's checkpoint) names it
+    with zipfile.ZipFile(path, "a", compression=zipfile.ZIP_DEFLATED) as archive:
+        archive.writestr("vertex_posture.npy", bytes(10**7 - 100))
+        archive.writestr("index_bits.npy", bytes(10**7 + 100))
+    with pytest.raises(StoreError, match=r"z\.npz: its arrays inflate to over 20000000 bytes together"):
         load_tree(path)
 
 
@@ -130,7 +154,7 @@ def test_inconsistent_arrays_are_refused(unit_sphere_tree, tmp_path):
 
 def test_pickled_object_arrays_are_never_loaded(unit_sphere_tree, tmp_path):
     path = save_tree(unit_sphere_tree, tmp_path / "o.npz")
-    with zipfile.ZipFile(path, "a") as zf, zf.open("evil.npy", "w") as fh:
+    with zipfile.ZipFile(path, "a") as zf, zf.open("vertex_posture.npy", "w") as fh:  # a member trees hold
         np.save(fh, np.array([{"x": 1}], dtype=object), allow_pickle=True)
     with pytest.raises(StoreError, match=r"o\.npz: corrupt or unsafe"):
         load_tree(path)

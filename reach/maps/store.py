@@ -83,7 +83,17 @@ def save_tree(tree: VATree, path: str | Path, index: ReachIndex | None = None) -
 MAX_MEMBER_BYTES = 2**31
 
 
-def read_arrays(path: Path) -> dict[str, np.ndarray]:
+# The members a tree file holds (save_tree); others are never inflated.
+TREE_MEMBERS = frozenset({"meta", "depth", "corner", "kind", "vertex_keys", "vertex_reachable", "vertex_residual",
+                          "vertex_posture", "index_directions", "index_bits"})
+# The most a file's members read may inflate to together: three members each under MAX_MEMBER_BYTES took a command
+# to 4.2 GB before it refused them (issue 46). The demo's largest tree inflates to about 30 MB.
+MAX_TOTAL_BYTES = 2**31
+
+
+def read_arrays(path: Path, members: frozenset[str] | None = None) -> dict[str, np.ndarray]:
+    """The arrays of an .npz file: those named in ``members`` (all when None), each and all together bounded in size
+    before anything is inflated."""
     if not path.is_file():
         raise StoreError(path, "no such tree file")
     if not zipfile.is_zipfile(path):
@@ -91,13 +101,26 @@ def read_arrays(path: Path) -> dict[str, np.ndarray]:
     try:
         # Sizes read from the archive's directory before anything is inflated: a member of gigabytes of zeros
         # compresses to a few megabytes, and every member was decompressed on load.
+        wanted: list[str] = []
+        total = 0
         with zipfile.ZipFile(path) as archive:
-            for info in archive.infolist():
+            infos = [i for i in archive.infolist() if members is None  # others are never inflated
+                     or (i.filename.endswith(".npy") and i.filename.removesuffix(".npy") in members)]
+            strange = [i.filename for i in infos if not i.filename.endswith(".npy")]
+            if strange:
+                raise StoreError(path, f"member {strange[0]!r} is not an .npy array")
+            for info in infos:
+                name = info.filename.removesuffix(".npy")
                 if info.file_size > MAX_MEMBER_BYTES:
                     raise StoreError(path, f"member {info.filename!r} inflates to {info.file_size} bytes, more than "
                                            f"the {MAX_MEMBER_BYTES} a tree's array may hold")
+                total += info.file_size
+                if total > MAX_TOTAL_BYTES:
+                    raise StoreError(path, f"its arrays inflate to over {MAX_TOTAL_BYTES} bytes together, more than a "
+                                           "tree file holds")
+                wanted.append(name)
         with np.load(path, allow_pickle=False) as data:
-            return {name: data[name] for name in data.files}
+            return {name: data[name] for name in wanted}
     except StoreError:
         raise
     except (zipfile.BadZipFile, EOFError) as exc:
@@ -158,7 +181,7 @@ def load_indexed(path: str | Path) -> tuple[VATree, ReachIndex | None]:
             of another format version.
     """
     path = Path(path)
-    arrays = read_arrays(path)
+    arrays = read_arrays(path, TREE_MEMBERS)
     meta = read_header(path, checked_field(path, arrays, "meta", np.uint8, 1).tobytes(), TREE_FORMAT, TREE_VERSION,
                        "tree")
     try:
