@@ -78,6 +78,7 @@ def test_good_config_and_priority_order(tmp_path):
         ({"name": "a/b"}, "name", "names the folder out/<name>"),
         ({"strategies": [{"name": "a", "speed": 3}]}, "strategies[0].speed", "unknown key"),
         ({"box": ...}, "box", "required key is missing"),
+        ({"base": "missing.yaml"}, "base", "missing.yaml: no such config to extend"),  # issue 46: named the file only
     ],
 )
 def test_errors_name_file_and_key(tmp_path, changes, key, message):
@@ -158,6 +159,15 @@ def test_nested_aliases_and_deep_nesting_are_refused_before_they_expand(tmp_path
         load_config(deep)
     # A few aliases, as configs use them for shared task lists, still load.
     assert load_config(Path(__file__).parent.parent / "configs" / "demo.yaml").strategies
+
+
+def test_a_human_dimension_that_is_not_a_number_names_its_key(tmp_path):
+    """Issue 46, item 9: ``stature: "1.7"`` named strategies[0].oracle."""
+    path = tmp_path / "h.yaml"
+    path.write_text('name: h\nbody: {human: {sex: male, stature: "1.7"}}\nbox: auto\ndepth: {min: 1, max: 2}\n'
+                    'strategies: [{name: a, effector: right_hand, joints: ["right_elbow_*"]}]\n')
+    with pytest.raises(ConfigError, match=r"body\.human\.stature: expected a number in m, got '1\.7'"):
+        load_config(path)
 
 
 def test_a_tab_gives_one_line_naming_the_place(tmp_path):

@@ -228,6 +228,17 @@ def test_no_number_a_client_sends_ends_the_server(balls, workers):
         r.stop()
 
 
+def test_reload_paths_no_system_can_name_are_refused_by_name(balls):
+    """Issue 46, item 9: a 4,096-character path and a lone surrogate were internal errors."""
+    server = Server(balls, "tcp://127.0.0.1:*", None, allow_reload=balls.parent)
+    try:
+        for path in ("a" * 4096, "\ud800", "x/" + "b" * 300):
+            reply = json.loads(server.respond(json.dumps({"op": "reload", "id": 1, "path": path}).encode()))
+            assert reply["error"]["code"] == P.BAD_REQUEST and reply["error"]["message"].startswith("path: "), path
+    finally:
+        server.close()
+
+
 def test_oversized_batch_and_message(dealer):
     goals = [[0.0, 0.0, 0.0]] * (P.MAX_BATCH + 1)
     reply = ask(dealer, json.dumps({"op": "query", "effector": "point", "goals": goals}).encode())
@@ -528,6 +539,9 @@ WORKER_PATH_ERRORS = [
     (b'{"op": "query", "id": 8, "effector": "right_hand", "goal": [0.4, -0.2, 1.1], "refine": false, "from": '
      b'{"right_elbow_flexion": -3}}', P.BAD_REQUEST,
      "from: right_elbow_flexion = -3 is outside its range"),
+    # Issue 46, item 9: a goal so far that its distance overflows was an IndexError (internal).
+    (b'{"op": "motion", "id": 9, "effector": "right_hand", "goal": [1e300, 0, 1]}', P.UNREACHABLE,
+     "too far from every stored posture"),
 ]
 
 

@@ -288,6 +288,9 @@ def anthropometry(sex: Sex = "male", stature: float | None = None, percentile: f
     """
     if sex not in DE_LEVA:
         raise ModelError(f"sex must be 'male' or 'female', got {sex!r}", name="sex")
+    for key, value, unit in (("stature", stature, "m"), ("percentile", percentile, ""), ("mass", mass, "kg")):
+        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, float))):
+            raise ModelError(f"expected a number{' in ' + unit if unit else ''}, got {value!r}", key=f"human.{key}")
     if stature is not None and percentile is not None:
         raise ModelError("give stature or percentile, not both", name="stature")
     if proportions not in PROPORTIONS:

@@ -465,6 +465,8 @@ def read_yaml(path: Path, seen: tuple[Path, ...] = ()) -> Any:
         base_path = (path.parent / data.pop("base")).resolve()
         if base_path in seen:
             raise ConfigError(path, "base", f"{base_path} extends itself")
+        if not base_path.is_file():
+            raise ConfigError(path, "base", f"{base_path}: no such config to extend")
         base = read_yaml(base_path, (*seen, path.resolve()))
         if not isinstance(base, Mapping):
             raise ConfigError(base_path, "", "expected a mapping")

@@ -583,5 +583,8 @@ class Planner:
 
     def _nearest_stored(self, name: str, goal: np.ndarray) -> np.ndarray:
         kd, postures, _, _ = self._graph(name)
-        _, i = kd.query(goal)
+        distance, i = kd.query(goal)
+        if not np.isfinite(distance) or int(i) >= len(postures):  # a goal so far that its distance overflows
+            raise MotionError(f"the goal {np.asarray(goal).tolist()} is too far from every stored posture to start a "
+                              "motion towards it", "unreachable")
         return postures[int(i)].copy()  # type: ignore[no-any-return]

@@ -78,6 +78,10 @@ ZERO_COPY = 1 << 16  # [bytes] replies this large or larger are sent without cop
 EXPIRE_SLICE = 100
 
 
+# Linux's limits on a path and on one of its names [bytes]: past them the file system raises ENAMETOOLONG.
+PATH_MAX, NAME_MAX = 4096, 255
+
+
 @dataclass
 class Reloading:
     """An atlas loading in the background for a ``reload`` request."""
@@ -468,7 +472,14 @@ class Server:
         if "\0" in (req["path"] or ""):
             raise P.ProtocolError(P.BAD_REQUEST, "path: a NUL character cannot be in a file path", req.id)
         # Checked before the path is touched: a refused path reveals nothing of what exists there.
-        path = (self.reload_root / req["path"]).resolve() if req["path"] else self.atlas_path
+        try:
+            path = (self.reload_root / req["path"]).resolve() if req["path"] else self.atlas_path
+        except (OSError, UnicodeError, ValueError) as exc:  # too long for the system, a lone surrogate
+            raise P.ProtocolError(P.BAD_REQUEST, f"path: not a file path this system can name ({exc})"[:300],
+                                  req.id) from None
+        if len(str(path).encode()) >= PATH_MAX or any(len(part.encode()) > NAME_MAX for part in path.parts):
+            raise P.ProtocolError(P.BAD_REQUEST, f"path: longer than a file path may be ({PATH_MAX} bytes, "
+                                                 f"{NAME_MAX} a name)", req.id)
         if not path.is_relative_to(self.reload_root):
             raise P.ProtocolError(P.FORBIDDEN, f"reload loads atlases under {self.reload_root} only", req.id)
         return path
