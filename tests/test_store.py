@@ -217,6 +217,52 @@ def test_an_impossible_depth_names_the_file(unit_sphere_tree, tmp_path):
         load_tree(path)
 
 
+def _two_vertex_tree(reachable, residual, postures):
+    from reach.maps.box import Box
+    from reach.maps.tree import VATree, VertexTable, bfs_children
+
+    kind = np.array([1], np.uint8)
+    table = VertexTable(np.array([0, 3]), np.array(reachable), np.array(residual), np.array(postures), ("a", "b"))
+    return VATree(Box([0, 0], [1, 1]), 0, 1, np.zeros(1, np.uint8), np.zeros((1, 2), np.int64), kind,
+                  bfs_children(kind, 2), table)
+
+
+def test_huge_postures_and_nan_residuals_of_reached_vertices_are_refused(tmp_path):
+    """Issue 46, item 9: postures of 1e308 and NaN residuals were accepted silently."""
+    huge = _two_vertex_tree([True, False], [0.0, 0.2], [[0.1, 1e308], [0.3, 0.4]])
+    with pytest.raises(StoreError, match=r"stored postures hold values up to 1e\+308"):
+        load_tree(save_tree(huge, tmp_path / "huge.npz"))
+    nan = _two_vertex_tree([True, False], [np.nan, 0.2], [[0.1, 0.2], [0.3, 0.4]])
+    with pytest.raises(StoreError, match="1 reachable vertices have NaN or infinite residuals"):
+        load_tree(save_tree(nan, tmp_path / "nan_residual.npz"))
+
+
+def test_a_manifest_that_is_a_link_too_large_too_deep_or_lists_a_strategy_twice_is_refused(tmp_path):
+    """Issue 46, item 9: a manifest linked out of its folder, one of 300 MB, JSON nested 100,000 deep (a traceback)
+    and duplicated strategies were read."""
+    import reach.maps.atlas as atlas_module
+
+    elsewhere = tmp_path / "elsewhere.json"
+    elsewhere.write_text("{}")
+    folder = tmp_path / "atlas"
+    folder.mkdir()
+    (folder / "manifest.json").symlink_to(elsewhere)
+    with pytest.raises(StoreError, match="manifest.json: is a symbolic link"):
+        load_atlas(folder)
+    (folder / "manifest.json").unlink()
+    (folder / "manifest.json").write_text("[" * 100_000 + "]" * 100_000)
+    with pytest.raises(StoreError, match="manifest.json: metadata is JSON nested too deeply"):
+        load_atlas(folder)
+    (folder / "manifest.json").write_text(" " * 2000)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(atlas_module, "MAX_MANIFEST_BYTES", 1000)
+        with pytest.raises(StoreError, match="manifest.json: 2000 bytes; a manifest is at most 1000"):
+            load_atlas(folder)
+    manifest = {"strategies": [{"name": "a", "file": "a.npz"}, {"name": "a", "file": "b.npz"}]}
+    with pytest.raises(StoreError, match="strategy 'a' is listed twice"):
+        atlas_module._check_strategies(folder / "manifest.json", folder, manifest)
+
+
 def test_nan_postures_are_refused(tmp_path):
     from reach.maps.box import Box
     from reach.maps.tree import VATree, VertexTable, bfs_children

@@ -101,7 +101,7 @@ def read_manifest(folder: str | Path) -> dict[str, Any]:
         raise StoreError(folder, "no such atlas folder (expected the output of 'reach build')")
     if not path.is_file():
         raise StoreError(path, "missing; this folder is not an atlas written by 'reach build'")
-    manifest = read_header(path, path.read_bytes(), ATLAS_FORMAT, ATLAS_VERSION, "atlas")
+    manifest = read_header(path, _manifest_bytes(path), ATLAS_FORMAT, ATLAS_VERSION, "atlas")
     if manifest.get("digest") != manifest_digest(manifest):
         # Priorities, strategies or model hashes edited by hand would change the answers silently.
         raise StoreError(path, "its content does not match its digest: it was edited after 'reach build' wrote it "
@@ -109,6 +109,20 @@ def read_manifest(folder: str | Path) -> dict[str, Any]:
                                "with 'reach accept ATLAS'")
     _check_strategies(path, folder, manifest)
     return manifest
+
+
+# The largest manifest read [bytes]: the demo's is about 20 KB; a 300 MB one was read whole.
+MAX_MANIFEST_BYTES = 16 * 2**20
+
+
+def _manifest_bytes(path: Path) -> bytes:
+    """A manifest's bytes: a regular file inside its folder (not a link out of it), of bounded size."""
+    if path.is_symlink():
+        raise StoreError(path, "is a symbolic link; an atlas's manifest is a file of its own folder")
+    size = path.stat().st_size
+    if size > MAX_MANIFEST_BYTES:
+        raise StoreError(path, f"{size} bytes; a manifest is at most {MAX_MANIFEST_BYTES} (is this an atlas?)")
+    return path.read_bytes()
 
 
 def _check_strategies(path: Path, folder: Path, manifest: dict[str, Any]) -> None:
@@ -119,6 +133,10 @@ def _check_strategies(path: Path, folder: Path, manifest: dict[str, Any]) -> Non
         raise StoreError(path, "'strategies' must be a list of objects with 'name' and 'file'")
     if not strategies:
         raise StoreError(path, "'strategies' is empty: an atlas holds at least one tree; rebuild it with 'reach build'")
+    names = [s["name"] for s in strategies]
+    twice = sorted({n for n in names if not isinstance(n, str) or names.count(n) > 1}, key=str)
+    if twice:
+        raise StoreError(path, f"strategy {twice[0]!r} is listed twice (or is not a name); rebuild the atlas")
     for s in strategies:
         # A tree file is a plain name inside the atlas folder: a path out of it (../, absolute, a link) is refused
         # unread.
@@ -135,7 +153,7 @@ def accept_manifest(folder: str | Path) -> Atlas:
     path = folder / MANIFEST
     if not path.is_file():
         raise StoreError(path, "missing; this folder is not an atlas written by 'reach build'")
-    manifest = read_header(path, path.read_bytes(), ATLAS_FORMAT, ATLAS_VERSION, "atlas")
+    manifest = read_header(path, _manifest_bytes(path), ATLAS_FORMAT, ATLAS_VERSION, "atlas")
     _check_strategies(path, folder, manifest)
     trees, indexes = _load_trees(folder, manifest)  # the edited manifest must hold, trees and all, before it is stamped
     write_manifest(folder, manifest)

@@ -83,6 +83,10 @@ def save_tree(tree: VATree, path: str | Path, index: ReachIndex | None = None) -
 MAX_MEMBER_BYTES = 2**31
 
 
+# The largest value a stored posture may hold (a joint's angle [rad], a root's position [m]): postures of 1e308 were
+# accepted (issue 46).
+MAX_COORDINATE = 1e4
+
 # The members a tree file holds (save_tree); others are never inflated.
 TREE_MEMBERS = frozenset({"meta", "depth", "corner", "kind", "vertex_keys", "vertex_reachable", "vertex_residual",
                           "vertex_posture", "index_directions", "index_bits"})
@@ -139,6 +143,8 @@ def read_header(path: Path, raw: bytes, fmt: str, version: int, what: str) -> di
         meta = json.loads(raw.decode())
     except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise StoreError(path, f"metadata is not valid JSON ({exc})") from exc
+    except RecursionError:
+        raise StoreError(path, "metadata is JSON nested too deeply") from None
     if not isinstance(meta, dict) or meta.get("format") != fmt:
         found = meta.get("format") if isinstance(meta, dict) else None
         raise StoreError(path, f"not a reach {what} (format {found!r}, expected {fmt!r})")
@@ -209,6 +215,12 @@ def load_indexed(path: str | Path) -> tuple[VATree, ReachIndex | None]:
     elif posture is not None and not np.all(np.isfinite(posture)):
         problems.append(f"{int(np.sum(~np.all(np.isfinite(posture), axis=1)))} stored postures hold NaN or infinite "
                         "values")
+    elif posture is not None and posture.size and np.abs(posture).max() > MAX_COORDINATE:
+        problems.append(f"stored postures hold values up to {np.abs(posture).max():.3g}, past {MAX_COORDINATE:g} "
+                        "(rad or m)")
+    if residual.shape == keys.shape and not np.all(np.isfinite(residual) | ~reach_.astype(bool)):
+        problems.append(f"{int(np.sum(~np.isfinite(residual) & reach_.astype(bool)))} reachable vertices have NaN or "
+                        "infinite residuals")
     if problems:
         raise StoreError(path, "; ".join(problems))
     if "digest" in meta and meta["digest"] != digest({k: v for k, v in arrays.items() if k != "meta"}):
