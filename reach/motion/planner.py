@@ -155,7 +155,14 @@ class Timing:
             if not ok:
                 limit = f"a number of seconds in (0, {MAX_DURATION:g}]" if k == "duration" else "a finite number >= 0"
                 raise InputError(f"{where}.{k}", f"expected {limit}, got {v!r}")
-        return cls(**{k: float(v) for k, v in raw.items()})
+        timing = cls(**{k: float(v) for k, v in raw.items()})
+        # A reach of an inch, the shortest any motion asks, timed by these coefficients: known before any planning, a
+        # request that cannot fit is refused before it is queued (tmu 1e300 was refused by the worker seconds later).
+        shortest = timing.duration if timing.duration is not None else timing.reach_tmu(INCH) * timing.tmu
+        if shortest > MAX_DURATION:
+            raise InputError(where, f"these coefficients time a reach of an inch at {shortest:.3g} s; a motion lasts "
+                                    f"at most {MAX_DURATION:g} s")
+        return timing
 
     def reach_tmu(self, distance: float) -> float:
         """MTM-1 R-A time [TMU] of a reach whose hand travels ``distance`` [m]."""
