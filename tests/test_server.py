@@ -1010,6 +1010,34 @@ def test_a_large_stored_batch_goes_to_the_workers_and_answers_as_the_loop_would(
     assert [a["strategy"] for a in small] == [a.strategy for a in local[:10]]
 
 
+@pytest.mark.slow
+def test_a_stopped_worker_is_reported_stalled_and_its_request_answered_by_the_deadline(balls):
+    """Issue 46, item 6: a SIGSTOPped worker was never noticed (health read workers_ready 2). Its task passes its
+    deadline: the request is answered (stored answers need no worker here) and health counts it stalled."""
+    r = Running(balls, workers=1)
+    goals = np.random.default_rng(6).uniform(-1.2, 1.2, (2500, 3)).round(4).tolist()  # over 1,000: to the workers
+    try:
+        with Client(r.server.endpoint, timeout=30_000) as c:
+            started = time.monotonic()
+            while c.call("health")["workers_ready"] < 1:  # the worker loads the atlas
+                assert time.monotonic() - started < 60
+                time.sleep(0.05)
+            pid = r.server.pool.processes[0].pid
+            os.kill(pid, signal.SIGSTOP)
+            try:
+                sent = time.monotonic()
+                answers = c.call("query", effector="point", goals=goals, refine=False, deadline=0.5)["answers"]
+                assert len(answers) == len(goals) and time.monotonic() - sent < 5.0
+                while time.monotonic() - sent < 0.5 + 1.0 + 0.5:  # past the deadline and STALL_GRACE
+                    time.sleep(0.1)
+                health = c.call("health")
+                assert health["workers_stalled"] == 1 and health["workers_ready"] == 0
+            finally:
+                os.kill(pid, signal.SIGCONT)
+    finally:
+        r.stop()
+
+
 def test_an_operation_the_workers_answer_is_added_as_a_service(balls, monkeypatch):
     """Adding a worker operation touches its row in the table of operations, its worker hook and the server's hooks it
     names, and nothing else: here all three come from this test (the hook from tests/helpers.py, imported by the

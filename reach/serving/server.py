@@ -450,6 +450,7 @@ class Server:
             "workers": 0 if self.pool is None else self.pool.size, "pending": len(self.pending),
             "resends": self.resends, "worker_restarts": 0 if self.pool is None else self.pool.restarts,
             "workers_ready": 0 if self.pool is None else self.pool.ready,
+            "workers_stalled": 0 if self.pool is None else len(self.pool.stalled),
         }
 
     def op_strategies(self, req: P.Request) -> dict[str, Any]:
