@@ -147,3 +147,14 @@ def test_serve_refuses_a_negative_worker_count(tmp_path, capsys):
 
     assert main(["serve", str(tmp_path), "--workers", "-1"]) == 2
     assert "--workers: expected 0 or more worker processes, got -1" in capsys.readouterr().err
+
+
+def test_an_error_naming_a_huge_path_stays_one_short_line(tmp_path, capsys):
+    """Issue 46, item 9: a 40 KB mesh path was printed whole in the error (and a strategy name of 250 characters was a
+    traceback: refused by its key now, tests/test_config.py)."""
+    config = tmp_path / "c.yaml"
+    config.write_text("name: t\nbody: {urdf: " + "a" * 40_000 + ".urdf}\nbox: auto\ndepth: {min: 1, max: 2}\n"
+                      "strategies: [{name: a, effector: b, joints: [x]}]\n")
+    assert main(["build", str(config), "-o", str(tmp_path / "out")]) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if line.startswith("reach: error: ")]
+    assert len(err) == 1 and len(err[0]) < 1000 and "characters)..." in err[0]

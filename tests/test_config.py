@@ -79,6 +79,7 @@ def test_good_config_and_priority_order(tmp_path):
         ({"strategies": [{"name": "a", "speed": 3}]}, "strategies[0].speed", "unknown key"),
         ({"box": ...}, "box", "required key is missing"),
         ({"base": "missing.yaml"}, "base", "missing.yaml: no such config to extend"),  # issue 46: named the file only
+        ({"strategies": [{"name": "s" * 250}]}, "strategies[0].name", "at most 100 characters"),  # was a traceback
     ],
 )
 def test_errors_name_file_and_key(tmp_path, changes, key, message):

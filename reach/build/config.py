@@ -141,6 +141,10 @@ class _Checker:
         return [float(v) for v in value]
 
 
+# The longest strategy name: it names the tree's file, and a name of 250 characters passed the file system's limit
+# of 255 bytes with its suffixes (a traceback).
+MAX_NAME = 100
+
 def _oracle(check: _Checker, value: Any, key: str, base: OracleSpec | None) -> OracleSpec:
     spec = check.mapping(value, key, {"name", "params"}, set() if base else {"name"})
     params = spec.get("params", {})
@@ -195,6 +199,8 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
             raise check.fail(f"{key}.name", f"duplicate strategy name {sname!r}")
         if not sname.replace("_", "").replace("-", "").isalnum():
             raise check.fail(f"{key}.name", f"use letters, digits, '-' and '_' only (it names a file), got {sname!r}")
+        if len(sname) > MAX_NAME:
+            raise check.fail(f"{key}.name", f"at most {MAX_NAME} characters (it names a file), got {len(sname)}")
         seen.add(sname)
         effector = check.string(s.get("effector", "point"), f"{key}.effector")
         priority = check.integer(s.get("priority", i + 1), f"{key}.priority", 0, 10**6)

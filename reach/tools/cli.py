@@ -27,12 +27,22 @@ def make_parser() -> argparse.ArgumentParser:
     return parser
 
 
+LONGEST_WORD = 200  # characters of one word (a path, a value) an error prints; a 40 KB path was printed whole
+
+
+def _short(message: str) -> str:
+    """An error message with each overlong word cut in its middle: it stays one readable line."""
+    cut = LONGEST_WORD // 2
+    return " ".join(w if len(w) <= LONGEST_WORD else f"{w[:cut]}...({len(w) - 2 * cut} characters)...{w[-cut:]}"
+                    for w in message.split(" "))
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = make_parser().parse_args(argv)
     try:
         return int(args.func(args))
     except ReachError as exc:
-        print(f"reach: error: {exc}", file=sys.stderr)
+        print(f"reach: error: {_short(str(exc))}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:
         # A build keeps its checkpoint of the last finished depth: --resume goes on from there.
