@@ -489,9 +489,11 @@ def parse_request(payload: bytes) -> Request:
     if op is None:
         raise ProtocolError(UNKNOWN_OP, f"unknown op {name!r}; ops are {', '.join(OPS)}", rid)
     allowed = {"op", "id", *(f.name for f in op.fields)}
-    extra = sorted(set(data) - allowed)
-    if extra:
-        raise ProtocolError(BAD_REQUEST, f"unknown fields {extra} for op {name!r}; allowed: {sorted(allowed)}", rid)
+    if not data.keys() <= allowed:
+        # Named a few at most: a 1 MiB request of 90,000 unknown keys was sorted and echoed whole, in the loop.
+        extra = [k for k in data if k not in allowed]
+        named = ", ".join(repr(k[:40]) for k in extra[:5]) + (f" and {len(extra) - 5} more" if len(extra) > 5 else "")
+        raise ProtocolError(BAD_REQUEST, f"unknown fields {named} for op {name!r}; allowed: {sorted(allowed)}", rid)
     args: dict[str, Any] = {}
     try:
         for f in op.fields:

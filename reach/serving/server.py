@@ -52,9 +52,10 @@ from reach.answers.answer import ERROR, SKIPPED, TIMEOUT, Answer, orientation_of
 from reach.answers.select import HANDOVER, MISS, ORIENTED_BUDGET, REFINE_BUDGET, Selector
 from reach.errors import InputError, ReachError, UnknownEffector, UnknownStrategy
 from reach.maps.atlas import load_atlas
-from reach.maps.protocol import DEFAULT_POLICY, raster
+from reach.maps.protocol import DEFAULT_POLICY
 from reach.motion.planner import MotionError, Planner, Timing
 from reach.motion.rig import with_bones
+from reach.serving import cells
 from reach.serving import protocol as P
 from reach.serving.client import load_curve_key
 from reach.serving.services import placements
@@ -183,7 +184,7 @@ class Server:
         # The selector's options, as the workers' selectors get them too.
         self.options: dict[str, Any] = {"policy": policy, "refine": refine, "budget": budget, "handover": handover,
                                         "miss": miss}
-        self.selector = Selector(load_atlas(self.atlas_path), **self.options).warm_up()
+        self.served = self._load(self.atlas_path)
         self.context = context or zmq.Context.instance()
         self.router = self.context.socket(zmq.ROUTER)
         self.router.setsockopt(zmq.LINGER, 0)
@@ -485,8 +486,12 @@ class Server:
             raise P.ProtocolError(P.FORBIDDEN, f"reload loads atlases under {self.reload_root} only", req.id)
         return path
 
-    def _load(self, path: Path) -> Selector:
-        return Selector(load_atlas(path), **self.options).warm_up()
+    @property
+    def selector(self) -> Selector:
+        return self.served.selector
+
+    def _load(self, path: Path) -> cells.Served:
+        return cells.serve(Selector(load_atlas(path), **self.options).warm_up())
 
     def _reload_later(self, req: P.Request, envelope: list[bytes]) -> bool:
         """Start loading a ``reload``'s atlas in the background; its reply goes when the loop has swapped it in."""
@@ -509,13 +514,14 @@ class Server:
             reply = self._error(exc, job.request.id)
         self._send(job.envelope, reply)
 
-    def _install(self, req: P.Request, path: Path, loaded: Callable[[], Selector]) -> dict[str, Any]:
+    def _install(self, req: P.Request, path: Path, loaded: Callable[[], cells.Served]) -> dict[str, Any]:
         """Swap in the selector ``loaded`` gives (one assignment, between two requests); the workers restart on it."""
         try:
-            selector = loaded()
+            served = loaded()
         except ReachError as exc:
             raise P.ProtocolError(P.RELOAD_FAILED, f"kept the current atlas: {exc}", req.id) from None
-        self.selector, self.atlas_path = selector, path
+        self.served, self.atlas_path = served, path
+        selector = served.selector
         if self.pool is not None:
             # The workers hold the old atlas: answer their requests from the store, and start new ones.
             for seq in list(self.pending):
@@ -531,18 +537,11 @@ class Server:
         with workers a worker answers it (seconds at its limit, which held the loop)."""
         return placements(self.selector.atlas, req.args, self.selector.policy)  # type: ignore[arg-type]
 
-    def op_cells(self, req: P.Request) -> dict[str, Any]:
-        """Centres of the reachable cells of each strategy on a regular grid (for markers in RViz)."""
-        atlas = self.selector.atlas
-        out = {}
-        for name in atlas.select([req["strategy"]] if req["strategy"] else None):
-            tree = atlas.trees[name]
-            level = min(req["level"], tree.d_max)
-            occ, edges = raster(atlas.map(name), level)
-            centres = np.stack(np.meshgrid(*[0.5 * (e[1:] + e[:-1]) for e in edges], indexing="ij"), axis=-1)[occ]
-            out[name] = {"effector": tree.meta.get("effector"), "priority": tree.meta.get("priority"),
-                         "size": (tree.box.size / (1 << level)).tolist(), "centres": np.round(centres, 6).tolist()}
-        return {"cells": out, "level": req["level"]}
+    def op_cells(self, req: P.Request) -> bytes:
+        """Centres of the reachable cells of each strategy on a regular grid (for markers in RViz), from the fragments
+        made when the atlas loaded (reach.serving.cells)."""
+        return cells.reply(self.served, self.selector.atlas.select([req["strategy"]] if req["strategy"] else None),
+                           req["level"])
 
     def _result(self, req: P.Request, bodies: list[bytes]) -> bytes:
         self._publish(req["effector"].encode(), bodies, req)
