@@ -117,10 +117,15 @@ def test_the_attacks_leave_the_server_answering_bounded_and_without_internal_err
         r.stop()
     codes = {rid: (rep["error"]["code"] if not rep["ok"] else "ok") for rid, rep in replies.items()}
     assert P.INTERNAL not in codes.values(), codes
-    # Answered by its deadline from the store: a few goals refined before it passed (at 0.05 s each), most marked
-    # timeout.
-    refined = [a["refined"] for a in replies[1]["answers"]]
-    assert codes[1] == "ok" and refined.count("ok") + refined.count("failed") < 100 and refined.count("timeout") > 5000
+    if workers:
+        # Issue 46, item 2: its stored answers alone take longer than its deadline (0.3 ms a goal): refused at once,
+        # not answered 13.7 s late.
+        assert codes[1] == P.TIMEOUT and "more than the deadline" in replies[1]["error"]["message"]
+    else:
+        # The loop refines in turn while the deadline allows, then answers from the store: most marked timeout.
+        refined = [a["refined"] for a in replies[1]["answers"]]
+        assert codes[1] == "ok" and refined.count("ok") + refined.count("failed") < 100
+        assert refined.count("timeout") > 5000
     assert codes[2] == "ok" and len(replies[2]["answers"]) == 10_000
     assert codes[3] == codes[5] == P.BAD_REQUEST and "timing" in replies[3]["error"]["message"]
     # its hand's path is short: the coefficient never applies

@@ -50,9 +50,13 @@ MAX_TOP = 100  # placements a "place" returns
 MAX_CLIENT_GOALS = 20_000  # goals one client may have queued for the workers (two full batches); more get `busy`
 MAX_QUEUED_GOALS = 100_000  # goals all clients together may have queued (about 60 MB held: 580 bytes a goal, measured)
 MAX_CLIENT_REQUESTS = 100  # requests one client may have queued for the workers (motions, small queries)
-RCVHWM = 16  # requests the server's socket queues per client before it stops reading that client (16 MiB at most)
+# Requests the server's socket queues per client before it stops reading that client (4 MiB at most): the bound of
+# what clients make the loop hold unread is clients x RCVHWM MiB (at 16, 100 clients took it from 410 MB to 2 GB).
+RCVHWM = 4
 MAX_PLACE_POINTS = 2_000_000  # candidates x targets of one "place" (about 2 s of a worker's time at the limit)
-STORED_IN_LOOP = 1000  # stored answers (no IK) a query may ask of the loop itself; a larger batch goes to the workers
+# Stored answers (no IK) a query may ask of the loop itself (0.15 ms each: 15 ms); a larger batch goes to the workers
+# (at 1,000, a batch held the loop 150 ms and another client waited up to 229 ms: issue 46).
+STORED_IN_LOOP = 100
 
 MISSES = ("unreachable", "within")  # reach.answers.select.MISSES (the protocol imports nothing heavy)
 MOTION_MISSES = ("nearest", "error")  # reach.motion.planner.MOTION_MISSES
