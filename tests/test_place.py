@@ -243,3 +243,30 @@ def test_absurd_steps_and_ranges_are_bad_input_not_an_overflow():
             Space(**kwargs)
         assert info.value.field == "step"
     assert len(Space(x=(-1.0, 1.0), y=(0.0, 0.0)).candidates()) == 41
+
+
+def test_a_ranking_keeps_its_deadline_and_bounds_its_margins(balls, monkeypatch):
+    """Issue 46, item 3: 1,681 candidates x 1,000 targets near the centre of a ball (all tied) held a server's worker
+    over 1,000 s: the margins' k-d tree queries were one per tied candidate and target, and no step read the deadline.
+    Now the margins take at most MARGIN_QUERIES queries, and a deadline stops the ranking."""
+    import time
+
+    import reach.answers.place as place
+
+    targets = [Target(f"t{k}", (0.01 * (k % 10), 0.01 * (k // 10 % 10), 0.001 * k), "hand") for k in range(1000)]
+    space = Space((-0.2, 0.2), (-0.2, 0.2), step=0.01, yaw=(0.0, 0.0))  # 41 x 41 = 1,681 candidates
+    queried = []
+    real = place.cKDTree
+
+    class Counting(real):  # type: ignore[misc, valid-type]
+        def query(self, x, *args, **kwargs):  # noqa: ANN001, ANN002, ANN003, ANN202 - counts the margins' queries
+            queried.append(len(x))
+            return super().query(x, *args, **kwargs)
+
+    monkeypatch.setattr(place, "cKDTree", Counting)
+    r = rank([balls], targets, space)
+    assert len(r.placements) == 1681 and r.accommodated[0] == 1.0
+    assert 0 < sum(queried) <= place.MARGIN_QUERIES
+    with pytest.raises(place.PastDeadline) as err:
+        rank([balls], targets, space, deadline=time.perf_counter() - 1.0)
+    assert err.value.code == "timeout"

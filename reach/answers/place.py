@@ -38,6 +38,7 @@ claim, and the verified candidates are ranked again among themselves by them
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -47,7 +48,7 @@ from scipy.spatial import cKDTree
 
 from reach.answers.evaluate import Target, to_body
 from reach.answers.select import Selector
-from reach.errors import InputError
+from reach.errors import InputError, ReachError
 from reach.maps.atlas import Atlas
 from reach.maps.protocol import POLICIES, Policy
 
@@ -57,6 +58,15 @@ WEIGHT_FLOOR = 0.2  # ... and never less than this
 MAX_CANDIDATES = 1_000_000  # candidates of one ranking at most
 VERIFY_BUDGET = 1.0  # [s] refinement budget per target when verifying
 MARGIN_TIES = 5000  # tied best candidates whose margin is measured at most (each a k-d tree query per target and body)
+# k-d tree queries of the margins at most (tied candidates x targets): 1,681 tied candidates x 1,000 targets held a
+# server's worker for over 1,000 s (issue 46); this many take about 0.1 s
+MARGIN_QUERIES = 200_000
+
+
+class PastDeadline(ReachError):
+    """A ranking stopped at its deadline (a server's ``place``); its reply is ``timeout``."""
+
+    code = "timeout"
 
 
 @dataclass(frozen=True)
@@ -159,8 +169,17 @@ def weights_of(atlas: Atlas, effector: str, overrides: dict[str, float] | None =
 
 
 def rank(atlases: Sequence[Atlas], targets: Sequence[Target], space: Space, effector: str | None = None,
-         policy: Policy = "vertex", weights: dict[str, float] | None = None) -> Ranking:
-    """Score every candidate of the space against the targets by the trees (see the module docstring); best first."""
+         policy: Policy = "vertex", weights: dict[str, float] | None = None,
+         deadline: float | None = None) -> Ranking:
+    """Score every candidate of the space against the targets by the trees (see the module docstring); best first.
+
+    ``deadline`` (``time.perf_counter()``): checked between strategies and in the margins; past it, PastDeadline.
+    """
+
+    def in_time() -> None:
+        if deadline is not None and time.perf_counter() > deadline:
+            raise PastDeadline("the placement was not ranked by its deadline")
+
     if not atlases or not targets:
         raise InputError("targets" if atlases else "atlases", "expected at least one atlas and one target")
     if policy not in POLICIES:
@@ -182,6 +201,7 @@ def rank(atlases: Sequence[Atlas], targets: Sequence[Target], space: Space, effe
             sub = body.reshape(n_c, n_t, 3)[:, cols].reshape(-1, 3)
             open_ = np.ones((n_c, len(cols)), bool)
             for k, name in enumerate(names):
+                in_time()
                 held = atlas.maps[name].contains(sub, policy).reshape(n_c, len(cols)) & open_
                 taken[:, b, cols] = np.where(held, len(names_b) + k, taken[:, b, cols])
                 weight[:, b, cols] = np.where(held, w[k], weight[:, b, cols])
@@ -202,14 +222,16 @@ def rank(atlases: Sequence[Atlas], targets: Sequence[Target], space: Space, effe
                             axis=1) + 0.1 * np.abs(np.angle(np.exp(1j * (placements[:, 3] - heading))))
     margin = np.full(n_c, np.nan)
     tied = np.nonzero(top)[0]
-    tied = tied[np.argsort(spread[tied], kind="stable")][:MARGIN_TIES]
-    margin[tied] = margins(atlases, all_names, taken[tied], body.reshape(n_c, n_t, 3)[tied])
+    tied = tied[np.argsort(spread[tied], kind="stable")][:max(1, min(MARGIN_TIES, MARGIN_QUERIES // n_t))]
+    in_time()
+    margin[tied] = margins(atlases, all_names, taken[tied], body.reshape(n_c, n_t, 3)[tied], in_time)
     order = np.lexsort((spread, -np.nan_to_num(margin, nan=-np.inf), -preference, -reached, -accommodated))
     return Ranking(placements[order], accommodated[order], reached[order], preference[order], taken[order], all_names,
                    margin[order])
 
 
-def margins(atlases: Sequence[Atlas], names: list[list[str]], taken: np.ndarray, points: np.ndarray) -> np.ndarray:
+def margins(atlases: Sequence[Atlas], names: list[list[str]], taken: np.ndarray, points: np.ndarray,
+            in_time: Any = None) -> np.ndarray:
     """Per candidate, the least distance [m] from a reached target (its point in the body's frame, ``points``
     (C, T, 3)) to the nearest vertex of its strategy's tree that does not reach (``taken``: (C, B, T), see
     :class:`Ranking`); inf when no reached target's tree has such a vertex."""
@@ -222,6 +244,8 @@ def margins(atlases: Sequence[Atlas], names: list[list[str]], taken: np.ndarray,
             outside = atlas.maps[name].unreached()
             if not len(outside):
                 continue
+            if in_time is not None:
+                in_time()
             depth, _ = cKDTree(outside).query(points[c, t])
             np.minimum.at(out, c, depth)
     return out
