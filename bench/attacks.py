@@ -8,8 +8,8 @@ p99 and longest wait [ms] and its lost requests (no reply in 5 s), and the serve
 * ``crash``: ``{"op":"health","id":1e999}`` 48 times, then ``health`` (the server must still answer);
 * ``deadlines``: six DEALER clients send 10,000-goal refined batches with 0.5 s deadlines: each reply's time past its
   deadline, and its code;
-* ``place``: 1,681 candidates x 1,000 targets near the body with a 2 s deadline: the reply, and how long after it
-  the worker answers a refined query;
+* ``place``: 1,681 candidates x 1,000 targets near the body: the reply, and how long after it the worker answers a
+  refined query;
 * ``memory``: 100 clients each send 16 requests of about 1 MiB;
 * ``heavy``: ``cells`` at level 6, stored 1,000-goal batches, 1 MiB requests of 80,000 unknown keys, 20 of each;
 * ``busy_machine``: two CPU-bound processes beside the server; 20 single refined queries: their outcomes and times;
@@ -70,10 +70,12 @@ def crash(address: str) -> dict[str, Any]:
     sock = dealer(address)
     for _ in range(48):
         sock.send_multipart([b"", b'{"op":"health","id":1e999}'])
-    codes = [code_of(sock.recv_multipart()[-1]) for _ in range(48) if sock.poll(5000)]
+    codes = []
+    while len(codes) < 48 and sock.poll(5000):  # a dead server answers no more
+        codes.append(code_of(sock.recv_multipart()[-1]))
     _, health = ask(sock, {"op": "health"}, 5000)
     sock.close()
-    return {"replies": {c: codes.count(c) for c in set(codes)}, "alive": health is not None}
+    return {"replies": {c: codes.count(c) for c in set(codes)}, "health_after": health is not None}
 
 
 def deadlines(address: str) -> dict[str, Any]:
@@ -99,7 +101,7 @@ def place(address: str) -> dict[str, Any]:
     targets = [{"point": [0.35 + 0.01 * (k % 10), -0.25, 1.1 + 0.01 * (k // 100)], "effector": "right_hand"}
                for k in range(1000)]
     took, reply = ask(sock, {"op": "place", "targets": targets, "x": [-1.0, 1.0], "y": [-1.0, 1.0], "yaw": [0, 0],
-                             "step": 0.05, "deadline": 2.0}, 120_000)
+                             "step": 0.05}, 120_000)
     after, refined = ask(sock, {"op": "query", "effector": "right_hand", "goal": [0.4, -0.3, 1.1]}, 120_000)
     sock.close()
     return {"reply": None if reply is None else ("ok" if reply["ok"] else reply["error"]["code"]),
