@@ -15,8 +15,8 @@ p99 and longest wait [ms] and its lost requests (no reply in 5 s), and the serve
 * ``busy_machine``: two CPU-bound processes beside the server; 20 single refined queries: their outcomes and times;
 * ``fairness``: one client's 3,000-goal refined batch; another's 20 single refined queries: outcomes and times.
 
-Run: ``.venv/bin/python bench/attacks.py [--workers 1 2] [--only NAME ...]``. Traffic goes to 127.0.0.1 only, in
-bounded loops.
+Run: ``.venv/bin/python bench/attacks.py [--workers 1 2] [--only NAME ...] [--hogs 2]`` (``--hogs``: CPU-bound
+processes beside the whole run). Traffic goes to 127.0.0.1 only, in bounded loops.
 """
 
 from __future__ import annotations
@@ -179,7 +179,7 @@ ATTACKS: dict[str, Callable[[str], dict[str, Any]]] = {
 }
 
 
-def run(atlas: Path, workers: int, name: str) -> None:
+def run(atlas: Path, workers: int, name: str, hogs: int = 0) -> None:
     server, address = base.serve(atlas, workers)
     try:
         base._workers_ready(address, workers)
@@ -195,7 +195,7 @@ def run(atlas: Path, workers: int, name: str) -> None:
             waits, lost, rss = out.get(timeout=120)
             victim.join()
         lat = np.array(waits) * 1e3
-        base.emit(bench="attack", attack=name, workers=workers, **result,
+        base.emit(bench="attack", attack=name, workers=workers, hogs=hogs, **result,
                   victim_p99_ms=round(float(np.percentile(lat, 99)), 2) if len(lat) else None,
                   victim_max_ms=round(float(lat.max()), 1) if len(lat) else None, victim_lost=lost,
                   server_rss_max_mb=round(rss / 2**20, 1), alive=server.poll() is None)
@@ -208,7 +208,18 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--only", nargs="+", choices=list(ATTACKS), help="these attacks only")
+    parser.add_argument("--hogs", type=int, default=0, help="CPU-bound processes kept running beside the whole run")
     args = parser.parse_args()
+    hogs = [subprocess.Popen([sys.executable, "-c", HOG.replace("120", "3600")]) for _ in range(args.hogs)]
+    try:
+        attack_all(args)
+    finally:
+        for h in hogs:
+            h.kill()
+            h.wait()
+
+
+def attack_all(args: argparse.Namespace) -> None:
     base.emit(bench="machine", python=platform.python_version(), processor=platform.processor() or platform.machine(),
               pyzmq=zmq.__version__)
     with tempfile.TemporaryDirectory() as tmp:
@@ -216,7 +227,7 @@ def main() -> None:
         build_atlas(parse_config(base.CONFIG, "bench", "bench"), atlas)
         for workers in args.workers:
             for name in args.only or list(ATTACKS):
-                run(atlas, workers, name)
+                run(atlas, workers, name, args.hogs)
 
 
 if __name__ == "__main__":

@@ -158,3 +158,22 @@ def test_an_error_naming_a_huge_path_stays_one_short_line(tmp_path, capsys):
     assert main(["build", str(config), "-o", str(tmp_path / "out")]) == 2
     err = [line for line in capsys.readouterr().err.splitlines() if line.startswith("reach: error: ")]
     assert len(err) == 1 and len(err[0]) < 1000 and "characters)..." in err[0]
+
+
+@pytest.mark.slow
+def test_the_wheel_is_named_reach_volumes_and_carries_the_command_and_the_survey(tmp_path):
+    """Issue 49, item 5: PyPI's "reach" is a word-embedding library; the distribution is reach-volumes, the import and
+    the command reach. The wheel built from the clone holds the command's entry point and the ANSUR II data."""
+    import zipfile
+
+    root = Path(__file__).resolve().parent.parent
+    subprocess.run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(tmp_path),
+                    str(root)], check=True, capture_output=True)
+    wheel = next(tmp_path.glob("reach_volumes-*.whl"))
+    with zipfile.ZipFile(wheel) as zf:
+        names = zf.namelist()
+        info = next(n for n in names if n.endswith(".dist-info/METADATA"))
+        assert "Name: reach-volumes" in zf.read(info).decode()
+        entry = zf.read(next(n for n in names if n.endswith(".dist-info/entry_points.txt"))).decode()
+    assert "reach = reach.tools.cli:main" in entry
+    assert "oracles/bodies/data/ansur2.csv.gz" in names and "reach/serving/cells.py" in names

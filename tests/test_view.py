@@ -21,7 +21,7 @@ from reach.build.atlas import build_atlas
 from reach.build.config import parse_config
 from reach.maps.atlas import load_atlas
 
-viser = pytest.importorskip("viser", reason="the viewer needs viser: pip install 'reach[view]'")
+viser = pytest.importorskip("viser", reason="the viewer needs viser: pip install 'reach-volumes[view]'")
 pytestmark = pytest.mark.slow  # builds a body atlas, starts browsers
 from reach.tools.view import BOUNDARY_SHADE, PALETTE, Viewer  # noqa: E402
 

@@ -56,9 +56,11 @@ PARTIAL = ".partial"
 
 def package_versions() -> dict[str, str]:
     out = {"python": platform.python_version()}
-    for pkg in ("reach", "numpy", "scipy", "pin", "casadi", "pyzmq"):
+    # reach's own distribution is reach-volumes (PyPI's "reach" is another project); the manifest keeps the key reach
+    for key, pkg in (("reach", "reach-volumes"), ("numpy", "numpy"), ("scipy", "scipy"), ("pin", "pin"),
+                     ("casadi", "casadi"), ("pyzmq", "pyzmq")):
         try:
-            out[pkg] = version(pkg)
+            out[key] = version(pkg)
         except PackageNotFoundError:
             pass
     return out

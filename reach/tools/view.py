@@ -135,7 +135,7 @@ class Viewer:
 
     def __init__(self, atlases: Sequence[Atlas], host: str = "127.0.0.1", port: int = 8080, connect: str | None = None,
                  spacing: float = 1.5, policy: str = DEFAULT_POLICY, refine: bool = True) -> None:
-        import viser  # the optional dependency: pip install 'reach[view]'
+        import viser  # the optional dependency: pip install 'reach-volumes[view]'
 
         if not atlases:
             raise InputError("atlas", "at least one atlas is needed")

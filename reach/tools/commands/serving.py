@@ -104,7 +104,7 @@ def cmd_view(args: argparse.Namespace) -> int:
         # loaded when the command runs: `reach --help` starts without the answers' machinery
         from reach.tools.view import Viewer
     except ImportError as exc:  # viser is an extra
-        raise ReachError(f"reach view needs viser: pip install 'reach[view]' ({exc})") from exc
+        raise ReachError(f"reach view needs viser: pip install 'reach-volumes[view]' ({exc})") from exc
     viewer = Viewer([load_atlas(a) for a in args.atlas], host=args.host, port=args.port, connect=args.connect,
                     spacing=args.spacing, policy=args.policy, refine=not args.no_refine)
     print(f"viewing {', '.join(args.atlas)} at {viewer.url} (Ctrl-C to stop)", flush=True)
