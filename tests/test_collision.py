@@ -142,7 +142,7 @@ def test_a_collada_mesh_without_pycollada_names_the_extra(tmp_path, monkeypatch)
       <link name="base"><collision><geometry><mesh filename="part.dae"/></geometry></collision></link></robot>""")
     monkeypatch.setitem(sys.modules, "collada", None)  # as if pycollada were not installed
     with pytest.raises(ModelError, match=r"part.dae is COLLADA \(.dae\), which needs pycollada: pip install "
-                                         r"'reach\[meshes\]'"):
+                                         r"'reach-volumes\[meshes\]'"):
         urdf_body(urdf)
 
 

@@ -256,8 +256,8 @@ def _mesh_capsules(path: Path, scale: np.ndarray, source: str) -> list[tuple[np.
         try:
             import collada  # noqa: F401 - trimesh reads COLLADA through it, and says little when it is missing
         except ImportError:
-            raise ModelError(f"mesh {path} is COLLADA (.dae), which needs pycollada: pip install 'reach-volumes[meshes]' "
-                             "(or convert the mesh to .stl)", source=source) from None
+            raise ModelError(f"mesh {path} is COLLADA (.dae), which needs pycollada: pip install "
+                             "'reach-volumes[meshes]' (or convert the mesh to .stl)", source=source) from None
 
     try:
         mesh = trimesh.load(path, force="mesh")
