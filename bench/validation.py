@@ -33,9 +33,7 @@ from oracles.bodies.measure import MEASURES, measure
 
 BODIES = (("female", 5), ("male", 50), ("male", 95))
 # Issue 51's list of the dimensions that set reach: a body built from these alone.
-GIVEN = ("stature", "acromialheight", "acromionradialelength", "radialestylionlength", "handlength",
-         "biacromialbreadth", "sittingheight", "eyeheightsitting", "buttockkneelength", "buttockpopliteallength",
-         "poplitealheight", "kneeheightsitting", "footlength", "weightkg")
+GIVEN = ansur.REACH
 CHECKED = ("thumbtipreach", "acromialheight", "sittingheight", "buttockkneelength")  # issue 51's subject check
 TOLERANCE = 0.015  # [m] p95 of a subject body's errors (issue 51)
 
