@@ -677,6 +677,30 @@ def test_a_resend_of_a_pending_request_is_answered_once(human):
 
 
 @pytest.mark.slow
+@pytest.mark.slow
+def test_serving_means_the_workers_refine(human):
+    """Issue 49, item 2: ``reach serve`` said "serving" about 7 s before its workers could refine; the first refined
+    query came back ``timeout``. Now the line comes when every worker has loaded the atlas and refined once: a query
+    sent the moment it is read is refined."""
+    proc = subprocess.Popen([sys.executable, "-m", "reach.tools.cli", "serve", str(human), "--bind", "tcp://127.0.0.1:*",
+                             "--pub", "none", "--workers", "1"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        line = proc.stdout.readline()
+        assert line.startswith("serving")
+        address = line.split(" on ")[1].strip().rstrip(",")
+        with Client(address, timeout=30_000) as c:
+            assert c.health()["workers_ready"] == 1  # before: 0 here, the worker still loading
+            assert c.query("right_hand", [0.4, -0.3, 1.1])["refined"] == "ok"
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.communicate(timeout=20)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+
+
 def test_published_choices_carry_id_and_tag_and_hello_syncs(human):
     r = Running(human, budget=0.5, workers=1)
     sub = zmq.Context.instance().socket(zmq.SUB)

@@ -66,6 +66,7 @@ log = logging.getLogger("reach.serving.server")
 SLACK = 5.0  # [s] a request's default deadline: the budget per goal, plus this ...
 # [s] ... and at most this: a client that vanished without a deadline of its own holds the workers no longer
 MAX_WAIT = 60.0
+READY_WAIT = 300.0  # [s] reach serve waits at most this for its workers to load the atlas before serving
 LOG_EVERY = 60.0  # [s] an identical internal error's traceback is logged at most this often
 REVIVE_EVERY = 0.5  # [s] how often the loop looks for dead workers
 FAILED_TASK = WORKER_FAILED + b" the worker died"
@@ -252,6 +253,21 @@ class Server:
         self._planner: Planner | None = None  # motions without workers, made on the first
 
     # -- lifecycle ---------------------------------------------------------
+    def wait_ready(self, timeout: float = READY_WAIT) -> int:
+        """Take the workers' READY messages until every worker has loaded the atlas and refined once (or ``timeout``
+        [s] passes): a client that connects when ``reach serve`` says it serves gets refined answers at once (issue
+        49: the first refined query waited 5 s for workers still starting, and came back ``timeout``). Returns how
+        many workers are ready."""
+        if self.pool is None:
+            return 0
+        end = time.monotonic() + timeout
+        while self.pool.ready < self.pool.size and time.monotonic() < end:
+            if self.pool.backend.poll(100):
+                self.pool.receive()
+            for task in self.pool.revive():  # a worker that died starting is started again
+                self._finished(task, [FAILED_TASK])
+        return self.pool.ready
+
     def stop(self) -> None:
         """Ask the loop to finish (thread- and signal-safe)."""
         self._stop.set()

@@ -318,6 +318,12 @@ def work(address: str, atlas: str, options: dict[str, Any], identity: bytes) -> 
     os.nice(NICE)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group; the server decides
     selector = Selector(load_atlas(atlas), **{**options, "refine": True}).warm_up()
+    # One refinement per effector before READY: what a first refinement builds lazily is built before the server says
+    # it serves (issue 49: the first refined query timed out, the second took 2.3 s).
+    for effector in selector.effectors:
+        stored = selector.atlas.maps[selector.strategies_for(effector)[0]].stored()
+        if stored is not None and len(stored.ids):
+            selector.select_many(effector, stored.points[:1], True, deadline=time.perf_counter() + 5.0)
     context = services.Context(selector, Planner(selector))
 
     sock = zmq.Context().socket(zmq.DEALER)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -18,7 +19,7 @@ from reach.tools.commands.common import handover_margin, handover_option, policy
 
 def cmd_serve(args: argparse.Namespace) -> int:
     # loaded when the command runs: `reach --help` starts without the answers' machinery
-    from reach.serving.server import Server
+    from reach.serving.server import READY_WAIT, Server
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
     # One core is left to the request loop: on 2 cores the stored answers' p99 under refinement
@@ -31,6 +32,11 @@ def cmd_serve(args: argparse.Namespace) -> int:
                     workers=workers, curve_clients=args.curve_clients, chunk=args.chunk,
                     handover=handover_margin(args), miss=args.miss, allow_reload=args.allow_reload)
     server.handle_signals()
+    # "serving" means its workers refine: a client connecting on this line gets refined answers at once.
+    ready = server.wait_ready()
+    if ready < workers:
+        print(f"reach: warning: {ready} of {workers} workers ready after {READY_WAIT:g} s; the others are still "
+              "starting (health says how many are ready)", file=sys.stderr)
     print(f"serving {args.atlas} on {server.endpoint}" + (f", publishing on {server.pub_endpoint}"
                                                           if server.pub_endpoint else ""), flush=True)
     server.serve_forever()
