@@ -1,9 +1,13 @@
-"""Balance: ``{type: balance, margin: 0.02, support: [...]}``.
+"""Balance: ``{type: balance, margin: 0.02, support: [...], pelvis: false}``.
 
 The centre of mass's ground projection stays inside the support polygon
 shrunk by ``margin`` [m]. The polygon is the convex hull of the reference
 ground positions of ``support`` frames, by default those the strategy's
-feet or contacts tasks name.
+feet or contacts tasks name. With ``pelvis: true`` the root joint's origin
+(the generated human's mid-hip) stays over the polygon too: a person standing
+on both feet keeps the pelvis over them (a modelling choice, not a measured
+bound: without it the lowest straight-knee reach shifted the pelvis 21 cm
+aside, past the feet, with the spine side-bent and twisted to their limits).
 """
 
 from __future__ import annotations
@@ -31,9 +35,11 @@ from oracles.tasks.base import (
     Task,
     frames,
     number,
+    world_point,
 )
 
 BALANCE_TOL = 1e-5  # [m] CoM beyond the shrunk polygon that the verdict accepts
+ROOT_JOINT = 1  # Pinocchio's index of every body's floating root joint (oracles.bodies.body)
 
 
 @dataclass
@@ -41,20 +47,26 @@ class BalanceTask(HardTask):
     """Keep the centre of mass over the shrunk support polygon."""
 
     type: ClassVar[str] = "balance"
-    keys: ClassVar[frozenset[str]] = frozenset({"margin", "support"})
+    keys: ClassVar[frozenset[str]] = frozenset({"margin", "support", "pelvis"})
     summary: ClassVar[str] = ("the centre of mass's ground projection inside the support polygon of the feet, shrunk "
-                              "by `margin` [m]")
+                              "by `margin` [m]; with `pelvis: true` the pelvis (the root's origin) over it too")
 
     margin: float = 0.02
     polygon_frames: tuple[str, ...] = ()
+    pelvis: bool = False
     #: Rows (a_x, a_y, c): a . p + c <= 0 inside the shrunk polygon.
     polygon: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)), init=False, repr=False, compare=False)
+    #: The unshrunk polygon's rows, for the pelvis.
+    hull: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)), init=False, repr=False, compare=False)
 
     @classmethod
     def parse(cls, raw: dict[str, Any], where: str, scope: Scope) -> BalanceTask:
         margin = number(raw.get("margin", 0.02), f"{where}.margin", 0.0, 0.5)
         given = frames(scope, raw["support"], f"{where}.support") if "support" in raw else ()
-        return cls(margin, given)
+        pelvis = raw.get("pelvis", False)
+        if not isinstance(pelvis, bool):
+            raise TaskError(f"{where}.pelvis", f"expected true or false, got {pelvis!r}")
+        return cls(margin, given, pelvis)
 
     def resolve(self, tasks: Sequence[Task], where: str) -> BalanceTask:
         support = self.polygon_frames or tuple(dict.fromkeys(f for t in tasks for f in t.support))
@@ -73,18 +85,32 @@ class BalanceTask(HardTask):
             raise ModelError(f"support frames {list(self.polygon_frames)} do not span a polygon ({exc})") from exc
         self.polygon = hull.equations.copy()
         self.polygon[:, 2] += self.margin
+        self.hull = hull.equations.copy()
 
     def constraints(self, sym: Symbolic) -> list[Constraint]:
         com = sym.kin.center_of_mass()
-        return [Constraint(ca.SX(self.polygon[:, :2]) @ com[:2] + ca.SX(self.polygon[:, 2]), -np.inf, 0.0)]
+        out = [Constraint(ca.SX(self.polygon[:, :2]) @ com[:2] + ca.SX(self.polygon[:, 2]), -np.inf, 0.0)]
+        if self.pelvis:
+            root = world_point(sym, ROOT_JOINT, np.zeros(3))
+            out.append(Constraint(ca.SX(self.hull[:, :2]) @ root[:2] + ca.SX(self.hull[:, 2]), -np.inf, 0.0))
+        return out
 
     def rows(self, num: Numeric) -> list[Row]:
         jcom = pin.jacobianCenterOfMass(num.model, num.data, num.q, False)[:2, num.columns]
         com = num.data.com[0][:2]
         viol = self.polygon[:, :2] @ com + self.polygon[:, 2]
-        return [Row(self.polygon[row, None, :2] @ jcom, np.array([min(0.0, -viol[row] - INSIDE)]))
-                for row in np.nonzero(viol > -BUFFER)[0]]
+        out = [Row(self.polygon[row, None, :2] @ jcom, np.array([min(0.0, -viol[row] - INSIDE)]))
+               for row in np.nonzero(viol > -BUFFER)[0]]
+        if self.pelvis and num.joint_jacobian is not None:
+            jroot = num.joint_jacobian(ROOT_JOINT)[:2]
+            over = self.hull[:, :2] @ num.data.oMi[ROOT_JOINT].translation[:2] + self.hull[:, 2]
+            out += [Row(self.hull[row, None, :2] @ jroot, np.array([min(0.0, -over[row] - INSIDE)]))
+                    for row in np.nonzero(over > -BUFFER)[0]]
+        return out
 
     def holds(self, num: Numeric) -> bool:
         com = pin.centerOfMass(num.model, num.data, num.q, False)
-        return bool(np.all(self.polygon[:, :2] @ com[:2] + self.polygon[:, 2] <= BALANCE_TOL))
+        if np.any(self.polygon[:, :2] @ com[:2] + self.polygon[:, 2] > BALANCE_TOL):
+            return False
+        root = num.data.oMi[ROOT_JOINT].translation[:2]
+        return not self.pelvis or bool(np.all(self.hull[:, :2] @ root + self.hull[:, 2] <= BALANCE_TOL))
