@@ -6,6 +6,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from oracles.protocol import Goals, OracleSpec
 from reach.answers.audit import audit_tree, referee, wilson
@@ -165,6 +166,7 @@ def _lacking(tree, y: float) -> None:
     tree.vertices.reachable[tree.lattice.points(tree.lattice.coords(tree.vertices.keys))[:, 1] > y] = False
 
 
+@pytest.mark.slow
 def test_the_audit_finds_a_region_the_tree_lacks_along_rays_and_by_twins(tmp_path, capsys):
     """Issue 36, item 2: a UR5's tree lacked everything above 0.888 m and its audit said 1.5 % false unreachable. A
     turntable arm (a continuous base joint) audited as built: its twins about the base agree and no ray stops short.
@@ -209,6 +211,7 @@ def _replace_tree(folder: Path, tree) -> None:
     assert main(["accept", str(folder)]) == 0
 
 
+@pytest.mark.slow
 def test_reach_info_and_report_warn_of_a_region_the_last_audit_found_missing(tmp_path, capsys):
     """Issue 36, item 2: `reach audit` keeps its result beside the atlas (audit.json, read back here with the json
     module); `reach info` and `reach report` then warn of each ray along which the tree stops short of the referee,

@@ -194,6 +194,7 @@ def arm_atlas(tmp_path_factory):
     return folder
 
 
+@pytest.mark.slow
 def test_the_index_is_stored_and_each_reached_direction_holds(arm_atlas):
     """The index's bits are only at reachable vertices, survive the round trip, and a sample of the directions it
     says are reached is reached again by the audit's thorough referee, and of those it says are not, the referee
@@ -347,6 +348,7 @@ def test_the_audit_covers_the_index(arm_atlas):
     assert "index" not in result["strategies"]["plain"]
 
 
+@pytest.mark.slow
 @browser_only
 def test_the_page_shows_the_index_colours(arm_atlas):
     """In a real browser: a slice of the arm's cells as dots in the index's colours, the dark violet of the edge
@@ -420,6 +422,7 @@ def arm7_table(tmp_path_factory):
     return load_atlas(folder / "atlas")
 
 
+@pytest.mark.slow
 def test_oriented_refinement_tries_hard_enough_where_the_referee_reaches(arm7_table):
     """Issue 36, item 5: an oriented goal is refined from its stored postures, which hold no orientation, within the
     server's 20 ms budget: on arm7_table it timed out on 5 of the 72 goals of these three seeds that the referee

@@ -156,6 +156,7 @@ def table_arm(tmp_path_factory):
     return load_atlas(folder / "atlas")
 
 
+@pytest.mark.slow
 def test_the_best_placement_has_margin_not_the_middle_of_the_tie_and_verifies(table_arm, monkeypatch):
     """Issue 36, item 3: six tray targets 8 cm over the table on a 12 cm ring. Every placement of the base within
     about half a metre of the tray holds them all by the trees, and the middle of that tie is the tray itself, where

@@ -320,6 +320,7 @@ def test_evaluate_at_moves_the_targets_into_the_body_and_draws_them(seated_atlas
     assert (tmp_path / "f.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+@pytest.mark.slow
 def test_reach_model_prints_and_draws_the_fitted_seat(tmp_path, capsys):
     import json
 
@@ -334,6 +335,7 @@ def test_reach_model_prints_and_draws_the_fitted_seat(tmp_path, capsys):
     assert (tmp_path / "m.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+@pytest.mark.slow
 @browser_only
 def test_the_page_draws_the_seat(seated_atlas, browser, tmp_path):
     """In a real browser: with the volumes hidden, the page differs where the seat and the desk are drawn (hidden, then

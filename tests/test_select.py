@@ -225,6 +225,7 @@ def test_a_goal_no_refinement_reaches_is_never_a_bare_reachable(tmp_path, capsys
     assert "not reachable: arm's tree holds it but no refinement reached it" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_a_strategy_at_its_joint_limits_hands_the_goal_to_the_next(tmp_path, capsys):
     # The upper body (pelvis fixed) reaches a goal low in front only by
     # pressing the shoulder down to the end of its range; the whole body
