@@ -306,6 +306,21 @@ def test_a_continuous_joint_is_one_angle_in_answers_motions_configs_and_reach_mo
             and re.search(r"extend\s+\[\+0\.0000, \+0\.2500\]", out))
 
 
+def test_reference_auto_turns_a_ur5s_tool_down_where_projection_cannot():
+    """Issue 49, item 4: for a UR5's tool-down strategy, damped least squares from the middle of the ranges found no
+    posture holding the orientation (every joint stayed at zero, and the build warned). The engine's own search then
+    finds one: Pinocchio puts the tool's axis within the cone, and nothing is diagnosed."""
+    body = {"urdf": str(ROOT / "configs" / "urdf" / "ur5.urdf"), "reference": "auto"}
+    down = [{"type": "reach"}, {"type": "orientation", "axis": "x", "direction": "-z", "cone": 5}]
+    oracle = OracleSpec("casadi-ik", {**body_params(body, "ee_link", ["*_joint"], down), "restarts": 2}).create()
+    q = oracle.body.q_ref  # type: ignore[attr-defined]
+    assert oracle.faults(q[None])[0] == [] and oracle.diagnose() == []  # type: ignore[attr-defined]
+    data = oracle.body.model.createData()  # type: ignore[attr-defined]
+    pin.framesForwardKinematics(oracle.body.model, data, q)  # type: ignore[attr-defined]
+    axis = data.oMf[oracle.body.model.getFrameId("ee_link")].rotation[:, 0]  # type: ignore[attr-defined]
+    assert axis[2] <= -math.cos(math.radians(5))
+
+
 def test_reference_auto_finds_a_posture_holding_each_strategys_hard_tasks(tmp_path, capsys):
     """Issue 36, item 4: a strategy holding the tool pointing down started from a reference that breaks it, and the
     user had to solve a posture by hand. ``reference: auto`` starts from the middle of the ranges and finds, per

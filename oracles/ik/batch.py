@@ -316,7 +316,8 @@ class BatchProgram:
         # their feet).
         n_r = np.linalg.norm(dx_r, axis=1, keepdims=True)
         n_g = np.linalg.norm(dx_g, axis=1, keepdims=True)
-        room = np.clip((radius[:, None] - n_r) / np.maximum(n_g, 1e-300), 0.0, 1.0)
+        with np.errstate(over="ignore"):  # a huge ratio is clipped to 1 anyway
+            room = np.clip((radius[:, None] - n_r) / np.maximum(n_g, 1e-300), 0.0, 1.0)
         dx = dx_r * np.minimum(1.0, MAX_STEP / np.maximum(n_r, 1e-300)) + room * dx_g
         return np.where(np.isfinite(dx).all(axis=1, keepdims=True), dx, 0.0)  # a singular solve moves nothing
 

@@ -46,8 +46,8 @@ from oracles.ik.batch import (
     run_starts,
 )
 from oracles.ik.jit import COMPILER, compiled_nlpsol
-from oracles.ik.oracle import NO_CALL, Call, IKOracle
-from oracles.protocol import Purpose, Verdicts, check_points
+from oracles.ik.oracle import NO_CALL, Call, IKOracle, fresh_stats
+from oracles.protocol import Goals, Purpose, Verdicts, check_points
 from oracles.tasks import Numeric, Symbolic
 
 SOLVERS = ("batch", "fatrop", "ipopt")  # batch: oracles.ik.batch, every goal x start together (fatrop polishes)
@@ -160,6 +160,20 @@ class CasadiIK(IKOracle):
         self._cache: dict[tuple[Any, ...], _Programs] = {}  # shared with variants (a shallow copy keeps the dict)
         self._set_order()
         self.lazy = [t for t in self.strategy.hard if t.lazy]
+        if self.reference_pending:
+            self._search_reference()
+
+    def _search_reference(self) -> None:
+        """``reference: auto`` where projection found nothing: this engine's search for the effector where it is,
+        every hard task held, from the reference and its random restarts, uncompiled (a probe, not worth a compile);
+        its posture becomes the reference when it holds the hard tasks (issue 49: a UR5's tool-down strategy kept
+        every joint at zero and warned)."""
+        probe = copy.copy(self)
+        probe.jit, probe._cache, probe._batch_cache, probe.stats = False, {}, {}, fresh_stats()
+        found = probe.evaluate(Goals(self.effector_positions(self.body.q_ref[None])))
+        if found.posture is not None and not self.faults(found.posture[:1])[0]:
+            self.use_reference(found.posture[0])
+            self.reference_pending = False
 
     def _set_jit(self, jit: bool | str) -> None:
         has_compiler = shutil.which(COMPILER) is not None

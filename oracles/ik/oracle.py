@@ -58,7 +58,7 @@ class Call(NamedTuple):
 NO_CALL = Call()  # a call with neither current posture nor budget
 
 
-def _stats() -> dict[str, int]:
+def fresh_stats() -> dict[str, int]:
     return {"points": 0, "prefiltered": 0, "solves": 0, "reachable": 0, "cut_rounds": 0}
 
 
@@ -94,9 +94,10 @@ class IKOracle(ABC):
         self.problem = ReachProblem(self.body, self.strategy)
         self.posture_names = tuple(self.body.q_names)
         self._data = self.body.model.createData()
+        self.stats = fresh_stats()
+        self.reference_pending = False  # reference: auto found no posture by projection (see _auto_reference)
         if body.get("reference") == "auto":
             self._auto_reference(body, effector, joints, tasks)
-        self.stats = _stats()
         self._bones: tuple[Skeleton, tuple[int, ...]] | None = None
         # the damped-least-squares twin that holds a posture's hard tasks (built on first use)
         self._projector: Any = None
@@ -115,8 +116,15 @@ class IKOracle(ABC):
                                 "tasks": tasks})
         held = twin.project(q, q)
         if self.faults(held[None])[0]:
+            # Damped least squares stays near the middle: a tool turned half a turn (pointing down) is far. An engine
+            # that can search (its restarts included) tries when it is set up (``search_reference``).
+            self.reference_pending = True
             return
-        self.body = dataclasses.replace(self.body, q_ref=held)
+        self.use_reference(held)
+
+    def use_reference(self, q: np.ndarray) -> None:
+        """Make ``q`` the reference posture (every search's start, the contacts' places)."""
+        self.body = dataclasses.replace(self.body, q_ref=np.asarray(q, float).copy())
         self.problem = ReachProblem(self.body, self.strategy)
 
     @classmethod
@@ -392,7 +400,7 @@ class IKOracle(ABC):
         check_purpose(purpose)
         twin = copy.copy(self)
         twin.search = self.search.for_purpose(purpose, budget=budget, restarts=restarts)
-        twin.stats = _stats()
+        twin.stats = fresh_stats()
         twin.tune(purpose)
         return twin
 
