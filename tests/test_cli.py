@@ -177,3 +177,14 @@ def test_the_wheel_is_named_reach_volumes_and_carries_the_command_and_the_survey
         entry = zf.read(next(n for n in names if n.endswith(".dist-info/entry_points.txt"))).decode()
     assert "reach = reach.tools.cli:main" in entry
     assert "oracles/bodies/data/ansur2.csv.gz" in names and "reach/serving/cells.py" in names
+
+
+def test_the_command_line_starts_without_the_scientific_stack():
+    """Issue 49, item 1: `reach --help` took 0.4-1.2 s, importing the selector (and scipy, pinocchio, casadi) for
+    three defaults. The parser's defaults come from reach.answers.defaults; a command imports what it needs when it
+    runs. Counted in a fresh interpreter: no module of those packages is loaded by the parser."""
+    heavy = "{'scipy', 'pinocchio', 'casadi', 'zmq', 'matplotlib'}"
+    code = ("import sys; from reach.tools.cli import make_parser; make_parser(); "
+            f"print(sorted({{m.split('.')[0] for m in sys.modules}} & {heavy}))")
+    out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout.strip()
+    assert out == "[]"

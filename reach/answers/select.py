@@ -91,15 +91,13 @@ from reach.answers.answer import (
     split_posture,
     timed_out,
 )
+from reach.answers.defaults import HANDOVER, MISS, MISSES, REFINE_BUDGET
 from reach.errors import InputError, ModelMismatch, UnknownEffector, UnknownPolicy
 from reach.maps.atlas import Atlas
 from reach.maps.protocol import DEFAULT_POLICY, POLICIES, Policy, ReachMap
 
 log = logging.getLogger(__name__)
 
-# what a goal the trees hold but no refinement reaches answers (see the module docstring)
-MISSES = ("unreachable", "within")
-MISS = "unreachable"
 # outcomes whose posture is the nearest stored one, not one solved at the goal
 STORED = (SKIPPED, TIMEOUT, FAILED, ERROR)
 # [rad] (or m) a `from` joint this far past its range is still accepted (rounding in a client)
@@ -107,7 +105,6 @@ FROM_TOLERANCE = math.radians(1.0)
 FROM_QUATERNION = 1e3  # the largest component of a `from` root quaternion (it is normalised)
 FROM_REACH = 1000.0  # [m] a `from` root farther than this from the world origin is a mistake, not a scene
 POSTURE_CACHE = 4096  # stored postures kept encoded, most recently used first
-REFINE_BUDGET = 0.02  # [s] default budget of one refinement (a frame at 50 Hz; work, priced in seconds)
 # [s] the least budget of a goal with an orientation: its stored postures hold none, so its refinement tries random
 # starts too; within 20 ms it timed out on 5 of 72 oriented arm7_table goals the referee reaches (docs/history.md). The
 # batched engine's K starts and K random ones take 0.10-0.15 s on an idle machine: 0.2 s timed out on a loaded one (CI).
@@ -120,7 +117,6 @@ SOLVE_RESERVE = 0.006
 # A refinement left less than this share of one goal's budget is not started (a timeout): a handover after a first
 # choice that took most of the budget took 2-5 ms more for a solve of 1-2 ms (bench/refined.py).
 LEAST_SOLVE = 0.25
-HANDOVER = math.radians(5.0)  # [rad] a joint this near a limit passes the goal on (see the module docstring)
 # A refinement without `from` also starts from the best-liked of this many
 # nearest stored postures (when it is not the nearest's): the nearest can sit
 # in a worse basin of the posture task than its neighbours, and two goals 1 cm

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from reach.answers.select import REFINE_BUDGET
+from reach.answers.defaults import REFINE_BUDGET
 from reach.errors import InputError
 from reach.serving import protocol as P
 from reach.tools.commands.common import handover_margin, handover_option, policy_option, print_json

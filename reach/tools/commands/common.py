@@ -8,7 +8,7 @@ import math
 import os
 from typing import Any
 
-from reach.answers.select import HANDOVER, MISS, MISSES
+from reach.answers.defaults import HANDOVER, MISS, MISSES
 from reach.errors import InputError
 from reach.maps.protocol import DEFAULT_POLICY, POLICIES
 

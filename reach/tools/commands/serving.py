@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from reach.answers.select import REFINE_BUDGET
+from reach.answers.defaults import REFINE_BUDGET
 from reach.errors import InputError, ReachError
 from reach.serving import protocol as P
 from reach.tools.commands.common import handover_margin, handover_option, policy_option
