@@ -188,3 +188,23 @@ def test_the_command_line_starts_without_the_scientific_stack():
             f"print(sorted({{m.split('.')[0] for m in sys.modules}} & {heavy}))")
     out = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, text=True).stdout.strip()
     assert out == "[]"
+
+
+def test_query_answers_a_file_of_goals_one_json_line_each(figure2_atlas, tmp_path, capsys, monkeypatch):
+    """Issue 49, item 1: a script's hundred queries took a process each. ``--goals FILE`` (or ``-``) answers every
+    line in one process, one JSON answer a line, in order; a header line is skipped, a bad line named."""
+    import io
+
+    goals = tmp_path / "goals.csv"
+    goals.write_text("x,y\n0.1, 0.1\n# a comment\n5 5\n0.0,0.2\n")
+    assert main(["query", "--goals", str(goals), str(figure2_atlas)]) == 0
+    lines = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert [a["goal"] for a in lines] == [[0.1, 0.1], [5.0, 5.0], [0.0, 0.2]]
+    assert [a["reachable"] for a in lines] == [True, False, True]
+    monkeypatch.setattr("sys.stdin", io.StringIO("0.1 0.1\n"))
+    assert main(["query", "--goals", "-", str(figure2_atlas)]) == 0
+    assert json.loads(capsys.readouterr().out)["goal"] == [0.1, 0.1]
+    goals.write_text("0.1, 0.1\n0.2, oops\n")
+    assert main(["query", "--goals", str(goals), str(figure2_atlas)]) == 2
+    err = capsys.readouterr().err
+    assert "--goals: " in err and "goals.csv line 2: expected X Y [Z] in metres, got '0.2, oops'" in err

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +20,40 @@ from reach.tools.commands.common import handover_margin, handover_option, policy
 QUERY_BUDGET = 1.0  # [s] default refinement budget of a local `reach query`: one question, no frame to keep
 MOTION_FILES = (".json", ".bvh", ".glb", ".gltf")  # reach motion -o: by the file's extension
 ANIMATION_FILES = (".bvh", ".glb", ".gltf")  # ... those written from the motion's bones (its rig)
+
+
+def _goals_file(source: str, with_atlas: bool, values: list[str]) -> tuple[str | None, list[list[float]]]:
+    """``--goals FILE`` (or ``-``, standard input): one goal a line, X Y [Z] [m] separated by commas or spaces; blank
+    lines, ``#`` comments and a header line of words are skipped. The positional values then hold the atlas alone
+    (nothing with --connect)."""
+    if len(values) != (1 if with_atlas else 0):
+        raise InputError("goal", "with --goals, give the atlas alone" if with_atlas
+                                 else "with --goals and --connect, give no goal on the command line")
+    try:
+        text = sys.stdin.read() if source == "-" else Path(source).read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError("--goals", f"cannot read {source}: {exc}") from None
+    goals: list[list[float]] = []
+    first = True  # the first line with content may be a header of column names
+    for k, line in enumerate(text.splitlines(), start=1):
+        fields = line.split("#")[0].replace(",", " ").split()
+        if not fields:
+            continue
+        shown = line.strip()[:80]
+        try:
+            goal = [float(f) for f in fields]
+        except ValueError:
+            if first:
+                first = False
+                continue
+            raise InputError("--goals", f"{source} line {k}: expected X Y [Z] in metres, got {shown!r}") from None
+        first = False
+        if len(goal) not in (2, 3) or not all(math.isfinite(v) for v in goal):
+            raise InputError("--goals", f"{source} line {k}: expected 2 or 3 finite numbers, got {shown!r}")
+        goals.append(goal)
+    if not goals:
+        raise InputError("--goals", f"{source} holds no goal")
+    return (values[0] if with_atlas else None), goals
 
 
 def _goal(values: list[str], with_atlas: bool) -> tuple[str | None, list[float]]:
@@ -65,6 +100,8 @@ def _start(value: str | None) -> dict[str, float] | None:
 
 
 def cmd_query(args: argparse.Namespace) -> int:
+    if args.goals is not None:
+        return _query_many(args)
     atlas, goal = _goal(args.values, args.connect is None)
     refine = None if args.refine is None else args.refine == "on"
     start = _start(args.start)
@@ -130,6 +167,45 @@ def cmd_query(args: argparse.Namespace) -> int:
     return 0
 
 
+def _query_many(args: argparse.Namespace) -> int:
+    """``reach query --goals FILE``: every goal of the file (the batch of a script), one answer a line as JSON, in
+    the file's order, by effector; one process, its solvers built once."""
+    atlas, goals = _goals_file(args.goals, args.connect is None, args.values)
+    refine = None if args.refine is None else args.refine == "on"
+    start = _start(args.start)
+    if args.direction or args.quaternion:
+        raise InputError("--goals", "a file of goals takes no --direction or --quaternion (ask them one by one)")
+    if args.connect:
+        # loaded when the command runs: `reach --help` starts without the answers' machinery
+        from reach.serving.client import Client
+
+        with Client(args.connect, timeout=args.timeout, curve_server_key=args.curve_server_key,
+                    curve_client_key=args.curve_client_key) as client:
+            for effector in [args.effector] if args.effector else client.strategies()["effectors"]:
+                for a in range(0, len(goals), P.MAX_BATCH):
+                    for reply in client.query_many(effector, goals[a:a + P.MAX_BATCH], refine, start, miss=args.miss):
+                        _print_line(reply)
+        return 0
+    # loaded when the command runs: `reach --help` starts without the answers' machinery
+    from reach.answers.select import Selector
+    from reach.maps.atlas import load_atlas
+
+    selector = Selector(load_atlas(atlas), policy=args.policy,  # type: ignore[arg-type]
+                        refine=refine is not False, budget=args.budget_ms / 1000.0, handover=handover_margin(args),
+                        miss=args.miss)
+    for effector in [args.effector] if args.effector else selector.effectors:
+        for answer in selector.select_many(effector, np.array(goals), start=start):
+            _print_line(answer.to_dict())
+    return 0
+
+
+def _print_line(answer: dict[str, Any]) -> None:
+    # loaded when the command runs: `reach --help` starts without the answers' machinery
+    from reach.serving.protocol import finite
+
+    print(json.dumps(finite(answer), sort_keys=True, allow_nan=False), flush=True)
+
+
 def add_query(sub: Any) -> None:
     """Register ``reach query``."""
     p = sub.add_parser(
@@ -137,9 +213,13 @@ def add_query(sub: Any) -> None:
         description="Ask which strategy reaches the goal X Y [Z] (metres, atlas world frame), by priority: "
         "'reach query ATLAS X Y [Z]' reads the atlas, 'reach query --connect ADDR X Y [Z]' asks a running server.",
     )
-    p.usage = "reach query [options] ATLAS X Y [Z]\n       reach query --connect ADDR [options] X Y [Z]"
-    p.add_argument("values", nargs="+", metavar="ATLAS X Y [Z]", help="atlas folder (omitted with --connect) and one "
+    p.usage = ("reach query [options] ATLAS X Y [Z]\n       reach query [options] --goals FILE ATLAS\n"
+               "       reach query --connect ADDR [options] X Y [Z]")
+    p.add_argument("values", nargs="*", metavar="ATLAS X Y [Z]", help="atlas folder (omitted with --connect) and one "
         "goal [m]")
+    p.add_argument("--goals", metavar="FILE", help="many goals: a file (or - for standard input) of X Y [Z] [m] a "
+                                                   "line, commas or spaces; one answer a line as JSON, in order (a "
+                                                   "script's hundred queries in one process)")
     p.add_argument("--connect", metavar="ADDR", help=f"ask the server at ADDR (e.g. {P.DEFAULT_BIND}) instead of "
                                                      "reading an atlas")
     p.add_argument("--effector", help="effector to ask about (default: every effector of the atlas)")
