@@ -211,7 +211,9 @@ def add_query(sub: Any) -> None:
     p = sub.add_parser(
         "query", help="which strategy reaches a goal",
         description="Ask which strategy reaches the goal X Y [Z] (metres, atlas world frame), by priority: "
-        "'reach query ATLAS X Y [Z]' reads the atlas, 'reach query --connect ADDR X Y [Z]' asks a running server.",
+        "'reach query ATLAS X Y [Z]' reads the atlas (a second or two: it loads the solvers), 'reach query --connect "
+        "ADDR X Y [Z]' asks a running server (milliseconds). Many goals: --goals FILE, a server, or the Python API "
+        "(reach.Selector) in a process of your own.",
     )
     p.usage = ("reach query [options] ATLAS X Y [Z]\n       reach query [options] --goals FILE ATLAS\n"
                "       reach query --connect ADDR [options] X Y [Z]")
