@@ -22,6 +22,9 @@ Prints JSON lines:
   [deg], asked independently and asked with the first answer as ``from``,
   in front of the chest and low in front (where the trunk strategies answer);
   and how many pairs the selector answered with two strategies (a jump too);
+* ``sagittal``: of 18 goals straight ahead of the right shoulder (x 0.3-0.6 m, z 0.1-1.4 m), the answers with a
+  joint other than the right arm's and clavicle's moved to within 1 deg of a limit, and the pelvis's largest shift aside
+  [m] (issue 51: a person keeps them off their limits and the pelvis over the feet);
 * ``lowest``: the lowest reachable grip-centre height [m] of the whole body
   and of crouch in front of the feet: the lowest reachable vertex
   (0.1 <= x <= 0.5 m, |y| <= 0.3 m), and, independent of the resolution, the
@@ -56,6 +59,7 @@ ARM_JOINTS = ("shoulder", "elbow", "forearm", "wrist")
 FRONT_BOX = ([0.1, -0.6, 0.7], [0.6, 0.0, 1.7])  # [m] goals in front of the chest (the arm and the upper body answer)
 LOW_BOX = ([0.2, -0.5, 0.1], [0.7, 0.1, 0.7])  # [m] goals low in front (the trunk strategies answer)
 NEAR_LIMIT = np.radians(5.0)  # [rad] a joint this close to a limit counts as at it
+SAGITTAL_LIMIT = np.radians(1.0)  # [rad] ... and this close, as on it (the sagittal goals' measure)
 LOW_POINTS = ((0.25, -0.15), (0.35, -0.2), (0.5, -0.2), (0.6, -0.2), (0.7, -0.2))  # [m] in front of the feet
 
 
@@ -205,6 +209,29 @@ def main() -> None:
             lowest.append(round(hi, 3))
         emit(bench="lowest", strategy=name, lowest_vertex_z=float(pts[front, 2].min()) if front.any() else None,
              resolution=tree.lattice.resolution.tolist(), lowest_by_ik_z=lowest, at_xy=[list(p) for p in LOW_POINTS])
+
+    # Goals straight ahead of the right shoulder (its sagittal plane), low to high: a person reaches them without
+    # other joints at their limits and with the pelvis over the feet (issue 51's measures).
+    shoulder = body.frame_positions(names=["right_shoulder"])["right_shoulder"]
+    sagittal = np.array([[x, shoulder[1], z] for x in (0.3, 0.45, 0.6) for z in (0.1, 0.3, 0.5, 0.8, 1.1, 1.4)])
+    own = set(arm_idx) | {k for k, n in enumerate(tree_names) if n.startswith("right_clavicle")}
+    others = [k for k, n in enumerate(tree_names) if k not in own and not n.startswith("root_")]
+    at_limit, shifts, examples, reached = 0, [], [], 0
+    for g, a in zip(sagittal, selector.select_many("right_hand", sagittal), strict=True):
+        if not a.reachable or a.posture is None:
+            continue
+        reached += 1
+        q = body.configuration(a.posture, a.root)
+        # at a limit it was moved to (straight knees and a straight idle elbow at the reference are not counted)
+        hit = [tree_names[k] for k in others if (q[k] - lower[k] < SAGITTAL_LIMIT or upper[k] - q[k] < SAGITTAL_LIMIT)
+               and abs(q[k] - body.q_ref[k]) > SAGITTAL_LIMIT]
+        shifts.append(abs(float(q[1] - body.q_ref[1])))
+        if hit:
+            at_limit += 1
+            examples.append({"goal": g.round(3).tolist(), "strategy": a.strategy, "joints": hit})
+    emit(bench="sagittal", goals=len(sagittal), reached=reached, other_joint_at_limit=at_limit,
+         pelvis_shift_max_m=round(max(shifts, default=0.0), 3),
+         pelvis_shift_over_5cm=int(sum(shift > 0.05 for shift in shifts)), examples=examples[:6])
 
 
 def elbow_position(body, q: np.ndarray) -> np.ndarray:  # noqa: ANN001
