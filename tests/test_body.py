@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -43,7 +44,10 @@ def _ansur_rows(sex):
     name = {"male": ("ANSUR_II_MALE_Public.csv", "subjectid"), "female": ("ANSUR_II_FEMALE_Public.csv", "SubjectId")}
     path = SHARED / name[sex][0]
     if not path.exists():
-        pytest.skip(f"{path} is not beside the repository")
+        # CI lays shared/ beside the clone: there a missing file fails; elsewhere the check is skipped, saying why.
+        if os.environ.get("CI") == "true":
+            pytest.fail(f"{path} is missing: the public ANSUR II files are laid beside the repository in CI")
+        pytest.skip(f"{path} is not beside the repository (the carried survey is checked against it where it is)")
     with open(path, encoding="latin-1", newline="") as fh:
         return {int(r[name[sex][1]]): r for r in csv.DictReader(fh)}
 

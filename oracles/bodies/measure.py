@@ -73,7 +73,7 @@ def measure(body: Body) -> dict[str, float]:
     out["overheadfingertipreachsitting"] = _highest(body, tip) - hip + seat
     if place.knee_front is not None:
         bent = {"right_hip_flexion": math.pi / 2, "right_knee_flexion": math.pi / 2}
-        capsules = body.capsules_at(_q(body, **bent))
+        capsules = body.capsules_at(body.configuration(bent))
         pelvis = capsules[[c.name for c in body.collision.placed].index("pelvis")]
         back = min(pelvis[0], pelvis[3]) - pelvis[6]
         out["buttockkneelength"] = float(_points(body, **bent)["joint:right_knee_flexion"][0] + place.knee_front
@@ -92,17 +92,10 @@ def measure(body: Body) -> dict[str, float]:
     return out
 
 
-def _q(body: Body, **angles: float) -> np.ndarray:
-    q = body.q_ref.copy()
-    for name, value in angles.items():
-        q[body.model.joints[body.joint_id(name)].idx_q] = value
-    return q
-
-
 def _points(body: Body, **angles: float) -> dict[str, np.ndarray]:
     """World positions [m] of every frame, and of every joint as ``joint:NAME``, at the reference with angles set."""
     data = body.model.createData()
-    pin.framesForwardKinematics(body.model, data, _q(body, **angles))
+    pin.framesForwardKinematics(body.model, data, body.configuration(angles))
     out = {str(f.name): np.array(data.oMf[i].translation) for i, f in enumerate(body.model.frames)}
     for j in range(1, body.model.njoints):
         out["joint:" + str(body.model.names[j])] = np.array(data.oMi[j].translation)
@@ -124,7 +117,7 @@ def _highest(body: Body, frame: str) -> float:
     fid = body.frame_id(frame)
 
     def height(x: np.ndarray) -> float:
-        q = _q(body, **dict(zip(OVERHEAD, map(float, x), strict=True)))
+        q = body.configuration(dict(zip(OVERHEAD, map(float, x), strict=True)))
         pin.framesForwardKinematics(body.model, data, q)
         return -float(data.oMf[fid].translation[2])
 

@@ -400,9 +400,9 @@ class _TooLarge(Exception):
     pass
 
 
-def _expanded(node: yaml.Node) -> int:
-    """How many nodes a composed document holds with every alias expanded, stopping past MAX_NODES (each node's
-    count computed once: linear in the document, not in its expansion)."""
+def _expanded(node: yaml.Node) -> None:
+    """Count the nodes a composed document holds with every alias expanded, raising _TooLarge past MAX_NODES (each
+    node's count computed once: linear in the document, not in its expansion)."""
     sizes: dict[int, int] = {}
     stack: list[tuple[yaml.Node, bool]] = [(node, False)]
     while stack:
@@ -418,7 +418,6 @@ def _expanded(node: yaml.Node) -> int:
         else:
             stack.append((n, True))
             stack.extend((c, False) for c in children if id(c) not in sizes)
-    return sizes[id(node)]
 
 
 def _one_line(exc: yaml.YAMLError) -> str:

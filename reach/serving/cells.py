@@ -30,13 +30,17 @@ def serve(selector: Selector) -> Served:
     cells: dict[tuple[str, int], bytes] = {}
     for name in atlas.select(None):
         tree = atlas.trees[name]
+        made: dict[int, bytes] = {}  # levels past the tree's depth ask the same raster
         for level in range(1, P.MAX_CELLS_LEVEL + 1):
             at = min(level, tree.d_max)
-            occ, edges = raster(atlas.map(name), at)
-            centres = np.stack(np.meshgrid(*[0.5 * (e[1:] + e[:-1]) for e in edges], indexing="ij"), axis=-1)[occ]
-            body = {"effector": tree.meta.get("effector"), "priority": tree.meta.get("priority"),
-                    "size": (tree.box.size / (1 << at)).tolist(), "centres": np.round(centres, 6).tolist()}
-            cells[(name, level)] = P.encode_value(name) + b":" + P.encode(body)
+            if at not in made:
+                occ, edges = raster(atlas.map(name), at)
+                mid = [0.5 * (e[1:] + e[:-1]) for e in edges]
+                centres = np.stack(np.meshgrid(*mid, indexing="ij"), axis=-1)[occ]
+                body = {"effector": tree.meta.get("effector"), "priority": tree.meta.get("priority"),
+                        "size": (tree.box.size / (1 << at)).tolist(), "centres": np.round(centres, 6).tolist()}
+                made[at] = P.encode_value(name) + b":" + P.encode(body)
+            cells[(name, level)] = made[at]
     return Served(selector, cells)
 
 

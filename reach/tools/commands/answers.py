@@ -115,11 +115,7 @@ def cmd_query(args: argparse.Namespace) -> int:
         if not args.effector:
             raise InputError("--effector", "give the effector with --direction or --quaternion")
     if args.connect:
-        # loaded when the command runs: `reach --help` starts without the answers' machinery
-        from reach.serving.client import Client
-
-        with Client(args.connect, timeout=args.timeout, curve_server_key=args.curve_server_key,
-                    curve_client_key=args.curve_client_key) as client:
+        with _client(args) as client:
             effectors = [args.effector] if args.effector else client.strategies()["effectors"]
             # The reply's envelope fields are not part of the answer.
             replies = [client.query(e, goal, refine, start, miss=args.miss, orientation=wire) for e in effectors]
@@ -127,12 +123,8 @@ def cmd_query(args: argparse.Namespace) -> int:
     else:
         # loaded when the command runs: `reach --help` starts without the answers' machinery
         from reach.answers.answer import orientation_of
-        from reach.answers.select import Selector
-        from reach.maps.atlas import load_atlas
 
-        selector = Selector(load_atlas(atlas), policy=args.policy,  # type: ignore[arg-type]
-                            refine=refine is not False, budget=args.budget_ms / 1000.0, handover=handover_margin(args),
-                            miss=args.miss)
+        selector = _selector(args, atlas, refine)
         effectors = [args.effector] if args.effector else selector.effectors
         aim = orientation_of(wire)
         assert not isinstance(aim, list)  # one goal, one orientation
@@ -176,27 +168,36 @@ def _query_many(args: argparse.Namespace) -> int:
     if args.direction or args.quaternion:
         raise InputError("--goals", "a file of goals takes no --direction or --quaternion (ask them one by one)")
     if args.connect:
-        # loaded when the command runs: `reach --help` starts without the answers' machinery
-        from reach.serving.client import Client
-
-        with Client(args.connect, timeout=args.timeout, curve_server_key=args.curve_server_key,
-                    curve_client_key=args.curve_client_key) as client:
+        with _client(args) as client:
             for effector in [args.effector] if args.effector else client.strategies()["effectors"]:
                 for a in range(0, len(goals), P.MAX_BATCH):
                     for reply in client.query_many(effector, goals[a:a + P.MAX_BATCH], refine, start, miss=args.miss):
                         _print_line(reply)
         return 0
-    # loaded when the command runs: `reach --help` starts without the answers' machinery
-    from reach.answers.select import Selector
-    from reach.maps.atlas import load_atlas
-
-    selector = Selector(load_atlas(atlas), policy=args.policy,  # type: ignore[arg-type]
-                        refine=refine is not False, budget=args.budget_ms / 1000.0, handover=handover_margin(args),
-                        miss=args.miss)
+    selector = _selector(args, atlas, refine)
     for effector in [args.effector] if args.effector else selector.effectors:
         for answer in selector.select_many(effector, np.array(goals), start=start):
             _print_line(answer.to_dict())
     return 0
+
+
+def _client(args: argparse.Namespace) -> Any:
+    """The query's client of ``--connect`` (with its CURVE keys)."""
+    # loaded when the command runs: `reach --help` starts without the answers' machinery
+    from reach.serving.client import Client
+
+    return Client(args.connect, timeout=args.timeout, curve_server_key=args.curve_server_key,
+                  curve_client_key=args.curve_client_key)
+
+
+def _selector(args: argparse.Namespace, atlas: str | None, refine: bool | None) -> Any:
+    """The query's selector of an atlas folder, with the command's options."""
+    # loaded when the command runs: `reach --help` starts without the answers' machinery
+    from reach.answers.select import Selector
+    from reach.maps.atlas import load_atlas
+
+    return Selector(load_atlas(atlas), policy=args.policy, refine=refine is not False,  # type: ignore[arg-type]
+                    budget=args.budget_ms / 1000.0, handover=handover_margin(args), miss=args.miss)
 
 
 def _print_line(answer: dict[str, Any]) -> None:
