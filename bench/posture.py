@@ -25,6 +25,10 @@ Prints JSON lines:
 * ``sagittal``: of 18 goals straight ahead of the right shoulder (x 0.3-0.6 m, z 0.1-1.4 m), the answers with a
   joint other than the right arm's and clavicle's moved to within 1 deg of a limit, and the pelvis's largest shift aside
   [m] (issue 51: a person keeps them off their limits and the pelvis over the feet);
+* ``idle_arm`` (a seated atlas: its body's furniture has a ``seat_pan``; the measures above are for a
+  standing atlas and are skipped): of the answers to goals in front of the seat (x 0.2-0.9 m, y -0.6-0.3 m,
+  z 0.4-1.3 m in the seat's frame), per strategy, the share whose idle (left) arm's elbow, wrist or fingertip
+  lies outside the seat's side, and the farthest [m] (issue 51: the idle arm stays within the seat's sides);
 * ``lowest``: the lowest reachable grip-centre height [m] of the whole body
   and of crouch in front of the feet: the lowest reachable vertex
   (0.1 <= x <= 0.5 m, |y| <= 0.3 m), and, independent of the resolution, the
@@ -60,6 +64,8 @@ FRONT_BOX = ([0.1, -0.6, 0.7], [0.6, 0.0, 1.7])  # [m] goals in front of the che
 LOW_BOX = ([0.2, -0.5, 0.1], [0.7, 0.1, 0.7])  # [m] goals low in front (the trunk strategies answer)
 NEAR_LIMIT = np.radians(5.0)  # [rad] a joint this close to a limit counts as at it
 SAGITTAL_LIMIT = np.radians(1.0)  # [rad] ... and this close, as on it (the sagittal goals' measure)
+SEATED_BOX = ([0.2, -0.6, 0.4], [0.9, 0.3, 1.3])  # [m] goals in front of a seated body, in the seat's frame
+IDLE_POINTS = ("left_elbow_flexion", "left_wrist_flexion", "left_fingertip")  # the idle arm's points measured
 LOW_POINTS = ((0.25, -0.15), (0.35, -0.2), (0.5, -0.2), (0.6, -0.2), (0.7, -0.2))  # [m] in front of the feet
 
 
@@ -123,6 +129,10 @@ def main() -> None:
         emit(bench="stored_collisions", strategy=name, postures=int(rows.size), share=float(np.mean(colliding)))
 
     selector = Selector(atlas, budget=args.budget, handover=math.radians(args.handover_deg)).warm_up()
+    pans = [box for box in body.furniture if box.name == "seat_pan"]
+    if pans:
+        idle_arm(body, selector, atlas, pans[0], args.goals)
+        return
     tree_names = list(atlas.trees["right_arm"].vertices.posture_names)
     shoulder_z = body.frame_positions(names=["right_shoulder"])["right_shoulder"][2]
     # Each measure draws from its own stream: the goals do not depend on how
@@ -232,6 +242,24 @@ def main() -> None:
     emit(bench="sagittal", goals=len(sagittal), reached=reached, other_joint_at_limit=at_limit,
          pelvis_shift_max_m=round(max(shifts, default=0.0), 3),
          pelvis_shift_over_5cm=int(sum(shift > 0.05 for shift in shifts)), examples=examples[:6])
+
+
+def idle_arm(body, selector: Selector, atlas, pan, n: int) -> None:  # noqa: ANN001
+    """The ``idle_arm`` measure of a seated atlas: how far the left arm's points go past the pan's left side."""
+    side = pan.hi[1]  # [m] the seat's left side (the pan is axis-aligned in the seat's frame)
+    goals = np.random.default_rng(5).uniform(*SEATED_BOX, (n, 3))
+    effector = next(iter({tree.meta["oracle"]["params"]["effector"] for tree in atlas.trees.values()}))
+    rows: dict[str, list[float]] = {}
+    for a in selector.select_many(effector, goals):
+        if a.reachable and a.posture is not None:
+            q = body.configuration(a.posture, a.root)
+            idle = body.frame_positions(q, list(IDLE_POINTS))
+            rows.setdefault(a.strategy, []).append(max(p[1] for p in idle.values()))
+    for name, ys in sorted(rows.items()):
+        out = np.array(ys) - side
+        emit(bench="idle_arm", strategy=name, answers=len(ys), seat_side_y=round(float(side), 3),
+             outside=int(np.sum(out > 0)), share_outside=round(float(np.mean(out > 0)), 3),
+             farthest_outside_m=round(float(max(out.max(), 0.0)), 3), idle_arm_max_y=round(float(max(ys)), 3))
 
 
 def elbow_position(body, q: np.ndarray) -> np.ndarray:  # noqa: ANN001

@@ -32,7 +32,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import yaml
@@ -45,8 +45,11 @@ from reach.maps.box import Box
 from reach.maps.index import MAX_DIRECTIONS
 from reach.maps.tree import MAX_DEPTH
 
+if TYPE_CHECKING:
+    from oracles.bodies.population import Population
+
 DEFAULT_BODY_ORACLE = "casadi-ik"
-TOP_KEYS = {"name", "description", "base", "body", "box", "depth", "oracle", "strategies", "build"}
+TOP_KEYS = {"name", "description", "base", "body", "box", "depth", "oracle", "strategies", "build", "population"}
 STRATEGY_KEYS = {"name", "effector", "priority", "oracle", "description", "joints", "tasks", "mirror_of", "directions"}
 BUILD_KEYS = {"chunk_size", "refine"}
 REFINE_KEYS = {"centres", "faces", "isolated"}
@@ -91,6 +94,9 @@ class Config:
     # load-time warnings (see Diagnosed), each naming its strategies
     notes: tuple[str, ...] = field(default=(), compare=False)
     limit: Box | None = None  # box: auto: the provable bound B0 may grow to when reachable vertices lie on its faces
+    # ``population:`` (oracles.bodies.population): the config's strategies for each of its members; the config
+    # itself is its first member's (reach.build.population)
+    population: Population | None = None
 
     def strategy(self, name: str) -> StrategySpec:
         for s in self.strategies:
@@ -186,6 +192,9 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
         raise check.fail("depth.min", f"D_min ({d_min}) must not exceed D_max ({d_max})")
     # A body's oracle defaults to casadi-ik, the reference engine; an analytic atlas names its shape.
     default = _oracle(check, top.get("oracle", {"name": DEFAULT_BODY_ORACLE}), "oracle", None)
+    population, body = None, top.get("body")
+    if "population" in top:
+        population, body = _population(check, top)
     raw_strategies = top["strategies"]
     if not isinstance(raw_strategies, list) or not raw_strategies:
         raise check.fail("strategies", "expected a non-empty list of strategies")
@@ -207,12 +216,12 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
         oracle = _oracle(check, s["oracle"], f"{key}.oracle", default) if "oracle" in s else default
         if "joints" in s or "tasks" in s or "body" in top:
             # A body strategy: the IK oracle receives the body, the effector, the joints and the tasks.
-            if "body" not in top:
+            if body is None:
                 raise check.fail(f"{key}.joints", "joints and tasks need a top-level 'body'")
             if "joints" not in s:
                 raise check.fail(f"{key}.joints", "required key is missing (the joints this strategy may move)")
             oracle = OracleSpec(oracle.name,
-                                {**oracle.params, **body_params(top["body"], effector, s["joints"], s.get("tasks"))})
+                                {**oracle.params, **body_params(body, effector, s["joints"], s.get("tasks"))})
         mirror_of = check.string(s["mirror_of"], f"{key}.mirror_of") if "mirror_of" in s else None
         directions = check.integer(s.get("directions", 0), f"{key}.directions", 0, MAX_DIRECTIONS)
         strategies.append(StrategySpec(sname, effector, priority, oracle, str(s.get("description", "")), mirror_of,
@@ -243,7 +252,21 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
             raise check.fail(f"strategies[{i}].mirror_of", "mirroring needs a box symmetric about y = 0, got y in "
                                                            f"[{box.lo[1]}, {box.hi[1]}]")
     strategies.sort(key=lambda spec: spec.priority)
-    return Config(name, source, box, d_min, d_max, tuple(strategies), chunk, refine, dict(top), notes, limit)
+    return Config(name, source, box, d_min, d_max, tuple(strategies), chunk, refine, dict(top), notes, limit,
+                  population)
+
+
+def _population(check: _Checker, top: dict[str, Any]) -> tuple[Population, dict[str, Any]]:
+    """The population and the body of its first member (the config as one body stands for its first member)."""
+    # loaded when a config has a population: ANSUR II's data are read only then
+    from oracles.bodies.population import member_body, members, parse_population
+
+    try:
+        population = parse_population(top["population"])
+        first = members(population)[0]
+        return population, member_body(top.get("body"), first)
+    except ModelError as exc:
+        raise check.fail(exc.key or "population", exc.reason) from exc
 
 
 def _diagnose(strategies: list[StrategySpec], oracles: list[Oracle]) -> tuple[str, ...]:

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from reach.answers.defaults import REFINE_BUDGET
-from reach.errors import InputError
+from reach.errors import ConfigError, InputError
 from reach.serving import protocol as P
 from reach.tools.commands.common import handover_margin, handover_option, policy_option, print_json
 
@@ -349,6 +349,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from reach.maps.atlas import load_atlas
 
     at = None if not args.at else np.array([[x, y, z, math.radians(yaw)] for x, y, z, yaw in args.at])
+    if args.direct or any(_is_population(a) for a in args.atlas):
+        return _accommodation(args, at)
     atlases = [load_atlas(a) for a in args.atlas]
     results = evaluate(atlases, load_targets(args.targets), args.effector, args.policy, refine=not args.no_refine,
                        placements=at)
@@ -366,13 +368,56 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _is_population(path: str) -> bool:
+    from reach.build.population import is_population
+
+    return is_population(path)
+
+
+def _accommodation(args: argparse.Namespace, at: np.ndarray | None) -> int:
+    """``reach evaluate`` of a population: a built population's folder, or a config with --direct."""
+    # loaded when the command runs: `reach --help` starts without the answers' machinery
+    from reach.answers import accommodation
+    from reach.answers.evaluate import load_targets
+
+    if len(args.atlas) != 1:
+        raise ConfigError("atlas", "", "a population is evaluated alone: give one population folder (or one config "
+                                       f"with --direct), got {len(args.atlas)}")
+    if at is not None and len(at) != 1:
+        raise ConfigError("--at", "", "a population takes one placement, for every member")
+    if args.figure:
+        raise ConfigError("--figure", "", "a population's figure is not drawn yet: omit --figure")
+    targets = load_targets(args.targets)
+    if args.direct:
+        from reach.build.config import load_config
+
+        config = load_config(args.atlas[0])
+        if config.population is None:
+            raise ConfigError(config.source, "population", "--direct needs a config with population: (see "
+                                                           "docs/population.md)")
+        log = None if args.json else (lambda line: print(line, file=sys.stderr, flush=True))
+        result = accommodation.direct(config, targets, args.effector, at, log=log)
+    else:
+        result = accommodation.from_atlases(args.atlas[0], targets, args.effector, refine=not args.no_refine,
+                                            placement=at)
+    if args.json:
+        print_json(result)
+    else:
+        print(accommodation.text(result))
+    return 0
+
+
 def add_evaluate(sub: Any) -> None:
     """Register ``reach evaluate``."""
     p = sub.add_parser("evaluate", help="which strategy reaches each target, per atlas", description="For each "
         "target of a CSV (name, x, y, z [m], optional effector), which strategy each atlas chooses; several atlases "
         "give a population table.")
-    p.add_argument("atlas", nargs="+", help="atlas folders")
+    p.add_argument("atlas", nargs="+", help="atlas folders; or one population folder (reach build of a config with "
+                                            "population:), for the share of its members that reach each target; "
+                                            "or, with --direct, one such config")
     p.add_argument("--targets", required=True, help="CSV file with name, x, y, z[, effector]")
+    p.add_argument("--direct", action="store_true", help="ATLAS is a config with population: solve every member x "
+                   "target with the strategies' oracles, no trees (cheaper than building for a few targets)")
     p.add_argument("--effector", help="effector for targets without one")
     policy_option(p)
     p.add_argument("--no-refine", action="store_true",

@@ -47,6 +47,11 @@ def cmd_build(args: argparse.Namespace) -> int:
 
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, on_terminate)  # as Ctrl-C: the checkpoints stay, a message, status 143
+    if config.population is not None:
+        print(f"building a population ({config.population.to_dict()}), {len(config.strategies)} "
+              f"strateg{'y' if len(config.strategies) == 1 else 'ies'} a member, of {config.source} into {out} "
+              f"({how})", flush=True)
+        return _build_population(args, config, out, factory, client)
     print(f"building {len(config.strategies)} strateg{'y' if len(config.strategies) == 1 else 'ies'} of "
           f"{config.source} into {out} ({how})", flush=True)
     try:
@@ -62,6 +67,25 @@ def cmd_build(args: argparse.Namespace) -> int:
     if args.strict and cut:
         raise TreeError(f"the box cuts the volume of {', '.join(cut)} (warnings above), and --strict makes that an "
                         "error; the atlas is kept")
+    return 0
+
+
+def _build_population(args: argparse.Namespace, config: Any, out: Path, factory: Any, client: Any) -> int:
+    """``reach build`` of a config with ``population:``: one atlas per member (reach.build.population)."""
+    from reach.build.atlas import build_atlas
+    from reach.build.population import build_population
+
+    def one(member: Any, folder: Path) -> None:
+        build_atlas(member, folder, executor_factory=factory, progress=not args.quiet,
+                    log=lambda line: print(f"  {line}", flush=True), resume=args.resume, mirror=not args.no_mirror,
+                    inherit=not args.no_inherit)
+
+    try:
+        members = build_population(config, out, one, say=lambda line: print(line, flush=True), resume=args.resume)
+    finally:
+        if client is not None:
+            client.close()
+    print(f"population of {len(members)} written to {out} (population.json and one atlas folder per member)")
     return 0
 
 
@@ -111,6 +135,25 @@ def add_accept(sub: Any) -> None:
     p.set_defaults(func=cmd_accept)
 
 
+def _members(config: Any, as_json: bool) -> int:
+    """``reach model`` of a config with ``population:``: its members and their key dimensions."""
+    from oracles.bodies.population import key_dimensions, members
+
+    rows = [{"name": m.name, "sex": m.sex, "weight": round(m.weight, 4), **key_dimensions(m), "body": m.human}
+            for m in members(config.population)]
+    if as_json:
+        print_json({"population": config.population.to_dict(), "members": rows})
+        return 0
+    print(f"{config.source}: a population of {len(rows)} ({sum(r['sex'] == 'female' for r in rows)} women); key "
+          "dimensions [m] (ANSUR II's; a boundary manikin's regressed on its family's): stature, thumb-tip reach, "
+          "sitting height, buttock-knee length")
+    print(f"  {'member':<22} {'sex':<7} {'weight':>7} {'stature':>8} {'thumbtip':>9} {'sitting':>8} {'butt-knee':>9}")
+    for r in rows:
+        print(f"  {r['name']:<22} {r['sex']:<7} {r['weight']:>7.3f} {r['stature']:>8.4f} {r['thumbtipreach']:>9.4f} "
+              f"{r['sittingheight']:>8.4f} {r['buttockkneelength']:>9.4f}")
+    return 0
+
+
 def cmd_model(args: argparse.Namespace) -> int:
     # loaded when the command runs: `reach --help` starts without the answers' machinery
     from oracles.bodies.body import human_body, load_body
@@ -140,6 +183,8 @@ def cmd_model(args: argparse.Namespace) -> int:
         from reach.build.config import load_config, read_yaml
 
         config = load_config(spec)  # errors name the file and the key
+        if config.population is not None:
+            return _members(config, args.json)
         data = read_yaml(Path(spec))
         if not isinstance(data, dict) or "body" not in data:
             raise ConfigError(spec, "body", "the config names no body")

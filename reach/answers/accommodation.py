@@ -1,0 +1,161 @@
+"""Accommodation: the share of a population that reaches each target, with its 95 % interval.
+
+Two ways to the same table:
+
+* **from a built population** (``reach build`` of a config with ``population:``, then ``reach evaluate FOLDER``):
+  each member's atlas answers as ``reach evaluate`` answers one atlas (the trees, each answer refined at the target);
+* **direct** (``reach evaluate CONFIG --direct``): each member's strategies' oracles solve the targets, no tree. For
+  a few targets and many members this is cheaper than building an atlas a member; for many targets, or targets asked
+  again and again (a layout being moved, a server), the atlases pay.
+
+A member reaches a target when a strategy does, tried by priority; per strategy, the share of members whose strategy
+reaches it (a strategy the selector did not choose counts when it reaches too). Members may carry weights (the whole
+survey weighted to a mix of the sexes): a share is the weighted mean, and its interval is Wilson's score interval
+(Wilson, E. B. (1927), *Probable inference, the law of succession, and statistical inference*, JASA 22:209-212)
+at Kish's effective sample size (sum w)^2 / sum w^2 (Kish, L. (1965), *Survey Sampling*): with equal weights, the
+plain Wilson interval of k in n. The interval is the sampling error of the population's members standing for the
+people they were drawn from; a boundary family is not a sample, and its interval is printed but means little.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from reach.answers.evaluate import Target, evaluate, to_body
+from reach.errors import ConfigError
+
+Z95 = 1.959963984540054  # the standard normal's 97.5th percentile: a two-sided 95 % interval
+
+
+def wilson(share: float, n: float, z: float = Z95) -> tuple[float, float]:
+    """Wilson's score interval of a proportion ``share`` observed on ``n`` (possibly effective, not whole) trials."""
+    if n <= 0:
+        return 0.0, 1.0
+    centre = (share + z * z / (2 * n)) / (1 + z * z / n)
+    half = z / (1 + z * z / n) * math.sqrt(share * (1 - share) / n + z * z / (4 * n * n))
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def weighted_share(weights: np.ndarray, hits: np.ndarray) -> dict[str, float]:
+    """The weighted share of ``hits`` (bool) with its Wilson interval at Kish's effective n."""
+    w = np.asarray(weights, float)
+    total = float(w.sum())
+    share = float(w[np.asarray(hits, bool)].sum() / total) if total > 0 else 0.0
+    n_eff = total * total / float((w * w).sum()) if total > 0 else 0.0
+    lo, hi = wilson(share, n_eff)
+    return {"share": round(share, 4), "low": round(lo, 4), "high": round(hi, 4)}
+
+
+def table(members: Sequence[dict[str, Any]], targets: list[str], strategies: list[str]) -> dict[str, Any]:
+    """Per target: the share reached (any strategy) and per strategy, from each member's rows.
+
+    ``members``: ``{"name", "weight", "rows"}``, a row per target with ``reachable``, ``strategy`` and ``also`` (the
+    other strategies that reach it), as :func:`reach.answers.evaluate.evaluate` gives them.
+    """
+    weights = np.array([m["weight"] for m in members], float)
+    out = []
+    for t, name in enumerate(targets):
+        rows = [m["rows"][t] for m in members]
+        reached = np.array([r["reachable"] for r in rows], bool)
+        per = {s: weighted_share(weights, np.array([r["reachable"] and (r["strategy"] == s or s in r["also"])
+                                                    for r in rows], bool)) for s in strategies}
+        chosen = {s: weighted_share(weights, np.array([r["reachable"] and r["strategy"] == s for r in rows], bool))
+                  ["share"] for s in strategies}
+        out.append({"target": name, **weighted_share(weights, reached), "members": len(rows),
+                    "unreached": [m["name"] for m, ok in zip(members, reached, strict=True) if not ok][:20],
+                    "by_strategy": per, "chosen": chosen})
+    verdicts = [{"name": m["name"], "weight": m["weight"], "reached": [bool(r["reachable"]) for r in m["rows"]],
+                 "strategy": [r["strategy"] for r in m["rows"]]} for m in members]
+    return {"targets": out, "members": len(members), "strategies": strategies, "by_member": verdicts,
+            "effective_n": round(float(weights.sum() ** 2 / (weights * weights).sum()), 1) if len(members) else 0}
+
+
+def from_atlases(folder: str | Path, targets: list[Target], effector: str | None = None, refine: bool = True,
+                 budget: float = 1.0, placement: np.ndarray | None = None) -> dict[str, Any]:
+    """Accommodation from a built population's atlases (one :func:`evaluate` per member)."""
+    from reach.build.population import read_manifest
+    from reach.maps.atlas import load_atlas
+
+    doc = read_manifest(folder)
+    members = []
+    strategies: list[str] = []
+    for m in doc["members"]:
+        path = Path(folder) / m["atlas"]
+        if not (path / "manifest.json").is_file():
+            raise ConfigError(str(path), "", f"member {m['name']} is not built yet: run reach build --resume on the "
+                                             "population's config")
+        atlas = load_atlas(path)
+        result = evaluate([atlas], targets, effector, refine=refine, budget=budget, placements=placement)
+        members.append({"name": m["name"], "weight": float(m["weight"]), "rows": result["atlases"][0]["rows"]})
+        strategies += [s for s in atlas.trees if s not in strategies]
+    used = [s for s in strategies if any(s == r["strategy"] or s in r["also"] for m in members for r in m["rows"])]
+    return {"population": doc.get("name"), "way": "atlases", **table(members, [t.name for t in targets], used)}
+
+
+def direct(config: Any, targets: list[Target], effector: str | None = None,
+           placement: np.ndarray | None = None, verify: bool = True,
+           log: Any = None) -> dict[str, Any]:
+    """Accommodation by solving every member x target with the members' strategies' oracles (no tree).
+
+    Every reached target is checked by the strategy's own forward-kinematics check of the posture on that member's
+    model (``Verifying``); one that fails it counts as not reached, and the count is reported.
+    """
+    from oracles.protocol import Goals, OracleSpec, Verifying
+    from reach.build.population import entries
+
+    points = np.array([t.point for t in targets], float).reshape(-1, 3)
+    if placement is not None:
+        points = to_body(points, np.asarray(placement, float).reshape(1, 4))[0]
+    effs = [t.effector or effector for t in targets]
+    known = sorted({s.effector for s in config.strategies})
+    for t, e in zip(targets, effs, strict=True):
+        if e is None and len(known) != 1:
+            raise ConfigError("targets", t.name, f"no effector: give an effector column or --effector (one of "
+                                                 f"{', '.join(known)})")
+    effs = [e or known[0] for e in effs]
+    strategies = [s for s in config.strategies if s.effector in set(effs)]
+    members, refuted = [], 0
+    for k, entry in enumerate(entries(config), start=1):
+        rows: list[dict[str, Any]] = [{"target": t.name, "reachable": False, "strategy": None, "also": []}
+                                      for t in targets]
+        for s in strategies:
+            pick = [i for i, e in enumerate(effs) if e == s.effector]
+            oracle = OracleSpec(s.oracle.name, {**s.oracle.params, "body": entry.body}).create()
+            v = oracle.evaluate(Goals.of(points[pick]))
+            ok = np.asarray(v.reachable, bool)
+            if verify and ok.any() and isinstance(oracle, Verifying) and v.posture is not None:
+                checked = oracle.verify(points[pick][ok], np.asarray(v.posture)[ok])
+                refuted += int(np.sum(~checked))
+                ok[np.flatnonzero(ok)[~checked]] = False
+            for i, hit in zip(pick, ok, strict=True):
+                if hit:
+                    row = rows[i]
+                    if row["reachable"]:
+                        row["also"].append(s.name)
+                    else:
+                        row["reachable"], row["strategy"] = True, s.name
+        members.append({"name": entry.name, "weight": entry.weight, "rows": rows})
+        if log is not None:
+            log(f"member {k}: {entry.name}, {sum(r['reachable'] for r in rows)} of {len(rows)} targets reached")
+    return {"population": config.name, "way": "direct", "refuted_by_check": refuted,
+            **table(members, [t.name for t in targets], [s.name for s in strategies])}
+
+
+def text(result: dict[str, Any]) -> str:
+    """The accommodation table: one row per target, the share reached and per strategy, in percent."""
+    strategies = result["strategies"]
+    head = ["target", "reached % [95 % CI]", *strategies]
+    lines = [head]
+    for row in result["targets"]:
+        lines.append([row["target"], f"{100 * row['share']:.1f} [{100 * row['low']:.1f}, {100 * row['high']:.1f}]",
+                      *(f"{100 * row['by_strategy'][s]['share']:.1f}" for s in strategies)])
+    widths = [max(len(r[i]) for r in lines) for i in range(len(head))]
+    out = [("  ".join(c.ljust(w) for c, w in zip(r, widths, strict=True))).rstrip() for r in lines]
+    out.append(f"{result['members']} members (effective n {result['effective_n']}), {result['way']}; a strategy's "
+               "column: the share it reaches, chosen or not")
+    return "\n".join(out)

@@ -1,0 +1,115 @@
+"""Building a population: one atlas per member, in one folder with one manifest.
+
+A config with ``population:`` (:mod:`oracles.bodies.population`) is built member by member: each member's config is
+the config with the member's body (the config's ``posture``, ``seat`` and ``proportions`` kept), and its atlas goes to
+``OUT/<member>/``. ``OUT/population.json`` lists the members (name, sex, weight, body, folder) and the population's
+spec; it is written before the first member is built, so a killed build resumes (``--resume``) member by member and,
+inside a member, tree by tree from the trees' checkpoints.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from reach.build.config import Config, parse_config
+from reach.errors import ConfigError, TreeError
+
+MANIFEST = "population.json"
+FORMAT = 1
+
+
+@dataclass(frozen=True)
+class Entry:
+    """A member as the population's manifest lists it."""
+
+    name: str
+    sex: str
+    weight: float
+    body: dict[str, Any]
+
+
+def entries(config: Config) -> list[Entry]:
+    """The config's members with their bodies (the config must have ``population:``)."""
+    # loaded when a population is built or answered: ANSUR II's data are read only then
+    from oracles.bodies.population import member_body, members
+
+    if config.population is None:
+        raise ConfigError(config.source, "population", "this config has no population")
+    return [Entry(m.name, m.sex, m.weight, member_body(config.raw.get("body"), m))
+            for m in members(config.population)]
+
+
+def member_config(config: Config, entry: Entry) -> Config:
+    """The config of one member: the population's config with the member's body, named after the member."""
+    data = {k: v for k, v in config.raw.items() if k != "population"}
+    data["body"], data["name"] = entry.body, entry.name
+    return parse_config(data, f"{config.source} (member {entry.name})", entry.name)
+
+
+def write_manifest(out: Path, config: Config, members: list[Entry]) -> None:
+    """The population's manifest, written whole to a temporary file and renamed: never half written."""
+    assert config.population is not None
+    doc = {"format": FORMAT, "name": config.name, "source": config.source,
+           "population": config.population.to_dict(),
+           "members": [{"name": e.name, "sex": e.sex, "weight": e.weight, "body": e.body, "atlas": e.name}
+                       for e in members]}
+    tmp = out / (MANIFEST + ".tmp")
+    tmp.write_text(json.dumps(doc, indent=1))
+    os.replace(tmp, out / MANIFEST)
+
+
+def is_population(folder: str | Path) -> bool:
+    return (Path(folder) / MANIFEST).is_file()
+
+
+def read_manifest(folder: str | Path) -> dict[str, Any]:
+    """A population folder's manifest; errors name the file and what was expected."""
+    path = Path(folder) / MANIFEST
+    try:
+        doc = json.loads(path.read_text())
+    except OSError as exc:
+        raise TreeError(f"{path}: cannot read: {exc.strerror or exc}") from exc
+    except ValueError as exc:
+        raise TreeError(f"{path}: not JSON ({exc})") from exc
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT or not isinstance(doc.get("members"), list):
+        raise TreeError(f"{path}: expected a population manifest (format {FORMAT}, a members list)")
+    for i, m in enumerate(doc["members"]):
+        if (not isinstance(m, dict) or not isinstance(m.get("atlas"), str) or "/" in m["atlas"]
+                or m["atlas"].startswith(".") or not isinstance(m.get("weight"), (int, float))
+                or not m["weight"] >= 0):
+            raise TreeError(f"{path}: members[{i}]: expected name, sex, a weight >= 0 and an atlas folder name")
+    return doc
+
+
+def build_population(config: Config, out: str | Path, build: Callable[[Config, Path], Any],
+                     say: Callable[[str], None] = lambda _line: None, resume: bool = False) -> list[Entry]:
+    """Build every member's atlas with ``build(member_config, folder)``; progress lines to ``say``."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    members = entries(config)
+    if is_population(out) and not resume:
+        raise ConfigError(str(out), "", "a population is already built here: give --resume to keep its members and "
+                                        "finish the others, or another --output")
+    write_manifest(out, config, members)
+    start, done = time.monotonic(), 0
+    for k, (entry, member) in enumerate(_configs(config, members), start=1):
+        folder = out / entry.name
+        t0 = time.monotonic()
+        build(member, folder)
+        done += 1
+        spent = time.monotonic() - start
+        left = spent / done * (len(members) - k)
+        say(f"member {k}/{len(members)} {entry.name}: {len(member.strategies)} trees in "
+            f"{time.monotonic() - t0:.0f} s; {spent:.0f} s so far, about {left:.0f} s left")
+    return members
+
+
+def _configs(config: Config, members: list[Entry]) -> Iterator[tuple[Entry, Config]]:
+    for entry in members:
+        yield entry, member_config(config, entry)

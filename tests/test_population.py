@@ -1,0 +1,189 @@
+"""A population (issue 47): members from ANSUR II, their atlases, and the share that reaches each target."""
+
+from __future__ import annotations
+
+import csv
+import gzip
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from oracles.bodies.body import load_body
+from oracles.bodies.population import boundary_manikins, member_body, members, parse_population
+from oracles.errors import ModelError
+from oracles.protocol import OracleSpec
+from reach.answers.accommodation import direct, weighted_share, wilson
+from reach.answers.evaluate import Target
+from reach.build.config import parse_config
+from reach.build.population import entries
+from reach.errors import ConfigError
+from reach.tools.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+ARM = ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"]
+
+
+def small(population: dict, **body: object) -> dict:
+    """A population config with the right arm only, coarse: a member builds in about a second."""
+    return {"name": "pop", "population": population, "body": {"human": dict(body)}, "box": "auto",
+            "depth": {"min": 2, "max": 3}, "oracle": {"name": "casadi-ik", "params": {"restarts": 1, "seed": 0}},
+            "strategies": [{"name": "right_arm", "effector": "right_hand", "joints": ARM,
+                            "tasks": [{"type": "reach"}, {"type": "self_collision"}, {"type": "coupling"}]}]}
+
+
+# Targets about the right shoulder of an adult standing at the origin: some every member reaches, some none does, some
+# only the long-armed.
+TARGETS = [Target("chest", (0.45, -0.20, 1.25)), Target("far", (0.85, -0.20, 1.00)),
+           Target("side", (0.05, -0.75, 1.20)), Target("high", (0.35, -0.15, 1.90)),
+           Target("ahead", (0.55, -0.20, 1.35)), Target("low", (0.30, -0.25, 0.85))]
+
+
+@pytest.mark.parametrize(("raw", "key"), [
+    ({"ansur": {"n": 0}}, "population.ansur.n"),
+    ({"ansur": {"n": 5, "sex": "x"}}, "population.ansur.sex"),
+    ({"ansur": {"n": 5, "sex": "male", "female_share": 0.3}}, "population.ansur.female_share"),
+    ({"ansur": {"all": True, "n": 3}}, "population.ansur.n"),
+    ({"ansur": {"n": 5000, "sex": "female"}}, "population.ansur.n"),
+    ({"boundary": {"coverage": 1.5}}, "population.boundary.coverage"),
+    ({"boundary": {}, "ansur": {"n": 3}}, "population"),
+    ({"people": 3}, "population.people"),
+])
+def test_a_bad_population_names_its_key(raw, key):
+    with pytest.raises(ModelError) as err:
+        members(parse_population(raw))
+    assert err.value.key == key
+
+
+def test_a_config_error_names_the_file_and_the_population_key():
+    with pytest.raises(ConfigError, match=r"cfg\.yaml.*population\.ansur\.sex"):
+        parse_config(small({"ansur": {"n": 2, "sex": "both"}}), "cfg.yaml")
+
+
+def test_a_drawn_population_is_the_same_every_time_and_mixes_the_sexes_as_asked():
+    spec = parse_population({"ansur": {"n": 10, "sex": "mixed", "female_share": 0.3, "seed": 7}})
+    first, again = members(spec), members(spec)
+    assert [m.name for m in first] == [m.name for m in again]
+    assert sum(m.sex == "female" for m in first) == 3 and len({m.name for m in first}) == 10
+    other = members(parse_population({"ansur": {"n": 10, "sex": "mixed", "female_share": 0.3, "seed": 8}}))
+    assert [m.name for m in other] != [m.name for m in first]
+
+
+def test_the_whole_survey_weighted_to_half_women():
+    everyone = members(parse_population({"ansur": {"all": True, "female_share": 0.5}}))
+    # the survey's own counts (Gordon et al. 2014), read from the carried file, not from the module
+    with gzip.open(ROOT / "oracles/bodies/data/ansur2.csv.gz", "rt") as fh:
+        sexes = [row["sex"] for row in csv.DictReader(fh)]
+    assert len(everyone) == len(sexes) == 6068
+    w = np.array([m.weight for m in everyone])
+    women = np.array([m.sex == "female" for m in everyone])
+    assert math.isclose(w[women].sum() / w.sum(), 0.5) and math.isclose(w.sum(), len(everyone))
+
+
+def test_boundary_manikins_span_their_sex_thumbtip_reach():
+    # Issue 47: at least 95 % of 500 sampled subjects' thumb-tip reaches lie within the range of their sex's manikins.
+    # The subjects are read from the carried survey file here, independently of the module's sample.
+    with gzip.open(ROOT / "oracles/bodies/data/ansur2.csv.gz", "rt") as fh:
+        rows = list(csv.DictReader(fh))
+    rng = np.random.default_rng(47)
+    for sex in ("male", "female"):
+        reach = np.array([float(r["thumbtipreach"]) / 1000 for r in rows if r["sex"] == sex])
+        family = boundary_manikins(sex)
+        assert len(family) == 15 and family[0].name == f"{sex}_centre"
+        spanned = [m.human["thumbtipreach"] for m in family]
+        picked = rng.choice(reach, size=500, replace=False)
+        inside = np.mean((picked >= min(spanned)) & (picked <= max(spanned)))
+        assert inside >= 0.95, (sex, inside)
+        # the centre is the survey's mean
+        assert abs(family[0].human["thumbtipreach"] - reach.mean()) < 1e-4
+
+
+def test_wilson_interval_at_known_values():
+    z2 = 1.959963984540054**2
+    # no successes in n: the upper bound is z^2 / (n + z^2); all successes: the lower is n / (n + z^2)
+    assert wilson(0.0, 4) == (0.0, pytest.approx(z2 / (4 + z2)))
+    assert wilson(1.0, 40)[0] == pytest.approx(40 / (40 + z2))
+    # equal weights are the plain interval; doubling every weight changes nothing
+    hits = np.array([True, False, True, True])
+    assert weighted_share(np.ones(4), hits) == weighted_share(2 * np.ones(4), hits)
+    assert weighted_share(np.ones(4), hits)["share"] == 0.75
+
+
+def test_a_member_keeps_the_config_body_posture_and_seat_but_not_its_size():
+    m = members(parse_population({"ansur": {"n": 1, "sex": "female", "seed": 1}}))[0]
+    body = member_body({"human": {"sex": "male", "percentile": 95, "posture": "seated", "seat": {"kind": "car"}}}, m)
+    assert body["human"] == {"posture": "seated", "seat": {"kind": "car"}, **m.human}
+    with pytest.raises(ModelError, match="generated humans"):
+        member_body({"urdf": "robot.urdf"}, m)
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory):
+    """A population of four, each member's right arm built (depth 3), through the CLI."""
+    folder = tmp_path_factory.mktemp("pop")
+    config = folder / "pop.yaml"  # JSON is YAML
+    config.write_text(json.dumps(small({"ansur": {"n": 4, "sex": "mixed", "seed": 3}})))
+    targets = folder / "targets.csv"
+    targets.write_text("name,x,y,z\n" + "".join(f"{t.name},{t.point[0]},{t.point[1]},{t.point[2]}\n"
+                                                 for t in TARGETS))
+    assert main(["build", str(config), "-o", str(folder / "out"), "--quiet", "-j", "1"]) == 0
+    return config, folder / "out", targets
+
+
+def test_a_population_builds_one_atlas_per_member_and_resumes(built, capsys):
+    config, out, _ = built
+    doc = json.loads((out / "population.json").read_text())  # read with json: our manifest, an independent parser
+    names = [m["name"] for m in doc["members"]]
+    assert len(names) == 4 and all((out / n / "manifest.json").is_file() for n in names)
+    assert doc["population"] == {"ansur": {"n": 4, "sex": "mixed", "seed": 3}}
+    capsys.readouterr()
+    assert main(["build", str(config), "-o", str(out), "--quiet", "-j", "1"]) == 2
+    assert "give --resume" in capsys.readouterr().err
+    # a killed build: one member's folder lost; --resume builds it again and keeps the others
+    lost = out / names[2]
+    for f in lost.iterdir():
+        f.unlink()
+    lost.rmdir()
+    capsys.readouterr()
+    assert main(["build", str(config), "-o", str(out), "--quiet", "-j", "1", "--resume"]) == 0
+    log = capsys.readouterr().out
+    assert (lost / "manifest.json").is_file()
+    assert log.count("kept the finished tree") == 3 and log.count("oracle calls") == 1
+    assert main(["model", str(config)]) == 0
+    listing = capsys.readouterr().out
+    assert "a population of 4" in listing and all(n in listing for n in names)
+
+
+def test_accommodation_from_atlases_agrees_with_direct_ik_checked_by_pinocchio(built, capsys):
+    config_path, out, targets = built
+    capsys.readouterr()
+    assert main(["evaluate", str(out), "--targets", str(targets), "--json"]) == 0
+    from_trees = json.loads(capsys.readouterr().out)
+    config = parse_config(json.loads(config_path.read_text()), str(config_path))
+    by_ik = direct(config, TARGETS)
+    assert by_ik["refuted_by_check"] == 0
+    # member x target: the atlases' verdict (refined at the target) against the members' own oracles, every
+    # "reached" checked by forward kinematics on that member's own model, here with Pinocchio directly
+    agree = 0
+    strategy = config.strategies[0]
+    for k, entry in enumerate(entries(config)):
+        oracle = OracleSpec(strategy.oracle.name, {**strategy.oracle.params, "body": entry.body}).create()
+        points = np.array([t.point for t in TARGETS])
+        verdict = oracle.evaluate(points)
+        model = load_body(entry.body).model
+        data = model.createData()
+        frame = model.getFrameId("right_hand")
+        for i, (ok, q) in enumerate(zip(verdict.reachable, verdict.posture, strict=True)):
+            if ok:
+                pin.framesForwardKinematics(model, data, q)
+                assert np.linalg.norm(data.oMf[frame].translation - points[i]) < 0.01
+        assert by_ik["by_member"][k]["reached"] == list(verdict.reachable)
+        assert from_trees["by_member"][k]["name"] == entry.name
+        agree += sum(a == b for a, b in zip(by_ik["by_member"][k]["reached"], from_trees["by_member"][k]["reached"],
+                                            strict=True))
+    assert agree == 4 * len(TARGETS)
+    shares = {t["target"]: t["share"] for t in from_trees["targets"]}
+    assert shares["chest"] == 1.0 and shares["high"] == 0.0  # the table holds both ends, not one answer for all
