@@ -4,6 +4,7 @@ shoulder."""
 
 from __future__ import annotations
 
+import itertools
 import math
 from pathlib import Path
 
@@ -15,7 +16,7 @@ from helpers import browser_only
 
 from oracles.bodies.body import load_body
 from oracles.bodies.environment import parse_box
-from oracles.errors import ModelError
+from oracles.errors import ModelError, TaskError
 from oracles.ik.engine import CasadiIK
 from oracles.ik.search import Search
 from oracles.tasks.reach import TOLERANCE
@@ -415,3 +416,49 @@ def test_evaluate_probes_targets_a_coarse_tree_misses_beside_the_desk(seated_atl
         a = Selector(atlas).probe("right_hand", np.array(r["point"]))
         q = body.configuration(a.posture, a.root)
         assert np.linalg.norm(body.frame_positions(q)["right_hand"] - np.array(r["point"])) <= TOLERANCE + 1e-6
+
+
+def test_the_shoulder_belts_line_agrees_with_pinocchio_and_finite_differences():
+    """With a buckle the belt is the webbing's length from the D-ring over the shoulder and the sternum to the buckle:
+    the CasADi constraint is that length (Pinocchio FK), the dls row its gradient (finite differences)."""
+    import casadi as ca
+
+    from oracles.bodies.kinematics import SymbolicKinematics
+    from oracles.ik.problem import ReachProblem
+    from oracles.ik.strategy import parse_strategy
+    from oracles.tasks import Symbolic
+    from tests.test_tasks import numeric, random_x
+
+    buckle = [0.05, -0.22, 0.30]
+    tasks = [t if t["type"] != "tether" else {**t, "frames": ["left_shoulder", "sternum"], "buckle": buckle}
+             for t in BELTED]
+    body = load_body(seated("car"))
+    problem = ReachProblem(body, parse_strategy(body, "right_hand", TRUNK, tasks))
+    tether = problem.strategy.task("tether")
+
+    def length(q: np.ndarray) -> float:
+        p = body.frame_positions(q)
+        path = [np.array(ANCHOR), p["left_shoulder"], p["sternum"], np.array(buckle)]
+        return float(sum(np.linalg.norm(b - a) for a, b in itertools.pairwise(path)))
+
+    # at the reference the webbing is its length less the slack: the belt holds
+    assert tether._length["path"] == pytest.approx(length(body.q_ref) + 0.02)
+    x = random_x(problem, 5)
+    q = problem.q_of_x(x)
+    tether._length["path"] = length(q) - 0.001  # just past: the row is active
+    sym = Symbolic(SymbolicKinematics(body.model, problem.q_sym), problem.x_sym, ca.SX.sym("g", 3), problem.x_ref,
+                   problem.upper - problem.lower)
+    value = ca.Function("c", [sym.x], [ca.vertcat(*[c.expr for c in tether.constraints(sym)])])(x)
+    assert float(value) == pytest.approx(length(q), abs=1e-9)
+    (row,) = tether.rows(numeric(problem, q, np.zeros(3)))
+    num = numeric(problem, q, np.zeros(3))
+    eps, fd = 1e-6, []
+    for k in range(num.columns.size):
+        v = np.zeros(body.model.nv)
+        v[num.columns[k]] = eps
+        fd.append((length(pin.integrate(body.model, q, v)) - length(q)) / eps)
+    assert np.allclose(row.jacobian.ravel(), fd, atol=1e-4)
+    assert row.error[0] < 0
+    with pytest.raises(TaskError, match="buckle"):
+        parse_strategy(body, "right_hand", TRUNK, [{"type": "tether", "anchor": ANCHOR, "frames": ["sternum"],
+                                                    "buckle": [0, 0]}])

@@ -1,0 +1,90 @@
+"""A population's cost and agreement (issue 47): JSON lines.
+
+* ``direct``: ``reach evaluate --direct`` of ``configs/targets/workstation_right.csv`` for the first ``--direct``
+  members of ``configs/population.yaml``'s draw widened to that many (the same seed and mix), wall and CPU seconds;
+* ``build``: ``reach build`` of ``--build`` members (the demo's right-hand strategies at its resolution, D_max 5),
+  wall and CPU seconds, and the same members' accommodation from their atlases against the direct answers
+  (``agreement``: member x target pairs whose verdicts agree).
+
+    python bench/population.py [--direct 500] [--build 4] [--workers 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from reach.answers.accommodation import direct, from_atlases  # noqa: E402
+from reach.answers.evaluate import load_targets  # noqa: E402
+from reach.build.config import parse_config, read_yaml  # noqa: E402
+
+TARGETS = ROOT / "configs" / "targets" / "workstation_right.csv"
+
+
+def emit(**fields: object) -> None:
+    print(json.dumps(fields), flush=True)
+
+
+def cpu() -> float:
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
+def config_of(n: int):  # noqa: ANN201
+    data = read_yaml(ROOT / "configs" / "population.yaml")
+    data["population"]["ansur"]["n"] = n
+    return parse_config(data, f"configs/population.yaml (n = {n})", "population")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--direct", type=int, default=500, help="members solved directly (default 500)")
+    parser.add_argument("--build", type=int, default=4, help="members built (default 4; 0: none)")
+    parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    args = parser.parse_args()
+    emit(bench="machine", python=platform.python_version(), processor=platform.processor() or platform.machine(),
+         cores=os.cpu_count())
+    targets = load_targets(TARGETS)
+    if args.direct:
+        config = config_of(args.direct)
+        t0, c0 = time.monotonic(), cpu()
+        result = direct(config, targets)
+        wall, spent = time.monotonic() - t0, cpu() - c0
+        emit(bench="direct", members=args.direct, targets=len(targets), strategies=len(config.strategies),
+             wall_s=round(wall, 1), cpu_s=round(spent, 1), per_member_s=round(wall / args.direct, 2),
+             refuted_by_check=result["refuted_by_check"],
+             shares={t["target"]: [t["share"], t["low"], t["high"]] for t in result["targets"]})
+    if args.build:
+        from reach.build.atlas import build_atlas
+        from reach.build.executor import ProcessExecutor
+        from reach.build.population import build_population
+
+        config = config_of(args.build)
+        with tempfile.TemporaryDirectory() as tmp:
+            out = Path(tmp) / "population"
+            t0, c0 = time.monotonic(), cpu()
+            build_population(config, out, lambda member, folder: build_atlas(
+                member, folder, executor_factory=lambda spec: ProcessExecutor(spec, args.workers, config.chunk_size)))
+            wall, spent = time.monotonic() - t0, cpu() - c0
+            emit(bench="build", members=args.build, strategies=len(config.strategies), d_max=config.d_max,
+                 workers=args.workers, wall_s=round(wall, 1), cpu_s=round(spent, 1),
+                 per_member_wall_s=round(wall / args.build, 1))
+            trees = from_atlases(out, targets)
+            by_ik = direct(config, targets)
+            pairs = [(a, b) for m, n in zip(trees["by_member"], by_ik["by_member"], strict=True)
+                     for a, b in zip(m["reached"], n["reached"], strict=True)]
+            emit(bench="agreement", pairs=len(pairs), agree=sum(a == b for a, b in pairs),
+                 atlas_reached=sum(a for a, _ in pairs), direct_reached=sum(b for _, b in pairs))
+
+
+if __name__ == "__main__":
+    main()
