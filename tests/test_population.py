@@ -187,3 +187,33 @@ def test_accommodation_from_atlases_agrees_with_direct_ik_checked_by_pinocchio(b
     assert agree == 4 * len(TARGETS)
     shares = {t["target"]: t["share"] for t in from_trees["targets"]}
     assert shares["chest"] == 1.0 and shares["high"] == 0.0  # the table holds both ends, not one answer for all
+
+
+def test_placement_of_a_population_weighs_its_members_and_the_share_of_targets(built, capsys):
+    from reach.answers.place import Space, rank
+    from reach.maps.atlas import load_atlas
+
+    _, out, targets_csv = built
+    doc = json.loads((out / "population.json").read_text())
+    atlases = [load_atlas(out / m["atlas"]) for m in doc["members"]]
+    space = Space((-0.2, 0.2), (-0.2, 0.2), (0.0, 0.0), (0.0, 0.0), 0.1, 1.0)
+    alone = rank(atlases[:1], TARGETS, space, "right_hand")
+    # a member of weight 0 does not count: the first member with weight 1 ranks as it does alone
+    weighted = rank(atlases, TARGETS, space, "right_hand", body_weights=np.array([1.0, 0, 0, 0]))
+    order = np.lexsort(alone.placements.T)
+    again = np.lexsort(weighted.placements.T)
+    assert np.allclose(alone.accommodated[order], weighted.accommodated[again])
+    assert np.allclose(alone.reached[order], weighted.reached[again])
+    # asking half of the targets accommodates at least as many as asking all, and per body it is a count
+    half = rank(atlases, TARGETS, space, "right_hand", need=0.5)
+    every = rank(atlases, TARGETS, space, "right_hand")
+    assert np.all(half.accommodated[np.lexsort(half.placements.T)] >= every.accommodated[np.lexsort(every.placements.T)])
+    assert set(np.round(half.accommodated * 4, 6)) <= {0.0, 1.0, 2.0, 3.0, 4.0}
+    # the command takes the population folder, and --accommodate keeps only placements at or above the share
+    capsys.readouterr()
+    assert main(["place", str(out), "--targets", str(targets_csv), "--effector", "right_hand", "--x", "-0.2", "0.2", "--y", "-0.2", "0.2",
+                 "--yaw", "0", "0", "--step", "0.1", "--verify", "0", "--targets-share", "0.5", "--accommodate",
+                 "0.5", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["accommodating"] == int(np.sum(half.accommodated >= 0.5))
+    assert all(r["accommodated"] >= 0.5 for r in result["ranked"])

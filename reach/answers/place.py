@@ -12,7 +12,8 @@ target is taken by the first strategy of its effector, by priority, whose
 tree holds it (the ``vertex`` policy by default), as the selector chooses.
 Candidates are ranked, best first, by
 
-1. the share of bodies *accommodated* (reaching every target);
+1. the share of bodies *accommodated* (reaching every target, or the share ``need`` of them; bodies weighted by
+   ``body_weights``, a population's members' weights);
 2. the share of targets reached, over bodies;
 3. the mean strategy weight of the targets, over bodies (0 for a target no
    strategy reaches): the effector's k-th strategy by priority weighs
@@ -170,10 +171,12 @@ def weights_of(atlas: Atlas, effector: str, overrides: dict[str, float] | None =
 
 def rank(atlases: Sequence[Atlas], targets: Sequence[Target], space: Space, effector: str | None = None,
          policy: Policy = "vertex", weights: dict[str, float] | None = None,
-         deadline: float | None = None) -> Ranking:
+         deadline: float | None = None, body_weights: np.ndarray | None = None, need: float = 1.0) -> Ranking:
     """Score every candidate of the space against the targets by the trees (see the module docstring); best first.
 
     ``deadline`` (``time.perf_counter()``): checked between strategies and in the margins; past it, PastDeadline.
+    ``body_weights`` (B,): the bodies' weights (default equal); ``need``: the share of targets a body must reach to be
+    accommodated (default all).
     """
 
     def in_time() -> None:
@@ -209,9 +212,10 @@ def rank(atlases: Sequence[Atlas], targets: Sequence[Target], space: Space, effe
             names_b += names
         all_names.append(names_b)
     reached_bt = taken >= 0
-    accommodated = reached_bt.all(axis=2).mean(axis=1)
-    reached = reached_bt.mean(axis=(1, 2))
-    preference = weight.mean(axis=(1, 2))
+    w = _body_weights(body_weights, len(atlases))
+    accommodated = _accommodated(reached_bt, need) @ w
+    reached = reached_bt.mean(axis=2) @ w
+    preference = weight.mean(axis=2) @ w
     # Lexicographic, best first; ties broken by the margin, then by nearness to the tied candidates' centroid
     # (positions, and headings on the circle).
     key = np.round(np.stack([accommodated, reached, preference], axis=1), 9)
@@ -228,6 +232,21 @@ def rank(atlases: Sequence[Atlas], targets: Sequence[Target], space: Space, effe
     order = np.lexsort((spread, -np.nan_to_num(margin, nan=-np.inf), -preference, -reached, -accommodated))
     return Ranking(placements[order], accommodated[order], reached[order], preference[order], taken[order], all_names,
                    margin[order])
+
+
+def _body_weights(body_weights: np.ndarray | None, n: int) -> np.ndarray:
+    """The bodies' weights normalised to sum 1 (equal by default)."""
+    w = np.ones(n) if body_weights is None else np.asarray(body_weights, float).reshape(-1)
+    if len(w) != n or not np.all(np.isfinite(w)) or np.any(w < 0) or w.sum() <= 0:
+        raise InputError("weights", f"expected {n} body weights >= 0, not all 0, got {w.tolist()}")
+    return w / w.sum()
+
+
+def _accommodated(reached: np.ndarray, need: float) -> np.ndarray:
+    """Per body (last-but-one axis), whether it reaches the share ``need`` of the targets (last axis)."""
+    if not 0.0 < need <= 1.0:
+        raise InputError("need", f"expected a share of targets in (0, 1], got {need!r}")
+    return reached.mean(axis=-1) >= need - 1e-9
 
 
 def margins(atlases: Sequence[Atlas], names: list[list[str]], taken: np.ndarray, points: np.ndarray,
@@ -253,7 +272,8 @@ def margins(atlases: Sequence[Atlas], names: list[list[str]], taken: np.ndarray,
 
 def verify(ranking: Ranking, atlases: Sequence[Atlas], targets: Sequence[Target], best: int = 5,
            effector: str | None = None,
-           policy: Policy = "vertex", budget: float = VERIFY_BUDGET) -> list[dict[str, Any]]:
+           policy: Policy = "vertex", budget: float = VERIFY_BUDGET, body_weights: np.ndarray | None = None,
+           need: float = 1.0) -> list[dict[str, Any]]:
     """The best placements checked by IK: per placement, the share of bodies accommodated and of targets reached when
     each target, moved into the body's frame, is answered by the selector with refinement (unreached when no posture
     reaches it); also stored in ``ranking.verified``."""
@@ -265,9 +285,11 @@ def verify(ranking: Ranking, atlases: Sequence[Atlas], targets: Sequence[Target]
         body = to_body(points, ranking.placements[k : k + 1])[0]
         ok = np.array([[s.select(t.effector or effector or "", p).reachable
                         for t, p in zip(targets, body, strict=True)] for s in selectors])
-        out.append({"rank": k + 1, "trees_rank": k + 1, "accommodated": float(ok.all(axis=1).mean()),
-                    "reached": float(ok.mean()), "claimed_reached": float(ranking.reached[k]),
-                    "agree": bool(np.isclose(ok.mean(), ranking.reached[k]))})
+        w = _body_weights(body_weights, len(atlases))
+        reached = float(ok.mean(axis=1) @ w)
+        out.append({"rank": k + 1, "trees_rank": k + 1, "accommodated": float(_accommodated(ok, need) @ w),
+                    "reached": reached, "claimed_reached": float(ranking.reached[k]),
+                    "agree": bool(np.isclose(reached, ranking.reached[k]))})
     # The verified candidates ranked again by what IK verified (stable: the trees' order breaks ties).
     again = sorted(range(count), key=lambda k: (-out[k]["accommodated"], -out[k]["reached"]))
     if again != list(range(count)):

@@ -442,7 +442,7 @@ def cmd_place(args: argparse.Namespace) -> int:
     from reach.maps.atlas import load_atlas
     from reach.tools.report import placement_map
 
-    atlases = [load_atlas(a) for a in args.atlas]
+    atlases, members = _atlases(args.atlas)
     targets = load_targets(args.targets)
     weights = {}
     for item in args.weight or []:
@@ -453,17 +453,22 @@ def cmd_place(args: argparse.Namespace) -> int:
             raise InputError("--weight", f"expected STRATEGY=NUMBER, got {item!r}") from None
     space = Space(tuple(args.x), tuple(args.y), tuple(args.z), (math.radians(args.yaw[0]), math.radians(args.yaw[1])),
                   args.step, math.radians(args.yaw_step))
-    ranking = rank(atlases, targets, space, args.effector, args.policy, weights)
+    ranking = rank(atlases, targets, space, args.effector, args.policy, weights, body_weights=members,
+                   need=args.targets_share)
     if args.verify:
-        verify(ranking, atlases, targets, args.verify, args.effector, args.policy)
-    rows = [ranking.row(k, targets) for k in range(min(args.top, len(ranking.placements)))]
+        verify(ranking, atlases, targets, args.verify, args.effector, args.policy, body_weights=members,
+               need=args.targets_share)
+    kept = [k for k in range(len(ranking.placements)) if ranking.accommodated[k] >= args.accommodate - 1e-9]
+    rows = [ranking.row(k, targets) for k in kept[:args.top]]
     if args.figure:
         placement_map(ranking, targets, Path(args.figure))
     if args.json:
-        print_json({"candidates": len(ranking.placements), "ranked": rows, "verified": ranking.verified})
+        print_json({"candidates": len(ranking.placements), "accommodating": len(kept), "ranked": rows,
+                    "verified": ranking.verified})
         return 0
     print(f"{len(ranking.placements)} placements of {len(atlases)} bodies against {len(targets)} targets (trees' "
-          "word; best first)")
+          "word; best first)" + (f"; {len(kept)} accommodate at least {100 * args.accommodate:.0f}% of the bodies"
+                                 if args.accommodate > 0 else ""))
     print(f"{'rank':>4}  {'x [m]':>7} {'y [m]':>7} {'z [m]':>7} {'yaw':>6}  {'bodies':>7} {'targets':>7} "
           f"{'weight':>7} {'margin':>7}")
     for r in rows:
@@ -481,6 +486,21 @@ def cmd_place(args: argparse.Namespace) -> int:
     return 0
 
 
+def _atlases(paths: list[str]) -> tuple[list[Any], np.ndarray | None]:
+    """The atlases named, a population folder standing for its members' atlases (with their weights)."""
+    from reach.build.population import is_population, read_manifest
+    from reach.maps.atlas import load_atlas
+
+    if not any(is_population(p) for p in paths):
+        return [load_atlas(a) for a in paths], None
+    if len(paths) != 1:
+        raise ConfigError("atlas", "", "a population folder is placed alone (its members are the bodies), got "
+                                       f"{len(paths)} folders")
+    doc = read_manifest(paths[0])
+    return ([load_atlas(Path(paths[0]) / m["atlas"]) for m in doc["members"]],
+            np.array([m["weight"] for m in doc["members"]], float))
+
+
 def add_place(sub: Any) -> None:
     """Register ``reach place``."""
     p = sub.add_parser("place", help="where the body should stand, sit or be mounted to reach a layout's targets",
@@ -488,8 +508,15 @@ def add_place(sub: Any) -> None:
                                    "in the layout's frame) of one "
                        "body or a population (several atlases) against a targets CSV by the trees, rank them (bodies "
                        "accommodated, targets reached, strategies needed), and verify the best by IK.")
-    p.add_argument("atlas", nargs="+", help="atlas folders (several: a population)")
+    p.add_argument("atlas", nargs="+", help="atlas folders (several: a population), or one population folder (reach "
+                                            "build of a config with population:; its members weighted as it says)")
     p.add_argument("--targets", required=True, help="CSV file with name, x, y, z[, effector] in the layout's frame [m]")
+    p.add_argument("--accommodate", type=float, default=0.0, metavar="SHARE",
+                   help="print only placements at which at least this share of the bodies is accommodated, e.g. 0.95 "
+                        "(default 0: all)")
+    p.add_argument("--targets-share", type=float, default=1.0, metavar="SHARE",
+                   help="a body is accommodated when it reaches at least this share of the targets (default 1: every "
+                        "target)")
     p.add_argument("--effector", help="effector for targets without one")
     p.add_argument("--x", nargs=2, type=float, required=True, metavar=("MIN", "MAX"), help="range of the body's x [m]")
     p.add_argument("--y", nargs=2, type=float, required=True, metavar=("MIN", "MAX"), help="range of the body's y [m]")
