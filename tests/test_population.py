@@ -207,13 +207,60 @@ def test_placement_of_a_population_weighs_its_members_and_the_share_of_targets(b
     # asking half of the targets accommodates at least as many as asking all, and per body it is a count
     half = rank(atlases, TARGETS, space, "right_hand", need=0.5)
     every = rank(atlases, TARGETS, space, "right_hand")
-    assert np.all(half.accommodated[np.lexsort(half.placements.T)] >= every.accommodated[np.lexsort(every.placements.T)])
+    by_place = np.lexsort(half.placements.T), np.lexsort(every.placements.T)
+    assert np.all(half.accommodated[by_place[0]] >= every.accommodated[by_place[1]])
     assert set(np.round(half.accommodated * 4, 6)) <= {0.0, 1.0, 2.0, 3.0, 4.0}
     # the command takes the population folder, and --accommodate keeps only placements at or above the share
     capsys.readouterr()
-    assert main(["place", str(out), "--targets", str(targets_csv), "--effector", "right_hand", "--x", "-0.2", "0.2", "--y", "-0.2", "0.2",
+    assert main(["place", str(out), "--targets", str(targets_csv), "--effector", "right_hand", "--x", "-0.2", "0.2",
+                 "--y", "-0.2", "0.2",
                  "--yaw", "0", "0", "--step", "0.1", "--verify", "0", "--targets-share", "0.5", "--accommodate",
                  "0.5", "--json"]) == 0
     result = json.loads(capsys.readouterr().out)
     assert result["accommodating"] == int(np.sum(half.accommodated >= 0.5))
     assert all(r["accommodated"] >= 0.5 for r in result["ranked"])
+
+
+def read_ply(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """A binary little-endian PLY of float vertices and uchar-counted int faces, read here without trimesh."""
+    raw = path.read_bytes()
+    head, _, body = raw.partition(b"end_header\n")
+    lines = head.decode().splitlines()
+    assert lines[0] == "ply" and "format binary_little_endian 1.0" in lines
+    n_v = int(next(line.split()[2] for line in lines if line.startswith("element vertex")))
+    n_f = int(next(line.split()[2] for line in lines if line.startswith("element face")))
+    verts = np.frombuffer(body[:12 * n_v], "<f4").reshape(n_v, 3)
+    faces = np.frombuffer(body[12 * n_v:], np.dtype([("n", "u1"), ("i", "<i4", (3,))]), count=n_f)
+    assert np.all(faces["n"] == 3) and len(body) == 12 * n_v + 13 * n_f
+    return verts, faces["i"]
+
+
+def test_the_accommodation_volume_counts_members_whose_trees_hold_each_point(built, tmp_path, capsys):
+    from reach.maps.atlas import load_atlas
+    from reach.tools.accommodation_report import grid, members, shares
+
+    _, out, _ = built
+    capsys.readouterr()
+    assert main(["report", str(out), "-o", str(tmp_path / "rep"), "--level", "3"]) == 0
+    table = json.loads((tmp_path / "rep" / "accommodation.json").read_text())
+    atlases, weights = members(out)
+    axes, points = grid(atlases, 3)
+    found = shares(atlases, weights, points)
+    # each point's share, counted here member by member from the trees read again
+    doc = json.loads((out / "population.json").read_text())
+    pick = np.random.default_rng(0).choice(len(points), 300, replace=False)
+    count = sum(load_atlas(out / m["atlas"]).trees["right_arm"].contains(points[pick], "vertex").astype(float)
+                for m in doc["members"]) / len(doc["members"])
+    assert np.allclose(found["right_arm"][pick], count) and np.allclose(found["any"], found["right_arm"])
+    assert 0 < np.mean(count == 1.0) and np.mean(count == 0.0) > 0  # both ends occur: not one answer everywhere
+    cell = float(np.prod([(a[-1] - a[0]) / (len(a) - 1) for a in axes]))
+    v95 = table["strategies"]["right_arm"]["volume_m3"]
+    assert v95["95%"] == pytest.approx(np.sum(found["right_arm"] >= 0.95 - 1e-9) * cell, abs=1e-4)
+    assert v95["5%"] >= v95["50%"] >= v95["95%"] > 0
+    # the 50 % isosurface lies where the share crosses a half: its vertices between grid points on either side
+    verts, faces = read_ply(tmp_path / "rep" / "accommodation_right_arm_50.ply")
+    assert len(faces) > 0 and faces.max() < len(verts)
+    lo = np.array([a[0] for a in axes])
+    step = np.array([(a[-1] - a[0]) / (len(a) - 1) for a in axes])
+    assert np.all(verts >= lo - 1.01 * step) and np.all(verts <= np.array([a[-1] for a in axes]) + 1.01 * step)
+    assert (tmp_path / "rep" / "accommodation_right_arm.png").stat().st_size > 10_000

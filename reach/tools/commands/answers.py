@@ -439,7 +439,6 @@ def cmd_place(args: argparse.Namespace) -> int:
     # loaded when the command runs: `reach --help` starts without the answers' machinery
     from reach.answers.evaluate import load_targets
     from reach.answers.place import Space, rank, verify
-    from reach.maps.atlas import load_atlas
     from reach.tools.report import placement_map
 
     atlases, members = _atlases(args.atlas)

@@ -79,9 +79,18 @@ def add_info(sub: Any) -> None:
 def cmd_report(args: argparse.Namespace) -> int:
     # loaded when the command runs: `reach --help` starts without the answers' machinery
     from reach.build.atlas import face_text
+    from reach.build.population import is_population
     from reach.maps.atlas import load_atlas
     from reach.tools.report import markdown, report
 
+    if is_population(args.atlas):
+        from reach.tools import accommodation_report
+
+        table = accommodation_report.report(args.atlas, args.output, args.level, args.slice_z,
+                                            0.0 if args.slice_y is None else args.slice_y)
+        print(accommodation_report.markdown(table, args.atlas))
+        print("figures: " + ", ".join(table["figures"]))
+        return 0
     atlas = load_atlas(args.atlas)
     names = atlas.select(args.strategies.split(",")) if args.strategies else None
     tables = report(atlas, args.output, args.level, names, (args.slice_z, args.slice_y))
@@ -98,7 +107,9 @@ def add_report(sub: Any) -> None:
     p = sub.add_parser("report", help="tables and figures comparing strategies", description="Write report.md, "
         "report.json and PNG figures (boxes, colours as the paper's Figure 8, overlay as Figure 11, slices) of an "
         "atlas into DIR.")
-    p.add_argument("atlas", help="atlas folder written by 'reach build'")
+    p.add_argument("atlas", help="atlas folder written by 'reach build'; or a population folder: its accommodation "
+                                 "volume (per point, the share of members whose tree holds it), tables, slices and "
+                                 "isosurfaces at 5 / 50 / 95 %%")
     p.add_argument("-o", "--output", required=True, metavar="DIR", help="folder for the report")
     p.add_argument("--strategies", help="comma-separated strategies for the figures (default: all)")
     p.add_argument("--level", type=int, default=4, help="figure grid: 2**LEVEL cells per axis (default 4; 5 is finer "
