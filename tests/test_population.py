@@ -264,3 +264,51 @@ def test_the_accommodation_volume_counts_members_whose_trees_hold_each_point(bui
     step = np.array([(a[-1] - a[0]) / (len(a) - 1) for a in axes])
     assert np.all(verts >= lo - 1.01 * step) and np.all(verts <= np.array([a[-1] for a in axes]) + 1.01 * step)
     assert (tmp_path / "rep" / "accommodation_right_arm.png").stat().st_size > 10_000
+
+
+def test_the_server_answers_accommodation_over_zeromq(built):
+    import threading
+
+    import zmq
+
+    from reach.maps.atlas import load_atlas
+    from reach.serving import protocol as P
+    from reach.serving.server import Server
+
+    _, out, _ = built
+    doc = json.loads((out / "population.json").read_text())
+    first = out / doc["members"][0]["atlas"]
+    goals = [list(t.point) for t in TARGETS]
+    plain = Server(first, "tcp://127.0.0.1:*", None)
+    try:
+        reply = json.loads(plain.respond(json.dumps({"op": "accommodation", "effector": "right_hand",
+                                                     "goals": goals}).encode()))
+        assert reply["error"]["code"] == P.FORBIDDEN and "--population" in reply["error"]["message"]
+    finally:
+        plain.close()
+    server = Server(first, "tcp://127.0.0.1:*", None, population=out)
+    thread = threading.Thread(target=server.serve_forever, daemon=True)
+    thread.start()
+    sock = zmq.Context.instance().socket(zmq.REQ)
+    sock.setsockopt(zmq.LINGER, 0)
+    sock.setsockopt(zmq.RCVTIMEO, 20_000)
+    sock.connect(server.endpoint)
+    try:
+        sock.send(json.dumps({"op": "accommodation", "id": 7, "effector": "right_hand", "goals": goals}).encode())
+        reply = json.loads(sock.recv())
+        # counted here from each member's tree, read again
+        trees = [load_atlas(out / m["atlas"]).trees["right_arm"] for m in doc["members"]]
+        count = np.mean([t.contains(np.array(goals), "vertex") for t in trees], axis=0)
+        assert reply["ok"] and reply["id"] == 7 and reply["members"] == 4
+        assert np.allclose(reply["share"], count) and np.allclose(reply["by_strategy"]["right_arm"], count)
+        assert all(lo <= s <= hi for lo, s, hi in zip(reply["low"], reply["share"], reply["high"], strict=True))
+        for bad, code in (({"effector": "left_foot", "goals": goals}, P.UNKNOWN_EFFECTOR),
+                          ({"effector": "right_hand", "goals": [[0, 0, 0]] * 1001}, P.TOO_LARGE),
+                          ({"effector": "right_hand"}, P.BAD_REQUEST)):
+            sock.send(json.dumps({"op": "accommodation", **bad}).encode())
+            assert json.loads(sock.recv())["error"]["code"] == code
+    finally:
+        sock.close(linger=0)
+        server.stop()
+        thread.join(timeout=5)
+        server.close()

@@ -28,6 +28,7 @@ import numpy as np
 
 from reach.answers.evaluate import Target, evaluate, to_body
 from reach.errors import ConfigError
+from reach.maps.atlas import Atlas
 
 Z95 = 1.959963984540054  # the standard normal's 97.5th percentile: a two-sided 95 % interval
 
@@ -75,26 +76,58 @@ def table(members: Sequence[dict[str, Any]], targets: list[str], strategies: lis
             "effective_n": round(float(weights.sum() ** 2 / (weights * weights).sum()), 1) if len(members) else 0}
 
 
-def from_atlases(folder: str | Path, targets: list[Target], effector: str | None = None, refine: bool = True,
-                 budget: float = 1.0, placement: np.ndarray | None = None) -> dict[str, Any]:
-    """Accommodation from a built population's atlases (one :func:`evaluate` per member)."""
+def load_members(folder: str | Path) -> tuple[list[Atlas], np.ndarray, list[str]]:
+    """A built population's member atlases, their weights (summing to 1) and names; an unbuilt member is an error."""
     from reach.build.population import read_manifest
     from reach.maps.atlas import load_atlas
 
     doc = read_manifest(folder)
-    members = []
-    strategies: list[str] = []
+    atlases = []
     for m in doc["members"]:
         path = Path(folder) / m["atlas"]
         if not (path / "manifest.json").is_file():
             raise ConfigError(str(path), "", f"member {m['name']} is not built yet: run reach build --resume on the "
                                              "population's config")
-        atlas = load_atlas(path)
+        atlases.append(load_atlas(path))
+    w = np.array([m["weight"] for m in doc["members"]], float)
+    if not len(w) or w.sum() <= 0:
+        raise ConfigError(str(folder), "members", "no member with a weight above 0")
+    return atlases, w / w.sum(), [str(m["name"]) for m in doc["members"]]
+
+
+def held(atlases: Sequence[Atlas], weights: np.ndarray, effector: str, goals: np.ndarray) -> dict[str, Any]:
+    """By the trees' word (``vertex`` policy), per goal: the weighted share of members one of whose ``effector``
+    strategies holds it, with its Wilson interval, and per strategy name the share whose tree of that name holds it."""
+    reached = np.zeros((len(atlases), len(goals)), bool)
+    per: dict[str, np.ndarray] = {}
+    for m, atlas in enumerate(atlases):
+        for name, tree in atlas.trees.items():
+            if tree.meta.get("effector") != effector:
+                continue
+            inside = tree.contains(goals, "vertex")
+            reached[m] |= inside
+            per[name] = per.get(name, np.zeros(len(goals))) + weights[m] * inside
+    w = np.asarray(weights, float)
+    rows = [weighted_share(w, reached[:, g]) for g in range(len(goals))]
+    return {"share": [r["share"] for r in rows], "low": [r["low"] for r in rows], "high": [r["high"] for r in rows],
+            "by_strategy": {k: np.round(v / w.sum(), 4).tolist() for k, v in per.items()}}
+
+
+def from_atlases(folder: str | Path, targets: list[Target], effector: str | None = None, refine: bool = True,
+                 budget: float = 1.0, placement: np.ndarray | None = None) -> dict[str, Any]:
+    """Accommodation from a built population's atlases (one :func:`evaluate` per member)."""
+    from reach.build.population import read_manifest
+
+    atlases, weights, names = load_members(folder)
+    members = []
+    strategies: list[str] = []
+    for atlas, weight, name in zip(atlases, weights, names, strict=True):
         result = evaluate([atlas], targets, effector, refine=refine, budget=budget, placements=placement)
-        members.append({"name": m["name"], "weight": float(m["weight"]), "rows": result["atlases"][0]["rows"]})
+        members.append({"name": name, "weight": float(weight), "rows": result["atlases"][0]["rows"]})
         strategies += [s for s in atlas.trees if s not in strategies]
     used = [s for s in strategies if any(s == r["strategy"] or s in r["also"] for m in members for r in m["rows"])]
-    return {"population": doc.get("name"), "way": "atlases", **table(members, [t.name for t in targets], used)}
+    return {"population": read_manifest(folder).get("name"), "way": "atlases",
+            **table(members, [t.name for t in targets], used)}
 
 
 def direct(config: Any, targets: list[Target], effector: str | None = None,

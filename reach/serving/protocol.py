@@ -54,6 +54,10 @@ MAX_CLIENT_REQUESTS = 100  # requests one client may have queued for the workers
 # what clients make the loop hold unread is clients x RCVHWM MiB (at 16, 100 clients took it from 410 MB to 2 GB).
 RCVHWM = 4
 MAX_PLACE_POINTS = 2_000_000  # candidates x targets of one "place" (about 2 s of a worker's time at the limit)
+MAX_ACCOMMODATION_GOALS = 1000  # goals of one "accommodation"
+# tree lookups (goals x members x their trees) of one "accommodation", answered in the loop: at the trees' 16 M points/s
+# (bench/tree.py) about 15 ms, the loop's share of one stored batch
+MAX_ACCOMMODATION_LOOKUPS = 200_000
 # Stored answers (no IK) a query may ask of the loop itself (0.15 ms each: 15 ms); a larger batch goes to the workers
 # (at 1,000, a batch held the loop 150 ms and another client waited up to 229 ms: issue 46).
 STORED_IN_LOOP = 100
@@ -187,6 +191,12 @@ def _points(value: Any) -> list[list[float]]:
     if len({len(g) for g in out}) != 1:
         raise Invalid("goals with the same number of coordinates each")
     return out
+
+
+def _accommodation_goals(value: Any) -> list[list[float]]:
+    if isinstance(value, list) and len(value) > MAX_ACCOMMODATION_GOALS:
+        raise Invalid(f"{len(value)} goals; the limit is {MAX_ACCOMMODATION_GOALS} per accommodation", TOO_LARGE)
+    return _points(value)
 
 
 def _choice(options: tuple[str, ...]) -> Callable[[Any], str]:
@@ -437,6 +447,12 @@ OPERATIONS: dict[str, Operation] = {op.name: op for op in (
        f"{MAX_PLACE_POINTS:,})",
         # A placement's cost: 1.9-2.8 s at its limit (issue 35).
         "op_place", worker=Service("_defer_place", "run_place", "_finish_place", "_expire_whole", cost=1.0)),
+    Operation("accommodation", (
+        Field("effector", "string", _string(MAX_NAME), "the effector's frame, e.g. `right_hand`", required=True),
+        Field("goals", "[[x, y, z], ...] m", _accommodation_goals, f"at most {MAX_ACCOMMODATION_GOALS} goals in the "
+                                                                   "members' world frame", required=True),
+    ), "the share of the served population (`reach serve --population`) whose trees hold each goal, with its 95 % "
+       "interval, and per strategy", "op_accommodation"),
     Operation("strategies", (), "the atlas's strategies, effectors, boxes and world frame", "op_strategies"),
     Operation("cells", (
         Field("strategy", "string", _string(MAX_NAME), "one strategy (default: all)"),

@@ -48,6 +48,7 @@ import zmq
 import zmq.auth
 
 from reach import __version__
+from reach.answers.accommodation import held, load_members
 from reach.answers.answer import ERROR, SKIPPED, TIMEOUT, Answer, orientation_of
 from reach.answers.select import HANDOVER, MISS, ORIENTED_BUDGET, REFINE_BUDGET, Selector
 from reach.errors import InputError, ReachError, UnknownEffector, UnknownStrategy
@@ -163,7 +164,7 @@ class Server:
         policy: str = DEFAULT_POLICY, refine: bool = True, budget: float = REFINE_BUDGET,
         curve_secret: str | Path | None = None, context: zmq.Context | None = None, workers: int = 0,
         handover: float = HANDOVER, miss: str = MISS, allow_reload: str | Path | None = None,
-        curve_clients: str | Path | None = None, chunk: int = P.CHUNK_GOALS,
+        curve_clients: str | Path | None = None, chunk: int = P.CHUNK_GOALS, population: str | Path | None = None,
     ) -> None:
         if isinstance(chunk, bool) or not isinstance(chunk, int) or chunk < 1:
             raise InputError("--chunk", f"expected a whole number of goals >= 1, got {chunk!r}")
@@ -189,6 +190,8 @@ class Server:
         self.options: dict[str, Any] = {"policy": policy, "refine": refine, "budget": budget, "handover": handover,
                                         "miss": miss}
         self.served = self._load(self.atlas_path)
+        # A population's member atlases, for "accommodation" (the trees' word, answered in the loop).
+        self.population = None if population is None else load_members(population)
         self.context = context or zmq.Context.instance()
         self.router = self.context.socket(zmq.ROUTER)
         self.router.setsockopt(zmq.LINGER, 0)
@@ -555,6 +558,25 @@ class Server:
         :mod:`reach.answers.place`);
         with workers a worker answers it (seconds at its limit, which held the loop)."""
         return placements(self.selector.atlas, req.args, self.selector.policy)  # type: ignore[arg-type]
+
+    def op_accommodation(self, req: P.Request) -> dict[str, Any]:
+        """The share of the served population whose trees hold each goal (reach.answers.accommodation.held)."""
+        if self.population is None:
+            raise P.ProtocolError(P.FORBIDDEN, "this server serves no population; start it with reach serve ATLAS "
+                                               "--population FOLDER", req.id)
+        atlases, weights, _ = self.population
+        effector = req["effector"]
+        trees = sum(1 for a in atlases for t in a.trees.values() if t.meta.get("effector") == effector)
+        if not trees:
+            raise P.ProtocolError(P.UNKNOWN_EFFECTOR, f"no member's strategy has the effector {effector!r}", req.id)
+        goals = np.asarray(req["goals"], float)
+        if goals.shape[1] != 3:
+            raise P.ProtocolError(P.BAD_REQUEST, "goals: expected [x, y, z] each", req.id)
+        if len(goals) * trees > P.MAX_ACCOMMODATION_LOOKUPS:
+            raise P.ProtocolError(P.TOO_LARGE, f"{len(goals)} goals x {trees} member trees is over the "
+                                               f"{P.MAX_ACCOMMODATION_LOOKUPS:,} lookups one accommodation may take; "
+                                               "send fewer goals a request", req.id)
+        return {"members": len(atlases), **held(atlases, weights, effector, goals)}
 
     def op_cells(self, req: P.Request) -> bytes:
         """Centres of the reachable cells of each strategy on a regular grid (for markers in RViz), from the fragments

@@ -22,9 +22,8 @@ from typing import Any
 
 import numpy as np
 
-from reach.build.population import read_manifest
-from reach.errors import InputError
-from reach.maps.atlas import Atlas, load_atlas
+from reach.answers.accommodation import load_members
+from reach.maps.atlas import Atlas
 
 LEVELS = (0.05, 0.5, 0.95)  # the shares drawn and tabulated (issue 47's 5 / 50 / 95 %)
 ANY = "any"
@@ -32,17 +31,8 @@ ANY = "any"
 
 def members(folder: str | Path) -> tuple[list[Atlas], np.ndarray]:
     """The population's atlases and their weights (summing to 1)."""
-    doc = read_manifest(folder)
-    atlases = []
-    for m in doc["members"]:
-        path = Path(folder) / m["atlas"]
-        if not (path / "manifest.json").is_file():
-            raise InputError("population", f"{path}: member {m['name']} is not built yet (reach build --resume)")
-        atlases.append(load_atlas(path))
-    w = np.array([m["weight"] for m in doc["members"]], float)
-    if not len(w) or w.sum() <= 0:
-        raise InputError("population", f"{folder}: no member with a weight above 0")
-    return atlases, w / w.sum()
+    atlases, weights, _ = load_members(folder)
+    return atlases, weights
 
 
 def grid(atlases: list[Atlas], level: int) -> tuple[list[np.ndarray], np.ndarray]:

@@ -30,7 +30,8 @@ def cmd_serve(args: argparse.Namespace) -> int:
     server = Server(args.atlas, args.bind, None if args.pub == "none" else args.pub, policy=args.policy,
                     refine=not args.no_refine, budget=args.budget_ms / 1000.0, curve_secret=args.curve_secret_key,
                     workers=workers, curve_clients=args.curve_clients, chunk=args.chunk,
-                    handover=handover_margin(args), miss=args.miss, allow_reload=args.allow_reload)
+                    handover=handover_margin(args), miss=args.miss, allow_reload=args.allow_reload,
+                    population=args.population)
     server.handle_signals()
     # "serving" means its workers refine: a client connecting on this line gets refined answers at once.
     ready = server.wait_ready()
@@ -72,6 +73,8 @@ def add_serve(sub: Any) -> None:
                         "so that another client's query waits about that for a busy worker")
     p.add_argument("--allow-reload", metavar="ROOT", help="let clients 'reload' atlases from folders under ROOT "
                                                           "(default: reload is refused)")
+    p.add_argument("--population", metavar="FOLDER", help="a population folder (reach build of a config with "
+                   "population:) whose members' trees answer the 'accommodation' operation")
     handover_option(p)
     p.set_defaults(func=cmd_serve)
 
