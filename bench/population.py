@@ -57,7 +57,7 @@ def main() -> None:
     if args.direct:
         config = config_of(args.direct)
         t0, c0 = time.monotonic(), cpu()
-        result = direct(config, targets)
+        result = direct(config, targets, workers=args.workers)
         wall, spent = time.monotonic() - t0, cpu() - c0
         emit(bench="direct", members=args.direct, targets=len(targets), strategies=len(config.strategies),
              wall_s=round(wall, 1), cpu_s=round(spent, 1), per_member_s=round(wall / args.direct, 2),
@@ -79,7 +79,7 @@ def main() -> None:
                  workers=args.workers, wall_s=round(wall, 1), cpu_s=round(spent, 1),
                  per_member_wall_s=round(wall / args.build, 1))
             trees = from_atlases(out, targets)
-            by_ik = direct(config, targets)
+            by_ik = direct(config, targets, workers=args.workers)
             pairs = [(a, b) for m, n in zip(trees["by_member"], by_ik["by_member"], strict=True)
                      for a, b in zip(m["reached"], n["reached"], strict=True)]
             emit(bench="agreement", pairs=len(pairs), agree=sum(a == b for a, b in pairs),

@@ -165,6 +165,8 @@ def test_accommodation_from_atlases_agrees_with_direct_ik_checked_by_pinocchio(b
     config = parse_config(json.loads(config_path.read_text()), str(config_path))
     by_ik = direct(config, TARGETS)
     assert by_ik["refuted_by_check"] == 0
+    # members solved in two processes: the same answers
+    assert direct(config, TARGETS, workers=2)["by_member"] == by_ik["by_member"]
     # member x target: the atlases' verdict (refined at the target) against the members' own oracles, every
     # "reached" checked by forward kinematics on that member's own model, here with Pinocchio directly
     agree = 0

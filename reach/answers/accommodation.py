@@ -132,13 +132,13 @@ def from_atlases(folder: str | Path, targets: list[Target], effector: str | None
 
 def direct(config: Any, targets: list[Target], effector: str | None = None,
            placement: np.ndarray | None = None, verify: bool = True,
-           log: Any = None) -> dict[str, Any]:
+           log: Any = None, workers: int = 1) -> dict[str, Any]:
     """Accommodation by solving every member x target with the members' strategies' oracles (no tree).
 
     Every reached target is checked by the strategy's own forward-kinematics check of the posture on that member's
-    model (``Verifying``); one that fails it counts as not reached, and the count is reported.
+    model (``Verifying``); one that fails it counts as not reached, and the count is reported. ``workers`` > 1 solves
+    members in that many processes (each dies with this one); the answers do not depend on it.
     """
-    from oracles.protocol import Goals, OracleSpec, Verifying
     from reach.build.population import entries
 
     points = np.array([t.point for t in targets], float).reshape(-1, 3)
@@ -151,32 +151,61 @@ def direct(config: Any, targets: list[Target], effector: str | None = None,
             raise ConfigError("targets", t.name, f"no effector: give an effector column or --effector (one of "
                                                  f"{', '.join(known)})")
     effs = [e or known[0] for e in effs]
-    strategies = [s for s in config.strategies if s.effector in set(effs)]
-    members, refuted = [], 0
-    for k, entry in enumerate(entries(config), start=1):
-        rows: list[dict[str, Any]] = [{"target": t.name, "reachable": False, "strategy": None, "also": []}
-                                      for t in targets]
-        for s in strategies:
-            pick = [i for i, e in enumerate(effs) if e == s.effector]
-            oracle = OracleSpec(s.oracle.name, {**s.oracle.params, "body": entry.body}).create()
-            v = oracle.evaluate(Goals.of(points[pick]))
-            ok = np.asarray(v.reachable, bool)
-            if verify and ok.any() and isinstance(oracle, Verifying) and v.posture is not None:
-                checked = oracle.verify(points[pick][ok], np.asarray(v.posture)[ok])
-                refuted += int(np.sum(~checked))
-                ok[np.flatnonzero(ok)[~checked]] = False
-            for i, hit in zip(pick, ok, strict=True):
-                if hit:
-                    row = rows[i]
-                    if row["reachable"]:
-                        row["also"].append(s.name)
-                    else:
-                        row["reachable"], row["strategy"] = True, s.name
-        members.append({"name": entry.name, "weight": entry.weight, "rows": rows})
+    strategies = [(s.name, s.effector, s.oracle.name, s.oracle.params) for s in config.strategies
+                  if s.effector in set(effs)]
+    members = entries(config)
+    jobs = [(e.body, strategies, points, effs, verify) for e in members]
+    if workers > 1 and len(members) > 1:
+        from concurrent.futures import ProcessPoolExecutor
+
+        from reach.build.executor import build_worker
+
+        with ProcessPoolExecutor(max_workers=workers, initializer=build_worker) as pool:
+            solved = pool.map(_member, jobs)
+            results = _logged(solved, members, log)
+    else:
+        results = _logged(map(_member, jobs), members, log)
+    table_members = [{"name": e.name, "weight": e.weight, "rows": rows} for e, (rows, _) in zip(members, results,
+                                                                                                 strict=True)]
+    return {"population": config.name, "way": "direct", "refuted_by_check": sum(r for _, r in results),
+            **table(table_members, [t.name for t in targets], [name for name, *_ in strategies])}
+
+
+def _logged(results: Any, members: list[Any], log: Any) -> list[tuple[list[dict[str, Any]], int]]:
+    out = []
+    for k, (entry, result) in enumerate(zip(members, results, strict=True), start=1):
+        out.append(result)
         if log is not None:
-            log(f"member {k}: {entry.name}, {sum(r['reachable'] for r in rows)} of {len(rows)} targets reached")
-    return {"population": config.name, "way": "direct", "refuted_by_check": refuted,
-            **table(members, [t.name for t in targets], [s.name for s in strategies])}
+            log(f"member {k}/{len(members)}: {entry.name}, {sum(r['reachable'] for r in result[0])} of "
+                f"{len(result[0])} targets reached")
+    return out
+
+
+def _member(job: tuple[Any, ...]) -> tuple[list[dict[str, Any]], int]:
+    """One member's rows (a row per target: reached, the strategy chosen by priority, the others that reach it) and
+    the count of reached answers its forward-kinematics check refuted."""
+    from oracles.protocol import Goals, OracleSpec, Verifying
+
+    body, strategies, points, effs, verify = job
+    rows: list[dict[str, Any]] = [{"reachable": False, "strategy": None, "also": []} for _ in points]
+    refuted = 0
+    for name, eff, oracle_name, params in strategies:
+        pick = [i for i, e in enumerate(effs) if e == eff]
+        oracle = OracleSpec(oracle_name, {**params, "body": body}).create()
+        v = oracle.evaluate(Goals.of(points[pick]))
+        ok = np.asarray(v.reachable, bool)
+        if verify and ok.any() and isinstance(oracle, Verifying) and v.posture is not None:
+            checked = oracle.verify(points[pick][ok], np.asarray(v.posture)[ok])
+            refuted += int(np.sum(~checked))
+            ok[np.flatnonzero(ok)[~checked]] = False
+        for i, hit in zip(pick, ok, strict=True):
+            if hit:
+                row = rows[i]
+                if row["reachable"]:
+                    row["also"].append(name)
+                else:
+                    row["reachable"], row["strategy"] = True, name
+    return rows, refuted
 
 
 def text(result: dict[str, Any]) -> str:

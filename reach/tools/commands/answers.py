@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -396,7 +397,8 @@ def _accommodation(args: argparse.Namespace, at: np.ndarray | None) -> int:
             raise ConfigError(config.source, "population", "--direct needs a config with population: (see "
                                                            "docs/population.md)")
         log = None if args.json else (lambda line: print(line, file=sys.stderr, flush=True))
-        result = accommodation.direct(config, targets, args.effector, at, log=log)
+        result = accommodation.direct(config, targets, args.effector, at, log=log,
+                                      workers=args.workers or os.cpu_count() or 1)
     else:
         result = accommodation.from_atlases(args.atlas[0], targets, args.effector, refine=not args.no_refine,
                                             placement=at)
@@ -418,6 +420,7 @@ def add_evaluate(sub: Any) -> None:
     p.add_argument("--targets", required=True, help="CSV file with name, x, y, z[, effector]")
     p.add_argument("--direct", action="store_true", help="ATLAS is a config with population: solve every member x "
                    "target with the strategies' oracles, no trees (cheaper than building for a few targets)")
+    p.add_argument("-j", "--workers", type=int, help="with --direct: processes solving members (default: all cores)")
     p.add_argument("--effector", help="effector for targets without one")
     policy_option(p)
     p.add_argument("--no-refine", action="store_true",
