@@ -4,9 +4,11 @@
   members of ``configs/population.yaml``'s draw widened to that many (the same seed and mix), wall and CPU seconds;
 * ``build``: ``reach build`` of ``--build`` members (the demo's right-hand strategies at its resolution, D_max 5),
   wall and CPU seconds, and the same members' accommodation from their atlases against the direct answers
-  (``agreement``: member x target pairs whose verdicts agree).
+  (``agreement``: member x target pairs whose verdicts agree);
+* ``--folder OUT``: instead of building, the ``agreement`` of a population already built (``reach build
+  configs/population.yaml -o OUT``).
 
-    python bench/population.py [--direct 500] [--build 4] [--workers 2]
+    python bench/population.py [--direct 500] [--build 4 | --folder out/population] [--workers 2]
 """
 
 from __future__ import annotations
@@ -50,6 +52,7 @@ def main() -> None:
     parser.add_argument("--direct", type=int, default=500, help="members solved directly (default 500)")
     parser.add_argument("--build", type=int, default=4, help="members built (default 4; 0: none)")
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
+    parser.add_argument("--folder", help="a built population of configs/population.yaml: its agreement, no build")
     args = parser.parse_args()
     emit(bench="machine", python=platform.python_version(), processor=platform.processor() or platform.machine(),
          cores=os.cpu_count())
@@ -63,7 +66,12 @@ def main() -> None:
              wall_s=round(wall, 1), cpu_s=round(spent, 1), per_member_s=round(wall / args.direct, 2),
              refuted_by_check=result["refuted_by_check"],
              shares={t["target"]: [t["share"], t["low"], t["high"]] for t in result["targets"]})
-    if args.build:
+    if args.folder:
+        from reach.build.population import read_manifest
+
+        n = len(read_manifest(args.folder)["members"])
+        agreement(from_atlases(args.folder, targets), direct(config_of(n), targets, workers=args.workers))
+    elif args.build:
         from reach.build.atlas import build_atlas
         from reach.build.executor import ProcessExecutor
         from reach.build.population import build_population
@@ -78,12 +86,17 @@ def main() -> None:
             emit(bench="build", members=args.build, strategies=len(config.strategies), d_max=config.d_max,
                  workers=args.workers, wall_s=round(wall, 1), cpu_s=round(spent, 1),
                  per_member_wall_s=round(wall / args.build, 1))
-            trees = from_atlases(out, targets)
-            by_ik = direct(config, targets, workers=args.workers)
-            pairs = [(a, b) for m, n in zip(trees["by_member"], by_ik["by_member"], strict=True)
-                     for a, b in zip(m["reached"], n["reached"], strict=True)]
-            emit(bench="agreement", pairs=len(pairs), agree=sum(a == b for a, b in pairs),
-                 atlas_reached=sum(a for a, _ in pairs), direct_reached=sum(b for _, b in pairs))
+            agreement(from_atlases(out, targets), direct(config, targets, workers=args.workers))
+
+
+def agreement(trees: dict, by_ik: dict) -> None:
+    """Member x target pairs on which the atlases' verdicts (refined) and the direct solves agree."""
+    pairs = [(a, b) for m, n in zip(trees["by_member"], by_ik["by_member"], strict=True)
+             for a, b in zip(m["reached"], n["reached"], strict=True)]
+    emit(bench="agreement", pairs=len(pairs), agree=sum(a == b for a, b in pairs),
+         atlas_reached=sum(a for a, _ in pairs), direct_reached=sum(b for _, b in pairs),
+         shares_atlases={t["target"]: t["share"] for t in trees["targets"]},
+         shares_direct={t["target"]: t["share"] for t in by_ik["targets"]})
 
 
 if __name__ == "__main__":

@@ -419,3 +419,45 @@ def test_a_page_of_another_origin_reaches_no_port_of_the_viewer(viewer, browser,
         assert out == {str(viewer.port): "open"}, out
     finally:
         other.shutdown()
+
+
+@pytest.fixture
+def population_viewer(atlas):
+    """The viewer with an accommodation volume: a slab in front of the chest, half of it reached by every member
+    (share 1, yellow), half by a fifth of them (share 0.2, viridis's blue-purple)."""
+    xs, ys, zs = np.meshgrid(np.linspace(0.3, 0.7, 9), np.linspace(-0.6, 0.2, 17), np.linspace(1.0, 1.4, 9),
+                             indexing="ij")
+    points = np.stack([xs.ravel(), ys.ravel(), zs.ravel()], axis=1)
+    share = np.where(points[:, 1] < -0.2, 1.0, 0.2)
+    v = Viewer([atlas], port=_free_port(), refine=False, accommodation=(points, share))
+    v.show_strategy("right_arm", False)
+    yield v
+    v.close()
+
+
+def test_the_accommodation_dots_are_those_at_or_above_the_threshold(population_viewer):
+    from reach.tools.view import index_colours
+
+    points, share = population_viewer.accommodation
+    drawn = population_viewer.draw_accommodation()
+    assert len(drawn.points) == len(points)  # 5 %: every point
+    assert np.array_equal(np.asarray(drawn.colors), index_colours(share))
+    population_viewer.accommodation_at.value = 50
+    drawn = population_viewer.draw_accommodation()
+    assert len(drawn.points) == int(np.sum(share >= 0.5)) and np.all(np.asarray(drawn.points)[:, 1] < -0.2)
+    population_viewer.accommodation_box.value = False
+    assert population_viewer.draw_accommodation() is None
+
+
+@browser_only
+def test_the_page_colours_the_accommodation_by_its_share(population_viewer, browser):
+    from reach.tools.view import index_colours
+
+    everyone, few = index_colours(np.array([1.0, 0.2]))
+    _wait_for_page(browser, population_viewer)
+    both = _shot_until(browser, "accommodation", lambda im: _pixels_near(im, everyone) > 300
+                       and _pixels_near(im, few) > 300)
+    assert _pixels_near(both, everyone) > 300 and _pixels_near(both, few) > 300
+    population_viewer.accommodation_at.value = 50  # the panel's slider, as a user moves it
+    most = _shot_until(browser, "accommodation_50", lambda im: _pixels_near(im, few) < 0.05 * _pixels_near(both, few))
+    assert _pixels_near(most, few) < 0.05 * _pixels_near(both, few) and _pixels_near(most, everyone) > 300

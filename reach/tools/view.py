@@ -131,10 +131,14 @@ class Viewer:
         spacing: Distance [m] between atlases along y.
         policy: The selector's policy for boundary cells.
         refine: Refine answers by IK at the exact goal (the selector's default).
+        accommodation: A population's accommodation volume: grid points (N, 3) [m] and the share (N,) of members whose
+            trees hold each (:mod:`reach.tools.accommodation_report`), drawn as dots coloured by the share (viridis:
+            dark 0, yellow 1) where it is at least the panel's threshold.
     """
 
     def __init__(self, atlases: Sequence[Atlas], host: str = "127.0.0.1", port: int = 8080, connect: str | None = None,
-                 spacing: float = 1.5, policy: str = DEFAULT_POLICY, refine: bool = True) -> None:
+                 spacing: float = 1.5, policy: str = DEFAULT_POLICY, refine: bool = True,
+                 accommodation: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         import viser  # the optional dependency: pip install 'reach-volumes[view]'
 
         if not atlases:
@@ -174,6 +178,7 @@ class Viewer:
         effectors = self.selectors[0].effectors
         self.effector = "right_hand" if "right_hand" in effectors else effectors[0]
         self.answers: list[dict[str, Any]] = []
+        self.accommodation = accommodation
         self.goal = np.array([0.45, -0.25, 1.2])
         # the planned motion: its summary, times and postures (the shaper's order)
         self.motion: dict[str, Any] | None = None
@@ -186,6 +191,7 @@ class Viewer:
         for k, scene in enumerate(self.scenes):
             self._body(k, scene)
         self.draw()
+        self.draw_accommodation()
         self.set_goal(self.goal)
 
     # -- the page -----------------------------------------------------------
@@ -222,6 +228,12 @@ class Viewer:
             lo, hi = (self.scenes[0].atlas.trees[next(iter(self.scenes[0].atlas.trees))].box.lo,
                       self.scenes[0].atlas.trees[next(iter(self.scenes[0].atlas.trees))].box.hi)
             self.slice_at = gui.add_slider("slice at [m]", float(lo.min()), float(hi.max()), 0.01, 1.0)
+            if self.accommodation is not None:
+                self.accommodation_box = gui.add_checkbox("accommodation", True, hint="the share of the population's "
+                    "members whose trees hold each point (viridis: dark 0, yellow 1)")
+                self.accommodation_at = gui.add_slider("reached by at least [%]", 5, 100, 5, 5)
+                self.accommodation_box.on_update(lambda _e: self.draw_accommodation())
+                self.accommodation_at.on_update(lambda _e: self.draw_accommodation())
             self.layer_boxes: dict[tuple[int, str], Any] = {}
             for k, scene in enumerate(self.scenes):
                 label = scene.atlas.manifest.get("name", f"atlas {k}")
@@ -366,6 +378,22 @@ class Viewer:
             batched_scales=(cells.size * 0.96).astype(np.float32), batched_colors=colour,
             wireframe=self.style_box.value == "wireframe", opacity=0.3 if self.style_box.value == "boxes" else None,
             cast_shadow=False, receive_shadow=False)
+
+    def draw_accommodation(self) -> Any:
+        """The population's accommodation volume as dots coloured by the share, at or above the panel's threshold;
+        returns the drawn handle (None: hidden or nothing to draw)."""
+        with self._lock:
+            self.server.scene.remove_by_name("/accommodation")
+            if self.accommodation is None or not self.accommodation_box.value:
+                return None
+            points, share = self.accommodation
+            keep = share >= float(self.accommodation_at.value) / 100.0 - 1e-9
+            if not keep.any():
+                return None
+            spacing = float(np.min([np.diff(np.unique(points[:, i]))[:1].min(initial=0.05) for i in range(3)]))
+            return self.server.scene.add_point_cloud("/accommodation", points[keep].astype(np.float32),
+                                                     index_colours(share[keep]), point_size=0.6 * spacing,
+                                                     point_shape="circle", point_shading="flat")
 
     def show_strategy(self, name: str, visible: bool, atlas: int = 0) -> None:
         """Show or hide a strategy's layer (as its panel checkbox does)."""

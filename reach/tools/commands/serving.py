@@ -114,8 +114,23 @@ def cmd_view(args: argparse.Namespace) -> int:
         from reach.tools.view import Viewer
     except ImportError as exc:  # viser is an extra
         raise ReachError(f"reach view needs viser: pip install 'reach-volumes[view]' ({exc})") from exc
-    viewer = Viewer([load_atlas(a) for a in args.atlas], host=args.host, port=args.port, connect=args.connect,
-                    spacing=args.spacing, policy=args.policy, refine=not args.no_refine)
+    from reach.build.population import is_population
+
+    accommodation = None
+    if any(is_population(a) for a in args.atlas):
+        from reach.tools import accommodation_report as A
+
+        if len(args.atlas) != 1:
+            raise InputError("atlas", "a population folder is viewed alone (its first member's body and volumes, "
+                                      "with the population's accommodation)")
+        members, weights = A.members(args.atlas[0])
+        axes, points = A.grid(members, A.VIEW_LEVEL)
+        accommodation = (points, A.shares(members, weights, points)[A.ANY])
+        atlases = members[:1]
+    else:
+        atlases = [load_atlas(a) for a in args.atlas]
+    viewer = Viewer(atlases, host=args.host, port=args.port, connect=args.connect,
+                    spacing=args.spacing, policy=args.policy, refine=not args.no_refine, accommodation=accommodation)
     print(f"viewing {', '.join(args.atlas)} at {viewer.url} (Ctrl-C to stop)", flush=True)
     try:
         while True:
@@ -135,7 +150,9 @@ def add_view(sub: Any) -> None:
                     "drag whose answer (strategy, posture) is shown. Open the printed address in a browser; the page "
                     "works offline.",
     )
-    p.add_argument("atlas", nargs="+", help="atlas folder(s); several stand side by side (a population study)")
+    p.add_argument("atlas", nargs="+", help="atlas folder(s); several stand side by side (a population study); or one "
+                                            "population folder: its first member, and the population's accommodation "
+                                            "as dots coloured by the share of members whose trees hold each point")
     p.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1: this machine only)")
     p.add_argument("--port", type=int, default=8080, help="port (default 8080; the next free one if taken)")
     p.add_argument("--connect", metavar="ADDR", help="take answers from a running 'reach serve' at ADDR, e.g. "
