@@ -314,3 +314,13 @@ def test_the_server_answers_accommodation_over_zeromq(built):
         server.stop()
         thread.join(timeout=5)
         server.close()
+
+
+def test_seated_members_each_get_their_seat_fitted():
+    family = boundary_manikins("female")
+    small_body = load_body(member_body({"human": {"posture": "seated", "seat": {"kind": "car"}}}, family[2]))
+    large_body = load_body(member_body({"human": {"posture": "seated", "seat": {"kind": "car"}}}, family[1]))
+    assert family[1].human["buttockkneelength"] > family[2].human["buttockkneelength"] + 0.1
+    # the heel point is fitted to each member's legs: the longer legs put it farther forward
+    heel = [b.frame_positions(names=["right_heel"])["right_heel"][0] for b in (small_body, large_body)]
+    assert heel[1] > heel[0] + 0.1
