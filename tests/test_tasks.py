@@ -283,21 +283,29 @@ def test_hip_and_lumbar_flexion_share_a_limit_with_the_knees_straight():
     s = parse_strategy(body, "right_hand", WHOLE, [{"type": "reach"}, {"type": "coupling"}])
     problem = ReachProblem(body, s)
     coupling = s.task("coupling")
-    summed = [r for r in coupling.rules if len(r.joints) > 1]
+    summed = [r for r in coupling.rules if len(r.joints) == 2]
     assert {r.joints for r in summed} == {(f"{side}_hip_flexion", "lumbar_flexion") for side in ("right", "left")}
+    twist = [r for r in coupling.rules if len(r.joints) == 4]
+    assert len(twist) == 8 and {r.signs for r in twist} == {(1.0, 1.0, a, b) for a in (1.0, -1.0) for b in (1.0, -1.0)}
     idx = {n: body.model.joints[body.joint_id(n)].idx_q
-           for n in ("right_hip_flexion", "lumbar_flexion", "right_knee_flexion")}
+           for n in ("right_hip_flexion", "lumbar_flexion", "right_knee_flexion", "lumbar_lateral",
+                     "thoracic_rotation")}
 
-    def holds(hip: float, lumbar: float, knee: float) -> bool:
+    def holds(hip: float, lumbar: float, knee: float, lateral: float = 0.0, turn: float = 0.0) -> bool:
         q = body.q_ref.copy()
-        q[idx["right_hip_flexion"]], q[idx["lumbar_flexion"]], q[idx["right_knee_flexion"]] = np.radians([hip, lumbar,
-            knee])
+        for name, deg in (("right_hip_flexion", hip), ("lumbar_flexion", lumbar), ("right_knee_flexion", knee),
+                          ("lumbar_lateral", lateral), ("thoracic_rotation", turn)):
+            q[idx[name]] = np.radians(deg)
         return coupling.holds(numeric(problem, q, np.zeros(3)))
 
-    # Knees straight: 90 deg between them, however split; bent 90 deg: each joint's own range.
-    assert (holds(80.0, 9.0, 0.0) and holds(30.0, 59.0, 0.0) and not holds(80.0, 12.0, 0.0)
-            and not holds(40.0, 55.0, 0.0))
-    assert holds(119.0, 59.0, 90.0) and not holds(100.0, 40.0, 45.0) and holds(90.0, 40.0, 45.0)
+    # Knees straight: 100 deg between them, however split; bent 90 deg: each joint's own range.
+    assert (holds(80.0, 19.0, 0.0) and holds(40.0, 59.0, 0.0) and not holds(80.0, 22.0, 0.0)
+            and not holds(50.0, 55.0, 0.0))
+    assert holds(119.0, 59.0, 90.0) and not holds(100.0, 50.0, 45.0) and holds(90.0, 50.0, 45.0)
+    # A full stoop leaves 10 deg of side-bend and twist together, of either sign; upright, their own ranges; the knees
+    # slacken it as they do the stoop.
+    assert holds(80.0, 20.0, 0.0, 4.0, -5.0) and not holds(80.0, 20.0, 0.0, -6.0, 5.0)
+    assert holds(0.0, 0.0, 0.0, 34.0, -44.0) and holds(80.0, 20.0, 60.0, -30.0, 30.0)
     # The same rule by hand, on a list of joints, and its errors.
     rule = {"joint": ["*_hip_flexion", "lumbar_flexion"], "by": "*_knee_flexion", "limit": 1.0, "slope": 0.5}
     mine = parse_strategy(body, "right_hand", WHOLE,
@@ -336,8 +344,8 @@ def test_limits_near_counts_range_ends_and_coupled_limits_but_not_the_ends_the_b
     # Hamstrings: 80 deg of hip flexion with the knee straight, more with it bent.
     assert near(right_hip_flexion=77.0) == ["right_hip_flexion"]
     assert near(right_hip_flexion=77.0, right_knee_flexion=30.0) == []
-    # Hip and lumbar flexion share 90 deg with the knees straight.
-    assert near(right_hip_flexion=40.0, lumbar_flexion=47.0) == ["right_hip_flexion + lumbar_flexion"]
+    # Hip and lumbar flexion share 100 deg with the knees straight.
+    assert near(right_hip_flexion=45.0, lumbar_flexion=52.0) == ["right_hip_flexion + lumbar_flexion"]
 
 
 @pytest.mark.slow

@@ -8,6 +8,11 @@ feet or contacts tasks name. With ``pelvis: true`` the root joint's origin
 on both feet keeps the pelvis over them (a modelling choice, not a measured
 bound: without it the lowest straight-knee reach shifted the pelvis 21 cm
 aside, past the feet, with the spine side-bent and twisted to their limits).
+``pelvis: d`` (a number [m]) keeps it over the polygon and also within ``d``
+of its reference position aside (world y: the generated human's left and
+right), so that it may go back and forth (hips pushed back in a stoop) but
+not sideways: the shipped human configs give 0.05, issue 51's bound for
+goals straight ahead (a modelling choice, not a measured one).
 """
 
 from __future__ import annotations
@@ -49,11 +54,13 @@ class BalanceTask(HardTask):
     type: ClassVar[str] = "balance"
     keys: ClassVar[frozenset[str]] = frozenset({"margin", "support", "pelvis"})
     summary: ClassVar[str] = ("the centre of mass's ground projection inside the support polygon of the feet, shrunk "
-                              "by `margin` [m]; with `pelvis: true` the pelvis (the root's origin) over it too")
+                              "by `margin` [m]; with `pelvis: true` the pelvis (the root's origin) over it too, and "
+                              "with `pelvis: D` [m] also within D aside (world y) of where it stands")
 
     margin: float = 0.02
     polygon_frames: tuple[str, ...] = ()
     pelvis: bool = False
+    aside: float | None = None  # [m] the pelvis's largest shift aside (world y) from its reference, when given
     #: Rows (a_x, a_y, c): a . p + c <= 0 inside the shrunk polygon.
     polygon: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)), init=False, repr=False, compare=False)
     #: The unshrunk polygon's rows, for the pelvis.
@@ -64,9 +71,11 @@ class BalanceTask(HardTask):
         margin = number(raw.get("margin", 0.02), f"{where}.margin", 0.0, 0.5)
         given = frames(scope, raw["support"], f"{where}.support") if "support" in raw else ()
         pelvis = raw.get("pelvis", False)
+        aside = None
         if not isinstance(pelvis, bool):
-            raise TaskError(f"{where}.pelvis", f"expected true or false, got {pelvis!r}")
-        return cls(margin, given, pelvis)
+            aside = number(pelvis, f"{where}.pelvis", 0.0, 1.0)  # a distance [m]: true, and within it aside
+            pelvis = True
+        return cls(margin, given, pelvis, aside)
 
     def resolve(self, tasks: Sequence[Task], where: str) -> BalanceTask:
         support = self.polygon_frames or tuple(dict.fromkeys(f for t in tasks for f in t.support))
@@ -86,6 +95,9 @@ class BalanceTask(HardTask):
         self.polygon = hull.equations.copy()
         self.polygon[:, 2] += self.margin
         self.hull = hull.equations.copy()
+        if self.aside is not None:
+            y = float(reference.data.oMi[ROOT_JOINT].translation[1])  # the pelvis's y at the reference
+            self.hull = np.vstack([self.hull, [[0.0, 1.0, -(y + self.aside)], [0.0, -1.0, y - self.aside]]])
 
     def constraints(self, sym: Symbolic) -> list[Constraint]:
         com = sym.kin.center_of_mass()
