@@ -324,3 +324,20 @@ def test_seated_members_each_get_their_seat_fitted():
     # the heel point is fitted to each member's legs: the longer legs put it farther forward
     heel = [b.frame_positions(names=["right_heel"])["right_heel"][0] for b in (small_body, large_body)]
     assert heel[1] > heel[0] + 0.1
+
+
+def test_the_direct_command_prints_the_table_and_its_json(built, capsys):
+    config_path, _, targets = built
+    capsys.readouterr()
+    assert main(["evaluate", str(config_path), "--direct", "--targets", str(targets), "-j", "2", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    again = direct(parse_config(json.loads(config_path.read_text()), str(config_path)), TARGETS)
+    assert result["by_member"] == again["by_member"] and result["way"] == "direct"
+    assert main(["evaluate", str(config_path), "--direct", "--targets", str(targets), "-j", "1"]) == 0
+    text = capsys.readouterr().out
+    assert "reached % [95 % CI]" in text and "4 members" in text
+    # a config without a population is refused by name
+    plain = config_path.parent / "plain.yaml"
+    plain.write_text(json.dumps({k: v for k, v in json.loads(config_path.read_text()).items() if k != "population"}))
+    assert main(["evaluate", str(plain), "--direct", "--targets", str(targets)]) == 2
+    assert "population" in capsys.readouterr().err
