@@ -101,8 +101,10 @@ def test_a_task_past_its_deadline_answers_expired_and_cancel_drops_queued_work(a
         pool.dispatch()  # the late task is past its deadline: dropped here, never sent
         got = results(pool, 1)
         assert [r[0].request for r in got] == [8]
-        # A task whose deadline passes while it travels is answered `expired` by the worker itself.
-        t = Task(10, 0, "right_hand", GOALS, None, time.monotonic() + 1e-4)
+        # A task whose deadline passes while it travels is answered `expired` by the worker itself. Sent past it
+        # already (past the dispatcher, which would drop it): a deadline 0.1 ms ahead was met by a quick worker on an
+        # idle machine, which then answered `timeout`, not `expired` (the verdict hung on the machine's speed).
+        t = Task(10, 0, "right_hand", GOALS, None, time.monotonic() - 1e-3)
         pool.idle.popleft()
         pool.backend.send_multipart([b"w0", t.encode()])
         pool.busy[b"w0"] = t
