@@ -480,13 +480,10 @@ class Selector:
             residual = gap if np.isfinite(gap) else None
             q, outcome = tree.postures(row), SKIPPED
             # One budget for all of a goal's refinements (the first choice's, a fallback's, a handover's): the budget is
-            # the query's (each had its own, and a query that fell back or handed over took two to four budgets). It
-            # starts once the strategies that may refine have their solvers (a server's are built at warm-up; `reach
-            # query` builds them here, which took the whole of its 1 s budget).
-            if refine and done is None:
-                for other in hits:
-                    if isinstance(oracle := self._oracle(other), Preparable):
-                        oracle.prepare()
+            # the query's (each had its own, and a query that fell back or handed over took two to four budgets). A
+            # strategy's solvers are built before it refines, outside its budget (a server's at warm-up; `reach query`
+            # builds them when a strategy is first asked: only the first choice's, unless it falls back or hands over,
+            # where building every holding strategy's took 1.2 s of a fresh query's 2 s).
             purse = Purse(self._goal_budget(aim))
             if refine:
                 q, residual, outcome = self._refine(name, goal, q, residual, start, aim, done, purse)
@@ -625,6 +622,7 @@ class Selector:
         if done is not None and name in done:
             q_done, residual_done, outcome = done[name]
             return (q_done, residual_done, outcome) if outcome == REFINED else (q, residual, outcome)
+        self._ready(name)
         if start_joints is None:  # from the stored posture and the best liked near it, as a batch's goals are
             return self._refine_many(name, goal[None], q[None], [residual], [aim], None, purse)[0]
         oracle, budget, reserve = self._tuned(name, 1, aim, purse)
@@ -637,6 +635,12 @@ class Selector:
         if v.reachable[0] and v.posture is not None:
             return v.posture[0], float(v.residual[0]), REFINED
         return q, residual, TIMEOUT if over else FAILED
+
+    def _ready(self, name: str) -> None:
+        """A strategy's solvers built (once; a server's at warm-up), so that building them is never charged to a
+        refinement's budget."""
+        if isinstance(oracle := self._oracle(name), Preparable):
+            oracle.prepare()
 
     @staticmethod
     def _spent(v: Verdicts, budget: float, t0: float, purse: Purse | None, reserve: float) -> np.ndarray:
@@ -737,6 +741,7 @@ class Selector:
         many goals, in order, as it has time for; the others are not refined (``timeout``). (Shrunk to the time left,
         the budget was each goal's share of it: a deadline too short for all refined none.)"""
         m = len(goals)
+        self._ready(name)
         if deadline is not None:
             k = min(m, max(int((deadline - time.perf_counter()) / self._goal_budget(aims[0])), 0))
             if k < m:
