@@ -42,6 +42,25 @@ def unit_sphere_tree() -> VATree:
     return build_tree(OracleSpec("sphere", {"radius": 1.0}), Box([-1, -1, -1], [1, 1, 1]), 2, 6)
 
 
+@pytest.fixture(scope="session")
+def nested_balls(tmp_path_factory):
+    """An atlas folder of two balls about the origin for the effector "point": ``near`` (0.4 m, priority 1) inside
+    ``far`` (0.9 m, priority 2), D_max 5 (the selector's and the server's tests)."""
+    from reach.build.atlas import build_atlas
+    from reach.build.config import parse_config
+
+    out = tmp_path_factory.mktemp("balls") / "balls"
+    build_atlas(parse_config({
+        "box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 2, "max": 5},
+        "oracle": {"name": "sphere", "params": {"radius": 0.9}},
+        "strategies": [
+            {"name": "near", "effector": "point", "priority": 1, "oracle": {"params": {"radius": 0.4}}},
+            {"name": "far", "effector": "point", "priority": 2},
+        ],
+    }, "balls", "balls"), out)
+    return out
+
+
 @pytest.fixture
 def browser():
     """Headless Chromium (Debian's) driven by Selenium, for the viewer's page (tests/test_view.py's constants)."""

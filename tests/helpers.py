@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import socket
 
 import numpy as np
 import pytest
@@ -115,3 +116,10 @@ def strategies_service(context, job: dict, deadline: float) -> list[bytes]:  # n
     names = [n for n, e in selector.order if e == job["effector"]]
     held = [n for n in names if selector.atlas.map(n).contains_one(job["goals"][0], selector.policy)]
     return [json.dumps({"strategies": names, "held": held, "pid": os.getpid()}).encode()]
+
+
+def free_port() -> int:
+    """A loopback TCP port free now (the OS's pick)."""
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return int(sock.getsockname()[1])

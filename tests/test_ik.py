@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 import pytest
+from helpers import ARM
 
 from oracles.ik.dls import DLSIK
 from oracles.ik.engine import Call, CasadiIK
@@ -19,7 +20,6 @@ from reach.errors import ModelError, OracleError
 
 ROOT = Path(__file__).resolve().parents[1]
 HUMAN = {"human": {"sex": "male", "percentile": 50}}
-ARM = ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"]
 UPPER = [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*", "neck_*"]
 WHOLE = [*UPPER, "root", "*_hip_*", "*_ankle_*"]
 CROUCH = [*WHOLE, "*_knee_*"]

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 import pytest
+from helpers import ARM
 
 from oracles.bodies.body import load_body
 from oracles.bodies.population import boundary_manikins, member_body, members, parse_population
@@ -24,7 +25,6 @@ from reach.errors import ConfigError
 from reach.tools.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
-ARM = ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"]
 
 
 def small(population: dict, **body: object) -> dict:

@@ -10,13 +10,13 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import socket
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 import pytest
+from helpers import free_port
 
 from reach.build.atlas import build_atlas
 from reach.build.config import parse_config
@@ -44,12 +44,6 @@ pytestmark = [
     pytest.mark.slow,  # starts roscore, the server and the bridge
     pytest.mark.skipif(_missing is not None, reason=f"ROS 1 not available ({_missing}); install it with: {INSTALL}"),
 ]
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 class Ros:

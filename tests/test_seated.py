@@ -12,7 +12,7 @@ import coal
 import numpy as np
 import pinocchio as pin
 import pytest
-from helpers import browser_only
+from helpers import ARM, browser_only, free_port
 
 from oracles.bodies.body import load_body
 from oracles.bodies.environment import parse_box
@@ -22,7 +22,6 @@ from oracles.ik.search import Search
 from oracles.tasks.reach import TOLERANCE
 from reach.answers.select import Selector
 
-ARM = ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"]
 TRUNK = [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*", "neck_*", "root", "*_hip_*", "*_knee_*", "*_ankle_*"]
 SUPPORT = ["right_ischium", "left_ischium", "right_thigh_rest", "left_thigh_rest", "right_heel_inner",
            "right_heel_outer", "right_toe_inner",
@@ -281,10 +280,9 @@ def test_the_viewer_shows_the_seat_and_the_desk(seated_atlas):
     """The viewer adds the body's furniture and the strategy's obstacles as boxes where the body says they are."""
     from reach.maps.atlas import load_atlas
     from reach.tools.view import Viewer
-    from tests.test_view import _free_port
 
     atlas = load_atlas(seated_atlas)
-    v = Viewer([atlas], port=_free_port(), refine=False)
+    v = Viewer([atlas], port=free_port(), refine=False)
     try:
         boxes = {h.name.rsplit("/", 1)[-1]: h for h in v.scenes[0].furniture}
         assert set(boxes) == {"seat_pan", "backrest", "desk"}
@@ -343,9 +341,9 @@ def test_the_page_draws_the_seat(seated_atlas, browser, tmp_path):
     shown); the screenshot with them is kept in $REACH_SHOTS to look at."""
     from reach.maps.atlas import load_atlas
     from reach.tools.view import Viewer
-    from tests.test_view import _free_port, _shot, _wait_for_page
+    from tests.test_view import _shot, _wait_for_page
 
-    v = Viewer([load_atlas(seated_atlas)], port=_free_port(), refine=False)
+    v = Viewer([load_atlas(seated_atlas)], port=free_port(), refine=False)
     try:
         _wait_for_page(browser, v)
         v.show_strategy("arm", False)

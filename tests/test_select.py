@@ -20,16 +20,11 @@ from reach.tools.cli import main
 
 
 @pytest.fixture(scope="module")
-def balls(tmp_path_factory):
-    # A small ball (priority 1) inside a large one (priority 2), both for the effector "point".
-    return build_atlas(parse_config({
-        "box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 2, "max": 5},
-        "oracle": {"name": "sphere", "params": {"radius": 0.9}},
-        "strategies": [
-            {"name": "near", "effector": "point", "priority": 1, "oracle": {"params": {"radius": 0.4}}},
-            {"name": "far", "effector": "point", "priority": 2},
-        ],
-    }, "balls", "balls"), tmp_path_factory.mktemp("balls") / "balls")
+def balls(nested_balls):
+    # A small ball (priority 1) inside a large one (priority 2), both for the effector "point" (conftest.py).
+    from reach.maps.atlas import load_atlas
+
+    return load_atlas(nested_balls)
 
 
 NATURAL_ARM = [{"name": "right_arm", "effector": "right_hand", "joints": ARM,

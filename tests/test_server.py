@@ -38,16 +38,9 @@ def _atlas(tmp_path_factory, name, data):
 
 
 @pytest.fixture(scope="module")
-def balls(tmp_path_factory):
-    # Two strategies for one effector: a small ball (priority 1) inside a large one (priority 2).
-    return _atlas(tmp_path_factory, "balls", {
-        "box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 2, "max": 5},
-        "oracle": {"name": "sphere", "params": {"radius": 0.9}},
-        "strategies": [
-            {"name": "near", "effector": "point", "priority": 1, "oracle": {"params": {"radius": 0.4}}},
-            {"name": "far", "effector": "point", "priority": 2},
-        ],
-    })
+def balls(nested_balls):
+    # Two strategies for one effector: a small ball (priority 1) inside a large one (priority 2) (conftest.py).
+    return nested_balls
 
 
 @pytest.fixture(scope="module")

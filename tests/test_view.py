@@ -14,7 +14,7 @@ import time
 
 import numpy as np
 import pytest
-from helpers import BROWSER_MISSING, INSTALL, browser_only
+from helpers import ARM, BROWSER_MISSING, INSTALL, browser_only, free_port
 
 from reach.answers.select import Selector
 from reach.build.atlas import build_atlas
@@ -25,7 +25,6 @@ viser = pytest.importorskip("viser", reason="the viewer needs viser: pip install
 pytestmark = pytest.mark.slow  # builds a body atlas, starts browsers
 from reach.tools.view import BOUNDARY_SHADE, PALETTE, Viewer  # noqa: E402
 
-ARM = ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"]
 CONFIG = {
     "body": {"human": {"sex": "male", "percentile": 50}},
     "box": {"min": [-0.5, -1.0, 0.6], "max": [0.9, 0.4, 2.1]}, "depth": {"min": 2, "max": 4},
@@ -52,17 +51,9 @@ def atlas(tmp_path_factory):
 
 @pytest.fixture
 def viewer(atlas):
-    v = Viewer([atlas], port=_free_port(), refine=False)
+    v = Viewer([atlas], port=free_port(), refine=False)
     yield v
     v.close()
-
-
-def _free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
 
 
 def _same(a: dict, b: dict) -> bool:
@@ -139,7 +130,7 @@ def test_the_viewer_over_a_server_shows_the_servers_answers(atlas):
     server = Server(atlas.path, "tcp://127.0.0.1:*", None, refine=False)
     thread = threading.Thread(target=server.serve_forever, daemon=True)
     thread.start()
-    v = Viewer([atlas], port=_free_port(), connect=server.endpoint, refine=False)
+    v = Viewer([atlas], port=free_port(), connect=server.endpoint, refine=False)
     try:
         selector = Selector(atlas, refine=False)
         for goal in GOALS[:2]:
@@ -154,7 +145,7 @@ def test_the_viewer_over_a_server_shows_the_servers_answers(atlas):
 
 
 def test_two_atlases_stand_side_by_side(atlas):
-    v = Viewer([atlas, atlas], port=_free_port(), refine=False, spacing=1.5)
+    v = Viewer([atlas, atlas], port=free_port(), refine=False, spacing=1.5)
     try:
         answers = v.set_goal(GOALS[0])
         assert _same(answers[0], answers[1])
@@ -321,7 +312,7 @@ def test_an_analytic_atlas_is_viewed_without_a_body(tmp_path):
            "oracle": {"name": "sphere", "params": {"radius": 0.9}},
            "strategies": [{"name": "ball", "effector": "point"}]}
     build_atlas(parse_config(raw, "ball", "ball"), tmp_path / "ball")
-    v = Viewer([load_atlas(tmp_path / "ball")], port=_free_port())
+    v = Viewer([load_atlas(tmp_path / "ball")], port=free_port())
     try:
         assert v.scenes[0].shaper is None and v.scenes[0].capsules == []
         inside, outside = v.set_goal(np.array([0.3, 0.0, 0.0]))[0], v.set_goal(np.array([0.99, 0.99, 0.0]))[0]
@@ -429,7 +420,7 @@ def population_viewer(atlas):
                              indexing="ij")
     points = np.stack([xs.ravel(), ys.ravel(), zs.ravel()], axis=1)
     share = np.where(points[:, 1] < -0.2, 1.0, 0.2)
-    v = Viewer([atlas], port=_free_port(), refine=False, accommodation=(points, share))
+    v = Viewer([atlas], port=free_port(), refine=False, accommodation=(points, share))
     v.show_strategy("right_arm", False)
     yield v
     v.close()
