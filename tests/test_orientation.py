@@ -12,7 +12,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 import yaml
-from helpers import CHROMIUM, DRIVER, browser_only
+from helpers import CHROMIUM, DRIVER, browser_only, free_port
 
 from oracles.bodies.kinematics import SymbolicKinematics
 from oracles.errors import OracleError, TaskError
@@ -319,11 +319,10 @@ def test_the_report_draws_the_index_as_a_heat_map(arm_atlas, tmp_path):
 
 def test_the_viewer_colours_cells_by_the_index(arm_atlas):
     from reach.tools.view import Viewer, index_colours
-    from tests.test_view import _free_port
 
     assert np.array_equal(index_colours(np.array([0.0, 1.0, np.nan])), [[68, 1, 84], [253, 231, 36], [128, 128, 128]])
     atlas = load_atlas(arm_atlas / "atlas")
-    viewer = Viewer([atlas], port=_free_port(), refine=False)
+    viewer = Viewer([atlas], port=free_port(), refine=False)
     try:
         viewer.cells_box.value = "both"
         viewer.index_box.value = True
@@ -357,9 +356,9 @@ def test_the_page_shows_the_index_colours(arm_atlas):
     from selenium.webdriver.chrome.service import Service
 
     from reach.tools.view import Viewer
-    from tests.test_view import _free_port, _profile, _shot_until, _wait_for_page
+    from tests.test_view import _profile, _shot_until, _wait_for_page
 
-    viewer = Viewer([load_atlas(arm_atlas / "atlas")], port=_free_port(), refine=False)
+    viewer = Viewer([load_atlas(arm_atlas / "atlas")], port=free_port(), refine=False)
     opts = webdriver.ChromeOptions()
     opts.binary_location = CHROMIUM
     for flag in ("--headless=new", "--no-sandbox", "--disable-gpu", "--window-size=1200,800", "--use-angle=swiftshader",
