@@ -70,6 +70,7 @@ def test_mtm_reach_table_and_body_motions():
         Timing.from_dict({"duration": 0})
 
 
+@pytest.mark.slow  # builds the planner's programs (4 s)
 def test_an_arm_reach_starts_at_the_start_ends_at_the_answer_and_is_minimum_jerk(planner, body):
     goal = np.array([0.45, -0.25, 1.2])
     m = planner.plan("right_hand", goal)

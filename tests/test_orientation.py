@@ -224,6 +224,7 @@ def test_the_index_is_stored_and_each_reached_direction_holds(arm_atlas):
     assert yes and no and miss <= max(2, no // 5)
 
 
+@pytest.mark.slow  # builds the arm's atlas with an index (8 s)
 def test_a_damaged_index_is_refused(arm_atlas, tmp_path):
     tree, index = load_indexed(arm_atlas / "atlas" / "tcp.npz")
     assert index is not None
