@@ -238,14 +238,15 @@ def read_ply(path: Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_the_accommodation_volume_counts_members_whose_trees_hold_each_point(built, tmp_path, capsys):
+    from reach.answers.accommodation import load_members, shares
     from reach.maps.atlas import load_atlas
-    from reach.tools.accommodation_report import grid, members, shares
+    from reach.tools.accommodation_report import grid
 
     _, out, _ = built
     capsys.readouterr()
     assert main(["report", str(out), "-o", str(tmp_path / "rep"), "--level", "3"]) == 0
     table = json.loads((tmp_path / "rep" / "accommodation.json").read_text())
-    atlases, weights = members(out)
+    atlases, weights, _ = load_members(out)
     axes, points = grid(atlases, 3)
     found = shares(atlases, weights, points)
     # each point's share, counted here member by member from the trees read again

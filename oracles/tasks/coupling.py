@@ -120,10 +120,14 @@ class Rule:
     slope: float
     iq: tuple[int, ...] = ()
     iby: int = -1
-    signs: tuple[float, ...] = ()
+    signs: tuple[float, ...] = ()  # one per joint (+1 or -1); empty: every joint added
+
+    def __post_init__(self) -> None:
+        if not self.signs:
+            object.__setattr__(self, "signs", (1.0,) * len(self.joints))
 
     def total(self, q: Any) -> Any:
-        return sum(s * q[i] for s, i in zip(self.signs or (1.0,) * len(self.iq), self.iq, strict=True))
+        return sum(s * q[i] for s, i in zip(self.signs, self.iq, strict=True))
 
     @property
     def joint(self) -> str:

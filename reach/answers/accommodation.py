@@ -95,22 +95,38 @@ def load_members(folder: str | Path) -> tuple[list[Atlas], np.ndarray, list[str]
     return atlases, w / w.sum(), [str(m["name"]) for m in doc["members"]]
 
 
-def held(atlases: Sequence[Atlas], weights: np.ndarray, effector: str, goals: np.ndarray) -> dict[str, Any]:
-    """By the trees' word (``vertex`` policy), per goal: the weighted share of members one of whose ``effector``
-    strategies holds it, with its Wilson interval, and per strategy name the share whose tree of that name holds it."""
-    reached = np.zeros((len(atlases), len(goals)), bool)
-    per: dict[str, np.ndarray] = {}
-    for m, atlas in enumerate(atlases):
+ANY = "any"  # the share of members that some strategy of theirs holds
+
+
+def shares(atlases: Sequence[Atlas], weights: np.ndarray, points: np.ndarray,
+           effector: str | None = None) -> dict[str, np.ndarray]:
+    """By the trees' word (``vertex`` policy), per point (N, 3): per strategy name the weighted share of members whose
+    tree of that name holds it, and under :data:`ANY` the share one of whose strategies does (only the ``effector``'s
+    strategies when given). ``weights`` sum to 1."""
+    out: dict[str, np.ndarray] = {}
+    some = np.zeros(len(points))
+    for atlas, w in zip(atlases, weights, strict=True):
+        held_here = np.zeros(len(points), bool)
         for name, tree in atlas.trees.items():
-            if tree.meta.get("effector") != effector:
+            if effector is not None and tree.meta.get("effector") != effector:
                 continue
-            inside = tree.contains(goals, "vertex")
-            reached[m] |= inside
-            per[name] = per.get(name, np.zeros(len(goals))) + weights[m] * inside
+            inside = tree.contains(points, "vertex")
+            out[name] = out.get(name, np.zeros(len(points))) + w * inside
+            held_here |= inside
+        some += w * held_here
+    return {ANY: some, **out}
+
+
+def held(atlases: Sequence[Atlas], weights: np.ndarray, effector: str, goals: np.ndarray) -> dict[str, Any]:
+    """Per goal, the share of members one of whose ``effector`` strategies holds it (:func:`shares`), with its Wilson
+    interval at Kish's effective n, and per strategy name its share."""
+    found = shares(atlases, weights, goals, effector)
     w = np.asarray(weights, float)
-    rows = [weighted_share(w, reached[:, g]) for g in range(len(goals))]
-    return {"share": [r["share"] for r in rows], "low": [r["low"] for r in rows], "high": [r["high"] for r in rows],
-            "by_strategy": {k: np.round(v / w.sum(), 4).tolist() for k, v in per.items()}}
+    n_eff = float(w.sum() ** 2 / (w * w).sum())
+    bounds = [wilson(float(p), n_eff) for p in found[ANY]]
+    return {"share": np.round(found[ANY], 4).tolist(), "low": [round(lo, 4) for lo, _ in bounds],
+            "high": [round(hi, 4) for _, hi in bounds],
+            "by_strategy": {k: np.round(v, 4).tolist() for k, v in found.items() if k != ANY}}
 
 
 def from_atlases(folder: str | Path, targets: list[Target], effector: str | None = None, refine: bool = True,

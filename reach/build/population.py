@@ -12,7 +12,7 @@ from __future__ import annotations
 import json
 import os
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -98,7 +98,8 @@ def build_population(config: Config, out: str | Path, build: Callable[[Config, P
                                         "finish the others, or another --output")
     write_manifest(out, config, members)
     start, done = time.monotonic(), 0
-    for k, (entry, member) in enumerate(_configs(config, members), start=1):
+    for k, entry in enumerate(members, start=1):
+        member = member_config(config, entry)
         folder = out / entry.name
         t0 = time.monotonic()
         build(member, folder)
@@ -109,7 +110,3 @@ def build_population(config: Config, out: str | Path, build: Callable[[Config, P
             f"{time.monotonic() - t0:.0f} s; {spent:.0f} s so far, about {left:.0f} s left")
     return members
 
-
-def _configs(config: Config, members: list[Entry]) -> Iterator[tuple[Entry, Config]]:
-    for entry in members:
-        yield entry, member_config(config, entry)

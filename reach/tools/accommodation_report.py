@@ -22,18 +22,11 @@ from typing import Any
 
 import numpy as np
 
-from reach.answers.accommodation import load_members
+from reach.answers.accommodation import load_members, shares
 from reach.maps.atlas import Atlas
 
 LEVELS = (0.05, 0.5, 0.95)  # the shares drawn and tabulated (issue 47's 5 / 50 / 95 %)
-ANY = "any"
 VIEW_LEVEL = 3  # the viewer's grid: 32 points an axis (about 33,000 points; dots the size of the spacing)
-
-
-def members(folder: str | Path) -> tuple[list[Atlas], np.ndarray]:
-    """The population's atlases and their weights (summing to 1)."""
-    atlases, weights, _ = load_members(folder)
-    return atlases, weights
 
 
 def grid(atlases: list[Atlas], level: int) -> tuple[list[np.ndarray], np.ndarray]:
@@ -45,24 +38,10 @@ def grid(atlases: list[Atlas], level: int) -> tuple[list[np.ndarray], np.ndarray
     return axes, np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
 
 
-def shares(atlases: list[Atlas], weights: np.ndarray, points: np.ndarray) -> dict[str, np.ndarray]:
-    """Per strategy (and ``any``), the weighted share of members whose tree contains each point."""
-    out: dict[str, np.ndarray] = {}
-    reach_any = np.zeros(len(points))
-    for atlas, w in zip(atlases, weights, strict=True):
-        held_any = np.zeros(len(points), bool)
-        for name, tree in atlas.trees.items():
-            held = tree.contains(points, "vertex")
-            out[name] = out.get(name, np.zeros(len(points))) + w * held
-            held_any |= held
-        reach_any += w * held_any
-    return {ANY: reach_any, **out}
-
-
 def report(folder: str | Path, out: str | Path, level: int = 4, z: float | None = None,
            y: float = 0.0) -> dict[str, Any]:
     """Write the accommodation tables, slices and isosurfaces of a population folder (see the module)."""
-    atlases, weights = members(folder)
+    atlases, weights, _ = load_members(folder)
     axes, points = grid(atlases, level)
     n = len(axes[0])
     cell = float(np.prod([(a[-1] - a[0]) / (n - 1) for a in axes]))

@@ -179,6 +179,9 @@ class Viewer:
         self.effector = "right_hand" if "right_hand" in effectors else effectors[0]
         self.answers: list[dict[str, Any]] = []
         self.accommodation = accommodation
+        # the dots' size: the grid's spacing (the smallest step between distinct coordinates on any axis)
+        self._dot = 0.05 if accommodation is None else float(min(
+            np.diff(np.unique(accommodation[0][:, i])).min(initial=0.05) for i in range(3)))
         self.goal = np.array([0.45, -0.25, 1.2])
         # the planned motion: its summary, times and postures (the shaper's order)
         self.motion: dict[str, Any] | None = None
@@ -390,9 +393,8 @@ class Viewer:
             keep = share >= float(self.accommodation_at.value) / 100.0 - 1e-9
             if not keep.any():
                 return None
-            spacing = float(np.min([np.diff(np.unique(points[:, i]))[:1].min(initial=0.05) for i in range(3)]))
             return self.server.scene.add_point_cloud("/accommodation", points[keep].astype(np.float32),
-                                                     index_colours(share[keep]), point_size=0.6 * spacing,
+                                                     index_colours(share[keep]), point_size=0.6 * self._dot,
                                                      point_shape="circle", point_shading="flat")
 
     def show_strategy(self, name: str, visible: bool, atlas: int = 0) -> None:

@@ -490,7 +490,8 @@ def cmd_place(args: argparse.Namespace) -> int:
 
 def _atlases(paths: list[str]) -> tuple[list[Any], np.ndarray | None]:
     """The atlases named, a population folder standing for its members' atlases (with their weights)."""
-    from reach.build.population import is_population, read_manifest
+    from reach.answers.accommodation import load_members
+    from reach.build.population import is_population
     from reach.maps.atlas import load_atlas
 
     if not any(is_population(p) for p in paths):
@@ -498,9 +499,8 @@ def _atlases(paths: list[str]) -> tuple[list[Any], np.ndarray | None]:
     if len(paths) != 1:
         raise ConfigError("atlas", "", "a population folder is placed alone (its members are the bodies), got "
                                        f"{len(paths)} folders")
-    doc = read_manifest(paths[0])
-    return ([load_atlas(Path(paths[0]) / m["atlas"]) for m in doc["members"]],
-            np.array([m["weight"] for m in doc["members"]], float))
+    atlases, weights, _ = load_members(paths[0])
+    return atlases, weights
 
 
 def add_place(sub: Any) -> None:

@@ -118,14 +118,15 @@ def cmd_view(args: argparse.Namespace) -> int:
 
     accommodation = None
     if any(is_population(a) for a in args.atlas):
-        from reach.tools import accommodation_report as A
+        from reach.answers.accommodation import ANY, load_members, shares
+        from reach.tools.accommodation_report import VIEW_LEVEL, grid
 
         if len(args.atlas) != 1:
             raise InputError("atlas", "a population folder is viewed alone (its first member's body and volumes, "
                                       "with the population's accommodation)")
-        members, weights = A.members(args.atlas[0])
-        axes, points = A.grid(members, A.VIEW_LEVEL)
-        accommodation = (points, A.shares(members, weights, points)[A.ANY])
+        members, weights, _ = load_members(args.atlas[0])
+        _, points = grid(members, VIEW_LEVEL)
+        accommodation = (points, shares(members, weights, points)[ANY])
         atlases = members[:1]
     else:
         atlases = [load_atlas(a) for a in args.atlas]
