@@ -342,3 +342,36 @@ def test_the_direct_command_prints_the_table_and_its_json(built, capsys):
     plain.write_text(json.dumps({k: v for k, v in json.loads(config_path.read_text()).items() if k != "population"}))
     assert main(["evaluate", str(plain), "--direct", "--targets", str(targets)]) == 2
     assert "population" in capsys.readouterr().err
+
+
+def test_a_population_with_a_member_not_built_or_beside_other_atlases_is_refused_by_name(built, tmp_path, capsys):
+    import shutil
+
+    _, out, targets = built
+    copy = tmp_path / "pop"
+    shutil.copytree(out, copy)
+    doc = json.loads((copy / "population.json").read_text())
+    (copy / doc["members"][1]["atlas"] / "manifest.json").unlink()
+    capsys.readouterr()
+    assert main(["evaluate", str(copy), "--targets", str(targets), "--effector", "right_hand"]) == 2
+    err = capsys.readouterr().err
+    assert doc["members"][1]["name"] in err and "--resume" in err
+    assert main(["place", str(out), str(out / doc["members"][0]["atlas"]), "--targets", str(targets),
+                 "--effector", "right_hand", "--x", "0", "0", "--y", "0", "0", "--yaw", "0", "0"]) == 2
+    assert "placed alone" in capsys.readouterr().err
+
+
+def test_balance_pelvis_takes_true_false_or_a_distance():
+    from oracles.bodies.body import human_body
+    from oracles.errors import TaskError
+    from oracles.ik.strategy import parse_strategy
+
+    body = human_body()
+    joints = [*ARM, "root", "*_hip_*", "*_ankle_*"]
+    for bad in ("yes", -0.1, 2.0):
+        with pytest.raises(TaskError, match=r"pelvis"):
+            parse_strategy(body, "right_hand", joints, [{"type": "reach"}, {"type": "feet"},
+                                                        {"type": "balance", "pelvis": bad}])
+    task = parse_strategy(body, "right_hand", joints, [{"type": "reach"}, {"type": "feet"},
+                                                       {"type": "balance", "pelvis": 0.05}]).task("balance")
+    assert task.pelvis and task.aside == 0.05
