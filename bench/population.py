@@ -6,9 +6,11 @@
   wall and CPU seconds, and the same members' accommodation from their atlases against the direct answers
   (``agreement``: member x target pairs whose verdicts agree);
 * ``--folder OUT``: instead of building, the ``agreement`` of a population already built (``reach build
-  configs/population.yaml -o OUT``).
+  configs/population.yaml -o OUT``);
+* ``--random N``: instead of the workstation's targets, N targets drawn uniformly (``--seed``) in the box in front of
+  and beside the right side, ``RANDOM_BOX`` (issue 47's 200 random member x target pairs: ``--build 10 --random 20``).
 
-    python bench/population.py [--direct 500] [--build 4 | --folder out/population] [--workers 2]
+    python bench/population.py [--direct 500] [--build 4 | --folder out/population] [--random 20] [--workers 2]
 """
 
 from __future__ import annotations
@@ -22,14 +24,19 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from reach.answers.accommodation import direct, from_atlases  # noqa: E402
-from reach.answers.evaluate import load_targets  # noqa: E402
+from reach.answers.evaluate import Target, load_targets  # noqa: E402
 from reach.build.config import parse_config, read_yaml  # noqa: E402
 
 TARGETS = ROOT / "configs" / "targets" / "workstation_right.csv"
+# [m] world frame (x ahead, y left, z up, the feet at the origin): ahead and to the right of a standing body, floor
+# to above the tallest member's overhead reach, where the members' volumes end (a choice of where to ask).
+RANDOM_BOX = np.array([[-0.2, -1.0, 0.0], [1.1, 0.4, 2.4]])
 
 
 def emit(**fields: object) -> None:
@@ -53,10 +60,17 @@ def main() -> None:
     parser.add_argument("--build", type=int, default=4, help="members built (default 4; 0: none)")
     parser.add_argument("--workers", type=int, default=os.cpu_count() or 1)
     parser.add_argument("--folder", help="a built population of configs/population.yaml: its agreement, no build")
+    parser.add_argument("--random", type=int, default=0, help="N random targets in RANDOM_BOX instead of the "
+                                                                 "workstation's")
+    parser.add_argument("--seed", type=int, default=47, help="the random targets' seed (default 47)")
     args = parser.parse_args()
     emit(bench="machine", python=platform.python_version(), processor=platform.processor() or platform.machine(),
          cores=os.cpu_count())
-    targets = load_targets(TARGETS)
+    if args.random:
+        points = np.random.default_rng(args.seed).uniform(RANDOM_BOX[0], RANDOM_BOX[1], (args.random, 3))
+        targets = [Target(f"random_{k}", tuple(float(v) for v in p), "right_hand") for k, p in enumerate(points)]
+    else:
+        targets = load_targets(TARGETS)
     if args.direct:
         config = config_of(args.direct)
         t0, c0 = time.monotonic(), cpu()
@@ -91,10 +105,12 @@ def main() -> None:
 
 def agreement(trees: dict, by_ik: dict) -> None:
     """Member x target pairs on which the atlases' verdicts (refined) and the direct solves agree."""
-    pairs = [(a, b) for m, n in zip(trees["by_member"], by_ik["by_member"], strict=True)
-             for a, b in zip(m["reached"], n["reached"], strict=True)]
-    emit(bench="agreement", pairs=len(pairs), agree=sum(a == b for a, b in pairs),
-         atlas_reached=sum(a for a, _ in pairs), direct_reached=sum(b for _, b in pairs),
+    names = [t["target"] for t in trees["targets"]]
+    pairs = [(m["name"], t, a, b) for m, n in zip(trees["by_member"], by_ik["by_member"], strict=True)
+             for t, a, b in zip(names, m["reached"], n["reached"], strict=True)]
+    emit(bench="agreement", pairs=len(pairs), agree=sum(a == b for *_, a, b in pairs),
+         disagree=[{"member": m, "target": t, "atlas": a, "direct": b} for m, t, a, b in pairs if a != b],
+         atlas_reached=sum(a for *_, a, _ in pairs), direct_reached=sum(b for *_, b in pairs),
          shares_atlases={t["target"]: t["share"] for t in trees["targets"]},
          shares_direct={t["target"]: t["share"] for t in by_ik["targets"]})
 
