@@ -313,6 +313,16 @@ class Verifying(Protocol):
 
 
 @runtime_checkable
+class Sharing(Protocol):
+    """An oracle whose programs can serve another body of the same shape (a population's members): built once, used
+    by every member (its spec's ``body_parameters``)."""
+
+    def share_programs(self, other: Any) -> bool:
+        """Take ``other``'s programs when they serve this body too; whether it did."""
+        ...
+
+
+@runtime_checkable
 class Tunable(Protocol):
     """An oracle that can be set up for a purpose.
 

@@ -173,24 +173,29 @@ def nearest_points(p: np.ndarray, q: np.ndarray, a: np.ndarray, b: np.ndarray) -
     return x, y, float(np.linalg.norm(x - y))
 
 
-def segment_gap(p: ca.SX, q: ca.SX, a: ca.SX, b: ca.SX, aa: float,
-                ee: float) -> tuple[ca.SX, tuple[tuple[ca.SX, ca.SX], ...]]:
+def segment_gap(p: ca.SX, q: ca.SX, a: ca.SX, b: ca.SX, aa: float, ee: float, aa_sx: ca.SX | float | None = None,
+                ee_sx: ca.SX | float | None = None) -> tuple[ca.SX, tuple[tuple[ca.SX, ca.SX], ...]]:
     """Distance [m] between segments p-q and a-b as a CasADi expression: :func:`nearest_points`'s closed form,
     its branches as ``if_else``. ``aa`` and ``ee`` are the squared lengths of the two segments, constants of
     rigid capsules, so that a sphere's branch is chosen here rather than in the expression.
 
     Returns the distance in terms of two fresh symbols, the nearest points' parameters s and t, and those
     symbols with the expressions they stand for (a :class:`~oracles.tasks.base.Constraint`'s ``frozen``):
-    the distance's derivative with s and t held is its derivative (they are optimal, or clamped)."""
+    the distance's derivative with s and t held is its derivative (they are optimal, or clamped). ``aa_sx`` and
+    ``ee_sx``, when given, are the lengths as the expression takes them (a body's parameters); ``aa`` and ``ee`` then
+    only choose the branch."""
+    aa_num, ee_num = aa, ee
+    aa = aa if aa_sx is None else aa_sx  # type: ignore[assignment]
+    ee = ee if ee_sx is None else ee_sx  # type: ignore[assignment]
     d1, d2, r = q - p, b - a, p - a
     f, c, bb = ca.dot(d2, r), ca.dot(d1, r), ca.dot(d1, d2)
 
     def clip(v: ca.SX) -> ca.SX:
         return ca.fmin(ca.fmax(v, 0.0), 1.0)
 
-    if ee <= 1e-15:
-        s, t = (clip(-c / aa) if aa > 1e-15 else ca.SX(0.0)), ca.SX(0.0)
-    elif aa <= 1e-15:
+    if ee_num <= 1e-15:
+        s, t = (clip(-c / aa) if aa_num > 1e-15 else ca.SX(0.0)), ca.SX(0.0)
+    elif aa_num <= 1e-15:
         s, t = ca.SX(0.0), clip(f / ee)
     else:
         den = aa * ee - bb * bb

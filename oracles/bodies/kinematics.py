@@ -16,6 +16,7 @@ free flyer (x, y, z, qx, qy, qz, qw), planar (x, y, cos, sin), spherical
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Protocol
 
 import casadi as ca
 import numpy as np
@@ -24,6 +25,28 @@ import pinocchio as pin
 from oracles.errors import ModelError
 
 SE3 = tuple[ca.SX, ca.SX]  # (rotation 3x3, translation 3x1)
+
+
+class Numbers(Protocol):
+    """Named numbers as expressions (:class:`oracles.ik.parameters.BodyParameters`)."""
+
+    def sx(self, name: str) -> ca.SX: ...
+
+
+def model_arrays(model: pin.Model) -> dict[str, np.ndarray]:
+    """The model's numbers the kinematics use, by the names :class:`SymbolicKinematics` asks ``numbers`` for: each
+    joint's and frame's placement in its parent (``joint3.R``, ``joint3.p``, ``frame12.R`` ...) and each link's mass
+    and centre of mass in its joint's frame (``inertia3.mass``, ``inertia3.lever``)."""
+    out: dict[str, np.ndarray] = {}
+    for j in range(1, model.njoints):
+        m = model.jointPlacements[j]
+        out[f"joint{j}.R"], out[f"joint{j}.p"] = np.asarray(m.rotation), np.asarray(m.translation)
+        out[f"inertia{j}.mass"] = np.array([model.inertias[j].mass])
+        out[f"inertia{j}.lever"] = np.asarray(model.inertias[j].lever)
+    for fid in range(model.nframes):
+        m = model.frames[fid].placement
+        out[f"frame{fid}.R"], out[f"frame{fid}.p"] = np.asarray(m.rotation), np.asarray(m.translation)
+    return out
 
 
 def _rot(axis: np.ndarray, c: ca.SX, s: ca.SX) -> ca.SX:
@@ -102,40 +125,55 @@ def _const(m: pin.SE3) -> SE3:
 class SymbolicKinematics:
     """Forward kinematics of a Pinocchio model as CasADi expressions of q.
 
+    ``numbers``, when given, supplies the model's numbers (:func:`model_arrays`'s names) as expressions, lifted to
+    parameters or not (:class:`oracles.ik.parameters.BodyParameters`); else they are the model's own constants.
+
     Attributes:
         q: The (nq, 1) CasADi symbol.
         placements: World placement (R, p) of every joint, index = joint id.
     """
 
-    def __init__(self, model: pin.Model, q: ca.SX | None = None) -> None:
+    def __init__(self, model: pin.Model, q: ca.SX | None = None, numbers: Numbers | None = None) -> None:
         self.model = model
+        self.numbers = numbers
         self.q = ca.SX.sym("q", model.nq) if q is None else q
         self.placements: list[SE3] = [(ca.SX.eye(3), ca.SX.zeros(3, 1))]
         for j in range(1, model.njoints):
             jm = model.joints[j]
             local = joint_motion(jm, self.q[jm.idx_q : jm.idx_q + jm.nq])
             parent = self.placements[model.parents[j]]
-            self.placements.append(_compose(_compose(parent, _const(model.jointPlacements[j])), local))
+            self.placements.append(_compose(_compose(parent, self._placement(f"joint{j}", model.jointPlacements[j])),
+                                            local))
+
+    def _placement(self, name: str, m: pin.SE3) -> SE3:
+        if self.numbers is None:
+            return _const(m)
+        return self.numbers.sx(f"{name}.R"), self.numbers.sx(f"{name}.p")
 
     def frame(self, name: str) -> SE3:
         """World placement (R, p) of a frame."""
         if not self.model.existFrame(name):
             raise ModelError(f"no frame {name!r} in the model", name=name)
-        f = self.model.frames[self.model.getFrameId(name)]
-        return _compose(self.placements[f.parentJoint], _const(f.placement))
+        fid = self.model.getFrameId(name)
+        f = self.model.frames[fid]
+        return _compose(self.placements[f.parentJoint], self._placement(f"frame{fid}", f.placement))
 
     def center_of_mass(self) -> ca.SX:
         """World position of the centre of mass (3, 1)."""
         total = ca.SX.zeros(3, 1)
-        mass = 0.0
+        mass: float | ca.SX = 0.0
         for j in range(1, self.model.njoints):
             inertia = self.model.inertias[j]
             if inertia.mass <= 0.0:
-                continue
+                continue  # a massless link (its zero is part of a lifted body's signature)
             rot, pos = self.placements[j]
-            total += inertia.mass * (rot @ ca.SX(np.asarray(inertia.lever).reshape(3, 1)) + pos)
-            mass += inertia.mass
-        if mass <= 0.0:
+            if self.numbers is None:
+                m, lever = inertia.mass, ca.SX(np.asarray(inertia.lever).reshape(3, 1))
+            else:
+                m, lever = self.numbers.sx(f"inertia{j}.mass"), self.numbers.sx(f"inertia{j}.lever")
+            total += m * (rot @ lever + pos)
+            mass += m
+        if isinstance(mass, float) and mass <= 0.0:
             raise ModelError("the model has no mass; the centre of mass is undefined")
         return total / mass
 

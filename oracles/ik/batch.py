@@ -44,6 +44,7 @@ lazy rows (see :mod:`oracles.ik.engine`).
 """
 from __future__ import annotations
 
+import copy
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -197,6 +198,13 @@ class BatchProgram:
         # beside a second worker process on two cores they spun: eigh of 512 36 x 36 Hessians took 1.1 s, 70 ms on
         # one thread (measured here, session 21).
         self.threads = ThreadpoolController()
+
+    def with_bounds(self, lower_bound: np.ndarray, upper_bound: np.ndarray) -> BatchProgram:
+        """This program with other coordinate bounds (another body's, its functions taking that body's numbers as
+        parameters: :mod:`oracles.ik.parameters`)."""
+        twin = copy.copy(self)
+        twin.lower_bound, twin.upper_bound, twin.span = lower_bound, upper_bound, upper_bound - lower_bound
+        return twin
 
     # -- evaluation -----------------------------------------------------------
     def evaluate(self, x: np.ndarray, p: np.ndarray, lower: bool = False, guard: np.ndarray | None = None) -> State:

@@ -24,7 +24,7 @@ import casadi as ca
 import numpy as np
 import pinocchio as pin
 
-from oracles.bodies.kinematics import SymbolicKinematics
+from oracles.bodies.kinematics import SymbolicKinematics, model_arrays
 from oracles.errors import OracleError
 from oracles.ik.batch import CONTINUITY as CONTINUITY_WEIGHT
 from oracles.ik.batch import (
@@ -47,6 +47,7 @@ from oracles.ik.batch import (
 )
 from oracles.ik.jit import COMPILER, compiled_nlpsol
 from oracles.ik.oracle import NO_CALL, Call, IKOracle, fresh_stats
+from oracles.ik.parameters import BodyParameters
 from oracles.protocol import Goals, Purpose, Verdicts, check_points
 from oracles.tasks import Numeric, Symbolic
 
@@ -128,6 +129,10 @@ class CasadiIK(IKOracle):
             of a call together, fatrop polishing near misses), ``fatrop`` or
             ``ipopt``, the interior-point solvers shipped with CasADi, one goal
             from one start at a time. IPOPT is the referee of ``reach audit``.
+        body_parameters: The body's numbers (its offsets, masses, reference posture, support polygon, capsules) as
+            parameters of the programs, not constants: every body of one shape (a population's members) then
+            shares one program a strategy, compiled once (:mod:`oracles.ik.parameters`; :meth:`share_programs`).
+            Default false: a lone body's programs keep its numbers as constants (smaller expressions).
         jit: Compile the problem's functions to machine code with the system's
             C compiler (``gcc``): ``auto`` compiles when ``gcc`` is on the PATH
             and falls back to CasADi's interpreter if it fails, ``true``
@@ -142,8 +147,13 @@ class CasadiIK(IKOracle):
     extreme_params: ClassVar[dict[str, Any]] = {"solver": "fatrop"}
 
     def __init__(self, *args: Any, max_iter: int = 60, solver: str = "batch", jit: bool | str = False,
-                 secondary_iter: int = 15, starts: int = STARTS, **kwargs: Any) -> None:
+                 secondary_iter: int = 15, starts: int = STARTS, body_parameters: bool = False,
+                 **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
+        if not isinstance(body_parameters, bool):
+            raise OracleError(f"body_parameters must be true or false, got {body_parameters!r}", oracle=self.name,
+                              key="body_parameters")
+        self.body_parameters = body_parameters
         if solver not in SOLVERS:
             raise OracleError(f"solver must be one of {sorted(SOLVERS)}, got {solver!r}", oracle=self.name,
                               key="solver")
@@ -185,7 +195,7 @@ class CasadiIK(IKOracle):
 
     def engine_params(self) -> dict[str, Any]:
         out = {"max_iter": self.max_iter, "solver": self.solver, "jit": self.jit_asked,
-               "secondary_iter": self.secondary_iter}
+               "secondary_iter": self.secondary_iter, **({"body_parameters": True} if self.body_parameters else {})}
         return {**out, "starts": self.starts_per_goal} if self.solver == "batch" else out
 
     @property
@@ -257,13 +267,62 @@ class CasadiIK(IKOracle):
         return stages
 
     def _symbols(self) -> tuple[Symbolic, ca.SX]:
-        """The programs' symbols and their parameter vector: goal (3), start (nx), start weight, the tasks' targets."""
-        p = self.problem
+        """The programs' symbols and their parameter vector: goal (3), start (nx), start weight, the tasks' targets,
+        and, lifted, the body's numbers (:mod:`oracles.ik.parameters`)."""
+        p, numbers = self.problem, self.numbers
         goal, start, weight = ca.SX.sym("goal", 3), ca.SX.sym("start", p.nx), ca.SX.sym("start_weight", 1)
         target = ca.SX.sym("target", self.strategy.target_size)
-        sym = Symbolic(SymbolicKinematics(self.body.model, p.q_sym), p.x_sym, goal, p.x_ref, p.upper - p.lower,
-                       tuple(p.x_names), p.lower, start, weight, self.strategy.target_dict(target))
-        return sym, ca.vertcat(goal, start, weight, target)
+        if not numbers.lift:
+            sym = Symbolic(SymbolicKinematics(self.body.model, p.q_sym), p.x_sym, goal, p.x_ref, p.upper - p.lower,
+                           tuple(p.x_names), p.lower, start, weight, self.strategy.target_dict(target))
+            return sym, ca.vertcat(goal, start, weight, target)
+        kin = SymbolicKinematics(self.body.model, p.q_expression(numbers.sx("q_ref")), numbers)
+        sym = Symbolic(kin, p.x_sym, goal, numbers.vector("x_ref"), numbers.vector("span"), tuple(p.x_names),
+                       numbers.vector("lower"), start, weight, self.strategy.target_dict(target), numbers,
+                       {id(t): f"task{k}." for k, t in enumerate(self.strategy.tasks)})
+        return sym, ca.vertcat(goal, start, weight, target, numbers.symbols)
+
+    @cached_property
+    def numbers(self) -> BodyParameters:
+        """The body's numbers as the programs take them: lifted to parameters with ``body_parameters`` when every task
+        of the strategy can (:attr:`Task.parametric`), else constants."""
+        arrays = {**model_arrays(self.body.model), **self.problem.arrays()}
+        for k, t in enumerate(self.strategy.tasks):
+            arrays.update({f"task{k}.{name}": v for name, v in t.numbers().items()})
+        lift = self.body_parameters and all(t.parametric for t in self.strategy.tasks)
+        return BodyParameters(arrays, lift, fixed=frozenset({"root_ref"}))
+
+    @property
+    def program_key(self) -> tuple[Any, ...] | None:
+        """What two oracles' programs depend on when the body's numbers are parameters (None when they are not): the
+        body's signature and joints, the strategy but its body, the engine's options."""
+        if not self.numbers.lift:
+            return None
+        model = self.body.model
+        joints = tuple((str(model.names[j]), model.joints[j].shortname(), int(model.parents[j]))
+                       for j in range(model.njoints))
+        strategy = {k: v for k, v in self._strategy_params.items() if k != "body"}
+        return self.numbers.signature, joints, repr(strategy), repr(sorted(self.engine_params().items()))
+
+    def share_programs(self, other: CasadiIK) -> bool:
+        """Take ``other``'s programs (those built and those it builds later) for this body, when one program serves
+        both (:attr:`program_key`); returns whether it did. A population's members answer with the first member's
+        programs, built once."""
+        if self.program_key is None or self.program_key != other.program_key:
+            return False
+        self._cache, self._batch_cache = other._cache, other._batch_cache
+        return True
+
+    def use_reference(self, q: np.ndarray) -> None:
+        super().use_reference(q)
+        self.__dict__.pop("numbers", None)  # the reference's numbers (contacts, polygon) are the new posture's
+
+    def _with_body(self, params: np.ndarray) -> np.ndarray:
+        """Parameters (B, k) or (k,) of the goal, start and targets, with the body's lifted numbers after them."""
+        values = self.numbers.values if self.numbers.lift else np.zeros(0)
+        if params.ndim == 1:
+            return np.concatenate([params, values])
+        return np.concatenate([params, np.tile(values, (len(params), 1))], axis=1)
 
     def _nlpsol(self, name: str, solver: str, nlp: dict[str, Any], opts: dict[str, Any]) -> ca.Function:
         if self.jit:
@@ -364,7 +423,7 @@ class CasadiIK(IKOracle):
         pulled), the goal's task targets (``Strategy.target_rows``; the tasks' defaults without)."""
         start = call.start if call.start is not None else x
         target = call.target if call.target is not None else self._default_target
-        return np.concatenate([goal, start, [0.0 if call.start is None and not pull else 1.0], target])
+        return self._with_body(np.concatenate([goal, start, [0.0 if call.start is None and not pull else 1.0], target]))
 
     @cached_property
     def _default_target(self) -> np.ndarray:
@@ -404,11 +463,14 @@ class CasadiIK(IKOracle):
             # Named by what the functions depend on (the body, effector, joints and tasks, and the stages kept), not by
             # the search: a refinement's variant (another budget) shares the build's compiled code on disk (named by the
             # whole spec, the first `reach query` of each strategy compiled for 30-60 s).
-            name = f"batch_{zlib.crc32(repr((self._strategy_params, key[1])).encode()):08x}"
+            name = f"batch_{zlib.crc32(repr((self.program_key or self._strategy_params, key[1])).encode()):08x}"
             screened = [c for t in self.strategy.hard for c in t.screened(sym)]
             found = BatchProgram(sym, params, hard, reach.held(sym), lower, p.lower, p.upper, p.upper - p.lower,
                                  self.jit, name, screened)
             self._batch_cache[key] = found
+        lo, hi = self.problem.lower, self.problem.upper
+        if not (np.array_equal(found.lower_bound, lo) and np.array_equal(found.upper_bound, hi)):
+            found = found.with_bounds(lo, hi)  # another body's program (share_programs): this body's bounds
         return found
 
     def _polisher(self) -> CasadiIK:
@@ -528,9 +590,8 @@ class CasadiIK(IKOracle):
         b = len(x0)
         self.stats["solves"] += b
         target = np.tile(self._default_target, (b, 1)) if targets is None else targets[owner]
-        params = np.concatenate([pts[owner], x0 if start is None else np.tile(start, (b, 1)),
-                                 np.full((b, 1), 0.0 if start is None else 1.0),
-                                 target], axis=1)
+        params = self._with_body(np.concatenate([pts[owner], x0 if start is None else np.tile(start, (b, 1)),
+                                                 np.full((b, 1), 0.0 if start is None else 1.0), target], axis=1))
         first_start = None
         if decisive is not None and decisive.any():
             first_start = np.zeros(b, bool)
@@ -639,7 +700,8 @@ class CasadiIK(IKOracle):
             return out
         x0, goals = x0[ours], self.effector_positions(q[ours])
         b = len(x0)
-        params = np.concatenate([goals, x0, np.ones((b, 1)), np.tile(self._default_target, (b, 1))], axis=1)
+        params = self._with_body(np.concatenate([goals, x0, np.ones((b, 1)), np.tile(self._default_target, (b, 1))],
+                                                axis=1))
         ends = run_starts(self.batch_program(), x0, params, np.arange(b), self.strategy.tolerance, False, x0,
                           Meter.unlimited(b, deadline), self.stats)
         held = p.q_of_x_many(ends.x)

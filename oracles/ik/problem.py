@@ -115,21 +115,9 @@ class ReachProblem:
         self.nx = len(self.x_names)
         # Symbolic x -> q: locked coordinates keep their reference values.
         xs = ca.SX.sym("x", self.nx)
-        q = ca.SX(body.q_ref)
-        k = 0
-        if strategy.floating:
-            q[0:3] = xs[0:3]
-            q[3:7] = _compose(self._root_ref, _rpy_quat(xs[3], xs[4], xs[5]))
-            k = 6
-        for j in self.joint_ids:
-            jm = model.joints[j]
-            if jm.nq == 2:
-                q[jm.idx_q] = ca.cos(xs[k])
-                q[jm.idx_q + 1] = ca.sin(xs[k])
-            else:
-                q[jm.idx_q] = xs[k]
-            k += 1
-        self.x_sym, self.q_sym = xs, q
+        self.x_sym = xs
+        q = self.q_expression(ca.SX(body.q_ref))
+        self.q_sym = q
         self._q_of_x = ca.Function("q_of_x", [xs], [q], ["x"], ["q"])
         # x_of_q's index maps (it runs for every start of every solve): one-coordinate joints, and the
         # unbounded revolute ones stored as (cos, sin).
@@ -155,6 +143,32 @@ class ReachProblem:
         self._rest_slacks = [t.limit_slacks(body.q_ref) for t in strategy.hard]
 
     # -- coordinates -------------------------------------------------------
+    def q_expression(self, q_ref: ca.SX) -> ca.SX:
+        """The posture q(x) (nq, 1) as an expression of ``x_sym``: the locked coordinates ``q_ref``'s (constants, or a
+        body's parameters)."""
+        model, xs = self.body.model, self.x_sym
+        q = ca.SX(q_ref)
+        k = 0
+        if self.strategy.floating:
+            q[0:3] = xs[0:3]
+            q[3:7] = _compose(self._root_ref, _rpy_quat(xs[3], xs[4], xs[5]))
+            k = 6
+        for j in self.joint_ids:
+            jm = model.joints[j]
+            if jm.nq == 2:
+                q[jm.idx_q] = ca.cos(xs[k])
+                q[jm.idx_q + 1] = ca.sin(xs[k])
+            else:
+                q[jm.idx_q] = xs[k]
+            k += 1
+        return q
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The body's numbers the programs take besides its model's (:func:`oracles.ik.parameters`): the reference
+        posture and its coordinates, the coordinates' bounds and ranges, the root's reference orientation."""
+        return {"q_ref": self.body.q_ref, "x_ref": self.x_ref, "lower": self.lower, "span": self.upper - self.lower,
+                "root_ref": self._root_ref}
+
     def q_of_x(self, x: np.ndarray) -> np.ndarray:
         return np.asarray(self._q_of_x(x)).ravel()
 

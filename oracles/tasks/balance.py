@@ -21,7 +21,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
-import casadi as ca
 import numpy as np
 import pinocchio as pin
 from scipy.spatial import ConvexHull
@@ -99,12 +98,19 @@ class BalanceTask(HardTask):
             y = float(reference.data.oMi[ROOT_JOINT].translation[1])  # the pelvis's y at the reference
             self.hull = np.vstack([self.hull, [[0.0, 1.0, -(y + self.aside)], [0.0, -1.0, y - self.aside]]])
 
+    parametric: ClassVar[bool] = True
+
+    def numbers(self) -> dict[str, np.ndarray]:
+        return {"polygon": self.polygon, "hull": self.hull}
+
     def constraints(self, sym: Symbolic) -> list[Constraint]:
         com = sym.kin.center_of_mass()
-        out = [Constraint(ca.SX(self.polygon[:, :2]) @ com[:2] + ca.SX(self.polygon[:, 2]), -np.inf, 0.0)]
+        polygon = sym.number(self, "polygon", self.polygon)
+        out = [Constraint(polygon[:, :2] @ com[:2] + polygon[:, 2], -np.inf, 0.0)]
         if self.pelvis:
             root = world_point(sym, ROOT_JOINT, np.zeros(3))
-            out.append(Constraint(ca.SX(self.hull[:, :2]) @ root[:2] + ca.SX(self.hull[:, 2]), -np.inf, 0.0))
+            hull = sym.number(self, "hull", self.hull)
+            out.append(Constraint(hull[:, :2] @ root[:2] + hull[:, 2], -np.inf, 0.0))
         return out
 
     def rows(self, num: Numeric) -> list[Row]:

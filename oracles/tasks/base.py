@@ -118,18 +118,31 @@ class Symbolic:
         start_weight: Weight of the displacement from ``start``, a parameter (0 without one).
         targets: Each goal's target, by the key of the task that declares it (:attr:`Task.target_key`), as
             parameters of the programs (one compiled program serves every goal's target).
+        numbers, prefixes: The body's numbers as the programs take them (see :meth:`number`).
     """
 
     kin: SymbolicKinematics
     x: ca.SX
     goal: ca.SX
-    x_ref: np.ndarray
-    span: np.ndarray
+    x_ref: np.ndarray | ca.SX
+    span: np.ndarray | ca.SX
     names: tuple[str, ...] = ()
-    lower: np.ndarray | None = None
+    lower: np.ndarray | ca.SX | None = None
     start: ca.SX | None = None
     start_weight: ca.SX | None = None
     targets: Mapping[str, ca.SX] = field(default_factory=dict)
+    # the body's numbers as expressions (oracles.ik.parameters.BodyParameters), each task's under its prefix (by
+    # the task's id); None: every number a constant
+    numbers: Any = None
+    prefixes: Mapping[int, str] = field(default_factory=dict)
+
+    def number(self, task: object, name: str, value: np.ndarray | float) -> ca.SX:
+        """A number a task took from the body, as its expressions take it: ``value`` itself, a constant, or, when the
+        programs are lifted, the body's parameter of that name (:meth:`Task.numbers`)."""
+        if self.numbers is None or id(task) not in self.prefixes:
+            a = np.asarray(value, float)
+            return ca.SX(a.reshape(-1, 1) if a.ndim <= 1 else a)
+        return self.numbers.sx(self.prefixes[id(task)] + name)
 
 
 @dataclass
@@ -172,10 +185,10 @@ class Numeric:
         return jac[:3] - pin.skew(r) @ jac[3:]  # type: ignore[no-any-return]
 
 
-def world_point(sym: Symbolic, joint: int, local: np.ndarray) -> ca.SX:
-    """A point fixed to a joint (local coordinates [m]) in the world, as a CasADi expression."""
+def world_point(sym: Symbolic, joint: int, local: np.ndarray | ca.SX) -> ca.SX:
+    """A point fixed to a joint (local coordinates [m], numbers or an expression) in the world, as an expression."""
     rot, pos = sym.kin.placements[joint]
-    return rot @ ca.SX(np.asarray(local, float).reshape(3, 1)) + pos
+    return rot @ (local if isinstance(local, ca.SX) else ca.SX(np.asarray(local, float).reshape(3, 1))) + pos
 
 
 def relative_motion(model: pin.Model, a: int, b: int, active: frozenset[str]) -> bool:
@@ -286,6 +299,16 @@ class Task(ABC):
 
     def bind(self, reference: Reference) -> None:  # noqa: B027 - most tasks need no reference
         """Record what the task holds at the reference posture (called once per problem)."""
+
+    #: Whether every number the task's expressions take from the body (and its reference posture) comes through
+    #: :meth:`Symbolic.number` under a name of :meth:`numbers`, or through the kinematics: then one program serves
+    #: every body of one shape (:mod:`oracles.ik.parameters`).
+    parametric: ClassVar[bool] = False
+
+    def numbers(self) -> dict[str, np.ndarray]:
+        """The body's numbers the task's expressions take (after :meth:`bind`), by the names it asks
+        :meth:`Symbolic.number` for; default none."""
+        return {}
 
     @abstractmethod
     def holds(self, num: Numeric) -> bool:

@@ -39,6 +39,8 @@ class ComfortTask(SoftTask):
     def inert(self) -> bool:
         return self.weight <= 0
 
+    parametric: ClassVar[bool] = True  # the body enters only through the reference coordinates
+
     def objective(self, sym: Symbolic) -> ca.SX:
         nx = sym.x.numel()
         return self.weight * ca.sumsqr((sym.x - sym.x_ref) / sym.span) / max(nx, 1)

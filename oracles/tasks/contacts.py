@@ -87,19 +87,32 @@ class ContactsTask(HardTask):
         self._ref = [reference.placement(c.frame) for c in self.contacts]
         self._ids = {f: reference.body.frame_id(f) for f in (*self.held_frames, *self.above_floor)}
 
+    parametric: ClassVar[bool] = True
+
+    def numbers(self) -> dict[str, np.ndarray]:
+        out = {}
+        for k, (c, ref) in enumerate(zip(self.contacts, self._ref, strict=True)):
+            out[f"at{k}"] = np.asarray(ref.translation)
+            if c.mode == "fixed":
+                out[f"turn{k}"] = np.asarray(ref.rotation.T)
+            else:
+                out[f"across{k}"] = np.array(perpendicular_basis(ref.rotation @ np.asarray(c.axis)))
+        return out
+
     def constraints(self, sym: Symbolic) -> list[Constraint]:
         out = []
-        for c, ref in zip(self.contacts, self._ref, strict=True):
+        for k, (c, ref) in enumerate(zip(self.contacts, self._ref, strict=True)):
             rot, pos = sym.kin.frame(c.frame)
-            out.append(Constraint(pos - ref.translation.reshape(3, 1), 0.0, 0.0))
+            out.append(Constraint(pos - sym.number(self, f"at{k}", ref.translation), 0.0, 0.0))
             if c.mode == "fixed":
-                rel = ca.SX(ref.rotation.T) @ rot
+                rel = sym.number(self, f"turn{k}", ref.rotation.T) @ rot
                 out.append(Constraint(ca.vertcat(rel[2, 1] - rel[1, 2], rel[0, 2] - rel[2, 0], rel[1, 0] - rel[0, 1]),
                                       0.0, 0.0))
             else:
-                b1, b2 = perpendicular_basis(ref.rotation @ np.asarray(c.axis))
+                across = sym.number(self, f"across{k}",
+                                    np.array(perpendicular_basis(ref.rotation @ np.asarray(c.axis))))
                 w = rot @ ca.SX(np.asarray(c.axis))
-                out.append(Constraint(ca.vertcat(ca.dot(w, ca.SX(b1)), ca.dot(w, ca.SX(b2))), 0.0, 0.0))
+                out.append(Constraint(ca.vertcat(ca.dot(w, across[0, :].T), ca.dot(w, across[1, :].T)), 0.0, 0.0))
         out += [Constraint(sym.kin.frame(f)[1][2], 0.0, np.inf) for f in self.above_floor]
         return out
 

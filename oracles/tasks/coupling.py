@@ -191,6 +191,8 @@ class CouplingTask(HardTask):
                 rules.append(Rule(tuple(group), by, limit, slope, iq, iby, signs))
         return cls(tuple(rules))
 
+    parametric: ClassVar[bool] = True  # the body enters only through the kinematics
+
     def constraints(self, sym: Symbolic) -> list[Constraint]:
         q = sym.kin.q
         return [Constraint(r.total(q) - r.slope * q[r.iby], -np.inf, r.limit) for r in self.rules]

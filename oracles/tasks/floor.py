@@ -101,13 +101,24 @@ class FloorTask(HardTask):
         """The other moving capsules' end points at least their radius above the floor."""
         return self._heights(sym, [i for i in self.capsules if i not in self.eager])
 
+    parametric: ClassVar[bool] = True
+
+    def numbers(self) -> dict[str, np.ndarray]:
+        assert self._model is not None
+        return {f"{key}{i}": np.atleast_1d(v) for i in self.capsules
+                for key, v in (("a", self._model.placed[i].a), ("b", self._model.placed[i].b),
+                               ("radius", self._model.placed[i].radius))}
+
     def _heights(self, sym: Symbolic, capsules: Sequence[int]) -> list[Constraint]:
-        """Each capsule's end points' heights, at least its radius."""
+        """Each capsule's end points' heights above its radius, at least 0 (the radius in the row, not its bound: a
+        row's bounds are the same for every body, :mod:`oracles.ik.parameters`)."""
         assert self._model is not None
         out = []
         for i in capsules:
             p = self._model.placed[i]
-            out.append(Constraint(ca.vertcat(*[world_point(sym, p.joint, e)[2] for e in (p.a, p.b)]), p.radius, np.inf))
+            ends = [world_point(sym, p.joint, sym.number(self, f"{key}{i}", e))[2]
+                    for key, e in (("a", p.a), ("b", p.b))]
+            out.append(Constraint(ca.vertcat(*ends) - sym.number(self, f"radius{i}", p.radius), 0.0, np.inf))
         return out
 
     def cuts(self, num: Numeric, within: float) -> list[Cut]:

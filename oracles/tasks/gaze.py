@@ -80,6 +80,8 @@ class GazeTask(SoftTask):
         """The line of sight in the frame's coordinates: x turned ``down`` about y."""
         return np.array([math.cos(self.down), 0.0, -math.sin(self.down)])
 
+    parametric: ClassVar[bool] = True  # the body enters only through the kinematics
+
     def bind(self, reference: Reference) -> None:
         self._id = reference.body.frame_id(self.frame)
 

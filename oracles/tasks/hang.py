@@ -95,6 +95,8 @@ class HangTask(HardTask):
     def inert(self) -> bool:
         return not self.chains
 
+    parametric: ClassVar[bool] = True  # the body enters only through the kinematics
+
     def bind(self, reference: Reference) -> None:
         self._ids = [[reference.body.frame_id(n) for n in chain] for chain in self.chains]
 

@@ -152,6 +152,8 @@ class OrientationTask(HardTask):
                              "rotations")
         return np.concatenate([np.transpose(aims, (0, 2, 1)).reshape(n, 9), np.full((n, 1), on)], axis=1)
 
+    parametric: ClassVar[bool] = True  # the body enters only through the kinematics
+
     def bind(self, reference: Reference) -> None:
         self._id = reference.body.frame_id(self.effector)
 

@@ -131,16 +131,23 @@ class PostureTask(SoftTask):
                 rise0 = float(data.oMi[j].act(lever)[2] - data.oMi[root].translation[2])
                 self._segments.append((j, lever, float(inertia.mass) / total, root, rise0))
 
+    parametric: ClassVar[bool] = True
+
+    def numbers(self) -> dict[str, np.ndarray]:
+        return {f"{key}{i}": np.atleast_1d(v) for i, (_, lever, share, _, rise0) in enumerate(self._segments)
+                for key, v in (("lever", lever), ("share", share), ("rise", rise0))}
+
     def objective(self, sym: Symbolic) -> ca.SX:
         w = np.array([self.weight(n) for n in sym.names]) if sym.names else np.ones(sym.x.numel())
         norm = (sym.x - sym.x_ref) / sym.span
         f = ca.dot(ca.SX(w), norm**2)
         if self.energy > 0:
             rises = []
-            for j, lever, share, root, rise0 in self._segments:
+            for i, (j, lever, share_, root, rise0) in enumerate(self._segments):
                 rot, pos = sym.kin.placements[j]
-                z = (rot @ ca.SX(lever.reshape(3, 1)) + pos)[2] - sym.kin.placements[root][1][2]
-                rise = (z - rise0) / ENERGY_SCALE
+                z = (rot @ sym.number(self, f"lever{i}", lever) + pos)[2] - sym.kin.placements[root][1][2]
+                rise = (z - sym.number(self, f"rise{i}", rise0)) / ENERGY_SCALE
+                share = sym.number(self, f"share{i}", share_)
                 # A smooth max(rise, 0): only lifting costs.
                 rises.append(share * (0.5 * (rise + ca.sqrt(rise**2 + 1e-4))) ** 2)
             f += self.energy * ca.sum1(ca.vertcat(*rises))

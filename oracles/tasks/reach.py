@@ -43,6 +43,8 @@ class ReachTask(SoftTask):
         return cls(scope.effector, number(raw.get("tolerance", TOLERANCE), f"{where}.tolerance", 1e-6, 1.0),
                    cls.priority_of(raw, where))
 
+    parametric: ClassVar[bool] = True  # the body enters only through the kinematics
+
     def bind(self, reference: Reference) -> None:
         self._id = reference.body.frame_id(self.effector)
 

@@ -214,22 +214,36 @@ class SelfCollisionTask(HardTask):
     def constraints(self, sym: Symbolic) -> list[Constraint]:
         return []  # lazy: see cuts
 
+    parametric: ClassVar[bool] = True
+
+    def numbers(self) -> dict[str, np.ndarray]:
+        assert self._model is not None
+        used = sorted({i for p in self.pairs for i in (p.first, p.second)})
+        out = {f"{key}{i}": np.atleast_1d(v) for i in used
+               for key, v in (("a", self._model.placed[i].a), ("b", self._model.placed[i].b),
+                              ("radius", self._model.placed[i].radius),
+                              ("length2", np.sum(np.subtract(self._model.placed[i].b, self._model.placed[i].a) ** 2)))}
+        return {**out, "clearance": np.array([p.clearance for p in self.pairs])}
+
     def screened(self, sym: Symbolic) -> list[Constraint]:
-        """Every pair's distance less its radii, at least its clearance
-        (:func:`oracles.bodies.collision.segment_gap`)."""
+        """Every pair's distance less its radii and its clearance, at least 0
+        (:func:`oracles.bodies.collision.segment_gap`; the clearance in the row, not its bound: a row's bounds are the
+        same for every body, :mod:`oracles.ik.parameters`)."""
         assert self._model is not None
         ends = {}
         out = []
-        for pair in self.pairs:
+        clearance = sym.number(self, "clearance", np.array([p.clearance for p in self.pairs]))
+        for k, pair in enumerate(self.pairs):
             for i in (pair.first, pair.second):
                 if i not in ends:
                     p = self._model.placed[i]
-                    ends[i] = (world_point(sym, p.joint, p.a), world_point(sym, p.joint, p.b),
-                               float(np.sum((np.subtract(p.b, p.a)) ** 2)))
-            (pa, pb, aa), (qa, qb, ee) = ends[pair.first], ends[pair.second]
-            radii = self._model.placed[pair.first].radius + self._model.placed[pair.second].radius
-            gap, frozen = segment_gap(pa, pb, qa, qb, aa, ee)
-            out.append(Constraint(gap - radii, pair.clearance, np.inf, frozen))
+                    length2 = float(np.sum((np.subtract(p.b, p.a)) ** 2))
+                    ends[i] = (world_point(sym, p.joint, sym.number(self, f"a{i}", p.a)),
+                               world_point(sym, p.joint, sym.number(self, f"b{i}", p.b)), length2,
+                               sym.number(self, f"length2{i}", length2), sym.number(self, f"radius{i}", p.radius))
+            (pa, pb, aa, aa_sx, ra), (qa, qb, ee, ee_sx, rb) = ends[pair.first], ends[pair.second]
+            gap, frozen = segment_gap(pa, pb, qa, qb, aa, ee, aa_sx, ee_sx)
+            out.append(Constraint(gap - ra - rb - clearance[k], 0.0, np.inf, frozen))
         return out
 
     def keep_out(self) -> list[np.ndarray]:

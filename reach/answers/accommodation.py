@@ -20,7 +20,7 @@ people they were drawn from; a boundary family is not a sample, and its interval
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -96,6 +96,9 @@ def load_members(folder: str | Path) -> tuple[list[Atlas], np.ndarray, list[str]
 
 
 ANY = "any"  # the share of members that some strategy of theirs holds
+CHUNK = 25  # members a process answers with one program a strategy (direct): building one costs about 1.2 s
+# the engines' option that makes one program serve every member (oracles.ik.parameters); answers do not depend on it
+SHARED = {"casadi-ik": {"body_parameters": True}}
 
 
 def shares(atlases: Sequence[Atlas], weights: np.ndarray, points: np.ndarray,
@@ -170,17 +173,19 @@ def direct(config: Any, targets: list[Target], effector: str | None = None,
     strategies = [(s.name, s.effector, s.oracle.name, s.oracle.params) for s in config.strategies
                   if s.effector in set(effs)]
     members = entries(config)
-    jobs = [(e.body, strategies, points, effs, verify) for e in members]
-    if workers > 1 and len(members) > 1:
+    # Members in runs of CHUNK, each run in one process with one program a strategy (the body's numbers its
+    # parameters: oracles.ik.parameters), built for the run's first member and shared by the others.
+    runs = [members[k : k + CHUNK] for k in range(0, len(members), CHUNK)]
+    jobs = [([e.body for e in run], strategies, points, effs, verify) for run in runs]
+    if workers > 1 and len(runs) > 1:
         from concurrent.futures import ProcessPoolExecutor
 
         from reach.build.executor import build_worker
 
         with ProcessPoolExecutor(max_workers=workers, initializer=build_worker) as pool:
-            solved = pool.map(_member, jobs)
-            results = _logged(solved, members, log)
+            results = _logged((r for run in pool.map(_members, jobs) for r in run), members, log)
     else:
-        results = _logged(map(_member, jobs), members, log)
+        results = _logged((r for job in jobs for r in _members(job)), members, log)
     table_members = [{"name": e.name, "weight": e.weight, "rows": rows} for e, (rows, _) in zip(members, results,
                                                                                                  strict=True)]
     return {"population": config.name, "way": "direct", "refuted_by_check": sum(r for _, r in results),
@@ -197,17 +202,35 @@ def _logged(results: Any, members: list[Any], log: Any) -> list[tuple[list[dict[
     return out
 
 
-def _member(job: tuple[Any, ...]) -> tuple[list[dict[str, Any]], int]:
-    """One member's rows (a row per target: reached, the strategy chosen by priority, the others that reach it) and
-    the count of reached answers its forward-kinematics check refuted."""
-    from oracles.protocol import Goals, OracleSpec, Verifying
+def _members(job: tuple[Any, ...]) -> Iterator[tuple[list[dict[str, Any]], int]]:
+    """Each member's rows of a run of members (a row per target: reached, the strategy chosen by priority, the others
+    that reach it) and the count of reached answers its forward-kinematics check refuted. A strategy's oracle of the
+    run's first member lends its programs to the others' (``share_programs``): they are built once a run."""
+    from oracles.protocol import OracleSpec, Sharing
 
-    body, strategies, points, effs, verify = job
+    bodies, strategies, points, effs, verify = job
+    first: dict[str, Any] = {}
+    for body in bodies:
+        oracles = {}
+        for name, _, oracle_name, params in strategies:
+            oracle = OracleSpec(oracle_name, {**params, **SHARED.get(oracle_name, {}), "body": body}).create()
+            if name in first and isinstance(oracle, Sharing):
+                oracle.share_programs(first[name])
+            first.setdefault(name, oracle)
+            oracles[name] = oracle
+        yield _member(oracles, strategies, points, effs, verify)
+
+
+def _member(oracles: dict[str, Any], strategies: list[tuple[Any, ...]], points: np.ndarray, effs: list[str],
+            verify: bool) -> tuple[list[dict[str, Any]], int]:
+    """One member's rows and refuted count (see :func:`_members`), by its strategies' oracles."""
+    from oracles.protocol import Goals, Verifying
+
     rows: list[dict[str, Any]] = [{"reachable": False, "strategy": None, "also": []} for _ in points]
     refuted = 0
-    for name, eff, oracle_name, params in strategies:
+    for name, eff, _, _ in strategies:
         pick = [i for i, e in enumerate(effs) if e == eff]
-        oracle = OracleSpec(oracle_name, {**params, "body": body}).create()
+        oracle = oracles[name]
         v = oracle.evaluate(Goals.of(points[pick]))
         ok = np.asarray(v.reachable, bool)
         if verify and ok.any() and isinstance(oracle, Verifying) and v.posture is not None:

@@ -1,0 +1,97 @@
+"""One program for every body of one shape (issue 47, item 4): the body's numbers as the programs' parameters.
+
+The truth is each body's own program, its numbers constants (the programs made for one body, as before): a program
+built for another body and given this body's numbers must compute the same rows, Jacobians, objectives and
+verdicts.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from oracles.ik.oracle import NO_CALL
+from oracles.ik.parameters import BodyParameters
+from oracles.protocol import Goals, OracleSpec, Sharing
+
+# Every task that can lift its numbers: the feet's contacts, the balance polygon and the pelvis, self-collision, the
+# floor, coupling, the idle arm's hang, gaze and the posture's energy.
+JOINTS = ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*", "right_clavicle_*", "lumbar_*",
+          "thoracic_*", "neck_*", "root", "*_hip_*", "*_knee_*", "*_ankle_*", "left_shoulder_flexion",
+          "left_shoulder_abduction", "left_elbow_flexion"]
+TASKS = [{"type": "reach"}, {"type": "feet", "heels": "down"}, {"type": "balance", "margin": 0.02, "pelvis": 0.05},
+         {"type": "self_collision"}, {"type": "floor"}, {"type": "coupling"}, {"type": "hang"},
+         {"type": "gaze", "frame": "eyes"}, {"type": "posture"}]
+SMALL = {"human": {"sex": "female", "percentile": 5}}
+LARGE = {"human": {"sex": "male", "percentile": 95}}
+GOALS = np.array([[0.45, -0.20, 1.25], [0.85, -0.20, 1.00], [0.35, -0.15, 0.05], [0.30, -0.20, 2.15],
+                  [0.05, -0.75, 1.20], [0.40, -0.20, 0.35], [1.30, -0.20, 1.00], [0.30, -0.20, 2.60]])
+
+
+def oracle(body: dict, lift: bool, tasks: list | None = None):
+    params = {"body": body, "effector": "right_hand", "joints": JOINTS, "tasks": tasks or TASKS, "restarts": 1,
+              "seed": 0, "secondary": True, **({"body_parameters": True} if lift else {})}
+    return OracleSpec("casadi-ik", params).create()
+
+
+@pytest.fixture(scope="module")
+def three():
+    """The small body's lifted oracle; the large body's, sharing it; and the large body's own (constants)."""
+    small, large, own = oracle(SMALL, True), oracle(LARGE, True), oracle(LARGE, False)
+    assert isinstance(large, Sharing) and large.share_programs(small)
+    return small, large, own
+
+
+def test_a_shared_program_given_a_body_numbers_computes_what_its_own_program_does(three):
+    small, large, own = three
+    shared, mine = large.batch_program(), own.batch_program()
+    assert shared._reach is small.batch_program()._reach  # one program: the small body's, built once
+    assert shared._reach is not mine._reach
+    rng = np.random.default_rng(3)
+    x = np.array([large.problem.random_x(rng) for _ in range(12)])
+    x[:, :6] += rng.normal(0.0, 0.05, (12, 6))  # the root moved too
+    base = np.concatenate([np.tile(GOALS[0], (12, 1)), x, np.zeros((12, 1)),
+                           np.tile(large._default_target, (12, 1))], axis=1)
+    a = shared.evaluate(x, large._with_body(base), lower=True)
+    b = mine.evaluate(x, own._with_body(base), lower=True)
+    for name in ("g", "jg", "f", "grad", "hess", "lazy_violation"):
+        np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=1e-9, atol=1e-9, err_msg=name)
+    np.testing.assert_array_equal(shared.rows.lower, mine.rows.lower)
+    np.testing.assert_array_equal(shared.lazy_rows.lower, mine.lazy_rows.lower)
+    np.testing.assert_array_equal(shared.lower_bound, own.problem.lower)  # the large body's bounds, not the small's
+    for f_shared, f_own in zip(large.programs.objectives, own.programs.objectives, strict=True):
+        for xi in x[:3]:
+            assert float(f_shared(xi, large._params(GOALS[0], xi, NO_CALL))) == pytest.approx(
+                float(f_own(xi, own._params(GOALS[0], xi, NO_CALL))), abs=1e-9)
+
+
+def test_a_shared_program_answers_as_the_body_own_and_its_postures_pass_pinocchio(three):
+    _, large, own = three
+    a, b = large.evaluate(Goals.of(GOALS)), own.evaluate(Goals.of(GOALS))
+    np.testing.assert_array_equal(a.reachable, b.reachable)
+    assert 0 < a.reachable.sum() < len(GOALS)  # the goals tell something
+    np.testing.assert_allclose(np.asarray(a.posture)[a.reachable], np.asarray(b.posture)[b.reachable], atol=1e-6)
+    assert own.verify(GOALS[a.reachable], np.asarray(a.posture)[a.reachable]).all()  # the large body's own check
+
+
+def test_programs_are_shared_only_by_bodies_and_strategies_of_one_shape():
+    small = oracle(SMALL, True)
+    assert not oracle(LARGE, False).share_programs(small)  # constants: its own programs
+    fewer = oracle(LARGE, True, [t for t in TASKS if t["type"] != "gaze"])
+    assert not fewer.share_programs(small)  # another strategy
+    seated = oracle({"human": {"sex": "male", "percentile": 95, "posture": "seated"}}, True,
+                    [{"type": "reach"}, {"type": "self_collision"}])
+    assert not seated.share_programs(small)
+
+
+def test_unlifted_numbers_are_constants_and_the_signature_ignores_lifted_values():
+    a = BodyParameters({"p": np.array([0.1, 0.0, 1.0]), "R": np.eye(3)}, lift=False)
+    assert a.symbols.numel() == 0 and a.sx("p").is_constant()
+    b = BodyParameters({"p": np.array([0.3, 0.0, 1.0]), "R": np.eye(3)}, lift=True)
+    c = BodyParameters({"p": np.array([0.2, 4e-17, 1.0]), "R": np.eye(3)}, lift=True)  # rounding: still a zero
+    assert b.signature == c.signature == a.signature
+    assert b.symbols.numel() == 1 and list(c.values) == [0.2]
+    d = BodyParameters({"p": np.array([0.2, 0.1, 1.0]), "R": np.eye(3)}, lift=True)  # a zero became a number
+    assert d.signature != b.signature
+    fixed = BodyParameters({"q": np.array([0.3, 0.5])}, lift=True, fixed=frozenset({"q"}))
+    assert fixed.symbols.numel() == 0 and fixed.sx("q").is_constant()
