@@ -24,6 +24,9 @@ TASKS = [{"type": "reach"}, {"type": "feet", "heels": "down"}, {"type": "balance
          {"type": "gaze", "frame": "eyes"}, {"type": "posture"}]
 SMALL = {"human": {"sex": "female", "percentile": 5}}
 LARGE = {"human": {"sex": "male", "percentile": 95}}
+# An ANSUR II subject whose upper-trunk capsule is a sphere where the percentile bodies' is a segment: another branch
+# of the capsules' distance, which a lifted program must still compute.
+SPHERE = {"human": {"ansur": {"sex": "male", "subject": 10586}}}
 GOALS = np.array([[0.45, -0.20, 1.25], [0.85, -0.20, 1.00], [0.35, -0.15, 0.05], [0.30, -0.20, 2.15],
                   [0.05, -0.75, 1.20], [0.40, -0.20, 0.35], [1.30, -0.20, 1.00], [0.30, -0.20, 2.60]])
 
@@ -42,8 +45,29 @@ def three():
     return small, large, own
 
 
+@pytest.fixture(scope="module")
+def sphere(three):
+    """The sphere-capsule subject's lifted oracle sharing the small body's programs, and its own (constants)."""
+    lent, own = oracle(SPHERE, True), oracle(SPHERE, False)
+    assert lent.share_programs(three[0])
+    return three[0], lent, own
+
+
 def test_a_shared_program_given_a_body_numbers_computes_what_its_own_program_does(three):
-    small, large, own = three
+    same_rows(*three)
+
+
+def test_a_capsule_that_is_a_sphere_at_one_body_and_a_segment_at_another_shares_the_program(sphere):
+    small, lent, own = sphere
+    lengths = [v for k, v in lent.numbers._arrays.items() if k.startswith("task3.length2")]
+    lengths_small = [v for k, v in small.numbers._arrays.items() if k.startswith("task3.length2")]
+    assert any(a == 0 and b > 0 for a, b in zip(lengths, lengths_small, strict=True))  # the case is there
+    same_rows(small, lent, own)
+
+
+def same_rows(small, large, own):
+    """The programs of ``large`` (lent by ``small``) against ``own`` (``large``'s body, constants) at random
+    postures."""
     shared, mine = large.batch_program(), own.batch_program()
     assert shared._reach is small.batch_program()._reach  # one program: the small body's, built once
     assert shared._reach is not mine._reach

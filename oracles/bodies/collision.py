@@ -182,11 +182,12 @@ def segment_gap(p: ca.SX, q: ca.SX, a: ca.SX, b: ca.SX, aa: float, ee: float, aa
     Returns the distance in terms of two fresh symbols, the nearest points' parameters s and t, and those
     symbols with the expressions they stand for (a :class:`~oracles.tasks.base.Constraint`'s ``frozen``):
     the distance's derivative with s and t held is its derivative (they are optimal, or clamped). ``aa_sx`` and
-    ``ee_sx``, when given, are the lengths as the expression takes them (a body's parameters); ``aa`` and ``ee`` then
-    only choose the branch."""
+    ``ee_sx``, when given, are the lengths as the expression takes them (a body's parameters): the general branch
+    then serves every length, a sphere's too (its divisions guarded), since another body's capsule may be a segment."""
     aa_num, ee_num = aa, ee
-    aa = aa if aa_sx is None else aa_sx  # type: ignore[assignment]
-    ee = ee if ee_sx is None else ee_sx  # type: ignore[assignment]
+    if aa_sx is not None and ee_sx is not None:
+        aa_num = ee_num = 1.0  # the general branch
+        aa, ee = ca.fmax(aa_sx, 1e-300), ca.fmax(ee_sx, 1e-300)  # type: ignore[assignment]
     d1, d2, r = q - p, b - a, p - a
     f, c, bb = ca.dot(d2, r), ca.dot(d1, r), ca.dot(d1, d2)
 

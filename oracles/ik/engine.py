@@ -287,10 +287,11 @@ class CasadiIK(IKOracle):
         """The body's numbers as the programs take them: lifted to parameters with ``body_parameters`` when every task
         of the strategy can (:attr:`Task.parametric`), else constants."""
         arrays = {**model_arrays(self.body.model), **self.problem.arrays()}
-        for k, t in enumerate(self.strategy.tasks):
-            arrays.update({f"task{k}.{name}": v for name, v in t.numbers().items()})
+        tasks = {f"task{k}.{name}": v for k, t in enumerate(self.strategy.tasks) for name, v in t.numbers().items()}
         lift = self.body_parameters and all(t.parametric for t in self.strategy.tasks)
-        return BodyParameters(arrays, lift, fixed=frozenset({"root_ref"}))
+        # The tasks' numbers lifted whole: their zeros are a body's (a capsule a sphere at one member, a segment at
+        # the next: 3 of 20 ANSUR II members had another program).
+        return BodyParameters({**arrays, **tasks}, lift, fixed=frozenset({"root_ref"}), dense=frozenset(tasks))
 
     @property
     def program_key(self) -> tuple[Any, ...] | None:

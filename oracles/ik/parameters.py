@@ -46,6 +46,8 @@ class BodyParameters:
         lift: Whether the non-trivial entries become parameters.
         fixed: Names of arrays never lifted: their every entry is part of the signature (a value the programs' code
             reads as a number, not as an expression).
+        dense: Names of arrays lifted whole, zeros and ones too: numbers whose zeros are a body's, not its shape's
+            (a capsule shrunk to a sphere at one body and a segment at the next).
 
     Attributes:
         symbols: The parameter vector (n, 1) (empty unlifted).
@@ -53,10 +55,11 @@ class BodyParameters:
         signature: What two bodies must share for one program to serve both (a hex digest).
     """
 
-    def __init__(self, arrays: Mapping[str, np.ndarray], lift: bool, fixed: frozenset[str] = frozenset()) -> None:
+    def __init__(self, arrays: Mapping[str, np.ndarray], lift: bool, fixed: frozenset[str] = frozenset(),
+                 dense: frozenset[str] = frozenset()) -> None:
         self.lift = lift
         self._arrays = {k: _column(v) for k, v in arrays.items()}
-        self.signature, self.values, self._masks = layout(self._arrays, fixed)
+        self.signature, self.values, self._masks = layout(self._arrays, fixed, dense)
         self.symbols = ca.SX.sym("body", int(self.values.size)) if lift else ca.SX.zeros(0, 1)
         self._cache: dict[str, ca.SX] = {}
         self._offsets: dict[str, int] = {}
@@ -96,14 +99,16 @@ class BodyParameters:
         return self.sx(name) if self.lift else self._arrays[name].ravel()
 
 
-def layout(arrays: Mapping[str, np.ndarray], fixed: frozenset[str] = frozenset()) -> tuple[
-        str, np.ndarray, dict[str, np.ndarray]]:
-    """The signature, the lifted values (in order) and each array's mask of lifted entries (none of ``fixed``'s)."""
+def layout(arrays: Mapping[str, np.ndarray], fixed: frozenset[str] = frozenset(), dense: frozenset[str] = frozenset()
+           ) -> tuple[str, np.ndarray, dict[str, np.ndarray]]:
+    """The signature, the lifted values (in order) and each array's mask of lifted entries (none of ``fixed``'s, all
+    of ``dense``'s)."""
     digest = hashlib.sha256()
     values, masks = [], {}
     for name, value in arrays.items():
         a = _column(value)  # (idempotent)
-        mask = np.zeros(a.shape, bool) if name in fixed else ~np.isin(a, TRIVIAL)
+        mask = (np.zeros(a.shape, bool) if name in fixed else np.ones(a.shape, bool) if name in dense
+                else ~np.isin(a, TRIVIAL))
         masks[name] = mask
         values.append(a[mask])  # row by row, as sx() places the symbols
         digest.update(f"{name}{a.shape}".encode())
