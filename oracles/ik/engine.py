@@ -299,11 +299,15 @@ class CasadiIK(IKOracle):
         body's signature and joints, the strategy but its body, the engine's options."""
         if not self.numbers.lift:
             return None
-        model = self.body.model
-        joints = tuple((str(model.names[j]), model.joints[j].shortname(), int(model.parents[j]))
-                       for j in range(model.njoints))
         strategy = {k: v for k, v in self._strategy_params.items() if k != "body"}
-        return self.numbers.signature, joints, repr(strategy), repr(sorted(self.engine_params().items()))
+        return self.numbers.signature, self._joints, repr(strategy), repr(sorted(self.engine_params().items()))
+
+    @cached_property
+    def _joints(self) -> tuple[tuple[str, str, int], ...]:
+        """The body's joints: names, kinds and parents (what the programs' structure follows)."""
+        model = self.body.model
+        return tuple((str(model.names[j]), model.joints[j].shortname(), int(model.parents[j]))
+                     for j in range(model.njoints))
 
     def share_programs(self, other: CasadiIK) -> bool:
         """Take ``other``'s programs (those built and those it builds later) for this body, when one program serves

@@ -28,18 +28,10 @@ TRIVIAL = (0.0, 1.0, -1.0)  # entries kept constant: they shape the expressions 
 SNAP = 1e-12  # an entry this near 0, 1 or -1 is that value: rounding (a foot's height 4e-17 at one body, 0 at another)
 
 
-def _column(value: np.ndarray) -> np.ndarray:
-    """An array as a program sees it: a vector as a column, a matrix as itself, a number as 1 x 1; entries within
-    ``SNAP`` of a trivial value snapped to it."""
-    a = np.array(value, float)
-    a = a.reshape(-1, 1) if a.ndim <= 1 else a
-    for t in TRIVIAL:
-        a[np.abs(a - t) < SNAP] = t
-    return a
-
-
 class BodyParameters:
     """Named numeric arrays of one body, as CasADi expressions: lifted (parameters) or constants.
+
+    A vector is a column, a matrix itself, a number 1 x 1; entries within ``SNAP`` of 0, 1 or -1 are snapped to it.
 
     Args:
         arrays: The arrays by name, in a fixed order (the order of the parameter vector).
@@ -58,61 +50,61 @@ class BodyParameters:
     def __init__(self, arrays: Mapping[str, np.ndarray], lift: bool, fixed: frozenset[str] = frozenset(),
                  dense: frozenset[str] = frozenset()) -> None:
         self.lift = lift
-        self._arrays = {k: _column(v) for k, v in arrays.items()}
-        self.signature, self.values, self._masks = layout(self._arrays, fixed, dense)
+        given = [np.asarray(v, float) for v in arrays.values()]
+        self._shapes = {k: (a.size, 1) if a.ndim <= 1 else a.shape for k, a in zip(arrays, given, strict=True)}
+        # All arrays as one flat vector (row by row each), snapped, masked and hashed at once: a member's ~1,000
+        # small arrays one at a time cost 15 ms a strategy.
+        flat = np.concatenate([a.ravel() for a in given]) if given else np.zeros(0)
+        for t in TRIVIAL:
+            flat[np.abs(flat - t) < SNAP] = t
+        sizes = [int(np.prod(self._shapes[k])) for k in arrays]
+        starts = np.concatenate([[0], np.cumsum(sizes)]).astype(int)
+        self._start = dict(zip(arrays, starts[:-1].tolist(), strict=True))
+        mask = ~np.isin(flat, TRIVIAL)
+        for k in arrays:
+            if k in fixed or k in dense:
+                mask[self._start[k] : self._start[k] + int(np.prod(self._shapes[k]))] = k in dense
+        self._flat, self._mask = flat, mask
+        self.values = flat[mask]
+        self._index = np.cumsum(mask) - 1  # the parameter of each lifted entry
+        digest = hashlib.sha256(repr(list(self._shapes.items())).encode())
+        digest.update(np.packbits(mask).tobytes())
+        digest.update(np.where(mask, 0.0, flat).tobytes())
+        self.signature = digest.hexdigest()[:24]
         self.symbols = ca.SX.sym("body", int(self.values.size)) if lift else ca.SX.zeros(0, 1)
         self._cache: dict[str, ca.SX] = {}
-        self._offsets: dict[str, int] = {}
-        k = 0
-        for name, mask in self._masks.items():
-            self._offsets[name] = k
-            k += int(mask.sum())
 
     def __contains__(self, name: str) -> bool:
-        return name in self._arrays
+        return name in self._shapes
+
+    @property
+    def names(self) -> list[str]:
+        return list(self._shapes)
 
     def number(self, name: str) -> np.ndarray:
         """The array's value for this body (as a column or matrix)."""
-        return self._arrays[name]
+        a, n = self._start[name], int(np.prod(self._shapes[name]))
+        return self._flat[a : a + n].reshape(self._shapes[name])
 
     def sx(self, name: str) -> ca.SX:
         """The array as an expression: its lifted entries parameters, the others constants."""
         found = self._cache.get(name)
         if found is None:
-            value = self._arrays[name]
+            value = self.number(name)
             if not self.lift:
                 found = ca.SX(value)
             else:
-                mask = self._masks[name]
+                a, n = self._start[name], int(np.prod(self._shapes[name]))
+                mask = self._mask[a : a + n].reshape(value.shape)
                 found = ca.SX(np.where(mask, 0.0, value))
-                rows, cols = np.nonzero(mask)
-                k = self._offsets[name]
-                for r, c in zip(rows.tolist(), cols.tolist(), strict=True):
+                rows, cols = np.nonzero(mask)  # row by row, as the flat vector
+                for r, c, k in zip(rows.tolist(), cols.tolist(), self._index[a : a + n][mask.ravel()].tolist(),
+                                   strict=True):
                     found[r, c] = self.symbols[k]
-                    k += 1
             self._cache[name] = found
         return found
 
     def vector(self, name: str) -> ca.SX | np.ndarray:
         """A vector as the programs take it: lifted, :meth:`sx`; else the numbers themselves (n,), as a program made
         for one body always took them."""
-        return self.sx(name) if self.lift else self._arrays[name].ravel()
-
-
-def layout(arrays: Mapping[str, np.ndarray], fixed: frozenset[str] = frozenset(), dense: frozenset[str] = frozenset()
-           ) -> tuple[str, np.ndarray, dict[str, np.ndarray]]:
-    """The signature, the lifted values (in order) and each array's mask of lifted entries (none of ``fixed``'s, all
-    of ``dense``'s)."""
-    digest = hashlib.sha256()
-    values, masks = [], {}
-    for name, value in arrays.items():
-        a = _column(value)  # (idempotent)
-        mask = (np.zeros(a.shape, bool) if name in fixed else np.ones(a.shape, bool) if name in dense
-                else ~np.isin(a, TRIVIAL))
-        masks[name] = mask
-        values.append(a[mask])  # row by row, as sx() places the symbols
-        digest.update(f"{name}{a.shape}".encode())
-        digest.update(np.packbits(mask).tobytes())
-        digest.update(np.where(mask, 0.0, a).tobytes())
-    flat = np.concatenate(values) if values else np.zeros(0)
-    return digest.hexdigest()[:24], flat, masks
+        return self.sx(name) if self.lift else self.number(name).ravel()
