@@ -1,7 +1,7 @@
 """A UR5's trees against exact analytic IK (issue 48, item 6); prints JSON lines.
 
 The repository's UR5 (configs/urdf/ur5.urdf) is ur-analytic-ik's ``ur5`` in another base frame
-(tests/ur5_truth.py, checked by tests/test_truth_ur5.py). Two strategies are built at ``--depth`` (D_max, default 6;
+(tests/analytic_ur5.py, checked by tests/test_truth_ur5.py). Two strategies are built at ``--depth`` (D_max, default 6;
 ``box: auto``): ``down``, the tool axis within 5 deg of straight down, and ``position``, any orientation. Then, for
 ``--probes`` points drawn uniformly in each tree's box and for as many near its boundary (in its final cells), the
 tree's word (the nearest vertex's, in a boundary cell) against the truth:
@@ -37,7 +37,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
-from ur5_truth import URDF, directions, down_reachable, reachable_with  # noqa: E402
+from analytic_ur5 import URDF, directions, down_reachable, reachable_with  # noqa: E402
 
 from reach.maps.atlas import load_atlas  # noqa: E402
 from reach.maps.tree import FINAL  # noqa: E402

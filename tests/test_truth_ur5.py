@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 import pinocchio as pin
-from ur5_truth import URDF, directions, down_reachable, reachable_with, tool
+from analytic_ur5 import URDF, directions, down_reachable, reachable_with, tool
 
 from oracles.ik.engine import CasadiIK
 from oracles.ik.search import Search
