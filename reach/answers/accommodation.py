@@ -20,7 +20,7 @@ people they were drawn from; a boundary family is not a sample, and its interval
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -96,7 +96,7 @@ def load_members(folder: str | Path) -> tuple[list[Atlas], np.ndarray, list[str]
 
 
 ANY = "any"  # the share of members that some strategy of theirs holds
-CHUNK = 25  # members a process answers with one program a strategy (direct): building one costs about 1.2 s
+CHUNK = 25  # at most this many members a process answers with one program a strategy (direct; building one: 1.2 s)
 # the engines' option that makes one program serve every member (oracles.ik.parameters); answers do not depend on it
 SHARED = {"casadi-ik": {"body_parameters": True}}
 
@@ -175,7 +175,9 @@ def direct(config: Any, targets: list[Target], effector: str | None = None,
     members = entries(config)
     # Members in runs of CHUNK, each run in one process with one program a strategy (the body's numbers its
     # parameters: oracles.ik.parameters), built for the run's first member and shared by the others.
-    runs = [members[k : k + CHUNK] for k in range(0, len(members), CHUNK)]
+    count = max(math.ceil(len(members) / CHUNK), min(workers, len(members)))  # every process at work
+    size = math.ceil(len(members) / max(count, 1))
+    runs = [members[k : k + size] for k in range(0, len(members), size)]
     jobs = [([e.body for e in run], strategies, points, effs, verify) for run in runs]
     if workers > 1 and len(runs) > 1:
         from concurrent.futures import ProcessPoolExecutor
@@ -202,7 +204,7 @@ def _logged(results: Any, members: list[Any], log: Any) -> list[tuple[list[dict[
     return out
 
 
-def _members(job: tuple[Any, ...]) -> Iterator[tuple[list[dict[str, Any]], int]]:
+def _members(job: tuple[Any, ...]) -> list[tuple[list[dict[str, Any]], int]]:
     """Each member's rows of a run of members (a row per target: reached, the strategy chosen by priority, the others
     that reach it) and the count of reached answers its forward-kinematics check refuted. A strategy's oracle of the
     run's first member lends its programs to the others' (``share_programs``): they are built once a run."""
@@ -210,6 +212,7 @@ def _members(job: tuple[Any, ...]) -> Iterator[tuple[list[dict[str, Any]], int]]
 
     bodies, strategies, points, effs, verify = job
     first: dict[str, Any] = {}
+    out = []  # a list, not a generator: a worker process sends it back whole
     for body in bodies:
         oracles = {}
         for name, _, oracle_name, params in strategies:
@@ -218,7 +221,8 @@ def _members(job: tuple[Any, ...]) -> Iterator[tuple[list[dict[str, Any]], int]]
                 oracle.share_programs(first[name])
             first.setdefault(name, oracle)
             oracles[name] = oracle
-        yield _member(oracles, strategies, points, effs, verify)
+        out.append(_member(oracles, strategies, points, effs, verify))
+    return out
 
 
 def _member(oracles: dict[str, Any], strategies: list[tuple[Any, ...]], points: np.ndarray, effs: list[str],
