@@ -300,7 +300,10 @@ class CasadiIK(IKOracle):
         if not self.numbers.lift:
             return None
         strategy = {k: v for k, v in self._strategy_params.items() if k != "body"}
-        return self.numbers.signature, self._joints, repr(strategy), repr(sorted(self.engine_params().items()))
+        # jit changes how the programs run, not what they are (the caches below key it apart): `jit: auto` and `true`
+        # name the same compiled library
+        engine = {k: v for k, v in self.engine_params().items() if k != "jit"}
+        return self.numbers.signature, self._joints, repr(strategy), repr(sorted(engine.items()))
 
     @cached_property
     def _joints(self) -> tuple[tuple[str, str, int], ...]:
