@@ -164,3 +164,45 @@ def test_single_point_path_agrees_with_the_batch_path(unit_sphere_tree):
         single = np.array([unit_sphere_tree.contains(p[None], policy)[0] for p in pts])
         assert np.array_equal(batch, single), policy
     assert unit_sphere_tree.locate(pts[:1])[0] == unit_sphere_tree.locate(pts)[0]
+
+
+class _DiscWithSpike:
+    """A disc and a thin spike rising from it past a coarse cell's lower face, between that cell's corners: the cell
+    above is labelled outer by its corners at depth 2, and only the finer vertices of the cell below, on the shared
+    face, show the spike's cap (as a UR5's tool-down cap above a coarse cell, bench/ur5_truth.py)."""
+
+    dim = 2
+    posture_names: tuple[str, ...] = ()
+
+    def evaluate(self, goals):
+        from oracles.protocol import Goals, Verdicts
+
+        p = Goals.points_of(goals, 2)
+        disc = np.linalg.norm(p - [0.25, -0.5], axis=1) <= 0.45
+        spike = (np.abs(p[:, 0] - 0.25) <= 0.05) & (p[:, 1] >= -0.5) & (p[:, 1] <= 0.1)
+        inside = disc | spike
+        return Verdicts(inside, np.where(inside, 0.0, 0.01), None)
+
+
+def test_an_outer_cell_whose_face_holds_a_reachable_vertex_found_later_is_subdivided():
+    tree = build_tree(_DiscWithSpike(), SQUARE, 2, 5)
+    assert tree.meta["build"]["reopened"] >= 1
+    cap = np.array([[x, y] for x in (0.21, 0.25, 0.29) for y in (0.01, 0.05, 0.09)])  # the spike above y = 0
+    assert (tree.classify(cap) != OUTER).all()
+    assert tree.contains(np.array([[0.25, 0.04]]), "vertex")[0]
+    # the tree is whole: each node's children are where a plain descent by the cell's bits looks for them, and each
+    # child lies inside its parent
+    pts = np.random.default_rng(5).uniform(-1.0, 1.0, (2000, 2))
+    cells, _ = tree.lattice.cell_of(pts)
+    for c, leaf in zip(cells, tree.locate(pts), strict=True):
+        node, depth = 0, 0
+        while tree.kind[node] == PARENT:
+            bits = sum(((int(c[i]) >> (tree.d_max - depth - 1)) & 1) << i for i in range(2))
+            node, depth = int(tree.child[node]) + bits, depth + 1
+            size = 1 << (tree.d_max - depth)
+            assert np.all((tree.corner[node] <= c) & (c < tree.corner[node] + size))
+        assert node == leaf
+    assert tree.classify(np.array([[0.75, 0.75]]))[0] == OUTER
+    # the cells outside the spike keep their label: the volume does not grow past the shape
+    truth = _DiscWithSpike().evaluate(pts).reachable
+    assert not (tree.classify(pts)[~truth] == INNER).any()

@@ -292,6 +292,101 @@ def _probe_inner(
     return kinds, table, len(table) - before, taken
 
 
+REOPEN_ROUNDS = 8  # passes of reopen(): each may find reachable vertices on still other outer cells
+
+
+def _touched(state: BuildState, lattice: Lattice, d: int, rows: np.ndarray) -> np.ndarray:
+    """Rows of depth d's cells, among ``rows``, whose closed box holds a reachable vertex."""
+    if not rows.size:
+        return rows
+    table = state.vertices
+    size = 1 << (lattice.d_max - d)
+    reach = lattice.coords(table.keys[table.reachable])
+    corners = state.corners[d][rows]
+    key_of = lattice.keys(corners)
+    order = np.argsort(key_of)
+    hit = np.zeros(rows.size, bool)
+    for o in corner_offsets(lattice.dim):  # the cells about a vertex: the one it starts, and those it ends
+        c = ((reach - o) // size) * size
+        ok = np.all((c >= 0) & (c + size <= lattice.cells), axis=1)
+        k = lattice.keys(c[ok])
+        pos = np.minimum(np.searchsorted(key_of[order], k), rows.size - 1)
+        found = key_of[order][pos] == k
+        hit[order[pos[found]]] = True
+    return rows[hit]
+
+
+def reopen(state: BuildState, lattice: Lattice, executor: Executor, progress: Any = None,
+           refine: Refine | None = None, keep_out: np.ndarray | None = None,
+           inherit: Inherited | None = None) -> tuple[BuildState, int]:
+    """Subdivide the outer cells whose closed box holds a reachable vertex found after they were labelled.
+
+    Algorithm 1 labels a cell by its corners at its own depth, before the finer vertices that its neighbours'
+    subdivision brings to its faces exist. A coarse cell whose corners all miss can so hide a reachable cap that those
+    finer vertices show: a UR5 whose tool points down kept its top 10 cm outside, 2.5 cells at D_max 6, above a coarse
+    cell's corners (bench/ur5_truth.py). Such a cell becomes a parent and its subtree is built as the levels build
+    theirs (the same rules); until no outer cell is touched. Returns the state, its levels rebuilt in breadth-first
+    order, and the number of cells reopened.
+    """
+    reopened = 0
+    for _ in range(REOPEN_ROUNDS):
+        kinds = [k.copy() for k in state.kinds]
+        new: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
+        frontier: dict[int, list[np.ndarray]] = {}
+        count = 0
+        for d in range(min(len(kinds), lattice.d_max)):
+            rows = _touched(state, lattice, d, np.nonzero(kinds[d] == OUTER)[0])
+            if rows.size:
+                kinds[d][rows] = PARENT
+                step = 1 << (lattice.d_max - d - 1)
+                frontier.setdefault(d + 1, []).append(
+                    (state.corners[d][rows][:, None, :] + corner_offsets(lattice.dim)[None] * step).reshape(
+                        -1, lattice.dim))
+                count += int(rows.size)
+        if not count:
+            break
+        reopened += count
+        table = state.vertices
+        for d in range(1, lattice.d_max + 1):
+            if d not in frontier:
+                continue
+            part = BuildState(d, np.concatenate(frontier.pop(d)), vertices=table)
+            part = build_level(part, lattice, 0, executor, progress, refine, keep_out, inherit)
+            table = part.vertices
+            new.setdefault(d, []).append((part.corners[-1], part.kinds[-1]))
+            if part.frontier.shape[0]:
+                frontier.setdefault(d + 1, []).append(part.frontier)
+            state.levels.append({**part.levels[-1], "reopened": True})
+        state = _in_order(BuildState(state.depth, state.frontier, kinds, state.corners, table, state.levels), new,
+                          lattice)
+    return state, reopened
+
+
+def _in_order(state: BuildState, new: dict[int, list[tuple[np.ndarray, np.ndarray]]], lattice: Lattice) -> BuildState:
+    """The state's nodes and the new ones, each level in breadth-first order (a parent's children after the previous
+    parent's, in corner order), as :func:`reach.maps.tree.bfs_children` reads them."""
+    corners, kinds = [state.corners[0]], [state.kinds[0]]
+    for d in range(1, lattice.d_max + 1):
+        have_c = [state.corners[d]] if d < len(state.corners) else []
+        have_k = [state.kinds[d]] if d < len(state.kinds) else []
+        for c, k in new.get(d, []):
+            have_c.append(c)
+            have_k.append(k)
+        parents = corners[-1][kinds[-1] == PARENT]
+        if not parents.size:
+            break
+        step = 1 << (lattice.d_max - d)
+        want = (parents[:, None, :] + corner_offsets(lattice.dim)[None] * step).reshape(-1, lattice.dim)
+        pool_c, pool_k = np.concatenate(have_c), np.concatenate(have_k)
+        keys = lattice.keys(pool_c)
+        order = np.argsort(keys)
+        pos = np.searchsorted(keys[order], lattice.keys(want))
+        assert np.array_equal(keys[order][np.minimum(pos, len(keys) - 1)], lattice.keys(want)), "a child is missing"
+        corners.append(want)
+        kinds.append(pool_k[order][pos])
+    return BuildState(state.depth, state.frontier, kinds, corners, state.vertices, state.levels)
+
+
 def assemble(state: BuildState, box: Box, d_min: int, d_max: int, meta: dict[str, Any]) -> VATree:
     """The tree of a finished build."""
     kind = np.concatenate(state.kinds)
@@ -367,12 +462,14 @@ def build_tree(
             state = build_level(state, lattice, d_min, ex, bar, refine, keep_out, inherit)
             if on_level is not None:
                 on_level(state)
+        state, reopened = reopen(state, lattice, ex, bar, refine, keep_out, inherit)
     finally:
         if bar is not None:
             bar.close()
         if own:
             ex.close()
     meta = dict(meta or {})
+    meta.setdefault("build", {})["reopened"] = reopened
     if refine is not None:
         meta.setdefault("build", {})["refine"] = refine.to_dict()
     if isinstance(oracle, OracleSpec):
