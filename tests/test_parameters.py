@@ -7,6 +7,8 @@ verdicts.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -120,3 +122,22 @@ def test_unlifted_numbers_are_constants_and_the_signature_ignores_lifted_values(
     assert d.signature != b.signature
     fixed = BodyParameters({"q": np.array([0.3, 0.5])}, lift=True, fixed=frozenset({"q"}))
     assert fixed.symbols.numel() == 0 and fixed.sx("q").is_constant()
+
+
+@pytest.mark.slow
+def test_seated_drivers_share_their_belted_program():
+    """The belt's length, the seat's boxes and the seated contacts are the body's too: a 5th-percentile woman's
+    belted program, given a 95th-percentile man's numbers (each in a car seat fitted to them), is his own."""
+    from reach.build.config import load_config
+
+    config = load_config(Path(__file__).resolve().parents[1] / "configs" / "examples" / "driver.yaml")
+    belted = next(s for s in config.strategies if s.name == "belted")
+
+    def driver(sex, percentile, lift):
+        body = {"human": {"sex": sex, "percentile": percentile, "posture": "seated", "seat": {"kind": "car"}}}
+        return OracleSpec("casadi-ik", {**belted.oracle.params, "jit": False, "body": body,
+                                        **({"body_parameters": True} if lift else {})}).create()
+
+    small, large, own = driver("female", 5, True), driver("male", 95, True), driver("male", 95, False)
+    assert large.numbers.lift and large.share_programs(small)
+    same_rows(small, large, own)

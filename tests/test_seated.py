@@ -217,8 +217,9 @@ def test_the_seated_arm_volume_is_the_standing_arm_volume_moved_with_the_shoulde
 
 
 def test_the_tether_row_and_its_casadi_constraint_agree_with_pinocchio_and_finite_differences():
-    """The CasADi constraint is the squared distance to the anchor (Pinocchio FK); the dls row's Jacobian is the
-    distance's gradient (finite differences), and it appears only near or past the webbing's length."""
+    """The CasADi constraint is the squared distance to the anchor (Pinocchio FK) less the squared length; the dls
+    row's Jacobian is the distance's gradient (finite differences), and it appears only near or past the webbing's
+    length."""
     import casadi as ca
 
     from oracles.bodies.kinematics import SymbolicKinematics
@@ -240,9 +241,10 @@ def test_the_tether_row_and_its_casadi_constraint_agree_with_pinocchio_and_finit
     sym = Symbolic(SymbolicKinematics(body.model, problem.q_sym), problem.x_sym, ca.SX.sym("g", 3), problem.x_ref,
                    problem.upper - problem.lower)
     values = ca.Function("c", [sym.x], [ca.vertcat(*[c.expr for c in tether.constraints(sym)])])(x)
+    # the squared distance less the squared length (the row's bound is 0 for every body: oracles.ik.parameters)
     assert np.allclose(np.array(values).ravel(),
-                       [np.sum((body.frame_positions(q)[f] - anchor) ** 2) for f in ("sternum", "left_shoulder")],
-                       atol=1e-9)
+                       [np.sum((body.frame_positions(q)[f] - anchor) ** 2) - tether._length[f] ** 2
+                        for f in ("sternum", "left_shoulder")], atol=1e-9)
     rows = tether.rows(num)
     assert len(rows) == 2
     eps = 1e-6
@@ -447,7 +449,7 @@ def test_the_shoulder_belts_line_agrees_with_pinocchio_and_finite_differences():
     sym = Symbolic(SymbolicKinematics(body.model, problem.q_sym), problem.x_sym, ca.SX.sym("g", 3), problem.x_ref,
                    problem.upper - problem.lower)
     value = ca.Function("c", [sym.x], [ca.vertcat(*[c.expr for c in tether.constraints(sym)])])(x)
-    assert float(value) == pytest.approx(length(q), abs=1e-9)
+    assert float(value) == pytest.approx(length(q) - tether._length["path"], abs=1e-9)  # the row: past the length
     (row,) = tether.rows(numeric(problem, q, np.zeros(3)))
     num = numeric(problem, q, np.zeros(3))
     eps, fd = 1e-6, []

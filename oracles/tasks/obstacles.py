@@ -105,6 +105,9 @@ class ObstaclesTask(HardTask):
         return float(coal.distance(obj.geometry, coal.Transform3s(placement.rotation, placement.translation),
                                    coal.Box(*(2 * b.half)), coal.Transform3s(b.matrix, b.centre), request, result))
 
+    # nothing of the body's in the programs: the task is lazy, its cuts are numbers of each call
+    parametric: ClassVar[bool] = True
+
     def constraints(self, sym: Symbolic) -> list[Constraint]:
         return []  # lazy: see cuts
 

@@ -92,14 +92,22 @@ class TetherTask(HardTask):
         self._length = {f: float(np.linalg.norm(reference.placement(f).translation - a)) + self.slack
                         for f in self.held}
 
+    parametric: ClassVar[bool] = True
+
+    def numbers(self) -> dict[str, np.ndarray]:
+        return {f"length.{k}": np.array([v]) for k, v in self._length.items()}
+
     def constraints(self, sym: Symbolic) -> list[Constraint]:
+        # the belt's length (the body's, at its reference) inside the row, its bound 0 for every body
         if self.buckle is not None:
-            return [Constraint(self.path([sym.kin.frame(f)[1] for f in self.held]), -np.inf, self._length["path"])]
+            length = sym.number(self, "length.path", self._length["path"])
+            return [Constraint(self.path([sym.kin.frame(f)[1] for f in self.held]) - length, -np.inf, 0.0)]
         a = ca.SX(np.asarray(self.anchor).reshape(3, 1))
         out = []
         for f in self.held:
             d = sym.kin.frame(f)[1] - a
-            out.append(Constraint(ca.dot(d, d), -np.inf, self._length[f] ** 2))
+            length = sym.number(self, f"length.{f}", self._length[f])
+            out.append(Constraint(ca.dot(d, d) - length**2, -np.inf, 0.0))
         return out
 
     def rows(self, num: Numeric) -> list[Row]:
