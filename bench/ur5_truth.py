@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import platform
 import sys
@@ -37,7 +36,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
-from analytic_ur5 import URDF, directions, down_reachable, reachable_with  # noqa: E402
+from analytic_ur5 import URDF, any_reachable, cone, directions, down_reachable  # noqa: E402
 
 from reach.maps.atlas import load_atlas  # noqa: E402
 from reach.maps.tree import FINAL  # noqa: E402
@@ -59,24 +58,8 @@ def config(depth: int) -> dict:
 
 
 def truth(strategy: str, points: np.ndarray, axes: np.ndarray) -> np.ndarray:
-    """Exact for ``down`` at the cone's axis; the cone's and the sphere's sampled axes otherwise (see the docstring)."""
-    if strategy == "down":
-        return down_reachable(points)
-    return np.array([any(reachable_with(p, a) for a in axes) for p in points], bool)
-
-
-def cone_axes() -> np.ndarray:
-    """Tool axes within the cone about straight down: tilts 0 to CONE deg, 16 azimuths each."""
-    out = [np.array([0.0, 0.0, -1.0])]
-    for tilt in np.radians(np.linspace(CONE / 4, CONE, 4)):
-        for az in np.linspace(0.0, 2 * np.pi, 16, endpoint=False):
-            out.append(np.array([math.sin(tilt) * math.cos(az), math.sin(tilt) * math.sin(az), -math.cos(tilt)]))
-    return np.array(out)
-
-
-def cone_reachable(points: np.ndarray) -> np.ndarray:
-    axes = cone_axes()
-    return np.array([any(reachable_with(p, a) for a in axes) for p in points], bool)
+    """Exact for ``down`` at the cone's axis; the sphere's sampled axes for ``position`` (see the docstring)."""
+    return down_reachable(points) if strategy == "down" else any_reachable(points, axes)
 
 
 def rates(tree_says: np.ndarray, truth_says: np.ndarray, upper: np.ndarray) -> dict[str, float]:
@@ -137,7 +120,7 @@ def main() -> None:
                 yes = truth(name, pts, axes)
                 # down: a reachable verdict is false only if no axis of the cone reaches (an upper bound); position:
                 # the sampled axes are the only truth
-                upper = yes | cone_reachable(pts) if name == "down" else yes
+                upper = yes | any_reachable(pts, cone(CONE)) if name == "down" else yes
                 print(json.dumps({"bench": "truth", "strategy": name, "probes": kind, "n": len(pts),
                                   **rates(says, yes, upper)}), flush=True)
             print(json.dumps({"bench": "top", "strategy": name, **top(tree, name, axes)}), flush=True)

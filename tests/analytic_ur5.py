@@ -6,7 +6,8 @@ tool frame ``tool0`` is the URDF's ``ee_link`` with the tool axis (``ee_link``'s
 whether a point is reachable depends on the tool axis alone.
 
 * ``down_reachable``: the tool axis exactly down, a yes or no for every point (exact);
-* ``any_reachable``: some of ``directions`` tool axes (a lower bound of position-only reachability: a point reached
+* ``any_reachable``: some of the given tool axes (``directions`` over the sphere, or a ``cone`` about straight down;
+  a lower bound of position-only reachability: a point reached
   only by axes between the sampled ones counts as unreachable).
 """
 
@@ -52,7 +53,17 @@ def directions(n: int) -> np.ndarray:
     return np.column_stack([r * np.cos(phi), r * np.sin(phi), z])
 
 
+def cone(degrees: float) -> np.ndarray:
+    """Tool axes within ``degrees`` of straight down: straight down, and 4 tilts up to it at 16 azimuths each."""
+    out = [np.array([0.0, 0.0, -1.0])]
+    for tilt in np.radians(np.linspace(degrees / 4, degrees, 4)):
+        for az in np.linspace(0.0, 2 * np.pi, 16, endpoint=False):
+            out.append(np.array([np.sin(tilt) * np.cos(az), np.sin(tilt) * np.sin(az), -np.cos(tilt)]))
+    return np.array(out)
+
+
 def any_reachable(points: np.ndarray, axes: np.ndarray) -> np.ndarray:
+    """Whether some of the tool ``axes`` reaches each point (a lower bound of reaching with any axis between them)."""
     return np.array([any(reachable_with(p, a) for a in axes) for p in np.asarray(points, float)], bool)
 
 

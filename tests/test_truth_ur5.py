@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 import pinocchio as pin
-from analytic_ur5 import URDF, directions, down_reachable, reachable_with, tool
+from analytic_ur5 import URDF, any_reachable, cone, directions, down_reachable, tool
 
 from oracles.ik.engine import CasadiIK
 from oracles.ik.search import Search
@@ -40,17 +40,15 @@ def test_tool_down_verdicts_against_exact_ik():
         point, axis = tool(q, oracle.posture_names)
         assert np.linalg.norm(point - p) <= oracle.strategy.tolerance + 1e-9
         assert axis[2] <= -math.cos(math.radians(5.0)) + 1e-6
-    # a reachable verdict the exact IK says no to with the axis straight down needs the cone's tilt: check one
-    for p in POINTS[v.reachable & ~truth]:
-        assert any(reachable_with(p, a) for a in directions(400) if a[2] <= -math.cos(math.radians(5.0)))
+    # a reachable verdict the exact IK says no to with the axis straight down needs the cone's tilt
+    tilted = v.reachable & ~truth
+    assert any_reachable(POINTS[tilted], cone(5.0)).all(), POINTS[tilted].round(3).tolist()
 
 
 def test_position_only_verdicts_against_analytic_ik():
     oracle = CasadiIK(BODY, "ee_link", ["*_joint"], [{"type": "reach"}], search=Search(restarts=2, seed=0))
     v = oracle.evaluate(POINTS)
-    axes = directions(300)
-    for p, reached in zip(POINTS, v.reachable, strict=True):
-        if not reached:
-            assert not any(reachable_with(p, a) for a in axes), f"reachable by analytic IK: {p.round(3).tolist()}"
+    missed = POINTS[~v.reachable & any_reachable(POINTS, directions(300))]
+    assert not len(missed), f"reachable by analytic IK: {missed.round(3).tolist()}"
     for p, q in zip(POINTS[v.reachable], np.asarray(v.posture)[v.reachable], strict=True):
         assert np.linalg.norm(tool(q, oracle.posture_names)[0] - p) <= oracle.strategy.tolerance + 1e-9

@@ -269,35 +269,40 @@ class CasadiIK(IKOracle):
     def _symbols(self) -> tuple[Symbolic, ca.SX]:
         """The programs' symbols and their parameter vector: goal (3), start (nx), start weight, the tasks' targets,
         and, lifted, the body's numbers (:mod:`oracles.ik.parameters`)."""
-        p, numbers = self.problem, self.numbers
+        p = self.problem
         goal, start, weight = ca.SX.sym("goal", 3), ca.SX.sym("start", p.nx), ca.SX.sym("start_weight", 1)
         target = ca.SX.sym("target", self.strategy.target_size)
-        if not numbers.lift:
+        if not self.lifted:
             sym = Symbolic(SymbolicKinematics(self.body.model, p.q_sym), p.x_sym, goal, p.x_ref, p.upper - p.lower,
                            tuple(p.x_names), p.lower, start, weight, self.strategy.target_dict(target))
             return sym, ca.vertcat(goal, start, weight, target)
+        numbers = self.numbers
         kin = SymbolicKinematics(self.body.model, p.q_expression(numbers.sx("q_ref")), numbers)
         sym = Symbolic(kin, p.x_sym, goal, numbers.vector("x_ref"), numbers.vector("span"), tuple(p.x_names),
                        numbers.vector("lower"), start, weight, self.strategy.target_dict(target), numbers,
                        {id(t): f"task{k}." for k, t in enumerate(self.strategy.tasks)})
         return sym, ca.vertcat(goal, start, weight, target, numbers.symbols)
 
+    @property
+    def lifted(self) -> bool:
+        """Whether the programs take the body's numbers as parameters: ``body_parameters``, and every task of the
+        strategy can (:attr:`Task.parametric`)."""
+        return self.body_parameters and all(t.parametric for t in self.strategy.tasks)
+
     @cached_property
     def numbers(self) -> BodyParameters:
-        """The body's numbers as the programs take them: lifted to parameters with ``body_parameters`` when every task
-        of the strategy can (:attr:`Task.parametric`), else constants."""
+        """The body's numbers as the programs take them (lifted when :attr:`lifted`; only lifted programs read them)."""
         arrays = {**model_arrays(self.body.model), **self.problem.arrays()}
         tasks = {f"task{k}.{name}": v for k, t in enumerate(self.strategy.tasks) for name, v in t.numbers().items()}
-        lift = self.body_parameters and all(t.parametric for t in self.strategy.tasks)
         # The tasks' numbers lifted whole: their zeros are a body's (a capsule a sphere at one member, a segment at
         # the next: 3 of 20 ANSUR II members had another program).
-        return BodyParameters({**arrays, **tasks}, lift, fixed=frozenset({"root_ref"}), dense=frozenset(tasks))
+        return BodyParameters({**arrays, **tasks}, self.lifted, fixed=frozenset({"root_ref"}), dense=frozenset(tasks))
 
     @property
     def program_key(self) -> tuple[Any, ...] | None:
         """What two oracles' programs depend on when the body's numbers are parameters (None when they are not): the
         body's signature and joints, the strategy but its body, the engine's options."""
-        if not self.numbers.lift:
+        if not self.lifted:
             return None
         strategy = {k: v for k, v in self._strategy_params.items() if k != "body"}
         # jit changes how the programs run, not what they are (the caches below key it apart): `jit: auto` and `true`
@@ -327,7 +332,9 @@ class CasadiIK(IKOracle):
 
     def _with_body(self, params: np.ndarray) -> np.ndarray:
         """Parameters (B, k) or (k,) of the goal, start and targets, with the body's lifted numbers after them."""
-        values = self.numbers.values if self.numbers.lift else np.zeros(0)
+        if not self.lifted:
+            return params  # a program of this body's own: its numbers are constants in it
+        values = self.numbers.values
         if params.ndim == 1:
             return np.concatenate([params, values])
         return np.concatenate([params, np.tile(values, (len(params), 1))], axis=1)

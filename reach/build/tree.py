@@ -295,25 +295,22 @@ def _probe_inner(
 REOPEN_ROUNDS = 8  # passes of reopen(): each may find reachable vertices on still other outer cells
 
 
-def _touched(state: BuildState, lattice: Lattice, d: int, rows: np.ndarray) -> np.ndarray:
-    """Rows of depth d's cells, among ``rows``, whose closed box holds a reachable vertex."""
-    if not rows.size:
-        return rows
-    table = state.vertices
+def _touched(corners: np.ndarray, lattice: Lattice, d: int, reach: np.ndarray) -> np.ndarray:
+    """Which of depth d's cells (their lattice corners) hold in their closed box one of the ``reach`` vertices (their
+    lattice coordinates)."""
+    hit = np.zeros(len(corners), bool)
+    if not len(corners):
+        return hit
     size = 1 << (lattice.d_max - d)
-    reach = lattice.coords(table.keys[table.reachable])
-    corners = state.corners[d][rows]
     key_of = lattice.keys(corners)
     order = np.argsort(key_of)
-    hit = np.zeros(rows.size, bool)
+    ordered = key_of[order]
     for o in corner_offsets(lattice.dim):  # the cells about a vertex: the one it starts, and those it ends
         c = ((reach - o) // size) * size
-        ok = np.all((c >= 0) & (c + size <= lattice.cells), axis=1)
-        k = lattice.keys(c[ok])
-        pos = np.minimum(np.searchsorted(key_of[order], k), rows.size - 1)
-        found = key_of[order][pos] == k
-        hit[order[pos[found]]] = True
-    return rows[hit]
+        k = lattice.keys(c[np.all((c >= 0) & (c + size <= lattice.cells), axis=1)])
+        pos = np.minimum(np.searchsorted(ordered, k), len(ordered) - 1)
+        hit[order[pos[ordered[pos] == k]]] = True
+    return hit
 
 
 def reopen(state: BuildState, lattice: Lattice, executor: Executor, progress: Any = None,
@@ -334,8 +331,10 @@ def reopen(state: BuildState, lattice: Lattice, executor: Executor, progress: An
         new: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
         frontier: dict[int, list[np.ndarray]] = {}
         count = 0
+        reach = lattice.coords(state.vertices.keys[state.vertices.reachable])
         for d in range(min(len(kinds), lattice.d_max)):
-            rows = _touched(state, lattice, d, np.nonzero(kinds[d] == OUTER)[0])
+            rows = np.nonzero(kinds[d] == OUTER)[0]
+            rows = rows[_touched(state.corners[d][rows], lattice, d, reach)]
             if rows.size:
                 kinds[d][rows] = PARENT
                 step = 1 << (lattice.d_max - d - 1)
