@@ -10,8 +10,18 @@
 * **builds**: the config's atlas built with each engine, one after the
   other on all cores: wall and CPU seconds (this process and its workers),
   and the reachable vertices of each tree.
+* **against a revision** (``--against REV``): the config's atlas built by this
+  tree's code and by the code of git revision REV (checked out in a temporary
+  worktree), alternately, ``--repeat`` times each, every build in a fresh
+  process on all cores: wall and CPU seconds, reachable vertices per tree.
+  The engine's own before and after, in one run (issue 48).
+* **where the rounds go** (``--rounds``): the config's atlas built in this
+  process, one oracle a strategy, and each oracle's counts: goals, reached,
+  reach rounds (one start's iteration) spent on goals reached and on goals
+  never reached, fatrop polishes, CPU seconds.
 
-Run: ``.venv/bin/python bench/engine.py [--config configs/demo.yaml] [--goals 200] [--skip-build] [--strategies a,b]``.
+Run: ``.venv/bin/python bench/engine.py [--config configs/demo.yaml] [--goals 200] [--skip-build] [--strategies a,b]``,
+``bench/engine.py --against HEAD~3 [--repeat 2]`` or ``bench/engine.py --rounds``.
 """
 
 from __future__ import annotations
@@ -21,6 +31,8 @@ import json
 import os
 import platform
 import resource
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -28,10 +40,10 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from oracles.protocol import Goals
+from oracles.protocol import Goals, OracleSpec
 from reach.build.atlas import build_atlas
-from reach.build.config import parse_config, read_yaml
-from reach.build.executor import ProcessExecutor
+from reach.build.config import load_config, parse_config, read_yaml
+from reach.build.executor import InlineExecutor, ProcessExecutor
 
 ROOT = Path(__file__).resolve().parents[1]
 ENGINES = ("batch", "fatrop")
@@ -122,6 +134,75 @@ def builds(data: dict, workers: int) -> None:
                  cpu_s=round(spent, 1))
 
 
+# One build in a fresh process of the code in its working directory: the trees' reachable vertices, wall and CPU seconds
+# (the process and its workers).
+BUILD = """
+import json, resource, sys, tempfile, time
+sys.path.insert(0, ".")
+from pathlib import Path
+from reach.build.atlas import build_atlas
+from reach.build.config import load_config
+from reach.build.executor import ProcessExecutor
+config = load_config(Path(sys.argv[1]))
+workers = int(sys.argv[2])
+def cpu():
+    own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+with tempfile.TemporaryDirectory() as tmp:
+    t0, c0 = time.perf_counter(), cpu()
+    atlas = build_atlas(config, Path(tmp) / "atlas", executor_factory=lambda s: ProcessExecutor(s, workers,
+                        config.chunk_size))
+    wall, spent = time.perf_counter() - t0, cpu() - c0
+    trees = {n: int(t.vertices.reachable.sum()) for n, t in atlas.trees.items()}
+print(json.dumps({"wall_s": round(wall, 1), "cpu_s": round(spent, 1), "reachable": trees}))
+"""
+
+
+def against(config: Path, rev: str, repeat: int, workers: int) -> None:
+    """This tree's build and REV's, alternately, each in a fresh process (see BUILD)."""
+    with tempfile.TemporaryDirectory() as tmp:
+        other = Path(tmp) / "rev"
+        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", "-f", str(other), rev], check=True,
+                       capture_output=True)
+        try:
+            commit = subprocess.run(["git", "-C", str(other), "rev-parse", "--short", "HEAD"], check=True,
+                                    capture_output=True, text=True).stdout.strip()
+            for k in range(repeat):
+                for label, where in (("this", ROOT), (f"rev {rev} ({commit})", other)):
+                    run = subprocess.run([sys.executable, "-c", BUILD, str(config.resolve()), str(workers)], cwd=where,
+                                         env={**os.environ, "PYTHONPATH": str(where)}, capture_output=True, text=True)
+                    if run.returncode:
+                        raise SystemExit(f"the build of {label} failed:\n{run.stderr[-2000:]}")
+                    emit(bench="engine_against", code=label, run=k + 1, workers=workers,
+                         **json.loads(run.stdout.strip().splitlines()[-1]))
+        finally:
+            subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(other)], check=False,
+                           capture_output=True)
+
+
+def rounds(config_path: Path) -> None:
+    """The config's atlas built inline, one oracle a strategy, and where each oracle's reach rounds went."""
+    config = load_config(config_path)
+    made: list[tuple[str, InlineExecutor, float]] = []
+
+    def factory(spec: OracleSpec) -> InlineExecutor:
+        name = next((s.name for s in config.strategies if s.oracle == spec), spec.name)
+        made.append((name, InlineExecutor(spec, config.chunk_size), time.process_time()))
+        return made[-1][1]
+
+    with tempfile.TemporaryDirectory() as tmp:
+        build_atlas(config, Path(tmp) / "atlas", executor_factory=factory)
+    ends = [t for _, _, t in made[1:]] + [time.process_time()]
+    for (name, ex, t0), t1 in zip(made, ends, strict=True):
+        st, oracle = ex.oracle.stats, ex.oracle
+        reached, missed = st.get("rounds_reached", 0), st.get("rounds_missed", 0)
+        emit(bench="engine_rounds", config=config.name, strategy=name, joints=len(oracle.posture_names),
+             coordinates=getattr(getattr(oracle, "problem", None), "nx", None), goals=st.get("points", 0),
+             reachable=st.get("reachable", 0), rounds_reached=reached, rounds_missed=missed,
+             missed_share=round(missed / max(reached + missed, 1), 3), polished=st.get("polished", 0),
+             polished_missed=st.get("polished_missed", 0), cpu_s=round(t1 - t0, 1))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--config", default=str(ROOT / "configs" / "demo.yaml"))
@@ -129,10 +210,19 @@ def main() -> None:
     parser.add_argument("--strategies", default="right_arm,right_upper_body,right_whole_body,right_crouch")
     parser.add_argument("--skip-calls", action="store_true")
     parser.add_argument("--skip-build", action="store_true")
+    parser.add_argument("--against", metavar="REV", help="compare this tree's build with git revision REV's, and stop")
+    parser.add_argument("--repeat", type=int, default=1, help="builds of each code with --against (default 1)")
+    parser.add_argument("--rounds", action="store_true", help="where the reach rounds of an inline build go, and stop")
     args = parser.parse_args()
     workers = os.cpu_count() or 1
     emit(bench="machine", python=platform.python_version(), processor=platform.processor() or platform.machine(),
          cores=workers)
+    if args.against:
+        against(Path(args.config), args.against, args.repeat, workers)
+        return
+    if args.rounds:
+        rounds(Path(args.config))
+        return
     data = read_yaml(Path(args.config))
     if not args.skip_calls:
         calls(data, args.strategies.split(","), args.goals, int(data.get("build", {}).get("chunk_size", 256)))

@@ -111,6 +111,29 @@ def test_a_warm_hint_is_kept_when_it_reaches(arm):
     assert w.reachable.sum() >= 8 and moved < 0.3
 
 
+def test_a_goal_far_outside_costs_only_its_placed_starts_and_a_near_one_is_still_reached(whole):
+    """Staged starts (issue 48): a build's goal whose neighbour's posture lies beyond ``decisive`` tries that posture,
+    the reference and the ready posture first, and its random starts only when those end within RANDOM_NEAR of it.
+    Goals 0.35-0.5 m beyond the whole body's forward reach (1.17 m, docs/results.md) get none and stay unreachable;
+    goals inside, 0.15 m from their hint, are reached, and Pinocchio agrees."""
+    rng = np.random.default_rng(48)
+    inner = np.column_stack([rng.uniform(0.55, 0.7, 6), rng.uniform(-0.35, -0.15, 6), rng.uniform(1.0, 1.2, 6)])
+    first = whole.evaluate(inner)
+    assert first.reachable.all()
+    seeds = first.posture
+    near, far = inner + [0.15, 0.0, 0.0], inner + [0.95, 0.0, 0.0]
+    before = dict(whole.stats)
+    v = whole.evaluate(Goals(far, seeds=seeds))
+    spent = {k: whole.stats.get(k, 0) - before.get(k, 0) for k in ("wave_more", "wave_random", "rounds_missed",
+                                                                  "rounds_reached")}
+    assert not v.reachable.any()
+    assert spent["wave_more"] == 0 and spent["wave_random"] == 0 and spent["rounds_reached"] == 0
+    assert 0 < spent["rounds_missed"] <= len(far) * 3 * (batch.MAX_ITER + 1)  # the hint, the reference, the ready
+    w = whole.evaluate(Goals(near, seeds=seeds))
+    assert w.reachable.all()
+    _assert_reachable_verdicts_hold(whole, near, w)
+
+
 def test_the_engine_parameters_are_checked_and_written():
     with pytest.raises(OracleError, match="starts"):
         _batch(ARM, starts=0)

@@ -476,6 +476,10 @@ CONVERGED = 0.1  # share of the tolerance within which a start has reached and s
 # (right whole body at D_max 4: 35.2 % of the vertices reachable polishing within 3 cm, 35.7 % within 10 cm,
 # fatrop alone 36.0 %; 34 s and 37 s of CPU against fatrop's 50 s, docs/history.md session 18).
 POLISH_NEAR = 0.1
+# [m] a staged goal's random starts run when its placed ones ended this near (see oracles.ik.engine). Replaying the demo
+# build's calls (D_max 5; session 27, docs/history.md): at 0.1 / 0.15 / 0.2 m, 2.4 / 1.3 / 0.0 % fewer of the crouch's
+# goals reached than with every start together (+0.4 / +0.9 % of the whole body's), at 0.76 / 0.75 / 0.80 of the CPU.
+RANDOM_NEAR = 0.2
 WAVE_NEAR = 0.25  # [m] the random wave is for goals the K starts ended this near (farther: outside, as a rule)
 POLISH_FAR = 0.25  # [m] ... or this near, for a cold goal that both waves missed (see oracles.ik.engine)
 # the most fatrop polishes of one goal (its reaching postures that break a lazy task, its nearest, its random starts)
@@ -576,13 +580,15 @@ class Meter:
 
 class Ends(NamedTuple):
     """Where a batch's starts ended: postures x (B, n), reach distances, hard-row violations and the lower tasks'
-    values (B,) (inf where not computed), and which goals a decisive start gave up (indexed by goal)."""
+    values (B,) (inf where not computed), which goals a decisive start gave up (indexed by goal), and each start's
+    reach rounds (B,)."""
 
     x: np.ndarray
     dist: np.ndarray
     viol: np.ndarray
     liked: np.ndarray
     given_up: np.ndarray
+    rounds: np.ndarray
 
 
 def run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_of: np.ndarray, tolerance: float,
@@ -619,6 +625,7 @@ def _run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_
     # reach across the body stopped against the trunk (12 of 99 goals fatrop reaches missed, against 4 unguarded).
     guarded = np.zeros(b, bool)
     merit_before = np.full(b, np.inf)
+    rounds = np.zeros(b, int)
     price = reach_cost(program.n)
     for it in range(MAX_ITER + 1):
         live = live[meter.pay(owner[live], price)] if live.size else live
@@ -626,6 +633,7 @@ def _run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_
             break
         state = program.evaluate(x[live], params[live], guard=guarded[live])
         stats["iterations"] = stats.get("iterations", 0) + int(live.size)
+        rounds[live] += 1
         d, v = np.linalg.norm(state.e, axis=1), program.violation(state)
         before = merit_before[live]
         dist[live], viol[live] = d, v
@@ -667,7 +675,7 @@ def _run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_
         live = live[keep]
     f = np.full(b, np.inf)
     if not (lower and program.has_lower):
-        return Ends(x, dist, viol, f, given_up)
+        return Ends(x, dist, viol, f, given_up, rounds)
     reached = np.nonzero((dist <= tolerance) & (viol <= HARD_TOL))[0]
     # The lower tasks refine at most LOWER_STARTS reaching starts per goal, the first in the order of the starts
     # (the hint, the reference, the ready posture, then the random ones): the rest keep their reach posture.
@@ -676,7 +684,7 @@ def _run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_
     rank = np.arange(len(reached)) - np.searchsorted(owner[reached], owner[reached], side="left")
     reached = reached[rank < LOWER_STARTS]
     if not reached.size:
-        return Ends(x, dist, viol, f, given_up)  # (no start reached: nothing to like)
+        return Ends(x, dist, viol, f, given_up, rounds)  # (no start reached: nothing to like)
     y = x[reached].copy()
     p_low = params[reached]
     s_low = None if starts is None else starts[reached]
@@ -733,4 +741,4 @@ def _run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_
         back = program.evaluate(x[rest], params[rest], lower=True)
         assert back.f is not None
         f[rest] = back.f
-    return Ends(x, dist, viol, f, given_up)
+    return Ends(x, dist, viol, f, given_up, rounds)

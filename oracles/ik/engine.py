@@ -34,6 +34,7 @@ from oracles.ik.batch import (
     POLISH_FAR,
     POLISH_NEAR,
     POLISHES,
+    RANDOM_NEAR,
     RANDOM_SPREAD,
     REFINE_LOWER_ITER,
     STARTS,
@@ -70,8 +71,8 @@ UNUSED = -1.0  # an unused cut slot's lower bound: 0 >= -1
 
 class _Wave(NamedTuple):
     """One batched run of some goals' starts: the goals (indices), each goal's rows (``offsets``), the starts x0
-    and ends x (B, nx), the ends as postures q (B, nq), their reach distances, hard-row violations and how
-    little they are liked (B,)."""
+    and ends x (B, nx), the ends as postures q (B, nq), their reach distances, hard-row violations, how
+    little they are liked and their reach rounds (B,)."""
 
     goals: np.ndarray
     offsets: np.ndarray
@@ -81,6 +82,7 @@ class _Wave(NamedTuple):
     dist: np.ndarray
     viol: np.ndarray
     liked: np.ndarray
+    rounds: np.ndarray
 
 
 class _Cuts:
@@ -568,28 +570,57 @@ class CasadiIK(IKOracle):
         # wave, the demo build took 1.5 times fatrop's time).
         cold = np.zeros(n, bool)
         cold[todo] = True if search.give_up is None else ~hinted[todo]
-        runs = []
-        # The waves: every goal's K starts together (a decisive hint among them stops the others when it fails, as
-        # Search.give_up says); then WAVE x K random ones for a cold goal that the K starts ended near.
-        for wave in ("starts", "random"):
-            goals = todo if wave == "starts" else todo[~reach[todo] & cold[todo] & (residual[todo] <= WAVE_NEAR)]
-            if wave == "random":
+        # A hinted goal of a search that gives up, its hint not decisive, is staged: its placed starts first (the hints,
+        # the reference and ready postures), its random ones only when those end within RANDOM_NEAR of it. Most goals
+        # of a build lie outside the volume, and their random starts were most of their cost; a decisive goal keeps
+        # them beside its hint, which stops them when it fails (staged too, the arm's and crouch's trees lost goals).
+        staged = np.zeros(n, bool)
+        staged[todo] = hinted[todo] & ~cold[todo] & ~decisive[todo]
+        runs: list[_Wave] = []  # the waves the goals that are not staged are polished from
+        spent: list[_Wave] = []  # every wave (what the rounds went to)
+        polishes, far = np.zeros(n, int), set(np.nonzero(cold)[0].tolist())
+        # The waves: every goal's starts together (a decisive hint among them stops the others when it fails, as
+        # Search.give_up says); a staged goal's random starts; then WAVE x K random ones for a cold goal that the K
+        # starts ended near.
+        for wave in ("starts", "more", "random"):
+            if wave == "starts":
+                goals = todo
+            elif wave == "more":
+                goals = todo[staged[todo] & ~reach[todo] & (residual[todo] <= RANDOM_NEAR)]
+            else:
+                goals = todo[~reach[todo] & cold[todo] & (residual[todo] <= WAVE_NEAR)]
                 # a goal's random wave when it can pay a few rounds of its starts (not one, which could not reach)
                 wave_cost = WAVE_ROUNDS * WAVE * self.starts_per_goal * reach_cost(p.nx)
                 goals = goals[meter.left[goals] >= wave_cost] if goals.size and not meter.late() else goals[:0]
             if not goals.size:
                 continue
             self.stats[f"wave_{wave}"] = self.stats.get(f"wave_{wave}", 0) + int(goals.size)
-            starts = [self._batch_starts(pts[i], None if hints is None else hints[i], int(wave == "random"),
-                                         targets is not None) for i in goals]
+            starts = []
+            for i in goals:
+                these = self._batch_starts(pts[i], None if hints is None else hints[i], int(wave == "random"),
+                                           targets is not None)
+                if wave != "random" and staged[i]:
+                    # its hints, then the reference and ready postures (see _batch_starts)
+                    placed = int(np.all(np.isfinite(np.atleast_2d(hints[i])), axis=1).sum()) + 2  # type: ignore[index]
+                    these = these[:placed] if wave == "starts" else these[placed:]
+                starts.append(these)
             run = self._run_wave(pts, goals, starts, start, targets, decisive if wave == "starts" else None, None
                                  if hints is None else first, meter)
-            runs.append(run)
             self._keep_reaching(run, pts, targets, reach, residual, posture)
-        self._polish_missed(runs, pts, targets, start, meter, reach, residual, posture,
-                            set(np.nonzero(cold)[0].tolist()))
+            # A staged goal is polished after each of its waves, before the next (fatrop from the placed starts' near
+            # miss reached a fifth of the goals it was tried on, without the random starts); the others after all.
+            polishes += self._polish_missed([run], pts, targets, start, meter, reach, residual, posture, far, staged)
+            spent.append(run)
+            if wave != "more":
+                runs.append(run)
+        polishes += self._polish_missed(runs, pts, targets, start, meter, reach, residual, posture, far, ~staged)
         self._unsolved_residuals(pts, residual, posture)
         self.stats["reachable"] += int(reach.sum())
+        for run in spent:  # where the rounds went: goals reached, goals never reached (issue 48)
+            used = np.add.reduceat(run.rounds, run.offsets[:-1]) if len(run.rounds) else run.rounds
+            self.stats["rounds_reached"] = self.stats.get("rounds_reached", 0) + int(used[reach[run.goals]].sum())
+            self.stats["rounds_missed"] = self.stats.get("rounds_missed", 0) + int(used[~reach[run.goals]].sum())
+        self.stats["polished_missed"] = self.stats.get("polished_missed", 0) + int(polishes[~reach].sum())
         # (a goal its budget cut, or the clock's guard, spent all of it: the caller's "timeout")
         return Verdicts(reach, residual, posture, None if search.max_seconds is None
                         else np.where(meter.cut, budgets, budgets - meter.left))
@@ -611,10 +642,9 @@ class CasadiIK(IKOracle):
         if decisive is not None and decisive.any():
             first_start = np.zeros(b, bool)
             first_start[offsets[:-1][decisive[goals]]] = True
-        x, dist, viol, liked, _ = run_starts(self.batch_program(), x0, params, owner, self.strategy.tolerance,
-                                             search.secondary,
-                                                    start, meter, self.stats, first_start, search.give_up_distance,
-                                                    self.lower_iter)
+        x, dist, viol, liked, _, rounds = run_starts(
+            self.batch_program(), x0, params, owner, self.strategy.tolerance, search.secondary, start, meter,
+            self.stats, first_start, search.give_up_distance, self.lower_iter)
         span = p.upper - p.lower
         scored = np.isfinite(liked)
         if scored.any():
@@ -629,7 +659,7 @@ class CasadiIK(IKOracle):
         if first is not None:
             # Continuity with the neighbour's posture (the first hint) is part of "liked".
             liked = liked + CONTINUITY_WEIGHT * np.sum(((x - first[owner]) / span) ** 2, axis=1)
-        return _Wave(goals, offsets, x0, x, p.q_of_x_many(x), dist, viol, liked)
+        return _Wave(goals, offsets, x0, x, p.q_of_x_many(x), dist, viol, liked, rounds)
 
     def _keep_reaching(self, run: _Wave, pts: np.ndarray, targets: np.ndarray | None, reach: np.ndarray,
                        residual: np.ndarray, posture: np.ndarray) -> None:
@@ -657,16 +687,19 @@ class CasadiIK(IKOracle):
 
     def _polish_missed(self, runs: list[_Wave], pts: np.ndarray, targets: np.ndarray | None, start: np.ndarray | None,
                        meter: Meter,
-                       reach: np.ndarray, residual: np.ndarray, posture: np.ndarray, far: set[int]) -> None:
+                       reach: np.ndarray, residual: np.ndarray, posture: np.ndarray, far: set[int],
+                       mine: np.ndarray) -> np.ndarray:
         """fatrop from a missed goal's best ends: its reaching postures that break a lazy task, then its random
         starts themselves (fatrop's own restarts: another basin), or a near miss (no start reached) from its
         nearest end only: most are beyond the boundary. A near miss is one within ``POLISH_NEAR``, or
         ``POLISH_FAR`` for a cold goal (at the volume's boundary, where a
-        Gauss-Newton step slows down and fatrop's second derivatives still find a way)."""
+        Gauss-Newton step slows down and fatrop's second derivatives still find a way). Only the goals in ``mine``
+        (a mask of the call's) are polished; returns each goal's polishes."""
         tol, polisher = self.strategy.tolerance, None
+        polishes = np.zeros(len(pts), int)
         for run in runs:
             for j, i in enumerate(run.goals):
-                if reach[i]:
+                if reach[i] or not mine[i]:
                     continue
                 rows = np.arange(run.offsets[j], run.offsets[j + 1])
                 ranked = rows[np.lexsort((run.dist[rows], run.viol[rows] > 1e-5))]
@@ -691,11 +724,13 @@ class CasadiIK(IKOracle):
                     polisher = polisher or self._polisher()
                     q = polisher.solve(pts[i], guess, self.search.secondary, Call(start, meter.pace.deadline, target_i))
                     self.stats["polished"] = self.stats.get("polished", 0) + 1
+                    polishes[i] += 1
                     check = self.problem.check(q, pts[i], self._data, target_i)
                     if check.reachable or check.residual < residual[i]:
                         reach[i], residual[i], posture[i] = check.reachable, check.residual, q
                     if check.reachable:
                         break
+        return polishes
 
     def hold_many(self, postures: np.ndarray, deadline: float = np.inf) -> np.ndarray:
         """The batched engine's hold: every posture's reach steps from itself, all together, towards its own effector
