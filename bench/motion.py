@@ -12,7 +12,9 @@ Each goal's motion at 30 Hz from the reference posture is timed:
 
 One JSON line per group and path: median and p99 [ms], the motions' median
 duration [s] and frame count, how many were routed through stored postures,
-the goals no motion was found for (``no_motion``: no path held every task).
+the goals no motion was found for (``no_motion``: no path held every task);
+in-process, the frames that broke a task and were held by the batched hold
+(``held_in_batch``) and one at a time, its fallback (``held_alone``).
 
 Run: ``.venv/bin/python bench/motion.py ATLAS [--goals 20] [--seed 0] [--no-wire]``
 (ATLAS: the demo atlas, ``make run``'s ``out/demo``).
@@ -78,6 +80,7 @@ def in_process(planner: Planner, groups: dict[str, np.ndarray]) -> None:
                 planner.plan(EFFECTOR, goal)
             except MotionError:
                 pass
+        held = dict(planner.holds)
         for goal in goals:
             t0 = time.perf_counter()
             try:
@@ -92,7 +95,8 @@ def in_process(planner: Planner, groups: dict[str, np.ndarray]) -> None:
             routed += m.waypoints > 0
         emit(bench="motion", path="in_process", group=group, goals=len(goals), **stats(ms),
              duration_s=round(float(np.median(durations)), 3),
-             frames=int(np.median(frames)) if frames else 0, routed=routed, failed=failed)
+             frames=int(np.median(frames)) if frames else 0, routed=routed, failed=failed,
+             held_in_batch=planner.holds["batch"] - held["batch"], held_alone=planner.holds["alone"] - held["alone"])
 
 
 @contextlib.contextmanager

@@ -609,6 +609,20 @@ def run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_o
 def _run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_of: np.ndarray, tolerance: float,
                 lower: bool, start: np.ndarray | None, meter: Meter, stats: dict[str, int],
                 decisive: np.ndarray | None, give_up: float, lower_iter: int) -> Ends:
+    x, dist, viol, given_up, rounds = _reach_rounds(program, x0, params, goal_of, tolerance, start, meter, stats,
+                                                    decisive, give_up)
+    f = np.full(len(x), np.inf)
+    if lower and program.has_lower:
+        _lower_rounds(program, x, dist, viol, f, params, np.asarray(goal_of, int), tolerance, start, meter, stats,
+                      lower_iter)
+    return Ends(x, dist, viol, f, given_up, rounds)
+
+
+def _reach_rounds(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_of: np.ndarray, tolerance: float,
+                  start: np.ndarray | None, meter: Meter, stats: dict[str, int], decisive: np.ndarray | None,
+                  give_up: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The reach stage of every start (see :func:`run_starts`): their ends x, reach distances, hard-row violations,
+    the goals a decisive start gave up, and each start's rounds."""
     x = x0.copy()
     b = len(x)
     dist = np.full(b, np.inf)
@@ -673,9 +687,16 @@ def _run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_
         x[moving] = program.reach_step(x[moving], state.take(sub), None if starts is None else starts[moving],
                                        start_weight[moving], radius[moving])
         live = live[keep]
-    f = np.full(b, np.inf)
-    if not (lower and program.has_lower):
-        return Ends(x, dist, viol, f, given_up, rounds)
+    return x, dist, viol, given_up, rounds
+
+
+def _lower_rounds(program: BatchProgram, x: np.ndarray, dist: np.ndarray, viol: np.ndarray, f: np.ndarray,
+                  params: np.ndarray, owner: np.ndarray, tolerance: float, start: np.ndarray | None, meter: Meter,
+                  stats: dict[str, int], lower_iter: int) -> None:
+    """The lower tasks' rounds from the reaching starts' postures: x, dist and viol updated where a start's lower steps
+    keep the goal and the hard rows, and f (B,) the lower tasks' value of every reaching start (in place)."""
+    start_weight = params[:, 3 + program.n] if start is not None else np.zeros(len(x))
+    starts = None if start is None else params[:, 3 : 3 + program.n]
     reached = np.nonzero((dist <= tolerance) & (viol <= HARD_TOL))[0]
     # The lower tasks refine at most LOWER_STARTS reaching starts per goal, the first in the order of the starts
     # (the hint, the reference, the ready posture, then the random ones): the rest keep their reach posture.
@@ -684,7 +705,7 @@ def _run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_
     rank = np.arange(len(reached)) - np.searchsorted(owner[reached], owner[reached], side="left")
     reached = reached[rank < LOWER_STARTS]
     if not reached.size:
-        return Ends(x, dist, viol, f, given_up, rounds)  # (no start reached: nothing to like)
+        return  # (no start reached: nothing to like)
     y = x[reached].copy()
     p_low = params[reached]
     s_low = None if starts is None else starts[reached]
@@ -741,4 +762,3 @@ def _run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_
         back = program.evaluate(x[rest], params[rest], lower=True)
         assert back.f is not None
         f[rest] = back.f
-    return Ends(x, dist, viol, f, given_up, rounds)

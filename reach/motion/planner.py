@@ -273,6 +273,9 @@ class Planner:
         self.selector = selector.with_budget(budget)
         self._graphs: dict[str, tuple[cKDTree, np.ndarray, np.ndarray, csr_matrix]] = {}
         self._deadline = math.inf  # time.perf_counter() past which the plan in progress stops (see plan)
+        # Frames that broke a task and were held: by the batched hold, or one at a time (its fallback; issue 48 asks
+        # how often), since this planner was made.
+        self.holds = {"batch": 0, "alone": 0}
 
     def plan(self, effector: str, goal: np.ndarray | list[float], start: dict[str, float] | None = None, *,
              rate: float = RATE,
@@ -517,7 +520,10 @@ class Planner:
             for k, fixed in zip(broken, guesses, strict=True):
                 self._in_time()
                 if fixed is None or not np.all(np.isfinite(fixed)) or np.abs(fixed - postures[k]).max() > bound:
+                    self.holds["alone"] += 1
                     fixed = self._held(oracle, postures[k], (postures[k - 1], out[k - 1]), limit)
+                else:
+                    self.holds["batch"] += 1
                 if fixed is None:
                     break
                 out[k] = fixed
