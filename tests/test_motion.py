@@ -593,3 +593,32 @@ def test_a_paths_broken_frames_are_held_as_one_batch_by_the_batched_engine(plann
         np.testing.assert_allclose([data.oMf[f].translation for f in corners], first, atol=2e-4)
         com = pin.centerOfMass(body.model, data, q)
         assert np.all(first[:, :2].min(axis=0) <= com[:2]) and np.all(com[:2] <= first[:, :2].max(axis=0))
+
+
+def test_a_path_held_from_its_start_alone_that_jumps_to_its_end_is_held_from_both_ends(planner, body, monkeypatch):
+    """Every frame of this whole-body path breaks the feet; held each from its predecessor's correction, the frames
+    drift from the end posture (never held: it holds) and jump to it, and the motion took a detour through stored
+    postures. Held from the end backwards too and joined where the two holds meet, every frame holds every task, by the
+    oracle's checks and independently (the soles where they stood, the centre of mass over them), with no jump."""
+    goal = np.array([0.57727608, 0.28119504, 1.54437323])
+    with monkeypatch.context() as patch:
+        patch.setattr(Planner, "_spliced", lambda *args: None)
+        routed = planner.plan("right_hand", goal)
+    m = planner.plan("right_hand", goal)
+    # without the hold from both ends the direct path jumps and the motion takes a detour through stored postures
+    assert routed.waypoints > 0 and m.waypoints == 0
+    oracle = planner.body(m.strategy)
+    assert m.strategy == "whole" and m.held > 0
+    assert not any(oracle.faults(m.postures))
+    steps = np.abs(np.diff(m.postures, axis=0)).max(axis=1)
+    assert steps.max() <= 2.0 * np.median(steps) + 0.05  # no frame jumps (the planner's JUMP is 2x the plain path's)
+    data = body.model.createData()
+    corners = [body.frame_id(f"{side}_{end}_{edge}") for side in ("right", "left") for end in ("heel", "toe")
+               for edge in ("inner", "outer")]
+    pin.framesForwardKinematics(body.model, data, m.postures[0])
+    first = np.array([data.oMf[f].translation for f in corners])
+    for q in m.postures:
+        pin.framesForwardKinematics(body.model, data, q)
+        np.testing.assert_allclose([data.oMf[f].translation for f in corners], first, atol=2e-4)
+        com = pin.centerOfMass(body.model, data, q)
+        assert np.all(first[:, :2].min(axis=0) <= com[:2]) and np.all(com[:2] <= first[:, :2].max(axis=0))
