@@ -82,7 +82,7 @@ class Verdicts(NamedTuple):
             postures. Rows of unreachable points hold the best attempt.
         spent: (N,) float, the work [s] each goal spent of a budgeted call's (``Search.max_seconds``), all of it
             where the budget ran out; None from oracles whose budget is the clock. A budget of work, not time, gives
-            the same request the same answer on any machine (see ``oracles.ik.batch.Meter``).
+            the same request the same answer on any machine (see ``oracles.ik.budget.Meter``).
     """
 
     reachable: np.ndarray

@@ -6,7 +6,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from oracles.ik import batch
+from oracles.ik import batch, budget
 from oracles.ik.batch import CHUNK
 from oracles.ik.engine import CasadiIK
 from oracles.ik.search import Search
@@ -222,8 +222,8 @@ def test_an_iteration_starts_only_when_one_as_long_as_the_last_ends_before_the_d
     10 s, the iterations that start at 3 and 6 s end by 9 s; the one that would start at 9 s would end at 12 and does
     not start. Checking the deadline alone started it (the overrun a refinement's answer paid)."""
     clock = iter([0.0, 3.0, 6.0, 9.0, 9.5, 20.0])
-    monkeypatch.setattr(batch.time, "perf_counter", lambda: next(clock))
-    pace = batch._Pace(10.0)
+    monkeypatch.setattr(budget.time, "perf_counter", lambda: next(clock))
+    pace = budget.Pace(10.0)
     assert [pace.out(), pace.out(), pace.out()] == [False, False, True]
     assert pace.step == 3.0
-    assert not batch._Pace(float("inf")).out()  # a build has no deadline: every iteration runs
+    assert not budget.Pace(float("inf")).out()  # a build has no deadline: every iteration runs

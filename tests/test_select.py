@@ -331,7 +331,7 @@ def test_a_from_root_quaternion_of_huge_components_is_refused_by_name():
 
 def test_a_refined_answer_does_not_depend_on_the_clock(tmp_path, monkeypatch):
     """The standard's "the same request, the same answer" under the server's 20 ms budget: the batched engine spends a
-    budget of work (oracles.ik.batch.Meter), not of time. Cut by the clock, the same 30 demo goals asked twice on an
+    budget of work (oracles.ik.budget.Meter), not of time. Cut by the clock, the same 30 demo goals asked twice on an
     idle machine gave 8 different arm postures (session 23). Here the same requests are answered again on a clock
     running ten times as fast, as a machine ten times as slow would see it (the clock's guard set aside): the answers
     are the same, goal by goal and in a batch. With a budget of time they would have had a tenth of their rounds; and

@@ -28,9 +28,7 @@ from oracles.bodies.kinematics import SymbolicKinematics, model_arrays
 from oracles.errors import OracleError
 from oracles.ik.batch import CONTINUITY as CONTINUITY_WEIGHT
 from oracles.ik.batch import (
-    GUARD,
     LOWER_ITER,
-    POLISH_COST,
     POLISH_FAR,
     POLISH_NEAR,
     POLISHES,
@@ -40,12 +38,10 @@ from oracles.ik.batch import (
     STARTS,
     WAVE,
     WAVE_NEAR,
-    WAVE_ROUNDS,
     BatchProgram,
-    Meter,
-    reach_cost,
     run_starts,
 )
+from oracles.ik.budget import GUARD, POLISH_COST, WAVE_ROUNDS, Meter, reach_cost
 from oracles.ik.jit import COMPILER, compiled_nlpsol
 from oracles.ik.oracle import NO_CALL, Call, IKOracle, fresh_stats
 from oracles.ik.parameters import BodyParameters
@@ -548,7 +544,7 @@ class CasadiIK(IKOracle):
         if not todo.size:
             return Verdicts(reach, residual, posture, None if search.max_seconds is None else np.zeros(n))
         self.prepare()  # compiling (seconds, once) is not the call's budget
-        # Each goal's work budget, its share of the call's (see oracles.ik.batch.Meter); the clock is a guard at
+        # Each goal's work budget, its share of the call's (see oracles.ik.budget.Meter); the clock is a guard at
         # GUARD times the budget.
         meter = (Meter.unlimited(n) if search.max_seconds is None
                  else Meter(np.full(n, search.max_seconds / n), time.perf_counter() + GUARD * search.max_seconds))

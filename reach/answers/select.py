@@ -5,7 +5,7 @@ priority order; the first whose tree holds the goal is chosen (the boundary
 policy is configurable). The posture starts from the one stored at the
 nearest reachable vertex of that tree, then is refined by the strategy's own
 IK at the exact goal within a budget (of work with the batched engine: the same
-answer on any machine; see oracles.ik.batch.Meter): the paper's "additional
+answer on any machine; see oracles.ik.budget.Meter): the paper's "additional
 inverse kinematics simulation". If refinement fails or runs out of budget, the
 answer keeps the stored posture and says so.
 

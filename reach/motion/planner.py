@@ -75,7 +75,7 @@ MAX_RATE = 240.0  # [Hz]
 MAX_DURATION = 20.0  # [s] an explicit duration at most this
 CHECK_FRAMES = 16  # frames checked between two readings of the deadline (about 2 ms of the whole body's checks)
 # [s] the end posture's refinement budget: a motion is not a 50 Hz query, and a stored posture stops short. A budget of
-# work (oracles.ik.batch.Meter): a whole-body refinement's lower tasks are charged about 0.19 s, and a handover starts
+# work (oracles.ik.budget.Meter): a whole-body refinement's lower tasks are charged about 0.19 s, and a handover starts
 # with a quarter of the budget left; at 0.25 s none did, and the demo's reach behind the body to (-0.42, 0.25, 0.59)
 # kept a posture with nine joints at their limits (the idle arm raised overhead) and found no motion
 # (bench/motion.py, session 23).
