@@ -3,7 +3,7 @@
     ros_helper.py goal EFFECTOR X Y Z FRAME [TIMEOUT]   publish one goal, print the answers as JSON
     ros_helper.py motion EFFECTOR X Y Z                 publish one motion goal, print the trajectory as JSON
     ros_helper.py listen EFFECTOR                       print the next strategy published, whoever caused it
-    ros_helper.py markers                      print a summary of the latched markers as JSON
+    ros_helper.py markers [TIMEOUT]            print a summary of the latched markers as JSON
     ros_helper.py alive NODE                   print whether a node answers
 """
 
@@ -92,8 +92,8 @@ def listen(effector: str) -> None:
     print(json.dumps({"strategy": msg.data}), flush=True)
 
 
-def markers() -> None:
-    msg = rospy.wait_for_message("/reach/markers", MarkerArray, timeout=TIMEOUT)
+def markers(timeout: float = TIMEOUT) -> None:
+    msg = rospy.wait_for_message("/reach/markers", MarkerArray, timeout=timeout)
     print(json.dumps({"markers": [{"ns": m.ns, "type": m.type, "points": len(m.points), "frame": m.header.frame_id,
                                     "colour": [m.color.r, m.color.g, m.color.b]} for m in msg.markers]}), flush=True)
 
@@ -109,6 +109,6 @@ if __name__ == "__main__":
     elif mode == "listen":
         listen(sys.argv[2])
     elif mode == "markers":
-        markers()
+        markers(*map(float, sys.argv[2:3]))
     elif mode == "alive":
         print(json.dumps({"alive": bool(rosnode.rosnode_ping(sys.argv[2], max_count=1))}), flush=True)

@@ -174,7 +174,9 @@ def test_a_motion_goal_gives_a_joint_trajectory_whose_last_point_reaches_it(ros)
 
 
 def test_markers_are_published_latched(ros):
-    got = ros.helper("markers")
+    # The bridge retries the markers every 2 s until the server answers: a busy server (the motion just planned)
+    # delays them, so the wait is long (15 s timed out once in CI, on 2 cores).
+    got = ros.helper("markers", "60", timeout=90)
     (marker,) = got["markers"]
     # 6: CUBE_LIST
     assert marker["ns"] == "right_arm" and marker["type"] == 6 and marker["points"] > 10 and marker["frame"] == "world"
