@@ -6,7 +6,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from oracles.ik import batch, budget
+from oracles.ik import batch, budget, engine
 from oracles.ik.batch import CHUNK
 from oracles.ik.engine import CasadiIK
 from oracles.ik.search import Search
@@ -132,6 +132,25 @@ def test_a_goal_far_outside_costs_only_its_placed_starts_and_a_near_one_is_still
     w = whole.evaluate(Goals(near, seeds=seeds))
     assert w.reachable.all()
     _assert_reachable_verdicts_hold(whole, near, w)
+
+
+def test_a_staged_goal_of_a_search_without_random_starts_is_solved_from_its_placed_ones(monkeypatch):
+    """With ``starts`` of 3 or fewer, a staged goal has its placed starts alone (the hint, the reference and ready
+    postures): its second stage has nothing to run, and is skipped (it ran with no start, and the call failed). Every
+    goal that misses after its placed starts is sent to the second stage here (RANDOM_NEAR infinite)."""
+    monkeypatch.setattr(engine, "RANDOM_NEAR", np.inf)
+    rng = np.random.default_rng(27)
+    goals = rng.uniform([-0.6, -0.9, 0.6], [0.8, 0.4, 2.0], (300, 3))
+    for starts, random_wave in ((1, False), (batch.STARTS, True)):
+        oracle = _batch(ARM, [{"type": "reach"}], starts=starts)
+        first = oracle.evaluate(goals)
+        ok = first.reachable
+        away = rng.normal(size=(ok.sum(), 3))
+        near = goals[ok] + 0.15 * away / np.linalg.norm(away, axis=1, keepdims=True)  # hints 15 cm off: not decisive
+        v = oracle.evaluate(Goals(near, seeds=first.posture[ok]))
+        assert (~v.reachable).sum() >= 5  # some goals went on to the second stage
+        assert ("wave_more" in oracle.stats) == random_wave
+        _assert_reachable_verdicts_hold(oracle, near, v)
 
 
 def test_the_engine_parameters_are_checked_and_written():

@@ -498,30 +498,34 @@ class CasadiIK(IKOracle):
             return super()._evaluate(points, hints, start, targets)
         return self._evaluate_batch(points, hints, start, targets)
 
-    def _batch_starts(self, goal: np.ndarray, hint: np.ndarray | None, wave: int = 0,
-                      targeted: bool = False) -> list[np.ndarray]:
+    def _batch_starts(self, goal: np.ndarray, hint: np.ndarray | None, wave: int = 0, targeted: bool = False,
+                      part: str = "all") -> list[np.ndarray]:
         """A goal's K starts: its hints (the neighbour's posture first), the reference and ready postures, then
         random ones seeded by the search's seed and the goal (the same goal gets the same starts in any batch).
-        Wave 1 (see :meth:`_evaluate_batch`): ``WAVE`` times K random ones, of the same seed's next draws."""
+        Wave 1 (see :meth:`_evaluate_batch`): ``WAVE`` times K random ones, of the same seed's next draws. ``part``:
+        ``placed`` (the hints, the reference and ready postures: a staged goal's first stage), ``random`` (the random
+        ones: its second) or ``all``."""
         p = self.problem
-        out: list[np.ndarray] = []
+        placed: list[np.ndarray] = []
         if wave == 0:
             seeds = np.zeros((0, 0)) if hint is None else np.atleast_2d(hint)
-            out += [p.x_of_q(h) for h in seeds if np.all(np.isfinite(h))]
-            out += [p.x_ref.copy(), p.x_ready.copy()]
+            placed += [p.x_of_q(h) for h in seeds if np.all(np.isfinite(h))]
+            placed += [p.x_ref.copy(), p.x_ready.copy()]
+        if part == "placed":
+            return placed
         rng = np.random.default_rng([self.search.seed, zlib.crc32(np.round(goal, 9).tobytes()), wave])
         # A standing body's first random starts move every joint only part of the way into its range (RANDOM_SPREAD):
         # uniform hips and ankles throw the held feet metres off, which most starts do not come back from in 40
         # steps; the second wave's are uniform, for the far basins (a reach behind the back, measured in
         # docs/history.md, session 18).
         spread = RANDOM_SPREAD if self.strategy.floating and wave == 0 else 1.0
-        count = max(self.starts_per_goal - len(out), 0) if wave == 0 else WAVE * self.starts_per_goal
+        count = max(self.starts_per_goal - len(placed), 0) if wave == 0 else WAVE * self.starts_per_goal
         if targeted and wave == 0:
             # A goal with a target (an orientation) is seeded with postures found for its position alone: K random
             # starts besides them (with K in all, 2 of 75 oriented goals the referee reaches on arm7_table were missed).
             count = max(count, self.starts_per_goal)
-        out += [p.x_ref + spread * (p.random_x(rng) - p.x_ref) for _ in range(count)]
-        return out
+        randoms = [p.x_ref + spread * (p.random_x(rng) - p.x_ref) for _ in range(count)]
+        return randoms if part == "random" else placed + randoms
 
     def _evaluate_batch(self, points: np.ndarray, hints: np.ndarray | None, start: np.ndarray | None,
                         targets: np.ndarray | None) -> Verdicts:
@@ -590,18 +594,18 @@ class CasadiIK(IKOracle):
                 # a goal's random wave when it can pay a few rounds of its starts (not one, which could not reach)
                 wave_cost = WAVE_ROUNDS * WAVE * self.starts_per_goal * reach_cost(p.nx)
                 goals = goals[meter.left[goals] >= wave_cost] if goals.size and not meter.late() else goals[:0]
+            starts, kept = [], []
+            for i in goals:
+                part = "all" if wave == "random" or not staged[i] else "placed" if wave == "starts" else "random"
+                these = self._batch_starts(pts[i], None if hints is None else hints[i], int(wave == "random"),
+                                           targets is not None, part)
+                if these:  # (a staged goal of a search of K <= 3 starts has no random one)
+                    starts.append(these)
+                    kept.append(i)
+            goals = np.array(kept, int)
             if not goals.size:
                 continue
             self.stats[f"wave_{wave}"] = self.stats.get(f"wave_{wave}", 0) + int(goals.size)
-            starts = []
-            for i in goals:
-                these = self._batch_starts(pts[i], None if hints is None else hints[i], int(wave == "random"),
-                                           targets is not None)
-                if wave != "random" and staged[i]:
-                    # its hints, then the reference and ready postures (see _batch_starts)
-                    placed = int(np.all(np.isfinite(np.atleast_2d(hints[i])), axis=1).sum()) + 2  # type: ignore[index]
-                    these = these[:placed] if wave == "starts" else these[placed:]
-                starts.append(these)
             run = self._run_wave(pts, goals, starts, start, targets, decisive if wave == "starts" else None, None
                                  if hints is None else first, meter)
             self._keep_reaching(run, pts, targets, reach, residual, posture)
