@@ -162,8 +162,10 @@ def against(config: Path, rev: str, repeat: int, workers: int) -> None:
     """This tree's build and REV's, alternately, each in a fresh process (see BUILD)."""
     with tempfile.TemporaryDirectory() as tmp:
         other = Path(tmp) / "rev"
-        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", "-f", str(other), rev], check=True,
-                       capture_output=True)
+        added = subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", "-f", str(other), rev],
+                               capture_output=True, text=True)
+        if added.returncode:
+            raise SystemExit(f"--against {rev}: no such revision to check out ({added.stderr.strip()})")
         try:
             commit = subprocess.run(["git", "-C", str(other), "rev-parse", "--short", "HEAD"], check=True,
                                     capture_output=True, text=True).stdout.strip()
