@@ -6,7 +6,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from oracles.ik import batch, budget, engine
+from oracles.ik import batch, budget, waves
 from oracles.ik.batch import CHUNK
 from oracles.ik.engine import CasadiIK
 from oracles.ik.search import Search
@@ -45,8 +45,12 @@ def test_every_batched_reachable_verdict_holds_under_independent_checks(arm, who
     coal's distance of every self-collision pair, computed here from the capsules (not the task's own call)."""
     for oracle, n in ((arm, 120), (whole, 60)):
         goals = _goals(oracle, n, 11)
+        before = dict(oracle.stats)
         v = oracle.evaluate(goals)
         assert v.reachable.sum() >= n // 5  # the check can fail: many goals are reached
+        # the oracle's counts (a build's meta) say what the call did
+        assert oracle.stats["reachable"] - before.get("reachable", 0) == v.reachable.sum()
+        assert oracle.stats["points"] - before.get("points", 0) == n
         _assert_reachable_verdicts_hold(oracle, goals, v)
         task = oracle.strategy.task("self_collision")
         for q in v.posture[v.reachable]:
@@ -138,7 +142,7 @@ def test_a_staged_goal_of_a_search_without_random_starts_is_solved_from_its_plac
     """With ``starts`` of 3 or fewer, a staged goal has its placed starts alone (the hint, the reference and ready
     postures): its second stage has nothing to run, and is skipped (it ran with no start, and the call failed). Every
     goal that misses after its placed starts is sent to the second stage here (RANDOM_NEAR infinite)."""
-    monkeypatch.setattr(engine, "RANDOM_NEAR", np.inf)
+    monkeypatch.setattr(waves, "RANDOM_NEAR", np.inf)
     rng = np.random.default_rng(27)
     goals = rng.uniform([-0.6, -0.9, 0.6], [0.8, 0.4, 2.0], (300, 3))
     for starts, random_wave in ((1, False), (batch.STARTS, True)):

@@ -326,7 +326,7 @@ def test_a_failing_compiler_falls_back_to_the_interpreter(tmp_path, monkeypatch)
 
 
 def test_jit_without_a_compiler(monkeypatch):
-    monkeypatch.setattr("oracles.ik.engine.COMPILER", "no-such-compiler")
+    monkeypatch.setattr("oracles.ik.programs.COMPILER", "no-such-compiler")
     assert not CasadiIK(HUMAN, "right_hand", ARM, jit="auto").jit  # falls back to the interpreter
     with pytest.raises(OracleError, match="jit"):
         CasadiIK(HUMAN, "right_hand", ARM, jit=True)

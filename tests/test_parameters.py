@@ -78,9 +78,9 @@ def same_rows(small, large, own):
     x = np.array([large.problem.random_x(rng) for _ in range(12)])
     x[:, :6] += rng.normal(0.0, 0.05, (12, 6))  # the root moved too
     base = np.concatenate([np.tile(GOALS[0], (12, 1)), x, np.zeros((12, 1)),
-                           np.tile(large._default_target, (12, 1))], axis=1)
-    a = shared.evaluate(x, large._with_body(base), lower=True)
-    b = mine.evaluate(x, own._with_body(base), lower=True)
+                           np.tile(large.default_target, (12, 1))], axis=1)
+    a = shared.evaluate(x, large.with_body(base), lower=True)
+    b = mine.evaluate(x, own.with_body(base), lower=True)
     for name in ("g", "jg", "f", "grad", "hess", "lazy_violation"):
         np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=1e-9, atol=1e-9, err_msg=name)
     np.testing.assert_array_equal(shared.rows.lower, mine.rows.lower)

@@ -10,7 +10,7 @@ import pytest
 from helpers import ARM, human_config
 
 from oracles.bodies.body import human_body
-from oracles.ik import engine
+from oracles.ik import waves
 from reach.answers.answer import FAILED, REFINED, SKIPPED, UNAVAILABLE, Answer
 from reach.answers.select import SEEDS, Selector
 from reach.build.atlas import build_atlas
@@ -349,7 +349,7 @@ def test_a_refined_answer_does_not_depend_on_the_clock(tmp_path, monkeypatch):
     assert sum(a["refined"] == REFINED for a in first) >= 8  # refined answers, whose rounds the budget counts
     ample = answers(Selector(atlas, budget=5.0).warm_up())
     assert any(a["posture"] != b["posture"] for a, b in zip(first, ample, strict=True))  # the budget binds
-    monkeypatch.setattr(engine, "GUARD", 1e9)
+    monkeypatch.setattr(waves, "GUARD", 1e9)
     real = time.perf_counter
     monkeypatch.setattr(time, "perf_counter", lambda: 10.0 * real())
     assert answers(Selector(atlas).warm_up()) == first

@@ -1,0 +1,190 @@
+"""A body under a strategy: what its tasks say of postures and of the volume, without a search.
+
+The oracle protocol's capabilities that need the strategy but no solve
+(:mod:`oracles.protocol`): the reach ball, the free turn, the floor, the
+furniture and the keep-out capsules, the independent check of postures, the
+hard tasks a posture breaks, the limits it comes near, and what the spec
+will likely get wrong. :class:`oracles.ik.oracle.IKOracle` adds the search.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+import pinocchio as pin
+
+from oracles import registry
+from oracles.bodies.body import ROOT, Body
+from oracles.bodies.posed import PosedBody
+from oracles.ik.problem import ReachProblem
+from oracles.ik.strategy import Strategy
+from oracles.protocol import Ball, check_points
+from oracles.tasks import ContactsTask, FloorTask, Numeric, ObstaclesTask, OrientationTask
+
+# tasks that hold something fixed in the world, which a turn would move
+WORLD_FIXED = frozenset({"obstacles", "tether"})
+
+
+class TaskedBody(PosedBody):
+    """A body, a strategy on it and its reach problem (see the module docstring).
+
+    Args:
+        body: The body.
+        strategy: The strategy parsed on it.
+        spec: The body's spec as given (``reference: auto`` is reported by :meth:`describe`).
+        strategy_params: The strategy's spec (body, effector, joints, tasks): the damped-least-squares twin's.
+    """
+
+    name: str  # the oracle's registry name
+
+    def __init__(self, body: Body, strategy: Strategy, spec: dict[str, Any], strategy_params: dict[str, Any]) -> None:
+        super().__init__(body, strategy.effector, _anchor(body, strategy))
+        self.strategy = strategy
+        self.problem = ReachProblem(body, strategy)
+        self.posture_names = tuple(body.q_names)
+        self._body_spec = spec
+        self._strategy_params = strategy_params
+        # the damped-least-squares twin that holds a posture's hard tasks (built on first use)
+        self._projector: Any = None
+
+    def use_reference(self, q: np.ndarray) -> None:
+        """Make ``q`` the reference posture (every search's start, the contacts' places)."""
+        self.body = dataclasses.replace(self.body, q_ref=np.asarray(q, float).copy())
+        self.problem = ReachProblem(self.body, self.strategy)
+
+    def reach_bound(self) -> Ball | None:
+        """A fixed point and the most the effector can be from it [m], or None when unbounded."""
+        p = self.problem
+        if p.anchor is None or not np.isfinite(p.max_reach):
+            return None
+        return Ball(p.anchor.copy(), float(p.max_reach))
+
+    def free_turn(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The first active joint's axis when the volume turns freely about it (see
+        :class:`oracles.protocol.Turning`)."""
+        model, p = self.body.model, self.problem
+        if self.strategy.floating or not p.joint_ids or self.body.furniture:
+            return None
+        if any(t.type in WORLD_FIXED for t in self.strategy.tasks):
+            return None
+        first = min(p.joint_ids)
+        for j in p.joint_ids:
+            while j > first:
+                j = int(model.parents[j])
+            if j != first:
+                return None  # an active joint on another branch
+        jm = model.joints[first]
+        full = str(model.names[first]) in self.body.continuous or (
+            jm.nq == 1 and model.upperPositionLimit[jm.idx_q] - model.lowerPositionLimit[jm.idx_q] >= 2 * np.pi - 1e-6)
+        if not full:
+            return None
+        data = model.createData()
+        pin.computeJointJacobians(model, data, self.body.q_ref)
+        column = pin.getJointJacobian(model, data, first, pin.LOCAL_WORLD_ALIGNED)[:, jm.idx_v]
+        if np.linalg.norm(column[3:]) < 0.5 or np.linalg.norm(column[:3]) > 1e-9:
+            return None  # not a revolute joint
+        axis = column[3:] / np.linalg.norm(column[3:])
+        if self.strategy.task("floor") is not None and abs(axis[2]) < 1 - 1e-9:
+            return None  # a floor turns with a vertical axis only
+        return data.oMi[first].translation.copy(), axis
+
+    def lowest(self) -> float | None:
+        """0 when a floor task holds the effector's own capsule above z = 0 (the effector lies inside it), else None."""
+        floor = self.strategy.task("floor")
+        return 0.0 if isinstance(floor, FloorTask) and floor.eager else None
+
+    def furniture(self) -> tuple[list[str], np.ndarray]:
+        """The body's seat and the obstacles task's boxes (see :class:`oracles.protocol.Furnished`)."""
+        task = self.strategy.task("obstacles")
+        boxes = list(dict.fromkeys([*self.body.furniture, *(task.boxes if isinstance(task, ObstaclesTask) else ())]))
+        return [b.name or f"box{i}" for i, b in enumerate(boxes)], np.array([b.as_row() for b in boxes]).reshape(-1, 10)
+
+    def keep_out(self) -> np.ndarray:
+        """Capsules (K, 7) that hold no reachable point: the static segments the effector may not enter."""
+        out = [c for t in self.strategy.hard for c in t.keep_out()]
+        return np.array(out, float).reshape(-1, 7)
+
+    def verify(self, points: np.ndarray, postures: np.ndarray) -> np.ndarray:
+        """The verdict's own check (Pinocchio forward kinematics, every hard task) of postures found elsewhere."""
+        pts = check_points(points, 3)
+        return np.array([self.problem.check(np.asarray(q, float), g, self._data).reachable
+                         for g, q in zip(pts, postures, strict=True)], bool)
+
+    def faults(self, postures: np.ndarray) -> list[list[str]]:
+        """The joints outside their ranges and the hard tasks a posture breaks, by each task's own check."""
+        model, data, p = self.body.model, self._data, self.problem
+        out = []
+        for q in np.atleast_2d(np.asarray(postures, float)):
+            pin.framesForwardKinematics(model, data, q)
+            num = Numeric(model, data, q, data.oMf[p.effector_id].translation.copy())
+            out.append(p.out_of_limits(q) + [t.type for t in self.strategy.hard if not t.holds(num)])
+        return out
+
+    def limits_near(self, posture: np.ndarray, margin: float) -> list[str]:
+        """The joint limits a posture comes within margin [rad or m] of (see :meth:`ReachProblem.limits_near`)."""
+        return self.problem.limits_near(np.asarray(posture, float), float(margin))
+
+    @property
+    def orientation(self) -> OrientationTask | None:
+        """The strategy's orientation task, if it has one."""
+        task = self.strategy.task("orientation")
+        return task if isinstance(task, OrientationTask) else None
+
+    def orientation_kinds(self) -> tuple[str, ...]:
+        """``direction`` and ``rotation`` for an axis-form orientation task, ``rotation`` for a full one, else none."""
+        task = self.orientation
+        return () if task is None else ("direction", "rotation") if task.axis is not None else ("rotation",)
+
+    def _dls(self) -> Any:
+        """The damped-least-squares twin of this oracle (itself for ``dls``), built on first use: no compilation."""
+        if self._projector is None:
+            self._projector = self if self.name == "dls" else registry.create("dls", dict(self._strategy_params))
+        return self._projector
+
+    def _project(self, posture: np.ndarray, guess: np.ndarray) -> np.ndarray:
+        """Damped least squares on the hard tasks' rows alone, from guess, pulled towards posture (may still break
+        them)."""
+        return np.asarray(self._dls().project(posture, guess))
+
+    def describe(self) -> dict[str, Any]:
+        """The strategy as parsed: effector, active joints and tasks (``reach model CONFIG``); with ``reference: auto``,
+        the reference posture found for it (joint -> rad or m)."""
+        out: dict[str, Any] = {"effector": self.strategy.effector, "joints": list(self.strategy.joints),
+                               "tasks": [t.describe() for t in self.strategy.tasks]}
+        if self._body_spec.get("reference") == "auto":
+            model, q = self.body.model, self.body.q_ref
+            out["reference"] = {}
+            for name in self.strategy.joints:  # one value per joint: a continuous joint's angle
+                if name != ROOT:
+                    jm = model.joints[model.getJointId(name)]
+                    value = math.atan2(q[jm.idx_q + 1], q[jm.idx_q]) if jm.nq == 2 else q[jm.idx_q]
+                    out["reference"][name] = round(float(value), 6)
+        return out
+
+    def diagnose(self) -> list[str]:
+        """What in the spec will likely give a wrong or empty volume (see :class:`oracles.protocol.Diagnosed`)."""
+        out = list(self.body.notes)
+        for task in self.strategy.hard:
+            out += task.warnings()
+        q = self.body.q_ref
+        broken = self.faults(q[None])[0]
+        # A start that breaks a hard task is common (one foot's balance from two feet) and the search leaves
+        # it; only when the nearest posture holding the hard tasks cannot be found is the volume at risk.
+        if broken and self.faults(self._project(q, q)[None])[0]:
+            out.append(f"the reference posture breaks the hard tasks {broken} and no posture near it holds them: "
+                       "every search starts "
+                       "there, so the volume may come out empty; give body.reference (a posture that holds them) or "
+                       "change the tasks")
+        return out
+
+
+def _anchor(body: Body, strategy: Strategy) -> str | None:
+    """The frame a standing body moves from: the first ``fixed`` contact of a hard task, when the root floats."""
+    if not strategy.floating:
+        return None
+    fixed = (c for t in strategy.hard if isinstance(t, ContactsTask) for c in t.contacts if c.mode == "fixed")
+    contact = next(fixed, None)
+    return None if contact is None else contact.frame

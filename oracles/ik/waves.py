@@ -1,0 +1,367 @@
+"""The batched engine's search: every goal's starts iterated together, in waves, then fatrop's polish of near misses.
+
+:class:`oracles.ik.engine.CasadiIK` with ``solver: batch`` runs one
+:class:`Waves` per ``evaluate`` call. The waves:
+
+* ``starts``: every goal's K starts together (a decisive hint among them
+  stops the others when it fails, as ``Search.give_up`` says); a *staged*
+  goal runs its placed starts only (its hints, the reference and ready
+  postures);
+* ``more``: a staged goal's random starts, when its placed ones ended within
+  ``RANDOM_NEAR``;
+* ``random``: ``WAVE`` x K uniform random starts for a *cold* goal (no hint,
+  or a search that never gives up) that its K starts ended within
+  ``WAVE_NEAR`` of.
+
+A goal still missed whose best start ended within ``POLISH_NEAR`` of it
+(``POLISH_FAR`` when cold) is polished by fatrop's programs from there. The
+verdict is the Pinocchio check, in order of how well each reaching posture is
+liked. The iteration itself is :func:`oracles.ik.batch.run_starts`; each
+goal's work is metered (:mod:`oracles.ik.budget`).
+"""
+
+from __future__ import annotations
+
+import time
+import zlib
+from typing import Any, NamedTuple, Protocol
+
+import numpy as np
+import pinocchio as pin
+
+from oracles.ik.batch import CONTINUITY as CONTINUITY_WEIGHT
+from oracles.ik.batch import (
+    POLISH_FAR,
+    POLISH_NEAR,
+    POLISHES,
+    RANDOM_NEAR,
+    RANDOM_SPREAD,
+    WAVE,
+    WAVE_NEAR,
+    BatchProgram,
+    run_starts,
+)
+from oracles.ik.budget import GUARD, POLISH_COST, WAVE_ROUNDS, Meter, reach_cost
+from oracles.ik.problem import ReachProblem
+from oracles.ik.rounds import NO_CALL, Call, unsolved_residuals
+from oracles.ik.search import Search
+from oracles.ik.strategy import Strategy
+from oracles.protocol import Verdicts, check_points
+
+WAVES = ("starts", "more", "random")
+
+
+class Polishing(Protocol):
+    """What polishes a near miss: one goal solved from one start (fatrop's programs)."""
+
+    def solve(self, goal: np.ndarray, x0: np.ndarray, lower: bool = True, call: Call = NO_CALL) -> np.ndarray: ...
+
+
+class Batched(Protocol):
+    """What the waves ask of the batched engine (:class:`oracles.ik.engine.CasadiIK`)."""
+
+    problem: ReachProblem
+    strategy: Strategy
+    search: Search
+    stats: dict[str, int]
+    body: Any
+    starts_per_goal: int
+    lower_iter: int
+
+    @property
+    def data(self) -> pin.Data: ...
+
+    @property
+    def default_target(self) -> np.ndarray: ...
+
+    def with_body(self, params: np.ndarray) -> np.ndarray: ...
+
+    def batch_program(self) -> BatchProgram: ...
+
+    def prepare(self) -> None: ...
+
+    def polisher(self) -> Polishing: ...
+
+
+class Wave(NamedTuple):
+    """One batched run of some goals' starts: the goals (indices), each goal's rows (``offsets``), the starts x0
+    and ends x (B, nx), the ends as postures q (B, nq), their reach distances, hard-row violations, how
+    little they are liked and their reach rounds (B,)."""
+
+    goals: np.ndarray
+    offsets: np.ndarray
+    x0: np.ndarray
+    x: np.ndarray
+    q: np.ndarray
+    dist: np.ndarray
+    viol: np.ndarray
+    liked: np.ndarray
+    rounds: np.ndarray
+
+
+def batch_starts(oracle: Batched, goal: np.ndarray, hint: np.ndarray | None, wave: int = 0, targeted: bool = False,
+                 part: str = "all") -> list[np.ndarray]:
+    """A goal's K starts: its hints (the neighbour's posture first), the reference and ready postures, then
+    random ones seeded by the search's seed and the goal (the same goal gets the same starts in any batch).
+    Wave 1 (the ``random`` wave): ``WAVE`` times K random ones, of the same seed's next draws. ``part``:
+    ``placed`` (the hints, the reference and ready postures: a staged goal's first stage), ``random`` (the random
+    ones: its second) or ``all``."""
+    p, k = oracle.problem, oracle.starts_per_goal
+    placed: list[np.ndarray] = []
+    if wave == 0:
+        seeds = np.zeros((0, 0)) if hint is None else np.atleast_2d(hint)
+        placed += [p.x_of_q(h) for h in seeds if np.all(np.isfinite(h))]
+        placed += [p.x_ref.copy(), p.x_ready.copy()]
+    if part == "placed":
+        return placed
+    rng = np.random.default_rng([oracle.search.seed, zlib.crc32(np.round(goal, 9).tobytes()), wave])
+    # A standing body's first random starts move every joint only part of the way into its range (RANDOM_SPREAD):
+    # uniform hips and ankles throw the held feet metres off, which most starts do not come back from in 40
+    # steps; the second wave's are uniform, for the far basins (a reach behind the back, measured in
+    # docs/history.md, session 18).
+    spread = RANDOM_SPREAD if oracle.strategy.floating and wave == 0 else 1.0
+    count = max(k - len(placed), 0) if wave == 0 else WAVE * k
+    if targeted and wave == 0:
+        # A goal with a target (an orientation) is seeded with postures found for its position alone: K random
+        # starts besides them (with K in all, 2 of 75 oriented goals the referee reaches on arm7_table were missed).
+        count = max(count, k)
+    randoms = [p.x_ref + spread * (p.random_x(rng) - p.x_ref) for _ in range(count)]
+    return randoms if part == "random" else placed + randoms
+
+
+class Waves:
+    """One call's batched search (see the module docstring).
+
+    Args:
+        oracle: The batched engine.
+        points: Goals (N, 3) [m].
+        hints: Each goal's seeds (N, nq) or (N, k, nq), the first standing for the neighbour's posture in a build.
+        start: The current posture as the problem's x, or None.
+        targets: Each goal's task targets (N, T) (``Strategy.target_rows``), or None.
+    """
+
+    def __init__(self, oracle: Batched, points: np.ndarray, hints: np.ndarray | None, start: np.ndarray | None,
+                 targets: np.ndarray | None) -> None:
+        self.oracle, self.start, self.targets = oracle, start, targets
+        self.pts = pts = check_points(points, 3)
+        self.hints = None if hints is None else np.asarray(hints, float)
+        p, search, n = oracle.problem, oracle.search, len(pts)
+        oracle.stats["points"] += n
+        self.residual = (np.zeros(n) if p.anchor is None
+                         else np.maximum(np.linalg.norm(pts - p.anchor, axis=1) - p.max_reach, 0.0))
+        prefiltered = self.residual > oracle.strategy.tolerance
+        oracle.stats["prefiltered"] += int(prefiltered.sum())
+        self.reach = np.zeros(n, bool)
+        self.posture = np.tile(oracle.body.q_ref, (n, 1))
+        self.todo = np.nonzero(~prefiltered)[0]
+        # Each goal's work budget, its share of the call's (see oracles.ik.budget.Meter); the clock is a guard at
+        # GUARD times the budget.
+        self.meter = (Meter.unlimited(n) if search.max_seconds is None
+                      else Meter(np.full(n, search.max_seconds / n), time.perf_counter() + GUARD * search.max_seconds))
+        self.budgets = self.meter.left.copy()
+        self.polishes = np.zeros(n, int)
+        self._polisher: Polishing | None = None
+
+    def _classify(self) -> None:
+        """Each goal's first hint (``first``, as x: continuity with it is liked), and whether it is ``decisive``,
+        ``cold`` or ``staged``."""
+        oracle, todo, n = self.oracle, self.todo, len(self.pts)
+        p, search, hints = oracle.problem, oracle.search, self.hints
+        first_hint = None if hints is None else hints[:, 0] if hints.ndim == 3 else hints
+        hinted = np.zeros(n, bool) if first_hint is None else np.all(np.isfinite(first_hint), axis=1)
+        # A goal's first start is decisive when it is a hint whose effector lies within `decisive` of the goal.
+        self.decisive = np.zeros(n, bool)
+        if first_hint is not None and np.isfinite(search.give_up_distance):
+            self.decisive[todo] = [hinted[i] and p.effector_distance(first_hint[i], self.pts[i], oracle.data)
+                                   <= search.decisive for i in todo]
+        self.first = np.tile(p.x_ref, (n, 1))
+        for i in todo[hinted[todo]]:
+            self.first[i] = p.x_of_q(first_hint[i])  # type: ignore[index]
+        # A goal far from what anything found: no hint (a first call, a cold query) or a search that never gives
+        # up (a refinement, the audit's referee). A build's vertex always has its nearest reachable neighbour's
+        # posture, and its K starts are the build's search (measured: with every vertex's misses sent to the random
+        # wave, the demo build took 1.5 times fatrop's time).
+        self.cold = np.zeros(n, bool)
+        self.cold[todo] = True if search.give_up is None else ~hinted[todo]
+        # A hinted goal of a search that gives up, its hint not decisive, or of a refinement (``prefer``) is staged: its
+        # placed starts first (the hints, the reference and ready postures), its random ones only when those end within
+        # RANDOM_NEAR of it. Most goals of a build lie outside the volume, and their random starts were most of their
+        # cost; a decisive goal keeps them beside its hint, which stops them when it fails (staged too, the arm's and
+        # crouch's trees lost goals). A refinement's budget, shared by fewer starts, lasts them more rounds: of 240
+        # answers in the demo's boundary cells at 20 ms, 162 refined ok against 147 (bench/misses.py, session 27).
+        self.staged = np.zeros(n, bool)
+        self.staged[todo] = hinted[todo] & (~self.cold[todo] | search.prefer) & ~self.decisive[todo]
+
+    def run(self) -> Verdicts:
+        """The waves, the polishes, the verdicts."""
+        oracle, search, n = self.oracle, self.oracle.search, len(self.pts)
+        if not self.todo.size:
+            return Verdicts(self.reach, self.residual, self.posture, None if search.max_seconds is None
+                            else np.zeros(n))
+        oracle.prepare()  # compiling (seconds, once) is not the call's budget
+        self._classify()
+        self.residual[self.todo] = np.inf
+        runs: list[Wave] = []  # the waves the goals that are not staged are polished from
+        spent: list[Wave] = []  # every wave (what the rounds went to)
+        for wave in WAVES:
+            run = self._wave(wave)
+            if run is None:
+                continue
+            self._keep_reaching(run)
+            # A staged goal is polished after each of its waves, before the next (fatrop from the placed starts' near
+            # miss reached a fifth of the goals it was tried on, without the random starts); the others after all.
+            self._polish_missed([run], self.staged)
+            spent.append(run)
+            if wave != "more":
+                runs.append(run)
+        self._polish_missed(runs, ~self.staged)
+        unsolved_residuals(oracle.problem, oracle.data, self.pts, self.residual, self.posture)
+        self._count(spent)
+        # (a goal its budget cut, or the clock's guard, spent all of it: the caller's "timeout")
+        meter = self.meter
+        return Verdicts(self.reach, self.residual, self.posture, None if search.max_seconds is None
+                        else np.where(meter.cut, self.budgets, self.budgets - meter.left))
+
+    def _wave(self, wave: str) -> Wave | None:
+        """One wave's goals and starts, run together; None when no goal has a start in it."""
+        oracle, todo, reach, residual = self.oracle, self.todo, self.reach, self.residual
+        if wave == "starts":
+            goals = todo
+        elif wave == "more":
+            goals = todo[self.staged[todo] & ~reach[todo] & (residual[todo] <= RANDOM_NEAR)]
+        else:
+            goals = todo[~reach[todo] & self.cold[todo] & (residual[todo] <= WAVE_NEAR)]
+            # a goal's random wave when it can pay a few rounds of its starts (not one, which could not reach)
+            wave_cost = WAVE_ROUNDS * WAVE * oracle.starts_per_goal * reach_cost(oracle.problem.nx)
+            meter = self.meter
+            goals = goals[meter.left[goals] >= wave_cost] if goals.size and not meter.late() else goals[:0]
+        starts, kept = [], []
+        for i in goals:
+            part = "all" if wave == "random" or not self.staged[i] else "placed" if wave == "starts" else "random"
+            these = batch_starts(oracle, self.pts[i], None if self.hints is None else self.hints[i],
+                                 int(wave == "random"), self.targets is not None, part)
+            if these:  # (a staged goal of a search of K <= 3 starts has no random one)
+                starts.append(these)
+                kept.append(i)
+        if not kept:
+            return None
+        goals = np.array(kept, int)
+        oracle.stats[f"wave_{wave}"] = oracle.stats.get(f"wave_{wave}", 0) + int(goals.size)
+        return self._run(goals, starts, self.decisive if wave == "starts" else None)
+
+    def _run(self, goals: np.ndarray, starts: list[list[np.ndarray]], decisive: np.ndarray | None) -> Wave:
+        """The goals' starts iterated together (:func:`oracles.ik.batch.run_starts`)."""
+        oracle, start, targets = self.oracle, self.start, self.targets
+        p, search = oracle.problem, oracle.search
+        owner = np.concatenate([np.full(len(s), i) for i, s in zip(goals, starts, strict=True)])
+        offsets = np.concatenate([[0], np.cumsum([len(s) for s in starts])])
+        x0 = np.clip(np.concatenate([np.array(s) for s in starts]), p.lower, p.upper)
+        b = len(x0)
+        oracle.stats["solves"] += b
+        target = np.tile(oracle.default_target, (b, 1)) if targets is None else targets[owner]
+        params = oracle.with_body(np.concatenate([self.pts[owner], x0 if start is None else np.tile(start, (b, 1)),
+                                                   np.full((b, 1), 0.0 if start is None else 1.0), target], axis=1))
+        first_start = None
+        if decisive is not None and decisive.any():
+            first_start = np.zeros(b, bool)
+            first_start[offsets[:-1][decisive[goals]]] = True
+        x, dist, viol, liked, _, rounds = run_starts(
+            oracle.batch_program(), x0, params, owner, oracle.strategy.tolerance, search.secondary, start, self.meter,
+            oracle.stats, first_start, search.give_up_distance, oracle.lower_iter)
+        span = p.upper - p.lower
+        scored = np.isfinite(liked)
+        if scored.any():
+            # A reaching start the lower tasks did not score is liked least (at 0 it was liked best: a whole-body
+            # refinement kept a posture twice as disliked, a joint at its limit).
+            liked = np.where(scored, liked, np.inf)
+        else:
+            # No lower task (secondary: false): the posture nearest the reference is liked best, as fatrop's reach
+            # stage from the reference keeps it (the nearest to the goal was a random start's crouch, its ankle at a
+            # limit).
+            liked = np.sum(((x - p.x_ref) / span) ** 2, axis=1)
+        if self.hints is not None:
+            # Continuity with the neighbour's posture (the first hint) is part of "liked".
+            liked = liked + CONTINUITY_WEIGHT * np.sum(((x - self.first[owner]) / span) ** 2, axis=1)
+        return Wave(goals, offsets, x0, x, p.q_of_x_many(x), dist, viol, liked, rounds)
+
+    def _keep_reaching(self, run: Wave) -> None:
+        """For each goal of a wave, the best-liked posture that passes the verdict's check; or, when none does and
+        none did before, the nearest attempt."""
+        p, tol, data = self.oracle.problem, self.oracle.strategy.tolerance, self.oracle.data
+        reach, residual, posture = self.reach, self.residual, self.posture
+        for j, i in enumerate(run.goals):
+            rows = np.arange(run.offsets[j], run.offsets[j + 1])
+            target_i = None if self.targets is None else self.targets[i]
+            near = rows[(run.dist[rows] <= tol) & (run.viol[rows] <= 1e-5)]
+            # Best liked first; among postures liked alike (a strategy without lower tasks) the first start's, in the
+            # starts' order (the hint, the reference, the ready posture): by distance, a random start's crouch won a
+            # plain reach (tests/test_motion.py's low reach, an ankle at its limit).
+            for r in near[np.argsort(run.liked[near], kind="stable")]:
+                check = p.check(run.q[r], self.pts[i], data, target_i)
+                if check.reachable:
+                    reach[i], residual[i], posture[i] = True, check.residual, run.q[r]
+                    break
+            if reach[i]:
+                continue
+            r = rows[np.lexsort((run.dist[rows], run.viol[rows] > 1e-5))][0]
+            check = p.check(run.q[r], self.pts[i], data, target_i)
+            if check.residual < residual[i]:
+                residual[i], posture[i] = check.residual, run.q[r]
+
+    def _polish_missed(self, runs: list[Wave], mine: np.ndarray) -> None:
+        """fatrop from a missed goal's best ends: its reaching postures that break a lazy task, then its random
+        starts themselves (fatrop's own restarts: another basin), or a near miss (no start reached) from its
+        nearest end only: most are beyond the boundary. A near miss is one within ``POLISH_NEAR``, or
+        ``POLISH_FAR`` for a cold goal (at the volume's boundary, where a
+        Gauss-Newton step slows down and fatrop's second derivatives still find a way). Only the goals in ``mine``
+        (a mask of the call's) are polished."""
+        tol = self.oracle.strategy.tolerance
+        for run in runs:
+            for j, i in enumerate(run.goals):
+                if self.reach[i] or not mine[i]:
+                    continue
+                rows = np.arange(run.offsets[j], run.offsets[j + 1])
+                ranked = rows[np.lexsort((run.dist[rows], run.viol[rows] > 1e-5))]
+                if run.dist[ranked[0]] > (POLISH_FAR if self.cold[i] else POLISH_NEAR):
+                    continue
+                reached = rows[run.dist[rows] <= tol]
+                ends = [run.x[r] for r in dict.fromkeys([*reached, *ranked[:1]])]
+                target_i = None if self.targets is None else self.targets[i]
+                if reached.size:
+                    tries = [*ends, *run.x0[rows[::-1]]][:POLISHES]
+                elif target_i is not None and self.cold[i]:
+                    # A cold goal with a target (an oriented query) that no start reached: fatrop from the starts
+                    # themselves too, the hints and the reference first, as the referee starts. Its posture may lie on
+                    # a joint's limit, where the clamped Gauss-Newton steps stall (arm7_table: 1 of 75 oriented goals
+                    # the referee reaches was missed from the nearest end alone, tests/test_orientation.py).
+                    tries = [*ends[:1], *run.x0[rows]][:POLISHES]
+                else:
+                    tries = ends[:1]
+                self._polish(int(i), tries, target_i)
+
+    def _polish(self, i: int, tries: list[np.ndarray], target_i: np.ndarray | None) -> None:
+        """fatrop from each of ``tries`` in turn, within goal i's budget, until one reaches; the best kept."""
+        oracle = self.oracle
+        for guess in tries:
+            if not self.meter.afford(i, POLISH_COST):
+                break  # its work budget spent (or the clock's guard passed)
+            self._polisher = self._polisher or oracle.polisher()
+            q = self._polisher.solve(self.pts[i], guess, oracle.search.secondary,
+                                      Call(self.start, self.meter.pace.deadline, target_i))
+            oracle.stats["polished"] = oracle.stats.get("polished", 0) + 1
+            self.polishes[i] += 1
+            check = oracle.problem.check(q, self.pts[i], oracle.data, target_i)
+            if check.reachable or check.residual < self.residual[i]:
+                self.reach[i], self.residual[i], self.posture[i] = check.reachable, check.residual, q
+            if check.reachable:
+                break
+
+    def _count(self, spent: list[Wave]) -> None:
+        """Where the rounds went: goals reached, goals never reached (issue 48); the polishes of goals missed."""
+        stats, reach = self.oracle.stats, self.reach
+        stats["reachable"] += int(reach.sum())
+        for run in spent:
+            used = np.add.reduceat(run.rounds, run.offsets[:-1]) if len(run.rounds) else run.rounds
+            stats["rounds_reached"] = stats.get("rounds_reached", 0) + int(used[reach[run.goals]].sum())
+            stats["rounds_missed"] = stats.get("rounds_missed", 0) + int(used[~reach[run.goals]].sum())
+        stats["polished_missed"] = stats.get("polished_missed", 0) + int(self.polishes[~reach].sum())
