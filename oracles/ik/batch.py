@@ -45,7 +45,7 @@ lazy rows (see :mod:`oracles.ik.engine`).
 from __future__ import annotations
 
 import copy
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -270,41 +270,8 @@ class BatchProgram:
         Woodbury identity and the constraints by their Schur complement S = C H^-1 C': a few small batched
         products and one (m, m) solve per posture instead of an (n + m) one.
         """
-        act, need = self.active(state, ahead, buffer)
-        # Each posture's active rows first, as many columns as the posture with the most (a padding row is a zero row,
-        # which the Schur complement's floor keeps harmless): about half the rows active in any posture of the batch.
-        k = int(act.sum(axis=1).max(initial=0))
-        order = np.argsort(~act, axis=1, kind="stable")[:, :k]
-        on = np.take_along_axis(act, order, axis=1)
-        cs = [np.take_along_axis(state.jg, order[..., None], axis=1) * on[..., None]]
-        rs = [np.take_along_axis(need, order, axis=1)]
-        if extra is not None:
-            cs.append(extra[0])
-            rs.append(extra[1])
-        c, r = np.concatenate(cs, axis=1), np.concatenate(rs, axis=1)
-        # a whole Hessian (the lower tasks'): a fixed coordinate's row and column are the identity's times FIXED
-        if diag.ndim == 3:
-            dense = np.where(fixed[:, :, None] | fixed[:, None, :], 0.0, diag)
-            idx = np.arange(diag.shape[1])
-            dense[:, idx, idx] = np.where(fixed, FIXED, dense[:, idx, idx])
-
-            def h_inv(v: np.ndarray) -> np.ndarray:
-                return np.linalg.solve(dense, v)
-        else:
-            d_inv = 1.0 / np.where(fixed, FIXED, diag)
-            if jac is not None:
-                # M^-1 in closed form (the reach's 3 rows): M = I + J D^-1 J' is symmetric with eigenvalues >= 1, and a
-                # batched LAPACK solve of 3 x 3 systems cost more in its calls than in its arithmetic.
-                middle = np.eye(jac.shape[1]) + (jac * d_inv[:, None, :]) @ np.transpose(jac, (0, 2, 1))
-                middle_inv = _inverse3(middle) if jac.shape[1] == 3 else np.linalg.inv(middle)
-
-            def h_inv(v: np.ndarray) -> np.ndarray:
-                # H^-1 v for v (B, n, k): D^-1 v - D^-1 J' M^-1 J D^-1 v, M = I + J D^-1 J'.
-                dv = d_inv[..., None] * v
-                if jac is None:
-                    return dv
-                return dv - d_inv[..., None] * (np.transpose(jac, (0, 2, 1)) @ (middle_inv @ (jac @ dv)))
-
+        c, r = self._gathered(state, ahead, buffer, extra)
+        h_inv = _h_inverse(diag, jac, fixed)
         dx_g = -h_inv(gradient[..., None])[..., 0]  # the objective's part of the step
         dx_r = np.zeros_like(dx_g)  # the constraints' part (the KKT step is linear in the gradient and the rows' need)
         m = c.shape[1]
@@ -328,6 +295,22 @@ class BatchProgram:
             room = np.clip((radius[:, None] - n_r) / np.maximum(n_g, 1e-300), 0.0, 1.0)
         dx = dx_r * np.minimum(1.0, MAX_STEP / np.maximum(n_r, 1e-300)) + room * dx_g
         return np.where(np.isfinite(dx).all(axis=1, keepdims=True), dx, 0.0)  # a singular solve moves nothing
+
+    def _gathered(self, state: State, ahead: np.ndarray | None, buffer: float,
+                  extra: tuple[np.ndarray, np.ndarray] | None) -> tuple[np.ndarray, np.ndarray]:
+        """The step's rows C (B, k, n) and their need r (B, k): each posture's active hard rows first, as many as the
+        posture with the most (a padding row is a zero row, which the Schur complement's floor keeps harmless: about
+        half the rows are active in any posture of the batch), then ``extra``'s."""
+        act, need = self.active(state, ahead, buffer)
+        k = int(act.sum(axis=1).max(initial=0))
+        order = np.argsort(~act, axis=1, kind="stable")[:, :k]
+        on = np.take_along_axis(act, order, axis=1)
+        cs = [np.take_along_axis(state.jg, order[..., None], axis=1) * on[..., None]]
+        rs = [np.take_along_axis(need, order, axis=1)]
+        if extra is not None:
+            cs.append(extra[0])
+            rs.append(extra[1])
+        return np.concatenate(cs, axis=1), np.concatenate(rs, axis=1)
 
     def clamped_step(self, x: np.ndarray, diag: np.ndarray, jac: np.ndarray | None, gradient: np.ndarray, state: State,
                      radius: np.ndarray, extra: tuple[np.ndarray, np.ndarray] | None = None,
@@ -379,6 +362,31 @@ class BatchProgram:
         w = w + LOWER_DAMPING * w.mean(axis=1, keepdims=True) + 1e-6
         hessian = (v * w[:, None, :]) @ np.transpose(v, (0, 2, 1))
         return self.clamped_step(x, hessian, None, state.grad, state, radius, (state.je, -state.e), buffer=0.0)
+
+
+def _h_inverse(diag: np.ndarray, jac: np.ndarray | None, fixed: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+    """v (B, n, k) -> H^-1 v, for H = diag(diag) + jac' jac (or ``diag`` itself, a whole (B, n, n) Hessian), a fixed
+    coordinate's row and column the identity's times ``FIXED``."""
+    if diag.ndim == 3:
+        dense = np.where(fixed[:, :, None] | fixed[:, None, :], 0.0, diag)
+        idx = np.arange(diag.shape[1])
+        dense[:, idx, idx] = np.where(fixed, FIXED, dense[:, idx, idx])
+        return lambda v: np.linalg.solve(dense, v)
+    d_inv = 1.0 / np.where(fixed, FIXED, diag)
+    if jac is None:
+        return lambda v: d_inv[..., None] * v
+    # M^-1 in closed form (the reach's 3 rows): M = I + J D^-1 J' is symmetric with eigenvalues >= 1, and a
+    # batched LAPACK solve of 3 x 3 systems cost more in its calls than in its arithmetic.
+    middle = np.eye(jac.shape[1]) + (jac * d_inv[:, None, :]) @ np.transpose(jac, (0, 2, 1))
+    middle_inv = _inverse3(middle) if jac.shape[1] == 3 else np.linalg.inv(middle)
+    jac_t = np.transpose(jac, (0, 2, 1))
+
+    def h_inv(v: np.ndarray) -> np.ndarray:
+        # H^-1 v: D^-1 v - D^-1 J' M^-1 J D^-1 v, M = I + J D^-1 J' (the Woodbury identity).
+        dv = d_inv[..., None] * v
+        return dv - d_inv[..., None] * (jac_t @ (middle_inv @ (jac @ dv)))
+
+    return h_inv
 
 
 def _inverse3(m: np.ndarray) -> np.ndarray:
@@ -558,31 +566,13 @@ def _reach_rounds(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goa
         stats["iterations"] = stats.get("iterations", 0) + int(live.size)
         rounds[live] += 1
         d, v = np.linalg.norm(state.e, axis=1), program.violation(state)
-        before = merit_before[live]
         dist[live], viol[live] = d, v
         done = (d <= CONVERGED * tolerance) & (v <= HARD_TOL)
         first = owner[live[done]]
         reached_at[first[reached_at[first] < 0]] = it
-        # A start stops when it has reached; when it stalls away from the goal (its distance plus its rows' violation
-        # shrinks by less than STALL of itself in an iteration); or EXTRA iterations after another start of its goal
-        # reached.
-        # [m, with rad as m] progress counts the return to the hard rows as well as towards the goal (the lazy ones once
-        # guarded)
-        merit = d + np.where(guarded[live], v, program.violation(state, lazy=False))
-        newly = ~guarded[live] & (d <= tolerance) & (state.lazy_violation > HARD_TOL)
-        worse = merit > before
-        radius[live] = np.where(worse, 0.5 * radius[live], np.minimum(MAX_STEP, 1.5 * radius[live]))
-        # A newly guarded start waits an iteration for its lazy rows, with its full trust radius (its progress is not
-        # judged on it).
-        guarded[live[newly]] = True
-        radius[live[newly]] = MAX_STEP
-        merit[newly] = np.inf
-        merit_before[live] = merit
-        gained = np.full(len(merit), np.inf)  # (a start's first merit, and a newly guarded start's, are inf)
-        known = np.isfinite(before)
-        gained[known] = before[known] - merit[known]
-        stalled = (d > tolerance) & (gained < STALL * merit) & ~worse & (it > 2)
-        stalled |= radius[live] < MIN_RADIUS
+        # A start stops when it has reached; when it stalls away from the goal; or EXTRA iterations after another
+        # start of its goal reached.
+        newly, stalled = _progress(program, state, live, d, v, it, tolerance, guarded, radius, merit_before)
         late = (reached_at[owner[live]] >= 0) & (it - reached_at[owner[live]] >= EXTRA)
         if decisive is not None:
             lost = owner[live[stalled & decisive[live] & (d > give_up) & (v <= DECIDES)]]
@@ -599,6 +589,33 @@ def _reach_rounds(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goa
     return x, dist, viol, given_up, rounds
 
 
+def _progress(program: BatchProgram, state: State, live: np.ndarray, d: np.ndarray, v: np.ndarray, it: int,
+              tolerance: float, guarded: np.ndarray, radius: np.ndarray,
+              merit_before: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The live starts' progress in iteration ``it``, from their reach distances d and hard-row violations v: their
+    trust radii (halved when a step lost ground, grown when it gained), their guards, their merits (``guarded``,
+    ``radius`` and ``merit_before`` (B,) in place); and which were newly guarded and which stalled away from the goal
+    (their distance plus their rows' violation shrank by less than STALL of itself, or their radius collapsed)."""
+    before = merit_before[live]
+    # [m, with rad as m] progress counts the return to the hard rows as well as towards the goal (the lazy ones once
+    # guarded)
+    merit = d + np.where(guarded[live], v, program.violation(state, lazy=False))
+    newly = ~guarded[live] & (d <= tolerance) & (state.lazy_violation > HARD_TOL)
+    worse = merit > before
+    radius[live] = np.where(worse, 0.5 * radius[live], np.minimum(MAX_STEP, 1.5 * radius[live]))
+    # A newly guarded start waits an iteration for its lazy rows, with its full trust radius (its progress is not
+    # judged on it).
+    guarded[live[newly]] = True
+    radius[live[newly]] = MAX_STEP
+    merit[newly] = np.inf
+    merit_before[live] = merit
+    gained = np.full(len(merit), np.inf)  # (a start's first merit, and a newly guarded start's, are inf)
+    known = np.isfinite(before)
+    gained[known] = before[known] - merit[known]
+    stalled = (d > tolerance) & (gained < STALL * merit) & ~worse & (it > 2)
+    return newly, stalled | (radius[live] < MIN_RADIUS)
+
+
 def _lower_rounds(program: BatchProgram, x: np.ndarray, dist: np.ndarray, viol: np.ndarray, f: np.ndarray,
                   params: np.ndarray, owner: np.ndarray, tolerance: float, start: np.ndarray | None, meter: Meter,
                   stats: dict[str, int], lower_iter: int) -> None:
@@ -611,13 +628,10 @@ def _lower_rounds(program: BatchProgram, x: np.ndarray, dist: np.ndarray, viol: 
     # (the hint, the reference, the ready posture, then the random ones): the rest keep their reach posture.
     # (reached is in start order, and a goal's starts are contiguous: a start's rank is its distance from its goal's
     # first.)
-    rank = np.arange(len(reached)) - np.searchsorted(owner[reached], owner[reached], side="left")
-    reached = reached[rank < LOWER_STARTS]
+    reached = reached[np.arange(len(reached)) - np.searchsorted(owner[reached], owner[reached]) < LOWER_STARTS]
     if not reached.size:
         return  # (no start reached: nothing to like)
-    y = x[reached].copy()
-    p_low = params[reached]
-    s_low = None if starts is None else starts[reached]
+    y, p_low, s_low = x[reached].copy(), params[reached], None if starts is None else starts[reached]
     w_low, r_low = start_weight[reached], np.full(len(reached), MAX_STEP)
     state = program.evaluate(y, p_low, lower=True)
     assert state.f is not None
@@ -647,17 +661,7 @@ def _lower_rounds(program: BatchProgram, x: np.ndarray, dist: np.ndarray, viol: 
         r_low[on] = np.where(better, np.minimum(MAX_STEP, 1.5 * r_low[on]), 0.5 * r_low[on])
         if better.any():  # state is y's evaluation throughout
             state = program.evaluate(y, p_low, lower=True)
-    for _ in range(RESTORE_ITER):
-        if meter.pace.out():
-            break  # (a lower-refined posture left off the goal keeps its reach posture, below; these few steps back to
-            # the goal are not priced: the clock's guard alone)
-        d, v = np.linalg.norm(state.e, axis=1), program.violation(state)
-        off = np.nonzero((d > 0.5 * tolerance) | (v > HARD_TOL))[0]
-        if not off.size:
-            break
-        y[off] = program.reach_step(y[off], state.take(off), None if s_low is None else s_low[off], w_low[off],
-                                    np.full(len(off), MAX_STEP))
-        state = program.evaluate(y, p_low, lower=True)
+    state = _restore(program, y, state, p_low, s_low, w_low, tolerance, meter)
     d, v = np.linalg.norm(state.e, axis=1), program.violation(state)
     # The lower tasks never cost the verdict: a start whose lower steps leave the goal or a hard row keeps its reach
     # posture.
@@ -671,3 +675,21 @@ def _lower_rounds(program: BatchProgram, x: np.ndarray, dist: np.ndarray, viol: 
         back = program.evaluate(x[rest], params[rest], lower=True)
         assert back.f is not None
         f[rest] = back.f
+
+
+def _restore(program: BatchProgram, y: np.ndarray, state: State, params: np.ndarray, starts: np.ndarray | None,
+             start_weight: np.ndarray, tolerance: float, meter: Meter) -> State:
+    """A few reach steps that bring the lower-refined postures y (in place) that drifted back onto the goal and the
+    hard rows; y's evaluation."""
+    for _ in range(RESTORE_ITER):
+        if meter.pace.out():
+            break  # (a lower-refined posture left off the goal keeps its reach posture; these few steps back to the
+            # goal are not priced: the clock's guard alone)
+        d, v = np.linalg.norm(state.e, axis=1), program.violation(state)
+        off = np.nonzero((d > 0.5 * tolerance) | (v > HARD_TOL))[0]
+        if not off.size:
+            break
+        y[off] = program.reach_step(y[off], state.take(off), None if starts is None else starts[off],
+                                    start_weight[off], np.full(len(off), MAX_STEP))
+        state = program.evaluate(y, params, lower=True)
+    return state

@@ -79,33 +79,7 @@ class ReachProblem:
         self.strategy = strategy
         model = body.model
         self.effector_id = body.frame_id(strategy.effector)
-        lo: list[float] = []
-        hi: list[float] = []
-        limited: list[bool] = []  # whether a coordinate has a joint range (not the root, not an unbounded revolute)
-        self.x_names: list[str] = []
-        self.joint_ids: list[int] = []
-        for name in strategy.joints:
-            if name == ROOT:
-                self.x_names += ["root_x", "root_y", "root_z", "root_roll", "root_pitch", "root_yaw"]
-                p0 = body.q_ref[:3]
-                lo += [*(p0 - 1.5), -np.pi / 2, -np.pi / 2, -np.pi]
-                hi += [*(p0 + 1.5), np.pi / 2, np.pi / 2, np.pi]
-                limited += [False] * 6
-                continue
-            j = body.joint_id(name)
-            jm = model.joints[j]
-            if jm.nv != 1:
-                raise ModelError(f"joint {name!r} has {jm.nv} degrees of freedom; only the root and one-axis joints "
-                                 "can be active", source=body.source)
-            self.joint_ids.append(j)
-            self.x_names.append(name)
-            limited.append(jm.nq == 1)
-            if jm.nq == 2:  # unbounded revolute, stored as (cos, sin)
-                lo.append(-2 * np.pi)
-                hi.append(2 * np.pi)
-            else:
-                lo.append(float(model.lowerPositionLimit[jm.idx_q]))
-                hi.append(float(model.upperPositionLimit[jm.idx_q]))
+        self.x_names, self.joint_ids, lo, hi, limited = _coordinates(body, strategy)
         self.lower, self.upper = np.array(lo), np.array(hi)
         # A floating root's roll, pitch and yaw turn it from its reference orientation (a y-up model stands
         # turned; its x then starts at zero, far from the rpy's gimbal lock at pitch +-pi/2).
@@ -322,3 +296,37 @@ class ReachProblem:
             return all(t.holds(num) for t in self.strategy.hard if t.lazy)
 
         return Check(residual, eager_ok, lazy_ok, soft_ok)
+
+
+def _coordinates(body: Body, strategy: Strategy) -> tuple[list[str], list[int], list[float], list[float], list[bool]]:
+    """The problem's coordinates x: their names, the active joints' ids, their bounds, and whether each has a joint
+    range (not the root, not an unbounded revolute)."""
+    model = body.model
+    lo: list[float] = []
+    hi: list[float] = []
+    limited: list[bool] = []  # whether a coordinate has a joint range (not the root, not an unbounded revolute)
+    x_names: list[str] = []
+    joint_ids: list[int] = []
+    for name in strategy.joints:
+        if name == ROOT:
+            x_names += ["root_x", "root_y", "root_z", "root_roll", "root_pitch", "root_yaw"]
+            p0 = body.q_ref[:3]
+            lo += [*(p0 - 1.5), -np.pi / 2, -np.pi / 2, -np.pi]
+            hi += [*(p0 + 1.5), np.pi / 2, np.pi / 2, np.pi]
+            limited += [False] * 6
+            continue
+        j = body.joint_id(name)
+        jm = model.joints[j]
+        if jm.nv != 1:
+            raise ModelError(f"joint {name!r} has {jm.nv} degrees of freedom; only the root and one-axis joints "
+                             "can be active", source=body.source)
+        joint_ids.append(j)
+        x_names.append(name)
+        limited.append(jm.nq == 1)
+        if jm.nq == 2:  # unbounded revolute, stored as (cos, sin)
+            lo.append(-2 * np.pi)
+            hi.append(2 * np.pi)
+        else:
+            lo.append(float(model.lowerPositionLimit[jm.idx_q]))
+            hi.append(float(model.upperPositionLimit[jm.idx_q]))
+    return x_names, joint_ids, lo, hi, limited
