@@ -15,7 +15,7 @@ tree's word (the nearest vertex's, in a boundary cell) against the truth:
 And the top of each volume: the highest z the truth reaches over the box's columns against the tree's highest
 reachable vertex (issue 48: the tool-down tree lacked its top 10 cm on example-robot-data's UR5).
 
-    python bench/ur5_truth.py [--depth 6] [--probes 20000] [--axes 400] [--out DIR]
+    python bench/ur5_truth.py [--depth 6] [--probes 20000] [--axes 400] [--out DIR] [--no-twins]
 """
 
 from __future__ import annotations
@@ -95,19 +95,23 @@ def main() -> None:
     parser.add_argument("--axes", type=int, default=400, help="tool axes sampled for the sampled truths")
     parser.add_argument("--out", help="keep the atlas there (default: a temporary folder)")
     parser.add_argument("--seed", type=int, default=48)
+    parser.add_argument("--no-twins", action="store_true", help="solve every vertex (build.twins: false)")
     args = parser.parse_args()
     print(json.dumps({"bench": "machine", "python": platform.python_version(),
                       "processor": platform.processor() or platform.machine(), "cores": os.cpu_count()}), flush=True)
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(args.out or tmp) / "ur5_truth"
         path = Path(tmp) / "ur5_truth.yaml"
-        path.write_text(yaml.safe_dump(config(args.depth)))
+        path.write_text(yaml.safe_dump({**config(args.depth), "build": {"twins": not args.no_twins}}))
         t0 = time.monotonic()
         if reach(["build", str(path), "-o", str(out), "-q"]) != 0:
             raise SystemExit("the build failed")
-        print(json.dumps({"bench": "build", "d_max": args.depth, "wall_s": round(time.monotonic() - t0, 1)}),
-              flush=True)
         atlas = load_atlas(out)
+        calls = {name: tree.meta["build"]["oracle_calls"] for name, tree in atlas.trees.items()}
+        turned = {name: tree.meta["build"].get("turned", 0) for name, tree in atlas.trees.items()}
+        print(json.dumps({"bench": "build", "d_max": args.depth, "twins": not args.no_twins,
+                          "wall_s": round(time.monotonic() - t0, 1), "oracle_calls": calls, "turned": turned}),
+              flush=True)
         axes = directions(args.axes)
         rng = np.random.default_rng(args.seed)
         for name, tree in atlas.trees.items():

@@ -19,6 +19,8 @@ Oracles may also offer optional capabilities, each a protocol of its own;
   selector's nearest-posture index);
 * :class:`ReachBound`: a ball that holds every reachable point (``box: auto``);
 * :class:`Turning`: the axis a volume turns freely about (the audit's twins);
+* :class:`QuarterTurning`: a vertical axis a quarter turn about which maps the
+  volume onto itself, and postures turned about it (a build's twin vertices);
 * :class:`Shaped`: the body's capsules at a posture, to draw it (``reach view``);
 * :class:`Furnished`: the static boxes around the body (a seat, a table);
 * :class:`KeepOut`: capsules no reachable point lies in (the static parts of
@@ -246,6 +248,23 @@ class Turning(Protocol):
         """A point [m] and a unit axis (world frame) about which the volume is symmetric: the strategy's first active
         joint turns about it through a full turn or more, every other active joint lies after it, and no task holds
         anything fixed in the world that the turn would move (an obstacle, a belt's anchor); else None."""
+        ...
+
+
+@runtime_checkable
+class QuarterTurning(Protocol):
+    """An oracle whose volume a quarter turn about a vertical axis maps onto itself, and that turns postures about it
+    (a robot's base joint of a full turn, with a floor or boxes that look the same turned): a build solves one vertex
+    of each four twins and turns its posture for the others."""
+
+    def quarter_turn(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """A point [m] and the vertical unit axis through it about which a quarter turn maps the volume onto itself:
+        the strategy's first active joint turns a full turn about it, every other active joint lies after it, and
+        every box the world holds fixed (an obstacle, a seat) is the same turned; else None."""
+        ...
+
+    def turned(self, postures: np.ndarray, quarters: np.ndarray) -> np.ndarray:
+        """Postures (N, nq) turned by quarters (N,) x 90 deg about the axis, anticlockwise seen from above (+z)."""
         ...
 
 

@@ -65,10 +65,56 @@ class TaskedBody(PosedBody):
     def free_turn(self) -> tuple[np.ndarray, np.ndarray] | None:
         """The first active joint's axis when the volume turns freely about it (see
         :class:`oracles.protocol.Turning`)."""
-        model, p = self.body.model, self.problem
-        if self.strategy.floating or not p.joint_ids or self.body.furniture:
+        if self.body.furniture or any(t.type in WORLD_FIXED for t in self.strategy.tasks):
             return None
-        if any(t.type in WORLD_FIXED for t in self.strategy.tasks):
+        turn = self._base_turn()
+        if turn is not None and self.strategy.task("floor") is not None and abs(turn[1][2]) < 1 - 1e-9:
+            return None  # a floor turns with a vertical axis only
+        return turn
+
+    def quarter_turn(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The first active joint's axis when it is vertical and a quarter turn about it maps the volume onto itself
+        (see :class:`oracles.protocol.QuarterTurning`): every box the world holds fixed is a square about it."""
+        if any(t.type in WORLD_FIXED and not isinstance(t, ObstaclesTask) for t in self.strategy.tasks):
+            return None  # a belt's anchor
+        turn = self._base_turn()
+        if turn is None or abs(turn[1][2]) < 1 - 1e-9:
+            return None
+        point = turn[0]
+        task = self.strategy.task("obstacles")
+        boxes = [*self.body.furniture, *(task.boxes if isinstance(task, ObstaclesTask) else ())]
+        for box in boxes:
+            square = abs(box.half[0] - box.half[1]) <= 1e-9 and np.allclose(box.matrix[:, 2], [0, 0, 1], atol=1e-12)
+            if not (square and np.allclose(box.centre[:2], point[:2], atol=1e-9)):
+                return None
+        return turn
+
+    def turned(self, postures: np.ndarray, quarters: np.ndarray) -> np.ndarray:
+        """Postures (N, nq) with the first active joint turned by quarters (N,) x 90 deg anticlockwise about +z (see
+        :meth:`quarter_turn`), within its range."""
+        model = self.body.model
+        jm = model.joints[min(self.problem.joint_ids)]
+        lo, hi = model.lowerPositionLimit[jm.idx_q], model.upperPositionLimit[jm.idx_q]
+        out = np.array(postures, float, copy=True)
+        turn = self._base_turn()
+        assert turn is not None, "turned() needs a quarter turn"
+        angle = np.asarray(quarters, float) * (np.pi / 2) * np.sign(turn[1][2])
+        k = jm.idx_q
+        if jm.nq == 2:  # an unbounded revolute joint, stored as (cos, sin)
+            theta = np.arctan2(out[:, k + 1], out[:, k]) + angle
+            out[:, k], out[:, k + 1] = np.cos(theta), np.sin(theta)
+            return out
+        q = out[:, k] + angle
+        # its range spans a full turn or more: a turn of 2 pi brings any angle within it
+        q = np.where(q > hi, q - 2 * np.pi, q)
+        out[:, k] = np.where(q < lo, q + 2 * np.pi, q)
+        return out
+
+    def _base_turn(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The point and axis of the first active joint when it turns a full turn and every other active joint lies
+        after it, the root fixed; else None."""
+        model, p = self.body.model, self.problem
+        if self.strategy.floating or not p.joint_ids:
             return None
         first = min(p.joint_ids)
         for j in p.joint_ids:
@@ -86,10 +132,7 @@ class TaskedBody(PosedBody):
         column = pin.getJointJacobian(model, data, first, pin.LOCAL_WORLD_ALIGNED)[:, jm.idx_v]
         if np.linalg.norm(column[3:]) < 0.5 or np.linalg.norm(column[:3]) > 1e-9:
             return None  # not a revolute joint
-        axis = column[3:] / np.linalg.norm(column[3:])
-        if self.strategy.task("floor") is not None and abs(axis[2]) < 1 - 1e-9:
-            return None  # a floor turns with a vertical axis only
-        return data.oMi[first].translation.copy(), axis
+        return data.oMi[first].translation.copy(), column[3:] / np.linalg.norm(column[3:])
 
     def lowest(self) -> float | None:
         """0 when a floor task holds the effector's own capsule above z = 0 (the effector lies inside it), else None."""

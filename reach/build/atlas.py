@@ -44,6 +44,7 @@ from reach.build.executor import Executor, InlineExecutor
 from reach.build.index import compute_index
 from reach.build.mirror import MirrorOracle
 from reach.build.tree import Inherited, build_tree
+from reach.build.twins import Twins
 from reach.errors import ModelError, StoreError
 from reach.maps.atlas import Atlas, build_lock, load_atlas, write_manifest
 from reach.maps.index import ReachIndex, spiral
@@ -286,7 +287,7 @@ def _build_one(
             s.oracle, config.box, config.d_min, config.d_max, executor=ex, progress=s.name if progress else False,
             meta=meta, state=state,
             on_level=lambda st: save_state(st, partial, fp), refine=config.refine, keep_out=_keep_out(ex.oracle),
-            inherit=inherit,
+            inherit=inherit, twins=Twins.of(ex.oracle) if config.twins else None,
         )
     finally:
         ex.close()

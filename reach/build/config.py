@@ -51,7 +51,7 @@ if TYPE_CHECKING:
 DEFAULT_BODY_ORACLE = "casadi-ik"
 TOP_KEYS = {"name", "description", "base", "body", "box", "depth", "oracle", "strategies", "build", "population"}
 STRATEGY_KEYS = {"name", "effector", "priority", "oracle", "description", "joints", "tasks", "mirror_of", "directions"}
-BUILD_KEYS = {"chunk_size", "refine"}
+BUILD_KEYS = {"chunk_size", "refine", "twins"}
 REFINE_KEYS = {"centres", "faces", "isolated"}
 
 
@@ -97,6 +97,7 @@ class Config:
     # ``population:`` (oracles.bodies.population): the config's strategies for each of its members; the config
     # itself is its first member's (reach.build.population)
     population: Population | None = None
+    twins: bool = True  # build.twins: a volume's quarter-turn twins share one solve (reach.build.twins)
 
     def strategy(self, name: str) -> StrategySpec:
         for s in self.strategies:
@@ -233,6 +234,9 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
         if not isinstance(v, bool):
             raise check.fail(f"build.refine.{k}", f"expected true or false, got {v!r}")
     refine = Refine(**refine_raw)
+    twins = build.get("twins", True)
+    if not isinstance(twins, bool):
+        raise check.fail("build.twins", f"expected true or false, got {twins!r}")
     oracles = _check_oracles(check, strategies, box.dim)
     for i, (spec, made) in enumerate(zip(strategies, oracles, strict=True)):
         if spec.directions and not (isinstance(made, Oriented) and isinstance(made, Tunable)
@@ -253,7 +257,7 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
                                                            f"[{box.lo[1]}, {box.hi[1]}]")
     strategies.sort(key=lambda spec: spec.priority)
     return Config(name, source, box, d_min, d_max, tuple(strategies), chunk, refine, dict(top), notes, limit,
-                  population)
+                  population, twins)
 
 
 def _population(check: _Checker, top: dict[str, Any]) -> tuple[Population, dict[str, Any]]:

@@ -27,8 +27,9 @@ from typing import Any, NamedTuple
 import numpy as np
 from scipy.spatial import cKDTree
 
-from oracles.protocol import Goals, Oracle, OracleSpec
+from oracles.protocol import Goals, Oracle, OracleSpec, Verdicts
 from reach.build.executor import CHUNK_SIZE, Executor, InlineExecutor
+from reach.build.twins import Twins, shared
 from reach.errors import TreeError
 from reach.maps.box import Box
 from reach.maps.tree import FINAL, INNER, OUTER, PARENT, Lattice, VATree, VertexTable, bfs_children, corner_offsets
@@ -140,14 +141,14 @@ class Refine:
 
 def _evaluate(
     keys: np.ndarray, table: VertexTable, lattice: Lattice, executor: Executor, progress: Any, label: str,
-    inherit: Inherited | None = None,
-) -> tuple[VertexTable, int]:
-    """Ask the oracle about keys not yet in the table (one batch), after those inherited; the grown table and how
-    many were inherited."""
+    inherit: Inherited | None = None, twins: Twins | None = None,
+) -> tuple[VertexTable, int, int]:
+    """Ask the oracle about keys not yet in the table (one batch), after those inherited, and with ``twins`` one of
+    each set of twins; the grown table, how many were inherited and how many took a twin's verdict."""
     new = np.unique(keys)
     new = new[table.index(new) < 0]
     if new.size == 0:
-        return table, 0
+        return table, 0, 0
     pts = lattice.points(lattice.coords(new))
     taken = 0
     if inherit is not None:
@@ -157,13 +158,25 @@ def _evaluate(
             table = table.merged(new[mask], np.ones(taken, bool), residual, posture)
             new, pts = new[~mask], pts[~mask]
             if new.size == 0:
-                return table, taken
-    if progress is not None:
-        progress.reset(total=int(new.size))
-        progress.set_description(f"{getattr(progress, 'label', '')} {label}".strip())
-    verdicts = executor.evaluate(Goals(pts, seeds=warm_hints(table, lattice, pts)), progress.update
-                                 if progress is not None else None)
-    return table.merged(new, verdicts.reachable, verdicts.residual, verdicts.posture), taken
+                return table, taken, 0
+
+    def solve(asked: np.ndarray) -> Verdicts:
+        at = lattice.points(lattice.coords(asked))
+        if progress is not None:
+            progress.reset(total=int(asked.size))
+            progress.set_description(f"{getattr(progress, 'label', '')} {label}".strip())
+        return executor.evaluate(Goals(at, seeds=warm_hints(table, lattice, at)),
+                                 progress.update if progress is not None else None)
+
+    if twins is None:
+        verdicts, turned = solve(new), 0
+    else:
+        def stored(rows: np.ndarray) -> Verdicts:
+            return Verdicts(table.reachable[rows], table.residual[rows],
+                            None if table.posture is None else table.posture[rows])
+
+        verdicts, turned = shared(twins, lattice, new, table.index, stored, solve)
+    return table.merged(new, verdicts.reachable, verdicts.residual, verdicts.posture), taken, turned
 
 
 def _retry_isolated(keys: np.ndarray, table: VertexTable, lattice: Lattice, step: int,
@@ -224,6 +237,7 @@ def build_level(
     refine: Refine | None = None,
     keep_out: np.ndarray | None = None,
     inherit: Inherited | None = None,
+    twins: Twins | None = None,
 ) -> BuildState:
     """Process the frontier at state.depth; return the state for the next depth.
 
@@ -236,12 +250,12 @@ def build_level(
     t0 = time.perf_counter()
     table = state.vertices
     before = len(table)
-    retried = probed = inherited = 0
+    retried = probed = inherited = turned = 0
     if d < d_min:
         kinds = np.full(frontier.shape[0], PARENT, np.uint8)
     else:
         vkeys = lattice.node_vertex_keys(frontier, d)
-        table, inherited = _evaluate(vkeys, table, lattice, executor, progress, f"depth {d}", inherit)
+        table, inherited, turned = _evaluate(vkeys, table, lattice, executor, progress, f"depth {d}", inherit, twins)
         if refine and refine.isolated:
             table, retried = _retry_isolated(np.unique(vkeys), table, lattice, 1 << (lattice.d_max - d), executor)
         inside = table.reachable[table.index(vkeys)]
@@ -255,25 +269,25 @@ def build_level(
             lo = lattice.points(frontier[inner])
             kinds[inner[meets(lo, lo + size, keep_out)]] = FINAL if d == lattice.d_max else PARENT
         if refine and (refine.centres or refine.faces) and d < lattice.d_max:
-            kinds, table, probed, taken = _probe_inner(frontier, kinds, d, table, lattice, executor, progress, refine,
-                                                       inherit)
-            inherited += taken
+            kinds, table, probed, taken, twinned = _probe_inner(frontier, kinds, d, table, lattice, executor, progress,
+                                                                refine, inherit, twins)
+            inherited, turned = inherited + taken, turned + twinned
     par = frontier[kinds == PARENT]
     step = 1 << (lattice.d_max - d - 1) if d < lattice.d_max else 0
     nxt = (par[:, None, :] + corner_offsets(lattice.dim)[None] * step).reshape(-1, lattice.dim)
     level = {"depth": d, "nodes": int(frontier.shape[0]), "new_vertices": len(table) - before, "probe_vertices": probed,
-             "retried": retried, "inherited": inherited, "seconds": time.perf_counter() - t0}
+             "retried": retried, "inherited": inherited, "turned": turned, "seconds": time.perf_counter() - t0}
     return BuildState(d + 1, nxt, [*state.kinds, kinds], [*state.corners, frontier], table, [*state.levels, level])
 
 
 def _probe_inner(
     frontier: np.ndarray, kinds: np.ndarray, d: int, table: VertexTable, lattice: Lattice, executor: Executor,
-    progress: Any, refine: Refine, inherit: Inherited | None = None,
-) -> tuple[np.ndarray, VertexTable, int, int]:
+    progress: Any, refine: Refine, inherit: Inherited | None = None, twins: Twins | None = None,
+) -> tuple[np.ndarray, VertexTable, int, int, int]:
     """Downgrade to parent the inner cells whose centre (or face-centre) probes fail."""
     inner = np.nonzero(kinds == INNER)[0]
     if inner.size == 0:
-        return kinds, table, 0, 0
+        return kinds, table, 0, 0, 0
     half = 1 << (lattice.d_max - d - 1)
     points = [np.full((1, lattice.dim), half, np.int64)] if refine.centres else []
     if refine.faces:
@@ -285,11 +299,11 @@ def _probe_inner(
     offsets = np.concatenate(points)
     pkeys = lattice.keys(frontier[inner][:, None, :] + offsets[None])
     before = len(table)
-    table, taken = _evaluate(pkeys, table, lattice, executor, progress, f"depth {d} probes", inherit)
+    table, taken, turned = _evaluate(pkeys, table, lattice, executor, progress, f"depth {d} probes", inherit, twins)
     failed = ~table.reachable[table.index(pkeys)].all(axis=1)
     kinds = kinds.copy()
     kinds[inner[failed]] = PARENT
-    return kinds, table, len(table) - before, taken
+    return kinds, table, len(table) - before, taken, turned
 
 
 REOPEN_ROUNDS = 8  # passes of reopen(): each may find reachable vertices on still other outer cells
@@ -315,7 +329,7 @@ def _touched(corners: np.ndarray, lattice: Lattice, d: int, reach: np.ndarray) -
 
 def reopen(state: BuildState, lattice: Lattice, executor: Executor, progress: Any = None,
            refine: Refine | None = None, keep_out: np.ndarray | None = None,
-           inherit: Inherited | None = None) -> tuple[BuildState, int]:
+           inherit: Inherited | None = None, twins: Twins | None = None) -> tuple[BuildState, int]:
     """Subdivide the outer cells whose closed box holds a reachable vertex found after they were labelled.
 
     Algorithm 1 labels a cell by its corners at its own depth, before the finer vertices that its neighbours'
@@ -350,7 +364,7 @@ def reopen(state: BuildState, lattice: Lattice, executor: Executor, progress: An
             if d not in frontier:
                 continue
             part = BuildState(d, np.concatenate(frontier.pop(d)), vertices=table)
-            part = build_level(part, lattice, 0, executor, progress, refine, keep_out, inherit)
+            part = build_level(part, lattice, 0, executor, progress, refine, keep_out, inherit, twins)
             table = part.vertices
             new.setdefault(d, []).append((part.corners[-1], part.kinds[-1]))
             if part.frontier.shape[0]:
@@ -393,10 +407,12 @@ def assemble(state: BuildState, box: Box, d_min: int, d_max: int, meta: dict[str
     meta = dict(meta)
     meta["build"] = {
         **meta.get("build", {}),
-        # Each distinct vertex once, plus the retries of isolated vertices, less those inherited.
+        # Each distinct vertex once, plus the retries of isolated vertices, less those inherited or given a twin's
+        # verdict.
         "oracle_calls": len(state.vertices) + sum(int(lv.get("retried", 0)) - int(lv.get("inherited", 0))
-                                                  for lv in state.levels),
+                                                  - int(lv.get("turned", 0)) for lv in state.levels),
         "inherited": sum(int(lv.get("inherited", 0)) for lv in state.levels),
+        "turned": sum(int(lv.get("turned", 0)) for lv in state.levels),
         "distinct_vertices": len(state.vertices),
         "lattice_vertices": Lattice(box, d_max).vertex_count,
         "levels": state.levels, "seconds": float(sum(lv["seconds"] for lv in state.levels)),
@@ -418,7 +434,7 @@ def build_tree(
     state: BuildState | None = None,
     on_level: LevelCallback | None = None,
     refine: Refine | None = None,
-    keep_out: np.ndarray | None = None, inherit: Inherited | None = None,
+    keep_out: np.ndarray | None = None, inherit: Inherited | None = None, twins: Twins | None = None,
 ) -> VATree:
     """Build a VATree (Algorithm 1).
 
@@ -436,6 +452,7 @@ def build_tree(
         refine: Build-time refinements of the vertex rule (see :class:`Refine`).
         keep_out: Capsules (K, 7) that hold no reachable point (see :func:`build_level`).
         inherit: A sub-strategy's reachable vertices (see :class:`Inherited`).
+        twins: The volume's quarter turn: one vertex of each set of twins is solved (see :mod:`reach.build.twins`).
 
     Returns:
         The tree, with the oracle-call count and per-depth statistics in
@@ -458,10 +475,10 @@ def build_tree(
         bar.label = progress if isinstance(progress, str) else ""
     try:
         while state.frontier.shape[0]:
-            state = build_level(state, lattice, d_min, ex, bar, refine, keep_out, inherit)
+            state = build_level(state, lattice, d_min, ex, bar, refine, keep_out, inherit, twins)
             if on_level is not None:
                 on_level(state)
-        state, reopened = reopen(state, lattice, ex, bar, refine, keep_out, inherit)
+        state, reopened = reopen(state, lattice, ex, bar, refine, keep_out, inherit, twins)
     finally:
         if bar is not None:
             bar.close()
