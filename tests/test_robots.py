@@ -371,7 +371,7 @@ def _turned_keys(tree, quarters: int) -> np.ndarray:  # noqa: ANN001
     return tree.vertices.index(tree.lattice.keys(steps))
 
 
-def test_a_turning_base_on_a_square_floor_solves_one_of_each_four_twins_and_they_agree(tmp_path):
+def test_a_turning_base_on_a_square_floor_solves_one_of_each_four_twins_and_they_agree(tmp_path, capsys):
     """The UR5's base turns a full turn and its floor box is a square about the base: a quarter turn maps the volume
     onto itself. One vertex of each set of twins is solved and the others take its verdict, their postures turned:
     every twin pair agrees, each reachable posture puts the flange at its vertex by Pinocchio (computed here), and the
@@ -385,6 +385,8 @@ def test_a_turning_base_on_a_square_floor_solves_one_of_each_four_twins_and_they
     build = tree.meta["build"]
     assert build["turned"] > 0 and build["oracle_calls"] + build["turned"] == len(v)
     assert build["oracle_calls"] < 0.4 * len(v)
+    assert main(["info", str(tmp_path / "a")]) == 0
+    assert f"{build['turned']} vertices given their twin's verdict a quarter turn away" in capsys.readouterr().out
     for quarters in (1, 2, 3):
         rows = _turned_keys(tree, quarters)
         pairs = rows >= 0

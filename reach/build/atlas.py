@@ -345,5 +345,6 @@ def tree_summary(tree: VATree, index: ReachIndex | None = None) -> dict[str, Any
         "build_seconds": build.get("seconds"), "mirrored_from": build.get("mirrored_from"),
         "inherited_from": tree.meta.get("inherited_from"),
         "inherited_vertices": int(build.get("inherited", 0)),
+        "turned_vertices": int(build.get("turned", 0)),
         "index": index_summary(tree, index),
     }

@@ -43,6 +43,8 @@ def cmd_info(args: argparse.Namespace) -> int:
                else f"{s['oracle_calls']} oracle calls of {s['lattice_vertices']} lattice vertices")
             + (f", {s['inherited_vertices']} reachable vertices inherited from {s['inherited_from']}"
                if s.get("inherited_from") else "")
+            + (f", {s['turned_vertices']} vertices given their twin's verdict a quarter turn away"
+               if s.get("turned_vertices") else "")
         )
         if ext:
             print(f"    inner and boundary cells span min {np.round(ext['min'], 4).tolist()} max "
