@@ -21,6 +21,7 @@ from oracles.tasks.orientation import OrientationTask
 from oracles.tasks.posture import PostureTask
 from oracles.tasks.reach import ReachTask
 from oracles.tasks.self_collision import SelfCollisionTask
+from oracles.tasks.step import StepTask
 from oracles.tasks.tether import TetherTask
 
 TASKS: dict[str, type[Task]] = {
@@ -28,6 +29,7 @@ TASKS: dict[str, type[Task]] = {
     FeetTask.type: FeetTask,
     ContactsTask.type: ContactsTask,
     BalanceTask.type: BalanceTask,
+    StepTask.type: StepTask,
     SelfCollisionTask.type: SelfCollisionTask,
     FloorTask.type: FloorTask,
     ObstaclesTask.type: ObstaclesTask,
@@ -75,6 +77,7 @@ __all__ = [
     "Scope",
     "SelfCollisionTask",
     "SoftTask",
+    "StepTask",
     "Symbolic",
     "Task",
     "TetherTask",

@@ -1,0 +1,100 @@
+"""The step forward (issue 50, item 1): one foot set down in a step region, balance over the new support.
+
+Every "reachable" answer is checked here by our own forward kinematics (Pinocchio): the hand at its goal, the stepping
+foot flat on the floor inside its region, the stance foot where it stood, and the centre of mass inside the convex
+hull of both feet's corners (scipy), shrunk by the margin.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pinocchio as pin
+import pytest
+from scipy.spatial import ConvexHull
+
+from oracles.ik.engine import CasadiIK
+from oracles.ik.search import Search
+from oracles.protocol import Goals
+from reach.errors import TaskError
+from tests.test_ik import CROUCH, HUMAN, PLANTED
+
+STANCE = {"type": "feet", "frames": ["left_foot"], "heels": "down"}
+STEP = {"type": "step", "foot": "right_foot", "stance": "left_foot"}
+CORNERS = ("heel_inner", "heel_outer", "toe_inner", "toe_outer")
+HAND_HEIGHT = 1.0  # [m] the goals' height, about the 50th-percentile man's elbow height standing
+
+
+@pytest.fixture(scope="module")
+def stepping():
+    return CasadiIK(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, STANCE, STEP, {"type": "self_collision"},
+                                                  {"type": "floor"}, {"type": "coupling"}], search=Search(restarts=2))
+
+
+@pytest.fixture(scope="module")
+def planted():
+    return CasadiIK(HUMAN, "right_hand", CROUCH, [*PLANTED, {"type": "self_collision"}, {"type": "floor"},
+                                                  {"type": "coupling"}], search=Search(restarts=2))
+
+
+def _check_step(oracle: CasadiIK, goal: np.ndarray, q: np.ndarray) -> None:
+    model = oracle.body.model
+    data = model.createData()
+    pin.framesForwardKinematics(model, data, q)
+    ref = model.createData()
+    pin.framesForwardKinematics(model, ref, oracle.body.q_ref)
+
+    def at(d: pin.Data, name: str) -> pin.SE3:
+        return d.oMf[model.getFrameId(name)]
+
+    assert np.linalg.norm(at(data, "right_hand").translation - goal) <= 0.005
+    foot, foot_ref = at(data, "right_foot"), at(ref, "right_foot")
+    assert abs(foot.translation[2] - foot_ref.translation[2]) <= 1e-4  # at its standing height
+    assert np.linalg.norm((foot.rotation @ foot_ref.rotation.T)[:2, 2]) <= 1e-3  # flat: its vertical still vertical
+    task = oracle.strategy.task("step")
+    off = foot.translation - foot_ref.translation
+    assert task.forward[0] - 1e-6 <= off[0] <= task.forward[1] + 1e-6
+    assert task.aside[0] - 1e-6 <= off[1] <= task.aside[1] + 1e-6
+    stance, stance_ref = at(data, "left_foot"), at(ref, "left_foot")
+    assert np.linalg.norm(stance.translation - stance_ref.translation) <= 1e-4
+    pts = np.array([at(data, f"{side}_{c}").translation[:2] for side in ("right", "left") for c in CORNERS])
+    hull = ConvexHull(pts)
+    com = pin.centerOfMass(model, data, q)[:2]
+    assert np.all(hull.equations[:, :2] @ com + hull.equations[:, 2] <= -task.margin + 1e-5)
+
+
+def test_a_step_reaches_farther_ahead_than_the_planted_body_and_every_answer_holds(stepping, planted):
+    """Goals straight ahead of the right shoulder at hand height: the step's farthest reached goal lies at least
+    25 cm beyond the planted whole body's (issue 50), and each step answer passes our own checks."""
+    xs = np.arange(0.6, 1.7, 0.05)
+    goals = np.column_stack([xs, np.full(len(xs), -0.15), np.full(len(xs), HAND_HEIGHT)])
+    feet_planted = planted.evaluate(Goals(goals))
+    stepped = stepping.evaluate(Goals(goals))
+    assert feet_planted.reachable.any() and not feet_planted.reachable.all()
+    farthest_planted = xs[feet_planted.reachable].max()
+    farthest_step = xs[stepped.reachable].max()
+    assert farthest_step >= farthest_planted + 0.25
+    for g, q in zip(goals[stepped.reachable], stepped.posture[stepped.reachable], strict=True):
+        _check_step(stepping, g, q)
+    # the step is taken: the farthest answer's foot left its place
+    model = stepping.body.model
+    data = model.createData()
+    pin.framesForwardKinematics(model, data, stepped.posture[np.nonzero(stepped.reachable)[0][-1]])
+    assert data.oMf[model.getFrameId("right_foot")].translation[0] > 0.3
+
+
+def test_the_step_region_defaults_to_the_stature_and_bad_steps_name_their_key():
+    oracle = CasadiIK(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, STANCE, STEP])
+    stature = oracle.body.anthropometry.stature
+    task = oracle.strategy.task("step")
+    assert task.forward == (0.0, pytest.approx(0.41 * stature, abs=1e-3))
+    assert task.turn == pytest.approx(math.radians(30))
+    with pytest.raises(TaskError, match="remove the strategy's balance task"):
+        CasadiIK(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, STANCE, STEP, {"type": "balance"}])
+    with pytest.raises(TaskError, match="holds the stepping foot 'right_foot'"):
+        CasadiIK(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, {"type": "feet"}, STEP])
+    with pytest.raises(TaskError, match=r"tasks\[1\]\.forward: expected \[low, high\]"):
+        CasadiIK(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, {**STEP, "forward": [0.5, 0.1]}, STANCE])
+    with pytest.raises(TaskError, match=r"\.stance: expected the other foot"):
+        CasadiIK(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, {**STEP, "stance": "right_foot"}, STANCE])
