@@ -21,6 +21,7 @@ Oracles may also offer optional capabilities, each a protocol of its own;
 * :class:`Turning`: the axis a volume turns freely about (the audit's twins);
 * :class:`QuarterTurning`: a vertical axis a quarter turn about which maps the
   volume onto itself, and postures turned about it (a build's twin vertices);
+* :class:`Stepping`: where a step's foot lands at a posture (an answer's ``step``);
 * :class:`Shaped`: the body's capsules at a posture, to draw it (``reach view``);
 * :class:`Furnished`: the static boxes around the body (a seat, a table);
 * :class:`KeepOut`: capsules no reachable point lies in (the static parts of
@@ -265,6 +266,16 @@ class QuarterTurning(Protocol):
 
     def turned(self, postures: np.ndarray, quarters: np.ndarray) -> np.ndarray:
         """Postures (N, nq) turned by quarters (N,) x 90 deg about the axis, anticlockwise seen from above (+z)."""
+        ...
+
+
+@runtime_checkable
+class Stepping(Protocol):
+    """An oracle whose strategy may take a step: where the stepping foot lands at a posture."""
+
+    def landing(self, posture: np.ndarray) -> dict[str, Any] | None:
+        """The stepping foot's frame and where a posture sets it down, ``{"foot", "position": [x, y, z] [m], "yaw":
+        [rad] about +z from where it stood}``; None for a strategy without a step."""
         ...
 
 

@@ -98,3 +98,39 @@ def test_the_step_region_defaults_to_the_stature_and_bad_steps_name_their_key():
         CasadiIK(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, {**STEP, "forward": [0.5, 0.1]}, STANCE])
     with pytest.raises(TaskError, match=r"\.stance: expected the other foot"):
         CasadiIK(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, {**STEP, "stance": "right_foot"}, STANCE])
+
+
+def test_an_answer_says_where_the_step_sets_the_foot_down(tmp_path):
+    """A query answered by the step gives ``step``: the stepping foot's frame, where the answer's posture puts it (by
+    Pinocchio, computed here) and its turn; a strategy that does not step gives none."""
+    from reach.answers.select import Selector
+    from reach.build.atlas import build_atlas
+    from reach.build.config import parse_config
+
+    tasks = [{"type": "reach"}, STANCE, STEP, {"type": "self_collision"}, {"type": "floor"}]
+    raw = {"name": "step", "body": HUMAN, "box": {"min": [-0.4, -1.0, 0.4], "max": [1.6, 0.6, 1.6]},
+           "depth": {"min": 2, "max": 3}, "oracle": {"name": "casadi-ik", "params": {"restarts": 1, "seed": 0}},
+           "strategies": [{"name": "arm", "effector": "right_hand", "joints": ["right_shoulder_*", "right_elbow_*"],
+                           "tasks": [{"type": "reach"}]},
+                          {"name": "step", "effector": "right_hand", "joints": CROUCH, "tasks": tasks}]}
+    atlas = build_atlas(parse_config(raw, str(tmp_path / "step.yaml")), tmp_path / "a")
+    selector = Selector(atlas)
+    answer = selector.select("right_hand", np.array([1.3, -0.15, 1.0]))
+    assert answer.reachable and answer.strategy == "step" and answer.step is not None
+    oracle = CasadiIK(HUMAN, "right_hand", CROUCH, tasks)
+    names = list(oracle.body.q_names)
+    q = oracle.body.q_ref.copy()
+    for k, v in answer.posture.items():
+        q[names.index(k)] = v
+    q[:3], q[3:7] = answer.root["position"], answer.root["quaternion"]
+    model = oracle.body.model
+    data = model.createData()
+    pin.framesForwardKinematics(model, data, q)
+    foot = data.oMf[model.getFrameId("right_foot")]
+    assert answer.step["foot"] == "right_foot"
+    assert np.allclose(answer.step["position"], foot.translation, atol=1e-5)
+    assert foot.translation[0] > 0.3  # it stepped
+    assert abs(answer.step["yaw"]) <= math.radians(30) + 1e-6
+    near = selector.select("right_hand", np.array([0.3, -0.3, 1.2]))
+    assert near.strategy == "arm" and near.step is None
+    assert answer.to_dict()["step"] == answer.step

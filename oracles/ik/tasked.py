@@ -22,7 +22,7 @@ from oracles.bodies.posed import PosedBody
 from oracles.ik.problem import ReachProblem
 from oracles.ik.strategy import Strategy
 from oracles.protocol import Ball, check_points
-from oracles.tasks import ContactsTask, FloorTask, Numeric, ObstaclesTask, OrientationTask
+from oracles.tasks import ContactsTask, FloorTask, Numeric, ObstaclesTask, OrientationTask, StepTask
 
 # tasks that hold something fixed in the world, which a turn would move
 WORLD_FIXED = frozenset({"obstacles", "tether"})
@@ -180,6 +180,21 @@ class TaskedBody(PosedBody):
         """``direction`` and ``rotation`` for an axis-form orientation task, ``rotation`` for a full one, else none."""
         task = self.orientation
         return () if task is None else ("direction", "rotation") if task.axis is not None else ("rotation",)
+
+    def landing(self, posture: np.ndarray) -> dict[str, Any] | None:
+        """Where the strategy's stepping foot lands at a posture (see :class:`oracles.protocol.Stepping`), or None."""
+        task = self.strategy.task("step")
+        if not isinstance(task, StepTask):
+            return None
+        model, data = self.body.model, self._data
+        pin.framesForwardKinematics(model, data, np.asarray(posture, float))
+        fid = self.body.frame_id(task.foot)
+        ref = model.createData()
+        pin.framesForwardKinematics(model, ref, self.body.q_ref)
+        # the foot's axis that pointed ahead (world x) where it stood, where the posture turns it
+        ahead = data.oMf[fid].rotation @ (ref.oMf[fid].rotation.T @ np.array([1.0, 0.0, 0.0]))
+        return {"foot": task.foot, "position": [round(float(v), 6) for v in data.oMf[fid].translation],
+                "yaw": round(math.atan2(float(ahead[1]), float(ahead[0])), 6)}
 
     def _dls(self) -> Any:
         """The damped-least-squares twin of this oracle (itself for ``dls``), built on first use: no compilation."""

@@ -61,6 +61,8 @@ class Answer:
         index: The reachability index (see :mod:`reach.maps.index`) of the chosen
             strategy's nearest reachable stored vertex, the share of
             approach directions reached there, when its tree has one; else None.
+        step: For a strategy that steps (the ``step`` task), where its posture sets the stepping foot down:
+            ``{"foot", "position": [x, y, z] [m], "yaw": [rad] about +z from where it stood}``; else None.
     """
 
     effector: str
@@ -78,6 +80,7 @@ class Answer:
     nearest: dict[str, Any] | None = None
     posture_json: bytes | None = field(default=None, repr=False, compare=False)
     index: float | None = None
+    step: dict[str, Any] | None = None
 
     def to_json(self) -> bytes:
         """UTF-8 JSON of to_dict(), reusing the posture's cached encoding when there is one."""
@@ -103,7 +106,7 @@ class Answer:
             "effector": self.effector, "goal": list(self.goal), "strategy": self.strategy, "reachable": self.reachable,
             "alternatives": list(self.alternatives), "posture": self.posture, "root": self.root,
             "residual": self.residual, "refined": self.refined, "seconds": self.seconds, "handover": self.handover,
-            "within": self.within, "nearest": self.nearest, "index": self.index,
+            "within": self.within, "nearest": self.nearest, "index": self.index, "step": self.step,
         }
 
 

@@ -74,6 +74,7 @@ from oracles.protocol import (
     Preferring,
     Preparable,
     Rebuilt,
+    Stepping,
     Tunable,
     Verdicts,
 )
@@ -523,8 +524,9 @@ class Selector:
                 posture, root, fragment = self._stored_posture(name, tree, row)
         # a posture that was not refined at this goal says how near it comes
         within = residual if outcome in STORED else None
+        step = self._landing(name, q) if nearest is not None else None
         return Answer(effector, tuple(goal.tolist()), name, True, tuple(others), posture, root, residual, outcome,
-                      time.perf_counter() - t0, handover, within, None, fragment, self._index_of(name, row))
+                      time.perf_counter() - t0, handover, within, None, fragment, self._index_of(name, row), step)
 
     def probe(self, effector: str, goal: np.ndarray, restarts: int = 8) -> Answer | None:
         """For a goal no tree holds: the first strategy of the effector, by priority, whose thorough solve (its
@@ -546,6 +548,11 @@ class Selector:
                 return Answer(effector, tuple(goal.tolist()), name, True, (), posture, root, float(v.residual[0]),
                               REFINED, time.perf_counter() - t0)
         return None
+
+    def _landing(self, name: str, q: np.ndarray) -> dict[str, Any] | None:
+        """Where a stepping strategy's posture sets its foot down (its oracle's :class:`Stepping`), else None."""
+        oracle = self._oracle(name)
+        return oracle.landing(q) if isinstance(oracle, Stepping) else None
 
     def _limits(self, name: str, q: np.ndarray) -> list[str]:
         """The joint limits a posture of a strategy comes within ``handover`` of (none when its oracle cannot tell)."""
