@@ -278,6 +278,12 @@ class Stepping(Protocol):
         [rad] about +z from where it stood}``; None for a strategy without a step."""
         ...
 
+    def swing(self, q0: np.ndarray, q1: np.ndarray, count: int) -> np.ndarray | None:
+        """``count`` + 1 postures from q0 (both feet down) to the stepping foot set down where q1 puts it: the weight
+        shifted over the stance foot, the foot lifted, carried and set down (a motion's step); None when no such
+        frames are found."""
+        ...
+
 
 @runtime_checkable
 class Probing(Protocol):

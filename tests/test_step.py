@@ -19,6 +19,7 @@ from oracles.ik.search import Search
 from oracles.protocol import Goals
 from reach.errors import TaskError
 from tests.test_ik import CROUCH, HUMAN, PLANTED
+from tests.test_motion import Y_UP, _quat_matrix
 
 STANCE = {"type": "feet", "frames": ["left_foot"], "heels": "down"}
 STEP = {"type": "step", "foot": "right_foot", "stance": "left_foot"}
@@ -100,29 +101,44 @@ def test_the_step_region_defaults_to_the_stature_and_bad_steps_name_their_key():
         CasadiIK(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, {**STEP, "stance": "right_foot"}, STANCE])
 
 
-def test_an_answer_says_where_the_step_sets_the_foot_down(tmp_path):
-    """A query answered by the step gives ``step``: the stepping foot's frame, where the answer's posture puts it (by
-    Pinocchio, computed here) and its turn; a strategy that does not step gives none."""
-    from reach.answers.select import Selector
+STEP_TASKS = [{"type": "reach"}, STANCE, STEP, {"type": "self_collision"}, {"type": "floor"}, {"type": "coupling"},
+              {"type": "posture"}]
+
+
+@pytest.fixture(scope="module")
+def atlas(tmp_path_factory):
+    """A small atlas: an arm, and a step (D_max 3)."""
     from reach.build.atlas import build_atlas
     from reach.build.config import parse_config
 
-    tasks = [{"type": "reach"}, STANCE, STEP, {"type": "self_collision"}, {"type": "floor"}]
+    tmp = tmp_path_factory.mktemp("step")
     raw = {"name": "step", "body": HUMAN, "box": {"min": [-0.4, -1.0, 0.4], "max": [1.6, 0.6, 1.6]},
            "depth": {"min": 2, "max": 3}, "oracle": {"name": "casadi-ik", "params": {"restarts": 1, "seed": 0}},
            "strategies": [{"name": "arm", "effector": "right_hand", "joints": ["right_shoulder_*", "right_elbow_*"],
                            "tasks": [{"type": "reach"}]},
-                          {"name": "step", "effector": "right_hand", "joints": CROUCH, "tasks": tasks}]}
-    atlas = build_atlas(parse_config(raw, str(tmp_path / "step.yaml")), tmp_path / "a")
+                          {"name": "step", "effector": "right_hand", "joints": CROUCH, "tasks": STEP_TASKS}]}
+    return build_atlas(parse_config(raw, str(tmp / "step.yaml")), tmp / "a")
+
+
+def _posture(oracle: CasadiIK, posture: dict, root: dict) -> np.ndarray:
+    names = list(oracle.body.q_names)
+    q = oracle.body.q_ref.copy()
+    for k, v in posture.items():
+        q[names.index(k)] = v
+    q[:3], q[3:7] = root["position"], root["quaternion"]
+    return q
+
+
+def test_an_answer_says_where_the_step_sets_the_foot_down(atlas):
+    """A query answered by the step gives ``step``: the stepping foot's frame, where the answer's posture puts it (by
+    Pinocchio, computed here) and its turn; a strategy that does not step gives none."""
+    from reach.answers.select import Selector
+
     selector = Selector(atlas)
     answer = selector.select("right_hand", np.array([1.3, -0.15, 1.0]))
     assert answer.reachable and answer.strategy == "step" and answer.step is not None
-    oracle = CasadiIK(HUMAN, "right_hand", CROUCH, tasks)
-    names = list(oracle.body.q_names)
-    q = oracle.body.q_ref.copy()
-    for k, v in answer.posture.items():
-        q[names.index(k)] = v
-    q[:3], q[3:7] = answer.root["position"], answer.root["quaternion"]
+    oracle = CasadiIK(HUMAN, "right_hand", CROUCH, STEP_TASKS)
+    q = _posture(oracle, answer.posture, answer.root)
     model = oracle.body.model
     data = model.createData()
     pin.framesForwardKinematics(model, data, q)
@@ -134,3 +150,80 @@ def test_an_answer_says_where_the_step_sets_the_foot_down(tmp_path):
     near = selector.select("right_hand", np.array([0.3, -0.3, 1.2]))
     assert near.strategy == "arm" and near.step is None
     assert answer.to_dict()["step"] == answer.step
+
+
+def test_a_step_motion_lifts_the_foot_sets_it_down_and_the_stance_foot_stays(atlas, tmp_path):
+    """The motion to a goal the step answers: the weight shifted over the stance foot, the stepping foot lifted
+    (at least 5 cm), carried and set down where the answer says, the centre of mass over the stance foot's sole as
+    the foot lifts off and over both soles (the landing one where it lands) while it is in the air, and the stance
+    foot still (under 1 cm) at every frame; all by our own forward kinematics. Its BVH file, read by bvhio, puts the
+    stepping foot where Pinocchio does."""
+    import bvhio
+
+    from reach.answers.select import Selector
+    from reach.motion.bvh import write_bvh
+    from reach.motion.planner import Planner
+    from reach.motion.rig import rig
+
+    planner = Planner(Selector(atlas))
+    goal = np.array([1.3, -0.15, 1.0])
+    motion = planner.plan("right_hand", goal)
+    assert motion.strategy == "step" and motion.outcome == "reached" and "step" in motion.parts
+    answer = planner.selector.select("right_hand", goal)
+    model = CasadiIK(HUMAN, "right_hand", CROUCH, STEP_TASKS).body.model
+    data = model.createData()
+    right, left = model.getFrameId("right_foot"), model.getFrameId("left_foot")
+    feet, stance, com, soles = [], [], [], []
+    for q in motion.postures:
+        pin.framesForwardKinematics(model, data, q)
+        feet.append(data.oMf[right].translation.copy())
+        stance.append(data.oMf[left].translation.copy())
+        com.append(pin.centerOfMass(model, data, q)[:2])
+        soles.append(np.array([data.oMf[model.getFrameId(f"{side}_{c}")].translation[:2]
+                               for side in ("left", "right") for c in CORNERS]))
+    feet, stance, com = np.array(feet), np.array(stance), np.array(com)
+    assert np.linalg.norm(stance - stance[0], axis=1).max() < 0.01
+
+    def inside(points: np.ndarray, p: np.ndarray) -> bool:
+        hull = ConvexHull(points)
+        return bool(np.all(hull.equations[:, :2] @ p + hull.equations[:, 2] <= 1e-6))
+
+    air = np.nonzero(feet[:, 2] > 0.005)[0]
+    apex = int(np.argmax(feet[:, 2]))
+    assert feet[apex, 2] >= 0.05 and len(air) >= 5
+    # the weight over the stance foot as the foot lifts off (its first half way up), over the new support while it is
+    # in the air (the fall onto the landing foot)
+    landing = soles[-1][len(CORNERS):]
+    lift_off = [k for k in air if k < apex and feet[k, 2] < 0.5 * feet[apex, 2]]
+    assert lift_off and all(inside(soles[k][: len(CORNERS)], com[k]) for k in lift_off)
+    assert all(inside(np.vstack([soles[k][: len(CORNERS)], landing]), com[k]) for k in air)
+    assert np.linalg.norm(feet[-1] - answer.step["position"]) <= 0.015
+    assert feet[-1][0] - feet[0][0] > 0.3
+    # no frame puts a segment through another or through the floor, or moves the stance foot (the tasks' own checks)
+    guard = CasadiIK(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, STANCE, {"type": "self_collision"},
+                                                   {"type": "floor"}])
+    assert [f for f in guard.faults(motion.postures) if f] == []
+    parsed = bvhio.readAsBvh(str(write_bvh(rig(motion, planner.body("step")), tmp_path / "step.bvh")))
+    assert parsed.FrameCount == len(motion.times)
+
+    def chain(joint, name):  # noqa: ANN001, ANN202
+        if joint.Name == name:
+            return [joint]
+        for child in joint.Children:
+            if found := chain(child, name):
+                return [joint, *found]
+        return []
+
+    leg = chain(parsed.Root, "right_sole")
+    assert [j.Name for j in leg] == ["pelvis", "right_thigh", "right_shank", "right_sole"]
+    toe = model.getFrameId("right_toe")
+    for k in range(parsed.FrameCount):
+        world = np.eye(4)
+        for joint in leg:
+            pose, local = joint.Keyframes[k], np.eye(4)
+            local[:3, :3] = _quat_matrix(pose.Rotation.w, pose.Rotation.x, pose.Rotation.y, pose.Rotation.z)
+            local[:3, 3] = list(pose.Position) if joint is parsed.Root else list(joint.Offset)
+            world = world @ local
+        tip = world[:3, :3] @ np.array(list(leg[-1].EndSite)) + world[:3, 3]
+        pin.framesForwardKinematics(model, data, motion.postures[k])
+        assert np.linalg.norm(Y_UP.T @ tip - data.oMf[toe].translation) < 0.001

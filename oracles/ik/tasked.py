@@ -20,6 +20,7 @@ from oracles import registry
 from oracles.bodies.body import ROOT, Body
 from oracles.bodies.posed import PosedBody
 from oracles.ik.problem import ReachProblem
+from oracles.ik.stepping import swing_frames
 from oracles.ik.strategy import Strategy
 from oracles.protocol import Ball, check_points
 from oracles.tasks import ContactsTask, FloorTask, Numeric, ObstaclesTask, OrientationTask, StepTask
@@ -195,6 +196,10 @@ class TaskedBody(PosedBody):
         ahead = data.oMf[fid].rotation @ (ref.oMf[fid].rotation.T @ np.array([1.0, 0.0, 0.0]))
         return {"foot": task.foot, "position": [round(float(v), 6) for v in data.oMf[fid].translation],
                 "yaw": round(math.atan2(float(ahead[1]), float(ahead[0])), 6)}
+
+    def swing(self, q0: np.ndarray, q1: np.ndarray, count: int) -> np.ndarray | None:
+        """A step's frames from q0 to the foot set down where q1 puts it (see :mod:`oracles.ik.stepping`)."""
+        return swing_frames(self, np.asarray(q0, float), np.asarray(q1, float), int(count))
 
     def _dls(self) -> Any:
         """The damped-least-squares twin of this oracle (itself for ``dls``), built on first use: no compilation."""

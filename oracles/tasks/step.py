@@ -182,6 +182,31 @@ class StepTask(HardTask):
                 out.append(Row(jac[axis : axis + 1], np.array([max(0.0, lo + INSIDE - off)])))
             elif off > hi - BUFFER:
                 out.append(Row(jac[axis : axis + 1], np.array([min(0.0, hi - INSIDE - off)])))
+        return out + self._balance_rows(num)
+
+    def _balance_rows(self, num: Numeric) -> list[Row]:
+        """The quadrilateral's edges near or past the centre of mass, linearised: e x (c - v) >= 0 for each edge
+        v -> w, the stepping foot's corners and the centre of mass moving with x (see :meth:`constraints`)."""
+        assert num.jacobian is not None
+        pos = [num.frame(self._ids[f]).translation[:2] for f in self.corners]
+        jac = [num.jacobian(self._ids[f])[:2] for f in self.corners]
+        heel, toe = 0.5 * (pos[0] + pos[1]), 0.5 * (pos[2] + pos[3])
+        j_heel, j_toe = 0.5 * (jac[0] + jac[1]), 0.5 * (jac[2] + jac[3])
+        k = self._inset / self._length
+        step = [(heel + k * (toe - heel), j_heel + k * (j_toe - j_heel)),
+                (toe - k * (toe - heel), j_toe - k * (j_toe - j_heel))]
+        zero = np.zeros_like(j_heel)
+        stance = [(self._stance_line[0], zero), (self._stance_line[1], zero)]
+        quad = [step[0], step[1], stance[1], stance[0]] if self._ccw else [step[1], step[0], stance[0], stance[1]]
+        com = pin.centerOfMass(num.model, num.data, num.q, False)[:2]
+        j_com = pin.jacobianCenterOfMass(num.model, num.data, num.q, False)[:2, num.columns]
+        out = []
+        for (v, jv), (w, jw) in zip(quad, [*quad[1:], quad[0]], strict=True):
+            e, je, r, jr = w - v, jw - jv, com - v, j_com - jv
+            f = e[0] * r[1] - e[1] * r[0]
+            if f < BUFFER:
+                j_f = je[0] * r[1] + e[0] * jr[1] - je[1] * r[0] - e[1] * jr[0]
+                out.append(Row(-j_f[None], np.array([min(0.0, f - INSIDE)])))
         return out
 
     # -- the verdict -------------------------------------------------------

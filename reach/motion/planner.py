@@ -52,7 +52,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
-from oracles.protocol import EffectorPositions, Moving, Shaped, Verifying
+from oracles.protocol import EffectorPositions, Moving, Shaped, Stepping, Verifying
 from reach.answers.answer import posture_vector, split_posture
 from reach.answers.select import Selector
 from reach.errors import InputError, ReachError
@@ -67,6 +67,11 @@ REACH_A = ((0.0, 0.0), (0.75, 2.0), (1, 2.5), (2, 4.0), (3, 5.3), (4, 6.1), (5, 
 PAST_30 = 0.4  # TMU per inch past 30 in (same table)
 STOOP = 29.0  # TMU: bend, stoop or kneel on one knee (B, S, KOK; MTM-1 body motions)
 FOOT = 8.5  # TMU: foot motion pivoted at the ankle (FM), the MTM-1 element nearest a rise onto the toes
+# TMU: one pace of walking (W-P, MTM-1 body motions; as quoted, the card not read here): a step's weight shift and
+# swing, 0.54 s, about a walking step's time (a swing of about 0.4 s in a gait cycle of 1.0-1.1 s: Perry & Burnfield 2010,
+# *Gait Analysis*, 2nd ed., ch. 1; not read in its source here)
+PACE = 15.0
+STEP_MOVES = 0.01  # [m] an end posture whose stepping foot lies farther than this from where it stood takes a step
 DROP = 0.10  # [m] a pelvis lowered this much stoops or crouches (a modelling choice: a knee bend of about 30 deg)
 TILT = math.radians(30.0)  # [rad] a pelvis tilted this much bends (a modelling choice)
 LIFT = 0.01  # [m] a pelvis raised this much rises onto the toes (a modelling choice)
@@ -332,7 +337,14 @@ class Planner:
             q1 = posture_vector(labels, q0, answer.nearest["posture"], answer.nearest["root"])
         else:
             q1 = self._nearest_stored(name, g[0])
-        postures, waypoints, held = self._path(name, oracle, labels, q0, q1, rate, timing)
+        step = self._step(oracle, q0, q1, rate) if outcome == REACHED else None
+        postures, waypoints, held = self._path(name, oracle, labels, q0 if step is None else step[-1], q1, rate, timing)
+        if step is not None:
+            # the step's frames (the foot lifted, carried and set down), then the reach from where it landed
+            frames, reach_times, parts = postures
+            lead = len(step) - 1
+            postures = (np.vstack([step[:-1], frames]),
+                        np.concatenate([np.arange(lead) / rate, reach_times + lead / rate]), {"step": PACE, **parts})
         times = postures[1]
         path = np.asarray(oracle.effector_positions(postures[0]))
         if outcome == REACHED and not self._reaches(oracle, g[0], postures[0][-1], path[-1]):
@@ -341,6 +353,24 @@ class Planner:
         within = answer.within if outcome == REACHED else float(np.linalg.norm(path[-1] - g[0]))
         return Motion(effector, tuple(g[0].tolist()), name, outcome, tuple(path[-1].tolist()), labels, float(rate),
                       times, postures[0], path, answer.refined, within, waypoints, held, postures[2])
+
+    @staticmethod
+    def _step(oracle: Body, q0: np.ndarray, q1: np.ndarray, rate: float) -> np.ndarray | None:
+        """A step's frames when the end posture's stepping foot left where it stood (its oracle's
+        :class:`~oracles.protocol.Stepping`): the weight shifted, the foot lifted, carried and set down, one pace of
+        MTM-1 long (``PACE``); else None. Raises MotionError when no such frames are found."""
+        if not isinstance(oracle, Stepping):
+            return None
+        landing, stood = oracle.landing(q1), oracle.landing(q0)
+        if landing is None or stood is None:
+            return None
+        if float(np.linalg.norm(np.subtract(landing["position"], stood["position"]))) <= STEP_MOVES:
+            return None
+        frames = oracle.swing(q0, q1, max(3, int(math.ceil(PACE * TMU * rate - 1e-9))))
+        if frames is None:
+            raise MotionError(f"no step found that sets {landing['foot']} down at {landing['position']} with the "
+                              "weight over the other foot", "no_motion")
+        return frames
 
     @staticmethod
     def _reaches(oracle: Body, goal: np.ndarray, end: np.ndarray, point: np.ndarray) -> bool:
