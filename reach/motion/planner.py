@@ -68,8 +68,8 @@ PAST_30 = 0.4  # TMU per inch past 30 in (same table)
 STOOP = 29.0  # TMU: bend, stoop or kneel on one knee (B, S, KOK; MTM-1 body motions)
 FOOT = 8.5  # TMU: foot motion pivoted at the ankle (FM), the MTM-1 element nearest a rise onto the toes
 # TMU: one pace of walking (W-P, MTM-1 body motions; as quoted, the card not read here): a step's weight shift and
-# swing, 0.54 s, about a walking step's time (a swing of about 0.4 s in a gait cycle of 1.0-1.1 s: Perry & Burnfield 2010,
-# *Gait Analysis*, 2nd ed., ch. 1; not read in its source here)
+# swing, 0.54 s, about a walking step's time (a swing of about 0.4 s in a gait cycle of 1.0-1.1 s: Perry & Burnfield
+# 2010, *Gait Analysis*, 2nd ed., ch. 1; not read in its source here)
 PACE = 15.0
 STEP_MOVES = 0.01  # [m] an end posture whose stepping foot lies farther than this from where it stood takes a step
 DROP = 0.10  # [m] a pelvis lowered this much stoops or crouches (a modelling choice: a knee bend of about 30 deg)
