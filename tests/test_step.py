@@ -129,7 +129,7 @@ def _posture(oracle: CasadiIK, posture: dict, root: dict) -> np.ndarray:
     return q
 
 
-def test_an_answer_says_where_the_step_sets_the_foot_down(atlas):
+def test_an_answer_says_where_the_step_sets_the_foot_down(atlas, capsys):
     """A query answered by the step gives ``step``: the stepping foot's frame, where the answer's posture puts it (by
     Pinocchio, computed here) and its turn; a strategy that does not step gives none."""
     from reach.answers.select import Selector
@@ -150,6 +150,10 @@ def test_an_answer_says_where_the_step_sets_the_foot_down(atlas):
     near = selector.select("right_hand", np.array([0.3, -0.3, 1.2]))
     assert near.strategy == "arm" and near.step is None
     assert answer.to_dict()["step"] == answer.step
+    from reach.tools.cli import main
+
+    assert main(["query", str(atlas.path), "1.3", "-0.15", "1.0", "--effector", "right_hand"]) == 0
+    assert "step: right_foot set down at [" in capsys.readouterr().out
 
 
 def test_a_step_motion_lifts_the_foot_sets_it_down_and_the_stance_foot_stays(atlas, tmp_path):

@@ -150,6 +150,10 @@ def cmd_query(args: argparse.Namespace) -> int:
                 r = a["root"]
                 print(f"  root: position {np.round(r['position'], 4).tolist()} [m], quaternion (x, y, z, w) "
                       f"{np.round(r['quaternion'], 5).tolist()}")
+            if a.get("step"):
+                st = a["step"]
+                print(f"  step: {st['foot']} set down at {np.round(st['position'], 4).tolist()} [m], turned "
+                      f"{np.degrees(st['yaw']):.1f} deg")
         elif a.get("nearest"):
             n = a["nearest"]
             print(f"{a['effector']}: goal {a['goal']} not reachable: {n['strategy']}'s tree holds it but no "
