@@ -203,6 +203,8 @@ def test_a_step_motion_lifts_the_foot_sets_it_down_and_the_stance_foot_stays(atl
     assert all(inside(np.vstack([soles[k][: len(CORNERS)], landing]), com[k]) for k in air)
     assert np.linalg.norm(feet[-1] - answer.step["position"]) <= 0.015
     assert feet[-1][0] - feet[0][0] > 0.3
+    landed = next(k for k in range(apex, len(feet)) if feet[k, 2] <= 1e-4)
+    assert np.linalg.norm(feet[landed:] - feet[-1], axis=1).max() < 0.001  # set down, the foot stays (no sliding)
     # no frame puts a segment through another or through the floor, or moves the stance foot (the tasks' own checks)
     guard = CasadiIK(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, STANCE, {"type": "self_collision"},
                                                    {"type": "floor"}])

@@ -126,6 +126,26 @@ def _swing(oracle: Any, model: pin.Model, leg: list[int], fid: int, q_shift: np.
     return frames
 
 
+def planted(model: pin.Model, frame: int, q0: np.ndarray, q1: np.ndarray, postures: np.ndarray) -> np.ndarray:
+    """Postures between q0 and q1 with the stepping foot (``frame``) kept where both put it, when they put it at one
+    place (within 0.1 mm and 1 mrad): the leg's own inverse kinematics at each; else the postures as they are."""
+    data = model.createData()
+    ends = []
+    for q in (q0, q1):
+        pin.framesForwardKinematics(model, data, q)
+        ends.append(data.oMf[frame].copy())
+    gap = pin.log6(ends[0].actInv(ends[1])).vector
+    if np.linalg.norm(gap[:3]) > 1e-4 or np.linalg.norm(gap[3:]) > 1e-3:
+        return postures
+    leg = _leg(model, frame)
+    out = np.array(postures, float, copy=True)
+    for k, q in enumerate(out):
+        held = _leg_ik(model, leg, frame, q, ends[0])
+        if held is not None:
+            out[k] = held
+    return out
+
+
 def _stepped(model: pin.Model, upper: np.ndarray, lower: np.ndarray, legs: list[list[int]]) -> np.ndarray:
     """``lower``'s floating root and legs' joints under ``upper``'s other joints."""
     out = np.asarray(upper, float).copy()

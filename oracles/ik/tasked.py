@@ -20,7 +20,7 @@ from oracles import registry
 from oracles.bodies.body import ROOT, Body
 from oracles.bodies.posed import PosedBody
 from oracles.ik.problem import ReachProblem
-from oracles.ik.stepping import swing_frames
+from oracles.ik.stepping import planted, swing_frames
 from oracles.ik.strategy import Strategy
 from oracles.protocol import Ball, check_points
 from oracles.tasks import ContactsTask, FloorTask, Numeric, ObstaclesTask, OrientationTask, StepTask
@@ -196,6 +196,15 @@ class TaskedBody(PosedBody):
         ahead = data.oMf[fid].rotation @ (ref.oMf[fid].rotation.T @ np.array([1.0, 0.0, 0.0]))
         return {"foot": task.foot, "position": [round(float(v), 6) for v in data.oMf[fid].translation],
                 "yaw": round(math.atan2(float(ahead[1]), float(ahead[0])), 6)}
+
+    def interpolate(self, q0: np.ndarray, q1: np.ndarray, s: np.ndarray) -> np.ndarray:
+        """As :meth:`PosedBody.interpolate`; with a step whose foot stands at one place at both ends, that foot is
+        kept there too (the stepping leg's own inverse kinematics at each posture): interpolated, it slid up to 1 cm
+        while the body reached over it."""
+        out = super().interpolate(q0, q1, s)
+        task = self.strategy.task("step")
+        return out if not isinstance(task, StepTask) else planted(self.body.model, self.body.frame_id(task.foot),
+                                                                  np.asarray(q0, float), np.asarray(q1, float), out)
 
     def swing(self, q0: np.ndarray, q1: np.ndarray, count: int) -> np.ndarray | None:
         """A step's frames from q0 to the foot set down where q1 puts it (see :mod:`oracles.ik.stepping`)."""
