@@ -123,3 +123,36 @@ def free_port() -> int:
     with socket.socket() as sock:
         sock.bind(("127.0.0.1", 0))
         return int(sock.getsockname()[1])
+
+
+# the BVH's axes from the world's: Y up, Z forward, X to the body's left (reach.motion.rig)
+Y_UP = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
+
+
+def quat_matrix(w: float, x: float, y: float, z: float) -> np.ndarray:
+    """The rotation matrix of a unit quaternion (this file's own, not the parser's)."""
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
+def bvh_chain(joint, name: str) -> list:  # noqa: ANN001
+    """The joints of a parsed BVH (bvhio) from ``joint`` down to the one called ``name`` (empty when none is)."""
+    if joint.Name == name:
+        return [joint]
+    for child in joint.Children:
+        if found := bvh_chain(child, name):
+            return [joint, *found]
+    return []
+
+
+def bvh_end(chain: list, root: object, k: int) -> np.ndarray:
+    """The world position, in the world's axes, of a chain's end site at frame k: the parsed keyframes' rotations
+    and offsets multiplied here."""
+    world = np.eye(4)
+    for joint in chain:
+        pose, local = joint.Keyframes[k], np.eye(4)
+        local[:3, :3] = quat_matrix(pose.Rotation.w, pose.Rotation.x, pose.Rotation.y, pose.Rotation.z)
+        local[:3, 3] = list(pose.Position) if joint is root else list(joint.Offset)
+        world = world @ local
+    return Y_UP.T @ (world[:3, :3] @ np.array(list(chain[-1].EndSite)) + world[:3, 3])

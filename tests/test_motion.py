@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 import pytest
-from helpers import ARM, human_config
+from helpers import ARM, Y_UP, bvh_chain, bvh_end, human_config, quat_matrix
 
 from oracles.bodies.body import human_body
 from reach.answers.answer import posture_vector
@@ -297,8 +297,6 @@ def test_reach_motion_writes_the_frames_and_names_bad_input(planner, tmp_path, c
 
 
 # -- animation files ---------------------------------------------------------
-# the files' axes in the world's: x' = y, y' = z, z' = x
-Y_UP = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
 
 
 @pytest.fixture(scope="module")
@@ -335,12 +333,6 @@ def test_a_skeleton_refuses_a_joint_that_translates_and_a_rig_needs_a_skeleton(c
         rig(crouch, object())
 
 
-def _quat_matrix(w: float, x: float, y: float, z: float) -> np.ndarray:
-    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
-
-
 def test_bvh_round_trip_puts_the_hand_where_pinocchio_does(planner, crouch, tmp_path):
     """bvhio parses the file (its own Euler-to-rotation reading of the channels); the forward kinematics is this
     test's."""
@@ -353,29 +345,12 @@ def test_bvh_round_trip_puts_the_hand_where_pinocchio_does(planner, crouch, tmp_
     parsed = bvhio.readAsBvh(str(path))
     assert parsed.FrameCount == len(crouch.times) and parsed.FrameTime == pytest.approx(1 / 30, abs=1e-7)
 
-    def chain(joint, name):
-        if joint.Name == name:
-            return [joint]
-        for child in joint.Children:
-            if found := chain(child, name):
-                return [joint, *found]
-        return []
-
-    arm = chain(parsed.Root, "right_palm")
+    arm = bvh_chain(parsed.Root, "right_palm")
     assert [j.Name for j in arm] == ["pelvis", "abdomen", "thorax", "right_clavicle", "right_upper_arm",
                                      "right_forearm", "right_palm"]
     assert (arm[0].Channels[:3] == ["Xposition", "Yposition", "Zposition"]
             and arm[4].Channels == ["Zrotation", "Xrotation", "Yrotation"])
-    error = []
-    for k in range(parsed.FrameCount):
-        world = np.eye(4)
-        for joint in arm:
-            pose, local = joint.Keyframes[k], np.eye(4)
-            local[:3, :3] = _quat_matrix(pose.Rotation.w, pose.Rotation.x, pose.Rotation.y, pose.Rotation.z)
-            local[:3, 3] = list(pose.Position) if joint is parsed.Root else list(joint.Offset)
-            world = world @ local
-        tip = world[:3, :3] @ np.array(list(arm[-1].EndSite)) + world[:3, 3]
-        error.append(np.linalg.norm(Y_UP.T @ tip - crouch.path[k]))
+    error = [np.linalg.norm(bvh_end(arm, parsed.Root, k) - crouch.path[k]) for k in range(parsed.FrameCount)]
     assert max(error) < 0.001
     assert np.ptp(crouch.path, axis=0).max() > 0.2  # the hand travelled: the check is not of a still pose
 
@@ -439,7 +414,7 @@ def test_gltf_passes_the_khronos_validator_and_its_hand_follows_pinocchio(planne
         node, local = doc.nodes[n], np.eye(4)
         t = tracks[(n, "translation")][1][k] if (n, "translation") in tracks else (node.translation or [0, 0, 0])
         x, y, z, w = tracks[(n, "rotation")][1][k] if (n, "rotation") in tracks else (node.rotation or [0, 0, 0, 1])
-        local[:3, :3], local[:3, 3] = _quat_matrix(w, x, y, z), t
+        local[:3, :3], local[:3, 3] = quat_matrix(w, x, y, z), t
         return local if n not in parent else world(parent[n], k) @ local
 
     error = [np.linalg.norm(Y_UP.T @ world(hand_node, k)[:3, 3] - crouch.path[k]) for k in range(len(keys))]

@@ -18,8 +18,8 @@ from oracles.ik.engine import CasadiIK
 from oracles.ik.search import Search
 from oracles.protocol import Goals
 from reach.errors import TaskError
+from tests.helpers import bvh_chain, bvh_end
 from tests.test_ik import CROUCH, HUMAN, PLANTED
-from tests.test_motion import Y_UP, _quat_matrix
 
 STANCE = {"type": "feet", "frames": ["left_foot"], "heels": "down"}
 STEP = {"type": "step", "foot": "right_foot", "stance": "left_foot"}
@@ -212,24 +212,9 @@ def test_a_step_motion_lifts_the_foot_sets_it_down_and_the_stance_foot_stays(atl
     parsed = bvhio.readAsBvh(str(write_bvh(rig(motion, planner.body("step")), tmp_path / "step.bvh")))
     assert parsed.FrameCount == len(motion.times)
 
-    def chain(joint, name):  # noqa: ANN001, ANN202
-        if joint.Name == name:
-            return [joint]
-        for child in joint.Children:
-            if found := chain(child, name):
-                return [joint, *found]
-        return []
-
-    leg = chain(parsed.Root, "right_sole")
+    leg = bvh_chain(parsed.Root, "right_sole")
     assert [j.Name for j in leg] == ["pelvis", "right_thigh", "right_shank", "right_sole"]
     toe = model.getFrameId("right_toe")
     for k in range(parsed.FrameCount):
-        world = np.eye(4)
-        for joint in leg:
-            pose, local = joint.Keyframes[k], np.eye(4)
-            local[:3, :3] = _quat_matrix(pose.Rotation.w, pose.Rotation.x, pose.Rotation.y, pose.Rotation.z)
-            local[:3, 3] = list(pose.Position) if joint is parsed.Root else list(joint.Offset)
-            world = world @ local
-        tip = world[:3, :3] @ np.array(list(leg[-1].EndSite)) + world[:3, 3]
         pin.framesForwardKinematics(model, data, motion.postures[k])
-        assert np.linalg.norm(Y_UP.T @ tip - data.oMf[toe].translation) < 0.001
+        assert np.linalg.norm(bvh_end(leg, parsed.Root, k) - data.oMf[toe].translation) < 0.001
