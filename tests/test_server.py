@@ -389,8 +389,7 @@ def test_curve_with_an_allow_list_lets_in_listed_clients_only(balls, tmp_path):
                         curve_client_key=key) as c:
                 with pytest.raises(ServerUnavailable):
                     c.health()
-        with Client(r.server.endpoint, timeout=300, retries=1, curve_server_key=server_secret,
-                    curve_client_key=listed_secret) as c:
+        with Client(r.server.endpoint, curve_server_key=server_secret, curve_client_key=listed_secret) as c:
             assert c.health()["ok"]  # the secret file's public half is the server's key too (it holds both)
     finally:
         r.stop()

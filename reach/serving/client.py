@@ -76,6 +76,7 @@ class Client:
     def _connect(self) -> zmq.Socket:
         sock = self.context.socket(zmq.REQ)
         sock.setsockopt(zmq.LINGER, 0)
+        sock.setsockopt(zmq.SNDTIMEO, self.timeout)  # a send waits for a connection this long at most
         sock.setsockopt(zmq.ROUTING_ID, self.identity)
         if self.curve:
             sock.curve_serverkey, sock.curve_publickey, sock.curve_secretkey = self.curve
@@ -113,8 +114,15 @@ class Client:
         rid = next(self._ids)
         payload = json.dumps({"op": op, "id": rid, **fields}).encode()
         for _ in range(self.retries):
-            self.socket.send(payload)
-            if self.socket.poll(self.timeout, zmq.POLLIN):
+            try:
+                self.socket.send(payload)
+            except zmq.Again:
+                # No connection to send on within the timeout (a CURVE handshake refused or not yet done: a REQ
+                # socket without one blocked here for good, seen once in a test under load): as no reply.
+                sent = False
+            else:
+                sent = True
+            if sent and self.socket.poll(self.timeout, zmq.POLLIN):
                 reply = json.loads(self.socket.recv())
                 if reply.get("id") != rid:
                     raise ServerError("bad_id", f"reply to request {reply.get('id')!r} while waiting for {rid}")
