@@ -97,6 +97,9 @@ def test_the_step_region_defaults_to_the_stature_and_bad_steps_name_their_key():
         CasadiIK(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, {"type": "feet"}, STEP])
     with pytest.raises(TaskError, match=r"tasks\[1\]\.forward: expected \[low, high\]"):
         CasadiIK(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, {**STEP, "forward": [0.5, 0.1]}, STANCE])
+    with pytest.raises(TaskError, match=r"step\.margin: the feet are 0\.\d+ m wide: a margin of 0\.049 m leaves no "
+                                        r"polygon"):
+        CasadiIK(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, {**STEP, "margin": 0.049}, STANCE])
     with pytest.raises(TaskError, match=r"\.stance: expected the other foot"):
         CasadiIK(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, {**STEP, "stance": "right_foot"}, STANCE])
 

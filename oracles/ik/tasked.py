@@ -190,10 +190,8 @@ class TaskedBody(PosedBody):
         model, data = self.body.model, self._data
         pin.framesForwardKinematics(model, data, np.asarray(posture, float))
         fid = self.body.frame_id(task.foot)
-        ref = model.createData()
-        pin.framesForwardKinematics(model, ref, self.body.q_ref)
         # the foot's axis that pointed ahead (world x) where it stood, where the posture turns it
-        ahead = data.oMf[fid].rotation @ (ref.oMf[fid].rotation.T @ np.array([1.0, 0.0, 0.0]))
+        ahead = data.oMf[fid].rotation @ (task.stood.rotation.T @ np.array([1.0, 0.0, 0.0]))
         return {"foot": task.foot, "position": [round(float(v), 6) for v in data.oMf[fid].translation],
                 "yaw": round(math.atan2(float(ahead[1]), float(ahead[0])), 6)}
 

@@ -80,7 +80,6 @@ class StepTask(HardTask):
     corners: tuple[str, ...] = ()  # the stepping foot's heel_inner, heel_outer, toe_inner, toe_outer
     stance_corners: tuple[str, ...] = ()
     _ref: pin.SE3 = field(default_factory=pin.SE3.Identity, init=False, repr=False, compare=False)
-    _stance: np.ndarray = field(default_factory=lambda: np.zeros((4, 2)), init=False, repr=False, compare=False)
     _stance_line: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)), init=False, repr=False, compare=False)
     _inset: float = field(default=0.0, init=False, repr=False, compare=False)
     _length: float = field(default=1.0, init=False, repr=False, compare=False)
@@ -128,9 +127,7 @@ class StepTask(HardTask):
         pts = {f: reference.placement(f).translation[:2] for f in (*self.corners, *self.stance_corners)}
         step_heel, step_toe, width = _line([pts[f] for f in self.corners])
         self._length = float(np.linalg.norm(step_toe - step_heel))
-        stance = [pts[f] for f in self.stance_corners]
-        self._stance = np.array(stance)
-        heel, toe, stance_width = _line(stance)
+        heel, toe, stance_width = _line([pts[f] for f in self.stance_corners])
         self._inset = 0.5 * min(width, stance_width) - self.margin
         if self._inset <= 0:
             raise TaskError("step.margin", f"the feet are {min(width, stance_width):.3f} m wide: a margin of "
@@ -141,6 +138,11 @@ class StepTask(HardTask):
         side = step_toe - step_heel
         other = self._stance_line[0] - step_heel
         self._ccw = bool(side[0] * other[1] - side[1] * other[0] > 0)
+
+    @property
+    def stood(self) -> pin.SE3:
+        """Where the stepping foot stood: its frame's placement at the reference posture."""
+        return self._ref
 
     # -- the search's rows -------------------------------------------------
     def constraints(self, sym: Symbolic) -> list[Constraint]:
