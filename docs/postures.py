@@ -5,7 +5,8 @@ Usage: python docs/postures.py ATLAS [-o docs/figures/postures.png] [--goals "X,
 Asks the atlas's selector (refinement on, a generous budget) for a dozen
 goals of the right hand around the body, and draws each answer's posture
 with the body's collision capsules: front view (y, z) above, side view
-(x, z) below, the goal as a red cross, the strategy's name in the title.
+(x, z) below, the goal as a red cross, the strategy's name in the title; a
+seated body's seat in light grey.
 """
 
 from __future__ import annotations
@@ -47,6 +48,16 @@ def draw(ax, body, q: np.ndarray, axes: tuple[int, int]) -> None:  # noqa: ANN00
                 solid_capstyle="round", alpha=0.85)
 
 
+def draw_furniture(ax, body, axes: tuple[int, int]) -> None:  # noqa: ANN001
+    """A seated body's seat (pan, backrest) as light outlines, drawn under the body."""
+    from scipy.spatial import ConvexHull
+
+    for box in body.furniture:
+        pts = box.corners()[:, list(axes)]
+        hull = pts[ConvexHull(pts).vertices]
+        ax.fill(hull[:, 0], hull[:, 1], color="#d9d9d9", ec="#999", lw=0.6, zorder=0)
+
+
 def _goals(text: str) -> list[tuple[float, ...]]:
     try:
         goals = [tuple(float(v) for v in part.split(",")) for part in text.split(";") if part.strip()]
@@ -81,6 +92,7 @@ def main() -> None:
         for row, axes in enumerate(((1, 2), (0, 2))):
             ax = axs[row, k]
             ax.axhline(0.0, color="#444", lw=0.8)
+            draw_furniture(ax, body, axes)
             if a.reachable and a.posture:
                 draw(ax, body, body.configuration(a.posture, a.root), axes)
             ax.plot(goal[axes[0]], goal[axes[1]], "x", color="red", ms=9, mew=2.5)

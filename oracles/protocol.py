@@ -516,14 +516,16 @@ class Articulated(Protocol):
         ...
 
 
-def body_params(body: Any, effector: str, joints: Any, tasks: Any) -> dict[str, Any]:
+def body_params(body: Any, effector: str, joints: Any, tasks: Any, ranges: Any = None) -> dict[str, Any]:
     """The params a config gives a body strategy's oracle, over the oracle's own.
 
     Every body oracle's factory (``casadi-ik``, ``dls``, or a third party's)
     takes these keyword arguments: the body spec (:func:`oracles.bodies.body.load_body`),
-    the effector frame, the active joints and the task list (:mod:`oracles.ik.strategy`).
+    the effector frame, the active joints and the task list (:mod:`oracles.ik.strategy`);
+    and ``ranges``, the strategy's own joint ranges over the body's, when the config gives them.
     """
-    return {"body": body, "effector": effector, "joints": joints, "tasks": tasks}
+    return {"body": body, "effector": effector, "joints": joints, "tasks": tasks,
+            **({"ranges": ranges} if ranges is not None else {})}
 
 
 @dataclass(frozen=True)

@@ -80,6 +80,7 @@ def test_good_config_and_priority_order(tmp_path):
         ({"box": ...}, "box", "required key is missing"),
         ({"base": "missing.yaml"}, "base", "missing.yaml: no such config to extend"),  # issue 46: named the file only
         ({"strategies": [{"name": "s" * 250}]}, "strategies[0].name", "at most 100 characters"),  # was a traceback
+        ({"strategies": [{"name": "a", "ranges": {"x": [0, 1]}}]}, "strategies[0].ranges", "need a body strategy"),
     ],
 )
 def test_errors_name_file_and_key(tmp_path, changes, key, message):
@@ -194,3 +195,47 @@ def test_a_bodys_oracle_defaults_to_casadi_ik():
     with pytest.raises(ConfigError, match="required key is missing") as info:  # an analytic atlas names its shape
         parse_config(analytic, "x", "x")
     assert info.value.key == "oracle"
+
+
+def _knee_config(ranges):
+    arm = ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"]
+    legs = [*arm, "root", "*_hip_*", "*_knee_*", "*_ankle_*"]
+    return {
+        "body": {"human": {"sex": "male", "percentile": 50}}, "box": {"min": [-1, -1, 0], "max": [1, 1, 2]},
+        "depth": {"min": 1, "max": 3}, "oracle": {"name": "casadi-ik"},
+        "strategies": [{"name": "arm", "effector": "right_hand", "joints": arm},
+                       {"name": "squat", "effector": "right_hand", "joints": legs, "ranges": ranges,
+                        "tasks": [{"type": "reach"}, {"type": "feet", "heels": "rise"}]}],
+    }
+
+
+def test_a_strategy_takes_its_own_joint_ranges_over_the_body_s():
+    from oracles.bodies.body import human_body
+
+    config = parse_config(_knee_config({"*_knee_flexion": [0.0, 2.74]}), "ranges", "ranges")
+    arm, squat = (s.oracle.create() for s in config.strategies)
+    body = human_body()
+    for oracle, top in ((arm, body), (squat, None)):
+        model = oracle.body.model
+        for side in ("right", "left"):
+            j = model.joints[model.getJointId(f"{side}_knee_flexion")].idx_q
+            want = 2.74 if top is None else body.model.upperPositionLimit[j]
+            assert model.upperPositionLimit[j] == pytest.approx(want)
+    assert body.model.upperPositionLimit[body.model.joints[body.model.getJointId("right_knee_flexion")].idx_q] < 2.4
+    assert squat.model_hash != arm.model_hash  # a tree built with other ranges is another body's
+    assert squat.spec.params["ranges"] == {"*_knee_flexion": [0.0, 2.74]}  # a worker rebuilds it with them
+    assert squat.spec.create().body.model.upperPositionLimit.tolist() == squat.body.model.upperPositionLimit.tolist()
+
+
+@pytest.mark.parametrize(
+    ("ranges", "key", "message"),
+    [
+        ([0, 2.74], "strategies[1].ranges", "expected joint name or pattern -> \\[lower, upper\\]"),
+        ({"*_kneee": [0, 2.74]}, "strategies[1].ranges.*_kneee", "no joint matches"),
+        ({"*_knee_flexion": [2.74, 0]}, "strategies[1].ranges.*_knee_flexion", "expected \\[lower, upper\\]"),
+    ],
+)
+def test_a_strategy_s_bad_ranges_are_named(ranges, key, message):
+    with pytest.raises(ConfigError, match=message) as info:
+        parse_config(_knee_config(ranges), "ranges", "ranges")
+    assert info.value.key == key

@@ -571,3 +571,62 @@ def test_balance_with_the_pelvis_keeps_the_pelvis_over_the_feet():
         if pelvis is not True:
             assert abs(data.oMi[1].translation[1] - standing[1]) <= pelvis + 1e-4, (solver, data.oMi[1].translation)
         assert np.linalg.norm(data.oMf[model.getFrameId("right_hand")].translation - goal[0]) < 0.006
+
+
+def test_within_bounds_agree_in_casadi_pinocchio_and_finite_differences():
+    body = human_body()
+    frames = ["left_elbow_flexion", "left_fingertip"]
+    s = parse_strategy(body, "right_hand", [*WHOLE, *IDLE_ARM],
+                       [{"type": "reach"}, {"type": "within", "frames": frames, "max": [None, 0.25, None],
+                                            "min": [None, None, 0.3]}])
+    problem = ReachProblem(body, s)
+    task, model = s.task("within"), body.model
+    assert [(b.frame, b.axis, b.value, b.sign) for b in task.bounds] == [
+        ("left_elbow_flexion", 2, 0.3, 1.0), ("left_elbow_flexion", 1, 0.25, -1.0),
+        ("left_fingertip", 2, 0.3, 1.0), ("left_fingertip", 1, 0.25, -1.0)]
+    sym = Symbolic(SymbolicKinematics(model, problem.q_sym), problem.x_sym, ca.SX.sym("goal", 3), problem.x_ref,
+                   problem.upper - problem.lower)
+    g = ca.Function("g", [problem.x_sym], [ca.vertcat(*[c.expr for c in task.constraints(sym)])])
+    abduction = problem.x_names.index("left_shoulder_abduction")
+    for angle in (0.0, 10.0, 20.0, 30.0, 45.0):
+        x = problem.x_ref.copy()
+        x[abduction] = np.radians(angle)  # the arm swung out to the left: y grows
+        q = problem.q_of_x(x)
+        # Independently: the frames' positions by Pinocchio against the bounds as written.
+        data = model.createData()
+        pin.framesForwardKinematics(model, data, q)
+        p = [data.oMf[body.frame_id(n)].translation for n in frames]
+        inside = all(pt[1] <= 0.25 and pt[2] >= 0.3 for pt in p)
+        assert task.holds(numeric(problem, q, np.zeros(3))) == inside, angle
+        assert bool(np.all(np.asarray(g(x)).ravel() >= -1e-9)) == inside, angle
+    assert not task.holds(numeric(problem, problem.q_of_x(x), np.zeros(3)))  # 45 deg out: the fingertip past 0.25
+    rows = task.rows(numeric(problem, problem.q_of_x(x), np.zeros(3)))
+    assert rows and all(r.error[0] > 0 for r in rows)
+    jac = np.asarray(ca.Function("j", [problem.x_sym], [ca.jacobian(g(problem.x_sym), problem.x_sym)])(x))
+    active = [i for i, v in enumerate(np.asarray(g(x)).ravel()) if v < 0.005]
+    assert len(active) == len(rows)
+    for row, i in zip(rows, active, strict=True):
+        assert np.allclose(row.jacobian[0, 6:], jac[i, 6:], atol=1e-6)
+
+
+@pytest.mark.parametrize(
+    ("raw", "message"),
+    [
+        ({"max": [None, 0.25, None]}, r"tasks\[1\]\.frames: expected the frames"),
+        ({"frames": ["left_fingertip"]}, r"tasks\[1\]\.max: expected at least one bound"),
+        ({"frames": ["left_fingertip"], "max": [0.25]}, r"tasks\[1\]\.max: expected \[x, y, z\] in metres"),
+        ({"frames": ["left_fingertip"], "min": [None, "side", None]}, r"tasks\[1\]\.min: expected \[x, y, z\]"),
+        ({"frames": ["left_fingertip"], "min": [0, 0.3, 0], "max": [1, 0.2, 1]}, r"tasks\[1\]\.min: min y = 0.3 m "
+                                                                                  r"is above max y = 0.2 m"),
+        ({"frames": ["paw"], "max": [None, 0.25, None]}, r"tasks\[1\]\.frames: human: no frame 'paw'"),
+    ],
+)
+def test_within_errors_name_the_key(raw, message):
+    with pytest.raises(TaskError, match=message):
+        parse_strategy(human_body(), "right_hand", ARM, [{"type": "reach"}, {"type": "within", **raw}])
+
+
+def test_within_refuses_a_frame_the_strategy_does_not_move():
+    with pytest.raises(TaskError, match=r"tasks\[1\]\.frames: left_fingertip: no joint of the strategy moves"):
+        parse_strategy(human_body(), "right_hand", ARM,
+                       [{"type": "reach"}, {"type": "within", "frames": ["left_fingertip"], "max": [None, 0.25, None]}])

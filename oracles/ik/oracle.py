@@ -37,6 +37,21 @@ def fresh_stats() -> dict[str, int]:
     return {"points": 0, "prefiltered": 0, "solves": 0, "reachable": 0, "cut_rounds": 0}
 
 
+def strategy_ranges(body: dict[str, Any], ranges: Any) -> dict[str, Any]:
+    """The body spec with a strategy's own joint ranges over the body's (``ranges``: joint name or pattern ->
+    ``[lower, upper]`` [rad] or ``{scale: f}``, as the body's own key takes them).
+
+    Why: some ranges belong to a way of reaching, not to the body. A knee flexes about 135 deg by its own muscles
+    (AAOS 1965, the body's range) but 157 +- 6 deg in a squat with the heels up, the thigh pressed onto the calf by
+    the body's weight (Hemmerich et al. 2006, J Orthop Res 24:770-781, abstract): the squat strategy alone takes it.
+    """
+    if not ranges:
+        return body
+    if not isinstance(ranges, dict):
+        raise ModelError(f"expected joint name or pattern -> [lower, upper] in radians, got {ranges!r}", key="ranges")
+    return {**body, "ranges": {**body.get("ranges", {}), **ranges}}
+
+
 class IKOracle(TaskedBody, ABC):
     """The IK oracles' adapter to the protocol; subclasses implement :meth:`solve`.
 
@@ -51,6 +66,7 @@ class IKOracle(TaskedBody, ABC):
         joints: Active joints (names or glob patterns; ``root`` frees the base).
         tasks: Task list (see :mod:`oracles.ik.strategy`).
         search: How to look for a posture (see :class:`~oracles.ik.search.Search`).
+        ranges: The strategy's own joint ranges over the body's (:func:`strategy_ranges`).
 
     The registry builds it with :meth:`from_params`, from one flat mapping
     holding the body, the search's fields and the engine's own parameters.
@@ -63,18 +79,22 @@ class IKOracle(TaskedBody, ABC):
 
     def __init__(self, body: dict[str, Any], effector: str, joints: list[str],
                  tasks: list[dict[str, Any]] | None = None,
-                 search: Search | None = None) -> None:
+                 search: Search | None = None, ranges: dict[str, Any] | None = None) -> None:
         self.search = search if search is not None else Search()
-        params: dict[str, Any] = {"body": body, "effector": effector, "joints": joints, "tasks": tasks}
+        params: dict[str, Any] = {"body": body, "effector": effector, "joints": joints, "tasks": tasks,
+                                  **({"ranges": ranges} if ranges else {})}
+        own = strategy_ranges(body, ranges)
         try:
-            loaded = load_body(body)
+            loaded = load_body(own)
         except ModelError as exc:
-            raise exc.under("body") from None
-        super().__init__(loaded, parse_strategy(loaded, effector, joints, tasks), body, params)
+            # an error in the strategy's own ranges names them, not the body's
+            mine = bool(ranges) and (exc.key or "").startswith("ranges.") and (exc.key or "")[7:] in (ranges or {})
+            raise exc if mine else exc.under("body") from None
+        super().__init__(loaded, parse_strategy(loaded, effector, joints, tasks), own, params)
         self.stats = fresh_stats()
         self.reference_pending = False  # reference: auto found no posture by projection (see _auto_reference)
         if body.get("reference") == "auto":
-            self._auto_reference(body, effector, joints, tasks)
+            self._auto_reference(own, effector, joints, tasks)
 
     def _auto_reference(self, body: dict[str, Any], effector: str, joints: list[str],
                         tasks: list[dict[str, Any]] | None) -> None:

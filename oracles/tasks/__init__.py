@@ -23,6 +23,7 @@ from oracles.tasks.reach import ReachTask
 from oracles.tasks.self_collision import SelfCollisionTask
 from oracles.tasks.step import StepTask
 from oracles.tasks.tether import TetherTask
+from oracles.tasks.within import WithinTask
 
 TASKS: dict[str, type[Task]] = {
     ReachTask.type: ReachTask,
@@ -37,6 +38,7 @@ TASKS: dict[str, type[Task]] = {
     OrientationTask.type: OrientationTask,
     CouplingTask.type: CouplingTask,
     HangTask.type: HangTask,
+    WithinTask.type: WithinTask,
     GazeTask.type: GazeTask,
     PostureTask.type: PostureTask,
     ComfortTask.type: ComfortTask,
@@ -81,5 +83,6 @@ __all__ = [
     "Symbolic",
     "Task",
     "TetherTask",
+    "WithinTask",
     "table",
 ]

@@ -50,7 +50,8 @@ if TYPE_CHECKING:
 
 DEFAULT_BODY_ORACLE = "casadi-ik"
 TOP_KEYS = {"name", "description", "base", "body", "box", "depth", "oracle", "strategies", "build", "population"}
-STRATEGY_KEYS = {"name", "effector", "priority", "oracle", "description", "joints", "tasks", "mirror_of", "directions"}
+STRATEGY_KEYS = {"name", "effector", "priority", "oracle", "description", "joints", "tasks", "mirror_of", "directions",
+                 "ranges"}
 BUILD_KEYS = {"chunk_size", "refine", "twins"}
 REFINE_KEYS = {"centres", "faces", "isolated"}
 
@@ -221,8 +222,15 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
                 raise check.fail(f"{key}.joints", "joints and tasks need a top-level 'body'")
             if "joints" not in s:
                 raise check.fail(f"{key}.joints", "required key is missing (the joints this strategy may move)")
-            oracle = OracleSpec(oracle.name,
-                                {**oracle.params, **body_params(body, effector, s["joints"], s.get("tasks"))})
+            ranges = s.get("ranges")
+            if ranges is not None and not isinstance(ranges, Mapping):
+                raise check.fail(f"{key}.ranges", "expected joint name or pattern -> [lower, upper] in radians, got "
+                                                  f"{ranges!r}")
+            oracle = OracleSpec(oracle.name, {**oracle.params,
+                                              **body_params(body, effector, s["joints"], s.get("tasks"),
+                                                           None if ranges is None else dict(ranges))})
+        elif "ranges" in s:
+            raise check.fail(f"{key}.ranges", "joint ranges need a body strategy (a top-level 'body', joints, tasks)")
         mirror_of = check.string(s["mirror_of"], f"{key}.mirror_of") if "mirror_of" in s else None
         directions = check.integer(s.get("directions", 0), f"{key}.directions", 0, MAX_DIRECTIONS)
         strategies.append(StrategySpec(sname, effector, priority, oracle, str(s.get("description", "")), mirror_of,
