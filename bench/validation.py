@@ -8,6 +8,8 @@ Rows, each with its source:
   (Gordon et al. 2014; the regression fitted on the public data the project carries);
 * the wrist-to-grip offset against ANSUR II's (hand length - (forearm-hand length - forearm-centre-of-grip length)),
   mean and SD by sex;
+* Pheasant's shoulder-grip length (British adults 19-65) for the percentile bodies: the percentile of that sex's
+  distribution, and its SD (see :data:`PHEASANT`);
 * N ANSUR II subjects of each sex drawn at random (``--seed``): bodies built from each subject's record, every
   measured dimension against the subject's own; and bodies built from the 14 dimensions issue 51 lists alone, the
   rest regressed, against the subject's own (how well the regression predicts what was not given).
@@ -25,6 +27,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pinocchio as pin
 
 from oracles.bodies import ansur
 from oracles.bodies.anthropometry import stature_at_percentile
@@ -36,6 +39,16 @@ BODIES = (("female", 5), ("male", 50), ("male", 95))
 GIVEN = ansur.REACH
 CHECKED = ("thumbtipreach", "acromialheight", "sittingheight", "buttockkneelength")  # issue 51's subject check
 TOLERANCE = 0.015  # [m] p95 of a subject body's errors (issue 51)
+# Shoulder-grip length [mm], "from the acromion to the centre of an object gripped in the hand, with the elbow and
+# wrist straight": Pheasant's *Bodyspace* (British adults aged 19-65, dimension 25), as reproduced by A.H.S. Chan's
+# *Online Anthropometry* (City University of Hong Kong, Chapter 2, dimension 25; read there, not in the book, whose
+# edition the stored page does not name). Men 5th / 50th / 95th percentile 610 / 665 / 715, SD 32; women 555 /
+# 600; the stored page ends before the women's 95th percentile and SD, so their SD is taken as (50th - 5th) / 1.645
+# = 27 mm (a normal distribution's), marked so. The page's figure of the posture was not seen: the model is measured
+# with the arm hanging, as ANSUR II measures its arm lengths (raised forward it is 39 mm shorter: the shoulder
+# centre lies 40 mm below the acromion).
+PHEASANT = {("male", 50): (665.0, 32.0, "SD read"), ("male", 95): (715.0, 32.0, "SD read"),
+            ("female", 5): (555.0, 27.4, "SD derived from the 5th and 50th percentiles")}
 
 
 def grip_offsets(sex: str) -> np.ndarray:
@@ -76,6 +89,25 @@ def percentile_rows() -> list[dict]:
                      "de_leva_verdict": "within" if abs(old_grip - offsets.mean()) <= offsets.std() else "outside",
                      "ansur_mm": round(1000 * m, 1), "ansur_dev_mm": round(dev, 1),
                      "ansur_verdict": "within" if abs(dev) <= 1000 * offsets.std() else "outside"})
+    return rows
+
+
+def pheasant_rows() -> list[dict]:
+    """The percentile bodies' shoulder-grip length (acromion to grip centre, the arm hanging straight) against
+    Pheasant's British adults at the same percentile of their sex."""
+    rows = []
+    for (sex, pct), (published, sd, note) in PHEASANT.items():
+        body = human_body(sex, percentile=pct)
+        data = body.model.createData()
+        pin.framesForwardKinematics(body.model, data, body.q_ref)
+        acromion, grip = (data.oMf[body.frame_id(n)].translation for n in ("right_acromion", "right_grip"))
+        m = 1000 * float(np.linalg.norm(acromion - grip))
+        rows.append({"table": "percentile", "body": f"{sex} p{pct:g}", "dimension": "shouldergriplength",
+                     "published_mm": published, "sd_mm": sd, "ansur_mm": round(m, 1),
+                     "ansur_dev_mm": round(m - published, 1),
+                     "ansur_verdict": "within" if abs(m - published) <= sd else "outside",
+                     "source": "Pheasant (Bodyspace), British adults 19-65, dimension 25, via "
+                               f"Chan's Online Anthropometry (CityU); {note}"})
     return rows
 
 
@@ -142,7 +174,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=51)
     parser.add_argument("--markdown", type=Path, help="write the tables to this file's generated section")
     args = parser.parse_args()
-    percentile = percentile_rows()
+    percentile = percentile_rows() + pheasant_rows()
     subjects = subject_rows(args.subjects, args.seed)
     summaries = summary(subjects)
     for row in percentile + summaries:
