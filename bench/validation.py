@@ -10,6 +10,8 @@ Rows, each with its source:
   mean and SD by sex;
 * Pheasant's shoulder-grip length (British adults 19-65) for the percentile bodies: the percentile of that sex's
   distribution, and its SD (see :data:`PHEASANT`);
+* MIL-STD-1472G's functional and extended functional reach for the 5th-percentile woman and 95th-percentile man
+  (see :data:`MIL_STD`);
 * N ANSUR II subjects of each sex drawn at random (``--seed``): bodies built from each subject's record, every
   measured dimension against the subject's own; and bodies built from the 14 dimensions issue 51 lists alone, the
   rest regressed, against the subject's own (how well the regression predicts what was not given).
@@ -33,6 +35,7 @@ from oracles.bodies import ansur
 from oracles.bodies.anthropometry import stature_at_percentile
 from oracles.bodies.body import human_body
 from oracles.bodies.measure import MEASURES, measure
+from oracles.bodies.measure import _points as measure_points
 
 BODIES = (("female", 5), ("male", 50), ("male", 95))
 # Issue 51's list of the dimensions that set reach: a body built from these alone.
@@ -47,6 +50,18 @@ TOLERANCE = 0.015  # [m] p95 of a subject body's errors (issue 51)
 # = 27 mm (a normal distribution's), marked so. The page's figure of the posture was not seen: the model is measured
 # with the arm hanging, as ANSUR II measures its arm lengths (raised forward it is 39 mm shorter: the shoulder
 # centre lies 40 mm below the acromion).
+# MIL-STD-1472G, Appendix B (DoD 2012), general forces, as quoted by NUREG-0700 Rev. 3, Table 11.4 (read there, not
+# in the standard) [mm]: functional reach, "from wall to tip of right index finger, with arm extended horizontal to
+# floor, both shoulders against wall", 5th-percentile woman 677, 95th-percentile man 886; extended functional reach,
+# "as stated above, except right shoulder extended as ..." (the stored page ends there), 735 and 942. The functional
+# reach's figures are ANSUR II's thumb-tip reach (the thumb tip against the index finger) at those percentiles:
+# 674.2 and 886.0 mm in the carried data. So the model's thumb tip (right_pinch) is measured, the arm horizontal at
+# shoulder height; for the extended reach the right shoulder girdle and the arm's direction are free, the hand kept
+# at that height (the end of the definition was not read: the trunk is not turned). The table gives no SD: the scatter
+# is ANSUR II's SD of the sex's thumb-tip reach.
+MIL_STD = {("female", 5): (677.0, 735.0), ("male", 95): (886.0, 942.0)}
+EXTENDED = ("right_clavicle_elevation", "right_clavicle_protraction", "right_shoulder_flexion",
+            "right_shoulder_abduction", "right_shoulder_rotation")
 PHEASANT = {("male", 50): (665.0, 32.0, "SD read"), ("male", 95): (715.0, 32.0, "SD read"),
             ("female", 5): (555.0, 27.4, "SD derived from the 5th and 50th percentiles")}
 
@@ -108,6 +123,43 @@ def pheasant_rows() -> list[dict]:
                      "ansur_verdict": "within" if abs(m - published) <= sd else "outside",
                      "source": "Pheasant (Bodyspace), British adults 19-65, dimension 25, via "
                                f"Chan's Online Anthropometry (CityU); {note}"})
+    return rows
+
+
+def extended_reach(body) -> tuple[float, float]:  # noqa: ANN001
+    """Thumb-tip reach from the wall behind the shoulders [m], the arm horizontal forward; and the farthest with the
+    right shoulder girdle and the arm's direction free, the thumb tip kept at that height (scipy's SLSQP)."""
+    from scipy.optimize import minimize
+
+    straight = measure_points(body, right_shoulder_flexion=np.pi / 2)
+    wall, height = straight["back"][0], straight["right_pinch"][2]
+    limits = {n: (lo, hi) for n, lo, hi in body.limits()}
+    data, fid = body.model.createData(), body.frame_id("right_pinch")
+
+    def tip(x: np.ndarray) -> np.ndarray:
+        pin.framesForwardKinematics(body.model, data, body.configuration(dict(zip(EXTENDED, map(float, x),
+                                                                                   strict=True))))
+        return np.asarray(data.oMf[fid].translation)
+
+    best = minimize(lambda x: -tip(x)[0], np.array([0.0, 0.0, np.pi / 2, 0.0, 0.0]),
+                    bounds=[limits[n] for n in EXTENDED], method="SLSQP",
+                    constraints=[{"type": "eq", "fun": lambda x: tip(x)[2] - height}])
+    return float(straight["right_pinch"][0] - wall), float(tip(best.x)[0] - wall)
+
+
+def mil_std_rows() -> list[dict]:
+    """The 5th-percentile woman's and the 95th-percentile man's functional and extended functional reach."""
+    rows = []
+    for (sex, pct), published in MIL_STD.items():
+        sd = 1000 * float(ansur.sample(sex).column("thumbtipreach").std())  # type: ignore[arg-type]
+        for name, pub, m in zip(("functionalreach", "extendedfunctionalreach"), published,
+                                extended_reach(human_body(sex, percentile=pct)), strict=True):
+            dev = 1000 * m - pub
+            rows.append({"table": "percentile", "body": f"{sex} p{pct:g}", "dimension": name, "published_mm": pub,
+                         "sd_mm": round(sd, 1), "ansur_mm": round(1000 * m, 1), "ansur_dev_mm": round(dev, 1),
+                         "ansur_verdict": "within" if abs(dev) <= sd else "outside",
+                         "source": "MIL-STD-1472G Appendix B (general forces) via NUREG-0700 Rev. 3 Table 11.4; SD: "
+                                   "ANSUR II thumb-tip reach"})
     return rows
 
 
@@ -174,7 +226,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=51)
     parser.add_argument("--markdown", type=Path, help="write the tables to this file's generated section")
     args = parser.parse_args()
-    percentile = percentile_rows() + pheasant_rows()
+    percentile = percentile_rows() + pheasant_rows() + mil_std_rows()
     subjects = subject_rows(args.subjects, args.seed)
     summaries = summary(subjects)
     for row in percentile + summaries:
