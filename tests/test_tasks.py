@@ -630,3 +630,32 @@ def test_within_refuses_a_frame_the_strategy_does_not_move():
     with pytest.raises(TaskError, match=r"tasks\[1\]\.frames: left_fingertip: no joint of the strategy moves"):
         parse_strategy(human_body(), "right_hand", ARM,
                        [{"type": "reach"}, {"type": "within", "frames": ["left_fingertip"], "max": [None, 0.25, None]}])
+
+
+def test_hang_takes_several_chains_and_names_the_bad_one():
+    body = human_body()
+    legs = [["right_knee_flexion", "right_hip_flexion"], ["left_knee_flexion", "left_hip_flexion"]]
+    s = parse_strategy(body, "right_hand", [*WHOLE, "*_knee_*"], [{"type": "reach"},
+                                                                   {"type": "hang", "frames": legs, "cone": 90}])
+    assert s.task("hang").chains == tuple(tuple(c) for c in legs)
+    with pytest.raises(TaskError, match=r"tasks\[1\]\.frames\[1\]: expected at least two frames"):
+        parse_strategy(body, "right_hand", WHOLE, [{"type": "reach"},
+                                                   {"type": "hang", "frames": [legs[0], ["left_knee_flexion"]]}])
+
+
+def test_coupling_add_keeps_the_defaults_and_names_its_rules():
+    from oracles.tasks.coupling import RECTUS
+
+    body = human_body()
+    joints = [*WHOLE, "*_knee_*"]
+    default = parse_strategy(body, "right_hand", joints, [{"type": "reach"}, {"type": "coupling"}]).task("coupling")
+    added = parse_strategy(body, "right_hand", joints,
+                           [{"type": "reach"}, {"type": "coupling", "add": [RECTUS]}]).task("coupling")
+    assert added.rules[:len(default.rules)] == default.rules
+    assert sorted((r.joints, r.by) for r in added.rules[len(default.rules):]) == [
+        (("left_knee_flexion",), "left_hip_flexion"), (("right_knee_flexion",), "right_hip_flexion")]
+    with pytest.raises(TaskError, match=r"tasks\[1\]\.add\[0\]\.joint: no joint matches 'tail'"):
+        parse_strategy(body, "right_hand", joints, [{"type": "reach"}, {"type": "coupling", "add": [
+            {"joint": "tail", "by": "*_hip_flexion", "limit": 1.0, "slope": 0.0}]}])
+    with pytest.raises(TaskError, match=r"tasks\[1\]\.add: expected a list"):
+        parse_strategy(body, "right_hand", joints, [{"type": "reach"}, {"type": "coupling", "add": RECTUS}])

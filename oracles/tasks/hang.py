@@ -1,5 +1,8 @@
 """An idle arm hangs: ``{type: hang, frames: [shoulder, elbow, wrist], cone: 45}``.
 
+``frames`` is one chain, or a list of chains (``[[right_knee_flexion, right_hip_flexion], [left_knee_flexion,
+left_hip_flexion]]``: with a 90 deg cone, each hip at or below its knee, a squat).
+
 Each frame of a chain lies below the one before it, within ``cone`` deg
 (as gaze's cone) of straight down: ``z[k-1] - z[k] >= cos(cone) * |p[k] - p[k-1]|``. Without
 ``frames``, the generated human's arms that do not carry the effector and
@@ -59,9 +62,9 @@ class HangTask(HardTask):
 
     type: ClassVar[str] = "hang"
     keys: ClassVar[frozenset[str]] = frozenset({"frames", "cone"})
-    summary: ClassVar[str] = ("an idle arm hangs: each of `frames` below the one before, within `cone` deg (default "
-                              "45) of "
-                               "straight down; by default the human's arms that do not reach")
+    summary: ClassVar[str] = ("an idle arm hangs: each of `frames` (a chain, or a list of chains) below the one before, "
+                              "within `cone` deg (default 45) of straight down; by default the human's arms that do "
+                              "not reach")
 
     chains: tuple[tuple[str, ...], ...] = ()
     cone: float = math.radians(CONE)  # [rad]
@@ -71,11 +74,17 @@ class HangTask(HardTask):
     def parse(cls, raw: dict[str, Any], where: str, scope: Scope) -> HangTask:
         cone = math.radians(number(raw.get("cone", CONE), f"{where}.cone", 0.0, 90.0))
         if "frames" in raw:
-            chain = frames(scope, raw["frames"], f"{where}.frames")
-            if len(chain) < 2:
-                raise TaskError(f"{where}.frames", "expected at least two frames (a chain, top first), got "
-                                                   f"{list(chain)!r}")
-            return cls((chain,), cone)
+            given = raw["frames"]
+            # one chain, or several (a list of lists: both legs of a squat)
+            lists = given if isinstance(given, list) and given and all(isinstance(g, list) for g in given) else [given]
+            chains = []
+            for k, item in enumerate(lists):
+                here = f"{where}.frames" if len(lists) == 1 and lists[0] is given else f"{where}.frames[{k}]"
+                chain = frames(scope, item, here)
+                if len(chain) < 2:
+                    raise TaskError(here, f"expected at least two frames (a chain, top first), got {list(chain)!r}")
+                chains.append(chain)
+            return cls(tuple(chains), cone)
         model = scope.body.model
         arms = [tuple(n.format(side=side) for n in HUMAN_ARM) for side in ("left", "right")]
         if not any(all(model.existFrame(n) for n in arm) for arm in arms):

@@ -1,0 +1,69 @@
+"""The squat (issue 50, item 2): buttocks near the heels, knees deeply flexed, heels free to rise.
+
+The shipped strategy (``configs/human.yaml``'s ``right_squat``) is asked for goals low in front and beside the feet,
+and every "reachable" answer is checked by our own forward kinematics (Pinocchio): the hand at its goal, each hip at or
+below its knee, the balls of the feet where they stood, the knees within the squat's own 157 deg and the rectus
+femoris's coupling, the centre of mass over the balls and toes where they stood (scipy's convex hull).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pinocchio as pin
+import pytest
+from scipy.spatial import ConvexHull
+
+from oracles.protocol import Goals
+from tests.test_torsion import shipped
+
+GOALS = np.array([[0.5, -0.25, 0.5], [0.6, -0.2, 0.1], [0.3, -0.35, 0.2]])  # [m] low, in front of and beside the feet
+SQUAT_KNEE = math.radians(157.0)  # Hemmerich et al. 2006 (the strategy's `ranges`)
+
+
+@pytest.fixture(scope="module")
+def squat():
+    return shipped("right_squat")
+
+
+def test_the_squat_reaches_low_with_the_buttocks_near_the_heels(squat):
+    body = squat.body
+    model = body.model
+    v = squat.evaluate(Goals(GOALS))
+    assert v.reachable.all()
+    ref = model.createData()
+    pin.framesForwardKinematics(model, ref, body.q_ref)
+    deepest = 0.0
+    for goal, q in zip(GOALS, v.posture, strict=True):
+        data = model.createData()
+        pin.framesForwardKinematics(model, data, q)
+
+        def at(name: str, d: pin.Data = data) -> np.ndarray:
+            return np.asarray(d.oMf[body.frame_id(name)].translation)
+
+        assert np.linalg.norm(at("right_hand") - goal) <= 0.005
+        for side in ("right", "left"):
+            assert at(f"{side}_hip_flexion")[2] <= at(f"{side}_knee_flexion")[2] + 1e-6  # hips at or below the knees
+            for ball in ("ball_inner", "ball_outer"):
+                assert np.linalg.norm(at(f"{side}_{ball}") - at(f"{side}_{ball}", ref)) <= 1e-3
+            knee, hip = (q[body.q_names.index(f"{side}_{j}")] for j in ("knee_flexion", "hip_flexion"))
+            assert knee <= SQUAT_KNEE + 1e-6
+            assert knee <= math.radians(135.0) + 22.0 / 90.0 * hip + 1e-3  # the rectus femoris's coupling
+            deepest = max(deepest, knee)
+        # the toes stay on the floor where they stood (the model's foot is rigid: its toe tips pivot with it)
+        support = np.array([at(f"{s}_{c}", ref)[:2] for s in ("right", "left")
+                            for c in ("ball_inner", "ball_outer", "toe_inner", "toe_outer")])
+        hull = ConvexHull(support)
+        com = pin.centerOfMass(model, model.createData(), q)[:2]
+        assert np.all(hull.equations[:, :2] @ com + hull.equations[:, 2] <= 1e-6)
+    assert deepest > math.radians(140.0)  # past the muscles' 135 deg: the squat's own range is used
+
+
+def test_the_squat_keeps_the_back_straighter_than_the_crouch(squat):
+    """For the same low goals the crouch (heels down) stoops: its lumbar flexion is larger."""
+    crouch = shipped("right_crouch")
+    i = squat.body.q_names.index("lumbar_flexion")
+    a, b = squat.evaluate(Goals(GOALS)), crouch.evaluate(Goals(GOALS))
+    assert a.reachable.all() and b.reachable.all()
+    assert np.median(a.posture[:, i]) < np.median(b.posture[:, i]) - math.radians(5.0)
