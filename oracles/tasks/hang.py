@@ -62,9 +62,9 @@ class HangTask(HardTask):
 
     type: ClassVar[str] = "hang"
     keys: ClassVar[frozenset[str]] = frozenset({"frames", "cone"})
-    summary: ClassVar[str] = ("an idle arm hangs: each of `frames` (a chain, or a list of chains) below the one before, "
-                              "within `cone` deg (default 45) of straight down; by default the human's arms that do "
-                              "not reach")
+    summary: ClassVar[str] = ("an idle arm hangs: each of `frames` (a chain, or a list of chains) below the one "
+                              "before, within `cone` deg (default 45) of straight down; by default the human's arms "
+                              "that do not reach")
 
     chains: tuple[tuple[str, ...], ...] = ()
     cone: float = math.radians(CONE)  # [rad]
