@@ -208,6 +208,15 @@ class ModelHashed(Protocol):
 
 
 @runtime_checkable
+class ShapeHashed(Protocol):
+    """An oracle on a body model whose shape (links, joints, frames and placement, the joint ranges aside) a hash
+    names: a strategy may inherit the postures of another on the same shape, each checked against its own ranges."""
+
+    @property
+    def shape_hash(self) -> str: ...
+
+
+@runtime_checkable
 class Rebuilt(Protocol):
     """An oracle that can rebuild itself with the body model a stored tree was built with, where this version of its
     spec builds another (a human from before ANSUR II bodies)."""

@@ -192,6 +192,21 @@ def test_sub_strategies_of_the_demo_atlas():
     }
 
 
+def test_strategies_with_their_own_joint_ranges_inherit_on_the_same_body():
+    """The torsion and the squat change joint ranges, not the body: they inherit, and are inherited from (each
+    inherited posture is checked against the inheritor's own ranges by its verdict)."""
+    from reach.build.atlas import sub_strategies
+
+    config = load_config(Path(__file__).parent.parent / "configs" / "human.yaml")
+    order = sorted(config.strategies, key=lambda s: s.mirror_of is not None)
+    subs = sub_strategies(order)
+    assert subs["right_torsion"] == "right_upper_body"
+    assert subs["right_whole_body"] == "right_upper_body"  # the torsion's joints are the same, not fewer
+    assert subs["right_squat"] == "right_crouch"
+    oracles = {s.name: s.oracle.create() for s in config.strategies if s.name in ("right_torsion", "right_upper_body")}
+    assert oracles["right_torsion"].model_hash != oracles["right_upper_body"].model_hash
+
+
 def test_a_crouch_inherits_the_whole_bodys_verified_postures(tmp_path):
     from oracles.protocol import OracleSpec
 

@@ -134,7 +134,16 @@ class Body:
     @property
     def hash(self) -> str:
         """Identifies the model (URDF text and range overrides) in stored atlases."""
-        text = self.urdf + json.dumps(self.spec.get("ranges", {}), sort_keys=True)
+        return self._hash(with_ranges=True)
+
+    @property
+    def shape_hash(self) -> str:
+        """Identifies the model's shape: its hash but for the joint ranges (a strategy's own ranges leave it the same
+        body, whose postures another strategy may take, each checked against its own ranges)."""
+        return self._hash(with_ranges=False)
+
+    def _hash(self, with_ranges: bool) -> str:
+        text = self.urdf + (json.dumps(self.spec.get("ranges", {}), sort_keys=True) if with_ranges else "")
         placed = {k: self.spec[k] for k in PLACING if k in self.spec}
         human = self.spec.get("human") or {}
         if "posture" in human or "seat" in human:

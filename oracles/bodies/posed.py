@@ -47,6 +47,10 @@ class PosedBody:
     def model_hash(self) -> str:
         return self.body.hash
 
+    @property
+    def shape_hash(self) -> str:
+        return self.body.shape_hash
+
     def reference_posture(self) -> np.ndarray:
         return self.body.q_ref.copy()
 

@@ -34,6 +34,7 @@ from oracles.protocol import (
     ModelHashed,
     Oracle,
     OracleSpec,
+    ShapeHashed,
     Specified,
     Tunable,
     Verifying,
@@ -83,16 +84,18 @@ def fingerprint(config: Config, strategy: StrategySpec, oracle: Oracle) -> str:
 
 def sub_strategies(order: list[StrategySpec],
                    oracle_of: Callable[[StrategySpec], Oracle] | None = None) -> dict[str, str]:
-    """For each strategy, the sub-strategy it inherits from, if any: built before it, on the same body and
-    effector, with a subset of its active joints (the largest such subset; the earliest among equals).
+    """For each strategy, the sub-strategy it inherits from, if any: built before it, on the same body (its shape:
+    joint ranges may differ) and effector, with a subset of its active joints (the largest such subset; the earliest
+    among equals).
 
     ``oracle_of`` gives a strategy's oracle (a build's own, made once); by default each is made here."""
     seen: dict[str, tuple[str, str, frozenset[str], tuple[str, ...]]] = {}
     for s in order:
         oracle = oracle_of(s) if oracle_of is not None else s.oracle.create()  # builds no solver
         if isinstance(oracle, Described) and isinstance(oracle, ModelHashed):
-            seen[s.name] = (oracle.model_hash, s.effector, frozenset(oracle.describe()["joints"]),
-                            tuple(oracle.posture_names))
+            # the same shape: a strategy with its own joint ranges still inherits (the verdict checks the ranges)
+            shape = oracle.shape_hash if isinstance(oracle, ShapeHashed) else oracle.model_hash
+            seen[s.name] = (shape, s.effector, frozenset(oracle.describe()["joints"]), tuple(oracle.posture_names))
     out: dict[str, str] = {}
     for k, s in enumerate(order):
         if s.name not in seen:
