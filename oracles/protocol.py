@@ -279,6 +279,18 @@ class QuarterTurning(Protocol):
 
 
 @runtime_checkable
+class Transiting(Protocol):
+    """An oracle whose motions may start from a posture that breaks some of its strategy's tasks: a tiptoe's or a
+    squat's balance over the balls of the feet, a squat's hips below the knees, from standing."""
+
+    def transit(self, broken: list[str]) -> Any | None:
+        """The oracle that a motion's frames hold, from a start breaking ``broken`` (task types) to this strategy's
+        end posture: the strategy without those tasks, balance over the feet's whole soles where the heels may rise
+        (the end posture holds every task); None when it cannot start there (a joint out of its range)."""
+        ...
+
+
+@runtime_checkable
 class Stepping(Protocol):
     """An oracle whose strategy may take a step: where the stepping foot lands at a posture."""
 

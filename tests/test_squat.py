@@ -67,3 +67,57 @@ def test_the_squat_keeps_the_back_straighter_than_the_crouch(squat):
     a, b = squat.evaluate(Goals(GOALS)), crouch.evaluate(Goals(GOALS))
     assert a.reachable.all() and b.reachable.all()
     assert np.median(a.posture[:, i]) < np.median(b.posture[:, i]) - math.radians(5.0)
+
+
+@pytest.fixture(scope="module")
+def atlas(tmp_path_factory):
+    """A small atlas of the shipped tiptoe and squat (D_max 3, compiled programs off)."""
+    import yaml
+
+    from reach.build.atlas import build_atlas
+    from reach.build.config import parse_config
+    from tests.test_torsion import ROOT
+
+    shipped_raw = yaml.safe_load((ROOT / "configs" / "human.yaml").read_text())
+    raw = {**shipped_raw, "name": "squat", "box": {"min": [-0.4, -0.8, 0.0], "max": [0.9, 0.4, 2.3]},
+           "depth": {"min": 2, "max": 3},
+           "oracle": {**shipped_raw["oracle"], "params": {**shipped_raw["oracle"]["params"], "jit": False}},
+           "strategies": [s for s in shipped_raw["strategies"] if s["name"] in ("right_tiptoe", "right_squat")]}
+    tmp = tmp_path_factory.mktemp("squat")
+    return build_atlas(parse_config(raw, str(tmp / "squat.yaml")), tmp / "a")
+
+
+@pytest.mark.parametrize(("goal", "strategy"), [((0.5, -0.25, 0.5), "right_squat"),
+                                               ((0.3, -0.3, 2.05), "right_tiptoe")])
+def test_motions_from_standing_rise_onto_the_balls_and_keep_them_where_they_stood(atlas, goal, strategy):
+    """From standing (which breaks the squat's hips-below-knees and the tiptoe's and squat's balance over the balls),
+    the frames hold the rest, balance over the whole soles, the end holds all: by our own forward kinematics, the
+    balls of the feet stay (under 1 cm), no heel goes below the floor, the centre of mass stays over the soles where
+    they stood; the squat ends with the hips below the knees and the pelvis 0.4 m lower."""
+    from reach.answers.select import Selector
+    from reach.motion.planner import Planner
+
+    motion = Planner(Selector(atlas)).plan("right_hand", np.array(goal))
+    assert motion.strategy == strategy and motion.outcome == "reached"
+    body = shipped(strategy).body
+    model = body.model
+    data = model.createData()
+    pin.framesForwardKinematics(model, data, motion.postures[0])
+    balls = [body.frame_id(f"{s}_{b}") for s in ("right", "left") for b in ("ball_inner", "ball_outer")]
+    start = np.array([data.oMf[f].translation for f in balls])
+    soles = np.array([data.oMf[body.frame_id(f"{s}_{c}")].translation[:2] for s in ("right", "left")
+                      for c in ("heel_inner", "heel_outer", "toe_inner", "toe_outer")])
+    hull = ConvexHull(soles)
+    for q in motion.postures:
+        pin.framesForwardKinematics(model, data, q)
+        assert np.linalg.norm(np.array([data.oMf[f].translation for f in balls]) - start, axis=1).max() < 0.01
+        assert min(data.oMf[body.frame_id(f"{s}_heel")].translation[2] for s in ("right", "left")) >= -1e-3
+        com = pin.centerOfMass(model, model.createData(), q)[:2]
+        assert np.all(hull.equations[:, :2] @ com + hull.equations[:, 2] <= 1e-6)
+    if strategy == "right_squat":
+        q = motion.postures[-1]
+        pin.framesForwardKinematics(model, data, q)
+        for side in ("right", "left"):
+            assert (data.oMf[body.frame_id(f"{side}_hip_flexion")].translation[2]
+                    <= data.oMf[body.frame_id(f"{side}_knee_flexion")].translation[2] + 1e-6)
+        assert q[2] < motion.postures[0][2] - 0.4

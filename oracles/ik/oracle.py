@@ -29,6 +29,7 @@ from oracles.ik.search import Search
 from oracles.ik.strategy import parse_strategy
 from oracles.ik.tasked import TaskedBody
 from oracles.protocol import Goals, Oracle, OracleSpec, Purpose, Verdicts, check_purpose
+from oracles.tasks.feet import DOWN_SUPPORT, FeetTask, corner_frames
 
 __all__ = ["NO_CALL", "Call", "IKOracle", "fresh_stats"]
 
@@ -181,6 +182,33 @@ class IKOracle(TaskedBody, ABC):
                 return held
         v = self.evaluate(Goals(self.effector_positions(q[None]), current=q))
         return v.posture[0] if v.reachable[0] and v.posture is not None else None
+
+    def transit(self, broken: list[str]) -> IKOracle | None:
+        """The oracle whose tasks a motion's frames hold from a start that breaks ``broken`` (see
+        :class:`oracles.protocol.Transiting`): the tasks the start breaks are the end's alone (a squat's hips below
+        the knees), but balance, which holds over the feet's whole soles instead of their balls and toes while the
+        heels may rise (standing flat, the body's weight is over the heels too). None for a joint out of range."""
+        rising = any(isinstance(t, FeetTask) and t.rising for t in self.strategy.hard)
+        # what a motion may enter: a posture class (hang), and balance over the balls from standing flat; a start
+        # through a segment, the floor, out of its contacts or a joint's range is refused
+        entered = {t.type for t in self.strategy.hard if t.entered} | ({"balance"} if rising else set())
+        if not broken or any(b not in entered for b in broken):
+            return None
+        tasks = []
+        for raw in self._strategy_params.get("tasks") or []:
+            kind = raw.get("type")
+            if kind in broken and kind != "balance":
+                continue
+            if (kind == "feet" and raw.get("heels") == "rise" and "balance" in broken
+                    and not {"support", "soles"} & set(raw)):
+                feet = raw.get("frames", ["right_foot", "left_foot"])
+                raw = {**raw, "support": [c for f in feet for c in corner_frames(self.body.model, f, DOWN_SUPPORT)]}
+            tasks.append(raw)
+        params = {**self.spec.params, "tasks": tasks}
+        if "jit" in params:
+            params["jit"] = False  # a motion's holds; compiling the twin's programs would cost minutes
+        twin = OracleSpec(self.name, params).create()
+        return twin if isinstance(twin, IKOracle) else None
 
     def hold_many(self, postures: np.ndarray, deadline: float = np.inf) -> np.ndarray:
         """Each posture (F, nq) held as one batch, a NaN row where none is held. An engine that solves one posture at a

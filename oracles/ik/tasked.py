@@ -252,9 +252,14 @@ class TaskedBody(PosedBody):
 
 
 def _anchor(body: Body, strategy: Strategy) -> str | None:
-    """The frame a standing body moves from: the first ``fixed`` contact of a hard task, when the root floats."""
+    """The frame a standing body moves from: the first ``fixed`` contact of a hard task, else the first ``hinge``
+    (a foot pivoting about its ball: its two placements differ by a turn about the ball's axis, which the
+    interpolation follows, so the ball stays where it is), when the root floats."""
     if not strategy.floating:
         return None
-    fixed = (c for t in strategy.hard if isinstance(t, ContactsTask) for c in t.contacts if c.mode == "fixed")
-    contact = next(fixed, None)
-    return None if contact is None else contact.frame
+    contacts = [c for t in strategy.hard if isinstance(t, ContactsTask) for c in t.contacts]
+    for mode in ("fixed", "hinge"):
+        contact = next((c for c in contacts if c.mode == mode), None)
+        if contact is not None:
+            return contact.frame
+    return None

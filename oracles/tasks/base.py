@@ -266,6 +266,9 @@ class Task(ABC):
 
     #: Frames held where they stand at the reference posture (anchors of the reach pre-filter).
     held_frames: tuple[str, ...] = ()
+    #: A posture class a motion may start outside of and enter by its end (a squat's hips below the knees), not a
+    #: physical limit that every frame holds (:meth:`oracles.ik.oracle.IKOracle.transit`).
+    entered: ClassVar[bool] = False
     #: Frames whose reference ground positions span a support polygon.
     support: tuple[str, ...] = ()
     #: A per-goal target the task takes (``Goals.targets[target_key]``; None: none) and how many numbers of the

@@ -30,11 +30,16 @@ DOWN_SUPPORT = ["heel_inner", "heel_outer", "toe_inner", "toe_outer"]
 RISE_SUPPORT = ["ball_inner", "ball_outer", "toe_inner", "toe_outer"]
 
 
-def _side_frames(scope: Scope, foot: str, parts: list[str]) -> list[str]:
-    """The foot's named landmarks (``right_heel_inner``...), or the foot itself when the body has none."""
+def corner_frames(model: Any, foot: str, parts: list[str]) -> list[str]:
+    """The foot's named landmarks (``right_heel_inner``...) on a Pinocchio model, or the foot itself when it has
+    none."""
     prefix = foot[: -len("foot")] if foot.endswith("foot") else f"{foot}_"
     names = [f"{prefix}{p}" for p in parts]
-    return names if all(scope.body.model.existFrame(n) for n in names) else [foot]
+    return names if all(model.existFrame(n) for n in names) else [foot]
+
+
+def _side_frames(scope: Scope, foot: str, parts: list[str]) -> list[str]:
+    return corner_frames(scope.body.model, foot, parts)
 
 
 @dataclass
@@ -80,6 +85,11 @@ class FeetTask(ContactsTask):
         task = cls.held(scope, contacts, above, support)
         assert isinstance(task, FeetTask)
         return replace(task, bare=tuple(bare))
+
+    @property
+    def rising(self) -> bool:
+        """Whether the heels may rise (each foot pivots about its ball)."""
+        return any(c.mode == "hinge" for c in self.contacts)
 
     def warnings(self) -> list[str]:
         return [f"foot {f!r} has no sole corners (no frames named as the feet task's docs say, no soles.{f}): it "

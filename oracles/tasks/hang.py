@@ -105,6 +105,7 @@ class HangTask(HardTask):
         return not self.chains
 
     parametric: ClassVar[bool] = True  # the body enters only through the kinematics
+    entered: ClassVar[bool] = True  # a squat's legs: standing, the hips are above the knees until the motion's end
 
     def bind(self, reference: Reference) -> None:
         self._ids = [[reference.body.frame_id(n) for n in chain] for chain in self.chains]

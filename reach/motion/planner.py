@@ -52,7 +52,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
-from oracles.protocol import EffectorPositions, Moving, Shaped, Stepping, Verifying
+from oracles.protocol import EffectorPositions, Moving, Shaped, Stepping, Transiting, Verifying
 from reach.answers.answer import posture_vector, split_posture
 from reach.answers.select import Selector
 from reach.errors import InputError, ReachError
@@ -329,7 +329,10 @@ class Planner:
         labels = tree.posture_names
         q0 = self._start(oracle, tree, start)
         broken = oracle.faults(q0[None])[0]
-        if broken:
+        # A start that breaks some of the strategy's tasks (a tiptoe's or squat's balance over the balls, the
+        # squat's hips below the knees, from standing): the frames hold the strategy's transit twin, the end all.
+        mover = oracle.transit(broken) if broken and isinstance(oracle, Transiting) else oracle
+        if mover is None or (broken and mover.faults(q0[None])[0]):
             raise InputError("from", f"the start posture breaks {', '.join(broken)} for strategy {name}")
         if outcome == REACHED:
             q1 = posture_vector(labels, q0, answer.posture, answer.root)
@@ -338,7 +341,7 @@ class Planner:
         else:
             q1 = self._nearest_stored(name, g[0])
         step = self._step(oracle, q0, q1, rate) if outcome == REACHED else None
-        postures, waypoints, held = self._path(name, oracle, labels, q0 if step is None else step[-1], q1, rate, timing)
+        postures, waypoints, held = self._path(name, mover, labels, q0 if step is None else step[-1], q1, rate, timing)
         if step is not None:
             # the step's frames (the foot lifted, carried and set down), then the reach from where it landed
             frames, reach_times, parts = postures
