@@ -29,7 +29,7 @@ from oracles.ik.search import Search
 from oracles.ik.strategy import parse_strategy
 from oracles.ik.tasked import TaskedBody
 from oracles.protocol import Goals, Oracle, OracleSpec, Purpose, Verdicts, check_purpose
-from oracles.tasks.feet import DOWN_SUPPORT, FeetTask, corner_frames
+from oracles.tasks.feet import DOWN_SUPPORT, corner_frames
 
 __all__ = ["NO_CALL", "Call", "IKOracle", "fresh_stats"]
 
@@ -188,10 +188,8 @@ class IKOracle(TaskedBody, ABC):
         :class:`oracles.protocol.Transiting`): the tasks the start breaks are the end's alone (a squat's hips below
         the knees), but balance, which holds over the feet's whole soles instead of their balls and toes while the
         heels may rise (standing flat, the body's weight is over the heels too). None for a joint out of range."""
-        rising = any(isinstance(t, FeetTask) and t.rising for t in self.strategy.hard)
-        # what a motion may enter: a posture class (hang), and balance over the balls from standing flat; a start
-        # through a segment, the floor, out of its contacts or a joint's range is refused
-        entered = {t.type for t in self.strategy.hard if t.entered} | ({"balance"} if rising else set())
+        # a start through a segment, the floor, out of its contacts or a joint's range is refused
+        entered = self.entered()
         if not broken or any(b not in entered for b in broken):
             return None
         tasks = []
