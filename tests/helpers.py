@@ -156,3 +156,28 @@ def bvh_end(chain: list, root: object, k: int) -> np.ndarray:
         local[:3, 3] = list(pose.Position) if joint is root else list(joint.Offset)
         world = world @ local
     return Y_UP.T @ (world[:3, :3] @ np.array(list(chain[-1].EndSite)) + world[:3, 3])
+
+
+def reached(oracle, goals: np.ndarray):  # noqa: ANN001, ANN201
+    """Asks an IK oracle for goals, asserts every one reached, and returns Pinocchio's data at the oracle's reference
+    posture (frames placed) and the postures."""
+    import pinocchio as pin
+
+    from oracles.protocol import Goals
+
+    v = oracle.evaluate(Goals(goals))
+    assert v.reachable.all(), v.residual
+    ref = oracle.body.model.createData()
+    pin.framesForwardKinematics(oracle.body.model, ref, oracle.body.q_ref)
+    return ref, v.posture
+
+
+def com_over(model, q: np.ndarray, points: np.ndarray, margin: float = 0.0) -> bool:  # noqa: ANN001
+    """Whether the centre of mass's ground projection at q lies inside the convex hull of points (N, 2) [m], shrunk by
+    margin [m] (scipy's hull: each facet's outward normal and offset)."""
+    import pinocchio as pin
+    from scipy.spatial import ConvexHull
+
+    hull = ConvexHull(points)
+    com = pin.centerOfMass(model, model.createData(), q)[:2]
+    return bool(np.all(hull.equations[:, :2] @ com + hull.equations[:, 2] <= -margin + 1e-6))

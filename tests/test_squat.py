@@ -13,9 +13,9 @@ import math
 import numpy as np
 import pinocchio as pin
 import pytest
-from scipy.spatial import ConvexHull
 
 from oracles.protocol import Goals
+from tests.helpers import com_over, reached
 from tests.test_torsion import shipped
 
 GOALS = np.array([[0.5, -0.25, 0.5], [0.6, -0.2, 0.1], [0.3, -0.35, 0.2]])  # [m] low, in front of and beside the feet
@@ -30,12 +30,9 @@ def squat():
 def test_the_squat_reaches_low_with_the_buttocks_near_the_heels(squat):
     body = squat.body
     model = body.model
-    v = squat.evaluate(Goals(GOALS))
-    assert v.reachable.all()
-    ref = model.createData()
-    pin.framesForwardKinematics(model, ref, body.q_ref)
+    ref, postures = reached(squat, GOALS)
     deepest = 0.0
-    for goal, q in zip(GOALS, v.posture, strict=True):
+    for goal, q in zip(GOALS, postures, strict=True):
         data = model.createData()
         pin.framesForwardKinematics(model, data, q)
 
@@ -52,11 +49,8 @@ def test_the_squat_reaches_low_with_the_buttocks_near_the_heels(squat):
             assert knee <= math.radians(135.0) + 22.0 / 90.0 * hip + 1e-3  # the rectus femoris's coupling
             deepest = max(deepest, knee)
         # the toes stay on the floor where they stood (the model's foot is rigid: its toe tips pivot with it)
-        support = np.array([at(f"{s}_{c}", ref)[:2] for s in ("right", "left")
-                            for c in ("ball_inner", "ball_outer", "toe_inner", "toe_outer")])
-        hull = ConvexHull(support)
-        com = pin.centerOfMass(model, model.createData(), q)[:2]
-        assert np.all(hull.equations[:, :2] @ com + hull.equations[:, 2] <= 1e-6)
+        assert com_over(model, q, np.array([at(f"{s}_{c}", ref)[:2] for s in ("right", "left")
+                                            for c in ("ball_inner", "ball_outer", "toe_inner", "toe_outer")]))
     assert deepest > math.radians(140.0)  # past the muscles' 135 deg: the squat's own range is used
 
 
@@ -107,13 +101,11 @@ def test_motions_from_standing_rise_onto_the_balls_and_keep_them_where_they_stoo
     start = np.array([data.oMf[f].translation for f in balls])
     soles = np.array([data.oMf[body.frame_id(f"{s}_{c}")].translation[:2] for s in ("right", "left")
                       for c in ("heel_inner", "heel_outer", "toe_inner", "toe_outer")])
-    hull = ConvexHull(soles)
     for q in motion.postures:
         pin.framesForwardKinematics(model, data, q)
         assert np.linalg.norm(np.array([data.oMf[f].translation for f in balls]) - start, axis=1).max() < 0.01
         assert min(data.oMf[body.frame_id(f"{s}_heel")].translation[2] for s in ("right", "left")) >= -1e-3
-        com = pin.centerOfMass(model, model.createData(), q)[:2]
-        assert np.all(hull.equations[:, :2] @ com + hull.equations[:, 2] <= 1e-6)
+        assert com_over(model, q, soles)
     if strategy == "right_squat":
         q = motion.postures[-1]
         pin.framesForwardKinematics(model, data, q)

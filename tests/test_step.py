@@ -102,6 +102,8 @@ def test_the_step_region_defaults_to_the_stature_and_bad_steps_name_their_key():
         CasadiIK(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, {**STEP, "margin": 0.049}, STANCE])
     with pytest.raises(TaskError, match=r"\.stance: expected the other foot"):
         CasadiIK(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, {**STEP, "stance": "right_foot"}, STANCE])
+    with pytest.raises(TaskError, match=r"tasks\[1\]\.foot: one stepping foot a strategy: for either foot give two"):
+        CasadiIK(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, {**STEP, "foot": "either"}, STANCE])
 
 
 STEP_TASKS = [{"type": "reach"}, STANCE, STEP, {"type": "self_collision"}, {"type": "floor"}, {"type": "coupling"},

@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 import pytest
-from scipy.spatial import ConvexHull
 
-from oracles.protocol import Goals, OracleSpec
+from oracles.protocol import OracleSpec
 from reach.build.config import load_config
+from tests.helpers import com_over, reached
 
 ROOT = Path(__file__).resolve().parents[1]
 CORNERS = ("heel_inner", "heel_outer", "toe_inner", "toe_outer")
@@ -46,11 +46,8 @@ def pelvis_yaw(q: np.ndarray) -> float:
 def test_the_torsion_turns_the_pelvis_on_planted_feet(torsion):
     body = torsion.body
     model = body.model
-    v = torsion.evaluate(Goals(ACROSS))
-    assert v.reachable.all()
-    ref = model.createData()
-    pin.framesForwardKinematics(model, ref, body.q_ref)
-    for goal, q in zip(ACROSS, v.posture, strict=True):
+    ref, postures = reached(torsion, ACROSS)
+    for goal, q in zip(ACROSS, postures, strict=True):
         data = model.createData()
         pin.framesForwardKinematics(model, data, q)
         assert np.linalg.norm(data.oMf[body.frame_id("right_hand")].translation - goal) <= 0.005
@@ -61,11 +58,8 @@ def test_the_torsion_turns_the_pelvis_on_planted_feet(torsion):
             for joint in ("hip_flexion", "hip_abduction"):  # the strategy's own ranges: it turns, it does not bend
                 assert abs(q[body.q_names.index(f"{side}_{joint}")]) <= math.radians(10.0) + 1e-6
         assert pelvis_yaw(q) > 20.0  # turned to the left, towards the goal
-        corners = np.array([data.oMf[body.frame_id(f"{s}_{c}")].translation[:2]
-                            for s in ("right", "left") for c in CORNERS])
-        hull = ConvexHull(corners)
-        com = pin.centerOfMass(model, model.createData(), q)[:2]
-        assert np.all(hull.equations[:, :2] @ com + hull.equations[:, 2] <= 1e-6)
+        assert com_over(model, q, np.array([data.oMf[body.frame_id(f"{s}_{c}")].translation[:2]
+                                            for s in ("right", "left") for c in CORNERS]))
 
 
 def test_the_torsion_is_built_with_its_own_hip_ranges(torsion):

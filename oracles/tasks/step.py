@@ -88,6 +88,10 @@ class StepTask(HardTask):
 
     @classmethod
     def parse(cls, raw: dict[str, Any], where: str, scope: Scope) -> StepTask:
+        if raw.get("foot") == "either":
+            raise TaskError(f"{where}.foot", "one stepping foot a strategy: for either foot give two strategies at one "
+                                             "priority, each with its foot (configs/human.yaml's right_step and "
+                                             "right_cross_step; the selector takes the first that reaches)")
         foot = one_frame(scope, raw.get("foot", "right_foot"), f"{where}.foot")
         stance = one_frame(scope, raw.get("stance", "left_foot" if foot != "left_foot" else "right_foot"),
                            f"{where}.stance")
