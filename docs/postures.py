@@ -62,6 +62,14 @@ def draw_furniture(ax, body, axes: tuple[int, int]) -> None:  # noqa: ANN001
         ax.fill(hull[:, 0], hull[:, 1], color="#d9d9d9", ec="#999", lw=0.6, zorder=0)
 
 
+def only(atlas: Atlas, name: str) -> Atlas:
+    """The atlas with one strategy's tree alone (a strategy later in the priority order answers only what the ones
+    before it do not reach)."""
+    return Atlas(atlas.path, {**atlas.manifest, "strategies": [s for s in atlas.manifest["strategies"]
+                                                               if s["name"] == name]},
+                 {name: atlas.trees[name]}, {k: v for k, v in atlas.indexes.items() if k == name})
+
+
 def _goals(text: str) -> list[tuple[float, ...]]:
     try:
         goals = [tuple(float(v) for v in part.split(",")) for part in text.split(";") if part.strip()]
@@ -92,10 +100,7 @@ def main() -> None:
         if args.strategy not in atlas.trees:
             parser.error(f"--strategy: no strategy {args.strategy!r} in {args.atlas}; "
                          f"there are {', '.join(atlas.trees)}")
-        atlas = Atlas(atlas.path, {**atlas.manifest, "strategies": [s for s in atlas.manifest["strategies"]
-                                                                    if s["name"] == args.strategy]},
-                      {args.strategy: atlas.trees[args.strategy]},
-                      {k: v for k, v in atlas.indexes.items() if k == args.strategy})
+        atlas = only(atlas, args.strategy)
     body = load_body(OracleSpec.from_dict(next(iter(atlas.trees.values())).meta["oracle"]).params["body"])
     selector = Selector(atlas, budget=0.5).warm_up()
     views = VIEWS if not args.top else (*VIEWS, ((0, 1), "top view (x, y) [m]"))

@@ -255,6 +255,18 @@ def test_the_motion_operation_over_the_wire(planner, workers):
             published = json.loads(body)
             assert (topic == b"right_hand" and published["tag"] == "t1" and published["duration"] == m["duration"]
                     and "frames" not in published)
+            # "return": the way there and back, the end posture once, the parts' TMU twice
+            both = c.call("motion", effector="right_hand", goal=goal, rate=60, **{"return": True})
+            assert both["frame_count"] == 2 * m["frame_count"] - 1 == len(both["frames"])
+            assert both["frames"][: m["frame_count"]] == m["frames"]
+            assert both["frames"][-1]["posture"] == m["frames"][0]["posture"]
+            assert both["frames"][m["frame_count"] - 2]["posture"] == m["frames"][-2]["posture"] == \
+                both["frames"][m["frame_count"]]["posture"]
+            assert both["duration"] == pytest.approx(2 * m["duration"])
+            assert np.all(np.diff([f["t"] for f in both["frames"]]) > 0)
+            assert both["timing_tmu"]["return"] == pytest.approx(sum(m["timing_tmu"].values()))
+            with pytest.raises(ServerError, match="bad_request: .*return"):
+                c.call("motion", effector="right_hand", goal=goal, **{"return": "yes"})
             with pytest.raises(ServerError, match="unreachable"):
                 c.motion(effector="right_hand", goal=[2.0, 0.0, 1.0], miss="error")
             with pytest.raises(ServerError, match="bad_request: .*rate"):
@@ -285,6 +297,12 @@ def test_reach_motion_writes_the_frames_and_names_bad_input(planner, tmp_path, c
     data = json.loads(out.read_text())
     assert (data["rate"] == 50 and len(data["frames"]) == data["frame_count"]
             and data["frames"][-1]["t"] == pytest.approx(data["duration"]))
+    there_and_back = tmp_path / "back.json"
+    assert main(["motion", atlas, "0.45", "-0.25", "1.2", "--effector", "right_hand", "--rate", "50", "--return",
+                 "-o", str(there_and_back)]) == 0
+    back = json.loads(there_and_back.read_text())
+    assert back["frame_count"] == 2 * data["frame_count"] - 1 and back["frames"][-1]["posture"] == \
+        data["frames"][0]["posture"]
     assert main(["motion", atlas, "0.45", "-0.25", "1.2", "--effector", "right_hand", "-o",
                  str(tmp_path / "reach.fbx")]) == 2
     assert "-o: " in capsys.readouterr().err and not (tmp_path / "reach.fbx").exists()

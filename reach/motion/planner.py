@@ -44,7 +44,7 @@ import itertools
 import math
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -263,6 +263,15 @@ class Motion:
     def to_dict(self) -> dict[str, Any]:
         return {**self.summary(), "frames": self.frames()}
 
+    def and_back(self) -> Motion:
+        """This motion, then the same frames in reverse to the first posture (a squat descends, reaches and rises),
+        as long again; ``parts`` gains ``return`` (the way there's total, TMU)."""
+        back = slice(-2, None, -1)  # the end posture is not repeated
+        times = np.concatenate([self.times, 2.0 * self.times[-1] - self.times[back]])
+        parts = {**self.parts, "return": round(sum(self.parts.values()), 6)} if self.parts else {}
+        return replace(self, times=times, postures=np.vstack([self.postures, self.postures[back]]),
+                       path=np.vstack([self.path, self.path[back]]), parts=parts)
+
 
 class Planner:
     """Plans reach motions on a selector's atlas (see the module docstring).
@@ -284,12 +293,14 @@ class Planner:
 
     def plan(self, effector: str, goal: np.ndarray | list[float], start: dict[str, float] | None = None, *,
              rate: float = RATE,
-             timing: Timing | None = None, miss: str = "nearest", deadline: float | None = None) -> Motion:
+             timing: Timing | None = None, miss: str = "nearest", deadline: float | None = None,
+             back: bool = False) -> Motion:
         """The motion from ``start`` (joint name -> rad or m, ``root_*`` for the base; the reference posture
         where omitted) to the answer for ``goal`` [m], at ``rate`` frames per second.
 
         ``deadline``: ``time.perf_counter()`` past which planning stops (a server's request deadline): the
-        frames are checked one at a time, so it stops within one hold of a frame.
+        frames are checked one at a time, so it stops within one hold of a frame. ``back``: then back to the start
+        (:meth:`Motion.and_back`).
 
         Raises InputError for a bad goal, start posture, rate or ``miss``, and
         MotionError when the goal is out of reach (``miss="error"``), no
@@ -297,7 +308,8 @@ class Planner:
         """
         self._deadline = math.inf if deadline is None else float(deadline)
         try:
-            return self._plan(effector, goal, start, rate, timing, miss)
+            motion = self._plan(effector, goal, start, rate, timing, miss)
+            return motion.and_back() if back else motion
         finally:
             self._deadline = math.inf
 

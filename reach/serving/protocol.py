@@ -428,6 +428,8 @@ OPERATIONS: dict[str, Operation] = {op.name: op for op in (
         Field("bones", "bool", _bool, "also the motion as bones (`rig`: each bone's offset and rotation per frame, Y "
                                       "up), "
               "from which a client writes BVH or glTF", default=False),
+        Field("return", "bool", _bool, "then back to the first frame, the way there reversed (a squat descends and "
+                                       "rises), as long again", default=False),
         Field("deadline", "s", _deadline, f"answer within this many seconds of arrival (0 to {MAX_DEADLINE:g})"),
         TAG,
     ), "the timed motion from a posture to the answer's posture: frames of posture, root and effector", "op_motion",

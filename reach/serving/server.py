@@ -440,7 +440,8 @@ class Server:
         # Without workers the loop plans; a deadline stops it (a timeout error), as a worker's does.
         deadline = None if req["deadline"] is None else time.perf_counter() + req["deadline"]
         motion = self.planner.plan(req["effector"], np.array(req["goal"]), req["from"], rate=req["rate"],
-                                   timing=Timing.from_dict(req["timing"]), miss=req["miss"], deadline=deadline)
+                                   timing=Timing.from_dict(req["timing"]), miss=req["miss"], deadline=deadline,
+                                   back=req["return"])
         data = (with_bones(motion.to_dict(), motion, self.planner.body(motion.strategy)) if req["bones"]
                 else motion.to_dict())
         return self._motion_result(req, P.encode(motion.summary()), P.encode(data))
@@ -646,7 +647,8 @@ class Server:
         """Hand a motion to the workers, once what they could refuse is checked here."""
         self.selector.check_goals(req["effector"], np.array([req["goal"]]), req["from"])
         Timing.from_dict(req["timing"])
-        options = {"rate": req["rate"], "timing": req["timing"], "miss": req["miss"], "bones": req["bones"]}
+        options = {"rate": req["rate"], "timing": req["timing"], "miss": req["miss"], "bones": req["bones"],
+                   "return": req["return"]}
         return self._defer_whole(req, envelope, [req["goal"]], options)
 
     def _defer_place(self, req: P.Request, envelope: list[bytes]) -> bool:

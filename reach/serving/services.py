@@ -73,7 +73,8 @@ def run_motion(ctx: Context, job: dict[str, Any], deadline: float) -> list[bytes
     """A motion: its summary (what the server publishes), then the whole motion."""
     opts = job["options"]
     motion = ctx.planner.plan(job["effector"], np.array(job["goals"][0]), job["from"], rate=opts["rate"],
-                              timing=Timing.from_dict(opts["timing"]), miss=opts["miss"], deadline=deadline)
+                              timing=Timing.from_dict(opts["timing"]), miss=opts["miss"], deadline=deadline,
+                              back=bool(opts.get("return", False)))
     data = motion.to_dict()
     if opts.get("bones"):
         data = with_bones(data, motion, ctx.planner.body(motion.strategy))

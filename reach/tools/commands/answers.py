@@ -271,7 +271,8 @@ def cmd_motion(args: argparse.Namespace) -> int:
         from reach.serving.client import Client
 
         with Client(args.connect, timeout=args.timeout) as client:
-            fields = {"effector": args.effector, "goal": goal, "rate": args.rate, "miss": args.miss}
+            fields = {"effector": args.effector, "goal": goal, "rate": args.rate, "miss": args.miss,
+                      "return": args.back}
             fields.update({k: v for k, v in (("from", start), ("timing", timing)) if v is not None})
             if kind in ANIMATION_FILES:
                 fields["bones"] = True  # the server's body gives the skeleton
@@ -290,7 +291,7 @@ def cmd_motion(args: argparse.Namespace) -> int:
         # The solvers are built (warm_up) before planning starts, so the end posture's budget is not spent on them.
         planner = Planner(Selector(load_atlas(atlas), policy=args.policy).warm_up())  # type: ignore[arg-type]
         motion = planner.plan(args.effector, goal, start, rate=args.rate,
-                              timing=Timing.from_dict(timing, "--duration"), miss=args.miss)
+                              timing=Timing.from_dict(timing, "--duration"), miss=args.miss, back=args.back)
         data = motion.to_dict()
         if kind in ANIMATION_FILES:
             # loaded when the command runs: `reach --help` starts without the answers' machinery
@@ -336,6 +337,8 @@ def add_motion(sub: Any) -> None:
         "joint name -> value [rad or m], or a file holding one")
     p.add_argument("--rate", type=float, default=30.0, help="frames per second (default 30)")
     p.add_argument("--duration", type=float, help="the motion's duration [s] instead of MTM-1's")
+    p.add_argument("--return", dest="back", action="store_true",
+                   help="then back to the start, the way there reversed (a squat descends and rises)")
     p.add_argument("--miss", choices=["nearest", "error"], default="nearest", help="a goal out of reach: move "
         "towards the nearest reachable point (default), or fail")
     p.add_argument("-o", "--output", metavar="FILE", help="write the frames: .json (time, posture, root, effector), "
