@@ -462,3 +462,18 @@ def test_the_shoulder_belts_line_agrees_with_pinocchio_and_finite_differences():
     with pytest.raises(TaskError, match="buckle"):
         parse_strategy(body, "right_hand", TRUNK, [{"type": "tether", "anchor": ANCHOR, "frames": ["sternum"],
                                                     "buckle": [0, 0]}])
+
+
+def test_a_seated_body_is_measured_as_its_standing_person():
+    """`reach model` of a driver printed a stature of 1.08 m: the survey's measures were taken from the seated
+    reference. They are the standing person's now, whatever the seat."""
+    from oracles.bodies.body import load_body
+    from oracles.bodies.measure import measure
+
+    standing = measure(load_body({"human": {"sex": "female", "percentile": 5}}))
+    seated = measure(load_body({"human": {"sex": "female", "percentile": 5, "posture": "seated",
+                                          "seat": {"kind": "car"}}}))
+    from oracles.bodies.anthropometry import stature_at_percentile
+
+    assert seated == standing
+    assert seated["stature"] == pytest.approx(stature_at_percentile("female", 5), abs=1e-4)

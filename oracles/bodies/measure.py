@@ -13,7 +13,7 @@ import math
 import numpy as np
 import pinocchio as pin
 
-from oracles.bodies.body import Body
+from oracles.bodies.body import Body, load_body
 from oracles.bodies.seat import _hip_above_pan
 from oracles.errors import ModelError
 
@@ -44,10 +44,16 @@ MEASURES = {
 
 
 def measure(body: Body) -> dict[str, float]:
-    """The body's dimensions as ANSUR II measures them (:data:`MEASURES`) [m]; a generated human only."""
+    """The body's dimensions as ANSUR II measures them (:data:`MEASURES`) [m]; a generated human only. A seated body
+    is measured as the survey measures its person: standing (the same person without the seat)."""
     anthro = body.anthropometry
     if anthro is None:
         raise ModelError("only a generated human is measured as ANSUR II measures people", source=body.source)
+    human = body.spec.get("human") or {}
+    if human.get("posture") == "seated":
+        # each measure puts the model in the survey's posture from the standing reference (its stature was 1.08 m)
+        standing = {k: v for k, v in human.items() if k not in ("posture", "seat")}
+        return measure(load_body({**{k: v for k, v in body.spec.items() if k != "human"}, "human": standing}))
     place = anthro.place
     measured = anthro.proportions != "de_leva"
     # A de_leva body has no vertex, acromion, pinch or fingertip frames: its head ends at its stature, its one hand
