@@ -25,6 +25,10 @@ Prints JSON lines:
 * ``sagittal``: of 18 goals straight ahead of the right shoulder (x 0.3-0.6 m, z 0.1-1.4 m), the answers with a
   joint other than the right arm's and clavicle's moved to within 1 deg of a limit, and the pelvis's largest shift aside
   [m] (issue 51: a person keeps them off their limits and the pelvis over the feet);
+* ``turning``: of goals beside and behind the body at the right shoulder's height (0.6-0.9 m from it, 60-270 deg
+  round from straight ahead towards the left, i.e. across the body and behind it), per answering strategy, the
+  share with the lumbar side-bend or the thoracic twist within 1 deg of a limit, and the pelvis's median turn [deg]
+  (issue 50: a person turns to reach behind, rather than bending the spine to its limits);
 * ``idle_arm`` (a seated atlas: its body's furniture has a ``seat_pan``; the measures above are for a
   standing atlas and are skipped): of the answers to goals in front of the seat (x 0.2-0.9 m, y -0.6-0.3 m,
   z 0.4-1.3 m in the seat's frame), per strategy, the share whose idle (left) arm's elbow, wrist or fingertip
@@ -239,9 +243,33 @@ def main() -> None:
         if hit:
             at_limit += 1
             examples.append({"goal": g.round(3).tolist(), "strategy": a.strategy, "joints": hit})
+    turning(body, selector, shoulder, args.goals)
     emit(bench="sagittal", goals=len(sagittal), reached=reached, other_joint_at_limit=at_limit,
          pelvis_shift_max_m=round(max(shifts, default=0.0), 3),
          pelvis_shift_over_5cm=int(sum(shift > 0.05 for shift in shifts)), examples=examples[:6])
+
+
+def turning(body, selector: Selector, shoulder: np.ndarray, n: int) -> None:  # noqa: ANN001
+    """The ``turning`` measure: how each strategy answers goals across and behind the body at shoulder height."""
+    import pinocchio as pin
+
+    rng = np.random.default_rng(6)
+    az, r = np.radians(rng.uniform(60.0, 270.0, n)), rng.uniform(0.6, 0.9, n)
+    goals = shoulder + np.column_stack([r * np.cos(az), r * np.sin(az), np.zeros(n)])
+    names = list(body.q_names)
+    spine = [names.index(j) for j in ("lumbar_lateral", "thoracic_rotation")]
+    lower, upper = body.model.lowerPositionLimit, body.model.upperPositionLimit
+    rows: dict[str, list[tuple[bool, float]]] = {}
+    for a in selector.select_many("right_hand", goals):
+        if a.reachable and a.posture is not None:
+            q = body.configuration(a.posture, a.root)
+            limit = any(q[k] - lower[k] < SAGITTAL_LIMIT or upper[k] - q[k] < SAGITTAL_LIMIT for k in spine)
+            r_ = pin.Quaternion(q[6], q[3], q[4], q[5]).toRotationMatrix()
+            rows.setdefault(a.strategy, []).append((limit, math.degrees(math.atan2(r_[1, 0], r_[0, 0]))))
+    for name, got in sorted(rows.items()):
+        emit(bench="turning", strategy=name, answers=len(got), spine_at_limit=int(sum(g[0] for g in got)),
+             share_spine_at_limit=round(float(np.mean([g[0] for g in got])), 3),
+             pelvis_turn_median_deg=round(float(np.median([abs(g[1]) for g in got])), 1))
 
 
 def idle_arm(body, selector: Selector, atlas, pan, n: int) -> None:  # noqa: ANN001
