@@ -12,6 +12,9 @@ Rows, each with its source:
   distribution, and its SD (see :data:`PHEASANT`);
 * MIL-STD-1472G's functional and extended functional reach for the 5th-percentile woman and 95th-percentile man
   (see :data:`MIL_STD`);
+* the 95th-percentile man's seat position in the car examples' seat (the hip joint, the H-point, behind the heel
+  point) against SAE J1517's 95th-percentile line at his H30 (:func:`oracles.bodies.seat.j1517_x95`), within the
+  25 mm issue 51 allows; the other drivers' positions are printed beside it (J1517's other lines were not read);
 * N ANSUR II subjects of each sex drawn at random (``--seed``): bodies built from each subject's record, every
   measured dimension against the subject's own; and bodies built from the 14 dimensions issue 51 lists alone, the
   rest regressed, against the subject's own (how well the regression predicts what was not given).
@@ -163,6 +166,31 @@ def mil_std_rows() -> list[dict]:
     return rows
 
 
+def seat_rows() -> list[dict]:
+    """The drivers' H-points behind the heel point in the car seat; the 95th-percentile man's against J1517."""
+    from oracles.bodies.body import load_body
+    from oracles.bodies.seat import j1517_x95
+
+    rows = []
+    for sex, pct in BODIES:
+        body = load_body({"human": {"sex": sex, "percentile": pct, "posture": "seated", "seat": {"kind": "car"}}})
+        hip, heel = (body.frame_positions(body.q_ref, [n])[n] for n in ("right_hip_flexion", "right_heel"))
+        behind, h30 = 1000 * float(heel[0] - hip[0]), float(hip[2] - heel[2])
+        row = {"table": "percentile", "body": f"{sex} p{pct:g}", "dimension": "seat_hpoint_behind_ahp",
+               "ansur_mm": round(behind, 1), "h30_mm": round(1000 * h30, 1)}
+        if (sex, pct) == ("male", 95):
+            published = 1000 * j1517_x95(h30)
+            row.update(published_mm=round(published, 1), sd_mm=25.0, ansur_dev_mm=round(behind - published, 1),
+                       ansur_verdict="within" if abs(behind - published) <= 25.0 else "outside",
+                       source="SAE J1517 Class A 95th-percentile seat position line at the body's H30 (equations via "
+                              "a public packaging script, a secondary source); tolerance: issue 51's 25 mm")
+        else:
+            row.update(published_mm="-", sd_mm="-", ansur_dev_mm="-", ansur_verdict="-",
+                       source="J1517's other percentile lines and J4004's stature model not read: no figure")
+        rows.append(row)
+    return rows
+
+
 def subject_rows(count: int, seed: int) -> list[dict]:
     rng = np.random.default_rng(seed)
     rows = []
@@ -201,6 +229,10 @@ def summary(rows: list[dict]) -> list[dict]:
     return out
 
 
+def _signed(value: object) -> str:
+    return f"{value:+}" if isinstance(value, int | float) else str(value)
+
+
 def markdown(percentile: list[dict], subjects: list[dict], count: int, seed: int) -> str:
     lines = ["| body | dimension | published [mm] | SD [mm] | de_leva (before) [mm] | dev | verdict | ansur (now) "
              "[mm] | dev | verdict |", "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
@@ -208,7 +240,7 @@ def markdown(percentile: list[dict], subjects: list[dict], count: int, seed: int
         before = (f"{r['de_leva_mm']} | {r['de_leva_dev_mm']:+} | {r['de_leva_verdict']}" if "de_leva_mm" in r
                   else "no such frame | - | -")
         lines.append(f"| {r['body']} | `{r['dimension']}` | {r['published_mm']} | {r['sd_mm']} | {before} | "
-                     f"{r['ansur_mm']} | {r['ansur_dev_mm']:+} | {r['ansur_verdict']} |")
+                     f"{r['ansur_mm']} | {_signed(r['ansur_dev_mm'])} | {r['ansur_verdict']} |")
     lines += ["", f"{count} subjects of each sex drawn with seed {seed}: p95 of |model - subject| [mm], bodies built "
               "from the subject's whole record, and from issue 51's 14 dimensions alone (the rest regressed). "
               f"Tolerance: {1000 * TOLERANCE:g} mm for {', '.join(CHECKED)}.", "",
@@ -226,7 +258,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=51)
     parser.add_argument("--markdown", type=Path, help="write the tables to this file's generated section")
     args = parser.parse_args()
-    percentile = percentile_rows() + pheasant_rows() + mil_std_rows()
+    percentile = percentile_rows() + pheasant_rows() + mil_std_rows() + seat_rows()
     subjects = subject_rows(args.subjects, args.seed)
     summaries = summary(subjects)
     for row in percentile + summaries:

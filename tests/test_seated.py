@@ -477,3 +477,19 @@ def test_a_seated_body_is_measured_as_its_standing_person():
 
     assert seated == standing
     assert seated["stature"] == pytest.approx(stature_at_percentile("female", 5), abs=1e-4)
+
+
+def test_the_95th_percentile_driver_sits_on_sae_j1517s_95th_percentile_line():
+    """Issue 51: the drivers sat about 10 cm too close. The car seat's heel point is fitted where the knee flexes 35
+    deg, which puts the 95th-percentile man's hip joint (the H-point) within 25 mm of J1517's 95th-percentile line at
+    his H30, measured here by Pinocchio's frames; the line's transcription gives issue 51's 857 mm at H30 = 271 mm."""
+    from oracles.bodies.body import load_body
+    from oracles.bodies.seat import j1517_x95
+
+    assert j1517_x95(0.271) == pytest.approx(0.857, abs=0.001)
+    body = load_body({"human": {"sex": "male", "percentile": 95, "posture": "seated", "seat": {"kind": "car"}}})
+    f = body.frame_positions(body.q_ref, ["right_hip_flexion", "right_heel"])
+    behind, h30 = f["right_heel"][0] - f["right_hip_flexion"][0], f["right_hip_flexion"][2] - f["right_heel"][2]
+    assert abs(behind - j1517_x95(h30)) <= 0.025
+    i = body.q_names.index("right_knee_flexion")
+    assert body.q_ref[i] == pytest.approx(math.radians(35.0), abs=math.radians(0.5))
