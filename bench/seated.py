@@ -2,13 +2,14 @@
 
 For each body (the 5th-percentile woman, the 50th-percentile man and woman, the 95th-percentile man):
 
-* ``thumbtip``: the arm-only forward reach, by IK, from the back support to the grip centre along the
+* ``thumbtip``: the arm-only forward reach, by IK, from the back support to the thumb tip along the
   line through the shoulder perpendicular to the support: standing (a wall touching the back of the
   shoulders, the line horizontal, as ANSUR II measures thumb-tip reach: 811.9 +- 43.7 mm for men,
   744.0 +- 42.8 mm for women, Gordon et al. 2014) and seated on an office chair (the backrest, reclined
   15 deg, the line perpendicular to it). The same arm from the same back support should reach the same.
 * ``lean``: how much farther the trunk-free strategy (the pelvis turning on the seat) reaches on the
-  same seated line, and the belted strategy on a car seat (a locked shoulder belt) against the unbelted.
+  same seated line, and on a car seat horizontally ahead of the shoulder the driver example's belted strategy (a
+  locked shoulder belt) against its unbelted lean (``configs/examples/driver.yaml``'s own tasks, on each body).
 
 Each reach is the farthest distance IK verdicts (3 random restarts) find: a scan in 0.1 m steps, then a bisection to
 5 mm.
@@ -45,11 +46,19 @@ LEAN = [{"type": "reach"},
         {"type": "contacts", "hinge": ["right_ischium", "left_ischium"], "fixed": ["right_foot", "left_foot"],
          "support": SUPPORT},
         *COMMON]
-BELTED = [{"type": "reach"},
-          {"type": "contacts", "fixed": ["right_ischium", "left_ischium", "right_foot", "left_foot"],
-           "support": SUPPORT},
-          {"type": "tether", "anchor": [-0.25, 0.30, 0.85], "frames": ["sternum", "left_shoulder"], "slack": 0.02},
-          *COMMON]
+DRIVER = Path(__file__).resolve().parents[1] / "configs" / "examples" / "driver.yaml"
+
+
+def driver_oracle(name: str, body: dict, search: Search) -> CasadiIK:
+    """The driver example's own strategy (its belt, door and idle-arm bound) on another body, compiled programs off."""
+    from oracles.protocol import OracleSpec
+    from reach.build.config import load_config
+
+    spec = next(s for s in load_config(DRIVER).strategies if s.name == name).oracle
+    params = {**spec.params, "body": body, "jit": False, "restarts": search.restarts, "seed": search.seed}
+    oracle = OracleSpec(spec.name, params).create()
+    assert isinstance(oracle, CasadiIK)
+    return oracle
 
 
 def farthest(oracle: CasadiIK, start: np.ndarray, direction: np.ndarray, lo: float = 0.2, hi: float = 1.6,
@@ -86,20 +95,24 @@ def main() -> None:
         sex, pct = item.split(":")
         percentile = float(pct)
         standing_spec = {"human": {"sex": sex, "percentile": percentile}}
-        stand = CasadiIK(standing_spec, "right_hand", ARM, [{"type": "reach"}, {"type": "coupling"}], search=search)
+        # the thumb tip (right_pinch), as ANSUR II measures thumb-tip reach (the grip centre is 55-65 mm behind it)
+        stand = CasadiIK(standing_spec, "right_pinch", ARM, [{"type": "reach"}, {"type": "coupling"}], search=search)
         frames = stand.body.frame_positions()
         shoulder, back = frames["right_shoulder"], frames["back"]
         t = farthest(stand, shoulder, np.array([1.0, 0.0, 0.0]))
         standing = t + shoulder[0] - back[0]
         spec = seated(sex, percentile, "chair")
-        arm = CasadiIK(spec, "right_hand", ARM, [{"type": "reach"}, {"type": "coupling"}, {"type": "obstacles"}],
+        arm = CasadiIK(spec, "right_pinch", ARM, [{"type": "reach"}, {"type": "coupling"}, {"type": "obstacles"}],
                        search=search)
+        grip = CasadiIK(spec, "right_hand", ARM, [{"type": "reach"}, {"type": "coupling"}, {"type": "obstacles"}],
+                        search=search)
         beta = math.radians(15.0)
         normal = np.array([math.cos(beta), 0.0, math.sin(beta)])
         s = arm.body.frame_positions()["right_shoulder"]
         foot = np.array([0.0, 0.0, next(b for b in arm.body.furniture if b.name == "seat_pan").hi[2]])
         plane = float((s - foot) @ normal)  # the shoulder's distance from the backrest's plane
         t_arm = farthest(arm, s, normal)
+        t_grip = farthest(grip, s, normal)  # the lean's own effector, the grip centre: what the lean adds to
         mean, sd = ANSUR_THUMBTIP_REACH[sex]
         print(json.dumps({"bench": "seated", "measure": "thumbtip", "sex": sex, "percentile": percentile,
                           "standing_mm": round(1000 * standing, 1), "seated_mm": round(1000 * (t_arm + plane), 1),
@@ -107,14 +120,13 @@ def main() -> None:
         lean = CasadiIK(spec, "right_hand", TRUNK, LEAN, search=search)
         t_lean = farthest(lean, s, normal)
         car = seated(sex, percentile, "car")
-        belted = CasadiIK(car, "right_hand", TRUNK, BELTED, search=search)
-        free = CasadiIK(car, "right_hand", TRUNK, LEAN, search=search)
+        belted, free = driver_oracle("belted", car, search), driver_oracle("lean", car, search)
         c = belted.body.frame_positions()["right_shoulder"]
         ahead = np.array([1.0, 0.0, 0.0])
         t_belted, t_free = farthest(belted, c, ahead), farthest(free, c, ahead)
         print(json.dumps({"bench": "seated", "measure": "lean", "sex": sex, "percentile": percentile,
-                          "chair_arm_mm": round(1000 * t_arm, 1), "chair_lean_mm": round(1000 * t_lean, 1),
-                          "lean_adds_mm": round(1000 * (t_lean - t_arm), 1),
+                          "chair_arm_mm": round(1000 * t_grip, 1), "chair_lean_mm": round(1000 * t_lean, 1),
+                          "lean_adds_mm": round(1000 * (t_lean - t_grip), 1),
                           "car_belted_mm": round(1000 * t_belted, 1), "car_unbelted_mm": round(1000 * t_free, 1)}),
                               flush=True)
 
