@@ -189,7 +189,7 @@ class IKOracle(TaskedBody, ABC):
         the knees), but balance, which holds over the feet's whole soles instead of their balls and toes while the
         heels may rise (standing flat, the body's weight is over the heels too). None for a joint out of range."""
         # a start through a segment, the floor, out of its contacts or a joint's range is refused
-        entered = self.entered()
+        entered = self.strategy.entered
         if not broken or any(b not in entered for b in broken):
             return None
         tasks = []

@@ -36,7 +36,7 @@ import numpy as np
 
 from oracles.bodies.body import ROOT, Body
 from oracles.errors import ModelError, OracleError, TaskError
-from oracles.tasks import TASKS, HardTask, ReachTask, Scope, SoftTask, Task
+from oracles.tasks import TASKS, FeetTask, HardTask, ReachTask, Scope, SoftTask, Task
 from oracles.tasks.base import matching
 
 
@@ -72,6 +72,14 @@ class Strategy:
     @property
     def reach(self) -> ReachTask:
         return next(t for t in self.tasks if isinstance(t, ReachTask))
+
+    @property
+    def entered(self) -> set[str]:
+        """The hard tasks (types) a posture may enter rather than hold all along: the posture classes (``Task.entered``:
+        a squat's hips below the knees) and, where the heels may rise, balance over the balls (standing flat, the
+        weight is over the heels too)."""
+        rising = any(isinstance(t, FeetTask) and t.rising for t in self.hard)
+        return {t.type for t in self.hard if t.entered} | ({"balance"} if rising else set())
 
     @property
     def tolerance(self) -> float:

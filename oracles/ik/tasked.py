@@ -23,7 +23,7 @@ from oracles.ik.problem import ReachProblem
 from oracles.ik.stepping import planted, swing_frames
 from oracles.ik.strategy import Strategy
 from oracles.protocol import Ball, check_points
-from oracles.tasks import ContactsTask, FeetTask, FloorTask, Numeric, ObstaclesTask, OrientationTask, StepTask
+from oracles.tasks import ContactsTask, FloorTask, Numeric, ObstaclesTask, OrientationTask, StepTask
 
 # tasks that hold something fixed in the world, which a turn would move
 WORLD_FIXED = frozenset({"obstacles", "tether"})
@@ -234,13 +234,6 @@ class TaskedBody(PosedBody):
                     out["reference"][name] = round(float(value), 6)
         return out
 
-    def entered(self) -> set[str]:
-        """The hard tasks (types) a posture may enter rather than hold all along: the posture classes (``Task.entered``:
-        a squat's hips below the knees) and, where the heels may rise, balance over the balls (standing flat, the
-        weight is over the heels too)."""
-        rising = any(isinstance(t, FeetTask) and t.rising for t in self.strategy.hard)
-        return {t.type for t in self.strategy.hard if t.entered} | ({"balance"} if rising else set())
-
     def diagnose(self) -> list[str]:
         """What in the spec will likely give a wrong or empty volume (see :class:`oracles.protocol.Diagnosed`)."""
         out = list(self.body.notes)
@@ -251,7 +244,7 @@ class TaskedBody(PosedBody):
         # A start that breaks a hard task is common (one foot's balance from two feet) and the search leaves
         # it; only when the nearest posture holding the hard tasks cannot be found is the volume at risk.
         # A posture class the strategy enters (a squat's, from standing) is left by the searches' other starts.
-        if broken and not set(broken) <= self.entered() and self.faults(self._project(q, q)[None])[0]:
+        if broken and not set(broken) <= self.strategy.entered and self.faults(self._project(q, q)[None])[0]:
             out.append(f"the reference posture breaks the hard tasks {broken} and no posture near it holds them: "
                        "every search starts "
                        "there, so the volume may come out empty; give body.reference (a posture that holds them) or "
