@@ -325,6 +325,10 @@ def test_seated_members_each_get_their_seat_fitted():
     # the heel point is fitted to each member's legs: the longer legs put it farther forward
     heel = [b.frame_positions(names=["right_heel"])["right_heel"][0] for b in (small_body, large_body)]
     assert heel[1] > heel[0] + 0.1
+    # the short-thighed member's calf would press 10 mm into the cushion's front edge at the driver's 35 deg of knee
+    # flexion: she sits closer, the knee flexed 40 deg; the long-legged member keeps 35
+    knees = [b.describe()["seat"]["knee"] for b in (small_body, large_body)]
+    assert knees == [40.0, 35.0]
 
 
 def test_the_direct_command_prints_the_table_and_its_json(built, capsys):

@@ -906,6 +906,7 @@ FIELD_VALUES = {
     "goal": POINT, "goals": st.lists(POINT, min_size=0, max_size=4),
     "refine": st.booleans(),
     "bones": st.booleans(),
+    "return": st.booleans(),
     "from": st.dictionaries(st.sampled_from(["right_elbow_flexion", "right_shoulder_flexion", "root_z", "root_qw",
                                              "wing"]), st.floats(-10, 10), max_size=3),
     "deadline": st.floats(-1.0, 2.0), "miss": st.sampled_from(["unreachable", "within", "maybe", "nearest", "error"]),

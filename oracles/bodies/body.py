@@ -63,7 +63,7 @@ from oracles.bodies.anthropometry import Anthropometry, anthropometry
 from oracles.bodies.collision import Capsule, CollisionModel, urdf_capsules
 from oracles.bodies.environment import Box
 from oracles.bodies.human import human_capsules, human_urdf, root_height
-from oracles.bodies.seat import Seated, fit, parse_seat, seated
+from oracles.bodies.seat import KNEE_MOST, KNEE_STEP, Seated, fit, parse_seat, seated
 from oracles.errors import ModelError
 from oracles.protocol import COS, SIN
 
@@ -211,10 +211,13 @@ class Body:
         human = self.spec.get("human") or {}
         if human.get("posture") == "seated" and self.anthropometry is not None:
             seat = fit(self.anthropometry, parse_seat(human.get("seat")))
-            if seat.feet_x is not None and math.isnan(seat.feet_x):  # fitted with the legs: where the heel came to rest
-                seat = replace(seat, feet_x=round(float(info["frames"]["right_heel"][0]), 4))
-            info["seat"] = {k: round(math.degrees(v), 3) if k in ("back_angle", "ankle") and v is not None else v
-                            for k, v in asdict(seat).items()}
+            fitted = seat.feet_x is not None and math.isnan(seat.feet_x)  # with the legs: where the heel came to rest
+            if fitted:
+                knee = float(self.q_ref[self.model.joints[self.model.getJointId("right_knee_flexion")].idx_q])
+                seat = replace(seat, feet_x=round(float(info["frames"]["right_heel"][0]), 4), knee=knee)
+            angles = ("back_angle", "ankle", "knee")  # [deg] in the description; the knee only where it fitted a heel
+            info["seat"] = {k: round(math.degrees(v), 3) if k in angles and v is not None else v
+                            for k, v in asdict(seat).items() if k != "knee" or fitted}
         if self.furniture:
             info["furniture"] = [b.to_dict() for b in self.furniture]
         return info
@@ -472,11 +475,24 @@ def human_body(sex: str | None = None, stature: float | None = None, percentile:
             raise ModelError("a seat needs posture: seated", source="human", key="human.seat")
         return _finish(model, urdf, "human", spec, np.array([0.0, 0.0, root_height(anthro)]), human_capsules(anthro),
                        anthro)
-    sitting = seated(anthro, parse_seat(seat))
-    _frames_at(model, sitting)
-    body = _finish(model, urdf, "human", spec, sitting.root, human_capsules(anthro), anthro, sitting)
-    _check_seat(body)
-    return body
+    chosen = parse_seat(seat)
+    while True:
+        sitting = seated(anthro, chosen)
+        _frames_at(model, sitting)
+        body = _finish(model, urdf, "human", spec, sitting.root, human_capsules(anthro), anthro, sitting)
+        clash = _seat_clash(body)
+        if clash is None:
+            return body
+        capsule, box, depth = clash
+        refit = (chosen.kind == "car" and chosen.feet_x is not None and math.isnan(chosen.feet_x)
+                 and capsule.endswith("shank") and box == "seat_pan" and chosen.knee + KNEE_STEP <= KNEE_MOST + 1e-9)
+        if not refit:
+            raise ModelError(f"seated, the {capsule} passes {depth:.3f} m into the seat's {box}: the seat does not fit "
+                             "this body (check its depth, height, back_angle and feet)", source="human",
+                             key="human.seat")
+        # the calf on the cushion's edge: the driver sits closer, the knee flexed more (oracles/bodies/seat.py)
+        chosen = replace(chosen, knee=chosen.knee + KNEE_STEP)
+        model = _parse(urdf, "human")
 
 
 def _frames_at(model: pin.Model, sitting: Seated) -> None:
@@ -503,9 +519,9 @@ def _seated_q(model: pin.Model, sitting: Seated) -> np.ndarray:
     return q
 
 
-def _check_seat(body: Body) -> None:
-    """No segment passes through the seat in the seated reference posture (coal), or the seat's dimensions do not fit
-    the body."""
+def _seat_clash(body: Body) -> tuple[str, str, float] | None:
+    """The first segment that passes through the seat in the seated reference posture (coal), more than 5 mm: its
+    capsule's name, the box's and how deep [m]; None when the seat fits the body."""
     # coal only when its distances are computed
     import coal
 
@@ -519,10 +535,8 @@ def _check_seat(body: Body) -> None:
                               coal.Box(*(2 * box.half)),
                               coal.Transform3s(box.matrix, box.centre), coal.DistanceRequest(), coal.DistanceResult())
             if d < -0.005:
-                raise ModelError(f"seated, the {model.placed[i].name} passes {-d:.3f} m into the seat's {box.name}: "
-                                 "the seat does not fit "
-                                 "this body (check its depth, height, back_angle and feet)", source="human",
-                                 key="human.seat")
+                return model.placed[i].name, box.name, -d
+    return None
 
 
 def _given(**keys: Any) -> dict[str, Any]:

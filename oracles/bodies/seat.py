@@ -88,6 +88,10 @@ SHANK_FORWARD = math.radians(10.0)  # the shank's lean forward of vertical where
 # 95th percentile of a 50:50 population's seat positions is about, not exactly, the 95th-percentile man's; a shorter
 # driver is placed by the same knee angle, not by a line of her own (J4004's stature model was not readable here).
 DRIVER_KNEE = math.radians(35.0)
+# A driver whose calf would press into the cushion's front edge at DRIVER_KNEE (a short thigh on the car's 0.50 m pan:
+# two of the female boundary manikins, by 6 and 10 mm) is fitted with the knee flexed KNEE_STEP more at a time, up to
+# KNEE_MOST: a short-thighed driver sits closer (modelling choices; 60 deg was the fit until session 29).
+KNEE_STEP, KNEE_MOST = math.radians(5.0), math.radians(60.0)
 # Between the pan's front edge and the back of the knee, where a seat's depth is fitted: about
 # three fingers' breadth, the clearance wheelchair fitting guides ask for (2 in, orthopaedicprinciples.com).
 POPLITEAL_CLEARANCE = 0.05
@@ -128,6 +132,7 @@ class Seat:
     feet_height: float = 0.0
     feet_x: float | None = None
     ankle: float | None = None
+    knee: float = DRIVER_KNEE  # [rad] the knee's flexion where a heel point is fitted (feet_x: fit)
 
 
 @dataclass(frozen=True)
@@ -237,8 +242,8 @@ def seated(body: Anthropometry, seat: Seat) -> Seated:
         # The sole pitches toe-up by the shank's angle plus the ankle's flexion, which moves the ankle about the heel:
         # iterate.
         ankle_flex = 0.0 if seat.ankle is None else seat.ankle
-        # The knee flexed DRIVER_KNEE where the heel point is fitted: hip to ankle is the triangle's third side.
-        reach = math.sqrt(lt * lt + ls * ls + 2 * lt * ls * math.cos(DRIVER_KNEE))
+        # The knee flexed seat.knee where the heel point is fitted: hip to ankle is the triangle's third side.
+        reach = math.sqrt(lt * lt + ls * ls + 2 * lt * ls * math.cos(seat.knee))
         heel = np.array([0.0 if math.isnan(seat.feet_x) else seat.feet_x, 0.0, sole_z])
         toe_up = 0.0
         for _ in range(50):
@@ -247,7 +252,7 @@ def seated(body: Anthropometry, seat: Seat) -> Seated:
                 rise = hip_z - (sole_z + to_ankle[2])
                 if reach <= rise:
                     raise ModelError(f"the pan {seat.height} m high is too high to fit a heel point with the knee "
-                                     f"flexed {math.degrees(DRIVER_KNEE):g} deg: "
+                                     f"flexed {math.degrees(seat.knee):g} deg: "
                                      "give human.seat.feet.x", source="human", key="human.seat.feet.x")
                 heel[0] = hip_x + math.sqrt(reach * reach - rise * rise) - to_ankle[0]
             theta_t, theta_s = legs(heel + to_ankle)
