@@ -93,6 +93,7 @@ class IKOracle(TaskedBody, ABC):
             raise exc if mine else exc.under("body") from None
         super().__init__(loaded, parse_strategy(loaded, effector, joints, tasks), own, params)
         self.stats = fresh_stats()
+        self._transits: dict[tuple[str, ...], IKOracle | None] = {}  # motions' twins by the tasks a start breaks
         self.reference_pending = False  # reference: auto found no posture by projection (see _auto_reference)
         if body.get("reference") == "auto":
             self._auto_reference(own, effector, joints, tasks)
@@ -187,11 +188,18 @@ class IKOracle(TaskedBody, ABC):
         """The oracle whose tasks a motion's frames hold from a start that breaks ``broken`` (see
         :class:`oracles.protocol.Transiting`): the tasks the start breaks are the end's alone (a squat's hips below
         the knees), but balance, which holds over the feet's whole soles instead of their balls and toes while the
-        heels may rise (standing flat, the body's weight is over the heels too). None for a joint out of range."""
-        # a start through a segment, the floor, out of its contacts or a joint's range is refused
+        heels may rise (standing flat, the body's weight is over the heels too). None when the start breaks anything
+        else (a segment through another or the floor, a contact, a joint's range): such a start is refused. Made once
+        per set of broken tasks (a server plans many motions)."""
         entered = self.strategy.entered
         if not broken or any(b not in entered for b in broken):
             return None
+        key = tuple(sorted(broken))
+        if key not in self._transits:
+            self._transits[key] = self._transit_twin(broken)
+        return self._transits[key]
+
+    def _transit_twin(self, broken: list[str]) -> IKOracle | None:
         tasks = []
         for raw in self._strategy_params.get("tasks") or []:
             kind = raw.get("type")
