@@ -37,7 +37,9 @@ from reach.maps.protocol import ReachMap, raster
 from reach.maps.tree import FINAL, INNER, VATree
 from reach.serving.protocol import finite
 
-COLOURS = ["#d62728", "#2ca02c", "#1f77b4", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf", "#bcbd22", "#7f7f7f"]
+# matplotlib's tab10, then tab20's light half: configs/human.yaml's 17 strategies each get a colour of their own
+COLOURS = ["#d62728", "#2ca02c", "#1f77b4", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf", "#bcbd22", "#7f7f7f",
+           "#ff9896", "#98df8a", "#aec7e8", "#ffbb78", "#c5b0d5", "#c49c94", "#f7b6d2", "#9edae5", "#dbdb8d", "#c7c7c7"]
 
 
 def extents(tree: VATree) -> dict[str, float | None]:
