@@ -174,7 +174,8 @@ def seat_rows() -> list[dict]:
     rows = []
     for sex, pct in BODIES:
         body = load_body({"human": {"sex": sex, "percentile": pct, "posture": "seated", "seat": {"kind": "car"}}})
-        hip, heel = (body.frame_positions(body.q_ref, [n])[n] for n in ("right_hip_flexion", "right_heel"))
+        f = body.frame_positions(body.q_ref, ["right_hip_flexion", "right_heel"])
+        hip, heel = f["right_hip_flexion"], f["right_heel"]
         behind, h30 = 1000 * float(heel[0] - hip[0]), float(hip[2] - heel[2])
         row = {"table": "percentile", "body": f"{sex} p{pct:g}", "dimension": "seat_hpoint_behind_ahp",
                "ansur_mm": round(behind, 1), "h30_mm": round(1000 * h30, 1)}

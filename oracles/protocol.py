@@ -286,7 +286,8 @@ class Transiting(Protocol):
     def transit(self, broken: list[str]) -> Any | None:
         """The oracle that a motion's frames hold, from a start breaking ``broken`` (task types) to this strategy's
         end posture: the strategy without those tasks, balance over the feet's whole soles where the heels may rise
-        (the end posture holds every task); None when it cannot start there (a joint out of its range)."""
+        (the end posture holds every task); None when the start breaks anything else (a segment through another or
+        the floor, a contact, a joint's range): such a start is refused."""
         ...
 
 

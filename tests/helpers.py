@@ -172,12 +172,18 @@ def reached(oracle, goals: np.ndarray):  # noqa: ANN001, ANN201
     return ref, v.posture
 
 
-def com_over(model, q: np.ndarray, points: np.ndarray, margin: float = 0.0) -> bool:  # noqa: ANN001
-    """Whether the centre of mass's ground projection at q lies inside the convex hull of points (N, 2) [m], shrunk by
-    margin [m] (scipy's hull: each facet's outward normal and offset)."""
-    import pinocchio as pin
+def inside_hull(points: np.ndarray, p: np.ndarray, margin: float = 0.0) -> bool:
+    """Whether a point p (2,) lies inside the convex hull of points (N, 2) [m], shrunk by margin [m] (scipy's hull:
+    each facet's outward normal and offset)."""
     from scipy.spatial import ConvexHull
 
     hull = ConvexHull(points)
-    com = pin.centerOfMass(model, model.createData(), q)[:2]
-    return bool(np.all(hull.equations[:, :2] @ com + hull.equations[:, 2] <= -margin + 1e-6))
+    return bool(np.all(hull.equations[:, :2] @ p + hull.equations[:, 2] <= -margin + 1e-6))
+
+
+def com_over(model, q: np.ndarray, points: np.ndarray, margin: float = 0.0) -> bool:  # noqa: ANN001
+    """Whether the centre of mass's ground projection at q lies inside the convex hull of points (N, 2) [m], shrunk by
+    margin [m]."""
+    import pinocchio as pin
+
+    return inside_hull(points, pin.centerOfMass(model, model.createData(), q)[:2], margin)

@@ -18,7 +18,7 @@ from oracles.ik.engine import CasadiIK
 from oracles.ik.search import Search
 from oracles.protocol import Goals
 from reach.errors import TaskError
-from tests.helpers import bvh_chain, bvh_end
+from tests.helpers import bvh_chain, bvh_end, inside_hull
 from tests.test_ik import CROUCH, HUMAN, PLANTED
 
 STANCE = {"type": "feet", "frames": ["left_foot"], "heels": "down"}
@@ -193,10 +193,6 @@ def test_a_step_motion_lifts_the_foot_sets_it_down_and_the_stance_foot_stays(atl
     feet, stance, com = np.array(feet), np.array(stance), np.array(com)
     assert np.linalg.norm(stance - stance[0], axis=1).max() < 0.01
 
-    def inside(points: np.ndarray, p: np.ndarray) -> bool:
-        hull = ConvexHull(points)
-        return bool(np.all(hull.equations[:, :2] @ p + hull.equations[:, 2] <= 1e-6))
-
     air = np.nonzero(feet[:, 2] > 0.005)[0]
     apex = int(np.argmax(feet[:, 2]))
     assert feet[apex, 2] >= 0.05 and len(air) >= 5
@@ -204,8 +200,8 @@ def test_a_step_motion_lifts_the_foot_sets_it_down_and_the_stance_foot_stays(atl
     # in the air (the fall onto the landing foot)
     landing = soles[-1][len(CORNERS):]
     lift_off = [k for k in air if k < apex and feet[k, 2] < 0.5 * feet[apex, 2]]
-    assert lift_off and all(inside(soles[k][: len(CORNERS)], com[k]) for k in lift_off)
-    assert all(inside(np.vstack([soles[k][: len(CORNERS)], landing]), com[k]) for k in air)
+    assert lift_off and all(inside_hull(soles[k][: len(CORNERS)], com[k]) for k in lift_off)
+    assert all(inside_hull(np.vstack([soles[k][: len(CORNERS)], landing]), com[k]) for k in air)
     assert np.linalg.norm(feet[-1] - answer.step["position"]) <= 0.015
     assert feet[-1][0] - feet[0][0] > 0.3
     landed = next(k for k in range(apex, len(feet)) if feet[k, 2] <= 1e-4)

@@ -76,10 +76,11 @@ class HangTask(HardTask):
         if "frames" in raw:
             given = raw["frames"]
             # one chain, or several (a list of lists: both legs of a squat)
-            lists = given if isinstance(given, list) and given and all(isinstance(g, list) for g in given) else [given]
+            nested = isinstance(given, list) and bool(given) and all(isinstance(g, list) for g in given)
+            lists = given if nested else [given]
             chains = []
             for k, item in enumerate(lists):
-                here = f"{where}.frames" if len(lists) == 1 and lists[0] is given else f"{where}.frames[{k}]"
+                here = f"{where}.frames[{k}]" if nested else f"{where}.frames"
                 chain = frames(scope, item, here)
                 if len(chain) < 2:
                     raise TaskError(here, f"expected at least two frames (a chain, top first), got {list(chain)!r}")
