@@ -47,6 +47,12 @@ HAND_RADIUS = 0.3  # fist radius as a fraction of hand breadth (modelling choice
 # [m] how far a measured body's thigh capsule may sink into a hard seat (within the seat check's 5 mm): soft tissue
 # that ANSUR's sitting height, measured on a hard seat, has already compressed (modelling choice).
 SEAT_SINK = 0.004
+# [m] the least gap between the floor and the shank capsule's lower sphere standing. The capsule's radius is the
+# calf's girth, which the leg does not keep down to the ankle: where that radius passes the ankle's height (37 of
+# ANSUR II's 6,068 subjects, by up to 6.2 mm) the sphere's centre is raised to leave this gap, so that the floor task
+# holds in the reference posture and still holds with the shank turned 45 deg about the ankle, as in a crouch (the
+# worst subject's sphere then clears the floor by 0.3 mm; modelling choice).
+SHANK_FLOOR_GAP = 0.003
 
 
 @dataclass
@@ -282,7 +288,8 @@ def human_capsules(body: Anthropometry) -> list[Capsule]:
             r_thigh = min(r_thigh, P.hip_above_seat + SEAT_SINK)
         out.append(Capsule(f"{p}thigh", f"{p}thigh", (0.0, 0.0, 0.0), (0.0, 0.0, -L["thigh"]), r_thigh))
         r_shank = TAPER["shank"] * G["calf_circumference"] / two_pi
-        out.append(Capsule(f"{p}shank", f"{p}shank", (0.0, 0.0, 0.0), (0.0, 0.0, -L["shank"]), r_shank))
+        lift = max(0.0, r_shank + SHANK_FLOOR_GAP - ankle_z)
+        out.append(Capsule(f"{p}shank", f"{p}shank", (0.0, 0.0, 0.0), (0.0, 0.0, -L["shank"] + lift), r_shank))
         r_foot = 0.5 * ankle_z
         heel_x = -A.ANKLE_FROM_HEEL * L["foot"]
         z = -ankle_z + r_foot
