@@ -1,0 +1,220 @@
+"""The truth suite (tests/truth_suite.py): generate it, or score an engine against it; prints JSON lines.
+
+Generate (``--generate``): for each strategy, ``--candidates`` goals drawn with a seed, a part uniform over the
+config's box and the rest where answers are hard: a shell near the strategy's reach bound, behind the body, across
+it, low. Each candidate is asked of a thorough referee, every search cold (no hint) and independent of the engine's
+staging:
+
+* ``single``: fatrop from the reference posture alone (tells the goals one start misses);
+* ``batch``: the batched engine with ``--batch-starts`` starts a goal, never giving up;
+* ``ipopt``: IPOPT (the audit's referee) from the reference, the ready posture and ``--restarts`` random starts;
+* ``fatrop``: fatrop from as many random starts of another seed.
+
+A goal is labelled reachable when a posture one of them found passes the independent check (tests/truth_suite.py); that
+posture is kept. ``--keep`` goals are kept, the hard ones first: reachable goals one start misses, reachable goals
+beside an unreachable candidate (within ``NEAR`` m) and unreachable ones within ``CLOSE`` m of a posture, then the
+rest. The folder's provenance.json records all of it.
+
+Score (default): the engine of each strategy as the config makes it, asked cold (``evaluate(goals)``) and as a
+build asks (each goal hinted with the kept posture of its nearest proven neighbour), against the suite.
+
+    python bench/truth.py --generate [--config configs/demo.yaml] [--strategies a,b] [--out tests/data/truth]
+    python bench/truth.py [--strategies a,b] [--jit]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+
+from truth_suite import SUITE, Suite, independent_check, load_suite, provenance, score  # noqa: E402
+
+from oracles.protocol import Goals, OracleSpec  # noqa: E402
+from reach.build.config import load_config  # noqa: E402
+
+NEAR = 0.12  # [m] a reachable goal this near an unreachable candidate lies at the boundary
+CLOSE = 0.05  # [m] an unreachable goal whose referee's best posture ends this near lies at the boundary
+SUITES = {  # the strategies of the suite, by config
+    "configs/demo.yaml": ["right_arm", "right_upper_body", "right_whole_body", "right_crouch"],
+    "configs/human.yaml": ["right_torsion", "right_squat", "right_step"],
+}
+
+
+def emit(**fields: object) -> None:
+    print(json.dumps(fields), flush=True)
+
+
+def candidates(oracle, box: tuple[np.ndarray, np.ndarray], n: int, rng: np.random.Generator,
+               right: bool) -> tuple[np.ndarray, np.ndarray]:
+    """n goals [m] and the region each was drawn in."""
+    lo, hi = box
+    bound = oracle.reach_bound()
+    if bound is not None:
+        centre, radius = np.asarray(bound[0], float), float(bound[1])
+    else:
+        centre, radius = 0.5 * (lo + hi), 0.5 * float(np.linalg.norm(hi - lo))
+    side = -1.0 if right else 1.0  # the effector's own side (y < 0 for the right hand)
+    out, kinds = [], []
+    share = {"box": 0.2, "shell": 0.35, "behind": 0.15, "across": 0.15, "low": 0.15}
+    for kind, s in share.items():
+        k = int(round(n * s))
+        pts: list[np.ndarray] = []
+        for _ in range(200 * k):  # a region the bound does not meet (the arm's low goals) gets fewer
+            if len(pts) == k:
+                break
+            if kind == "box":
+                p = rng.uniform(lo, hi)
+            else:
+                d = rng.normal(size=3)
+                d /= np.linalg.norm(d)
+                r = radius * (rng.uniform(0.55, 1.0) if kind == "shell" else rng.uniform(0.2, 0.9) ** (1 / 3))
+                p = centre + r * d
+                if kind == "behind" and p[0] > centre[0] - 0.05:
+                    continue
+                if kind == "across" and side * p[1] > -0.05:
+                    continue
+                if kind == "low" and p[2] > max(0.6, centre[2] - 0.5 * radius):
+                    continue
+            if np.all(p >= lo) and np.all(p <= hi):
+                pts.append(p)
+        out += pts
+        kinds += [kind] * len(pts)
+    return np.array(out), np.array(kinds)
+
+
+def referee(spec: OracleSpec, goals: np.ndarray, restarts: int, batch_starts: int, seed: int) -> dict:
+    """Each search's verdicts (see the module docstring), cold."""
+    base = {**spec.params, "jit": False, "secondary": False, "seed": seed}
+    searches = {
+        "single": {**base, "solver": "fatrop", "restarts": 0, "give_up": None},
+        "batch": {**base, "solver": "batch", "starts": batch_starts, "give_up": None},
+        "ipopt": {**base, "solver": "ipopt", "restarts": restarts, "give_up": None},
+        "fatrop": {**base, "solver": "fatrop", "restarts": restarts, "give_up": None, "seed": seed + 1},
+    }
+    out = {}
+    for name, params in searches.items():
+        t = time.process_time()
+        out[name] = OracleSpec(spec.name, params).create().evaluate(Goals(goals))
+        emit(search=name, goals=len(goals), reached=int(out[name].reachable.sum()),
+             cpu_s=round(time.process_time() - t, 1))
+    return out
+
+
+def generate(config: str, name: str, args: argparse.Namespace) -> dict:
+    cfg = load_config(ROOT / config)
+    spec = cfg.strategy(name).oracle
+    oracle = spec.create()
+    rng = np.random.default_rng([args.seed, *name.encode()])
+    box = (np.asarray(cfg.box.lo, float), np.asarray(cfg.box.hi, float))
+    goals, kinds = candidates(oracle, box, args.candidates, rng, name.startswith("right"))
+    found = referee(spec, goals, args.restarts, args.batch_starts, args.seed)
+    n, nq = len(goals), len(oracle.body.q_ref)
+    reachable, posture = np.zeros(n, bool), np.full((n, nq), np.nan)
+    residual, by = np.full(n, np.inf), np.array([""] * n, dtype="U16")
+    for search in ("ipopt", "fatrop", "batch", "single"):  # the audit's referee's posture first
+        v = found[search]
+        residual = np.minimum(residual, v.residual)
+        for i in np.nonzero(v.reachable & ~reachable)[0]:
+            if not independent_check(oracle, v.posture[i], goals[i]):
+                reachable[i], posture[i], by[i] = True, v.posture[i], search
+    single = found["single"].reachable
+    # The hard goals first (see the module docstring), then the rest, in a seeded order.
+    dist = np.linalg.norm(goals[:, None] - goals[None, :], axis=2)
+    beside = np.array([np.any(dist[i, ~reachable] <= NEAR) for i in range(n)])
+    order = rng.permutation(n)
+    tiers = [reachable & ~single, (reachable & beside) | (~reachable & (residual <= CLOSE)), np.ones(n, bool)]
+    keep: list[int] = []
+    for tier in tiers:
+        keep += [int(i) for i in order[tier[order]] if i not in keep][: max(args.keep - len(keep), 0)]
+    keep_a = np.array(sorted(keep))
+    Suite(name, goals[keep_a], reachable[keep_a], posture[keep_a], residual[keep_a], kinds[keep_a],
+          by[keep_a]).save(Path(args.out))
+    return {"config": config, "strategy": name, "candidates": n, "kept": len(keep_a),
+            "reachable": int(reachable[keep_a].sum()), "one_start_misses": int((reachable & ~single)[keep_a].sum()),
+            "body_hash": oracle.model_hash, "nq": nq, "tolerance": oracle.strategy.tolerance,
+            "regions": {k: int(np.sum(kinds[keep_a] == k)) for k in np.unique(kinds)},
+            "found_by": {k: int(np.sum(by[keep_a] == k)) for k in np.unique(by[keep_a]) if k}}
+
+
+def scored(config: str, name: str, jit: bool, folder: Path = SUITE) -> list[dict]:
+    cfg = load_config(ROOT / config)
+    spec = cfg.strategy(name).oracle
+    oracle = OracleSpec(spec.name, {**spec.params, "jit": "auto" if jit else False}).create()
+    suite = load_suite(name, folder)
+    lines = []
+    for mode in ("cold", "hinted"):
+        goals = Goals(suite.goals) if mode == "cold" else Goals(suite.goals, seeds=neighbour_hints(suite))
+        oracle.stats.clear()
+        oracle.stats.update({"points": 0, "prefiltered": 0, "solves": 0, "reachable": 0, "cut_rounds": 0})
+        t = time.process_time()
+        v = oracle.evaluate(goals)
+        cpu = time.process_time() - t
+        lines.append({**score(oracle, suite, v).line(), "mode": mode, "cpu_s": round(cpu, 2),
+                      "solves": oracle.stats["solves"]})
+    return lines
+
+
+def neighbour_hints(suite: Suite) -> np.ndarray:
+    """Each goal's hint as a build gives it: the kept posture of the nearest other proven-reachable goal (the
+    reference's row where there is none)."""
+    proven = np.nonzero(suite.reachable)[0]
+    hints = np.full_like(suite.posture, np.nan)
+    for i, g in enumerate(suite.goals):
+        others = proven[proven != i]
+        if others.size:
+            hints[i] = suite.posture[others[np.argmin(np.linalg.norm(suite.goals[others] - g, axis=1))]]
+    return hints
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--generate", action="store_true")
+    parser.add_argument("--strategies", help="comma-separated (default: every strategy of SUITES)")
+    parser.add_argument("--candidates", type=int, default=700)
+    parser.add_argument("--keep", type=int, default=300)
+    parser.add_argument("--restarts", type=int, default=24)
+    parser.add_argument("--batch-starts", type=int, default=64)
+    parser.add_argument("--seed", type=int, default=59)
+    parser.add_argument("--out", default=str(SUITE))
+    parser.add_argument("--jit", action="store_true", help="score with compiled programs (as the configs ask)")
+    args = parser.parse_args()
+    emit(bench="machine", python=platform.python_version(), processor=platform.processor() or platform.machine(),
+         cores=os.cpu_count(), load=os.getloadavg()[0])
+    wanted = None if not args.strategies else set(args.strategies.split(","))
+    jobs = [(c, s) for c, names in SUITES.items() for s in names if wanted is None or s in wanted]
+    if args.generate:
+        out = Path(args.out)
+        path = out / "provenance.json"
+        prov = json.loads(path.read_text()) if path.exists() else {"strategies": {}}
+        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
+                                text=True).stdout.strip()
+        for config, name in jobs:
+            t = time.time()
+            entry = generate(config, name, args)
+            entry.update(commit=commit, seed=args.seed, wall_s=round(time.time() - t, 1),
+                         referee={"searches": ["single", "batch", "ipopt", "fatrop"], "restarts": args.restarts,
+                                  "batch_starts": args.batch_starts, "jit": False, "secondary": False,
+                                  "candidates": args.candidates, "keep": args.keep, "near": NEAR, "close": CLOSE})
+            prov["strategies"][name] = entry
+            emit(**entry)
+            path.write_text(json.dumps(prov, indent=1) + "\n")
+        return
+    for config, name in jobs:
+        if name in provenance(Path(args.out))["strategies"]:
+            for line in scored(config, name, args.jit, Path(args.out)):
+                emit(**line)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,134 @@
+"""The truth suite (tests/truth_suite.py, tests/data/truth): every change must keep the engine's verdicts on it.
+
+Each strategy's suite holds a few hundred goals weighted toward the hard places (near the boundary, behind and across
+the body, low, goals one start misses), labelled by a thorough referee (bench/truth.py --generate: fatrop, IPOPT and
+the batched engine from many starts), every "reachable" label with the posture that proves it. Here:
+
+* every proving posture passes the independent check (our own forward kinematics, coal, the joints' ranges);
+* the engine, as the configs make it (compiled or not: the same programs), asked cold and as a build asks (hinted
+  with a neighbour's posture), loses at most ``ALLOWED`` proven verdicts, and every "reachable" answer's posture
+  passes the independent check;
+* a weakened engine (one start, no polish) fails the same gate: the gate can fail.
+
+A body or task change that moves a strategy's model hash makes its suite stale: regenerate it with
+``python bench/truth.py --generate --strategies NAME`` (minutes a strategy) and commit the new files.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from truth_suite import SUITE, independent_check, load_suite, provenance, score
+
+from oracles.protocol import Goals, OracleSpec
+from reach.build.config import load_config
+
+ROOT = Path(__file__).resolve().parents[1]
+FAST = ["right_arm", "right_upper_body"]
+SLOW = ["right_whole_body", "right_crouch", "right_torsion", "right_squat", "right_step"]
+RATE = 0.005  # the issue's bar: under 0.5 % of the proven verdicts lost (issue 59)
+# Proven verdicts the engine may lose, per strategy and way of asking (cold, hinted): the bar, or where the engine
+# does not meet it yet, the count measured when the suite was made (docs/results.md, "The truth suite"): a change
+# that loses more fails.
+ALLOWED: dict[str, tuple[int, int]] = {}
+
+
+def _bench():
+    spec = importlib.util.spec_from_file_location("bench_truth", ROOT / "bench" / "truth.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _oracle(name: str):
+    config = provenance()["strategies"][name]["config"]
+    spec = load_config(ROOT / config).strategy(name).oracle
+    return OracleSpec(spec.name, {**spec.params, "jit": False}).create()
+
+
+def allowed(name: str, mode: str, proven: int) -> int:
+    bar = math.floor(RATE * proven)
+    measured = ALLOWED.get(name)
+    return max(bar, measured[0 if mode == "cold" else 1]) if measured else bar
+
+
+def test_the_suite_has_its_provenance_and_its_body():
+    prov = provenance()
+    assert set(prov["strategies"]) == set(FAST + SLOW)
+    for name, entry in prov["strategies"].items():
+        suite = load_suite(name)
+        assert len(suite.goals) == entry["kept"] and int(suite.reachable.sum()) == entry["reachable"]
+        assert {"searches", "restarts", "batch_starts", "candidates"} <= set(entry["referee"]) and "seed" in entry
+        # Hard places: goals one start misses, and goals behind and across the body.
+        assert entry["one_start_misses"] >= 10 and entry["regions"].get("behind", 0) + entry["regions"]["across"] > 0
+        oracle = _oracle(name)
+        assert oracle.model_hash == entry["body_hash"], (
+            f"{name}'s suite was made on another body: python bench/truth.py --generate --strategies {name}")
+        assert np.isnan(suite.posture[~suite.reachable]).all() and np.isfinite(suite.posture[suite.reachable]).all()
+
+
+@pytest.mark.parametrize("name", FAST + [pytest.param(n, marks=pytest.mark.slow) for n in SLOW])
+def test_every_proving_posture_passes_the_independent_check(name):
+    oracle = _oracle(name)
+    suite = load_suite(name)
+    bad = {int(i): independent_check(oracle, suite.posture[i], suite.goals[i]) for i in np.nonzero(suite.reachable)[0]}
+    assert not any(bad.values()), {i: f for i, f in bad.items() if f}
+
+
+def test_the_independent_check_sees_a_miss_a_collision_and_a_joint_out_of_range():
+    oracle = _oracle("right_arm")
+    suite = load_suite("right_arm")
+    i = int(np.nonzero(suite.reachable)[0][0])
+    q, goal = suite.posture[i], suite.goals[i]
+    assert independent_check(oracle, q, goal) == []
+    assert independent_check(oracle, q, goal + [0.0, 0.0, 0.01])[0].startswith("reach")
+    model = oracle.body.model
+    elbow = model.idx_qs[model.getJointId("right_elbow_flexion")]
+    out = q.copy()
+    out[elbow] = model.upperPositionLimit[elbow] + 0.1
+    assert "limits" in independent_check(oracle, out, goal)
+    # Random arm postures: where coal finds a pair closer than its floor, the verdict's own check agrees.
+    rng = np.random.default_rng(0)
+    lo, hi = oracle.problem.lower, oracle.problem.upper
+    collided = 0
+    for _ in range(150):
+        q = oracle.problem.q_of_x(rng.uniform(lo, hi))
+        ours = any(f.startswith("self_collision") for f in independent_check(oracle, q, goal))
+        assert ours == ("self_collision" in oracle.faults(q[None])[0])
+        collided += ours
+    assert collided >= 5
+
+
+def _asked(name: str, mode: str, oracle=None):
+    oracle = oracle or _oracle(name)
+    suite = load_suite(name)
+    goals = Goals(suite.goals) if mode == "cold" else Goals(suite.goals, seeds=_bench().neighbour_hints(suite))
+    return score(oracle, suite, oracle.evaluate(goals))
+
+
+@pytest.mark.parametrize("mode", ["cold", "hinted"])
+@pytest.mark.parametrize("name", FAST + [pytest.param(n, marks=pytest.mark.slow) for n in SLOW])
+def test_the_engine_keeps_the_proven_verdicts(name, mode):
+    s = _asked(name, mode)
+    assert not s.false_reachable, f"{name} ({mode}): reachable answers whose postures miss: {s.false_reachable}"
+    assert len(s.false_unreachable) <= allowed(name, mode, s.proven), (
+        f"{name} ({mode}): {len(s.false_unreachable)} of {s.proven} proven goals called unreachable "
+        f"(allowed {allowed(name, mode, s.proven)}): {s.false_unreachable}")
+
+
+def test_a_weakened_engine_fails_the_suite(monkeypatch):
+    """One start a goal and no polish (the issue's deliberately weakened engine): the gate above fails it."""
+    from oracles.ik import waves
+
+    monkeypatch.setattr(waves.Waves, "_polish", lambda self, i, tries, target: None)
+    monkeypatch.setattr(waves.Waves, "_wave", lambda self, wave, _w=waves.Waves._wave: (
+        _w(self, wave) if wave == "starts" else None))
+    spec = load_config(ROOT / "configs/demo.yaml").strategy("right_arm").oracle
+    weak = OracleSpec(spec.name, {**spec.params, "jit": False, "starts": 1}).create()
+    s = _asked("right_arm", "cold", weak)
+    assert len(s.false_unreachable) > allowed("right_arm", "cold", s.proven)
+    assert SUITE.exists()
