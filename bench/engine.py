@@ -154,7 +154,10 @@ with tempfile.TemporaryDirectory() as tmp:
                         config.chunk_size))
     wall, spent = time.perf_counter() - t0, cpu() - c0
     trees = {n: int(t.vertices.reachable.sum()) for n, t in atlas.trees.items()}
-print(json.dumps({"wall_s": round(wall, 1), "cpu_s": round(spent, 1), "reachable": trees}))
+    inner = {n: round(float(t.volume(1)), 4) for n, t in atlas.trees.items()}
+    final = {n: round(float(t.volume(3)), 4) for n, t in atlas.trees.items()}
+print(json.dumps({"wall_s": round(wall, 1), "cpu_s": round(spent, 1), "reachable": trees, "inner_m3": inner,
+                  "boundary_m3": final}))
 """
 
 

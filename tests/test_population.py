@@ -16,7 +16,7 @@ from helpers import ARM
 from oracles.bodies.body import load_body
 from oracles.bodies.population import boundary_manikins, member_body, members, parse_population
 from oracles.errors import ModelError
-from oracles.protocol import OracleSpec
+from oracles.protocol import Goals, OracleSpec
 from reach.answers.accommodation import direct, weighted_share, wilson
 from reach.answers.evaluate import Target
 from reach.build.config import parse_config
@@ -379,3 +379,31 @@ def test_balance_pelvis_takes_true_false_or_a_distance():
     task = parse_strategy(body, "right_hand", joints, [{"type": "reach"}, {"type": "feet"},
                                                        {"type": "balance", "pelvis": 0.05}]).task("balance")
     assert task.pelvis and task.aside == 0.05
+
+
+@pytest.mark.slow
+def test_a_strategy_with_more_freedom_reaches_what_its_sub_strategy_reaches_directly():
+    """Issue 59: ANSUR II man 27150's whole body, asked cold, reached 1 of the workstation's targets that his upper body
+    reaches (its searches flex the hips into the abdomen's clearance to the thigh). ``direct`` asks each strategy again
+    from the posture the ones before it found, where its cold search missed: the whole body then reaches every target
+    the upper body does, each posture passing the check by Pinocchio."""
+    from reach.answers.accommodation import _member
+    from reach.build.config import load_config
+
+    config = load_config(Path(__file__).resolve().parents[1] / "configs" / "demo.yaml")
+    body = {"human": {"ansur": {"sex": "male", "subject": 27150}}}
+    rows = list(csv.DictReader(open(Path(__file__).resolve().parents[1] / "configs/targets/workstation_right.csv")))
+    points = np.array([[float(r["x"]), float(r["y"]), float(r["z"])] for r in rows])
+    names = ("right_arm", "right_upper_body", "right_whole_body")
+    oracles, strategies = {}, []
+    for name in names:
+        spec = config.strategy(name).oracle
+        params = {**spec.params, "jit": False, "body": body}
+        oracles[name] = OracleSpec(spec.name, params).create()
+        strategies.append((name, "right_hand", spec.name, params))
+    cold = oracles["right_whole_body"].evaluate(Goals(points)).reachable
+    found, refuted = _member(oracles, strategies, points, ["right_hand"] * len(points), True)
+    by = {n: np.array([r["strategy"] == n or n in r["also"] for r in found]) for n in names}
+    assert refuted == 0
+    assert by["right_upper_body"].sum() > cold.sum()  # the cold search's miss, as measured
+    assert np.all(by["right_whole_body"][by["right_upper_body"] | by["right_arm"]])
