@@ -227,8 +227,9 @@ def test_give_up_skips_restarts_after_a_decisive_warm_solve():
     # Behind and across the body at shoulder height the arm's joint limits
     # end the volume about 0.3 m left of the shoulder; this goal is beyond.
     thorough = CasadiIK(HUMAN, "right_hand", ARM, solver="fatrop", search=Search(restarts=2, give_up=None))
-    # gives up after any failed decisive warm start
-    hasty = CasadiIK(HUMAN, "right_hand", ARM, solver="fatrop", search=Search(restarts=2))
+    # gives up after any failed decisive warm start (give_up 0; the default, 0.1, keeps the starts of a hint that ends
+    # within 10 cm)
+    hasty = CasadiIK(HUMAN, "right_hand", ARM, solver="fatrop", search=Search(restarts=2, give_up=0.0))
     goal = (thorough.problem.anchor + [-0.1, 0.38, 0.0])[None]
     assert thorough.problem.prefilter(goal[0]) == 0.0  # the solver, not the pre-filter, decides
     best = thorough.evaluate(goal)
@@ -338,7 +339,7 @@ def test_rescues_are_random_restarts_after_giving_up():
     thorough = CasadiIK(HUMAN, "right_hand", ARM, solver="fatrop", search=Search(restarts=2, give_up=None))
     goal = (thorough.problem.anchor + [-0.1, 0.38, 0.0])[None]
     hint = thorough.evaluate(goal).posture  # as in test_give_up_...: a decisive, failing warm start
-    rescuing = CasadiIK(HUMAN, "right_hand", ARM, solver="fatrop", search=Search(restarts=2, rescues=1))
+    rescuing = CasadiIK(HUMAN, "right_hand", ARM, solver="fatrop", search=Search(restarts=2, rescues=1, give_up=0.0))
     assert not rescuing.evaluate(Goals(goal, seeds=hint)).reachable[0]
     assert rescuing.stats["solves"] == 2  # the hint, then one random restart (no reference start)
     # every failure counts as a near miss
