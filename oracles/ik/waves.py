@@ -228,7 +228,7 @@ class Waves:
 
     def _wave(self, wave: str) -> Wave | None:
         """One wave's goals and starts, run together; None when no goal has a start in it."""
-        oracle, todo, reach, residual = self.oracle, self.todo, self.reach, self.residual
+        oracle, todo, reach = self.oracle, self.todo, self.reach
         if wave == "starts":
             goals = todo
         elif wave == "more":
