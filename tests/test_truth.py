@@ -35,8 +35,8 @@ RATE = 0.005  # the issue's bar: under 0.5 % of the proven verdicts lost (issue 
 # does not meet it yet, the count measured when the suite was made (docs/results.md, "The truth suite"): a change
 # that loses more fails.
 ALLOWED: dict[str, tuple[int, int]] = {
-    "right_arm": (1, 2), "right_upper_body": (2, 3), "right_whole_body": (4, 3), "right_crouch": (3, 4),
-    "right_torsion": (5, 1), "right_squat": (24, 5), "right_step": (15, 9),
+    "right_arm": (0, 2), "right_upper_body": (1, 2), "right_whole_body": (3, 3), "right_crouch": (3, 4),
+    "right_torsion": (5, 0), "right_squat": (24, 5), "right_step": (13, 9),
 }
 
 

@@ -162,7 +162,9 @@ class Waves:
         self.polishes = np.zeros(n, int)
         # Each goal's nearest end, hard rows held or not: an end at the goal through the body (a self-collision) is
         # near, where the check's residual names the nearest end that holds them, which may be far (the arm reaching
-        # across its back: 0.5-0.7 m, so neither the random wave nor the polish was tried; tests/test_truth.py).
+        # across its back: 0.5-0.7 m, so neither the cold goals' random wave nor the polish was tried;
+        # tests/test_truth.py). A staged goal's second wave keeps the residual: by the nearest end it reached no more
+        # of the truth suite and cost the demo build more.
         self.nearest = np.full(n, np.inf)
         self._polisher: Polishing | None = None
 
@@ -232,7 +234,7 @@ class Waves:
         if wave == "starts":
             goals = todo
         elif wave == "more":
-            goals = todo[self.staged[todo] & ~reach[todo] & (self.nearest[todo] <= RANDOM_NEAR)]
+            goals = todo[self.staged[todo] & ~reach[todo] & (self.residual[todo] <= RANDOM_NEAR)]
         else:
             goals = todo[~reach[todo] & self.cold[todo] & (self.nearest[todo] <= WAVE_NEAR)]
             # a goal's random wave when it can pay a few rounds of its starts (not one, which could not reach)
