@@ -53,10 +53,15 @@ def _oracle(name: str):
     return OracleSpec(spec.name, {**spec.params, "jit": False}).create()
 
 
+# One goal's slack over the measured count: the interpreted programs' arithmetic may differ in its last bits on another
+# processor, and a search that ends a hair from the tolerance can fall either way.
+SLACK = 1
+
+
 def allowed(name: str, mode: str, proven: int) -> int:
     bar = math.floor(RATE * proven)
     measured = ALLOWED.get(name)
-    return max(bar, measured[0 if mode == "cold" else 1]) if measured else bar
+    return max(bar, measured[0 if mode == "cold" else 1] + SLACK) if measured else bar
 
 
 def test_the_suite_has_its_provenance_and_its_body():
