@@ -143,6 +143,7 @@ from pathlib import Path
 from reach.build.atlas import build_atlas
 from reach.build.config import load_config
 from reach.build.executor import ProcessExecutor
+from reach.maps.tree import FINAL, INNER
 config = load_config(Path(sys.argv[1]))
 workers = int(sys.argv[2])
 def cpu():
@@ -154,8 +155,8 @@ with tempfile.TemporaryDirectory() as tmp:
                         config.chunk_size))
     wall, spent = time.perf_counter() - t0, cpu() - c0
     trees = {n: int(t.vertices.reachable.sum()) for n, t in atlas.trees.items()}
-    inner = {n: round(float(t.volume(1)), 4) for n, t in atlas.trees.items()}
-    final = {n: round(float(t.volume(3)), 4) for n, t in atlas.trees.items()}
+    inner = {n: round(float(t.volume(INNER)), 4) for n, t in atlas.trees.items()}
+    final = {n: round(float(t.volume(FINAL)), 4) for n, t in atlas.trees.items()}
 print(json.dumps({"wall_s": round(wall, 1), "cpu_s": round(spent, 1), "reachable": trees, "inner_m3": inner,
                   "boundary_m3": final}))
 """

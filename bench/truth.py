@@ -154,27 +154,13 @@ def scored(config: str, name: str, jit: bool, folder: Path = SUITE) -> list[dict
     suite = load_suite(name, folder)
     lines = []
     for mode in ("cold", "hinted"):
-        goals = Goals(suite.goals) if mode == "cold" else Goals(suite.goals, seeds=neighbour_hints(suite))
-        oracle.stats.clear()
-        oracle.stats.update({"points": 0, "prefiltered": 0, "solves": 0, "reachable": 0, "cut_rounds": 0})
-        t = time.process_time()
+        goals = Goals(suite.goals) if mode == "cold" else Goals(suite.goals, seeds=suite.neighbour_hints())
+        solves, t = oracle.stats["solves"], time.process_time()
         v = oracle.evaluate(goals)
         cpu = time.process_time() - t
         lines.append({**score(oracle, suite, v).line(), "mode": mode, "cpu_s": round(cpu, 2),
-                      "solves": oracle.stats["solves"]})
+                      "solves": oracle.stats["solves"] - solves})
     return lines
-
-
-def neighbour_hints(suite: Suite) -> np.ndarray:
-    """Each goal's hint as a build gives it: the kept posture of the nearest other proven-reachable goal (the
-    reference's row where there is none)."""
-    proven = np.nonzero(suite.reachable)[0]
-    hints = np.full_like(suite.posture, np.nan)
-    for i, g in enumerate(suite.goals):
-        others = proven[proven != i]
-        if others.size:
-            hints[i] = suite.posture[others[np.argmin(np.linalg.norm(suite.goals[others] - g, axis=1))]]
-    return hints
 
 
 def main() -> None:

@@ -318,7 +318,7 @@ def test_a_urdf_joint_with_lower_above_upper_is_named(tmp_path):
 
 @pytest.mark.slow
 def test_every_survey_body_stands_above_the_floor():
-    """Issue 59, item 3: no capsule of any of ANSUR II's 6,068 subjects below the floor in the standing reference
+    """No capsule of any of ANSUR II's 6,068 subjects below the floor in the standing reference
     (the shank's lower sphere sank up to 6.2 mm under it in 37). Each body's URDF is parsed by Pinocchio here, its
     capsules placed by forward kinematics at the standing posture (every joint at 0, the root at the hips' height),
     apart from load_body's own reference posture."""

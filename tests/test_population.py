@@ -383,7 +383,7 @@ def test_balance_pelvis_takes_true_false_or_a_distance():
 
 @pytest.mark.slow
 def test_a_strategy_with_more_freedom_reaches_what_its_sub_strategy_reaches_directly():
-    """Issue 59: ANSUR II man 27150's whole body, asked cold, reached 1 of the workstation's targets that his upper body
+    """ANSUR II man 27150's whole body, asked cold, reached 1 of the workstation's targets that his upper body
     reaches (its searches flex the hips into the abdomen's clearance to the thigh). ``direct`` asks each strategy again
     from the posture the ones before it found, where its cold search missed: the whole body then reaches every target
     the upper body does, each posture passing the check by Pinocchio."""

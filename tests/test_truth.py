@@ -16,13 +16,12 @@ A body or task change that moves a strategy's model hash makes its suite stale: 
 
 from __future__ import annotations
 
-import importlib.util
 import math
 from pathlib import Path
 
 import numpy as np
 import pytest
-from truth_suite import SUITE, independent_check, load_suite, provenance, score
+from truth_suite import independent_check, load_suite, provenance, score
 
 from oracles.protocol import Goals, OracleSpec
 from reach.build.config import load_config
@@ -30,7 +29,8 @@ from reach.build.config import load_config
 ROOT = Path(__file__).resolve().parents[1]
 FAST = ["right_arm", "right_upper_body"]
 SLOW = ["right_whole_body", "right_crouch", "right_torsion", "right_squat", "right_step"]
-RATE = 0.005  # the issue's bar: under 0.5 % of the proven verdicts lost (issue 59)
+RATE = 0.005  # the bar: under 0.5 % of the proven verdicts lost
+pytestmark = pytest.mark.truth
 # Proven verdicts the engine may lose, per strategy and way of asking (cold, hinted): the bar, or where the engine
 # does not meet it yet, the count measured when the suite was made (docs/results.md, "The truth suite"): a change
 # that loses more fails.
@@ -38,13 +38,6 @@ ALLOWED: dict[str, tuple[int, int]] = {
     "right_arm": (0, 2), "right_upper_body": (1, 2), "right_whole_body": (3, 3), "right_crouch": (3, 4),
     "right_torsion": (5, 0), "right_squat": (24, 5), "right_step": (13, 9),
 }
-
-
-def _bench():
-    spec = importlib.util.spec_from_file_location("bench_truth", ROOT / "bench" / "truth.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def _oracle(name: str):
@@ -114,7 +107,7 @@ def test_the_independent_check_sees_a_miss_a_collision_and_a_joint_out_of_range(
 def _asked(name: str, mode: str, oracle=None):
     oracle = oracle or _oracle(name)
     suite = load_suite(name)
-    goals = Goals(suite.goals) if mode == "cold" else Goals(suite.goals, seeds=_bench().neighbour_hints(suite))
+    goals = Goals(suite.goals) if mode == "cold" else Goals(suite.goals, seeds=suite.neighbour_hints())
     return score(oracle, suite, oracle.evaluate(goals))
 
 
@@ -129,7 +122,7 @@ def test_the_engine_keeps_the_proven_verdicts(name, mode):
 
 
 def test_a_weakened_engine_fails_the_suite(monkeypatch):
-    """One start a goal and no polish (the issue's deliberately weakened engine): the gate above fails it."""
+    """One start a goal and no polish (a deliberately weakened engine): the gate above fails it."""
     from oracles.ik import waves
 
     monkeypatch.setattr(waves.Waves, "_polish", lambda self, i, tries, target: None)
@@ -139,4 +132,3 @@ def test_a_weakened_engine_fails_the_suite(monkeypatch):
     weak = OracleSpec(spec.name, {**spec.params, "jit": False, "starts": 1}).create()
     s = _asked("right_arm", "cold", weak)
     assert len(s.false_unreachable) > allowed("right_arm", "cold", s.proven)
-    assert SUITE.exists()

@@ -39,6 +39,17 @@ class Suite:
     kind: np.ndarray
     found_by: np.ndarray
 
+    def neighbour_hints(self) -> np.ndarray:
+        """Each goal's hint as a build gives it: the kept posture of the nearest other proven-reachable goal (a NaN
+        row, no hint, where there is none)."""
+        proven = np.nonzero(self.reachable)[0]
+        hints = np.full_like(self.posture, np.nan)
+        for i, g in enumerate(self.goals):
+            others = proven[proven != i]
+            if others.size:
+                hints[i] = self.posture[others[np.argmin(np.linalg.norm(self.goals[others] - g, axis=1))]]
+        return hints
+
     def save(self, folder: Path) -> Path:
         folder.mkdir(parents=True, exist_ok=True)
         path = folder / f"{self.strategy}.npz"

@@ -18,9 +18,8 @@ from oracles.errors import OracleError
 
 NEAR_HINT = 0.1  # [m] default of `decisive`: a hint this close to the goal makes its failed warm solve decisive
 # [m] default of `give_up`: a decisive hint that fails ending nearer than this keeps the goal's other starts. The
-# batched engine runs them beside the hint, so keeping them costs little: the demo's arm and upper body built in 26.4
-# CPU s against 27.9 with 0, and kept 3 + 3 more vertices; on the truth suite they lost 2 and 3 proven goals asked as a
-# build asks, against 5 and 5 (issue 59).
+# batched engine runs them beside the hint, so keeping them costs little; on the truth suite the arm and upper body,
+# asked as a build asks, lost 2 and 3 proven goals against 5 and 5 with 0 (docs/results.md, "The truth suite").
 GIVE_UP = 0.1
 INDEX_SETTLE = 0.01  # [m] the index variant's `settle`: its hints reach the vertex already (within the reach tolerance)
 

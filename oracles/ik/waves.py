@@ -352,9 +352,8 @@ class Waves:
 
     def _polish(self, i: int, tries: list[np.ndarray], target_i: np.ndarray | None) -> None:
         """fatrop from each of ``tries`` in turn, within goal i's budget, until one reaches; the best kept; and when
-        none reaches, fatrop once more from the best, where the last stopped at its iteration cap on the way (the
-        truth suite's goals lost, cold / as a build asks: arm 1 / 2 -> 0 / 2, upper body 2 / 3 -> 1 / 2, whole body
-        4 / 3 -> 3 / 3, torsion 5 / 1 -> 5 / 0, step 15 / 9 -> 13 / 9, at the same CPU; issue 59)."""
+        none reaches, fatrop once more from the best: a solve stopped at its iteration cap on the way (it kept 1-2
+        more of the truth suite's proven goals in five of its seven strategies; docs/results.md)."""
         for guess in tries:
             if not self.meter.afford(i, POLISH_COST):
                 return  # its work budget spent (or the clock's guard passed)

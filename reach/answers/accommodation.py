@@ -236,15 +236,14 @@ def _member(oracles: dict[str, Any], strategies: list[tuple[Any, ...]], points: 
     # strategies start from it. A strategy with more freedom holds every posture of one with less (its other joints at
     # the reference), but its own cold search may not find one: the whole body and the crouch reached the
     # workstation's chest button for 95 and 97.5 % of configs/population.yaml's members, the arm alone for 100 %.
-    found = np.full((len(points), 0), np.nan)
+    found: dict[int, np.ndarray] = {}  # target index -> the first reaching posture
     for name, eff, _, _ in strategies:
         pick = [i for i, e in enumerate(effs) if e == eff]
         oracle = oracles[name]
         v = oracle.evaluate(Goals.of(points[pick]))
-        again = [k for k, i in enumerate(pick) if not v.reachable[k] and np.isfinite(found[i]).all()] if (
-            found.shape[1]) else []
+        again = [k for k, i in enumerate(pick) if not v.reachable[k] and i in found]
         if again and v.posture is not None:  # asked again from the posture found, only where the cold search missed
-            w = oracle.evaluate(Goals(points[pick][again], seeds=found[[pick[k] for k in again]]))
+            w = oracle.evaluate(Goals(points[pick][again], seeds=np.array([found[pick[k]] for k in again])))
             reachable, residual = np.array(v.reachable, bool), np.array(v.residual, float)
             posture = np.array(v.posture, float)
             reachable[again], residual[again], posture[again] = w.reachable, w.residual, w.posture
@@ -254,13 +253,10 @@ def _member(oracles: dict[str, Any], strategies: list[tuple[Any, ...]], points: 
             checked = oracle.verify(points[pick][ok], np.asarray(v.posture)[ok])
             refuted += int(np.sum(~checked))
             ok[np.flatnonzero(ok)[~checked]] = False
-        if v.posture is not None and ok.any():
-            posture = np.asarray(v.posture, float)
-            if found.shape[1] != posture.shape[1]:
-                found = np.full((len(points), posture.shape[1]), np.nan)
-            for i, hit, q in zip(pick, ok, posture, strict=True):
-                if hit and not np.isfinite(found[i]).all():
-                    found[i] = q
+        if v.posture is not None:
+            for i, hit, q in zip(pick, ok, np.asarray(v.posture, float), strict=True):
+                if hit:
+                    found.setdefault(i, q)
         for i, hit in zip(pick, ok, strict=True):
             if hit:
                 row = rows[i]
