@@ -20,6 +20,7 @@ build asks (each goal hinted with the kept posture of its nearest proven neighbo
 
     python bench/truth.py --generate [--config configs/demo.yaml] [--strategies a,b] [--out tests/data/truth]
     python bench/truth.py [--strategies a,b] [--jit]
+    python bench/truth.py --config CONFIG --strategies a,b --out FOLDER [--generate]   (a suite of any config)
 """
 
 from __future__ import annotations
@@ -111,8 +112,13 @@ def referee(spec: OracleSpec, goals: np.ndarray, restarts: int, batch_starts: in
     return out
 
 
+def _config_path(config: str) -> Path:
+    """A config named on the command line (as given, else from the repository's root, as SUITES names them)."""
+    return Path(config) if Path(config).exists() else ROOT / config
+
+
 def generate(config: str, name: str, args: argparse.Namespace) -> dict:
-    cfg = load_config(ROOT / config)
+    cfg = load_config(_config_path(config))
     spec = cfg.strategy(name).oracle
     oracle = spec.create()
     rng = np.random.default_rng([args.seed, *name.encode()])
@@ -148,7 +154,7 @@ def generate(config: str, name: str, args: argparse.Namespace) -> dict:
 
 
 def scored(config: str, name: str, jit: bool, folder: Path = SUITE) -> list[dict]:
-    cfg = load_config(ROOT / config)
+    cfg = load_config(_config_path(config))
     spec = cfg.strategy(name).oracle
     oracle = OracleSpec(spec.name, {**spec.params, "jit": "auto" if jit else False}).create()
     suite = load_suite(name, folder)
@@ -166,6 +172,7 @@ def scored(config: str, name: str, jit: bool, folder: Path = SUITE) -> list[dict
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--generate", action="store_true")
+    parser.add_argument("--config", help="a suite of this config's --strategies (default: the repository's, SUITES)")
     parser.add_argument("--strategies", help="comma-separated (default: every strategy of SUITES)")
     parser.add_argument("--candidates", type=int, default=700)
     parser.add_argument("--keep", type=int, default=300)
@@ -178,7 +185,10 @@ def main() -> None:
     emit(bench="machine", python=platform.python_version(), processor=platform.processor() or platform.machine(),
          cores=os.cpu_count(), load=os.getloadavg()[0])
     wanted = None if not args.strategies else set(args.strategies.split(","))
-    jobs = [(c, s) for c, names in SUITES.items() for s in names if wanted is None or s in wanted]
+    if args.config and not wanted:
+        parser.error("--config needs --strategies")
+    suites = {args.config: sorted(wanted or ())} if args.config else SUITES
+    jobs = [(c, s) for c, names in suites.items() for s in names if wanted is None or s in wanted]
     if args.generate:
         out = Path(args.out)
         path = out / "provenance.json"

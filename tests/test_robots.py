@@ -414,3 +414,46 @@ def test_build_twins_false_solves_every_vertex_and_a_wrong_value_names_the_key(t
     assert tree.meta["build"]["turned"] == 0 and tree.meta["build"]["oracle_calls"] == len(tree.vertices)
     with pytest.raises(ConfigError, match=r"build\.twins: expected true or false, got 'yes'"):
         parse_config({**_ur5_twins_config([floor]), "build": {"twins": "yes"}}, str(tmp_path / "t.yaml"))
+
+
+def test_blocked_starts_default_by_body_and_refuse_bad_values():
+    """The batched engine's rescues of goals reached only through a collision: a URDF's body gets BLOCKED_STARTS by
+    default, the generated human none (its capsules let the batched steps out; docs/results.md); a bad value names the
+    key."""
+    from oracles.errors import OracleError
+    from oracles.ik.batch import BLOCKED_STARTS
+
+    tasks = [{"type": "reach"}, {"type": "self_collision"}]
+    robot = {"urdf": str(URDF / "ur5.urdf")}
+    assert OracleSpec("casadi-ik", body_params(robot, "ee_link", ["*_joint"], tasks)).create() \
+        .blocked_starts == BLOCKED_STARTS  # type: ignore[attr-defined]
+    human = OracleSpec("casadi-ik", body_params({"human": {"sex": "male"}}, "right_hand",
+                                               ["right_shoulder*", "right_elbow*"], tasks)).create()
+    assert human.blocked_starts == 0  # type: ignore[attr-defined]
+    for bad in (-1, 300, True, "many"):
+        with pytest.raises(OracleError, match="blocked_starts"):
+            OracleSpec("casadi-ik", {**body_params(robot, "ee_link", ["*_joint"], tasks), "blocked_starts": bad}).create()
+
+
+def test_goals_reached_only_through_a_collision_are_rescued_and_every_rescue_holds():
+    """The UR5 guarded against itself and a floor box, asked cold about goals low beside its base, where starts reach
+    through the floor or the base: with its rescues it tries more (fatrop from fresh random starts), never calls
+    reachable a goal it called unreachable without them, and every posture it calls reachable passes the independent
+    check (Pinocchio FK, coal on the capsules, the box)."""
+    import sys
+
+    sys.path.insert(0, str(ROOT / "tests"))
+    from truth_suite import independent_check
+
+    boxes = [{"min": [-1.5, -1.5, -0.1], "max": [1.5, 1.5, -0.02]}]
+    tasks = [{"type": "reach"}, {"type": "self_collision"}, {"type": "obstacles", "boxes": boxes}]
+    params = {**body_params({"urdf": str(URDF / "ur5.urdf")}, "ee_link", ["*_joint"], tasks), "seed": 0}
+    rng = np.random.default_rng(5)
+    goals = np.column_stack([rng.uniform(-0.35, 0.35, (2, 40)).T, rng.uniform(0.0, 0.12, 40)])
+    without = OracleSpec("casadi-ik", {**params, "blocked_starts": 0}).create()
+    rescued = OracleSpec("casadi-ik", params).create()
+    a, b = without.evaluate(goals), rescued.evaluate(goals)
+    assert rescued.stats["polished"] > without.stats["polished"]  # the rescues ran
+    assert np.all(b.reachable[a.reachable]) and b.reachable.sum() > a.reachable.sum() >= 10  # 34 against 32 here
+    for i in np.nonzero(b.reachable)[0]:
+        assert independent_check(rescued, b.posture[i], goals[i]) == [], i

@@ -492,13 +492,18 @@ WAVE_NEAR = 0.25  # [m] the random wave is for goals the K starts ended this nea
 POLISH_FAR = 0.25  # [m] ... or this near, for a cold goal that both waves missed (see oracles.ik.engine)
 # the most fatrop polishes of one goal (its reaching postures that break a lazy task, its nearest, its random starts)
 POLISHES = 6
+# the most fatrop solves from fresh random starts of a goal that its starts reached only through a collision (a
+# URDF's default of `blocked_starts`, oracles.ik.engine): on example-robot-data's UR5 with self-collision and a floor
+# box, a suite of 74 proven goals (bench/truth.py --config), misses cold / hinted 19 / 12 with none, 6 / 4 with 12
+# (docs/results.md, "Robots with collisions")
+BLOCKED_STARTS = 12
 CONTINUITY = 1.0  # weight of the range-normalised distance to the first hint (the neighbour's posture) in "liked"
 
 
 class Ends(NamedTuple):
     """Where a batch's starts ended: postures x (B, n), reach distances, hard-row violations and the lower tasks'
-    values (B,) (inf where not computed), which goals a decisive start gave up (indexed by goal), and each start's
-    reach rounds (B,)."""
+    values (B,) (inf where not computed), which goals a decisive start gave up (indexed by goal), each start's
+    reach rounds (B,), and which starts reached their goal through a lazy row (a collision) at some iteration (B,)."""
 
     x: np.ndarray
     dist: np.ndarray
@@ -506,6 +511,7 @@ class Ends(NamedTuple):
     liked: np.ndarray
     given_up: np.ndarray
     rounds: np.ndarray
+    blocked: np.ndarray
 
 
 def run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_of: np.ndarray, tolerance: float,
@@ -526,20 +532,21 @@ def run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_o
 def _run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_of: np.ndarray, tolerance: float,
                 lower: bool, start: np.ndarray | None, meter: Meter, stats: dict[str, int],
                 decisive: np.ndarray | None, give_up: float, lower_iter: int) -> Ends:
-    x, dist, viol, given_up, rounds = _reach_rounds(program, x0, params, goal_of, tolerance, start, meter, stats,
-                                                    decisive, give_up)
+    x, dist, viol, given_up, rounds, blocked = _reach_rounds(program, x0, params, goal_of, tolerance, start, meter,
+                                                             stats, decisive, give_up)
     f = np.full(len(x), np.inf)
     if lower and program.has_lower:
         _lower_rounds(program, x, dist, viol, f, params, np.asarray(goal_of, int), tolerance, start, meter, stats,
                       lower_iter)
-    return Ends(x, dist, viol, f, given_up, rounds)
+    return Ends(x, dist, viol, f, given_up, rounds, blocked)
 
 
 def _reach_rounds(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_of: np.ndarray, tolerance: float,
                   start: np.ndarray | None, meter: Meter, stats: dict[str, int], decisive: np.ndarray | None,
-                  give_up: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                  give_up: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The reach stage of every start (see :func:`run_starts`): their ends x, reach distances, hard-row violations,
-    the goals a decisive start gave up, and each start's rounds."""
+    the goals a decisive start gave up, each start's rounds, and which starts were guarded (reached through a lazy
+    row)."""
     x = x0.copy()
     b = len(x)
     dist = np.full(b, np.inf)
@@ -586,7 +593,7 @@ def _reach_rounds(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goa
         x[moving] = program.reach_step(x[moving], state.take(sub), None if starts is None else starts[moving],
                                        start_weight[moving], radius[moving])
         live = live[keep]
-    return x, dist, viol, given_up, rounds
+    return x, dist, viol, given_up, rounds, guarded
 
 
 def _progress(program: BatchProgram, state: State, live: np.ndarray, d: np.ndarray, v: np.ndarray, it: int,

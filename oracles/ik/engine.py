@@ -17,7 +17,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from oracles.errors import OracleError
-from oracles.ik.batch import LOWER_ITER, REFINE_LOWER_ITER, STARTS, BatchProgram, run_starts
+from oracles.ik.batch import BLOCKED_STARTS, LOWER_ITER, REFINE_LOWER_ITER, STARTS, BatchProgram, run_starts
 from oracles.ik.budget import Meter
 from oracles.ik.oracle import NO_CALL, Call, fresh_stats
 from oracles.ik.programs import CUT_SLOTS, Cuts, ProgramOracle, Programs
@@ -50,6 +50,10 @@ class CasadiIK(ProgramOracle):
             parameters of the programs, not constants: every body of one shape (a population's members) then
             shares one program a strategy, compiled once (:mod:`oracles.ik.parameters`; :meth:`share_programs`).
             Default false: a lone body's programs keep its numbers as constants (smaller expressions).
+        blocked_starts: The batched engine's fatrop solves from fresh random starts for a goal that its starts reached
+            only through a collision (:meth:`oracles.ik.waves.Waves._rescue_blocked`), 0 to 256; ``auto`` (the
+            default): ``BLOCKED_STARTS`` for a URDF's body, none for the generated human (docs/results.md, "Robots
+            with collisions").
         jit: Compile the problem's functions to machine code with the system's
             C compiler (``gcc``): ``auto`` compiles when ``gcc`` is on the PATH
             and falls back to CasADi's interpreter if it fails, ``true``
@@ -65,7 +69,7 @@ class CasadiIK(ProgramOracle):
 
     def __init__(self, *args: Any, max_iter: int = 60, solver: str = "batch", jit: bool | str = False,
                  secondary_iter: int = 15, starts: int = STARTS, body_parameters: bool = False,
-                 **kwargs: Any) -> None:
+                 blocked_starts: int | str = "auto", **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         if not isinstance(body_parameters, bool):
             raise OracleError(f"body_parameters must be true or false, got {body_parameters!r}", oracle=self.name,
@@ -79,8 +83,18 @@ class CasadiIK(ProgramOracle):
         if isinstance(starts, bool) or not isinstance(starts, int) or not 1 <= starts <= 256:
             raise OracleError(f"starts must be a whole number from 1 to 256, got {starts!r}", oracle=self.name,
                               key="starts")
+        if blocked_starts != "auto" and (isinstance(blocked_starts, bool) or not isinstance(blocked_starts, int)
+                                         or not 0 <= blocked_starts <= 256):
+            raise OracleError(f"blocked_starts must be 'auto' or a whole number from 0 to 256, got {blocked_starts!r}",
+                              oracle=self.name, key="blocked_starts")
         self.max_iter, self.solver, self.secondary_iter, self.starts_per_goal = (int(max_iter), solver,
             int(secondary_iter), starts)
+        self.blocked_asked = blocked_starts
+        # The generated human's capsules let the batched steps out of a collision: on the truth suite its rescues
+        # reached nothing more and cost its hinted goals 12-130 % more CPU; a URDF's meshes fitted by capsules lock
+        # joints against each other (example-robot-data's UR5: 19 / 12 cold / hinted misses of 74 without, 6 / 4 with).
+        self.blocked_starts = (blocked_starts if blocked_starts != "auto"
+                               else 0 if self.body.anthropometry is not None else BLOCKED_STARTS)
         self.lower_iter = LOWER_ITER  # the batched engine's lower-task iterations (more in a refinement: tune)
         self._batch_cache: dict[tuple[Any, ...], BatchProgram] = {}  # shared with variants, as the programs are
         self._set_jit(jit)
@@ -105,7 +119,11 @@ class CasadiIK(ProgramOracle):
     def engine_params(self) -> dict[str, Any]:
         out = {"max_iter": self.max_iter, "solver": self.solver, "jit": self.jit_asked,
                "secondary_iter": self.secondary_iter, **({"body_parameters": True} if self.body_parameters else {})}
-        return {**out, "starts": self.starts_per_goal} if self.solver == "batch" else out
+        if self.solver != "batch":
+            return out
+        # (`auto` left out: the specs and digests of trees built before it existed stay the same)
+        return {**out, "starts": self.starts_per_goal,
+                **({} if self.blocked_asked == "auto" else {"blocked_starts": self.blocked_asked})}
 
     def tune(self, purpose: Purpose) -> None:
         # A refinement never compiles (seconds, more than a server's few

@@ -188,8 +188,8 @@ class ProgramOracle(IKOracle):
             return None
         strategy = {k: v for k, v in self._strategy_params.items() if k != "body"}
         # jit changes how the programs run, not what they are (the caches below key it apart): `jit: auto` and `true`
-        # name the same compiled library
-        engine = {k: v for k, v in self.engine_params().items() if k != "jit"}
+        # name the same compiled library; the search's rescues change neither
+        engine = {k: v for k, v in self.engine_params().items() if k not in ("jit", "blocked_starts")}
         return self.numbers.signature, self._joints, repr(strategy), repr(sorted(engine.items()))
 
     @cached_property

@@ -49,6 +49,7 @@ from oracles.ik.strategy import Strategy
 from oracles.protocol import Verdicts, check_points
 
 WAVES = ("starts", "more", "random")
+RESCUE_STREAM = 2  # the random stream of a goal's rescues (waves 0 and 1 draw the first two)
 
 
 class Polishing(Protocol):
@@ -67,6 +68,7 @@ class Batched(Protocol):
     body: Any
     starts_per_goal: int
     lower_iter: int
+    blocked_starts: int
 
     @property
     def data(self) -> pin.Data: ...
@@ -97,6 +99,7 @@ class Wave(NamedTuple):
     viol: np.ndarray
     liked: np.ndarray
     rounds: np.ndarray
+    blocked: np.ndarray
 
 
 def batch_starts(oracle: Batched, goal: np.ndarray, hint: np.ndarray | None, wave: int = 0, targeted: bool = False,
@@ -221,6 +224,7 @@ class Waves:
             if wave != "more":
                 runs.append(run)
         self._polish_missed(runs, ~self.staged)
+        self._rescue_blocked(spent)
         unsolved_residuals(oracle.problem, oracle.data, self.pts, self.residual, self.posture)
         self._count(spent)
         # (a goal its budget cut, or the clock's guard, spent all of it: the caller's "timeout")
@@ -271,7 +275,7 @@ class Waves:
         if decisive is not None and decisive.any():
             first_start = np.zeros(b, bool)
             first_start[offsets[:-1][decisive[goals]]] = True
-        x, dist, viol, liked, _, rounds = run_starts(
+        x, dist, viol, liked, _, rounds, blocked = run_starts(
             oracle.batch_program(), x0, params, owner, oracle.strategy.tolerance, search.secondary, start, self.meter,
             oracle.stats, first_start, search.give_up_distance, oracle.lower_iter)
         span = p.upper - p.lower
@@ -288,7 +292,7 @@ class Waves:
         if self.hints is not None:
             # Continuity with the neighbour's posture (the first hint) is part of "liked".
             liked = liked + CONTINUITY_WEIGHT * np.sum(((x - self.first[owner]) / span) ** 2, axis=1)
-        return Wave(goals, offsets, x0, x, p.q_of_x_many(x), dist, viol, liked, rounds)
+        return Wave(goals, offsets, x0, x, p.q_of_x_many(x), dist, viol, liked, rounds, blocked)
 
     def _keep_reaching(self, run: Wave) -> None:
         """For each goal of a wave, the best-liked posture that passes the verdict's check; or, when none does and
@@ -349,6 +353,25 @@ class Waves:
                 else:
                     tries = ends[:1]
                 self._polish(int(i), tries, target_i)
+
+    def _rescue_blocked(self, spent: list[Wave]) -> None:
+        """fatrop from fresh random starts for a goal still missed that a start reached through a lazy row (a
+        collision) and could not leave with the goal held: the goal lies within the body's reach and only collisions
+        stand in the way, which fatrop's cuts from another start often go around. Up to the engine's
+        ``blocked_starts`` a goal, until one reaches, within its budget."""
+        if not self.oracle.blocked_starts:
+            return
+        blocked = np.zeros(len(self.pts), bool)
+        for run in spent:
+            if len(run.blocked):
+                blocked[run.goals[np.add.reduceat(run.blocked.astype(int), run.offsets[:-1]) > 0]] = True
+        p, seed = self.oracle.problem, self.oracle.search.seed
+        for i in np.nonzero(blocked & ~self.reach)[0]:
+            rng = np.random.default_rng([seed, zlib.crc32(np.round(self.pts[i], 9).tobytes()), RESCUE_STREAM])
+            for _ in range(self.oracle.blocked_starts):
+                if not self.meter.afford(i, POLISH_COST) or self._polish_from(
+                        int(i), p.random_x(rng), None if self.targets is None else self.targets[i]):
+                    break
 
     def _polish(self, i: int, tries: list[np.ndarray], target_i: np.ndarray | None) -> None:
         """fatrop from each of ``tries`` in turn, within goal i's budget, until one reaches; the best kept; and when
