@@ -430,9 +430,10 @@ def test_blocked_starts_default_by_body_and_refuse_bad_values():
     human = OracleSpec("casadi-ik", body_params({"human": {"sex": "male"}}, "right_hand",
                                                ["right_shoulder*", "right_elbow*"], tasks)).create()
     assert human.blocked_starts == 0  # type: ignore[attr-defined]
+    params = body_params(robot, "ee_link", ["*_joint"], tasks)
     for bad in (-1, 300, True, "many"):
         with pytest.raises(OracleError, match="blocked_starts"):
-            OracleSpec("casadi-ik", {**body_params(robot, "ee_link", ["*_joint"], tasks), "blocked_starts": bad}).create()
+            OracleSpec("casadi-ik", {**params, "blocked_starts": bad}).create()
 
 
 def test_goals_reached_only_through_a_collision_are_rescued_and_every_rescue_holds():

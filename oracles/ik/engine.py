@@ -93,8 +93,8 @@ class CasadiIK(ProgramOracle):
         # The generated human's capsules let the batched steps out of a collision: on the truth suite its rescues
         # reached nothing more and cost its hinted goals 12-130 % more CPU; a URDF's meshes fitted by capsules lock
         # joints against each other (example-robot-data's UR5: 19 / 12 cold / hinted misses of 74 without, 6 / 4 with).
-        self.blocked_starts = (blocked_starts if blocked_starts != "auto"
-                               else 0 if self.body.anthropometry is not None else BLOCKED_STARTS)
+        self.blocked_starts: int = (int(blocked_starts) if blocked_starts != "auto"
+                                    else 0 if self.body.anthropometry is not None else BLOCKED_STARTS)
         self.lower_iter = LOWER_ITER  # the batched engine's lower-task iterations (more in a refinement: tune)
         self._batch_cache: dict[tuple[Any, ...], BatchProgram] = {}  # shared with variants, as the programs are
         self._set_jit(jit)

@@ -14,7 +14,9 @@
   ``WAVE_NEAR`` of.
 
 A goal still missed whose best start ended within ``POLISH_NEAR`` of it
-(``POLISH_FAR`` when cold) is polished by fatrop's programs from there. The
+(``POLISH_FAR`` when cold) is polished by fatrop's programs from there; one that
+a start reached only through a collision gets fatrop from the engine's
+``blocked_starts`` fresh random starts. The
 verdict is the Pinocchio check, in order of how well each reaching posture is
 liked. The iteration itself is :func:`oracles.ik.batch.run_starts`; each
 goal's work is metered (:mod:`oracles.ik.budget`).
@@ -366,11 +368,11 @@ class Waves:
             if len(run.blocked):
                 blocked[run.goals[np.add.reduceat(run.blocked.astype(int), run.offsets[:-1]) > 0]] = True
         p, seed = self.oracle.problem, self.oracle.search.seed
-        for i in np.nonzero(blocked & ~self.reach)[0]:
+        for i in map(int, np.nonzero(blocked & ~self.reach)[0]):
             rng = np.random.default_rng([seed, zlib.crc32(np.round(self.pts[i], 9).tobytes()), RESCUE_STREAM])
             for _ in range(self.oracle.blocked_starts):
                 if not self.meter.afford(i, POLISH_COST) or self._polish_from(
-                        int(i), p.random_x(rng), None if self.targets is None else self.targets[i]):
+                        i, p.random_x(rng), None if self.targets is None else self.targets[i]):
                     break
 
     def _polish(self, i: int, tries: list[np.ndarray], target_i: np.ndarray | None) -> None:
