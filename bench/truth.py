@@ -21,6 +21,8 @@ build asks (each goal hinted with the kept posture of its nearest proven neighbo
     python bench/truth.py --generate [--config configs/demo.yaml] [--strategies a,b] [--out tests/data/truth]
     python bench/truth.py [--strategies a,b] [--jit]
     python bench/truth.py --config CONFIG --strategies a,b --out FOLDER [--generate]   (a suite of any config)
+    python bench/truth.py --population [--generate]   (members from the survey's tails x population.yaml's strategies
+                                                       x the workstation's targets)
 """
 
 from __future__ import annotations
@@ -39,13 +41,27 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
-from truth_suite import SUITE, Suite, independent_check, load_suite, provenance, score  # noqa: E402
+from truth_suite import (  # noqa: E402
+    POPULATION,
+    SUITE,
+    Suite,
+    independent_check,
+    load_suite,
+    member_config,
+    provenance,
+    score,
+    suite_spec,
+)
 
+from oracles.bodies import ansur  # noqa: E402
 from oracles.protocol import Goals, OracleSpec  # noqa: E402
+from reach.answers.evaluate import load_targets  # noqa: E402
 from reach.build.config import load_config  # noqa: E402
 
 NEAR = 0.12  # [m] a reachable goal this near an unreachable candidate lies at the boundary
 CLOSE = 0.05  # [m] an unreachable goal whose referee's best posture ends this near lies at the boundary
+TARGETS = ["configs/targets/workstation_right.csv", "configs/targets/workstation_heights.csv"]
+TAILS = (1, 99)  # [percentile] of stature, each sex
 SUITES = {  # the strategies of the suite, by config
     "configs/demo.yaml": ["right_arm", "right_upper_body", "right_whole_body", "right_crouch"],
     "configs/human.yaml": ["right_torsion", "right_squat", "right_step"],
@@ -117,13 +133,10 @@ def _config_path(config: str) -> Path:
     return Path(config) if Path(config).exists() else ROOT / config
 
 
-def generate(config: str, name: str, args: argparse.Namespace) -> dict:
-    cfg = load_config(_config_path(config))
-    spec = cfg.strategy(name).oracle
-    oracle = spec.create()
-    rng = np.random.default_rng([args.seed, *name.encode()])
-    box = (np.asarray(cfg.box.lo, float), np.asarray(cfg.box.hi, float))
-    goals, kinds = candidates(oracle, box, args.candidates, rng, name.startswith("right"))
+def label(oracle, spec: OracleSpec, goals: np.ndarray, args: argparse.Namespace) -> tuple[np.ndarray, ...]:
+    """Each goal's label by the referee (see the module docstring): reachable, the proving posture (NaN rows where
+    none), the referee's best residual [m], which search proved it, and which goals fatrop from the reference alone
+    reached."""
     found = referee(spec, goals, args.restarts, args.batch_starts, args.seed)
     n, nq = len(goals), len(oracle.body.q_ref)
     reachable, posture = np.zeros(n, bool), np.full((n, nq), np.nan)
@@ -134,7 +147,18 @@ def generate(config: str, name: str, args: argparse.Namespace) -> dict:
         for i in np.nonzero(v.reachable & ~reachable)[0]:
             if not independent_check(oracle, v.posture[i], goals[i]):
                 reachable[i], posture[i], by[i] = True, v.posture[i], search
-    single = found["single"].reachable
+    return reachable, posture, residual, by, found["single"].reachable
+
+
+def generate(config: str, name: str, args: argparse.Namespace) -> dict:
+    cfg = load_config(_config_path(config))
+    spec = cfg.strategy(name).oracle
+    oracle = spec.create()
+    rng = np.random.default_rng([args.seed, *name.encode()])
+    box = (np.asarray(cfg.box.lo, float), np.asarray(cfg.box.hi, float))
+    goals, kinds = candidates(oracle, box, args.candidates, rng, name.startswith("right"))
+    n = len(goals)
+    reachable, posture, residual, by, single = label(oracle, spec, goals, args)
     # The hard goals first (see the module docstring), then the rest, in a seeded order.
     dist = np.linalg.norm(goals[:, None] - goals[None, :], axis=2)
     beside = np.array([np.any(dist[i, ~reachable] <= NEAR) for i in range(n)])
@@ -146,16 +170,53 @@ def generate(config: str, name: str, args: argparse.Namespace) -> dict:
     keep_a = np.array(sorted(keep))
     Suite(name, goals[keep_a], reachable[keep_a], posture[keep_a], residual[keep_a], kinds[keep_a],
           by[keep_a]).save(Path(args.out))
-    return {"config": config, "strategy": name, "candidates": n, "kept": len(keep_a),
+    named = config if (ROOT / config).exists() else str(Path(config).resolve())  # as suite_spec finds it again
+    return {"config": named, "strategy": name, "candidates": n, "kept": len(keep_a),
             "reachable": int(reachable[keep_a].sum()), "one_start_misses": int((reachable & ~single)[keep_a].sum()),
-            "body_hash": oracle.model_hash, "nq": nq, "tolerance": oracle.strategy.tolerance,
+            "body_hash": oracle.model_hash, "nq": posture.shape[1], "tolerance": oracle.strategy.tolerance,
             "regions": {k: int(np.sum(kinds[keep_a] == k)) for k in np.unique(kinds)},
             "found_by": {k: int(np.sum(by[keep_a] == k)) for k in np.unique(by[keep_a]) if k}}
 
 
-def scored(config: str, name: str, jit: bool, folder: Path = SUITE) -> list[dict]:
-    cfg = load_config(_config_path(config))
-    spec = cfg.strategy(name).oracle
+def tail_members() -> list[tuple[str, int]]:
+    """The population suite's members: of each sex, the subjects nearest the survey's 1st and 99th stature
+    percentiles."""
+    out = []
+    for sex in ("female", "male"):
+        sample = ansur.sample(sex)  # type: ignore[arg-type]
+        stature = sample.column("stature")
+        out += [(sex, int(sample.ids[np.argmin(np.abs(stature - np.percentile(stature, q)))])) for q in TAILS]
+    return out
+
+
+def population_targets() -> tuple[np.ndarray, np.ndarray]:
+    targets = [t for path in TARGETS for t in load_targets(ROOT / path)]
+    return np.array([t.point for t in targets], float), np.array([t.name for t in targets])
+
+
+def generate_population(args: argparse.Namespace) -> list[dict]:
+    """Every tail member x strategy of POPULATION x target of TARGETS, labelled as ``generate`` labels; one suite per
+    member and strategy, named ``MEMBER.STRATEGY``."""
+    goals, names = population_targets()
+    out = []
+    for sex, subject in tail_members():
+        cfg = member_config(sex, subject)
+        for strategy in cfg.strategies:
+            spec = cfg.strategy(strategy.name).oracle
+            oracle = spec.create()
+            reachable, posture, residual, by, single = label(oracle, spec, goals, args)
+            name = f"{cfg.name}.{strategy.name}"
+            Suite(name, goals, reachable, posture, residual, names, by).save(Path(args.out))
+            out.append({"config": POPULATION, "member": {"sex": sex, "subject": subject}, "strategy": name,
+                        "targets": TARGETS, "kept": len(goals), "reachable": int(reachable.sum()),
+                        "one_start_misses": int((reachable & ~single).sum()), "body_hash": oracle.model_hash,
+                        "nq": posture.shape[1], "tolerance": oracle.strategy.tolerance,
+                        "found_by": {k: int(np.sum(by == k)) for k in np.unique(by) if k}})
+    return out
+
+
+def scored(name: str, jit: bool, folder: Path = SUITE) -> list[dict]:
+    spec = suite_spec(name, folder)
     oracle = OracleSpec(spec.name, {**spec.params, "jit": "auto" if jit else False}).create()
     suite = load_suite(name, folder)
     lines = []
@@ -173,6 +234,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--generate", action="store_true")
     parser.add_argument("--config", help="a suite of this config's --strategies (default: the repository's, SUITES)")
+    parser.add_argument("--population", action="store_true", help="the population suite: members from the survey's "
+                        "tails x POPULATION's strategies x TARGETS")
     parser.add_argument("--strategies", help="comma-separated (default: every strategy of SUITES)")
     parser.add_argument("--candidates", type=int, default=700)
     parser.add_argument("--keep", type=int, default=300)
@@ -195,20 +258,35 @@ def main() -> None:
         prov = json.loads(path.read_text()) if path.exists() else {"strategies": {}}
         commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True,
                                 text=True).stdout.strip()
-        for config, name in jobs:
+        referee_settings = {"searches": ["single", "batch", "ipopt", "fatrop"], "restarts": args.restarts,
+                            "batch_starts": args.batch_starts, "jit": False, "secondary": False}
+        out.mkdir(parents=True, exist_ok=True)
+
+        def keep(entry: dict) -> None:  # each strategy's entry as it is made: a long run stopped keeps the others
+            prov["strategies"][entry["strategy"]] = entry
+            emit(**entry)
+            path.write_text(json.dumps(prov, indent=1) + "\n")
+
+        t = time.time()
+        made = generate_population(args) if args.population else []
+        for entry in made:
+            entry.update(commit=commit, seed=args.seed, referee=referee_settings,
+                         wall_s=round((time.time() - t) / len(made), 1))
+            keep(entry)
+        for config, name in [] if args.population else jobs:
             t = time.time()
             entry = generate(config, name, args)
             entry.update(commit=commit, seed=args.seed, wall_s=round(time.time() - t, 1),
-                         referee={"searches": ["single", "batch", "ipopt", "fatrop"], "restarts": args.restarts,
-                                  "batch_starts": args.batch_starts, "jit": False, "secondary": False,
-                                  "candidates": args.candidates, "keep": args.keep, "near": NEAR, "close": CLOSE})
-            prov["strategies"][name] = entry
-            emit(**entry)
-            path.write_text(json.dumps(prov, indent=1) + "\n")
+                         referee={**referee_settings, "candidates": args.candidates, "keep": args.keep, "near": NEAR,
+                                  "close": CLOSE})
+            keep(entry)
         return
-    for config, name in jobs:
+    if args.population:
+        jobs = [(POPULATION, n) for n, e in provenance(Path(args.out))["strategies"].items() if "member" in e
+                and (wanted is None or n in wanted)]
+    for _, name in jobs:
         if name in provenance(Path(args.out))["strategies"]:
-            for line in scored(config, name, args.jit, Path(args.out)):
+            for line in scored(name, args.jit, Path(args.out)):
                 emit(**line)
 
 

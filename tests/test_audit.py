@@ -247,3 +247,35 @@ def test_reach_info_and_report_warn_of_a_region_the_last_audit_found_missing(tmp
     (folder / "audit.json").write_text("{not json")
     assert main(["info", str(folder)]) == 0  # a broken audit file is a warning naming it, never a failed info
     assert "audit.json" in capsys.readouterr().out
+
+
+def test_reach_audit_compares_each_tree_with_its_truth_suite(tmp_path, capsys):
+    """``reach audit --truth``: a ball of radius 0.8 m against a suite labelled by its exact geometry, with two goals
+    labelled against it: a proven goal outside the ball (the tree calls it unreachable) and an unproven one inside
+    (the tree calls it reachable). The counts are the exact ones; a suite made for another body is not compared."""
+    from reach.maps.truth import Suite
+
+    data = {"name": "ball", "box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 2, "max": 5},
+            "oracle": {"name": "sphere", "params": {"radius": 0.8}},
+            "strategies": [{"name": "ball", "effector": "point"}]}
+    build_atlas(parse_config(data, "ball", "ball"), tmp_path / "a")
+    rng = np.random.default_rng(3)
+    goals = rng.uniform(-1, 1, (200, 3))
+    r = np.linalg.norm(goals, axis=1)
+    goals = goals[(r < 0.7) | (r > 0.9)]  # away from the boundary, where the tree's cells decide
+    label = np.linalg.norm(goals, axis=1) < 0.8
+    out, inside = int(np.argmax(~label)), int(np.argmax(label))
+    label[out], label[inside] = True, False  # the two mislabelled goals
+    n = len(goals)
+    Suite("ball", goals, label, np.zeros((n, 1)), np.zeros(n), np.array(["box"] * n), np.array([""] * n)).save(
+        tmp_path / "truth")
+    hash_ = load_atlas(tmp_path / "a").trees["ball"].meta.get("model_hash")
+    (tmp_path / "truth" / "provenance.json").write_text(json.dumps({"strategies": {"ball": {"body_hash": hash_}}}))
+    assert main(["audit", str(tmp_path / "a"), "--samples", "30", "--truth", str(tmp_path / "truth"), "--json"]) == 0
+    t = json.loads(capsys.readouterr().out)["strategies"]["ball"]["truth"]
+    assert t["proven"] == int(label.sum()) and t["proven_called_unreachable"] == 1
+    assert t["missed_goals"] == [np.round(goals[out], 4).tolist()] and t["reachable_unproven"] == 1
+    (tmp_path / "truth" / "provenance.json").write_text(json.dumps({"strategies": {"ball": {"body_hash": "other"}}}))
+    assert main(["audit", str(tmp_path / "a"), "--samples", "30", "--truth", str(tmp_path / "truth")]) == 0
+    captured = capsys.readouterr()
+    assert "made for another body" in captured.err and "truth suite (" not in captured.out

@@ -340,3 +340,48 @@ def test_every_survey_body_stands_above_the_floor():
     assert len(lowest) == 6068
     worst = min(lowest)
     assert worst[0] >= -1e-9, worst  # (the soles lie on the floor itself)
+
+
+@pytest.mark.slow
+def test_every_survey_body_sits_on_the_seat():
+    """Seated on the office chair, every one of ANSUR II's 6,068 subjects rests its thighs on the pan (the lowest point
+    of each thigh capsule over the pan within 5 mm of its top; 31 of 50 floated more, up to 52 mm) and no capsule
+    lies deeper in any part of the seat than the soft tissue a hard seat compresses (SEAT_SINK) and a millimetre.
+    Capsules placed by this test's own forward kinematics of each body's model at its reference posture, their
+    distance to the seat's boxes by coal."""
+    import coal
+
+    from oracles.bodies.human import SEAT_SINK
+
+    thigh_gaps, deepest = [], []
+    for sex in ("male", "female"):
+        for subject in ansur.sample(sex).ids:
+            body = load_body({"human": {"ansur": {"sex": sex, "subject": int(subject)}, "posture": "seated"}})
+            model, data = body.model, body.model.createData()
+            pin.framesForwardKinematics(model, data, body.q_ref)
+            pan = next(b for b in body.furniture if b.name == "seat_pan")
+            top, depth = pan.centre[2] + pan.half[2], pan.centre[0] + pan.half[0]
+            boxes = [(coal.Box(*(2 * b.half)), coal.Transform3s(b.matrix, b.centre)) for b in body.furniture]
+            inside = 0.0
+            for c in body.capsules:
+                frame = data.oMf[model.getFrameId(c.link)]
+                a, b = frame.act(np.asarray(c.a, float)), frame.act(np.asarray(c.b, float))
+                axis = b - a
+                length = float(np.linalg.norm(axis))
+                z = axis / length if length > 1e-12 else np.array([0.0, 0.0, 1.0])
+                x = np.cross(z, [1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0])
+                x /= np.linalg.norm(x)
+                shape = coal.Capsule(c.radius, length) if length > 1e-12 else coal.Sphere(c.radius)
+                place = coal.Transform3s(np.column_stack([x, np.cross(z, x), z]), 0.5 * (a + b))
+                for box, at in boxes:
+                    gap = coal.distance(shape, place, box, at, coal.DistanceRequest(), coal.DistanceResult())
+                    inside = min(inside, gap)
+                if c.name.endswith("_thigh"):
+                    p = a + np.linspace(0.0, 1.0, 201)[:, None] * axis
+                    over = (p[:, 0] >= 0.0) & (p[:, 0] <= depth)
+                    thigh_gaps.append((float(p[over, 2].min() - c.radius - top), sex, int(subject)))
+            deepest.append((inside, sex, int(subject)))
+    assert len(deepest) == 6068
+    assert max(thigh_gaps)[0] <= 0.005, max(thigh_gaps)
+    assert min(thigh_gaps)[0] >= -SEAT_SINK - 1e-3, min(thigh_gaps)
+    assert min(deepest)[0] >= -SEAT_SINK - 1e-3, min(deepest)

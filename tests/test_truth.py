@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from truth_suite import independent_check, load_suite, provenance, score
+from truth_suite import independent_check, load_suite, provenance, score, suite_spec
 
 from oracles.protocol import Goals, OracleSpec
 from reach.build.config import load_config
@@ -41,11 +41,17 @@ ALLOWED: dict[str, tuple[int, int]] = {
 
 
 def _oracle(name: str):
-    config = provenance()["strategies"][name]["config"]
-    spec = load_config(ROOT / config).strategy(name).oracle
+    spec = suite_spec(name)
     return OracleSpec(spec.name, {**spec.params, "jit": False}).create()
 
 
+def _members() -> list[str]:
+    """The population suite's member x strategy suites (``MEMBER.STRATEGY``)."""
+    return sorted(n for n, e in provenance()["strategies"].items() if "member" in e)
+
+
+# Proven member x target verdicts the engine asked cold may lose (the measured counts; none where absent).
+ALLOWED_MEMBERS: dict[str, int] = {}
 # One goal's slack over the measured count: the interpreted programs' arithmetic may differ in its last bits on another
 # processor, and a search that ends a hair from the tolerance can fall either way.
 SLACK = 1
@@ -59,8 +65,10 @@ def allowed(name: str, mode: str, proven: int) -> int:
 
 def test_the_suite_has_its_provenance_and_its_body():
     prov = provenance()
-    assert set(prov["strategies"]) == set(FAST + SLOW)
+    assert set(prov["strategies"]) - set(_members()) == set(FAST + SLOW)
     for name, entry in prov["strategies"].items():
+        if name in _members():
+            continue
         suite = load_suite(name)
         assert len(suite.goals) == entry["kept"] and int(suite.reachable.sum()) == entry["reachable"]
         assert {"searches", "restarts", "batch_starts", "candidates"} <= set(entry["referee"]) and "seed" in entry
@@ -132,3 +140,40 @@ def test_a_weakened_engine_fails_the_suite(monkeypatch):
     weak = OracleSpec(spec.name, {**spec.params, "jit": False, "starts": 1}).create()
     s = _asked("right_arm", "cold", weak)
     assert len(s.false_unreachable) > allowed("right_arm", "cold", s.proven)
+
+
+def test_the_population_suite_holds_both_sexes_from_the_survey_tails():
+    """Members x strategies x targets: the subjects nearest the 1st and 99th stature percentiles of each sex, each
+    with configs/population.yaml's four strategies, the workstation's targets; each made for the member's own body."""
+    from oracles.bodies import ansur
+
+    entries = {n: provenance()["strategies"][n] for n in _members()}
+    members = {(e["member"]["sex"], e["member"]["subject"]) for e in entries.values()}
+    assert {sex for sex, _ in members} == {"female", "male"} and len(members) == 4 and len(entries) == 16
+    for sex, subject in members:
+        stature = ansur.sample(sex).column("stature")
+        own = ansur.sample(sex).subject(subject)["stature"]
+        assert min(np.mean(stature <= own), np.mean(stature >= own)) <= 0.02  # in a tail
+    for name, entry in entries.items():
+        suite = load_suite(name)
+        assert len(suite.goals) == entry["kept"] and int(suite.reachable.sum()) == entry["reachable"]
+        assert _oracle(name).model_hash == entry["body_hash"], (
+            f"{name}'s suite was made on another body: python bench/truth.py --generate --population")
+    # Not all alike: the tall reach targets the short do not.
+    reached = {n: int(load_suite(n).reachable.sum()) for n in entries}
+    assert len(set(reached.values())) > 2
+
+
+@pytest.mark.parametrize("name", _members())
+def test_every_members_proving_posture_passes_and_the_engine_keeps_its_verdicts(name):
+    """Each member's proving postures pass the independent check; the member's engine asked cold (as
+    ``reach evaluate --direct`` first asks) keeps every proven verdict but ``ALLOWED_MEMBERS``, and its reachable
+    answers pass the check."""
+    oracle = _oracle(name)
+    suite = load_suite(name)
+    bad = {int(i): independent_check(oracle, suite.posture[i], suite.goals[i]) for i in np.nonzero(suite.reachable)[0]}
+    assert not any(bad.values()), {i: f for i, f in bad.items() if f}
+    s = score(oracle, suite, oracle.evaluate(Goals(suite.goals)))
+    assert not s.false_reachable, s.false_reachable
+    assert len(s.false_unreachable) <= ALLOWED_MEMBERS.get(name, 0), (
+        f"{name}: proven targets called unreachable: {[str(suite.kind[i]) for i in s.false_unreachable]}")

@@ -1,10 +1,8 @@
-"""The truth suite: goals labelled by a thorough referee, each "reachable" label kept with the posture that proves it.
+"""The truth suite's independent check and an engine's score on it.
 
-A suite is one folder (``tests/data/truth``): per strategy a ``NAME.npz`` (``goals`` (N, 3) [m], ``reachable`` (N,),
-``posture`` (N, nq) with NaN rows where no posture was found, ``residual`` (N,) [m], the referee's best distance,
-``kind`` (N,) the region each goal was drawn in, ``found_by`` (N,) which of the referee's searches proved it) and one
-``provenance.json`` (the config, strategy, seed, the referee's settings, the body's hash, how many candidates were
-drawn and kept). ``bench/truth.py`` writes it; ``tests/test_truth.py`` and ``bench/truth.py --score`` read it.
+The suite (``tests/data/truth``, stored as :mod:`reach.maps.truth` reads it) holds goals labelled by a thorough
+referee, each "reachable" label kept with the posture that proves it. ``bench/truth.py`` writes it;
+``tests/test_truth.py`` and ``bench/truth.py`` score an engine on it here.
 
 A "reachable" label is proven: its posture passes :func:`independent_check`. An "unreachable" label is only what
 no search of the referee found; an engine that reaches such a goal with a posture that passes the check is right,
@@ -13,7 +11,6 @@ and the suite is regenerated.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -22,49 +19,49 @@ import coal
 import numpy as np
 import pinocchio as pin
 
+from reach.maps.truth import Suite
+from reach.maps.truth import load_suite as stored_suite
+from reach.maps.truth import provenance as stored_provenance
+
 SUITE = Path(__file__).resolve().parent / "data" / "truth"
 LIMIT_TOL = 1e-6  # [rad or m] a joint this far past its range still holds (the interior-point programs' tolerance)
 GAP_TOL = 1e-6  # [m] coal's distance this far below a pair's floor still holds
 
 
-@dataclass
-class Suite:
-    """One strategy's labelled goals (see the module docstring)."""
+ROOT = SUITE.parents[2]
+POPULATION = "configs/population.yaml"  # the population suite's config: its strategies, for members of the survey
 
-    strategy: str
-    goals: np.ndarray
-    reachable: np.ndarray
-    posture: np.ndarray
-    residual: np.ndarray
-    kind: np.ndarray
-    found_by: np.ndarray
 
-    def neighbour_hints(self) -> np.ndarray:
-        """Each goal's hint as a build gives it: the kept posture of the nearest other proven-reachable goal (a NaN
-        row, no hint, where there is none)."""
-        proven = np.nonzero(self.reachable)[0]
-        hints = np.full_like(self.posture, np.nan)
-        for i, g in enumerate(self.goals):
-            others = proven[proven != i]
-            if others.size:
-                hints[i] = self.posture[others[np.argmin(np.linalg.norm(self.goals[others] - g, axis=1))]]
-        return hints
+def member_config(sex: str, subject: int) -> Any:
+    """POPULATION's config for one member, its body the subject's own (as a ``population:`` member's)."""
+    import yaml
 
-    def save(self, folder: Path) -> Path:
-        folder.mkdir(parents=True, exist_ok=True)
-        path = folder / f"{self.strategy}.npz"
-        np.savez_compressed(path, goals=self.goals, reachable=self.reachable, posture=self.posture,
-                            residual=self.residual, kind=self.kind.astype("U16"), found_by=self.found_by.astype("U16"))
-        return path
+    from reach.build.config import parse_config
+
+    raw = yaml.safe_load((ROOT / POPULATION).read_text())
+    raw.pop("population")
+    raw["body"] = {"human": {**(raw.get("body") or {}).get("human", {}), "ansur": {"sex": sex, "subject": subject}}}
+    raw["name"] = f"{sex}_{subject}"
+    return parse_config(raw, f"{POPULATION} (member {raw['name']})", raw["name"])
+
+
+def suite_spec(name: str, folder: Path = SUITE) -> Any:
+    """The oracle spec a suite was made for: its config's strategy, or a population member's (``MEMBER.STRATEGY``)."""
+    from reach.build.config import load_config
+
+    entry = provenance(folder)["strategies"][name]
+    if "member" in entry:
+        return member_config(entry["member"]["sex"], entry["member"]["subject"]).strategy(name.split(".", 1)[1]).oracle
+    config = Path(entry["config"])
+    return load_config(config if config.is_absolute() else ROOT / config).strategy(name).oracle
 
 
 def load_suite(strategy: str, folder: Path = SUITE) -> Suite:
-    with np.load(folder / f"{strategy}.npz", allow_pickle=False) as z:
-        return Suite(strategy, z["goals"], z["reachable"], z["posture"], z["residual"], z["kind"], z["found_by"])
+    return stored_suite(strategy, folder)
 
 
 def provenance(folder: Path = SUITE) -> dict[str, Any]:
-    return json.loads((folder / "provenance.json").read_text())
+    return stored_provenance(folder)
 
 
 def _capsule(a: np.ndarray, b: np.ndarray, r: float) -> tuple[Any, Any]:

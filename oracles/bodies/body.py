@@ -479,7 +479,8 @@ def human_body(sex: str | None = None, stature: float | None = None, percentile:
     while True:
         sitting = seated(anthro, chosen)
         _frames_at(model, sitting)
-        body = _finish(model, urdf, "human", spec, sitting.root, human_capsules(anthro), anthro, sitting)
+        body = _finish(model, urdf, "human", spec, sitting.root, sitting.capsules(human_capsules(anthro)), anthro,
+                       sitting)
         clash = _seat_clash(body)
         if clash is None:
             return body

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -158,6 +159,8 @@ def cmd_audit(args: argparse.Namespace) -> int:
     finally:
         if client is not None:
             client.close()
+    if args.truth:
+        _against_truth(atlas, Path(args.truth), args.policy, result)
     try:
         saved = save_audit(atlas, result)  # reach info and reach report warn of the regions it finds missing
     except OSError as exc:
@@ -191,6 +194,13 @@ def cmd_audit(args: argparse.Namespace) -> int:
                   f"disagrees on {_share(twins['disagree'])} of pairs; of {twins['checked']} checked, the referee "
                   f"reaches {twins['unreachable_but_reached']} the tree calls unreachable")
     for name, r in result["strategies"].items():
+        if "truth" in r:
+            t = r["truth"]
+            print(f"{name}: against the truth suite ({t['goals']} goals, {t['proven']} proven reachable): "
+                  f"{t['proven_called_unreachable']} proven goals called unreachable ({100 * t['rate']:.1f} %)"
+                  + (f", e.g. {t['missed_goals']}" if t["missed_goals"] else "")
+                  + f"; {t['reachable_unproven']} called reachable that the referee did not reach")
+    for name, r in result["strategies"].items():
         if "index" in r and r["index"].get("pairs"):
             i = r["index"]
             fr, fu = i["false_reached"], i["false_missed"]
@@ -200,6 +210,24 @@ def cmd_audit(args: argparse.Namespace) -> int:
                   f"[{100 * fu['ci95'][0]:.1f}, {100 * fu['ci95'][1]:.1f}] of {fu['of']}; share "
                   f"{i['share_by_index']:.3f} by the index, {i['share_by_referee']:.3f} by the referee")
     return 0
+
+
+def _against_truth(atlas: Any, folder: Path, policy: str, result: dict[str, Any]) -> None:
+    """Each audited strategy against its truth suite in folder (``reach.maps.truth``), when the suite has one made
+    for the tree's body; kept in the result as ``truth``."""
+    from reach.maps.truth import compare, load_suite, provenance
+
+    made = provenance(folder)["strategies"]
+    for name, r in result["strategies"].items():
+        if name not in made:
+            continue
+        tree = atlas.trees[name]
+        body, ours = made[name].get("body_hash"), tree.meta.get("model_hash")
+        if body != ours:
+            print(f"warning: {name}: the truth suite in {folder} was made for another body (hash {body}, the "
+                  f"tree's {ours}): not compared", file=sys.stderr)
+            continue
+        r["truth"] = {"folder": str(folder), **compare(tree, load_suite(name, folder), policy)}  # type: ignore[arg-type]
 
 
 def add_audit(sub: Any) -> None:
@@ -216,6 +244,9 @@ def add_audit(sub: Any) -> None:
     p.add_argument("--restarts", type=int, default=6, help="restarts of the direct IK (default 6)")
     p.add_argument("--seed", type=int, default=0, help="seed of the probes (default 0)")
     p.add_argument("--json", action="store_true", help="machine-readable output")
+    p.add_argument("--truth", metavar="FOLDER", help="also compare each strategy with its truth suite in FOLDER "
+                   "(the repository's: tests/data/truth; made by bench/truth.py): proven goals the tree calls "
+                   "unreachable, and goals it calls reachable that the referee did not reach")
     add_executor_arguments(p)
     p.set_defaults(func=cmd_audit)
 
