@@ -8,7 +8,8 @@ staging:
 * ``single``: fatrop from the reference posture alone (tells the goals one start misses);
 * ``batch``: the batched engine with ``--batch-starts`` starts a goal, never giving up;
 * ``ipopt``: IPOPT (the audit's referee) from the reference, the ready posture and ``--restarts`` random starts;
-* ``fatrop``: fatrop from as many random starts of another seed.
+* ``fatrop``: fatrop from as many random starts of another seed;
+* ``analytic`` (the repository's UR5, ``EXACT``): ur-analytic-ik's exact solutions over ``AXES`` tool axes.
 
 A goal is labelled reachable when a posture one of them found passes the independent check (tests/truth_suite.py); that
 posture is kept. ``--keep`` goals are kept, the hard ones first: reachable goals one start misses, reachable goals
@@ -65,7 +66,10 @@ TAILS = (1, 99)  # [percentile] of stature, each sex
 SUITES = {  # the strategies of the suite, by config
     "configs/demo.yaml": ["right_arm", "right_upper_body", "right_whole_body", "right_crouch"],
     "configs/human.yaml": ["right_torsion", "right_squat", "right_step"],
+    "configs/examples/ur5_floor.yaml": ["ur5_free", "ur5_guarded"],
 }
+EXACT = {"configs/examples/ur5_floor.yaml"}  # configs whose goals ur-analytic-ik labels too (the repository's UR5)
+AXES = 200  # tool axes over the sphere the analytic labels try a goal with
 
 
 def emit(**fields: object) -> None:
@@ -133,14 +137,46 @@ def _config_path(config: str) -> Path:
     return Path(config) if Path(config).exists() else ROOT / config
 
 
-def label(oracle, spec: OracleSpec, goals: np.ndarray, args: argparse.Namespace) -> tuple[np.ndarray, ...]:
-    """Each goal's label by the referee (see the module docstring): reachable, the proving posture (NaN rows where
-    none), the referee's best residual [m], which search proved it, and which goals fatrop from the reference alone
-    reached."""
+def analytic(oracle, goals: np.ndarray) -> np.ndarray:
+    """The repository's UR5's postures (N, nq) at each goal by ur-analytic-ik's exact solutions over ``AXES`` tool
+    axes, the first that passes the independent check; NaN rows where none does (a lower bound: axes between the
+    sampled ones are not tried)."""
+    import ur_analytic_ik
+    from analytic_ur5 import JOINTS, TURN, directions, frame_about
+
+    model = oracle.body.model
+    cols = [model.idx_qs[model.getJointId(j)] for j in JOINTS]
+    out = np.full((len(goals), len(oracle.body.q_ref)), np.nan)
+    for i, goal in enumerate(goals):
+        for axis in directions(AXES):
+            pose = np.eye(4)
+            pose[:3, :3], pose[:3, 3] = frame_about(TURN @ axis), TURN @ goal
+            for solution in ur_analytic_ik.ur5.inverse_kinematics(pose):
+                q = oracle.body.q_ref.copy()
+                q[cols] = np.asarray(solution, float).ravel()
+                if not independent_check(oracle, q, goal):
+                    out[i] = q
+                    break
+            if np.isfinite(out[i, 0]):
+                break
+    return out
+
+
+def label(oracle, spec: OracleSpec, goals: np.ndarray, args: argparse.Namespace,
+          exact: bool = False) -> tuple[np.ndarray, ...]:
+    """Each goal's label by the referee (see the module docstring), and with ``exact`` by the UR5's analytic IK too:
+    reachable, the proving posture (NaN rows where none), the referee's best residual [m], which search proved it,
+    and which goals fatrop from the reference alone reached."""
     found = referee(spec, goals, args.restarts, args.batch_starts, args.seed)
     n, nq = len(goals), len(oracle.body.q_ref)
     reachable, posture = np.zeros(n, bool), np.full((n, nq), np.nan)
     residual, by = np.full(n, np.inf), np.array([""] * n, dtype="U16")
+    if exact:
+        t = time.process_time()
+        solved = analytic(oracle, goals)
+        reachable = np.all(np.isfinite(solved), axis=1)
+        posture[reachable], by[reachable], residual[reachable] = solved[reachable], "analytic", 0.0
+        emit(search="analytic", goals=n, reached=int(reachable.sum()), cpu_s=round(time.process_time() - t, 1))
     for search in ("ipopt", "fatrop", "batch", "single"):  # the audit's referee's posture first
         v = found[search]
         residual = np.minimum(residual, v.residual)
@@ -158,7 +194,7 @@ def generate(config: str, name: str, args: argparse.Namespace) -> dict:
     box = (np.asarray(cfg.box.lo, float), np.asarray(cfg.box.hi, float))
     goals, kinds = candidates(oracle, box, args.candidates, rng, name.startswith("right"))
     n = len(goals)
-    reachable, posture, residual, by, single = label(oracle, spec, goals, args)
+    reachable, posture, residual, by, single = label(oracle, spec, goals, args, config in EXACT)
     # The hard goals first (see the module docstring), then the rest, in a seeded order.
     dist = np.linalg.norm(goals[:, None] - goals[None, :], axis=2)
     beside = np.array([np.any(dist[i, ~reachable] <= NEAR) for i in range(n)])
