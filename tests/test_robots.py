@@ -458,3 +458,46 @@ def test_goals_reached_only_through_a_collision_are_rescued_and_every_rescue_hol
     assert np.all(b.reachable[a.reachable]) and b.reachable.sum() > a.reachable.sum() >= 10  # 34 against 32 here
     for i in np.nonzero(b.reachable)[0]:
         assert independent_check(rescued, b.posture[i], goals[i]) == [], i
+
+
+def test_an_srdf_leaves_its_disabled_link_pairs_out_of_self_collision(tmp_path):
+    """body.srdf (MoveIt's convention): the pairs of links its disable_collisions elements name are left out of the
+    self_collision task, and no others; given relative to the config, it is found beside it; a link the URDF lacks,
+    malformed XML and a folder are errors naming the key."""
+    import shutil
+
+    srdf = tmp_path / "ur5.srdf"
+    srdf.write_text("""<?xml version="1.0"?><robot name="ur5">
+      <disable_collisions link1="base_link" link2="upper_arm_link" reason="Never"/>
+      <disable_collisions link1="forearm_link" link2="wrist_2_link" reason="Never"/></robot>""")
+    shutil.copy(URDF / "ur5.urdf", tmp_path / "ur5.urdf")
+    tasks = [{"type": "reach"}, {"type": "self_collision"}]
+    config = {"name": "srdf", "body": {"urdf": "ur5.urdf"}, "box": {"min": [-1, -1, -1], "max": [1, 1, 1]},
+              "depth": {"min": 1, "max": 2},
+              "strategies": [{"name": "s", "effector": "ee_link", "joints": ["*_joint"], "tasks": tasks}]}
+    (tmp_path / "plain.yaml").write_text(yaml.safe_dump(config))
+    config["body"]["srdf"] = "ur5.srdf"
+    (tmp_path / "srdf.yaml").write_text(yaml.safe_dump(config))
+
+    def pairs(path: Path) -> set[frozenset[str]]:
+        oracle = load_config(path).strategy("s").oracle.create()
+        placed = oracle.body.collision.placed  # type: ignore[attr-defined]
+        return {frozenset((placed[p.first].capsule.link, placed[p.second].capsule.link))
+                for p in oracle.strategy.task("self_collision").pairs}  # type: ignore[attr-defined]
+
+    plain, guarded = pairs(tmp_path / "plain.yaml"), pairs(tmp_path / "srdf.yaml")
+    disabled = {frozenset(("base_link", "upper_arm_link")), frozenset(("forearm_link", "wrist_2_link"))}
+    assert disabled <= plain and plain - guarded == disabled
+    body = load_body({"urdf": str(tmp_path / "ur5.urdf"), "srdf": str(srdf)})
+    assert body.disabled == disabled and body.spec["srdf"] == str(srdf)
+    for text, match in (('<robot><disable_collisions link1="base_link" link2="gripper"/></robot>',
+                         "names link 'gripper', which the URDF does not have"),
+                        ("<robot><disable_collisions", "not an SRDF")):
+        srdf.write_text(text)
+        with pytest.raises(ModelError, match=match) as err:
+            load_body({"urdf": str(tmp_path / "ur5.urdf"), "srdf": str(srdf)})
+        assert err.value.key == "srdf"
+    with pytest.raises(ModelError, match="not a regular file"):
+        load_body({"urdf": str(tmp_path / "ur5.urdf"), "srdf": str(tmp_path)})
+    with pytest.raises(ModelError, match="the path of the robot's SRDF"):
+        load_body({"urdf": str(tmp_path / "ur5.urdf"), "srdf": 3})

@@ -25,7 +25,9 @@ The world frame is z-up, in metres. A URDF body takes
 * ``root_rpy`` [rad]: a further rotation of the root, roll, pitch, yaw about
   the world's fixed x, y, z (R = Rz(yaw) Ry(pitch) Rx(roll)), after those;
 * ``package_dirs``: folders holding the packages its ``package://`` meshes
-  name (the folder above each package's folder).
+  name (the folder above each package's folder);
+* ``srdf``: the robot's SRDF, whose ``disable_collisions`` pairs of links
+  the ``self_collision`` task leaves alone (MoveIt's convention).
 
 Either body takes
 
@@ -95,6 +97,8 @@ class Body:
     capsules: tuple[Capsule, ...] = ()
     notes: tuple[str, ...] = ()  # what the loader changed without being asked (a clipped reference joint)
     furniture: tuple[Box, ...] = ()  # static boxes that come with the body (a seated human's seat)
+    # pairs of links whose collisions the robot's SRDF disables (``srdf``): self_collision leaves their capsules apart
+    disabled: frozenset[frozenset[str]] = frozenset()
 
     @cached_property
     def collision(self) -> CollisionModel:
@@ -550,9 +554,11 @@ URDF_MAX_BYTES = 64 * 1024 * 1024  # a URDF's XML: the largest in example-robot-
 
 def urdf_body(path: str | Path, root_position: list[float] | None = None, ranges: dict[str, Any] | None = None,
               package_dirs: list[str] | None = None, *, up: str | None = None, forward: str | None = None,
-              root_rpy: list[float] | None = None, frames: dict[str, Any] | None = None, reference: Any = None) -> Body:
+              root_rpy: list[float] | None = None, frames: dict[str, Any] | None = None, reference: Any = None,
+              srdf: str | None = None) -> Body:
     """Any URDF, with a floating root at root_position [m] turned by ``up`` and root_rpy; its collision geometry
-    becomes capsules (meshes found by ``package://`` in package_dirs, or relative to the URDF's folder)."""
+    becomes capsules (meshes found by ``package://`` in package_dirs, or relative to the URDF's folder); ``srdf``:
+    the robot's SRDF, whose ``disable_collisions`` pairs of links self-collision leaves alone."""
     path = Path(path)
     try:
         # A regular file of bounded size: /dev/zero was read for ever.
@@ -570,15 +576,46 @@ def urdf_body(path: str | Path, root_position: list[float] | None = None, ranges
     spec: dict[str, Any] = {"urdf": str(path)}
     spec.update(_given(root_position=None if root_position is None else list(root_position), ranges=ranges,
                        package_dirs=None if package_dirs is None else list(package_dirs), up=up, forward=forward,
-                       root_rpy=root_rpy, frames=frames, reference=reference))
+                       root_rpy=root_rpy, frames=frames, reference=reference, srdf=srdf))
     root = np.zeros(3) if root_position is None else _numbers(root_position, 3, "root_position", "m", str(path))
     capsules = urdf_capsules(urdf, str(path), path.parent, package_dirs or ())
-    return _finish(_parse(urdf, str(path)), urdf, str(path), spec, root, capsules)
+    model = _parse(urdf, str(path))
+    body = _finish(model, urdf, str(path), spec, root, capsules)
+    return body if srdf is None else replace(body, disabled=disabled_pairs(srdf, model))
+
+
+SRDF_MAX_BYTES = 16 * 1024 * 1024  # an SRDF's XML (example-robot-data's are under 100 kB)
+
+
+def disabled_pairs(srdf: str | Path, model: pin.Model) -> frozenset[frozenset[str]]:
+    """The pairs of links an SRDF's ``<disable_collisions link1=... link2=...>`` elements name (MoveIt's convention:
+    adjacent links, links that never or always collide), each a link of the model."""
+    path = Path(srdf)
+    try:
+        if path.exists() and not path.is_file():
+            raise ModelError("not a regular file: an SRDF is an XML file", source=path, key="srdf")
+        if path.stat().st_size > SRDF_MAX_BYTES:
+            raise ModelError(f"larger than {SRDF_MAX_BYTES} bytes: not an SRDF", source=path, key="srdf")
+        root = ET.fromstring(path.read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ModelError(f"cannot read the SRDF ({exc.strerror or exc})", source=path, key="srdf") from exc
+    except (ET.ParseError, UnicodeDecodeError) as exc:
+        raise ModelError(f"not an SRDF (not well-formed XML in UTF-8: {exc})", source=path, key="srdf") from None
+    links = {str(f.name) for f in model.frames if f.type == pin.FrameType.BODY}
+    out = set()
+    for k, element in enumerate(root.iter("disable_collisions")):
+        pair = (element.get("link1"), element.get("link2"))
+        for name in pair:
+            if name not in links:
+                raise ModelError(f"disable_collisions #{k + 1} names link {name!r}, which the URDF does not have "
+                                 f"(links: {', '.join(sorted(links))})", source=path, key="srdf")
+        out.add(frozenset(pair))  # type: ignore[arg-type]
+    return frozenset(out)
 
 
 BODY_KEYS = {"human", "urdf", "root_position", "ranges", "package_dirs", "up", "forward", "root_rpy", "frames",
-             "reference"}
-URDF_ONLY = {"root_position", "package_dirs", "up", "forward", "root_rpy"}
+             "reference", "srdf"}
+URDF_ONLY = {"root_position", "package_dirs", "up", "forward", "root_rpy", "srdf"}
 HUMAN_KEYS = {"sex", "stature", "percentile", "mass", "posture", "seat", "ansur", "proportions"}
 DIMENSIONS = frozenset(ANSUR_COLUMNS) - {"stature", ANSUR_MASS}  # a human's measures by ANSUR II's names [m]
 PLACING = ("up", "forward", "root_rpy", "frames", "reference")  # keys that move the body's frames: part of its hash
@@ -614,7 +651,10 @@ def load_body(spec: dict[str, Any]) -> Body:
     dirs = spec.get("package_dirs")
     if dirs is not None and (not isinstance(dirs, list) or not all(isinstance(d, str) for d in dirs)):
         raise ModelError(f"expected a list of folders, got {dirs!r}", key="package_dirs")
+    srdf = spec.get("srdf")
+    if srdf is not None and not isinstance(srdf, str):
+        raise ModelError(f"expected the path of the robot's SRDF, got {srdf!r}", key="srdf")
     return urdf_body(spec["urdf"], spec.get("root_position"), ranges, dirs, up=spec.get("up"),
                      forward=spec.get("forward"), root_rpy=spec.get("root_rpy"),
-                     frames=spec.get("frames"), reference=spec.get("reference"))
+                     frames=spec.get("frames"), reference=spec.get("reference"), srdf=srdf)
 

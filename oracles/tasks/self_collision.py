@@ -8,6 +8,8 @@ Every pair of the body's collision capsules (:mod:`oracles.bodies.collision`) ke
   shoulder girdle);
 * pairs that no active joint moves relative to each other (their distance
   is a constant);
+* pairs of links a URDF body's SRDF disables (``body.srdf``: adjacent links, links that never or always
+  collide, as MoveIt's setup assistant finds them);
 * pairs the config excludes (``exclude``, capsule names or glob patterns),
   or that involve none of the capsules ``only`` names (when given: e.g. the
   reaching hand and forearm, the segments that pass through the trunk in
@@ -166,7 +168,8 @@ class SelfCollisionTask(HardTask):
         for i, pi in enumerate(model.placed):
             for j in range(i + 1, len(model.placed)):
                 pj = model.placed[j]
-                if frozenset((pi.name, pj.name)) in excluded or _adjacent(pm, bearing, pi.joint, pj.joint):
+                if (frozenset((pi.name, pj.name)) in excluded or _adjacent(pm, bearing, pi.joint, pj.joint)
+                        or frozenset((pi.capsule.link, pj.capsule.link)) in scope.body.disabled):
                     continue
                 if only is not None and pi.name not in only and pj.name not in only:
                     continue
@@ -208,7 +211,8 @@ class SelfCollisionTask(HardTask):
         if self.tissue:
             return []
         return [f"capsules {a} and {b} overlap by {-d * 1000:.0f} mm at the reference posture; the pair keeps that "
-                f"clearance instead of the margin: give body.reference where they are apart, or exclude [{a}, {b}]"
+                f"clearance instead of the margin: give body.reference where they are apart, exclude [{a}, {b}], or "
+                "give the robot's SRDF (body.srdf), whose disabled pairs are left out"
                 for a, b, d in self.at_reference if d < -CONTACT_GIVE]
 
     def constraints(self, sym: Symbolic) -> list[Constraint]:

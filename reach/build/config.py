@@ -497,8 +497,9 @@ def read_yaml(path: Path, seen: tuple[Path, ...] = ()) -> Any:
         return data
     data = dict(data)
     body = data.get("body")
-    if isinstance(body, Mapping) and isinstance(body.get("urdf"), str) and not Path(body["urdf"]).is_absolute():
-        data["body"] = {**body, "urdf": str((path.parent / body["urdf"]).resolve())}
+    for key in ("urdf", "srdf"):  # files beside the config
+        if isinstance(body, Mapping) and isinstance(body.get(key), str) and not Path(body[key]).is_absolute():
+            body = data["body"] = {**body, key: str((path.parent / body[key]).resolve())}
     if "base" in data:
         if not isinstance(data["base"], str):
             raise ConfigError(path, "base", f"expected the path of a config to extend, got {data['base']!r}")
