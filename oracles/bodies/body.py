@@ -602,14 +602,14 @@ def disabled_pairs(srdf: str | Path, model: pin.Model) -> frozenset[frozenset[st
     except (ET.ParseError, UnicodeDecodeError) as exc:
         raise ModelError(f"not an SRDF (not well-formed XML in UTF-8: {exc})", source=path, key="srdf") from None
     links = {str(f.name) for f in model.frames if f.type == pin.FrameType.BODY}
-    out = set()
+    out: set[frozenset[str]] = set()
     for k, element in enumerate(root.iter("disable_collisions")):
-        pair = (element.get("link1"), element.get("link2"))
+        pair = [element.get("link1") or "", element.get("link2") or ""]
         for name in pair:
             if name not in links:
                 raise ModelError(f"disable_collisions #{k + 1} names link {name!r}, which the URDF does not have "
                                  f"(links: {', '.join(sorted(links))})", source=path, key="srdf")
-        out.add(frozenset(pair))  # type: ignore[arg-type]
+        out.add(frozenset(pair))
     return frozenset(out)
 
 
