@@ -1,4 +1,4 @@
-"""Issue 46's attacks on ``reach serve``, each beside a victim; prints JSON lines.
+"""Attacks on ``reach serve``, each beside a victim; prints JSON lines.
 
 Every attack runs against a fresh server (``--workers`` 1 and 2 by default) on a small human atlas (bench/server.py's)
 while a victim process asks for stored postures without pause. Each line gives the attack's own outcome, the victim's

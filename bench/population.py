@@ -1,4 +1,4 @@
-"""A population's cost and agreement (issue 47): JSON lines.
+"""A population's cost and agreement (docs/history.md): JSON lines.
 
 * ``direct``: ``reach evaluate --direct`` of ``configs/targets/workstation_right.csv`` for the first ``--direct``
   members of ``configs/population.yaml``'s draw widened to that many (the same seed and mix), wall and CPU seconds;
@@ -8,7 +8,7 @@
 * ``--folder OUT``: instead of building, the ``agreement`` of a population already built (``reach build
   configs/population.yaml -o OUT``);
 * ``--random N``: instead of the workstation's targets, N targets drawn uniformly (``--seed``) in the box in front of
-  and beside the right side, ``RANDOM_BOX`` (issue 47's 200 random member x target pairs: ``--build 10 --random 20``).
+  and beside the right side, ``RANDOM_BOX`` (200 random member x target pairs: ``--build 10 --random 20``).
 
     python bench/population.py [--direct 500] [--build 4 | --folder out/population] [--random 20] [--workers 2]
 """

@@ -24,15 +24,15 @@ Prints JSON lines:
   and how many pairs the selector answered with two strategies (a jump too);
 * ``sagittal``: of 18 goals straight ahead of the right shoulder (x 0.3-0.6 m, z 0.1-1.4 m), the answers with a
   joint other than the right arm's and clavicle's moved to within 1 deg of a limit, and the pelvis's largest shift aside
-  [m] (issue 51: a person keeps them off their limits and the pelvis over the feet);
+  [m] (a person keeps them off their limits and the pelvis over the feet);
 * ``turning``: of goals beside and behind the body at the right shoulder's height (0.6-0.9 m from it, 60-270 deg
   round from straight ahead towards the left, i.e. across the body and behind it), per answering strategy, the
   share with the lumbar side-bend or the thoracic twist within 1 deg of a limit, and the pelvis's median turn [deg]
-  (issue 50: a person turns to reach behind, rather than bending the spine to its limits);
+  (a person turns to reach behind, rather than bending the spine to its limits);
 * ``idle_arm`` (a seated atlas: its body's furniture has a ``seat_pan``; the measures above are for a
   standing atlas and are skipped): of the answers to goals in front of the seat (x 0.2-0.9 m, y -0.6-0.3 m,
   z 0.4-1.3 m in the seat's frame), per strategy, the share whose idle (left) arm's elbow, wrist or fingertip
-  lies outside the seat's side, and the farthest [m] (issue 51: the idle arm stays within the seat's sides);
+  lies outside the seat's side, and the farthest [m] (the idle arm stays within the seat's sides);
 * ``lowest``: the lowest reachable grip-centre height [m] of the whole body
   and of crouch in front of the feet: the lowest reachable vertex
   (0.1 <= x <= 0.5 m, |y| <= 0.3 m), and, independent of the resolution, the
@@ -225,7 +225,7 @@ def main() -> None:
              resolution=tree.lattice.resolution.tolist(), lowest_by_ik_z=lowest, at_xy=[list(p) for p in LOW_POINTS])
 
     # Goals straight ahead of the right shoulder (its sagittal plane), low to high: a person reaches them without
-    # other joints at their limits and with the pelvis over the feet (issue 51's measures).
+    # other joints at their limits and with the pelvis over the feet (the measures of docs/validation.md).
     shoulder = body.frame_positions(names=["right_shoulder"])["right_shoulder"]
     sagittal = np.array([[x, shoulder[1], z] for x in (0.3, 0.45, 0.6) for z in (0.1, 0.3, 0.5, 0.8, 1.1, 1.4)])
     own = set(arm_idx) | {k for k, n in enumerate(tree_names) if n.startswith("right_clavicle")}

@@ -419,7 +419,7 @@ def reply_code(reply: bytes) -> str:
 
 
 def overrun_bench(atlas: Path, runs: int = 5) -> None:
-    """Issue 35's worker past its request's deadline: a 20 s motion at 240 Hz with a 50 ms deadline, then at once a
+    """A worker past its request's deadline: a 20 s motion at 240 Hz with a 50 ms deadline, then at once a
     refined query on the only worker; how much longer that query takes than on an idle worker is the time the
     worker went on planning after the deadline (before: about 100 s)."""
     server, address = serve(atlas, 1)
@@ -455,7 +455,7 @@ def overrun_bench(atlas: Path, runs: int = 5) -> None:
 
 
 def heavy_bench(atlas: Path, repeats: int = 10) -> None:
-    """Issue 35, item 4: another client's stored queries while one client sends, one after the other, ``repeats``
+    """Another client's stored queries while one client sends, one after the other, ``repeats``
     placements near their limit (1,000 targets x 1,681 candidates) and then ``repeats`` stored batches of 10,000 goals
     (both answered in the worker): the watcher's median, p99 and longest wait in each phase, and alone."""
     server, address = serve(atlas, 1)
@@ -527,7 +527,7 @@ def watch(address: str, pid: int, stop: Any, out: Any) -> None:
 
 
 def attacks_bench(atlas: Path, workers: int) -> None:
-    """Issue 35's attacks from one client while another asks for stored postures without pause: the watcher's
+    """Attacks from one client while another asks for stored postures without pause: the watcher's
     longest wait and p99, the requests it lost (no reply in 5 s), the server process's largest resident memory
     (its workers apart), and the replies' codes."""
     server, address = serve(atlas, workers)

@@ -1,4 +1,4 @@
-"""A UR5's trees against exact analytic IK (issue 48, item 6); prints JSON lines.
+"""A UR5's trees against exact analytic IK; prints JSON lines.
 
 The repository's UR5 (configs/urdf/ur5.urdf) is ur-analytic-ik's ``ur5`` in another base frame
 (tests/analytic_ur5.py, checked by tests/test_truth_ur5.py). Two strategies are built at ``--depth`` (D_max, default 6;
@@ -13,7 +13,7 @@ tree's word (the nearest vertex's, in a boundary cell) against the truth:
   unreachable counted against it is a lower bound, false reachable an upper bound.
 
 And the top of each volume: the highest z the truth reaches over the box's columns against the tree's highest
-reachable vertex (issue 48: the tool-down tree lacked its top 10 cm on example-robot-data's UR5).
+reachable vertex (the tool-down tree lacked its top 10 cm on example-robot-data's UR5).
 
     python bench/ur5_truth.py [--depth 6] [--probes 20000] [--axes 400] [--out DIR] [--no-twins]
 """

@@ -14,9 +14,9 @@ Rows, each with its source:
   (see :data:`MIL_STD`);
 * the 95th-percentile man's seat position in the car examples' seat (the hip joint, the H-point, behind the heel
   point) against SAE J1517's 95th-percentile line at his H30 (:func:`oracles.bodies.seat.j1517_x95`), within the
-  25 mm issue 51 allows; the other drivers' positions are printed beside it (J1517's other lines were not read);
+  25 mm allowed; the other drivers' positions are printed beside it (J1517's other lines were not read);
 * N ANSUR II subjects of each sex drawn at random (``--seed``): bodies built from each subject's record, every
-  measured dimension against the subject's own; and bodies built from the 14 dimensions issue 51 lists alone, the
+  measured dimension against the subject's own; and bodies built from the 14 dimensions that set reach alone, the
   rest regressed, against the subject's own (how well the regression predicts what was not given).
 
 Verdict: ``within`` when the deviation is within the published scatter (1 SD, or the stated tolerance), ``outside``
@@ -41,10 +41,10 @@ from oracles.bodies.measure import MEASURES, measure
 from oracles.bodies.measure import _points as measure_points
 
 BODIES = (("female", 5), ("male", 50), ("male", 95))
-# Issue 51's list of the dimensions that set reach: a body built from these alone.
+# The dimensions that set reach: a body built from these alone.
 GIVEN = ansur.REACH
-CHECKED = ("thumbtipreach", "acromialheight", "sittingheight", "buttockkneelength")  # issue 51's subject check
-TOLERANCE = 0.015  # [m] p95 of a subject body's errors (issue 51)
+CHECKED = ("thumbtipreach", "acromialheight", "sittingheight", "buttockkneelength")  # the subject check
+TOLERANCE = 0.015  # [m] p95 of a subject body's errors (docs/history.md)
 # Shoulder-grip length [mm], "from the acromion to the centre of an object gripped in the hand, with the elbow and
 # wrist straight": Pheasant's *Bodyspace* (British adults aged 19-65, dimension 25), as reproduced by A.H.S. Chan's
 # *Online Anthropometry* (City University of Hong Kong, Chapter 2, dimension 25; read there, not in the book, whose
@@ -184,7 +184,7 @@ def seat_rows() -> list[dict]:
             row.update(published_mm=round(published, 1), sd_mm=25.0, ansur_dev_mm=round(behind - published, 1),
                        ansur_verdict="within" if abs(behind - published) <= 25.0 else "outside",
                        source="SAE J1517 Class A 95th-percentile seat position line at the body's H30 (equations via "
-                              "a public packaging script, a secondary source); tolerance: issue 51's 25 mm")
+                              "a public packaging script, a secondary source); tolerance: 25 mm")
         else:
             row.update(published_mm="-", sd_mm="-", ansur_dev_mm="-", ansur_verdict="-",
                        source="J1517's other percentile lines and J4004's stature model not read: no figure")
@@ -243,7 +243,7 @@ def markdown(percentile: list[dict], subjects: list[dict], count: int, seed: int
         lines.append(f"| {r['body']} | `{r['dimension']}` | {r['published_mm']} | {r['sd_mm']} | {before} | "
                      f"{r['ansur_mm']} | {_signed(r['ansur_dev_mm'])} | {r['ansur_verdict']} |")
     lines += ["", f"{count} subjects of each sex drawn with seed {seed}: p95 of |model - subject| [mm], bodies built "
-              "from the subject's whole record, and from issue 51's 14 dimensions alone (the rest regressed). "
+              "from the subject's whole record, and from the 14 dimensions that set reach alone (the rest regressed). "
               f"Tolerance: {1000 * TOLERANCE:g} mm for {', '.join(CHECKED)}.", "",
               "| sex | dimension | whole record: p95 | the 14 given: p95 | verdict |",
               "| --- | --- | --- | --- | --- |"]

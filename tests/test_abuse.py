@@ -1,4 +1,4 @@
-"""Issue 35's attacks replayed against a server with workers and one without (tests of the whole).
+"""Attacks replayed against a server with workers and one without (tests of the whole).
 
 Each attack comes from one DEALER client while another client keeps asking ``health`` and stored queries
 between its requests. The assertions count, never time: every attack and every watcher's request is answered,
@@ -118,7 +118,7 @@ def test_the_attacks_leave_the_server_answering_bounded_and_without_internal_err
     codes = {rid: (rep["error"]["code"] if not rep["ok"] else "ok") for rid, rep in replies.items()}
     assert P.INTERNAL not in codes.values(), codes
     if workers:
-        # Issue 46, item 2: its stored answers alone take longer than its deadline (0.3 ms a goal): refused at once,
+        # its stored answers alone take longer than its deadline (0.3 ms a goal): refused at once,
         # not answered 13.7 s late.
         assert codes[1] == P.TIMEOUT and "more than the deadline" in replies[1]["error"]["message"]
     else:

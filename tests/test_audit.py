@@ -168,7 +168,7 @@ def _lacking(tree, y: float) -> None:
 
 @pytest.mark.slow
 def test_the_audit_finds_a_region_the_tree_lacks_along_rays_and_by_twins(tmp_path, capsys):
-    """Issue 36, item 2: a UR5's tree lacked everything above 0.888 m and its audit said 1.5 % false unreachable. A
+    """A UR5's tree lacked everything above 0.888 m and its audit said 1.5 % false unreachable. A
     turntable arm (a continuous base joint) audited as built: its twins about the base agree and no ray stops short.
     The same tree made to lack the region y > 0.15 m: rays towards +y stop short of the referee (warned), twins turned
     90 deg disagree, and the referee reaches the ones the tree calls unreachable."""
@@ -213,7 +213,7 @@ def _replace_tree(folder: Path, tree) -> None:
 
 @pytest.mark.slow
 def test_reach_info_and_report_warn_of_a_region_the_last_audit_found_missing(tmp_path, capsys):
-    """Issue 36, item 2: `reach audit` keeps its result beside the atlas (audit.json, read back here with the json
+    """`reach audit` keeps its result beside the atlas (audit.json, read back here with the json
     module); `reach info` and `reach report` then warn of each ray along which the tree stops short of the referee,
     while the tree is the one audited, and say the audit is stale once the tree is rebuilt."""
     folder = _turntable(tmp_path)

@@ -116,7 +116,7 @@ def test_a_warm_hint_is_kept_when_it_reaches(arm):
 
 
 def test_a_goal_far_outside_costs_only_its_placed_starts_and_a_near_one_is_still_reached(whole):
-    """Staged starts (issue 48): a build's goal whose neighbour's posture lies beyond ``decisive`` tries that posture,
+    """Staged starts: a build's goal whose neighbour's posture lies beyond ``decisive`` tries that posture,
     the reference and the ready posture first, and its random starts only when those end within RANDOM_NEAR of it.
     Goals 0.35-0.5 m beyond the whole body's forward reach (1.17 m, docs/results.md) get none and stay unreachable;
     goals inside, 0.15 m from their hint, are reached, and Pinocchio agrees."""
@@ -206,7 +206,7 @@ def test_the_lower_tasks_improve_the_reaching_posture_and_never_cost_the_verdict
     liked = [with_lower.preference(q, g) for q, g in zip(a.posture, goals, strict=True)]
     plain = [with_lower.preference(q, g) for q, g in zip(b.posture, goals, strict=True)]
     # never less liked, and on most goals by a tenth or more (one goal's bare reach is near the liked posture already:
-    # 0.459 against 0.471 since the stoop's twist rule, session 25)
+    # 0.459 against 0.471 since the stoop's twist rule)
     assert all(x <= y + 1e-9 for x, y in zip(liked, plain, strict=True)), (liked, plain)
     assert sum(x < 0.9 * y for x, y in zip(liked, plain, strict=True)) >= 4, (liked, plain)
 

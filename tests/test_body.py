@@ -62,7 +62,7 @@ def _thumbtip(body):
 
 @pytest.mark.parametrize("sex", ["male", "female"])
 def test_a_surveyed_persons_body_has_their_measures(sex):
-    """Issue 51: a body built from an ANSUR II subject reproduces the subject's own measures, read from the survey's
+    """A body built from an ANSUR II subject reproduces the subject's own measures, read from the survey's
     file by csv and checked on the model by Pinocchio's forward kinematics."""
     rows = _ansur_rows(sex)
     for subject in sorted(rows)[::400]:
@@ -242,7 +242,7 @@ def test_malformed_urdf_and_unknown_names_are_named(tmp_path, man):
         urdf_body(bad)
     with pytest.raises(ModelError, match=r"cannot read URDF"):
         urdf_body(tmp_path / "absent.urdf")
-    # Issue 35: a negative mass and a zero joint axis were accepted.
+    # a negative mass and a zero joint axis were accepted.
     for fault, message in (("<mass value='-2'/>", r"link 'a': mass '-2'; expected a finite number >= 0"),):
         bad.write_text(f"<robot name='x'><link name='a'><inertial>{fault}<inertia ixx='1' iyy='1' izz='1' ixy='0' "
                        "ixz='0' iyz='0'/>"
@@ -254,7 +254,7 @@ def test_malformed_urdf_and_unknown_names_are_named(tmp_path, man):
                    "velocity='1'/></joint></robot>")
     with pytest.raises(ModelError, match=r"joint 'j': axis '0 0 0'; expected three finite numbers, not all zero"):
         urdf_body(bad)
-    # Issue 35: these gave tracebacks (or read for ever).
+    # these gave tracebacks (or read for ever).
     with pytest.raises(ModelError, match=r"/dev/zero: not a regular file"):
         urdf_body("/dev/zero")
     latin = tmp_path / "latin.urdf"

@@ -150,7 +150,7 @@ def test_serve_refuses_a_negative_worker_count(tmp_path, capsys):
 
 
 def test_an_error_naming_a_huge_path_stays_one_short_line(tmp_path, capsys):
-    """Issue 46, item 9: a 40 KB mesh path was printed whole in the error (and a strategy name of 250 characters was a
+    """A 40 KB mesh path was printed whole in the error (and a strategy name of 250 characters was a
     traceback: refused by its key now, tests/test_config.py)."""
     config = tmp_path / "c.yaml"
     config.write_text("name: t\nbody: {urdf: " + "a" * 40_000 + ".urdf}\nbox: auto\ndepth: {min: 1, max: 2}\n"
@@ -162,7 +162,7 @@ def test_an_error_naming_a_huge_path_stays_one_short_line(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_the_wheel_is_named_reach_volumes_and_carries_the_command_and_the_survey(tmp_path):
-    """Issue 49, item 5: PyPI's "reach" is a word-embedding library; the distribution is reach-volumes, the import and
+    """PyPI's "reach" is a word-embedding library; the distribution is reach-volumes, the import and
     the command reach. The wheel built from the clone holds the command's entry point and the ANSUR II data."""
     import zipfile
 
@@ -180,7 +180,7 @@ def test_the_wheel_is_named_reach_volumes_and_carries_the_command_and_the_survey
 
 
 def test_the_command_line_starts_without_the_scientific_stack():
-    """Issue 49, item 1: `reach --help` took 0.4-1.2 s, importing the selector (and scipy, pinocchio, casadi) for
+    """`reach --help` took 0.4-1.2 s, importing the selector (and scipy, pinocchio, casadi) for
     three defaults. The parser's defaults come from reach.answers.defaults; a command imports what it needs when it
     runs. Counted in a fresh interpreter: no module of those packages is loaded by the parser."""
     heavy = "{'scipy', 'pinocchio', 'casadi', 'zmq', 'matplotlib'}"
@@ -191,7 +191,7 @@ def test_the_command_line_starts_without_the_scientific_stack():
 
 
 def test_query_answers_a_file_of_goals_one_json_line_each(figure2_atlas, tmp_path, capsys, monkeypatch):
-    """Issue 49, item 1: a script's hundred queries took a process each. ``--goals FILE`` (or ``-``) answers every
+    """A script's hundred queries took a process each. ``--goals FILE`` (or ``-``) answers every
     line in one process, one JSON answer a line, in order; a header line is skipped, a bad line named."""
     import io
 

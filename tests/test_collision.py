@@ -133,7 +133,7 @@ def test_urdf_primitives_and_meshes_become_capsules(tmp_path):
 
 
 def test_a_collada_mesh_without_pycollada_names_the_extra(tmp_path, monkeypatch):
-    """Issue 36, item 4: a .dae mesh needs pycollada, which trimesh only hints at; the error names the extra."""
+    """A .dae mesh needs pycollada, which trimesh only hints at; the error names the extra."""
     import sys
 
     (tmp_path / "part.dae").write_text("<COLLADA/>")
@@ -272,7 +272,7 @@ def _point_segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.n
 
 
 def test_a_mesh_gets_capsules_along_its_long_axis_as_its_shape_asks(tmp_path):
-    """Issue 36, item 4: a torso-like mesh (a slim column on a wide base) becomes several capsules, slimmer where the
+    """A torso-like mesh (a slim column on a wide base) becomes several capsules, slimmer where the
     mesh is, whose union still covers every point of its surface (sampled here by trimesh, not the fit's points); a
     plain rod stays one capsule."""
     import trimesh

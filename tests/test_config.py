@@ -74,11 +74,11 @@ def test_good_config_and_priority_order(tmp_path):
         ({"strategies": []}, "strategies", "non-empty list"),
         ({"strategies": [{"name": "a"}, {"name": "a"}]}, "strategies[1].name", "duplicate"),
         ({"strategies": [{"name": "../x"}]}, "strategies[0].name", "names a file"),
-        ({"name": "../../../escaped"}, "name", "names the folder out/<name>"),  # issue 35: it wrote outside out/
+        ({"name": "../../../escaped"}, "name", "names the folder out/<name>"),  # it wrote outside out/
         ({"name": "a/b"}, "name", "names the folder out/<name>"),
         ({"strategies": [{"name": "a", "speed": 3}]}, "strategies[0].speed", "unknown key"),
         ({"box": ...}, "box", "required key is missing"),
-        ({"base": "missing.yaml"}, "base", "missing.yaml: no such config to extend"),  # issue 46: named the file only
+        ({"base": "missing.yaml"}, "base", "missing.yaml: no such config to extend"),  # named the file only
         ({"strategies": [{"name": "s" * 250}]}, "strategies[0].name", "at most 100 characters"),  # was a traceback
         ({"strategies": [{"name": "a", "ranges": {"x": [0, 1]}}]}, "strategies[0].ranges", "need a body strategy"),
     ],
@@ -94,7 +94,7 @@ def test_errors_name_file_and_key(tmp_path, changes, key, message):
 def test_a_config_that_is_not_utf8_is_named(tmp_path):
     path = tmp_path / "latin.yaml"
     path.write_bytes("name: caf\xe9\n".encode("latin-1"))
-    with pytest.raises(ConfigError, match=r"latin\.yaml.*not UTF-8 text"):  # issue 35: a traceback
+    with pytest.raises(ConfigError, match=r"latin\.yaml.*not UTF-8 text"):  # a traceback
         load_config(path)
 
 
@@ -145,7 +145,7 @@ def test_a_duplicate_key_is_refused_with_its_line(tmp_path):
 
 
 def test_nested_aliases_and_deep_nesting_are_refused_before_they_expand(tmp_path):
-    """Issue 46, item 8: 796 bytes of nested YAML aliases in ``name`` ran 53-120 s to 2.7 GB and a MemoryError
+    """796 bytes of nested YAML aliases in ``name`` ran 53-120 s to 2.7 GB and a MemoryError
     traceback. The aliases are counted expanded before anything is built: one line naming the file, at once (the
     count stops past the bound: no expansion is made)."""
     levels = ["a: &a [" + ", ".join(['"lol"'] * 9) + "]"]
@@ -164,7 +164,7 @@ def test_nested_aliases_and_deep_nesting_are_refused_before_they_expand(tmp_path
 
 
 def test_a_human_dimension_that_is_not_a_number_names_its_key(tmp_path):
-    """Issue 46, item 9: ``stature: "1.7"`` named strategies[0].oracle."""
+    """``stature: "1.7"`` named strategies[0].oracle."""
     path = tmp_path / "h.yaml"
     path.write_text('name: h\nbody: {human: {sex: male, stature: "1.7"}}\nbox: auto\ndepth: {min: 1, max: 2}\n'
                     'strategies: [{name: a, effector: right_hand, joints: ["right_elbow_*"]}]\n')
@@ -182,7 +182,7 @@ def test_a_tab_gives_one_line_naming_the_place(tmp_path):
 
 
 def test_a_bodys_oracle_defaults_to_casadi_ik():
-    """Issue 36, item 4: a URDF config without `oracle:` was refused ("required key is missing")."""
+    """A URDF config without `oracle:` was refused ("required key is missing")."""
     from reach.build.config import read_yaml
 
     path = Path(__file__).resolve().parents[1] / "configs" / "examples" / "arm7_table.yaml"

@@ -294,7 +294,7 @@ def test_compiled_programs_are_cached_on_disk_and_shared(tmp_path, monkeypatch):
 
 
 def test_a_cached_program_is_loaded_without_writing_its_c_again(tmp_path, monkeypatch):
-    """Issue 49, item 1: the cache was keyed by the hash of the generated C, so every process wrote every program's C
+    """The cache was keyed by the hash of the generated C, so every process wrote every program's C
     (3.2 s of a fresh `reach query`'s 7 s) to find its library. Now the key is the expression graph's."""
     import casadi as ca
 
@@ -402,7 +402,7 @@ def test_with_a_current_posture_the_reach_stage_moves_it_the_least(monkeypatch):
     # reach-only stage from the first answer wandered into another posture
     # (found as bench/posture.py's low pair 197 for the de_leva body; moved for
     # the ANSUR II body, and again when the stoop's twist rule and the pelvis's
-    # bound aside came (session 25): of 80 pairs drawn low in front, one showed
+    # bound aside came: of 80 pairs drawn low in front, one showed
     # the jump; in the others the term changed nothing, the jump absent).
     spec = load_config(ROOT / "configs" / "demo.yaml").strategy("right_crouch").oracle
     first, second = np.array([[0.5958, -0.1369, 0.6168]]), np.array([[0.6046, -0.1415, 0.6184]])

@@ -277,7 +277,7 @@ def test_the_motion_operation_over_the_wire(planner, workers):
                 c.motion(effector="right_hand", goal=[0.4, 0.2])
             with pytest.raises(ServerError, match="unknown_effector"):
                 c.motion(effector="left_foot", goal=goal)
-            with pytest.raises(ServerError, match="timeout"):  # issue 35: with --workers 0 the deadline was ignored
+            with pytest.raises(ServerError, match="timeout"):  # with --workers 0 the deadline was ignored
                 c.motion(effector="right_hand", goal=[0.35, -0.2, 0.45], rate=240, deadline=0.001)
             assert c.health()["status"] == "serving"
     finally:
@@ -458,7 +458,7 @@ def test_gltf_passes_the_khronos_validator_and_its_hand_follows_pinocchio(planne
 
 
 def test_a_motion_is_reached_only_when_its_last_frame_reaches_the_goal(planner, body):
-    """Issue 34, item 5: with no time to refine, answers are stored postures a few centimetres off; a motion to
+    """With no time to refine, answers are stored postures a few centimetres off; a motion to
     one of them says ``nearest`` with its distance, never ``reached``; every ``reached`` motion's last frame
     passes the verdict's own check and puts the hand within the tolerance."""
     hurried = Planner(planner.served, budget=1e-9)
@@ -477,7 +477,7 @@ def test_a_motion_is_reached_only_when_its_last_frame_reaches_the_goal(planner, 
 
 
 def test_timing_coefficients_cannot_make_a_motion_longer_than_its_bound(planner):
-    """Issue 35, item 1: duration was capped but not the law's coefficients (tmu: 36 planned for 100 s; 1e300 was
+    """Duration was capped but not the law's coefficients (tmu: 36 planned for 100 s; 1e300 was
     an internal error). Both are refused, naming the timing."""
     for timing, goal in (({"tmu": 36.0}, [0.4, -0.3, 1.0]), ({"tmu": 1e300}, [0.4, -0.3, 1.0]),
                          ({"past_30": 1e300}, [2.0, -0.3, 1.2])):
@@ -487,7 +487,7 @@ def test_timing_coefficients_cannot_make_a_motion_longer_than_its_bound(planner)
 
 
 def test_planning_stops_at_its_deadline_within_a_frame(planner, monkeypatch):
-    """Issue 35, item 2: a worker planned on for 100 s after its request's deadline. The planner reads the clock
+    """A worker planned on for 100 s after its request's deadline. The planner reads the clock
     before holding each frame (here a clock that moves 1 s a reading): it stops at the deadline, after a few
     frames of the motion's hundreds, with a timeout."""
     import reach.motion.planner as motion
@@ -519,7 +519,7 @@ def test_planning_stops_at_its_deadline_within_a_frame(planner, monkeypatch):
 
 @pytest.mark.parametrize("workers", [0, 1])
 def test_reach_motion_over_the_wire_writes_the_same_animation_files(planner, tmp_path, capsys, workers):
-    """Issue 34, item 4: `reach motion --connect ADDR -o FILE.bvh|.glb` asks the server for the motion's bones (the
+    """`reach motion --connect ADDR -o FILE.bvh|.glb` asks the server for the motion's bones (the
     `bones` field; the client has no body) and writes the file the atlas folder writes for the same request."""
     import threading
 
@@ -547,7 +547,7 @@ def test_reach_motion_over_the_wire_writes_the_same_animation_files(planner, tmp
 
 
 def test_a_paths_broken_frames_are_held_as_one_batch_by_the_batched_engine(planner, body, monkeypatch):
-    """Issue 34: the low reach's frames with the root pushed (its feet broken), held by the batched
+    """The low reach's frames with the root pushed (its feet broken), held by the batched
     engine, most as one batch (the others alone, from their neighbour's correction): every frame then holds every
     task by the fatrop
     oracle's own checks, and independently the soles stay where they stood, the centre of mass over them."""

@@ -424,13 +424,13 @@ def arm7_table(tmp_path_factory):
 
 @pytest.mark.slow
 def test_oriented_refinement_tries_hard_enough_where_the_referee_reaches(arm7_table):
-    """Issue 36, item 5: an oriented goal is refined from its stored postures, which hold no orientation, within the
+    """An oriented goal is refined from its stored postures, which hold no orientation, within the
     server's 20 ms budget: on arm7_table it timed out on 5 of the 72 goals of these three seeds that the referee
     (IPOPT, 8 random restarts) reaches. With random starts for a goal that carries a target and a budget of at least
     0.5 s (the batched engine's K starts and K random ones; 0.2 s timed out under load), 1 of 75 was still missed
     (above the base, a posture on a joint's limit that IPOPT finds from the reference): fatrop now also polishes from
     the starts of a cold oriented goal no start reached. At most one is missed: the goals are those the tree holds,
-    and a tree built with the rescues of goals reached only through a collision (blocked_starts, session 31) holds a
+    and a tree built with the rescues of goals reached only through a collision (blocked_starts) holds a
     goal, (-0.2675, 0.1206, 0.6318) m with its approach axis (-0.711, -0.136, 0.690), that no refinement reaches from
     either tree (it lay outside the sample before). Every goal called reachable holds its orientation by forward
     kinematics."""

@@ -1,4 +1,4 @@
-"""One program for every body of one shape (issue 47, item 4): the body's numbers as the programs' parameters.
+"""One program for every body of one shape: the body's numbers as the programs' parameters.
 
 The truth is each body's own program, its numbers constants (the programs made for one body, as before): a program
 built for another body and given this body's numbers must compute the same rows, Jacobians, objectives and

@@ -158,7 +158,7 @@ def table_arm(tmp_path_factory):
 
 @pytest.mark.slow
 def test_the_best_placement_has_margin_not_the_middle_of_the_tie_and_verifies(table_arm, monkeypatch):
-    """Issue 36, item 3: six tray targets 8 cm over the table on a 12 cm ring. Every placement of the base within
+    """Six tray targets 8 cm over the table on a 12 cm ring. Every placement of the base within
     about half a metre of the tray holds them all by the trees, and the middle of that tie is the tray itself, where
     the base stands among the targets and IK reaches only some (as a UR5's ranking did: 50 %). Ranked by margin the
     best placement keeps the targets deep inside the volume, and IK reaches them all; the IK-verified share re-ranks
@@ -235,7 +235,7 @@ def test_a_seat_track_ranks_positions_and_heights_and_draws_them(balls, tmp_path
 
 
 def test_absurd_steps_and_ranges_are_bad_input_not_an_overflow():
-    """Issue 35: a step of 1e-320 or an x range of +-1e308 overflowed (an `internal` reply over the wire)."""
+    """A step of 1e-320 or an x range of +-1e308 overflowed (an `internal` reply over the wire)."""
     from reach.answers.place import Space
     from reach.errors import InputError
 
@@ -247,7 +247,7 @@ def test_absurd_steps_and_ranges_are_bad_input_not_an_overflow():
 
 
 def test_a_ranking_keeps_its_deadline_and_bounds_its_margins(balls, monkeypatch):
-    """Issue 46, item 3: 1,681 candidates x 1,000 targets near the centre of a ball (all tied) held a server's worker
+    """1,681 candidates x 1,000 targets near the centre of a ball (all tied) held a server's worker
     over 1,000 s: the margins' k-d tree queries were one per tied candidate and target, and no step read the deadline.
     Now the margins take at most MARGIN_QUERIES queries, and a deadline stops the ranking."""
     import time

@@ -1,4 +1,4 @@
-"""A population (issue 47): members from ANSUR II, their atlases, and the share that reaches each target."""
+"""A population (docs/history.md): members from ANSUR II, their atlases, and the share that reaches each target."""
 
 from __future__ import annotations
 
@@ -84,7 +84,7 @@ def test_the_whole_survey_weighted_to_half_women():
 
 
 def test_boundary_manikins_span_their_sex_thumbtip_reach():
-    # Issue 47: at least 95 % of 500 sampled subjects' thumb-tip reaches lie within the range of their sex's manikins.
+    # at least 95 % of 500 sampled subjects' thumb-tip reaches lie within the range of their sex's manikins.
     # The subjects are read from the carried survey file here, independently of the module's sample.
     with gzip.open(ROOT / "oracles/bodies/data/ansur2.csv.gz", "rt") as fh:
         rows = list(csv.DictReader(fh))

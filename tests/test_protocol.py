@@ -135,7 +135,7 @@ def test_a_plugin_is_served(arm_atlas):
 
 
 def test_a_thousand_refined_goals_across_four_strategies_cost_a_few_evaluate_calls_each(plugin, tmp_path, monkeypatch):
-    """Issue 34, item 4: the selector refines a batch's goals in one evaluate call per strategy and pass (first
+    """The selector refines a batch's goals in one evaluate call per strategy and pass (first
     choice, then fallback), not one per goal; the answers are those of one goal at a time, and every reachable
     one is reached by the arm's own forward kinematics."""
     shoulders = [[0.0, 0.0, 1.0], [0.0, 0.35, 1.0], [0.0, -0.35, 1.0], [0.3, 0.0, 1.2]]

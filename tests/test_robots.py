@@ -268,7 +268,7 @@ def _turntable_tool(joints: dict[str, float]) -> np.ndarray:
 
 
 def test_a_continuous_joint_is_one_angle_in_answers_motions_configs_and_reach_model(tmp_path, capsys):
-    """Issue 36, item 1: a continuous joint came back as NAME_0 and NAME_1 (its cosine and sine), which a user's
+    """A continuous joint came back as NAME_0 and NAME_1 (its cosine and sine), which a user's
     own forward kinematics read as two joints. It is one angle in (-pi, pi] under the joint's own name, in answers,
     motion frames and a query's ``from``; ``reach model`` shows it as continuous."""
     from reach.answers.select import Selector
@@ -307,7 +307,7 @@ def test_a_continuous_joint_is_one_angle_in_answers_motions_configs_and_reach_mo
 
 
 def test_reference_auto_turns_a_ur5s_tool_down_where_projection_cannot():
-    """Issue 49, item 4: for a UR5's tool-down strategy, damped least squares from the middle of the ranges found no
+    """For a UR5's tool-down strategy, damped least squares from the middle of the ranges found no
     posture holding the orientation (every joint stayed at zero, and the build warned). The engine's own search then
     finds one: Pinocchio puts the tool's axis within the cone, and nothing is diagnosed."""
     body = {"urdf": str(ROOT / "configs" / "urdf" / "ur5.urdf"), "reference": "auto"}
@@ -322,7 +322,7 @@ def test_reference_auto_turns_a_ur5s_tool_down_where_projection_cannot():
 
 
 def test_reference_auto_finds_a_posture_holding_each_strategys_hard_tasks(tmp_path, capsys):
-    """Issue 36, item 4: a strategy holding the tool pointing down started from a reference that breaks it, and the
+    """A strategy holding the tool pointing down started from a reference that breaks it, and the
     user had to solve a posture by hand. ``reference: auto`` starts from the middle of the ranges and finds, per
     strategy, the nearest posture that holds its hard tasks; ``reach model`` prints it; Pinocchio agrees."""
     body = {"urdf": str(URDF / "arm7.urdf"), "frames": {"tcp": {"parent": "arm7_hand", "xyz": [0, 0, 0.1034]}},

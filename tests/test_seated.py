@@ -480,9 +480,10 @@ def test_a_seated_body_is_measured_as_its_standing_person():
 
 
 def test_the_95th_percentile_driver_sits_on_sae_j1517s_95th_percentile_line():
-    """Issue 51: the drivers sat about 10 cm too close. The car seat's heel point is fitted where the knee flexes 35
+    """The drivers sat about 10 cm too close. The car seat's heel point is fitted where the knee flexes 35
     deg, which puts the 95th-percentile man's hip joint (the H-point) within 25 mm of J1517's 95th-percentile line at
-    his H30, measured here by Pinocchio's frames; the line's transcription gives issue 51's 857 mm at H30 = 271 mm."""
+    his H30, measured here by Pinocchio's frames; the line's transcription gives 857 mm at H30 = 271 mm, as a
+    secondary source does."""
     from oracles.bodies.body import load_body
     from oracles.bodies.seat import j1517_x95
 

@@ -121,7 +121,7 @@ def test_a_tree_of_another_model_is_refused(arm):
 
 
 def test_a_tree_of_the_earlier_human_refines_with_that_body_and_says_so(arm):
-    """Issue 51: a tree built before bodies came from ANSUR II measures (its human spec names no ``proportions``, its
+    """A tree built before bodies came from ANSUR II measures (its human spec names no ``proportions``, its
     model hash is the stature-scaled body's) refines with the body it was built with, noted; the answer's posture puts
     that body's hand at the goal by Pinocchio's forward kinematics."""
     tree = arm.trees["right_arm"]
@@ -302,7 +302,7 @@ def test_refinement_also_starts_from_the_best_liked_stored_posture_nearby(arm, m
 
 
 def test_a_requests_orientation_is_scaled_before_it_is_normalised_and_bad_ones_name_the_field():
-    """Issue 35: [1e200, 0, 0] overflowed to a zero direction (bad_request without workers, a worker's error with
+    """[1e200, 0, 0] overflowed to a zero direction (bad_request without workers, a worker's error with
     them); it is the x axis. A zero, infinite or NaN orientation is refused naming the field, in the loop."""
     from reach.answers.answer import orientation_of
     from reach.errors import InputError
@@ -318,7 +318,7 @@ def test_a_requests_orientation_is_scaled_before_it_is_normalised_and_bad_ones_n
 
 
 def test_a_from_root_quaternion_of_huge_components_is_refused_by_name():
-    """Issue 35: root_qw = 1e300 overflowed where the quaternion is normalised (an `internal` reply)."""
+    """root_qw = 1e300 overflowed where the quaternion is normalised (an `internal` reply)."""
     from reach.answers.select import Selector
     from reach.errors import InputError
 
@@ -332,7 +332,7 @@ def test_a_from_root_quaternion_of_huge_components_is_refused_by_name():
 def test_a_refined_answer_does_not_depend_on_the_clock(tmp_path, monkeypatch):
     """The standard's "the same request, the same answer" under the server's 20 ms budget: the batched engine spends a
     budget of work (oracles.ik.budget.Meter), not of time. Cut by the clock, the same 30 demo goals asked twice on an
-    idle machine gave 8 different arm postures (session 23). Here the same requests are answered again on a clock
+    idle machine gave 8 different arm postures. Here the same requests are answered again on a clock
     running ten times as fast, as a machine ten times as slow would see it (the clock's guard set aside): the answers
     are the same, goal by goal and in a batch. With a budget of time they would have had a tenth of their rounds; and
     the budget binds (a larger one answers some goals otherwise), so the test could fail."""

@@ -195,7 +195,7 @@ def _with_number(value: bytes) -> list[bytes]:
 
 @pytest.mark.parametrize("workers", [0, 1])
 def test_no_number_a_client_sends_ends_the_server(balls, workers):
-    """Issue 46, item 1: ``{"op":"health","id":1e999}`` (27 bytes) ended the loop: Python reads 1e999 as infinity,
+    """``{"op":"health","id":1e999}`` (27 bytes) ended the loop: Python reads 1e999 as infinity,
     which no reply can encode, and the error path raised outside any catch. Every op's every field and its id get
     non-finite, huge and denormal numbers; each is answered with a documented code and the server lives."""
     r = Running(balls, workers=workers)
@@ -223,7 +223,7 @@ def test_no_number_a_client_sends_ends_the_server(balls, workers):
 
 
 def test_reload_paths_no_system_can_name_are_refused_by_name(balls):
-    """Issue 46, item 9: a 4,096-character path and a lone surrogate were internal errors."""
+    """A 4,096-character path and a lone surrogate were internal errors."""
     server = Server(balls, "tcp://127.0.0.1:*", None, allow_reload=balls.parent)
     try:
         for path in ("a" * 4096, "\ud800", "x/" + "b" * 300):
@@ -301,7 +301,7 @@ def test_cells_of_the_volumes(running):
 
 
 def test_a_cells_request_rasterises_nothing_in_the_loop(running, monkeypatch):
-    """Issue 46, item 5: a 27-byte ``cells`` request at level 6 held the loop 0.36-0.43 s. Every level is made when the
+    """A 27-byte ``cells`` request at level 6 held the loop 0.36-0.43 s. Every level is made when the
     atlas loads; a request joins fragments (the same cells as rasterising then)."""
     import reach.serving.cells as cells_module
 
@@ -330,7 +330,7 @@ def test_reload_hot_swaps_the_atlas_only_under_the_allowed_root(balls, cube, tmp
                 c.query("point", [0.0, 0.0, 0.0])
             with pytest.raises(ServerError, match="reload_failed"):
                 c.reload("nonexistent")
-            with pytest.raises(ServerError, match="bad_request: path: a NUL character"):  # was `internal` (issue 35)
+            with pytest.raises(ServerError, match="bad_request: path: a NUL character"):  # was `internal`
                 c.reload("a\0b")
             assert c.query("tool", [0.0, 0.0, 0.0])["ok"]  # the current atlas is kept
     finally:
@@ -396,7 +396,7 @@ def test_curve_with_an_allow_list_lets_in_listed_clients_only(balls, tmp_path):
     with pytest.raises(InputError, match="--curve-clients: .*expected a folder of client public-key files, with "
                                          "--curve-secret-key"):
         Server(balls, "tcp://127.0.0.1:*", None, curve_clients=allowed)
-    (allowed / "broken.key").write_text("not a certificate\n")  # issue 35: emptied the allow-list after "serving"
+    (allowed / "broken.key").write_text("not a certificate\n")  # emptied the allow-list after "serving"
     with pytest.raises(InputError, match=r"--curve-clients: .*broken\.key: cannot read a CURVE key file"):
         Server(balls, "tcp://127.0.0.1:*", None, curve_secret=server_secret, curve_clients=allowed)
 
@@ -421,7 +421,7 @@ def test_sigterm_stops_the_server_cleanly(balls):
 
 
 def test_a_burst_of_signals_stops_the_server_and_never_blocks_it(balls):
-    """Issue 35, item 7: the handler only sets a flag; a hundred SIGTERMs and SIGINTs in a burst (one arriving while
+    """The handler only sets a flag; a hundred SIGTERMs and SIGINTs in a burst (one arriving while
     another is handled) still end the process, with its usual message and status."""
     proc = subprocess.Popen(
         [sys.executable, "-m", "reach.tools.cli", "serve", str(balls), "--bind", "tcp://127.0.0.1:*", "--pub", "none",
@@ -442,7 +442,7 @@ def test_a_burst_of_signals_stops_the_server_and_never_blocks_it(balls):
 
 
 def test_bad_bind_addresses_get_one_line_errors_naming_the_flag(balls, running):
-    """Issue 35, finding 9: a port out of range served on another port; 'foo' and a port in use gave tracebacks."""
+    """A port out of range served on another port; 'foo' and a port in use gave tracebacks."""
     for address, message in (("tcp://127.0.0.1:99999", "PORT from 1 to 65535"), ("foo", "expected tcp://HOST:PORT"),
                              ("tcp://127.0.0.1", "expected tcp://HOST:PORT"), (running.server.endpoint, "cannot bind")):
         with pytest.raises(InputError, match=message) as info:
@@ -548,7 +548,7 @@ WORKER_PATH_ERRORS = [
     (b'{"op": "query", "id": 8, "effector": "right_hand", "goal": [0.4, -0.2, 1.1], "refine": false, "from": '
      b'{"right_elbow_flexion": -3}}', P.BAD_REQUEST,
      "from: right_elbow_flexion = -3 is outside its range"),
-    # Issue 46, item 9: a goal so far that its distance overflows was an IndexError (internal).
+    # a goal so far that its distance overflows was an IndexError (internal).
     (b'{"op": "motion", "id": 9, "effector": "right_hand", "goal": [1e300, 0, 1]}', P.UNREACHABLE,
      "too far from every stored posture"),
 ]
@@ -633,7 +633,7 @@ def test_a_deadline_answers_with_stored_postures_marked_timeout(human):
 
 @pytest.mark.slow
 def test_without_workers_a_deadline_stops_the_loop_refining(human):
-    """Issue 35, item 2: with --workers 0 a deadline was ignored (1 s answered after 5.8 s). The loop now refines
+    """With --workers 0 a deadline was ignored (1 s answered after 5.8 s). The loop now refines
     only while the deadline allows; the other goals get their stored postures, marked timeout."""
     r = Running(human, budget=0.5, workers=0)
     try:
@@ -671,7 +671,7 @@ def test_a_resend_of_a_pending_request_is_answered_once(human):
 @pytest.mark.slow
 @pytest.mark.slow
 def test_serving_means_the_workers_refine(human):
-    """Issue 49, item 2: ``reach serve`` said "serving" about 7 s before its workers could refine; the first refined
+    """``reach serve`` said "serving" about 7 s before its workers could refine; the first refined
     query came back ``timeout``. Now the line comes when every worker has loaded the atlas and refined once: a query
     sent the moment it is read is refined."""
     proc = subprocess.Popen([sys.executable, "-m", "reach.tools.cli", "serve", str(human), "--bind", "tcp://127.0.0.1:*",
@@ -970,14 +970,14 @@ def test_generated_requests_get_the_same_kind_of_reply_with_workers_and_without_
 
 @pytest.mark.slow
 def test_a_clients_queued_work_is_capped_and_refused_with_busy(human, monkeypatch):
-    """Issue 35, item 5: 100 batches of 10,000 goals with an hour's deadline held 580 MB after their client left.
+    """100 batches of 10,000 goals with an hour's deadline held 580 MB after their client left.
     Each client, and all together, hold at most so many goals queued; more is refused with `busy` and a retry
     hint, at once, and the client's next batch is taken once its first is answered."""
     monkeypatch.setattr(P, "MAX_CLIENT_GOALS", 100)
     monkeypatch.setattr(P, "MAX_QUEUED_GOALS", 150)
     r = Running(human, budget=0.5, workers=1)
     # The workers get no task until the caps are checked: with them answering, a1's goals were being released while
-    # b1 and c1 came in (its refinements a budget of work, some 20 ms a goal), and c1 was taken (CI, session 23).
+    # b1 and c1 came in (its refinements a budget of work, some 20 ms a goal), and c1 was taken (CI).
     # Held in the server's own thread, the tasks go to the pool at its next pass once released.
     held: list = []
     release = threading.Event()
@@ -1028,7 +1028,7 @@ def test_a_clients_queued_work_is_capped_and_refused_with_busy(human, monkeypatc
 
 
 def test_a_large_stored_batch_goes_to_the_workers_and_answers_as_the_loop_would(balls):
-    """Issue 35, item 4: a stored 10,000-goal batch held the loop 1.4-1.8 s. Over 1,000 stored goals go to the
+    """A stored 10,000-goal batch held the loop 1.4-1.8 s. Over 1,000 stored goals go to the
     workers in chunks (unrefined); the answers are the selector's own, in order; a small one stays in the loop."""
     goals = np.random.default_rng(2).uniform(-1.2, 1.2, (2500, 3)).round(4)
     r = Running(balls, workers=1)
@@ -1053,7 +1053,7 @@ def test_a_large_stored_batch_goes_to_the_workers_and_answers_as_the_loop_would(
 
 @pytest.mark.slow
 def test_a_stopped_worker_is_reported_stalled_and_its_request_answered_by_the_deadline(balls):
-    """Issue 46, item 6: a SIGSTOPped worker was never noticed (health read workers_ready 2). Its task passes its
+    """A SIGSTOPped worker was never noticed (health read workers_ready 2). Its task passes its
     deadline: the request is answered (stored answers need no worker here) and health counts it stalled."""
     r = Running(balls, workers=1)
     goals = np.random.default_rng(6).uniform(-1.2, 1.2, (2500, 3)).round(4).tolist()  # over 1,000: to the workers

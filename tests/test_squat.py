@@ -1,4 +1,4 @@
-"""The squat (issue 50, item 2): buttocks near the heels, knees deeply flexed, heels free to rise.
+"""The squat: buttocks near the heels, knees deeply flexed, heels free to rise.
 
 The shipped strategy (``configs/human.yaml``'s ``right_squat``) is asked for goals low in front and beside the feet,
 and every "reachable" answer is checked by our own forward kinematics (Pinocchio): the hand at its goal, each hip at or

@@ -1,4 +1,4 @@
-"""The step forward (issue 50, item 1): one foot set down in a step region, balance over the new support.
+"""The step forward: one foot set down in a step region, balance over the new support.
 
 Every "reachable" answer is checked here by our own forward kinematics (Pinocchio): the hand at its goal, the stepping
 foot flat on the floor inside its region, the stance foot where it stood, and the centre of mass inside the convex
@@ -67,7 +67,7 @@ def _check_step(oracle: CasadiIK, goal: np.ndarray, q: np.ndarray) -> None:
 
 def test_a_step_reaches_farther_ahead_than_the_planted_body_and_every_answer_holds(stepping, planted):
     """Goals straight ahead of the right shoulder at hand height: the step's farthest reached goal lies at least
-    25 cm beyond the planted whole body's (issue 50), and each step answer passes our own checks."""
+    25 cm beyond the planted whole body's (docs/history.md), and each step answer passes our own checks."""
     xs = np.arange(0.6, 1.7, 0.05)
     goals = np.column_stack([xs, np.full(len(xs), -0.15), np.full(len(xs), HAND_HEIGHT)])
     feet_planted = planted.evaluate(Goals(goals))

@@ -57,7 +57,7 @@ def test_truncated_file_is_a_clear_error(unit_sphere_tree, tmp_path):
 
 def test_a_member_that_inflates_past_the_bound_is_refused_before_it_is_inflated(unit_sphere_tree, tmp_path,
     monkeypatch):
-    """Issue 35: a 2 GiB member of zeros (megabytes on disk) was decompressed on load. The bound is read from the
+    """A 2 GiB member of zeros (megabytes on disk) was decompressed on load. The bound is read from the
     archive's directory; here it is lowered so that the test writes little."""
     import zipfile
 
@@ -74,7 +74,7 @@ def test_a_member_that_inflates_past_the_bound_is_refused_before_it_is_inflated(
 
 def test_members_a_tree_does_not_hold_are_never_inflated_and_all_are_bounded_together(unit_sphere_tree, tmp_path,
                                                                                       monkeypatch):
-    """Issue 46, item 8: a 3 MB atlas with three 1 GiB members took every command to 4.2 GB before it refused it
+    """A 3 MB atlas with three 1 GiB members took every command to 4.2 GB before it refused it
     (each member was bounded, not their sum, and unused members were inflated too). Bounds lowered here so that the
     test writes little."""
     import reach.maps.store as store
@@ -228,7 +228,7 @@ def _two_vertex_tree(reachable, residual, postures):
 
 
 def test_huge_postures_and_nan_residuals_of_reached_vertices_are_refused(tmp_path):
-    """Issue 46, item 9: postures of 1e308 and NaN residuals were accepted silently."""
+    """Postures of 1e308 and NaN residuals were accepted silently."""
     huge = _two_vertex_tree([True, False], [0.0, 0.2], [[0.1, 1e308], [0.3, 0.4]])
     with pytest.raises(StoreError, match=r"stored postures hold values up to 1e\+308"):
         load_tree(save_tree(huge, tmp_path / "huge.npz"))
@@ -238,7 +238,7 @@ def test_huge_postures_and_nan_residuals_of_reached_vertices_are_refused(tmp_pat
 
 
 def test_a_manifest_that_is_a_link_too_large_too_deep_or_lists_a_strategy_twice_is_refused(tmp_path):
-    """Issue 46, item 9: a manifest linked out of its folder, one of 300 MB, JSON nested 100,000 deep (a traceback)
+    """A manifest linked out of its folder, one of 300 MB, JSON nested 100,000 deep (a traceback)
     and duplicated strategies were read."""
     import reach.maps.atlas as atlas_module
 

@@ -1,4 +1,4 @@
-"""The upper-body torsion (issue 50, item 3): the trunk turns on the hips, the feet kept flat where they stand.
+"""The upper-body torsion: the trunk turns on the hips, the feet kept flat where they stand.
 
 The shipped strategy (``configs/human.yaml``'s ``right_torsion``) is asked for goals beside and behind the body at
 shoulder height, and every "reachable" answer is checked by our own forward kinematics (Pinocchio): the hand at its

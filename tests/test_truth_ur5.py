@@ -1,4 +1,4 @@
-"""A UR5 against exact analytic IK (issue 48, item 6): ur-analytic-ik's closed form says which points its tool
+"""A UR5 against exact analytic IK: ur-analytic-ik's closed form says which points its tool
 reaches; the oracle must find those, and every posture it finds is checked by the analytic forward kinematics."""
 
 from __future__ import annotations

@@ -363,7 +363,7 @@ def test_the_viewer_answers_only_its_own_origin(viewer):
 
 
 def test_vipers_own_port_refuses_what_the_gate_did_not_pass_on(viewer):
-    """DNS rebinding to viser's own loopback port (issue 35, item 3): the page, a WebSocket of a foreign origin and
+    """DNS rebinding to viser's own loopback port: the page, a WebSocket of a foreign origin and
     even this machine's own name for that port are refused there; only what came through the gate gets in."""
     inner = viewer.server.get_port()
     assert inner != viewer.port

@@ -159,7 +159,7 @@ def test_clients_are_served_in_turn(atlas):
 
 
 def test_workers_are_shared_by_cost_so_long_motions_never_starve_a_query(atlas):
-    """Issue 35, item 6: one client's motions (seconds each) and another's single-goal queries. A round robin of
+    """One client's motions (seconds each) and another's single-goal queries. A round robin of
     tasks alternated them, so each query waited a whole motion; by cost, the queries go before the second motion,
     and the time a task took replaces its estimate."""
     pool = Pool(zmq.Context.instance(), atlas, OPTIONS, 0)
@@ -236,7 +236,7 @@ def test_a_requests_tasks_past_their_deadline_are_dropped_unmade(atlas):
 
 
 def test_refined_chunks_follow_the_measured_cost_of_a_goal(atlas):
-    """Issue 34, item 4: a task of refined goals is sized to about TASK_SECONDS of worker time at the goals' measured
+    """A task of refined goals is sized to about TASK_SECONDS of worker time at the goals' measured
     cost (one goal while a goal is thought to cost a whole budget; more as they prove cheaper refined together), and
     an expired or failed task measures nothing."""
     pool = Pool(zmq.Context.instance(), atlas, OPTIONS, 0)

@@ -71,7 +71,7 @@ COLUMNS = (
     "handbreadth",
     "buttockdepth",
 )
-# The dimensions that set a body's reach (issue 51's list): what `reach model` prints first.
+# The dimensions that set a body's reach (a list of the survey's reach dimensions): what `reach model` prints first.
 REACH = (
     "stature",
     "acromialheight",

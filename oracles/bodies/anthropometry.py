@@ -122,7 +122,7 @@ EYE_FORWARD = 0.055
 EYE_Y = 0.018
 # de_leva bodies' grip (their one hand frame): beyond MET3 and palmar of the
 # hand's long axis, 1.40 and 0.25 hand lengths (WJC-MET3) from the wrist: a
-# pinch point more than a grip (issue 51), kept for trees built with it.
+# pinch point more than a grip (docs/history.md), kept for trees built with it.
 GRIP_ALONG = 1.40
 GRIP_PALMAR = 0.25
 # Foot points, fractions of foot length from the heel: the ankle (LMAL)
@@ -186,7 +186,8 @@ SJC_BELOW_ACROMION = 0.040  # [m]
 # Hand (wrist crease at the wrist centre): the grip centre, the axis of a rod held in the fist, lies hand length minus
 # (forearm-hand length minus forearm-centre-of-grip length) past the wrist: ANSUR II's own measures (men 62 +- 7 mm,
 # women 59 +- 7 mm, from the carried data). The pinch (thumb tip against the index finger) at 65 % of hand length
-# (Drillis & Contini 1966, as quoted in issue 51: not read in its source here); the middle fingertip at hand length.
+# (Drillis & Contini 1966, as quoted by a secondary source: not read in its source here); the middle fingertip at
+# hand length.
 PINCH_ALONG = 0.65
 # The grip and pinch palmar of the hand's long axis by a quarter of the WJC-MET3 length (modelling choice: a rod's
 # axis lies in the closed fist, in front of the metacarpals).
@@ -416,8 +417,8 @@ def _de_leva(sex: Sex, stature: float | None, percentile: float | None, mass: fl
 def legacy_body(spec: Any) -> tuple[Any, str | None]:
     """A stored body spec as this version rebuilds the body it was written with, and a note when it changed.
 
-    A human spec without ``proportions`` was written before bodies were built from ANSUR II measures (issue 51): its
-    body is the stature-scaled ``de_leva`` one, whose URDF this version still writes.
+    A human spec without ``proportions`` was written before bodies were built from ANSUR II measures
+    (docs/history.md): its body is the stature-scaled ``de_leva`` one, whose URDF this version still writes.
     """
     if not isinstance(spec, dict) or not isinstance(spec.get("human"), dict) or "proportions" in spec["human"]:
         return spec, None

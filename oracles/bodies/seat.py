@@ -84,14 +84,14 @@ SHANK_FORWARD = math.radians(10.0)  # the shank's lean forward of vertical where
 # drivers put the H-point, by percentile of a 50:50 population, against the seat height H30 (j1517_x95). At the car
 # seat's H30 (274-277 mm for the shipped bodies) the 95th-percentile line lies 853 mm behind the heel point; the
 # 95th-percentile man's hip joint (the H-point) lies on it with the knee flexed 35 deg (bench/validation.py): the angle
-# every driver is fitted with. Until session 29 it was 60 deg (a modelling choice): the drivers sat 85-105 mm closer
-# (issue 51: "drivers sit about 10 cm too close"). Only the 95th-percentile line could be read (j1517_x95), and the
+# every driver is fitted with. It was 60 deg before (a modelling choice): the drivers sat 85-105 mm closer
+# ("drivers sit about 10 cm too close"). Only the 95th-percentile line could be read (j1517_x95), and the
 # 95th percentile of a 50:50 population's seat positions is about, not exactly, the 95th-percentile man's; a shorter
 # driver is placed by the same knee angle, not by a line of her own (J4004's stature model was not readable here).
 DRIVER_KNEE = math.radians(35.0)
 # A driver whose calf would press into the cushion's front edge at DRIVER_KNEE (a short thigh on the car's 0.50 m pan:
 # two of the female boundary manikins, by 6 and 10 mm) is fitted with the knee flexed KNEE_STEP more at a time, up to
-# KNEE_MOST: a short-thighed driver sits closer (modelling choices; 60 deg was the fit until session 29).
+# KNEE_MOST: a short-thighed driver sits closer (modelling choices; 60 deg was the earlier fit).
 KNEE_STEP, KNEE_MOST = math.radians(5.0), math.radians(60.0)
 # Between the pan's front edge and the back of the knee, where a seat's depth is fitted: about
 # three fingers' breadth, the clearance wheelchair fitting guides ask for (2 in, orthopaedicprinciples.com).
@@ -112,7 +112,7 @@ def j1517_x95(h30: float) -> float:
     the ball of foot lies 203 cos(PPA) mm ahead of the heel, the pedal plane's angle PPA = 78.96 - 0.15 z' - 0.0173 z'^2
     [deg], z' = H30 [cm]. The equations as quoted by a public vehicle-packaging script (github.com/Commuter-Cars/
     CodeMonkeys, Primary_18.m, citing J1517): a secondary source; the standard itself was not read here. It gives
-    857 mm at H30 = 271 mm, the figure issue 51 quotes from another secondary source.
+    857 mm at H30 = 271 mm, the figure another secondary source gives.
     """
     z = 1000.0 * h30
     ppa = math.radians(78.96 - 0.15 * (z / 10.0) - 0.0173 * (z / 10.0) ** 2)

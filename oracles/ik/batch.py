@@ -176,7 +176,7 @@ class BatchProgram:
         for k, task in enumerate(lower):
             # Only the excess over what the task leaves free counts (the gaze's cone), as in fatrop's stages, which
             # hold it below that level: weighed whole, the gaze was pulled to the cone's centre at the posture's cost
-            # (on the whole body, 8 of 25 postures 10-80 % worse liked than fatrop's, docs/history.md session 20).
+            # (on the whole body, 8 of 25 postures 10-80 % worse liked than fatrop's, docs/history.md).
             term = task.objective(sym)
             if task.free > 0:
                 excess = term - task.free
@@ -196,7 +196,7 @@ class BatchProgram:
                              self.n, self.np) if lower else None
         # Every matrix the step factors is small (n and m below 100): OpenBLAS's threads only wait on each other, and
         # beside a second worker process on two cores they spun: eigh of 512 36 x 36 Hessians took 1.1 s, 70 ms on
-        # one thread (measured here, session 21).
+        # one thread (measured here).
         self.threads = ThreadpoolController()
 
     def with_bounds(self, lower_bound: np.ndarray, upper_bound: np.ndarray) -> BatchProgram:
@@ -412,7 +412,7 @@ class _Mapped:
 
     The function is compiled once and mapped (CasADi's serial map, a loop in C++) over ``CHUNK`` postures and over
     ``SMALL``: a refinement's one goal has K = 8 starts, and padded to 64 it paid for eight times the postures it
-    asked for (a motion's end posture spent its whole 0.25 s budget evaluating, session 21)."""
+    asked for (a motion's end posture spent its whole 0.25 s budget evaluating)."""
 
     def __init__(self, f: ca.Function, jit: bool, shapes: list[tuple[int, int]], n: int, np_: int) -> None:
         base = compiled_function(f.name(), f) if jit else f
@@ -467,7 +467,7 @@ MAX_ITER = 40  # reach iterations
 # build first)
 LOWER_STARTS = 2
 # lower-task iterations of a reaching start, each followed by a step back to the goal: 12 took 16.2 ms a warm whole-body
-# goal against 12.8 ms, for a mean preference of 4.92 against 5.08 (fatrop 5.88; session 20)
+# goal against 12.8 ms, for a mean preference of 4.92 against 5.08 (fatrop 5.88)
 LOWER_ITER = 6
 # ... of a refinement (its budget bounds them): from a stored posture a cell away, 6 left the whole body's lower tasks
 # at twice the preference fatrop's stages reach (tests/test_select.py's handover)
@@ -482,10 +482,10 @@ CONVERGED = 0.1  # share of the tolerance within which a start has reached and s
 # [m] a goal whose best start ends this near (but does not reach) is polished by the interior-point programs:
 # at the volume's boundary a Gauss-Newton step slows down where fatrop's second derivatives still find the way
 # (right whole body at D_max 4: 35.2 % of the vertices reachable polishing within 3 cm, 35.7 % within 10 cm,
-# fatrop alone 36.0 %; 34 s and 37 s of CPU against fatrop's 50 s, docs/history.md session 18).
+# fatrop alone 36.0 %; 34 s and 37 s of CPU against fatrop's 50 s, docs/history.md).
 POLISH_NEAR = 0.1
 # [m] a staged goal's random starts run when its placed ones ended this near (see oracles.ik.engine). Replaying the demo
-# build's calls (D_max 5; session 27, docs/history.md): at 0.1 / 0.15 / 0.2 m, 2.4 / 1.3 / 0.0 % fewer of the crouch's
+# build's calls (D_max 5; docs/history.md): at 0.1 / 0.15 / 0.2 m, 2.4 / 1.3 / 0.0 % fewer of the crouch's
 # goals reached than with every start together (+0.4 / +0.9 % of the whole body's), at 0.76 / 0.75 / 0.80 of the CPU.
 RANDOM_NEAR = 0.2
 WAVE_NEAR = 0.25  # [m] the random wave is for goals the K starts ended this near (farther: outside, as a rule)

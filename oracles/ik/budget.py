@@ -31,7 +31,7 @@ class Pace:
 
 
 # A refinement's budget is work, not time, so that the same request gets the same answer on any machine and load
-# (its rounds cut by the clock, 8 of 30 arm answers asked twice differed, by up to 0.1 rad; session 23). [s] what one
+# (its rounds cut by the clock, 8 of 30 arm answers asked twice differed, by up to 0.1 rad). [s] what one
 # start's round costs on the reference machine (AMD EPYC, one core; docs/results.md, "Refined queries"): a reach round
 # 155-211 us for the demo's strategies (7 to 36 coordinates), a round of the lower tasks (their step, the step back to
 # the goal, two evaluations) 1.27, 1.97, 2.26 and 2.37 ms for 7, 18, 34 and 36 coordinates; both scaled for what a

@@ -107,7 +107,7 @@ class CasadiIK(ProgramOracle):
     def _search_reference(self) -> None:
         """``reference: auto`` where projection found nothing: this engine's search for the effector where it is,
         every hard task held, from the reference and its random restarts, uncompiled (a probe, not worth a compile);
-        its posture becomes the reference when it holds the hard tasks (issue 49: a UR5's tool-down strategy kept
+        its posture becomes the reference when it holds the hard tasks (a UR5's tool-down strategy kept
         every joint at zero and warned)."""
         probe = copy.copy(self)
         probe.jit, probe._cache, probe._batch_cache, probe.stats = False, {}, {}, fresh_stats()

@@ -6,8 +6,8 @@ support polygon, the capsules, the segments the posture task lifts). With :class
 those numbers that is not 0, 1 or -1 becomes an entry of a parameter vector, so two bodies of one shape (the same
 joints, frames, capsules and tasks, the same zeros and unit entries: any two members of a population) have
 programs equal symbol for symbol, differing in that vector's value. A population then builds one program a strategy,
-compiles it once (the jit cache is keyed by the program's graph) and answers every member with it (issue 47,
-item 4). Unlifted, the numbers stay constants, as in a program made for one body.
+compiles it once (the jit cache is keyed by the program's graph) and answers every member with it. Unlifted, the
+numbers stay constants, as in a program made for one body.
 
 The entries 0, 1 and -1 stay constants (the rotations of the generated humans are all identities, and an axis or a
 zero offset kept constant keeps the expressions small), and are the body's *signature* with the arrays' names and

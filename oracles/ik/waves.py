@@ -123,7 +123,7 @@ def batch_starts(oracle: Batched, goal: np.ndarray, hint: np.ndarray | None, wav
     # A standing body's first random starts move every joint only part of the way into its range (RANDOM_SPREAD):
     # uniform hips and ankles throw the held feet metres off, which most starts do not come back from in 40
     # steps; the second wave's are uniform, for the far basins (a reach behind the back, measured in
-    # docs/history.md, session 18).
+    # docs/history.md).
     spread = RANDOM_SPREAD if oracle.strategy.floating and wave == 0 else 1.0
     count = max(k - len(placed), 0) if wave == 0 else WAVE * k
     if targeted and wave == 0:
@@ -199,7 +199,7 @@ class Waves:
         # RANDOM_NEAR of it. Most goals of a build lie outside the volume, and their random starts were most of their
         # cost; a decisive goal keeps them beside its hint, which stops them when it fails (staged too, the arm's and
         # crouch's trees lost goals). A refinement's budget, shared by fewer starts, lasts them more rounds: of 240
-        # answers in the demo's boundary cells at 20 ms, 162 refined ok against 147 (bench/misses.py, session 27).
+        # answers in the demo's boundary cells at 20 ms, 162 refined ok against 147 (bench/misses.py).
         self.staged = np.zeros(n, bool)
         self.staged[todo] = hinted[todo] & (~self.cold[todo] | search.prefer) & ~self.decisive[todo]
 
@@ -401,7 +401,7 @@ class Waves:
         return check.reachable
 
     def _count(self, spent: list[Wave]) -> None:
-        """Where the rounds went: goals reached, goals never reached (issue 48); the polishes of goals missed."""
+        """Where the rounds went: goals reached, goals never reached; the polishes of goals missed."""
         stats, reach = self.oracle.stats, self.reach
         stats["reachable"] += int(reach.sum())
         for run in spent:

@@ -11,7 +11,7 @@ aside, past the feet, with the spine side-bent and twisted to their limits).
 ``pelvis: d`` (a number [m]) keeps it over the polygon and also within ``d``
 of its reference position aside (world y: the generated human's left and
 right), so that it may go back and forth (hips pushed back in a stoop) but
-not sideways: the shipped human configs give 0.05, issue 51's bound for
+not sideways: the shipped human configs give 0.05, a bound for
 goals straight ahead (a modelling choice, not a measured one).
 """
 

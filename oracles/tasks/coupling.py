@@ -34,7 +34,7 @@ Without ``rules`` the task applies the couplings of the generated human:
   0.14 m above the floor, his fingertips about at it (the grip lies 0.13 m
   from the middle fingertip: ANSUR II's hand length less its grip offset)
   (calibrated on the model with the twist rule below, not measured on
-  people; thoracic flexion adds its own 20 deg). Until session 25 the limit
+  people; thoracic flexion adds its own 20 deg). An earlier limit
   was 90 deg, calibrated on a stoop that side-bent and twisted the spine to
   their limits (the twist rule had not been made). The knees slacken the
   hamstrings: 1 deg more per degree of knee flexion, so that at 90 deg the
@@ -47,7 +47,7 @@ Without ``rules`` the task applies the couplings of the generated human:
   their own ranges. Without it the lowest straight-legged reach took the
   lumbar side-bend to its 35 deg limit and the thoracic rotation to its
   45 deg, the pelvis 21 cm aside and the legs tilted to their ankle and hip
-  limits (a sideways "Z", issue 51): turning and bending sideways lowers the
+  limits (a sideways "Z"): turning and bending sideways lowers the
   shoulder when forward flexion is spent, which people do not do with
   straight knees; they bend the knees (the crouch). Side-bend range is not
   smaller in end-range lumbar flexion than in neutral (*Lumbar spine side

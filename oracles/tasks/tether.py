@@ -15,7 +15,7 @@ shoulder, then the sternum) to the buckle at the inboard hip, and its whole
 length stays within its reference length plus ``slack``: the chest may move
 along the belt or away from it towards the seat, not forward out of it (a
 radius about the D-ring alone let the chest slide forward and down, and the
-belted driver leaned 20 deg away from the reaching hand, issue 51). The
+belted driver leaned 20 deg away from the reaching hand). The
 string between two fixed points is the model; the webbing's friction on the
 chest and the torso's compliance under it are not modelled.
 """

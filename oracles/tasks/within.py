@@ -5,7 +5,7 @@ left out) leaves that side open. The bounds are planes, not obstacles: nothing i
 inside one, and no other part of the body is touched.
 
 Why: a driver's idle arm is free so that it hangs when the trunk leans, and the seated balance then uses it as a
-counterweight: swung out past the seat's side, up to the door (issue 51: 76-92 % of the belted and lean drivers'
+counterweight: swung out past the seat's side, up to the door (76-92 % of the belted and lean drivers'
 answers, by up to 0.17 m). A person leaves the idle hand in the lap or on the thigh. Held inside the seat's sides,
 the posture task's gravity term lays the forearm on the thigh, where the self-collision task stops it.
 """

@@ -26,7 +26,7 @@ Candidates are ranked, best first, by
    nearest stored vertex its strategy's tree does not reach (the surface is
    within half a cell of it). The middle of the tie is not preferred: on a
    robot's table it stood the base among the targets, where the trees'
-   boundary cells claim what no posture reaches (issue 36);
+   boundary cells claim what no posture reaches (docs/history.md);
 5. then the nearness to the centroid of the tied candidates.
 
 The best few are then verified: each target is asked of the selector, refined
@@ -60,7 +60,7 @@ MAX_CANDIDATES = 1_000_000  # candidates of one ranking at most
 VERIFY_BUDGET = 1.0  # [s] refinement budget per target when verifying
 MARGIN_TIES = 5000  # tied best candidates whose margin is measured at most (each a k-d tree query per target and body)
 # k-d tree queries of the margins at most (tied candidates x targets): 1,681 tied candidates x 1,000 targets held a
-# server's worker for over 1,000 s (issue 46); this many take about 0.1 s
+# server's worker for over 1,000 s (docs/history.md); this many take about 0.1 s
 MARGIN_QUERIES = 200_000
 
 

@@ -121,7 +121,7 @@ LEAST_SOLVE = 0.25
 # A refinement without `from` also starts from the best-liked of this many
 # nearest stored postures (when it is not the nearest's): the nearest can sit
 # in a worse basin of the posture task than its neighbours, and two goals 1 cm
-# apart then ended in different basins (docs/history.md, session 8).
+# apart then ended in different basins (docs/history.md).
 SEEDS = 8
 
 

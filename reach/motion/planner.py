@@ -83,7 +83,7 @@ CHECK_FRAMES = 16  # frames checked between two readings of the deadline (about 
 # work (oracles.ik.budget.Meter): a whole-body refinement's lower tasks are charged about 0.19 s, and a handover starts
 # with a quarter of the budget left; at 0.25 s none did, and the demo's reach behind the body to (-0.42, 0.25, 0.59)
 # kept a posture with nine joints at their limits (the idle arm raised overhead) and found no motion
-# (bench/motion.py, session 23).
+# (bench/motion.py).
 BUDGET = 0.4
 # [rad or m] a frame that holding moves more than this (any coordinate) leaves the path: it is routed instead
 HOLD_STEP = 0.25
@@ -287,8 +287,8 @@ class Planner:
         self.selector = selector.with_budget(budget)
         self._graphs: dict[str, tuple[cKDTree, np.ndarray, np.ndarray, csr_matrix]] = {}
         self._deadline = math.inf  # time.perf_counter() past which the plan in progress stops (see plan)
-        # Frames that broke a task and were held: by the batched hold, or one at a time (its fallback; issue 48 asks
-        # how often), since this planner was made.
+        # Frames that broke a task and were held: by the batched hold, or one at a time (its fallback: how often is
+        # a figure of bench/motion.py), since this planner was made.
         self.holds = {"batch": 0, "alone": 0}
 
     def plan(self, effector: str, goal: np.ndarray | list[float], start: dict[str, float] | None = None, *,
@@ -434,7 +434,7 @@ class Planner:
             tilt = float(2.0 * np.arccos(np.clip(dots.min(), -1.0, 1.0)))
         seconds, parts = timing.seconds(float(steps.sum()), drop, tilt, lift)
         if not math.isfinite(seconds) or seconds > MAX_DURATION:
-            # Bounded whatever the coefficients (issue 35): a motion is at most MAX_DURATION x rate frames.
+            # Bounded whatever the coefficients: a motion is at most MAX_DURATION x rate frames.
             raise InputError("timing", f"these coefficients time this motion at {seconds:.3g} s; a motion lasts at "
                                        f"most {MAX_DURATION:g} s")
         frames = max(1, int(math.ceil(seconds * rate - 1e-9)))  # the law's duration, rounded up to a whole frame
@@ -584,7 +584,7 @@ class Planner:
         """The broken frames held from the path's end backwards too (each from its successor's correction), and the
         path joined from the two holds where they come nearest, or None when that still jumps. Held from its start
         alone, a path whose every frame breaks the feet drifted from its end posture (which is not held) and jumped
-        to it: 0.16-0.44 rad in the last frames of 2 of 20 whole-body motions (bench/motion.py, session 27)."""
+        to it: 0.16-0.44 rad in the last frames of 2 of 20 whole-body motions (bench/motion.py)."""
         back = postures.copy()
         for k in reversed(broken):
             self._in_time()

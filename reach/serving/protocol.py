@@ -59,7 +59,7 @@ MAX_ACCOMMODATION_GOALS = 1000  # goals of one "accommodation"
 # (bench/tree.py) about 15 ms, the loop's share of one stored batch
 MAX_ACCOMMODATION_LOOKUPS = 200_000
 # Stored answers (no IK) a query may ask of the loop itself (0.15 ms each: 15 ms); a larger batch goes to the workers
-# (at 1,000, a batch held the loop 150 ms and another client waited up to 229 ms: issue 46).
+# (at 1,000, a batch held the loop 150 ms and another client waited up to 229 ms).
 STORED_IN_LOOP = 100
 
 MISSES = ("unreachable", "within")  # reach.answers.select.MISSES (the protocol imports nothing heavy)
@@ -447,7 +447,7 @@ OPERATIONS: dict[str, Operation] = {op.name: op for op in (
         Field("top", "int", _top, f"placements returned, 1 to {MAX_TOP} (default 10)", default=10),
     ), "where to place the body to reach the targets: placements ranked by the trees (candidates x targets at most "
        f"{MAX_PLACE_POINTS:,})",
-        # A placement's cost: 1.9-2.8 s at its limit (issue 35).
+        # A placement's cost: 1.9-2.8 s at its limit (docs/history.md).
         "op_place", worker=Service("_defer_place", "run_place", "_finish_place", "_expire_whole", cost=1.0)),
     Operation("accommodation", (
         Field("effector", "string", _string(MAX_NAME), "the effector's frame, e.g. `right_hand`", required=True),

@@ -686,7 +686,7 @@ class Server:
         given = req.args.get("deadline")  # place has none
         reply_by = time.monotonic() + (given if given is not None else wait)
         # A query's goals still unrefined at its deadline are answered from the store, one slice a pass of the loop:
-        # the workers stop early enough for that to end by the deadline (issue 46: an expired 10,000-goal batch's
+        # the workers stop early enough for that to end by the deadline (an expired 10,000-goal batch's
         # reply came 13.7 s after its 0.5 s deadline). A deadline too short for it is refused before anything is held.
         reserve = goals * STORED_RESERVE
         if given is not None and reserve > given:

@@ -38,9 +38,9 @@ READY = b"READY"
 # sockets, wakes ahead of them for a stored answer, and they still get their
 # share of a machine other processes keep busy. At Linux's idle class
 # (SCHED_IDLE), as before, two CPU-bound processes beside a one-worker server
-# left refined queries 1.0 s at the median and 2 of 16 timed out (issue 46);
+# left refined queries 1.0 s at the median and 2 of 16 timed out (docs/history.md);
 # at nice 5 they took 8 ms (max 20), all ok, and another client's stored
-# queries waited 9 ms at p99 (docs/history.md, session 24).
+# queries waited 9 ms at p99 (docs/history.md).
 NICE = 5
 EXPIRED = b"expired"
 # the back-end socket's folder in the temporary directory: reach-serve-<server pid>-<random>
@@ -54,7 +54,7 @@ TASK_SECONDS = 0.02
 MEASURED_SHARE = 0.25  # the weight of the latest task in the running estimate of a refined goal's cost
 # [s] past its task's deadline, a worker that has not answered is reported as stalled (health's workers_stalled)
 STALL_GRACE = 1.0
-STORED_COST = 1.5e-4  # [s] a stored answer's (1.4-1.8 s for 10,000 in the loop: issue 35)
+STORED_COST = 1.5e-4  # [s] a stored answer's (1.4-1.8 s for 10,000 in the loop)
 
 
 @dataclass
@@ -127,7 +127,7 @@ class Pool:
     busy: dict[bytes, Task] = field(default_factory=dict)
     # Worker seconds each client with work has had (estimated at dispatch, then as measured): the next task is
     # the queued one of the client that has had the least, so that one client's long motions cannot starve
-    # another's single query (issue 35; a round robin of tasks did, each motion taking seconds).
+    # another's single query (a round robin of tasks did, each motion taking seconds).
     served: dict[bytes, float] = field(default_factory=dict)
     # worker -> (dispatch time, estimate charged)
     started: dict[bytes, tuple[float, float]] = field(default_factory=dict)
@@ -319,7 +319,7 @@ def work(address: str, atlas: str, options: dict[str, Any], identity: bytes) -> 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C reaches the whole group; the server decides
     selector = Selector(load_atlas(atlas), **{**options, "refine": True}).warm_up()
     # One refinement per effector before READY: what a first refinement builds lazily is built before the server says
-    # it serves (issue 49: the first refined query timed out, the second took 2.3 s).
+    # it serves (the first refined query timed out, the second took 2.3 s).
     for effector in selector.effectors:
         stored = selector.atlas.maps[selector.strategies_for(effector)[0]].stored()
         if stored is not None and len(stored.ids):
@@ -337,7 +337,7 @@ def work(address: str, atlas: str, options: dict[str, Any], identity: bytes) -> 
         if time.monotonic() > job["deadline"]:
             sock.send(EXPIRED)
             continue
-        # The task's deadline, on the clock the planner and the selector read: they stop there (issue 35: a worker
+        # The task's deadline, on the clock the planner and the selector read: they stop there (a worker
         # planned on for 100 s after its request had been answered).
         deadline = time.perf_counter() + (job["deadline"] - time.monotonic())
         try:

@@ -25,7 +25,7 @@ import numpy as np
 from reach.answers.accommodation import load_members, shares
 from reach.maps.atlas import Atlas
 
-LEVELS = (0.05, 0.5, 0.95)  # the shares drawn and tabulated (issue 47's 5 / 50 / 95 %)
+LEVELS = (0.05, 0.5, 0.95)  # the shares drawn and tabulated (5 / 50 / 95 %)
 VIEW_LEVEL = 3  # the viewer's grid: 32 points an axis (about 33,000 points; dots the size of the spacing)
 
 
