@@ -239,3 +239,22 @@ def test_a_strategy_s_bad_ranges_are_named(ranges, key, message):
     with pytest.raises(ConfigError, match=message) as info:
         parse_config(_knee_config(ranges), "ranges", "ranges")
     assert info.value.key == key
+
+
+def test_box_auto_is_derived_when_first_asked_for_not_when_the_config_is_read(monkeypatch):
+    """Reading a config with ``box: auto`` solves nothing (the probe of the reach extent is IK): ``reach evaluate
+    --direct`` never draws in the box. The box is derived on first use, once, and a grown box keeps its limit."""
+    from reach.build import config as module
+
+    calls = []
+    derive = module._derive_box
+    monkeypatch.setattr(module, "_derive_box", lambda *a, **k: calls.append(1) or derive(*a, **k))
+    raw = {"name": "arm", "body": {"urdf": str(ROOT / "configs" / "urdf" / "ur5.urdf")}, "box": "auto",
+           "depth": {"min": 1, "max": 2},
+           "strategies": [{"name": "flange", "effector": "ee_link", "joints": ["*_joint"], "tasks": [{"type": "reach"}]}]}
+    config = module.parse_config(raw)
+    assert calls == [] and config.given_box is None
+    box, limit = config.box, config.limit
+    assert calls == [1] and config.box is box and np.all(limit.lo <= box.lo) and np.all(box.hi <= limit.hi)
+    grown = config.with_box(module.Box(box.lo - 0.01, box.hi))
+    assert grown.limit == limit and np.allclose(grown.box.lo, box.lo - 0.01) and calls == [1]

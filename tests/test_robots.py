@@ -219,8 +219,6 @@ def test_reach_model_takes_a_urdfs_placement_and_prints_frames_and_warnings(caps
 def test_a_box_that_cuts_the_volume_grows_within_its_limit(tmp_path):
     """box: auto's B0 grows on the faces reachable vertices lie on, up to the provable bound, and the atlas is built
     again."""
-    import dataclasses
-
     from reach.build.atlas import build_atlas
     from reach.build.config import grown
     from reach.maps.box import Box
@@ -233,7 +231,7 @@ def test_a_box_that_cuts_the_volume_grows_within_its_limit(tmp_path):
     assert grown(small, config.box, {"x-"}) == Box(np.array([-1.05, -1.2, -1.2]), np.array([1.2, 1.2, 1.2]))
     assert grown(config.box, config.box, {"x-", "z+"}) is None  # at the limit: nothing can move
     lines: list[str] = []
-    atlas = build_atlas(dataclasses.replace(config, box=small, limit=config.box), tmp_path / "a", log=lines.append)
+    atlas = build_atlas(config.with_box(small, limit=config.box), tmp_path / "a", log=lines.append)
     tree = atlas.tree("ball")
     assert tree.box.lo[0] == pytest.approx(-1.05) and tree.faces() == {}
     assert any("B0 grows to min [-1.05, -1.2, -1.2]" in line for line in lines)

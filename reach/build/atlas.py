@@ -172,7 +172,7 @@ def build_atlas(
             say(f"box: auto: reachable vertices lie on {', '.join(sorted(cut))}; B0 grows to min {box.lo.tolist()} "
                 f"max {box.hi.tolist()} [m], "
                 "and every strategy is built again")
-            config = dataclasses.replace(config, box=box)
+            config = config.with_box(box)
             atlas = _build_locked(config, out, executor_factory, progress, say, resume, mirror, inherit)
         return atlas
 

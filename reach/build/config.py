@@ -30,7 +30,8 @@ Every error names the file and the dotted key, and says what was expected.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -81,11 +82,15 @@ class StrategySpec:
 
 @dataclass(frozen=True)
 class Config:
-    """A validated build configuration."""
+    """A validated build configuration.
+
+    With ``box: auto`` the box (B0) and its ``limit`` are derived from the strategies' oracles (their reach bounds and
+    probed extents: IK solves) when first asked for, by a build or a command that draws in the box; reading a config
+    solves nothing (``reach evaluate --direct`` never needs it)."""
 
     name: str
     source: str
-    box: Box
+    given_box: Box | None  # the config's box: min/max, or None for box: auto (see `box`)
     d_min: int
     d_max: int
     strategies: tuple[StrategySpec, ...]
@@ -94,11 +99,37 @@ class Config:
     raw: dict[str, Any] = field(default_factory=dict, compare=False)
     # load-time warnings (see Diagnosed), each naming its strategies
     notes: tuple[str, ...] = field(default=(), compare=False)
-    limit: Box | None = None  # box: auto: the provable bound B0 may grow to when reachable vertices lie on its faces
+    auto: dict[str, Any] | None = None  # box: auto's options (margin, floor), or None for a given box
     # ``population:`` (oracles.bodies.population): the config's strategies for each of its members; the config
     # itself is its first member's (reach.build.population)
     population: Population | None = None
     twins: bool = True  # build.twins: a volume's quarter-turn twins share one solve (reach.build.twins)
+
+    @cached_property
+    def _derived(self) -> tuple[Box, Box | None]:
+        if self.given_box is not None:
+            return self.given_box, None
+        assert self.auto is not None
+        oracles = [s.oracle.create() for s in self.strategies]
+        return _derive_box(_Checker(self.source), oracles, self.auto, any(s.mirror_of for s in self.strategies))
+
+    @property
+    def box(self) -> Box:
+        """B0 [m]: the given box, or box: auto's (derived on first use)."""
+        return self._derived[0]
+
+    @property
+    def limit(self) -> Box | None:
+        """box: auto: the provable bound B0 may grow to when reachable vertices lie on its faces; None for a given
+        box."""
+        return self._derived[1]
+
+    def with_box(self, box: Box, limit: Box | None = None) -> Config:
+        """This config with B0 set, and the bound it may grow to (default: its own; a grown box: auto keeps it)."""
+        limit = self.limit if limit is None else limit
+        out = replace(self, given_box=box)
+        out.__dict__["_derived"] = (box, limit)  # (a cached_property's slot: a frozen dataclass's own __dict__)
+        return out
 
     def strategy(self, name: str) -> StrategySpec:
         for s in self.strategies:
@@ -185,8 +216,7 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
         except TreeError as exc:
             raise check.fail("box", str(exc)) from exc
     else:
-        box = Box(-np.ones(3), np.ones(3))  # a stand-in until the oracles give the real one
-    limit = None
+        box = Box(-np.ones(3), np.ones(3))  # a stand-in for the checks below; the real one is derived on first use
     depth = check.mapping(top["depth"], "depth", {"min", "max"}, {"min", "max"})
     d_max = check.integer(depth["max"], "depth.max", 0, MAX_DEPTH)
     d_min = check.integer(depth["min"], "depth.min", 0, MAX_DEPTH)
@@ -254,18 +284,21 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
                              "approach axis whose directions it counts), e.g. {type: orientation, axis: z}")
     notes = _diagnose(strategies, oracles)
     if auto is not None:
-        box, limit = _derive_box(check, oracles, auto, any(spec.mirror_of for spec in strategies))
+        for o in oracles:  # the bound that box: auto sizes B0 within, checked now (it costs no solve)
+            if not isinstance(o, ReachBound) or o.reach_bound() is None:
+                raise check.fail("box", "box: auto needs body strategies whose reach is bounded (a fixed root, or "
+                                        "feet on the floor); give box.min and box.max")
     names = {spec.name for spec in strategies}
     for i, spec in enumerate(strategies):
         if spec.mirror_of is not None and (spec.mirror_of not in names or spec.mirror_of == spec.name):
             raise check.fail(f"strategies[{i}].mirror_of", "expected the name of another strategy, got "
                                                            f"{spec.mirror_of!r}")
-        if spec.mirror_of is not None and box.dim == 3 and box.lo[1] != -box.hi[1]:
+        if spec.mirror_of is not None and auto is None and box.dim == 3 and box.lo[1] != -box.hi[1]:
             raise check.fail(f"strategies[{i}].mirror_of", "mirroring needs a box symmetric about y = 0, got y in "
                                                            f"[{box.lo[1]}, {box.hi[1]}]")
     strategies.sort(key=lambda spec: spec.priority)
-    return Config(name, source, box, d_min, d_max, tuple(strategies), chunk, refine, dict(top), notes, limit,
-                  population, twins)
+    return Config(name, source, box if auto is None else None, d_min, d_max, tuple(strategies), chunk, refine,
+                  dict(top), notes, auto, population, twins)
 
 
 def _population(check: _Checker, top: dict[str, Any]) -> tuple[Population, dict[str, Any]]:
