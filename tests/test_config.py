@@ -251,7 +251,8 @@ def test_box_auto_is_derived_when_first_asked_for_not_when_the_config_is_read(mo
     monkeypatch.setattr(module, "_derive_box", lambda *a, **k: calls.append(1) or derive(*a, **k))
     raw = {"name": "arm", "body": {"urdf": str(ROOT / "configs" / "urdf" / "ur5.urdf")}, "box": "auto",
            "depth": {"min": 1, "max": 2},
-           "strategies": [{"name": "flange", "effector": "ee_link", "joints": ["*_joint"], "tasks": [{"type": "reach"}]}]}
+           "strategies": [{"name": "flange", "effector": "ee_link", "joints": ["*_joint"],
+                           "tasks": [{"type": "reach"}]}]}
     config = module.parse_config(raw)
     assert calls == [] and config.given_box is None
     box, limit = config.box, config.limit
