@@ -39,8 +39,8 @@ import zmq
 sys.path.insert(0, str(Path(__file__).parent))
 import server as base  # noqa: E402  (bench/server.py: the atlas, the server process, the victim)
 
-from reach.build.atlas import build_atlas  # noqa: E402
-from reach.build.config import parse_config  # noqa: E402
+from reach.building.atlas import build_atlas  # noqa: E402
+from reach.building.config import parse_config  # noqa: E402
 
 GOALS = np.random.default_rng(46).uniform([0.1, -0.6, 0.9], [0.6, 0.0, 1.6], (10_000, 3)).round(4).tolist()
 HOG = "import time\nend = time.time() + 120\nwhile time.time() < end: pass\n"

@@ -18,10 +18,10 @@ import tempfile
 from pathlib import Path
 
 from reach.answers.audit import audit
-from reach.build.atlas import build_atlas
-from reach.build.config import parse_config, read_yaml
-from reach.build.executor import ProcessExecutor
-from reach.build.tree import Refine
+from reach.building.atlas import build_atlas
+from reach.building.config import parse_config, read_yaml
+from reach.building.executor import ProcessExecutor
+from reach.building.tree import Refine
 
 ROOT = Path(__file__).resolve().parents[1]
 OPTIONS = {

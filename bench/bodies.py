@@ -41,8 +41,8 @@ def main() -> None:
     parser.add_argument("--config", default="configs/demo.yaml")
     args = parser.parse_args()
     from reach.answers.select import Selector
-    from reach.build.atlas import build_atlas
-    from reach.build.config import load_config
+    from reach.building.atlas import build_atlas
+    from reach.building.config import load_config
     from reach.maps.atlas import load_atlas
 
     patch, calls = counting()

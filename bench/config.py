@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from reach.build.config import load_config
+from reach.building.config import load_config
 
 ROOT = Path(__file__).resolve().parents[1]
 

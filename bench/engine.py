@@ -41,9 +41,9 @@ import numpy as np
 import pinocchio as pin
 
 from oracles.protocol import Goals, OracleSpec
-from reach.build.atlas import build_atlas
-from reach.build.config import load_config, parse_config, read_yaml
-from reach.build.executor import InlineExecutor, ProcessExecutor
+from reach.building.atlas import build_atlas
+from reach.building.config import load_config, parse_config, read_yaml
+from reach.building.executor import InlineExecutor, ProcessExecutor
 
 ROOT = Path(__file__).resolve().parents[1]
 ENGINES = ("batch", "fatrop")
@@ -140,9 +140,9 @@ BUILD = """
 import json, resource, sys, tempfile, time
 sys.path.insert(0, ".")
 from pathlib import Path
-from reach.build.atlas import build_atlas
-from reach.build.config import load_config
-from reach.build.executor import ProcessExecutor
+from reach.building.atlas import build_atlas
+from reach.building.config import load_config
+from reach.building.executor import ProcessExecutor
 from reach.maps.tree import FINAL, INNER
 config = load_config(Path(sys.argv[1]))
 workers = int(sys.argv[2])

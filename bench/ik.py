@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from oracles.protocol import Goals, OracleSpec
-from reach.build.config import load_config
+from reach.building.config import load_config
 
 ROOT = Path(__file__).resolve().parents[1]
 # Engines by label: registry name and parameters over the strategy's own.

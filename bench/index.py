@@ -29,7 +29,7 @@ import platform
 import numpy as np
 
 from oracles.protocol import Goals, OracleSpec
-from reach.build.executor import ProcessExecutor
+from reach.building.executor import ProcessExecutor
 from reach.maps.atlas import load_atlas
 from reach.maps.index import spiral
 

@@ -31,7 +31,7 @@ sys.path.insert(0, str(ROOT))
 
 from reach.answers.accommodation import direct, from_atlases  # noqa: E402
 from reach.answers.evaluate import Target, load_targets  # noqa: E402
-from reach.build.config import parse_config, read_yaml  # noqa: E402
+from reach.building.config import parse_config, read_yaml  # noqa: E402
 
 TARGETS = ROOT / "configs" / "targets" / "workstation_right.csv"
 # [m] world frame (x ahead, y left, z up, the feet at the origin): ahead and to the right of a standing body, floor
@@ -81,14 +81,14 @@ def main() -> None:
              refuted_by_check=result["refuted_by_check"],
              shares={t["target"]: [t["share"], t["low"], t["high"]] for t in result["targets"]})
     if args.folder:
-        from reach.build.population import read_manifest
+        from reach.building.population import read_manifest
 
         n = len(read_manifest(args.folder)["members"])
         agreement(from_atlases(args.folder, targets), direct(config_of(n), targets, workers=args.workers))
     elif args.build:
-        from reach.build.atlas import build_atlas
-        from reach.build.executor import ProcessExecutor
-        from reach.build.population import build_population
+        from reach.building.atlas import build_atlas
+        from reach.building.executor import ProcessExecutor
+        from reach.building.population import build_population
 
         config = config_of(args.build)
         with tempfile.TemporaryDirectory() as tmp:

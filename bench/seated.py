@@ -52,7 +52,7 @@ DRIVER = Path(__file__).resolve().parents[1] / "configs" / "examples" / "driver.
 def driver_oracle(name: str, body: dict, search: Search) -> CasadiIK:
     """The driver example's own strategy (its belt, door and idle-arm bound) on another body, compiled programs off."""
     from oracles.protocol import OracleSpec
-    from reach.build.config import load_config
+    from reach.building.config import load_config
 
     spec = next(s for s in load_config(DRIVER).strategies if s.name == name).oracle
     params = {**spec.params, "body": body, "jit": False, "restarts": search.restarts, "seed": search.seed}

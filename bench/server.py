@@ -41,8 +41,8 @@ from typing import Any
 import numpy as np
 import zmq
 
-from reach.build.atlas import build_atlas
-from reach.build.config import parse_config
+from reach.building.atlas import build_atlas
+from reach.building.config import parse_config
 
 ARM = ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"]
 CONFIG = {

@@ -17,7 +17,7 @@ import time
 import numpy as np
 
 from oracles.shapes import sphere
-from reach.build.tree import build_tree
+from reach.building.tree import build_tree
 from reach.maps.box import Box
 from reach.maps.tree import FINAL
 

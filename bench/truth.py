@@ -57,7 +57,7 @@ from truth_suite import (  # noqa: E402
 from oracles.bodies import ansur  # noqa: E402
 from oracles.protocol import Goals, OracleSpec  # noqa: E402
 from reach.answers.evaluate import load_targets  # noqa: E402
-from reach.build.config import load_config  # noqa: E402
+from reach.building.config import load_config  # noqa: E402
 
 NEAR = 0.12  # [m] a reachable goal this near an unreachable candidate lies at the boundary
 CLOSE = 0.05  # [m] an unreachable goal whose referee's best posture ends this near lies at the boundary

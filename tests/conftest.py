@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from oracles.protocol import Goals, OracleSpec, Verdicts
-from reach.build.tree import build_tree
+from reach.building.tree import build_tree
 from reach.maps.box import Box
 from reach.maps.tree import VATree
 
@@ -46,8 +46,8 @@ def unit_sphere_tree() -> VATree:
 def nested_balls(tmp_path_factory):
     """An atlas folder of two balls about the origin for the effector "point": ``near`` (0.4 m, priority 1) inside
     ``far`` (0.9 m, priority 2), D_max 5 (the selector's and the server's tests)."""
-    from reach.build.atlas import build_atlas
-    from reach.build.config import parse_config
+    from reach.building.atlas import build_atlas
+    from reach.building.config import parse_config
 
     out = tmp_path_factory.mktemp("balls") / "balls"
     build_atlas(parse_config({

@@ -14,8 +14,8 @@ import pytest
 import yaml
 from helpers import ARM, LEFT_ARM, human_config, same_tree
 
-from reach.build.atlas import build_atlas
-from reach.build.config import load_config, parse_config
+from reach.building.atlas import build_atlas
+from reach.building.config import load_config, parse_config
 from reach.maps.atlas import load_atlas
 
 pytestmark = pytest.mark.slow  # builds human atlases, kills and resumes a build
@@ -134,8 +134,8 @@ def test_asymmetric_body_is_built_not_mirrored(tmp_path):
 
 def test_mirror_oracle_refuses_a_lopsided_box_and_unknown_vertices():
     from oracles.protocol import OracleSpec
-    from reach.build.mirror import MirrorOracle
-    from reach.build.tree import build_tree
+    from reach.building.mirror import MirrorOracle
+    from reach.building.tree import build_tree
     from reach.errors import OracleError
     from reach.maps.box import Box
 
@@ -181,7 +181,7 @@ def test_a_killed_build_leaves_no_worker_behind(tmp_path, sig, group):
 
 
 def test_sub_strategies_of_the_demo_atlas():
-    from reach.build.atlas import sub_strategies
+    from reach.building.atlas import sub_strategies
 
     config = load_config(Path(__file__).parent.parent / "configs" / "demo.yaml")
     order = sorted(config.strategies, key=lambda s: s.mirror_of is not None)
@@ -195,7 +195,7 @@ def test_sub_strategies_of_the_demo_atlas():
 def test_strategies_with_their_own_joint_ranges_inherit_on_the_same_body():
     """The torsion and the squat change joint ranges, not the body: they inherit, and are inherited from (each
     inherited posture is checked against the inheritor's own ranges by its verdict)."""
-    from reach.build.atlas import sub_strategies
+    from reach.building.atlas import sub_strategies
 
     config = load_config(Path(__file__).parent.parent / "configs" / "human.yaml")
     order = sorted(config.strategies, key=lambda s: s.mirror_of is not None)

@@ -10,9 +10,9 @@ import pytest
 
 from oracles.protocol import Goals, OracleSpec
 from reach.answers.audit import audit_tree, referee, wilson
-from reach.build.atlas import build_atlas
-from reach.build.config import parse_config
-from reach.build.tree import Refine, build_tree
+from reach.building.atlas import build_atlas
+from reach.building.config import parse_config
+from reach.building.tree import Refine, build_tree
 from reach.maps.atlas import load_atlas
 from reach.maps.box import Box
 from reach.maps.store import save_tree

@@ -11,7 +11,7 @@ from oracles.ik.batch import CHUNK
 from oracles.ik.engine import CasadiIK
 from oracles.ik.search import Search
 from oracles.protocol import Goals, OracleSpec, Verdicts
-from reach.build.config import load_config
+from reach.building.config import load_config
 from reach.errors import OracleError
 from tests.test_collision import coal_capsule_distance
 from tests.test_ik import ARM, HUMAN, PLANTED, WHOLE, _assert_reachable_verdicts_hold

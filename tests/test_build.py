@@ -1,4 +1,4 @@
-"""Algorithm 1 (reach.build.tree): the paper's worked example, one oracle call per vertex, warm starts, refinements,
+"""Algorithm 1 (reach.building.tree): the paper's worked example, one oracle call per vertex, warm starts, refinements,
 determinism."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from helpers import TwoLinkArm, same_tree
 
 from oracles.protocol import OracleSpec
 from oracles.shapes import circle, sphere
-from reach.build.tree import build_tree, warm_hints
+from reach.building.tree import build_tree, warm_hints
 from reach.errors import TreeError
 from reach.maps.box import Box
 from reach.maps.tree import FINAL, INNER, OUTER, Lattice
@@ -123,11 +123,11 @@ def test_d_min_levels_are_all_parents(d_min):
 
 
 def test_meets_errs_towards_meeting_and_agrees_with_coal():
-    """reach.build.tree.meets against coal's capsule-box distance: every box coal finds meeting is flagged, no box
+    """reach.building.tree.meets against coal's capsule-box distance: every box coal finds meeting is flagged, no box
     farther than the sampling slack is."""
     import coal
 
-    from reach.build.tree import meets
+    from reach.building.tree import meets
 
     rng = np.random.default_rng(3)
     a, b, r = np.array([0.1, -0.2, 0.3]), np.array([0.5, 0.3, 0.6]), 0.08
@@ -151,7 +151,7 @@ def test_meets_errs_towards_meeting_and_agrees_with_coal():
 def test_no_inner_cell_meets_a_keep_out_capsule():
     """A ball with a keep-out capsule through it (as the trunk for an arm): the cells the corners alone would
     paint inner over the capsule are split down to D_max and left final."""
-    from reach.build.tree import meets
+    from reach.building.tree import meets
 
     capsule = np.array([[-0.2, 0.0, -0.3, 0.2, 0.0, 0.3, 0.1]])
     plain = build_tree(sphere(radius=0.9), CUBE, 2, 5)
@@ -173,7 +173,7 @@ def test_no_inner_cell_meets_a_keep_out_capsule():
 
 
 def test_a_build_inherits_only_the_verified_reachable_vertices_of_a_sub_strategy():
-    from reach.build.tree import Inherited
+    from reach.building.tree import Inherited
     from reach.maps.tree import VertexTable
 
     arm = TwoLinkArm(shoulder=(0.0, 0.0, 0.0))

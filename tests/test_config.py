@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import yaml
 
-from reach.build.config import load_config, parse_config
+from reach.building.config import load_config, parse_config
 from reach.errors import ConfigError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -183,7 +183,7 @@ def test_a_tab_gives_one_line_naming_the_place(tmp_path):
 
 def test_a_bodys_oracle_defaults_to_casadi_ik():
     """A URDF config without `oracle:` was refused ("required key is missing")."""
-    from reach.build.config import read_yaml
+    from reach.building.config import read_yaml
 
     path = Path(__file__).resolve().parents[1] / "configs" / "examples" / "arm7_table.yaml"
     data = read_yaml(path)
@@ -244,7 +244,7 @@ def test_a_strategy_s_bad_ranges_are_named(ranges, key, message):
 def test_box_auto_is_derived_when_first_asked_for_not_when_the_config_is_read(monkeypatch):
     """Reading a config with ``box: auto`` solves nothing (the probe of the reach extent is IK): ``reach evaluate
     --direct`` never draws in the box. The box is derived on first use, once, and a grown box keeps its limit."""
-    from reach.build import config as module
+    from reach.building import config as module
 
     calls = []
     derive = module._derive_box

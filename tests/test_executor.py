@@ -1,4 +1,4 @@
-"""Executors (reach.build.executor): every executor gives the same verdicts, chunks cover batches, malformed verdicts
+"""Executors (reach.building.executor): every executor gives the same verdicts, chunks cover batches, malformed verdicts
 are refused."""
 
 from __future__ import annotations
@@ -9,9 +9,9 @@ from helpers import human_config, same_tree
 
 from oracles.protocol import Goals, OracleSpec, Verdicts
 from oracles.shapes import sphere
-from reach.build.atlas import build_atlas
-from reach.build.config import parse_config
-from reach.build.executor import DaskExecutor, InlineExecutor, ProcessExecutor, chunks
+from reach.building.atlas import build_atlas
+from reach.building.config import parse_config
+from reach.building.executor import DaskExecutor, InlineExecutor, ProcessExecutor, chunks
 from reach.errors import OracleError
 
 

@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from oracles.ik.search import Search
-from reach.build.atlas import build_atlas
-from reach.build.config import load_config, parse_config, read_yaml
-from reach.build.executor import ProcessExecutor
+from reach.building.atlas import build_atlas
+from reach.building.config import load_config, parse_config, read_yaml
+from reach.building.executor import ProcessExecutor
 from reach.maps.tree import FINAL, INNER
 from reach.tools.report import extents
 

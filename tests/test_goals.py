@@ -18,7 +18,7 @@ from helpers import ARM, HUMAN
 from oracles.ik.engine import CasadiIK
 from oracles.protocol import Goals
 from oracles.tasks import TASKS, Constraint, HardTask, Numeric, Reference, Row, Scope, Symbolic
-from reach.build.executor import InlineExecutor
+from reach.building.executor import InlineExecutor
 from reach.errors import OracleError
 
 ELBOW = "right_elbow_flexion"

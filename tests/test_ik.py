@@ -15,7 +15,7 @@ from oracles.ik.dls import DLSIK
 from oracles.ik.engine import Call, CasadiIK
 from oracles.ik.search import Search
 from oracles.protocol import Goals, OracleSpec
-from reach.build.config import load_config
+from reach.building.config import load_config
 from reach.errors import ModelError, OracleError
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -15,8 +15,8 @@ from oracles.bodies.body import human_body
 from oracles.protocol import OracleSpec
 from reach.answers.answer import REFINED
 from reach.answers.select import Selector
-from reach.build.atlas import build_atlas
-from reach.build.config import parse_config
+from reach.building.atlas import build_atlas
+from reach.building.config import parse_config
 from reach.maps.atlas import Atlas
 from reach.maps.box import Box
 from reach.maps.index import IndexedTree, ReachIndex

@@ -14,8 +14,8 @@ from helpers import ARM, Y_UP, bvh_chain, bvh_end, human_config, quat_matrix
 from oracles.bodies.body import human_body
 from reach.answers.answer import posture_vector
 from reach.answers.select import Selector
-from reach.build.atlas import build_atlas
-from reach.build.config import parse_config
+from reach.building.atlas import build_atlas
+from reach.building.config import parse_config
 from reach.errors import InputError
 from reach.motion.planner import INCH, TMU, MotionError, Planner, Timing, minimum_jerk
 from reach.motion.rig import Rig

@@ -20,9 +20,9 @@ from oracles.protocol import Goals, OracleSpec, Oriented, body_params
 from oracles.tasks import Symbolic
 from reach.answers.answer import orientation_of
 from reach.answers.select import Selector
-from reach.build.atlas import build_atlas
-from reach.build.config import parse_config
-from reach.build.index import vertex_levels
+from reach.building.atlas import build_atlas
+from reach.building.config import parse_config
+from reach.building.index import vertex_levels
 from reach.errors import ConfigError, InputError, ProtocolError, StoreError
 from reach.maps.atlas import load_atlas
 from reach.maps.index import ReachIndex, spiral
@@ -188,7 +188,7 @@ def arm_atlas(tmp_path_factory):
         ],
     }
     (folder / "arm.yaml").write_text(yaml.safe_dump(config))
-    from reach.build.config import load_config
+    from reach.building.config import load_config
 
     build_atlas(load_config(folder / "arm.yaml"), folder / "atlas")
     return folder
@@ -416,7 +416,7 @@ def arm7_table(tmp_path_factory):
     data["strategies"] = [{k: v for k, v in data["strategies"][0].items() if k != "directions"}]
     folder = tmp_path_factory.mktemp("arm7_table")
     (folder / "arm7_table.yaml").write_text(yaml.safe_dump(data))
-    from reach.build.config import load_config
+    from reach.building.config import load_config
 
     build_atlas(load_config(folder / "arm7_table.yaml"), folder / "atlas")
     return load_atlas(folder / "atlas")

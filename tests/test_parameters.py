@@ -128,7 +128,7 @@ def test_unlifted_numbers_are_constants_and_the_signature_ignores_lifted_values(
 def test_seated_drivers_share_their_belted_program():
     """The belt's length, the seat's boxes and the seated contacts are the body's too: a 5th-percentile woman's
     belted program, given a 95th-percentile man's numbers (each in a car seat fitted to them), is his own."""
-    from reach.build.config import load_config
+    from reach.building.config import load_config
 
     config = load_config(Path(__file__).resolve().parents[1] / "configs" / "examples" / "driver.yaml")
     belted = next(s for s in config.strategies if s.name == "belted")

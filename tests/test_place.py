@@ -10,8 +10,8 @@ import pytest
 
 from reach.answers.evaluate import Target
 from reach.answers.place import Space, rank, to_body, verify
-from reach.build.atlas import build_atlas
-from reach.build.config import parse_config
+from reach.building.atlas import build_atlas
+from reach.building.config import parse_config
 from reach.errors import InputError
 from reach.maps.atlas import load_atlas
 from reach.tools.cli import main

@@ -19,8 +19,8 @@ from oracles.errors import ModelError
 from oracles.protocol import Goals, OracleSpec
 from reach.answers.accommodation import direct, weighted_share, wilson
 from reach.answers.evaluate import Target
-from reach.build.config import parse_config
-from reach.build.population import entries
+from reach.building.config import parse_config
+from reach.building.population import entries
 from reach.errors import ConfigError
 from reach.tools.cli import main
 
@@ -388,7 +388,7 @@ def test_a_strategy_with_more_freedom_reaches_what_its_sub_strategy_reaches_dire
     from the posture the ones before it found, where its cold search missed: the whole body then reaches every target
     the upper body does, each posture passing the check by Pinocchio."""
     from reach.answers.accommodation import _member
-    from reach.build.config import load_config
+    from reach.building.config import load_config
 
     config = load_config(Path(__file__).resolve().parents[1] / "configs" / "demo.yaml")
     body = {"human": {"ansur": {"sex": "male", "subject": 27150}}}

@@ -33,8 +33,8 @@ from oracles.protocol import (
 from reach.answers.answer import REFINED
 from reach.answers.audit import audit
 from reach.answers.select import Selector
-from reach.build.atlas import build_atlas
-from reach.build.config import parse_config
+from reach.building.atlas import build_atlas
+from reach.building.config import parse_config
 from reach.errors import OracleError
 from reach.maps.tree import INNER
 from reach.serving.client import Client

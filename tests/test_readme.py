@@ -15,8 +15,8 @@ from pathlib import Path
 import pytest
 from helpers import ARM, human_config
 
-from reach.build.atlas import build_atlas
-from reach.build.config import parse_config
+from reach.building.atlas import build_atlas
+from reach.building.config import parse_config
 from reach.tools.cli import main, make_parser
 
 ROOT = Path(__file__).resolve().parents[1]

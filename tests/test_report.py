@@ -10,8 +10,8 @@ import pytest
 import trimesh
 
 from reach.answers.evaluate import evaluate, load_targets
-from reach.build.atlas import build_atlas
-from reach.build.config import load_config, parse_config
+from reach.building.atlas import build_atlas
+from reach.building.config import load_config, parse_config
 from reach.errors import ConfigError
 from reach.tools.cli import main
 from reach.tools.export import mesh

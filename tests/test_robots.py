@@ -15,7 +15,7 @@ import yaml
 from oracles.bodies.body import load_body
 from oracles.errors import ModelError
 from oracles.protocol import OracleSpec, body_params
-from reach.build.config import load_config, parse_config
+from reach.building.config import load_config, parse_config
 from reach.errors import ConfigError, InputError
 from reach.tools.cli import main
 
@@ -219,8 +219,8 @@ def test_reach_model_takes_a_urdfs_placement_and_prints_frames_and_warnings(caps
 def test_a_box_that_cuts_the_volume_grows_within_its_limit(tmp_path):
     """box: auto's B0 grows on the faces reachable vertices lie on, up to the provable bound, and the atlas is built
     again."""
-    from reach.build.atlas import build_atlas
-    from reach.build.config import grown
+    from reach.building.atlas import build_atlas
+    from reach.building.config import grown
     from reach.maps.box import Box
 
     raw = {"box": {"min": [-1.2, -1.2, -1.2], "max": [1.2, 1.2, 1.2]}, "depth": {"min": 1, "max": 3},
@@ -270,7 +270,7 @@ def test_a_continuous_joint_is_one_angle_in_answers_motions_configs_and_reach_mo
     own forward kinematics read as two joints. It is one angle in (-pi, pi] under the joint's own name, in answers,
     motion frames and a query's ``from``; ``reach model`` shows it as continuous."""
     from reach.answers.select import Selector
-    from reach.build.atlas import build_atlas
+    from reach.building.atlas import build_atlas
     from reach.motion.planner import Planner
 
     urdf = Path(__file__).parent / "data" / "turntable.urdf"
@@ -374,7 +374,7 @@ def test_a_turning_base_on_a_square_floor_solves_one_of_each_four_twins_and_they
     onto itself. One vertex of each set of twins is solved and the others take its verdict, their postures turned:
     every twin pair agrees, each reachable posture puts the flange at its vertex by Pinocchio (computed here), and the
     oracle is asked about far fewer vertices than the tree holds. A floor box off centre turns nothing."""
-    from reach.build.atlas import build_atlas
+    from reach.building.atlas import build_atlas
 
     floor = {"name": "floor", "min": [-2, -2, -0.3], "max": [2, 2, -0.02]}
     atlas = build_atlas(parse_config(_ur5_twins_config([floor]), str(tmp_path / "t.yaml")), tmp_path / "a")
@@ -404,7 +404,7 @@ def test_a_turning_base_on_a_square_floor_solves_one_of_each_four_twins_and_they
 
 
 def test_build_twins_false_solves_every_vertex_and_a_wrong_value_names_the_key(tmp_path):
-    from reach.build.atlas import build_atlas
+    from reach.building.atlas import build_atlas
 
     floor = {"name": "floor", "min": [-2, -2, -0.3], "max": [2, 2, -0.02]}
     config = parse_config(_ur5_twins_config([floor], twins=False), str(tmp_path / "t.yaml"))

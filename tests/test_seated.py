@@ -263,8 +263,8 @@ def test_the_tether_row_and_its_casadi_constraint_agree_with_pinocchio_and_finit
 @pytest.fixture(scope="module")
 def seated_atlas(tmp_path_factory):
     """A coarse arm-only atlas of a seated 50th-percentile man at an office chair, right hand."""
-    from reach.build.atlas import build_atlas
-    from reach.build.config import parse_config
+    from reach.building.atlas import build_atlas
+    from reach.building.config import parse_config
 
     out = tmp_path_factory.mktemp("seated") / "atlas"
     config = {"body": seated(), "box": {"min": [-0.4, -1.0, 0.2], "max": [1.2, 0.6, 1.8]},
@@ -365,8 +365,8 @@ def test_the_seated_arm_tree_is_the_standing_arm_tree_moved_with_the_shoulder(tm
     """Trees (D_max 4, reach and the arm's coupling only): every point whose standing verdict holds a cell around it
     (an interior point), moved by the clavicle's rigid motion from standing to seated, gets the same verdict from the
     seated tree: the volumes agree within a cell."""
-    from reach.build.atlas import build_atlas
-    from reach.build.config import parse_config
+    from reach.building.atlas import build_atlas
+    from reach.building.config import parse_config
     from reach.maps.atlas import load_atlas
 
     tasks = [{"type": "reach"}, {"type": "coupling"}]

@@ -13,8 +13,8 @@ from oracles.bodies.body import human_body
 from oracles.ik import waves
 from reach.answers.answer import FAILED, REFINED, SKIPPED, UNAVAILABLE, Answer
 from reach.answers.select import SEEDS, Selector
-from reach.build.atlas import build_atlas
-from reach.build.config import parse_config
+from reach.building.atlas import build_atlas
+from reach.building.config import parse_config
 from reach.errors import InputError, ModelMismatch, UnknownEffector, UnknownPolicy
 from reach.tools.cli import main
 

@@ -18,8 +18,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from reach.answers.select import Selector
-from reach.build.atlas import build_atlas
-from reach.build.config import parse_config
+from reach.building.atlas import build_atlas
+from reach.building.config import parse_config
 from reach.errors import InputError
 from reach.maps.atlas import load_atlas
 from reach.maps.protocol import raster

@@ -68,8 +68,8 @@ def atlas(tmp_path_factory):
     """A small atlas of the shipped tiptoe and squat (D_max 3, compiled programs off)."""
     import yaml
 
-    from reach.build.atlas import build_atlas
-    from reach.build.config import parse_config
+    from reach.building.atlas import build_atlas
+    from reach.building.config import parse_config
     from tests.test_torsion import ROOT
 
     shipped_raw = yaml.safe_load((ROOT / "configs" / "human.yaml").read_text())

@@ -113,8 +113,8 @@ STEP_TASKS = [{"type": "reach"}, STANCE, STEP, {"type": "self_collision"}, {"typ
 @pytest.fixture(scope="module")
 def atlas(tmp_path_factory):
     """A small atlas: an arm, and a step (D_max 3)."""
-    from reach.build.atlas import build_atlas
-    from reach.build.config import parse_config
+    from reach.building.atlas import build_atlas
+    from reach.building.config import parse_config
 
     tmp = tmp_path_factory.mktemp("step")
     raw = {"name": "step", "body": HUMAN, "box": {"min": [-0.4, -1.0, 0.4], "max": [1.6, 0.6, 1.6]},

@@ -171,8 +171,8 @@ def test_atlas_without_manifest_is_named(tmp_path):
 
 
 def _checkpoint(tmp_path):
-    from reach.build.checkpoint import save_state
-    from reach.build.tree import BuildState
+    from reach.building.checkpoint import save_state
+    from reach.building.tree import BuildState
     from reach.maps.tree import VertexTable
 
     state = BuildState(2, np.zeros((4, 3), np.int64), [np.array([3], np.uint8), np.zeros(8, np.uint8)],
@@ -183,7 +183,7 @@ def _checkpoint(tmp_path):
 
 
 def test_checkpoint_round_trip(tmp_path):
-    from reach.build.checkpoint import load_state
+    from reach.building.checkpoint import load_state
 
     state = load_state(_checkpoint(tmp_path), "fp")
     assert state.depth == 2 and [k.size for k in state.kinds] == [1, 8] and state.vertices.posture_names == ("a", "b")
@@ -197,7 +197,7 @@ def test_checkpoint_round_trip(tmp_path):
     ("depth", None, "checkpoint metadata lacks valid sizes, depth"),
 ])
 def test_corrupt_checkpoint_metadata_is_a_clear_error(tmp_path, field, value, message):
-    from reach.build.checkpoint import load_state
+    from reach.building.checkpoint import load_state
 
     path = _checkpoint(tmp_path)
     with np.load(path) as npz:
@@ -277,8 +277,8 @@ def test_nan_postures_are_refused(tmp_path):
 
 
 def test_two_builds_into_one_folder_are_refused(tmp_path):
-    from reach.build.atlas import build_atlas
-    from reach.build.config import parse_config
+    from reach.building.atlas import build_atlas
+    from reach.building.config import parse_config
     from reach.maps.atlas import build_lock
 
     config = parse_config({"box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 1, "max": 3},
@@ -293,8 +293,8 @@ def test_two_builds_into_one_folder_are_refused(tmp_path):
 def test_a_tree_copied_over_another_is_refused(tmp_path):
     import shutil
 
-    from reach.build.atlas import build_atlas
-    from reach.build.config import parse_config
+    from reach.building.atlas import build_atlas
+    from reach.building.config import parse_config
 
     config = parse_config({"box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 1, "max": 2},
                            "oracle": {"name": "sphere", "params": {"radius": 0.9}},
@@ -316,8 +316,8 @@ def test_arrays_altered_after_writing_are_refused_by_their_digest(unit_sphere_tr
 
 
 def test_a_tree_replaced_by_another_build_of_the_same_strategy_is_refused(tmp_path):
-    from reach.build.atlas import build_atlas
-    from reach.build.config import parse_config
+    from reach.building.atlas import build_atlas
+    from reach.building.config import parse_config
 
     raw = {"box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 1, "max": 2},
            "oracle": {"name": "sphere", "params": {"radius": 0.9}}, "strategies": [{"name": "ball"}]}
@@ -349,8 +349,8 @@ def test_a_checkpoint_is_at_most_one_and_a_half_times_the_tree(tmp_path):
     Checkpoints are written uncompressed (the build's time), trees compressed."""
     from helpers import TwoLinkArm
 
-    from reach.build.checkpoint import save_state
-    from reach.build.tree import build_tree
+    from reach.building.checkpoint import save_state
+    from reach.building.tree import build_tree
     from reach.maps.box import Box
 
     states = []
@@ -368,8 +368,8 @@ def test_a_checkpoint_is_at_most_one_and_a_half_times_the_tree(tmp_path):
     ("link.npz", "'file' must name a file inside the atlas folder, got 'link.npz'"),
 ])
 def test_manifest_files_are_confined_to_the_atlas_folder(tmp_path, file, message):
-    from reach.build.atlas import build_atlas
-    from reach.build.config import parse_config
+    from reach.building.atlas import build_atlas
+    from reach.building.config import parse_config
 
     config = parse_config({"box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 1, "max": 2},
                            "oracle": {"name": "sphere", "params": {"radius": 0.9}},
@@ -393,8 +393,8 @@ def test_manifest_files_are_confined_to_the_atlas_folder(tmp_path, file, message
 
 
 def test_a_hand_edited_manifest_is_refused_until_accepted(tmp_path, capsys):
-    from reach.build.atlas import build_atlas
-    from reach.build.config import parse_config
+    from reach.building.atlas import build_atlas
+    from reach.building.config import parse_config
     from reach.tools.cli import main
 
     config = parse_config({"box": {"min": [-1, -1, -1], "max": [1, 1, 1]}, "depth": {"min": 1, "max": 2},

@@ -16,7 +16,7 @@ import pinocchio as pin
 import pytest
 
 from oracles.protocol import OracleSpec
-from reach.build.config import load_config
+from reach.building.config import load_config
 from tests.helpers import com_over, reached
 
 ROOT = Path(__file__).resolve().parents[1]

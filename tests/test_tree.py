@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from oracles.shapes import Ball, Torus, circle, sphere
-from reach.build.tree import build_tree
+from reach.building.tree import build_tree
 from reach.errors import TreeError
 from reach.maps.box import Box
 from reach.maps.tree import FINAL, INNER, OUTER, PARENT

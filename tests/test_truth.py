@@ -25,7 +25,7 @@ import pytest
 from truth_suite import independent_check, load_suite, provenance, score, suite_spec
 
 from oracles.protocol import Goals, OracleSpec
-from reach.build.config import load_config
+from reach.building.config import load_config
 
 ROOT = Path(__file__).resolve().parents[1]
 FAST = ["right_arm", "right_upper_body", "ur5_free", "ur5_guarded"]

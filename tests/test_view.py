@@ -17,8 +17,8 @@ import pytest
 from helpers import ARM, BROWSER_MISSING, INSTALL, browser_only, free_port
 
 from reach.answers.select import Selector
-from reach.build.atlas import build_atlas
-from reach.build.config import parse_config
+from reach.building.atlas import build_atlas
+from reach.building.config import parse_config
 from reach.maps.atlas import load_atlas
 
 viser = pytest.importorskip("viser", reason="the viewer needs viser: pip install 'reach-volumes[view]'")

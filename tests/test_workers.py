@@ -14,8 +14,8 @@ import zmq
 from helpers import ARM, human_config
 
 from reach.answers.select import MISS, Selector
-from reach.build.atlas import build_atlas
-from reach.build.config import parse_config
+from reach.building.atlas import build_atlas
+from reach.building.config import parse_config
 from reach.maps.atlas import load_atlas
 from reach.serving.protocol import OPERATIONS
 from reach.serving.workers import EXPIRED, FAILED, GOAL_COST, TASK_SECONDS, Pool, Task

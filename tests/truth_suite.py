@@ -36,7 +36,7 @@ def member_config(sex: str, subject: int) -> Any:
     """POPULATION's config for one member, its body the subject's own (as a ``population:`` member's)."""
     import yaml
 
-    from reach.build.config import parse_config
+    from reach.building.config import parse_config
 
     raw = yaml.safe_load((ROOT / POPULATION).read_text())
     raw.pop("population")
@@ -47,7 +47,7 @@ def member_config(sex: str, subject: int) -> Any:
 
 def suite_spec(name: str, folder: Path = SUITE) -> Any:
     """The oracle spec a suite was made for: its config's strategy, or a population member's (``MEMBER.STRATEGY``)."""
-    from reach.build.config import load_config
+    from reach.building.config import load_config
 
     entry = provenance(folder)["strategies"][name]
     if "member" in entry:

@@ -78,7 +78,7 @@ def table(members: Sequence[dict[str, Any]], targets: list[str], strategies: lis
 
 def load_members(folder: str | Path) -> tuple[list[Atlas], np.ndarray, list[str]]:
     """A built population's member atlases, their weights (summing to 1) and names; an unbuilt member is an error."""
-    from reach.build.population import read_manifest
+    from reach.building.population import read_manifest
     from reach.maps.atlas import load_atlas
 
     doc = read_manifest(folder)
@@ -135,7 +135,7 @@ def held(atlases: Sequence[Atlas], weights: np.ndarray, effector: str, goals: np
 def from_atlases(folder: str | Path, targets: list[Target], effector: str | None = None, refine: bool = True,
                  budget: float = 1.0, placement: np.ndarray | None = None) -> dict[str, Any]:
     """Accommodation from a built population's atlases (one :func:`evaluate` per member)."""
-    from reach.build.population import read_manifest
+    from reach.building.population import read_manifest
 
     atlases, weights, names = load_members(folder)
     members = []
@@ -158,7 +158,7 @@ def direct(config: Any, targets: list[Target], effector: str | None = None,
     model (``Verifying``); one that fails it counts as not reached, and the count is reported. ``workers`` > 1 solves
     members in that many processes (each dies with this one); the answers do not depend on it.
     """
-    from reach.build.population import entries
+    from reach.building.population import entries
 
     points = np.array([t.point for t in targets], float).reshape(-1, 3)
     if placement is not None:
@@ -182,7 +182,7 @@ def direct(config: Any, targets: list[Target], effector: str | None = None,
     if workers > 1 and len(runs) > 1:
         from concurrent.futures import ProcessPoolExecutor
 
-        from reach.build.executor import build_worker
+        from reach.building.executor import build_worker
 
         with ProcessPoolExecutor(max_workers=workers, initializer=build_worker) as pool:
             results = _logged((r for run in pool.map(_members, jobs) for r in run), members, log)

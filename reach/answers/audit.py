@@ -50,9 +50,9 @@ from typing import Any
 import numpy as np
 
 from oracles.protocol import Ball, Goals, Oracle, OracleSpec, ReachBound, Specified, Tunable, Turning
-from reach.build.atlas import tree_summary
-from reach.build.executor import Executor, InlineExecutor
-from reach.build.tree import warm_hints
+from reach.building.atlas import tree_summary
+from reach.building.executor import Executor, InlineExecutor
+from reach.building.tree import warm_hints
 from reach.errors import StoreError
 from reach.maps.atlas import Atlas, load_audit
 from reach.maps.index import ReachIndex, spiral

@@ -16,7 +16,7 @@ neighbours about sqrt(4 pi / N) apart.
 
 Cost: the vertices are taken coarse to fine, and a direction on which the
 eight corners of the cell around a new vertex agree is inherited from them
-(see :func:`reach.build.index.compute_index`); a direction solved starts from a corner's
+(see :func:`reach.building.index.compute_index`); a direction solved starts from a corner's
 posture that reached it, then the vertex's stored posture, then the
 reference: the reach stage only (the index needs existence, not the most
 natural posture) and no random restart (the oracle's ``index`` variant).

@@ -309,7 +309,7 @@ def work(address: str, atlas: str, options: dict[str, Any], identity: bytes) -> 
     """A worker process: refine the tasks the broker sends until it dies with the server."""
     # Only a worker process needs the answers' machinery; the broker's side of this module (Pool) starts without it.
     from reach.answers.select import Selector
-    from reach.build.executor import die_with_parent
+    from reach.building.executor import die_with_parent
     from reach.maps.atlas import load_atlas
     from reach.motion.planner import Planner
     from reach.serving import services

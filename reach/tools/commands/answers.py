@@ -377,7 +377,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def _is_population(path: str) -> bool:
-    from reach.build.population import is_population
+    from reach.building.population import is_population
 
     return is_population(path)
 
@@ -397,7 +397,7 @@ def _accommodation(args: argparse.Namespace, at: np.ndarray | None) -> int:
         raise ConfigError("--figure", "", "a population's figure is not drawn yet: omit --figure")
     targets = load_targets(args.targets)
     if args.direct:
-        from reach.build.config import load_config
+        from reach.building.config import load_config
 
         config = load_config(args.atlas[0])
         if config.population is None:
@@ -498,7 +498,7 @@ def cmd_place(args: argparse.Namespace) -> int:
 def _atlases(paths: list[str]) -> tuple[list[Any], np.ndarray | None]:
     """The atlases named, a population folder standing for its members' atlases (with their weights)."""
     from reach.answers.accommodation import load_members
-    from reach.build.population import is_population
+    from reach.building.population import is_population
     from reach.maps.atlas import load_atlas
 
     if not any(is_population(p) for p in paths):

@@ -26,8 +26,8 @@ from reach.tools.commands.common import (
 
 def cmd_build(args: argparse.Namespace) -> int:
     # loaded when the command runs: `reach --help` starts without the answers' machinery
-    from reach.build.atlas import build_atlas
-    from reach.build.config import load_config
+    from reach.building.atlas import build_atlas
+    from reach.building.config import load_config
 
     config = load_config(args.config)
     for note in config.notes:
@@ -36,7 +36,7 @@ def cmd_build(args: argparse.Namespace) -> int:
         raise ConfigError(config.source, "", f"{len(config.notes)} warning(s) above, and --strict makes them errors")
     if args.refine_centres or args.refine_faces or args.retry_isolated:
         # loaded when the command runs: `reach --help` starts without the answers' machinery
-        from reach.build.tree import Refine
+        from reach.building.tree import Refine
 
         r = config.refine
         config = dataclasses.replace(config,
@@ -71,9 +71,9 @@ def cmd_build(args: argparse.Namespace) -> int:
 
 
 def _build_population(args: argparse.Namespace, config: Any, out: Path, factory: Any, client: Any) -> int:
-    """``reach build`` of a config with ``population:``: one atlas per member (reach.build.population)."""
-    from reach.build.atlas import build_atlas
-    from reach.build.population import build_population
+    """``reach build`` of a config with ``population:``: one atlas per member (reach.building.population)."""
+    from reach.building.atlas import build_atlas
+    from reach.building.population import build_population
 
     def one(member: Any, folder: Path) -> None:
         build_atlas(member, folder, executor_factory=factory, progress=not args.quiet,
@@ -180,7 +180,7 @@ def cmd_model(args: argparse.Namespace) -> int:
                           ansur=None if args.subject is None else {"sex": args.sex, "subject": args.subject})
     elif spec.endswith((".yaml", ".yml")):
         # loaded when the command runs: `reach --help` starts without the answers' machinery
-        from reach.build.config import load_config, read_yaml
+        from reach.building.config import load_config, read_yaml
 
         config = load_config(spec)  # errors name the file and the key
         if config.population is not None:

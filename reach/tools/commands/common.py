@@ -54,7 +54,7 @@ def executor_factory(args: argparse.Namespace, chunk_size: int) -> tuple[Any, An
     """The executor factory the build options ask for, the Dask client if any, and a description."""
 
     # loaded when the command runs: `reach --help` starts without the answers' machinery
-    from reach.build.executor import DaskExecutor, InlineExecutor, ProcessExecutor
+    from reach.building.executor import DaskExecutor, InlineExecutor, ProcessExecutor
 
     workers = args.workers or os.cpu_count() or 1
     if args.scheduler or args.dask:

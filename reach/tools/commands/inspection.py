@@ -27,7 +27,7 @@ def _share(rate: dict[str, Any]) -> str:
 def cmd_info(args: argparse.Namespace) -> int:
     # loaded when the command runs: `reach --help` starts without the answers' machinery
     from reach.answers.audit import summary
-    from reach.build.atlas import face_text
+    from reach.building.atlas import face_text
     from reach.maps.atlas import load_atlas
 
     info = summary(load_atlas(args.atlas))
@@ -81,8 +81,8 @@ def add_info(sub: Any) -> None:
 
 def cmd_report(args: argparse.Namespace) -> int:
     # loaded when the command runs: `reach --help` starts without the answers' machinery
-    from reach.build.atlas import face_text
-    from reach.build.population import is_population
+    from reach.building.atlas import face_text
+    from reach.building.population import is_population
     from reach.maps.atlas import load_atlas
     from reach.tools.report import markdown, report
 

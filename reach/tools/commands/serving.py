@@ -114,7 +114,7 @@ def cmd_view(args: argparse.Namespace) -> int:
         from reach.tools.view import Viewer
     except ImportError as exc:  # viser is an extra
         raise ReachError(f"reach view needs viser: pip install 'reach-volumes[view]' ({exc})") from exc
-    from reach.build.population import is_population
+    from reach.building.population import is_population
 
     accommodation = None
     if any(is_population(a) for a in args.atlas):

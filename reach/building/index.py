@@ -7,7 +7,7 @@ from collections.abc import Callable
 import numpy as np
 
 from oracles.protocol import Goals
-from reach.build.executor import Executor
+from reach.building.executor import Executor
 from reach.maps.index import ReachIndex
 from reach.maps.tree import VATree, corner_offsets
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from reach.build.config import Config, parse_config
+from reach.building.config import Config, parse_config
 from reach.errors import ConfigError, TreeError
 
 MANIFEST = "population.json"

@@ -39,8 +39,8 @@ import numpy as np
 import yaml
 
 from oracles.protocol import Diagnosed, Floored, Oracle, OracleSpec, Oriented, Probing, ReachBound, Tunable, body_params
-from reach.build.executor import CHUNK_SIZE
-from reach.build.tree import Refine
+from reach.building.executor import CHUNK_SIZE
+from reach.building.tree import Refine
 from reach.errors import ConfigError, ModelError, ReachError, TreeError
 from reach.maps.box import Box
 from reach.maps.index import MAX_DIRECTIONS
@@ -101,9 +101,9 @@ class Config:
     notes: tuple[str, ...] = field(default=(), compare=False)
     auto: dict[str, Any] | None = None  # box: auto's options (margin, floor), or None for a given box
     # ``population:`` (oracles.bodies.population): the config's strategies for each of its members; the config
-    # itself is its first member's (reach.build.population)
+    # itself is its first member's (reach.building.population)
     population: Population | None = None
-    twins: bool = True  # build.twins: a volume's quarter-turn twins share one solve (reach.build.twins)
+    twins: bool = True  # build.twins: a volume's quarter-turn twins share one solve (reach.building.twins)
 
     @cached_property
     def _derived(self) -> tuple[Box, Box | None]:

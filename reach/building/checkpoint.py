@@ -1,4 +1,5 @@
-"""A build's checkpoint after each depth, so that a killed build resumes (see :class:`reach.build.tree.BuildState`)."""
+"""A build's checkpoint after each depth, so that a killed build resumes
+(see :class:`reach.building.tree.BuildState`)."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from reach.build.tree import BuildState
+from reach.building.tree import BuildState
 from reach.errors import StoreError
 from reach.maps.store import TREE_VERSION, atomic_write, checked_field, read_arrays, read_header, read_vertices
 from reach.maps.tree import VertexTable
@@ -17,7 +18,7 @@ STATE_FORMAT = "reach.buildstate"
 
 
 def save_state(state: Any, path: str | Path, fingerprint: str) -> Path:
-    """Checkpoint a build after a depth (see :class:`reach.build.tree.BuildState`)."""
+    """Checkpoint a build after a depth (see :class:`reach.building.tree.BuildState`)."""
     path = Path(path)
     v = state.vertices
     meta = {"format": STATE_FORMAT, "version": TREE_VERSION, "depth": state.depth, "levels": state.levels,

@@ -28,8 +28,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from oracles.protocol import Goals, Oracle, OracleSpec, Verdicts
-from reach.build.executor import CHUNK_SIZE, Executor, InlineExecutor
-from reach.build.twins import Twins, shared
+from reach.building.executor import CHUNK_SIZE, Executor, InlineExecutor
+from reach.building.twins import Twins, shared
 from reach.errors import TreeError
 from reach.maps.box import Box
 from reach.maps.tree import FINAL, INNER, OUTER, PARENT, Lattice, VATree, VertexTable, bfs_children, corner_offsets
@@ -452,7 +452,7 @@ def build_tree(
         refine: Build-time refinements of the vertex rule (see :class:`Refine`).
         keep_out: Capsules (K, 7) that hold no reachable point (see :func:`build_level`).
         inherit: A sub-strategy's reachable vertices (see :class:`Inherited`).
-        twins: The volume's quarter turn: one vertex of each set of twins is solved (see :mod:`reach.build.twins`).
+        twins: The volume's quarter turn: one vertex of each set of twins is solved (see :mod:`reach.building.twins`).
 
     Returns:
         The tree, with the oracle-call count and per-depth statistics in

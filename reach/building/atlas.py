@@ -5,11 +5,11 @@ the trees and the manifest. It checkpoints each strategy after every depth
 (``OUT/.partial/<name>.npz``), so a killed build resumes where it stopped
 (``resume=True``); finished trees whose fingerprint matches are kept.
 A strategy with ``mirror_of`` is derived by mirroring when the body passes
-the symmetry check (:mod:`reach.build.mirror`), unless ``mirror=False``. A
+the symmetry check (:mod:`reach.building.mirror`), unless ``mirror=False``. A
 strategy built after a *sub-strategy* (same body and effector, a subset of
 its joints; the crouch after the whole body) inherits that tree's reachable
 vertices once its own oracle has verified their postures
-(:class:`reach.build.tree.Inherited`), unless ``inherit=False``.
+(:class:`reach.building.tree.Inherited`), unless ``inherit=False``.
 ``summary`` is what ``reach info`` prints.
 """
 
@@ -39,13 +39,13 @@ from oracles.protocol import (
     Tunable,
     Verifying,
 )
-from reach.build.checkpoint import load_state, save_state
-from reach.build.config import Config, StrategySpec, grown
-from reach.build.executor import Executor, InlineExecutor
-from reach.build.index import compute_index
-from reach.build.mirror import MirrorOracle
-from reach.build.tree import Inherited, build_tree
-from reach.build.twins import Twins
+from reach.building.checkpoint import load_state, save_state
+from reach.building.config import Config, StrategySpec, grown
+from reach.building.executor import Executor, InlineExecutor
+from reach.building.index import compute_index
+from reach.building.mirror import MirrorOracle
+from reach.building.tree import Inherited, build_tree
+from reach.building.twins import Twins
 from reach.errors import ModelError, StoreError
 from reach.maps.atlas import Atlas, build_lock, load_atlas, write_manifest
 from reach.maps.index import ReachIndex, spiral
