@@ -14,13 +14,13 @@ import pytest
 from helpers import ARM
 
 from oracles.bodies.body import load_body
-from oracles.bodies.population import boundary_manikins, member_body, members, parse_population
+from oracles.bodies.population import boundary_manikins, members, parse_population
 from oracles.errors import ModelError
 from oracles.protocol import Goals, OracleSpec
 from reach.answers.accommodation import direct, weighted_share, wilson
 from reach.answers.evaluate import Target
 from reach.building.config import parse_config
-from reach.building.population import entries
+from reach.building.population import members_of
 from reach.errors import ConfigError
 from reach.tools.cli import main
 
@@ -114,10 +114,10 @@ def test_wilson_interval_at_known_values():
 
 def test_a_member_keeps_the_config_body_posture_and_seat_but_not_its_size():
     m = members(parse_population({"ansur": {"n": 1, "sex": "female", "seed": 1}}))[0]
-    body = member_body({"human": {"sex": "male", "percentile": 95, "posture": "seated", "seat": {"kind": "car"}}}, m)
+    body = m.body({"human": {"sex": "male", "percentile": 95, "posture": "seated", "seat": {"kind": "car"}}})
     assert body["human"] == {"posture": "seated", "seat": {"kind": "car"}, **m.human}
     with pytest.raises(ModelError, match="generated humans"):
-        member_body({"urdf": "robot.urdf"}, m)
+        m.body({"urdf": "robot.urdf"})
 
 
 @pytest.fixture(scope="module")
@@ -171,11 +171,12 @@ def test_accommodation_from_atlases_agrees_with_direct_ik_checked_by_pinocchio(b
     # "reached" checked by forward kinematics on that member's own model, here with Pinocchio directly
     agree = 0
     strategy = config.strategies[0]
-    for k, entry in enumerate(entries(config)):
-        oracle = OracleSpec(strategy.oracle.name, {**strategy.oracle.params, "body": entry.body}).create()
+    for k, member in enumerate(members_of(config)):
+        body = member.body(config.raw.get("body"))
+        oracle = OracleSpec(strategy.oracle.name, {**strategy.oracle.params, "body": body}).create()
         points = np.array([t.point for t in TARGETS])
         verdict = oracle.evaluate(points)
-        model = load_body(entry.body).model
+        model = load_body(body).model
         data = model.createData()
         frame = model.getFrameId("right_hand")
         for i, (ok, q) in enumerate(zip(verdict.reachable, verdict.posture, strict=True)):
@@ -183,7 +184,7 @@ def test_accommodation_from_atlases_agrees_with_direct_ik_checked_by_pinocchio(b
                 pin.framesForwardKinematics(model, data, q)
                 assert np.linalg.norm(data.oMf[frame].translation - points[i]) < 0.01
         assert by_ik["by_member"][k]["reached"] == list(verdict.reachable)
-        assert from_trees["by_member"][k]["name"] == entry.name
+        assert from_trees["by_member"][k]["name"] == member.name
         agree += sum(a == b for a, b in zip(by_ik["by_member"][k]["reached"], from_trees["by_member"][k]["reached"],
                                             strict=True))
     assert agree == 4 * len(TARGETS)
@@ -319,8 +320,8 @@ def test_the_server_answers_accommodation_over_zeromq(built):
 
 def test_seated_members_each_get_their_seat_fitted():
     family = boundary_manikins("female")
-    small_body = load_body(member_body({"human": {"posture": "seated", "seat": {"kind": "car"}}}, family[2]))
-    large_body = load_body(member_body({"human": {"posture": "seated", "seat": {"kind": "car"}}}, family[1]))
+    small_body = load_body(family[2].body({"human": {"posture": "seated", "seat": {"kind": "car"}}}))
+    large_body = load_body(family[1].body({"human": {"posture": "seated", "seat": {"kind": "car"}}}))
     assert family[1].human["buttockkneelength"] > family[2].human["buttockkneelength"] + 0.1
     # the heel point is fitted to each member's legs: the longer legs put it farther forward
     heel = [b.frame_positions(names=["right_heel"])["right_heel"][0] for b in (small_body, large_body)]

@@ -55,6 +55,17 @@ class Member:
     sex: str
     weight: float = 1.0
 
+    def body(self, base: dict[str, Any] | None) -> dict[str, Any]:
+        """The member's body spec: the config body's ``human`` keys that are not who it is (posture, seat,
+        proportions), with the member's."""
+        base = dict(base or {"human": {}})
+        if "human" not in base:
+            raise ModelError("a population is of generated humans: the body must be {human: {...}} (its posture, "
+                             "seat and proportions apply to every member), not a URDF", key="body")
+        human = {k: v for k, v in (base["human"] or {}).items() if k in ("posture", "seat", "proportions")}
+        base["human"] = {**human, **self.human}
+        return base
+
 
 @dataclass(frozen=True)
 class Population:
@@ -200,19 +211,6 @@ def boundary_manikins(sex: str, coverage: float = 0.95, components: int = 3) -> 
         out.append(Member(name, {"sex": sex, **{d: round(float(v), 4) for d, v in zip(BOUNDARY, row, strict=True)}},
                           sex))
     return out
-
-
-def member_body(base: dict[str, Any] | None, member: Member) -> dict[str, Any]:
-    """The member's body spec: the config body's ``human`` keys that are not who it is (posture, seat,
-    proportions, ranges ...), with the member's."""
-    base = dict(base or {"human": {}})
-    if "human" not in base:
-        raise ModelError("a population is of generated humans: the body must be {human: {...}} (its posture, seat "
-                         "and proportions apply to every member), not a URDF", key="body")
-    human = {k: v for k, v in (base["human"] or {}).items()
-             if k in ("posture", "seat", "proportions")}
-    base["human"] = {**human, **member.human}
-    return base
 
 
 def key_dimensions(member: Member) -> dict[str, float]:

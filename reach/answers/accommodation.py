@@ -158,7 +158,7 @@ def direct(config: Any, targets: list[Target], effector: str | None = None,
     model (``Verifying``); one that fails it counts as not reached, and the count is reported. ``workers`` > 1 solves
     members in that many processes (each dies with this one); the answers do not depend on it.
     """
-    from reach.building.population import entries
+    from reach.building.population import members_of
 
     points = np.array([t.point for t in targets], float).reshape(-1, 3)
     if placement is not None:
@@ -172,13 +172,13 @@ def direct(config: Any, targets: list[Target], effector: str | None = None,
     effs = [e or known[0] for e in effs]
     strategies = [(s.name, s.effector, s.oracle.name, s.oracle.params) for s in config.strategies
                   if s.effector in set(effs)]
-    members = entries(config)
+    members = members_of(config)
     # Members in runs of CHUNK, each run in one process with one program a strategy (the body's numbers its
     # parameters: oracles.ik.parameters), built for the run's first member and shared by the others.
     count = max(math.ceil(len(members) / CHUNK), min(workers, len(members)))  # every process at work
     size = math.ceil(len(members) / max(count, 1))
     runs = [members[k : k + size] for k in range(0, len(members), size)]
-    jobs = [([e.body for e in run], strategies, points, effs, verify) for run in runs]
+    jobs = [([m.body(config.raw.get("body")) for m in run], strategies, points, effs, verify) for run in runs]
     if workers > 1 and len(runs) > 1:
         from concurrent.futures import ProcessPoolExecutor
 
@@ -188,7 +188,7 @@ def direct(config: Any, targets: list[Target], effector: str | None = None,
             results = _logged((r for run in pool.map(_members, jobs) for r in run), members, log)
     else:
         results = _logged((r for job in jobs for r in _members(job)), members, log)
-    table_members = [{"name": e.name, "weight": e.weight, "rows": rows} for e, (rows, _) in zip(members, results,
+    table_members = [{"name": m.name, "weight": m.weight, "rows": rows} for m, (rows, _) in zip(members, results,
                                                                                                  strict=True)]
     return {"population": config.name, "way": "direct", "refuted_by_check": sum(r for _, r in results),
             **table(table_members, [t.name for t in targets], [name for name, *_ in strategies])}

@@ -304,12 +304,12 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
 def _population(check: _Checker, top: dict[str, Any]) -> tuple[Population, dict[str, Any]]:
     """The population and the body of its first member (the config as one body stands for its first member)."""
     # loaded when a config has a population: ANSUR II's data are read only then
-    from oracles.bodies.population import member_body, members, parse_population
+    from oracles.bodies.population import members, parse_population
 
     try:
         population = parse_population(top["population"])
         first = members(population)[0]
-        return population, member_body(top.get("body"), first)
+        return population, first.body(top.get("body"))
     except ModelError as exc:
         raise check.fail(exc.key or "population", exc.reason) from exc
 

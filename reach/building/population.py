@@ -13,52 +13,43 @@ import json
 import os
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from reach.building.config import Config, parse_config
 from reach.errors import ConfigError, TreeError
+
+if TYPE_CHECKING:
+    from oracles.bodies.population import Member
 
 MANIFEST = "population.json"
 FORMAT = 1
 
 
-@dataclass(frozen=True)
-class Entry:
-    """A member as the population's manifest lists it."""
-
-    name: str
-    sex: str
-    weight: float
-    body: dict[str, Any]
-
-
-def entries(config: Config) -> list[Entry]:
-    """The config's members with their bodies (the config must have ``population:``)."""
+def members_of(config: Config) -> list[Member]:
+    """The config's members (the config must have ``population:``)."""
     # loaded when a population is built or answered: ANSUR II's data are read only then
-    from oracles.bodies.population import member_body, members
+    from oracles.bodies.population import members
 
     if config.population is None:
         raise ConfigError(config.source, "population", "this config has no population")
-    return [Entry(m.name, m.sex, m.weight, member_body(config.raw.get("body"), m))
-            for m in members(config.population)]
+    return members(config.population)
 
 
-def member_config(config: Config, entry: Entry) -> Config:
+def member_config(config: Config, member: Member) -> Config:
     """The config of one member: the population's config with the member's body, named after the member."""
     data = {k: v for k, v in config.raw.items() if k != "population"}
-    data["body"], data["name"] = entry.body, entry.name
-    return parse_config(data, f"{config.source} (member {entry.name})", entry.name)
+    data["body"], data["name"] = member.body(config.raw.get("body")), member.name
+    return parse_config(data, f"{config.source} (member {member.name})", member.name)
 
 
-def write_manifest(out: Path, config: Config, members: list[Entry]) -> None:
+def write_manifest(out: Path, config: Config, members: list[Member]) -> None:
     """The population's manifest, written whole to a temporary file and renamed: never half written."""
     assert config.population is not None
     doc = {"format": FORMAT, "name": config.name, "source": config.source,
            "population": config.population.to_dict(),
-           "members": [{"name": e.name, "sex": e.sex, "weight": e.weight, "body": e.body, "atlas": e.name}
-                       for e in members]}
+           "members": [{"name": m.name, "sex": m.sex, "weight": m.weight, "body": m.body(config.raw.get("body")),
+                        "atlas": m.name} for m in members]}
     tmp = out / (MANIFEST + ".tmp")
     tmp.write_text(json.dumps(doc, indent=1))
     os.replace(tmp, out / MANIFEST)
@@ -88,25 +79,25 @@ def read_manifest(folder: str | Path) -> dict[str, Any]:
 
 
 def build_population(config: Config, out: str | Path, build: Callable[[Config, Path], Any],
-                     say: Callable[[str], None] = lambda _line: None, resume: bool = False) -> list[Entry]:
+                     say: Callable[[str], None] = lambda _line: None, resume: bool = False) -> list[Member]:
     """Build every member's atlas with ``build(member_config, folder)``; progress lines to ``say``."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    members = entries(config)
+    members = members_of(config)
     if is_population(out) and not resume:
         raise ConfigError(str(out), "", "a population is already built here: give --resume to keep its members and "
                                         "finish the others, or another --output")
     write_manifest(out, config, members)
     start, done = time.monotonic(), 0
-    for k, entry in enumerate(members, start=1):
-        member = member_config(config, entry)
-        folder = out / entry.name
+    for k, person in enumerate(members, start=1):
+        member = member_config(config, person)
+        folder = out / person.name
         t0 = time.monotonic()
         build(member, folder)
         done += 1
         spent = time.monotonic() - start
         left = spent / done * (len(members) - k)
-        say(f"member {k}/{len(members)} {entry.name}: {len(member.strategies)} trees in "
+        say(f"member {k}/{len(members)} {person.name}: {len(member.strategies)} trees in "
             f"{time.monotonic() - t0:.0f} s; {spent:.0f} s so far, about {left:.0f} s left")
     return members
 
