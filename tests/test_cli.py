@@ -208,3 +208,18 @@ def test_query_answers_a_file_of_goals_one_json_line_each(figure2_atlas, tmp_pat
     assert main(["query", "--goals", str(goals), str(figure2_atlas)]) == 2
     err = capsys.readouterr().err
     assert "--goals: " in err and "goals.csv line 2: expected X Y [Z] in metres, got '0.2, oops'" in err
+
+
+def test_evaluate_of_a_config_without_direct_says_what_to_do(capsys):
+    """A config given to ``reach evaluate`` where an atlas folder belongs: the error names --direct and the build."""
+    config = str(Path(__file__).resolve().parents[1] / "configs" / "population.yaml")
+    assert main(["evaluate", config, "--targets", "configs/targets/workstation_right.csv"]) == 2
+    err = capsys.readouterr().err
+    assert "is a config, not an atlas folder: give --direct" in err and f"reach build {config}" in err
+
+
+def test_motion_usage_names_one_atlas_and_one_goal(capsys):
+    with pytest.raises(SystemExit):
+        main(["motion", "--help"])
+    out = capsys.readouterr().out
+    assert "ATLAS X Y Z\n" in out and "--connect ADDR X Y Z" in out and "[ATLAS X Y Z ...]" not in out

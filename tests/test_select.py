@@ -353,3 +353,14 @@ def test_a_refined_answer_does_not_depend_on_the_clock(tmp_path, monkeypatch):
     real = time.perf_counter
     monkeypatch.setattr(time, "perf_counter", lambda: 10.0 * real())
     assert answers(Selector(atlas).warm_up()) == first
+
+
+def test_an_effector_named_by_another_frame_at_the_same_place_is_answered(arm):
+    """The generated human's hand frame is also named ``right_grip`` (the README says so): a query for it is the
+    ``right_hand`` query, with the same answer; a frame elsewhere on the hand (the thumb tip) stays unknown."""
+    s = Selector(arm)
+    goal = np.array([0.45, -0.25, 1.2])
+    a, b = s.select("right_grip", goal), s.select("right_hand", goal)
+    assert a.reachable and a.strategy == b.strategy and a.posture == b.posture
+    with pytest.raises(UnknownEffector, match="unknown effector 'right_pinch'; this atlas has right_hand"):
+        s.select("right_pinch", goal)

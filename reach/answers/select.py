@@ -218,10 +218,22 @@ class Selector:
         return sorted(self._by_effector)
 
     def strategies_for(self, effector: str) -> list[str]:
-        names = self._by_effector.get(effector)
+        names = self._by_effector.get(effector) or self._by_effector.get(self._alias(effector) or "")
         if not names:
             raise UnknownEffector(effector, self.effectors)
         return names
+
+    def _alias(self, frame: str) -> str | None:
+        """The effector that a frame of the body names as well (the generated human's ``right_grip`` is its
+        ``right_hand``): one on the same joint at the same placement; None when there is none."""
+        for effector, names in self._by_effector.items():
+            model = getattr(getattr(self._oracle(names[0]), "body", None), "model", None)
+            if model is None or not (model.existFrame(frame) and model.existFrame(effector)):
+                continue
+            a, b = model.frames[model.getFrameId(frame)], model.frames[model.getFrameId(effector)]
+            if a.parentJoint == b.parentJoint and a.placement.isApprox(b.placement, 1e-9):
+                return effector
+        return None
 
     def check_goals(self, effector: str, goals: np.ndarray, start: dict[str, float] | None = None) -> list[str]:
         """The effector's strategies, once the goals (N, d) and the ``from`` joints are known to be valid for them.

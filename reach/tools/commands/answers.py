@@ -329,6 +329,8 @@ def add_motion(sub: Any) -> None:
         "the strategy chosen as a query chooses it, MTM-1 timing, minimum-jerk, collision-free frames holding feet "
         "and balance.",
     )
+    p.usage = ("reach motion [options] --effector EFFECTOR ATLAS X Y Z\n"
+               "       reach motion [options] --effector EFFECTOR --connect ADDR X Y Z")
     p.add_argument("values", nargs="+", metavar="ATLAS X Y Z",
                    help="atlas folder (omitted with --connect) and goal [m]")
     p.add_argument("--effector", required=True, help="the effector that reaches, e.g. right_hand")
@@ -359,6 +361,11 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     at = None if not args.at else np.array([[x, y, z, math.radians(yaw)] for x, y, z, yaw in args.at])
     if args.direct or any(_is_population(a) for a in args.atlas):
         return _accommodation(args, at)
+    for a in args.atlas:
+        if Path(a).is_file() and Path(a).suffix in (".yaml", ".yml"):
+            raise InputError("atlas", f"{a} is a config, not an atlas folder: give --direct to solve its strategies "
+                                      f"for the targets without trees, or build it first (reach build {a}) and "
+                                      "evaluate the folder it writes (out/NAME)")
     atlases = [load_atlas(a) for a in args.atlas]
     results = evaluate(atlases, load_targets(args.targets), args.effector, args.policy, refine=not args.no_refine,
                        placements=at)
