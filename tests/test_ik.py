@@ -525,3 +525,27 @@ def test_a_settling_builds_variants_never_settle(monkeypatch):
     stages.clear()
     v = refine.evaluate(Goals((goal + [0.0, 0.02, 0.0])[None], current=current))  # 2 cm from the current posture
     assert v.reachable[0] and 1 in stages  # the posture stage too
+
+
+def test_a_compile_is_said_before_it_starts_and_when_it_ends(tmp_path, monkeypatch, capsys):
+    """A first run compiles for minutes: each compile is logged (``reach.jit``) before it starts and when it ends, and
+    the command line prints these lines on standard error; a library found in the cache says nothing."""
+    import logging
+
+    import casadi as ca
+
+    from oracles.ik import jit
+    from reach.tools import cli
+
+    monkeypatch.setenv("REACH_JIT_CACHE", str(tmp_path / "jit"))
+    cli._say_compiles()
+    cli._say_compiles()  # once: a second call adds no second handler
+    log = logging.getLogger("reach.jit")
+    assert sum(getattr(h, "reach_cli", False) for h in log.handlers) == 1
+    x = ca.SX.sym("x", 2)
+    jit.compiled_function("cube", ca.Function("cube", [x], [x * x * x]))
+    err = capsys.readouterr().err
+    assert f"reach: compiling cube to machine code (once: kept in {tmp_path / 'jit'})" in err
+    assert "reach: compiled cube in" in err
+    jit.compiled_function("cube", ca.Function("cube", [x], [x * x * x]))
+    assert "compil" not in capsys.readouterr().err

@@ -21,14 +21,19 @@ from __future__ import annotations
 
 import fcntl
 import hashlib
+import logging
 import os
 import subprocess
 import tempfile
+import time
 from pathlib import Path
 from typing import Any
 
 import casadi as ca
 
+# Each compile is said (at INFO) before it starts and when it ends: a first build or query compiles for minutes and,
+# silent, looked hung. The command line prints these on standard error.
+LOG = logging.getLogger("reach.jit")
 COMPILER = "gcc"  # the C compiler
 FLAGS = ("-O1", "-fPIC", "-shared")  # -O1: most of -O2's speed at a third of its compile time here
 
@@ -79,6 +84,8 @@ def _library(name: str, generate: Any, identity: str) -> Path:
         with open(folder / f"{library.name}.lock", "w") as lock:
             fcntl.flock(lock, fcntl.LOCK_EX)  # one process compiles; the others wait and load
             if not library.exists():
+                LOG.info("compiling %s to machine code (once: kept in %s)", name, folder)
+                t0 = time.perf_counter()
                 # CasADi writes into the working directory.
                 home = os.getcwd()
                 os.chdir(scratch)
@@ -95,4 +102,5 @@ def _library(name: str, generate: Any, identity: str) -> Path:
                 except subprocess.CalledProcessError as exc:
                     raise RuntimeError(f"{COMPILER} failed on {name}: {exc.stderr.strip()[-500:]}") from exc
                 os.replace(built, library)  # atomic: a reader sees the whole library or none
+                LOG.info("compiled %s in %.0f s", name, time.perf_counter() - t0)
     return library

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Sequence
+from typing import Any
 
 from reach.errors import ReachError
 from reach.tools.commands import answers, build, inspection, serving
@@ -37,8 +38,34 @@ def _short(message: str) -> str:
                     for w in message.split(" "))
 
 
+def _say_compiles() -> None:
+    """The IK programs' compiles (``oracles.ik.jit``: minutes on a first run) said on standard error, once."""
+    import logging
+
+    class Stderr(logging.StreamHandler):  # type: ignore[type-arg]
+        """Writes to the standard error of the moment (a caller may have replaced it since)."""
+
+        reach_cli = True
+
+        @property  # type: ignore[override]
+        def stream(self) -> Any:
+            return sys.stderr
+
+        @stream.setter
+        def stream(self, value: Any) -> None:
+            pass
+
+    log = logging.getLogger("reach.jit")
+    if not any(getattr(h, "reach_cli", False) for h in log.handlers):
+        handler = Stderr()
+        handler.setFormatter(logging.Formatter("reach: %(message)s"))
+        log.addHandler(handler)
+        log.setLevel(logging.INFO)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = make_parser().parse_args(argv)
+    _say_compiles()
     try:
         return int(args.func(args))
     except ReachError as exc:
