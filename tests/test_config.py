@@ -259,3 +259,16 @@ def test_box_auto_is_derived_when_first_asked_for_not_when_the_config_is_read(mo
     assert calls == [1] and config.box is box and np.all(limit.lo <= box.lo) and np.all(box.hi <= limit.hi)
     grown = config.with_box(module.Box(box.lo - 0.01, box.hi))
     assert grown.limit == limit and np.allclose(grown.box.lo, box.lo - 0.01) and calls == [1]
+
+
+@pytest.mark.parametrize("where, digits", [("depth: {min: 1, max: %s}", 4301), ("seed: %s", 400)])
+def test_a_whole_number_too_long_for_any_key_is_refused_naming_its_line(tmp_path, where, digits):
+    """A YAML integer of 4,301 digits (past Python's own limit for reading one) or a 400-digit number (which no float
+    holds) anywhere in a config: a ConfigError naming the file and line, not a traceback."""
+    from reach.errors import ConfigError
+
+    path = tmp_path / "big.yaml"
+    path.write_text("name: big\nbox: {min: [-1, -1, -1], max: [1, 1, 1]}\n" + (where % ("9" * digits)) + "\n"
+                    "strategies: []\n")
+    with pytest.raises(ConfigError, match=rf"big.yaml: line 3: a whole number of {digits} digits"):
+        load_config(path)

@@ -408,3 +408,59 @@ def test_a_strategy_with_more_freedom_reaches_what_its_sub_strategy_reaches_dire
     assert refuted == 0
     assert by["right_upper_body"].sum() > cold.sum()  # the cold search's miss, as measured
     assert np.all(by["right_whole_body"][by["right_upper_body"] | by["right_arm"]])
+
+
+def test_a_population_manifest_that_is_not_one_is_refused_in_one_line(tmp_path):
+    """population.json as an attacker writes it: deeply nested, a member without a name, a weight of 10**400, of
+    Infinity or 1e999, a name of 5,000 characters, a FIFO, a link to /dev/zero. Each is a TreeError naming the file
+    (a traceback, a hang, an `internal` answer or memory without bound before); a sound one still reads."""
+    import os
+
+    from reach.building.population import read_manifest
+    from reach.errors import TreeError
+
+    def member(**change):
+        return {"name": "a", "sex": "male", "weight": 1.0, "body": {}, "atlas": "a", **change}
+
+    cases = {
+        "nested": "[" * 100_000 + "]" * 100_000,
+        "no name": json.dumps({"format": 1, "members": [{k: v for k, v in member().items() if k != "name"}]}),
+        "huge int": '{"format": 1, "members": [{"name": "a", "sex": "male", "atlas": "a", "weight": 1' + "0" * 400
+                    + "}]}",
+        "Infinity": json.dumps({"format": 1, "members": [member(weight=float("inf"))]}),
+        "1e999": '{"format": 1, "members": [{"name": "a", "sex": "male", "atlas": "a", "weight": 1e999}]}',
+        "long name": json.dumps({"format": 1, "members": [member(name="x" * 5000)]}),
+    }
+    for why, text in cases.items():
+        folder = tmp_path / why.replace(" ", "_")
+        folder.mkdir()
+        (folder / "population.json").write_text(text)
+        with pytest.raises(TreeError, match="population.json") as err:
+            read_manifest(folder)
+        assert "\n" not in str(err.value) and len(str(err.value)) < 500, why
+    fifo = tmp_path / "fifo"
+    fifo.mkdir()
+    os.mkfifo(fifo / "population.json")
+    with pytest.raises(TreeError, match="not a regular file"):
+        read_manifest(fifo)
+    zero = tmp_path / "zero"
+    zero.mkdir()
+    (zero / "population.json").symlink_to("/dev/zero")
+    with pytest.raises(TreeError, match="not a regular file"):
+        read_manifest(zero)
+    good = tmp_path / "good"
+    good.mkdir()
+    (good / "population.json").write_text(json.dumps({"format": 1, "members": [member(weight=2.5)]}))
+    assert read_manifest(good)["members"][0]["weight"] == 2.5
+
+
+def test_an_atlas_manifest_that_is_a_fifo_is_refused_not_waited_on(tmp_path):
+    import os
+
+    from reach.errors import StoreError
+    from reach.maps.atlas import load_atlas
+
+    (tmp_path / "atlas").mkdir()
+    os.mkfifo(tmp_path / "atlas" / "manifest.json")
+    with pytest.raises(StoreError, match="not a regular file"):
+        load_atlas(tmp_path / "atlas")

@@ -458,6 +458,26 @@ class _StrictLoader(yaml.SafeLoader):
             seen.add(key)
         return super().construct_mapping(node, deep)  # type: ignore[no-any-return]
 
+    def construct_yaml_int(self, node: yaml.ScalarNode) -> int:
+        digits = sum(c.isdigit() for c in str(node.value))
+        if digits > MAX_DIGITS:
+            raise _TooLong(node.start_mark.line + 1, digits)
+        return super().construct_yaml_int(node)  # type: ignore[no-untyped-call,no-any-return]
+
+
+# The most digits of a whole number in a config: no key takes more than a seed's (a 400-digit stature overflowed the
+# float it becomes; one of 4,301 digits is past Python's own limit for reading an int)
+MAX_DIGITS = 20
+
+
+class _TooLong(Exception):
+    def __init__(self, line: int, digits: int) -> None:
+        super().__init__(line, digits)
+        self.line, self.digits = line, digits
+
+
+_StrictLoader.add_constructor("tag:yaml.org,2002:int", _StrictLoader.construct_yaml_int)
+
 
 # The most nodes a config may hold with its aliases expanded: the largest shipped config has about 1,500; a "billion
 # laughs" of nested aliases (796 bytes) expands past 10^8 and took 2.7 GB before failing.
@@ -517,6 +537,9 @@ def read_yaml(path: Path, seen: tuple[Path, ...] = ()) -> Any:
         data = loader.construct_document(node) if node is not None else None
     except _DuplicateKey as exc:
         raise ConfigError(path, exc.key, f"duplicate key (line {exc.line}); give each key once") from None
+    except _TooLong as exc:
+        raise ConfigError(path, "", f"line {exc.line}: a whole number of {exc.digits} digits; no key takes more than "
+                                    f"{MAX_DIGITS}") from None
     except _TooLarge:
         raise ConfigError(path, "", f"holds over {MAX_NODES:,} values with its aliases (&name, *name) expanded; a "
                                     "config that large is a mistake or an attack") from None

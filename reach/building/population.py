@@ -10,6 +10,7 @@ inside a member, tree by tree from the trees' checkpoints.
 from __future__ import annotations
 
 import json
+import math
 import os
 import time
 from collections.abc import Callable
@@ -17,12 +18,14 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from reach.building.config import Config, parse_config
-from reach.errors import ConfigError, TreeError
+from reach.errors import ConfigError, StoreError, TreeError
+from reach.maps.atlas import bounded_bytes
 
 if TYPE_CHECKING:
     from oracles.bodies.population import Member
 
 MANIFEST = "population.json"
+MAX_WEIGHT = 1e12  # a member's weight: weights are relative; a sum of thousands of them must stay finite
 FORMAT = 1
 
 
@@ -59,22 +62,35 @@ def is_population(folder: str | Path) -> bool:
     return (Path(folder) / MANIFEST).is_file()
 
 
+MAX_MANIFEST_BYTES = 64 * 2**20  # the whole survey's 6,068 members' manifest is about 12 MB
+MAX_NAME = 255  # a member's name and atlas folder: a file name
+
+
 def read_manifest(folder: str | Path) -> dict[str, Any]:
     """A population folder's manifest; errors name the file and what was expected."""
     path = Path(folder) / MANIFEST
     try:
-        doc = json.loads(path.read_text())
-    except OSError as exc:
-        raise TreeError(f"{path}: cannot read: {exc.strerror or exc}") from exc
+        doc = json.loads(bounded_bytes(path, MAX_MANIFEST_BYTES, "a population's manifest"))
+    except StoreError as exc:
+        raise TreeError(str(exc)) from None
+    except RecursionError:
+        raise TreeError(f"{path}: nested too deeply: not a population manifest") from None
     except ValueError as exc:
-        raise TreeError(f"{path}: not JSON ({exc})") from exc
+        raise TreeError(f"{path}: not JSON ({str(exc)[:200]})") from None
     if not isinstance(doc, dict) or doc.get("format") != FORMAT or not isinstance(doc.get("members"), list):
         raise TreeError(f"{path}: expected a population manifest (format {FORMAT}, a members list)")
     for i, m in enumerate(doc["members"]):
-        if (not isinstance(m, dict) or not isinstance(m.get("atlas"), str) or "/" in m["atlas"]
-                or m["atlas"].startswith(".") or not isinstance(m.get("weight"), (int, float))
-                or not m["weight"] >= 0):
-            raise TreeError(f"{path}: members[{i}]: expected name, sex, a weight >= 0 and an atlas folder name")
+        ok = isinstance(m, dict) and all(isinstance(m.get(k), str) and 0 < len(m[k]) <= MAX_NAME
+                                         for k in ("name", "atlas"))
+        if not ok or "/" in m["atlas"] or m["atlas"].startswith("."):
+            raise TreeError(f"{path}: members[{i}]: expected a name and an atlas folder name (at most {MAX_NAME} "
+                            "characters, no '/', not starting with '.'), a sex and a weight")
+        weight = m.get("weight")
+        # (json reads 1e999 as inf and 10**400 as an int no float holds)
+        if (isinstance(weight, bool) or not isinstance(weight, (int, float)) or not 0 <= weight <= MAX_WEIGHT
+                or not math.isfinite(weight)):
+            raise TreeError(f"{path}: members[{i}]: weight: expected a number from 0 to {MAX_WEIGHT:g}, got "
+                            f"{str(weight)[:40]}")
     return doc
 
 

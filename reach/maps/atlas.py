@@ -10,6 +10,7 @@ import fcntl
 import hashlib
 import json
 import os
+import stat
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -100,7 +101,9 @@ def read_manifest(folder: str | Path) -> dict[str, Any]:
     if not folder.is_dir():
         raise StoreError(folder, "no such atlas folder (expected the output of 'reach build')")
     if not path.is_file():
-        raise StoreError(path, "missing; this folder is not an atlas written by 'reach build'")
+        raise StoreError(path, "not a regular file (a FIFO, a device or a folder); expected an atlas's manifest"
+                         if path.exists() or path.is_symlink() else
+                         "missing; this folder is not an atlas written by 'reach build'")
     manifest = read_header(path, _manifest_bytes(path), ATLAS_FORMAT, ATLAS_VERSION, "atlas")
     if manifest.get("digest") != manifest_digest(manifest):
         # Priorities, strategies or model hashes edited by hand would change the answers silently.
@@ -119,10 +122,26 @@ def _manifest_bytes(path: Path) -> bytes:
     """A manifest's bytes: a regular file inside its folder (not a link out of it), of bounded size."""
     if path.is_symlink():
         raise StoreError(path, "is a symbolic link; an atlas's manifest is a file of its own folder")
-    size = path.stat().st_size
-    if size > MAX_MANIFEST_BYTES:
-        raise StoreError(path, f"{size} bytes; a manifest is at most {MAX_MANIFEST_BYTES} (is this an atlas?)")
-    return path.read_bytes()
+    return bounded_bytes(path, MAX_MANIFEST_BYTES, "a manifest", " (is this an atlas?)")
+
+
+def bounded_bytes(path: Path, limit: int, what: str, hint: str = "") -> bytes:
+    """A regular file's bytes, at most ``limit`` of them: a FIFO would block the reader for ever and a device (a link
+    to /dev/zero) fill its memory, so both are refused, as is a larger file (``what`` names it in the error, ``hint``
+    ends it)."""
+    try:
+        info = path.stat()
+        if not stat.S_ISREG(info.st_mode):
+            raise StoreError(path, f"not a regular file (a FIFO, a device or a folder); expected {what}")
+        if info.st_size > limit:
+            raise StoreError(path, f"{info.st_size} bytes; {what} is at most {limit}{hint}")
+        with open(path, "rb") as fh:
+            data = fh.read(limit + 1)
+    except OSError as exc:
+        raise StoreError(path, f"cannot read: {exc.strerror or exc}") from exc
+    if len(data) > limit:
+        raise StoreError(path, f"more than {limit} bytes; {what} is at most {limit}{hint}")
+    return data
 
 
 def _check_strategies(path: Path, folder: Path, manifest: dict[str, Any]) -> None:
@@ -152,7 +171,9 @@ def accept_manifest(folder: str | Path) -> Atlas:
     folder = Path(folder)
     path = folder / MANIFEST
     if not path.is_file():
-        raise StoreError(path, "missing; this folder is not an atlas written by 'reach build'")
+        raise StoreError(path, "not a regular file (a FIFO, a device or a folder); expected an atlas's manifest"
+                         if path.exists() or path.is_symlink() else
+                         "missing; this folder is not an atlas written by 'reach build'")
     manifest = read_header(path, _manifest_bytes(path), ATLAS_FORMAT, ATLAS_VERSION, "atlas")
     _check_strategies(path, folder, manifest)
     trees, indexes = _load_trees(folder, manifest)  # the edited manifest must hold, trees and all, before it is stamped
