@@ -223,3 +223,13 @@ def test_motion_usage_names_one_atlas_and_one_goal(capsys):
         main(["motion", "--help"])
     out = capsys.readouterr().out
     assert "ATLAS X Y Z\n" in out and "--connect ADDR X Y Z" in out and "[ATLAS X Y Z ...]" not in out
+
+
+def test_a_mesh_path_too_long_for_the_system_is_a_one_line_error(tmp_path, capsys):
+    """A URDF's mesh path of 40,000 characters raised OSError (File name too long) from the file system's lookup."""
+    urdf = tmp_path / "long.urdf"
+    urdf.write_text('<?xml version="1.0"?><robot name="r"><link name="base"><collision><geometry><mesh filename="'
+                    + "m" * 40_000 + '.stl"/></geometry></collision></link></robot>')
+    assert main(["model", str(urdf)]) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if line.startswith("reach: error: ")]
+    assert len(err) == 1 and len(err[0]) < 1000 and "not found" in err[0]

@@ -220,7 +220,7 @@ def _resolve(filename: str, urdf_dir: Path | None, package_dirs: Sequence[str | 
         rest = filename[len("package://"):]
         for root in package_dirs:
             candidate = Path(root) / rest
-            if candidate.is_file():
+            if _is_file(candidate):
                 return candidate
         package = rest.split("/", 1)[0]
         found = _package_parent(package, urdf_dir)
@@ -231,9 +231,18 @@ def _resolve(filename: str, urdf_dir: Path | None, package_dirs: Sequence[str | 
     path = Path(filename.removeprefix("file://"))
     if not path.is_absolute() and urdf_dir is not None:
         path = urdf_dir / path
-    if not path.is_file():
+    if not _is_file(path):
         raise ModelError(f"mesh {filename!r} not found (looked for {path})", source=source)
     return path
+
+
+def _is_file(path: Path) -> bool:
+    """Whether path is a file, and False for a name the system cannot even look up (a 40,000-character mesh path
+    raised OSError: File name too long)."""
+    try:
+        return path.is_file()
+    except OSError:
+        return False
 
 
 def _package_parent(package: str, urdf_dir: Path | None) -> Path | None:
