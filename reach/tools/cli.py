@@ -7,6 +7,7 @@ print one line naming what was wrong and exit with status 2.
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 from collections.abc import Sequence
 from typing import Any
@@ -38,26 +39,25 @@ def _short(message: str) -> str:
                     for w in message.split(" "))
 
 
+class _Stderr(logging.StreamHandler):  # type: ignore[type-arg]
+    """Writes to the standard error of the moment (a caller may have replaced it since)."""
+
+    reach_cli = True
+
+    @property  # type: ignore[override]
+    def stream(self) -> Any:
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value: Any) -> None:
+        pass
+
+
 def _say_compiles() -> None:
     """The IK programs' compiles (``oracles.ik.jit``: minutes on a first run) said on standard error, once."""
-    import logging
-
-    class Stderr(logging.StreamHandler):  # type: ignore[type-arg]
-        """Writes to the standard error of the moment (a caller may have replaced it since)."""
-
-        reach_cli = True
-
-        @property  # type: ignore[override]
-        def stream(self) -> Any:
-            return sys.stderr
-
-        @stream.setter
-        def stream(self, value: Any) -> None:
-            pass
-
     log = logging.getLogger("reach.jit")
     if not any(getattr(h, "reach_cli", False) for h in log.handlers):
-        handler = Stderr()
+        handler = _Stderr()
         handler.setFormatter(logging.Formatter("reach: %(message)s"))
         log.addHandler(handler)
         log.setLevel(logging.INFO)
