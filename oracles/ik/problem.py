@@ -101,6 +101,10 @@ class ReachProblem:
         self._x_single, self._q_single = (np.array([a for a, _ in single], int), np.array([b for _, b in single], int))
         self._x_paired, self._q_paired = (np.array([a for a, _ in paired], int), np.array([b for _, b in paired], int))
         self.x_ref = self.x_of_q(body.q_ref)
+        # Where the searches start and spread their random starts: the reference, unless it breaks the strategy's hard
+        # tasks (a squat's hips above its knees), when the engine finds a posture that holds them (use_home).
+        self.x_home = self.x_ref
+        self.home_sought = False
         # A start for refinements: the reference with every joint READY of the
         # way to the middle of its range (the root where it stands).
         self.x_ready = self.x_ref.copy()
@@ -115,6 +119,10 @@ class ReachProblem:
         self.anchor, self.max_reach = self._reach_bound(data)
         # The hard tasks' coupled limits at the reference posture: those it rests at are not strain (limits_near).
         self._rest_slacks = [t.limit_slacks(body.q_ref) for t in strategy.hard]
+
+    def use_home(self, q: np.ndarray) -> None:
+        """Start the searches from ``q`` (a posture that holds the hard tasks the reference breaks)."""
+        self.x_home = self.x_of_q(np.asarray(q, float))
 
     # -- coordinates -------------------------------------------------------
     def q_expression(self, q_ref: ca.SX) -> ca.SX:

@@ -71,9 +71,9 @@ def starts(problem: ReachProblem, search: Search, goal: np.ndarray, hint: np.nda
     seeds = np.zeros((0, 0)) if hint is None else np.atleast_2d(hint)  # one hint, or several
     out += [problem.x_of_q(h) for h in seeds if np.all(np.isfinite(h))]
     if search.reference_first and call.start is None:
-        out[:0] = [problem.x_ref.copy(), problem.x_ready.copy()]
+        out[:0] = [problem.x_home.copy(), problem.x_ready.copy()]
     else:
-        out.append(problem.x_ref.copy())
+        out.append(problem.x_home.copy())
     rng = np.random.default_rng([search.seed, zlib.crc32(np.round(goal, 9).tobytes())])
     out += [problem.random_x(rng) for _ in range(search.restarts if restarts is None else restarts)]
     return out

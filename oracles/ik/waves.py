@@ -116,7 +116,7 @@ def batch_starts(oracle: Batched, goal: np.ndarray, hint: np.ndarray | None, wav
     if wave == 0:
         seeds = np.zeros((0, 0)) if hint is None else np.atleast_2d(hint)
         placed += [p.x_of_q(h) for h in seeds if np.all(np.isfinite(h))]
-        placed += [p.x_ref.copy(), p.x_ready.copy()]
+        placed += [p.x_home.copy(), p.x_ready.copy()]
     if part == "placed":
         return placed
     rng = np.random.default_rng([oracle.search.seed, zlib.crc32(np.round(goal, 9).tobytes()), wave])
@@ -130,7 +130,7 @@ def batch_starts(oracle: Batched, goal: np.ndarray, hint: np.ndarray | None, wav
         # A goal with a target (an orientation) is seeded with postures found for its position alone: K random
         # starts besides them (with K in all, 2 of 75 oriented goals the referee reaches on arm7_table were missed).
         count = max(count, k)
-    randoms = [p.x_ref + spread * (p.random_x(rng) - p.x_ref) for _ in range(count)]
+    randoms = [p.x_home + spread * (p.random_x(rng) - p.x_home) for _ in range(count)]
     return randoms if part == "random" else placed + randoms
 
 
@@ -185,7 +185,7 @@ class Waves:
         if first_hint is not None and np.isfinite(search.give_up_distance):
             self.decisive[todo] = [hinted[i] and p.effector_distance(first_hint[i], self.pts[i], oracle.data)
                                    <= search.decisive for i in todo]
-        self.first = np.tile(p.x_ref, (n, 1))
+        self.first = np.tile(p.x_home, (n, 1))
         for i in todo[hinted[todo]]:
             self.first[i] = p.x_of_q(first_hint[i])  # type: ignore[index]
         # A goal far from what anything found: no hint (a first call, a cold query) or a search that never gives
