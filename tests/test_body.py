@@ -99,6 +99,21 @@ def test_a_surveyed_persons_body_has_their_measures(sex):
 
 
 @pytest.mark.parametrize("sex", ["male", "female"])
+def test_the_seated_measures_read_back_the_record_the_body_was_built_from(sex):
+    """The measuring postures of the dimensions nobody gave a body (bench/validation.py's per-subject table) read the
+    given ones back: knee height sitting, taken like popliteal height and the thigh clearance (hips and knees at 90
+    deg, the sole under the heel frame), is the subject's own."""
+    from oracles.bodies.measure import measure
+
+    rows = _ansur_rows(sex)
+    for subject in sorted(rows)[::500]:
+        m = measure(human_body(ansur={"sex": sex, "subject": subject}))
+        assert m["kneeheightsitting"] == pytest.approx(float(rows[subject]["kneeheightsitting"]) / 1000.0, abs=1e-6)
+        assert m["lateralmalleolusheight"] < m["poplitealheight"] < m["kneeheightsitting"]
+        assert m["elbowrestheight"] < m["sittingheight"] and m["shoulderelbowlength"] > m["acromionradialelength"]
+
+
+@pytest.mark.parametrize("sex", ["male", "female"])
 def test_the_carried_survey_is_the_public_files(sex):
     rows = _ansur_rows(sex, public_only=True)
     carried = ansur.sample(sex)

@@ -330,6 +330,14 @@ def anthropometry(sex: Sex = "male", stature: float | None = None, percentile: f
     return _measured(sex, dims_built, asked if subject is None else given, spread)
 
 
+# The survey's dimensions a measured body is built from (what _measured reads; its capsules' girths aside): the rest
+# of a body's measures are what nobody gave it (bench/validation.py).
+BUILT_FROM = ("stature", "acromialheight", "cervicaleheight", "trochanterionheight", "lateralfemoralepicondyleheight",
+              "lateralmalleolusheight", "acromionradialelength", "radialestylionlength", "handlength", "grip",
+              "thumbtipreach", "span", "sittingheight", "eyeheightsitting", "buttockkneelength", "kneeheightsitting",
+              "footlength")
+
+
 def _measured(sex: Sex, d: dict[str, float], asked: dict[str, float], spread: dict[str, float]) -> Anthropometry:
     """A body whose joint centres sit where its ANSUR II landmarks imply (see the constants above)."""
     H, mass = d["stature"], d[ansur.MASS]

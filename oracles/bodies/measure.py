@@ -40,6 +40,31 @@ MEASURES = {
     "radialestylionlength": "standing, arms hanging: the right elbow centre to the wrist centre (at stylion)",
     "handlength": "the right wrist centre to the middle fingertip",
     "footlength": "the right heel to the toe tip",
+    # Dimensions no body is built from (see docs/validation.md): where a landmark is not a frame of the model, the
+    # capsule that stands for the flesh there is measured (its lowest, highest or outermost point).
+    "biacromialbreadth": "standing: the right acromion frame to the left one",
+    "shoulderelbowlength": "standing, the upper arm hanging, the elbow flexed 90 deg: the acromion above the elbow's "
+                           "underside (the lowest point of the upper arm's and forearm's capsules)",
+    "elbowrestheight": "seated upright, the upper arm hanging, the elbow flexed 90 deg: the elbow's underside above "
+                       "the seat",
+    "poplitealheight": "seated, hips and knees at 90 deg, the foot flat: the thigh's underside at the knee (its "
+                       "capsule's) above the sole",
+    "kneeheightsitting": "seated, hips and knees at 90 deg, the foot flat: the knee's top (the knee centre and the "
+                         "body's knee_front above it) above the sole",
+    "buttockpopliteallength": "seated, hips and knees at 90 deg: the buttocks' back (the pelvis capsule) to the back "
+                              "of the knee (the shank capsule's back at the knee)",
+    "thighclearance": "seated, hips and knees at 90 deg: the thigh capsule's top above the seat",
+    "hipbreadthsitting": "seated, hips and knees at 90 deg: the pelvis and thigh capsules' extent side to side",
+    "crotchheight": "standing: the lowest point of the pelvis capsule above the floor",
+    "tibialheight": "standing: the right knee centre above the floor (the model's tibial plateau)",
+    "cervicaleheight": "standing: the neck's lower joint (C7) above the floor",
+    "bideltoidbreadth": "standing, arms hanging: the upper arms' capsules' extent side to side",
+    "forearmforearmbreadth": "standing, the upper arms hanging, both elbows flexed 90 deg: the upper arms' and "
+                             "forearms' capsules' extent side to side",
+    "interpupillarybreadth": "the right eye frame to the left one",
+    "footbreadthhorizontal": "the right foot's inner ball corner to its outer one",
+    "heelbreadth": "the right foot's inner heel corner to its outer one",
+    "balloffootlength": "the right heel to the inner ball corner, along the foot",
 }
 
 
@@ -95,6 +120,57 @@ def measure(body: Body) -> dict[str, float]:
         out["acromionradialelength"] = float(np.linalg.norm(stand["right_acromion"] - elbow))
         out["handlength"] = float(np.linalg.norm(stand["right_fingertip"] - wrist))
         out["grip"] = float(abs(stand["right_grip"][2] - wrist[2]))
+        out.update(_unbuilt(body, stand, hip, seat, place.knee_front))
+    return out
+
+
+def _capsules(body: Body, **angles: float) -> dict[str, np.ndarray]:
+    """Each collision capsule (a, b, radius as a row of 7) at the reference with angles set, by name."""
+    rows = body.capsules_at(body.configuration(angles))
+    return {c.name: row for c, row in zip(body.collision.placed, rows, strict=True)}
+
+
+def _lowest(*capsules: np.ndarray) -> float:
+    return float(min(min(c[2], c[5]) - c[6] for c in capsules))
+
+
+def _extent(*capsules: np.ndarray) -> float:
+    """The capsules' extent along y [m] (side to side)."""
+    return float(max(max(c[1], c[4]) + c[6] for c in capsules) - min(min(c[1], c[4]) - c[6] for c in capsules))
+
+
+def _unbuilt(body: Body, stand: dict[str, np.ndarray], hip: float, seat: float,
+             knee_front: float | None) -> dict[str, float]:
+    """The dimensions no body is built from (see :data:`MEASURES`) [m]: how the model meets what nobody gave it."""
+    out = {"biacromialbreadth": float(np.linalg.norm(stand["right_acromion"] - stand["left_acromion"])),
+           "interpupillarybreadth": float(np.linalg.norm(stand["right_eye"] - stand["left_eye"])),
+           "footbreadthhorizontal": float(np.linalg.norm(stand["right_ball_outer"] - stand["right_ball_inner"])),
+           "heelbreadth": float(np.linalg.norm(stand["right_heel_outer"] - stand["right_heel_inner"])),
+           "balloffootlength": float(stand["right_ball_inner"][0] - stand["right_heel"][0]),
+           "tibialheight": float(stand["joint:right_knee_flexion"][2]),
+           "cervicaleheight": float(stand["joint:neck_flexion"][2])}
+    upright = _capsules(body)
+    out["crotchheight"] = _lowest(upright["pelvis"])
+    out["bideltoidbreadth"] = _extent(upright["right_upper_arm"], upright["left_upper_arm"])
+    bent = {"right_elbow_flexion": math.pi / 2, "left_elbow_flexion": math.pi / 2}
+    elbows = _capsules(body, **bent)
+    underside = _lowest(elbows["right_upper_arm"], elbows["right_forearm"])
+    out["shoulderelbowlength"] = float(stand["right_acromion"][2]) - underside
+    out["elbowrestheight"] = underside - hip + seat
+    out["forearmforearmbreadth"] = _extent(*(elbows[f"{side}_{part}"] for side in ("right", "left")
+                                              for part in ("upper_arm", "forearm")))
+    sitting = {f"{side}_{joint}_flexion": math.pi / 2 for side in ("right", "left") for joint in ("hip", "knee")}
+    legs, points = _capsules(body, **sitting), _points(body, **sitting)
+    # the heel frame lies on the sole (the right_sole frame is the ankle's)
+    thigh, shank, sole = legs["right_thigh"], legs["right_shank"], float(points["right_heel"][2])
+    knee = points["joint:right_knee_flexion"]
+    out["poplitealheight"] = float(knee[2] - thigh[6]) - sole
+    if knee_front is not None:
+        out["kneeheightsitting"] = float(knee[2]) + knee_front - sole
+    back = min(legs["pelvis"][0], legs["pelvis"][3]) - legs["pelvis"][6]
+    out["buttockpopliteallength"] = float(knee[0] - shank[6] - back)
+    out["thighclearance"] = float(max(thigh[2], thigh[5]) + thigh[6]) - (hip - seat)
+    out["hipbreadthsitting"] = _extent(legs["pelvis"], legs["right_thigh"], legs["left_thigh"])
     return out
 
 
