@@ -24,6 +24,7 @@ build asks (each goal hinted with the kept posture of its nearest proven neighbo
     python bench/truth.py --config CONFIG --strategies a,b --out FOLDER [--generate]   (a suite of any config)
     python bench/truth.py --population [--generate]   (members from the survey's tails x population.yaml's strategies
                                                        x the workstation's targets)
+    python bench/truth.py --restamp COMMIT   (a body changed in massless frames no task uses: see restamp)
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ import argparse
 import json
 import os
 import platform
+import re
 import subprocess
 import sys
 import time
@@ -266,6 +268,67 @@ def scored(name: str, jit: bool, folder: Path = SUITE) -> list[dict]:
     return lines
 
 
+FRAME = re.compile(r'<link name="([^"]+)"/>|<joint name="([^"]+)_fixed" type="fixed">.*?</joint>', re.S)
+# Where the tasks, the engine and the selector look frames up by name: a frame named there is used by some strategy.
+USERS = ("oracles/tasks", "oracles/ik", "reach/answers")
+OLD_URDFS = """
+import json, sys
+sys.path.insert(0, "tests")
+from truth_suite import provenance, suite_spec
+print(json.dumps({n: suite_spec(n).create().body.urdf for n in provenance()["strategies"]}))
+"""
+
+
+def frames(urdf: str) -> tuple[str, dict[str, str]]:
+    """A URDF without its massless fixed frames (its white space collapsed), and those frames' text by name."""
+    found: dict[str, str] = {}
+    for m in FRAME.finditer(urdf):
+        name = m.group(1) or m.group(2)
+        found[name] = found.get(name, "") + m.group(0)
+    return " ".join(FRAME.sub("", urdf).split()), found
+
+
+def restamp(commit: str, folder: Path) -> list[dict]:
+    """Each suite's body hash made anew where the body changed since ``commit`` only in massless fixed frames that no
+    task, engine or selector names (a landmark moved or added): its labels and proving postures stand, the proving
+    postures being checked again by the tests. Any other change (a joint, a length, a mass, a capsule, a frame a task
+    looks up) is refused: that suite must be generated again."""
+    import tempfile
+
+    used = " ".join(p.read_text() for d in USERS for p in (ROOT / d).rglob("*.py"))
+    commit = subprocess.run(["git", "rev-parse", "--short", commit], cwd=ROOT, check=True, capture_output=True,
+                            text=True).stdout.strip()
+    prov = provenance(folder)
+    with tempfile.TemporaryDirectory() as tmp:
+        tree = Path(tmp) / "old"
+        subprocess.run(["git", "worktree", "add", "--detach", "-q", str(tree), commit], cwd=ROOT, check=True)
+        try:
+            old = json.loads(subprocess.run([sys.executable, "-c", OLD_URDFS], cwd=tree, check=True, text=True,
+                                            capture_output=True, env={**os.environ, "PYTHONPATH": str(tree)}).stdout)
+        finally:
+            subprocess.run(["git", "worktree", "remove", "--force", str(tree)], cwd=ROOT, check=True)
+    out = []
+    for name, entry in prov["strategies"].items():
+        spec = suite_spec(name, folder)
+        oracle = spec.create()
+        if oracle.model_hash == entry["body_hash"]:
+            continue
+        rest_old, frames_old = frames(old[name])
+        rest_new, frames_new = frames(oracle.body.urdf)
+        changed = sorted(n for n in set(frames_old) | set(frames_new) if frames_old.get(n) != frames_new.get(n))
+        strategy = json.dumps(spec.params, sort_keys=True)
+        named = [n for n in changed if n in strategy or n.removeprefix("right_").removeprefix("left_") in used]
+        if rest_old != rest_new or named:
+            what = ", ".join(named) if named else "joints, links or capsules"
+            raise SystemExit(f"{name}: the body changed beyond frames no task uses ({what}): "
+                             f"python bench/truth.py --generate --strategies {name}")
+        entry["restamped"] = {"from": entry["body_hash"], "commit": commit, "frames": changed}
+        entry["body_hash"] = oracle.model_hash
+        out.append({"strategy": name, "restamped": entry["restamped"]})
+    (folder / "provenance.json").write_text(json.dumps(prov, indent=1) + "\n")
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--generate", action="store_true")
@@ -280,9 +343,15 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=59)
     parser.add_argument("--out", default=str(SUITE))
     parser.add_argument("--jit", action="store_true", help="score with compiled programs (as the configs ask)")
+    parser.add_argument("--restamp", metavar="COMMIT", help="make each stale suite's body hash anew where its body "
+                        "changed since COMMIT only in massless frames that no task uses (else: an error)")
     args = parser.parse_args()
     emit(bench="machine", python=platform.python_version(), processor=platform.processor() or platform.machine(),
          cores=os.cpu_count(), load=os.getloadavg()[0])
+    if args.restamp:
+        for line in restamp(args.restamp, Path(args.out)):
+            emit(**line)
+        return
     wanted = None if not args.strategies else set(args.strategies.split(","))
     if args.config and not wanted:
         parser.error("--config needs --strategies")

@@ -126,7 +126,7 @@ def pheasant_rows() -> list[dict]:
         data = body.model.createData()
         pin.framesForwardKinematics(body.model, data, body.q_ref)
         acromion, grip = (data.oMf[body.frame_id(n)].translation for n in ("right_acromion", "right_grip"))
-        m = 1000 * float(np.linalg.norm(acromion - grip))
+        m = 1000 * float(acromion[2] - grip[2])  # along the hanging arm, as a length is taken from the acromion's tip
         rows.append({"table": "percentile", "body": f"{sex} p{pct:g}", "dimension": "shouldergriplength",
                      "published_mm": published, "sd_mm": sd, "ansur_mm": round(m, 1),
                      "ansur_dev_mm": round(m - published, 1),

@@ -93,6 +93,12 @@ def test_a_surveyed_persons_body_has_their_measures(sex):
         assert abs(f["right_grip"][2] - wrist[2]) == pytest.approx(grip, abs=1e-6)
         assert abs(f["right_fingertip"][2] - wrist[2]) == pytest.approx(raw["handlength"], abs=1e-6)
         assert body.mass == pytest.approx(raw["weightkg"] * 100.0, rel=1e-6)
+        # The landmarks where the survey puts them: the acromions' tips a biacromial breadth apart; with the elbow
+        # flexed 90 deg, its underside (elbow_rest) a shoulder-elbow length below the acromion.
+        assert f["left_acromion"][1] - f["right_acromion"][1] == pytest.approx(raw["biacromialbreadth"], abs=1e-6)
+        bent = body.frame_positions(_set(body, right_elbow_flexion=np.pi / 2), ["right_acromion", "right_elbow_rest"])
+        assert bent["right_acromion"][2] - bent["right_elbow_rest"][2] == pytest.approx(raw["shoulderelbowlength"],
+                                                                                        abs=1e-6)
         # Sitting height: the vertex over a hard seat, the hips where the subject's sitting height puts them.
         place = body.anthropometry.place
         assert f["vertex"][2] - body.q_ref[2] + place.hip_above_seat == pytest.approx(raw["sittingheight"], abs=1e-6)

@@ -79,7 +79,8 @@ def test_the_suite_has_its_provenance_and_its_body():
         assert entry["one_start_misses"] >= 5 and entry["regions"].get("behind", 0) + entry["regions"]["across"] > 0
         oracle = _oracle(name)
         assert oracle.model_hash == entry["body_hash"], (
-            f"{name}'s suite was made on another body: python bench/truth.py --generate --strategies {name}")
+            f"{name}'s suite was made on another body: python bench/truth.py --generate --strategies {name} (or "
+            "--restamp COMMIT when only massless frames that no task uses changed since COMMIT)")
         assert np.isnan(suite.posture[~suite.reachable]).all() and np.isfinite(suite.posture[suite.reachable]).all()
 
 

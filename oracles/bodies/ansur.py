@@ -70,6 +70,7 @@ COLUMNS = (
     "neckcircumference",
     "handbreadth",
     "buttockdepth",
+    "shoulderelbowlength",
 )
 # The dimensions that set a body's reach (a list of the survey's reach dimensions): what `reach model` prints first.
 REACH = (

@@ -218,7 +218,9 @@ class Placement:
     ``fingertip``: along the hand from the wrist centre, ``palmar``: the grip's and pinch's depth in front of the
     hand's axis; ``hip_above_seat``: the hip centres above a hard flat seat, ``buttock_back``: the buttocks behind
     the hip centres, seated, ``knee_front``: the front of the knee ahead of its centre (None for de_leva bodies: their
-    seat contact is their capsules'); ``acromion``: the acromion above the shoulder centre.
+    seat contact is their capsules'); ``acromion``: the acromion above the shoulder centre; ``acromion_y``: an
+    acromion's lateral tip from the mid-plane, ``olecranon``: the elbow's underside (flexed 90 deg) below radiale
+    (None for de_leva bodies: they have no acromion frames).
     """
 
     sjc_below_cerv: float
@@ -234,6 +236,8 @@ class Placement:
     hip_above_seat: float | None = None
     buttock_back: float | None = None
     knee_front: float | None = None
+    acromion_y: float | None = None
+    olecranon: float | None = None
 
 
 @dataclass(frozen=True)
@@ -332,7 +336,8 @@ def anthropometry(sex: Sex = "male", stature: float | None = None, percentile: f
 
 # The survey's dimensions a measured body is built from (what _measured reads; its capsules' girths aside): the rest
 # of a body's measures are what nobody gave it (bench/validation.py).
-BUILT_FROM = ("stature", "acromialheight", "cervicaleheight", "trochanterionheight", "lateralfemoralepicondyleheight",
+BUILT_FROM = ("stature", "acromialheight", "biacromialbreadth", "shoulderelbowlength", "cervicaleheight",
+              "trochanterionheight", "lateralfemoralepicondyleheight",
               "lateralmalleolusheight", "acromionradialelength", "radialestylionlength", "handlength", "grip",
               "thumbtipreach", "span", "sittingheight", "eyeheightsitting", "buttockkneelength", "kneeheightsitting",
               "footlength")
@@ -376,6 +381,12 @@ def _measured(sex: Sex, d: dict[str, float], asked: dict[str, float], spread: di
         pinch=pinch, fingertip=hand, palmar=HAND_PALMAR * lengths["hand"], acromion=drop,
         hip_above_seat=d["sittingheight"] - (H - hip),
         buttock_back=d["buttockkneelength"] - lengths["thigh"] - knee_front, knee_front=knee_front,
+        # The survey's landmarks (Gordon et al. 2014's definitions): the acromions' lateral tips half the biacromial
+        # breadth from the mid-plane; with the elbow flexed 90 deg, its underside (the olecranon) lies the
+        # shoulder-elbow length less the acromion-radiale length below radiale (men 28.5 +- 4.9 mm, women 23.1 +- 5.7,
+        # computed from the public files), both measured from the acromion along the upper arm.
+        acromion_y=0.5 * d["biacromialbreadth"],
+        olecranon=max(d["shoulderelbowlength"] - d["acromionradialelength"], 0.0),
     )
     total = sum(v[1] for v in table.values()) + sum(table[k][1]
                                                     for k in ("upper_arm", "forearm", "hand", "thigh", "shank", "foot"))

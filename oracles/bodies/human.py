@@ -184,7 +184,9 @@ def human_urdf(body: Anthropometry, name: str = "human") -> str:
         sjc = (0.0, s * (P.shoulder_y - A.STERNOCLAVICULAR_Y * H), 0.0)
         u.frame(f"{p}shoulder", f"{p}clavicle", sjc)
         if measured:
-            u.frame(f"{p}acromion", f"{p}clavicle", (0.0, sjc[1], P.acromion))
+            # the acromion's lateral tip, above the shoulder centre's height by P.acromion (the survey's landmark)
+            tip = P.shoulder_y if P.acromion_y is None else P.acromion_y
+            u.frame(f"{p}acromion", f"{p}clavicle", (0.0, s * (tip - A.STERNOCLAVICULAR_Y * H), P.acromion))
         u.link(f"{p}upper_arm", M["upper_arm"], (0, 0, -C["upper_arm"] * L["upper_arm"]), L["upper_arm"])
         u.chain(
             [(f"{p}shoulder_flexion", (0, -1, 0)), (f"{p}shoulder_abduction", (s, 0, 0)),
@@ -194,6 +196,10 @@ def human_urdf(body: Anthropometry, name: str = "human") -> str:
         u.link(f"{p}forearm", M["forearm"], (0, 0, -C["forearm"] * L["forearm"]), L["forearm"])
         u.chain([(f"{p}elbow_flexion", (0, -1, 0)), (f"{p}forearm_pronation", (0, 0, -s))], f"{p}upper_arm",
                 f"{p}forearm", (0, 0, -L["upper_arm"]))
+        if measured and P.olecranon is not None:
+            # the elbow's underside where elbow rest height is taken: behind the elbow centre on the ulna (the
+            # flexion's link, which pronation does not turn), below it with the elbow flexed 90 deg
+            u.frame(f"{p}elbow_rest", f"{p}elbow_flexion_link", (-P.olecranon, 0.0, 0.0))
         u.link(f"{p}palm", M["hand"], (0, 0, -C["hand"] * L["hand"]), L["hand"])
         u.chain([(f"{p}wrist_flexion", (-s, 0, 0)), (f"{p}wrist_deviation", (0, -1, 0))], f"{p}forearm", f"{p}palm",
                 (0, 0, -L["forearm"]))

@@ -36,17 +36,18 @@ MEASURES = {
     "trochanterionheight": "standing: the right hip centre above the floor (at the trochanterion's height)",
     "lateralfemoralepicondyleheight": "standing: the right knee centre above the floor (at the epicondyle's)",
     "lateralmalleolusheight": "standing: the right ankle centre above the floor (at the malleolus's)",
-    "acromionradialelength": "standing, arms hanging: the right acromion to the elbow centre (at radiale)",
+    "acromionradialelength": "standing, arms hanging: the right acromion above the elbow centre (at radiale), along "
+                             "the arm, as the survey's beam caliper takes it",
     "radialestylionlength": "standing, arms hanging: the right elbow centre to the wrist centre (at stylion)",
     "handlength": "the right wrist centre to the middle fingertip",
     "footlength": "the right heel to the toe tip",
     # Dimensions no body is built from (see docs/validation.md): where a landmark is not a frame of the model, the
     # capsule that stands for the flesh there is measured (its lowest, highest or outermost point).
-    "biacromialbreadth": "standing: the right acromion frame to the left one",
+    "biacromialbreadth": "standing: the right acromion's tip to the left one's",
     "shoulderelbowlength": "standing, the upper arm hanging, the elbow flexed 90 deg: the acromion above the elbow's "
-                           "underside (the lowest point of the upper arm's and forearm's capsules)",
-    "elbowrestheight": "seated upright, the upper arm hanging, the elbow flexed 90 deg: the elbow's underside above "
-                       "the seat",
+                           "underside (the elbow_rest frame)",
+    "elbowrestheight": "seated upright, the upper arm hanging, the elbow flexed 90 deg: the elbow's underside (the "
+                       "elbow_rest frame) above the seat",
     "poplitealheight": "seated, hips and knees at 90 deg, the foot flat: the thigh's underside at the knee (its "
                        "capsule's) above the sole",
     "kneeheightsitting": "seated, hips and knees at 90 deg, the foot flat: the knee's top (the knee centre and the "
@@ -117,7 +118,7 @@ def measure(body: Body) -> dict[str, float]:
     out["radialestylionlength"] = float(np.linalg.norm(wrist - elbow))
     out["footlength"] = float(np.linalg.norm(stand["right_toe"] - stand["right_heel"]))
     if measured:
-        out["acromionradialelength"] = float(np.linalg.norm(stand["right_acromion"] - elbow))
+        out["acromionradialelength"] = float(stand["right_acromion"][2] - elbow[2])
         out["handlength"] = float(np.linalg.norm(stand["right_fingertip"] - wrist))
         out["grip"] = float(abs(stand["right_grip"][2] - wrist[2]))
         out.update(_unbuilt(body, stand, hip, seat, place.knee_front))
@@ -154,7 +155,7 @@ def _unbuilt(body: Body, stand: dict[str, np.ndarray], hip: float, seat: float,
     out["bideltoidbreadth"] = _extent(upright["right_upper_arm"], upright["left_upper_arm"])
     bent = {"right_elbow_flexion": math.pi / 2, "left_elbow_flexion": math.pi / 2}
     elbows = _capsules(body, **bent)
-    underside = _lowest(elbows["right_upper_arm"], elbows["right_forearm"])
+    underside = float(_points(body, **bent)["right_elbow_rest"][2])
     out["shoulderelbowlength"] = float(stand["right_acromion"][2]) - underside
     out["elbowrestheight"] = underside - hip + seat
     out["forearmforearmbreadth"] = _extent(*(elbows[f"{side}_{part}"] for side in ("right", "left")
