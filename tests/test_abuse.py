@@ -15,6 +15,7 @@ import pytest
 import zmq
 
 from reach.serving import protocol as P
+from reach.serving.handlers import HANDLERS
 from tests.test_server import HUMAN, Running, _atlas
 
 pytestmark = pytest.mark.slow  # a server with a refinement worker, and hundreds of requests
@@ -110,7 +111,7 @@ def test_the_attacks_leave_the_server_answering_bounded_and_without_internal_err
             reply = json.loads(attacker.recv_multipart()[-1])
             replies[reply["id"]] = reply
         grown = _rss() - before
-        health = r.server.op_health(None)  # type: ignore[arg-type]
+        health = HANDLERS["health"].answer(r.server, None)  # type: ignore[arg-type]
     finally:
         attacker.close(linger=0)
         watcher.close(linger=0)

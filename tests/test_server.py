@@ -25,6 +25,7 @@ from reach.maps.atlas import load_atlas
 from reach.maps.protocol import raster
 from reach.serving import protocol as P
 from reach.serving.client import Client, ServerError, ServerUnavailable
+from reach.serving.handlers import HANDLERS, Whole
 from reach.serving.server import Server
 from reach.tools.cli import main
 
@@ -801,10 +802,10 @@ def test_reach_keys_writes_a_pair_the_server_and_clients_use(tmp_path, balls, ca
 
 
 def test_an_internal_error_is_logged_once_a_minute(running, dealer, caplog, monkeypatch):
-    def broken(req):
+    def broken(server, req):  # noqa: ANN001, ANN202
         raise RuntimeError("a bug")
 
-    monkeypatch.setattr(running.server, "op_health", broken)
+    monkeypatch.setattr(HANDLERS["health"], "answer", broken)
     with caplog.at_level("ERROR", logger="reach.serving.server"):
         for _ in range(5):
             reply = ask(dealer, b'{"op": "health", "id": 3}')
@@ -1080,17 +1081,21 @@ def test_a_stopped_worker_is_reported_stalled_and_its_request_answered_by_the_de
 
 
 def test_an_operation_the_workers_answer_is_added_as_a_service(balls, monkeypatch):
-    """Adding a worker operation touches its row in the table of operations, its worker hook and the server's hooks it
-    names, and nothing else: here all three come from this test (the hook from tests/helpers.py, imported by the
-    worker process by its ``module:function`` name), and a worker answers it."""
-    service = P.Service("_defer_held", "helpers:strategies_service", "_finish_held", "_expire_whole", cost=0.01)
+    """Adding a worker operation touches its row in the table of operations, its worker hook and its handler, and
+    nothing else: here all three come from this test (the hook from tests/helpers.py, imported by the worker process
+    by its ``module:function`` name), and a worker answers it."""
     fields = tuple(f for f in P.OPERATIONS["motion"].fields if f.name in ("effector", "goal"))  # both required
-    op = P.Operation("held", fields, "which strategies hold a point, from a worker", "op_held", worker=service)
+    op = P.Operation("held", fields, "which strategies hold a point, from a worker",
+                     worker=P.Service("helpers:strategies_service", cost=0.01))
+
+    class Held(Whole):
+        late, failed = "not answered in time", "could not be answered"
+
+        def job(self, server, req):  # noqa: ANN001, ANN202
+            return [req["goal"]], {}
+
     monkeypatch.setitem(P.OPERATIONS, "held", op)
-    monkeypatch.setattr(Server, "_defer_held", lambda self, req, envelope: self._defer_whole(
-        req, envelope, [req["goal"]], {}), raising=False)
-    monkeypatch.setattr(Server, "_finish_held", lambda self, seq, pending, frames, part=0: self._finish_whole(
-        seq, pending, frames, 1, "not answered in time", "could not be answered", lambda f: f[0]), raising=False)
+    monkeypatch.setitem(HANDLERS, "held", Held())
     r = Running(balls, workers=1)
     sock = _dealer(r.server.endpoint)
     sock.setsockopt(zmq.RCVTIMEO, 60_000)

@@ -340,47 +340,38 @@ class Field:
 
 @dataclass(frozen=True)
 class Service:
-    """How the workers answer an operation (zguide's Majordomo: a service is a worker), as hooks named here so that
-    this module imports nothing of them: the server hands a request over with ``Server.<defer>(request, envelope)``,
-    a worker answers each task with ``reach.serving.services.<run>(context, job, deadline)`` (or ``module:function``,
-    see :func:`reach.serving.services.hook`), and the server answers
-    the request with ``Server.<finish>(seq, pending, frames, part)`` from the worker's frames, or with
-    ``Server.<expire>(seq, pending)`` once its deadline has passed.
+    """How the workers answer an operation (zguide's Majordomo: a service is a worker): its operation's handler
+    (:mod:`reach.serving.handlers`) hands a request over, a worker answers each task with
+    ``reach.serving.services.<run>(context, job, deadline)`` (or ``module:function``, see
+    :func:`reach.serving.services.hook`), named here so that this module imports nothing of the workers.
 
     Attributes:
+        run: The worker's hook.
         cost: The worker seconds a whole request is charged before it is measured (fair shares between clients);
             None: a chunk of goals, charged by its goals at their measured cost.
     """
 
-    defer: str
     run: str
-    finish: str
-    expire: str
     cost: float | None = None
 
 
 @dataclass(frozen=True)
 class Operation:
-    """One request operation, declared once: the parser, the server's dispatch, the client and the
-    document's table follow from it.
+    """One request operation, declared once: the parser, the client and the document's table follow from it, and
+    its handler (:data:`reach.serving.handlers.HANDLERS`, by its name) answers it.
 
     Attributes:
         name: The ``op``.
-        fields: Its fields beyond ``op`` and ``id``.
+        fields: Its fields beyond ``op`` and ``id``, with their bounds.
         doc: What it does, one line.
-        handler: The name of the server's method that answers it (``Server.<handler>(request) -> dict | bytes``).
         worker: How the workers answer it (:class:`Service`); None: the server's loop alone does.
-        later: The server's method that starts it in the background over the socket and answers once it is done
-            (``Server.<later>(request, envelope)``, a reload's loading); None: answered at once by ``handler``.
         check: Cross-field rules after each field is parsed (raise :class:`Invalid`); may fill derived values.
     """
 
     name: str
     fields: tuple[Field, ...]
     doc: str
-    handler: str
     worker: Service | None = None
-    later: str | None = None
     check: Callable[[dict[str, Any]], None] | None = None
 
 
@@ -412,8 +403,7 @@ OPERATIONS: dict[str, Operation] = {op.name: op for op in (
               "hold the goals' effector orientation: its approach axis's world direction, or its rotation; only "
               "strategies with an `orientation` task answer, always refined"),
         TAG,
-    ), "which strategy reaches each goal, and in which posture", "op_query",
-        worker=Service("_defer_query", "run_query", "_finish_goals", "_expire_goals"), check=_one_goal_or_many),
+    ), "which strategy reaches each goal, and in which posture", worker=Service("run_query"), check=_one_goal_or_many),
     Operation("motion", (
         Field("effector", "string", _string(MAX_NAME), "the effector's frame, e.g. `right_hand`", required=True),
         Field("goal", "[x, y, z] m", _point, "the goal in the world frame", required=True),
@@ -432,9 +422,9 @@ OPERATIONS: dict[str, Operation] = {op.name: op for op in (
                                        "rises), as long again", default=False),
         Field("deadline", "s", _deadline, f"answer within this many seconds of arrival (0 to {MAX_DEADLINE:g})"),
         TAG,
-    ), "the timed motion from a posture to the answer's posture: frames of posture, root and effector", "op_motion",
+    ), "the timed motion from a posture to the answer's posture: frames of posture, root and effector",
         # A motion's cost: the README's planning times, 0.1-2 s.
-        worker=Service("_defer_motion", "run_motion", "_finish_motion", "_expire_whole", cost=0.5)),
+        worker=Service("run_motion", cost=0.5)),
     Operation("place", (
         Field("targets", "[{point, effector, name}]", _targets, f"the layout's targets [m] (at most {MAX_TARGETS})",
               required=True),
@@ -448,25 +438,24 @@ OPERATIONS: dict[str, Operation] = {op.name: op for op in (
     ), "where to place the body to reach the targets: placements ranked by the trees (candidates x targets at most "
        f"{MAX_PLACE_POINTS:,})",
         # A placement's cost: 1.9-2.8 s at its limit (docs/history.md).
-        "op_place", worker=Service("_defer_place", "run_place", "_finish_place", "_expire_whole", cost=1.0)),
+        worker=Service("run_place", cost=1.0)),
     Operation("accommodation", (
         Field("effector", "string", _string(MAX_NAME), "the effector's frame, e.g. `right_hand`", required=True),
         Field("goals", "[[x, y, z], ...] m", _accommodation_goals, f"at most {MAX_ACCOMMODATION_GOALS} goals in the "
                                                                    "members' world frame", required=True),
     ), "the share of the served population (`reach serve --population`) whose trees hold each goal, with its 95 % "
-       "interval, and per strategy", "op_accommodation"),
-    Operation("strategies", (), "the atlas's strategies, effectors, boxes and world frame", "op_strategies"),
+       "interval, and per strategy"),
+    Operation("strategies", (), "the atlas's strategies, effectors, boxes and world frame"),
     Operation("cells", (
         Field("strategy", "string", _string(MAX_NAME), "one strategy (default: all)"),
         Field("level", "int", _level, f"cells per axis 2**level, 1 to {MAX_CELLS_LEVEL}", default=4),
-    ), "centres of each strategy's reachable cells on a regular grid", "op_cells"),
-    Operation("health", (), "status and counters", "op_health"),
-    Operation("hello", (TAG,), "publish `hello` with the tag: a subscriber's sync", "op_hello"),
+    ), "centres of each strategy's reachable cells on a regular grid"),
+    Operation("health", (), "status and counters"),
+    Operation("hello", (TAG,), "publish `hello` with the tag: a subscriber's sync"),
     Operation("reload", (Field("path", "string", _string(4096), "the atlas folder, under the server's "
                                                                 "`--allow-reload` root (default: the one served)"),),
-              "load an atlas and serve it (only with `reach serve --allow-reload ROOT`)", "op_reload",
-              later="_reload_later"),
-    Operation("version", (), "the protocol's version, the server's and its operations", "op_version"),
+              "load an atlas and serve it (only with `reach serve --allow-reload ROOT`)"),
+    Operation("version", (), "the protocol's version, the server's and its operations"),
 )}
 OPS = tuple(OPERATIONS)
 

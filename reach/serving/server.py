@@ -47,26 +47,21 @@ import numpy as np
 import zmq
 import zmq.auth
 
-from reach import __version__
-from reach.answers.accommodation import held, load_members
-from reach.answers.answer import ERROR, SKIPPED, TIMEOUT, Answer, orientation_of
-from reach.answers.select import HANDOVER, MISS, ORIENTED_BUDGET, REFINE_BUDGET, Selector
+from reach.answers.accommodation import load_members
+from reach.answers.answer import SKIPPED, TIMEOUT, Answer
+from reach.answers.select import HANDOVER, MISS, REFINE_BUDGET, Selector
 from reach.errors import InputError, ReachError, UnknownEffector, UnknownStrategy
 from reach.maps.atlas import load_atlas
 from reach.maps.protocol import DEFAULT_POLICY
-from reach.motion.planner import MotionError, Planner, Timing
-from reach.motion.rig import with_bones
+from reach.motion.planner import MotionError, Planner
 from reach.serving import cells
 from reach.serving import protocol as P
 from reach.serving.client import load_curve_key
-from reach.serving.services import placements
-from reach.serving.workers import EXPIRED, Pool, Task, Tasks
+from reach.serving.handlers import HANDLERS, Pending
 from reach.serving.workers import FAILED as WORKER_FAILED
+from reach.serving.workers import Pool, Task
 
 log = logging.getLogger("reach.serving.server")
-SLACK = 5.0  # [s] a request's default deadline: the budget per goal, plus this ...
-# [s] ... and at most this: a client that vanished without a deadline of its own holds the workers no longer
-MAX_WAIT = 60.0
 READY_WAIT = 300.0  # [s] reach serve waits at most this for its workers to load the atlas before serving
 LOG_EVERY = 60.0  # [s] an identical internal error's traceback is logged at most this often
 REVIVE_EVERY = 0.5  # [s] how often the loop looks for dead workers
@@ -96,20 +91,6 @@ class Reloading:
     request: P.Request
     path: Path
     future: concurrent.futures.Future
-
-
-@dataclass
-class Pending:
-    """A query the workers are refining."""
-
-    envelope: list[bytes]
-    request: P.Request
-    key: tuple[bytes, bytes] | None  # (client, id): a resend of it is not computed again
-    deadline: float
-    parts: list[list[bytes] | None]
-    bounds: list[tuple[int, int]]
-    goals: int = 0  # the goals it holds of its client's share (0: a request answered whole counts as a request)
-
 
 
 def check_endpoint(address: str, flag: str) -> None:
@@ -400,15 +381,13 @@ class Server:
         try:
             req = P.parse_request(payload)
             rid = req.id
-            later = P.OPERATIONS[req.op].later
-            if envelope is not None and (self._deferred(req, envelope)
-                                         or (later is not None and getattr(self, later)(req, envelope))):
-                return None
+            if envelope is not None and HANDLERS[req.op].defer(self, req, envelope):
+                return None  # the workers or the background answer it
             return P.ok_reply(self.dispatch(req), rid)
         except Exception as exc:  # noqa: BLE001 - nothing a client sends may stop the server
-            return self._error(exc, rid)
+            return self.error(exc, rid)
 
-    def _error(self, exc: Exception, rid: Any) -> bytes:
+    def error(self, exc: Exception, rid: Any) -> bytes:
         """The error reply of an exception raised while answering a request (a bug's is logged as ``internal``)."""
         self.errors += 1
         if isinstance(exc, P.ProtocolError):
@@ -423,28 +402,9 @@ class Server:
         return P.error_reply(P.INTERNAL, f"{type(exc).__name__}: {exc}", rid)
 
     def dispatch(self, req: P.Request) -> bytes:
-        """The encoded result object of a valid request, from its operation's handler."""
-        result = getattr(self, P.OPERATIONS[req.op].handler)(req)
+        """The encoded result object of a valid request, answered now by its operation's handler."""
+        result = HANDLERS[req.op].answer(self, req)
         return result if isinstance(result, bytes) else P.encode(result)
-
-    # -- the operations' handlers (declared in reach.serving.protocol.OPERATIONS) -----
-    def op_query(self, req: P.Request) -> bytes:
-        # Without workers the loop refines; a deadline stops it refining, and later goals get their stored postures.
-        deadline = None if req["deadline"] is None else time.perf_counter() + req["deadline"]
-        answers = self.selector.select_many(req["effector"], np.array(req["goals"]), req["refine"], start=req["from"],
-                                            miss=req["miss"],
-                                            orientation=orientation_of(req["orientation"]), deadline=deadline)
-        return self._result(req, [a.to_json() for a in answers])
-
-    def op_motion(self, req: P.Request) -> bytes:
-        # Without workers the loop plans; a deadline stops it (a timeout error), as a worker's does.
-        deadline = None if req["deadline"] is None else time.perf_counter() + req["deadline"]
-        motion = self.planner.plan(req["effector"], np.array(req["goal"]), req["from"], rate=req["rate"],
-                                   timing=Timing.from_dict(req["timing"]), miss=req["miss"], deadline=deadline,
-                                   back=req["return"])
-        data = (with_bones(motion.to_dict(), motion, self.planner.body(motion.strategy)) if req["bones"]
-                else motion.to_dict())
-        return self._motion_result(req, P.encode(motion.summary()), P.encode(data))
 
     @property
     def planner(self) -> Planner:
@@ -453,44 +413,8 @@ class Server:
             self._planner = Planner(self.selector)
         return self._planner
 
-    def _motion_result(self, req: P.Request, summary: bytes, body: bytes) -> bytes:
-        """Publish a motion's summary (everything but its frames) on the effector's topic; the reply is the whole
-        motion."""
-        self._publish(req["effector"].encode(), [summary], req)
-        return body
-
-    def op_hello(self, req: P.Request) -> dict[str, Any]:
-        self._publish(b"hello", [b"{}"], req)
-        return {"published": self.publisher is not None}
-
-    def op_version(self, req: P.Request) -> dict[str, Any]:
-        return {"protocol": P.VERSION, "reach": __version__, "operations": list(P.OPS)}
-
-    def op_health(self, req: P.Request) -> dict[str, Any]:
-        return {
-            "status": "serving", "protocol": P.VERSION, "atlas": str(self.atlas_path),
-            "strategies": len(self.selector.order),
-            "uptime": time.monotonic() - self.started, "requests": self.requests, "errors": self.errors,
-            "workers": 0 if self.pool is None else self.pool.size, "pending": len(self.pending),
-            "resends": self.resends, "worker_restarts": 0 if self.pool is None else self.pool.restarts,
-            "workers_ready": 0 if self.pool is None else self.pool.ready,
-            "workers_stalled": 0 if self.pool is None else len(self.pool.stalled),
-        }
-
-    def op_strategies(self, req: P.Request) -> dict[str, Any]:
-        trees = self.selector.atlas.trees
-        return {"strategies": [
-            {"name": n, "effector": e, "priority": int(trees[n].meta.get("priority", 0)),
-             "box": trees[n].box.to_dict(), "d_max": trees[n].d_max}
-            for n, e in self.selector.order
-        ], "effectors": self.selector.effectors, "frame": "world: z up, x forward, y left; metres, radians"}
-
-    def op_reload(self, req: P.Request) -> dict[str, Any]:
-        """Load and swap at once (an in-process call; over the socket the load runs in the background)."""
-        path = self._reload_path(req)
-        return self._install(req, path, lambda: self._load(path))
-
-    def _reload_path(self, req: P.Request) -> Path:
+    # -- reload: its path checked, the atlas loaded now or in the background and swapped in ---------------------
+    def reload_path(self, req: P.Request) -> Path:
         if self.reload_root is None:
             raise P.ProtocolError(P.FORBIDDEN, "reload is off; the operator allows it with reach serve "
                                                "--allow-reload ROOT", req.id)
@@ -516,16 +440,18 @@ class Server:
     def _load(self, path: Path) -> cells.Served:
         return cells.serve(Selector(load_atlas(path), **self.options).warm_up())
 
-    def _reload_later(self, req: P.Request, envelope: list[bytes]) -> bool:
+    def reload_now(self, req: P.Request, path: Path) -> dict[str, Any]:
+        """Load and swap at once (an in-process call)."""
+        return self._install(req, path, lambda: self._load(path))
+
+    def reload_later(self, req: P.Request, envelope: list[bytes], path: Path) -> None:
         """Start loading a ``reload``'s atlas in the background; its reply goes when the loop has swapped it in."""
-        path = self._reload_path(req)
         if self.reloading is not None:
             raise P.ProtocolError(P.RELOAD_FAILED, f"kept the current atlas: another reload ({self.reloading.path}) "
                                                    "is loading", req.id)
         if self._loader is None:
             self._loader = concurrent.futures.ThreadPoolExecutor(max_workers=1, thread_name_prefix="reach-reload")
         self.reloading = Reloading(envelope, req, path, self._loader.submit(self._load, path))
-        return True
 
     def _swap(self) -> None:
         """Serve the atlas a background reload has loaded, and answer its request."""
@@ -534,7 +460,7 @@ class Server:
         try:
             reply = P.ok_reply(P.encode(self._install(job.request, job.path, job.future.result)), job.request.id)
         except Exception as exc:  # noqa: BLE001 - the reload's error reply; the current atlas stays
-            reply = self._error(exc, job.request.id)
+            reply = self.error(exc, job.request.id)
         self._send(job.envelope, reply)
 
     def _install(self, req: P.Request, path: Path, loaded: Callable[[], cells.Served]) -> dict[str, Any]:
@@ -554,122 +480,8 @@ class Server:
             self.pool = Pool(self.context, path, self.options, self.pool.size)
         return {"atlas": str(path), "strategies": len(selector.order)}
 
-    def op_place(self, req: P.Request) -> dict[str, Any]:
-        """Placements of the served body ranked by its trees against the request's targets (see
-        :mod:`reach.answers.place`);
-        with workers a worker answers it (seconds at its limit, which held the loop)."""
-        return placements(self.selector.atlas, req.args, self.selector.policy)  # type: ignore[arg-type]
-
-    def op_accommodation(self, req: P.Request) -> dict[str, Any]:
-        """The share of the served population whose trees hold each goal (reach.answers.accommodation.held)."""
-        if self.population is None:
-            raise P.ProtocolError(P.FORBIDDEN, "this server serves no population; start it with reach serve ATLAS "
-                                               "--population FOLDER", req.id)
-        atlases, weights, _ = self.population
-        effector = req["effector"]
-        trees = sum(1 for a in atlases for t in a.trees.values() if t.meta.get("effector") == effector)
-        if not trees:
-            raise P.ProtocolError(P.UNKNOWN_EFFECTOR, f"no member's strategy has the effector {effector!r}", req.id)
-        goals = np.asarray(req["goals"], float)
-        if goals.shape[1] != 3:
-            raise P.ProtocolError(P.BAD_REQUEST, "goals: expected [x, y, z] each", req.id)
-        if len(goals) * trees > P.MAX_ACCOMMODATION_LOOKUPS:
-            raise P.ProtocolError(P.TOO_LARGE, f"{len(goals)} goals x {trees} member trees is over the "
-                                               f"{P.MAX_ACCOMMODATION_LOOKUPS:,} lookups one accommodation may take; "
-                                               "send fewer goals a request", req.id)
-        return {"members": len(atlases), **held(atlases, weights, effector, goals)}
-
-    def op_cells(self, req: P.Request) -> bytes:
-        """Centres of the reachable cells of each strategy on a regular grid (for markers in RViz), from the fragments
-        made when the atlas loaded (reach.serving.cells)."""
-        return cells.reply(self.served, self.selector.atlas.select([req["strategy"]] if req["strategy"] else None),
-                           req["level"])
-
-    def _result(self, req: P.Request, bodies: list[bytes]) -> bytes:
-        self._publish(req["effector"].encode(), bodies, req)
-        return bodies[0] if req["single"] else P.batch_body(bodies)
-
-    # -- with workers ----------------------------------------------------------
-    def _deferred(self, req: P.Request, envelope: list[bytes]) -> bool:
-        """Hand a request that needs IK to the workers; False when the loop answers it itself.
-
-        Everything a worker could refuse is checked here first (the effector,
-        the goals' dimension, the ``from`` joints), so a worker only fails on a bug.
-        """
-        service = P.OPERATIONS[req.op].worker
-        if self.pool is None or service is None:
-            return False
-        return bool(getattr(self, service.defer)(req, envelope))
-
-    def _defer_query(self, req: P.Request, envelope: list[bytes]) -> bool:
-        """Hand a query's goals to the workers when they need IK or are many; False when the loop answers at once."""
-        goals = np.array(req["goals"])
-        refine = self.refine if req["refine"] is None else req["refine"]
-        if refine:
-            if req["orientation"] is not None:
-                aims = orientation_of(req["orientation"])
-                self.selector.oriented(req["effector"], aims[0] if isinstance(aims, list)
-                                       else aims)  # type: ignore[arg-type]
-            # Nothing to refine (an analytic atlas, or no strategy holds a goal): stored answers.
-            refine = self.selector.needs_ik(req["effector"], goals, req["from"])
-        elif len(goals) > P.STORED_IN_LOOP:
-            self.selector.check_goals(req["effector"], goals, req["from"])
-        if not refine and len(goals) <= P.STORED_IN_LOOP:
-            # answered at once; a larger stored batch (1.4-1.8 s for 10,000 in the loop) goes to the workers
-            return False
-        return self._defer_goals(req, envelope, goals, refine)
-
-    def _defer_goals(self, req: P.Request, envelope: list[bytes], goals: np.ndarray, refine: bool) -> bool:
-        """Hand a query's goals to the workers in chunks (refined, or their stored answers when not ``refine``)."""
-        assert self.pool is not None
-        n = len(goals)
-        # stored answers cost little each: a chunk is about 0.15 s
-        chunk = self.pool.chunk(self.chunk) if refine else P.STORED_IN_LOOP
-        size = max(1, min(chunk, math.ceil(n / max(1, self.pool.size))))
-        bounds = [(a, min(n, a + size)) for a in range(0, n, size)]
-        # see reach.answers.select
-        each = self.budget if req["orientation"] is None else max(self.budget, ORIENTED_BUDGET)
-        seq = self._pend(req, envelope, min(n * each + SLACK, MAX_WAIT) if refine else MAX_WAIT, bounds, n)
-        if seq is not None:
-            deadline, orientation = self.pending[seq].deadline, req["orientation"]
-            run = P.OPERATIONS[req.op].worker.run  # type: ignore[union-attr]
-
-            def make(part: int) -> Task:
-                a, b = bounds[part]
-                return Task(seq, part, req["effector"], req["goals"][a:b].tolist(), req["from"], deadline,
-                            req["miss"], envelope[0], refine=refine, run=run,
-                            orientation=orientation[a:b] if isinstance(orientation, list) else orientation)
-
-            self.pool.submit(Tasks(make, len(bounds), seq, envelope[0], deadline))
-        return True
-
-    def _defer_motion(self, req: P.Request, envelope: list[bytes]) -> bool:
-        """Hand a motion to the workers, once what they could refuse is checked here."""
-        self.selector.check_goals(req["effector"], np.array([req["goal"]]), req["from"])
-        Timing.from_dict(req["timing"])
-        options = {"rate": req["rate"], "timing": req["timing"], "miss": req["miss"], "bones": req["bones"],
-                   "return": req["return"]}
-        return self._defer_whole(req, envelope, [req["goal"]], options)
-
-    def _defer_place(self, req: P.Request, envelope: list[bytes]) -> bool:
-        """Hand a placement to the workers."""
-        return self._defer_whole(req, envelope, [], {"fields": req.args})
-
-    def _defer_whole(self, req: P.Request, envelope: list[bytes], goals: list[list[float]],
-                     options: dict[str, Any]) -> bool:
-        """Hand a request a worker answers whole (a motion, a placement) to the workers; it counts as a request, not
-        as goals, against what a client may hold (MAX_CLIENT_REQUESTS)."""
-        assert self.pool is not None
-        service = P.OPERATIONS[req.op].worker
-        assert service is not None
-        seq = self._pend(req, envelope, MAX_WAIT, [(0, 1)], 0)
-        if seq is not None:
-            self.pool.submit(Task(seq, 0, req.args.get("effector") or "", goals, req.args.get("from"),
-                                  self.pending[seq].deadline, None, envelope[0], req.op, options,
-                                  whole_cost=service.cost, run=service.run))
-        return True
-
-    def _pend(self, req: P.Request, envelope: list[bytes], wait: float, bounds: list[tuple[int, int]],
+    # -- requests the workers answer -------------------------------------------------
+    def pend(self, req: P.Request, envelope: list[bytes], wait: float, bounds: list[tuple[int, int]],
               goals: int) -> int | None:
         """Register a request the workers will answer in ``bounds`` parts, by its deadline (``wait`` [s] unless it
         gives one), holding ``goals`` of its client's share; its sequence number, or None for a resend of a request
@@ -731,7 +543,7 @@ class Server:
             self.held.pop(client, None)
             self.held_requests.pop(client, None)
 
-    def _stored(self, req: P.Request, a: int, b: int, outcome: str) -> list[bytes]:
+    def stored(self, req: P.Request, a: int, b: int, outcome: str) -> list[bytes]:
         """The stored answers of goals a..b, marked with why they were not refined."""
         return self._stored_at(req, np.arange(a, b), outcome)
 
@@ -751,57 +563,9 @@ class Server:
         pending = self.pending.get(task.request)
         if pending is None:
             return  # answered already (its deadline passed)
-        service = P.OPERATIONS[pending.request.op].worker
-        assert service is not None
-        getattr(self, service.finish)(task.request, pending, frames, task.part)
+        HANDLERS[pending.request.op].finish(self, task.request, pending, frames, task.part)
 
-    def _finish_goals(self, seq: int, pending: Pending, frames: list[bytes], part: int) -> None:
-        """A worker's answers to a part of a query's goals (one frame each); its stored answers when it failed."""
-        a, b = pending.bounds[part]
-        if frames == [EXPIRED]:
-            # Its deadline has passed: the part is answered from the store with the request's others, slice by slice.
-            if pending.deadline != math.inf:
-                pending.deadline = 0.0
-            return
-        try:
-            if len(frames) != b - a or not frames[0].startswith(b"{"):  # a worker's failure, not answers
-                log.error("worker failed: %s", b"".join(frames)[:500].decode(errors="replace"))
-                frames = self._stored(pending.request, a, b, ERROR)
-        except Exception as exc:  # noqa: BLE001 - this request's error reply; the others go on
-            self._answer_now(seq, self._error(exc, pending.request.id))
-            return
-        pending.parts[part] = frames
-        if all(p is not None for p in pending.parts):
-            self._reply(seq)
-
-    def _finish_motion(self, seq: int, pending: Pending, frames: list[bytes], part: int = 0) -> None:
-        """A worker's motion: two frames of JSON, its summary (published) and the whole motion (the reply)."""
-        self._finish_whole(seq, pending, frames, 2, "the motion was not planned", "the motion could not be planned",
-                           lambda f: self._motion_result(pending.request, *f))
-
-    def _finish_place(self, seq: int, pending: Pending, frames: list[bytes], part: int = 0) -> None:
-        """A worker's placements: one frame of JSON."""
-        self._finish_whole(seq, pending, frames, 1, "the placements were not ranked", "the placements could not be "
-            "ranked", lambda f: f[0])
-
-    def _finish_whole(self, seq: int, pending: Pending, frames: list[bytes], count: int, late: str, failed: str,
-                      reply: Callable[[list[bytes]], bytes]) -> None:
-        """A request a worker answers whole: its ``count`` frames of JSON make the reply, or its error
-        (``failed: code: message``) or the deadline's ``expired`` answer it."""
-        rid = pending.request.id
-        if frames == [EXPIRED]:
-            self._answer_now(seq, P.error_reply(P.TIMEOUT, f"{late} by its deadline", rid))
-        elif len(frames) == count and frames[0].startswith(b"{"):
-            self._answer_now(seq, P.ok_reply(reply(frames), rid))
-        else:
-            code, _, message = b"".join(frames)[len(WORKER_FAILED):].decode(errors="replace").strip().partition(": ")
-            if code not in P.WORKER_ERRORS:
-                log.error("worker failed: %s", message[:500])
-                code, message = P.INTERNAL, failed
-            self.errors += 1
-            self._answer_now(seq, P.error_reply(code, message, rid))
-
-    def _answer_now(self, seq: int, reply: bytes) -> None:
+    def answer_now(self, seq: int, reply: bytes) -> None:
         """Answer a pending request with ``reply`` now (an error, or a motion) and drop its queued work."""
         pending = self.pending.pop(seq)
         self._release(pending)
@@ -821,9 +585,7 @@ class Server:
             pending = self.pending[seq]
             assert self.pool is not None
             self.pool.cancel(seq)
-            service = P.OPERATIONS[pending.request.op].worker
-            assert service is not None
-            getattr(self, service.expire)(seq, pending)
+            HANDLERS[pending.request.op].expire(self, seq, pending)
         budget = slice_goals
         while self.expiring and budget > 0:
             seq = self.expiring[0]
@@ -832,7 +594,7 @@ class Server:
             if found is None or not missing:
                 self.expiring.popleft()
                 if found is not None:
-                    self._reply(seq)
+                    self.reply_pending(seq)
                 continue
             pending = found
             # Whole parts, as many as the slice holds (at least one).
@@ -854,20 +616,10 @@ class Server:
                     pending.parts[part], k = answers[k : k + b - a], k + b - a
             except Exception as exc:  # noqa: BLE001 - this request's error reply; the others go on
                 self.expiring.popleft()
-                self._answer_now(seq, self._error(exc, pending.request.id))
+                self.answer_now(seq, self.error(exc, pending.request.id))
 
-    def _expire_whole(self, seq: int, pending: Pending) -> None:
-        """A request answered whole, past its deadline: a ``timeout`` error."""
-        service = P.OPERATIONS[pending.request.op].worker
-        assert service is not None
-        getattr(self, service.finish)(seq, pending, [EXPIRED], 0)
-
-    def _expire_goals(self, seq: int, pending: Pending) -> None:
-        """A query past its deadline: its goals not yet refined are answered from the store, slice by slice."""
-        pending.deadline = math.inf
-        self.expiring.append(seq)
-
-    def _reply(self, seq: int) -> None:
+    def reply_pending(self, seq: int) -> None:
+        """Answer a query whose parts are all in, and publish its choices."""
         pending = self.pending.pop(seq)
         self._release(pending)
         if pending.key is not None:
@@ -875,7 +627,7 @@ class Server:
         bodies = [body for part in pending.parts if part is not None for body in part]
         try:
             req = pending.request
-            self._publish(req["effector"].encode(), bodies, req)
+            self.publish(req["effector"].encode(), bodies, req)
             self._send(pending.envelope, P.ok_reply(bodies[0], req.id) if req["single"]
                        else P.ok_batch_reply(bodies, req.id))
         except Exception as exc:  # a bug must not stop the server
@@ -891,7 +643,7 @@ class Server:
             self._logged[key] = now
             log.error("internal error", exc_info=exc)
 
-    def _publish(self, topic: bytes, bodies: list[bytes], req: P.Request) -> None:
+    def publish(self, topic: bytes, bodies: list[bytes], req: P.Request) -> None:
         """Publish each encoded choice with the request's id and tag, in order; a slow subscriber costs a dropped
         message, never a blocked reply. With workers, at most ``PUBLISH_SLICE`` go now and the rest one slice a pass
         of the loop."""

@@ -6,7 +6,7 @@ a hook takes the worker's :class:`Context`, the task as the server encoded it
 ``time.perf_counter`` clock, and returns the frames of its reply. An error
 raised is the worker's ``failed: CODE: message``, its code by
 :func:`failure_code`. Adding an operation the workers answer is its row in
-the table of operations, its hook here and the server's hooks it names.
+the table of operations, its hook here and its handler (:mod:`reach.serving.handlers`).
 """
 
 from __future__ import annotations

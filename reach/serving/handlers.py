@@ -1,0 +1,374 @@
+"""The server's operations, one handler each, registered in :data:`HANDLERS` by the operation's name.
+
+:mod:`reach.serving.protocol` declares what each operation takes (its fields and bounds);
+a handler here says how the server answers it: at once in its loop (:meth:`Handler.answer`), or handed over
+(:meth:`Handler.defer`) to the workers or to the background, then answered from the workers' frames
+(:meth:`Handler.finish`) or past its deadline (:meth:`Handler.expire`). The server
+(:class:`reach.serving.server.Server`) keeps the sockets, the loop, the pending requests and the workers; a
+handler asks it only for what :class:`Broker` names.
+
+Adding an operation is its row in :data:`reach.serving.protocol.OPERATIONS` and its handler in :data:`HANDLERS`;
+one the workers answer also names its worker hook (:mod:`reach.serving.services`).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections import deque
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+
+from reach import __version__
+from reach.answers.accommodation import held
+from reach.answers.answer import ERROR, orientation_of
+from reach.answers.select import ORIENTED_BUDGET, Selector
+from reach.motion.planner import Planner, Timing
+from reach.motion.rig import with_bones
+from reach.serving import cells
+from reach.serving import protocol as P
+from reach.serving.services import placements
+from reach.serving.workers import EXPIRED, Pool, Task, Tasks
+from reach.serving.workers import FAILED as WORKER_FAILED
+
+log = logging.getLogger("reach.serving.server")  # the server's: its handlers' messages are its own
+SLACK = 5.0  # [s] a query's default deadline: the budget per goal, plus this ...
+# [s] ... and at most this: a client that vanished without a deadline of its own holds the workers no longer
+MAX_WAIT = 60.0
+
+
+@dataclass
+class Pending:
+    """A request the workers are answering."""
+
+    envelope: list[bytes]
+    request: P.Request
+    key: tuple[bytes, bytes] | None  # (client, id): a resend of it is not computed again
+    deadline: float
+    parts: list[list[bytes] | None]
+    bounds: list[tuple[int, int]]
+    goals: int = 0  # the goals it holds of its client's share (0: a request answered whole counts as a request)
+
+
+class Broker(Protocol):
+    """What a handler asks of the server."""
+
+    served: cells.Served
+    population: tuple[list[Any], np.ndarray, Any] | None
+    publisher: Any
+    pool: Pool | None
+    pending: dict[int, Pending]
+    expiring: deque[int]
+    refine: bool
+    budget: float
+    chunk: int
+    atlas_path: Path
+    started: float
+    requests: int
+    errors: int
+    resends: int
+
+    @property
+    def selector(self) -> Selector: ...
+
+    @property
+    def planner(self) -> Planner: ...
+
+    def publish(self, topic: bytes, bodies: list[bytes], req: P.Request) -> None: ...
+
+    def pend(self, req: P.Request, envelope: list[bytes], wait: float, bounds: list[tuple[int, int]],
+             goals: int) -> int | None: ...
+
+    def answer_now(self, seq: int, reply: bytes) -> None: ...
+
+    def reply_pending(self, seq: int) -> None: ...
+
+    def stored(self, req: P.Request, a: int, b: int, outcome: str) -> list[bytes]: ...
+
+    def error(self, exc: Exception, rid: Any) -> bytes: ...
+
+    def reload_path(self, req: P.Request) -> Path: ...
+
+    def reload_now(self, req: P.Request, path: Path) -> dict[str, Any]: ...
+
+    def reload_later(self, req: P.Request, envelope: list[bytes], path: Path) -> None: ...
+
+
+class Handler:
+    """How the server answers one operation. Answered in the loop by default; a handler that hands its requests
+    over says so in :meth:`defer` and answers them in :meth:`finish` and :meth:`expire`."""
+
+    def answer(self, server: Broker, req: P.Request) -> dict[str, Any] | bytes:
+        """The result object of a valid request (or its encoding), answered now."""
+        raise NotImplementedError
+
+    def defer(self, server: Broker, req: P.Request, envelope: list[bytes]) -> bool:
+        """Hand a request over the socket to the workers or the background; False when the loop answers it now."""
+        return False
+
+    def finish(self, server: Broker, seq: int, pending: Pending, frames: list[bytes], part: int) -> None:
+        """Answer a handed-over request's ``part`` from a worker's frames."""
+        raise NotImplementedError
+
+    def expire(self, server: Broker, seq: int, pending: Pending) -> None:
+        """Answer a handed-over request whose deadline has passed."""
+        raise NotImplementedError
+
+
+def _deadline(req: P.Request) -> float | None:
+    return None if req["deadline"] is None else time.perf_counter() + req["deadline"]
+
+
+class Query(Handler):
+    """Which strategy reaches each goal: stored answers in the loop, refinements in the workers, in chunks."""
+
+    def answer(self, server: Broker, req: P.Request) -> bytes:
+        # Without workers the loop refines; a deadline stops it refining, and later goals get their stored postures.
+        answers = server.selector.select_many(req["effector"], np.array(req["goals"]), req["refine"],
+                                              start=req["from"], miss=req["miss"],
+                                              orientation=orientation_of(req["orientation"]), deadline=_deadline(req))
+        bodies = [a.to_json() for a in answers]
+        server.publish(req["effector"].encode(), bodies, req)
+        return bodies[0] if req["single"] else P.batch_body(bodies)
+
+    def defer(self, server: Broker, req: P.Request, envelope: list[bytes]) -> bool:
+        """Hand a query's goals to the workers when they need IK or are many. Everything a worker could refuse is
+        checked here first (the effector, the goals' dimension, the ``from`` joints), so a worker only fails on a
+        bug."""
+        if server.pool is None:
+            return False
+        goals = np.array(req["goals"])
+        selector = server.selector
+        refine = server.refine if req["refine"] is None else req["refine"]
+        if refine:
+            if req["orientation"] is not None:
+                aims = orientation_of(req["orientation"])
+                selector.oriented(req["effector"], aims[0] if isinstance(aims, list) else aims)  # type: ignore[arg-type]
+            # Nothing to refine (an analytic atlas, or no strategy holds a goal): stored answers.
+            refine = selector.needs_ik(req["effector"], goals, req["from"])
+        elif len(goals) > P.STORED_IN_LOOP:
+            selector.check_goals(req["effector"], goals, req["from"])
+        if not refine and len(goals) <= P.STORED_IN_LOOP:
+            # answered at once; a larger stored batch (1.4-1.8 s for 10,000 in the loop) goes to the workers
+            return False
+        pool = server.pool
+        n = len(goals)
+        # stored answers cost little each: a chunk is about 0.15 s
+        chunk = pool.chunk(server.chunk) if refine else P.STORED_IN_LOOP
+        size = max(1, min(chunk, math.ceil(n / max(1, pool.size))))
+        bounds = [(a, min(n, a + size)) for a in range(0, n, size)]
+        each = server.budget if req["orientation"] is None else max(server.budget, ORIENTED_BUDGET)
+        seq = server.pend(req, envelope, min(n * each + SLACK, MAX_WAIT) if refine else MAX_WAIT, bounds, n)
+        if seq is not None:
+            deadline, orientation = server.pending[seq].deadline, req["orientation"]
+            run = P.OPERATIONS[req.op].worker.run  # type: ignore[union-attr]
+
+            def make(part: int) -> Task:
+                a, b = bounds[part]
+                return Task(seq, part, req["effector"], req["goals"][a:b].tolist(), req["from"], deadline,
+                            req["miss"], envelope[0], refine=refine, run=run,
+                            orientation=orientation[a:b] if isinstance(orientation, list) else orientation)
+
+            pool.submit(Tasks(make, len(bounds), seq, envelope[0], deadline))
+        return True
+
+    def finish(self, server: Broker, seq: int, pending: Pending, frames: list[bytes], part: int) -> None:
+        """A worker's answers to a part of the goals (one frame each); their stored answers when it failed."""
+        a, b = pending.bounds[part]
+        if frames == [EXPIRED]:
+            # Its deadline has passed: the part is answered from the store with the request's others, slice by slice.
+            if pending.deadline != math.inf:
+                pending.deadline = 0.0
+            return
+        try:
+            if len(frames) != b - a or not frames[0].startswith(b"{"):  # a worker's failure, not answers
+                log.error("worker failed: %s", b"".join(frames)[:500].decode(errors="replace"))
+                frames = server.stored(pending.request, a, b, ERROR)
+        except Exception as exc:  # noqa: BLE001 - this request's error reply; the others go on
+            server.answer_now(seq, server.error(exc, pending.request.id))
+            return
+        pending.parts[part] = frames
+        if all(p is not None for p in pending.parts):
+            server.reply_pending(seq)
+
+    def expire(self, server: Broker, seq: int, pending: Pending) -> None:
+        """Its goals not yet refined are answered from the store, slice by slice (the server's loop)."""
+        pending.deadline = math.inf
+        server.expiring.append(seq)
+
+
+class Whole(Handler):
+    """An operation one worker answers whole, in ``frames`` frames of JSON (:meth:`reply` makes the reply of them);
+    it counts as a request, not as goals, against what a client may hold."""
+
+    frames = 1
+    late = "it was not answered"  # the timeout's message, before "by its deadline"
+    failed = "it could not be answered"  # the reply to a worker's internal failure
+
+    def job(self, server: Broker, req: P.Request) -> tuple[list[list[float]], dict[str, Any]]:
+        """The task's goals and options, once what a worker could refuse is checked here."""
+        return [], {}
+
+    def reply(self, server: Broker, req: P.Request, frames: list[bytes]) -> bytes:
+        return frames[0]
+
+    def defer(self, server: Broker, req: P.Request, envelope: list[bytes]) -> bool:
+        service = P.OPERATIONS[req.op].worker
+        if server.pool is None or service is None:
+            return False
+        goals, options = self.job(server, req)
+        seq = server.pend(req, envelope, MAX_WAIT, [(0, 1)], 0)
+        if seq is not None:
+            server.pool.submit(Task(seq, 0, req.args.get("effector") or "", goals, req.args.get("from"),
+                                    server.pending[seq].deadline, None, envelope[0], req.op, options,
+                                    whole_cost=service.cost, run=service.run))
+        return True
+
+    def finish(self, server: Broker, seq: int, pending: Pending, frames: list[bytes], part: int) -> None:
+        """The reply of the worker's frames, or its error (``failed: code: message``), or the deadline's
+        ``timeout``."""
+        rid = pending.request.id
+        if frames == [EXPIRED]:
+            server.answer_now(seq, P.error_reply(P.TIMEOUT, f"{self.late} by its deadline", rid))
+        elif len(frames) == self.frames and frames[0].startswith(b"{"):
+            server.answer_now(seq, P.ok_reply(self.reply(server, pending.request, frames), rid))
+        else:
+            code, _, message = b"".join(frames)[len(WORKER_FAILED):].decode(errors="replace").strip().partition(": ")
+            if code not in P.WORKER_ERRORS:
+                log.error("worker failed: %s", message[:500])
+                code, message = P.INTERNAL, self.failed
+            server.errors += 1
+            server.answer_now(seq, P.error_reply(code, message, rid))
+
+    def expire(self, server: Broker, seq: int, pending: Pending) -> None:
+        self.finish(server, seq, pending, [EXPIRED], 0)
+
+
+class Motion(Whole):
+    """The timed reach motion: two frames, its summary (published) and the whole motion (the reply)."""
+
+    frames, late, failed = 2, "the motion was not planned", "the motion could not be planned"
+
+    def answer(self, server: Broker, req: P.Request) -> bytes:
+        # Without workers the loop plans; a deadline stops it (a timeout error), as a worker's does.
+        planner = server.planner
+        motion = planner.plan(req["effector"], np.array(req["goal"]), req["from"], rate=req["rate"],
+                              timing=Timing.from_dict(req["timing"]), miss=req["miss"], deadline=_deadline(req),
+                              back=req["return"])
+        data = with_bones(motion.to_dict(), motion, planner.body(motion.strategy)) if req["bones"] else motion.to_dict()
+        return self.reply(server, req, [P.encode(motion.summary()), P.encode(data)])
+
+    def job(self, server: Broker, req: P.Request) -> tuple[list[list[float]], dict[str, Any]]:
+        server.selector.check_goals(req["effector"], np.array([req["goal"]]), req["from"])
+        Timing.from_dict(req["timing"])
+        return [req["goal"]], {"rate": req["rate"], "timing": req["timing"], "miss": req["miss"],
+                               "bones": req["bones"], "return": req["return"]}
+
+    def reply(self, server: Broker, req: P.Request, frames: list[bytes]) -> bytes:
+        """Publish the summary (everything but the frames) on the effector's topic; the reply is the whole motion."""
+        server.publish(req["effector"].encode(), [frames[0]], req)
+        return frames[1]
+
+
+class Place(Whole):
+    """Placements of the served body ranked by its trees against the request's targets (reach.answers.place); with
+    workers a worker answers it (seconds at its limit, which held the loop)."""
+
+    late, failed = "the placements were not ranked", "the placements could not be ranked"
+
+    def answer(self, server: Broker, req: P.Request) -> dict[str, Any]:
+        return placements(server.selector.atlas, req.args, server.selector.policy)  # type: ignore[arg-type]
+
+    def job(self, server: Broker, req: P.Request) -> tuple[list[list[float]], dict[str, Any]]:
+        return [], {"fields": req.args}
+
+
+class Accommodation(Handler):
+    """The share of the served population whose trees hold each goal (reach.answers.accommodation.held)."""
+
+    def answer(self, server: Broker, req: P.Request) -> dict[str, Any]:
+        if server.population is None:
+            raise P.ProtocolError(P.FORBIDDEN, "this server serves no population; start it with reach serve ATLAS "
+                                               "--population FOLDER", req.id)
+        atlases, weights, _ = server.population
+        effector = req["effector"]
+        trees = sum(1 for a in atlases for t in a.trees.values() if t.meta.get("effector") == effector)
+        if not trees:
+            raise P.ProtocolError(P.UNKNOWN_EFFECTOR, f"no member's strategy has the effector {effector!r}", req.id)
+        goals = np.asarray(req["goals"], float)
+        if goals.shape[1] != 3:
+            raise P.ProtocolError(P.BAD_REQUEST, "goals: expected [x, y, z] each", req.id)
+        if len(goals) * trees > P.MAX_ACCOMMODATION_LOOKUPS:
+            raise P.ProtocolError(P.TOO_LARGE, f"{len(goals)} goals x {trees} member trees is over the "
+                                               f"{P.MAX_ACCOMMODATION_LOOKUPS:,} lookups one accommodation may take; "
+                                               "send fewer goals a request", req.id)
+        return {"members": len(atlases), **held(atlases, weights, effector, goals)}
+
+
+class Strategies(Handler):
+    def answer(self, server: Broker, req: P.Request) -> dict[str, Any]:
+        selector = server.selector
+        trees = selector.atlas.trees
+        return {"strategies": [
+            {"name": n, "effector": e, "priority": int(trees[n].meta.get("priority", 0)),
+             "box": trees[n].box.to_dict(), "d_max": trees[n].d_max}
+            for n, e in selector.order
+        ], "effectors": selector.effectors, "frame": "world: z up, x forward, y left; metres, radians"}
+
+
+class Cells(Handler):
+    """Centres of the reachable cells of each strategy on a regular grid (for markers in RViz), from the fragments
+    made when the atlas loaded (reach.serving.cells)."""
+
+    def answer(self, server: Broker, req: P.Request) -> bytes:
+        atlas = server.selector.atlas
+        return cells.reply(server.served, atlas.select([req["strategy"]] if req["strategy"] else None), req["level"])
+
+
+class Health(Handler):
+    def answer(self, server: Broker, req: P.Request) -> dict[str, Any]:
+        pool = server.pool
+        return {
+            "status": "serving", "protocol": P.VERSION, "atlas": str(server.atlas_path),
+            "strategies": len(server.selector.order),
+            "uptime": time.monotonic() - server.started, "requests": server.requests, "errors": server.errors,
+            "workers": 0 if pool is None else pool.size, "pending": len(server.pending),
+            "resends": server.resends, "worker_restarts": 0 if pool is None else pool.restarts,
+            "workers_ready": 0 if pool is None else pool.ready,
+            "workers_stalled": 0 if pool is None else len(pool.stalled),
+        }
+
+
+class Hello(Handler):
+    def answer(self, server: Broker, req: P.Request) -> dict[str, Any]:
+        server.publish(b"hello", [b"{}"], req)
+        return {"published": server.publisher is not None}
+
+
+class Version(Handler):
+    def answer(self, server: Broker, req: P.Request) -> dict[str, Any]:
+        return {"protocol": P.VERSION, "reach": __version__, "operations": list(P.OPS)}
+
+
+class Reload(Handler):
+    """Load an atlas and serve it: over the socket the load runs in the background and the reply goes once the loop
+    has swapped it in; an in-process call loads and swaps at once."""
+
+    def answer(self, server: Broker, req: P.Request) -> dict[str, Any]:
+        return server.reload_now(req, server.reload_path(req))
+
+    def defer(self, server: Broker, req: P.Request, envelope: list[bytes]) -> bool:
+        server.reload_later(req, envelope, server.reload_path(req))
+        return True
+
+
+HANDLERS: dict[str, Handler] = {
+    "query": Query(), "motion": Motion(), "place": Place(), "accommodation": Accommodation(),
+    "strategies": Strategies(), "cells": Cells(), "health": Health(), "hello": Hello(), "reload": Reload(),
+    "version": Version(),
+}
+
