@@ -200,28 +200,11 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
     top = check.mapping(data, "", TOP_KEYS,
                         {"box", "depth", "strategies"} | (set() if isinstance(data, dict) and "body" in data
                                                           else {"oracle"}))
-    name = check.string(top.get("name", default_name), "name")
-    if not name.replace("_", "").replace("-", "").replace(".", "").isalnum() or name.startswith("."):
-        # It names the default output folder (out/<name>): no separators, no "..".
-        raise check.fail("name", "use letters, digits, '-', '_' and '.' only, not first (it names the folder "
-                                 f"out/<name>), got {name!r}")
+    name = _name(check, top.get("name", default_name))
     auto = _auto_box(check, top["box"])
-    if auto is None:
-        box_raw = check.mapping(top["box"], "box", {"min", "max"}, {"min", "max"})
-        lo, hi = check.vector(box_raw["min"], "box.min"), check.vector(box_raw["max"], "box.max")
-        if len(lo) not in (2, 3) or len(lo) != len(hi):
-            raise check.fail("box", f"min and max must both have 2 or 3 coordinates, got {len(lo)} and {len(hi)}")
-        try:
-            box = Box(np.array(lo), np.array(hi))
-        except TreeError as exc:
-            raise check.fail("box", str(exc)) from exc
-    else:
-        box = Box(-np.ones(3), np.ones(3))  # a stand-in for the checks below; the real one is derived on first use
-    depth = check.mapping(top["depth"], "depth", {"min", "max"}, {"min", "max"})
-    d_max = check.integer(depth["max"], "depth.max", 0, MAX_DEPTH)
-    d_min = check.integer(depth["min"], "depth.min", 0, MAX_DEPTH)
-    if d_min > d_max:
-        raise check.fail("depth.min", f"D_min ({d_min}) must not exceed D_max ({d_max})")
+    # box: auto gets a stand-in for the checks below; the real one is derived on first use
+    box = _box(check, top["box"]) if auto is None else Box(-np.ones(3), np.ones(3))
+    d_min, d_max = _depths(check, top["depth"])
     # A body's oracle defaults to casadi-ik, the reference engine; an analytic atlas names its shape.
     default = _oracle(check, top.get("oracle", {"name": DEFAULT_BODY_ORACLE}), "oracle", None)
     population, body = None, top.get("body")
@@ -230,75 +213,121 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
     raw_strategies = top["strategies"]
     if not isinstance(raw_strategies, list) or not raw_strategies:
         raise check.fail("strategies", "expected a non-empty list of strategies")
-    strategies = []
-    seen: set[str] = set()
+    strategies: list[StrategySpec] = []
     for i, item in enumerate(raw_strategies):
-        key = f"strategies[{i}]"
-        s = check.mapping(item, key, STRATEGY_KEYS, {"name"})
-        sname = check.string(s["name"], f"{key}.name")
-        if sname in seen:
-            raise check.fail(f"{key}.name", f"duplicate strategy name {sname!r}")
-        if not sname.replace("_", "").replace("-", "").isalnum():
-            raise check.fail(f"{key}.name", f"use letters, digits, '-' and '_' only (it names a file), got {sname!r}")
-        if len(sname) > MAX_NAME:
-            raise check.fail(f"{key}.name", f"at most {MAX_NAME} characters (it names a file), got {len(sname)}")
-        seen.add(sname)
-        effector = check.string(s.get("effector", "point"), f"{key}.effector")
-        priority = check.integer(s.get("priority", i + 1), f"{key}.priority", 0, 10**6)
-        oracle = _oracle(check, s["oracle"], f"{key}.oracle", default) if "oracle" in s else default
-        if "joints" in s or "tasks" in s or "body" in top:
-            # A body strategy: the IK oracle receives the body, the effector, the joints and the tasks.
-            if body is None:
-                raise check.fail(f"{key}.joints", "joints and tasks need a top-level 'body'")
-            if "joints" not in s:
-                raise check.fail(f"{key}.joints", "required key is missing (the joints this strategy may move)")
-            ranges = s.get("ranges")
-            if ranges is not None and not isinstance(ranges, Mapping):
-                raise check.fail(f"{key}.ranges", "expected joint name or pattern -> [lower, upper] in radians, got "
-                                                  f"{ranges!r}")
-            oracle = OracleSpec(oracle.name, {**oracle.params,
-                                              **body_params(body, effector, s["joints"], s.get("tasks"),
-                                                           None if ranges is None else dict(ranges))})
-        elif "ranges" in s:
-            raise check.fail(f"{key}.ranges", "joint ranges need a body strategy (a top-level 'body', joints, tasks)")
-        mirror_of = check.string(s["mirror_of"], f"{key}.mirror_of") if "mirror_of" in s else None
-        directions = check.integer(s.get("directions", 0), f"{key}.directions", 0, MAX_DIRECTIONS)
-        strategies.append(StrategySpec(sname, effector, priority, oracle, str(s.get("description", "")), mirror_of,
-                                       directions))
-    build = check.mapping(top.get("build", {}), "build", BUILD_KEYS)
-    chunk = check.integer(build.get("chunk_size", CHUNK_SIZE), "build.chunk_size", 1, 10**7)
-    refine_raw = check.mapping(build.get("refine", {}), "build.refine", REFINE_KEYS)
-    for k, v in refine_raw.items():
-        if not isinstance(v, bool):
-            raise check.fail(f"build.refine.{k}", f"expected true or false, got {v!r}")
-    refine = Refine(**refine_raw)
-    twins = build.get("twins", True)
-    if not isinstance(twins, bool):
-        raise check.fail("build.twins", f"expected true or false, got {twins!r}")
+        strategies.append(_strategy(check, item, i, default, body, "body" in top, {s.name for s in strategies}))
+    chunk, refine, twins = _build_options(check, top.get("build", {}))
     oracles = _check_oracles(check, strategies, box.dim)
-    for i, (spec, made) in enumerate(zip(strategies, oracles, strict=True)):
-        if spec.directions and not (isinstance(made, Oriented) and isinstance(made, Tunable)
-                                    and "direction" in made.orientation_kinds()):
-            raise check.fail(f"strategies[{i}].directions", "the reachability index needs an orientation task with "
-                                                            "an axis (the effector's "
-                             "approach axis whose directions it counts), e.g. {type: orientation, axis: z}")
+    _check_directions(check, strategies, oracles)
     notes = _diagnose(strategies, oracles)
     if auto is not None:
         for o in oracles:  # the bound that box: auto sizes B0 within, checked now (it costs no solve)
             if not isinstance(o, ReachBound) or o.reach_bound() is None:
                 raise check.fail("box", "box: auto needs body strategies whose reach is bounded (a fixed root, or "
                                         "feet on the floor); give box.min and box.max")
+    _check_mirrors(check, strategies, None if auto is not None else box)
+    strategies.sort(key=lambda spec: spec.priority)
+    return Config(name, source, box if auto is None else None, d_min, d_max, tuple(strategies), chunk, refine,
+                  dict(top), notes, auto, population, twins)
+
+
+def _name(check: _Checker, raw: Any) -> str:
+    name = check.string(raw, "name")
+    if not name.replace("_", "").replace("-", "").replace(".", "").isalnum() or name.startswith("."):
+        # It names the default output folder (out/<name>): no separators, no "..".
+        raise check.fail("name", "use letters, digits, '-', '_' and '.' only, not first (it names the folder "
+                                 f"out/<name>), got {name!r}")
+    return name
+
+
+def _box(check: _Checker, raw: Any) -> Box:
+    box_raw = check.mapping(raw, "box", {"min", "max"}, {"min", "max"})
+    lo, hi = check.vector(box_raw["min"], "box.min"), check.vector(box_raw["max"], "box.max")
+    if len(lo) not in (2, 3) or len(lo) != len(hi):
+        raise check.fail("box", f"min and max must both have 2 or 3 coordinates, got {len(lo)} and {len(hi)}")
+    try:
+        return Box(np.array(lo), np.array(hi))
+    except TreeError as exc:
+        raise check.fail("box", str(exc)) from exc
+
+
+def _depths(check: _Checker, raw: Any) -> tuple[int, int]:
+    depth = check.mapping(raw, "depth", {"min", "max"}, {"min", "max"})
+    d_max = check.integer(depth["max"], "depth.max", 0, MAX_DEPTH)
+    d_min = check.integer(depth["min"], "depth.min", 0, MAX_DEPTH)
+    if d_min > d_max:
+        raise check.fail("depth.min", f"D_min ({d_min}) must not exceed D_max ({d_max})")
+    return d_min, d_max
+
+
+def _strategy(check: _Checker, item: Any, i: int, default: OracleSpec, body: Any, has_body: bool,
+              seen: set[str]) -> StrategySpec:
+    """The ``i``-th strategy (``seen``: the names before it)."""
+    key = f"strategies[{i}]"
+    s = check.mapping(item, key, STRATEGY_KEYS, {"name"})
+    sname = check.string(s["name"], f"{key}.name")
+    if sname in seen:
+        raise check.fail(f"{key}.name", f"duplicate strategy name {sname!r}")
+    if not sname.replace("_", "").replace("-", "").isalnum():
+        raise check.fail(f"{key}.name", f"use letters, digits, '-' and '_' only (it names a file), got {sname!r}")
+    if len(sname) > MAX_NAME:
+        raise check.fail(f"{key}.name", f"at most {MAX_NAME} characters (it names a file), got {len(sname)}")
+    effector = check.string(s.get("effector", "point"), f"{key}.effector")
+    priority = check.integer(s.get("priority", i + 1), f"{key}.priority", 0, 10**6)
+    oracle = _oracle(check, s["oracle"], f"{key}.oracle", default) if "oracle" in s else default
+    if "joints" in s or "tasks" in s or has_body:
+        # A body strategy: the IK oracle receives the body, the effector, the joints and the tasks.
+        if body is None:
+            raise check.fail(f"{key}.joints", "joints and tasks need a top-level 'body'")
+        if "joints" not in s:
+            raise check.fail(f"{key}.joints", "required key is missing (the joints this strategy may move)")
+        ranges = s.get("ranges")
+        if ranges is not None and not isinstance(ranges, Mapping):
+            raise check.fail(f"{key}.ranges", "expected joint name or pattern -> [lower, upper] in radians, got "
+                                              f"{ranges!r}")
+        oracle = OracleSpec(oracle.name, {**oracle.params,
+                                          **body_params(body, effector, s["joints"], s.get("tasks"),
+                                                        None if ranges is None else dict(ranges))})
+    elif "ranges" in s:
+        raise check.fail(f"{key}.ranges", "joint ranges need a body strategy (a top-level 'body', joints, tasks)")
+    mirror_of = check.string(s["mirror_of"], f"{key}.mirror_of") if "mirror_of" in s else None
+    directions = check.integer(s.get("directions", 0), f"{key}.directions", 0, MAX_DIRECTIONS)
+    return StrategySpec(sname, effector, priority, oracle, str(s.get("description", "")), mirror_of, directions)
+
+
+def _build_options(check: _Checker, raw: Any) -> tuple[int, Refine, bool]:
+    """``build:``'s chunk size, refinements of the vertex rule and twins."""
+    build = check.mapping(raw, "build", BUILD_KEYS)
+    chunk = check.integer(build.get("chunk_size", CHUNK_SIZE), "build.chunk_size", 1, 10**7)
+    refine_raw = check.mapping(build.get("refine", {}), "build.refine", REFINE_KEYS)
+    for k, v in refine_raw.items():
+        if not isinstance(v, bool):
+            raise check.fail(f"build.refine.{k}", f"expected true or false, got {v!r}")
+    twins = build.get("twins", True)
+    if not isinstance(twins, bool):
+        raise check.fail("build.twins", f"expected true or false, got {twins!r}")
+    return chunk, Refine(**refine_raw), twins
+
+
+def _check_directions(check: _Checker, strategies: list[StrategySpec], oracles: list[Any]) -> None:
+    for i, (spec, made) in enumerate(zip(strategies, oracles, strict=True)):
+        if spec.directions and not (isinstance(made, Oriented) and isinstance(made, Tunable)
+                                    and "direction" in made.orientation_kinds()):
+            raise check.fail(f"strategies[{i}].directions", "the reachability index needs an orientation task with "
+                                                            "an axis (the effector's "
+                             "approach axis whose directions it counts), e.g. {type: orientation, axis: z}")
+
+
+def _check_mirrors(check: _Checker, strategies: list[StrategySpec], box: Box | None) -> None:
+    """Each ``mirror_of`` names another strategy; a given box is symmetric about y = 0 (``box``: None for auto)."""
     names = {spec.name for spec in strategies}
     for i, spec in enumerate(strategies):
         if spec.mirror_of is not None and (spec.mirror_of not in names or spec.mirror_of == spec.name):
             raise check.fail(f"strategies[{i}].mirror_of", "expected the name of another strategy, got "
                                                            f"{spec.mirror_of!r}")
-        if spec.mirror_of is not None and auto is None and box.dim == 3 and box.lo[1] != -box.hi[1]:
+        if spec.mirror_of is not None and box is not None and box.dim == 3 and box.lo[1] != -box.hi[1]:
             raise check.fail(f"strategies[{i}].mirror_of", "mirroring needs a box symmetric about y = 0, got y in "
                                                            f"[{box.lo[1]}, {box.hi[1]}]")
-    strategies.sort(key=lambda spec: spec.priority)
-    return Config(name, source, box if auto is None else None, d_min, d_max, tuple(strategies), chunk, refine,
-                  dict(top), notes, auto, population, twins)
 
 
 def _population(check: _Checker, top: dict[str, Any]) -> tuple[Population, dict[str, Any]]:

@@ -155,48 +155,25 @@ def _members(config: Any, as_json: bool) -> int:
 
 
 def cmd_model(args: argparse.Namespace) -> int:
-    # loaded when the command runs: `reach --help` starts without the answers' machinery
-    from oracles.bodies.body import human_body, load_body
-    from oracles.protocol import Described
-
     spec = args.spec
-    strategies: dict[str, Any] = {}
-    warnings: list[str] = []
     placing = {"up": args.up, "forward": args.forward, "root_position": args.root_position, "root_rpy": args.root_rpy,
                "package_dirs": args.package_dir}
     given = sorted(k for k, v in placing.items() if v is not None)
     if given and (spec == "human" or spec.endswith((".yaml", ".yml"))):
         raise InputError(given[0], "options for a URDF (a config gives them in its body; the generated human stands "
                                    "on z = 0 facing +x)")
-    if spec == "human":
-        dims = {}
-        for item in args.dim:
-            name, _, value = item.partition("=")
-            try:
-                dims[name.strip()] = float(value)
-            except ValueError:
-                raise InputError("--dim", f"expected NAME=METRES, got {item!r}") from None
-        body = human_body(args.sex, args.stature, args.percentile, args.mass, dims=dims, proportions=args.proportions,
-                          ansur=None if args.subject is None else {"sex": args.sex, "subject": args.subject})
-    elif spec.endswith((".yaml", ".yml")):
+    if spec.endswith((".yaml", ".yml")):
         # loaded when the command runs: `reach --help` starts without the answers' machinery
-        from reach.building.config import load_config, read_yaml
+        from reach.building.config import load_config
 
         config = load_config(spec)  # errors name the file and the key
         if config.population is not None:
             return _members(config, args.json)
-        data = read_yaml(Path(spec))
-        if not isinstance(data, dict) or "body" not in data:
-            raise ConfigError(spec, "body", "the config names no body")
-        body = load_body(data["body"])
-        for s in config.strategies:
-            oracle = s.oracle.create()
-            if isinstance(oracle, Described):
-                strategies[s.name] = oracle.describe()
-        warnings = list(config.notes)
+        body, strategies, warnings = _config_body(config, spec)
     else:
-        body = load_body({"urdf": spec, **{k: v for k, v in placing.items() if v is not None}})
-        warnings = list(body.notes)
+        body, strategies, warnings = _model_body(args, placing), {}, []
+        if spec != "human":
+            warnings = list(body.notes)
     info = {**body.describe(), "world_frame": P.WORLD_AXES, "warnings": warnings,
             **({"strategies": strategies} if strategies else {})}
     if body.anthropometry is not None:
@@ -210,20 +187,55 @@ def cmd_model(args: argparse.Namespace) -> int:
         info["figure"] = args.figure
     if args.json:
         print_json(info)
-        return 0
+    else:
+        _print_model(body, info, strategies, args.figure)
+    return 0
+
+
+def _model_body(args: argparse.Namespace, placing: dict[str, Any]) -> Any:
+    """The generated human of the command line's options, or a URDF placed by them."""
+    # loaded when the command runs: `reach --help` starts without the answers' machinery
+    from oracles.bodies.body import human_body, load_body
+
+    if args.spec != "human":
+        return load_body({"urdf": args.spec, **{k: v for k, v in placing.items() if v is not None}})
+    dims = {}
+    for item in args.dim:
+        name, _, value = item.partition("=")
+        try:
+            dims[name.strip()] = float(value)
+        except ValueError:
+            raise InputError("--dim", f"expected NAME=METRES, got {item!r}") from None
+    return human_body(args.sex, args.stature, args.percentile, args.mass, dims=dims, proportions=args.proportions,
+                      ansur=None if args.subject is None else {"sex": args.sex, "subject": args.subject})
+
+
+def _config_body(config: Any, spec: str) -> tuple[Any, dict[str, Any], list[str]]:
+    """A config's body, each strategy's description and the config's warnings."""
+    from oracles.bodies.body import load_body
+    from oracles.protocol import Described
+    from reach.building.config import read_yaml
+
+    data = read_yaml(Path(spec))
+    if not isinstance(data, dict) or "body" not in data:
+        raise ConfigError(spec, "body", "the config names no body")
+    body = load_body(data["body"])
+    strategies = {}
+    for s in config.strategies:
+        oracle = s.oracle.create()
+        if isinstance(oracle, Described):
+            strategies[s.name] = oracle.describe()
+    return body, strategies, list(config.notes)
+
+
+def _print_model(body: Any, info: dict[str, Any], strategies: dict[str, Any], figure: str | None) -> None:
     print(f"{body.source}: {len(info['joints'])} joints, mass {info['mass']:.2f} kg" + (", stature "
         f"{info['stature']:.4f} m" if "stature" in info else ""))
     for j in info["joints"]:
         print(f"  {j['name']:<28} " + ("continuous (-pi, pi]" if j.get("continuous") else f"[{j['lower']:+.4f}, "
             f"{j['upper']:+.4f}]"))
     if "dimensions" in info:
-        print(f"  {info['proportions']} body; ANSUR II dimensions [m; weightkg in kg]: asked, regressed (residual SD), "
-              "measured on the model (- where it has no such measure; oracles/bodies/measure.py)")
-        for name, d in info["dimensions"].items():
-            asked = "" if d["asked"] is None else f"{d['asked']:.4f}"
-            built = "-" if d["measured"] is None else f"{d['measured']:.4f}"
-            regressed = "-" if d["regressed"] is None else f"{d['regressed']:.4f} ({d['sd']:.4f})"
-            print(f"    {name:<32} {asked:>8} {regressed:>17} {built:>8}")
+        _print_dimensions(info)
     print(f"  centre of mass {info['center_of_mass']}")
     print(f"  {len(info['frames'])} frames at the reference posture [m]:")
     for name, pos in info["frames"].items():
@@ -236,17 +248,30 @@ def cmd_model(args: argparse.Namespace) -> int:
         for b in info["furniture"]:
             print(f"    {b['name']:<20} min {b['min']} max {b['max']}" + (" turned rpy "
                 f"{np.round(b['rpy'], 4).tolist()} [rad]" if "rpy" in b else ""))
-    if args.figure:
-        print(f"  wrote {args.figure}")
+    if figure:
+        print(f"  wrote {figure}")
+    _print_strategies(strategies)
+    for w in info["warnings"]:
+        print(f"warning: {w}", file=sys.stderr)
+
+
+def _print_strategies(strategies: dict[str, Any]) -> None:
     for name, d in strategies.items():
         for t in d["tasks"]:
             if t.get("text"):  # the task's own line (see oracles.tasks.base.Task.describe)
                 print(f"  {name}: {t['text']}")
         if "reference" in d:  # reference: auto, as found for this strategy
             print(f"  {name}: reference (auto) " + ", ".join(f"{k} {v:+.4f}" for k, v in d["reference"].items()))
-    for w in warnings:
-        print(f"warning: {w}", file=sys.stderr)
-    return 0
+
+
+def _print_dimensions(info: dict[str, Any]) -> None:
+    print(f"  {info['proportions']} body; ANSUR II dimensions [m; weightkg in kg]: asked, regressed (residual SD), "
+          "measured on the model (- where it has no such measure; oracles/bodies/measure.py)")
+    for name, d in info["dimensions"].items():
+        asked = "" if d["asked"] is None else f"{d['asked']:.4f}"
+        built = "-" if d["measured"] is None else f"{d['measured']:.4f}"
+        regressed = "-" if d["regressed"] is None else f"{d['regressed']:.4f} ({d['sd']:.4f})"
+        print(f"    {name:<32} {asked:>8} {regressed:>17} {built:>8}")
 
 
 def _dimensions(body: Any) -> dict[str, dict[str, float | None]]:
