@@ -464,3 +464,67 @@ def test_an_atlas_manifest_that_is_a_fifo_is_refused_not_waited_on(tmp_path):
     os.mkfifo(tmp_path / "atlas" / "manifest.json")
     with pytest.raises(StoreError, match="not a regular file"):
         load_atlas(tmp_path / "atlas")
+
+
+def _on_body_targets() -> list[Target]:
+    """Targets on each person's body: 0.45 m ahead of the right acromion (every adult reaches it with the arm
+    forward), and 1.5 m ahead of it (no one does)."""
+    return [Target("ahead", (0.45, 0.0, 0.0), "right_hand", "right_acromion"),
+            Target("beyond", (1.5, 0.0, 0.0), "right_hand", "right_acromion")]
+
+
+def test_a_target_on_the_body_lies_where_each_members_landmark_puts_it():
+    """``relative_to``: each member gets the target where their own frame lies (checked with Pinocchio on the
+    member's model), and reaches it as the member's oracle says at that point."""
+    from reach.answers.evaluate import on_body
+
+    config = parse_config(small({"ansur": {"n": 3, "sex": "mixed", "seed": 2}}), "pop", "pop")
+    targets = _on_body_targets()
+    result = direct(config, targets)
+    assert [m["reached"] for m in result["by_member"]] == [[True, False]] * 3 and result["refuted_by_check"] == 0
+    placed = []
+    strategy = config.strategies[0]
+    for member in members_of(config):
+        body = member.body(config.raw.get("body"))
+        oracle = OracleSpec(strategy.oracle.name, {**strategy.oracle.params, "body": body}).create()
+        model = load_body(body).model
+        data = model.createData()
+        pin.framesForwardKinematics(model, data, load_body(body).q_ref)
+        acromion = data.oMf[model.getFrameId("right_acromion")].translation
+        points = on_body(targets, oracle, np.zeros((2, 3)))
+        assert np.allclose(points, acromion + np.array([t.point for t in targets]), atol=1e-12)
+        assert list(oracle.evaluate(points).reachable) == [True, False]
+        placed.append(points[0])
+    assert np.ptp(np.array(placed)[:, 2]) > 0.02  # the members' acromions are not at one height
+
+
+def test_a_target_on_the_body_names_an_unknown_frame_and_placement_refuses_it(tmp_path):
+    from reach.answers.evaluate import load_targets
+    from reach.answers.place import Space, rank
+    from reach.errors import InputError
+
+    csv_path = tmp_path / "targets.csv"
+    csv_path.write_text("name,x,y,z,effector,relative_to\nahead,0.45,0,0,right_hand,right_elbw\nfixed,0.4,-0.2,1.2,,\n")
+    targets = load_targets(csv_path)
+    assert [t.relative_to for t in targets] == ["right_elbw", None] and targets[1].effector is None
+    config = parse_config(small({"ansur": {"n": 1, "sex": "female", "seed": 0}}), "pop", "pop")
+    with pytest.raises(ConfigError, match=r"ahead\.relative_to.*no frame 'right_elbw'; frames are: .*right_elbow_rest"):
+        direct(config, targets[:1])
+    with pytest.raises(InputError, match="ahead is given on the body"):
+        rank([None], targets, Space((0.0, 0.0), (0.0, 0.0)))  # type: ignore[list-item]
+
+
+@pytest.mark.slow
+def test_a_target_on_the_body_from_a_built_populations_atlases(built, tmp_path, capsys):
+    """``reach evaluate`` of a built population: each member's atlas answers the target placed on its own body,
+    as the members' oracles do directly."""
+    config_path, out, _ = built
+    csv_path = tmp_path / "on_body.csv"
+    csv_path.write_text("name,x,y,z,effector,relative_to\n" + "".join(
+        f"{t.name},{t.point[0]},{t.point[1]},{t.point[2]},{t.effector},{t.relative_to}\n" for t in _on_body_targets()))
+    capsys.readouterr()
+    assert main(["evaluate", str(out), "--targets", str(csv_path), "--json"]) == 0
+    from_trees = json.loads(capsys.readouterr().out)
+    assert [m["reached"] for m in from_trees["by_member"]] == [[True, False]] * 4
+    config = parse_config(json.loads(config_path.read_text()), str(config_path))
+    assert [m["reached"] for m in direct(config, _on_body_targets())["by_member"]] == [[True, False]] * 4

@@ -54,6 +54,10 @@ class PosedBody:
     def reference_posture(self) -> np.ndarray:
         return self.body.q_ref.copy()
 
+    def landmarks(self, names: list[str]) -> dict[str, np.ndarray]:
+        """The named frames' world positions [m] in the body's reference posture (an unknown name: ModelError)."""
+        return self.body.frame_positions(None, list(names))
+
     def effector_positions(self, postures: np.ndarray) -> np.ndarray:
         """Effector positions [m] (N, 3) of postures (N, nq), by Pinocchio."""
         model, data, fid = self.body.model, self._data, self.body.frame_id(self.effector)

@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from reach.answers.evaluate import Target, evaluate, to_body
+from reach.answers.evaluate import Target, evaluate, on_body, to_body
 from reach.errors import ConfigError
 from reach.maps.atlas import Atlas
 
@@ -178,7 +178,7 @@ def direct(config: Any, targets: list[Target], effector: str | None = None,
     count = max(math.ceil(len(members) / CHUNK), min(workers, len(members)))  # every process at work
     size = math.ceil(len(members) / max(count, 1))
     runs = [members[k : k + size] for k in range(0, len(members), size)]
-    jobs = [([m.body(config.raw.get("body")) for m in run], strategies, points, effs, verify) for run in runs]
+    jobs = [([m.body(config.raw.get("body")) for m in run], strategies, points, effs, verify, targets) for run in runs]
     if workers > 1 and len(runs) > 1:
         from concurrent.futures import ProcessPoolExecutor
 
@@ -210,7 +210,7 @@ def _members(job: tuple[Any, ...]) -> list[tuple[list[dict[str, Any]], int]]:
     run's first member lends its programs to the others' (``share_programs``): they are built once a run."""
     from oracles.protocol import OracleSpec, Sharing
 
-    bodies, strategies, points, effs, verify = job
+    bodies, strategies, points, effs, verify, targets = job
     first: dict[str, Any] = {}
     out = []  # a list, not a generator: a worker process sends it back whole
     for body in bodies:
@@ -221,7 +221,9 @@ def _members(job: tuple[Any, ...]) -> list[tuple[list[dict[str, Any]], int]]:
                 oracle.share_programs(first[name])
             first.setdefault(name, oracle)
             oracles[name] = oracle
-        out.append(_member(oracles, strategies, points, effs, verify))
+        # a target on the body where it lies on this member's body (every strategy's oracle holds the same body)
+        mine = on_body(targets, next(iter(oracles.values()), None), points)
+        out.append(_member(oracles, strategies, mine, effs, verify))
     return out
 
 

@@ -2,11 +2,15 @@
 
 Targets come from a CSV file with a header and the columns ``name, x, y, z``
 [m, atlas world frame] and optionally ``effector`` (else the one given on the
-command line). For each atlas and target the priority mechanism gives the
-chosen strategy (or none) and the other strategies that reach it. Given
-several atlases (say a 5th-percentile woman, a 50th- and a 95th-percentile
-man), the population table shows, per target, the strategy each body uses:
-the ergonomics question the paper opens with (front-panel controls in a car).
+command line) and ``relative_to``: a frame of the body (``right_acromion``,
+``eyes``, ``right_elbow_rest``, ``right_heel``, ...) that the target is given
+from, in the world's axes, placed on each body where that body's frame lies in
+its reference posture (a population's members each get their own target).
+For each atlas and target the priority mechanism gives the chosen strategy
+(or none) and the other strategies that reach it. Given several atlases (say
+a 5th-percentile woman, a 50th- and a 95th-percentile man), the population
+table shows, per target, the strategy each body uses: the ergonomics question
+the paper opens with (front-panel controls in a car).
 
 A target counts as reachable only when a posture reaches it: each answer is
 refined by IK at the target (within ``budget`` per target), and a target the
@@ -24,16 +28,43 @@ from typing import Any
 
 import numpy as np
 
+from oracles.protocol import Landmarked
 from reach.answers.select import Selector
-from reach.errors import ConfigError
+from reach.errors import ConfigError, ReachError
 from reach.maps.atlas import Atlas
 
 
 @dataclass(frozen=True)
 class Target:
+    """A target [m]: a point in the layout's frame, or with ``relative_to`` an offset (world axes) from that frame of
+    each body in its reference posture; reached by ``effector`` (a frame of the body), or the one asked."""
+
     name: str
     point: tuple[float, float, float]
     effector: str | None = None
+    relative_to: str | None = None
+
+
+def on_body(targets: list[Target], oracle: Any, points: np.ndarray) -> np.ndarray:
+    """``points`` (T, 3) with each target given on the body placed on this oracle's body: its landmark's position
+    plus its offset; the others as given."""
+    if not any(t.relative_to for t in targets):
+        return points
+    if not isinstance(oracle, Landmarked):
+        raise ConfigError("targets", "relative_to", "a target on the body needs a body model (a URDF or the "
+                                                    "generated human), not an analytic shape")
+    found: dict[str, np.ndarray] = {}
+    out = np.array(points, float, copy=True)
+    for i, t in enumerate(targets):
+        if not t.relative_to:
+            continue
+        if t.relative_to not in found:
+            try:
+                found[t.relative_to] = oracle.landmarks([t.relative_to])[t.relative_to]
+            except ReachError as exc:
+                raise ConfigError("targets", f"{t.name}.relative_to", str(exc)) from None
+        out[i] = found[t.relative_to] + np.asarray(t.point, float)
+    return out
 
 
 def load_targets(path: str | Path) -> list[Target]:
@@ -46,8 +77,8 @@ def load_targets(path: str | Path) -> list[Target]:
     rows = list(csv.DictReader(text.splitlines()))
     need = {"name", "x", "y", "z"}
     if not rows or not need <= set(rows[0]):
-        raise ConfigError(path, "header", "expected the columns name, x, y, z (and optionally effector), got "
-                                          f"{sorted(rows[0]) if rows else 'nothing'}")
+        raise ConfigError(path, "header", "expected the columns name, x, y, z (and optionally effector, "
+                                          f"relative_to), got {sorted(rows[0]) if rows else 'nothing'}")
     out = []
     for i, row in enumerate(rows, start=2):
         try:
@@ -57,7 +88,8 @@ def load_targets(path: str | Path) -> list[Target]:
                                                 f"{row.get('y')!r}, {row.get('z')!r}") from None
         if not all(np.isfinite(point)):
             raise ConfigError(path, f"row {i}", "x, y and z must be finite")
-        out.append(Target(row["name"], point, (row.get("effector") or "").strip() or None))
+        out.append(Target(row["name"], point, (row.get("effector") or "").strip() or None,
+                          (row.get("relative_to") or "").strip() or None))
     return out
 
 
@@ -83,6 +115,7 @@ def evaluate(atlases: list[Atlas], targets: list[Target], effector: str | None =
     frame: the targets are given in the layout's frame and moved into the body's (``reach evaluate --at``).
     """
     results: dict[str, Any] = {"atlases": [], "targets": [t.name for t in targets], "refined": refine}
+    relative = any(t.relative_to for t in targets)
     points = np.array([t.point for t in targets], float).reshape(-1, 3)
     if placements is not None:
         placements = np.asarray(placements, float).reshape(-1, 4)
@@ -93,6 +126,8 @@ def evaluate(atlases: list[Atlas], targets: list[Target], effector: str | None =
         selector = Selector(atlas, policy, refine=refine, budget=budget, miss="unreachable")  # type: ignore[arg-type]
         rows: list[dict[str, Any]] = []
         seen = points if placements is None else to_body(points, placements[min(k, len(placements) - 1)][None])[0]
+        # a target on the body is placed on this atlas's body (any strategy's oracle: they share it), not moved by --at
+        seen = on_body(targets, selector.oracle(selector.order[0][0]) if relative else None, seen)
         for t, point in zip(targets, seen, strict=True):
             eff = t.effector or effector or (selector.effectors[0] if len(selector.effectors) == 1 else None)
             if eff is None:
@@ -105,7 +140,10 @@ def evaluate(atlases: list[Atlas], targets: list[Target], effector: str | None =
                 found = selector.probe(eff, point)
                 if found is not None:
                     a, probed = found, True
-            rows.append({"target": t.name, "effector": eff, "point": list(t.point), "strategy": a.strategy,
+            # the layout's point; a target on the body, where it lies on this body
+            shown = np.round(point, 6).tolist() if t.relative_to else list(t.point)
+            rows.append({"target": t.name, "effector": eff, "point": shown,
+                         **({"relative_to": t.relative_to} if t.relative_to else {}), "strategy": a.strategy,
                          "reachable": a.reachable,
                          "also": list(a.alternatives), "refined": a.refined, "within": a.within, "beyond_trees": probed,
                          "nearest": None if a.nearest is None

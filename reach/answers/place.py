@@ -185,6 +185,11 @@ def rank(atlases: Sequence[Atlas], targets: Sequence[Target], space: Space, effe
 
     if not atlases or not targets:
         raise InputError("targets" if atlases else "atlases", "expected at least one atlas and one target")
+    on_body = [t.name for t in targets if t.relative_to]
+    if on_body:
+        # A target on the body moves with it: no placement brings it nearer.
+        raise InputError("targets", f"{on_body[0]} is given on the body (relative_to), which moves with the body: "
+                                    "placement ranks targets in the layout's frame only")
     if policy not in POLICIES:
         raise InputError("policy", f"expected one of {', '.join(POLICIES)}, got {policy!r}")
     placements = space.candidates()
