@@ -294,6 +294,18 @@ def test_malformed_urdf_and_unknown_names_are_named(tmp_path, man):
     latin.write_bytes("<robot name='caf\xe9'/>".encode("latin-1"))
     with pytest.raises(ModelError, match=r"latin\.urdf: not UTF-8 text"):
         urdf_body(latin)
+    # A document type declaration's entities could name local files: refused before any parser sees them.
+    entity = tmp_path / "entity.urdf"
+    entity.write_text('<?xml version="1.0"?>\n<!DOCTYPE robot [<!ENTITY host SYSTEM "file:///etc/hostname">]>\n'
+                      "<robot name='x'><link name='&host;'/></robot>")
+    with pytest.raises(ModelError, match=r"entity\.urdf: a document type declaration .* refused, never resolved"):
+        urdf_body(entity)
+    # A body's mass within half the survey's smallest and 1.5 times its span: 0 or negative masses built bodies whose
+    # centre of mass was NaN.
+    for mass in (0.0, -5.0, 19.0):
+        with pytest.raises(ModelError, match=r"human\.mass: expected kg near ANSUR II's male range"):
+            human_body("male", mass=mass)
+    assert human_body("male", mass=25.0).mass == pytest.approx(25.0)
     with pytest.raises(ModelError, match=r"human: no frame 'right_paw'; frames are: .*right_hand"):
         man.frame_id("right_paw")
     with pytest.raises(ModelError, match=r"human: no joint 'tail'"):

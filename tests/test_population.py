@@ -112,10 +112,15 @@ def test_wilson_interval_at_known_values():
     assert weighted_share(np.ones(4), hits)["share"] == 0.75
 
 
-def test_a_member_keeps_the_config_body_posture_and_seat_but_not_its_size():
+def test_a_member_keeps_the_config_body_posture_and_seat_and_a_size_given_there_is_refused():
     m = members(parse_population({"ansur": {"n": 1, "sex": "female", "seed": 1}}))[0]
-    body = m.body({"human": {"sex": "male", "percentile": 95, "posture": "seated", "seat": {"kind": "car"}}})
+    body = m.body({"human": {"posture": "seated", "seat": {"kind": "car"}}})
     assert body["human"] == {"posture": "seated", "seat": {"kind": "car"}, **m.human}
+    # a size or sex given to every member would be dropped without a word: each member's comes from the survey
+    with pytest.raises(ModelError, match=r"body\.human\.percentile: .*their own record: .* not percentile, sex"):
+        m.body({"human": {"sex": "male", "percentile": 95, "posture": "seated"}})
+    with pytest.raises(ConfigError, match=r"pop: body\.human\.acromialheight: .*not acromialheight"):
+        parse_config(small({"ansur": {"n": 2, "sex": "mixed", "seed": 0}}, acromialheight=-1), "pop", "pop")
     with pytest.raises(ModelError, match="generated humans"):
         m.body({"urdf": "robot.urdf"})
 

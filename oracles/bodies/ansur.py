@@ -146,10 +146,13 @@ class Sample:
         col = self.column(name)
         lo, hi = float(col.min()), float(col.max())
         span = hi - lo
-        if not (math.isfinite(value) and lo - SLACK * span <= value <= hi + SLACK * span):
+        # Widened by SLACK of the span, but never below half the survey's smallest: a wide range's widening reached
+        # below zero (a mass of -13 kg built a body whose centre of mass was NaN).
+        low, high = max(lo - SLACK * span, 0.5 * lo), hi + SLACK * span
+        if not (math.isfinite(value) and low <= value <= high):
             unit = "kg" if name == MASS else "m"
-            raise ModelError(f"expected {unit} near ANSUR II's {self.sex} range [{lo:.3f}, {hi:.3f}] {unit}, got "
-                             f"{value!r}", key=f"human.{name}")
+            raise ModelError(f"expected {unit} near ANSUR II's {self.sex} range [{lo:.3f}, {hi:.3f}] {unit} (from "
+                             f"{low:.3f} to {high:.3f}), got {value!r}", key=f"human.{name}")
 
 
 @lru_cache(maxsize=2)

@@ -252,6 +252,14 @@ def _continuous(joint: pin.JointModel) -> bool:
     return bool(joint.nq == 2 and joint.nv == 1)
 
 
+def _no_doctype(text: str, source: Any, kind: str) -> None:
+    """Refuse a document type declaration: its entities could name local files or expand without bound, and a URDF
+    or SRDF needs none (neither is resolved: the file is refused before any parser sees it)."""
+    if "<!DOCTYPE" in text or "<!ENTITY" in text:
+        raise ModelError(f"a document type declaration (<!DOCTYPE ...> or <!ENTITY ...>): refused, never resolved; "
+                         f"a {kind} needs none", source=source)
+
+
 def _check_xml(urdf: str, source: str) -> None:
     """What urdfdom accepts silently or reports over many lines: not XML, a negative or non-finite mass, a zero
     joint axis. Each is one line naming the link or joint."""
@@ -569,6 +577,7 @@ def urdf_body(path: str | Path, root_position: list[float] | None = None, ranges
             raise ModelError(f"{size} bytes: a URDF is at most {URDF_MAX_BYTES} bytes here (meshes live in their own "
                              "files)", source=path)
         urdf = path.read_text(encoding="utf-8")
+        _no_doctype(urdf, path, "URDF")
     except OSError as exc:
         raise ModelError(f"cannot read URDF ({exc.strerror or exc})", source=path) from exc
     except UnicodeDecodeError as exc:
@@ -596,7 +605,9 @@ def disabled_pairs(srdf: str | Path, model: pin.Model) -> frozenset[frozenset[st
             raise ModelError("not a regular file: an SRDF is an XML file", source=path, key="srdf")
         if path.stat().st_size > SRDF_MAX_BYTES:
             raise ModelError(f"larger than {SRDF_MAX_BYTES} bytes: not an SRDF", source=path, key="srdf")
-        root = ET.fromstring(path.read_text(encoding="utf-8"))
+        text = path.read_text(encoding="utf-8")
+        _no_doctype(text, path, "SRDF")
+        root = ET.fromstring(text)
     except OSError as exc:
         raise ModelError(f"cannot read the SRDF ({exc.strerror or exc})", source=path, key="srdf") from exc
     except (ET.ParseError, UnicodeDecodeError) as exc:

@@ -62,7 +62,13 @@ class Member:
         if "human" not in base:
             raise ModelError("a population is of generated humans: the body must be {human: {...}} (its posture, "
                              "seat and proportions apply to every member), not a URDF", key="body")
-        human = {k: v for k, v in (base["human"] or {}).items() if k in ("posture", "seat", "proportions")}
+        given = dict(base["human"] or {})
+        sized = sorted(set(given) - {"posture", "seat", "proportions"})
+        if sized:
+            # who a member is comes from the survey: a size given here would be dropped without a word
+            raise ModelError(f"a population's members take their sex and size from their own record: give only "
+                             f"posture, seat and proportions here, not {', '.join(sized)}", key=f"body.human.{sized[0]}")
+        human = {k: v for k, v in given.items() if k in ("posture", "seat", "proportions")}
         base["human"] = {**human, **self.human}
         return base
 

@@ -31,7 +31,7 @@ from reach.motion.planner import Planner, Timing
 from reach.motion.rig import with_bones
 from reach.serving import cells
 from reach.serving import protocol as P
-from reach.serving.services import placements
+from reach.serving.services import place_space, placements
 from reach.serving.workers import EXPIRED, Pool, Task, Tasks
 from reach.serving.workers import FAILED as WORKER_FAILED
 
@@ -284,6 +284,7 @@ class Place(Whole):
         return placements(server.selector.atlas, req.args, server.selector.policy)  # type: ignore[arg-type]
 
     def job(self, server: Broker, req: P.Request) -> tuple[list[list[float]], dict[str, Any]]:
+        place_space(req.args)  # too many candidates: bad_request now, not a timeout after a busy worker
         return [], {"fields": req.args}
 
 

@@ -86,14 +86,21 @@ def run_place(ctx: Context, job: dict[str, Any], deadline: float) -> list[bytes]
     return [P.encode(placements(ctx.selector.atlas, job["options"]["fields"], ctx.selector.policy, deadline))]
 
 
-def placements(atlas: Atlas, fields: dict[str, Any], policy: Policy = "vertex",
-               deadline: float | None = None) -> dict[str, Any]:
-    """A ``place`` request's result (see docs/protocol.md): the fields as the protocol parsed them (degrees for
-    ``yaw`` and ``yaw_step``), the placements of the served body ranked by its trees."""
+def place_space(fields: dict[str, Any]) -> tuple[list[Target], Space]:
+    """A ``place`` request's targets and candidates, its size checked (an InputError past MAX_PLACE_POINTS): before
+    the request is queued, and again in the worker."""
     targets = [Target(t["name"], tuple(t["point"]), t["effector"]) for t in fields["targets"]]
     space = Space(tuple(fields["x"]), tuple(fields["y"]), tuple(fields["z"]),
                   (math.radians(fields["yaw"][0]), math.radians(fields["yaw"][1])),
                   fields["step"], math.radians(fields["yaw_step"]), max_candidates=P.MAX_PLACE_POINTS // len(targets))
+    return targets, space
+
+
+def placements(atlas: Atlas, fields: dict[str, Any], policy: Policy = "vertex",
+               deadline: float | None = None) -> dict[str, Any]:
+    """A ``place`` request's result (see docs/protocol.md): the fields as the protocol parsed them (degrees for
+    ``yaw`` and ``yaw_step``), the placements of the served body ranked by its trees."""
+    targets, space = place_space(fields)
     ranking = rank([atlas], targets, space, policy=policy, deadline=deadline)
     return {"candidates": len(ranking.placements),
             "ranked": [ranking.row(k, targets) for k in range(min(fields["top"], len(ranking.placements)))]}
