@@ -67,7 +67,8 @@ class Member:
         if sized:
             # who a member is comes from the survey: a size given here would be dropped without a word
             raise ModelError(f"a population's members take their sex and size from their own record: give only "
-                             f"posture, seat and proportions here, not {', '.join(sized)}", key=f"body.human.{sized[0]}")
+                             f"posture, seat and proportions here, not {', '.join(sized)}",
+                             key=f"body.human.{sized[0]}")
         human = {k: v for k, v in given.items() if k in ("posture", "seat", "proportions")}
         base["human"] = {**human, **self.human}
         return base
