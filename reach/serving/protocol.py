@@ -31,7 +31,7 @@ WORLD_FRAME = "world"
 WORLD_AXES = "z up, x forward, y left; origin on the floor midway between the ankles (generated human)"
 MAX_MESSAGE_BYTES = 1 << 20  # a request larger than this is refused unread
 MAX_BATCH = 10_000  # goals per query
-POLL_MS = 100  # server poll timeout: how often it checks for a stop request
+POLL_MS = 50  # server poll timeout: how often it checks for a stop request
 PUB_HWM = 1000  # messages queued per subscriber before the PUB socket drops
 # goals per worker task at most (reach serve --chunk); within it a task is sized by its measured cost
 # (reach.serving.workers.Pool.chunk)
