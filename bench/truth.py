@@ -336,7 +336,7 @@ def main() -> None:
     parser.add_argument("--population", action="store_true", help="the population suite: members from the survey's "
                         "tails x POPULATION's strategies x TARGETS")
     parser.add_argument("--strategies", help="comma-separated (default: every strategy of SUITES)")
-    parser.add_argument("--candidates", type=int, default=700)
+    parser.add_argument("--candidates", type=int, default=800)  # as the suite was made
     parser.add_argument("--keep", type=int, default=300)
     parser.add_argument("--restarts", type=int, default=24)
     parser.add_argument("--batch-starts", type=int, default=64)
