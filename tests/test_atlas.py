@@ -64,6 +64,19 @@ def test_killed_build_resumes_to_the_same_tree(tmp_path):
     assert not partial.exists()
     again = subprocess.run([*cmd, "--resume"], capture_output=True, text=True, timeout=300)
     assert "kept the finished tree" in again.stdout
+    # A tree of another model of the same spec (a new version of the generated human) is rebuilt, not kept to be
+    # refused by every answer.
+    from reach.maps.store import load_tree, save_tree
+
+    tree = load_tree(out / "right_arm.npz")
+    model = tree.meta["model_hash"]
+    tree.meta["model_hash"] = "0123456789abcdef"
+    save_tree(tree, out / "right_arm.npz")
+    redone = subprocess.run([*cmd, "--resume"], capture_output=True, text=True, timeout=300)
+    assert redone.returncode == 0, redone.stderr
+    assert (f"right_arm: rebuilding (its body's model changed since right_arm.npz was built: 0123456789abcdef -> "
+            f"{model})") in redone.stdout
+    assert load_atlas(out).trees["right_arm"].meta["model_hash"] == model
     # A changed strategy is rebuilt, and the build says why.
     cfg.write_text(yaml.safe_dump(human_config(d_max=3)))
     changed = subprocess.run([*cmd, "--resume"], capture_output=True, text=True, timeout=300)

@@ -210,7 +210,14 @@ def _build_locked(
         if resume and path.is_file():
             try:
                 old, old_index = load_indexed(path)
-                if old.meta.get("fingerprint") == fp:
+                current = oracle_of(s)
+                model = current.model_hash if isinstance(current, ModelHashed) else None
+                # The spec names a generated human, not its URDF: a new version of the human has the same spec and
+                # another model (its kept trees were refused by every answer: "rebuild the atlas").
+                if model is not None and old.meta.get("model_hash", model) != model:
+                    say(f"{s.name}: rebuilding (its body's model changed since {path.name} was built: "
+                        f"{old.meta['model_hash']} -> {model})")
+                elif old.meta.get("fingerprint") == fp:
                     tree, index = old, old_index
                     say(f"{s.name}: kept the finished tree")
                 else:
