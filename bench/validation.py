@@ -30,6 +30,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -199,6 +200,7 @@ def seat_rows() -> list[dict]:
     return rows
 
 
+@lru_cache(maxsize=2)
 def records(sex: str) -> dict[int, dict[str, float]]:
     """Every subject's whole ANSUR II record [m] by id, from the public files beside the repository (``PUBLIC``):
     the carried data hold the dimensions bodies are built from, not all those a body can be measured on."""

@@ -183,10 +183,9 @@ def human_urdf(body: Anthropometry, name: str = "human") -> str:
         )
         sjc = (0.0, s * (P.shoulder_y - A.STERNOCLAVICULAR_Y * H), 0.0)
         u.frame(f"{p}shoulder", f"{p}clavicle", sjc)
-        if measured:
+        if measured and P.acromion_y is not None:
             # the acromion's lateral tip, above the shoulder centre's height by P.acromion (the survey's landmark)
-            tip = P.shoulder_y if P.acromion_y is None else P.acromion_y
-            u.frame(f"{p}acromion", f"{p}clavicle", (0.0, s * (tip - A.STERNOCLAVICULAR_Y * H), P.acromion))
+            u.frame(f"{p}acromion", f"{p}clavicle", (0.0, s * (P.acromion_y - A.STERNOCLAVICULAR_Y * H), P.acromion))
         u.link(f"{p}upper_arm", M["upper_arm"], (0, 0, -C["upper_arm"] * L["upper_arm"]), L["upper_arm"])
         u.chain(
             [(f"{p}shoulder_flexion", (0, -1, 0)), (f"{p}shoulder_abduction", (s, 0, 0)),

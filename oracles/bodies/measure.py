@@ -41,8 +41,9 @@ MEASURES = {
     "radialestylionlength": "standing, arms hanging: the right elbow centre to the wrist centre (at stylion)",
     "handlength": "the right wrist centre to the middle fingertip",
     "footlength": "the right heel to the toe tip",
-    # Dimensions no body is built from (see docs/validation.md): where a landmark is not a frame of the model, the
-    # capsule that stands for the flesh there is measured (its lowest, highest or outermost point).
+    # The rest, most of them no body is built from (docs/validation.md says which are inputs): where a landmark is
+    # not a frame of the model, the capsule that stands for the flesh there is measured (its lowest, highest or
+    # outermost point).
     "biacromialbreadth": "standing: the right acromion's tip to the left one's",
     "shoulderelbowlength": "standing, the upper arm hanging, the elbow flexed 90 deg: the acromion above the elbow's "
                            "underside (the elbow_rest frame)",
@@ -142,7 +143,8 @@ def _extent(*capsules: np.ndarray) -> float:
 
 def _unbuilt(body: Body, stand: dict[str, np.ndarray], hip: float, seat: float,
              knee_front: float | None) -> dict[str, float]:
-    """The dimensions no body is built from (see :data:`MEASURES`) [m]: how the model meets what nobody gave it."""
+    """The dimensions of :data:`MEASURES` taken on landmarks and capsules [m], most of them no body is built from
+    (anthropometry.BUILT_FROM names the inputs): how the model meets what nobody gave it."""
     out = {"biacromialbreadth": float(np.linalg.norm(stand["right_acromion"] - stand["left_acromion"])),
            "interpupillarybreadth": float(np.linalg.norm(stand["right_eye"] - stand["left_eye"])),
            "footbreadthhorizontal": float(np.linalg.norm(stand["right_ball_outer"] - stand["right_ball_inner"])),

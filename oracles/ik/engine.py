@@ -26,8 +26,8 @@ from oracles.ik.waves import Waves
 from oracles.protocol import Goals, Purpose, Verdicts
 
 SOLVERS = ("batch", "fatrop", "ipopt")  # batch: oracles.ik.batch, every goal x start together (fatrop polishes)
-# Starts (random restarts for fatrop or IPOPT) of the search for a home (ReachProblem.x_home): the squat's was found
-# for its hand where it hangs standing from 64 batched starts, not from the 16 of a cold goal (docs/results.md).
+# Batched starts of the search for a home (ReachProblem.x_home; fatrop or IPOPT take half as many random restarts):
+# the squat's was found for its hand where it hangs standing from 64, not from the 16 of a cold goal (docs/results.md).
 HOME_STARTS = 64
 REFINE_SECONDARY_ITER = 40  # iteration cap of the lower stages when refining an answer
 

@@ -81,7 +81,6 @@ class StepTask(HardTask):
     stance_corners: tuple[str, ...] = ()
     _ref: pin.SE3 = field(default_factory=pin.SE3.Identity, init=False, repr=False, compare=False)
     _stance_line: np.ndarray = field(default_factory=lambda: np.zeros((2, 2)), init=False, repr=False, compare=False)
-    _inset: float = field(default=0.0, init=False, repr=False, compare=False)
     _length: float = field(default=1.0, init=False, repr=False, compare=False)
     _ccw: bool = field(default=True, init=False, repr=False, compare=False)
     _ids: dict[str, int] = field(default_factory=dict, init=False, repr=False, compare=False)
@@ -132,17 +131,15 @@ class StepTask(HardTask):
         step_heel, step_toe, width = _line([pts[f] for f in self.corners])
         self._length = float(np.linalg.norm(step_toe - step_heel))
         heel, toe, stance_width = _line([pts[f] for f in self.stance_corners])
-        # Each foot's centreline, its ends moved in by the margin: a point of it lies at least the margin inside its
-        # foot (half the foot's width from its sides, the margin from its heel and toe), so the quadrilateral of the
-        # two lies inside both feet's hull shrunk by the margin, which the verdict checks. Moved in by half the width
-        # less the margin (9 mm on the generated human's 58 mm wide feet) it did not: searches ended with the centre of
-        # mass 7-10 mm outside the verdict's polygon, and the step's goals were lost (docs/results.md).
-        self._inset = self.margin
         if 0.5 * min(width, stance_width) < self.margin:
             raise TaskError("step.margin", f"the feet are {min(width, stance_width):.3f} m wide: a margin of "
                                            f"{self.margin} m leaves no polygon")
+        # Each foot's centreline, its ends moved in by the margin: every point of it lies the margin or more inside its
+        # foot (half the foot's width from its sides), so the quadrilateral of the two lies inside both feet's hull
+        # shrunk by the margin, which the verdict checks. A smaller inset put its corners outside that polygon on
+        # narrow feet, where searches then ended unreached (docs/results.md).
         d = (toe - heel) / np.linalg.norm(toe - heel)
-        self._stance_line = np.array([heel + self._inset * d, toe - self._inset * d])
+        self._stance_line = np.array([heel + self.margin * d, toe - self.margin * d])
         # the quadrilateral's corners in counterclockwise order: the stance foot to the stepping foot's left or right
         side = step_toe - step_heel
         other = self._stance_line[0] - step_heel
@@ -168,7 +165,7 @@ class StepTask(HardTask):
         heel, toe = 0.5 * (corners[0] + corners[1]), 0.5 * (corners[2] + corners[3])
         d = (toe - heel) / self._length
         a, b = (ca.SX(p.reshape(2, 1)) for p in self._stance_line)
-        step_heel, step_toe = heel + self._inset * d, toe - self._inset * d
+        step_heel, step_toe = heel + self.margin * d, toe - self.margin * d
         quad = [step_heel, step_toe, b, a] if self._ccw else [step_toe, step_heel, a, b]
         com = sym.kin.center_of_mass()[:2]
         for k in range(4):
@@ -203,7 +200,7 @@ class StepTask(HardTask):
         jac = [num.jacobian(self._ids[f])[:2] for f in self.corners]
         heel, toe = 0.5 * (pos[0] + pos[1]), 0.5 * (pos[2] + pos[3])
         j_heel, j_toe = 0.5 * (jac[0] + jac[1]), 0.5 * (jac[2] + jac[3])
-        k = self._inset / self._length
+        k = self.margin / self._length
         step = [(heel + k * (toe - heel), j_heel + k * (j_toe - j_heel)),
                 (toe - k * (toe - heel), j_toe - k * (j_toe - j_heel))]
         zero = np.zeros_like(j_heel)

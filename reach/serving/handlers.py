@@ -104,19 +104,21 @@ class Handler:
 
     def answer(self, server: Broker, req: P.Request) -> dict[str, Any] | bytes:
         """The result object of a valid request (or its encoding), answered now."""
-        raise NotImplementedError
+        raise NotImplementedError(f"{type(self).__name__} answers only in the workers (a server without them "
+                                  "cannot answer it)")
 
     def defer(self, server: Broker, req: P.Request, envelope: list[bytes]) -> bool:
         """Hand a request over the socket to the workers or the background; False when the loop answers it now."""
         return False
 
     def finish(self, server: Broker, seq: int, pending: Pending, frames: list[bytes], part: int) -> None:
-        """Answer a handed-over request's ``part`` from a worker's frames."""
-        raise NotImplementedError
+        """Answer a handed-over request's ``part`` from a worker's frames (a handler that hands requests over says
+        how)."""
+        raise NotImplementedError(f"{type(self).__name__} hands no request over")
 
     def expire(self, server: Broker, seq: int, pending: Pending) -> None:
-        """Answer a handed-over request whose deadline has passed."""
-        raise NotImplementedError
+        """Answer a handed-over request whose deadline has passed (as :meth:`finish`)."""
+        raise NotImplementedError(f"{type(self).__name__} hands no request over")
 
 
 def _deadline(req: P.Request) -> float | None:
