@@ -303,6 +303,16 @@ class Transiting(Protocol):
 
 
 @runtime_checkable
+class Settling(Protocol):
+    """An oracle that moves a stored posture to a nearby goal without a search (a motion's end posture)."""
+
+    def settle(self, posture: np.ndarray, goal: np.ndarray) -> np.ndarray | None:
+        """A posture near ``posture`` (nq,) that reaches ``goal`` [m] (3,) and holds every hard task, by the verdict's
+        own check, found by a few local steps from it; None when they find none (the caller then solves)."""
+        ...
+
+
+@runtime_checkable
 class Stepping(Protocol):
     """An oracle whose strategy may take a step: where the stepping foot lands at a posture."""
 

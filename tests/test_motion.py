@@ -13,6 +13,7 @@ from helpers import ARM, Y_UP, bvh_chain, bvh_end, human_config, quat_matrix
 
 from oracles.bodies.body import human_body
 from reach.answers.answer import posture_vector
+from oracles.ik.tasked import TaskedBody
 from reach.answers.select import Selector
 from reach.building.atlas import build_atlas
 from reach.building.config import parse_config
@@ -74,12 +75,14 @@ def test_mtm_reach_table_and_body_motions():
 def test_an_arm_reach_starts_at_the_start_ends_at_the_answer_and_is_minimum_jerk(planner, body):
     goal = np.array([0.45, -0.25, 1.2])
     m = planner.plan("right_hand", goal)
-    answer = planner.selector.select("right_hand", goal)
+    stored = planner.selector.select("right_hand", goal, False)
     names = m.names
-    assert m.strategy == answer.strategy == "arm" and m.outcome == "reached" and m.refined == "ok"
+    assert m.strategy == stored.strategy == "arm" and m.outcome == "reached" and m.refined == "ok"
     np.testing.assert_allclose(m.postures[0], body.q_ref, atol=1e-12)  # the reference posture by default
-    np.testing.assert_allclose(m.postures[-1], posture_vector(names, body.q_ref, answer.posture, answer.root),
-                               atol=1e-9)
+    # the end: the stored answer's posture settled onto the goal by local steps, no solve
+    assert m.end == "settled" and m.within is None
+    settled = planner.body("arm").settle(posture_vector(names, body.q_ref, stored.posture, stored.root), goal)
+    np.testing.assert_allclose(m.postures[-1], settled, atol=1e-9)
     assert np.linalg.norm(hand(body, m.postures[-1]) - goal) <= TOL  # by our own forward kinematics
     np.testing.assert_allclose(m.path, [hand(body, q) for q in m.postures], atol=1e-9)
     # Timing: MTM-1 for the hand's path, frames at 30 Hz from 0 to the duration.
@@ -112,11 +115,11 @@ def test_a_low_reach_holds_the_feet_and_balance_at_every_frame_and_adds_a_stoop(
     oracle = planner.body("whole")
     assert not any(oracle.faults(m.postures))  # limits, self-collision, feet, balance, by each task's own check
     # The hand's speed, frame to frame, is the minimum-jerk profile of its path (Flash and Hogan's law is the hand's),
-    # within 1 % of its peak, though the body stoops and every held frame moved.
+    # within 2 % of its peak, though the body stoops (a tenth of the progress is the posture's: POSTURE_SHARE).
     speed = np.linalg.norm(np.diff(m.path, axis=0), axis=1) * 30.0
     u = (m.times[:-1] + m.times[1:]) / 2 / m.duration
     law = (30 * u**2 - 60 * u**3 + 30 * u**4) * (speed.sum() / 30.0) / m.duration
-    assert np.abs(speed - law).max() < 0.01 * law.max()  # here 0.2 %; timed by the posture's path, 2.1 %
+    assert np.abs(speed - law).max() < 0.02 * law.max()  # here 1.2 %
     # Independently: the soles' frames stay where they stood, and the centre of mass over the feet.
     data = body.model.createData()
     corners = [body.frame_id(f"{side}_{end}_{edge}") for side in ("right", "left") for end in ("heel", "toe")
@@ -130,8 +133,9 @@ def test_a_low_reach_holds_the_feet_and_balance_at_every_frame_and_adds_a_stoop(
         com = pin.centerOfMass(body.model, data, q)
         # within the soles' bounds
         assert np.all(first[:, :2].min(axis=0) <= com[:2]) and np.all(com[:2] <= first[:, :2].max(axis=0))
-    # Pinocchio's own interpolation between the end postures slides the feet; the oracle's, moving from the foot, does
-    # not.
+    # Pinocchio's own interpolation between the end postures slides the feet; the oracle's, moving from the foot (the
+    # anchor, the right), does not slide it (the other foot is kept by its leg's own IK where the leg reaches: not
+    # here, its knee straight).
     plain = [pin.interpolate(body.model, m.postures[0], m.postures[-1], u) for u in np.linspace(0, 1, 11)]
     slide = []
     for q in plain:
@@ -140,12 +144,13 @@ def test_a_low_reach_holds_the_feet_and_balance_at_every_frame_and_adds_a_stoop(
     kept = []
     for q in oracle.interpolate(m.postures[0], m.postures[-1], np.linspace(0, 1, 11)):
         pin.framesForwardKinematics(body.model, data, q)
-        kept.append(np.abs(np.array([data.oMf[f].translation for f in corners]) - first).max())
-    assert max(slide) > 0.001 and max(kept) < 0.1 * max(slide)  # here 2.2 mm against 0.012 mm
+        kept.append(np.abs(np.array([data.oMf[f].translation for f in corners[:4]]) - first[:4]).max())
+    assert oracle.anchor == "right_foot"
+    assert max(slide) > 0.001 and max(kept) < 0.1 * max(slide)  # here 36 mm against under 0.01 mm
 
 
 def test_a_reach_across_the_body_avoids_the_collision_of_direct_interpolation(planner, body):
-    goal = np.array([0.08, 0.18, 0.75])  # the right hand to the left hip
+    goal = np.array([0.1, 0.2, 0.9])  # the right hand across the body to the left of the belly
     m = planner.plan("right_hand", goal)
     oracle = planner.body(m.strategy)
     q0, q1 = m.postures[0], m.postures[-1]
@@ -175,7 +180,7 @@ def largest_turn(path: np.ndarray) -> float:
 def test_a_routes_corners_are_rounded_and_still_hold(planner, body):
     """Through a stored posture the hand would turn at once; the rounded route turns it over several frames,
     and its frames, held, break nothing."""
-    goal = np.array([0.08, 0.18, 0.75])
+    goal = np.array([0.1, 0.2, 0.9])
     m = planner.plan("right_hand", goal)
     oracle = planner.body(m.strategy)
     route = planner._route(m.strategy, oracle, m.postures[0], m.postures[-1])
@@ -594,6 +599,11 @@ def test_a_path_held_from_its_start_alone_that_jumps_to_its_end_is_held_from_bot
     postures. Held from the end backwards too and joined where the two holds meet, every frame holds every task, by the
     oracle's checks and independently (the soles where they stood, the centre of mass over them), with no jump."""
     goal = np.array([0.57727608, 0.28119504, 1.54437323])
+    # The second foot slides as the body moves from the first (the interpolation's anchor) when its leg does not keep
+    # it: every frame breaks the feet.
+    # The end posture refined by a solve, not settled from the stored one, is where the drift jumped.
+    monkeypatch.setattr(TaskedBody, "_planted", property(lambda self: []))
+    monkeypatch.setattr(Planner, "_settled", lambda *args: (None, None))
     with monkeypatch.context() as patch:
         patch.setattr(Planner, "_spliced", lambda *args: None)
         routed = planner.plan("right_hand", goal)

@@ -160,6 +160,10 @@ class DLSIK(IKOracle):
         return self._iterate(np.array(q if start is None else start, float), goal, self.reach_level + 1, max_iter,
                              NO_CALL, tol=HELD)
 
+    def towards(self, q: np.ndarray, goal: np.ndarray, max_iter: int) -> np.ndarray:
+        """The stack down to the reach task iterated from q (nq,) towards ``goal`` [m]: at most ``max_iter`` steps."""
+        return self._iterate(np.array(q, float), np.asarray(goal, float), self.reach_level + 1, int(max_iter), NO_CALL)
+
     def solve(self, goal: np.ndarray, x0: np.ndarray, lower: bool = True, call: Call = NO_CALL) -> np.ndarray:
         """Lexicographic like casadi-ik: first the tasks down to reach, then the lower ones."""
         q = self._iterate(self.problem.q_of_x(x0), goal, self.reach_level + 1, self.max_iter, call)

@@ -33,6 +33,10 @@ from oracles.tasks.feet import DOWN_SUPPORT, corner_frames
 
 __all__ = ["NO_CALL", "Call", "IKOracle", "fresh_stats"]
 
+# Steps of a motion's end posture settled from a stored one (IKOracle.settle): the reach task's own step is at most
+# 5 cm (dls's max_reach_step) and a stored posture lies within half a finest cell's diagonal (6.5 cm on the demo).
+SETTLE_ITER = 30
+
 
 def fresh_stats() -> dict[str, int]:
     return {"points": 0, "prefiltered": 0, "solves": 0, "reachable": 0, "cut_rounds": 0}
@@ -183,6 +187,14 @@ class IKOracle(TaskedBody, ABC):
                 return held
         v = self.evaluate(Goals(self.effector_positions(q[None]), current=q))
         return v.posture[0] if v.reachable[0] and v.posture is not None else None
+
+    def settle(self, posture: np.ndarray, goal: np.ndarray) -> np.ndarray | None:
+        """Damped least squares on the stack down to the reach task, from ``posture`` towards ``goal`` (see
+        :class:`oracles.protocol.Settling`): a stored posture lies within a finest cell of its goal, a few steps
+        from it, where a solve costs 20-100 ms (a refinement with the motion's budget, bench/motion.py)."""
+        goal = np.asarray(goal, float)
+        q = self._dls().towards(np.asarray(posture, float), goal, SETTLE_ITER)
+        return q if self.problem.check(q, goal, self._data).reachable else None
 
     def transit(self, broken: list[str]) -> IKOracle | None:
         """The oracle whose tasks a motion's frames hold from a start that breaks ``broken`` (see

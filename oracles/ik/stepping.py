@@ -92,10 +92,10 @@ def swing_frames(oracle: Any, q0: np.ndarray, q1: np.ndarray, count: int, lift: 
     if not held.reachable[0] or held.posture is None:
         return None
     q_shift = held.posture[0]
-    leg = _leg(model, fid)
+    leg = chain(model, fid)
     # where the body stands when the foot lands: the step's legs and pelvis (both feet where they end) under the
     # upper body of the weight shift (the trunk and arms not yet moved to reach): a step, then a reach
-    q_land = _stepped(model, q_shift, q1, [leg, _leg(model, oracle.body.frame_id(task.stance))])
+    q_land = _stepped(model, q_shift, q1, [leg, chain(model, oracle.body.frame_id(task.stance))])
     if oracle.faults(q_land[None])[0]:
         return None
     shifted = [*oracle.interpolate(q0, q_shift, np.linspace(0.0, 1.0, shift + 1))]
@@ -137,11 +137,18 @@ def planted(model: pin.Model, frame: int, q0: np.ndarray, q1: np.ndarray, postur
     gap = pin.log6(ends[0].actInv(ends[1])).vector
     if np.linalg.norm(gap[:3]) > 1e-4 or np.linalg.norm(gap[3:]) > 1e-3:
         return postures
-    leg = _leg(model, frame)
+    leg = chain(model, frame)
+    rows = np.concatenate([np.arange(model.joints[j].idx_q, model.joints[j].idx_q + model.joints[j].nq) for j in leg])
     out = np.array(postures, float, copy=True)
+    shift = np.zeros(len(rows))  # the previous frame's correction of the leg, the next one's first guess
     for k, q in enumerate(out):
-        held = _leg_ik(model, leg, frame, q, ends[0])
+        guess = q.copy()
+        guess[rows] += shift
+        held = _leg_ik(model, leg, frame, guess, ends[0], data)
+        if held is None and shift.any():
+            held = _leg_ik(model, leg, frame, q, ends[0], data)
         if held is not None:
+            shift = held[rows] - q[rows]
             out[k] = held
     return out
 
@@ -156,7 +163,7 @@ def _stepped(model: pin.Model, upper: np.ndarray, lower: np.ndarray, legs: list[
     return out
 
 
-def _leg(model: pin.Model, frame: int) -> list[int]:
+def chain(model: pin.Model, frame: int) -> list[int]:
     """The joints between the floating root and a frame (the stepping leg's), root side first."""
     out, j = [], int(model.frames[frame].parentJoint)
     while j > 1:
@@ -165,11 +172,12 @@ def _leg(model: pin.Model, frame: int) -> list[int]:
     return out[::-1]
 
 
-def _leg_ik(model: pin.Model, leg: list[int], frame: int, q: np.ndarray, target: pin.SE3) -> np.ndarray | None:
+def _leg_ik(model: pin.Model, leg: list[int], frame: int, q: np.ndarray, target: pin.SE3,
+            data: Any = None) -> np.ndarray | None:
     """q with the leg's joints moved (damped Newton on the frame's 6-D error, within the joints' ranges) until the
     frame reaches ``target`` (within 0.1 mm and 1 mrad, the contacts' own checks), or None when it cannot."""
     q = np.asarray(q, float).copy()
-    data = model.createData()
+    data = model.createData() if data is None else data
     cols = [model.joints[j].idx_v for j in leg]
     rows = [model.joints[j].idx_q for j in leg]
     lo, hi = model.lowerPositionLimit[rows], model.upperPositionLimit[rows]

@@ -20,7 +20,7 @@ from oracles import registry
 from oracles.bodies.body import ROOT, Body
 from oracles.bodies.posed import PosedBody
 from oracles.ik.problem import ReachProblem
-from oracles.ik.stepping import planted, swing_frames
+from oracles.ik.stepping import chain, planted, swing_frames
 from oracles.ik.strategy import Strategy
 from oracles.protocol import Ball, check_points
 from oracles.tasks import ContactsTask, FloorTask, Numeric, ObstaclesTask, OrientationTask, StepTask
@@ -196,13 +196,28 @@ class TaskedBody(PosedBody):
                 "yaw": round(math.atan2(float(ahead[1]), float(ahead[0])), 6)}
 
     def interpolate(self, q0: np.ndarray, q1: np.ndarray, s: np.ndarray) -> np.ndarray:
-        """As :meth:`PosedBody.interpolate`; with a step whose foot stands at one place at both ends, that foot is
-        kept there too (the stepping leg's own inverse kinematics at each posture): interpolated, it slid up to 1 cm
-        while the body reached over it."""
+        """As :meth:`PosedBody.interpolate`; every other foot held fixed (a hard task's ``fixed`` contact, the step's
+        foot) that stands at one place at both ends is kept there too, by its leg's own inverse kinematics at each
+        posture: interpolated, the second foot slid (up to 1 cm while a step's body reached over it) and every frame
+        of a standing reach broke the feet, to be held by a solve."""
         out = super().interpolate(q0, q1, s)
+        a, b = np.asarray(q0, float), np.asarray(q1, float)
+        for foot in self._planted:
+            out = planted(self.body.model, self.body.frame_id(foot), a, b, out)
+        return out
+
+    @property
+    def _planted(self) -> list[str]:
+        """The frames :meth:`interpolate` keeps by their legs' inverse kinematics: the fixed contacts but the anchor
+        (which the root's placement keeps), and the step's foot."""
+        fixed = [c.frame for t in self.strategy.hard if isinstance(t, ContactsTask) for c in t.contacts
+                 if c.mode == "fixed" and c.frame != self.anchor]
         task = self.strategy.task("step")
-        return out if not isinstance(task, StepTask) else planted(self.body.model, self.body.frame_id(task.foot),
-                                                                  np.asarray(q0, float), np.asarray(q1, float), out)
+        model = self.body.model
+        # only a limb of its own: a hand held on a rail shares the trunk with the effector, which it would move
+        reaching = set(chain(model, self.problem.effector_id))
+        return [f for f in dict.fromkeys(fixed + ([task.foot] if isinstance(task, StepTask) else []))
+                if not reaching & set(chain(model, self.body.frame_id(f)))]
 
     def swing(self, q0: np.ndarray, q1: np.ndarray, count: int) -> np.ndarray | None:
         """A step's frames from q0 to the foot set down where q1 puts it (see :mod:`oracles.ik.stepping`)."""

@@ -52,7 +52,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
-from oracles.protocol import EffectorPositions, Moving, Shaped, Stepping, Transiting, Verifying
+from oracles.protocol import EffectorPositions, Moving, Settling, Shaped, Stepping, Transiting, Verifying
 from reach.answers.answer import posture_vector, split_posture
 from reach.answers.select import Selector
 from reach.errors import InputError, ReachError
@@ -101,6 +101,9 @@ BLEND = 0.4
 BLEND_SAMPLES = 9  # postures along each rounded corner
 POSTURE_SHARE = 0.1  # the posture path's share in a motion's progress (a modelling choice: the rest is the hand's path)
 REACHED, NEAREST = "reached", "nearest"
+# How a motion's end posture was found: the stored answer settled onto the goal by a few local steps, or the
+# selector's refinement (a solve), when settling found none or the motion starts from a given posture.
+SETTLED, REFINED = "settled", "refined"
 # [m] a motion's end this near its goal reaches it, for oracles without a verdict of their own (the reach task's
 # default)
 REACH_TOLERANCE = 0.005
@@ -222,6 +225,8 @@ class Motion:
         waypoints: Stored postures the path goes through (0: direct).
         held: Frames moved to hold every hard task (a foot, the balance, a collision).
         parts: The duration's parts [TMU] (empty for an explicit duration).
+        end: How the end posture was found: ``settled`` (the stored posture moved onto the goal by a few local
+            steps) or ``refined`` (the selector's refinement, a solve).
     """
 
     effector: str
@@ -239,6 +244,7 @@ class Motion:
     waypoints: int
     held: int
     parts: dict[str, float]
+    end: str = REFINED
 
     @property
     def duration(self) -> float:
@@ -258,7 +264,7 @@ class Motion:
         return {"effector": self.effector, "goal": list(self.goal), "strategy": self.strategy, "outcome": self.outcome,
                 "point": list(self.point), "refined": self.refined, "within": self.within, "duration": self.duration,
                 "rate": self.rate, "frame_count": len(self.times), "waypoints": self.waypoints, "held": self.held,
-                "timing_tmu": self.parts}
+                "timing_tmu": self.parts, "end": self.end}
 
     def to_dict(self) -> dict[str, Any]:
         return {**self.summary(), "frames": self.frames()}
@@ -325,7 +331,9 @@ class Planner:
         if not names:
             raise MotionError(f"the strategies of {effector!r} store no postures: there is no body to move",
                               "no_motion")
-        answer = self.selector.select(effector, g[0], True, start=start, miss="unreachable")
+        answer, settled = self._settled(effector, g[0]) if start is None else (None, None)
+        if answer is None:
+            answer = self.selector.select(effector, g[0], True, start=start, miss="unreachable")
         if answer.reachable:
             name, outcome, q1 = answer.strategy, REACHED, None
         elif miss == "error":
@@ -346,7 +354,9 @@ class Planner:
         mover = oracle.transit(broken) if broken and isinstance(oracle, Transiting) else oracle
         if mover is None or (broken and mover.faults(q0[None])[0]):
             raise InputError("from", f"the start posture breaks {', '.join(broken)} for strategy {name}")
-        if outcome == REACHED:
+        if settled is not None:
+            q1 = settled
+        elif outcome == REACHED:
             q1 = posture_vector(labels, q0, answer.posture, answer.root)
         elif answer.nearest is not None:
             q1 = posture_vector(labels, q0, answer.nearest["posture"], answer.nearest["root"])
@@ -365,9 +375,26 @@ class Planner:
         if outcome == REACHED and not self._reaches(oracle, g[0], postures[0][-1], path[-1]):
             # honest: held frames (or a stored end posture) that stop short of the goal did not reach it
             outcome = NEAREST
-        within = answer.within if outcome == REACHED else float(np.linalg.norm(path[-1] - g[0]))
+        within = (None if settled is not None else answer.within) if outcome == REACHED else float(
+            np.linalg.norm(path[-1] - g[0]))
         return Motion(effector, tuple(g[0].tolist()), name, outcome, tuple(path[-1].tolist()), labels, float(rate),
-                      times, postures[0], path, answer.refined, within, waypoints, held, postures[2])
+                      times, postures[0], path, "ok" if settled is not None else answer.refined, within, waypoints,
+                      held, postures[2], SETTLED if settled is not None else REFINED)
+
+    def _settled(self, effector: str, goal: np.ndarray) -> tuple[Any, np.ndarray | None]:
+        """The stored answer for the goal and its posture settled onto the goal by its oracle's local steps
+        (:class:`~oracles.protocol.Settling`), or (None, None) when there is none: the selector then refines it."""
+        answer = self.selector.select(effector, goal, False, miss="unreachable")
+        if not answer.reachable or answer.strategy is None:
+            return None, None
+        oracle = self.body(answer.strategy)
+        if not isinstance(oracle, Settling):
+            return None, None
+        reference = np.array(oracle.reference_posture(), dtype=float)
+        stored = posture_vector(self.selector.atlas.maps[answer.strategy].posture_names, reference, answer.posture,
+                                answer.root)
+        q = oracle.settle(stored, goal)
+        return (None, None) if q is None else (answer, q)
 
     @staticmethod
     def _step(oracle: Body, q0: np.ndarray, q1: np.ndarray, rate: float) -> np.ndarray | None:
