@@ -12,8 +12,8 @@ import pytest
 from helpers import ARM, Y_UP, bvh_chain, bvh_end, human_config, quat_matrix
 
 from oracles.bodies.body import human_body
-from reach.answers.answer import posture_vector
 from oracles.ik.tasked import TaskedBody
+from reach.answers.answer import posture_vector
 from reach.answers.select import Selector
 from reach.building.atlas import build_atlas
 from reach.building.config import parse_config
