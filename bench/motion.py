@@ -12,7 +12,11 @@ Each goal's motion at 30 Hz from the reference posture is timed:
 
 One JSON line per group and path: median and p99 [ms], the motions' median
 duration [s] and frame count, how many were routed through stored postures,
-the goals no motion was found for (``no_motion``: no path held every task);
+the goals no motion was found for (``no_motion``: no path held every task),
+how many went through the motion graph (``via_graph``, reach.maps.graph) and
+had their end posture settled from a stored one (``settled``), and the frames
+that break a task by the tasks' own checks (``broken_frames``, every frame of
+every motion, outside the timing);
 in-process, the frames that broke a task and were held by the batched hold
 (``held_in_batch``) and one at a time, its fallback (``held_alone``).
 
@@ -75,6 +79,7 @@ def stats(ms: list[float]) -> dict[str, float]:
 def in_process(planner: Planner, groups: dict[str, np.ndarray]) -> None:
     for group, goals in groups.items():
         ms, durations, frames, routed, failed = [], [], [], 0, []
+        graph = settled = broken = 0
         for goal in goals[:2]:  # the first plan of a strategy builds its oracle and graph
             try:
                 planner.plan(EFFECTOR, goal)
@@ -93,9 +98,14 @@ def in_process(planner: Planner, groups: dict[str, np.ndarray]) -> None:
             durations.append(m.duration)
             frames.append(len(m.times))
             routed += m.waypoints > 0
+            graph += m.route == "graph"
+            settled += m.end == "settled"
+            # every frame by the tasks' own checks (Pinocchio forward kinematics, the collision distances), untimed
+            broken += sum(bool(f) for f in planner.body(m.strategy).faults(m.postures))
         emit(bench="motion", path="in_process", group=group, goals=len(goals), **stats(ms),
              duration_s=round(float(np.median(durations)), 3),
-             frames=int(np.median(frames)) if frames else 0, routed=routed, failed=failed,
+             frames=int(np.median(frames)) if frames else 0, routed=routed, via_graph=graph, settled=settled,
+             broken_frames=broken, failed=failed,
              held_in_batch=planner.holds["batch"] - held["batch"], held_alone=planner.holds["alone"] - held["alone"])
 
 

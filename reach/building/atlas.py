@@ -48,6 +48,7 @@ from reach.building.tree import Inherited, build_tree
 from reach.building.twins import Twins
 from reach.errors import ModelError, StoreError
 from reach.maps.atlas import Atlas, build_lock, load_atlas, write_manifest
+from reach.maps.graph import MotionGraph, build_graph, graph_path, load_graph, mirror_graph, save_graph
 from reach.maps.index import ReachIndex, spiral
 from reach.maps.index import summary as index_summary
 from reach.maps.store import load_indexed, save_tree
@@ -198,6 +199,7 @@ def _build_locked(
     by_name = {s.name: s for s in order}
     subs = sub_strategies(order, oracle_of) if inherit else {}
     prints: dict[str, str] = {}
+    graphs: dict[str, MotionGraph | None] = {}
     for s in order:
         path, partial = out / f"{s.name}.npz", out / PARTIAL / f"{s.name}.npz"
         fp = fingerprint(config, s, oracle_of(s))
@@ -254,6 +256,10 @@ def _build_locked(
         save_tree(tree, path, index)
         partial.unlink(missing_ok=True)
         built[s.name] = tree
+        if config.motion_graph:
+            source = tree.meta["build"].get("mirrored_from")
+            graphs[s.name] = _graph_one(s.name, tree, path, oracle_of(s), say,
+                                        (graphs.get(source), built[source]) if source in built else None)
         faces = tree.faces()
         if faces:
             warnings.append({"strategy": s.name, "faces": faces})
@@ -275,6 +281,30 @@ def _build_locked(
     if (out / PARTIAL).is_dir() and not any((out / PARTIAL).iterdir()):
         (out / PARTIAL).rmdir()
     return load_atlas(out)
+
+
+def _graph_one(name: str, tree: VATree, path: Path, oracle: Oracle, say: Callable[[str], None],
+               source: tuple[MotionGraph | None, VATree] | None) -> MotionGraph | None:
+    """The tree's motion graph (:mod:`reach.maps.graph`): kept when made for this tree, mirrored from its source's for
+    a mirrored tree, else made and saved beside it."""
+    file = graph_path(path)
+    if file.is_file():
+        try:
+            kept = load_graph(file)
+            if kept.matches(tree):
+                return kept
+        except StoreError as exc:
+            say(f"{name}: remaking its motion graph ({exc})")
+    graph = mirror_graph(source[0], source[1], tree) if source is not None and source[0] is not None else None
+    graph = graph if graph is not None else build_graph(tree, oracle)
+    if graph is None:
+        file.unlink(missing_ok=True)
+        return None
+    save_graph(graph, file)
+    how = "mirrored" if graph.meta.get("mirrored") else f"{graph.meta['samples']} postures checked"
+    say(f"{name}: motion graph: {int(graph.home.sum())} of {len(graph.rows)} stored postures reached by a direct "
+        f"motion from the reference ({how}, {graph.meta['seconds']:.2f} CPU s)")
+    return graph
 
 
 def _build_one(

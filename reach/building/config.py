@@ -53,7 +53,7 @@ DEFAULT_BODY_ORACLE = "casadi-ik"
 TOP_KEYS = {"name", "description", "base", "body", "box", "depth", "oracle", "strategies", "build", "population"}
 STRATEGY_KEYS = {"name", "effector", "priority", "oracle", "description", "joints", "tasks", "mirror_of", "directions",
                  "ranges"}
-BUILD_KEYS = {"chunk_size", "refine", "twins"}
+BUILD_KEYS = {"chunk_size", "refine", "twins", "motion_graph"}
 REFINE_KEYS = {"centres", "faces", "isolated"}
 
 
@@ -104,6 +104,7 @@ class Config:
     # itself is its first member's (reach.building.population)
     population: Population | None = None
     twins: bool = True  # build.twins: a volume's quarter-turn twins share one solve (reach.building.twins)
+    motion_graph: bool = True  # build.motion_graph: each tree's motion graph (reach.maps.graph) after it
 
     @cached_property
     def _derived(self) -> tuple[Box, Box | None]:
@@ -216,7 +217,7 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
     strategies: list[StrategySpec] = []
     for i, item in enumerate(raw_strategies):
         strategies.append(_strategy(check, item, i, default, body, "body" in top, {s.name for s in strategies}))
-    chunk, refine, twins = _build_options(check, top.get("build", {}))
+    chunk, refine, twins, motion_graph = _build_options(check, top.get("build", {}))
     oracles = _check_oracles(check, strategies, box.dim)
     _check_directions(check, strategies, oracles)
     notes = _diagnose(strategies, oracles)
@@ -228,7 +229,7 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
     _check_mirrors(check, strategies, None if auto is not None else box)
     strategies.sort(key=lambda spec: spec.priority)
     return Config(name, source, box if auto is None else None, d_min, d_max, tuple(strategies), chunk, refine,
-                  dict(top), notes, auto, population, twins)
+                  dict(top), notes, auto, population, twins, motion_graph)
 
 
 def _name(check: _Checker, raw: Any) -> str:
@@ -295,18 +296,19 @@ def _strategy(check: _Checker, item: Any, i: int, default: OracleSpec, body: Any
     return StrategySpec(sname, effector, priority, oracle, str(s.get("description", "")), mirror_of, directions)
 
 
-def _build_options(check: _Checker, raw: Any) -> tuple[int, Refine, bool]:
-    """``build:``'s chunk size, refinements of the vertex rule and twins."""
+def _build_options(check: _Checker, raw: Any) -> tuple[int, Refine, bool, bool]:
+    """``build:``'s chunk size, refinements of the vertex rule, twins and motion graphs."""
     build = check.mapping(raw, "build", BUILD_KEYS)
     chunk = check.integer(build.get("chunk_size", CHUNK_SIZE), "build.chunk_size", 1, 10**7)
     refine_raw = check.mapping(build.get("refine", {}), "build.refine", REFINE_KEYS)
     for k, v in refine_raw.items():
         if not isinstance(v, bool):
             raise check.fail(f"build.refine.{k}", f"expected true or false, got {v!r}")
-    twins = build.get("twins", True)
-    if not isinstance(twins, bool):
-        raise check.fail("build.twins", f"expected true or false, got {twins!r}")
-    return chunk, Refine(**refine_raw), twins
+    flags = {k: build.get(k, True) for k in ("twins", "motion_graph")}
+    for k, v in flags.items():
+        if not isinstance(v, bool):
+            raise check.fail(f"build.{k}", f"expected true or false, got {v!r}")
+    return chunk, Refine(**refine_raw), flags["twins"], flags["motion_graph"]
 
 
 def _check_directions(check: _Checker, strategies: list[StrategySpec], oracles: list[Any]) -> None:

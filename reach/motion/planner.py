@@ -45,6 +45,7 @@ import math
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, fields, replace
+from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -55,7 +56,9 @@ from scipy.spatial import cKDTree
 from oracles.protocol import EffectorPositions, Moving, Settling, Shaped, Stepping, Transiting, Verifying
 from reach.answers.answer import posture_vector, split_posture
 from reach.answers.select import Selector
-from reach.errors import InputError, ReachError
+from reach.errors import InputError, ReachError, StoreError
+from reach.maps.graph import MotionGraph, graph_path, load_graph
+from reach.maps.tree import VATree
 
 TMU = 0.036  # [s] one time measurement unit, 0.00001 h (MTM-1 data card)
 INCH = 0.0254  # [m]
@@ -104,6 +107,10 @@ REACHED, NEAREST = "reached", "nearest"
 # How a motion's end posture was found: the stored answer settled onto the goal by a few local steps, or the
 # selector's refinement (a solve), when settling found none or the motion starts from a given posture.
 SETTLED, REFINED = "settled", "refined"
+# How a motion's frames were found: through a stored posture whose motion from the reference was checked at build time
+# (reach.maps.graph; the last stretch checked now), or planned now (every frame checked, broken ones held or routed).
+GRAPH, PLANNED = "graph", "planned"
+LAST_STRETCHES = 3  # stored postures near the end tried as the graph's last waypoint
 # [m] a motion's end this near its goal reaches it, for oracles without a verdict of their own (the reach task's
 # default)
 REACH_TOLERANCE = 0.005
@@ -227,6 +234,8 @@ class Motion:
         parts: The duration's parts [TMU] (empty for an explicit duration).
         end: How the end posture was found: ``settled`` (the stored posture moved onto the goal by a few local
             steps) or ``refined`` (the selector's refinement, a solve).
+        route: ``graph`` (through a stored posture whose motion from the reference was checked at build time; the
+            last stretch checked now) or ``planned`` (every frame checked now, broken ones held or routed).
     """
 
     effector: str
@@ -245,6 +254,7 @@ class Motion:
     held: int
     parts: dict[str, float]
     end: str = REFINED
+    route: str = PLANNED
 
     @property
     def duration(self) -> float:
@@ -264,7 +274,7 @@ class Motion:
         return {"effector": self.effector, "goal": list(self.goal), "strategy": self.strategy, "outcome": self.outcome,
                 "point": list(self.point), "refined": self.refined, "within": self.within, "duration": self.duration,
                 "rate": self.rate, "frame_count": len(self.times), "waypoints": self.waypoints, "held": self.held,
-                "timing_tmu": self.parts, "end": self.end}
+                "timing_tmu": self.parts, "end": self.end, "route": self.route}
 
     def to_dict(self) -> dict[str, Any]:
         return {**self.summary(), "frames": self.frames()}
@@ -292,6 +302,7 @@ class Planner:
         self.served = selector  # the selector given (a server compares it after a reload)
         self.selector = selector.with_budget(budget)
         self._graphs: dict[str, tuple[cKDTree, np.ndarray, np.ndarray, csr_matrix]] = {}
+        self._motion_graphs: dict[str, MotionGraph | None] = {}
         self._deadline = math.inf  # time.perf_counter() past which the plan in progress stops (see plan)
         # Frames that broke a task and were held: by the batched hold, or one at a time (its fallback: how often is
         # a figure of bench/motion.py), since this planner was made.
@@ -363,7 +374,13 @@ class Planner:
         else:
             q1 = self._nearest_stored(name, g[0])
         step = self._step(oracle, q0, q1, rate) if outcome == REACHED else None
-        postures, waypoints, held = self._path(name, mover, labels, q0 if step is None else step[-1], q1, rate, timing)
+        via = self._via_graph(name, mover, labels, q0, q1, rate, timing) if step is None and mover is oracle else None
+        if via is not None:
+            postures, waypoints, held, route = via, 1, 0, GRAPH
+        else:
+            postures, waypoints, held = self._path(name, mover, labels, q0 if step is None else step[-1], q1, rate,
+                                                   timing)
+            route = PLANNED
         if step is not None:
             # the step's frames (the foot lifted, carried and set down), then the reach from where it landed
             frames, reach_times, parts = postures
@@ -379,7 +396,48 @@ class Planner:
             np.linalg.norm(path[-1] - g[0]))
         return Motion(effector, tuple(g[0].tolist()), name, outcome, tuple(path[-1].tolist()), labels, float(rate),
                       times, postures[0], path, "ok" if settled is not None else answer.refined, within, waypoints,
-                      held, postures[2], SETTLED if settled is not None else REFINED)
+                      held, postures[2], SETTLED if settled is not None else REFINED, route)
+
+    # -- the motion graph ------------------------------------------------------
+    def _via_graph(self, name: str, oracle: Body, names: tuple[str, ...], q0: np.ndarray, q1: np.ndarray,
+                   rate: float, timing: Timing) -> tuple[np.ndarray, np.ndarray, dict[str, float]] | None:
+        """Frames from the reference posture through a stored posture near the end whose direct motion from it was
+        checked at build time (:mod:`reach.maps.graph`), then on to the end: only the frames of that last stretch are
+        checked now. None when the motion does not start at the reference, the strategy has no graph, or no such
+        stored posture links to the end without breaking a task."""
+        graph = self._motion_graph(name)
+        if graph is None or not np.array_equal(q0, np.asarray(oracle.reference_posture(), float)):
+            return None
+        kd, postures, _, _ = self._graph(name)
+        goal = np.asarray(oracle.effector_positions(q1[None]))[0]
+        _, near = kd.query(goal, k=min(ENTRIES, len(postures)))
+        near = [i for i in np.atleast_1d(near).tolist() if i < len(postures) and graph.home[i]]
+        for i in sorted(near, key=lambda i: float(np.linalg.norm(postures[i] - q1)))[:LAST_STRETCHES]:
+            self._in_time()
+            n = max(3, int(math.ceil(np.linalg.norm(q1 - postures[i]) / EDGE_STEP)) + 1)
+            if any(any(f) for f in self._faults(oracle, oracle.interpolate(postures[i], q1, np.linspace(0, 1, n)))):
+                continue  # the last stretch breaks a task, at a few postures: not worth timing its frames
+            frames, times, parts = self._timed(oracle, names, [q0, postures[i], q1], rate, timing)
+            # Every frame checked: the build's samples, ``STEP`` apart, miss brushes between them (a frame of a
+            # whole-body motion in 30 broke the balance or a collision where every sample held).
+            if not any(any(f) for f in self._faults(oracle, frames[1:])):
+                return frames, times, parts
+        return None
+
+    def _motion_graph(self, name: str) -> MotionGraph | None:
+        """The strategy's motion graph stored beside its tree, when it was made for that tree; else None."""
+        if name not in self._motion_graphs:
+            tree, folder = self.selector.atlas.maps[name], getattr(self.selector.atlas, "path", None)
+            graph = None
+            file = None if folder is None else graph_path(Path(folder) / f"{name}.npz")
+            if file is not None and file.is_file() and isinstance(tree, VATree):
+                try:
+                    graph = load_graph(file)
+                except StoreError:
+                    graph = None  # the planner plans every motion as without one
+                graph = graph if graph is not None and graph.matches(tree) else None
+            self._motion_graphs[name] = graph
+        return self._motion_graphs[name]
 
     def _settled(self, effector: str, goal: np.ndarray) -> tuple[Any, np.ndarray | None]:
         """The stored answer for the goal and its posture settled onto the goal by its oracle's local steps
@@ -393,8 +451,24 @@ class Planner:
         reference = np.array(oracle.reference_posture(), dtype=float)
         stored = posture_vector(self.selector.atlas.maps[answer.strategy].posture_names, reference, answer.posture,
                                 answer.root)
-        q = oracle.settle(stored, goal)
-        return (None, None) if q is None else (answer, q)
+        # First from the stored postures near the goal that the reference's direct motion reaches (the motion graph):
+        # the motion then goes through the one it settles from; then from the answer's own.
+        for seed in [*self._homeward(answer.strategy, goal), stored]:
+            q = oracle.settle(seed, goal)
+            if q is not None:
+                return answer, q
+        return None, None
+
+    def _homeward(self, name: str, goal: np.ndarray) -> list[np.ndarray]:
+        """The stored postures of the strategy's motion graph nearest the goal that the reference posture's direct
+        motion reaches (at most ``LAST_STRETCHES``), nearest first; none without a graph."""
+        graph = self._motion_graph(name)
+        if graph is None:
+            return []
+        kd, postures, _, _ = self._graph(name)
+        _, near = kd.query(goal, k=min(ENTRIES, len(postures)))
+        return [postures[i] for i in np.atleast_1d(near).tolist() if i < len(postures) and graph.home[i]][
+            :LAST_STRETCHES]
 
     @staticmethod
     def _step(oracle: Body, q0: np.ndarray, q1: np.ndarray, rate: float) -> np.ndarray | None:
