@@ -489,9 +489,11 @@ class Bounded(Protocol):
 class Moving(Protocol):
     """An oracle whose body moves between postures (:mod:`reach.motion.planner`)."""
 
-    def interpolate(self, q0: np.ndarray, q1: np.ndarray, s: np.ndarray) -> np.ndarray:
+    def interpolate(self, q0: np.ndarray, q1: np.ndarray, s: np.ndarray, exact: bool = True) -> np.ndarray:
         """Postures (T, nq) at fractions ``s`` (T,) in [0, 1] of the way from ``q0`` to ``q1`` (nq,), on the
-        configuration space (a floating base on SE(3)), not by straight lines in the posture's numbers."""
+        configuration space (a floating base on SE(3)), not by straight lines in the posture's numbers.
+        ``exact=False``: only the effector's and the root's paths are wanted (a motion's timing measures them); the
+        body may skip work that moves neither (a foot kept where it stands by its leg)."""
         ...
 
     def faults(self, postures: np.ndarray) -> list[list[str]]:

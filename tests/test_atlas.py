@@ -257,3 +257,22 @@ def test_a_crouch_inherits_the_whole_bodys_verified_postures(tmp_path):
     # Without inheritance every vertex is solved.
     alone = build_atlas(config, tmp_path / "b", inherit=False).tree("crouch")
     assert alone.meta["build"]["oracle_calls"] == len(alone.vertices) > b["oracle_calls"]
+
+
+def test_a_mirrored_trees_motion_graph_is_its_sources_image(both_sides):
+    """The left arm's motion graph is the right's mirrored (no posture checked): a left stored posture reached from the
+    reference exactly when its right image is, and two linked exactly when their images are, matched by the points
+    they were stored at (reflected about y = 0)."""
+    from reach.maps.graph import load_graph
+
+    mirrored, _, lines = both_sides
+    right, left = (load_graph(mirrored.path / f"{n}.graph.npz") for n in ("right_arm", "left_arm"))
+    assert left.meta["mirrored"] and any(line.startswith("left_arm: motion graph") and "mirrored" in line
+                                         for line in lines)
+    assert right.meta["samples"] > 0 and len(right.edges) > 0
+    _, right_points, _ = mirrored.trees["right_arm"].stored()
+    _, left_points, _ = mirrored.trees["left_arm"].stored()
+    image = {tuple(np.round(p * [1.0, -1.0, 1.0], 6) + 0.0): k for k, p in enumerate(right_points)}
+    to_right = np.array([image[tuple(np.round(p, 6) + 0.0)] for p in left_points])
+    assert np.array_equal(left.home, right.home[to_right])
+    assert {tuple(sorted(e)) for e in to_right[left.edges].tolist()} == {tuple(e) for e in right.edges.tolist()}

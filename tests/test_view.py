@@ -240,20 +240,20 @@ def _hand_capsule(viewer) -> np.ndarray:
 
 
 def test_a_planned_motion_poses_the_body_frame_by_frame_and_ends_in_the_answer(viewer):
-    from reach.answers.answer import posture_vector
     from reach.motion.planner import Planner
 
     # a budget no machine runs out of: the same answer below
     viewer._planner = Planner(Selector(viewer.scenes[0].atlas), budget=5.0)
     viewer.set_goal(GOALS[0])
     summary = viewer.plan_motion()
-    # The motion ends in the planner's answer: refined at the goal (the viewer's own answers here are stored postures).
-    answer = viewer._planner.selector.select("right_hand", GOALS[0], True, miss="unreachable").to_dict()
+    # The motion ends in the planner's answer: a stored posture settled onto the goal (the viewer's own answers here
+    # are stored postures), found again here apart from the motion's frames.
+    answer, end = viewer._planner._settled("right_hand", np.asarray(GOALS[0], float))
+    assert summary["end"] == "settled" and end is not None
     shaper = viewer.scenes[0].shaper
-    names, at_answer = shaper.shape(posture_vector(shaper.posture_names, shaper.reference_posture(),
-                                                   answer["posture"], answer["root"]))
+    names, at_answer = shaper.shape(end)
     frames = len(viewer.motion["postures"])
-    assert (summary["strategy"] == answer["strategy"] and summary["frame_count"] == frames
+    assert (summary["strategy"] == answer.strategy and summary["frame_count"] == frames
             and viewer.frame_slider.max == frames - 1)
     hand = names.index("right_hand")
     start = shaper.shape(shaper.reference_posture())[1][hand]
@@ -268,7 +268,6 @@ def test_a_planned_motion_poses_the_body_frame_by_frame_and_ends_in_the_answer(v
 
 @browser_only
 def test_the_motion_plays_in_the_browser_and_ends_in_the_answers_posture(viewer, browser):
-    from reach.answers.answer import posture_vector
     from reach.motion.planner import Planner
 
     # a budget no machine runs out of: the same answer below
@@ -288,13 +287,12 @@ def test_the_motion_plays_in_the_browser_and_ends_in_the_answers_posture(viewer,
     assert len(set(frames)) >= 3 and frames[-1] == len(viewer.motion["postures"]) - 1  # it played to the end
     assert any(moved(im, start) > 300 for _, im in seen[1:-1])  # the drawn body changed while playing
     end = _shot(browser, "motion_end")
-    # The answer the motion ends in, drawn from its own posture (not from the motion's frames).
-    answer = viewer._planner.selector.select("right_hand", GOALS[1], True, miss="unreachable")
+    # The answer the motion ends in (a stored posture settled onto the goal), drawn from its own posture found again
+    # (not from the motion's frames).
+    answer, end_posture = viewer._planner._settled("right_hand", np.asarray(GOALS[1], float))
     assert answer.strategy == "right_upper_body" and viewer.motion["outcome"] == "reached"
     shaper = viewer.scenes[0].shaper
-    viewer._pose(viewer.scenes[0],
-                 shaper.shape(posture_vector(shaper.posture_names, shaper.reference_posture(), answer.posture,
-                                             answer.root))[1])
+    viewer._pose(viewer.scenes[0], shaper.shape(end_posture)[1])
     posed = _shot(browser, "motion_answer")
     assert moved(start, posed) > 300 and moved(end, posed) < 0.05 * moved(start, posed)
 

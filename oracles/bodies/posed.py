@@ -95,8 +95,9 @@ class PosedBody:
             self._bones = build_skeleton(self.body, self.effector)
         return self._bones
 
-    def interpolate(self, q0: np.ndarray, q1: np.ndarray, s: np.ndarray) -> np.ndarray:
-        """Pinocchio's interpolation on the model's configuration space (see :class:`oracles.protocol.Moving`).
+    def interpolate(self, q0: np.ndarray, q1: np.ndarray, s: np.ndarray, exact: bool = True) -> np.ndarray:
+        """Pinocchio's interpolation on the model's configuration space (see :class:`oracles.protocol.Moving`;
+        ``exact`` changes nothing here).
 
         With a floating root and an ``anchor`` (a foot held fixed), the root is
         then placed so that this foot follows its own interpolation between its

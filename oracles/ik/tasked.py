@@ -195,14 +195,15 @@ class TaskedBody(PosedBody):
         return {"foot": task.foot, "position": [round(float(v), 6) for v in data.oMf[fid].translation],
                 "yaw": round(math.atan2(float(ahead[1]), float(ahead[0])), 6)}
 
-    def interpolate(self, q0: np.ndarray, q1: np.ndarray, s: np.ndarray) -> np.ndarray:
+    def interpolate(self, q0: np.ndarray, q1: np.ndarray, s: np.ndarray, exact: bool = True) -> np.ndarray:
         """As :meth:`PosedBody.interpolate`; every other foot held fixed (a hard task's ``fixed`` contact, the step's
         foot) that stands at one place at both ends is kept there too, by its leg's own inverse kinematics at each
         posture: interpolated, the second foot slid (up to 1 cm while a step's body reached over it) and every frame
-        of a standing reach broke the feet, to be held by a solve."""
+        of a standing reach broke the feet, to be held by a solve. ``exact=False``: as it slid (the feet's legs move
+        neither the effector nor the root)."""
         out = super().interpolate(q0, q1, s)
         a, b = np.asarray(q0, float), np.asarray(q1, float)
-        for foot in self._planted:
+        for foot in self._planted if exact else ():
             out = planted(self.body.model, self.body.frame_id(foot), a, b, out)
         return out
 

@@ -303,7 +303,8 @@ def _graph_one(name: str, tree: VATree, path: Path, oracle: Oracle, say: Callabl
     save_graph(graph, file)
     how = "mirrored" if graph.meta.get("mirrored") else f"{graph.meta['samples']} postures checked"
     say(f"{name}: motion graph: {int(graph.home.sum())} of {len(graph.rows)} stored postures reached by a direct "
-        f"motion from the reference ({how}, {graph.meta['seconds']:.2f} CPU s)")
+        f"motion from the reference, {len(graph.edges)} motions between them ({how}, {graph.meta['seconds']:.2f} "
+        "CPU s)")
     return graph
 
 

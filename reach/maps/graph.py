@@ -1,22 +1,26 @@
-"""A strategy's motion graph: which stored postures the body reaches from its reference posture by a direct motion.
+"""A strategy's motion graph: the motions between stored postures, and from the reference posture, that hold.
 
 The paper leaves "the timing of motion with stored postures" as future work
-(section 6). A reach motion moves the body from its reference posture to the
-posture stored at the goal's vertex, then onto the goal. Whether that direct
-motion holds every hard task of the strategy at every frame (a foot that stays,
-the balance, no segment through another) is a property of the stored posture
-alone, so it is checked once, at build time, for every reachable vertex: the
-segment from the reference on the body's configuration space
-(:meth:`oracles.protocol.Moving.interpolate`, the feet kept where they stand),
-sampled every ``STEP`` of posture distance, each sample by the tasks' own
-checks (:meth:`oracles.protocol.Moving.faults`). At request time a motion then
-checks only its last, short stretch (:mod:`reach.motion.planner`).
+(section 6). A reach motion moves the body from its posture now to one stored
+near the goal, then onto the goal. Whether a direct motion between two
+postures holds every hard task of the strategy at every frame (a foot that
+stays, the balance, no segment through another) is a property of the two
+postures alone, so it is checked once, at build time: for every reachable
+vertex, the motion from the reference posture to its stored posture (the
+*home* edges), and the motion to each of its ``NEIGHBOURS`` nearest stored
+postures no more than ``REACH`` apart (the edges between them); each on the
+body's configuration space (:meth:`oracles.protocol.Moving.interpolate`, the
+feet kept where they stand), sampled every ``STEP`` of posture distance, each
+sample by the tasks' own checks (:meth:`oracles.protocol.Moving.faults`). At
+request time a motion follows the graph's shortest path and checks its frames
+(:mod:`reach.motion.planner`).
 
 Stored beside the tree as ``NAME.graph.npz`` (numpy arrays: ``rows``, the
 tree's vertex rows of the stored postures, in :meth:`VATree.stored` order;
-``home``, whether each one's direct motion holds; ``meta``, JSON: the format,
-the tree's digest, ``STEP``, the build's CPU seconds). A graph whose tree's
-digest differs is not used.
+``home``, whether each one's motion from the reference holds; ``edges``, (E, 2)
+int32 pairs of indices into ``rows`` whose motion holds, either way; ``meta``,
+JSON: the format, the tree's digest, ``STEP``, ``REACH``, the build's CPU
+seconds). A graph whose tree's digest differs is not used.
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from oracles.bodies.mirror import REFLECT
 from oracles.protocol import Moving, Shaped
@@ -37,23 +42,32 @@ from reach.maps.store import atomic_write
 from reach.maps.tree import VATree
 
 FORMAT, VERSION = "reach-motion-graph", 1
-# [rad or m] posture distance between the checked samples of a direct motion: about a frame's (a 1.1 s arm reach of
-# about 3 rad at 30 Hz moves 0.09 rad a frame; bench/motion.py checks every frame of its motions independently)
-STEP = 0.15
+# [rad or m] posture distance between the checked samples of a direct motion, about two frames' (a 1.1 s arm reach
+# of about 3 rad at 30 Hz moves 0.09 rad a frame). The planner checks every frame again: the samples prune its search,
+# and at 0.15 the demo's graphs cost 0.6 of its trees' build CPU (the bar: half).
+STEP = 0.2
+NEIGHBOURS = 5  # stored postures each one is linked to, nearest by where they put the effector
+# [rad or m] the longest posture distance of an edge: stored neighbours farther apart hold the arm in another way (an
+# elbow up for down), a motion between them a detour the hand need not take (the demo's whole body: median 0.79 rad
+# between a vertex's 6 nearest, 90 % under 2.4)
+REACH = 1.0
+CHUNK = 8  # samples checked at a time: a motion that breaks a task stops there
 
 
 @dataclass(frozen=True)
 class MotionGraph:
-    """Which stored postures of a tree the reference posture's direct motion reaches, every hard task held.
+    """The motions between a tree's stored postures, and from the reference posture, that hold every hard task.
 
     Attributes:
         rows: (N,) the tree's vertex rows of its stored postures (``VATree.stored`` order).
         home: (N,) whether the direct motion from the reference posture to each holds at every sample.
-        meta: ``tree_digest``, ``step`` [rad or m], ``seconds`` (the build's CPU time), ``samples`` checked.
+        edges: (E, 2) pairs of indices into ``rows`` whose direct motion holds (either way).
+        meta: ``tree_digest``, ``step`` and ``reach`` [rad or m], ``seconds`` (the build's CPU time), ``samples``.
     """
 
     rows: np.ndarray
     home: np.ndarray
+    edges: np.ndarray
     meta: dict[str, Any]
 
     def matches(self, tree: VATree) -> bool:
@@ -74,18 +88,43 @@ def build_graph(tree: VATree, oracle: object, step: float = STEP) -> MotionGraph
     found = tree.stored()
     if found is None or not isinstance(oracle, Moving) or not isinstance(oracle, Shaped):
         return None
-    rows, _, postures = found
+    rows, points, postures = found
     t0 = time.process_time()
     reference = np.asarray(oracle.reference_posture(), float)
-    home = np.zeros(len(rows), bool)
-    samples = 0
-    for k, q in enumerate(postures):
-        n = max(2, int(math.ceil(float(np.linalg.norm(q - reference)) / step)))
-        inner = oracle.interpolate(reference, q, np.arange(1, n) / n)  # the ends hold: the reference and a verdict's
-        samples += len(inner)
-        home[k] = not any(oracle.faults(inner))
-    return MotionGraph(rows, home, {"tree_digest": tree.meta.get("digest"), "step": step, "samples": samples,
-                                    "seconds": round(time.process_time() - t0, 3)})
+    counted = [0]
+
+    def holds(a: np.ndarray, b: np.ndarray) -> bool:
+        n = max(2, int(math.ceil(float(np.linalg.norm(b - a)) / step)))
+        inner = oracle.interpolate(a, b, np.arange(1, n) / n)  # the ends hold: the reference and verdicts' postures
+        for k in range(0, len(inner), CHUNK):
+            counted[0] += len(inner[k : k + CHUNK])
+            if any(oracle.faults(inner[k : k + CHUNK])):
+                return False
+        return True
+
+    home = np.array([holds(reference, q) for q in postures], bool)
+    pairs = neighbour_pairs(points, postures)
+    kept = np.array([holds(postures[a], postures[b]) for a, b in pairs], bool).reshape(-1)
+    edges = pairs[kept] if len(pairs) else np.zeros((0, 2), np.int32)
+    return MotionGraph(rows, home, edges.astype(np.int32),
+                       {"tree_digest": tree.meta.get("digest"), "step": step, "reach": REACH,
+                        "neighbours": NEIGHBOURS, "samples": counted[0],
+                        "seconds": round(time.process_time() - t0, 3)})
+
+
+def neighbour_pairs(points: np.ndarray, postures: np.ndarray) -> np.ndarray:
+    """(P, 2) pairs a < b of stored postures among each one's ``NEIGHBOURS`` nearest by the effector's point, no more
+    than ``REACH`` apart in posture."""
+    if len(points) < 2:
+        return np.zeros((0, 2), np.int32)
+    k = min(NEIGHBOURS + 1, len(points))
+    _, near = cKDTree(points).query(points, k=k)
+    a = np.repeat(np.arange(len(points)), k - 1)
+    b = np.asarray(near)[:, 1:].ravel()
+    pairs = np.unique(np.sort(np.stack([a, b], axis=1), axis=1), axis=0)
+    pairs = pairs[pairs[:, 0] != pairs[:, 1]]
+    close = np.linalg.norm(postures[pairs[:, 0]] - postures[pairs[:, 1]], axis=1) <= REACH
+    return pairs[close].astype(np.int32)  # type: ignore[no-any-return]
 
 
 def mirror_graph(source: MotionGraph, source_tree: VATree, tree: VATree) -> MotionGraph | None:
@@ -100,9 +139,14 @@ def mirror_graph(source: MotionGraph, source_tree: VATree, tree: VATree) -> Moti
     where = {int(r): k for k, r in enumerate(source.rows)}
     if np.any(rows < 0) or any(int(r) not in where for r in rows):
         return None
-    home = source.home[[where[int(r)] for r in rows]]
-    return MotionGraph(found[0], home, {**source.meta, "tree_digest": tree.meta.get("digest"), "seconds": 0.0,
-                                        "mirrored": True})
+    index = np.array([where[int(r)] for r in rows], np.int64)  # this tree's k -> its image's index in the source
+    if len(index) != len(source.rows) or len(np.unique(index)) != len(index):
+        return None  # not a one-to-one image: made anew
+    back = np.empty(len(index), np.int64)
+    back[index] = np.arange(len(index))
+    edges = np.sort(back[source.edges], axis=1).astype(np.int32) if len(source.edges) else source.edges
+    return MotionGraph(found[0], source.home[index], edges,
+                       {**source.meta, "tree_digest": tree.meta.get("digest"), "seconds": 0.0, "mirrored": True})
 
 
 def save_graph(graph: MotionGraph, path: Path) -> Path:
@@ -110,6 +154,7 @@ def save_graph(graph: MotionGraph, path: Path) -> Path:
 
     def write(fh: Any) -> None:
         np.savez_compressed(fh, rows=graph.rows.astype(np.int64), home=graph.home.astype(bool),
+                            edges=graph.edges.astype(np.int32).reshape(-1, 2),
                             meta=np.frombuffer(meta.encode(), np.uint8))
 
     atomic_write(path, write)
@@ -120,7 +165,7 @@ def load_graph(path: Path) -> MotionGraph:
     """The graph stored at ``path``; raises StoreError naming the file and what is wrong."""
     try:
         with np.load(path, allow_pickle=False) as z:
-            arrays = {k: z[k] for k in ("rows", "home", "meta")}
+            arrays = {k: z[k] for k in ("rows", "home", "edges", "meta")}
     except (OSError, ValueError, KeyError) as exc:
         raise StoreError(path, f"not a motion graph ({exc})") from exc
     try:
@@ -129,7 +174,10 @@ def load_graph(path: Path) -> MotionGraph:
         raise StoreError(path, f"meta: expected JSON text ({exc})") from exc
     if not isinstance(meta, dict) or meta.get("format") != FORMAT or meta.get("version") != VERSION:
         raise StoreError(path, f"meta: expected format {FORMAT} version {VERSION}")
-    rows, home = arrays["rows"], arrays["home"]
+    rows, home, edges = arrays["rows"], arrays["home"], arrays["edges"]
     if rows.dtype != np.int64 or home.dtype != bool or rows.ndim != 1 or rows.shape != home.shape:
         raise StoreError(path, "rows and home: expected int64 and bool arrays of one length")
-    return MotionGraph(rows, home, meta)
+    if edges.dtype != np.int32 or edges.ndim != 2 or edges.shape[1] != 2 or (
+            edges.size and (edges.min() < 0 or edges.max() >= len(rows))):
+        raise StoreError(path, f"edges: expected (E, 2) int32 indices into rows (0 to {len(rows) - 1})")
+    return MotionGraph(rows, home, edges, meta)

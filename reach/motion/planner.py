@@ -57,7 +57,7 @@ from oracles.protocol import EffectorPositions, Moving, Settling, Shaped, Steppi
 from reach.answers.answer import posture_vector, split_posture
 from reach.answers.select import Selector
 from reach.errors import InputError, ReachError, StoreError
-from reach.maps.graph import MotionGraph, graph_path, load_graph
+from reach.maps.graph import REACH, MotionGraph, graph_path, load_graph
 from reach.maps.tree import VATree
 
 TMU = 0.036  # [s] one time measurement unit, 0.00001 h (MTM-1 data card)
@@ -111,6 +111,8 @@ SETTLED, REFINED = "settled", "refined"
 # (reach.maps.graph; the last stretch checked now), or planned now (every frame checked, broken ones held or routed).
 GRAPH, PLANNED = "graph", "planned"
 LAST_STRETCHES = 3  # stored postures near the end tried as the graph's last waypoint
+JOINS = 4  # stored postures near a start that is not the reference tried as the graph's first waypoint
+SKIPS = 6  # direct segments a graph's path tries to skip waypoints by
 # [m] a motion's end this near its goal reaches it, for oracles without a verdict of their own (the reach task's
 # default)
 REACH_TOLERANCE = 0.005
@@ -302,7 +304,8 @@ class Planner:
         self.served = selector  # the selector given (a server compares it after a reload)
         self.selector = selector.with_budget(budget)
         self._graphs: dict[str, tuple[cKDTree, np.ndarray, np.ndarray, csr_matrix]] = {}
-        self._motion_graphs: dict[str, MotionGraph | None] = {}
+        # each strategy's motion graph as a weighted graph, and its shortest paths from the reference (see _routes)
+        self._motion_graphs: dict[str, tuple[csr_matrix, tuple[np.ndarray, np.ndarray]] | None] = {}
         self._deadline = math.inf  # time.perf_counter() past which the plan in progress stops (see plan)
         # Frames that broke a task and were held: by the batched hold, or one at a time (its fallback: how often is
         # a figure of bench/motion.py), since this planner was made.
@@ -376,7 +379,7 @@ class Planner:
         step = self._step(oracle, q0, q1, rate) if outcome == REACHED else None
         via = self._via_graph(name, mover, labels, q0, q1, rate, timing) if step is None and mover is oracle else None
         if via is not None:
-            postures, waypoints, held, route = via, 1, 0, GRAPH
+            (postures, waypoints), held, route = via, 0, GRAPH
         else:
             postures, waypoints, held = self._path(name, mover, labels, q0 if step is None else step[-1], q1, rate,
                                                    timing)
@@ -400,44 +403,117 @@ class Planner:
 
     # -- the motion graph ------------------------------------------------------
     def _via_graph(self, name: str, oracle: Body, names: tuple[str, ...], q0: np.ndarray, q1: np.ndarray,
-                   rate: float, timing: Timing) -> tuple[np.ndarray, np.ndarray, dict[str, float]] | None:
-        """Frames from the reference posture through a stored posture near the end whose direct motion from it was
-        checked at build time (:mod:`reach.maps.graph`), then on to the end: only the frames of that last stretch are
-        checked now. None when the motion does not start at the reference, the strategy has no graph, or no such
-        stored posture links to the end without breaking a task."""
-        graph = self._motion_graph(name)
-        if graph is None or not np.array_equal(q0, np.asarray(oracle.reference_posture(), float)):
+                   rate: float, timing: Timing) -> tuple[tuple[np.ndarray, np.ndarray, dict[str, float]], int] | None:
+        """Frames along the strategy's motion graph (:mod:`reach.maps.graph`) and the stored postures they pass: from
+        the start (the reference, the graph's home, or joined to a stored posture near it by a segment checked now),
+        the shortest path over motions checked at build time to a stored posture near the end, then to the end;
+        shortened where a direct segment holds, timed, and every frame checked. None when the strategy has no graph
+        or no such path holds."""
+        routes = self._routes(name)
+        if routes is None:
             return None
+        adjacency, home = routes
         kd, postures, _, _ = self._graph(name)
-        goal = np.asarray(oracle.effector_positions(q1[None]))[0]
-        _, near = kd.query(goal, k=min(ENTRIES, len(postures)))
-        near = [i for i in np.atleast_1d(near).tolist() if i < len(postures) and graph.home[i]]
-        for i in sorted(near, key=lambda i: float(np.linalg.norm(postures[i] - q1)))[:LAST_STRETCHES]:
+        joined = (len(postures) if np.array_equal(q0, np.asarray(oracle.reference_posture(), float))
+                  else self._join(oracle, kd, postures, q0))
+        if joined is None:
+            return None
+        entry = joined
+        dist, pred = home if entry == len(postures) else dijkstra(adjacency, indices=entry, return_predecessors=True)
+        for i in self._exits(oracle, kd, postures, q1, dist):
             self._in_time()
-            n = max(3, int(math.ceil(np.linalg.norm(q1 - postures[i]) / EDGE_STEP)) + 1)
-            if any(any(f) for f in self._faults(oracle, oracle.interpolate(postures[i], q1, np.linspace(0, 1, n)))):
-                continue  # the last stretch breaks a task, at a few postures: not worth timing its frames
-            frames, times, parts = self._timed(oracle, names, [q0, postures[i], q1], rate, timing)
-            # Every frame checked: the build's samples, ``STEP`` apart, miss brushes between them (a frame of a
-            # whole-body motion in 30 broke the balance or a collision where every sample held).
-            if not any(any(f) for f in self._faults(oracle, frames[1:])):
-                return frames, times, parts
+            chain = [i]
+            while chain[-1] != entry:
+                chain.append(int(pred[chain[-1]]))
+            path = [q0, *(postures[k] for k in reversed(chain) if k < len(postures)), q1]
+            # Through several stored postures, shortened first (the hand's path zigzags between them otherwise);
+            # through one, as it is (it lies beside the end: a detour of a few cm).
+            for waypoints in ([self._skipped(oracle, path)] if len(path) > 3 else []) + [path]:
+                frames, times, parts = self._timed(oracle, names, waypoints, rate, timing)
+                # Every frame checked: the build's samples, ``STEP`` apart, miss brushes between them (a frame of a
+                # whole-body motion in 30 broke the balance or a collision where every sample held).
+                if not any(any(f) for f in self._faults(oracle, frames[1:])):
+                    return (frames, times, parts), len(waypoints) - 2
         return None
 
-    def _motion_graph(self, name: str) -> MotionGraph | None:
-        """The strategy's motion graph stored beside its tree, when it was made for that tree; else None."""
+    def _exits(self, oracle: Body, kd: cKDTree, postures: np.ndarray, q1: np.ndarray,
+               dist: np.ndarray) -> Iterator[int]:
+        """Stored postures near the end that the graph reaches (finite ``dist``), no more than the graph's edges'
+        ``REACH`` from it in posture, whose segment to the end holds (checked at postures ``EDGE_STEP`` apart, one at
+        a time as they are asked for); nearest in posture first, at most ``LAST_STRETCHES``."""
+        goal = np.asarray(oracle.effector_positions(q1[None]))[0]
+        _, near = kd.query(goal, k=min(ENTRIES, len(postures)))
+        gap = {i: float(np.linalg.norm(postures[i] - q1)) for i in np.atleast_1d(near).tolist()
+               if i < len(postures) and np.isfinite(dist[i])}
+        linked = (i for i in sorted(gap, key=gap.__getitem__)
+                  if gap[i] <= REACH and self._holds(oracle, postures[i], q1))
+        yield from itertools.islice(linked, LAST_STRETCHES)
+
+    def _join(self, oracle: Body, kd: cKDTree, postures: np.ndarray, q0: np.ndarray) -> int | None:
+        """A stored posture near a start that is not the reference, linked to it by a segment that holds (checked
+        now, at postures ``EDGE_STEP`` apart): the nearest in posture of the ``ENTRIES`` nearest by the effector,
+        trying at most ``JOINS``; None when none does."""
+        start = np.asarray(oracle.effector_positions(q0[None]))[0]
+        _, near = kd.query(start, k=min(ENTRIES, len(postures)))
+        near = sorted((i for i in np.atleast_1d(near).tolist() if i < len(postures)),
+                      key=lambda i: float(np.linalg.norm(postures[i] - q0)))
+        return next((i for i in near[:JOINS] if self._holds(oracle, q0, postures[i])), None)
+
+    def _skipped(self, oracle: Body, waypoints: list[np.ndarray]) -> list[np.ndarray]:
+        """The waypoints without those a direct segment between their neighbours can skip (it holds, checked now at
+        postures ``EDGE_STEP`` apart), farthest first, at most ``SKIPS`` segments checked."""
+        out, i, tries = [waypoints[0]], 0, 0
+        while i < len(waypoints) - 1:
+            j = i + 1
+            for k in range(len(waypoints) - 1, i + 1, -1):
+                if tries == SKIPS:
+                    break
+                tries += 1
+                if self._holds(oracle, waypoints[i], waypoints[k]):
+                    j = k
+                    break
+            out.append(waypoints[j])
+            i = j
+        return out
+
+    def _holds(self, oracle: Body, a: np.ndarray, b: np.ndarray) -> bool:
+        """Whether the direct segment a -> b holds every task at postures ``EDGE_STEP`` apart (no hold)."""
+        n = max(3, int(math.ceil(np.linalg.norm(b - a) / EDGE_STEP)) + 1)
+        return not any(any(f) for f in self._faults(oracle, oracle.interpolate(a, b, np.linspace(0.0, 1.0, n))[1:-1]))
+
+    def _routes(self, name: str) -> tuple[csr_matrix, tuple[np.ndarray, np.ndarray]] | None:
+        """The strategy's motion graph as a weighted graph (posture distance) over its stored postures and the
+        reference (the last node), with the shortest paths from the reference; None without a graph."""
         if name not in self._motion_graphs:
-            tree, folder = self.selector.atlas.maps[name], getattr(self.selector.atlas, "path", None)
-            graph = None
-            file = None if folder is None else graph_path(Path(folder) / f"{name}.npz")
-            if file is not None and file.is_file() and isinstance(tree, VATree):
-                try:
-                    graph = load_graph(file)
-                except StoreError:
-                    graph = None  # the planner plans every motion as without one
-                graph = graph if graph is not None and graph.matches(tree) else None
-            self._motion_graphs[name] = graph
+            graph = self._stored_graph(name)
+            if graph is None:
+                self._motion_graphs[name] = None
+            else:
+                _, postures, _, _ = self._graph(name)
+                oracle = self.body(name)
+                n = len(postures)
+                home = np.nonzero(graph.home)[0]
+                a = np.concatenate([graph.edges[:, 0], home]).astype(np.int64)
+                b = np.concatenate([graph.edges[:, 1], np.full(len(home), n)]).astype(np.int64)
+                ends = np.vstack([postures, np.asarray(oracle.reference_posture(), float)[None]])
+                w = np.linalg.norm(ends[a] - ends[b], axis=1) + 1e-9
+                adjacency = csr_matrix((np.concatenate([w, w]), (np.concatenate([a, b]), np.concatenate([b, a]))),
+                                       shape=(n + 1, n + 1))
+                dist, pred = dijkstra(adjacency, indices=n, return_predecessors=True)
+                self._motion_graphs[name] = (adjacency, (dist, pred))
         return self._motion_graphs[name]
+
+    def _stored_graph(self, name: str) -> MotionGraph | None:
+        """The strategy's motion graph stored beside its tree, when it was made for that tree; else None."""
+        tree, folder = self.selector.atlas.maps[name], getattr(self.selector.atlas, "path", None)
+        file = None if folder is None else graph_path(Path(folder) / f"{name}.npz")
+        if file is None or not file.is_file() or not isinstance(tree, VATree):
+            return None
+        try:
+            graph = load_graph(file)
+        except StoreError:
+            return None  # the planner plans every motion as without one
+        return graph if graph.matches(tree) else None
 
     def _settled(self, effector: str, goal: np.ndarray) -> tuple[Any, np.ndarray | None]:
         """The stored answer for the goal and its posture settled onto the goal by its oracle's local steps
@@ -460,14 +536,15 @@ class Planner:
         return None, None
 
     def _homeward(self, name: str, goal: np.ndarray) -> list[np.ndarray]:
-        """The stored postures of the strategy's motion graph nearest the goal that the reference posture's direct
-        motion reaches (at most ``LAST_STRETCHES``), nearest first; none without a graph."""
-        graph = self._motion_graph(name)
-        if graph is None:
+        """The stored postures nearest the goal that the strategy's motion graph reaches from the reference posture
+        (at most ``LAST_STRETCHES``), nearest first; none without a graph."""
+        routes = self._routes(name)
+        if routes is None:
             return []
+        dist = routes[1][0]
         kd, postures, _, _ = self._graph(name)
         _, near = kd.query(goal, k=min(ENTRIES, len(postures)))
-        return [postures[i] for i in np.atleast_1d(near).tolist() if i < len(postures) and graph.home[i]][
+        return [postures[i] for i in np.atleast_1d(near).tolist() if i < len(postures) and np.isfinite(dist[i])][
             :LAST_STRETCHES]
 
     @staticmethod
@@ -524,7 +601,7 @@ class Planner:
         alone, both from one sampling of the path."""
         # The hand's path length and the root's excursion, on a fine sampling of the path.
         along = np.linspace(0.0, 1.0, FINE)
-        fine = self._along(oracle, waypoints, along)
+        fine = self._along(oracle, waypoints, along, exact=False)
         hand = np.asarray(oracle.effector_positions(fine))
         steps = np.linalg.norm(np.diff(hand, axis=0), axis=1)
         drop = tilt = lift = 0.0
@@ -550,8 +627,9 @@ class Planner:
         yield self._along(oracle, waypoints, share), times, parts
 
     @staticmethod
-    def _along(oracle: Body, waypoints: list[np.ndarray], s: np.ndarray) -> np.ndarray:
-        """Postures at fractions s of the waypoints' total posture length, each segment on the configuration space."""
+    def _along(oracle: Body, waypoints: list[np.ndarray], s: np.ndarray, exact: bool = True) -> np.ndarray:
+        """Postures at fractions s of the waypoints' total posture length, each segment on the configuration space
+        (``exact``: see :meth:`oracles.protocol.Moving.interpolate`)."""
         lengths = np.array([np.linalg.norm(b - a) for a, b in zip(waypoints[:-1], waypoints[1:], strict=True)])
         total = float(lengths.sum())
         if total == 0.0:
@@ -562,7 +640,7 @@ class Planner:
         for k in np.unique(seg):
             rows = np.nonzero(seg == k)[0]
             local = (s[rows] - ends[k]) / max(ends[k + 1] - ends[k], 1e-12)
-            out[rows] = oracle.interpolate(waypoints[k], waypoints[k + 1], np.clip(local, 0.0, 1.0))
+            out[rows] = oracle.interpolate(waypoints[k], waypoints[k + 1], np.clip(local, 0.0, 1.0), exact)
         return out
 
     # -- routing through stored postures -------------------------------------
