@@ -186,8 +186,7 @@ def _placed(model: pin.Model, data: Any, frame: int, q: np.ndarray, target: pin.
 def _leg_ik(model: pin.Model, leg: list[int], frame: int, q: np.ndarray, target: pin.SE3,
             data: Any = None) -> np.ndarray | None:
     """q with the leg's joints moved (damped Newton on the frame's 6-D error, within the joints' ranges) until the
-    frame reaches ``target`` (within 0.02 mm and 0.2 mrad, well within the contacts' own checks), or None when it
-    cannot."""
+    frame reaches ``target`` (within 0.1 mm and 1 mrad, the contacts' own checks), or None when it cannot."""
     q = np.asarray(q, float).copy()
     data = model.createData() if data is None else data
     cols = [model.joints[j].idx_v for j in leg]
@@ -196,7 +195,7 @@ def _leg_ik(model: pin.Model, leg: list[int], frame: int, q: np.ndarray, target:
     for _ in range(LEG_ITER):
         pin.framesForwardKinematics(model, data, q)
         err = pin.log6(data.oMf[frame].actInv(target)).vector
-        if np.linalg.norm(err[:3]) <= 2e-5 and np.linalg.norm(err[3:]) <= 2e-4:  # well within the contacts' checks
+        if np.linalg.norm(err[:3]) <= 1e-4 and np.linalg.norm(err[3:]) <= 1e-3:
             return q
         jac = pin.computeFrameJacobian(model, data, q, frame, pin.LOCAL)[:, cols]
         step = jac.T @ np.linalg.solve(jac @ jac.T + LEG_DAMPING**2 * np.eye(6), err)
