@@ -16,7 +16,9 @@ the goals no motion was found for (``no_motion``: no path held every task),
 how many went through the motion graph (``via_graph``, reach.maps.graph) and
 had their end posture settled from a stored one (``settled``), and the frames
 that break a task by the tasks' own checks (``broken_frames``, every frame of
-every motion, outside the timing);
+every motion, outside the timing), and for the motions along the graph, the
+hand's path against the same goal's planned without the graphs
+(``path_ratio_median``, ``path_ratio_max``; untimed);
 in-process, the frames that broke a task and were held by the batched hold
 (``held_in_batch``) and one at a time, its fallback (``held_alone``).
 
@@ -76,9 +78,15 @@ def stats(ms: list[float]) -> dict[str, float]:
             "max_ms": round(float(np.max(ms)), 1)}
 
 
+def hand_path(m: object) -> float:
+    return float(np.linalg.norm(np.diff(m.path, axis=0), axis=1).sum())  # type: ignore[attr-defined]
+
+
 def in_process(planner: Planner, groups: dict[str, np.ndarray]) -> None:
+    # the same goals planned without the motion graphs (untimed): the hand's path, graph's over planner's
+    plain = Planner(planner.served, graph=False)
     for group, goals in groups.items():
-        ms, durations, frames, routed, failed = [], [], [], 0, []
+        ms, durations, frames, routed, failed, ratios = [], [], [], 0, [], []
         graph = settled = broken = 0
         for goal in goals[:2]:  # the first plan of a strategy builds its oracle and graph
             try:
@@ -102,10 +110,15 @@ def in_process(planner: Planner, groups: dict[str, np.ndarray]) -> None:
             settled += m.end == "settled"
             # every frame by the tasks' own checks (Pinocchio forward kinematics, the collision distances), untimed
             broken += sum(bool(f) for f in planner.body(m.strategy).faults(m.postures))
+            if m.route == "graph":
+                with contextlib.suppress(MotionError):
+                    ratios.append(hand_path(m) / max(hand_path(plain.plan(EFFECTOR, goal)), 1e-9))
         emit(bench="motion", path="in_process", group=group, goals=len(goals), **stats(ms),
              duration_s=round(float(np.median(durations)), 3),
              frames=int(np.median(frames)) if frames else 0, routed=routed, via_graph=graph, settled=settled,
              broken_frames=broken, failed=failed,
+             path_ratio_median=round(float(np.median(ratios)), 3) if ratios else None,
+             path_ratio_max=round(float(np.max(ratios)), 3) if ratios else None,
              held_in_batch=planner.holds["batch"] - held["batch"], held_alone=planner.holds["alone"] - held["alone"])
 
 

@@ -298,11 +298,13 @@ class Planner:
         selector: The selector whose answers end the motions; its strategies'
             oracles must offer :class:`~oracles.protocol.Moving`.
         budget: [s] the end posture's refinement budget.
+        graph: Use the strategies' motion graphs (:mod:`reach.maps.graph`) where the atlas has them.
     """
 
-    def __init__(self, selector: Selector, budget: float = BUDGET) -> None:
+    def __init__(self, selector: Selector, budget: float = BUDGET, graph: bool = True) -> None:
         self.served = selector  # the selector given (a server compares it after a reload)
         self.selector = selector.with_budget(budget)
+        self.use_graph = graph
         self._graphs: dict[str, tuple[cKDTree, np.ndarray, np.ndarray, csr_matrix]] = {}
         # each strategy's motion graph as a weighted graph, and its shortest paths from the reference (see _routes)
         self._motion_graphs: dict[str, tuple[csr_matrix, tuple[np.ndarray, np.ndarray]] | None] = {}
@@ -485,7 +487,7 @@ class Planner:
         """The strategy's motion graph as a weighted graph (posture distance) over its stored postures and the
         reference (the last node), with the shortest paths from the reference; None without a graph."""
         if name not in self._motion_graphs:
-            graph = self._stored_graph(name)
+            graph = self._stored_graph(name) if self.use_graph else None
             if graph is None:
                 self._motion_graphs[name] = None
             else:
