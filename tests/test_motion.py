@@ -471,10 +471,11 @@ def test_gltf_passes_the_khronos_validator_and_its_hand_follows_pinocchio(planne
         assert np.abs(dist - r).max() < 1e-4, names[i]
 
 
-def test_a_motion_is_reached_only_when_its_last_frame_reaches_the_goal(planner, body):
-    """With no time to refine, answers are stored postures a few centimetres off; a motion to
+def test_a_motion_is_reached_only_when_its_last_frame_reaches_the_goal(planner, body, monkeypatch):
+    """With no time to refine and no settling, answers are stored postures a few centimetres off; a motion to
     one of them says ``nearest`` with its distance, never ``reached``; every ``reached`` motion's last frame
     passes the verdict's own check and puts the hand within the tolerance."""
+    monkeypatch.setattr(Planner, "_settled", lambda *args: (None, None))
     hurried = Planner(planner.served, budget=1e-9)
     goals = np.random.default_rng(3).uniform([0.2, -0.6, 0.8], [0.55, -0.1, 1.4], (12, 3))
     outcomes = []
@@ -751,3 +752,17 @@ def test_build_motion_graph_is_a_boolean_by_name():
         parse_config(config, "g", "g")
     config["build"] = {"motion_graph": False}
     assert parse_config(config, "g", "g").motion_graph is False
+
+
+def test_a_goal_the_first_strategy_cannot_settle_is_settled_by_the_next_that_holds_it(planner, body, monkeypatch):
+    """As a refinement hands over: when the arm's stored postures do not settle onto the goal, the next strategy by
+    priority whose tree holds it answers, settled, without a solve."""
+    arm = planner.body("arm")
+    settle = type(arm).settle
+    monkeypatch.setattr(type(arm), "settle", lambda self, q, g: None if self is arm else settle(self, q, g))
+    goal = np.array([0.45, -0.25, 1.2])
+    m = planner.plan("right_hand", goal)
+    assert planner.selector.select("right_hand", goal, False).strategy == "arm"
+    assert m.strategy == "whole" and m.end == "settled" and m.outcome == "reached"
+    assert not any(planner.body("whole").faults(m.postures))
+    assert np.linalg.norm(hand(body, m.postures[-1]) - goal) <= TOL

@@ -518,23 +518,32 @@ class Planner:
         return graph if graph.matches(tree) else None
 
     def _settled(self, effector: str, goal: np.ndarray) -> tuple[Any, np.ndarray | None]:
-        """The stored answer for the goal and its posture settled onto the goal by its oracle's local steps
-        (:class:`~oracles.protocol.Settling`), or (None, None) when there is none: the selector then refines it."""
+        """The stored answer for the goal and an end posture settled onto the goal by local steps
+        (:class:`~oracles.protocol.Settling`), or (None, None) when there is none: the selector then refines it.
+        The strategies whose trees hold the goal are tried by priority, as a refinement hands over: the first
+        that settles answers (one whose settling fails at its tree's boundary is mostly one whose refinement fails
+        too: 5 of the demo's 40 arm and whole-body goals, all handed over, bench/motion.py)."""
         answer = self.selector.select(effector, goal, False, miss="unreachable")
         if not answer.reachable or answer.strategy is None:
             return None, None
-        oracle = self.body(answer.strategy)
-        if not isinstance(oracle, Settling):
-            return None, None
-        reference = np.array(oracle.reference_posture(), dtype=float)
-        stored = posture_vector(self.selector.atlas.maps[answer.strategy].posture_names, reference, answer.posture,
-                                answer.root)
-        # First from the stored postures near the goal that the reference's direct motion reaches (the motion graph):
-        # the motion then goes through the one it settles from; then from the answer's own.
-        for seed in [*self._homeward(answer.strategy, goal), stored]:
-            q = oracle.settle(seed, goal)
-            if q is not None:
-                return answer, q
+        names = self.selector.strategies_for(effector)
+        holding = [n for n in names[names.index(answer.strategy):]
+                   if n == answer.strategy or self.selector.atlas.maps[n].contains_one(goal.tolist(),
+                                                                                      self.selector.policy)]
+        for name in holding:
+            oracle = self.body(name)
+            if not isinstance(oracle, Settling):
+                continue
+            seeds = self._homeward(name, goal)
+            if name == answer.strategy:
+                # the stored answer's own posture last: the motion graph's lead somewhere
+                reference = np.array(oracle.reference_posture(), dtype=float)
+                seeds.append(posture_vector(self.selector.atlas.maps[name].posture_names, reference, answer.posture,
+                                            answer.root))
+            for seed in seeds:
+                q = oracle.settle(seed, goal)
+                if q is not None:
+                    return replace(answer, strategy=name), q
         return None, None
 
     def _homeward(self, name: str, goal: np.ndarray) -> list[np.ndarray]:
