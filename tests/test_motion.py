@@ -766,3 +766,16 @@ def test_a_goal_the_first_strategy_cannot_settle_is_settled_by_the_next_that_hol
     assert m.strategy == "whole" and m.end == "settled" and m.outcome == "reached"
     assert not any(planner.body("whole").faults(m.postures))
     assert np.linalg.norm(hand(body, m.postures[-1]) - goal) <= TOL
+
+
+def test_a_graph_file_with_bad_fields_is_refused_naming_the_field(tmp_path):
+    from reach.errors import StoreError
+    from reach.maps.graph import MotionGraph, load_graph, save_graph
+
+    good = MotionGraph(np.arange(3, dtype=np.int64), np.array([True, False, True]), np.array([[0, 1]], np.int32),
+                       {"tree_digest": "x"})
+    loaded = load_graph(save_graph(good, tmp_path / "g.graph.npz"))
+    assert np.array_equal(loaded.edges, good.edges) and loaded.meta["tree_digest"] == "x"
+    bad = MotionGraph(good.rows, good.home, np.array([[0, 7]], np.int32), {})
+    with pytest.raises(StoreError, match=r"g\.graph\.npz.*edges: expected \(E, 2\) int32 indices into rows"):
+        load_graph(save_graph(bad, tmp_path / "g.graph.npz"))
