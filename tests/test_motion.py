@@ -779,3 +779,21 @@ def test_a_graph_file_with_bad_fields_is_refused_naming_the_field(tmp_path):
     bad = MotionGraph(good.rows, good.home, np.array([[0, 7]], np.int32), {})
     with pytest.raises(StoreError, match=r"g\.graph\.npz.*edges: expected \(E, 2\) int32 indices into rows"):
         load_graph(save_graph(bad, tmp_path / "g.graph.npz"))
+
+
+def test_the_graph_made_on_two_processes_is_the_one_made_inline(planner):
+    """``reach build`` checks a graph's motions on its executor's workers (each its own oracle of the strategy's
+    spec): the graph is the one this fixture's inline build made, motion for motion."""
+    from oracles.protocol import OracleSpec
+    from reach.building.executor import ProcessExecutor
+    from reach.maps.graph import build_graph, load_graph
+
+    tree = planner.selector.atlas.trees["whole"]
+    pool = ProcessExecutor(OracleSpec.from_dict(tree.meta["oracle"]), workers=2, chunk_size=50)
+    try:
+        made = build_graph(tree, planner.body("whole"), apply=pool.apply)
+    finally:
+        pool.close()
+    inline = load_graph(planner.selector.atlas.path / "whole.graph.npz")
+    assert made is not None and made.meta["samples"] == inline.meta["samples"] > 0
+    assert np.array_equal(made.home, inline.home) and np.array_equal(made.edges, inline.edges)

@@ -258,8 +258,9 @@ def _build_locked(
         built[s.name] = tree
         if config.motion_graph:
             source = tree.meta["build"].get("mirrored_from")
-            graphs[s.name] = _graph_one(s.name, tree, path, oracle_of(s), say,
-                                        (graphs.get(source), built[source]) if source in built else None)
+            graphs[s.name] = _graph_one(s, tree, path, oracle_of(s), say,
+                                        (graphs.get(source), built[source]) if source in built else None,
+                                        executor_factory)
         faces = tree.faces()
         if faces:
             warnings.append({"strategy": s.name, "faces": faces})
@@ -283,11 +284,12 @@ def _build_locked(
     return load_atlas(out)
 
 
-def _graph_one(name: str, tree: VATree, path: Path, oracle: Oracle, say: Callable[[str], None],
-               source: tuple[MotionGraph | None, VATree] | None) -> MotionGraph | None:
+def _graph_one(s: StrategySpec, tree: VATree, path: Path, oracle: Oracle, say: Callable[[str], None],
+               source: tuple[MotionGraph | None, VATree] | None,
+               executor_factory: Callable[[OracleSpec], Executor] | None) -> MotionGraph | None:
     """The tree's motion graph (:mod:`reach.maps.graph`): kept when made for this tree, mirrored from its source's for
-    a mirrored tree, else made and saved beside it."""
-    file = graph_path(path)
+    a mirrored tree, else made on the build's executor and saved beside it."""
+    name, file = s.name, graph_path(path)
     if file.is_file():
         try:
             kept = load_graph(file)
@@ -296,7 +298,12 @@ def _graph_one(name: str, tree: VATree, path: Path, oracle: Oracle, say: Callabl
         except StoreError as exc:
             say(f"{name}: remaking its motion graph ({exc})")
     graph = mirror_graph(source[0], source[1], tree) if source is not None and source[0] is not None else None
-    graph = graph if graph is not None else build_graph(tree, oracle)
+    if graph is None and tree.stored() is not None:
+        ex: Executor = executor_factory(s.oracle) if executor_factory else InlineExecutor(oracle)
+        try:
+            graph = build_graph(tree, oracle, apply=ex.apply)
+        finally:
+            ex.close()
     if graph is None:
         file.unlink(missing_ok=True)
         return None

@@ -19,9 +19,12 @@ from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any, Protocol
 
+import numpy as np
+
 from oracles.protocol import Goals, Oracle, OracleSpec, Verdicts, check_verdicts
 
 Progress = Callable[[int], None]
+Task = Callable[[Oracle, np.ndarray], Any]  # work on a worker's oracle (Executor.apply)
 CHUNK_SIZE = 2048  # points per task a build sends an executor (the default of build.chunk_size)
 
 
@@ -48,6 +51,11 @@ class Executor(Protocol):
         """Verdicts for every goal (:class:`oracles.protocol.Goals`), in order; calls progress(n) as chunks finish."""
         ...
 
+    def apply(self, fn: Task, items: np.ndarray) -> list[Any]:
+        """``fn(oracle, chunk)`` for consecutive chunks of ``items`` (rows), each on a worker's own oracle of the
+        executor's spec, the results in order (``fn`` a module-level function, so that it pickles)."""
+        ...
+
     def close(self) -> None: ...
 
 
@@ -68,6 +76,9 @@ class InlineExecutor:
             if progress:
                 progress(sl.stop - sl.start)
         return Verdicts.concatenate(parts)
+
+    def apply(self, fn: Task, items: np.ndarray) -> list[Any]:
+        return [fn(self.oracle, items[sl]) for sl in chunks(len(items), self.chunk_size)]
 
     def close(self) -> None:
         pass
@@ -105,12 +116,21 @@ _WORKER_ORACLES: dict[str, Oracle] = {}
 _WORKER_LOCK = threading.Lock()
 
 
+def _worker_oracle(spec: OracleSpec, key: str) -> Oracle:
+    oracle = _WORKER_ORACLES.get(key)
+    if oracle is None:
+        oracle = _WORKER_ORACLES[key] = spec.create()
+    return oracle
+
+
 def _worker_evaluate(spec: OracleSpec, key: str, goals: Goals) -> Verdicts:
     with _WORKER_LOCK:
-        oracle = _WORKER_ORACLES.get(key)
-        if oracle is None:
-            oracle = _WORKER_ORACLES[key] = spec.create()
-        return oracle.evaluate(goals)
+        return _worker_oracle(spec, key).evaluate(goals)
+
+
+def _worker_apply(spec: OracleSpec, key: str, fn: Task, items: np.ndarray) -> Any:
+    with _WORKER_LOCK:
+        return fn(_worker_oracle(spec, key), items)
 
 
 class _Pooled(ABC):
@@ -130,6 +150,13 @@ class _Pooled(ABC):
     @abstractmethod
     def submit(self, goals: Goals) -> tuple[list[slice], list[Any]]:
         """Send a batch's chunks to the workers: the slices and their futures, in order."""
+
+    @abstractmethod
+    def submit_tasks(self, fn: Task, items: np.ndarray) -> list[Any]:
+        """Send ``fn`` on each chunk of ``items`` to the workers: their futures, in order."""
+
+    def apply(self, fn: Task, items: np.ndarray) -> list[Any]:
+        return [f.result() for f in self.submit_tasks(fn, items)]
 
     def slices(self, n: int) -> list[slice]:
         """Chunks of at most chunk_size, and at least four per worker when the batch allows."""
@@ -158,6 +185,9 @@ class ProcessExecutor(_Pooled):
         slices = self.slices(len(goals))
         return slices, [self.pool.submit(_worker_evaluate, self.spec, self.key, goals.take(sl)) for sl in slices]
 
+    def submit_tasks(self, fn: Task, items: np.ndarray) -> list[Any]:
+        return [self.pool.submit(_worker_apply, self.spec, self.key, fn, items[sl]) for sl in self.slices(len(items))]
+
     def close(self) -> None:
         # After a normal batch nothing is pending; after an interrupt the chunks not yet started are dropped
         # (the checkpoints keep what was done) instead of computed.
@@ -181,6 +211,11 @@ class DaskExecutor(_Pooled):
         futures = self.client.map(_worker_evaluate, [self.spec] * len(slices), [self.key] * len(slices),
                                   [goals.take(sl) for sl in slices], pure=False)
         return slices, futures
+
+    def submit_tasks(self, fn: Task, items: np.ndarray) -> list[Any]:
+        parts = [items[sl] for sl in self.slices(len(items))]
+        return list(self.client.map(_worker_apply, [self.spec] * len(parts), [self.key] * len(parts),
+                                    [fn] * len(parts), parts, pure=False))
 
     def close(self) -> None:
         pass  # the client belongs to whoever made it

@@ -28,7 +28,9 @@ from __future__ import annotations
 import json
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -52,6 +54,8 @@ NEIGHBOURS = 5  # stored postures each one is linked to, nearest by where they p
 # between a vertex's 6 nearest, 90 % under 2.4)
 REACH = 1.0
 CHUNK = 8  # samples checked at a time: a motion that breaks a task stops there
+# runs a function of (oracle, rows) on chunks of rows, each on a worker's own oracle (reach.building.executor)
+Apply = Callable[[Callable[[Any, np.ndarray], Any], np.ndarray], list[Any]]
 
 
 @dataclass(frozen=True)
@@ -82,34 +86,46 @@ def graph_path(tree_path: Path) -> Path:
     return tree_path.with_name(f"{tree_path.stem}.graph.npz")
 
 
-def build_graph(tree: VATree, oracle: object, step: float = STEP) -> MotionGraph | None:
+def build_graph(tree: VATree, oracle: object, step: float = STEP, apply: Apply | None = None) -> MotionGraph | None:
     """The graph of a tree whose vertices store postures, by its strategy's oracle; None when it stores none or the
-    oracle moves no body (:class:`~oracles.protocol.Moving`, :class:`~oracles.protocol.Shaped`)."""
+    oracle moves no body (:class:`~oracles.protocol.Moving`, :class:`~oracles.protocol.Shaped`). ``apply``: runs
+    :func:`motions_hold` on chunks of the motions, on workers' own oracles (a build's executor); in this process by
+    default."""
     found = tree.stored()
     if found is None or not isinstance(oracle, Moving) or not isinstance(oracle, Shaped):
         return None
     rows, points, postures = found
-    t0 = time.process_time()
     reference = np.asarray(oracle.reference_posture(), float)
-    counted = [0]
-
-    def holds(a: np.ndarray, b: np.ndarray) -> bool:
-        n = max(2, int(math.ceil(float(np.linalg.norm(b - a)) / step)))
-        inner = oracle.interpolate(a, b, np.arange(1, n) / n)  # the ends hold: the reference and verdicts' postures
-        for k in range(0, len(inner), CHUNK):
-            counted[0] += len(inner[k : k + CHUNK])
-            if any(oracle.faults(inner[k : k + CHUNK])):
-                return False
-        return True
-
-    home = np.array([holds(reference, q) for q in postures], bool)
     pairs = neighbour_pairs(points, postures)
-    kept = np.array([holds(postures[a], postures[b]) for a, b in pairs], bool).reshape(-1)
-    edges = pairs[kept] if len(pairs) else np.zeros((0, 2), np.int32)
-    return MotionGraph(rows, home, edges.astype(np.int32),
+    # the motions, each (2, nq): from the reference to every stored posture, then between the neighbours
+    motions = np.concatenate([np.stack([np.broadcast_to(reference, postures.shape), postures], axis=1),
+                              np.stack([postures[pairs[:, 0]], postures[pairs[:, 1]]], axis=1)])
+    motions = np.ascontiguousarray(motions)
+    parts = (apply or (lambda fn, items: [fn(oracle, items)]))(partial(motions_hold, step=step), motions)
+    holds = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0, bool)
+    home, kept = holds[: len(postures)], holds[len(postures) :]
+    return MotionGraph(rows, home, pairs[kept].astype(np.int32).reshape(-1, 2),
                        {"tree_digest": tree.meta.get("digest"), "step": step, "reach": REACH,
-                        "neighbours": NEIGHBOURS, "samples": counted[0],
-                        "seconds": round(time.process_time() - t0, 3)})
+                        "neighbours": NEIGHBOURS, "samples": int(sum(p[1] for p in parts)),
+                        "seconds": round(float(sum(p[2] for p in parts)), 3)})
+
+
+def motions_hold(oracle: Any, motions: np.ndarray, step: float = STEP) -> tuple[np.ndarray, int, float]:
+    """Whether each direct motion (M, 2, nq: from, to) holds every hard task at its samples ``step`` apart (the ends
+    hold: the reference and verdicts' postures), the samples checked, and the CPU seconds it took (a worker's)."""
+    t0 = time.process_time()
+    out = np.zeros(len(motions), bool)
+    samples = 0
+    for m, (a, b) in enumerate(motions):
+        n = max(2, int(math.ceil(float(np.linalg.norm(b - a)) / step)))
+        inner = oracle.interpolate(a, b, np.arange(1, n) / n)
+        out[m] = True
+        for k in range(0, len(inner), CHUNK):  # a motion that breaks a task stops there
+            samples += len(inner[k : k + CHUNK])
+            if any(oracle.faults(inner[k : k + CHUNK])):
+                out[m] = False
+                break
+    return out, samples, time.process_time() - t0
 
 
 def neighbour_pairs(points: np.ndarray, postures: np.ndarray) -> np.ndarray:
