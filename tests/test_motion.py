@@ -741,6 +741,15 @@ def test_a_graph_not_made_for_its_tree_or_unreadable_is_not_used(planner, tmp_pa
     other = Planner(Selector(load_atlas(folder), policy="optimistic").warm_up(), budget=5.0)
     m = other.plan("right_hand", [0.35, -0.2, 0.45])
     assert m.route == "planned" and not any(other.body("whole").faults(m.postures))
+    # `reach info` says which graphs an atlas has, and which it cannot use
+    from reach.answers.audit import summary
+
+    graphs = {n: s["motion_graph"] for n, s in summary(load_atlas(folder))["strategies"].items()}
+    assert graphs["whole"]["state"] == "unreadable" and "whole.graph.npz" in graphs["whole"]["reason"]
+    arm = other.selector.atlas.trees["arm"].stored()
+    assert graphs["arm"]["state"] == "ok" and graphs["arm"]["stored"] == len(arm[0])
+    (folder / "arm.graph.npz").unlink()
+    assert summary(load_atlas(folder))["strategies"]["arm"]["motion_graph"] == {"state": "missing"}
 
 
 def test_build_motion_graph_is_a_boolean_by_name():

@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -55,6 +56,7 @@ from reach.building.executor import Executor, InlineExecutor
 from reach.building.tree import warm_hints
 from reach.errors import StoreError
 from reach.maps.atlas import Atlas, load_audit
+from reach.maps.graph import graph_path, load_graph
 from reach.maps.index import ReachIndex, spiral
 from reach.maps.protocol import Policy
 from reach.maps.tree import FINAL, INNER, KIND_NAMES, OUTER, VATree
@@ -330,9 +332,31 @@ def lacking(atlas: Atlas) -> dict[str, list[str]]:
     return out
 
 
+def graph_summary(folder: Path, name: str, tree: VATree) -> dict[str, Any] | None:
+    """A tree's motion graph (:mod:`reach.maps.graph`) as ``reach info`` says it: how many stored postures the
+    reference's direct motion reaches, of how many, the edges, the build's CPU seconds; ``state`` is ``ok``,
+    ``missing``, ``stale`` (made for another tree) or ``unreadable``; None for a tree that stores no posture."""
+    if tree.stored() is None:
+        return None
+    file = graph_path(Path(folder) / f"{name}.npz")
+    if not file.is_file():
+        return {"state": "missing"}
+    try:
+        graph = load_graph(file)
+    except StoreError as exc:
+        return {"state": "unreadable", "reason": str(exc)}
+    if not graph.matches(tree):
+        return {"state": "stale"}
+    return {"state": "ok", "file": file.name, "reached_from_reference": int(graph.home.sum()),
+            "stored": len(graph.rows), "edges": len(graph.edges), "cpu_seconds": graph.meta.get("seconds"),
+            "mirrored": bool(graph.meta.get("mirrored", False))}
+
+
 def summary(atlas: Atlas) -> dict[str, Any]:
     """What ``reach info --json`` prints."""
     strategies = {name: tree_summary(tree, atlas.indexes.get(name)) for name, tree in atlas.trees.items()}
+    for name, tree in atlas.trees.items():
+        strategies[name]["motion_graph"] = graph_summary(atlas.path, name, tree)
     found = lacking(atlas)
     for name, lines in found.items():
         if name in strategies:

@@ -59,6 +59,11 @@ def cmd_info(args: argparse.Namespace) -> int:
             print(f"    reachability index over {i['directions']} directions: mean {i['mean']:.3f}, quartiles "
                   f"{i['quartiles']} at reachable vertices"
                   + (f" ({i['goals']} goals solved, {i['seconds']:.1f} s)" if i.get("goals") is not None else ""))
+        g = s.get("motion_graph")
+        if g is not None:
+            print(f"    motion graph: {g['reached_from_reference']} of {g['stored']} stored postures reached from the "
+                  f"reference, {g['edges']} motions between them" if g["state"] == "ok" else
+                  f"    motion graph: {g['state']} (reach build --resume makes it; motions are planned without it)")
         if s["on_faces"]:
             print(f"    warning: {face_text(s['on_faces'])}")
         for line in s.get("audit_warnings", []):
