@@ -1011,6 +1011,11 @@ def test_a_clients_queued_work_is_capped_and_refused_with_busy(human, monkeypatc
         assert busy["id"] == "a2" and busy["error"]["code"] == "busy" and "retry in about" in busy["error"]["message"]
         assert "this client has 60 goals in 1 requests queued" in busy["error"]["message"]
         send(b, "b1", GOALS[:50])  # another client's: 110 held in all
+        # b1 held before c1 is sent: the server's socket takes its clients' messages in turn, so c1 sent at once could
+        # be taken first (and b1 refused instead; then c1 waited for its deadline: once, on a loaded machine)
+        until = time.monotonic() + 60
+        while sum(dict(r.server.held).values()) < len(GOALS) + 50 and time.monotonic() < until:
+            time.sleep(0.01)
         send(c, "c1", GOALS)  # 170 in all: over the server's 150
         full = json.loads(c.recv_multipart()[-1])
         assert full["error"]["code"] == "busy" and "the server has 110 goals queued" in full["error"]["message"]
