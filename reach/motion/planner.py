@@ -429,13 +429,16 @@ class Planner:
                 chain.append(int(pred[chain[-1]]))
             path = [q0, *(postures[k] for k in reversed(chain) if k < len(postures)), q1]
             # Through several stored postures, shortened first (the hand's path zigzags between them otherwise);
-            # through one, as it is (it lies beside the end: a detour of a few cm).
-            for waypoints in ([self._skipped(oracle, path)] if len(path) > 3 else []) + [path]:
+            # through one, as it is (it lies beside the end: a detour of a few cm). Each corner rounded first: turned
+            # at once, the hand's speed dropped by a third mid-stride at the stored posture (docs/figures).
+            shortened = self._skipped(oracle, path) if len(path) > 3 else path
+            tries = ([self._rounded(oracle, shortened)] if len(shortened) > 2 else []) + [shortened]
+            for waypoints in tries + ([path] if len(shortened) < len(path) else []):
                 frames, times, parts = self._timed(oracle, names, waypoints, rate, timing)
                 # Every frame checked: the build's samples, ``STEP`` apart, miss brushes between them (a frame of a
                 # whole-body motion in 30 broke the balance or a collision where every sample held).
                 if not any(any(f) for f in self._faults(oracle, frames[1:])):
-                    return (frames, times, parts), len(waypoints) - 2
+                    return (frames, times, parts), (len(path) if waypoints is path else len(shortened)) - 2
         return None
 
     def _exits(self, oracle: Body, kd: cKDTree, postures: np.ndarray, q1: np.ndarray,
