@@ -429,10 +429,14 @@ class Planner:
                 chain.append(int(pred[chain[-1]]))
             path = [q0, *(postures[k] for k in reversed(chain) if k < len(postures)), q1]
             # Through several stored postures, shortened first (the hand's path zigzags between them otherwise);
-            # through one, as it is (it lies beside the end: a detour of a few cm). Each corner rounded first: turned
-            # at once, the hand's speed dropped by a third mid-stride at the stored posture (docs/figures).
+            # through one, as it is (it lies beside the end: a detour of a few cm). Each corner of a body on a fixed
+            # root rounded first: turned at once, the hand's speed dropped by a third mid-stride at the stored posture
+            # (docs/figures/motion_arm.png). A standing body's are not: its rounded frames, checked and then checked
+            # again unrounded, doubled the whole body's median (27 -> 51 ms, bench/motion.py).
             shortened = self._skipped(oracle, path) if len(path) > 3 else path
-            tries = ([self._rounded(oracle, shortened)] if len(shortened) > 2 else []) + [shortened]
+            root = [k for k, n in enumerate(names) if n.startswith("root_")]
+            round_first = len(shortened) > 2 and all(np.array_equal(w[root], q0[root]) for w in shortened)
+            tries = ([self._rounded(oracle, shortened)] if round_first else []) + [shortened]
             for waypoints in tries + ([path] if len(shortened) < len(path) else []):
                 frames, times, parts = self._timed(oracle, names, waypoints, rate, timing)
                 # Every frame checked: the build's samples, ``STEP`` apart, miss brushes between them (a frame of a
