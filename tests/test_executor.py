@@ -31,6 +31,13 @@ def test_every_executor_gives_the_same_tree(tmp_path):
     same_tree(inline, procs)
     same_tree(inline, dask)
     assert inline.oracle_calls == len(inline.vertices) > 50
+    # and the same motion graph, its motions checked on each executor's workers (Executor.apply)
+    from reach.maps.graph import load_graph
+
+    graphs = [load_graph(tmp_path / kind / "right_arm.graph.npz") for kind in ("inline", "procs", "dask")]
+    assert graphs[0].meta["samples"] > 0 and len(graphs[0].edges) > 0
+    for g in graphs[1:]:
+        assert np.array_equal(g.home, graphs[0].home) and np.array_equal(g.edges, graphs[0].edges)
 
 
 def test_chunks_cover_a_batch_in_order():

@@ -56,7 +56,7 @@ from reach.building.executor import Executor, InlineExecutor
 from reach.building.tree import warm_hints
 from reach.errors import StoreError
 from reach.maps.atlas import Atlas, load_audit
-from reach.maps.graph import graph_path, load_graph
+from reach.maps.graph import graph_of
 from reach.maps.index import ReachIndex, spiral
 from reach.maps.protocol import Policy
 from reach.maps.tree import FINAL, INNER, KIND_NAMES, OUTER, VATree
@@ -338,16 +338,11 @@ def graph_summary(folder: Path, name: str, tree: VATree) -> dict[str, Any] | Non
     ``missing``, ``stale`` (made for another tree) or ``unreadable``; None for a tree that stores no posture."""
     if tree.stored() is None:
         return None
-    file = graph_path(Path(folder) / f"{name}.npz")
-    if not file.is_file():
-        return {"state": "missing"}
-    try:
-        graph = load_graph(file)
-    except StoreError as exc:
-        return {"state": "unreadable", "reason": str(exc)}
-    if not graph.matches(tree):
-        return {"state": "stale"}
-    return {"state": "ok", "file": file.name, "reached_from_reference": int(graph.home.sum()),
+    graph, state = graph_of(Path(folder) / f"{name}.npz", tree)
+    if graph is None:
+        kind, _, why = state.partition(": ")
+        return {"state": kind, "reason": why} if why else {"state": kind}
+    return {"state": "ok", "file": f"{name}.graph.npz", "reached_from_reference": int(graph.home.sum()),
             "stored": len(graph.rows), "edges": len(graph.edges), "cpu_seconds": graph.meta.get("seconds"),
             "mirrored": bool(graph.meta.get("mirrored", False))}
 

@@ -48,7 +48,7 @@ from reach.building.tree import Inherited, build_tree
 from reach.building.twins import Twins
 from reach.errors import ModelError, StoreError
 from reach.maps.atlas import Atlas, build_lock, load_atlas, write_manifest
-from reach.maps.graph import MotionGraph, build_graph, graph_path, load_graph, mirror_graph, save_graph
+from reach.maps.graph import MotionGraph, build_graph, graph_of, graph_path, mirror_graph, save_graph
 from reach.maps.index import ReachIndex, spiral
 from reach.maps.index import summary as index_summary
 from reach.maps.store import load_indexed, save_tree
@@ -290,13 +290,11 @@ def _graph_one(s: StrategySpec, tree: VATree, path: Path, oracle: Oracle, say: C
     """The tree's motion graph (:mod:`reach.maps.graph`): kept when made for this tree, mirrored from its source's for
     a mirrored tree, else made on the build's executor and saved beside it."""
     name, file = s.name, graph_path(path)
-    if file.is_file():
-        try:
-            kept = load_graph(file)
-            if kept.matches(tree):
-                return kept
-        except StoreError as exc:
-            say(f"{name}: remaking its motion graph ({exc})")
+    kept, state = graph_of(path, tree)
+    if kept is not None:
+        return kept
+    if state.startswith("unreadable"):
+        say(f"{name}: remaking its motion graph ({state.removeprefix('unreadable: ')})")
     graph = mirror_graph(source[0], source[1], tree) if source is not None and source[0] is not None else None
     if graph is None and tree.stored() is not None:
         ex: Executor = executor_factory(s.oracle) if executor_factory else InlineExecutor(oracle)

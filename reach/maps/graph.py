@@ -177,6 +177,19 @@ def save_graph(graph: MotionGraph, path: Path) -> Path:
     return path
 
 
+def graph_of(tree_path: Path, tree: VATree) -> tuple[MotionGraph | None, str]:
+    """The graph stored beside the tree at ``tree_path`` when it was made for that tree, and its state: ``ok``,
+    ``missing``, ``stale`` (made for another tree) or ``unreadable: WHY`` (the graph then None)."""
+    file = graph_path(Path(tree_path))
+    if not file.is_file():
+        return None, "missing"
+    try:
+        graph = load_graph(file)
+    except StoreError as exc:
+        return None, f"unreadable: {exc}"
+    return (graph, "ok") if graph.matches(tree) else (None, "stale")
+
+
 def load_graph(path: Path) -> MotionGraph:
     """The graph stored at ``path``; raises StoreError naming the file and what is wrong."""
     try:

@@ -45,7 +45,6 @@ import math
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, fields, replace
-from pathlib import Path
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -56,8 +55,8 @@ from scipy.spatial import cKDTree
 from oracles.protocol import EffectorPositions, Moving, Settling, Shaped, Stepping, Transiting, Verifying
 from reach.answers.answer import posture_vector, split_posture
 from reach.answers.select import Selector
-from reach.errors import InputError, ReachError, StoreError
-from reach.maps.graph import REACH, MotionGraph, graph_path, load_graph
+from reach.errors import InputError, ReachError
+from reach.maps.graph import REACH, MotionGraph, graph_of
 from reach.maps.tree import VATree
 
 TMU = 0.036  # [s] one time measurement unit, 0.00001 h (MTM-1 data card)
@@ -487,8 +486,13 @@ class Planner:
 
     def _holds(self, oracle: Body, a: np.ndarray, b: np.ndarray) -> bool:
         """Whether the direct segment a -> b holds every task at postures ``EDGE_STEP`` apart (no hold)."""
+        return not any(any(f) for f in self._faults(oracle, self._segment(oracle, a, b)[1:-1]))
+
+    @staticmethod
+    def _segment(oracle: Body, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """The postures of the segment a -> b that are checked, ends included: ``EDGE_STEP`` apart, three at least."""
         n = max(3, int(math.ceil(np.linalg.norm(b - a) / EDGE_STEP)) + 1)
-        return not any(any(f) for f in self._faults(oracle, oracle.interpolate(a, b, np.linspace(0.0, 1.0, n))[1:-1]))
+        return oracle.interpolate(a, b, np.linspace(0.0, 1.0, n))
 
     def _routes(self, name: str) -> tuple[csr_matrix, tuple[np.ndarray, np.ndarray]] | None:
         """The strategy's motion graph as a weighted graph (posture distance) over its stored postures and the
@@ -514,15 +518,9 @@ class Planner:
 
     def _stored_graph(self, name: str) -> MotionGraph | None:
         """The strategy's motion graph stored beside its tree, when it was made for that tree; else None."""
-        tree, folder = self.selector.atlas.maps[name], getattr(self.selector.atlas, "path", None)
-        file = None if folder is None else graph_path(Path(folder) / f"{name}.npz")
-        if file is None or not file.is_file() or not isinstance(tree, VATree):
-            return None
-        try:
-            graph = load_graph(file)
-        except StoreError:
-            return None  # the planner plans every motion as without one
-        return graph if graph.matches(tree) else None
+        tree = self.selector.atlas.maps[name]
+        # a graph missing, stale or unreadable: the planner plans every motion as without one
+        return graph_of(self.selector.atlas.path / f"{name}.npz", tree)[0] if isinstance(tree, VATree) else None
 
     def _settled(self, effector: str, goal: np.ndarray) -> tuple[Any, np.ndarray | None]:
         """The stored answer for the goal and an end posture settled onto the goal by local steps
@@ -730,13 +728,12 @@ class Planner:
 
     def _clear(self, oracle: Body, a: np.ndarray, b: np.ndarray, limit: float = EDGE_HOLD) -> bool:
         """Whether the segment a -> b holds every task at postures ``EDGE_STEP`` apart (see ``_hold_path``)."""
-        n = max(3, int(math.ceil(np.linalg.norm(b - a) / EDGE_STEP)) + 1)
         # Its checked postures are farther apart than frames: a hold that passes the jump test here may fail it
         # at the frames' steps, so it may move a posture less. A check is one pass (the batch's holds, the rest one
         # at a time): the second pass, every broken posture held alone, is for a path's frames; a segment that
         # needed it is passed over (in-process, 20 goals a kind: the whole body's p99 3.5-3.7 s against 4.6-5.7,
         # the crouch's 3.9-4.0 against 4.9-7.2, no goal without a motion; bench/motion.py).
-        return self._hold_path(oracle, oracle.interpolate(a, b, np.linspace(0.0, 1.0, n)), limit, once=True) is not None
+        return self._hold_path(oracle, self._segment(oracle, a, b), limit, once=True) is not None
 
     def _hold_path(self, oracle: Body, postures: np.ndarray, limit: float = HOLD_STEP,
                    once: bool = False) -> tuple[np.ndarray, int] | None:
