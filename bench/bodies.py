@@ -21,7 +21,7 @@ from unittest import mock
 import yaml
 
 import oracles.bodies.body
-import oracles.ik.engine
+import oracles.ik.oracle
 
 
 def counting() -> tuple[mock._patch, list[int]]:  # type: ignore[type-arg]
@@ -32,7 +32,7 @@ def counting() -> tuple[mock._patch, list[int]]:  # type: ignore[type-arg]
         calls.append(1)
         return real(spec)
 
-    return mock.patch.object(oracles.ik.engine, "load_body", load), calls
+    return mock.patch.object(oracles.ik.oracle, "load_body", load), calls
 
 
 def main() -> None:

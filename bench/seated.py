@@ -30,7 +30,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from oracles.bodies.anthropometry import ANSUR_THUMBTIP_REACH  # noqa: E402
-from oracles.ik.engine import CasadiIK  # noqa: E402
+from oracles.ik.oracle import IKOracle  # noqa: E402
 from oracles.ik.search import Search  # noqa: E402
 
 ARM = ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"]
@@ -49,7 +49,7 @@ LEAN = [{"type": "reach"},
 DRIVER = Path(__file__).resolve().parents[1] / "configs" / "examples" / "driver.yaml"
 
 
-def driver_oracle(name: str, body: dict, search: Search) -> CasadiIK:
+def driver_oracle(name: str, body: dict, search: Search) -> IKOracle:
     """The driver example's own strategy (its belt, door and idle-arm bound) on another body, compiled programs off."""
     from oracles.protocol import OracleSpec
     from reach.building.config import load_config
@@ -57,11 +57,11 @@ def driver_oracle(name: str, body: dict, search: Search) -> CasadiIK:
     spec = next(s for s in load_config(DRIVER).strategies if s.name == name).oracle
     params = {**spec.params, "body": body, "jit": False, "restarts": search.restarts, "seed": search.seed}
     oracle = OracleSpec(spec.name, params).create()
-    assert isinstance(oracle, CasadiIK)
+    assert isinstance(oracle, IKOracle)
     return oracle
 
 
-def farthest(oracle: CasadiIK, start: np.ndarray, direction: np.ndarray, lo: float = 0.2, hi: float = 1.6,
+def farthest(oracle: IKOracle, start: np.ndarray, direction: np.ndarray, lo: float = 0.2, hi: float = 1.6,
              tol: float = 0.005) -> float:
     """The farthest t [m] with start + t direction reached: a scan in 0.1 m steps from lo for the last reached
     distance before the first missed one, then a bisection between them."""
@@ -96,15 +96,15 @@ def main() -> None:
         percentile = float(pct)
         standing_spec = {"human": {"sex": sex, "percentile": percentile}}
         # the thumb tip (right_pinch), as ANSUR II measures thumb-tip reach (the grip centre is 55-65 mm behind it)
-        stand = CasadiIK(standing_spec, "right_pinch", ARM, [{"type": "reach"}, {"type": "coupling"}], search=search)
+        stand = IKOracle(standing_spec, "right_pinch", ARM, [{"type": "reach"}, {"type": "coupling"}], search=search)
         frames = stand.body.frame_positions()
         shoulder, back = frames["right_shoulder"], frames["back"]
         t = farthest(stand, shoulder, np.array([1.0, 0.0, 0.0]))
         standing = t + shoulder[0] - back[0]
         spec = seated(sex, percentile, "chair")
-        arm = CasadiIK(spec, "right_pinch", ARM, [{"type": "reach"}, {"type": "coupling"}, {"type": "obstacles"}],
+        arm = IKOracle(spec, "right_pinch", ARM, [{"type": "reach"}, {"type": "coupling"}, {"type": "obstacles"}],
                        search=search)
-        grip = CasadiIK(spec, "right_hand", ARM, [{"type": "reach"}, {"type": "coupling"}, {"type": "obstacles"}],
+        grip = IKOracle(spec, "right_hand", ARM, [{"type": "reach"}, {"type": "coupling"}, {"type": "obstacles"}],
                         search=search)
         beta = math.radians(15.0)
         normal = np.array([math.cos(beta), 0.0, math.sin(beta)])
@@ -117,7 +117,7 @@ def main() -> None:
         print(json.dumps({"bench": "seated", "measure": "thumbtip", "sex": sex, "percentile": percentile,
                           "standing_mm": round(1000 * standing, 1), "seated_mm": round(1000 * (t_arm + plane), 1),
                           "ansur_mean_mm": mean, "ansur_sd_mm": sd}), flush=True)
-        lean = CasadiIK(spec, "right_hand", TRUNK, LEAN, search=search)
+        lean = IKOracle(spec, "right_hand", TRUNK, LEAN, search=search)
         t_lean = farthest(lean, s, normal)
         car = seated(sex, percentile, "car")
         belted, free = driver_oracle("belted", car, search), driver_oracle("lean", car, search)

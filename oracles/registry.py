@@ -28,15 +28,15 @@ BUILTIN: dict[str, str] = {
     "union": "oracles.shapes:union",
     "intersection": "oracles.shapes:intersection",
     "difference": "oracles.shapes:difference",
-    "casadi-ik": "oracles.ik.engine:CasadiIK.from_params",
-    "dls": "oracles.ik.dls:DLSIK.from_params",
+    "casadi-ik": "oracles.ik.oracle:IKOracle.from_params",
+    "dls": "oracles.ik.oracle:dls",
 }
 
 
 def _load(target: str) -> Callable[..., Any]:
     module, _, attr = target.partition(":")
     found: Any = importlib.import_module(module)
-    for part in attr.split("."):  # a class's factory method, e.g. CasadiIK.from_params
+    for part in attr.split("."):  # a class's factory method, e.g. IKOracle.from_params
         found = getattr(found, part)
     return found  # type: ignore[no-any-return]
 

@@ -96,7 +96,7 @@ def test_isolated_vertices_are_retried_from_their_neighbours(tmp_path):
     assert b["oracle_calls"] == b["distinct_vertices"] + sum(lv["retried"] for lv in b["levels"])
     # The audit's referee is thorough whatever built the tree: IPOPT, more restarts, every start tried.
     judge = referee(tree, 6)
-    assert (judge.solver, judge.search.restarts, judge.search.give_up_distance) == ("ipopt", 6, np.inf)
+    assert (judge.solver.name, judge.search.restarts, judge.search.give_up_distance) == ("ipopt", 6, np.inf)
 
 
 def test_reach_audit_cli_json(tmp_path, capsys):

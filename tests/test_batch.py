@@ -8,7 +8,7 @@ import pytest
 
 from oracles.ik import batch, budget, waves
 from oracles.ik.batch import CHUNK
-from oracles.ik.engine import CasadiIK
+from oracles.ik.oracle import IKOracle
 from oracles.ik.search import Search
 from oracles.protocol import Goals, OracleSpec, Verdicts
 from reach.building.config import load_config
@@ -20,7 +20,7 @@ pytestmark = pytest.mark.slow  # solves hundreds of whole-body goals
 
 
 def _batch(joints, tasks=None, **engine):  # noqa: ANN001, ANN003
-    return CasadiIK(HUMAN, "right_hand", joints, tasks, search=Search(restarts=1), solver="batch", **engine)
+    return IKOracle(HUMAN, "right_hand", joints, tasks, search=Search(restarts=1), solver="batch", **engine)
 
 
 @pytest.fixture(scope="module")
@@ -162,12 +162,12 @@ def test_the_engine_parameters_are_checked_and_written():
         _batch(ARM, starts=0)
     spec = _batch(ARM, starts=5).spec
     assert spec.params["solver"] == "batch" and spec.params["starts"] == 5
-    assert "starts" not in CasadiIK(HUMAN, "right_hand", ARM, solver="fatrop").spec.params
+    assert "starts" not in IKOracle(HUMAN, "right_hand", ARM, solver="fatrop").spec.params
 
 
 def test_the_batched_kinematics_match_pinocchio(whole):
     """The mapped, compiled function's reach residual and Jacobian against Pinocchio at random postures."""
-    program = whole.batch_program()
+    program = whole.solver.batch_program()
     rng = np.random.default_rng(2)
     p = whole.problem
     x = np.array([p.random_x(rng) for _ in range(CHUNK + 3)])

@@ -184,12 +184,12 @@ def test_self_collision_cuts_agree_with_coal_in_distance_and_gradient():
 def test_a_robot_on_a_table_no_longer_reaches_through_it():
     from pathlib import Path
 
-    from oracles.ik.engine import CasadiIK
+    from oracles.ik.oracle import IKOracle
 
     ur5 = {"urdf": str(Path(__file__).resolve().parents[1] / "configs" / "urdf" / "ur5.urdf")}
     table = {"type": "obstacles", "boxes": [{"min": [-1.0, -1.0, -0.8], "max": [1.0, 1.0, -0.001]}]}
-    free = CasadiIK(ur5, "ee_link", ["*_joint"], [{"type": "reach"}], search=Search(restarts=2))
-    guarded = CasadiIK(ur5, "ee_link", ["*_joint"], [{"type": "reach"}, table], search=Search(restarts=2))
+    free = IKOracle(ur5, "ee_link", ["*_joint"], [{"type": "reach"}], search=Search(restarts=2))
+    guarded = IKOracle(ur5, "ee_link", ["*_joint"], [{"type": "reach"}, table], search=Search(restarts=2))
     below, above = np.array([[0.4, 0.2, -0.3]]), np.array([[0.4, 0.2, 0.3]])
     assert free.evaluate(below).reachable[0]  # through the table top
     assert not guarded.evaluate(below).reachable[0]
@@ -215,9 +215,9 @@ def test_reachable_arm_verdicts_are_collision_free_by_an_independent_coal_check(
     """Capsules read from the URDF text with ElementTree, placed with Pinocchio's frames, measured by coal."""
     import pinocchio as pin
 
-    from oracles.ik.engine import CasadiIK
+    from oracles.ik.oracle import IKOracle
 
-    oracle = CasadiIK({"human": {"sex": "male", "percentile": 50}}, "right_hand", ARM,
+    oracle = IKOracle({"human": {"sex": "male", "percentile": 50}}, "right_hand", ARM,
                       [{"type": "reach"}, {"type": "self_collision"}], search=Search(restarts=2))
     body, task = oracle.body, oracle.strategy.task("self_collision")
     shapes = {}
@@ -251,9 +251,9 @@ def test_reachable_arm_verdicts_are_collision_free_by_an_independent_coal_check(
 
 
 def test_the_arms_keep_out_is_the_static_body_and_unreachable():
-    from oracles.ik.engine import CasadiIK
+    from oracles.ik.oracle import IKOracle
 
-    oracle = CasadiIK({"human": {}}, "right_hand", ARM, [{"type": "reach"}, {"type": "self_collision"}],
+    oracle = IKOracle({"human": {}}, "right_hand", ARM, [{"type": "reach"}, {"type": "self_collision"}],
                       search=Search(restarts=3, give_up=None))
     task = oracle.strategy.task("self_collision")
     names = {oracle.body.collision.placed[i].name for i in task.static}

@@ -63,7 +63,7 @@ def test_balance_costs_upper_front_goals():
     # the upper-body strategy, whose pelvis is fixed, this model's whole body
     # loses none: its hips and ankles reach further than balance takes away;
     # see the README.)
-    from oracles.ik.engine import CasadiIK
+    from oracles.ik.oracle import IKOracle
 
     # The whole-body chain without the idle arm, which the shipped strategy
     # frees so that it can hang: swung back, it is a counterweight that buys
@@ -72,8 +72,8 @@ def test_balance_costs_upper_front_goals():
               if not j.startswith("left_")]
     planted = [{"type": "reach"}, {"type": "feet", "heels": "down"}]
     body = {"human": {"sex": "male", "percentile": 50}}
-    free = CasadiIK(body, "right_hand", joints, planted, search=Search(restarts=2))
-    balanced = CasadiIK(body, "right_hand", joints, [*planted, {"type": "balance", "margin": 0.02}],
+    free = IKOracle(body, "right_hand", joints, planted, search=Search(restarts=2))
+    balanced = IKOracle(body, "right_hand", joints, [*planted, {"type": "balance", "margin": 0.02}],
                         search=Search(restarts=2))
     goals = np.array([[1.1, -0.2, 1.6], [1.2, -0.2, 1.4], [1.0, -0.2, 1.8]])
     assert free.evaluate(goals).reachable.all()

@@ -15,7 +15,7 @@ import pinocchio as pin
 import pytest
 from helpers import ARM, HUMAN
 
-from oracles.ik.engine import CasadiIK
+from oracles.ik.oracle import IKOracle
 from oracles.protocol import Goals
 from oracles.tasks import TASKS, Constraint, HardTask, Numeric, Reference, Row, Scope, Symbolic
 from reach.building.executor import InlineExecutor
@@ -66,7 +66,7 @@ def registered(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setitem(TASKS, ElbowBelowTask.type, ElbowBelowTask)
 
 
-def _elbow_heights(oracle: CasadiIK, postures: np.ndarray) -> np.ndarray:
+def _elbow_heights(oracle: IKOracle, postures: np.ndarray) -> np.ndarray:
     model, data = oracle.body.model, oracle.body.model.createData()
     out = []
     for q in postures:
@@ -77,7 +77,7 @@ def _elbow_heights(oracle: CasadiIK, postures: np.ndarray) -> np.ndarray:
 
 @pytest.mark.parametrize("solver", ["fatrop", "batch"])
 def test_a_goal_kind_declared_by_a_test_task_is_held_by_both_engines(registered: None, solver: str) -> None:
-    oracle = CasadiIK.from_params(body=HUMAN, effector="right_hand", joints=ARM,
+    oracle = IKOracle.from_params(body=HUMAN, effector="right_hand", joints=ARM,
                                   tasks=[{"type": "reach"}, {"type": "elbow_below"}],
                                   solver=solver)
     free = oracle.evaluate(Goals(GOALS))
@@ -97,14 +97,14 @@ def test_a_goal_kind_declared_by_a_test_task_is_held_by_both_engines(registered:
 
 
 def test_a_target_no_task_takes_or_of_the_wrong_shape_is_refused_by_its_key(registered: None) -> None:
-    plain = CasadiIK(HUMAN, "right_hand", ARM)
+    plain = IKOracle(HUMAN, "right_hand", ARM)
     with pytest.raises(OracleError, match="no task of this strategy takes a goal's 'elbow_below'; add a task {type: "
                                           "elbow_below") as err:
         plain.evaluate(Goals(GOALS, {"elbow_below": np.zeros(3)}))
     assert err.value.key == "elbow_below"
     with pytest.raises(OracleError, match="add a task {type: orientation"):
         plain.evaluate(Goals(GOALS, {"orientation": np.tile([0.0, 0.0, -1.0], (3, 1))}))
-    task = CasadiIK(HUMAN, "right_hand", ARM, [{"type": "reach"}, {"type": "elbow_below"}])
+    task = IKOracle(HUMAN, "right_hand", ARM, [{"type": "reach"}, {"type": "elbow_below"}])
     with pytest.raises(OracleError, match=r"expected one height per goal, \(3,\), got \(2,\)"):
         task.evaluate(Goals(GOALS, {"elbow_below": np.zeros(2)}))
 

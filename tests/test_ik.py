@@ -11,9 +11,10 @@ import pinocchio as pin
 import pytest
 from helpers import ARM
 
-from oracles.ik.dls import DLSIK
-from oracles.ik.engine import Call, CasadiIK
+from oracles.ik.oracle import Call, IKOracle
+from oracles.ik.rounds import starts
 from oracles.ik.search import Search
+from oracles.ik.solvers.interior import InteriorPoint
 from oracles.protocol import Goals, OracleSpec
 from reach.building.config import load_config
 from reach.errors import ModelError, OracleError
@@ -28,17 +29,17 @@ PLANTED = [{"type": "reach"}, {"type": "feet", "heels": "down"}, {"type": "balan
 
 @pytest.fixture(scope="module")
 def arm():
-    return CasadiIK(HUMAN, "right_hand", ARM, search=Search(restarts=2))
+    return IKOracle(HUMAN, "right_hand", ARM, search=Search(restarts=2))
 
 
 @pytest.fixture(scope="module")
 def whole():
-    return CasadiIK(HUMAN, "right_hand", WHOLE, PLANTED, search=Search(restarts=1))
+    return IKOracle(HUMAN, "right_hand", WHOLE, PLANTED, search=Search(restarts=1))
 
 
 @pytest.fixture(scope="module")
 def crouch():
-    return CasadiIK(HUMAN, "right_hand", CROUCH, PLANTED, search=Search(restarts=1))
+    return IKOracle(HUMAN, "right_hand", CROUCH, PLANTED, search=Search(restarts=1))
 
 
 def _independent_fk(oracle, q: np.ndarray) -> dict[str, np.ndarray]:
@@ -114,7 +115,7 @@ def test_prefilter_skips_the_solver_for_far_goals(arm):
 
 def test_warm_start_hint_needs_one_solve():
     # fatrop's search: one start at a time, the next only when it fails (the batched engine runs all K together).
-    arm = CasadiIK(HUMAN, "right_hand", ARM, solver="fatrop", search=Search(restarts=2))
+    arm = IKOracle(HUMAN, "right_hand", ARM, solver="fatrop", search=Search(restarts=2))
     goal = np.array([[0.4, -0.3, 1.1]])
     first = arm.evaluate(goal)
     before = arm.stats["solves"]
@@ -124,15 +125,15 @@ def test_warm_start_hint_needs_one_solve():
 
 def test_determinism():
     pts = np.random.default_rng(2).uniform([-0.2, -0.8, 0.8], [0.7, 0.2, 1.9], (8, 3))
-    a = CasadiIK(HUMAN, "right_hand", ARM, search=Search(seed=7)).evaluate(pts)
-    b = CasadiIK(HUMAN, "right_hand", ARM, search=Search(seed=7)).evaluate(pts)
+    a = IKOracle(HUMAN, "right_hand", ARM, search=Search(seed=7)).evaluate(pts)
+    b = IKOracle(HUMAN, "right_hand", ARM, search=Search(seed=7)).evaluate(pts)
     assert np.array_equal(a.reachable, b.reachable) and np.array_equal(a.posture, b.posture)
 
 
 def test_gaze_aims_the_eyes_without_degrading_reach():
     goal = np.array([[0.5, -0.3, 1.0]])
-    plain = CasadiIK(HUMAN, "right_hand", UPPER, [{"type": "reach"}]).evaluate(goal)
-    gazing = CasadiIK(HUMAN, "right_hand", UPPER,
+    plain = IKOracle(HUMAN, "right_hand", UPPER, [{"type": "reach"}]).evaluate(goal)
+    gazing = IKOracle(HUMAN, "right_hand", UPPER,
                       [{"type": "reach"}, {"type": "gaze", "frame": "eyes"}, {"type": "comfort"}])
     v = gazing.evaluate(goal)
     assert plain.reachable[0] and v.reachable[0]
@@ -145,7 +146,7 @@ def test_gaze_aims_the_eyes_without_degrading_reach():
     down = pin.utils.rotate("y", np.radians(15.0)) @ np.array([1.0, 0.0, 0.0])
     # the eyes turn the last 15 deg
     assert np.degrees(np.arccos(np.clip((eye.rotation @ down) @ to_goal, -1, 1))) < 15.0 + 2.0
-    exact = CasadiIK(HUMAN, "right_hand", UPPER,
+    exact = IKOracle(HUMAN, "right_hand", UPPER,
                      [{"type": "reach"}, {"type": "gaze", "frame": "eyes", "cone": 0}, {"type": "comfort"}])
     w = exact.evaluate(goal)
     pin.framesForwardKinematics(model, data, w.posture[0])
@@ -153,7 +154,7 @@ def test_gaze_aims_the_eyes_without_degrading_reach():
     to_goal = (goal[0] - eye.translation) / np.linalg.norm(goal[0] - eye.translation)
     # cone 0: the line of sight aims
     assert np.degrees(np.arccos(np.clip((eye.rotation @ down) @ to_goal, -1, 1))) < 2.0
-    level = CasadiIK(HUMAN, "right_hand", UPPER,
+    level = IKOracle(HUMAN, "right_hand", UPPER,
                      [{"type": "reach"}, {"type": "gaze", "frame": "eyes", "cone": 0, "down": 0}, {"type": "comfort"}])
     pin.framesForwardKinematics(model, data, level.evaluate(goal).posture[0])
     eye = data.oMf[model.getFrameId("eyes")]
@@ -165,8 +166,8 @@ def test_gaze_aims_the_eyes_without_degrading_reach():
 
 def test_dls_agrees_with_casadi_and_holds_under_fk():
     pts = np.random.default_rng(3).uniform([-0.4, -0.9, 0.6], [0.8, 0.4, 2.1], (40, 3))
-    c = CasadiIK(HUMAN, "right_hand", UPPER, [{"type": "reach"}], search=Search(restarts=2))
-    d = DLSIK(HUMAN, "right_hand", UPPER, [{"type": "reach"}], search=Search(restarts=2))
+    c = IKOracle(HUMAN, "right_hand", UPPER, [{"type": "reach"}], search=Search(restarts=2))
+    d = IKOracle(HUMAN, "right_hand", UPPER, [{"type": "reach"}], search=Search(restarts=2), solver="dls")
     vc, vd = c.evaluate(pts), d.evaluate(pts)
     _assert_reachable_verdicts_hold(d, pts, vd)
     assert np.mean(vc.reachable == vd.reachable) >= 0.95
@@ -174,7 +175,7 @@ def test_dls_agrees_with_casadi_and_holds_under_fk():
 
 def test_ik_on_a_urdf_robot():
     body = {"urdf": str(ROOT / "configs" / "urdf" / "ur5.urdf")}
-    oracle = CasadiIK(body, "ee_link", ["*_joint"], search=Search(restarts=2))
+    oracle = IKOracle(body, "ee_link", ["*_joint"], search=Search(restarts=2))
     pts = np.array([[0.4, 0.2, 0.3], [0.0, 0.5, 0.6], [2.0, 0.0, 0.0]])
     v = oracle.evaluate(pts)
     assert v.reachable.tolist() == [True, True, False]
@@ -202,7 +203,7 @@ def test_shipped_human_strategies_load():
 )
 def test_strategy_errors_name_the_task(joints, tasks, message):
     with pytest.raises(ModelError, match=message):
-        CasadiIK(HUMAN, "right_hand", joints, tasks)
+        IKOracle(HUMAN, "right_hand", joints, tasks)
 
 
 def test_unknown_effector_lists_frames():
@@ -226,10 +227,10 @@ def test_contacts_are_kept_only_where_an_active_joint_can_move_them():
 def test_give_up_skips_restarts_after_a_decisive_warm_solve():
     # Behind and across the body at shoulder height the arm's joint limits
     # end the volume about 0.3 m left of the shoulder; this goal is beyond.
-    thorough = CasadiIK(HUMAN, "right_hand", ARM, solver="fatrop", search=Search(restarts=2, give_up=None))
+    thorough = IKOracle(HUMAN, "right_hand", ARM, solver="fatrop", search=Search(restarts=2, give_up=None))
     # gives up after any failed decisive warm start (give_up 0; the default, 0.1, keeps the starts of a hint that ends
     # within 10 cm)
-    hasty = CasadiIK(HUMAN, "right_hand", ARM, solver="fatrop", search=Search(restarts=2, give_up=0.0))
+    hasty = IKOracle(HUMAN, "right_hand", ARM, solver="fatrop", search=Search(restarts=2, give_up=0.0))
     goal = (thorough.problem.anchor + [-0.1, 0.38, 0.0])[None]
     assert thorough.problem.prefilter(goal[0]) == 0.0  # the solver, not the pre-filter, decides
     best = thorough.evaluate(goal)
@@ -245,7 +246,7 @@ def test_give_up_skips_restarts_after_a_decisive_warm_solve():
 def test_give_up_never_cuts_cold_starts_short():
     # From the reference posture this goal's first solve ends about 0.3 m
     # away; a random restart reaches it.
-    hasty = CasadiIK(HUMAN, "right_hand", ARM, search=Search(restarts=2))
+    hasty = IKOracle(HUMAN, "right_hand", ARM, search=Search(restarts=2))
     goal = (hasty.problem.anchor + [-0.2, 0.3, 0.3])[None]
     v = hasty.evaluate(goal)
     assert v.reachable[0] and hasty.stats["solves"] >= 2
@@ -254,23 +255,23 @@ def test_give_up_never_cuts_cold_starts_short():
 
 def test_fatrop_and_ipopt_agree_on_whole_body_verdicts():
     goals = np.random.default_rng(5).uniform([-0.8, -1.2, 0.0], [1.2, 0.6, 2.4], (16, 3))
-    fatrop = CasadiIK(HUMAN, "right_hand", WHOLE, PLANTED, solver="fatrop", search=Search(restarts=1)).evaluate(goals)
-    ipopt = CasadiIK(HUMAN, "right_hand", WHOLE, PLANTED, solver="ipopt", search=Search(restarts=1)).evaluate(goals)
+    fatrop = IKOracle(HUMAN, "right_hand", WHOLE, PLANTED, solver="fatrop", search=Search(restarts=1)).evaluate(goals)
+    ipopt = IKOracle(HUMAN, "right_hand", WHOLE, PLANTED, solver="ipopt", search=Search(restarts=1)).evaluate(goals)
     assert 4 <= fatrop.reachable.sum() <= 12  # a mix of both verdicts
     assert np.sum(fatrop.reachable != ipopt.reachable) <= 1
 
 
 def test_unknown_solver_is_refused():
     with pytest.raises(OracleError, match="solver must be one of"):
-        CasadiIK(HUMAN, "right_hand", ARM, solver="snopt")
+        IKOracle(HUMAN, "right_hand", ARM, solver="snopt")
 
 
 @pytest.mark.skipif(shutil.which("gcc") is None and not os.environ.get("CI"), reason="no gcc here (CI installs it)")
 def test_jit_compiles_the_same_problem():
     goals = np.random.default_rng(6).uniform([-0.4, -1.0, 0.6], [0.9, 0.4, 2.1], (12, 3))
-    compiled = CasadiIK(HUMAN, "right_hand", UPPER, [{"type": "reach"}], jit=True)
-    interpreted = CasadiIK(HUMAN, "right_hand", UPPER, [{"type": "reach"}], jit=False)
-    assert compiled.jit and not interpreted.jit
+    compiled = IKOracle(HUMAN, "right_hand", UPPER, [{"type": "reach"}], jit=True)
+    interpreted = IKOracle(HUMAN, "right_hand", UPPER, [{"type": "reach"}], jit=False)
+    assert compiled.solver.jit and not interpreted.solver.jit
     a, b = compiled.evaluate(goals), interpreted.evaluate(goals)
     assert 3 <= a.reachable.sum() <= 10 and np.array_equal(a.reachable, b.reachable)
     _assert_reachable_verdicts_hold(compiled, goals, a)
@@ -280,12 +281,12 @@ def test_jit_compiles_the_same_problem():
 def test_compiled_programs_are_cached_on_disk_and_shared(tmp_path, monkeypatch):
     monkeypatch.setenv("REACH_JIT_CACHE", str(tmp_path / "jit"))
     goals = np.array([[0.4, -0.3, 1.1], [0.2, -0.45, 1.0], [1.5, 0.0, 1.0]])
-    first = CasadiIK(HUMAN, "right_hand", ARM, [{"type": "reach"}, {"type": "posture"}], jit=True, solver="fatrop")
+    first = IKOracle(HUMAN, "right_hand", ARM, [{"type": "reach"}, {"type": "posture"}], jit=True, solver="fatrop")
     a = first.evaluate(goals)
     libraries = sorted((tmp_path / "jit").glob("*.so"))
     assert len(libraries) == 2  # one per stage: reach, posture
     stamps = [lib.stat().st_mtime_ns for lib in libraries]
-    second = CasadiIK(HUMAN, "right_hand", ARM, [{"type": "reach"}, {"type": "posture"}], jit=True, solver="fatrop")
+    second = IKOracle(HUMAN, "right_hand", ARM, [{"type": "reach"}, {"type": "posture"}], jit=True, solver="fatrop")
     b = second.evaluate(goals)
     assert (sorted((tmp_path / "jit").glob("*.so")) == libraries
             and [lib.stat().st_mtime_ns for lib in libraries] == stamps)
@@ -318,32 +319,32 @@ def test_a_cached_program_is_loaded_without_writing_its_c_again(tmp_path, monkey
 def test_a_failing_compiler_falls_back_to_the_interpreter(tmp_path, monkeypatch):
     monkeypatch.setenv("REACH_JIT_CACHE", str(tmp_path / "jit"))
     monkeypatch.setattr("oracles.ik.jit.COMPILER", "false")  # runs, and fails
-    oracle = CasadiIK(HUMAN, "right_hand", ARM, jit="auto")
+    oracle = IKOracle(HUMAN, "right_hand", ARM, jit="auto")
     with pytest.warns(UserWarning, match="jit compilation failed"):
         assert oracle.evaluate(np.array([[0.4, -0.3, 1.1]])).reachable[0]
-    assert not oracle.jit
+    assert not oracle.solver.jit
     with pytest.raises(OracleError, match="jit compilation with"):
-        CasadiIK(HUMAN, "right_hand", ARM, jit=True).prepare()
+        IKOracle(HUMAN, "right_hand", ARM, jit=True).prepare()
 
 
 def test_jit_without_a_compiler(monkeypatch):
-    monkeypatch.setattr("oracles.ik.programs.COMPILER", "no-such-compiler")
-    assert not CasadiIK(HUMAN, "right_hand", ARM, jit="auto").jit  # falls back to the interpreter
+    monkeypatch.setattr("oracles.ik.solvers.interior.COMPILER", "no-such-compiler")
+    assert not IKOracle(HUMAN, "right_hand", ARM, jit="auto").solver.jit  # falls back to the interpreter
     with pytest.raises(OracleError, match="jit"):
-        CasadiIK(HUMAN, "right_hand", ARM, jit=True)
+        IKOracle(HUMAN, "right_hand", ARM, jit=True)
     with pytest.raises(OracleError, match="jit must be"):
-        CasadiIK(HUMAN, "right_hand", ARM, jit="yes")
+        IKOracle(HUMAN, "right_hand", ARM, jit="yes")
 
 
 def test_rescues_are_random_restarts_after_giving_up():
-    thorough = CasadiIK(HUMAN, "right_hand", ARM, solver="fatrop", search=Search(restarts=2, give_up=None))
+    thorough = IKOracle(HUMAN, "right_hand", ARM, solver="fatrop", search=Search(restarts=2, give_up=None))
     goal = (thorough.problem.anchor + [-0.1, 0.38, 0.0])[None]
     hint = thorough.evaluate(goal).posture  # as in test_give_up_...: a decisive, failing warm start
-    rescuing = CasadiIK(HUMAN, "right_hand", ARM, solver="fatrop", search=Search(restarts=2, rescues=1, give_up=0.0))
+    rescuing = IKOracle(HUMAN, "right_hand", ARM, solver="fatrop", search=Search(restarts=2, rescues=1, give_up=0.0))
     assert not rescuing.evaluate(Goals(goal, seeds=hint)).reachable[0]
     assert rescuing.stats["solves"] == 2  # the hint, then one random restart (no reference start)
     # every failure counts as a near miss
-    near_miss = CasadiIK(HUMAN, "right_hand", ARM, solver="fatrop", search=Search(restarts=2, give_up=1.0))
+    near_miss = IKOracle(HUMAN, "right_hand", ARM, solver="fatrop", search=Search(restarts=2, give_up=1.0))
     near_miss.evaluate(Goals(goal, seeds=hint))
     assert near_miss.stats["solves"] == 4  # the hint, the reference and both restarts
 
@@ -351,8 +352,8 @@ def test_rescues_are_random_restarts_after_giving_up():
 @pytest.mark.skipif(shutil.which("gcc") is None and not os.environ.get("CI"), reason="no gcc here (CI installs it)")
 def test_jit_leaves_no_files_behind(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    oracle = CasadiIK(HUMAN, "right_hand", ARM, jit=True)
-    assert oracle.jit and oracle.evaluate(np.array([[0.4, -0.3, 1.1]])).reachable[0]
+    oracle = IKOracle(HUMAN, "right_hand", ARM, jit=True)
+    assert oracle.solver.jit and oracle.evaluate(np.array([[0.4, -0.3, 1.1]])).reachable[0]
     assert os.getcwd() == str(tmp_path) and list(tmp_path.iterdir()) == []
 
 
@@ -367,23 +368,24 @@ def test_bad_search_parameters_are_refused_naming_the_key(params):
 
 
 def test_refinement_starts_from_the_reference_unless_a_current_posture_is_given():
-    oracle = CasadiIK(HUMAN, "right_hand", ARM)
+    oracle = IKOracle(HUMAN, "right_hand", ARM)
     refine = oracle.variant("refine", budget=0.5)
     goal = np.array([0.4, -0.3, 1.1])
     hint = oracle.evaluate(goal[None]).posture[0]
     x_hint = oracle.problem.x_of_q(hint)
-    assert np.allclose(oracle.starts(goal, hint)[0], x_hint)  # builds: the neighbour's posture first
-    starts = refine.starts(goal, hint)
+    # builds: the neighbour's posture first
+    assert np.allclose(starts(oracle.problem, oracle.search, goal, hint)[0], x_hint)
+    first = starts(refine.problem, refine.search, goal, hint)
     # queries: reference, ready
-    assert np.allclose(starts[0], refine.problem.x_ref) and np.allclose(starts[1], refine.problem.x_ready)
+    assert np.allclose(first[0], refine.problem.x_ref) and np.allclose(first[1], refine.problem.x_ready)
     elbow = refine.problem.x_names.index("right_elbow_flexion")
     assert refine.problem.x_ref[elbow] == 0.0 < refine.problem.x_ready[elbow]  # off the straight elbow
     # With a current posture (Goals.current), the hint (that posture) comes first, for continuity.
-    assert np.allclose(refine.starts(goal, hint, Call(start=x_hint))[0], x_hint)
+    assert np.allclose(starts(refine.problem, refine.search, goal, hint, Call(start=x_hint))[0], x_hint)
 
 
 def test_seeded_refinement_tries_every_seed_and_refuses_a_wrong_shape():
-    refine = CasadiIK(HUMAN, "right_hand", ARM, solver="fatrop").variant("refine", budget=None)
+    refine = IKOracle(HUMAN, "right_hand", ARM, solver="fatrop").variant("refine", budget=None)
     goal = np.array([[0.4, -0.3, 1.1]])
     nq = len(refine.posture_names)
     ref = refine.body.q_ref
@@ -425,16 +427,16 @@ def test_with_a_current_posture_the_reach_stage_moves_it_the_least(monkeypatch):
 
 def test_a_settled_warm_start_solves_reach_alone_and_keeps_the_hints_choices(monkeypatch):
     tasks = [{"type": "reach"}, {"type": "posture"}]
-    full = CasadiIK(HUMAN, "right_hand", ARM, tasks, solver="fatrop", search=Search(restarts=0))
-    settled = CasadiIK(HUMAN, "right_hand", ARM, tasks, solver="fatrop", search=Search(restarts=0, settle=0.03))
+    full = IKOracle(HUMAN, "right_hand", ARM, tasks, solver="fatrop", search=Search(restarts=0))
+    settled = IKOracle(HUMAN, "right_hand", ARM, tasks, solver="fatrop", search=Search(restarts=0, settle=0.03))
     stages: list[int] = []
-    real = CasadiIK._stage
+    real = InteriorPoint._stage
 
     def counted(self, k, *args):  # noqa: ANN001, ANN202
         stages.append(k)
         return real(self, k, *args)
 
-    monkeypatch.setattr(CasadiIK, "_stage", counted)
+    monkeypatch.setattr(InteriorPoint, "_stage", counted)
     goal = full.problem.anchor + [0.35, -0.1, -0.25]
     natural = full.evaluate(goal[None]).posture  # reach, then posture
     assert full.evaluate(goal[None]).reachable[0] and 1 in stages
@@ -463,17 +465,17 @@ def test_a_settled_warm_start_solves_reach_alone_and_keeps_the_hints_choices(mon
 
 def test_a_settled_reach_stage_runs_its_own_program_with_a_smaller_barrier():
     tasks = [{"type": "reach"}, {"type": "posture"}]
-    settled = CasadiIK(HUMAN, "right_hand", ARM, tasks, solver="fatrop", search=Search(restarts=0, settle=0.03))
+    settled = IKOracle(HUMAN, "right_hand", ARM, tasks, solver="fatrop", search=Search(restarts=0, settle=0.03))
     settled.prepare()
-    assert set(settled.programs.settling) == {0}  # the plain program's twin; the cut one is built with the cuts
-    for other in (CasadiIK(HUMAN, "right_hand", ARM, tasks, solver="fatrop", search=Search(restarts=0)),
-                  CasadiIK(HUMAN, "right_hand", ARM, tasks, solver="ipopt", search=Search(restarts=0, settle=0.03))):
+    assert set(settled.solver.programs.settling) == {0}  # the plain program's twin; the cut one is built with the cuts
+    for other in (IKOracle(HUMAN, "right_hand", ARM, tasks, solver="fatrop", search=Search(restarts=0)),
+                  IKOracle(HUMAN, "right_hand", ARM, tasks, solver="ipopt", search=Search(restarts=0, settle=0.03))):
         other.prepare()
-        assert other.programs.settling == {}  # nothing settles, or the option is fatrop's
+        assert other.solver.programs.settling == {}  # nothing settles, or the option is fatrop's
     goal = settled.problem.anchor + [0.35, -0.1, -0.25]
     natural = settled.evaluate(goal[None]).posture  # every stage: no hint
-    real, used = settled.programs.settling[0], []
-    settled.programs.settling[0] = lambda **kw: (used.append(1), real(**kw))[1]
+    real, used = settled.solver.programs.settling[0], []
+    settled.solver.programs.settling[0] = lambda **kw: (used.append(1), real(**kw))[1]
     near = (goal + [0.0, 0.02, 0.0])[None]
     v = settled.evaluate(Goals(near, seeds=natural))
     assert used == [1] and v.reachable[0]
@@ -482,7 +484,7 @@ def test_a_settled_reach_stage_runs_its_own_program_with_a_smaller_barrier():
 
 
 def test_verify_checks_a_posture_found_elsewhere_against_this_strategys_tasks():
-    arm = CasadiIK(HUMAN, "right_hand", ARM, [{"type": "reach"}, {"type": "self_collision"}])
+    arm = IKOracle(HUMAN, "right_hand", ARM, [{"type": "reach"}, {"type": "self_collision"}])
     q = arm.reference_posture()
     here = arm.effector_positions(q[None])
     assert arm.verify(here, q[None]).all()  # the reference reaches its own hand position
@@ -496,7 +498,7 @@ def test_verify_checks_a_posture_found_elsewhere_against_this_strategys_tasks():
 def test_the_lazy_hard_tasks_are_checked_only_when_asked_and_at_their_own_posture(monkeypatch):
     from oracles.tasks.self_collision import SelfCollisionTask
 
-    oracle = CasadiIK(HUMAN, "right_hand", ARM, [{"type": "reach"}, {"type": "self_collision"}])
+    oracle = IKOracle(HUMAN, "right_hand", ARM, [{"type": "reach"}, {"type": "self_collision"}])
     p, data = oracle.problem, oracle.body.model.createData()
     rng = np.random.default_rng(0)
     postures = [p.q_of_x(p.random_x(rng)) for _ in range(200)]
@@ -513,13 +515,13 @@ def test_the_lazy_hard_tasks_are_checked_only_when_asked_and_at_their_own_postur
 
 def test_a_settling_builds_variants_never_settle(monkeypatch):
     # A build settles; an answer from the character's current posture solves every stage, and the referee as always.
-    builder = CasadiIK(HUMAN, "right_hand", ARM, [{"type": "reach"}, {"type": "posture"}], solver="fatrop",
+    builder = IKOracle(HUMAN, "right_hand", ARM, [{"type": "reach"}, {"type": "posture"}], solver="fatrop",
                        search=Search(restarts=0, settle=0.07))
     refine, referee = builder.variant("refine", budget=None), builder.variant("referee")
     assert builder.search.settle == 0.07 and refine.search.settle == 0.0 and referee.search.settle == 0.0
     stages: list[int] = []
-    real = CasadiIK._stage
-    monkeypatch.setattr(CasadiIK, "_stage", lambda self, k, *a: (stages.append(k), real(self, k, *a))[1])
+    real = InteriorPoint._stage
+    monkeypatch.setattr(InteriorPoint, "_stage", lambda self, k, *a: (stages.append(k), real(self, k, *a))[1])
     goal = builder.problem.anchor + [0.35, -0.1, -0.25]
     current = builder.evaluate(goal[None]).posture[0]
     stages.clear()

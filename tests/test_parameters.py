@@ -61,9 +61,9 @@ def test_a_shared_program_given_a_body_numbers_computes_what_its_own_program_doe
 
 def test_a_capsule_that_is_a_sphere_at_one_body_and_a_segment_at_another_shares_the_program(sphere):
     small, lent, own = sphere
-    lengths = [float(lent.numbers.number(k)[0, 0]) for k in lent.numbers.names if k.startswith("task3.length2")]
-    lengths_small = [float(small.numbers.number(k)[0, 0]) for k in small.numbers.names
-                     if k.startswith("task3.length2")]
+    mine, theirs = lent.solver.polish.numbers, small.solver.polish.numbers
+    lengths = [float(mine.number(k)[0, 0]) for k in mine.names if k.startswith("task3.length2")]
+    lengths_small = [float(theirs.number(k)[0, 0]) for k in theirs.names if k.startswith("task3.length2")]
     assert any(a == 0 and b > 0 for a, b in zip(lengths, lengths_small, strict=True))  # the case is there
     same_rows(small, lent, own)
 
@@ -71,22 +71,23 @@ def test_a_capsule_that_is_a_sphere_at_one_body_and_a_segment_at_another_shares_
 def same_rows(small, large, own):
     """The programs of ``large`` (lent by ``small``) against ``own`` (``large``'s body, constants) at random
     postures."""
-    shared, mine = large.batch_program(), own.batch_program()
-    assert shared._reach is small.batch_program()._reach  # one program: the small body's, built once
+    shared, mine = large.solver.batch_program(), own.solver.batch_program()
+    assert shared._reach is small.solver.batch_program()._reach  # one program: the small body's, built once
     assert shared._reach is not mine._reach
     rng = np.random.default_rng(3)
     x = np.array([large.problem.random_x(rng) for _ in range(12)])
     x[:, :6] += rng.normal(0.0, 0.05, (12, 6))  # the root moved too
     base = np.concatenate([np.tile(GOALS[0], (12, 1)), x, np.zeros((12, 1)),
-                           np.tile(large.default_target, (12, 1))], axis=1)
-    a = shared.evaluate(x, large.with_body(base), lower=True)
-    b = mine.evaluate(x, own.with_body(base), lower=True)
+                           np.tile(large.solver.default_target, (12, 1))], axis=1)
+    a = shared.evaluate(x, large.solver.with_body(base), lower=True)
+    b = mine.evaluate(x, own.solver.with_body(base), lower=True)
     for name in ("g", "jg", "f", "grad", "hess", "lazy_violation"):
         np.testing.assert_allclose(getattr(a, name), getattr(b, name), rtol=1e-9, atol=1e-9, err_msg=name)
     np.testing.assert_array_equal(shared.rows.lower, mine.rows.lower)
     np.testing.assert_array_equal(shared.lazy_rows.lower, mine.lazy_rows.lower)
     np.testing.assert_array_equal(shared.lower_bound, own.problem.lower)  # the large body's bounds, not the small's
-    for f_shared, f_own in zip(large.programs.objectives, own.programs.objectives, strict=True):
+    objectives = large.solver.polish.programs.objectives, own.solver.polish.programs.objectives
+    for f_shared, f_own in zip(*objectives, strict=True):
         for xi in x[:3]:
             assert float(f_shared(xi, large._params(GOALS[0], xi, NO_CALL))) == pytest.approx(
                 float(f_own(xi, own._params(GOALS[0], xi, NO_CALL))), abs=1e-9)
@@ -139,5 +140,5 @@ def test_seated_drivers_share_their_belted_program():
                                         **({"body_parameters": True} if lift else {})}).create()
 
     small, large, own = driver("female", 5, True), driver("male", 95, True), driver("male", 95, False)
-    assert large.numbers.lift and large.share_programs(small)
+    assert large.solver.polish.numbers.lift and large.share_programs(small)
     same_rows(small, large, own)

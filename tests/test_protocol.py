@@ -83,9 +83,10 @@ def test_builtin_body_oracles_declare_every_capability():
     assert referee.spec.params["restarts"] == 9 and referee.spec.params["solver"] == "ipopt"
     with pytest.raises(OracleError, match="unknown oracle purpose 'fast'"):
         oracle.variant("fast")  # type: ignore[arg-type]
-    assert not oracle.programs.stages and not refine.programs.stages  # none of this built a solver
+    built, polish = oracle.solver.polish, refine.solver.polish
+    assert not built.programs.stages and not polish.programs.stages  # none of this built a solver
     # A variant shares the body, the problem and the program cache; only the search and engine options differ.
-    assert refine.body is oracle.body and refine.problem is oracle.problem and refine._cache is oracle._cache
+    assert refine.body is oracle.body and refine.problem is oracle.problem and polish._cache is built._cache
     assert oracle.search.max_seconds is None and oracle.spec.params["jit"] is False  # the original is untouched
 
 

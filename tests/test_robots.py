@@ -424,10 +424,10 @@ def test_blocked_starts_default_by_body_and_refuse_bad_values():
     tasks = [{"type": "reach"}, {"type": "self_collision"}]
     robot = {"urdf": str(URDF / "ur5.urdf")}
     assert OracleSpec("casadi-ik", body_params(robot, "ee_link", ["*_joint"], tasks)).create() \
-        .blocked_starts == BLOCKED_STARTS  # type: ignore[attr-defined]
+        .solver.blocked_starts == BLOCKED_STARTS  # type: ignore[attr-defined]
     human = OracleSpec("casadi-ik", body_params({"human": {"sex": "male"}}, "right_hand",
                                                ["right_shoulder*", "right_elbow*"], tasks)).create()
-    assert human.blocked_starts == 0  # type: ignore[attr-defined]
+    assert human.solver.blocked_starts == 0  # type: ignore[attr-defined]
     params = body_params(robot, "ee_link", ["*_joint"], tasks)
     for bad in (-1, 300, True, "many"):
         with pytest.raises(OracleError, match="blocked_starts"):

@@ -17,7 +17,7 @@ from helpers import ARM, browser_only, free_port
 from oracles.bodies.body import load_body
 from oracles.bodies.environment import parse_box
 from oracles.errors import ModelError, TaskError
-from oracles.ik.engine import CasadiIK
+from oracles.ik.oracle import IKOracle
 from oracles.ik.search import Search
 from oracles.tasks.reach import TOLERANCE
 from reach.answers.select import Selector
@@ -124,7 +124,7 @@ def test_the_seat_is_part_of_the_bodys_identity():
 
 @pytest.fixture(scope="module")
 def lean():
-    return CasadiIK(seated(), "right_hand", TRUNK, LEAN, search=Search(restarts=3, seed=0))
+    return IKOracle(seated(), "right_hand", TRUNK, LEAN, search=Search(restarts=3, seed=0))
 
 
 GOALS = np.array([[0.75, -0.2, 0.95], [0.6, -0.45, 0.45], [0.45, -0.35, 0.15], [0.9, -0.1, 0.7], [0.3, 0.25, 0.9],
@@ -157,7 +157,7 @@ def test_lean_postures_never_pass_through_the_seat_and_keep_the_buttocks_on_it(l
 def test_the_pelvis_turns_on_the_seat_and_the_lean_reaches_past_the_arm(lean):
     """A goal 0.2 m beyond the arm's reach straight ahead at shoulder height: the arm alone misses it, the lean reaches
     it with the pelvis pitched forward about the ischia (its orientation changes) and the trunk off the backrest."""
-    arm = CasadiIK(seated(), "right_hand", ARM, [{"type": "reach"}, {"type": "obstacles"}],
+    arm = IKOracle(seated(), "right_hand", ARM, [{"type": "reach"}, {"type": "obstacles"}],
                    search=Search(restarts=3, seed=0))
     shoulder = lean.body.frame_positions()["right_shoulder"]
     far = shoulder + np.array([0.62 + 0.2, 0.0, 0.0])
@@ -174,8 +174,8 @@ def test_a_locked_belt_holds_the_chest_and_reaches_no_farther():
     straight
     ahead at shoulder height, the belted reach is no longer than the unbelted lean's."""
     body = seated("car")
-    belted = CasadiIK(body, "right_hand", TRUNK, BELTED, search=Search(restarts=2, seed=0))
-    free = CasadiIK(body, "right_hand", TRUNK, LEAN, search=Search(restarts=2, seed=0))
+    belted = IKOracle(body, "right_hand", TRUNK, BELTED, search=Search(restarts=2, seed=0))
+    free = IKOracle(body, "right_hand", TRUNK, LEAN, search=Search(restarts=2, seed=0))
     ref = belted.body.frame_positions()
     shoulder = ref["right_shoulder"]
     line = shoulder + np.outer(np.arange(0.4, 1.2, 0.05), [1.0, 0.0, 0.0])
@@ -194,9 +194,9 @@ def test_the_seated_arm_volume_is_the_standing_arm_volume_moved_with_the_shoulde
     """The same arm on another trunk posture: goals around the shoulder, moved by the clavicle's rigid motion from
     standing to seated, get the same verdicts (reach and the arm's coupling only, no seat or legs in the way)."""
     tasks = [{"type": "reach"}, {"type": "coupling"}]
-    stand = CasadiIK({"human": {"sex": "male", "percentile": 50}}, "right_hand", ARM, tasks,
+    stand = IKOracle({"human": {"sex": "male", "percentile": 50}}, "right_hand", ARM, tasks,
                      search=Search(restarts=3, seed=0))
-    sit = CasadiIK(seated("car"), "right_hand", ARM, tasks, search=Search(restarts=3, seed=0))
+    sit = IKOracle(seated("car"), "right_hand", ARM, tasks, search=Search(restarts=3, seed=0))
 
     def clavicle(oracle):
         data = oracle.body.model.createData()
@@ -372,7 +372,7 @@ def test_the_seated_arm_tree_is_the_standing_arm_tree_moved_with_the_shoulder(tm
     tasks = [{"type": "reach"}, {"type": "coupling"}]
     trees, moves = {}, {}
     for name, body in (("stand", {"human": {"sex": "male", "percentile": 50}}), ("sit", seated("car"))):
-        oracle = CasadiIK(body, "right_hand", ARM, tasks)
+        oracle = IKOracle(body, "right_hand", ARM, tasks)
         shoulder = oracle.body.frame_positions()["right_shoulder"]
         config = {"body": body, "box": {"min": (shoulder - 0.8).tolist(), "max": (shoulder + 0.8).tolist()},
                   "depth": {"min": 2, "max": 4}, "oracle": {"name": "casadi-ik", "params": {"restarts": 2, "seed": 0}},

@@ -14,7 +14,7 @@ import pinocchio as pin
 import pytest
 from scipy.spatial import ConvexHull
 
-from oracles.ik.engine import CasadiIK
+from oracles.ik.oracle import IKOracle
 from oracles.ik.search import Search
 from oracles.protocol import Goals
 from reach.errors import TaskError
@@ -29,17 +29,17 @@ HAND_HEIGHT = 1.0  # [m] the goals' height, about the 50th-percentile man's elbo
 
 @pytest.fixture(scope="module")
 def stepping():
-    return CasadiIK(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, STANCE, STEP, {"type": "self_collision"},
+    return IKOracle(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, STANCE, STEP, {"type": "self_collision"},
                                                   {"type": "floor"}, {"type": "coupling"}], search=Search(restarts=2))
 
 
 @pytest.fixture(scope="module")
 def planted():
-    return CasadiIK(HUMAN, "right_hand", CROUCH, [*PLANTED, {"type": "self_collision"}, {"type": "floor"},
+    return IKOracle(HUMAN, "right_hand", CROUCH, [*PLANTED, {"type": "self_collision"}, {"type": "floor"},
                                                   {"type": "coupling"}], search=Search(restarts=2))
 
 
-def _check_step(oracle: CasadiIK, goal: np.ndarray, q: np.ndarray) -> None:
+def _check_step(oracle: IKOracle, goal: np.ndarray, q: np.ndarray) -> None:
     model = oracle.body.model
     data = model.createData()
     pin.framesForwardKinematics(model, data, q)
@@ -86,24 +86,24 @@ def test_a_step_reaches_farther_ahead_than_the_planted_body_and_every_answer_hol
 
 
 def test_the_step_region_defaults_to_the_stature_and_bad_steps_name_their_key():
-    oracle = CasadiIK(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, STANCE, STEP])
+    oracle = IKOracle(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, STANCE, STEP])
     stature = oracle.body.anthropometry.stature
     task = oracle.strategy.task("step")
     assert task.forward == (0.0, pytest.approx(0.41 * stature, abs=1e-3))
     assert task.turn == pytest.approx(math.radians(30))
     with pytest.raises(TaskError, match="remove the strategy's balance task"):
-        CasadiIK(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, STANCE, STEP, {"type": "balance"}])
+        IKOracle(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, STANCE, STEP, {"type": "balance"}])
     with pytest.raises(TaskError, match="holds the stepping foot 'right_foot'"):
-        CasadiIK(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, {"type": "feet"}, STEP])
+        IKOracle(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, {"type": "feet"}, STEP])
     with pytest.raises(TaskError, match=r"tasks\[1\]\.forward: expected \[low, high\]"):
-        CasadiIK(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, {**STEP, "forward": [0.5, 0.1]}, STANCE])
+        IKOracle(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, {**STEP, "forward": [0.5, 0.1]}, STANCE])
     with pytest.raises(TaskError, match=r"step\.margin: the feet are 0\.\d+ m wide: a margin of 0\.049 m leaves no "
                                         r"polygon"):
-        CasadiIK(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, {**STEP, "margin": 0.049}, STANCE])
+        IKOracle(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, {**STEP, "margin": 0.049}, STANCE])
     with pytest.raises(TaskError, match=r"\.stance: expected the other foot"):
-        CasadiIK(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, {**STEP, "stance": "right_foot"}, STANCE])
+        IKOracle(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, {**STEP, "stance": "right_foot"}, STANCE])
     with pytest.raises(TaskError, match=r"tasks\[1\]\.foot: one stepping foot a strategy: for either foot give two"):
-        CasadiIK(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, {**STEP, "foot": "either"}, STANCE])
+        IKOracle(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, {**STEP, "foot": "either"}, STANCE])
 
 
 STEP_TASKS = [{"type": "reach"}, STANCE, STEP, {"type": "self_collision"}, {"type": "floor"}, {"type": "coupling"},
@@ -125,7 +125,7 @@ def atlas(tmp_path_factory):
     return build_atlas(parse_config(raw, str(tmp / "step.yaml")), tmp / "a")
 
 
-def _posture(oracle: CasadiIK, posture: dict, root: dict) -> np.ndarray:
+def _posture(oracle: IKOracle, posture: dict, root: dict) -> np.ndarray:
     names = list(oracle.body.q_names)
     q = oracle.body.q_ref.copy()
     for k, v in posture.items():
@@ -142,7 +142,7 @@ def test_an_answer_says_where_the_step_sets_the_foot_down(atlas, capsys):
     selector = Selector(atlas)
     answer = selector.select("right_hand", np.array([1.3, -0.15, 1.0]))
     assert answer.reachable and answer.strategy == "step" and answer.step is not None
-    oracle = CasadiIK(HUMAN, "right_hand", CROUCH, STEP_TASKS)
+    oracle = IKOracle(HUMAN, "right_hand", CROUCH, STEP_TASKS)
     q = _posture(oracle, answer.posture, answer.root)
     model = oracle.body.model
     data = model.createData()
@@ -180,7 +180,7 @@ def test_a_step_motion_lifts_the_foot_sets_it_down_and_the_stance_foot_stays(atl
     assert motion.strategy == "step" and motion.outcome == "reached" and "step" in motion.parts
     answer = planner.selector.select("right_hand", goal, False)  # the stored answer the end posture settles from
     assert motion.end == "settled"
-    model = CasadiIK(HUMAN, "right_hand", CROUCH, STEP_TASKS).body.model
+    model = IKOracle(HUMAN, "right_hand", CROUCH, STEP_TASKS).body.model
     data = model.createData()
     right, left = model.getFrameId("right_foot"), model.getFrameId("left_foot")
     feet, stance, com, soles = [], [], [], []
@@ -208,7 +208,7 @@ def test_a_step_motion_lifts_the_foot_sets_it_down_and_the_stance_foot_stays(atl
     landed = next(k for k in range(apex, len(feet)) if feet[k, 2] <= 1e-4)
     assert np.linalg.norm(feet[landed:] - feet[-1], axis=1).max() < 0.001  # set down, the foot stays (no sliding)
     # no frame puts a segment through another or through the floor, or moves the stance foot (the tasks' own checks)
-    guard = CasadiIK(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, STANCE, {"type": "self_collision"},
+    guard = IKOracle(HUMAN, "right_hand", CROUCH, [{"type": "reach"}, STANCE, {"type": "self_collision"},
                                                    {"type": "floor"}])
     assert [f for f in guard.faults(motion.postures) if f] == []
     parsed = bvhio.readAsBvh(str(write_bvh(rig(motion, planner.body("step")), tmp_path / "step.bvh")))

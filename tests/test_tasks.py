@@ -350,13 +350,13 @@ def test_limits_near_counts_range_ends_and_coupled_limits_but_not_the_ends_the_b
 
 @pytest.mark.slow
 def test_a_crouch_reaches_lower_than_the_straight_legged_whole_body():
-    from oracles.ik.engine import CasadiIK
+    from oracles.ik.oracle import IKOracle
 
     straight = [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*", "root", "*_hip_*", "*_ankle_*"]
     tasks = [{"type": "reach"}, {"type": "feet"}, {"type": "balance"}, {"type": "floor"}, {"type": "coupling"}]
     body = {"human": {"sex": "male", "percentile": 50}}
-    whole = CasadiIK(body, "right_hand", straight, tasks, search=Search(restarts=4, give_up=None))
-    crouch = CasadiIK(body, "right_hand", [*straight, "*_knee_*"], tasks, search=Search(restarts=4, give_up=None))
+    whole = IKOracle(body, "right_hand", straight, tasks, search=Search(restarts=4, give_up=None))
+    crouch = IKOracle(body, "right_hand", [*straight, "*_knee_*"], tasks, search=Search(restarts=4, give_up=None))
     # In front of the feet: the straight-legged stoop ends with the fist's
     # grip centre about 12 cm above the floor (the open hand's fingertips,
     # 13 cm past the grip, at it); bending the knees lays the fist on the floor.
@@ -367,11 +367,11 @@ def test_a_crouch_reaches_lower_than_the_straight_legged_whole_body():
 
 
 def test_the_coupling_holds_in_the_solvers_postures():
-    from oracles.ik.engine import CasadiIK
+    from oracles.ik.oracle import IKOracle
 
     straight = [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*", "root", "*_hip_*", "*_ankle_*"]
     tasks = [{"type": "reach"}, {"type": "feet"}, {"type": "balance"}, {"type": "coupling"}]
-    oracle = CasadiIK({"human": {"sex": "male", "percentile": 50}}, "right_hand", straight, tasks,
+    oracle = IKOracle({"human": {"sex": "male", "percentile": 50}}, "right_hand", straight, tasks,
                       search=Search(restarts=2))
     hip = oracle.body.model.joints[oracle.body.joint_id("right_hip_flexion")].idx_q
     goals = np.array([[0.35, -0.2, 0.35], [0.45, -0.2, 0.5], [0.3, -0.3, 0.6]])
@@ -508,12 +508,12 @@ def test_the_hang_row_agrees_with_casadi_pinocchio_and_finite_differences():
 
 @pytest.mark.slow
 def test_a_low_reach_keeps_the_idle_arm_hanging():
-    from oracles.ik.engine import CasadiIK
+    from oracles.ik.oracle import IKOracle
 
     joints = [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*", "root", "*_hip_*", "*_ankle_*", *IDLE_ARM]
     tasks = [{"type": "reach"}, {"type": "feet"}, {"type": "balance", "margin": 0.02}, {"type": "floor"},
              {"type": "coupling"}, {"type": "hang"}]
-    oracle = CasadiIK({"human": {"sex": "male", "percentile": 50}}, "right_hand", joints, tasks,
+    oracle = IKOracle({"human": {"sex": "male", "percentile": 50}}, "right_hand", joints, tasks,
                       search=Search(restarts=2))
     model = oracle.body.model
     # The lower edge of the straight-legged stoop in front, where the free
@@ -531,10 +531,10 @@ def test_a_low_reach_keeps_the_idle_arm_hanging():
 
 
 def test_a_current_posture_of_the_wrong_size_is_refused():
-    from oracles.ik.engine import CasadiIK
+    from oracles.ik.oracle import IKOracle
     from reach.errors import OracleError
 
-    oracle = CasadiIK({"human": {"sex": "male", "percentile": 50}}, "right_hand", ARM)
+    oracle = IKOracle({"human": {"sex": "male", "percentile": 50}}, "right_hand", ARM)
     with pytest.raises(OracleError, match=r"current posture has shape \(3,\), expected \(43,\)"):
         oracle.evaluate(Goals(np.array([[0.4, -0.3, 1.2]]), current=np.zeros(3)))
 

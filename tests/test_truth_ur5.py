@@ -9,7 +9,7 @@ import numpy as np
 import pinocchio as pin
 from analytic_ur5 import URDF, any_reachable, cone, directions, down_reachable, tool
 
-from oracles.ik.engine import CasadiIK
+from oracles.ik.oracle import IKOracle
 from oracles.ik.search import Search
 
 BODY = {"urdf": str(URDF)}
@@ -30,7 +30,7 @@ def test_the_repository_ur5_is_the_analytic_one():
 
 
 def test_tool_down_verdicts_against_exact_ik():
-    oracle = CasadiIK(BODY, "ee_link", ["*_joint"], DOWN, search=Search(restarts=2, seed=0))
+    oracle = IKOracle(BODY, "ee_link", ["*_joint"], DOWN, search=Search(restarts=2, seed=0))
     v = oracle.evaluate(POINTS)
     truth = down_reachable(POINTS)
     assert 10 <= truth.sum() <= 50  # the points tell something
@@ -46,7 +46,7 @@ def test_tool_down_verdicts_against_exact_ik():
 
 
 def test_position_only_verdicts_against_analytic_ik():
-    oracle = CasadiIK(BODY, "ee_link", ["*_joint"], [{"type": "reach"}], search=Search(restarts=2, seed=0))
+    oracle = IKOracle(BODY, "ee_link", ["*_joint"], [{"type": "reach"}], search=Search(restarts=2, seed=0))
     v = oracle.evaluate(POINTS)
     missed = POINTS[~v.reachable & any_reachable(POINTS, directions(300))]
     assert not len(missed), f"reachable by analytic IK: {missed.round(3).tolist()}"

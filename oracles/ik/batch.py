@@ -40,7 +40,7 @@ Lazy hard tasks (self-collision, the floor) give no rows here: a posture
 found is checked by the verdict (coal, Pinocchio) as always, and one that
 breaks them, or that ends near the goal but not within the tolerance, is
 polished by the interior-point programs (fatrop) from there, which cut the
-lazy rows (see :mod:`oracles.ik.engine`).
+lazy rows (see :mod:`oracles.ik.solvers.interior`).
 """
 from __future__ import annotations
 
@@ -457,7 +457,7 @@ class _Buffers:
 
 # -- the search over many starts ------------------------------------------------
 
-WAVE = 2  # a cold goal no start reached (see oracles.ik.engine) gets WAVE x STARTS more random starts
+WAVE = 2  # a cold goal no start reached (see oracles.ik.waves) gets WAVE x STARTS more random starts
 # Default starts per goal (K): the hint(s), the reference, the ready posture, seeded random ones. Cold goals (no hint,
 # seed 7; docs/results.md, IK engines): K = 4 / 8 / 12 reached 96 / 97 / 97 of 200 arm goals and 46 / 48 / 48 of 100
 # whole-body ones, at 3.2 / 4.0 / 4.7 and 21.6 / 39.0 / 39.0 ms each: 8 is the fewest that misses none 12 reaches.
@@ -484,17 +484,17 @@ CONVERGED = 0.1  # share of the tolerance within which a start has reached and s
 # (right whole body at D_max 4: 35.2 % of the vertices reachable polishing within 3 cm, 35.7 % within 10 cm,
 # fatrop alone 36.0 %; 34 s and 37 s of CPU against fatrop's 50 s, docs/history.md).
 POLISH_NEAR = 0.1
-# [m] a staged goal's random starts run when its placed ones ended this near (see oracles.ik.engine). Replaying the demo
+# [m] a staged goal's random starts run when its placed ones ended this near (see oracles.ik.waves). Replaying the demo
 # build's calls (D_max 5; docs/history.md): at 0.1 / 0.15 / 0.2 m, 2.4 / 1.3 / 0.0 % fewer of the crouch's
 # goals reached than with every start together (+0.4 / +0.9 % of the whole body's), at 0.76 / 0.75 / 0.80 of the CPU.
 RANDOM_NEAR = 0.2
 WAVE_NEAR = 0.25  # [m] the random wave is for goals the K starts ended this near (farther: outside, as a rule)
-POLISH_FAR = 0.25  # [m] ... or this near, for a cold goal that both waves missed (see oracles.ik.engine)
+POLISH_FAR = 0.25  # [m] ... or this near, for a cold goal that both waves missed (see oracles.ik.waves)
 # the most fatrop polishes of one goal (its reaching postures that break a lazy task, its nearest, its random starts)
 POLISHES = 6
 # the most fatrop solves from fresh random starts of a goal that its starts reached only through a collision (a
-# URDF's default of `blocked_starts`, oracles.ik.engine): on example-robot-data's UR5 with self-collision and a floor
-# box, a suite of 74 proven goals (bench/truth.py --config), misses cold / hinted 19 / 12 with none, 6 / 4 with 12
+# URDF's default of `blocked_starts`, oracles.ik.solvers.batched): on example-robot-data's UR5 with self-collision and a
+# floor box, a suite of 74 proven goals (bench/truth.py --config), misses cold / hinted 19 / 12 with none, 6 / 4 with 12
 # (docs/results.md, "Robots with collisions")
 BLOCKED_STARTS = 12
 CONTINUITY = 1.0  # weight of the range-normalised distance to the first hint (the neighbour's posture) in "liked"

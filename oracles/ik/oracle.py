@@ -1,41 +1,45 @@
-"""Inverse-kinematics oracles: the paper's ``isPointInside`` for a body.
+"""The inverse-kinematics oracle: the paper's ``isPointInside`` for a body.
 
-:class:`IKOracle` holds what every IK engine shares: the body, strategy and
-problem built from a serialisable spec, the search (:class:`~oracles.ik.search.Search`:
-warm starts, restarts, giving up) and the verdict. A point is reachable only
-if an independent Pinocchio forward-kinematics check of the returned posture
-puts the effector within the strategy's tolerance (default 5 mm) of the goal
-and every hard task holds; a solver's status is never trusted. The engines
-are :class:`~oracles.ik.engine.CasadiIK` and :class:`~oracles.ik.dls.DLSIK`.
+:class:`IKOracle` is a body and a strategy on it (:class:`~oracles.ik.tasked.TaskedBody`),
+the search (:class:`~oracles.ik.search.Search`: warm starts, restarts, giving
+up) and the solver it holds (:mod:`oracles.ik.solvers`: the batched steps,
+fatrop's or IPOPT's programs, damped least squares), all built from one
+serialisable spec. A point is reachable only if an independent Pinocchio
+forward-kinematics check of the returned posture puts the effector within the
+strategy's tolerance (default 5 mm) of the goal and every hard task holds; a
+solver's status is never trusted.
 """
 
 from __future__ import annotations
 
 import copy
-import time
-from abc import ABC, abstractmethod
-from typing import Any, ClassVar
+import dataclasses
+from typing import Any
 
 import numpy as np
 import pinocchio as pin
 
-from oracles import registry
 from oracles.bodies.anthropometry import legacy_body
 from oracles.bodies.body import load_body
 from oracles.errors import ModelError, OracleError
-from oracles.ik import rounds
-from oracles.ik.rounds import NO_CALL, Call, Rounds
+from oracles.ik.problem import ReachProblem
+from oracles.ik.rounds import NO_CALL, Call
 from oracles.ik.search import Search
+from oracles.ik.solvers import make
+from oracles.ik.solvers.dls import DampedLeastSquares
 from oracles.ik.strategy import parse_strategy
 from oracles.ik.tasked import TaskedBody
 from oracles.protocol import Goals, Oracle, OracleSpec, Purpose, Verdicts, check_purpose
 from oracles.tasks.feet import DOWN_SUPPORT, corner_frames
 
-__all__ = ["NO_CALL", "Call", "IKOracle", "fresh_stats"]
+__all__ = ["NO_CALL", "Call", "IKOracle", "dls", "fresh_stats"]
 
 # Steps of a motion's end posture settled from a stored one (IKOracle.settle): the reach task's own step is at most
 # 5 cm (dls's max_reach_step) and a stored posture lies within half a finest cell's diagonal (6.5 cm on the demo).
 SETTLE_ITER = 30
+# Batched starts of the search for a home (ReachProblem.x_home; fatrop or IPOPT take half as many random restarts):
+# the squat's was found for its hand where it hangs standing from 64, not from the 16 of a cold goal (docs/results.md).
+HOME_STARTS = 64
 
 
 def fresh_stats() -> dict[str, int]:
@@ -57,13 +61,12 @@ def strategy_ranges(body: dict[str, Any], ranges: Any) -> dict[str, Any]:
     return {**body, "ranges": {**body.get("ranges", {}), **ranges}}
 
 
-class IKOracle(TaskedBody, ABC):
-    """The IK oracles' adapter to the protocol; subclasses implement :meth:`solve`.
+class IKOracle(TaskedBody):
+    """A body, a strategy on it, a search and the solver it holds (see the module docstring).
 
-    What the body shows is :class:`~oracles.bodies.posed.PosedBody`'s, what
-    the tasks say :class:`~oracles.ik.tasked.TaskedBody`'s; this adds the
-    spec, the variants, the search (one start at a time by default,
-    :class:`~oracles.ik.rounds.Rounds`) and the holds a motion needs.
+    What the body shows is :class:`~oracles.bodies.posed.PosedBody`'s, what the tasks say
+    :class:`~oracles.ik.tasked.TaskedBody`'s; this adds the spec, the variants, the verdicts and the holds a motion
+    needs, each asked of the solver.
 
     Args:
         body: Body spec (see :func:`oracles.bodies.body.load_body`).
@@ -72,19 +75,20 @@ class IKOracle(TaskedBody, ABC):
         tasks: Task list (see :mod:`oracles.ik.strategy`).
         search: How to look for a posture (see :class:`~oracles.ik.search.Search`).
         ranges: The strategy's own joint ranges over the body's (:func:`strategy_ranges`).
+        solver: The solver's name (:data:`oracles.ik.solvers.SOLVERS`): ``batch`` (the default), ``fatrop``,
+            ``ipopt`` or ``dls``.
+        options: The solver's own options (see each solver's class).
 
-    The registry builds it with :meth:`from_params`, from one flat mapping
-    holding the body, the search's fields and the engine's own parameters.
+    The registry builds it with :meth:`from_params` (``casadi-ik``) or :func:`dls`, from one flat mapping holding the
+    body, the search's fields, the solver and its options.
     """
 
     dim = 3
-    name: str  # the registry name
-    # engine options of reach_extent's probe (it seeks extremes, not postures)
-    extreme_params: ClassVar[dict[str, Any]] = {}
 
     def __init__(self, body: dict[str, Any], effector: str, joints: list[str],
                  tasks: list[dict[str, Any]] | None = None,
-                 search: Search | None = None, ranges: dict[str, Any] | None = None) -> None:
+                 search: Search | None = None, ranges: dict[str, Any] | None = None, solver: str = "batch",
+                 **options: Any) -> None:
         self.search = search if search is not None else Search()
         params: dict[str, Any] = {"body": body, "effector": effector, "joints": joints, "tasks": tasks,
                                   **({"ranges": ranges} if ranges else {})}
@@ -99,8 +103,18 @@ class IKOracle(TaskedBody, ABC):
         self.stats = fresh_stats()
         self._transits: dict[tuple[str, ...], IKOracle | None] = {}  # motions' twins by the tasks a start breaks
         self.reference_pending = False  # reference: auto found no posture by projection (see _auto_reference)
+        self.solver = make(solver, self, options, "dls" if solver == "dls" else "casadi-ik")
+        if isinstance(self.solver, DampedLeastSquares):
+            self._projector = self.solver  # holds postures with its own options
         if body.get("reference") == "auto":
             self._auto_reference(own, effector, joints, tasks)
+        if self.reference_pending and self.solver.thorough:
+            self._search_reference()
+
+    @property
+    def name(self) -> str:
+        """The registry name of this oracle (``casadi-ik``, ``dls``)."""
+        return self.solver.oracle
 
     def _auto_reference(self, body: dict[str, Any], effector: str, joints: list[str],
                         tasks: list[dict[str, Any]] | None) -> None:
@@ -110,38 +124,50 @@ class IKOracle(TaskedBody, ABC):
         q = self.body.q_ref
         if not self.faults(q[None])[0]:
             return
-        # The dls engine by its registry name: it is an IKOracle itself, so importing it here would be a cycle.
-        twin = registry.create("dls",
-                               {"body": {**body, "reference": "middle"}, "effector": effector, "joints": joints,
-                                "tasks": tasks})
-        held = twin.project(q, q)
+        twin = IKOracle({**body, "reference": "middle"}, effector, joints, tasks, solver="dls")
+        held = twin.solver.project(q, q)  # type: ignore[attr-defined]
         if self.faults(held[None])[0]:
-            # Damped least squares stays near the middle: a tool turned half a turn (pointing down) is far. An engine
-            # that can search (its restarts included) tries when it is set up (``search_reference``).
+            # Damped least squares stays near the middle: a tool turned half a turn (pointing down) is far. A thorough
+            # solver tries when it is set up (``_search_reference``).
             self.reference_pending = True
             return
         self.use_reference(held)
 
+    def _search_reference(self) -> None:
+        """``reference: auto`` where projection found nothing: this solver's search for the effector where it is,
+        every hard task held, from the reference and its random restarts, uncompiled (a probe, not worth a compile);
+        its posture becomes the reference when it holds the hard tasks (a UR5's tool-down strategy kept
+        every joint at zero and warned)."""
+        probe = copy.copy(self)
+        probe.stats = fresh_stats()
+        probe.solver = self.solver.twin(probe, compiled=False)
+        found = probe.evaluate(Goals(self.effector_positions(self.body.q_ref[None])))
+        if found.posture is not None and not self.faults(found.posture[:1])[0]:
+            self.use_reference(found.posture[0])
+            self.reference_pending = False
+
+    def use_reference(self, q: np.ndarray) -> None:
+        super().use_reference(q)
+        if hasattr(self, "solver"):
+            self.solver = self.solver.twin(self)  # the reference's numbers (contacts, polygon) are the new posture's
+
     @classmethod
     def from_params(cls, **params: Any) -> IKOracle:
-        """The oracle of a spec's flat params: the body's, the search's and the engine's (the registry's factory)."""
+        """The oracle of a spec's flat params: the body's, the search's, the solver and its options (the registry's
+        ``casadi-ik``)."""
         search, rest = Search.split(params)
         return cls(search=search, **rest)
-
-    def engine_params(self) -> dict[str, Any]:
-        """The engine's own parameters, as a spec writes them (none by default)."""
-        return {}
 
     # -- optional capabilities of the oracle protocol ----------------------
     @property
     def spec(self) -> OracleSpec:
         """The spec that rebuilds this oracle in another process."""
-        return OracleSpec(self.name, {**self._strategy_params, **self.search.to_params(), **self.engine_params()})
+        return OracleSpec(self.name, {**self.strategy_params, **self.search.to_params(), **self.solver.options()})
 
     def as_built(self, model_hash: str) -> tuple[Oracle, str] | None:
         """This oracle on the body a stored tree was built with: a human spec read as earlier versions built it
         (``proportions: de_leva``), when that body's hash is the tree's."""
-        body, note = legacy_body(self._strategy_params["body"])
+        body, note = legacy_body(self.strategy_params["body"])
         if note is None:
             return None
         spec = self.spec.to_dict()
@@ -152,16 +178,18 @@ class IKOracle(TaskedBody, ABC):
         """The effector's farthest positions found reaching for goals on the reach bound's sphere in 26 directions
         (the cube's faces, edges and corners), postures breaking a hard task left out: an estimate of the volume's
         bounds [m], not a bound (see :class:`oracles.protocol.Probing`). One start each, interpreted (no
-        compilation): an extreme is sought, not a natural posture."""
+        compilation), by the solver's one-start-at-a-time twin (the batched solver's fatrop: it converges on the
+        nearest point to an unreachable goal, where the batched steps stop once progress stalls, 5 mm short below
+        configs/examples/arm7_table.yaml's table): an extreme is sought, not a natural posture."""
         bound = self.reach_bound()
         if bound is None:
             return None
         dirs = np.array([d for d in np.ndindex(3, 3, 3) if d != (1, 1, 1)], float) - 1.0
         goals = bound.centre + bound.radius * dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
-        params = {**self.spec.params, "restarts": 1, "secondary": False, **self.extreme_params}
-        if "jit" in params:
-            params["jit"] = False
-        probe = OracleSpec(self.name, params).create()
+        probe = copy.copy(self)
+        probe.search = dataclasses.replace(self.search, restarts=1, secondary=False)
+        probe.problem, probe.stats = ReachProblem(self.body, self.strategy), fresh_stats()  # its own home, if any
+        probe.solver = self.solver.twin(probe, purpose="index", compiled=False)
         postures = probe.evaluate(goals).posture
         if postures is None:
             return None
@@ -213,7 +241,7 @@ class IKOracle(TaskedBody, ABC):
 
     def _transit_twin(self, broken: list[str]) -> IKOracle | None:
         tasks = []
-        for raw in self._strategy_params.get("tasks") or []:
+        for raw in self.strategy_params.get("tasks") or []:
             kind = raw.get("type")
             if kind in broken and kind != "balance":
                 continue
@@ -229,57 +257,58 @@ class IKOracle(TaskedBody, ABC):
         return twin if isinstance(twin, IKOracle) else None
 
     def hold_many(self, postures: np.ndarray, deadline: float = np.inf) -> np.ndarray:
-        """Each posture (F, nq) held as one batch, a NaN row where none is held. An engine that solves one posture at a
-        time holds none here: the caller holds them with :meth:`hold`, each from its neighbour's correction, as before
-        (held here without it, then again there, a rejected batch cost the motion twice)."""
-        return np.full(np.shape(postures), np.nan)
+        """Each posture (F, nq) held as one batch, a NaN row where none is held (the batched solver's; the others hold
+        none here, and the caller holds them one at a time with :meth:`hold`)."""
+        return self.solver.hold_many(np.asarray(postures, float), deadline)
 
     def variant(self, purpose: Purpose, *, budget: float | None = None, restarts: int = 6) -> IKOracle:
         """This oracle set up for a purpose (see :class:`oracles.protocol.Tunable`).
 
-        The variant shares the body, the problem and the compiled programs; it
-        has its own search and engine options and counts its own stats.
+        The variant shares the body, the problem and the compiled programs; it has its own search and solver options
+        and counts its own stats.
         """
         check_purpose(purpose)
         twin = copy.copy(self)
         twin.search = self.search.for_purpose(purpose, budget=budget, restarts=restarts)
         twin.stats = fresh_stats()
-        twin.tune(purpose)
+        twin.solver = self.solver.twin(twin, purpose=purpose)
         return twin
 
-    def tune(self, purpose: Purpose) -> None:  # noqa: B027 - engines without purpose-specific options need nothing
-        """Set the engine's options for a purpose's variant (called on the variant, a shallow copy)."""
+    def prepare(self) -> None:
+        """Build the solver's programs now rather than on the first evaluate, and find the strategy's home."""
+        self.solver.prepare()
+        self._home()
 
-    def prepare(self) -> None:  # noqa: B027 - engines without solvers to build need nothing
-        """Build the solvers now rather than on the first evaluate."""
+    def _home(self) -> None:
+        if not self.problem.home_sought and self.solver.thorough:
+            self._seek_home()
 
-    @abstractmethod
-    def solve(self, goal: np.ndarray, x0: np.ndarray, lower: bool = True, call: Call = NO_CALL) -> np.ndarray:
-        """A configuration q that tries to put the effector at goal, starting from x0 (with the lower tasks, or reach
-        alone)."""
+    def _seek_home(self) -> None:
+        """Where a strategy whose reference breaks its hard tasks (the squat's hips above its knees, its weight over the
+        heels) starts its searches: this solver's answer, from HOME_STARTS starts and never giving up, for the effector
+        where the reference holds it. From the standing reference, the squat's cold goals were reached by no placed
+        start and by few random ones spread about it (24 of the truth suite's 67 proven goals missed)."""
+        p = self.problem
+        p.home_sought = True  # before the probe, whose own search must not seek again (variants share the problem)
+        if not self.faults(self.body.q_ref[None])[0]:
+            return
+        probe = copy.copy(self)
+        probe.stats = fresh_stats()
+        probe.search = dataclasses.replace(self.search, give_up=None, max_seconds=None,
+                                           restarts=max(self.search.restarts, HOME_STARTS // 2))
+        probe.solver = self.solver.twin(probe, starts=HOME_STARTS)
+        found = probe.evaluate(Goals(self.effector_positions(self.body.q_ref[None])))
+        if found.reachable[0] and found.posture is not None:
+            p.use_home(found.posture[0])
 
     def preference(self, posture: np.ndarray, goal: np.ndarray, call: Call = NO_CALL) -> float:
-        """How much the lower tasks dislike a posture (lower is better; 0 when the engine cannot tell)."""
-        return 0.0
+        """How much the lower tasks dislike a posture (lower is better; 0 when the solver cannot tell)."""
+        return self.solver.preference(posture, goal, call)
 
-    def solve_batch(self, goals: np.ndarray, x0: np.ndarray, lower: np.ndarray | None = None, call: Call = NO_CALL,
-                    targets: np.ndarray | None = None) -> np.ndarray:
-        """Configurations (N, nq) for goals (N, 3) from starts (N, nx), with the lower tasks where lower (N,) is true,
-        each goal with its targets (N, T) (``Strategy.target_rows``) when given; engines may batch. Past
-        ``call.deadline`` no further solve starts: the first k <= N postures (k >= 1) are returned."""
-        flags = np.ones(len(goals), bool) if lower is None else lower
-        calls = [call] * len(goals) if targets is None else [call._replace(target=t) for t in targets]
-        out: list[np.ndarray] = []
-        for g, x, f, c in zip(goals, x0, flags, calls, strict=True):
-            if out and time.perf_counter() > call.deadline:
-                break
-            out.append(self.solve(g, x, bool(f), c))
-        return np.array(out)
-
-    def starts(self, goal: np.ndarray, hint: np.ndarray | None, call: Call = NO_CALL,
-               restarts: int | None = None) -> list[np.ndarray]:
-        """A goal's initial postures (see :func:`oracles.ik.rounds.starts`)."""
-        return rounds.starts(self.problem, self.search, goal, hint, call, restarts)
+    def share_programs(self, other: Any) -> bool:
+        """Take ``other``'s compiled programs when one program serves both bodies (see
+        :class:`oracles.protocol.Sharing`); whether it did."""
+        return isinstance(other, IKOracle) and self.solver.share(other.solver)
 
     def evaluate(self, goals: Goals | np.ndarray) -> Verdicts:
         """Verdicts for goals [m] (see :class:`oracles.protocol.Goals`): held to their targets, warm-started from
@@ -298,10 +327,11 @@ class IKOracle(TaskedBody, ABC):
                 raise OracleError(f"current posture has shape {current.shape}, expected ({nq},)", key="current")
             start = self.problem.x_of_q(current)
             seeds = np.tile(current, (n, 1)) if seeds is None else seeds
-        return self._evaluate(g.points, seeds, start, targets)
+        if n:
+            self._home()
+        return self.solver.evaluate(g.points, seeds, start, targets)
 
-    def _evaluate(self, points: np.ndarray, hints: np.ndarray | None, start: np.ndarray | None,
-                  targets: np.ndarray | None = None) -> Verdicts:
-        """Rounds of solves from each point's next start until it reaches, gives up or runs out of starts
-        (each goal held to its targets (N, T), ``Strategy.target_rows``, when given)."""
-        return Rounds(self, self._data, points, hints, start, targets, self.body.q_ref).run()
+
+def dls(**params: Any) -> IKOracle:
+    """The oracle of a spec's flat params with the damped least squares as its solver (the registry's ``dls``)."""
+    return IKOracle.from_params(**params, solver="dls")

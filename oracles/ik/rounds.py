@@ -1,8 +1,8 @@
 """The search one start at a time: rounds of solves, each goal from its next start, until it reaches or gives up.
 
-The driver of the engines that solve a goal at a time (fatrop's and IPOPT's
-programs, damped least squares): :class:`oracles.ik.oracle.IKOracle` runs one
-:class:`Rounds` per ``evaluate`` call. (The batched engine drives its starts
+The driver of the solvers that solve a goal at a time (fatrop's and IPOPT's
+programs, damped least squares: :class:`oracles.ik.solvers.single.SingleSolver`),
+one :class:`Rounds` per ``evaluate`` call. (The batched engine drives its starts
 in waves: :mod:`oracles.ik.waves`.) A point is reachable only when the
 independent Pinocchio check of its posture says so (:meth:`ReachProblem.check`).
 """
@@ -42,16 +42,20 @@ class Call(NamedTuple):
 NO_CALL = Call()  # a call with neither current posture nor budget
 
 
-class Solving(Protocol):
-    """What the rounds ask of their oracle."""
+class Searched(Protocol):
+    """What the rounds read of their oracle."""
 
     problem: ReachProblem
     strategy: Strategy
     search: Search
     stats: dict[str, int]
 
-    def solve_batch(self, goals: np.ndarray, x0: np.ndarray, lower: np.ndarray | None = None, call: Call = NO_CALL,
-                    targets: np.ndarray | None = None) -> np.ndarray: ...
+
+class Solving(Protocol):
+    """What the rounds ask of their solver."""
+
+    def solve_many(self, goals: np.ndarray, x0: np.ndarray, lower: np.ndarray | None = None, call: Call = NO_CALL,
+                   targets: np.ndarray | None = None) -> np.ndarray: ...
 
     def preference(self, posture: np.ndarray, goal: np.ndarray, call: Call = NO_CALL) -> float: ...
 
@@ -90,7 +94,8 @@ class Rounds:
     """One call's search: each goal's starts solved one round after another (see the module docstring).
 
     Args:
-        oracle: The engine that solves.
+        oracle: The body, strategy and search of the oracle.
+        solver: The solver that solves.
         data: Pinocchio data of the body, for the checks.
         points: Goals (N, 3) [m].
         hints: Each goal's seeds (N, nq) or (N, k, nq), the first standing for the neighbour's posture in a build.
@@ -99,9 +104,9 @@ class Rounds:
         q_ref: The posture a goal no solve reached keeps.
     """
 
-    def __init__(self, oracle: Solving, data: pin.Data, points: np.ndarray, hints: np.ndarray | None,
+    def __init__(self, oracle: Searched, solver: Solving, data: pin.Data, points: np.ndarray, hints: np.ndarray | None,
                  start: np.ndarray | None, targets: np.ndarray | None, q_ref: np.ndarray) -> None:
-        self.oracle, self.data, self.targets = oracle, data, targets
+        self.oracle, self.solver, self.data, self.targets = oracle, solver, data, targets
         self.pts = pts = check_points(points, 3)
         self.hints = None if hints is None else np.asarray(hints, float)
         search, problem, n = oracle.search, oracle.problem, len(pts)
@@ -150,7 +155,7 @@ class Rounds:
             todo = np.array([i for i in range(n) if not self.done[i] and len(self.starts[i]) > r], dtype=int)
             if todo.size == 0 or time.perf_counter() > self.call.deadline:
                 break
-            q = oracle.solve_batch(self.pts[todo], np.array([self.starts[i][r] for i in todo]),
+            q = self.solver.solve_many(self.pts[todo], np.array([self.starts[i][r] for i in todo]),
                                    ~self.settled[todo] if r == 0 else None, self.call,
                                    None if targets is None else targets[todo])
             todo = todo[: len(q)]  # the goals solved before the deadline
@@ -167,7 +172,7 @@ class Rounds:
         check = oracle.problem.check(q, self.pts[i], self.data, None if targets is None else targets[i])
         if search.prefer and check.reachable:
             call = self.call if targets is None else self.call._replace(target=targets[i])
-            liked = oracle.preference(q, self.pts[i], call)
+            liked = self.solver.preference(q, self.pts[i], call)
             if not self.reach[i] or liked < self.preferred[i]:
                 self.residual[i], self.posture[i], self.preferred[i], self.kept[i] = check.residual, q, liked, check
             self.reach[i] = True

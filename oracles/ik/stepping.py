@@ -35,7 +35,6 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from oracles import registry
 from oracles.protocol import Goals
 from oracles.tasks.step import StepTask
 
@@ -86,7 +85,7 @@ def swing_frames(oracle: Any, q0: np.ndarray, q1: np.ndarray, count: int, lift: 
         pin.framesForwardKinematics(model, data, q)
         placed.append(data.oMf[fid].copy())
     shift, swing = max(1, count // 3), count - max(1, count // 3)
-    single = registry.create("dls", shift_params(oracle._strategy_params, task))
+    single = type(oracle).from_params(**shift_params(oracle.strategy_params, task), solver="dls")
     held = single.evaluate(Goals(placed[0].translation[None], {"orientation": placed[0].rotation[None]},
                                  seeds=q0[None]))
     if not held.reachable[0] or held.posture is None:

@@ -16,10 +16,11 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from oracles import registry
 from oracles.bodies.body import ROOT, Body
 from oracles.bodies.posed import PosedBody
 from oracles.ik.problem import ReachProblem
+from oracles.ik.search import Search
+from oracles.ik.solvers.dls import DampedLeastSquares
 from oracles.ik.stepping import chain, planted, swing_frames
 from oracles.ik.strategy import Strategy
 from oracles.protocol import Ball, check_points
@@ -36,10 +37,11 @@ class TaskedBody(PosedBody):
         body: The body.
         strategy: The strategy parsed on it.
         spec: The body's spec as given (``reference: auto`` is reported by :meth:`describe`).
-        strategy_params: The strategy's spec (body, effector, joints, tasks): the damped-least-squares twin's.
+        strategy_params: The strategy's spec (body, effector, joints, tasks).
     """
 
-    name: str  # the oracle's registry name
+    search: Search  # the oracle's (oracles.ik.oracle.IKOracle), which its solvers read here
+    stats: dict[str, int]
 
     def __init__(self, body: Body, strategy: Strategy, spec: dict[str, Any], strategy_params: dict[str, Any]) -> None:
         super().__init__(body, strategy.effector, _anchor(body, strategy))
@@ -47,9 +49,9 @@ class TaskedBody(PosedBody):
         self.problem = ReachProblem(body, strategy)
         self.posture_names = tuple(body.q_names)
         self._body_spec = spec
-        self._strategy_params = strategy_params
-        # the damped-least-squares twin that holds a posture's hard tasks (built on first use)
-        self._projector: Any = None
+        self.strategy_params = strategy_params
+        # the damped least squares that hold a posture's hard tasks (made on first use)
+        self._projector: DampedLeastSquares | None = None
 
     def use_reference(self, q: np.ndarray) -> None:
         """Make ``q`` the reference posture (every search's start, the contacts' places)."""
@@ -224,10 +226,10 @@ class TaskedBody(PosedBody):
         """A step's frames from q0 to the foot set down where q1 puts it (see :mod:`oracles.ik.stepping`)."""
         return swing_frames(self, np.asarray(q0, float), np.asarray(q1, float), int(count))
 
-    def _dls(self) -> Any:
-        """The damped-least-squares twin of this oracle (itself for ``dls``), built on first use: no compilation."""
+    def _dls(self) -> DampedLeastSquares:
+        """The damped least squares on this body and strategy, made on first use: no compilation."""
         if self._projector is None:
-            self._projector = self if self.name == "dls" else registry.create("dls", dict(self._strategy_params))
+            self._projector = DampedLeastSquares(self)
         return self._projector
 
     def _project(self, posture: np.ndarray, guess: np.ndarray) -> np.ndarray:

@@ -1,7 +1,7 @@
 """The batched engine's search: every goal's starts iterated together, in waves, then fatrop's polish of near misses.
 
-:class:`oracles.ik.engine.CasadiIK` with ``solver: batch`` runs one
-:class:`Waves` per ``evaluate`` call. The waves:
+:class:`oracles.ik.solvers.batched.Batched` runs one :class:`Waves` per
+``evaluate`` call. The waves:
 
 * ``starts``: every goal's K starts together (a decisive hint among them
   stops the others when it fails, as ``Search.give_up`` says); a *staged*
@@ -65,20 +65,25 @@ class Polishing(Protocol):
     def solve(self, goal: np.ndarray, x0: np.ndarray, lower: bool = True, call: Call = NO_CALL) -> np.ndarray: ...
 
 
-class Batched(Protocol):
-    """What the waves ask of the batched engine (:class:`oracles.ik.engine.CasadiIK`)."""
+class Searched(Protocol):
+    """What the waves read of their oracle."""
 
     problem: ReachProblem
     strategy: Strategy
     search: Search
     stats: dict[str, int]
     body: Any
-    starts_per_goal: int
-    lower_iter: int
-    blocked_starts: int
 
     @property
     def data(self) -> pin.Data: ...
+
+
+class Batched(Protocol):
+    """What the waves ask of the batched solver (:class:`oracles.ik.solvers.batched.Batched`)."""
+
+    starts_per_goal: int
+    lower_iter: int
+    blocked_starts: int
 
     @property
     def default_target(self) -> np.ndarray: ...
@@ -109,14 +114,14 @@ class Wave(NamedTuple):
     blocked: np.ndarray
 
 
-def batch_starts(oracle: Batched, goal: np.ndarray, hint: np.ndarray | None, wave: int = 0, targeted: bool = False,
-                 part: str = "all") -> list[np.ndarray]:
+def batch_starts(oracle: Searched, k: int, goal: np.ndarray, hint: np.ndarray | None, wave: int = 0,
+                 targeted: bool = False, part: str = "all") -> list[np.ndarray]:
     """A goal's K starts: its hints (the neighbour's posture first), the reference and ready postures, then
     random ones seeded by the search's seed and the goal (the same goal gets the same starts in any batch).
     Wave 1 (the ``random`` wave): ``WAVE`` times K random ones, of the same seed's next draws. ``part``:
     ``placed`` (the hints, the reference and ready postures: a staged goal's first stage), ``random`` (the random
     ones: its second) or ``all``."""
-    p, k = oracle.problem, oracle.starts_per_goal
+    p = oracle.problem
     placed: list[np.ndarray] = []
     if wave == 0:
         seeds = np.zeros((0, 0)) if hint is None else np.atleast_2d(hint)
@@ -143,16 +148,17 @@ class Waves:
     """One call's batched search (see the module docstring).
 
     Args:
-        oracle: The batched engine.
+        oracle: The body, strategy and search of the oracle.
+        solver: The batched solver.
         points: Goals (N, 3) [m].
         hints: Each goal's seeds (N, nq) or (N, k, nq), the first standing for the neighbour's posture in a build.
         start: The current posture as the problem's x, or None.
         targets: Each goal's task targets (N, T) (``Strategy.target_rows``), or None.
     """
 
-    def __init__(self, oracle: Batched, points: np.ndarray, hints: np.ndarray | None, start: np.ndarray | None,
-                 targets: np.ndarray | None) -> None:
-        self.oracle, self.start, self.targets = oracle, start, targets
+    def __init__(self, oracle: Searched, solver: Batched, points: np.ndarray, hints: np.ndarray | None,
+                 start: np.ndarray | None, targets: np.ndarray | None) -> None:
+        self.oracle, self.solver, self.start, self.targets = oracle, solver, start, targets
         self.pts = pts = check_points(points, 3)
         self.hints = None if hints is None else np.asarray(hints, float)
         p, search, n = oracle.problem, oracle.search, len(pts)
@@ -214,7 +220,7 @@ class Waves:
         if not self.todo.size:
             return Verdicts(self.reach, self.residual, self.posture, None if search.max_seconds is None
                             else np.zeros(n))
-        oracle.prepare()  # compiling (seconds, once) is not the call's budget
+        self.solver.prepare()  # compiling (seconds, once) is not the call's budget
         self._classify()
         self.residual[self.todo] = np.inf
         runs: list[Wave] = []  # the waves the goals that are not staged are polished from
@@ -254,14 +260,15 @@ class Waves:
         else:
             goals = todo[~reach[todo] & self.cold[todo] & (self.nearest[todo] <= WAVE_NEAR)]
             # a goal's random wave when it can pay a few rounds of its starts (not one, which could not reach)
-            wave_cost = WAVE_ROUNDS * WAVE * oracle.starts_per_goal * reach_cost(oracle.problem.nx)
+            wave_cost = WAVE_ROUNDS * WAVE * self.solver.starts_per_goal * reach_cost(oracle.problem.nx)
             meter = self.meter
             goals = goals[meter.left[goals] >= wave_cost] if goals.size and not meter.late() else goals[:0]
         starts, kept = [], []
         for i in goals:
             part = "all" if wave == "random" or not self.staged[i] else "placed" if wave == "starts" else "random"
-            these = batch_starts(oracle, self.pts[i], None if self.hints is None else self.hints[i],
-                                 int(wave == "random"), self.targets is not None, part)
+            hint = None if self.hints is None else self.hints[i]
+            these = batch_starts(oracle, self.solver.starts_per_goal, self.pts[i], hint, int(wave == "random"),
+                                 self.targets is not None, part)
             if these:  # (a staged goal of a search of K <= 3 starts has no random one)
                 starts.append(these)
                 kept.append(i)
@@ -277,12 +284,13 @@ class Waves:
         # cold goals only (a query's, a referee's): a build's hinted vertices, most of its work, paid 35 % more CPU for
         # 3 more reachable vertices in 10,000 (docs/decisions/0001)
         goals = todo[~self.reach[todo] & self.cold[todo] & (self.residual[todo] <= NEAR_MISS)]
-        wave_cost = WAVE_ROUNDS * WAVE * oracle.starts_per_goal * reach_cost(oracle.problem.nx)
+        wave_cost = WAVE_ROUNDS * WAVE * self.solver.starts_per_goal * reach_cost(oracle.problem.nx)
         goals = goals[self.meter.left[goals] >= wave_cost] if goals.size and not self.meter.late() else goals[:0]
         if not goals.size:
             return None
         oracle.stats["wave_near"] = oracle.stats.get("wave_near", 0) + int(goals.size)
-        starts = [batch_starts(oracle, self.pts[i], None, NEAR_STREAM, self.targets is not None, "random")
+        k = self.solver.starts_per_goal
+        starts = [batch_starts(oracle, k, self.pts[i], None, NEAR_STREAM, self.targets is not None, "random")
                   for i in goals]
         return self._run(goals, starts, None)
 
@@ -295,16 +303,16 @@ class Waves:
         x0 = np.clip(np.concatenate([np.array(s) for s in starts]), p.lower, p.upper)
         b = len(x0)
         oracle.stats["solves"] += b
-        target = np.tile(oracle.default_target, (b, 1)) if targets is None else targets[owner]
-        params = oracle.with_body(np.concatenate([self.pts[owner], x0 if start is None else np.tile(start, (b, 1)),
+        target = np.tile(self.solver.default_target, (b, 1)) if targets is None else targets[owner]
+        params = self.solver.with_body(np.concatenate([self.pts[owner], x0 if start is None else np.tile(start, (b, 1)),
                                                    np.full((b, 1), 0.0 if start is None else 1.0), target], axis=1))
         first_start = None
         if decisive is not None and decisive.any():
             first_start = np.zeros(b, bool)
             first_start[offsets[:-1][decisive[goals]]] = True
         x, dist, viol, liked, _, rounds, blocked = run_starts(
-            oracle.batch_program(), x0, params, owner, oracle.strategy.tolerance, search.secondary, start, self.meter,
-            oracle.stats, first_start, search.give_up_distance, oracle.lower_iter)
+            self.solver.batch_program(), x0, params, owner, oracle.strategy.tolerance, search.secondary, start,
+            self.meter,            oracle.stats, first_start, search.give_up_distance, self.solver.lower_iter)
         span = p.upper - p.lower
         scored = np.isfinite(liked)
         if scored.any():
@@ -386,7 +394,7 @@ class Waves:
         collision) and could not leave with the goal held: the goal lies within the body's reach and only collisions
         stand in the way, which fatrop's cuts from another start often go around. Up to the engine's
         ``blocked_starts`` a goal, until one reaches, within its budget."""
-        if not self.oracle.blocked_starts:
+        if not self.solver.blocked_starts:
             return
         blocked = np.zeros(len(self.pts), bool)
         for run in spent:
@@ -395,7 +403,7 @@ class Waves:
         p, seed = self.oracle.problem, self.oracle.search.seed
         for i in map(int, np.nonzero(blocked & ~self.reach)[0]):
             rng = np.random.default_rng([seed, zlib.crc32(np.round(self.pts[i], 9).tobytes()), RESCUE_STREAM])
-            for _ in range(self.oracle.blocked_starts):
+            for _ in range(self.solver.blocked_starts):
                 if not self.meter.afford(i, POLISH_COST) or self._polish_from(
                         i, p.random_x(rng), None if self.targets is None else self.targets[i]):
                     break
@@ -415,7 +423,7 @@ class Waves:
     def _polish_from(self, i: int, guess: np.ndarray, target_i: np.ndarray | None) -> bool:
         """One fatrop solve of goal i from ``guess``, kept when it reaches or comes nearer; whether it reached."""
         oracle = self.oracle
-        self._polisher = self._polisher or oracle.polisher()
+        self._polisher = self._polisher or self.solver.polisher()
         q = self._polisher.solve(self.pts[i], guess, oracle.search.secondary,
                                   Call(self.start, self.meter.pace.deadline, target_i))
         oracle.stats["polished"] = oracle.stats.get("polished", 0) + 1

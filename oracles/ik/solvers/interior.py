@@ -1,7 +1,6 @@
-"""The interior-point programs of the reach problem: its formulation in CasADi, and fatrop's or IPOPT's solves.
+"""The interior-point solver (``fatrop``, ``ipopt``): the reach problem formulated in CasADi, solved by stages.
 
-:class:`ProgramOracle` formulates :class:`CasadiIK`'s problem
-(:class:`~oracles.ik.engine.CasadiIK`): the symbols and the parameter
+:class:`InteriorPoint` formulates the problem: the symbols and the parameter
 vector (goal, start, start weight, the tasks' targets and, lifted, the
 body's numbers: :mod:`oracles.ik.parameters`), the hard tasks' rows and the
 soft tasks' objectives, and builds the lexicographic stages: stage 1
@@ -16,10 +15,10 @@ options (:class:`Programs`).
 
 from __future__ import annotations
 
+import copy
 import shutil
 import warnings
 from dataclasses import dataclass, field
-from functools import cached_property
 from typing import Any
 
 import casadi as ca
@@ -29,9 +28,12 @@ import pinocchio as pin
 from oracles.bodies.kinematics import SymbolicKinematics, model_arrays
 from oracles.errors import OracleError
 from oracles.ik.jit import COMPILER, compiled_nlpsol
-from oracles.ik.oracle import Call, IKOracle
 from oracles.ik.parameters import BodyParameters
-from oracles.tasks import HardTask, Numeric, Symbolic
+from oracles.ik.rounds import NO_CALL, Call
+from oracles.ik.solvers.protocol import Room, Solver
+from oracles.ik.solvers.single import SingleSolver
+from oracles.protocol import Purpose
+from oracles.tasks import HardTask, Numeric, SoftTask, Symbolic
 
 # fatrop's initial barrier parameter for a settled reach stage (see Search.settle):
 # its start is a neighbour's posture a few centimetres off, which a smaller
@@ -46,6 +48,8 @@ CUT_ROUNDS = 4
 CUT_WITHIN = 0.02
 CUT_INSIDE = 0.002
 UNUSED = -1.0  # an unused cut slot's lower bound: 0 >= -1
+REFINE_SECONDARY_ITER = 40  # iteration cap of the lower stages when refining an answer
+SOLVERS = ("fatrop", "ipopt")
 
 
 class Cuts:
@@ -76,54 +80,144 @@ class Programs:
     objectives: list[ca.Function] = field(default_factory=list)  # each stage's measure, at (x, params)
 
 
-class ProgramOracle(IKOracle):
-    """An IK oracle whose problem is formulated as CasADi programs (see the module docstring); the engine options
-    (``max_iter``, ``secondary_iter``, ``solver``, ``jit``, ``body_parameters``) are set by
-    :class:`~oracles.ik.engine.CasadiIK`."""
+class InteriorPoint(SingleSolver):
+    """The reach problem's lexicographic stages solved by fatrop or IPOPT, one goal from one start (see the module
+    docstring). Nothing is built at construction: the programs (and their jit compilation) are built on the first
+    solve, so loading a config or building an oracle in a process that never solves costs no compilation; twins
+    of equal options share them.
 
-    max_iter: int
-    secondary_iter: int
-    solver: str
-    body_parameters: bool
-    jit: bool
-    lazy: list[HardTask]  # the lazy hard tasks (collisions): cut, not held as rows
-    _cache: dict[tuple[Any, ...], Programs]
-    _batch_cache: dict[tuple[Any, ...], Any]
+    Args:
+        room: The oracle's body, strategy and search.
+        solver: ``fatrop`` or ``ipopt``, the interior-point solvers shipped with CasADi. IPOPT is the referee of
+            ``reach audit``.
+        max_iter: Iteration cap of the reach stage.
+        secondary_iter: Iteration cap of each lower stage (gaze, posture). A lower stage stopped at its cap keeps its
+            last iterate when it honours every constraint (else the stage above's posture).
+        jit: Compile the problem's functions to machine code with the system's C compiler (``gcc``): ``auto``
+            compiles when ``gcc`` is on the PATH and falls back to CasADi's interpreter if it fails, ``true``
+            requires it, ``false`` (the default) never does. The libraries are kept on disk and shared by every
+            process (:mod:`oracles.ik.jit`).
+        body_parameters: The body's numbers (its offsets, masses, reference posture, support polygon, capsules) as
+            parameters of the programs, not constants: every body of one shape (a population's members) then
+            shares one program a strategy, compiled once (:mod:`oracles.ik.parameters`; :meth:`share`). Default
+            false: a lone body's programs keep its numbers as constants (smaller expressions).
+    """
+
+    def __init__(self, room: Room, solver: str = "fatrop", max_iter: int = 60, secondary_iter: int = 15,
+                 jit: bool | str = False, body_parameters: bool = False) -> None:
+        super().__init__(room)
+        if solver not in SOLVERS:
+            raise OracleError(f"solver must be one of {sorted(SOLVERS)}, got {solver!r}", oracle=self.oracle,
+                              key="solver")
+        if not isinstance(body_parameters, bool):
+            raise OracleError(f"body_parameters must be true or false, got {body_parameters!r}", oracle=self.oracle,
+                              key="body_parameters")
+        if jit not in (True, False, "auto"):
+            raise OracleError(f"jit must be true, false or 'auto', got {jit!r}", oracle=self.oracle, key="jit")
+        self.name = solver
+        self.max_iter, self.secondary_iter, self.body_parameters = int(max_iter), int(secondary_iter), body_parameters
+        self._set_jit(jit)
+        self._cache: dict[tuple[Any, ...], Programs] = {}  # shared with twins (a shallow copy keeps the dict)
+        self._numbers: BodyParameters | None = None
+
+    def options(self) -> dict[str, Any]:
+        return {"max_iter": self.max_iter, "solver": self.name, "jit": self.jit_asked,
+                "secondary_iter": self.secondary_iter, **({"body_parameters": True} if self.body_parameters else {})}
+
+    def twin(self, room: Room, *, purpose: Purpose | None = None, compiled: bool = True,
+             starts: int | None = None) -> InteriorPoint:
+        # A refinement never compiles (seconds, more than a server's few solves gain) and lets the lower stages
+        # converge (its budget bounds the time); the referee solves with IPOPT, the reference solver.
+        out = copy.copy(self)
+        out.room, out._numbers = room, None
+        if not compiled:
+            out.jit, out._cache = False, {}
+        if purpose == "refine":
+            out._set_jit(False)
+            out.secondary_iter = REFINE_SECONDARY_ITER
+        elif purpose == "referee":
+            out.name = "ipopt"
+        return out
 
     def _set_jit(self, jit: bool | str) -> None:
         has_compiler = shutil.which(COMPILER) is not None
         if jit is True and not has_compiler:
             raise OracleError(f"jit needs the C compiler {COMPILER} on the PATH; install it or set jit: false",
-                              oracle=self.name, key="jit")
+                              oracle=self.oracle, key="jit")
         self.jit_asked = jit
         self.jit = jit is True or (jit == "auto" and has_compiler)
 
     @property
-    def nlp_solver(self) -> str:
-        """The interior-point solver of the programs: the engine's own, or fatrop where ``batch`` polishes."""
-        return "fatrop" if self.solver == "batch" else self.solver
-
-    def _set_order(self) -> None:
+    def order(self) -> list[SoftTask]:
         """The soft tasks solved, by priority: down to reach, and the lower ones with ``secondary``."""
-        soft = self.strategy.soft
-        self.order = list(soft if self.search.secondary else soft[: soft.index(self.strategy.reach) + 1])
+        soft, reach = self.room.strategy.soft, self.room.strategy.reach
+        return list(soft if self.room.search.secondary else soft[: soft.index(reach) + 1])
+
+    @property
+    def lazy(self) -> list[HardTask]:
+        """The lazy hard tasks (collisions): cut, not held as rows."""
+        return [t for t in self.room.strategy.hard if t.lazy]
 
     @property
     def programs(self) -> Programs:
-        """The programs of this oracle's engine options (those a variant with the same options shares)."""
-        key = (self.nlp_solver, self.jit_asked, self.max_iter, self.secondary_iter, len(self.order),
-               self.search.settle > 0, self.search.max_seconds if self.nlp_solver == "ipopt" else None)
+        """The programs of this solver's options (those a twin with the same options shares)."""
+        search = self.room.search
+        key = (self.name, self.jit_asked, self.max_iter, self.secondary_iter, len(self.order), search.settle > 0,
+               search.max_seconds if self.name == "ipopt" else None)
         found = self._cache.get(key)
         if found is None:
             found = self._cache[key] = Programs()
         return found
 
+    def prepare(self, cut: bool = False) -> None:
+        """The stages now (and with ``cut``, their twins with cut rows) rather than on the first solve."""
+        programs = self.programs
+        if not programs.stages:
+            programs.stages = self._build(programs)
+        if cut and self.lazy and not programs.cut_stages:
+            programs.cut_stages = self._build(programs, CUT_SLOTS)
+
+    def preference(self, posture: np.ndarray, goal: np.ndarray, call: Call = NO_CALL) -> float:
+        """The lowest stage's objective at a posture (the posture task's, in the shipped strategies)."""
+        self.prepare()
+        if len(self.order) < 2:
+            return 0.0
+        x = self.room.problem.x_of_q(posture)
+        return float(self.programs.objectives[-1](x, self._params(goal, x, call)))
+
+    def solve(self, goal: np.ndarray, x0: np.ndarray, lower: bool = True, call: Call = NO_CALL) -> np.ndarray:
+        self.prepare()
+        p, order, reach = self.room.problem, self.order, self.room.strategy.reach
+        x = np.clip(x0, p.lower, p.upper)
+        params = self._params(goal, x, call, pull=not lower)  # settling: the start moved the least (see Search.settle)
+        optimum: list[float] = []
+        cuts = Cuts(CUT_SLOTS, p.nx)  # kept from stage to stage: they describe the same neighbourhood
+        for k, task in enumerate(order):
+            stage = self._cut_stage(k, x, params, optimum, cuts, settled=not lower)
+            if stage is None:
+                break  # keep the last posture; the check decides
+            x, value = stage
+            optimum.append(value)
+            if not task.attained(value) or (not lower and task is reach):
+                break  # e.g. unreachable: lower tasks cannot change the verdict
+        return p.q_of_x(x)
+
+    def share(self, other: Solver) -> bool:
+        """Take ``other``'s programs (those built and those it builds later) for this body, when one program serves
+        both (:attr:`program_key`); returns whether it did. A population's members answer with the first member's
+        programs, built once."""
+        mine = self.program_key()
+        if not isinstance(other, InteriorPoint) or mine is None or mine != other.program_key():
+            return False
+        self._cache = other._cache
+        return True
+
     def _build(self, programs: Programs, slots: int = 0) -> list[ca.Function]:
         """The lexicographic stages: each soft task minimised with the earlier ones held, and ``slots`` cut rows."""
-        p, order = self.problem, self.order
-        sym, params = self._symbols()
+        p, order, strategy = self.room.problem, self.order, self.room.strategy
+        sym, params = self.symbols()
         x = sym.x
-        rows = [c for t in self.strategy.hard for c in t.constraints(sym)]
+        rows = [c for t in strategy.hard for c in t.constraints(sym)]
         # The lazy tasks' cuts: linear rows whose coefficients are parameters,
         # so they add nothing to the second derivatives. An unused slot is
         # 0 >= -1: fatrop mishandles rows free on both sides (it ran past its
@@ -138,79 +232,69 @@ class ProgramOracle(IKOracle):
             earlier = [t.held(sym) for t in order[:k]]
             nlp = {"x": x, "p": ca.vertcat(params, ca.vec(cut)), "f": task.objective(sym), "g": ca.vertcat(g, *earlier)}
             iters = self.max_iter if k == 0 else self.secondary_iter
-            solver = self.nlp_solver
+            solver = self.name
             stages.append(self._nlpsol(f"stage_{task.type}{'_cut' if slots else ''}", solver, nlp,
                                        self._options(solver, iters)))
-            if k == 0 and self.search.settle > 0 and solver == "fatrop":
+            if k == 0 and self.room.search.settle > 0 and solver == "fatrop":
                 opts = {**self._options(solver, iters), "fatrop.mu_init": SETTLE_MU}
                 programs.settling[slots] = self._nlpsol(f"stage_{task.type}_settle{'_cut' if slots else ''}", solver,
                                                         nlp, opts)
         programs.objectives = [ca.Function(t.type, [x, params], [t.measure(sym)]) for t in order]
         return stages
 
-    def _symbols(self) -> tuple[Symbolic, ca.SX]:
+    def symbols(self) -> tuple[Symbolic, ca.SX]:
         """The programs' symbols and their parameter vector: goal (3), start (nx), start weight, the tasks' targets,
         and, lifted, the body's numbers (:mod:`oracles.ik.parameters`)."""
-        p = self.problem
+        p, strategy, model = self.room.problem, self.room.strategy, self.room.body.model
         goal, start, weight = ca.SX.sym("goal", 3), ca.SX.sym("start", p.nx), ca.SX.sym("start_weight", 1)
-        target = ca.SX.sym("target", self.strategy.target_size)
+        target = ca.SX.sym("target", strategy.target_size)
         if not self.lifted:
-            sym = Symbolic(SymbolicKinematics(self.body.model, p.q_sym), p.x_sym, goal, p.x_ref, p.upper - p.lower,
-                           tuple(p.x_names), p.lower, start, weight, self.strategy.target_dict(target))
+            sym = Symbolic(SymbolicKinematics(model, p.q_sym), p.x_sym, goal, p.x_ref, p.upper - p.lower,
+                           tuple(p.x_names), p.lower, start, weight, strategy.target_dict(target))
             return sym, ca.vertcat(goal, start, weight, target)
         numbers = self.numbers
-        kin = SymbolicKinematics(self.body.model, p.q_expression(numbers.sx("q_ref")), numbers)
+        kin = SymbolicKinematics(model, p.q_expression(numbers.sx("q_ref")), numbers)
         sym = Symbolic(kin, p.x_sym, goal, numbers.vector("x_ref"), numbers.vector("span"), tuple(p.x_names),
-                       numbers.vector("lower"), start, weight, self.strategy.target_dict(target), numbers,
-                       {id(t): f"task{k}." for k, t in enumerate(self.strategy.tasks)})
+                       numbers.vector("lower"), start, weight, strategy.target_dict(target), numbers,
+                       {id(t): f"task{k}." for k, t in enumerate(strategy.tasks)})
         return sym, ca.vertcat(goal, start, weight, target, numbers.symbols)
 
     @property
     def lifted(self) -> bool:
         """Whether the programs take the body's numbers as parameters: ``body_parameters``, and every task of the
         strategy can (:attr:`Task.parametric`)."""
-        return self.body_parameters and all(t.parametric for t in self.strategy.tasks)
-
-    @cached_property
-    def numbers(self) -> BodyParameters:
-        """The body's numbers as the programs take them (lifted when :attr:`lifted`; only lifted programs read them)."""
-        arrays = {**model_arrays(self.body.model), **self.problem.arrays()}
-        tasks = {f"task{k}.{name}": v for k, t in enumerate(self.strategy.tasks) for name, v in t.numbers().items()}
-        # The tasks' numbers lifted whole: their zeros are a body's (a capsule a sphere at one member, a segment at
-        # the next: 3 of 20 ANSUR II members had another program).
-        return BodyParameters({**arrays, **tasks}, self.lifted, fixed=frozenset({"root_ref"}), dense=frozenset(tasks))
+        return self.body_parameters and all(t.parametric for t in self.room.strategy.tasks)
 
     @property
-    def program_key(self) -> tuple[Any, ...] | None:
+    def numbers(self) -> BodyParameters:
+        """The body's numbers as the programs take them (lifted when :attr:`lifted`; only lifted programs read them)."""
+        if self._numbers is None:
+            room = self.room
+            arrays = {**model_arrays(room.body.model), **room.problem.arrays()}
+            tasks = {f"task{k}.{name}": v for k, t in enumerate(room.strategy.tasks) for name, v in t.numbers().items()}
+            # The tasks' numbers lifted whole: their zeros are a body's (a capsule a sphere at one member, a segment
+            # at the next: 3 of 20 ANSUR II members had another program).
+            self._numbers = BodyParameters({**arrays, **tasks}, self.lifted, fixed=frozenset({"root_ref"}),
+                                           dense=frozenset(tasks))
+        return self._numbers
+
+    def program_key(self, options: dict[str, Any] | None = None) -> tuple[Any, ...] | None:
         """What two oracles' programs depend on when the body's numbers are parameters (None when they are not): the
-        body's signature and joints, the strategy but its body, the engine's options."""
+        body's signature and joints, the strategy but its body, the solver's ``options`` (its own by default)."""
         if not self.lifted:
             return None
-        strategy = {k: v for k, v in self._strategy_params.items() if k != "body"}
+        strategy = {k: v for k, v in self.room.strategy_params.items() if k != "body"}
         # jit changes how the programs run, not what they are (the caches below key it apart): `jit: auto` and `true`
         # name the same compiled library; the search's rescues change neither
-        engine = {k: v for k, v in self.engine_params().items() if k not in ("jit", "blocked_starts")}
+        engine = {k: v for k, v in (options or self.options()).items() if k not in ("jit", "blocked_starts")}
         return self.numbers.signature, self._joints, repr(strategy), repr(sorted(engine.items()))
 
-    @cached_property
+    @property
     def _joints(self) -> tuple[tuple[str, str, int], ...]:
         """The body's joints: names, kinds and parents (what the programs' structure follows)."""
-        model = self.body.model
+        model = self.room.body.model
         return tuple((str(model.names[j]), model.joints[j].shortname(), int(model.parents[j]))
                      for j in range(model.njoints))
-
-    def share_programs(self, other: ProgramOracle) -> bool:
-        """Take ``other``'s programs (those built and those it builds later) for this body, when one program serves
-        both (:attr:`program_key`); returns whether it did. A population's members answer with the first member's
-        programs, built once."""
-        if self.program_key is None or self.program_key != other.program_key:
-            return False
-        self._cache, self._batch_cache = other._cache, other._batch_cache
-        return True
-
-    def use_reference(self, q: np.ndarray) -> None:
-        super().use_reference(q)
-        self.__dict__.pop("numbers", None)  # the reference's numbers (contacts, polygon) are the new posture's
 
     def with_body(self, params: np.ndarray) -> np.ndarray:
         """Parameters (B, k) or (k,) of the goal, start and targets, with the body's lifted numbers after them."""
@@ -229,7 +313,7 @@ class ProgramOracle(IKOracle):
                 reason = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
                 if self.jit_asked is True:
                     raise OracleError(f"jit compilation with {COMPILER} failed ({reason}); set jit: false",
-                                      oracle=self.name, key="jit") from exc
+                                      oracle=self.oracle, key="jit") from exc
                 warnings.warn(f"casadi-ik: jit compilation failed, using CasADi's interpreter ({reason})", stacklevel=2)
                 self.jit = False
         return ca.nlpsol(name, solver, nlp, opts)
@@ -241,7 +325,7 @@ class ProgramOracle(IKOracle):
             # warm starts, which most build solves are (docs/history.md).
             return {"print_time": 0, "structure_detection": "none", "fatrop.print_level": 0, "fatrop.tol": 1e-6,
                     "fatrop.mu_init": 1e-4, "fatrop.max_iter": max_iter}
-        seconds = self.search.max_seconds
+        seconds = self.room.search.max_seconds
         budget = {"ipopt.max_wall_time": seconds} if seconds else {}
         return {**budget, "print_time": 0, "ipopt.print_level": 0, "ipopt.sb": "yes", "ipopt.max_iter": max_iter,
                 "ipopt.tol": 1e-6, "ipopt.acceptable_tol": 1e-4}
@@ -250,7 +334,7 @@ class ProgramOracle(IKOracle):
                settled: bool = False) -> np.ndarray | None:
         """Stage k's solution from x (settled: the reach stage of a settled start), or None when the solver
         fails or (below the first stage) breaks a constraint."""
-        p, programs = self.problem, self.programs
+        p, programs = self.room.problem, self.programs
         slots = CUT_SLOTS if cuts is not None else 0
         if cuts is not None and not programs.cut_stages:
             # on the first collision: many problems never need them
@@ -291,29 +375,30 @@ class ProgramOracle(IKOracle):
 
         Returns the posture and the stage's objective there, or None when the stage gives no posture.
         """
-        task = self.order[k]
+        room, task, lazy = self.room, self.order[k], self.lazy
+        model, reach = room.body.model, room.strategy.reach
         for rounds in range(CUT_ROUNDS + 1):
             x_new = self._stage(k, x, params, optimum, cuts if cuts.count else None, settled)
             if x_new is None:
                 return None
             value = float(self.programs.objectives[k](x_new, params))
-            if not self.lazy or (task is self.strategy.reach and not task.attained(value)):
+            if not lazy or (task is reach and not task.attained(value)):
                 return x_new, value  # a reach stage that misses the goal is not worth cutting: its verdict is no
-            q = self.problem.q_of_x(x_new)
-            pin.framesForwardKinematics(self.body.model, self._data, q)
-            if all(t.holds(Numeric(self.body.model, self._data, q, np.zeros(3))) for t in self.lazy):
+            q = room.problem.q_of_x(x_new)
+            pin.framesForwardKinematics(model, room.data, q)
+            if all(t.holds(Numeric(model, room.data, q, np.zeros(3))) for t in lazy):
                 return x_new, value
             if rounds == CUT_ROUNDS:
                 break
-            self.stats["cut_rounds"] += 1
-            num = self.problem.numeric_x(q, self._data)
-            for t in self.lazy:
+            room.stats["cut_rounds"] += 1
+            num = room.problem.numeric_x(q, room.data)
+            for t in lazy:
                 for c in t.cuts(num, CUT_WITHIN):
                     cuts.add(c.jacobian, c.need + CUT_INSIDE - c.gap + float(c.jacobian @ x_new))
         # Still broken: the reach stage's posture goes to the verdict (which
         # refuses it); a lower stage's is dropped for the stage above's.
         assert x_new is not None
-        return (x_new, value) if task is self.strategy.reach else None
+        return (x_new, value) if task is reach else None
 
     def _params(self, goal: np.ndarray, x: np.ndarray, call: Call, pull: bool = False) -> np.ndarray:
         """The programs' parameters: the goal, the current posture (x itself without one) and its weight (0 unless
@@ -322,7 +407,19 @@ class ProgramOracle(IKOracle):
         target = call.target if call.target is not None else self.default_target
         return self.with_body(np.concatenate([goal, start, [0.0 if call.start is None and not pull else 1.0], target]))
 
-    @cached_property
+    @property
     def default_target(self) -> np.ndarray:
         """The target parameters of a goal that carries none (each task's default)."""
-        return self.strategy.target_rows({}, 1)[0]
+        return self.room.strategy.target_rows({}, 1)[0]
+
+
+def fatrop(room: Room, max_iter: int = 60, secondary_iter: int = 15, jit: bool | str = False,
+           body_parameters: bool = False) -> InteriorPoint:
+    """The interior-point solver with fatrop (``solver: fatrop``)."""
+    return InteriorPoint(room, "fatrop", max_iter, secondary_iter, jit, body_parameters)
+
+
+def ipopt(room: Room, max_iter: int = 60, secondary_iter: int = 15, jit: bool | str = False,
+          body_parameters: bool = False) -> InteriorPoint:
+    """The interior-point solver with IPOPT (``solver: ipopt``), the referee's."""
+    return InteriorPoint(room, "ipopt", max_iter, secondary_iter, jit, body_parameters)

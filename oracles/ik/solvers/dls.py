@@ -1,4 +1,4 @@
-"""Damped-least-squares task-priority IK on Pinocchio (registry name ``dls``).
+"""Damped-least-squares task-priority IK on Pinocchio (the ``dls`` solver and oracle).
 
 The paper's own family of engines (Baerlocher & Boulic 1998): each
 iteration stacks the tasks by priority and resolves them with damped
@@ -27,7 +27,10 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from oracles.ik.oracle import NO_CALL, Call, IKOracle
+from oracles.errors import OracleError
+from oracles.ik.rounds import NO_CALL, Call
+from oracles.ik.solvers.protocol import Room
+from oracles.ik.solvers.single import SingleSolver
 from oracles.tasks import Numeric, Row
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
@@ -51,56 +54,61 @@ def damped_solve(jac: np.ndarray, err: np.ndarray, damping: float) -> tuple[np.n
 HELD = 1e-5  # [m or rad] project's rows: well within the contacts' checks (0.1 mm, 1 mrad; oracles/tasks/contacts.py)
 
 
-class DLSIK(IKOracle):
+class DampedLeastSquares(SingleSolver):
     """Task-priority damped least squares (see the module docstring).
 
     Args:
+        room: The oracle's body, strategy and search.
         max_iter: Iterations per solve.
         damping: Damping lambda of the pseudo-inverses.
         max_step: Largest step norm per iteration [rad, m].
         max_reach_step: Largest reach error pursued per iteration [m].
-        (others as :class:`~oracles.ik.oracle.IKOracle`)
     """
 
     name = "dls"
+    oracle = "dls"
+    thorough = False  # it stays in its start's basin
 
-    def __init__(self, *args: Any, max_iter: int = 150, damping: float = 0.02, max_step: float = 0.3,
-                 max_reach_step: float = 0.05, **kwargs: Any) -> None:
-        super().__init__(*args, **kwargs)
+    def __init__(self, room: Room, max_iter: int = 150, damping: float = 0.02, max_step: float = 0.3,
+                 max_reach_step: float = 0.05) -> None:
+        super().__init__(room)
+        for key, value in (("max_iter", max_iter), ("damping", damping), ("max_step", max_step),
+                           ("max_reach_step", max_reach_step)):
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not value > 0:
+                raise OracleError(f"{key} must be a number above 0, got {value!r}", oracle=self.oracle, key=key)
         self.max_iter, self.damping, self.max_step = int(max_iter), float(damping), float(max_step)
         self.max_reach_step = float(max_reach_step)
-        model = self.body.model
-        p = self.problem
+        model, p, strategy = room.body.model, room.problem, room.strategy
         # Velocity columns of the active coordinates, in the order of x.
-        cols = list(range(6)) if self.strategy.floating else []
+        cols = list(range(6)) if strategy.floating else []
         cols += [model.joints[j].idx_v for j in p.joint_ids]
         self.cols = np.array(cols, dtype=int)
         self.qidx = np.array([model.joints[j].idx_q for j in p.joint_ids], dtype=int)
         self.qlo = model.lowerPositionLimit[self.qidx]
         self.qhi = model.upperPositionLimit[self.qidx]
-        self.jcols = np.arange(6 if self.strategy.floating else 0, len(cols))  # joint columns within x
-        self.soft = self.strategy.soft
-        self.reach_level = self.soft.index(self.strategy.reach)
+        self.jcols = np.arange(6 if strategy.floating else 0, len(cols))  # joint columns within x
+        self.soft = strategy.soft
+        self.reach_level = self.soft.index(strategy.reach)
         self.unbounded = np.array([model.joints[j].nq == 2 for j in p.joint_ids], dtype=bool)
 
-    def engine_params(self) -> dict[str, Any]:
+    def options(self) -> dict[str, Any]:
         return {"max_iter": self.max_iter, "damping": self.damping, "max_step": self.max_step,
                 "max_reach_step": self.max_reach_step}
 
     def _levels(self, q: np.ndarray, goal: np.ndarray, soft: int, call: Call) -> tuple[list[Row], int]:
         """The (jacobian, error) of the hard level and the first soft levels at q, columns restricted to x,
         and how many levels (0 or 1) are hard."""
-        model, data = self.body.model, self._data
+        model, data = self.room.body.model, self.room.data
         pin.computeJointJacobians(model, data, q)
         pin.updateFramePlacements(model, data)
         num = Numeric(
             model, data, q, goal, lambda fid: pin.getFrameJacobian(model, data, fid, LWA)[:, self.cols],
             lambda joint: pin.getJointJacobian(model, data, joint, LWA)[:, self.cols],
-            self.cols, self.jcols, self.qidx, self.problem.x_ref, self.max_reach_step,
+            self.cols, self.jcols, self.qidx, self.room.problem.x_ref, self.max_reach_step,
             start=call.start, start_weight=0.0 if call.start is None else 1.0,
-            targets={} if call.target is None else self.strategy.target_dict(call.target),
+            targets={} if call.target is None else self.room.strategy.target_dict(call.target),
         )
-        hard = [row for t in self.strategy.hard for row in t.rows(num)]
+        hard = [row for t in self.room.strategy.hard for row in t.rows(num)]
         levels = [Row(np.vstack([r.jacobian for r in hard]), np.concatenate([r.error for r in hard]))] if hard else []
         return levels + [lv for t in self.soft[:soft] if (lv := t.level(num)) is not None], len(levels)
 
@@ -122,8 +130,8 @@ class DLSIK(IKOracle):
                  tol: float | None = None) -> np.ndarray:
         """Iterate the stack truncated after the first soft levels until its rows are within ``tol`` [m or rad]
         (default: 5 % of the reach tolerance); returns q."""
-        model = self.body.model
-        tol = 0.05 * self.strategy.tolerance if tol is None else tol
+        model = self.room.body.model
+        tol = 0.05 * self.room.strategy.tolerance if tol is None else tol
         bounded = ~self.unbounded
         for _ in range(max_iter):
             if time.perf_counter() > call.deadline:
@@ -153,9 +161,9 @@ class DLSIK(IKOracle):
     def project(self, q: np.ndarray, start: np.ndarray | None = None, max_iter: int = 12) -> np.ndarray:
         """A posture near q (nq,) that holds the hard tasks with the effector where q puts it: the stack
         down to the reach task, iterated from ``start`` (q by default)."""
-        model, data = self.body.model, self._data
+        model, data = self.room.body.model, self.room.data
         pin.framesForwardKinematics(model, data, q)
-        goal = data.oMf[self.problem.effector_id].translation.copy()
+        goal = data.oMf[self.room.problem.effector_id].translation.copy()
         # Rows closed well within the contacts' own checks (0.1 mm, 1 mrad): a frame 0.1 mm off is held, not kept.
         return self._iterate(np.array(q if start is None else start, float), goal, self.reach_level + 1, max_iter,
                              NO_CALL, tol=HELD)
@@ -166,10 +174,11 @@ class DLSIK(IKOracle):
 
     def solve(self, goal: np.ndarray, x0: np.ndarray, lower: bool = True, call: Call = NO_CALL) -> np.ndarray:
         """Lexicographic like casadi-ik: first the tasks down to reach, then the lower ones."""
-        q = self._iterate(self.problem.q_of_x(x0), goal, self.reach_level + 1, self.max_iter, call)
-        if (lower and self.search.secondary and len(self.soft) > self.reach_level + 1
-            and self.problem.check(q, goal, self._data, call.target).reachable):
+        p = self.room.problem
+        q = self._iterate(p.q_of_x(x0), goal, self.reach_level + 1, self.max_iter, call)
+        if (lower and self.room.search.secondary and len(self.soft) > self.reach_level + 1
+            and p.check(q, goal, self.room.data, call.target).reachable):
             refined = self._iterate(q.copy(), goal, len(self.soft), self.max_iter // 3, call)
-            if self.problem.check(refined, goal, self._data, call.target).reachable:
+            if p.check(refined, goal, self.room.data, call.target).reachable:
                 q = refined  # the lower tasks never cost the verdict
         return q
