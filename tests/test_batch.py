@@ -10,6 +10,7 @@ from oracles.ik import batch, budget, waves
 from oracles.ik.batch import CHUNK
 from oracles.ik.oracle import IKOracle
 from oracles.ik.search import Search
+from oracles.ik.solvers.batched import STARTS
 from oracles.protocol import Goals, OracleSpec, Verdicts
 from reach.building.config import load_config
 from reach.errors import OracleError
@@ -145,7 +146,7 @@ def test_a_staged_goal_of_a_search_without_random_starts_is_solved_from_its_plac
     monkeypatch.setattr(waves, "RANDOM_NEAR", np.inf)
     rng = np.random.default_rng(27)
     goals = rng.uniform([-0.6, -0.9, 0.6], [0.8, 0.4, 2.0], (300, 3))
-    for starts, random_wave in ((1, False), (batch.STARTS, True)):
+    for starts, random_wave in ((1, False), (STARTS, True)):
         oracle = _batch(ARM, [{"type": "reach"}], starts=starts)
         first = oracle.evaluate(goals)
         ok = first.reachable

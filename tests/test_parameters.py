@@ -61,7 +61,7 @@ def test_a_shared_program_given_a_body_numbers_computes_what_its_own_program_doe
 
 def test_a_capsule_that_is_a_sphere_at_one_body_and_a_segment_at_another_shares_the_program(sphere):
     small, lent, own = sphere
-    mine, theirs = lent.solver.polish.numbers, small.solver.polish.numbers
+    mine, theirs = lent.solver.polish.formulation.numbers, small.solver.polish.formulation.numbers
     lengths = [float(mine.number(k)[0, 0]) for k in mine.names if k.startswith("task3.length2")]
     lengths_small = [float(theirs.number(k)[0, 0]) for k in theirs.names if k.startswith("task3.length2")]
     assert any(a == 0 and b > 0 for a, b in zip(lengths, lengths_small, strict=True))  # the case is there
@@ -140,5 +140,5 @@ def test_seated_drivers_share_their_belted_program():
                                         **({"body_parameters": True} if lift else {})}).create()
 
     small, large, own = driver("female", 5, True), driver("male", 95, True), driver("male", 95, False)
-    assert large.solver.polish.numbers.lift and large.share_programs(small)
+    assert large.solver.polish.formulation.numbers.lift and large.share_programs(small)
     same_rows(small, large, own)

@@ -419,7 +419,7 @@ def test_blocked_starts_default_by_body_and_refuse_bad_values():
     default, the generated human none (its capsules let the batched steps out; docs/results.md); a bad value names the
     key."""
     from oracles.errors import OracleError
-    from oracles.ik.batch import BLOCKED_STARTS
+    from oracles.ik.solvers.batched import BLOCKED_STARTS
 
     tasks = [{"type": "reach"}, {"type": "self_collision"}]
     robot = {"urdf": str(URDF / "ur5.urdf")}

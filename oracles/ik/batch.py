@@ -455,13 +455,8 @@ class _Buffers:
             self.buffer.set_res(k, memoryview(o))  # type: ignore[call-arg, arg-type]
 
 
-# -- the search over many starts ------------------------------------------------
+# -- the iteration over many starts ---------------------------------------------
 
-WAVE = 2  # a cold goal no start reached (see oracles.ik.waves) gets WAVE x STARTS more random starts
-# Default starts per goal (K): the hint(s), the reference, the ready posture, seeded random ones. Cold goals (no hint,
-# seed 7; docs/results.md, IK engines): K = 4 / 8 / 12 reached 96 / 97 / 97 of 200 arm goals and 46 / 48 / 48 of 100
-# whole-body ones, at 3.2 / 4.0 / 4.7 and 21.6 / 39.0 / 39.0 ms each: 8 is the fewest that misses none 12 reaches.
-STARTS = 8
 MAX_ITER = 40  # reach iterations
 # reaching starts of one goal whose lower tasks are refined, the first in start order (the neighbour's posture in a
 # build first)
@@ -473,31 +468,11 @@ LOWER_ITER = 6
 # at twice the preference fatrop's stages reach (tests/test_select.py's handover)
 REFINE_LOWER_ITER = 24
 RESTORE_ITER = 4  # Gauss-Newton steps back to the goal and the hard rows after them, at most
-RANDOM_SPREAD = 0.5  # a floating body's random starts: this share of the way from the reference to a uniform posture
 DECIDES = 1e-3  # [m or rad] a decisive start decides its goal only with its hard rows held this well
 STALL = 0.02  # a start whose distance to the goal shrinks by less than this share in an iteration has stalled
 # iterations the other starts of a goal get once one has reached, to find a better-liked posture (a choice, not tuned)
 EXTRA = 2
 CONVERGED = 0.1  # share of the tolerance within which a start has reached and stops iterating
-# [m] a goal whose best start ends this near (but does not reach) is polished by the interior-point programs:
-# at the volume's boundary a Gauss-Newton step slows down where fatrop's second derivatives still find the way
-# (right whole body at D_max 4: 35.2 % of the vertices reachable polishing within 3 cm, 35.7 % within 10 cm,
-# fatrop alone 36.0 %; 34 s and 37 s of CPU against fatrop's 50 s, docs/history.md).
-POLISH_NEAR = 0.1
-# [m] a staged goal's random starts run when its placed ones ended this near (see oracles.ik.waves). Replaying the demo
-# build's calls (D_max 5; docs/history.md): at 0.1 / 0.15 / 0.2 m, 2.4 / 1.3 / 0.0 % fewer of the crouch's
-# goals reached than with every start together (+0.4 / +0.9 % of the whole body's), at 0.76 / 0.75 / 0.80 of the CPU.
-RANDOM_NEAR = 0.2
-WAVE_NEAR = 0.25  # [m] the random wave is for goals the K starts ended this near (farther: outside, as a rule)
-POLISH_FAR = 0.25  # [m] ... or this near, for a cold goal that both waves missed (see oracles.ik.waves)
-# the most fatrop polishes of one goal (its reaching postures that break a lazy task, its nearest, its random starts)
-POLISHES = 6
-# the most fatrop solves from fresh random starts of a goal that its starts reached only through a collision (a
-# URDF's default of `blocked_starts`, oracles.ik.solvers.batched): on example-robot-data's UR5 with self-collision and a
-# floor box, a suite of 74 proven goals (bench/truth.py --config), misses cold / hinted 19 / 12 with none, 6 / 4 with 12
-# (docs/results.md, "Robots with collisions")
-BLOCKED_STARTS = 12
-CONTINUITY = 1.0  # weight of the range-normalised distance to the first hint (the neighbour's posture) in "liked"
 
 
 class Ends(NamedTuple):

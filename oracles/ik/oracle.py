@@ -277,11 +277,7 @@ class IKOracle(TaskedBody):
     def prepare(self) -> None:
         """Build the solver's programs now rather than on the first evaluate, and find the strategy's home."""
         self.solver.prepare()
-        self._home()
-
-    def _home(self) -> None:
-        if not self.problem.home_sought and self.solver.thorough:
-            self._seek_home()
+        self._seek_home()
 
     def _seek_home(self) -> None:
         """Where a strategy whose reference breaks its hard tasks (the squat's hips above its knees, its weight over the
@@ -289,6 +285,8 @@ class IKOracle(TaskedBody):
         where the reference holds it. From the standing reference, the squat's cold goals were reached by no placed
         start and by few random ones spread about it (24 of the truth suite's 67 proven goals missed)."""
         p = self.problem
+        if p.home_sought or not self.solver.thorough:
+            return
         p.home_sought = True  # before the probe, whose own search must not seek again (variants share the problem)
         if not self.faults(self.body.q_ref[None])[0]:
             return
@@ -328,7 +326,7 @@ class IKOracle(TaskedBody):
             start = self.problem.x_of_q(current)
             seeds = np.tile(current, (n, 1)) if seeds is None else seeds
         if n:
-            self._home()
+            self._seek_home()
         return self.solver.evaluate(g.points, seeds, start, targets)
 
 

@@ -70,7 +70,7 @@ class TaskedBody(PosedBody):
         :class:`oracles.protocol.Turning`)."""
         if self.body.furniture or any(t.type in WORLD_FIXED for t in self.strategy.tasks):
             return None
-        turn = self._base_turn()
+        turn = base_turn(self.body, self.strategy, self.problem)
         if turn is not None and self.strategy.task("floor") is not None and abs(turn[1][2]) < 1 - 1e-9:
             return None  # a floor turns with a vertical axis only
         return turn
@@ -80,7 +80,7 @@ class TaskedBody(PosedBody):
         (see :class:`oracles.protocol.QuarterTurning`): every box the world holds fixed is a square about it."""
         if any(t.type in WORLD_FIXED and not isinstance(t, ObstaclesTask) for t in self.strategy.tasks):
             return None  # a belt's anchor
-        turn = self._base_turn()
+        turn = base_turn(self.body, self.strategy, self.problem)
         if turn is None or abs(turn[1][2]) < 1 - 1e-9:
             return None
         point = turn[0]
@@ -99,7 +99,7 @@ class TaskedBody(PosedBody):
         jm = model.joints[min(self.problem.joint_ids)]
         lo, hi = model.lowerPositionLimit[jm.idx_q], model.upperPositionLimit[jm.idx_q]
         out = np.array(postures, float, copy=True)
-        turn = self._base_turn()
+        turn = base_turn(self.body, self.strategy, self.problem)
         assert turn is not None, "turned() needs a quarter turn"
         angle = np.asarray(quarters, float) * (np.pi / 2) * np.sign(turn[1][2])
         k = jm.idx_q
@@ -112,30 +112,6 @@ class TaskedBody(PosedBody):
         q = np.where(q > hi, q - 2 * np.pi, q)
         out[:, k] = np.where(q < lo, q + 2 * np.pi, q)
         return out
-
-    def _base_turn(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """The point and axis of the first active joint when it turns a full turn and every other active joint lies
-        after it, the root fixed; else None."""
-        model, p = self.body.model, self.problem
-        if self.strategy.floating or not p.joint_ids:
-            return None
-        first = min(p.joint_ids)
-        for j in p.joint_ids:
-            while j > first:
-                j = int(model.parents[j])
-            if j != first:
-                return None  # an active joint on another branch
-        jm = model.joints[first]
-        full = str(model.names[first]) in self.body.continuous or (
-            jm.nq == 1 and model.upperPositionLimit[jm.idx_q] - model.lowerPositionLimit[jm.idx_q] >= 2 * np.pi - 1e-6)
-        if not full:
-            return None
-        data = model.createData()
-        pin.computeJointJacobians(model, data, self.body.q_ref)
-        column = pin.getJointJacobian(model, data, first, pin.LOCAL_WORLD_ALIGNED)[:, jm.idx_v]
-        if np.linalg.norm(column[3:]) < 0.5 or np.linalg.norm(column[:3]) > 1e-9:
-            return None  # not a revolute joint
-        return data.oMi[first].translation.copy(), column[3:] / np.linalg.norm(column[3:])
 
     def lowest(self) -> float | None:
         """0 when a floor task holds the effector's own capsule above z = 0 (the effector lies inside it), else None."""
@@ -173,16 +149,12 @@ class TaskedBody(PosedBody):
         """The joint limits a posture comes within margin [rad or m] of (see :meth:`ReachProblem.limits_near`)."""
         return self.problem.limits_near(np.asarray(posture, float), float(margin))
 
-    @property
-    def orientation(self) -> OrientationTask | None:
-        """The strategy's orientation task, if it has one."""
-        task = self.strategy.task("orientation")
-        return task if isinstance(task, OrientationTask) else None
-
     def orientation_kinds(self) -> tuple[str, ...]:
         """``direction`` and ``rotation`` for an axis-form orientation task, ``rotation`` for a full one, else none."""
-        task = self.orientation
-        return () if task is None else ("direction", "rotation") if task.axis is not None else ("rotation",)
+        task = self.strategy.task("orientation")
+        if not isinstance(task, OrientationTask):
+            return ()
+        return ("direction", "rotation") if task.axis is not None else ("rotation",)
 
     def landing(self, posture: np.ndarray) -> dict[str, Any] | None:
         """Where the strategy's stepping foot lands at a posture (see :class:`oracles.protocol.Stepping`), or None."""
@@ -205,22 +177,9 @@ class TaskedBody(PosedBody):
         neither the effector nor the root)."""
         out = super().interpolate(q0, q1, s)
         a, b = np.asarray(q0, float), np.asarray(q1, float)
-        for foot in self._planted if exact else ():
+        for foot in planted_frames(self.body, self.strategy, self.problem, self.anchor) if exact else ():
             out = planted(self.body.model, self.body.frame_id(foot), a, b, out)
         return out
-
-    @property
-    def _planted(self) -> list[str]:
-        """The frames :meth:`interpolate` keeps by their legs' inverse kinematics: the fixed contacts but the anchor
-        (which the root's placement keeps), and the step's foot."""
-        fixed = [c.frame for t in self.strategy.hard if isinstance(t, ContactsTask) for c in t.contacts
-                 if c.mode == "fixed" and c.frame != self.anchor]
-        task = self.strategy.task("step")
-        model = self.body.model
-        # only a limb of its own: a hand held on a rail shares the trunk with the effector, which it would move
-        reaching = set(chain(model, self.problem.effector_id))
-        return [f for f in dict.fromkeys(fixed + ([task.foot] if isinstance(task, StepTask) else []))
-                if not reaching & set(chain(model, self.body.frame_id(f)))]
 
     def swing(self, q0: np.ndarray, q1: np.ndarray, count: int) -> np.ndarray | None:
         """A step's frames from q0 to the foot set down where q1 puts it (see :mod:`oracles.ik.stepping`)."""
@@ -268,6 +227,44 @@ class TaskedBody(PosedBody):
                        "there, so the volume may come out empty; give body.reference (a posture that holds them) or "
                        "change the tasks")
         return out
+
+
+def planted_frames(body: Body, strategy: Strategy, p: ReachProblem, anchor: str | None) -> list[str]:
+    """The frames :meth:`TaskedBody.interpolate` keeps by their legs' inverse kinematics: the fixed contacts but the
+    anchor (which the root's placement keeps), and the step's foot."""
+    fixed = [c.frame for t in strategy.hard if isinstance(t, ContactsTask) for c in t.contacts
+             if c.mode == "fixed" and c.frame != anchor]
+    task = strategy.task("step")
+    model = body.model
+    # only a limb of its own: a hand held on a rail shares the trunk with the effector, which it would move
+    reaching = set(chain(model, p.effector_id))
+    return [f for f in dict.fromkeys(fixed + ([task.foot] if isinstance(task, StepTask) else []))
+            if not reaching & set(chain(model, body.frame_id(f)))]
+
+
+def base_turn(body: Body, strategy: Strategy, p: ReachProblem) -> tuple[np.ndarray, np.ndarray] | None:
+    """The point and axis of the first active joint when it turns a full turn and every other active joint lies
+    after it, the root fixed; else None."""
+    model = body.model
+    if strategy.floating or not p.joint_ids:
+        return None
+    first = min(p.joint_ids)
+    for j in p.joint_ids:
+        while j > first:
+            j = int(model.parents[j])
+        if j != first:
+            return None  # an active joint on another branch
+    jm = model.joints[first]
+    full = str(model.names[first]) in body.continuous or (
+        jm.nq == 1 and model.upperPositionLimit[jm.idx_q] - model.lowerPositionLimit[jm.idx_q] >= 2 * np.pi - 1e-6)
+    if not full:
+        return None
+    data = model.createData()
+    pin.computeJointJacobians(model, data, body.q_ref)
+    column = pin.getJointJacobian(model, data, first, pin.LOCAL_WORLD_ALIGNED)[:, jm.idx_v]
+    if np.linalg.norm(column[3:]) < 0.5 or np.linalg.norm(column[:3]) > 1e-9:
+        return None  # not a revolute joint
+    return data.oMi[first].translation.copy(), column[3:] / np.linalg.norm(column[3:])
 
 
 def _anchor(body: Body, strategy: Strategy) -> str | None:

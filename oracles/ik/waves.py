@@ -31,18 +31,7 @@ from typing import Any, NamedTuple, Protocol
 import numpy as np
 import pinocchio as pin
 
-from oracles.ik.batch import CONTINUITY as CONTINUITY_WEIGHT
-from oracles.ik.batch import (
-    POLISH_FAR,
-    POLISH_NEAR,
-    POLISHES,
-    RANDOM_NEAR,
-    RANDOM_SPREAD,
-    WAVE,
-    WAVE_NEAR,
-    BatchProgram,
-    run_starts,
-)
+from oracles.ik.batch import BatchProgram, run_starts
 from oracles.ik.budget import GUARD, POLISH_COST, WAVE_ROUNDS, Meter, reach_cost
 from oracles.ik.problem import ReachProblem
 from oracles.ik.rounds import NO_CALL, Call, unsolved_residuals
@@ -51,6 +40,22 @@ from oracles.ik.strategy import Strategy
 from oracles.protocol import Verdicts, check_points
 
 WAVES = ("starts", "more", "random")
+WAVE = 2  # a cold goal no start reached gets WAVE x STARTS more random starts
+RANDOM_SPREAD = 0.5  # a floating body's random starts: this share of the way from the reference to a uniform posture
+# [m] a goal whose best start ends this near (but does not reach) is polished by the interior-point programs:
+# at the volume's boundary a Gauss-Newton step slows down where fatrop's second derivatives still find the way
+# (right whole body at D_max 4: 35.2 % of the vertices reachable polishing within 3 cm, 35.7 % within 10 cm,
+# fatrop alone 36.0 %; 34 s and 37 s of CPU against fatrop's 50 s, docs/history.md).
+POLISH_NEAR = 0.1
+# [m] a staged goal's random starts run when its placed ones ended this near. Replaying the demo
+# build's calls (D_max 5; docs/history.md): at 0.1 / 0.15 / 0.2 m, 2.4 / 1.3 / 0.0 % fewer of the crouch's
+# goals reached than with every start together (+0.4 / +0.9 % of the whole body's), at 0.76 / 0.75 / 0.80 of the CPU.
+RANDOM_NEAR = 0.2
+WAVE_NEAR = 0.25  # [m] the random wave is for goals the K starts ended this near (farther: outside, as a rule)
+POLISH_FAR = 0.25  # [m] ... or this near, for a cold goal that both waves missed
+# the most fatrop polishes of one goal (its reaching postures that break a lazy task, its nearest, its random starts)
+POLISHES = 6
+CONTINUITY = 1.0  # weight of the range-normalised distance to the first hint (the neighbour's posture) in "liked"
 RESCUE_STREAM = 2  # the random stream of a goal's rescues (waves 0 and 1 draw the first two)
 NEAR_STREAM = 3  # ... and of a near miss's last wave
 # [m] a goal still missed whose best posture ends this near it gets a last wave of uniform random starts: it lies at
@@ -326,7 +331,7 @@ class Waves:
             liked = np.sum(((x - p.x_ref) / span) ** 2, axis=1)
         if self.hints is not None:
             # Continuity with the neighbour's posture (the first hint) is part of "liked".
-            liked = liked + CONTINUITY_WEIGHT * np.sum(((x - self.first[owner]) / span) ** 2, axis=1)
+            liked = liked + CONTINUITY * np.sum(((x - self.first[owner]) / span) ** 2, axis=1)
         return Wave(goals, offsets, x0, x, p.q_of_x_many(x), dist, viol, liked, rounds, blocked)
 
     def _keep_reaching(self, run: Wave) -> None:

@@ -16,13 +16,23 @@ from typing import Any
 import numpy as np
 
 from oracles.errors import OracleError
-from oracles.ik.batch import BLOCKED_STARTS, LOWER_ITER, REFINE_LOWER_ITER, STARTS, BatchProgram, run_starts
+from oracles.ik.batch import LOWER_ITER, REFINE_LOWER_ITER, BatchProgram, run_starts
 from oracles.ik.budget import Meter
 from oracles.ik.rounds import NO_CALL, Call
 from oracles.ik.solvers.interior import REFINE_SECONDARY_ITER, InteriorPoint
 from oracles.ik.solvers.protocol import Room, Solver
 from oracles.ik.waves import Waves
 from oracles.protocol import Purpose, Verdicts
+
+# Default starts per goal (K): the hint(s), the reference, the ready posture, seeded random ones. Cold goals (no hint,
+# seed 7; docs/results.md, IK engines): K = 4 / 8 / 12 reached 96 / 97 / 97 of 200 arm goals and 46 / 48 / 48 of 100
+# whole-body ones, at 3.2 / 4.0 / 4.7 and 21.6 / 39.0 / 39.0 ms each: 8 is the fewest that misses none 12 reaches.
+STARTS = 8
+# the most fatrop solves from fresh random starts of a goal that its starts reached only through a collision (a
+# URDF's default of `blocked_starts`): on example-robot-data's UR5 with self-collision and a
+# floor box, a suite of 74 proven goals (bench/truth.py --config), misses cold / hinted 19 / 12 with none, 6 / 4 with 12
+# (docs/results.md, "Robots with collisions")
+BLOCKED_STARTS = 12
 
 
 class Batched:
@@ -107,7 +117,7 @@ class Batched:
         key = (polish.jit, tuple(t.type for t in order))
         found = self._batch_cache.get(key)
         if found is None:
-            sym, params = polish.symbols()
+            sym, params = polish.formulation.symbols()
             strategy, p = room.strategy, room.problem
             hard = [c for t in strategy.hard for c in t.constraints(sym)]
             lower = list(order[order.index(strategy.reach) + 1 :])
@@ -125,15 +135,15 @@ class Batched:
         return found
 
     def program_key(self) -> tuple[Any, ...] | None:
-        """As :meth:`InteriorPoint.program_key`, with this solver's options."""
-        return self.polish.program_key(self.options())
+        """As :meth:`Formulation.program_key`, with this solver's options."""
+        return self.polish.formulation.program_key(self.options())
 
     @property
     def default_target(self) -> np.ndarray:
-        return self.polish.default_target
+        return self.polish.formulation.default_target
 
     def with_body(self, params: np.ndarray) -> np.ndarray:
-        return self.polish.with_body(params)
+        return self.polish.formulation.with_body(params)
 
     def polisher(self) -> InteriorPoint:
         """fatrop's programs, sharing this solver's: the polish of near misses."""

@@ -1,10 +1,9 @@
-"""The interior-point solver (``fatrop``, ``ipopt``): the reach problem formulated in CasADi, solved by stages.
+"""The interior-point solver (``fatrop``, ``ipopt``): the reach problem's lexicographic stages.
 
-:class:`InteriorPoint` formulates the problem: the symbols and the parameter
-vector (goal, start, start weight, the tasks' targets and, lifted, the
-body's numbers: :mod:`oracles.ik.parameters`), the hard tasks' rows and the
-soft tasks' objectives, and builds the lexicographic stages: stage 1
-minimises the squared reach error under the hard tasks (contacts, heels,
+:class:`InteriorPoint` builds, from the problem's formulation
+(:class:`~oracles.ik.solvers.formulation.Formulation`: the symbols and the
+parameter vector), the hard tasks' rows and the soft tasks' objectives, and
+the lexicographic stages: stage 1 minimises the squared reach error under the hard tasks (contacts, heels,
 balance polygon) as constraints and joint limits as bounds; each following
 soft task (gaze, then posture, by priority) is minimised with every earlier
 objective constrained to stay at its optimum. The lazy tasks (collisions)
@@ -25,15 +24,14 @@ import casadi as ca
 import numpy as np
 import pinocchio as pin
 
-from oracles.bodies.kinematics import SymbolicKinematics, model_arrays
 from oracles.errors import OracleError
 from oracles.ik.jit import COMPILER, compiled_nlpsol
-from oracles.ik.parameters import BodyParameters
 from oracles.ik.rounds import NO_CALL, Call
+from oracles.ik.solvers.formulation import Formulation
 from oracles.ik.solvers.protocol import Room, Solver
 from oracles.ik.solvers.single import SingleSolver
 from oracles.protocol import Purpose
-from oracles.tasks import HardTask, Numeric, SoftTask, Symbolic
+from oracles.tasks import HardTask, Numeric, SoftTask
 
 # fatrop's initial barrier parameter for a settled reach stage (see Search.settle):
 # its start is a neighbour's posture a few centimetres off, which a smaller
@@ -115,21 +113,22 @@ class InteriorPoint(SingleSolver):
         if jit not in (True, False, "auto"):
             raise OracleError(f"jit must be true, false or 'auto', got {jit!r}", oracle=self.oracle, key="jit")
         self.name = solver
-        self.max_iter, self.secondary_iter, self.body_parameters = int(max_iter), int(secondary_iter), body_parameters
+        self.max_iter, self.secondary_iter = int(max_iter), int(secondary_iter)
+        self.formulation = Formulation(room, body_parameters)
         self._set_jit(jit)
         self._cache: dict[tuple[Any, ...], Programs] = {}  # shared with twins (a shallow copy keeps the dict)
-        self._numbers: BodyParameters | None = None
 
     def options(self) -> dict[str, Any]:
+        lifted = {"body_parameters": True} if self.formulation.body_parameters else {}
         return {"max_iter": self.max_iter, "solver": self.name, "jit": self.jit_asked,
-                "secondary_iter": self.secondary_iter, **({"body_parameters": True} if self.body_parameters else {})}
+                "secondary_iter": self.secondary_iter, **lifted}
 
     def twin(self, room: Room, *, purpose: Purpose | None = None, compiled: bool = True,
              starts: int | None = None) -> InteriorPoint:
         # A refinement never compiles (seconds, more than a server's few solves gain) and lets the lower stages
         # converge (its budget bounds the time); the referee solves with IPOPT, the reference solver.
         out = copy.copy(self)
-        out.room, out._numbers = room, None
+        out.room, out.formulation = room, Formulation(room, self.formulation.body_parameters)
         if not compiled:
             out.jit, out._cache = False, {}
         if purpose == "refine":
@@ -183,13 +182,14 @@ class InteriorPoint(SingleSolver):
         if len(self.order) < 2:
             return 0.0
         x = self.room.problem.x_of_q(posture)
-        return float(self.programs.objectives[-1](x, self._params(goal, x, call)))
+        return float(self.programs.objectives[-1](x, self.formulation.params(goal, x, call)))
 
     def solve(self, goal: np.ndarray, x0: np.ndarray, lower: bool = True, call: Call = NO_CALL) -> np.ndarray:
         self.prepare()
         p, order, reach = self.room.problem, self.order, self.room.strategy.reach
         x = np.clip(x0, p.lower, p.upper)
-        params = self._params(goal, x, call, pull=not lower)  # settling: the start moved the least (see Search.settle)
+        # settling: the start moved the least (see Search.settle)
+        params = self.formulation.params(goal, x, call, pull=not lower)
         optimum: list[float] = []
         cuts = Cuts(CUT_SLOTS, p.nx)  # kept from stage to stage: they describe the same neighbourhood
         for k, task in enumerate(order):
@@ -204,10 +204,12 @@ class InteriorPoint(SingleSolver):
 
     def share(self, other: Solver) -> bool:
         """Take ``other``'s programs (those built and those it builds later) for this body, when one program serves
-        both (:attr:`program_key`); returns whether it did. A population's members answer with the first member's
-        programs, built once."""
-        mine = self.program_key()
-        if not isinstance(other, InteriorPoint) or mine is None or mine != other.program_key():
+        both (:meth:`Formulation.program_key`); returns whether it did. A population's members answer with the first
+        member's programs, built once."""
+        if not isinstance(other, InteriorPoint):
+            return False
+        mine = self.formulation.program_key(self.options())
+        if mine is None or mine != other.formulation.program_key(other.options()):
             return False
         self._cache = other._cache
         return True
@@ -215,7 +217,7 @@ class InteriorPoint(SingleSolver):
     def _build(self, programs: Programs, slots: int = 0) -> list[ca.Function]:
         """The lexicographic stages: each soft task minimised with the earlier ones held, and ``slots`` cut rows."""
         p, order, strategy = self.room.problem, self.order, self.room.strategy
-        sym, params = self.symbols()
+        sym, params = self.formulation.symbols()
         x = sym.x
         rows = [c for t in strategy.hard for c in t.constraints(sym)]
         # The lazy tasks' cuts: linear rows whose coefficients are parameters,
@@ -241,69 +243,6 @@ class InteriorPoint(SingleSolver):
                                                         nlp, opts)
         programs.objectives = [ca.Function(t.type, [x, params], [t.measure(sym)]) for t in order]
         return stages
-
-    def symbols(self) -> tuple[Symbolic, ca.SX]:
-        """The programs' symbols and their parameter vector: goal (3), start (nx), start weight, the tasks' targets,
-        and, lifted, the body's numbers (:mod:`oracles.ik.parameters`)."""
-        p, strategy, model = self.room.problem, self.room.strategy, self.room.body.model
-        goal, start, weight = ca.SX.sym("goal", 3), ca.SX.sym("start", p.nx), ca.SX.sym("start_weight", 1)
-        target = ca.SX.sym("target", strategy.target_size)
-        if not self.lifted:
-            sym = Symbolic(SymbolicKinematics(model, p.q_sym), p.x_sym, goal, p.x_ref, p.upper - p.lower,
-                           tuple(p.x_names), p.lower, start, weight, strategy.target_dict(target))
-            return sym, ca.vertcat(goal, start, weight, target)
-        numbers = self.numbers
-        kin = SymbolicKinematics(model, p.q_expression(numbers.sx("q_ref")), numbers)
-        sym = Symbolic(kin, p.x_sym, goal, numbers.vector("x_ref"), numbers.vector("span"), tuple(p.x_names),
-                       numbers.vector("lower"), start, weight, strategy.target_dict(target), numbers,
-                       {id(t): f"task{k}." for k, t in enumerate(strategy.tasks)})
-        return sym, ca.vertcat(goal, start, weight, target, numbers.symbols)
-
-    @property
-    def lifted(self) -> bool:
-        """Whether the programs take the body's numbers as parameters: ``body_parameters``, and every task of the
-        strategy can (:attr:`Task.parametric`)."""
-        return self.body_parameters and all(t.parametric for t in self.room.strategy.tasks)
-
-    @property
-    def numbers(self) -> BodyParameters:
-        """The body's numbers as the programs take them (lifted when :attr:`lifted`; only lifted programs read them)."""
-        if self._numbers is None:
-            room = self.room
-            arrays = {**model_arrays(room.body.model), **room.problem.arrays()}
-            tasks = {f"task{k}.{name}": v for k, t in enumerate(room.strategy.tasks) for name, v in t.numbers().items()}
-            # The tasks' numbers lifted whole: their zeros are a body's (a capsule a sphere at one member, a segment
-            # at the next: 3 of 20 ANSUR II members had another program).
-            self._numbers = BodyParameters({**arrays, **tasks}, self.lifted, fixed=frozenset({"root_ref"}),
-                                           dense=frozenset(tasks))
-        return self._numbers
-
-    def program_key(self, options: dict[str, Any] | None = None) -> tuple[Any, ...] | None:
-        """What two oracles' programs depend on when the body's numbers are parameters (None when they are not): the
-        body's signature and joints, the strategy but its body, the solver's ``options`` (its own by default)."""
-        if not self.lifted:
-            return None
-        strategy = {k: v for k, v in self.room.strategy_params.items() if k != "body"}
-        # jit changes how the programs run, not what they are (the caches below key it apart): `jit: auto` and `true`
-        # name the same compiled library; the search's rescues change neither
-        engine = {k: v for k, v in (options or self.options()).items() if k not in ("jit", "blocked_starts")}
-        return self.numbers.signature, self._joints, repr(strategy), repr(sorted(engine.items()))
-
-    @property
-    def _joints(self) -> tuple[tuple[str, str, int], ...]:
-        """The body's joints: names, kinds and parents (what the programs' structure follows)."""
-        model = self.room.body.model
-        return tuple((str(model.names[j]), model.joints[j].shortname(), int(model.parents[j]))
-                     for j in range(model.njoints))
-
-    def with_body(self, params: np.ndarray) -> np.ndarray:
-        """Parameters (B, k) or (k,) of the goal, start and targets, with the body's lifted numbers after them."""
-        if not self.lifted:
-            return params  # a program of this body's own: its numbers are constants in it
-        values = self.numbers.values
-        if params.ndim == 1:
-            return np.concatenate([params, values])
-        return np.concatenate([params, np.tile(values, (len(params), 1))], axis=1)
 
     def _nlpsol(self, name: str, solver: str, nlp: dict[str, Any], opts: dict[str, Any]) -> ca.Function:
         if self.jit:
@@ -400,17 +339,6 @@ class InteriorPoint(SingleSolver):
         assert x_new is not None
         return (x_new, value) if task is reach else None
 
-    def _params(self, goal: np.ndarray, x: np.ndarray, call: Call, pull: bool = False) -> np.ndarray:
-        """The programs' parameters: the goal, the current posture (x itself without one) and its weight (0 unless
-        pulled), the goal's task targets (``Strategy.target_rows``; the tasks' defaults without)."""
-        start = call.start if call.start is not None else x
-        target = call.target if call.target is not None else self.default_target
-        return self.with_body(np.concatenate([goal, start, [0.0 if call.start is None and not pull else 1.0], target]))
-
-    @property
-    def default_target(self) -> np.ndarray:
-        """The target parameters of a goal that carries none (each task's default)."""
-        return self.room.strategy.target_rows({}, 1)[0]
 
 
 def fatrop(room: Room, max_iter: int = 60, secondary_iter: int = 15, jit: bool | str = False,
