@@ -12,7 +12,8 @@ from helpers import ARM, human_config
 from oracles.bodies.body import human_body
 from oracles.ik import waves
 from reach.answers.answer import FAILED, REFINED, SKIPPED, UNAVAILABLE, Answer
-from reach.answers.select import SEEDS, Selector
+from reach.answers.refine import SEEDS
+from reach.answers.select import Selector
 from reach.building.atlas import build_atlas
 from reach.building.config import parse_config
 from reach.errors import InputError, ModelMismatch, UnknownEffector, UnknownPolicy
@@ -283,12 +284,13 @@ def test_refinement_also_starts_from_the_best_liked_stored_posture_nearby(arm, m
     worse[list(tree.vertices.posture_names).index("right_shoulder_abduction")] = 2.5  # the arm raised sideways
     postures[row] = worse
     try:
-        best = s._best_liked(name, oracle, goal, worse)
+        best = s.refiner._best_liked(name, oracle, goal, worse)
         liked = {int(r): oracle.preference(postures[r], goal) for r in rows[near]}
         assert best is not None and oracle.preference(best, goal) == pytest.approx(min(liked.values()))
-        assert s._best_liked(name, oracle, goal, best) is None  # the nearest already the best liked: no extra start
+        # the nearest already the best liked: no extra start
+        assert s.refiner._best_liked(name, oracle, goal, best) is None
         monkeypatch.setattr(type(oracle), "preference", lambda self, posture, goal: 0.0)  # an engine that cannot tell
-        assert s._best_liked(name, oracle, goal, worse) is None
+        assert s.refiner._best_liked(name, oracle, goal, worse) is None
         monkeypatch.undo()
         seeded: list[tuple[int, ...]] = []
         real = type(oracle).evaluate

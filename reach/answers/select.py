@@ -56,7 +56,6 @@ import logging
 import math
 import time
 from collections import OrderedDict
-from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -71,12 +70,10 @@ from oracles.protocol import (
     Oracle,
     OracleSpec,
     Oriented,
-    Preferring,
     Preparable,
     Rebuilt,
     Stepping,
     Tunable,
-    Verdicts,
 )
 from reach.answers.answer import (
     ERROR,
@@ -88,11 +85,11 @@ from reach.answers.answer import (
     UNAVAILABLE,
     Answer,
     joint_names,
-    set_joints,
     split_posture,
     timed_out,
 )
 from reach.answers.defaults import HANDOVER, MISS, MISSES, REFINE_BUDGET
+from reach.answers.refine import Prefetched, Purse, Refiner
 from reach.errors import InputError, ModelMismatch, UnknownEffector, UnknownPolicy
 from reach.maps.atlas import Atlas
 from reach.maps.protocol import DEFAULT_POLICY, POLICIES, Policy, ReachMap
@@ -106,27 +103,6 @@ FROM_TOLERANCE = math.radians(1.0)
 FROM_QUATERNION = 1e3  # the largest component of a `from` root quaternion (it is normalised)
 FROM_REACH = 1000.0  # [m] a `from` root farther than this from the world origin is a mistake, not a scene
 POSTURE_CACHE = 4096  # stored postures kept encoded, most recently used first
-# [s] the least budget of a goal with an orientation: its stored postures hold none, so its refinement tries random
-# starts too; within 20 ms it timed out on 5 of 72 oriented arm7_table goals the referee reaches (docs/history.md). The
-# batched engine's K starts and K random ones take 0.10-0.15 s on an idle machine: 0.2 s timed out on a loaded one (CI).
-ORIENTED_BUDGET = 0.5
-# The share of a refinement's budget its solve gets, leaving at most SOLVE_RESERVE [s] for the seeding (the best-liked
-# stored posture near the goal), the verdict's checks and the answer: 6-8 ms around a solve given all of 20 ms (demo
-# atlas, bench/refined.py: its queries took 27-30 ms). An oriented goal's 0.5 s keeps all but that.
-SOLVE_SHARE = 0.7
-SOLVE_RESERVE = 0.006
-# A refinement left less than this share of one goal's budget is not started (a timeout): a handover after a first
-# choice that took most of the budget took 2-5 ms more for a solve of 1-2 ms (bench/refined.py).
-LEAST_SOLVE = 0.25
-# A refinement without `from` also starts from the best-liked of this many
-# nearest stored postures (when it is not the nearest's): the nearest can sit
-# in a worse basin of the posture task than its neighbours, and two goals 1 cm
-# apart then ended in different basins (docs/history.md).
-SEEDS = 8
-
-
-Refined = tuple[np.ndarray, "float | None", str]  # a refinement: the posture, its residual [m] and its outcome
-Prefetched = dict[str, Refined]  # one goal's refinements made ahead, by strategy (see Selector._prefetch)
 
 
 class Lookup(NamedTuple):
@@ -146,19 +122,6 @@ class Found(NamedTuple):
     residual: float | None  # [m] from the goal
     outcome: str  # the refinement's, one of the outcomes above
     row: int  # the nearest stored vertex's row
-
-
-@dataclass
-class Purse:
-    """One goal's refinement budget [s], shared by its refinements (the first choice's, a fallback's, a handover's):
-    each pays the work its oracle says it spent (``Verdicts.spent``; an oracle whose budget is the clock, the time it
-    took) and the reserve kept for its seeding and checks. Paid by work, what is left is the same for the same
-    request on any machine, and so is the answer."""
-
-    left: float
-
-    def pay(self, spent: float) -> None:
-        self.left = max(self.left - spent, 0.0)
 
 
 class Selector:
@@ -190,6 +153,7 @@ class Selector:
         self.policy = policy
         self.refine = refine
         self.budget = budget
+        self.refiner = Refiner(atlas.maps, self._oracle, budget, self._neighbours)
         self.order = [(s["name"], s["effector"]) for s in sorted(atlas.strategies, key=lambda s: s["priority"])]
         self._by_effector: dict[str, list[str]] = {}
         for name, effector in self.order:
@@ -351,7 +315,16 @@ class Selector:
         twin.budget = float(budget)
         twin._oracles = {n: o.variant("refine", budget=budget) if isinstance(o, Tunable) else o
                          for n, o in self._oracles.items()}
+        twin.refiner = Refiner(self.atlas.maps, twin._oracle, budget, twin._neighbours)
         return twin
+
+    def _neighbours(self, name: str, goal: np.ndarray, k: int) -> np.ndarray | None:
+        """The strategy's k stored postures (k, nq) nearest the goal, or None when it stores none."""
+        found = self._kd.get(name)
+        if found is None:
+            return None
+        _, near = found.kd.query(goal, k=min(k, len(found.ids)))
+        return self.atlas.maps[name].postures(found.ids[np.atleast_1d(near)])
 
     def oracle(self, name: str) -> Oracle:
         """The strategy's oracle as answers use it (its ``"refine"`` variant)."""
@@ -497,9 +470,9 @@ class Selector:
             # strategy's solvers are built before it refines, outside its budget (a server's at warm-up; `reach query`
             # builds them when a strategy is first asked: only the first choice's, unless it falls back or hands over,
             # where building every holding strategy's took 1.2 s of a fresh query's 2 s).
-            purse = Purse(self._goal_budget(aim))
+            purse = Purse(self.refiner.goal_budget(aim))
             if refine:
-                q, residual, outcome = self._refine(name, goal, q, residual, start, aim, done, purse)
+                q, residual, outcome = self.refiner.refine(name, goal, q, residual, start, aim, done, purse)
             found = None
             if outcome == FAILED:
                 # The IK says this strategy does not reach the exact goal (its
@@ -590,7 +563,7 @@ class Selector:
             residual: float | None = gap if np.isfinite(gap) else None
             outcome = SKIPPED
             if refine:
-                q, residual, outcome = self._refine(name, goal, q, residual, start, aim, done, purse)
+                q, residual, outcome = self.refiner.refine(name, goal, q, residual, start, aim, done, purse)
                 if outcome == TIMEOUT:  # out of budget: no further strategy is tried
                     # A handover keeps the answer it had; a failed goal is answered by this strategy's
                     # stored posture, marked timeout: its tree holds the goal and nothing said otherwise.
@@ -618,78 +591,6 @@ class Selector:
         else:
             self._postures.move_to_end(key)
         return hit
-
-    @staticmethod
-    def start_posture(tree: ReachMap, stored: np.ndarray, start: dict[str, float] | None) -> np.ndarray | None:
-        """The query's ``from`` as a full posture: the stored one with the given joints replaced."""
-        if start is None:
-            return None
-        names = tree.posture_names
-        unknown = sorted(set(start) - set(joint_names(names)))
-        if unknown:
-            raise InputError("from", f"unknown joints {unknown[:5]}; the posture's names are "
-                                     f"{', '.join(joint_names(names))}")
-        q = set_joints(names, stored.copy(), start, "from")
-        if "root_qx" in names:  # a client's quaternion, rounded, made a rotation again
-            i = names.index("root_qx")
-            q[i : i + 4] /= np.linalg.norm(q[i : i + 4])
-        return q
-
-    def _refine(self, name: str, goal: np.ndarray, q: np.ndarray, residual: float | None,
-                start_joints: dict[str, float] | None = None, aim: np.ndarray | None = None,
-                done: Prefetched | None = None, purse: Purse | None = None) -> Refined:
-        if done is not None and name in done:
-            q_done, residual_done, outcome = done[name]
-            return (q_done, residual_done, outcome) if outcome == REFINED else (q, residual, outcome)
-        self._ready(name)
-        if start_joints is None:  # from the stored posture and the best liked near it, as a batch's goals are
-            return self._refine_many(name, goal[None], q[None], [residual], [aim], None, purse)[0]
-        oracle, budget, reserve = self._tuned(name, 1, aim, purse)
-        if budget < LEAST_SOLVE * self.budget:
-            return q, residual, TIMEOUT
-        t0 = time.perf_counter()
-        start = self.start_posture(self.atlas.maps[name], q, start_joints)  # from the character's posture
-        v = oracle.evaluate(Goals(goal[None], {} if aim is None else {"orientation": aim[None]}, start))
-        over = self._spent(v, budget, t0, purse, reserve)[0]
-        if v.reachable[0] and v.posture is not None:
-            return v.posture[0], float(v.residual[0]), REFINED
-        return q, residual, TIMEOUT if over else FAILED
-
-    def _ready(self, name: str) -> None:
-        """A strategy's solvers built (once; a server's at warm-up), so that building them is never charged to a
-        refinement's budget."""
-        if isinstance(oracle := self._oracle(name), Preparable):
-            oracle.prepare()
-
-    @staticmethod
-    def _spent(v: Verdicts, budget: float, t0: float, purse: Purse | None, reserve: float) -> np.ndarray:
-        """Which goals of a refinement call spent their budget (``budget`` pooled over them): by the work the oracle
-        reports, else by the clock; the goal's purse (a single goal's) pays that and the reserve."""
-        n = len(v.reachable)
-        spent = (np.full(n, (time.perf_counter() - t0) / n) if v.spent is None
-                 else np.asarray(v.spent, float))
-        if purse is not None:
-            purse.pay(float(spent.sum()) + reserve)
-        return spent >= budget / n * (1.0 - 1e-9)  # type: ignore[no-any-return]
-
-    def _goal_budget(self, aim: np.ndarray | None) -> float:
-        """One goal's refinement budget [s]: the selector's, at least ``ORIENTED_BUDGET`` with an orientation."""
-        return self.budget if aim is None else max(self.budget, ORIENTED_BUDGET)
-
-    def _tuned(self, name: str, goals: int, aim: np.ndarray | None,
-               purse: Purse | None = None) -> tuple[Oracle, float, float]:
-        """The strategy's refinement oracle for ``goals`` goals, its solve's budget [s] (theirs pooled, each at least
-        ``ORIENTED_BUDGET`` with an orientation; a single goal's, what its purse has left) and the reserve [s] kept
-        from it for the seeding and checks."""
-        oracle = self._oracle(name)
-        budget = goals * self._goal_budget(aim)
-        if purse is not None:
-            budget = min(budget, purse.left)
-        reserve = min((1.0 - SOLVE_SHARE) * budget, SOLVE_RESERVE)
-        budget -= reserve
-        if budget > 0 and isinstance(oracle, Tunable):
-            oracle = oracle.variant("refine", budget=budget)
-        return oracle, budget, reserve
 
     def _prefetch(self, g: np.ndarray, names: list[str], hits: np.ndarray,
                   nearest: dict[int, tuple[int, np.ndarray] | None],
@@ -747,54 +648,10 @@ class Selector:
             idx = np.array([i for i, _ in mine])
             stored = self.atlas.maps[name].postures(np.array([row for _, (row, _) in mine]))
             gaps = [float(np.linalg.norm(g[i] - reached)) for i, (_, reached) in mine]
-            found = self._refine_many(name, g[idx], stored, [gap if np.isfinite(gap) else None for gap in gaps],
+            found = self.refiner.refine_many(name, g[idx], stored, [gap if np.isfinite(gap) else None for gap in gaps],
                                       [aims[i] for i in idx], deadline)
             for i, refined in zip(idx, found, strict=True):
                 done[i][name] = refined
-
-    def _refine_many(self, name: str, goals: np.ndarray, stored: np.ndarray, residuals: list[float | None],
-                     aims: list[np.ndarray | None], deadline: float | None,
-                     purse: Purse | None = None) -> list[Refined]:
-        """:meth:`_refine` for a strategy's goals (m, 3) in one evaluate call: each from its stored posture and the
-        best-liked one near it, within m refinements' budgets. A batch's ``deadline`` leaves its budget whole for as
-        many goals, in order, as it has time for; the others are not refined (``timeout``). (Shrunk to the time left,
-        the budget was each goal's share of it: a deadline too short for all refined none.)"""
-        m = len(goals)
-        self._ready(name)
-        if deadline is not None:
-            k = min(m, max(int((deadline - time.perf_counter()) / self._goal_budget(aims[0])), 0))
-            if k < m:
-                first = self._refine_many(name, goals[:k], stored[:k], residuals[:k], aims[:k], None) if k else []
-                return [*first, *[(q, r, TIMEOUT) for q, r in zip(stored[k:], residuals[k:], strict=True)]]
-        tuned, budget, reserve = self._tuned(name, m, aims[0], purse)
-        if budget < LEAST_SOLVE * self.budget:
-            return [(q, r, TIMEOUT) for q, r in zip(stored, residuals, strict=True)]
-        liked = ([self._best_liked(name, tuned, goal, q) for goal, q in zip(goals, stored, strict=True)]
-                 if isinstance(tuned, Preferring) else [])
-        seeds = stored[:, None]
-        if any(q is not None for q in liked):
-            seeds = np.stack([stored,
-                              np.array([np.full(stored.shape[1], np.nan) if q is None else q for q in liked])], axis=1)
-        t0 = time.perf_counter()
-        targets = {} if aims[0] is None else {"orientation": np.stack(aims)}  # type: ignore[arg-type]
-        v = tuned.evaluate(Goals(goals, targets, None, seeds))
-        over = self._spent(v, budget, t0, purse, reserve)
-        return [(v.posture[k], float(v.residual[k]), REFINED) if v.reachable[k] and v.posture is not None
-                else (stored[k], residuals[k], TIMEOUT if over[k] else FAILED) for k in range(m)]
-
-    def _best_liked(self, name: str, oracle: Preferring, goal: np.ndarray, q: np.ndarray) -> np.ndarray | None:
-        """The stored posture the oracle likes best among the ``SEEDS`` reachable vertices nearest the goal,
-        None when that is ``q`` itself or the oracle likes them all alike (it cannot tell; see ``SEEDS``)."""
-        found = self._kd.get(name)
-        if found is None:
-            return None
-        _, near = found.kd.query(goal, k=min(SEEDS, len(found.ids)))
-        candidates = list(self.atlas.maps[name].postures(found.ids[np.atleast_1d(near)]))
-        liked = [oracle.preference(c, goal) for c in candidates]
-        if min(liked) == max(liked):
-            return None  # no preference: another start would only cost a solve
-        best = candidates[int(np.argmin(liked))]
-        return None if np.array_equal(best, q) else best
 
     def select(self, effector: str, goal: np.ndarray, refine: bool | None = None, start: dict[str, float] | None = None,
                miss: str | None = None, orientation: np.ndarray | None = None) -> Answer:

@@ -54,6 +54,7 @@ from scipy.spatial import cKDTree
 
 from oracles.protocol import EffectorPositions, Moving, Settling, Shaped, Stepping, Transiting, Verifying
 from reach.answers.answer import posture_vector, split_posture
+from reach.answers.refine import start_posture
 from reach.answers.select import Selector
 from reach.errors import InputError, ReachError
 from reach.maps.graph import REACH, MotionGraph, graph_of
@@ -852,7 +853,7 @@ class Planner:
     @staticmethod
     def _start(oracle: Body, tree: Any, start: dict[str, float] | None) -> np.ndarray:
         reference = np.array(oracle.reference_posture(), dtype=float)
-        q = Selector.start_posture(tree, reference, start)
+        q = start_posture(tree, reference, start)
         return reference if q is None else q
 
     def _nearest_stored(self, name: str, goal: np.ndarray) -> np.ndarray:

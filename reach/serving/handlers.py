@@ -26,7 +26,8 @@ import numpy as np
 from reach import __version__
 from reach.answers.accommodation import held
 from reach.answers.answer import ERROR, orientation_of
-from reach.answers.select import ORIENTED_BUDGET, Selector
+from reach.answers.refine import ORIENTED_BUDGET
+from reach.answers.select import Selector
 from reach.motion.planner import Planner, Timing
 from reach.motion.rig import with_bones
 from reach.serving import cells
