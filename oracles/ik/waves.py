@@ -102,6 +102,10 @@ class Batched(Protocol):
     def polisher(self) -> Polishing: ...
 
 
+# a wave's goals (indices), each goal's starts, and which goals' first start is decisive (by goal; None: none)
+Started = tuple[np.ndarray, list[list[np.ndarray]], "np.ndarray | None"]
+
+
 class Wave(NamedTuple):
     """One batched run of some goals' starts: the goals (indices), each goal's rows (``offsets``), the starts x0
     and ends x (B, nx), the ends as postures q (B, nq), their reach distances, hard-row violations, how
@@ -231,9 +235,10 @@ class Waves:
         runs: list[Wave] = []  # the waves the goals that are not staged are polished from
         spent: list[Wave] = []  # every wave (what the rounds went to)
         for wave in WAVES:
-            run = self._wave(wave)
-            if run is None:
+            found = self._wave(wave)
+            if found is None:
                 continue
+            run = self._run(*found)
             self._keep_reaching(run)
             # A staged goal is polished after each of its waves, before the next (fatrop from the placed starts' near
             # miss reached a fifth of the goals it was tried on, without the random starts); the others after all.
@@ -242,8 +247,9 @@ class Waves:
             if wave != "more":
                 runs.append(run)
         self._polish_missed(runs, ~self.staged)
-        last = self._near_wave()
-        if last is not None:
+        found = self._near_wave()
+        if found is not None:
+            last = self._run(*found)
             self._keep_reaching(last)
             self._polish_missed([last], np.ones(n, bool))
             spent.append(last)
@@ -255,8 +261,8 @@ class Waves:
         return Verdicts(self.reach, self.residual, self.posture, None if search.max_seconds is None
                         else np.where(meter.cut, self.budgets, self.budgets - meter.left))
 
-    def _wave(self, wave: str) -> Wave | None:
-        """One wave's goals and starts, run together; None when no goal has a start in it."""
+    def _wave(self, wave: str) -> Started | None:
+        """One wave's goals, their starts and which are decisive; None when no goal has a start in it."""
         oracle, todo, reach = self.oracle, self.todo, self.reach
         if wave == "starts":
             goals = todo
@@ -281,9 +287,9 @@ class Waves:
             return None
         goals = np.array(kept, int)
         oracle.stats[f"wave_{wave}"] = oracle.stats.get(f"wave_{wave}", 0) + int(goals.size)
-        return self._run(goals, starts, self.decisive if wave == "starts" else None)
+        return goals, starts, self.decisive if wave == "starts" else None
 
-    def _near_wave(self) -> Wave | None:
+    def _near_wave(self) -> Started | None:
         """WAVE x K uniform random starts for each cold goal still missed within NEAR_MISS that can pay for them."""
         oracle, todo = self.oracle, self.todo
         # cold goals only (a query's, a referee's): a build's hinted vertices, most of its work, paid 35 % more CPU for
@@ -297,7 +303,7 @@ class Waves:
         k = self.solver.starts_per_goal
         starts = [batch_starts(oracle, k, self.pts[i], None, NEAR_STREAM, self.targets is not None, "random")
                   for i in goals]
-        return self._run(goals, starts, None)
+        return goals, starts, None
 
     def _run(self, goals: np.ndarray, starts: list[list[np.ndarray]], decisive: np.ndarray | None) -> Wave:
         """The goals' starts iterated together (:func:`oracles.ik.batch.run_starts`)."""

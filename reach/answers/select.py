@@ -388,8 +388,21 @@ class Selector:
         """
         t0 = time.perf_counter()
         g = np.asarray(goals, dtype=float)
-        names = self.check_goals(effector, g, start)
         refine = self.refine if refine is None else refine
+        names, aims, miss = self._asked(effector, g, refine, start, miss, orientation)
+        if len(g) == 1:  # in plain Python: the server's per-request path
+            out_of_time = refine and deadline is not None and time.perf_counter() > deadline
+            point = g[0].tolist()
+            hits = [n for n in names if self.atlas.maps[n].contains_one(point, self.policy)]
+            nearest = self._nearest_row(hits[0], self.atlas.maps[hits[0]], point) if hits else None
+            return [timed_out(self._answer(effector, g[0], hits, nearest, refine and not out_of_time, t0, start, miss,
+                                           aims[0]), out_of_time)]
+        return self._batch(effector, g, names, refine, start, miss, aims, deadline)
+
+    def _asked(self, effector: str, g: np.ndarray, refine: bool, start: dict[str, float] | None, miss: str | None,
+               orientation: np.ndarray | list[np.ndarray] | None) -> tuple[list[str], list[np.ndarray | None], str]:
+        """A request's strategies, each goal's orientation (None: none) and its ``miss``, once they are valid."""
+        names = self.check_goals(effector, g, start)
         aims: list[np.ndarray | None] = [None] * len(g)
         if orientation is not None:
             if not refine:
@@ -404,13 +417,11 @@ class Selector:
         miss = self.miss if miss is None else miss
         if miss not in MISSES:
             raise InputError("miss", f"expected one of {', '.join(MISSES)}, got {miss!r}")
-        def late() -> bool:
-            return deadline is not None and time.perf_counter() > deadline
+        return names, aims, miss
 
-        if len(g) == 1:
-            out_of_time = refine and late()
-            return [timed_out(self._select_one(effector, names, g[0], refine and not out_of_time, t0, start, miss,
-                                                aims[0]), out_of_time)]
+    def _batch(self, effector: str, g: np.ndarray, names: list[str], refine: bool, start: dict[str, float] | None,
+               miss: str, aims: list[np.ndarray | None], deadline: float | None) -> list[Answer]:
+        """select_many for goals (N, d), N > 1: one tree lookup per strategy for the whole batch."""
         hits = np.stack([self.atlas.maps[n].contains(g, self.policy) for n in names])
         chosen = np.where(hits.any(axis=0), hits.argmax(axis=0), -1)
         nearest: dict[int, tuple[int, np.ndarray] | None] = {}
@@ -427,21 +438,14 @@ class Selector:
         out = []
         for n_goal in range(len(g)):
             # With a deadline, each goal is refined only while there is time.
-            out_of_time = bool(unrefined[n_goal]) if unrefined is not None else refine and late()
+            out_of_time = (bool(unrefined[n_goal]) if unrefined is not None
+                           else refine and deadline is not None and time.perf_counter() > deadline)
             answer = self._answer(effector, g[n_goal], [n for j, n in enumerate(names) if hits[j, n_goal]],
                                   nearest.get(n_goal),
                                   refine and not out_of_time, time.perf_counter(), start, miss, aims[n_goal],
                                   done[n_goal])
             out.append(timed_out(answer, out_of_time))
         return out
-
-    def _select_one(self, effector: str, names: list[str], goal: np.ndarray, refine: bool, t0: float,
-                    start: dict[str, float] | None, miss: str, aim: np.ndarray | None = None) -> Answer:
-        """select_many for one goal, in plain Python: the server's per-request path."""
-        point = goal.tolist()
-        hits = [n for n in names if self.atlas.maps[n].contains_one(point, self.policy)]
-        nearest = self._nearest_row(hits[0], self.atlas.maps[hits[0]], point) if hits else None
-        return self._answer(effector, goal, hits, nearest, refine, t0, start, miss, aim)
 
     def _answer(self, effector: str, goal: np.ndarray, hits: list[str], nearest: tuple[int, np.ndarray] | None,
                 refine: bool, t0: float,

@@ -383,7 +383,8 @@ class Server:
             rid = req.id
             if envelope is not None and HANDLERS[req.op].defer(self, req, envelope):
                 return None  # the workers or the background answer it
-            return P.ok_reply(self.dispatch(req), rid)
+            result = HANDLERS[req.op].answer(self, req)  # answered now by its operation's handler
+            return P.ok_reply(result if isinstance(result, bytes) else P.encode(result), rid)
         except Exception as exc:  # noqa: BLE001 - nothing a client sends may stop the server
             return self.error(exc, rid)
 
@@ -400,11 +401,6 @@ class Server:
             return P.error_reply(code, str(exc), rid)
         self._log_internal(exc)
         return P.error_reply(P.INTERNAL, f"{type(exc).__name__}: {exc}", rid)
-
-    def dispatch(self, req: P.Request) -> bytes:
-        """The encoded result object of a valid request, answered now by its operation's handler."""
-        result = HANDLERS[req.op].answer(self, req)
-        return result if isinstance(result, bytes) else P.encode(result)
 
     @property
     def planner(self) -> Planner:
