@@ -12,9 +12,11 @@ import pytest
 from helpers import ARM
 
 from oracles.ik.oracle import Call, IKOracle
-from oracles.ik.rounds import starts
+from oracles.ik.rounds import NO_CALL, starts
 from oracles.ik.search import Search
+from oracles.ik.solvers import SOLVERS
 from oracles.ik.solvers.interior import InteriorPoint
+from oracles.ik.solvers.single import SingleSolver
 from oracles.protocol import Goals, OracleSpec
 from reach.building.config import load_config
 from reach.errors import ModelError, OracleError
@@ -551,3 +553,38 @@ def test_a_compile_is_said_before_it_starts_and_when_it_ends(tmp_path, monkeypat
     assert "reach: compiled cube in" in err
     jit.compiled_function("cube", ca.Function("cube", [x], [x * x * x]))
     assert "compil" not in capsys.readouterr().err
+
+
+class PositionOnly(SingleSolver):
+    """A solver added as a newcomer adds one: Gauss-Newton on the effector's position alone (tests only)."""
+
+    name = "position_only"
+
+    def solve(self, goal, x0, lower=True, call=NO_CALL):
+        p, model, data = self.room.problem, self.room.body.model, self.room.data
+        cols = [model.joints[j].idx_v for j in p.joint_ids]
+        x = np.array(x0, float)
+        for _ in range(50):
+            q = p.q_of_x(x)
+            pin.computeJointJacobians(model, data, q)
+            pin.updateFramePlacements(model, data)
+            jac = pin.getFrameJacobian(model, data, p.effector_id, pin.LOCAL_WORLD_ALIGNED)[:3, cols]
+            x = np.clip(x + np.linalg.pinv(jac) @ (goal - data.oMf[p.effector_id].translation), p.lower, p.upper)
+        return p.q_of_x(x)
+
+
+def test_a_new_solver_is_one_class_and_one_registry_line(monkeypatch):
+    """Adding a solver is a file in oracles/ik/solvers/ and a line in SOLVERS: the oracle then searches with it (its
+    answers checked by the verdict, as every solver's), its spec names it and rebuilds it, and a bad option is refused
+    by name."""
+    monkeypatch.setitem(SOLVERS, "position_only", "test_ik:PositionOnly")
+    oracle = IKOracle(HUMAN, "right_hand", ARM, [{"type": "reach"}], search=Search(restarts=2), solver="position_only")
+    goals = np.array([[0.4, -0.3, 1.1], [0.3, -0.5, 1.4], [1.5, 0.0, 1.0]])
+    v = oracle.evaluate(goals)
+    assert v.reachable.tolist() == [True, True, False]
+    assert oracle.verify(goals, v.posture).tolist() == [True, True, False]
+    assert oracle.spec.params["solver"] == "position_only" and oracle.spec.create().solver.name == "position_only"
+    with pytest.raises(OracleError, match="takes no option damping"):
+        IKOracle(HUMAN, "right_hand", ARM, solver="position_only", damping=0.1)
+    with pytest.raises(OracleError, match="solver must be one of"):
+        IKOracle(HUMAN, "right_hand", ARM, solver="newton")

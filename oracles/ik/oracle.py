@@ -162,7 +162,10 @@ class IKOracle(TaskedBody):
     @property
     def spec(self) -> OracleSpec:
         """The spec that rebuilds this oracle in another process."""
-        return OracleSpec(self.name, {**self.strategy_params, **self.search.to_params(), **self.solver.options()})
+        options = self.solver.options()
+        if self.solver.oracle != self.solver.name:  # the oracle's name does not say which solver: the spec does
+            options.setdefault("solver", self.solver.name)
+        return OracleSpec(self.name, {**self.strategy_params, **self.search.to_params(), **options})
 
     def as_built(self, model_hash: str) -> tuple[Oracle, str] | None:
         """This oracle on the body a stored tree was built with: a human spec read as earlier versions built it
