@@ -251,3 +251,21 @@ def test_an_iteration_starts_only_when_one_as_long_as_the_last_ends_before_the_d
     assert [pace.out(), pace.out(), pace.out()] == [False, False, True]
     assert pace.step == 3.0
     assert not budget.Pace(float("inf")).out()  # a build has no deadline: every iteration runs
+
+
+def test_a_strategys_spread_scales_its_first_random_starts_and_is_written_only_when_given(whole):
+    """``spread``: a floating body's first random starts lie that share of the way from its home to uniform postures
+    drawn from the same stream, so 0.9 puts each 1.8 times as far out as the default 0.5; the spec carries it only when
+    given (trees built before it keep their digests), and a share outside (0, 1] is refused by name."""
+    assert whole.solver.spread == waves.RANDOM_SPREAD and "spread" not in whole.spec.params
+    wide = _batch(WHOLE, [*PLANTED, {"type": "self_collision"}, {"type": "floor"}, {"type": "posture"}], spread=0.9)
+    assert wide.spec.params["spread"] == 0.9 and wide.spec.create().solver.spread == 0.9
+    goal, home = np.array([0.5, -0.3, 1.0]), whole.problem.x_home
+    half = waves.batch_starts(whole, STARTS, goal, None, part="random", spread=whole.solver.spread)
+    far = waves.batch_starts(wide, STARTS, goal, None, part="random", spread=wide.solver.spread)
+    assert len(half) == len(far) > 0
+    for a, b in zip(half, far, strict=True):
+        assert np.allclose(b - home, 1.8 * (a - home))
+    for bad in (0, 1.5, True, "wide"):
+        with pytest.raises(OracleError, match="spread"):
+            _batch(ARM, spread=bad)

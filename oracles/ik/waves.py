@@ -87,6 +87,7 @@ class Batched(Protocol):
     """What the waves ask of the batched solver (:class:`oracles.ik.solvers.batched.Batched`)."""
 
     starts_per_goal: int
+    spread: float
     lower_iter: int
     blocked_starts: int
 
@@ -124,7 +125,7 @@ class Wave(NamedTuple):
 
 
 def batch_starts(oracle: Searched, k: int, goal: np.ndarray, hint: np.ndarray | None, wave: int = 0,
-                 targeted: bool = False, part: str = "all") -> list[np.ndarray]:
+                 targeted: bool = False, part: str = "all", spread: float = RANDOM_SPREAD) -> list[np.ndarray]:
     """A goal's K starts: its hints (the neighbour's posture first), the reference and ready postures, then
     random ones seeded by the search's seed and the goal (the same goal gets the same starts in any batch).
     Wave 1 (the ``random`` wave): ``WAVE`` times K random ones, of the same seed's next draws. ``part``:
@@ -143,7 +144,7 @@ def batch_starts(oracle: Searched, k: int, goal: np.ndarray, hint: np.ndarray | 
     # uniform hips and ankles throw the held feet metres off, which most starts do not come back from in 40
     # steps; the second wave's are uniform, for the far basins (a reach behind the back, measured in
     # docs/history.md).
-    spread = RANDOM_SPREAD if oracle.strategy.floating and wave == 0 else 1.0
+    spread = spread if oracle.strategy.floating and wave == 0 else 1.0
     count = max(k - len(placed), 0) if wave == 0 else WAVE * k
     if targeted and wave == 0:
         # A goal with a target (an orientation) is seeded with postures found for its position alone: K random
@@ -279,7 +280,7 @@ class Waves:
             part = "all" if wave == "random" or not self.staged[i] else "placed" if wave == "starts" else "random"
             hint = None if self.hints is None else self.hints[i]
             these = batch_starts(oracle, self.solver.starts_per_goal, self.pts[i], hint, int(wave == "random"),
-                                 self.targets is not None, part)
+                                 self.targets is not None, part, self.solver.spread)
             if these:  # (a staged goal of a search of K <= 3 starts has no random one)
                 starts.append(these)
                 kept.append(i)

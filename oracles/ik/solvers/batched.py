@@ -21,7 +21,7 @@ from oracles.ik.budget import Meter
 from oracles.ik.rounds import NO_CALL, Call
 from oracles.ik.solvers.interior import REFINE_SECONDARY_ITER, InteriorPoint
 from oracles.ik.solvers.protocol import Room, Solver
-from oracles.ik.waves import Waves
+from oracles.ik.waves import RANDOM_SPREAD, Waves
 from oracles.protocol import Purpose, Verdicts
 
 # Default starts per goal (K): the hint(s), the reference, the ready posture, seeded random ones. Cold goals (no hint,
@@ -41,6 +41,10 @@ class Batched:
     Args:
         room: The oracle's body, strategy and search.
         starts: Starts a goal in the first wave (``STARTS``).
+        spread: The share of the way from the home posture to a uniform random one that a floating body's first random
+            starts go (default ``RANDOM_SPREAD``, 0.5: uniform hips and ankles throw the held feet metres off); a
+            strategy whose answers lie far from its home in posture (the torsion's pelvis turned on its hips) may
+            take 1.
         blocked_starts: fatrop solves from fresh random starts for a goal that its starts reached only through a
             collision (:meth:`oracles.ik.waves.Waves._rescue_blocked`), 0 to 256; ``auto`` (the default):
             ``BLOCKED_STARTS`` for a URDF's body, none for the generated human (docs/results.md, "Robots with
@@ -53,7 +57,8 @@ class Batched:
     oracle = "casadi-ik"
     thorough = True
 
-    def __init__(self, room: Room, starts: int = STARTS, blocked_starts: int | str = "auto", **polish: Any) -> None:
+    def __init__(self, room: Room, starts: int = STARTS, blocked_starts: int | str = "auto",
+                 spread: float | None = None, **polish: Any) -> None:
         self.room = room
         self.polish = InteriorPoint(room, "fatrop", **polish)
         if isinstance(starts, bool) or not isinstance(starts, int) or not 1 <= starts <= 256:
@@ -63,7 +68,13 @@ class Batched:
                                          or not 0 <= blocked_starts <= 256):
             raise OracleError(f"blocked_starts must be 'auto' or a whole number from 0 to 256, got {blocked_starts!r}",
                               oracle=self.oracle, key="blocked_starts")
+        if spread is not None and (isinstance(spread, bool) or not isinstance(spread, (int, float))
+                                   or not 0 < spread <= 1):
+            raise OracleError(f"spread must be a share above 0 and at most 1, got {spread!r}", oracle=self.oracle,
+                              key="spread")
         self.starts_per_goal = starts
+        self.spread_asked = spread
+        self.spread = RANDOM_SPREAD if spread is None else float(spread)
         self.blocked_asked = blocked_starts
         # The generated human's capsules let the batched steps out of a collision: on the truth suite its rescues
         # reached nothing more and cost its hinted goals 12-130 % more CPU; a URDF's meshes fitted by capsules lock
@@ -76,7 +87,8 @@ class Batched:
     def options(self) -> dict[str, Any]:
         # (`auto` left out: the specs and digests of trees built before it existed stay the same)
         return {**self.polish.options(), "solver": self.name, "starts": self.starts_per_goal,
-                **({} if self.blocked_asked == "auto" else {"blocked_starts": self.blocked_asked})}
+                **({} if self.blocked_asked == "auto" else {"blocked_starts": self.blocked_asked}),
+                **({} if self.spread_asked is None else {"spread": self.spread_asked})}
 
     def twin(self, room: Room, *, purpose: Purpose | None = None, compiled: bool = True,
              starts: int | None = None) -> Solver:

@@ -76,7 +76,7 @@ class Formulation:
         strategy = {k: v for k, v in self.room.strategy_params.items() if k != "body"}
         # jit changes how the programs run, not what they are (the caches below key it apart): `jit: auto` and `true`
         # name the same compiled library; the search's rescues change neither
-        engine = {k: v for k, v in options.items() if k not in ("jit", "blocked_starts")}
+        engine = {k: v for k, v in options.items() if k not in ("jit", "blocked_starts", "spread")}
         return self.numbers.signature, self._joints, repr(strategy), repr(sorted(engine.items()))
 
     @property
