@@ -17,6 +17,7 @@ from reach.answers.select import Selector
 from reach.building.atlas import build_atlas
 from reach.building.config import parse_config
 from reach.errors import InputError
+from reach.motion import paths
 from reach.motion.planner import INCH, TMU, MotionError, Planner, Timing, minimum_jerk
 from reach.motion.rig import Rig
 
@@ -193,7 +194,7 @@ def test_a_routes_corners_are_rounded_and_still_hold(planner, body, monkeypatch)
     oracle = planner.body(m.strategy)
     route = planner._route(m.strategy, oracle, m.postures[0], m.postures[-1])
     assert len(route) > 2  # the precondition: a corner to round
-    rounded = planner._rounded(oracle, route)
+    rounded = paths.rounded(oracle, route)
     assert np.array_equal(rounded[0], route[0]) and np.array_equal(rounded[-1], route[-1])
     turns = []
     for waypoints in (route, rounded):

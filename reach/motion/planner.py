@@ -45,20 +45,20 @@ import math
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, fields, replace
-from typing import Any, Protocol, runtime_checkable
+from typing import Any
 
 import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
-from oracles.protocol import EffectorPositions, Moving, Settling, Shaped, Stepping, Transiting, Verifying
+from oracles.protocol import Settling, Stepping, Transiting
 from reach.answers.answer import posture_vector, split_posture
-from reach.answers.refine import start_posture
 from reach.answers.select import Selector
 from reach.errors import InputError, ReachError
 from reach.maps.graph import REACH, MotionGraph, graph_of
 from reach.maps.tree import VATree
+from reach.motion.paths import Body, along, held, largest_step, reaches, rounded, segment, start_of
 
 TMU = 0.036  # [s] one time measurement unit, 0.00001 h (MTM-1 data card)
 INCH = 0.0254  # [m]
@@ -92,16 +92,12 @@ BUDGET = 0.4
 HOLD_STEP = 0.25
 # a held path whose largest step between frames is this many times the unheld path's has a jump: it is routed instead
 JUMP = 2.0
-EDGE_STEP = 0.1  # [rad] posture distance between the checked postures of a routed segment
 # [rad or m] a routed segment's checked posture that holding moves more than this would jump between frames
 EDGE_HOLD = 0.05
 NEIGHBOURS = 10  # stored vertices each one links to in the routing graph
 ENTRIES = 12  # stored vertices tried as the route's first and last waypoints
 ROUNDS = 100  # shortest paths tried before the route is given up
 FINE = 128  # postures sampled along a path to measure the hand's path and time it
-# share of each segment beside an inner waypoint that its rounded corner takes (under half: corners never overlap)
-BLEND = 0.4
-BLEND_SAMPLES = 9  # postures along each rounded corner
 POSTURE_SHARE = 0.1  # the posture path's share in a motion's progress (a modelling choice: the rest is the hand's path)
 REACHED, NEAREST = "reached", "nearest"
 # How a motion's end posture was found: the stored answer settled onto the goal by a few local steps, or the
@@ -113,15 +109,7 @@ GRAPH, PLANNED = "graph", "planned"
 LAST_STRETCHES = 3  # stored postures near the end tried as the graph's last waypoint
 JOINS = 4  # stored postures near a start that is not the reference tried as the graph's first waypoint
 SKIPS = 6  # direct segments a graph's path tries to skip waypoints by
-# [m] a motion's end this near its goal reaches it, for oracles without a verdict of their own (the reach task's
-# default)
-REACH_TOLERANCE = 0.005
 MOTION_MISSES = ("nearest", "error")
-
-
-@runtime_checkable
-class Body(Moving, Shaped, EffectorPositions, Protocol):
-    """What the planner asks of a strategy's oracle: the capabilities it combines."""
 
 
 def minimum_jerk(u: np.ndarray) -> np.ndarray:
@@ -363,7 +351,7 @@ class Planner:
         oracle = self.body(name)
         tree = self.selector.atlas.maps[name]
         labels = tree.posture_names
-        q0 = self._start(oracle, tree, start)
+        q0 = start_of(oracle, tree, start)
         broken = oracle.faults(q0[None])[0]
         # A start that breaks some of the strategy's tasks (a tiptoe's or squat's balance over the balls, the
         # squat's hips below the knees, from standing): the frames hold the strategy's transit twin, the end all.
@@ -394,7 +382,7 @@ class Planner:
                         np.concatenate([np.arange(lead) / rate, reach_times + lead / rate]), {"step": PACE, **parts})
         times = postures[1]
         path = np.asarray(oracle.effector_positions(postures[0]))
-        if outcome == REACHED and not self._reaches(oracle, g[0], postures[0][-1], path[-1]):
+        if outcome == REACHED and not reaches(oracle, g[0], postures[0][-1], path[-1]):
             # honest: held frames (or a stored end posture) that stop short of the goal did not reach it
             outcome = NEAREST
         within = (None if settled is not None else answer.within) if outcome == REACHED else float(
@@ -436,7 +424,7 @@ class Planner:
             shortened = self._skipped(oracle, path) if len(path) > 3 else path
             root = [k for k, n in enumerate(names) if n.startswith("root_")]
             round_first = len(shortened) > 2 and all(np.array_equal(w[root], q0[root]) for w in shortened)
-            tries = ([self._rounded(oracle, shortened)] if round_first else []) + [shortened]
+            tries = ([rounded(oracle, shortened)] if round_first else []) + [shortened]
             for waypoints in tries + ([path] if len(shortened) < len(path) else []):
                 frames, times, parts = self._timed(oracle, names, waypoints, rate, timing)
                 # Every frame checked: the build's samples, ``STEP`` apart, miss brushes between them (a frame of a
@@ -487,13 +475,7 @@ class Planner:
 
     def _holds(self, oracle: Body, a: np.ndarray, b: np.ndarray) -> bool:
         """Whether the direct segment a -> b holds every task at postures ``EDGE_STEP`` apart (no hold)."""
-        return not any(any(f) for f in self._faults(oracle, self._segment(oracle, a, b)[1:-1]))
-
-    @staticmethod
-    def _segment(oracle: Body, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """The postures of the segment a -> b that are checked, ends included: ``EDGE_STEP`` apart, three at least."""
-        n = max(3, int(math.ceil(np.linalg.norm(b - a) / EDGE_STEP)) + 1)
-        return oracle.interpolate(a, b, np.linspace(0.0, 1.0, n))
+        return not any(any(f) for f in self._faults(oracle, segment(oracle, a, b)[1:-1]))
 
     def _routes(self, name: str) -> tuple[csr_matrix, tuple[np.ndarray, np.ndarray]] | None:
         """The strategy's motion graph as a weighted graph (posture distance) over its stored postures and the
@@ -582,14 +564,6 @@ class Planner:
                               "weight over the other foot", "no_motion")
         return frames
 
-    @staticmethod
-    def _reaches(oracle: Body, goal: np.ndarray, end: np.ndarray, point: np.ndarray) -> bool:
-        """Whether the motion's last frame reaches the goal: the verdict's own check where the oracle offers it,
-        else the effector within the default reach tolerance of the goal."""
-        if isinstance(oracle, Verifying):
-            return bool(oracle.verify(goal[None], end[None])[0])
-        return float(np.linalg.norm(point - goal)) <= REACH_TOLERANCE
-
     # -- the path -----------------------------------------------------------
     def _path(self, name: str, oracle: Body, names: tuple[str, ...], q0: np.ndarray, q1: np.ndarray, rate: float,
               timing: Timing) -> tuple[tuple[np.ndarray, np.ndarray, dict[str, float]], int, int]:
@@ -599,7 +573,7 @@ class Planner:
             route = self._route(name, oracle, q0, q1) if routed else [q0, q1]
             # Timed by the hand's path first; by the posture's path when that cannot be held (the body then moves
             # most where the hand moves least, which holding may not follow).
-            for waypoints in ([self._rounded(oracle, route)] if len(route) > 2 else []) + [route]:
+            for waypoints in ([rounded(oracle, route)] if len(route) > 2 else []) + [route]:
                 for timed in self._timings(oracle, names, waypoints, rate, timing):
                     held = self._hold_path(oracle, timed[0])
                     if held is not None:
@@ -617,8 +591,8 @@ class Planner:
         """The frames of :meth:`_timed`, then the same path's frames timed by minimum jerk along the posture's path
         alone, both from one sampling of the path."""
         # The hand's path length and the root's excursion, on a fine sampling of the path.
-        along = np.linspace(0.0, 1.0, FINE)
-        fine = self._along(oracle, waypoints, along, exact=False)
+        sampled = np.linspace(0.0, 1.0, FINE)
+        fine = along(oracle, waypoints, sampled, exact=False)
         hand = np.asarray(oracle.effector_positions(fine))
         steps = np.linalg.norm(np.diff(hand, axis=0), axis=1)
         drop = tilt = lift = 0.0
@@ -638,27 +612,10 @@ class Planner:
         # covered, with a little of the posture's share so that a stretch where the hand stays still takes time too.
         share = minimum_jerk(times / times[-1])
         if steps.sum() > 0.0:
-            progress = (1.0 - POSTURE_SHARE) * np.concatenate([[0.0],
-                                                               np.cumsum(steps)]) / steps.sum() + POSTURE_SHARE * along
-            yield self._along(oracle, waypoints, np.interp(share, progress, along)), times, parts
-        yield self._along(oracle, waypoints, share), times, parts
-
-    @staticmethod
-    def _along(oracle: Body, waypoints: list[np.ndarray], s: np.ndarray, exact: bool = True) -> np.ndarray:
-        """Postures at fractions s of the waypoints' total posture length, each segment on the configuration space
-        (``exact``: see :meth:`oracles.protocol.Moving.interpolate`)."""
-        lengths = np.array([np.linalg.norm(b - a) for a, b in zip(waypoints[:-1], waypoints[1:], strict=True)])
-        total = float(lengths.sum())
-        if total == 0.0:
-            return np.tile(waypoints[0], (len(s), 1))
-        ends = np.concatenate([[0.0], np.cumsum(lengths) / total])
-        out = np.empty((len(s), len(waypoints[0])))
-        seg = np.clip(np.searchsorted(ends, s, side="right") - 1, 0, len(lengths) - 1)
-        for k in np.unique(seg):
-            rows = np.nonzero(seg == k)[0]
-            local = (s[rows] - ends[k]) / max(ends[k + 1] - ends[k], 1e-12)
-            out[rows] = oracle.interpolate(waypoints[k], waypoints[k + 1], np.clip(local, 0.0, 1.0), exact)
-        return out
+            covered = np.concatenate([[0.0], np.cumsum(steps)]) / steps.sum()
+            progress = (1.0 - POSTURE_SHARE) * covered + POSTURE_SHARE * sampled
+            yield along(oracle, waypoints, np.interp(share, progress, sampled)), times, parts
+        yield along(oracle, waypoints, share), times, parts
 
     # -- routing through stored postures -------------------------------------
     def _graph(self, name: str) -> tuple[cKDTree, np.ndarray, np.ndarray, csr_matrix]:
@@ -734,7 +691,7 @@ class Planner:
         # at a time): the second pass, every broken posture held alone, is for a path's frames; a segment that
         # needed it is passed over (in-process, 20 goals a kind: the whole body's p99 3.5-3.7 s against 4.6-5.7,
         # the crouch's 3.9-4.0 against 4.9-7.2, no goal without a motion; bench/motion.py).
-        return self._hold_path(oracle, self._segment(oracle, a, b), limit, once=True) is not None
+        return self._hold_path(oracle, segment(oracle, a, b), limit, once=True) is not None
 
     def _hold_path(self, oracle: Body, postures: np.ndarray, limit: float = HOLD_STEP,
                    once: bool = False) -> tuple[np.ndarray, int] | None:
@@ -751,7 +708,7 @@ class Planner:
         together = oracle.hold_many(postures[broken], self._deadline)
         # A batch's frame moved more than a jump between frames would allow is held alone too (each frame held from
         # itself, a few landed in another basin, 0.2-0.5 rad away, where their neighbours did not).
-        bound = min(limit, JUMP * self._steps(postures))
+        bound = min(limit, JUMP * largest_step(postures))
         alone: list[np.ndarray | None] = [None] * len(broken)
         # (An engine without a batched hold held none: the one-at-a-time pass is the only one.)
         passes = ([*together],) if once else ([*together], alone)
@@ -762,14 +719,14 @@ class Planner:
                 self._in_time()
                 if fixed is None or not np.all(np.isfinite(fixed)) or np.abs(fixed - postures[k]).max() > bound:
                     self.holds["alone"] += 1
-                    fixed = self._held(oracle, postures[k], (postures[k - 1], out[k - 1]), limit)
+                    fixed = held(oracle, postures[k], (postures[k - 1], out[k - 1]), limit)
                 else:
                     self.holds["batch"] += 1
                 if fixed is None:
                     break
                 out[k] = fixed
             else:
-                if self._steps(out) <= JUMP * self._steps(postures):
+                if largest_step(out) <= JUMP * largest_step(postures):
                     return out, len(broken)
                 forward = out
         return None if once or forward is None else self._spliced(oracle, postures, broken, forward, limit)
@@ -784,7 +741,7 @@ class Planner:
         for k in reversed(broken):
             self._in_time()
             self.holds["alone"] += 1
-            fixed = self._held(oracle, postures[k], (postures[k + 1], back[k + 1]), limit)
+            fixed = held(oracle, postures[k], (postures[k + 1], back[k + 1]), limit)
             if fixed is None:
                 return None
             back[k] = fixed
@@ -792,7 +749,7 @@ class Planner:
         gaps = np.abs(back[1:] - forward[:-1]).max(axis=1)
         m = int(np.argmin(gaps))
         out = np.concatenate([forward[: m + 1], back[m + 1 :]])
-        return (out, len(broken)) if self._steps(out) <= JUMP * self._steps(postures) else None
+        return (out, len(broken)) if largest_step(out) <= JUMP * largest_step(postures) else None
 
     def _faults(self, oracle: Body, postures: np.ndarray) -> Iterator[list[str]]:
         """The oracle's faults of each posture, ``CHECK_FRAMES`` at a time with the deadline read between them."""
@@ -803,33 +760,6 @@ class Planner:
     def _in_time(self) -> None:
         if time.perf_counter() > self._deadline:
             raise MotionError("the motion was not planned by its deadline", "timeout")
-
-    @staticmethod
-    def _steps(postures: np.ndarray) -> float:
-        """The largest change of any coordinate between consecutive frames."""
-        return float(np.abs(np.diff(postures, axis=0)).max()) if len(postures) > 1 else 0.0
-
-    @staticmethod
-    def _held(oracle: Body, q: np.ndarray, before: tuple[np.ndarray, np.ndarray], limit: float) -> np.ndarray | None:
-        """The oracle's hold of a posture that breaks a task (it holds every task, by the protocol), when it moves
-        no coordinate more than ``limit`` (a larger change would be a jump between frames)."""
-        fixed = oracle.hold(q, before)
-        return None if fixed is None or np.abs(fixed - q).max() > limit else fixed
-
-    @staticmethod
-    def _rounded(oracle: Body, waypoints: list[np.ndarray]) -> list[np.ndarray]:
-        """The waypoints with each inner corner replaced by a quadratic Bezier curve on the configuration space
-        (de Casteljau with the body's interpolation) from ``BLEND`` of the way back along its incoming segment
-        to ``BLEND`` along its outgoing one, the waypoint its control point: the path's direction turns smoothly."""
-        out = [waypoints[0]]
-        for before, corner, after in zip(waypoints[:-2], waypoints[1:-1], waypoints[2:], strict=True):
-            share = np.array([BLEND])
-            a, b = oracle.interpolate(corner, before, share)[0], oracle.interpolate(corner, after, share)[0]
-            for t in np.linspace(0.0, 1.0, BLEND_SAMPLES)[:, None]:
-                out.append(oracle.interpolate(oracle.interpolate(a, corner, t)[0],
-                                              oracle.interpolate(corner, b, t)[0], t)[0])
-        out.append(waypoints[-1])
-        return out
 
     def _shorten(self, oracle: Body, waypoints: list[np.ndarray]) -> list[np.ndarray]:
         """Drop every waypoint that a direct segment between its neighbours can skip (greedy, farthest first)."""
@@ -849,12 +779,6 @@ class Planner:
             raise MotionError(f"strategy {name}'s oracle cannot plan motions (it offers no Moving capability)",
                               "no_motion")
         return oracle
-
-    @staticmethod
-    def _start(oracle: Body, tree: Any, start: dict[str, float] | None) -> np.ndarray:
-        reference = np.array(oracle.reference_posture(), dtype=float)
-        q = start_posture(tree, reference, start)
-        return reference if q is None else q
 
     def _nearest_stored(self, name: str, goal: np.ndarray) -> np.ndarray:
         kd, postures, _, _ = self._graph(name)
