@@ -208,37 +208,11 @@ def _build_locked(
         prints[s.name] = fp
         meta: dict[str, Any] = {"name": s.name, "atlas": config.name, "effector": s.effector, "priority": s.priority,
                                 "oracle": s.oracle.to_dict(), "fingerprint": fp}
-        tree, index = None, None
-        if resume and path.is_file():
-            try:
-                old, old_index = load_indexed(path)
-                current = oracle_of(s)
-                model = current.model_hash if isinstance(current, ModelHashed) else None
-                # The spec names a generated human, not its URDF: a new version of the human has the same spec and
-                # another model (its kept trees were refused by every answer: "rebuild the atlas").
-                if model is not None and old.meta.get("model_hash", model) != model:
-                    say(f"{s.name}: rebuilding (its body's model changed since {path.name} was built: "
-                        f"{old.meta['model_hash']} -> {model})")
-                elif old.meta.get("fingerprint") == fp:
-                    tree, index = old, old_index
-                    say(f"{s.name}: kept the finished tree")
-                else:
-                    # The strategy, its oracle, the body or a sub-strategy it inherits from changed.
-                    say(f"{s.name}: rebuilding (the config changed since {path.name} was built)")
-            except StoreError as exc:
-                say(f"{s.name}: rebuilding ({exc})")
+        tree, index = _kept(s, path, fp, oracle_of(s), say) if resume and path.is_file() else (None, None)
         source = (_mirror_source(s, built, lambda name: oracle_of(by_name[name]), say) if tree is None and mirror
                   else None)
         if tree is None and source is not None:
-            tree = build_tree(MirrorOracle(*source), config.box, config.d_min, config.d_max,
-                              meta={**meta, "mirrored_from": s.mirror_of},
-                              keep_out=_keep_out(oracle_of(s)))
-            # The mirror oracle only looks verdicts up: no oracle call is made.
-            tree.meta["build"].update(mirrored_from=s.mirror_of, lookups=tree.meta["build"]["oracle_calls"],
-                                      oracle_calls=0)
-            if "model_hash" in source[0].meta:
-                tree.meta["model_hash"] = source[0].meta["model_hash"]
-            say(f"{s.name}: mirrored from {s.mirror_of} ({len(tree)} nodes, no oracle call)")
+            tree = _mirrored(config, s, meta, source, oracle_of(s), say)
         if tree is None:
             sub = subs.get(s.name)
             parent = (sub, built[sub]) if sub is not None and sub in built else None
@@ -282,6 +256,42 @@ def _build_locked(
     if (out / PARTIAL).is_dir() and not any((out / PARTIAL).iterdir()):
         (out / PARTIAL).rmdir()
     return load_atlas(out)
+
+
+def _kept(s: StrategySpec, path: Path, fp: str, oracle: Oracle,
+          say: Callable[[str], None]) -> tuple[VATree | None, Any]:
+    """A resumed build's finished tree and its index, when made for this spec (``fp``) and body; else (None, None),
+    saying why it is rebuilt."""
+    try:
+        old, old_index = load_indexed(path)
+    except StoreError as exc:
+        say(f"{s.name}: rebuilding ({exc})")
+        return None, None
+    model = oracle.model_hash if isinstance(oracle, ModelHashed) else None
+    # The spec names a generated human, not its URDF: a new version of the human has the same spec and another
+    # model (its kept trees were refused by every answer: "rebuild the atlas").
+    if model is not None and old.meta.get("model_hash", model) != model:
+        say(f"{s.name}: rebuilding (its body's model changed since {path.name} was built: "
+            f"{old.meta['model_hash']} -> {model})")
+        return None, None
+    if old.meta.get("fingerprint") != fp:
+        # The strategy, its oracle, the body or a sub-strategy it inherits from changed.
+        say(f"{s.name}: rebuilding (the config changed since {path.name} was built)")
+        return None, None
+    say(f"{s.name}: kept the finished tree")
+    return old, old_index
+
+
+def _mirrored(config: Config, s: StrategySpec, meta: dict[str, Any], source: Any, oracle: Oracle,
+              say: Callable[[str], None]) -> VATree:
+    """A mirrored strategy's tree, its verdicts looked up in its source's image: no oracle call."""
+    tree = build_tree(MirrorOracle(*source), config.box, config.d_min, config.d_max,
+                      meta={**meta, "mirrored_from": s.mirror_of}, keep_out=_keep_out(oracle))
+    tree.meta["build"].update(mirrored_from=s.mirror_of, lookups=tree.meta["build"]["oracle_calls"], oracle_calls=0)
+    if "model_hash" in source[0].meta:
+        tree.meta["model_hash"] = source[0].meta["model_hash"]
+    say(f"{s.name}: mirrored from {s.mirror_of} ({len(tree)} nodes, no oracle call)")
+    return tree
 
 
 def _graph_one(s: StrategySpec, tree: VATree, path: Path, oracle: Oracle, say: Callable[[str], None],

@@ -41,7 +41,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import zmq
@@ -111,6 +111,65 @@ def _bind(socket: zmq.Socket, address: str, flag: str) -> None:  # type: ignore[
     except zmq.ZMQError as exc:
         raise InputError(flag, f"cannot bind {address}: {exc.strerror}") from None
 
+def _curve_keys(curve_secret: str | Path | None, curve_clients: str | Path | None) -> tuple[bytes, bytes | None] | None:
+    """The server's CURVE key pair (public, secret) from ``--curve-secret-key``, or None; ``--curve-clients``, a folder
+    of public-key files, checked with it."""
+    keys = load_curve_key(curve_secret, secret=True, what="--curve-secret-key") if curve_secret else None
+    if curve_clients is not None and (keys is None or not Path(curve_clients).is_dir()):
+        raise InputError("--curve-clients", f"{curve_clients}: expected a folder of client public-key files, "
+                                            "with --curve-secret-key")
+    if curve_clients is not None:
+        # Each file the authenticator will read (pyzmq reads *.key), checked now: one malformed file emptied the
+        # allow-list after "serving" was printed, and every client was refused.
+        for key_file in sorted(Path(curve_clients).glob("*.key")):
+            load_curve_key(key_file, secret=False, what="--curve-clients")
+    return keys
+
+
+def _sockets(context: zmq.Context, bind: str, pub: str | None, keys: tuple[bytes, bytes | None] | None,
+             curve_clients: str | Path | None) -> tuple[zmq.Socket[bytes], zmq.Socket[bytes] | None, Any]:
+    """The server's bound ROUTER, its PUB (or None) and its CURVE authenticator thread (or None); nothing is left
+    behind when one cannot bind."""
+    router = context.socket(zmq.ROUTER)
+    router.setsockopt(zmq.LINGER, 0)
+    # A hard cap far above the protocol limit: larger requests still get a
+    # too_large reply; only absurd ones drop the connection.
+    router.setsockopt(zmq.MAXMSGSIZE, 64 * P.MAX_MESSAGE_BYTES)
+    # A client that reconnects under its identity (a Lazy Pirate resend) takes it over.
+    router.setsockopt(zmq.ROUTER_HANDOVER, 1)
+    # What one client can make the server hold unread: RCVHWM messages of at most 1 MiB each (the default of
+    # 1000 let 40 requests of 60 MiB take the loop from 311 MB to 3.19 GB).
+    router.setsockopt(zmq.RCVHWM, P.RCVHWM)
+    publisher = context.socket(zmq.PUB) if pub else None
+    sockets = [router] + ([publisher] if publisher else [])
+    authenticator = None
+    if curve_clients is not None:
+        # the CURVE authenticator only when keys are given
+        from zmq.auth.thread import ThreadAuthenticator
+
+        # ZAP: libzmq asks this thread about every CURVE handshake; keys not in the folder are refused.
+        authenticator = ThreadAuthenticator(context, log=logging.getLogger("reach.serving.server.auth"))
+        authenticator.start()
+        authenticator.configure_curve(domain="*", location=str(curve_clients))
+    if keys is not None:
+        for s in sockets:
+            s.curve_secretkey, s.curve_publickey, s.curve_server = keys[1], keys[0], True
+    try:
+        _bind(router, bind, "--bind")
+        if publisher is not None:
+            publisher.setsockopt(zmq.LINGER, 0)
+            publisher.setsockopt(zmq.SNDHWM, P.PUB_HWM)
+            _bind(publisher, pub, "--pub")  # type: ignore[arg-type]
+    except InputError:
+        # Nothing of a server that could not bind is left behind: its sockets, and the CURVE thread.
+        for s in sockets:
+            s.close(linger=0)
+        if authenticator is not None:
+            authenticator.stop()
+        raise
+    return router, publisher, authenticator
+
+
 class Server:
     """The selector behind a ROUTER and a PUB socket.
 
@@ -152,16 +211,7 @@ class Server:
         self.chunk = chunk
         # reload is off unless the operator names the folder under which atlases may be loaded.
         self.reload_root = None if allow_reload is None else Path(allow_reload).resolve()
-        # before any socket
-        keys = load_curve_key(curve_secret, secret=True, what="--curve-secret-key") if curve_secret else None
-        if curve_clients is not None and (keys is None or not Path(curve_clients).is_dir()):
-            raise InputError("--curve-clients", f"{curve_clients}: expected a folder of client public-key files, "
-                                                "with --curve-secret-key")
-        if curve_clients is not None:
-            # Each file the authenticator will read (pyzmq reads *.key), checked now: one malformed file emptied the
-            # allow-list after "serving" was printed, and every client was refused.
-            for key_file in sorted(Path(curve_clients).glob("*.key")):
-                load_curve_key(key_file, secret=False, what="--curve-clients")
+        keys = _curve_keys(curve_secret, curve_clients)  # before any socket
         check_endpoint(bind, "--bind")
         if pub:
             check_endpoint(pub, "--pub")
@@ -174,46 +224,10 @@ class Server:
         # A population's member atlases, for "accommodation" (the trees' word, answered in the loop).
         self.population = None if population is None else load_members(population)
         self.context = context or zmq.Context.instance()
-        self.router = self.context.socket(zmq.ROUTER)
-        self.router.setsockopt(zmq.LINGER, 0)
-        # A hard cap far above the protocol limit: larger requests still get a
-        # too_large reply; only absurd ones drop the connection.
-        self.router.setsockopt(zmq.MAXMSGSIZE, 64 * P.MAX_MESSAGE_BYTES)
-        # A client that reconnects under its identity (a Lazy Pirate resend) takes it over.
-        self.router.setsockopt(zmq.ROUTER_HANDOVER, 1)
-        # What one client can make the server hold unread: RCVHWM messages of at most 1 MiB each (the default of
-        # 1000 let 40 requests of 60 MiB take the loop from 311 MB to 3.19 GB).
-        self.router.setsockopt(zmq.RCVHWM, P.RCVHWM)
-        self.publisher = self.context.socket(zmq.PUB) if pub else None
-        sockets = [self.router] + ([self.publisher] if self.publisher else [])
-        self.authenticator = None
-        if curve_clients is not None:
-            # the CURVE authenticator only when keys are given
-            from zmq.auth.thread import ThreadAuthenticator
-
-            # ZAP: libzmq asks this thread about every CURVE handshake; keys not in the folder are refused.
-            self.authenticator = ThreadAuthenticator(self.context, log=logging.getLogger("reach.serving.server.auth"))
-            self.authenticator.start()
-            self.authenticator.configure_curve(domain="*", location=str(curve_clients))
-        if keys is not None:
-            for s in sockets:
-                s.curve_secretkey, s.curve_publickey, s.curve_server = keys[1], keys[0], True
-        self.pub_endpoint = None
-        try:
-            _bind(self.router, bind, "--bind")
-            self.endpoint = self.router.getsockopt(zmq.LAST_ENDPOINT).decode()
-            if self.publisher is not None:
-                self.publisher.setsockopt(zmq.LINGER, 0)
-                self.publisher.setsockopt(zmq.SNDHWM, P.PUB_HWM)
-                _bind(self.publisher, pub, "--pub")  # type: ignore[arg-type]
-                self.pub_endpoint = self.publisher.getsockopt(zmq.LAST_ENDPOINT).decode()
-        except InputError:
-            # Nothing of a server that could not bind is left behind: its sockets, and the CURVE thread.
-            for s in sockets:
-                s.close(linger=0)
-            if self.authenticator is not None:
-                self.authenticator.stop()
-            raise
+        self.router, self.publisher, self.authenticator = _sockets(self.context, bind, pub, keys, curve_clients)
+        self.endpoint = cast(bytes, self.router.getsockopt(zmq.LAST_ENDPOINT)).decode()
+        self.pub_endpoint = (None if self.publisher is None
+                             else cast(bytes, self.publisher.getsockopt(zmq.LAST_ENDPOINT)).decode())
         self._stop = threading.Event()
         # set by SIGINT/SIGTERM: a handler that only assigns can never deadlock (Event.set locks)
         self._signalled = False

@@ -106,15 +106,7 @@ def cmd_query(args: argparse.Namespace) -> int:
     atlas, goal = _goal(args.values, args.connect is None)
     refine = None if args.refine is None else args.refine == "on"
     start = _start(args.start)
-    wire = ({"direction": args.direction} if args.direction else {"quaternion": args.quaternion} if args.quaternion
-            else None)
-    if wire is not None:
-        try:
-            P.check_orientation(wire)  # the server's own check of the field
-        except P.Invalid as exc:
-            raise InputError("--direction" if args.direction else "--quaternion", str(exc)) from None
-        if not args.effector:
-            raise InputError("--effector", "give the effector with --direction or --quaternion")
+    wire = _orientation(args)
     if args.connect:
         with _client(args) as client:
             effectors = [args.effector] if args.effector else client.strategies()["effectors"]
@@ -134,34 +126,53 @@ def cmd_query(args: argparse.Namespace) -> int:
         print_json({"answers": answers})
         return 0
     for a in answers:
-        if a["reachable"]:
-            also = f" (also: {', '.join(a['alternatives'])})" if a["alternatives"] else ""
-            print(f"{a['effector']}: goal {a['goal']} reachable with strategy {a['strategy']}{also}")
-            if a.get("handover"):
-                print(f"  handed over by {a['handover']['from']}, whose posture came near these limits: "
-                      f"{', '.join(a['handover']['limits'])}")
-            if a.get("within") is not None:
-                print(f"  within {1000 * a['within']:.1f} mm only: no refinement reached the goal; the posture is "
-                      "the nearest stored one")
-            if a.get("posture"):
-                moved = {k: round(v, 4) for k, v in a["posture"].items() if abs(v) > 1e-9}
-                print(f"  posture [rad] (refined: {a['refined']}, residual {a['residual']:.2e} m): {moved}")
-            if a.get("root"):
-                r = a["root"]
-                print(f"  root: position {np.round(r['position'], 4).tolist()} [m], quaternion (x, y, z, w) "
-                      f"{np.round(r['quaternion'], 5).tolist()}")
-            if a.get("step"):
-                st = a["step"]
-                print(f"  step: {st['foot']} set down at {np.round(st['position'], 4).tolist()} [m], turned "
-                      f"{np.degrees(st['yaw']):.1f} deg")
-        elif a.get("nearest"):
-            n = a["nearest"]
-            print(f"{a['effector']}: goal {a['goal']} not reachable: {n['strategy']}'s tree holds it but no "
-                  f"refinement reached it; the nearest point a stored posture reaches is {n['point']}, "
-                  f"{1000 * n['distance']:.1f} mm away")
-        else:
-            print(f"{a['effector']}: goal {a['goal']} not reachable by any strategy")
+        print("\n".join(_answer_lines(a)))
     return 0
+
+
+def _orientation(args: argparse.Namespace) -> dict[str, list[float]] | None:
+    """``--direction`` or ``--quaternion`` as the protocol's ``orientation`` field, checked as the server checks it."""
+    wire = ({"direction": args.direction} if args.direction else {"quaternion": args.quaternion} if args.quaternion
+            else None)
+    if wire is not None:
+        try:
+            P.check_orientation(wire)  # the server's own check of the field
+        except P.Invalid as exc:
+            raise InputError("--direction" if args.direction else "--quaternion", str(exc)) from None
+        if not args.effector:
+            raise InputError("--effector", "give the effector with --direction or --quaternion")
+    return wire
+
+
+def _answer_lines(a: dict[str, Any]) -> list[str]:
+    """One answer as ``reach query`` prints it."""
+    if not a["reachable"]:
+        if a.get("nearest"):
+            n = a["nearest"]
+            return [f"{a['effector']}: goal {a['goal']} not reachable: {n['strategy']}'s tree holds it but no "
+                    f"refinement reached it; the nearest point a stored posture reaches is {n['point']}, "
+                    f"{1000 * n['distance']:.1f} mm away"]
+        return [f"{a['effector']}: goal {a['goal']} not reachable by any strategy"]
+    also = f" (also: {', '.join(a['alternatives'])})" if a["alternatives"] else ""
+    out = [f"{a['effector']}: goal {a['goal']} reachable with strategy {a['strategy']}{also}"]
+    if a.get("handover"):
+        out.append(f"  handed over by {a['handover']['from']}, whose posture came near these limits: "
+                   f"{', '.join(a['handover']['limits'])}")
+    if a.get("within") is not None:
+        out.append(f"  within {1000 * a['within']:.1f} mm only: no refinement reached the goal; the posture is "
+                   "the nearest stored one")
+    if a.get("posture"):
+        moved = {k: round(v, 4) for k, v in a["posture"].items() if abs(v) > 1e-9}
+        out.append(f"  posture [rad] (refined: {a['refined']}, residual {a['residual']:.2e} m): {moved}")
+    if a.get("root"):
+        r = a["root"]
+        out.append(f"  root: position {np.round(r['position'], 4).tolist()} [m], quaternion (x, y, z, w) "
+                   f"{np.round(r['quaternion'], 5).tolist()}")
+    if a.get("step"):
+        st = a["step"]
+        out.append(f"  step: {st['foot']} set down at {np.round(st['position'], 4).tolist()} [m], turned "
+                   f"{np.degrees(st['yaw']):.1f} deg")
+    return out
 
 
 def _query_many(args: argparse.Namespace) -> int:
@@ -266,38 +277,8 @@ def cmd_motion(args: argparse.Namespace) -> int:
     if kind is not None and kind not in MOTION_FILES:
         raise InputError("-o", f"{args.output}: expected a {', '.join(MOTION_FILES)} file")
     timing = {"duration": args.duration} if args.duration is not None else None
-    if args.connect:
-        # loaded when the command runs: `reach --help` starts without the answers' machinery
-        from reach.serving.client import Client
-
-        with Client(args.connect, timeout=args.timeout) as client:
-            fields = {"effector": args.effector, "goal": goal, "rate": args.rate, "miss": args.miss,
-                      "return": args.back}
-            fields.update({k: v for k, v in (("from", start), ("timing", timing)) if v is not None})
-            if kind in ANIMATION_FILES:
-                fields["bones"] = True  # the server's body gives the skeleton
-            data = {k: v for k, v in client.call("motion", **fields).items() if k not in ("ok", "id")}
-        if kind in ANIMATION_FILES:
-            # loaded when the command runs: `reach --help` starts without the answers' machinery
-            from reach.motion.rig import Rig
-
-            _write_animation(args.output, kind, Rig.from_dict(data.pop("rig", None)))
-    else:
-        # loaded when the command runs: `reach --help` starts without the answers' machinery
-        from reach.answers.select import Selector
-        from reach.maps.atlas import load_atlas
-        from reach.motion.planner import Planner, Timing
-
-        # The solvers are built (warm_up) before planning starts, so the end posture's budget is not spent on them.
-        planner = Planner(Selector(load_atlas(atlas), policy=args.policy).warm_up())  # type: ignore[arg-type]
-        motion = planner.plan(args.effector, goal, start, rate=args.rate,
-                              timing=Timing.from_dict(timing, "--duration"), miss=args.miss, back=args.back)
-        data = motion.to_dict()
-        if kind in ANIMATION_FILES:
-            # loaded when the command runs: `reach --help` starts without the answers' machinery
-            from reach.motion.rig import rig
-
-            _write_animation(args.output, kind, rig(motion, planner.body(motion.strategy)))
+    data = (_served_motion(args, goal, start, timing, kind) if args.connect
+            else _planned_motion(args, atlas, goal, start, timing, kind))
     if kind == ".json":
         Path(args.output).write_text(json.dumps(data, indent=1) + "\n")
     summary = {k: v for k, v in data.items() if k != "frames"}
@@ -318,6 +299,48 @@ def cmd_motion(args: argparse.Namespace) -> int:
     if args.output:
         print(f"frames written to {args.output}")
     return 0
+
+
+def _served_motion(args: argparse.Namespace, goal: list[float], start: dict[str, float] | None,
+                   timing: dict[str, float] | None, kind: str | None) -> dict[str, Any]:
+    """``reach motion --connect``: the server's motion (and its rig, written as an animation file when asked)."""
+    # loaded when the command runs: `reach --help` starts without the answers' machinery
+    from reach.serving.client import Client
+
+    with Client(args.connect, timeout=args.timeout) as client:
+        fields = {"effector": args.effector, "goal": goal, "rate": args.rate, "miss": args.miss,
+                  "return": args.back}
+        fields.update({k: v for k, v in (("from", start), ("timing", timing)) if v is not None})
+        if kind in ANIMATION_FILES:
+            fields["bones"] = True  # the server's body gives the skeleton
+        data = {k: v for k, v in client.call("motion", **fields).items() if k not in ("ok", "id")}
+    if kind in ANIMATION_FILES:
+        # loaded when the command runs: `reach --help` starts without the answers' machinery
+        from reach.motion.rig import Rig
+
+        _write_animation(args.output, kind, Rig.from_dict(data.pop("rig", None)))
+    return data
+
+
+def _planned_motion(args: argparse.Namespace, atlas: str | None, goal: list[float], start: dict[str, float] | None,
+                    timing: dict[str, float] | None, kind: str | None) -> dict[str, Any]:
+    """``reach motion ATLAS``: the motion planned here (and its rig, written as an animation file when asked)."""
+    # loaded when the command runs: `reach --help` starts without the answers' machinery
+    from reach.answers.select import Selector
+    from reach.maps.atlas import load_atlas
+    from reach.motion.planner import Planner, Timing
+
+    # The solvers are built (warm_up) before planning starts, so the end posture's budget is not spent on them.
+    planner = Planner(Selector(load_atlas(atlas), policy=args.policy).warm_up())  # type: ignore[arg-type]
+    motion = planner.plan(args.effector, goal, start, rate=args.rate,
+                          timing=Timing.from_dict(timing, "--duration"), miss=args.miss, back=args.back)
+    data = motion.to_dict()
+    if kind in ANIMATION_FILES:
+        # loaded when the command runs: `reach --help` starts without the answers' machinery
+        from reach.motion.rig import rig
+
+        _write_animation(args.output, kind, rig(motion, planner.body(motion.strategy)))
+    return data
 
 
 def add_motion(sub: Any) -> None:

@@ -182,39 +182,42 @@ def cmd_audit(args: argparse.Namespace) -> int:
         print(f"{name:<22} {100 * r['false_reachable']:>6.2f} % [{100 * fr[0]:.1f}, {100 * fr[1]:.1f}]  "
               f"{100 * r['false_unreachable']:>6.2f} % [{100 * fu[0]:.1f}, {100 * fu[1]:.1f}]")
     for name, r in result["strategies"].items():
-        surface, rays, twins = r.get("surface", {}), r.get("rays", {}), r.get("twins")
-        if surface.get("edges"):
-            print(f"{name}: near the surface ({surface['probes']} probes on {surface['edges']} edges it crosses): "
-                  f"just inside, false unreachable {_share(surface['inside']['false_unreachable'])}; "
-                  f"just outside, false reachable {_share(surface['outside']['false_reachable'])}")
-        if rays:
-            print(f"{name}: along {rays['rays']} rays from {rays['centre']} to {rays['radius']} m: false unreachable "
-                  f"{_share(rays['false_unreachable'])}, false reachable {_share(rays['false_reachable'])}")
-            for ray in rays["short"]:
-                print(f"warning: {name}: the tree stops {ray['tree_m']} m out along {ray['direction']}, the referee "
-                      f"reaches {ray['referee_m']} m: a region the tree lacks (build deeper, or check the strategy's "
-                      "box)", file=sys.stderr)
-        if twins:
-            print(f"{name}: twins turned {twins['turn_deg']:.0f} deg about the free axis {twins['axis']}: the tree "
-                  f"disagrees on {_share(twins['disagree'])} of pairs; of {twins['checked']} checked, the referee "
-                  f"reaches {twins['unreachable_but_reached']} the tree calls unreachable")
-    for name, r in result["strategies"].items():
-        if "truth" in r:
-            t = r["truth"]
-            print(f"{name}: against the truth suite ({t['goals']} goals, {t['proven']} proven reachable): "
-                  f"{t['proven_called_unreachable']} proven goals called unreachable ({100 * t['rate']:.1f} %)"
-                  + (f", e.g. {t['missed_goals']}" if t["missed_goals"] else "")
-                  + f"; {t['reachable_unproven']} called reachable that the referee did not reach")
-    for name, r in result["strategies"].items():
-        if "index" in r and r["index"].get("pairs"):
-            i = r["index"]
-            fr, fu = i["false_reached"], i["false_missed"]
-            print(f"{name}: reachability index on {i['pairs']} (vertex, direction) pairs: reached but not by the "
-                  f"referee {100 * fr['rate']:.1f} % [{100 * fr['ci95'][0]:.1f}, {100 * fr['ci95'][1]:.1f}] of "
-                  f"{fr['of']}; missed but reached by the referee {100 * fu['rate']:.1f} % "
-                  f"[{100 * fu['ci95'][0]:.1f}, {100 * fu['ci95'][1]:.1f}] of {fu['of']}; share "
-                  f"{i['share_by_index']:.3f} by the index, {i['share_by_referee']:.3f} by the referee")
+        _print_audit_details(name, r)
     return 0
+
+
+def _print_audit_details(name: str, r: dict[str, Any]) -> None:
+    """One strategy's audit beyond its rates: near the surface, along rays, twins, the truth suite, the index."""
+    surface, rays, twins = r.get("surface", {}), r.get("rays", {}), r.get("twins")
+    if surface.get("edges"):
+        print(f"{name}: near the surface ({surface['probes']} probes on {surface['edges']} edges it crosses): "
+              f"just inside, false unreachable {_share(surface['inside']['false_unreachable'])}; "
+              f"just outside, false reachable {_share(surface['outside']['false_reachable'])}")
+    if rays:
+        print(f"{name}: along {rays['rays']} rays from {rays['centre']} to {rays['radius']} m: false unreachable "
+              f"{_share(rays['false_unreachable'])}, false reachable {_share(rays['false_reachable'])}")
+        for ray in rays["short"]:
+            print(f"warning: {name}: the tree stops {ray['tree_m']} m out along {ray['direction']}, the referee "
+                  f"reaches {ray['referee_m']} m: a region the tree lacks (build deeper, or check the strategy's "
+                  "box)", file=sys.stderr)
+    if twins:
+        print(f"{name}: twins turned {twins['turn_deg']:.0f} deg about the free axis {twins['axis']}: the tree "
+              f"disagrees on {_share(twins['disagree'])} of pairs; of {twins['checked']} checked, the referee "
+              f"reaches {twins['unreachable_but_reached']} the tree calls unreachable")
+    if "truth" in r:
+        t = r["truth"]
+        print(f"{name}: against the truth suite ({t['goals']} goals, {t['proven']} proven reachable): "
+              f"{t['proven_called_unreachable']} proven goals called unreachable ({100 * t['rate']:.1f} %)"
+              + (f", e.g. {t['missed_goals']}" if t["missed_goals"] else "")
+              + f"; {t['reachable_unproven']} called reachable that the referee did not reach")
+    if "index" in r and r["index"].get("pairs"):
+        i = r["index"]
+        fr, fu = i["false_reached"], i["false_missed"]
+        print(f"{name}: reachability index on {i['pairs']} (vertex, direction) pairs: reached but not by the "
+              f"referee {100 * fr['rate']:.1f} % [{100 * fr['ci95'][0]:.1f}, {100 * fr['ci95'][1]:.1f}] of "
+              f"{fr['of']}; missed but reached by the referee {100 * fu['rate']:.1f} % "
+              f"[{100 * fu['ci95'][0]:.1f}, {100 * fu['ci95'][1]:.1f}] of {fu['of']}; share "
+              f"{i['share_by_index']:.3f} by the index, {i['share_by_referee']:.3f} by the referee")
 
 
 def _against_truth(atlas: Any, folder: Path, policy: str, result: dict[str, Any]) -> None:
