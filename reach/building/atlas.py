@@ -217,11 +217,7 @@ def _build_locked(
             sub = subs.get(s.name)
             parent = (sub, built[sub]) if sub is not None and sub in built else None
             tree = _build_one(config, s, meta, partial, fp, executor_factory, progress, resume, parent, oracle_of(s))
-            b = tree.meta["build"]
-            also = (f", {b['inherited']} reachable vertices inherited from {sub}" if "inherited_from" in tree.meta
-                    else "")
-            say(f"{s.name}: {b['oracle_calls']} oracle calls{also}, {len(tree)} nodes, inner volume "
-                f"{tree.volume(INNER):.6g}, {b['seconds']:.2f} s")
+            say(_built_text(s.name, tree, sub))
         if s.directions and index is None and tree.vertices.posture is not None:
             tree, index = _index_one(config, s, tree, executor_factory, progress, oracle_of(s))
             i = tree.meta["index"]
@@ -242,6 +238,13 @@ def _build_locked(
         entries.append({"name": s.name, "effector": s.effector, "priority": s.priority, "file": path.name,
                         "oracle": s.oracle.to_dict(), "fingerprint": fp,
                         "digest": tree.meta["digest"]})
+    _finish(config, out, entries, built, warnings, time.perf_counter() - t0)
+    return load_atlas(out)
+
+
+def _finish(config: Config, out: Path, entries: list[dict[str, Any]], built: dict[str, VATree],
+            warnings: list[dict[str, Any]], seconds: float) -> None:
+    """The atlas's manifest written, by priority, and the folder of partial trees removed when empty."""
     entries.sort(key=lambda e: (e["priority"], e["name"]))
     manifest = {
         "name": config.name,
@@ -249,13 +252,20 @@ def _build_locked(
         "source": config.source,
         "strategies": entries,
         "model_hashes": sorted({t.meta["model_hash"] for t in built.values() if "model_hash" in t.meta}),
-        "versions": package_versions(), "build_seconds": time.perf_counter() - t0,
+        "versions": package_versions(), "build_seconds": seconds,
         "warnings": {"config": list(config.notes), "faces": warnings},
     }
     write_manifest(out, manifest)
     if (out / PARTIAL).is_dir() and not any((out / PARTIAL).iterdir()):
         (out / PARTIAL).rmdir()
-    return load_atlas(out)
+
+
+def _built_text(name: str, tree: VATree, sub: str | None) -> str:
+    """What a build says of a tree it built."""
+    b = tree.meta["build"]
+    also = f", {b['inherited']} reachable vertices inherited from {sub}" if "inherited_from" in tree.meta else ""
+    return (f"{name}: {b['oracle_calls']} oracle calls{also}, {len(tree)} nodes, inner volume "
+            f"{tree.volume(INNER):.6g}, {b['seconds']:.2f} s")
 
 
 def _kept(s: StrategySpec, path: Path, fp: str, oracle: Oracle,
