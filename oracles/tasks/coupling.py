@@ -147,6 +147,20 @@ class Rule:
         return self.joints[0]
 
 
+def _fields(here: str, r: Any) -> tuple[list[str], float, float]:
+    """A written rule's joints summed (a name or a list of them), its limit [rad] and slope, checked."""
+    ok = isinstance(r, dict) and set(r) == {"joint", "by", "limit", "slope"} and isinstance(r["by"], str)
+    summed = r.get("joint") if ok else None
+    if isinstance(summed, str):
+        summed = [summed]
+    if not ok or not isinstance(summed, list) or not summed or not all(isinstance(n, str) for n in summed):
+        raise TaskError(here, "expected {joint: name or [names, summed], by: name, limit: rad, slope: number}, got "
+                              f"{r!r}")
+    limit = number(r["limit"], f"{here}.limit", -4 * math.pi, 4 * math.pi)
+    slope = number(r["slope"], f"{here}.slope", -10.0, 10.0)
+    return summed, limit, slope
+
+
 @dataclass
 class CouplingTask(HardTask):
     """Joint limits that depend on another joint (see the module docstring)."""
@@ -175,16 +189,7 @@ class CouplingTask(HardTask):
         entries = [(f"{where}.rules[{k}]", r, "rules" in raw) for k, r in enumerate(given)]
         entries += [(f"{where}.add[{k}]", r, True) for k, r in enumerate(added)]
         for here, r, written in entries:
-            ok = isinstance(r, dict) and set(r) == {"joint", "by", "limit", "slope"} and isinstance(r["by"], str)
-            summed = r.get("joint") if ok else None
-            if isinstance(summed, str):
-                summed = [summed]
-            if not ok or not isinstance(summed, list) or not summed or not all(isinstance(n, str) for n in summed):
-                raise TaskError(here, "expected "
-                                      f"{{joint: name or [names, summed], by: name, limit: rad, slope: number}}, got "
-                                      f"{r!r}")
-            limit = number(r["limit"], f"{here}.limit", -4 * math.pi, 4 * math.pi)
-            slope = number(r["slope"], f"{here}.slope", -10.0, 10.0)
+            summed, limit, slope = _fields(here, r)
             hits = matching(names, summed[0])
             if not hits and written:
                 raise TaskError(f"{here}.joint", f"no joint matches {summed[0]!r}")

@@ -118,6 +118,32 @@ def _keep_out(scope: Scope, model: CollisionModel, pairs: list[Pair]) -> tuple[i
     return tuple(sorted(out))
 
 
+def _excluded(raw: dict[str, Any], where: str, model: Any) -> set[frozenset[str]]:
+    """The capsule pairs ``exclude`` names (patterns resolved), each as a set of two names."""
+    exclude = raw.get("exclude", [])
+    if not isinstance(exclude, list) or not all(isinstance(e, list) and len(e) == 2
+                                                and all(isinstance(n, str) for n in e) for e in exclude):
+        raise TaskError(f"{where}.exclude", f"expected a list of [capsule, capsule] pairs, got {exclude!r}")
+    excluded: set[frozenset[str]] = set()
+    try:
+        for a, b in exclude:
+            excluded.update(frozenset((x, y)) for x in model.names([a]) for y in model.names([b]))
+    except Exception as exc:
+        raise TaskError(f"{where}.exclude", str(exc)) from exc
+    return excluded
+
+
+def _only(raw: dict[str, Any], where: str, model: Any) -> set[str] | None:
+    """The capsules ``only`` names (patterns resolved), or None: every capsule."""
+    only_raw = raw.get("only")
+    if only_raw is not None and (not isinstance(only_raw, list) or not all(isinstance(n, str) for n in only_raw)):
+        raise TaskError(f"{where}.only", f"expected a list of capsule names or patterns, got {only_raw!r}")
+    try:
+        return set(model.names(only_raw)) if only_raw is not None else None
+    except Exception as exc:
+        raise TaskError(f"{where}.only", str(exc)) from exc
+
+
 @dataclass
 class SelfCollisionTask(HardTask):
     """Keep every non-adjacent pair of segments apart (see the module docstring)."""
@@ -145,23 +171,7 @@ class SelfCollisionTask(HardTask):
         model = scope.body.collision
         if not model.placed:
             raise TaskError(where, f"{scope.body.source}: the body has no collision geometry")
-        excluded: set[frozenset[str]] = set()
-        exclude = raw.get("exclude", [])
-        if not isinstance(exclude, list) or not all(isinstance(e, list) and len(e) == 2
-                                                    and all(isinstance(n, str) for n in e) for e in exclude):
-            raise TaskError(f"{where}.exclude", f"expected a list of [capsule, capsule] pairs, got {exclude!r}")
-        try:
-            for a, b in exclude:
-                excluded.update(frozenset((x, y)) for x in model.names([a]) for y in model.names([b]))
-        except Exception as exc:
-            raise TaskError(f"{where}.exclude", str(exc)) from exc
-        only_raw = raw.get("only")
-        if only_raw is not None and (not isinstance(only_raw, list) or not all(isinstance(n, str) for n in only_raw)):
-            raise TaskError(f"{where}.only", f"expected a list of capsule names or patterns, got {only_raw!r}")
-        try:
-            only = set(model.names(only_raw)) if only_raw is not None else None
-        except Exception as exc:
-            raise TaskError(f"{where}.only", str(exc)) from exc
+        excluded, only = _excluded(raw, where, model), _only(raw, where, model)
         pm = scope.body.model
         bearing = {p.joint for p in model.placed}
         candidates = []
@@ -169,9 +179,8 @@ class SelfCollisionTask(HardTask):
             for j in range(i + 1, len(model.placed)):
                 pj = model.placed[j]
                 if (frozenset((pi.name, pj.name)) in excluded or _adjacent(pm, bearing, pi.joint, pj.joint)
-                        or frozenset((pi.capsule.link, pj.capsule.link)) in scope.body.disabled):
-                    continue
-                if only is not None and pi.name not in only and pj.name not in only:
+                        or frozenset((pi.capsule.link, pj.capsule.link)) in scope.body.disabled
+                        or (only is not None and pi.name not in only and pj.name not in only)):
                     continue
                 if relative_motion(pm, pi.joint, pj.joint, scope.active):
                     candidates.append((i, j))
