@@ -56,6 +56,19 @@ HUMAN_ARM = ("{side}_shoulder", "{side}_elbow_flexion", "{side}_wrist_flexion")
 HOLD_TOL = 1e-6  # [m] overshoot the verdict accepts
 
 
+def _given_chains(given: Any, where: str, scope: Scope) -> tuple[tuple[str, ...], ...]:
+    """``frames``: one chain, or several (a list of lists: both legs of a squat), each two frames or more, top first."""
+    nested = isinstance(given, list) and bool(given) and all(isinstance(g, list) for g in given)
+    chains = []
+    for k, item in enumerate(given if nested else [given]):
+        here = f"{where}.frames[{k}]" if nested else f"{where}.frames"
+        chain = frames(scope, item, here)
+        if len(chain) < 2:
+            raise TaskError(here, f"expected at least two frames (a chain, top first), got {list(chain)!r}")
+        chains.append(chain)
+    return tuple(chains)
+
+
 @dataclass
 class HangTask(HardTask):
     """Chains of frames that hang: each below the one before, within a cone of straight down."""
@@ -74,18 +87,7 @@ class HangTask(HardTask):
     def parse(cls, raw: dict[str, Any], where: str, scope: Scope) -> HangTask:
         cone = math.radians(number(raw.get("cone", CONE), f"{where}.cone", 0.0, 90.0))
         if "frames" in raw:
-            given = raw["frames"]
-            # one chain, or several (a list of lists: both legs of a squat)
-            nested = isinstance(given, list) and bool(given) and all(isinstance(g, list) for g in given)
-            lists = given if nested else [given]
-            chains = []
-            for k, item in enumerate(lists):
-                here = f"{where}.frames[{k}]" if nested else f"{where}.frames"
-                chain = frames(scope, item, here)
-                if len(chain) < 2:
-                    raise TaskError(here, f"expected at least two frames (a chain, top first), got {list(chain)!r}")
-                chains.append(chain)
-            return cls(tuple(chains), cone)
+            return cls(_given_chains(raw["frames"], where, scope), cone)
         model = scope.body.model
         arms = [tuple(n.format(side=side) for n in HUMAN_ARM) for side in ("left", "right")]
         if not any(all(model.existFrame(n) for n in arm) for arm in arms):
