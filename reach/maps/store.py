@@ -202,7 +202,29 @@ def load_indexed(path: str | Path) -> tuple[VATree, ReachIndex | None]:
     corner = checked_field(path, arrays, "corner", np.int64, 2)
     kind = checked_field(path, arrays, "kind", np.uint8, 1)
     keys, reach_, residual, posture = read_vertices(path, arrays)
-    n, dim = kind.shape[0], box.dim
+    problems = _tree_problems(box.dim, d_max, depth, corner, kind, keys, reach_, residual, posture, names)
+    if problems:
+        raise StoreError(path, "; ".join(problems))
+    if "digest" in meta and meta["digest"] != digest({k: v for k, v in arrays.items() if k != "meta"}):
+        raise StoreError(path, "its arrays do not match the digest in its metadata (altered after it was written?); "
+                               "rebuild it")
+    meta = {k: v for k, v in meta.items() if k not in ("format", "version", "box", "d_min", "d_max", "posture_names")}
+    vertices = VertexTable(keys, reach_, residual, posture, names)
+    wrong = _labels_contradicting_verdicts(Lattice(box, d_max), depth, corner, kind, vertices)
+    if wrong:
+        raise StoreError(path, f"{wrong} inner or outer cells contradict their vertices' verdicts (inverted verdicts "
+                               "or shifted corners?)")
+    index = ReachIndex.from_arrays(arrays, keys.shape[0], path)
+    if index is not None and np.any(index.reached[~reach_]):
+        raise StoreError(path, "the reachability index holds directions reached at unreachable vertices")
+    return VATree(box, d_min, d_max, depth, corner, kind, bfs_children(kind, box.dim), vertices, meta), index
+
+
+def _tree_problems(dim: int, d_max: int, depth: np.ndarray, corner: np.ndarray, kind: np.ndarray, keys: np.ndarray,
+                   reach_: np.ndarray, residual: np.ndarray, posture: np.ndarray | None,
+                   names: tuple[str, ...]) -> list[str]:
+    """What makes a tree's arrays inconsistent with each other (none: an empty list)."""
+    n = kind.shape[0]
     problems = []
     if n == 0 or depth.shape != (n,) or corner.shape != (n, dim):
         problems.append(f"node arrays disagree: {n} kinds, {depth.shape[0]} depths, corners {corner.shape}")
@@ -221,21 +243,7 @@ def load_indexed(path: str | Path) -> tuple[VATree, ReachIndex | None]:
     if residual.shape == keys.shape and not np.all(np.isfinite(residual) | ~reach_.astype(bool)):
         problems.append(f"{int(np.sum(~np.isfinite(residual) & reach_.astype(bool)))} reachable vertices have NaN or "
                         "infinite residuals")
-    if problems:
-        raise StoreError(path, "; ".join(problems))
-    if "digest" in meta and meta["digest"] != digest({k: v for k, v in arrays.items() if k != "meta"}):
-        raise StoreError(path, "its arrays do not match the digest in its metadata (altered after it was written?); "
-                               "rebuild it")
-    meta = {k: v for k, v in meta.items() if k not in ("format", "version", "box", "d_min", "d_max", "posture_names")}
-    vertices = VertexTable(keys, reach_, residual, posture, names)
-    wrong = _labels_contradicting_verdicts(Lattice(box, d_max), depth, corner, kind, vertices)
-    if wrong:
-        raise StoreError(path, f"{wrong} inner or outer cells contradict their vertices' verdicts (inverted verdicts "
-                               "or shifted corners?)")
-    index = ReachIndex.from_arrays(arrays, keys.shape[0], path)
-    if index is not None and np.any(index.reached[~reach_]):
-        raise StoreError(path, "the reachability index holds directions reached at unreachable vertices")
-    return VATree(box, d_min, d_max, depth, corner, kind, bfs_children(kind, dim), vertices, meta), index
+    return problems
 
 
 def _labels_contradicting_verdicts(lattice: Lattice, depth: np.ndarray, corner: np.ndarray, kind: np.ndarray,
