@@ -133,6 +133,25 @@ def _excluded(raw: dict[str, Any], where: str, model: Any) -> set[frozenset[str]
     return excluded
 
 
+def _candidates(model: Any, scope: Scope, excluded: set[frozenset[str]],
+                only: set[str] | None) -> list[tuple[int, int]]:
+    """The capsule pairs (i, j) that may collide: neither excluded (by the config, as adjacent, or by the body's
+    SRDF), one of them in ``only`` when given, and moving relative to each other by the strategy's joints."""
+    pm = scope.body.model
+    bearing = {p.joint for p in model.placed}
+    candidates = []
+    for i, pi in enumerate(model.placed):
+        for j in range(i + 1, len(model.placed)):
+            pj = model.placed[j]
+            if (frozenset((pi.name, pj.name)) in excluded or _adjacent(pm, bearing, pi.joint, pj.joint)
+                    or frozenset((pi.capsule.link, pj.capsule.link)) in scope.body.disabled
+                    or (only is not None and pi.name not in only and pj.name not in only)):
+                continue
+            if relative_motion(pm, pi.joint, pj.joint, scope.active):
+                candidates.append((i, j))
+    return candidates
+
+
 def _only(raw: dict[str, Any], where: str, model: Any) -> set[str] | None:
     """The capsules ``only`` names (patterns resolved), or None: every capsule."""
     only_raw = raw.get("only")
@@ -171,19 +190,7 @@ class SelfCollisionTask(HardTask):
         model = scope.body.collision
         if not model.placed:
             raise TaskError(where, f"{scope.body.source}: the body has no collision geometry")
-        excluded, only = _excluded(raw, where, model), _only(raw, where, model)
-        pm = scope.body.model
-        bearing = {p.joint for p in model.placed}
-        candidates = []
-        for i, pi in enumerate(model.placed):
-            for j in range(i + 1, len(model.placed)):
-                pj = model.placed[j]
-                if (frozenset((pi.name, pj.name)) in excluded or _adjacent(pm, bearing, pi.joint, pj.joint)
-                        or frozenset((pi.capsule.link, pj.capsule.link)) in scope.body.disabled
-                        or (only is not None and pi.name not in only and pj.name not in only)):
-                    continue
-                if relative_motion(pm, pi.joint, pj.joint, scope.active):
-                    candidates.append((i, j))
+        candidates = _candidates(model, scope, _excluded(raw, where, model), _only(raw, where, model))
         ref = model.distances(scope.body.q_ref, candidates)
         pairs, close = [], []
         for (i, j), d in zip(candidates, ref, strict=True):
