@@ -147,6 +147,30 @@ class Rule:
         return self.joints[0]
 
 
+def _rule(joint: str, summed: list[str], by: str, limit: float, slope: float, here: str, written: bool,
+          scope: Scope) -> Rule | None:
+    """A rule for one joint its first name matches, or None: a default rule about joints the body lacks, or one whose
+    joints do not move (the reference posture decides it, once and for all)."""
+    model = scope.body.model
+    # A leading '*' is a side: the same side's joints are summed and coupled.
+    side = joint[: len(joint) - len(summed[0]) + 1] if summed[0].startswith("*") else ""
+    signs = (1.0, *(-1.0 if n.startswith("-") else 1.0 for n in summed[1:]))
+    group = [joint, *(n.lstrip("-").replace("*", side, 1) for n in summed[1:])]
+    by = by.replace("*", side, 1) if "*" in by else by
+    names = scope.body.joint_names
+    missing = [(n, field) for n, field in [*((n, "joint") for n in group[1:]), (by, "by")] if n not in names]
+    if missing and not written:
+        return None
+    if missing:
+        raise TaskError(f"{here}.{missing[0][1]}", f"{scope.body.source}: no joint {missing[0][0]!r} pairs with "
+                                                   f"{joint!r}")
+    if not any(n in scope.active for n in (*group, by)):
+        return None
+    iq = tuple(int(model.joints[model.getJointId(n)].idx_q) for n in group)
+    iby = int(model.joints[model.getJointId(by)].idx_q)
+    return Rule(tuple(group), by, limit, slope, iq, iby, signs)
+
+
 def _fields(here: str, r: Any) -> tuple[list[str], float, float]:
     """A written rule's joints summed (a name or a list of them), its limit [rad] and slope, checked."""
     ok = isinstance(r, dict) and set(r) == {"joint", "by", "limit", "slope"} and isinstance(r["by"], str)
@@ -183,7 +207,6 @@ class CouplingTask(HardTask):
             if not isinstance(value, list):
                 raise TaskError(f"{where}.{key}", f"expected a list of {{joint, by, limit, slope}}, got {value!r}")
         names = scope.body.joint_names
-        model = scope.body.model
         rules = []
         # a rule the config writes must match the body; a default one about joints the body lacks is skipped
         entries = [(f"{where}.rules[{k}]", r, "rules" in raw) for k, r in enumerate(given)]
@@ -194,23 +217,9 @@ class CouplingTask(HardTask):
             if not hits and written:
                 raise TaskError(f"{here}.joint", f"no joint matches {summed[0]!r}")
             for joint in hits:
-                # A leading '*' is a side: the same side's joints are summed and coupled.
-                side = joint[: len(joint) - len(summed[0]) + 1] if summed[0].startswith("*") else ""
-                signs = (1.0, *(-1.0 if n.startswith("-") else 1.0 for n in summed[1:]))
-                group = [joint, *(n.lstrip("-").replace("*", side, 1) for n in summed[1:])]
-                by = r["by"].replace("*", side, 1) if "*" in r["by"] else r["by"]
-                missing = [(n, field) for n, field in [*((n, "joint") for n in group[1:]), (by, "by")]
-                           if n not in names]
-                if missing and not written:
-                    continue  # a default rule about joints this body lacks
-                if missing:
-                    raise TaskError(f"{here}.{missing[0][1]}", f"{scope.body.source}: no joint {missing[0][0]!r} "
-                                                               f"pairs with {joint!r}")
-                if not any(n in scope.active for n in (*group, by)):
-                    continue  # nothing moves: the reference posture decides, once and for all
-                iq = tuple(int(model.joints[model.getJointId(n)].idx_q) for n in group)
-                iby = int(model.joints[model.getJointId(by)].idx_q)
-                rules.append(Rule(tuple(group), by, limit, slope, iq, iby, signs))
+                rule = _rule(joint, summed, r["by"], limit, slope, here, written, scope)
+                if rule is not None:
+                    rules.append(rule)
         return cls(tuple(rules))
 
     parametric: ClassVar[bool] = True  # the body enters only through the kinematics
