@@ -84,7 +84,7 @@ class Ros:
         assert proc.stdout.readline().startswith("serving")
         return proc
 
-    def helper(self, *args: str, timeout: float = 40) -> dict:
+    def helper(self, *args: str, timeout: float = 70) -> dict:
         out = subprocess.run([SYSTEM_PYTHON, str(ROOT / "tests" / "ros_helper.py"), *args], env=self.env,
                              capture_output=True, text=True, timeout=timeout)
         assert out.returncode == 0, out.stderr[-2000:]
