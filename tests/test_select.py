@@ -275,8 +275,8 @@ def test_refinement_also_starts_from_the_best_liked_stored_posture_nearby(arm, m
     s = Selector(arm, budget=0.5)
     assert s.select("right_hand", goal).refined == REFINED  # builds the index and the oracle
     oracle = s._oracle(name)
-    row = s._nearest_row(name, tree, goal.tolist())[0]  # the stored posture the answer starts from
-    kd, rows = s._kd[name][:2]
+    row = s.stored.nearest_row(name, goal.tolist())[0]  # the stored posture the answer starts from
+    kd, rows = s.stored.lookup(name)[:2]  # type: ignore[index]
     _, near = kd.query(goal, k=SEEDS)
     postures = tree.vertices.posture
     saved = postures[row].copy()

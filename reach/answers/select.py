@@ -51,15 +51,12 @@ own stored posture).
 from __future__ import annotations
 
 import copy
-import json
 import logging
 import math
 import time
-from collections import OrderedDict
 from typing import Any, NamedTuple
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from oracles.protocol import (
     Bounded,
@@ -90,9 +87,10 @@ from reach.answers.answer import (
 )
 from reach.answers.defaults import HANDOVER, MISS, MISSES, REFINE_BUDGET
 from reach.answers.refine import Prefetched, Purse, Refiner
+from reach.answers.stored import StoredPostures
 from reach.errors import InputError, ModelMismatch, UnknownEffector, UnknownPolicy
 from reach.maps.atlas import Atlas
-from reach.maps.protocol import DEFAULT_POLICY, POLICIES, Policy, ReachMap
+from reach.maps.protocol import DEFAULT_POLICY, POLICIES, Policy
 
 log = logging.getLogger(__name__)
 
@@ -102,16 +100,6 @@ STORED = (SKIPPED, TIMEOUT, FAILED, ERROR)
 FROM_TOLERANCE = math.radians(1.0)
 FROM_QUATERNION = 1e3  # the largest component of a `from` root quaternion (it is normalised)
 FROM_REACH = 1000.0  # [m] a `from` root farther than this from the world origin is a mistake, not a scene
-POSTURE_CACHE = 4096  # stored postures kept encoded, most recently used first
-
-
-class Lookup(NamedTuple):
-    """A strategy's stored postures as the selector looks them up (built once, at warm-up for a server)."""
-
-    kd: cKDTree  # over the goals the stored postures reach
-    ids: np.ndarray  # (n,) their ids in the map, in the k-d tree's order
-    reached: np.ndarray  # (size, 3) by id: where each posture puts the effector [m] (NaN for no stored posture)
-    share: np.ndarray  # (size,) by id: the reachability index where it was stored (NaN: the map has none)
 
 
 class Found(NamedTuple):
@@ -153,16 +141,14 @@ class Selector:
         self.policy = policy
         self.refine = refine
         self.budget = budget
-        self.refiner = Refiner(atlas.maps, self._oracle, budget, self._neighbours)
+        self.stored = StoredPostures(atlas.maps, self._effector_positions)
+        self.refiner = Refiner(atlas.maps, self._oracle, budget, self.stored.neighbours)
         self.order = [(s["name"], s["effector"]) for s in sorted(atlas.strategies, key=lambda s: s["priority"])]
         self._by_effector: dict[str, list[str]] = {}
         for name, effector in self.order:
             self._by_effector.setdefault(effector, []).append(name)
-        self._kd: dict[str, Lookup | None] = {}
         self._oracles: dict[str, Oracle] = {}
         self.notes: list[str] = []  # what changed in the bodies of trees from earlier versions (Rebuilt)
-        self._postures: OrderedDict[tuple[str, int],
-                                    tuple[dict[str, float], dict[str, list[float]] | None, bytes]] = OrderedDict()
         for m in atlas.maps.values():
             m.prepare()  # the batch lookup table now, not on the first batch
 
@@ -174,7 +160,7 @@ class Selector:
                 oracle = self._oracle(name)
                 if isinstance(oracle, Preparable):
                     oracle.prepare()
-                self._stored(name, m, m.box.lo[None])
+                self.stored.lookup(name)
         return self
 
     @property
@@ -253,54 +239,6 @@ class Selector:
             return any(self.atlas.maps[n].contains_one(point, self.policy) for n in names)
         return any(bool(self.atlas.maps[n].contains(goals, self.policy).any()) for n in names)
 
-    def _stored(self, name: str, tree: ReachMap, goals: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """Ids of the nearest reachable stored postures and where they put the effector [m].
-
-        The k-d tree and the effector positions are computed once per strategy
-        (at warm-up for a server), so a request costs one k-d tree query.
-        """
-        if name not in self._kd:
-            found = tree.stored()
-            self._kd[name] = None
-            if found is not None and len(found.ids):
-                size = int(found.ids.max()) + 1
-                reached, index = np.full((size, 3), np.nan), np.full(size, np.nan)
-                reached[found.ids] = self._effector_positions(name, found.postures)
-                # Once here, not per answer: the index at each stored goal (its own vertex's for a tree).
-                index[found.ids] = tree.index_at(found.points, held=False)
-                self._kd[name] = Lookup(cKDTree(found.points), found.ids, reached, index)
-        lookup = self._kd[name]
-        if lookup is None:
-            return None
-        _, i = lookup.kd.query(goals)
-        rows = lookup.ids[np.asarray(i)]
-        return rows, lookup.reached[rows]
-
-    def _nearest_row(self, name: str, tree: ReachMap, goal: list[float]) -> tuple[int, np.ndarray] | None:
-        """The nearest reachable stored posture of one goal: its id and effector position.
-
-        Usually the map's sample nearest to the goal is reachable and found
-        by one lookup; otherwise the k-d tree answers.
-        """
-        if name not in self._kd:
-            self._stored(name, tree, np.asarray([goal]))
-        found = self._kd[name]
-        if found is None:
-            return None
-        row = tree.nearest_stored(goal)
-        if row >= 0:
-            return row, found.reached[row]
-        rows, eff = self._stored(name, tree, np.asarray([goal]))  # type: ignore[misc]
-        return int(rows[0]), eff[0]
-
-    def _index_of(self, name: str, row: int) -> float | None:
-        """The reachability index where a stored posture was stored (None when the map has none)."""
-        found = self._kd.get(name)
-        if found is None or row < 0:
-            return None
-        value = float(found.share[row])
-        return None if math.isnan(value) else value
-
     def _effector_positions(self, name: str, postures: np.ndarray) -> np.ndarray:
         """Effector positions [m] of postures (n, nq); NaN when the oracle cannot tell (no posture is then used)."""
         oracle = self._oracle(name)
@@ -315,16 +253,8 @@ class Selector:
         twin.budget = float(budget)
         twin._oracles = {n: o.variant("refine", budget=budget) if isinstance(o, Tunable) else o
                          for n, o in self._oracles.items()}
-        twin.refiner = Refiner(self.atlas.maps, twin._oracle, budget, twin._neighbours)
+        twin.refiner = Refiner(self.atlas.maps, twin._oracle, budget, twin.stored.neighbours)
         return twin
-
-    def _neighbours(self, name: str, goal: np.ndarray, k: int) -> np.ndarray | None:
-        """The strategy's k stored postures (k, nq) nearest the goal, or None when it stores none."""
-        found = self._kd.get(name)
-        if found is None:
-            return None
-        _, near = found.kd.query(goal, k=min(k, len(found.ids)))
-        return self.atlas.maps[name].postures(found.ids[np.atleast_1d(near)])
 
     def oracle(self, name: str) -> Oracle:
         """The strategy's oracle as answers use it (its ``"refine"`` variant)."""
@@ -394,7 +324,7 @@ class Selector:
             out_of_time = refine and deadline is not None and time.perf_counter() > deadline
             point = g[0].tolist()
             hits = [n for n in names if self.atlas.maps[n].contains_one(point, self.policy)]
-            nearest = self._nearest_row(hits[0], self.atlas.maps[hits[0]], point) if hits else None
+            nearest = self.stored.nearest_row(hits[0], point) if hits else None
             return [timed_out(self._answer(effector, g[0], hits, nearest, refine and not out_of_time, t0, start, miss,
                                            aims[0]), out_of_time)]
         return self._batch(effector, g, names, refine, start, miss, aims, deadline)
@@ -427,7 +357,7 @@ class Selector:
         nearest: dict[int, tuple[int, np.ndarray] | None] = {}
         for k in np.unique(chosen[chosen >= 0]):  # one k-d tree query per chosen strategy
             sel = np.nonzero(chosen == k)[0]
-            found = self._stored(names[k], self.atlas.maps[names[k]], g[sel])
+            found = self.stored.nearest(names[k], g[sel])
             for m, i in enumerate(sel):
                 nearest[int(i)] = None if found is None else (int(found[0][m]), found[1][m])
         # Without a `from` (whose omitted joints each goal's stored posture fills in), every refinement is made ahead
@@ -501,7 +431,7 @@ class Selector:
             elif outcome == FAILED and miss == "unreachable":
                 # No strategy's refinement reaches the goal: not reachable, and the nearest point a stored posture
                 # reaches.
-                joints, pose, _ = self._stored_posture(name, tree, row)
+                joints, pose, _ = self.stored.encoded(name, row)
                 point = [float(v) for v in reached] if np.all(np.isfinite(reached)) else None
                 return Answer(effector, tuple(goal.tolist()), None, False, refined=FAILED,
                               seconds=time.perf_counter() - t0,
@@ -510,12 +440,12 @@ class Selector:
             if outcome == REFINED:
                 posture, root = split_posture(tree.posture_names, q)
             else:
-                posture, root, fragment = self._stored_posture(name, tree, row)
+                posture, root, fragment = self.stored.encoded(name, row)
         # a posture that was not refined at this goal says how near it comes
         within = residual if outcome in STORED else None
         step = self._landing(name, q) if nearest is not None else None
         return Answer(effector, tuple(goal.tolist()), name, True, tuple(others), posture, root, residual, outcome,
-                      time.perf_counter() - t0, handover, within, None, fragment, self._index_of(name, row), step)
+                      time.perf_counter() - t0, handover, within, None, fragment, self.stored.index_of(name, row), step)
 
     def probe(self, effector: str, goal: np.ndarray, restarts: int = 8) -> Answer | None:
         """For a goal no tree holds: the first strategy of the effector, by priority, whose thorough solve (its
@@ -526,7 +456,7 @@ class Selector:
         goal = np.asarray(goal, float)
         for name in self.strategies_for(effector):
             tree = self.atlas.maps[name]
-            nearest = self._nearest_row(name, tree, goal.tolist())
+            nearest = self.stored.nearest_row(name, goal.tolist())
             hint = None if nearest is None else tree.postures(nearest[0])[None]
             meta = tree.meta
             oracle = OracleSpec.from_dict(meta["oracle"]).create()
@@ -558,7 +488,7 @@ class Selector:
         point = goal.tolist()
         for name in names:
             tree = self.atlas.maps[name]
-            nearest = self._nearest_row(name, tree, point)
+            nearest = self.stored.nearest_row(name, point)
             if nearest is None:
                 continue
             row, reached = nearest
@@ -577,24 +507,6 @@ class Selector:
             if below is None or len(self._limits(name, q)) < below:
                 return Found(name, q, residual, outcome, row)
         return None
-
-    def _stored_posture(self, name: str, tree: ReachMap,
-                        row: int) -> tuple[dict[str, float], dict[str, list[float]] | None, bytes]:
-        """The stored posture of a vertex as dicts and as encoded JSON, from a bounded cache.
-
-        The dicts are shared between answers: treat them as read-only.
-        """
-        key = (name, row)
-        hit = self._postures.get(key)
-        if hit is None:
-            posture, root = split_posture(tree.posture_names, tree.postures(row))
-            fragment = json.dumps({"posture": posture, "root": root}, separators=(",", ":")).encode()[1:-1]
-            hit = self._postures[key] = (posture, root, fragment)
-            if len(self._postures) > POSTURE_CACHE:
-                self._postures.popitem(last=False)
-        else:
-            self._postures.move_to_end(key)
-        return hit
 
     def _prefetch(self, g: np.ndarray, names: list[str], hits: np.ndarray,
                   nearest: dict[int, tuple[int, np.ndarray] | None],
@@ -623,7 +535,7 @@ class Selector:
         while pending:
             items = []
             for i, (rest, _) in pending.items():
-                while rest and (row := self._nearest_row(rest[0], self.atlas.maps[rest[0]], g[i].tolist())) is None:
+                while rest and (row := self.stored.nearest_row(rest[0], g[i].tolist())) is None:
                     rest.pop(0)  # a strategy with no stored posture is passed over, as _first_answer does
                 if rest:
                     items.append((i, rest[0], row))
