@@ -474,25 +474,8 @@ class Request:
 
 def parse_request(payload: bytes) -> Request:
     """Parse and validate one request payload against the table of operations; raises ProtocolError."""
-    if len(payload) > MAX_MESSAGE_BYTES:
-        raise ProtocolError(TOO_LARGE, f"request of {len(payload)} bytes; the limit is {MAX_MESSAGE_BYTES}")
-    if not payload:
-        raise ProtocolError(BAD_FRAMES, "empty request frame")
-    try:
-        data = loads(payload.decode("utf-8"))
-    except (UnicodeDecodeError, ValueError) as exc:
-        raise ProtocolError(BAD_JSON, f"request is not UTF-8 JSON: {exc}") from None
-    except RecursionError:
-        raise ProtocolError(BAD_JSON, "request JSON is nested too deeply") from None
-    if not isinstance(data, dict):
-        raise ProtocolError(BAD_REQUEST, f"request must be a JSON object, got {type(data).__name__}")
-    rid = data.get("id")
-    if isinstance(rid, int) and not isinstance(rid, bool) and abs(rid) > MAX_ID:
-        # Echoed as a string: the client can still match the error to its request.
-        raise ProtocolError(BAD_REQUEST, "an integer 'id' must be at most 2^53 in magnitude; use a string", str(rid))
-    if rid is not None and (isinstance(rid, bool) or not isinstance(rid, (str, int, float))):
-        echo = rid if isinstance(rid, bool) else None
-        raise ProtocolError(BAD_REQUEST, "'id' must be a JSON string or number", echo)
+    data = _request_object(payload)
+    rid = _request_id(data)
     name = data.get("op")
     if not isinstance(name, str):
         raise ProtocolError(BAD_REQUEST, "'op' must be a string naming the operation", rid)
@@ -505,23 +488,58 @@ def parse_request(payload: bytes) -> Request:
         extra = [k for k in data if k not in allowed]
         named = ", ".join(repr(k[:40]) for k in extra[:5]) + (f" and {len(extra) - 5} more" if len(extra) > 5 else "")
         raise ProtocolError(BAD_REQUEST, f"unknown fields {named} for op {name!r}; allowed: {sorted(allowed)}", rid)
-    args: dict[str, Any] = {}
     try:
-        for f in op.fields:
-            if f.name not in data:
-                if f.required:
-                    raise Invalid(f"'{f.name}' is required: {f.doc}")
-                args[f.name] = f.default
-                continue
-            try:
-                args[f.name] = f.check(data[f.name])
-            except Invalid as exc:
-                raise Invalid(f"'{f.name}' must be {exc}", exc.code) from None
-        if op.check is not None:
-            op.check(args)
+        args = _fields(op, data)
     except Invalid as exc:
         raise ProtocolError(exc.code, str(exc), rid) from None
     return Request(name, rid, args)
+
+
+def _request_object(payload: bytes) -> dict[str, Any]:
+    """A request payload as its JSON object, within the size limit; raises ProtocolError."""
+    if len(payload) > MAX_MESSAGE_BYTES:
+        raise ProtocolError(TOO_LARGE, f"request of {len(payload)} bytes; the limit is {MAX_MESSAGE_BYTES}")
+    if not payload:
+        raise ProtocolError(BAD_FRAMES, "empty request frame")
+    try:
+        data = loads(payload.decode("utf-8"))
+    except (UnicodeDecodeError, ValueError) as exc:
+        raise ProtocolError(BAD_JSON, f"request is not UTF-8 JSON: {exc}") from None
+    except RecursionError:
+        raise ProtocolError(BAD_JSON, "request JSON is nested too deeply") from None
+    if not isinstance(data, dict):
+        raise ProtocolError(BAD_REQUEST, f"request must be a JSON object, got {type(data).__name__}")
+    return data
+
+
+def _request_id(data: dict[str, Any]) -> Any:
+    """A request's ``id`` (None when it has none), a JSON string or a number a double holds; raises ProtocolError."""
+    rid = data.get("id")
+    if isinstance(rid, int) and not isinstance(rid, bool) and abs(rid) > MAX_ID:
+        # Echoed as a string: the client can still match the error to its request.
+        raise ProtocolError(BAD_REQUEST, "an integer 'id' must be at most 2^53 in magnitude; use a string", str(rid))
+    if rid is not None and (isinstance(rid, bool) or not isinstance(rid, (str, int, float))):
+        echo = rid if isinstance(rid, bool) else None
+        raise ProtocolError(BAD_REQUEST, "'id' must be a JSON string or number", echo)
+    return rid
+
+
+def _fields(op: Operation, data: dict[str, Any]) -> dict[str, Any]:
+    """A request's fields checked by its operation's table (defaults where omitted); raises Invalid."""
+    args: dict[str, Any] = {}
+    for f in op.fields:
+        if f.name not in data:
+            if f.required:
+                raise Invalid(f"'{f.name}' is required: {f.doc}")
+            args[f.name] = f.default
+            continue
+        try:
+            args[f.name] = f.check(data[f.name])
+        except Invalid as exc:
+            raise Invalid(f"'{f.name}' must be {exc}", exc.code) from None
+    if op.check is not None:
+        op.check(args)
+    return args
 
 
 def operations_table() -> str:
