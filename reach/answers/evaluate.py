@@ -124,30 +124,10 @@ def evaluate(atlases: list[Atlas], targets: list[Target], effector: str | None =
                                           f"{len(placements)}")
     for k, atlas in enumerate(atlases):
         selector = Selector(atlas, policy, refine=refine, budget=budget, miss="unreachable")  # type: ignore[arg-type]
-        rows: list[dict[str, Any]] = []
         seen = points if placements is None else to_body(points, placements[min(k, len(placements) - 1)][None])[0]
         # a target on the body is placed on this atlas's body (any strategy's oracle: they share it), not moved by --at
         seen = on_body(targets, selector.oracle(selector.order[0][0]) if relative else None, seen)
-        for t, point in zip(targets, seen, strict=True):
-            eff = t.effector or effector or (selector.effectors[0] if len(selector.effectors) == 1 else None)
-            if eff is None:
-                raise ConfigError("targets", t.name, "no effector: give an effector column or --effector (one of "
-                                                     f"{', '.join(selector.effectors)})")
-            a = selector.select(eff, point)
-            probed = False
-            if refine and not a.reachable and a.refined == "none":
-                # No tree holds it: a thorough IK solve per strategy, by priority.
-                found = selector.probe(eff, point)
-                if found is not None:
-                    a, probed = found, True
-            # the layout's point; a target on the body, where it lies on this body
-            shown = np.round(point, 6).tolist() if t.relative_to else list(t.point)
-            rows.append({"target": t.name, "effector": eff, "point": shown,
-                         **({"relative_to": t.relative_to} if t.relative_to else {}), "strategy": a.strategy,
-                         "reachable": a.reachable,
-                         "also": list(a.alternatives), "refined": a.refined, "within": a.within, "beyond_trees": probed,
-                         "nearest": None if a.nearest is None
-                         else {k: a.nearest[k] for k in ("strategy", "point", "distance")}})
+        rows = [_row(selector, t, point, effector, refine) for t, point in zip(targets, seen, strict=True)]
         reached = sum(r["reachable"] for r in rows)
         by_strategy: dict[str, int] = {}
         for r in rows:
@@ -159,6 +139,28 @@ def evaluate(atlases: list[Atlas], targets: list[Target], effector: str | None =
                                    "summary": {"targets": len(rows), "reachable": reached,
                                                "unreachable": len(rows) - reached, "by_strategy": by_strategy}})
     return results
+
+
+def _row(selector: Selector, t: Target, point: np.ndarray, effector: str | None, refine: bool) -> dict[str, Any]:
+    """One target's row: the chosen strategy, the alternatives, whether a posture reaches it (beyond the trees: a
+    thorough IK solve per strategy, by priority, when no tree holds it)."""
+    eff = t.effector or effector or (selector.effectors[0] if len(selector.effectors) == 1 else None)
+    if eff is None:
+        raise ConfigError("targets", t.name, "no effector: give an effector column or --effector (one of "
+                                             f"{', '.join(selector.effectors)})")
+    a = selector.select(eff, point)
+    probed = False
+    if refine and not a.reachable and a.refined == "none":
+        found = selector.probe(eff, point)
+        if found is not None:
+            a, probed = found, True
+    # the layout's point; a target on the body, where it lies on this body
+    shown = np.round(point, 6).tolist() if t.relative_to else list(t.point)
+    return {"target": t.name, "effector": eff, "point": shown,
+            **({"relative_to": t.relative_to} if t.relative_to else {}), "strategy": a.strategy,
+            "reachable": a.reachable, "also": list(a.alternatives), "refined": a.refined, "within": a.within,
+            "beyond_trees": probed,
+            "nearest": None if a.nearest is None else {k: a.nearest[k] for k in ("strategy", "point", "distance")}}
 
 
 def text_table(results: dict[str, Any]) -> str:
