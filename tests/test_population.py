@@ -354,6 +354,29 @@ def test_the_direct_command_prints_the_table_and_its_json(built, capsys):
     assert "population" in capsys.readouterr().err
 
 
+@pytest.mark.slow
+def test_direct_answers_on_a_dask_cluster_are_the_ones_solved_here(built, capsys):
+    """``reach evaluate --direct --scheduler ADDR``: the members are solved on a real Dask scheduler's two worker
+    processes, and every member's answers are those solved in this process; without --direct, Dask is refused by
+    name."""
+    from distributed import Client, LocalCluster
+
+    config_path, _, targets = built
+    config = parse_config(json.loads(config_path.read_text()), str(config_path))
+    here = direct(config, TARGETS)
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        with Client(cluster) as client:
+            assert len(client.scheduler_info()["workers"]) == 2
+            there = direct(config, TARGETS, client=client)
+        capsys.readouterr()
+        assert main(["evaluate", str(config_path), "--direct", "--targets", str(targets), "--scheduler",
+                     cluster.scheduler_address, "--json"]) == 0
+        cli = json.loads(capsys.readouterr().out)
+    assert there["by_member"] == here["by_member"] == cli["by_member"] and there["way"] == "direct"
+    assert main(["evaluate", str(config_path.parent / "out"), "--targets", str(targets), "--dask"]) == 2
+    assert "--dask" in capsys.readouterr().err
+
+
 def test_a_population_with_a_member_not_built_or_beside_other_atlases_is_refused_by_name(built, tmp_path, capsys):
     import shutil
 

@@ -151,12 +151,13 @@ def from_atlases(folder: str | Path, targets: list[Target], effector: str | None
 
 def direct(config: Any, targets: list[Target], effector: str | None = None,
            placement: np.ndarray | None = None, verify: bool = True,
-           log: Any = None, workers: int = 1) -> dict[str, Any]:
+           log: Any = None, workers: int = 1, client: Any = None) -> dict[str, Any]:
     """Accommodation by solving every member x target with the members' strategies' oracles (no tree).
 
     Every reached target is checked by the strategy's own forward-kinematics check of the posture on that member's
     model (``Verifying``); one that fails it counts as not reached, and the count is reported. ``workers`` > 1 solves
-    members in that many processes (each dies with this one); the answers do not depend on it.
+    members in that many processes (each dies with this one); a Dask ``client`` (``distributed.Client``) solves them
+    on its cluster's workers instead. The answers depend on neither.
     """
     from reach.building.population import members_of
 
@@ -175,11 +176,16 @@ def direct(config: Any, targets: list[Target], effector: str | None = None,
     members = members_of(config)
     # Members in runs of CHUNK, each run in one process with one program a strategy (the body's numbers its
     # parameters: oracles.ik.parameters), built for the run's first member and shared by the others.
+    if client is not None:
+        workers = max(workers, len(client.scheduler_info().get("workers", {})))
     count = max(math.ceil(len(members) / CHUNK), min(workers, len(members)))  # every process at work
     size = math.ceil(len(members) / max(count, 1))
     runs = [members[k : k + size] for k in range(0, len(members), size)]
     jobs = [([m.body(config.raw.get("body")) for m in run], strategies, points, effs, verify, targets) for run in runs]
-    if workers > 1 and len(runs) > 1:
+    if client is not None:
+        futures = client.map(_members, jobs, pure=False)
+        results = _logged((r for f in futures for r in f.result()), members, log)
+    elif workers > 1 and len(runs) > 1:
         from concurrent.futures import ProcessPoolExecutor
 
         from reach.building.executor import build_worker

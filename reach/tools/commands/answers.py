@@ -382,6 +382,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from reach.maps.atlas import load_atlas
 
     at = None if not args.at else np.array([[x, y, z, math.radians(yaw)] for x, y, z, yaw in args.at])
+    if (args.scheduler or args.dask) and not args.direct:
+        raise InputError("--scheduler" if args.scheduler else "--dask", "Dask solves a population's members with "
+                                                                        "--direct only; built atlases answer here")
     if args.direct or any(_is_population(a) for a in args.atlas):
         return _accommodation(args, at)
     for a in args.atlas:
@@ -434,8 +437,13 @@ def _accommodation(args: argparse.Namespace, at: np.ndarray | None) -> int:
             raise ConfigError(config.source, "population", "--direct needs a config with population: (see "
                                                            "docs/population.md)")
         log = None if args.json else (lambda line: print(line, file=sys.stderr, flush=True))
-        result = accommodation.direct(config, targets, args.effector, at, log=log,
-                                      workers=args.workers or os.cpu_count() or 1)
+        workers = args.workers or os.cpu_count() or 1
+        client = _dask_client(args, workers)
+        try:
+            result = accommodation.direct(config, targets, args.effector, at, log=log, workers=workers, client=client)
+        finally:
+            if client is not None:
+                client.close()
     else:
         result = accommodation.from_atlases(args.atlas[0], targets, args.effector, refine=not args.no_refine,
                                             placement=at)
@@ -444,6 +452,18 @@ def _accommodation(args: argparse.Namespace, at: np.ndarray | None) -> int:
     else:
         print(accommodation.text(result))
     return 0
+
+
+def _dask_client(args: argparse.Namespace, workers: int) -> Any:
+    """The Dask client ``--scheduler`` or ``--dask`` asks for (None without either)."""
+    if not (args.scheduler or args.dask):
+        return None
+    # Dask only when the members are solved on it
+    from distributed import Client, LocalCluster
+
+    if args.scheduler:
+        return Client(args.scheduler)
+    return Client(LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None))
 
 
 def add_evaluate(sub: Any) -> None:
@@ -458,6 +478,10 @@ def add_evaluate(sub: Any) -> None:
     p.add_argument("--direct", action="store_true", help="ATLAS is a config with population: solve every member x "
                    "target with the strategies' oracles, no trees (cheaper than building for a few targets)")
     p.add_argument("-j", "--workers", type=int, help="with --direct: processes solving members (default: all cores)")
+    p.add_argument("--dask", action="store_true", help="with --direct: solve the members on a Dask LocalCluster of "
+                   "--workers processes")
+    p.add_argument("--scheduler", metavar="ADDR", help="with --direct: solve the members on the Dask cluster at ADDR, "
+                   "e.g. tcp://10.0.0.5:8786")
     p.add_argument("--effector", help="effector for targets without one")
     policy_option(p)
     p.add_argument("--no-refine", action="store_true",
