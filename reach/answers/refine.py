@@ -20,7 +20,7 @@ from reach.errors import InputError
 from reach.maps.protocol import ReachMap
 
 # [s] the least budget of a goal with an orientation: its stored postures hold none, so its refinement tries random
-# starts too; within 20 ms it timed out on 5 of 72 oriented arm7_table goals the referee reaches (docs/history.md). The
+# starts too; within 20 ms it timed out on 4-5 of 72 oriented arm7_table goals the referee reaches (commit 81c9e1e). The
 # batched engine's K starts and K random ones take 0.10-0.15 s on an idle machine: 0.2 s timed out on a loaded one (CI).
 ORIENTED_BUDGET = 0.5
 # The share of a refinement's budget its solve gets, leaving at most SOLVE_RESERVE [s] for the seeding (the best-liked
@@ -34,7 +34,7 @@ LEAST_SOLVE = 0.25
 # A refinement without `from` also starts from the best-liked of this many
 # nearest stored postures (when it is not the nearest's): the nearest can sit
 # in a worse basin of the posture task than its neighbours, and two goals 1 cm
-# apart then ended in different basins (docs/history.md).
+# apart then ended in different basins (not found again in docs/history.md or the commits: as first written).
 SEEDS = 8
 
 

@@ -84,14 +84,14 @@ MAX_MEMBER_BYTES = 2**31
 
 
 # The largest value a stored posture may hold (a joint's angle [rad], a root's position [m]): postures of 1e308 were
-# accepted (docs/history.md).
+# accepted (not found again in docs/history.md or the commits: as first written).
 MAX_COORDINATE = 1e4
 
 # The members a tree file holds (save_tree); others are never inflated.
 TREE_MEMBERS = frozenset({"meta", "depth", "corner", "kind", "vertex_keys", "vertex_reachable", "vertex_residual",
                           "vertex_posture", "index_directions", "index_bits"})
 # The most a file's members read may inflate to together: three members each under MAX_MEMBER_BYTES took a command
-# to 4.2 GB before it refused them (docs/history.md). The demo's largest tree inflates to about 30 MB.
+# to 4.2 GB before it refused them (commit 5f7c646). The demo's largest tree inflates to about 30 MB.
 MAX_TOTAL_BYTES = 2**31
 
 

@@ -1,6 +1,6 @@
 """The ``cells`` operation's replies, made once per atlas when it loads.
 
-A level-6 reply is about 2 MB of JSON and took the request loop 0.36-0.43 s to make (docs/history.md): every strategy's
+A level-6 reply is about 2 MB of JSON and took the request loop 0.36-0.43 s to make (commit 30fbe76): every strategy's
 reachable cells at every level a request may ask are rasterised and encoded once, beside the selector (at start-up
 and in a reload's background thread), and a request joins the fragments it asks for.
 """
