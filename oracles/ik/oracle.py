@@ -148,8 +148,7 @@ class IKOracle(TaskedBody):
 
     def use_reference(self, q: np.ndarray) -> None:
         super().use_reference(q)
-        if hasattr(self, "solver"):
-            self.solver = self.solver.twin(self)  # the reference's numbers (contacts, polygon) are the new posture's
+        self.solver = self.solver.twin(self)  # the reference's numbers (contacts, polygon) are the new posture's
 
     @classmethod
     def from_params(cls, **params: Any) -> IKOracle:

@@ -100,7 +100,8 @@ class Batched(Protocol):
 
     def prepare(self) -> None: ...
 
-    def polisher(self) -> Polishing: ...
+    @property
+    def polish(self) -> Polishing: ...
 
 
 # a wave's goals (indices), each goal's starts, and which goals' first start is decisive (by goal; None: none)
@@ -192,7 +193,6 @@ class Waves:
         # tests/test_truth.py). A staged goal's second wave keeps the residual: by the nearest end it reached no more
         # of the truth suite and cost the demo build more.
         self.nearest = np.full(n, np.inf)
-        self._polisher: Polishing | None = None
 
     def _classify(self) -> None:
         """Each goal's first hint (``first``, as x: continuity with it is liked), and whether it is ``decisive``,
@@ -435,8 +435,7 @@ class Waves:
     def _polish_from(self, i: int, guess: np.ndarray, target_i: np.ndarray | None) -> bool:
         """One fatrop solve of goal i from ``guess``, kept when it reaches or comes nearer; whether it reached."""
         oracle = self.oracle
-        self._polisher = self._polisher or self.solver.polisher()
-        q = self._polisher.solve(self.pts[i], guess, oracle.search.secondary,
+        q = self.solver.polish.solve(self.pts[i], guess, oracle.search.secondary,
                                   Call(self.start, self.meter.pace.deadline, target_i))
         oracle.stats["polished"] = oracle.stats.get("polished", 0) + 1
         self.polishes[i] += 1

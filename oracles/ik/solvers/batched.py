@@ -157,10 +157,6 @@ class Batched:
     def with_body(self, params: np.ndarray) -> np.ndarray:
         return self.polish.formulation.with_body(params)
 
-    def polisher(self) -> InteriorPoint:
-        """fatrop's programs, sharing this solver's: the polish of near misses."""
-        return self.polish
-
     def solve(self, goal: np.ndarray, x0: np.ndarray, lower: bool = True, call: Call = NO_CALL) -> np.ndarray:
         return self.polish.solve(goal, x0, lower, call)
 

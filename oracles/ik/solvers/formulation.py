@@ -8,6 +8,7 @@ program.
 
 from __future__ import annotations
 
+import copy
 from typing import Any
 
 import casadi as ca
@@ -30,7 +31,14 @@ class Formulation:
 
     def __init__(self, room: Room, body_parameters: bool) -> None:
         self.room, self.body_parameters = room, body_parameters
-        self._numbers: BodyParameters | None = None
+        self._numbers: tuple[Any, BodyParameters] | None = None  # (the problem they were read from, the numbers)
+
+    def twin(self, room: Room) -> Formulation:
+        """This formulation for another room (a variant's): the body's numbers are read again only where its problem
+        is another (a new reference posture, a probe's own), not for every refinement's variant."""
+        out = copy.copy(self)
+        out.room = room
+        return out
 
     def symbols(self) -> tuple[Symbolic, ca.SX]:
         """The programs' symbols and their parameter vector: goal (3), start (nx), start weight, the tasks' targets,
@@ -58,15 +66,16 @@ class Formulation:
     @property
     def numbers(self) -> BodyParameters:
         """The body's numbers as the programs take them (lifted when :attr:`lifted`; only lifted programs read them)."""
-        if self._numbers is None:
-            room = self.room
+        room = self.room
+        if self._numbers is None or self._numbers[0] is not room.problem:
             arrays = {**model_arrays(room.body.model), **room.problem.arrays()}
             tasks = {f"task{k}.{name}": v for k, t in enumerate(room.strategy.tasks) for name, v in t.numbers().items()}
             # The tasks' numbers lifted whole: their zeros are a body's (a capsule a sphere at one member, a segment
             # at the next: 3 of 20 ANSUR II members had another program).
-            self._numbers = BodyParameters({**arrays, **tasks}, self.lifted, fixed=frozenset({"root_ref"}),
-                                           dense=frozenset(tasks))
-        return self._numbers
+            numbers = BodyParameters({**arrays, **tasks}, self.lifted, fixed=frozenset({"root_ref"}),
+                                     dense=frozenset(tasks))
+            self._numbers = (room.problem, numbers)
+        return self._numbers[1]
 
     def program_key(self, options: dict[str, Any]) -> tuple[Any, ...] | None:
         """What two oracles' programs depend on when the body's numbers are parameters (None when they are not): the

@@ -128,7 +128,7 @@ class InteriorPoint(SingleSolver):
         # A refinement never compiles (seconds, more than a server's few solves gain) and lets the lower stages
         # converge (its budget bounds the time); the referee solves with IPOPT, the reference solver.
         out = copy.copy(self)
-        out.room, out.formulation = room, Formulation(room, self.formulation.body_parameters)
+        out.room, out.formulation = room, self.formulation.twin(room)
         if not compiled:
             out.jit, out._cache = False, {}
         if purpose == "refine":

@@ -16,7 +16,13 @@ import numpy as np
 from reach.answers.defaults import REFINE_BUDGET
 from reach.errors import ConfigError, InputError
 from reach.serving import protocol as P
-from reach.tools.commands.common import handover_margin, handover_option, policy_option, print_json
+from reach.tools.commands.common import (
+    dask_client,
+    handover_margin,
+    handover_option,
+    policy_option,
+    print_json,
+)
 
 QUERY_BUDGET = 1.0  # [s] default refinement budget of a local `reach query`: one question, no frame to keep
 MOTION_FILES = (".json", ".bvh", ".glb", ".gltf")  # reach motion -o: by the file's extension
@@ -438,7 +444,7 @@ def _accommodation(args: argparse.Namespace, at: np.ndarray | None) -> int:
                                                            "docs/population.md)")
         log = None if args.json else (lambda line: print(line, file=sys.stderr, flush=True))
         workers = args.workers or os.cpu_count() or 1
-        client = _dask_client(args, workers)
+        client = dask_client(args, workers)
         try:
             result = accommodation.direct(config, targets, args.effector, at, log=log, workers=workers, client=client)
         finally:
@@ -452,18 +458,6 @@ def _accommodation(args: argparse.Namespace, at: np.ndarray | None) -> int:
     else:
         print(accommodation.text(result))
     return 0
-
-
-def _dask_client(args: argparse.Namespace, workers: int) -> Any:
-    """The Dask client ``--scheduler`` or ``--dask`` asks for (None without either)."""
-    if not (args.scheduler or args.dask):
-        return None
-    # Dask only when the members are solved on it
-    from distributed import Client, LocalCluster
-
-    if args.scheduler:
-        return Client(args.scheduler)
-    return Client(LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None))
 
 
 def add_evaluate(sub: Any) -> None:

@@ -57,21 +57,26 @@ def executor_factory(args: argparse.Namespace, chunk_size: int) -> tuple[Any, An
     from reach.building.executor import DaskExecutor, InlineExecutor, ProcessExecutor
 
     workers = args.workers or os.cpu_count() or 1
-    if args.scheduler or args.dask:
-        # Dask only when a build runs on it
-        from distributed import Client, LocalCluster
-
-        if args.scheduler:
-            client = Client(args.scheduler)
-            how = f"Dask scheduler {args.scheduler}"
-        else:
-            client = Client(LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                         dashboard_address=None))
-            how = f"Dask LocalCluster, {workers} workers"
+    client = dask_client(args, workers)
+    if client is not None:
+        how = f"Dask scheduler {args.scheduler}" if args.scheduler else f"Dask LocalCluster, {workers} workers"
         return (lambda spec: DaskExecutor(spec, client, chunk_size)), client, how
     if workers == 1:
         return (lambda spec: InlineExecutor(spec, chunk_size)), None, "inline"
     return (lambda spec: ProcessExecutor(spec, workers, chunk_size)), None, f"{workers} processes"
+
+
+def dask_client(args: argparse.Namespace, workers: int) -> Any:
+    """The Dask client ``--scheduler ADDR`` or ``--dask`` (a LocalCluster of ``workers`` processes) asks for; None
+    without either."""
+    if not (args.scheduler or args.dask):
+        return None
+    # Dask only when work runs on it
+    from distributed import Client, LocalCluster
+
+    if args.scheduler:
+        return Client(args.scheduler)
+    return Client(LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None))
 
 
 def add_executor_arguments(p: argparse.ArgumentParser) -> None:
