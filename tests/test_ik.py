@@ -555,6 +555,38 @@ def test_a_compile_is_said_before_it_starts_and_when_it_ends(tmp_path, monkeypat
     assert "compil" not in capsys.readouterr().err
 
 
+def test_programs_compiled_together_say_how_many_and_how_long_is_left(tmp_path, monkeypatch, caplog):
+    """A first build compiles about 190 programs: those asked together are compiled by several compilers at once
+    (``$REACH_JIT_JOBS``), said as one batch and then each with how many are done and about how long is left; each
+    compiles once, and the results are the functions asked for."""
+    import logging
+
+    import casadi as ca
+
+    from oracles.ik import jit
+
+    monkeypatch.setenv("REACH_JIT_CACHE", str(tmp_path / "jit"))
+    monkeypatch.setenv("REACH_JIT_JOBS", "2")
+    x = ca.SX.sym("x", 2)
+    functions = [ca.Function(f"power{k}", [x], [x**k]) for k in (2, 3, 4)]
+    with caplog.at_level(logging.INFO, logger="reach.jit"):
+        built = jit.compiled_functions(functions)
+    said = [r.getMessage() for r in caplog.records]
+    folder = tmp_path / "jit"
+    assert said[0] == f"compiling 3 programs (power2 ... power4) to machine code, 2 at a time (once: kept in {folder})"
+    assert [m.split(" (")[1].split(" about")[0] for m in said[1:3]] == ["1 of 3;", "2 of 3;"]
+    assert all(" s left)" in m for m in said[1:3]) and "(3 of 3; all in" in said[3] and len(said) == 4
+    assert [f(np.array([2.0, 3.0])).full().ravel().tolist() for f in built] == [[4, 9], [8, 27], [16, 81]]
+    assert len(list((tmp_path / "jit").glob("*.so"))) == 3
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="reach.jit"):
+        jit.compiled_functions(functions[:2] + [ca.Function("power5", [x], [x**5])])  # two cached, one new
+    assert [r.getMessage().split(" to machine")[0] for r in caplog.records][:1] == ["compiling power5"]
+    monkeypatch.setenv("REACH_JIT_JOBS", "many")
+    with pytest.raises(RuntimeError, match="REACH_JIT_JOBS: expected a whole number"):
+        jit.compiled_functions([ca.Function("power6", [x], [x**6])])
+
+
 class PositionOnly(SingleSolver):
     """A solver added as a newcomer adds one: Gauss-Newton on the effector's position alone (tests only)."""
 

@@ -54,7 +54,7 @@ import numpy as np
 from threadpoolctl import ThreadpoolController
 
 from oracles.ik.budget import Meter, lower_cost, reach_cost
-from oracles.ik.jit import compiled_function
+from oracles.ik.jit import compiled_functions
 from oracles.tasks import Constraint, SoftTask, Symbolic
 from oracles.tasks.reach import PROXIMAL
 
@@ -146,6 +146,7 @@ class BatchProgram:
                  screened: Sequence[Constraint] = ()) -> None:
         x = sym.x
         self.n = int(x.numel())
+        self.np = int(params.numel())
         g = ca.vertcat(*[c.expr for c in hard]) if hard else ca.SX.zeros(0, 1)
         self.rows = _rows(hard)
         self.m = int(g.numel())
@@ -153,6 +154,7 @@ class BatchProgram:
         lazy = ca.vertcat(*[c.expr for c in screened]) if screened else ca.SX.zeros(0, 1)
         self.lazy_rows = _rows(screened)
         self.lazy_m = int(lazy.numel())
+        functions: list[ca.Function] = []  # the lazy rows and their Jacobian's groups, the reach, the lower tasks
         if self.lazy_m:
             # Frozen symbols (the nearest points' parameters) are held while differentiating, then replaced.
             held = [pair for c in screened for pair in c.frozen]
@@ -160,16 +162,12 @@ class BatchProgram:
             jac = ca.jacobian(lazy, x)
             if held:
                 lazy, jac = ca.substitute([lazy, jac], [ca.vertcat(*symbols)], [ca.vertcat(*values)])
-            self._lazy = _Mapped(ca.Function(f"{name}_lazy", [x, params], [ca.densify(lazy)]), jit,
-                                 [(self.lazy_m, 1)], self.n, int(params.numel()))
+            functions.append(ca.Function(f"{name}_lazy", [x, params], [ca.densify(lazy)]))
             # The Jacobian by groups of rows, each evaluated only for the postures with one of its rows near: all
             # 147 rows of the whole body cost 69 us a posture, about ten times the reach's (measured here).
-            self._lazy_groups = [
-                (k, _Mapped(ca.Function(f"{name}_lazy_jac{k}", [x, params],
-                                        [ca.densify(jac[k : min(k + GROUP, self.lazy_m), :])]), jit,
-                            [(min(GROUP, self.lazy_m - k), self.n)], self.n, int(params.numel())))
-                for k in range(0, self.lazy_m, GROUP)
-            ]
+            functions += [ca.Function(f"{name}_lazy_jac{k}", [x, params],
+                                      [ca.densify(jac[k : min(k + GROUP, self.lazy_m), :])])
+                          for k in range(0, self.lazy_m, GROUP)]
         jg = ca.jacobian(g, x) if self.m else ca.SX.zeros(0, self.n)
         je = ca.jacobian(reach, x)
         f = ca.SX(0.0)
@@ -184,14 +182,23 @@ class BatchProgram:
                 term = 0.5 * (excess + ca.sqrt(excess**2 + FREE_SMOOTH**2))
             f += LOWER_WEIGHT**k * term
         hess, grad = ca.hessian(f, x)
-        self.np = int(params.numel())
         self.lower_bound, self.upper_bound, self.span = lower_bound, upper_bound, span
         self.has_lower = bool(lower)
         outs = [g, jg, reach, je]
-        base = ca.Function(f"{name}_reach", [x, params], [ca.densify(o) for o in outs])
-        full = ca.Function(f"{name}_lower", [x, params], [ca.densify(o) for o in [*outs, f, grad, hess]])
-        self._reach = _Mapped(base, jit, [(self.m, 1), (self.m, self.n), (3, 1), (3, self.n)], self.n, self.np)
-        self._full = _Mapped(full, jit,
+        functions.append(ca.Function(f"{name}_reach", [x, params], [ca.densify(o) for o in outs]))
+        if lower:
+            functions.append(ca.Function(f"{name}_lower", [x, params], [ca.densify(o) for o in [*outs, f, grad, hess]]))
+        # compiled together: the compiler runs on several at once
+        built = dict(zip([fn.name() for fn in functions], compiled_functions(functions) if jit else functions,
+                         strict=True))
+        if self.lazy_m:
+            self._lazy = _Mapped(built[f"{name}_lazy"], [(self.lazy_m, 1)], self.n, self.np)
+            self._lazy_groups = [(k, _Mapped(built[f"{name}_lazy_jac{k}"], [(min(GROUP, self.lazy_m - k), self.n)],
+                                             self.n, self.np))
+                                 for k in range(0, self.lazy_m, GROUP)]
+        self._reach = _Mapped(built[f"{name}_reach"], [(self.m, 1), (self.m, self.n), (3, 1), (3, self.n)], self.n,
+                              self.np)
+        self._full = _Mapped(built[f"{name}_lower"],
                              [(self.m, 1), (self.m, self.n), (3, 1), (3, self.n), (1, 1), (self.n, 1),
                               (self.n, self.n)],
                              self.n, self.np) if lower else None
@@ -411,14 +418,13 @@ class _Mapped:
     """A function of (x, p) over a batch of postures, compiled or interpreted, called through CasADi's buffers (no
     conversion of its outputs: numpy arrays are written in place).
 
-    The function is compiled once and mapped (CasADi's serial map, a loop in C++) over ``CHUNK`` postures and over
-    ``SMALL``: a refinement's one goal has K = 8 starts, and padded to 64 it paid for eight times the postures it
-    asked for (a motion's end posture spent its whole 0.25 s budget evaluating)."""
+    The function is mapped (CasADi's serial map, a loop in C++) over ``CHUNK`` postures and over ``SMALL``: a
+    refinement's one goal has K = 8 starts, and padded to 64 it paid for eight times the postures it asked for (a
+    motion's end posture spent its whole 0.25 s budget evaluating)."""
 
-    def __init__(self, f: ca.Function, jit: bool, shapes: list[tuple[int, int]], n: int, np_: int) -> None:
-        base = compiled_function(f.name(), f) if jit else f
+    def __init__(self, f: ca.Function, shapes: list[tuple[int, int]], n: int, np_: int) -> None:
         self.shapes = shapes
-        self.maps = {size: _Buffers(base.map(f"{f.name()}_map{size}", "serial", size, [], []), size, shapes, n, np_)
+        self.maps = {size: _Buffers(f.map(f"{f.name()}_map{size}", "serial", size, [], []), size, shapes, n, np_)
                      for size in (SMALL, CHUNK)}
 
     def __call__(self, x: np.ndarray, p: np.ndarray) -> list[np.ndarray]:

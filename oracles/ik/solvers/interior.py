@@ -25,7 +25,7 @@ import numpy as np
 import pinocchio as pin
 
 from oracles.errors import OracleError
-from oracles.ik.jit import COMPILER, compiled_nlpsol
+from oracles.ik.jit import COMPILER, compiled_nlpsols
 from oracles.ik.rounds import NO_CALL, Call
 from oracles.ik.solvers.formulation import Formulation
 from oracles.ik.solvers.protocol import Room, Solver
@@ -229,25 +229,29 @@ class InteriorPoint(SingleSolver):
         lbg = np.array([c.lower for c in rows for _ in range(c.expr.numel())] + [UNUSED] * slots, float)
         ubg = np.array([c.upper for c in rows for _ in range(c.expr.numel())] + [np.inf] * slots, float)
         programs.bounds[slots] = (lbg, ubg)
-        stages = []
+        specs, settle = [], None
         for k, task in enumerate(order):
             earlier = [t.held(sym) for t in order[:k]]
             nlp = {"x": x, "p": ca.vertcat(params, ca.vec(cut)), "f": task.objective(sym), "g": ca.vertcat(g, *earlier)}
             iters = self.max_iter if k == 0 else self.secondary_iter
-            solver = self.name
-            stages.append(self._nlpsol(f"stage_{task.type}{'_cut' if slots else ''}", solver, nlp,
-                                       self._options(solver, iters)))
-            if k == 0 and self.room.search.settle > 0 and solver == "fatrop":
-                opts = {**self._options(solver, iters), "fatrop.mu_init": SETTLE_MU}
-                programs.settling[slots] = self._nlpsol(f"stage_{task.type}_settle{'_cut' if slots else ''}", solver,
-                                                        nlp, opts)
+            specs.append((f"stage_{task.type}{'_cut' if slots else ''}", nlp, self._options(self.name, iters)))
+            if k == 0 and self.room.search.settle > 0 and self.name == "fatrop":
+                opts = {**self._options(self.name, iters), "fatrop.mu_init": SETTLE_MU}
+                settle = len(specs)
+                specs.append((f"stage_{task.type}_settle{'_cut' if slots else ''}", nlp, opts))
+        built = self._nlpsols(specs)  # compiled together: the compiler runs on several at once
+        stages = [f for j, f in enumerate(built) if j != settle]
+        if settle is not None:
+            programs.settling[slots] = built[settle]
         programs.objectives = [ca.Function(t.type, [x, params], [t.measure(sym)]) for t in order]
         return stages
 
-    def _nlpsol(self, name: str, solver: str, nlp: dict[str, Any], opts: dict[str, Any]) -> ca.Function:
+    def _nlpsols(self, specs: list[tuple[str, dict[str, Any], dict[str, Any]]]) -> list[ca.Function]:
+        """Each ``(name, nlp, opts)`` as a program of this solver, compiled when asked (falling back to CasADi's
+        interpreter when the compiler fails under ``jit: auto``)."""
         if self.jit:
             try:
-                return compiled_nlpsol(name, solver, nlp, opts)
+                return compiled_nlpsols(self.name, specs)
             except RuntimeError as exc:
                 reason = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
                 if self.jit_asked is True:
@@ -255,7 +259,7 @@ class InteriorPoint(SingleSolver):
                                       oracle=self.oracle, key="jit") from exc
                 warnings.warn(f"casadi-ik: jit compilation failed, using CasADi's interpreter ({reason})", stacklevel=2)
                 self.jit = False
-        return ca.nlpsol(name, solver, nlp, opts)
+        return [ca.nlpsol(name, self.name, nlp, opts) for name, nlp, opts in specs]
 
     def _options(self, solver: str, max_iter: int) -> dict[str, Any]:
         if solver == "fatrop":
