@@ -578,6 +578,9 @@ def test_programs_compiled_together_say_how_many_and_how_long_is_left(tmp_path, 
     assert all(" s left)" in m for m in said[1:3]) and "(3 of 3; all in" in said[3] and len(said) == 4
     assert [f(np.array([2.0, 3.0])).full().ravel().tolist() for f in built] == [[4, 9], [8, 27], [16, 81]]
     assert len(list((tmp_path / "jit").glob("*.so"))) == 3
+    logged = [line.split("\t") for line in (folder / "compiles.log").read_text().splitlines()]
+    assert (sorted(row[2] for row in logged) == sorted(p.stem for p in (tmp_path / "jit").glob("*.so"))
+            and all(len(r) == 5 for r in logged))
     caplog.clear()
     with caplog.at_level(logging.INFO, logger="reach.jit"):
         jit.compiled_functions(functions[:2] + [ca.Function("power5", [x], [x**5])])  # two cached, one new

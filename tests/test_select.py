@@ -366,3 +366,18 @@ def test_an_effector_named_by_another_frame_at_the_same_place_is_answered(arm):
     assert a.reachable and a.strategy == b.strategy and a.posture == b.posture
     with pytest.raises(UnknownEffector, match="unknown effector 'right_pinch'; this atlas has right_hand"):
         s.select("right_pinch", goal)
+
+
+def test_warming_up_one_effector_builds_its_strategies_alone(tmp_path, capsys):
+    """A command about one effector (``reach motion``, ``reach prepare --effector``) builds that effector's solvers
+    alone: a right hand's motion compiled the left side's programs too."""
+    left = {**NATURAL_ARM[0], "name": "left_arm", "effector": "left_hand", "mirror_of": "right_arm",
+            "joints": [j.replace("right_", "left_") for j in ARM]}
+    arms = build_atlas(parse_config(human_config(d_max=2, strategies=[*NATURAL_ARM, left]), "arms", "arms"),
+                       tmp_path / "arms")
+    assert set(Selector(arms).warm_up("right_hand")._oracles) == {"right_arm"}
+    assert set(Selector(arms).warm_up()._oracles) == {"right_arm", "left_arm"}
+    assert main(["prepare", str(arms.path), "--effector", "left_hand"]) == 0
+    assert "the refinement programs of 1 strategies ready (left_arm;" in capsys.readouterr().out
+    assert main(["prepare", str(arms.path), "--effector", "nose"]) == 2
+    assert "unknown effector 'nose'; this atlas has left_hand, right_hand" in capsys.readouterr().err

@@ -17,7 +17,8 @@ at once (``$REACH_JIT_JOBS``, else one a processor), each said with how many
 are done and about how long is left.
 
 The cache folder is ``$REACH_JIT_CACHE``, else ``$XDG_CACHE_HOME/reach/jit``,
-else ``~/.cache/reach/jit``. Deleting it is always safe.
+else ``~/.cache/reach/jit``. Deleting it is always safe. Its ``compiles.log`` says
+what was compiled, when, how long it took and by which command.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ import hashlib
 import logging
 import os
 import subprocess
+import sys
 import tempfile
 import time
 from collections.abc import Callable, Sequence
@@ -43,6 +45,7 @@ import casadi as ca
 LOG = logging.getLogger("reach.jit")
 COMPILER = "gcc"  # the C compiler
 FLAGS = ("-O1", "-fPIC", "-shared")  # -O1: most of -O2's speed at a third of its compile time here
+LOG_FILE = "compiles.log"  # in the cache folder: a line a compile (see _logged)
 
 
 def cache_folder() -> Path:
@@ -159,19 +162,29 @@ def _compile(todo: list[tuple[Path, Job]], folder: Path, scratch: str) -> None:
     finally:
         os.chdir(home)
     with concurrent.futures.ThreadPoolExecutor(workers) as pool:
-        running = {pool.submit(_gcc, source, path, job.name): job.name
+        running = {pool.submit(_gcc, source, path, job.name): (job.name, path.stem)
                    for source, (path, job) in zip(sources, todo, strict=True)}
         for done, future in enumerate(concurrent.futures.as_completed(running), start=1):
             seconds = future.result()
+            name, library = running[future]
+            _logged(folder, library, seconds)
             elapsed = time.perf_counter() - t0
             if len(todo) == 1:
-                LOG.info("compiled %s in %.0f s", running[future], seconds)
+                LOG.info("compiled %s in %.0f s", name, seconds)
             elif done < len(todo):
-                LOG.info("compiled %s in %.0f s (%d of %d; about %.0f s left)", running[future], seconds, done,
-                         len(todo), elapsed / done * (len(todo) - done))
+                LOG.info("compiled %s in %.0f s (%d of %d; about %.0f s left)", name, seconds, done, len(todo),
+                         elapsed / done * (len(todo) - done))
             else:
-                LOG.info("compiled %s in %.0f s (%d of %d; all in %.0f s)", running[future], seconds, done, len(todo),
-                         elapsed)
+                LOG.info("compiled %s in %.0f s (%d of %d; all in %.0f s)", name, seconds, done, len(todo), elapsed)
+
+
+def _logged(folder: Path, library: str, seconds: float) -> None:
+    """One line of the cache's ``compiles.log`` (UTC time, seconds, the library's name, process, command): what each
+    command compiled, so that a program compiled twice shows."""
+    stamp = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+    command = " ".join(Path(sys.argv[0]).name if k == 0 else a for k, a in enumerate(sys.argv[:3]))
+    with open(folder / LOG_FILE, "a") as log:
+        log.write(f"{stamp}\t{seconds:.1f}\t{library}\t{os.getpid()}\t{command}\n")
 
 
 def _gcc(source: Path, library: Path, name: str) -> float:

@@ -337,7 +337,7 @@ def _planned_motion(args: argparse.Namespace, atlas: str | None, goal: list[floa
     from reach.motion.planner import Planner, Timing
 
     # The solvers are built (warm_up) before planning starts, so the end posture's budget is not spent on them.
-    planner = Planner(Selector(load_atlas(atlas), policy=args.policy).warm_up())  # type: ignore[arg-type]
+    planner = Planner(Selector(load_atlas(atlas), policy=args.policy).warm_up(args.effector))  # type: ignore[arg-type]
     motion = planner.plan(args.effector, goal, start, rate=args.rate,
                           timing=Timing.from_dict(timing, "--duration"), miss=args.miss, back=args.back)
     data = motion.to_dict()

@@ -9,6 +9,7 @@ import dataclasses
 import signal
 import sys
 import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -133,6 +134,33 @@ def add_accept(sub: Any) -> None:
                                    "(priorities, strategies, model hashes) is refused until accepted so.")
     p.add_argument("atlas", help="atlas folder")
     p.set_defaults(func=cmd_accept)
+
+
+def cmd_prepare(args: argparse.Namespace) -> int:
+    # loaded when the command runs: `reach --help` starts without the answers' machinery
+    from reach.answers.select import Selector
+    from reach.maps.atlas import load_atlas
+
+    t0 = time.perf_counter()
+    selector = Selector(load_atlas(args.atlas))
+    names = selector.strategies_for(args.effector) if args.effector else list(selector.atlas.maps)
+    selector.warm_up(args.effector)
+    stored = [n for n in names if selector.atlas.maps[n].posture_names]
+    print(f"{args.atlas}: the refinement programs of {len(stored)} strategies ready ({', '.join(stored) or 'none'}; "
+          f"{time.perf_counter() - t0:.1f} s): queries, motions, evaluate and serve compile nothing more for them")
+    return 0
+
+
+def add_prepare(sub: Any) -> None:
+    """Register ``reach prepare``."""
+    p = sub.add_parser("prepare", help="compile the programs an atlas's answers use, now",
+                       description="Build every strategy's refinement solvers of an atlas (compiling their programs "
+                                   "when the configs ask for jit and the cache lacks them, each said with progress), "
+                                   "so that the first query, motion, evaluate or serve does not compile. Safe to run "
+                                   "again: compiled programs are kept in the cache.")
+    p.add_argument("atlas", help="atlas folder written by 'reach build'")
+    p.add_argument("--effector", help="only this effector's strategies")
+    p.set_defaults(func=cmd_prepare)
 
 
 def _members(config: Any, as_json: bool) -> int:
@@ -327,4 +355,4 @@ def add_model(sub: Any) -> None:
 
 
 # Each registers its command's subparser.
-COMMANDS = (add_build, add_accept, add_model)
+COMMANDS = (add_build, add_accept, add_prepare, add_model)

@@ -22,6 +22,10 @@ def cmd_serve(args: argparse.Namespace) -> int:
     from reach.serving.server import READY_WAIT, Server
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    # the server's own log says each compile, timestamped: the command line's line would say it twice
+    compiles = logging.getLogger("reach.jit")
+    for handler in [h for h in compiles.handlers if getattr(h, "reach_cli", False)]:
+        compiles.removeHandler(handler)
     # One core is left to the request loop: on 2 cores the stored answers' p99 under refinement
     # load was 0.52-0.80 ms with one worker, 0.61-1.78 ms with two (bench/server.py; README, Benchmarks).
     workers = max(1, (os.cpu_count() or 1) - 1) if args.workers is None else args.workers
