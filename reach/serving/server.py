@@ -220,11 +220,20 @@ class Server:
         # The selector's options, as the workers' selectors get them too.
         self.options: dict[str, Any] = {"policy": policy, "refine": refine, "budget": budget, "handover": handover,
                                         "miss": miss}
-        self.served = self._load(self.atlas_path)
-        # A population's member atlases, for "accommodation" (the trees' word, answered in the loop).
-        self.population = None if population is None else load_members(population)
+        atlas_now = load_atlas(self.atlas_path)  # a bad atlas refused before any worker starts
         self.context = context or zmq.Context.instance()
-        self.router, self.publisher, self.authenticator = _sockets(self.context, bind, pub, keys, curve_clients)
+        # The workers start first and build their solvers while this process builds its own: one after the other,
+        # "serving" came 12.3 s after launch on the demo (2 cores, warm cache; docs/results.md).
+        self.pool = Pool(self.context, self.atlas_path, self.options, int(workers)) if workers > 0 else None
+        try:
+            self.served = cells.serve(Selector(atlas_now, **self.options).warm_up())
+            # A population's member atlases, for "accommodation" (the trees' word, answered in the loop).
+            self.population = None if population is None else load_members(population)
+            self.router, self.publisher, self.authenticator = _sockets(self.context, bind, pub, keys, curve_clients)
+        except BaseException:
+            if self.pool is not None:
+                self.pool.close()
+            raise
         self.endpoint = cast(bytes, self.router.getsockopt(zmq.LAST_ENDPOINT)).decode()
         self.pub_endpoint = (None if self.publisher is None
                              else cast(bytes, self.publisher.getsockopt(zmq.LAST_ENDPOINT)).decode())
@@ -244,7 +253,6 @@ class Server:
         self.held: dict[bytes, int] = {}  # goals each client has pending (see _admit)
         self.held_requests: dict[bytes, int] = {}
         self._seq = 0
-        self.pool = Pool(self.context, self.atlas_path, self.options, int(workers)) if workers > 0 else None
         # reload loads in this thread, so no request waits for it; the loop swaps the atlas in when it is ready.
         self._loader: concurrent.futures.ThreadPoolExecutor | None = None
         self.reloading: Reloading | None = None
