@@ -386,8 +386,8 @@ def test_warming_up_one_effector_builds_its_strategies_alone(tmp_path, capsys):
 @pytest.mark.slow
 def test_refined_answers_are_the_same_beside_two_cpu_bound_processes(tmp_path):
     """The same refined requests get the same answers bit for bit, quiet and beside two CPU-bound processes: a
-    refinement stops by the work it has done, not by the clock (the clock is a guard at three times the budget,
-    which a budget of 2 s keeps out of reach of a busy machine here; at 4 ms, which it reaches, the answers differed)."""
+    refinement stops by the work it has done, not by the clock (the clock is a guard at three times the budget, which
+    a budget of 2 s keeps out of reach of a busy machine here; at 4 ms, which it reaches, the answers differed)."""
     import subprocess
     import sys
 
