@@ -174,8 +174,8 @@ class BatchProgram:
         for k, task in enumerate(lower):
             # Only the excess over what the task leaves free counts (the gaze's cone), as in fatrop's stages, which
             # hold it below that level: weighed whole, the gaze was pulled to the cone's centre at the posture's cost
-            # (on the whole body, postures 10-80 % worse liked than fatrop's: docs/history.md, session 20; the
-            # count of 8 in 25 was not found there again).
+            # (on the whole body, postures 10-80 % worse liked than fatrop's: docs/decisions/0003; the count of 8 in
+            # 25 was not found again).
             term = task.objective(sym)
             if task.free > 0:
                 excess = term - task.free
