@@ -38,8 +38,8 @@ pytestmark = pytest.mark.truth
 # does not meet it yet, the count measured when the suite was made (docs/results.md, "The truth suite"): a change
 # that loses more fails.
 ALLOWED: dict[str, tuple[int, int]] = {
-    "right_arm": (0, 2), "right_upper_body": (1, 2), "right_whole_body": (2, 3), "right_crouch": (2, 4),
-    "right_torsion": (0, 0), "right_squat": (8, 2), "right_step": (2, 4), "ur5_guarded": (0, 1),
+    "right_arm": (0, 2), "right_upper_body": (1, 2), "right_whole_body": (1, 3), "right_crouch": (2, 4),
+    "right_torsion": (0, 0), "right_squat": (6, 2), "right_step": (2, 4), "ur5_guarded": (0, 1),
 }
 
 

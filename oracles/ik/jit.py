@@ -122,7 +122,7 @@ def libraries(jobs: Sequence[Job]) -> list[Path]:
     their C written one at a time and the compiler run on ``compilers()`` of them at once (the compiler is 96 % of a
     compile: 79 of 82 s for the whole body's programs here), each compile said with how many are left and about how
     long. Two processes that need the same missing library compile it once: the second waits on its lock (the locks
-    taken in the libraries' order, so two batches never wait on each other)."""
+    taken in the libraries' order, so that two batches never deadlock)."""
     folder = cache_folder()
     folder.mkdir(parents=True, exist_ok=True)
     version = f"{ca.CasadiMeta.version()}|{' '.join((COMPILER, *FLAGS))}"

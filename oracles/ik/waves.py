@@ -62,6 +62,10 @@ NEAR_STREAM = 3  # ... and of a near miss's last wave
 # the boundary, where another basin often reaches (the truth suite's whole body, crouch and upper body ended 5-9 mm
 # short in a local optimum while the referee's proof lay within 4 mm; docs/results.md)
 NEAR_MISS = 0.03
+# ... of WAVE x NEAR_WAVE x K starts: at 1, the truth suites' proven goals lost cold were 17 in the seven human
+# strategies, at 3, 12 (and 5 -> 4 on second suites of the whole body and crouch), for 21-27 % more CPU on those hard
+# goals and none measurable on a population's direct answers (docs/decisions/0001)
+NEAR_WAVE = 3
 
 
 class Polishing(Protocol):
@@ -291,17 +295,18 @@ class Waves:
         return goals, starts, self.decisive if wave == "starts" else None
 
     def _near_wave(self) -> Started | None:
-        """WAVE x K uniform random starts for each cold goal still missed within NEAR_MISS that can pay for them."""
+        """WAVE x NEAR_WAVE x K uniform random starts for each cold goal still missed within NEAR_MISS that can pay for
+        them."""
         oracle, todo = self.oracle, self.todo
         # cold goals only (a query's, a referee's): a build's hinted vertices, most of its work, paid 35 % more CPU for
         # 3 more reachable vertices in 10,000 (docs/decisions/0001)
         goals = todo[~self.reach[todo] & self.cold[todo] & (self.residual[todo] <= NEAR_MISS)]
-        wave_cost = WAVE_ROUNDS * WAVE * self.solver.starts_per_goal * reach_cost(oracle.problem.nx)
+        k = NEAR_WAVE * self.solver.starts_per_goal
+        wave_cost = WAVE_ROUNDS * WAVE * k * reach_cost(oracle.problem.nx)
         goals = goals[self.meter.left[goals] >= wave_cost] if goals.size and not self.meter.late() else goals[:0]
         if not goals.size:
             return None
         oracle.stats["wave_near"] = oracle.stats.get("wave_near", 0) + int(goals.size)
-        k = self.solver.starts_per_goal
         starts = [batch_starts(oracle, k, self.pts[i], None, NEAR_STREAM, self.targets is not None, "random")
                   for i in goals]
         return goals, starts, None
