@@ -151,23 +151,9 @@ class BatchProgram:
         self.rows = _rows(hard)
         self.m = int(g.numel())
         # The lazy tasks' rows (self-collision, the floor): all evaluated, their Jacobians only where near.
-        lazy = ca.vertcat(*[c.expr for c in screened]) if screened else ca.SX.zeros(0, 1)
         self.lazy_rows = _rows(screened)
-        self.lazy_m = int(lazy.numel())
-        functions: list[ca.Function] = []  # the lazy rows and their Jacobian's groups, the reach, the lower tasks
-        if self.lazy_m:
-            # Frozen symbols (the nearest points' parameters) are held while differentiating, then replaced.
-            held = [pair for c in screened for pair in c.frozen]
-            symbols, values = [v for v, _ in held], [e for _, e in held]
-            jac = ca.jacobian(lazy, x)
-            if held:
-                lazy, jac = ca.substitute([lazy, jac], [ca.vertcat(*symbols)], [ca.vertcat(*values)])
-            functions.append(ca.Function(f"{name}_lazy", [x, params], [ca.densify(lazy)]))
-            # The Jacobian by groups of rows, each evaluated only for the postures with one of its rows near: all
-            # 147 rows of the whole body cost 69 us a posture, about ten times the reach's (measured here).
-            functions += [ca.Function(f"{name}_lazy_jac{k}", [x, params],
-                                      [ca.densify(jac[k : min(k + GROUP, self.lazy_m), :])])
-                          for k in range(0, self.lazy_m, GROUP)]
+        functions = _lazy_functions(x, params, screened, name)  # then the reach's and the lower tasks'
+        self.lazy_m = int(functions[0].size1_out(0)) if functions else 0
         jg = ca.jacobian(g, x) if self.m else ca.SX.zeros(0, self.n)
         je = ca.jacobian(reach, x)
         f = ca.SX(0.0)
@@ -189,8 +175,15 @@ class BatchProgram:
         if lower:
             functions.append(ca.Function(f"{name}_lower", [x, params], [ca.densify(o) for o in [*outs, f, grad, hess]]))
         # compiled together: the compiler runs on several at once
-        built = dict(zip([fn.name() for fn in functions], compiled_functions(functions) if jit else functions,
-                         strict=True))
+        self._wrap(dict(zip([fn.name() for fn in functions], compiled_functions(functions) if jit else functions,
+                            strict=True)), name)
+        # Every matrix the step factors is small (n and m below 100): OpenBLAS's threads only wait on each other, and
+        # beside a second worker process on two cores they spun: eigh of 512 36 x 36 Hessians took 1.1 s, 70 ms on
+        # one thread (measured here).
+        self.threads = ThreadpoolController()
+
+    def _wrap(self, built: dict[str, ca.Function], name: str) -> None:
+        """The program's functions (by name, compiled or not), each mapped over batches of postures."""
         if self.lazy_m:
             self._lazy = _Mapped(built[f"{name}_lazy"], [(self.lazy_m, 1)], self.n, self.np)
             self._lazy_groups = [(k, _Mapped(built[f"{name}_lazy_jac{k}"], [(min(GROUP, self.lazy_m - k), self.n)],
@@ -201,11 +194,7 @@ class BatchProgram:
         self._full = _Mapped(built[f"{name}_lower"],
                              [(self.m, 1), (self.m, self.n), (3, 1), (3, self.n), (1, 1), (self.n, 1),
                               (self.n, self.n)],
-                             self.n, self.np) if lower else None
-        # Every matrix the step factors is small (n and m below 100): OpenBLAS's threads only wait on each other, and
-        # beside a second worker process on two cores they spun: eigh of 512 36 x 36 Hessians took 1.1 s, 70 ms on
-        # one thread (measured here).
-        self.threads = ThreadpoolController()
+                             self.n, self.np) if self.has_lower else None
 
     def with_bounds(self, lower_bound: np.ndarray, upper_bound: np.ndarray) -> BatchProgram:
         """This program with other coordinate bounds (another body's, its functions taking that body's numbers as
@@ -370,6 +359,25 @@ class BatchProgram:
         w = w + LOWER_DAMPING * w.mean(axis=1, keepdims=True) + 1e-6
         hessian = (v * w[:, None, :]) @ np.transpose(v, (0, 2, 1))
         return self.clamped_step(x, hessian, None, state.grad, state, radius, (state.je, -state.e), buffer=0.0)
+
+
+def _lazy_functions(x: ca.SX, params: ca.SX, screened: Sequence[Constraint], name: str) -> list[ca.Function]:
+    """The lazy rows' function and their Jacobian's by groups of ``GROUP`` rows (none without lazy rows)."""
+    lazy = ca.vertcat(*[c.expr for c in screened]) if screened else ca.SX.zeros(0, 1)
+    m = int(lazy.numel())
+    if not m:
+        return []
+    # Frozen symbols (the nearest points' parameters) are held while differentiating, then replaced.
+    held = [pair for c in screened for pair in c.frozen]
+    symbols, values = [v for v, _ in held], [e for _, e in held]
+    jac = ca.jacobian(lazy, x)
+    if held:
+        lazy, jac = ca.substitute([lazy, jac], [ca.vertcat(*symbols)], [ca.vertcat(*values)])
+    # The Jacobian by groups of rows, each evaluated only for the postures with one of its rows near: all 147 rows of
+    # the whole body cost 69 us a posture, about ten times the reach's (measured here).
+    return [ca.Function(f"{name}_lazy", [x, params], [ca.densify(lazy)]),
+            *(ca.Function(f"{name}_lazy_jac{k}", [x, params], [ca.densify(jac[k : min(k + GROUP, m), :])])
+              for k in range(0, m, GROUP))]
 
 
 def _h_inverse(diag: np.ndarray, jac: np.ndarray | None, fixed: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
