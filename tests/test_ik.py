@@ -305,7 +305,7 @@ def test_a_cached_program_is_loaded_without_writing_its_c_again(tmp_path, monkey
 
     monkeypatch.setenv("REACH_JIT_CACHE", str(tmp_path / "jit"))
     x = ca.SX.sym("x", 3)
-    first = jit.compiled_function("square", ca.Function("square", [x], [x * x]))
+    first = jit.compiled_functions([ca.Function("square", [x], [x * x])])[0]
     assert first(np.array([1.0, 2.0, 3.0])).full().ravel().tolist() == [1.0, 4.0, 9.0]
 
     def no_c(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
@@ -313,7 +313,7 @@ def test_a_cached_program_is_loaded_without_writing_its_c_again(tmp_path, monkey
 
     monkeypatch.setattr(ca.Function, "generate", no_c)
     monkeypatch.setattr(ca.Function, "generate_dependencies", no_c)
-    again = jit.compiled_function("square", ca.Function("square", [x], [x * x]))  # rebuilt alike: the same graph
+    again = jit.compiled_functions([ca.Function("square", [x], [x * x])])[0]  # rebuilt alike: the same graph
     assert again(np.array([2.0, 0.5, -1.0])).full().ravel().tolist() == [4.0, 0.25, 1.0]
     assert len(list((tmp_path / "jit").glob("*.so"))) == 1
 
@@ -547,11 +547,11 @@ def test_a_compile_is_said_before_it_starts_and_when_it_ends(tmp_path, monkeypat
     log = logging.getLogger("reach.jit")
     assert sum(getattr(h, "reach_cli", False) for h in log.handlers) == 1
     x = ca.SX.sym("x", 2)
-    jit.compiled_function("cube", ca.Function("cube", [x], [x * x * x]))
+    jit.compiled_functions([ca.Function("cube", [x], [x * x * x])])
     err = capsys.readouterr().err
     assert f"reach: compiling cube to machine code (once: kept in {tmp_path / 'jit'})" in err
     assert "reach: compiled cube in" in err
-    jit.compiled_function("cube", ca.Function("cube", [x], [x * x * x]))
+    jit.compiled_functions([ca.Function("cube", [x], [x * x * x])])
     assert "compil" not in capsys.readouterr().err
 
 

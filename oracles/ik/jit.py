@@ -91,11 +91,6 @@ def compiled_functions(functions: Sequence[ca.Function]) -> list[ca.Function]:
     return [ca.external(f.name(), str(library)) for f, library in zip(functions, libraries(jobs), strict=True)]
 
 
-def compiled_function(name: str, function: ca.Function) -> ca.Function:
-    """One function of :func:`compiled_functions` (``name`` is the function's own)."""
-    return compiled_functions([function])[0]
-
-
 @dataclass(frozen=True)
 class Job:
     """One program to compile: its ``name``, what writes its C (``generate(file name)``, in the working directory)
