@@ -20,7 +20,7 @@ $(VENV)/.installed-test: $(VENV)/.installed
 
 # The main job: the demo human atlas (8 strategies), its report, sample
 # queries and a reach motion. --resume keeps trees already built by an earlier run;
-# prepare compiles what the answers need (a cold cache's compiles, then none later).
+# prepare compiles what queries, motions and serve need (on a cold cache, once).
 run: $(VENV)/.installed
 	$(VENV)/bin/reach build configs/demo.yaml -o out/demo --resume
 	$(VENV)/bin/reach prepare out/demo

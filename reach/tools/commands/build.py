@@ -147,7 +147,7 @@ def cmd_prepare(args: argparse.Namespace) -> int:
     selector.warm_up(args.effector)
     stored = [n for n in names if selector.atlas.maps[n].posture_names]
     print(f"{args.atlas}: the refinement programs of {len(stored)} strategies ready ({', '.join(stored) or 'none'}; "
-          f"{time.perf_counter() - t0:.1f} s): queries, motions, evaluate and serve compile nothing more for them")
+          f"{time.perf_counter() - t0:.1f} s): queries, motions and serve compile nothing more for them")
     return 0
 
 
@@ -156,8 +156,9 @@ def add_prepare(sub: Any) -> None:
     p = sub.add_parser("prepare", help="compile the programs an atlas's answers use, now",
                        description="Build every strategy's refinement solvers of an atlas (compiling their programs "
                                    "when the configs ask for jit and the cache lacks them, each said with progress), "
-                                   "so that the first query, motion, evaluate or serve does not compile. Safe to run "
-                                   "again: compiled programs are kept in the cache.")
+                                   "so that the first query, motion or serve does not compile (evaluate's thorough "
+                                   "solve of a target no tree holds compiles its own). Safe to run again: compiled "
+                                   "programs are kept in the cache.")
     p.add_argument("atlas", help="atlas folder written by 'reach build'")
     p.add_argument("--effector", help="only this effector's strategies")
     p.set_defaults(func=cmd_prepare)
