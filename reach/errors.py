@@ -14,8 +14,8 @@ from pathlib import Path
 from oracles.errors import ModelError, OracleError, ReachError, TaskError
 
 __all__ = [
-    "ConfigError", "InputError", "ModelError", "ModelMismatch", "OracleError", "ProtocolError", "ReachError",
-    "ServerError",
+    "ConfigError", "InputError", "ModelError", "ModelMismatch", "MotionError", "OracleError", "ProtocolError",
+    "ReachError", "ServerError",
     "ServerUnavailable", "StoreError", "TaskError", "TreeError", "UnknownEffector", "UnknownName", "UnknownPolicy",
     "UnknownStrategy",
 ]
@@ -175,3 +175,16 @@ class InputError(ReachError):
     def __init__(self, field: str, reason: str) -> None:
         self.field, self.reason = field, reason
         super().__init__(f"{field}: {reason}")
+
+
+class MotionError(ReachError):
+    """No motion could be planned: the goal is out of reach (with ``miss="error"``), no path holds every task, or the
+    deadline passed.
+
+    Attributes:
+        code: The reason as a reply names it: ``unreachable``, ``no_motion`` or ``timeout``.
+    """
+
+    def __init__(self, message: str, code: str = "no_motion") -> None:
+        super().__init__(message)
+        self.code = code

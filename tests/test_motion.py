@@ -18,8 +18,11 @@ from reach.building.atlas import build_atlas
 from reach.building.config import parse_config
 from reach.errors import InputError
 from reach.motion import paths
-from reach.motion.planner import INCH, TMU, MotionError, Planner, Timing, minimum_jerk
+from reach.motion.holding import Holding
+from reach.motion.planner import MotionError, Planner
 from reach.motion.rig import Rig
+from reach.motion.routes import Routes
+from reach.motion.timing import INCH, TMU, Timing, minimum_jerk, timed
 
 TOL = 0.005  # [m] the reach task's default tolerance
 UPPER = [*ARM, "right_clavicle_*", "lumbar_*", "thoracic_*"]
@@ -82,7 +85,8 @@ def test_an_arm_reach_starts_at_the_start_ends_at_the_answer_and_is_minimum_jerk
     # the end: a stored posture near the goal (one the reference's direct motion reaches, or the answer's own) settled
     # onto the goal by local steps, no solve
     assert m.end == "settled" and m.within is None
-    seeds = [*planner._homeward("arm", goal), posture_vector(names, body.q_ref, stored.posture, stored.root)]
+    home = planner.routes.homeward("arm", goal, planner.body("arm"))
+    seeds = [*home, posture_vector(names, body.q_ref, stored.posture, stored.root)]
     settled = [q for q in (planner.body("arm").settle(seed, goal) for seed in seeds) if q is not None]
     np.testing.assert_allclose(m.postures[-1], settled[0], atol=1e-9)
     assert np.linalg.norm(hand(body, m.postures[-1]) - goal) <= TOL  # by our own forward kinematics
@@ -157,7 +161,7 @@ def test_a_low_reach_holds_the_feet_and_balance_at_every_frame_and_adds_a_stoop(
 
 def test_a_reach_across_the_body_avoids_the_collision_of_direct_interpolation(planner, body, monkeypatch):
     goal = np.array([0.1, 0.2, 0.9])  # the right hand across the body to the left of the belly
-    monkeypatch.setattr(Planner, "_routes", lambda *args: None)  # the planner's own way, as without a graph
+    monkeypatch.setattr(Routes, "motion_graph", lambda *args: None)  # the planner's own way, as without a graph
     m = planner.plan("right_hand", goal)
     oracle = planner.body(m.strategy)
     q0, q1 = m.postures[0], m.postures[-1]
@@ -168,11 +172,11 @@ def test_a_reach_across_the_body_avoids_the_collision_of_direct_interpolation(pl
     assert np.linalg.norm(hand(body, q1) - goal) <= TOL
     # The route through stored postures, as the planner takes it when holding the frames fails: its inner
     # waypoints are postures stored in the tree, and its frames, held, break nothing.
-    waypoints = planner._route(m.strategy, oracle, q0, q1)
+    waypoints = planner.routes.route(m.strategy, oracle, q0, q1)
     stored = planner.selector.atlas.trees[m.strategy].vertices.posture
     assert all(np.any(np.all(stored == w, axis=1)) for w in waypoints[1:-1])
-    frames = planner._timed(oracle, m.names, waypoints, 30.0, Timing())[0]
-    held = planner._hold_path(oracle, frames)
+    frames = timed(oracle, m.names, waypoints, 30.0, Timing())[0]
+    held = planner.holding.hold_path(oracle, frames)
     assert held is not None and not any(oracle.faults(held[0]))
 
 
@@ -188,18 +192,18 @@ def largest_turn(path: np.ndarray) -> float:
 def test_a_routes_corners_are_rounded_and_still_hold(planner, body, monkeypatch):
     """Through a stored posture the hand would turn at once; the rounded route turns it over several frames,
     and its frames, held, break nothing."""
-    monkeypatch.setattr(Planner, "_routes", lambda *args: None)
+    monkeypatch.setattr(Routes, "motion_graph", lambda *args: None)
     goal = np.array([0.1, 0.2, 0.9])
     m = planner.plan("right_hand", goal)
     oracle = planner.body(m.strategy)
-    route = planner._route(m.strategy, oracle, m.postures[0], m.postures[-1])
+    route = planner.routes.route(m.strategy, oracle, m.postures[0], m.postures[-1])
     assert len(route) > 2  # the precondition: a corner to round
     rounded = paths.rounded(oracle, route)
     assert np.array_equal(rounded[0], route[0]) and np.array_equal(rounded[-1], route[-1])
     turns = []
     for waypoints in (route, rounded):
-        frames = planner._timed(oracle, m.names, waypoints, 30.0, Timing())[0]
-        held = planner._hold_path(oracle, frames)
+        frames = timed(oracle, m.names, waypoints, 30.0, Timing())[0]
+        held = planner.holding.hold_path(oracle, frames)
         assert held is not None and not any(oracle.faults(held[0]))
         turns.append(largest_turn(np.asarray(oracle.effector_positions(held[0]))))
     assert turns[1] < 0.8 * turns[0], turns  # here 50 -> 36 deg
@@ -505,7 +509,7 @@ def test_planning_stops_at_its_deadline_within_a_frame(planner, monkeypatch):
     """A worker planned on for 100 s after its request's deadline. The planner reads the clock
     before holding each frame (here a clock that moves 1 s a reading): it stops at the deadline, after a few
     frames of the motion's hundreds, with a timeout."""
-    import reach.motion.planner as motion
+    import reach.motion.holding as motion
 
     class Clock:
         now = 0.0
@@ -574,16 +578,16 @@ def test_a_paths_broken_frames_are_held_as_one_batch_by_the_batched_engine(plann
     fatrop = planner.body("whole")
     spec = planner.selector.atlas.trees["whole"].meta["oracle"]
     batch = OracleSpec(spec["name"], {**spec["params"], "solver": "batch"}).create()
-    frames = planner._timed(fatrop, m.names, [m.postures[0], m.postures[-1]], 30.0, Timing())[0].copy()
+    frames = timed(fatrop, m.names, [m.postures[0], m.postures[-1]], 30.0, Timing())[0].copy()
     # The root pushed forward along a smooth bump (1 cm at mid-path): the feet slide, as a plain interpolation's do.
     frames[:, 0] += 0.01 * np.sin(np.pi * np.linspace(0.0, 1.0, len(frames)))
     broken = [k for k, f in enumerate(fatrop.faults(frames)) if f]
     assert len(broken) >= 5  # the precondition: the plain path breaks tasks
     alone = []
     monkeypatch.setattr(batch, "hold", lambda q, before=None: alone.append(q) or fatrop.hold(q, before))
-    monkeypatch.setattr(planner, "_deadline", time.perf_counter() + 60.0, raising=False)
+    monkeypatch.setattr(planner.holding, "deadline", time.perf_counter() + 60.0)
     counted = dict(planner.holds)
-    held = planner._hold_path(batch, frames)
+    held = planner.holding.hold_path(batch, frames)
     assert held is not None and held[1] == len(broken)
     # the planner's counts (bench/motion.py's held_in_batch, held_alone) are what happened
     assert planner.holds["alone"] - counted["alone"] == len(alone)
@@ -615,7 +619,7 @@ def test_a_path_held_from_its_start_alone_that_jumps_to_its_end_is_held_from_bot
     monkeypatch.setattr("oracles.ik.tasked.planted_frames", lambda *args: [])
     monkeypatch.setattr(Planner, "_settled", lambda *args: (None, None))
     with monkeypatch.context() as patch:
-        patch.setattr(Planner, "_spliced", lambda *args: None)
+        patch.setattr(Holding, "_spliced", lambda *args: None)
         routed = planner.plan("right_hand", goal)
     m = planner.plan("right_hand", goal)
     # without the hold from both ends the direct path jumps and the motion takes a detour through stored postures

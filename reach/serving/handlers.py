@@ -28,8 +28,9 @@ from reach.answers.accommodation import held
 from reach.answers.answer import ERROR, orientation_of
 from reach.answers.refine import ORIENTED_BUDGET
 from reach.answers.select import Selector
-from reach.motion.planner import Planner, Timing
+from reach.motion.planner import Planner
 from reach.motion.rig import with_bones
+from reach.motion.timing import Timing
 from reach.serving import cells
 from reach.serving import protocol as P
 from reach.serving.services import place_space, placements

@@ -310,11 +310,11 @@ def _rate(value: Any) -> float:
 
 def _timing(value: Any) -> dict[str, float]:
     if not isinstance(value, dict) or len(value) > MAX_TIMING:
-        raise Invalid("an object of coefficient name -> finite number (see reach.motion.planner.Timing)")
+        raise Invalid("an object of coefficient name -> finite number (see reach.motion.timing.Timing)")
     try:
         return {_string(MAX_NAME)(k): _number(v) for k, v in value.items()}
     except Invalid:
-        raise Invalid("an object of coefficient name -> finite number (see reach.motion.planner.Timing)") from None
+        raise Invalid("an object of coefficient name -> finite number (see reach.motion.timing.Timing)") from None
 
 
 @dataclass(frozen=True)

@@ -50,10 +50,10 @@ import zmq.auth
 from reach.answers.accommodation import load_members
 from reach.answers.answer import SKIPPED, TIMEOUT, Answer
 from reach.answers.select import HANDOVER, MISS, REFINE_BUDGET, Selector
-from reach.errors import InputError, ReachError, UnknownEffector, UnknownStrategy
+from reach.errors import InputError, MotionError, ReachError, UnknownEffector, UnknownStrategy
 from reach.maps.atlas import load_atlas
 from reach.maps.protocol import DEFAULT_POLICY
-from reach.motion.planner import MotionError, Planner
+from reach.motion.planner import Planner
 from reach.serving import cells
 from reach.serving import protocol as P
 from reach.serving.client import load_curve_key

@@ -27,8 +27,9 @@ from reach.answers.select import Selector
 from reach.errors import ReachError, UnknownEffector
 from reach.maps.atlas import Atlas
 from reach.maps.protocol import Policy
-from reach.motion.planner import Planner, Timing
+from reach.motion.planner import Planner
 from reach.motion.rig import with_bones
+from reach.motion.timing import Timing
 from reach.serving import protocol as P
 
 

@@ -42,11 +42,11 @@ from scipy.spatial.transform import Rotation
 from oracles.protocol import Furnished, OracleSpec, Shaped
 from reach.answers.answer import posture_vector
 from reach.answers.select import Selector
-from reach.errors import InputError, ServerError, ServerUnavailable
+from reach.errors import InputError, MotionError, ServerError, ServerUnavailable
 from reach.maps.atlas import Atlas
 from reach.maps.protocol import DEFAULT_POLICY, POLICIES
 from reach.maps.tree import FINAL, INNER, VATree
-from reach.motion.planner import MotionError, Planner
+from reach.motion.planner import Planner
 from reach.serving.client import Client
 from reach.tools.gate import Gate, guarded_websockets
 

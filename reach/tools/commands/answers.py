@@ -334,7 +334,8 @@ def _planned_motion(args: argparse.Namespace, atlas: str | None, goal: list[floa
     # loaded when the command runs: `reach --help` starts without the answers' machinery
     from reach.answers.select import Selector
     from reach.maps.atlas import load_atlas
-    from reach.motion.planner import Planner, Timing
+    from reach.motion.planner import Planner
+    from reach.motion.timing import Timing
 
     # The solvers are built (warm_up) before planning starts, so the end posture's budget is not spent on them.
     planner = Planner(Selector(load_atlas(atlas), policy=args.policy).warm_up(args.effector))  # type: ignore[arg-type]
