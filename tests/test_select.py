@@ -241,14 +241,14 @@ def test_a_strategy_at_its_joint_limits_hands_the_goal_to_the_next(tmp_path, cap
     plain = Selector(atlas, policy="optimistic", budget=2.0, handover=0.0).warm_up()
     first = plain.select("right_hand", low)
     assert first.strategy == "upper" and first.refined == REFINED  # the paper's plain priority
-    strained = plain._oracle("upper").limits_near(body.configuration(first.posture, first.root), np.radians(5.0))
+    strained = plain.oracle("upper").limits_near(body.configuration(first.posture, first.root), np.radians(5.0))
     assert strained  # the precondition: without it this test could not fail
     s = Selector(atlas, policy="optimistic", budget=2.0).warm_up()
     answer = s.select("right_hand", low)
     assert answer.strategy == "whole" and answer.alternatives == ("upper",) and answer.refined == REFINED
     assert answer.handover == {"from": "upper", "limits": strained} and first.handover is None
     assert json.loads(answer.to_json())["handover"] == {"from": "upper", "limits": strained}
-    assert len(s._oracle("whole").limits_near(body.configuration(answer.posture, answer.root),
+    assert len(s.oracle("whole").limits_near(body.configuration(answer.posture, answer.root),
                                               np.radians(5.0))) < len(strained)
     assert np.linalg.norm(hand_of(answer, body) - low) <= 0.005
     assert s.select("right_hand", low).posture == answer.posture  # the same request, the same answer
@@ -274,7 +274,7 @@ def test_refinement_also_starts_from_the_best_liked_stored_posture_nearby(arm, m
     tree = arm.trees[name]
     s = Selector(arm, budget=0.5)
     assert s.select("right_hand", goal).refined == REFINED  # builds the index and the oracle
-    oracle = s._oracle(name)
+    oracle = s.oracle(name)
     row = s.stored.nearest_row(name, goal.tolist())[0]  # the stored posture the answer starts from
     kd, rows = s.stored.lookup(name)[:2]  # type: ignore[index]
     _, near = kd.query(goal, k=SEEDS)
@@ -321,13 +321,11 @@ def test_a_requests_orientation_is_scaled_before_it_is_normalised_and_bad_ones_n
 
 def test_a_from_root_quaternion_of_huge_components_is_refused_by_name():
     """root_qw = 1e300 overflowed where the quaternion is normalised (an `internal` reply)."""
-    from reach.answers.select import Selector
+    from reach.answers.start import check_start
     from reach.errors import InputError
 
-    selector = Selector.__new__(Selector)
-    selector.atlas = type("A", (), {"trees": {}})()
     with pytest.raises(InputError, match="quaternion components must be within") as info:
-        selector._check_start([], {"root_qx": 0.0, "root_qy": 0.0, "root_qz": 0.0, "root_qw": 1e300})
+        check_start({}, lambda name: None, [], {"root_qx": 0.0, "root_qy": 0.0, "root_qz": 0.0, "root_qw": 1e300})
     assert info.value.field == "from"
 
 
@@ -375,8 +373,8 @@ def test_warming_up_one_effector_builds_its_strategies_alone(tmp_path, capsys):
             "joints": [j.replace("right_", "left_") for j in ARM]}
     arms = build_atlas(parse_config(human_config(d_max=2, strategies=[*NATURAL_ARM, left]), "arms", "arms"),
                        tmp_path / "arms")
-    assert set(Selector(arms).warm_up("right_hand")._oracles) == {"right_arm"}
-    assert set(Selector(arms).warm_up()._oracles) == {"right_arm", "left_arm"}
+    assert set(Selector(arms).warm_up("right_hand").oracles.built) == {"right_arm"}
+    assert set(Selector(arms).warm_up().oracles.built) == {"right_arm", "left_arm"}
     assert main(["prepare", str(arms.path), "--effector", "left_hand"]) == 0
     assert "the refinement programs of 1 strategies ready (left_arm;" in capsys.readouterr().out
     assert main(["prepare", str(arms.path), "--effector", "nose"]) == 2

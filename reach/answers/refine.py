@@ -39,7 +39,7 @@ SEEDS = 8
 
 
 Refined = tuple[np.ndarray, "float | None", str]  # a refinement: the posture, its residual [m] and its outcome
-Prefetched = dict[str, Refined]  # one goal's refinements made ahead, by strategy (see Selector._prefetch)
+Prefetched = dict[str, Refined]  # one goal's refinements made ahead, by strategy (see reach.answers.passes)
 
 
 @dataclass

@@ -51,27 +51,13 @@ own stored posture).
 from __future__ import annotations
 
 import copy
-import logging
 import math
 import time
 from typing import Any, NamedTuple
 
 import numpy as np
 
-from oracles.protocol import (
-    Bounded,
-    EffectorPositions,
-    Goals,
-    Limited,
-    ModelHashed,
-    Oracle,
-    OracleSpec,
-    Oriented,
-    Preparable,
-    Rebuilt,
-    Stepping,
-    Tunable,
-)
+from oracles.protocol import Goals, Oracle, OracleSpec, Oriented, Preparable, Tunable
 from reach.answers.answer import (
     ERROR,
     FAILED,
@@ -81,25 +67,21 @@ from reach.answers.answer import (
     TIMEOUT,
     UNAVAILABLE,
     Answer,
-    joint_names,
     split_posture,
     timed_out,
 )
 from reach.answers.defaults import HANDOVER, MISS, MISSES, REFINE_BUDGET
+from reach.answers.oracles import Oracles
+from reach.answers.passes import Passes
 from reach.answers.refine import Prefetched, Purse, Refiner
+from reach.answers.start import check_start
 from reach.answers.stored import StoredPostures
-from reach.errors import InputError, ModelMismatch, UnknownEffector, UnknownPolicy
+from reach.errors import InputError, UnknownEffector, UnknownPolicy
 from reach.maps.atlas import Atlas
 from reach.maps.protocol import DEFAULT_POLICY, POLICIES, Policy
 
-log = logging.getLogger(__name__)
-
 # outcomes whose posture is the nearest stored one, not one solved at the goal
 STORED = (SKIPPED, TIMEOUT, FAILED, ERROR)
-# [rad] (or m) a `from` joint this far past its range is still accepted (rounding in a client)
-FROM_TOLERANCE = math.radians(1.0)
-FROM_QUATERNION = 1e3  # the largest component of a `from` root quaternion (it is normalised)
-FROM_REACH = 1000.0  # [m] a `from` root farther than this from the world origin is a mistake, not a scene
 
 
 class Found(NamedTuple):
@@ -141,14 +123,13 @@ class Selector:
         self.policy = policy
         self.refine = refine
         self.budget = budget
-        self.stored = StoredPostures(atlas.maps, self._effector_positions)
-        self.refiner = Refiner(atlas.maps, self._oracle, budget, self.stored.neighbours)
+        self.oracles = Oracles(atlas, budget)
+        self.stored = StoredPostures(atlas.maps, self.oracles.effector_positions)
+        self.refiner = Refiner(atlas.maps, self.oracles, budget, self.stored.neighbours)
         self.order = [(s["name"], s["effector"]) for s in sorted(atlas.strategies, key=lambda s: s["priority"])]
         self._by_effector: dict[str, list[str]] = {}
         for name, effector in self.order:
             self._by_effector.setdefault(effector, []).append(name)
-        self._oracles: dict[str, Oracle] = {}
-        self.notes: list[str] = []  # what changed in the bodies of trees from earlier versions (Rebuilt)
         for m in atlas.maps.values():
             m.prepare()  # the batch lookup table now, not on the first batch
 
@@ -159,11 +140,16 @@ class Selector:
         names = set(self.atlas.maps) if effector is None else set(self.strategies_for(effector))
         for name, m in self.atlas.maps.items():
             if m.posture_names and name in names:
-                oracle = self._oracle(name)
+                oracle = self.oracles(name)
                 if isinstance(oracle, Preparable):
                     oracle.prepare()
                 self.stored.lookup(name)
         return self
+
+    @property
+    def notes(self) -> list[str]:
+        """What changed in the bodies of trees from earlier versions (:class:`~oracles.protocol.Rebuilt`)."""
+        return self.oracles.notes
 
     @property
     def effectors(self) -> list[str]:
@@ -179,7 +165,7 @@ class Selector:
         """The effector that a frame of the body names as well (the generated human's ``right_grip`` is its
         ``right_hand``): one on the same joint at the same placement; None when there is none."""
         for effector, names in self._by_effector.items():
-            model = getattr(getattr(self._oracle(names[0]), "body", None), "model", None)
+            model = getattr(getattr(self.oracles(names[0]), "body", None), "model", None)
             if model is None or not (model.existFrame(frame) and model.existFrame(effector)):
                 continue
             a, b = model.frames[model.getFrameId(frame)], model.frames[model.getFrameId(effector)]
@@ -198,37 +184,8 @@ class Selector:
         if goals.ndim != 2 or goals.shape[1] != dim:
             raise InputError("goals", f"expected {dim} coordinates [m] each, got shape {list(goals.shape)}")
         if start:
-            self._check_start(names, start)
+            check_start(self.atlas.maps, self.oracles, names, start)
         return names
-
-    def _check_start(self, names: list[str], start: dict[str, float]) -> None:
-        """A ``from`` names the posture's coordinates, within their ranges (``FROM_TOLERANCE``); a root's
-        position is within ``FROM_REACH`` of the origin and its quaternion is not zero."""
-        quat = [start[f"root_q{c}"] for c in "xyzw" if f"root_q{c}" in start]
-        if any(abs(v) > FROM_QUATERNION for v in quat):  # 1e300 overflowed where the quaternion is normalised
-            raise InputError("from", f"the root's quaternion components must be within +-{FROM_QUATERNION:g} (a unit "
-                                     f"quaternion, normalised if off by a little), got {quat}")
-        posed = [s for s in names if self.atlas.maps[s].posture_names]
-        known = {n for s in posed for n in joint_names(self.atlas.maps[s].posture_names)}
-        unknown = sorted(set(start) - known)
-        if unknown:
-            raise InputError("from",
-                             f"unknown joints {unknown[:5]}; the posture's names are {', '.join(sorted(known))}")
-        for s in posed:
-            oracle = self._oracle(s)
-            if not isinstance(oracle, Bounded):
-                continue
-            lower, upper = oracle.posture_bounds()
-            for k, n in enumerate(self.atlas.maps[s].posture_names):
-                if n in start and not lower[k] - FROM_TOLERANCE <= start[n] <= upper[k] + FROM_TOLERANCE:
-                    raise InputError("from", f"{n} = {start[n]:.6g} is outside its range [{lower[k]:.4f}, "
-                                             f"{upper[k]:.4f}] rad or m")
-            break  # the strategies of an effector share a body
-        if any(abs(start.get(f"root_{c}", 0.0)) > FROM_REACH for c in "xyz"):
-            raise InputError("from", f"the root's position must be within {FROM_REACH:g} m of the world origin")
-        quat = [start[f"root_q{c}"] for c in "xyzw" if f"root_q{c}" in start]
-        if len(quat) == 4 and math.hypot(*quat) < 1e-9:
-            raise InputError("from", "the root's quaternion (root_qx, root_qy, root_qz, root_qw) must not be zero")
 
     def needs_ik(self, effector: str, goals: np.ndarray, start: dict[str, float] | None = None) -> bool:
         """Whether refining these goals would solve any IK: some strategy that stores postures holds one of them.
@@ -241,57 +198,24 @@ class Selector:
             return any(self.atlas.maps[n].contains_one(point, self.policy) for n in names)
         return any(bool(self.atlas.maps[n].contains(goals, self.policy).any()) for n in names)
 
-    def _effector_positions(self, name: str, postures: np.ndarray) -> np.ndarray:
-        """Effector positions [m] of postures (n, nq); NaN when the oracle cannot tell (no posture is then used)."""
-        oracle = self._oracle(name)
-        if isinstance(oracle, EffectorPositions):
-            return np.asarray(oracle.effector_positions(postures), dtype=float)
-        return np.full((len(postures), self.atlas.maps[name].dim), np.nan)
-
     def with_budget(self, budget: float) -> Selector:
         """This selector with another refinement budget [s], sharing its atlas, indexes and solvers
         (each oracle's ``"refine"`` variant with that budget)."""
         twin = copy.copy(self)
         twin.budget = float(budget)
-        twin._oracles = {n: o.variant("refine", budget=budget) if isinstance(o, Tunable) else o
-                         for n, o in self._oracles.items()}
-        twin.refiner = Refiner(self.atlas.maps, twin._oracle, budget, twin.stored.neighbours)
+        twin.oracles = self.oracles.with_budget(budget)
+        twin.refiner = Refiner(self.atlas.maps, twin.oracles, budget, twin.stored.neighbours)
         return twin
 
     def oracle(self, name: str) -> Oracle:
         """The strategy's oracle as answers use it (its ``"refine"`` variant)."""
-        return self._oracle(name)
-
-    def _oracle(self, name: str) -> Oracle:
-        """The strategy's oracle for refinement (its ``"refine"`` variant), built once from the tree's own spec."""
-        if name not in self._oracles:
-            meta = self.atlas.maps[name].meta
-            oracle = OracleSpec.from_dict(meta["oracle"]).create()
-            stored_hash = meta.get("model_hash")
-            if stored_hash and isinstance(oracle, ModelHashed) and oracle.model_hash != stored_hash:
-                oracle = self._legacy(name, oracle, stored_hash)
-            self._oracles[name] = (oracle.variant("refine", budget=self.budget) if isinstance(oracle, Tunable)
-                                   else oracle)
-        return self._oracles[name]
-
-    def _legacy(self, name: str, oracle: Oracle, stored: str) -> Oracle:
-        """The oracle of a tree built with a body this version builds otherwise: a human from before ANSUR II bodies
-        refines with the stature-scaled body it was built with, noted in ``notes`` and the log; any other is
-        refused."""
-        built = oracle.as_built(stored) if isinstance(oracle, Rebuilt) else None
-        if built is None:
-            raise ModelMismatch(self.atlas.path, name, stored, oracle.model_hash if isinstance(oracle, ModelHashed)
-                                else "?")
-        note = f"{self.atlas.path}: strategy {name!r} was {built[1]}"
-        log.warning("%s", note)
-        self.notes.append(note)
-        return built[0]
+        return self.oracles(name)
 
     def oriented(self, effector: str, orientation: np.ndarray) -> list[str]:
         """The effector's strategies that hold a goal's orientation of this kind ((3,) direction or (3, 3) rotation),
         by priority."""
         kind = "direction" if orientation.shape == (3,) else "rotation"
-        names = [n for n in self.strategies_for(effector) if isinstance(o := self._oracle(n), Oriented)
+        names = [n for n in self.strategies_for(effector) if isinstance(o := self.oracles(n), Oriented)
                  and kind in o.orientation_kinds()]
         if not names:
             raise InputError("orientation", f"no strategy of {effector!r} holds a goal's {kind}: give it an "
@@ -365,7 +289,8 @@ class Selector:
         # Without a `from` (whose omitted joints each goal's stored posture fills in), every refinement is made ahead
         # in one evaluate call per strategy and pass; with one, goal by goal.
         batched = refine and start is None
-        done, unrefined = (self._prefetch(g, names, hits, nearest, aims, deadline) if batched
+        passes = Passes(self.refiner, self.stored, self.oracles.limits, self.handover)
+        done, unrefined = (passes.run(g, names, hits, nearest, aims, deadline) if batched
                            else ([None] * len(g), None))
         out = []
         for n_goal in range(len(g)):
@@ -384,70 +309,72 @@ class Selector:
                 start: dict[str, float] | None = None, miss: str = MISS, aim: np.ndarray | None = None,
                 done: Prefetched | None = None) -> Answer:
         """The answer for one goal, given the strategies that hold it (by priority) and the chosen one's nearest
-        stored vertex
-        (``done``: the refinements already made for it, by strategy; see :meth:`_prefetch`)."""
+        stored vertex (``done``: the refinements already made for it, by strategy; see :mod:`reach.answers.passes`)."""
+        point = tuple(goal.tolist())
         if not hits:
-            return Answer(effector, tuple(goal.tolist()), None, False, refined=NONE, seconds=time.perf_counter() - t0)
-        name, tree = hits[0], self.atlas.maps[hits[0]]
-        posture = root = residual = fragment = None
-        handover: dict[str, Any] | None = None
-        outcome = UNAVAILABLE
-        others = hits[1:]
-        row = -1
-        if nearest is not None:
-            row, reached = nearest
-            # The stored residual is the vertex's own; what matters is the distance to this goal
-            # (unknown when the oracle cannot place its effector).
-            gap = float(np.linalg.norm(goal - reached))
-            residual = gap if np.isfinite(gap) else None
-            q, outcome = tree.postures(row), SKIPPED
-            # One budget for all of a goal's refinements (the first choice's, a fallback's, a handover's): the budget is
-            # the query's (each had its own, and a query that fell back or handed over took two to four budgets). A
-            # strategy's solvers are built before it refines, outside its budget (a server's at warm-up; `reach query`
-            # builds them when a strategy is first asked: only the first choice's, unless it falls back or hands over,
-            # where building every holding strategy's took 1.2 s of a fresh query's 2 s).
-            purse = Purse(self.refiner.goal_budget(aim))
-            if refine:
-                q, residual, outcome = self.refiner.refine(name, goal, q, residual, start, aim, done, purse)
-            found = None
-            if outcome == FAILED:
-                # The IK says this strategy does not reach the exact goal (its
-                # tree said so from a coarse cell): the next strategy by
-                # priority that does answers; else this one's stored posture.
-                found = self._first_answer(goal, others, refine, start, aim=aim, done=done, purse=purse)
-                if found is not None:
-                    others = others[others.index(found.name) + 1 :]
-            elif self.handover and others and outcome in (REFINED, SKIPPED) and (limits := self._limits(name, q)):
-                found = self._first_answer(goal, others, refine, start, below=len(limits), aim=aim, done=done,
-                                           purse=purse)
-                if found is not None:
-                    others = [h for h in hits if h != found.name]  # the strategy passed over stays an alternative
-                    handover = {"from": name, "limits": limits}
-            if found is not None:
-                name, q, residual, outcome, row = found
-                tree = self.atlas.maps[name]
-            elif aim is not None and outcome != REFINED:
-                # A stored posture holds no goal's orientation: what no refinement reached with it is unreachable.
-                return Answer(effector, tuple(goal.tolist()), None, False, refined=outcome,
-                              seconds=time.perf_counter() - t0)
-            elif outcome == FAILED and miss == "unreachable":
-                # No strategy's refinement reaches the goal: not reachable, and the nearest point a stored posture
-                # reaches.
-                joints, pose, _ = self.stored.encoded(name, row)
-                point = [float(v) for v in reached] if np.all(np.isfinite(reached)) else None
-                return Answer(effector, tuple(goal.tolist()), None, False, refined=FAILED,
-                              seconds=time.perf_counter() - t0,
-                              nearest={"strategy": name, "point": point, "distance": residual, "posture": joints,
-                                       "root": pose})
-            if outcome == REFINED:
-                posture, root = split_posture(tree.posture_names, q)
-            else:
-                posture, root, fragment = self.stored.encoded(name, row)
+            return Answer(effector, point, None, False, refined=NONE, seconds=time.perf_counter() - t0)
+        name = hits[0]
+        if nearest is None:  # its tree stores no posture
+            return Answer(effector, point, name, True, tuple(hits[1:]), refined=UNAVAILABLE,
+                          seconds=time.perf_counter() - t0)
+        row, reached = nearest
+        # The stored residual is the vertex's own; what matters is the distance to this goal
+        # (unknown when the oracle cannot place its effector).
+        gap = float(np.linalg.norm(goal - reached))
+        residual = gap if np.isfinite(gap) else None
+        q, outcome = self.atlas.maps[name].postures(row), SKIPPED
+        # One budget for all of a goal's refinements (the first choice's, a fallback's, a handover's): the budget is
+        # the query's (each had its own, and a query that fell back or handed over took two to four budgets). A
+        # strategy's solvers are built before it refines, outside its budget (a server's at warm-up; `reach query`
+        # builds them when a strategy is first asked: only the first choice's, unless it falls back or hands over,
+        # where building every holding strategy's took 1.2 s of a fresh query's 2 s).
+        purse = Purse(self.refiner.goal_budget(aim))
+        if refine:
+            q, residual, outcome = self.refiner.refine(name, goal, q, residual, start, aim, done, purse)
+        found, others, handover = self._passed_on(goal, hits, q, outcome, refine, start, aim, done, purse)
+        if found is not None:
+            name, q, residual, outcome, row = found
+        elif aim is not None and outcome != REFINED:
+            # A stored posture holds no goal's orientation: what no refinement reached with it is unreachable.
+            return Answer(effector, point, None, False, refined=outcome, seconds=time.perf_counter() - t0)
+        elif outcome == FAILED and miss == "unreachable":
+            # No strategy's refinement reaches the goal: not reachable, and the nearest point a stored posture
+            # reaches.
+            joints, pose, _ = self.stored.encoded(name, row)
+            at = [float(v) for v in reached] if np.all(np.isfinite(reached)) else None
+            return Answer(effector, point, None, False, refined=FAILED, seconds=time.perf_counter() - t0,
+                          nearest={"strategy": name, "point": at, "distance": residual, "posture": joints,
+                                   "root": pose})
+        if outcome == REFINED:
+            (posture, root), fragment = split_posture(self.atlas.maps[name].posture_names, q), None
+        else:
+            posture, root, fragment = self.stored.encoded(name, row)
         # a posture that was not refined at this goal says how near it comes
         within = residual if outcome in STORED else None
-        step = self._landing(name, q) if nearest is not None else None
-        return Answer(effector, tuple(goal.tolist()), name, True, tuple(others), posture, root, residual, outcome,
-                      time.perf_counter() - t0, handover, within, None, fragment, self.stored.index_of(name, row), step)
+        return Answer(effector, point, name, True, tuple(others), posture, root, residual, outcome,
+                      time.perf_counter() - t0, handover, within, None, fragment, self.stored.index_of(name, row),
+                      self.oracles.landing(name, q))
+
+    def _passed_on(self, goal: np.ndarray, hits: list[str], q: np.ndarray, outcome: str, refine: bool,
+                   start: dict[str, float] | None, aim: np.ndarray | None, done: Prefetched | None,
+                   purse: Purse) -> tuple[Found | None, list[str], dict[str, Any] | None]:
+        """The strategy that answers instead of the first choice (None: none does), the strategies left as
+        alternatives, and the handover (None: none)."""
+        name, others = hits[0], hits[1:]
+        if outcome == FAILED:
+            # The IK says this strategy does not reach the exact goal (its tree said so from a coarse cell): the next
+            # strategy by priority that does answers; else this one's stored posture.
+            found = self._first_answer(goal, others, refine, start, aim=aim, done=done, purse=purse)
+            return found, others if found is None else others[others.index(found.name) + 1 :], None
+        near = self.handover and others and outcome in (REFINED, SKIPPED)
+        limits = self.oracles.limits(name, q, self.handover) if near else []
+        if limits:
+            found = self._first_answer(goal, others, refine, start, below=len(limits), aim=aim, done=done,
+                                       purse=purse)
+            if found is not None:
+                # the strategy passed over stays an alternative
+                return found, [h for h in hits if h != found.name], {"from": name, "limits": limits}
+        return None, others, None
 
     def probe(self, effector: str, goal: np.ndarray, restarts: int = 8) -> Answer | None:
         """For a goal no tree holds: the first strategy of the effector, by priority, whose thorough solve (its
@@ -469,16 +396,6 @@ class Selector:
                 return Answer(effector, tuple(goal.tolist()), name, True, (), posture, root, float(v.residual[0]),
                               REFINED, time.perf_counter() - t0)
         return None
-
-    def _landing(self, name: str, q: np.ndarray) -> dict[str, Any] | None:
-        """Where a stepping strategy's posture sets its foot down (its oracle's :class:`Stepping`), else None."""
-        oracle = self._oracle(name)
-        return oracle.landing(q) if isinstance(oracle, Stepping) else None
-
-    def _limits(self, name: str, q: np.ndarray) -> list[str]:
-        """The joint limits a posture of a strategy comes within ``handover`` of (none when its oracle cannot tell)."""
-        oracle = self._oracle(name)
-        return list(oracle.limits_near(q, self.handover)) if isinstance(oracle, Limited) else []
 
     def _first_answer(self, goal: np.ndarray, names: list[str], refine: bool, start: dict[str, float] | None,
                       below: int | None = None, aim: np.ndarray | None = None, done: Prefetched | None = None,
@@ -506,70 +423,9 @@ class Selector:
                     return None if below is not None else Found(name, q, residual, outcome, row)
                 if outcome != REFINED:
                     continue
-            if below is None or len(self._limits(name, q)) < below:
+            if below is None or len(self.oracles.limits(name, q, self.handover)) < below:
                 return Found(name, q, residual, outcome, row)
         return None
-
-    def _prefetch(self, g: np.ndarray, names: list[str], hits: np.ndarray,
-                  nearest: dict[int, tuple[int, np.ndarray] | None],
-                  aims: list[np.ndarray | None], deadline: float | None) -> tuple[list[Prefetched], np.ndarray]:
-        """Every refinement the answers of a batch will ask for, made in passes of one evaluate call per strategy:
-        each goal's first choice; then, for the goals it failed, the next strategy by priority (again, while
-        some fail); then, for goals answered with a joint near its limit, the next strategies until one comes
-        nearer fewer limits (the handover). Returns each goal's refinements by strategy, and which goals the
-        deadline left unrefined (their turn came after it)."""
-        n = len(g)
-        done: list[Prefetched] = [{} for _ in range(n)]
-        late = np.zeros(n, bool)
-        held = [[name for j, name in enumerate(names) if hits[j, i]] for i in range(n)]
-        first = [(i, held[i][0], nearest[i]) for i in range(n) if held[i] and nearest.get(i) is not None]
-        self._refine_pass(g, first, aims, deadline, done, late)
-        # What is left to try after the first choice: the other strategies, and the limits to beat (None: a fallback).
-        pending: dict[int, tuple[list[str], int | None]] = {}
-        for i, name, _ in first:
-            if name not in done[i]:
-                continue  # its turn came after the deadline
-            q, _, outcome = done[i][name]
-            if outcome == FAILED:
-                pending[i] = (held[i][1:], None)
-            elif outcome == REFINED and self.handover and len(held[i]) > 1 and (limits := self._limits(name, q)):
-                pending[i] = (held[i][1:], len(limits))
-        while pending:
-            items = []
-            for i, (rest, _) in pending.items():
-                while rest and (row := self.stored.nearest_row(rest[0], g[i].tolist())) is None:
-                    rest.pop(0)  # a strategy with no stored posture is passed over, as _first_answer does
-                if rest:
-                    items.append((i, rest[0], row))
-            self._refine_pass(g, items, aims, deadline, done, None)
-            for i, name, _ in items:
-                rest, below = pending[i]
-                q, _, outcome = done[i][name]
-                rest.pop(0)
-                if outcome == TIMEOUT or (outcome == REFINED and (below is None or len(self._limits(name, q)) < below)):
-                    rest.clear()  # answered, or out of time: no further strategy is tried
-            pending = {i: p for i, p in pending.items() if p[0]}
-        return done, late
-
-    def _refine_pass(self, g: np.ndarray, items: list[tuple[int, str, tuple[int, np.ndarray] | None]],
-                     aims: list[np.ndarray | None],
-                     deadline: float | None, done: list[Prefetched], late: np.ndarray | None) -> None:
-        """One pass of :meth:`_prefetch`: (goal, strategy, nearest stored row) items refined in one call per strategy.
-        Past the deadline a first pass (``late`` given) marks its goals late; a later pass records them ``timeout``."""
-        for name in dict.fromkeys(name for _, name, _ in items):
-            mine = [(i, row) for i, other, row in items if other == name and row is not None]
-            if not mine:
-                continue
-            if late is not None and deadline is not None and time.perf_counter() > deadline:
-                late[[i for i, _ in mine]] = True
-                continue
-            idx = np.array([i for i, _ in mine])
-            stored = self.atlas.maps[name].postures(np.array([row for _, (row, _) in mine]))
-            gaps = [float(np.linalg.norm(g[i] - reached)) for i, (_, reached) in mine]
-            found = self.refiner.refine_many(name, g[idx], stored, [gap if np.isfinite(gap) else None for gap in gaps],
-                                      [aims[i] for i in idx], deadline)
-            for i, refined in zip(idx, found, strict=True):
-                done[i][name] = refined
 
     def select(self, effector: str, goal: np.ndarray, refine: bool | None = None, start: dict[str, float] | None = None,
                miss: str | None = None, orientation: np.ndarray | None = None) -> Answer:
