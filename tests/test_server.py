@@ -840,8 +840,8 @@ def test_a_lazy_pirate_resend_of_a_slow_request_is_computed_once(human):
 def test_reload_loads_in_the_background_and_no_request_waits_for_it(balls, cube):
     r = Running(balls, allow_reload=cube.parent)
     gate = threading.Event()
-    load = r.server._load
-    r.server._load = lambda path: (gate.wait(10), load(path))[1]  # a load that takes as long as the test says
+    load = r.server.reloads.load
+    r.server.reloads.load = lambda path: (gate.wait(10), load(path))[1]  # a load that takes as long as the test says
     sock = zmq.Context.instance().socket(zmq.DEALER)
     sock.setsockopt(zmq.LINGER, 0)
     sock.setsockopt(zmq.RCVTIMEO, 10_000)
@@ -849,7 +849,7 @@ def test_reload_loads_in_the_background_and_no_request_waits_for_it(balls, cube)
     try:
         with Client(r.server.endpoint, timeout=5_000) as other:
             sock.send(json.dumps({"op": "reload", "path": cube.name, "id": 7}).encode())
-            while r.server.reloading is None:
+            while r.server.reloads.job is None:
                 time.sleep(0.01)
             # While the new atlas loads, the old one answers, and a second reload is refused.
             assert other.query("point", [0.0, 0.0, 0.0])["strategy"] in ("near", "far")
@@ -1014,7 +1014,7 @@ def test_a_clients_queued_work_is_capped_and_refused_with_busy(human, monkeypatc
         # b1 held before c1 is sent: the server's socket takes its clients' messages in turn, so c1 sent at once could
         # be taken first (and b1 refused instead; then c1 waited for its deadline: once, on a loaded machine)
         until = time.monotonic() + 60
-        while sum(dict(r.server.held).values()) < len(GOALS) + 50 and time.monotonic() < until:
+        while sum(dict(r.server.ledger.held).values()) < len(GOALS) + 50 and time.monotonic() < until:
             time.sleep(0.01)
         send(c, "c1", GOALS)  # 170 in all: over the server's 150
         full = json.loads(c.recv_multipart()[-1])
@@ -1026,7 +1026,8 @@ def test_a_clients_queued_work_is_capped_and_refused_with_busy(human, monkeypatc
         third = json.loads(a.recv_multipart()[-1])
         assert third["id"] == "a3" and third["ok"] and len(third["answers"]) == len(GOALS)
         assert json.loads(b.recv_multipart()[-1])["id"] == "b1"
-        assert r.server.held == {} and r.server.held_requests == {}  # nothing held once every request is answered
+        # nothing held once every request is answered
+        assert r.server.ledger.held == {} and r.server.ledger.held_requests == {}
     finally:
         for sock in (a, b, c):
             sock.close(linger=0)

@@ -13,11 +13,11 @@ one the workers answer also names its worker hook (:mod:`reach.serving.services`
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import time
-from collections import deque
-from dataclasses import dataclass
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -25,7 +25,7 @@ import numpy as np
 
 from reach import __version__
 from reach.answers.accommodation import held
-from reach.answers.answer import ERROR, orientation_of
+from reach.answers.answer import ERROR, SKIPPED, Answer, orientation_of
 from reach.answers.refine import ORIENTED_BUDGET
 from reach.answers.select import Selector
 from reach.motion.planner import Planner
@@ -33,6 +33,10 @@ from reach.motion.rig import with_bones
 from reach.motion.timing import Timing
 from reach.serving import cells
 from reach.serving import protocol as P
+from reach.serving.faults import Faults
+from reach.serving.ledger import Ledger, Pending
+from reach.serving.publishing import Publisher
+from reach.serving.reloading import Reloads
 from reach.serving.services import place_space, placements
 from reach.serving.workers import EXPIRED, Pool, Task, Tasks
 from reach.serving.workers import FAILED as WORKER_FAILED
@@ -43,36 +47,23 @@ SLACK = 5.0  # [s] a query's default deadline: the budget per goal, plus this ..
 MAX_WAIT = 60.0
 
 
-@dataclass
-class Pending:
-    """A request the workers are answering."""
-
-    envelope: list[bytes]
-    request: P.Request
-    key: tuple[bytes, bytes] | None  # (client, id): a resend of it is not computed again
-    deadline: float
-    parts: list[list[bytes] | None]
-    bounds: list[tuple[int, int]]
-    goals: int = 0  # the goals it holds of its client's share (0: a request answered whole counts as a request)
-
-
 class Broker(Protocol):
     """What a handler asks of the server."""
 
     served: cells.Served
     population: tuple[list[Any], np.ndarray, Any] | None
-    publisher: Any
+    publisher: Publisher
     pool: Pool | None
+    ledger: Ledger
     pending: dict[int, Pending]
-    expiring: deque[int]
+    faults: Faults
+    reloads: Reloads
     refine: bool
     budget: float
     chunk: int
     atlas_path: Path
     started: float
     requests: int
-    errors: int
-    resends: int
 
     @property
     def selector(self) -> Selector: ...
@@ -80,24 +71,11 @@ class Broker(Protocol):
     @property
     def planner(self) -> Planner: ...
 
-    def publish(self, topic: bytes, bodies: list[bytes], req: P.Request) -> None: ...
-
-    def pend(self, req: P.Request, envelope: list[bytes], wait: float, bounds: list[tuple[int, int]],
-             goals: int) -> int | None: ...
-
     def answer_now(self, seq: int, reply: bytes) -> None: ...
 
     def reply_pending(self, seq: int) -> None: ...
 
-    def stored(self, req: P.Request, a: int, b: int, outcome: str) -> list[bytes]: ...
-
-    def error(self, exc: Exception, rid: Any) -> bytes: ...
-
-    def reload_path(self, req: P.Request) -> Path: ...
-
-    def reload_now(self, req: P.Request, path: Path) -> dict[str, Any]: ...
-
-    def reload_later(self, req: P.Request, envelope: list[bytes], path: Path) -> None: ...
+    def install(self, req: P.Request, path: Path, loaded: Callable[[], cells.Served]) -> dict[str, Any]: ...
 
 
 class Handler:
@@ -123,6 +101,19 @@ class Handler:
         raise NotImplementedError(f"{type(self).__name__} hands no request over")
 
 
+def stored_answers(selector: Selector, req: P.Request, index: np.ndarray, outcome: str) -> list[bytes]:
+    """The stored answers of a query's goals at ``index`` (one lookup for them all), marked with why they were not
+    refined."""
+    goals = np.asarray(req["goals"], float)[index]
+    if not len(goals):
+        return []
+    if req["orientation"] is not None:  # a stored posture holds no goal's orientation
+        return [Answer(req["effector"], tuple(g.tolist()), None, False, refined=outcome).to_json() for g in goals]
+    answers = selector.select_many(req["effector"], goals, False)
+    return [dataclasses.replace(x, refined=outcome).to_json() if x.refined == SKIPPED else x.to_json()
+            for x in answers]
+
+
 def _deadline(req: P.Request) -> float | None:
     return None if req["deadline"] is None else time.perf_counter() + req["deadline"]
 
@@ -136,7 +127,7 @@ class Query(Handler):
                                               start=req["from"], miss=req["miss"],
                                               orientation=orientation_of(req["orientation"]), deadline=_deadline(req))
         bodies = [a.to_json() for a in answers]
-        server.publish(req["effector"].encode(), bodies, req)
+        server.publisher.publish(req["effector"].encode(), bodies, req)
         return bodies[0] if req["single"] else P.batch_body(bodies)
 
     def defer(self, server: Broker, req: P.Request, envelope: list[bytes]) -> bool:
@@ -166,7 +157,7 @@ class Query(Handler):
         size = max(1, min(chunk, math.ceil(n / max(1, pool.size))))
         bounds = [(a, min(n, a + size)) for a in range(0, n, size)]
         each = server.budget if req["orientation"] is None else max(server.budget, ORIENTED_BUDGET)
-        seq = server.pend(req, envelope, min(n * each + SLACK, MAX_WAIT) if refine else MAX_WAIT, bounds, n)
+        seq = server.ledger.pend(req, envelope, min(n * each + SLACK, MAX_WAIT) if refine else MAX_WAIT, bounds, n)
         if seq is not None:
             deadline, orientation = server.pending[seq].deadline, req["orientation"]
             run = P.OPERATIONS[req.op].worker.run  # type: ignore[union-attr]
@@ -191,9 +182,9 @@ class Query(Handler):
         try:
             if len(frames) != b - a or not frames[0].startswith(b"{"):  # a worker's failure, not answers
                 log.error("worker failed: %s", b"".join(frames)[:500].decode(errors="replace"))
-                frames = server.stored(pending.request, a, b, ERROR)
+                frames = stored_answers(server.selector, pending.request, np.arange(a, b), ERROR)
         except Exception as exc:  # noqa: BLE001 - this request's error reply; the others go on
-            server.answer_now(seq, server.error(exc, pending.request.id))
+            server.answer_now(seq, server.faults.reply(exc, pending.request.id))
             return
         pending.parts[part] = frames
         if all(p is not None for p in pending.parts):
@@ -202,7 +193,7 @@ class Query(Handler):
     def expire(self, server: Broker, seq: int, pending: Pending) -> None:
         """Its goals not yet refined are answered from the store, slice by slice (the server's loop)."""
         pending.deadline = math.inf
-        server.expiring.append(seq)
+        server.ledger.expiring.append(seq)
 
 
 class Whole(Handler):
@@ -225,7 +216,7 @@ class Whole(Handler):
         if server.pool is None or service is None:
             return False
         goals, options = self.job(server, req)
-        seq = server.pend(req, envelope, MAX_WAIT, [(0, 1)], 0)
+        seq = server.ledger.pend(req, envelope, MAX_WAIT, [(0, 1)], 0)
         if seq is not None:
             server.pool.submit(Task(seq, 0, req.args.get("effector") or "", goals, req.args.get("from"),
                                     server.pending[seq].deadline, None, envelope[0], req.op, options,
@@ -245,7 +236,7 @@ class Whole(Handler):
             if code not in P.WORKER_ERRORS:
                 log.error("worker failed: %s", message[:500])
                 code, message = P.INTERNAL, self.failed
-            server.errors += 1
+            server.faults.count += 1
             server.answer_now(seq, P.error_reply(code, message, rid))
 
     def expire(self, server: Broker, seq: int, pending: Pending) -> None:
@@ -274,7 +265,7 @@ class Motion(Whole):
 
     def reply(self, server: Broker, req: P.Request, frames: list[bytes]) -> bytes:
         """Publish the summary (everything but the frames) on the effector's topic; the reply is the whole motion."""
-        server.publish(req["effector"].encode(), [frames[0]], req)
+        server.publisher.publish(req["effector"].encode(), [frames[0]], req)
         return frames[1]
 
 
@@ -340,9 +331,9 @@ class Health(Handler):
         return {
             "status": "serving", "protocol": P.VERSION, "atlas": str(server.atlas_path),
             "strategies": len(server.selector.order),
-            "uptime": time.monotonic() - server.started, "requests": server.requests, "errors": server.errors,
+            "uptime": time.monotonic() - server.started, "requests": server.requests, "errors": server.faults.count,
             "workers": 0 if pool is None else pool.size, "pending": len(server.pending),
-            "resends": server.resends, "worker_restarts": 0 if pool is None else pool.restarts,
+            "resends": server.ledger.resends, "worker_restarts": 0 if pool is None else pool.restarts,
             "workers_ready": 0 if pool is None else pool.ready,
             "workers_stalled": 0 if pool is None else len(pool.stalled),
         }
@@ -350,8 +341,8 @@ class Health(Handler):
 
 class Hello(Handler):
     def answer(self, server: Broker, req: P.Request) -> dict[str, Any]:
-        server.publish(b"hello", [b"{}"], req)
-        return {"published": server.publisher is not None}
+        server.publisher.publish(b"hello", [b"{}"], req)
+        return {"published": server.publisher.socket is not None}
 
 
 class Version(Handler):
@@ -364,10 +355,11 @@ class Reload(Handler):
     has swapped it in; an in-process call loads and swaps at once."""
 
     def answer(self, server: Broker, req: P.Request) -> dict[str, Any]:
-        return server.reload_now(req, server.reload_path(req))
+        path = server.reloads.path(req, server.atlas_path)
+        return server.install(req, path, lambda: server.reloads.load(path))
 
     def defer(self, server: Broker, req: P.Request, envelope: list[bytes]) -> bool:
-        server.reload_later(req, envelope, server.reload_path(req))
+        server.reloads.later(req, envelope, server.reloads.path(req, server.atlas_path))
         return True
 
 
