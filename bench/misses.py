@@ -53,7 +53,7 @@ def main() -> None:
         final = np.nonzero(tree.kind == FINAL)[0]
         cells = rng.choice(final, size=args.goals)
         lo = tree.lattice.points(tree.corner[cells])
-        goals = lo + rng.uniform(size=lo.shape) * tree.cell_size(tree.depth[cells])
+        goals = lo + rng.uniform(size=lo.shape) * tree.lattice.cell_size(tree.depth[cells])
         misses: list[float] = []
         reachable = unreachable = within = 0
         outcomes: dict[str, int] = {}

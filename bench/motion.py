@@ -62,7 +62,7 @@ def goals_by_group(selector: Selector, per_group: int, rng: np.random.Generator)
         if tree is None or tree.vertices.posture is None:
             continue
         points = tree.lattice.points(tree.lattice.coords(tree.vertices.keys[tree.vertices.reachable]))
-        half = 0.5 * tree.cell_size(np.array([tree.d_max]))[0]
+        half = 0.5 * tree.lattice.cell_size(np.array([tree.d_max]))[0]
         for i in rng.permutation(len(points)):
             goal = points[i] + rng.uniform(-half, half, 3)
             answer = selector.select(EFFECTOR, goal, False)

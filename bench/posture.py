@@ -119,9 +119,9 @@ def main() -> None:
         active = frozenset(strategy.joints)
         static = [i for i, c in enumerate(body.collision.placed) if not moved(body.model, c.joint, active)]
         sel = np.nonzero(tree.kind == INNER)[0]
-        vol = tree.cell_size(tree.depth[sel]).prod(axis=1)
+        vol = tree.lattice.cell_size(tree.depth[sel]).prod(axis=1)
         pick = sel[rng.choice(sel.size, size=20000, p=vol / vol.sum())]
-        pts = tree.lattice.points(tree.corner[pick]) + rng.random((20000, 3)) * tree.cell_size(tree.depth[pick])
+        pts = tree.lattice.points(tree.corner[pick]) + rng.random((20000, 3)) * tree.lattice.cell_size(tree.depth[pick])
         share = float(inside_capsules(body, body.q_ref, static, pts).mean()) if static else None
         task = strategy.task("self_collision")
         ok = np.nonzero(tree.vertices.reachable)[0]

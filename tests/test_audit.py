@@ -161,7 +161,7 @@ def _lacking(tree, y: float) -> None:
     """The tree made to lack the region past ``y`` [m] (cells and vertices), as a build whose starts all missed it
     would."""
     leaf = np.isin(tree.kind, [INNER, FINAL])
-    centre = tree.lattice.points(tree.corner) + tree.cell_size(tree.depth) / 2
+    centre = tree.lattice.points(tree.corner) + tree.lattice.cell_size(tree.depth) / 2
     tree.kind[leaf & (centre[:, 1] > y)] = OUTER
     tree.vertices.reachable[tree.lattice.points(tree.lattice.coords(tree.vertices.keys))[:, 1] > y] = False
 

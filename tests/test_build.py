@@ -162,7 +162,7 @@ def test_no_inner_cell_meets_a_keep_out_capsule():
         for d in range(2, 6):
             rows = np.nonzero((tree.kind == INNER) & (tree.depth == d))[0]
             lo = Lattice(CUBE, 5).points(tree.corner[rows])
-            out += int(meets(lo, lo + tree.cell_size(tree.depth[rows]), capsule).sum())
+            out += int(meets(lo, lo + tree.lattice.cell_size(tree.depth[rows]), capsule).sum())
         return out
 
     assert inner_meeting(plain) > 0  # the corners alone paint it inner

@@ -37,7 +37,7 @@ def cells(tree, kinds=(INNER,)):
     """Centres [m] of the cells of the given kinds."""
     sel = np.isin(tree.kind, kinds)
     lo = tree.lattice.points(tree.corner[sel])
-    return lo + 0.5 * tree.cell_size(tree.depth[sel])
+    return lo + 0.5 * tree.lattice.cell_size(tree.depth[sel])
 
 
 def test_upper_body_reaches_higher_further_forward_and_to_the_side(atlas):
@@ -84,7 +84,7 @@ def test_balance_costs_upper_front_goals():
 def test_crouch_reaches_lower_than_the_direct_strategies(atlas):
     def low_volume(tree, z=0.5):
         c = cells(tree)
-        size = tree.cell_size(tree.depth[tree.kind == INNER]).prod(axis=1)
+        size = tree.lattice.cell_size(tree.depth[tree.kind == INNER]).prod(axis=1)
         return float(size[c[:, 2] < z].sum())
 
     crouch = atlas.trees["right_crouch"]

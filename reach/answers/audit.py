@@ -84,10 +84,10 @@ def probes(tree: VATree, kind: int, n: int, rng: np.random.Generator) -> tuple[n
     sel = np.nonzero(tree.kind == kind)[0]
     if sel.size == 0 or n == 0:
         return np.zeros((0, tree.dim)), np.zeros(0, int)
-    vol = tree.cell_size(tree.depth[sel]).prod(axis=1)
+    vol = tree.lattice.cell_size(tree.depth[sel]).prod(axis=1)
     pick = sel[rng.choice(sel.size, size=n, p=vol / vol.sum())]
     lo = tree.lattice.points(tree.corner[pick])
-    return lo + rng.random((n, tree.dim)) * tree.cell_size(tree.depth[pick]), tree.depth[pick].astype(int)
+    return lo + rng.random((n, tree.dim)) * tree.lattice.cell_size(tree.depth[pick]), tree.depth[pick].astype(int)
 
 
 def _rate(bad: np.ndarray, said: np.ndarray) -> dict[str, Any]:
@@ -225,7 +225,7 @@ def audit_rays(tree: VATree, referee: Oracle | Executor, oracle: Any, policy: Po
     said = tree.contains(pts, policy) & inside
     truth = np.zeros(len(pts), bool)
     truth[inside] = _judge(tree, referee, pts[inside])
-    cell = float(tree.cell_size(np.array([tree.depth.max(initial=0)])).max())
+    cell = float(tree.lattice.cell_size(np.array([tree.depth.max(initial=0)])).max())
     short = []
     for r, d in enumerate(directions):
         k = slice(r * RAY_POINTS, (r + 1) * RAY_POINTS)

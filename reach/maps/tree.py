@@ -14,8 +14,9 @@ Keys, nodes and the tree are kept apart, as in OctoMap:
   vertex), kind and index of its first child. The ``2**d`` children of a
   parent are contiguous, ordered by the bit pattern of their offset
   (bit i set = upper half along axis i).
-* The tree owns the queries (classify, contains), the volumes and the
-  booleans.
+* The tree owns the queries (classify, contains; the point location in
+  :mod:`reach.maps.locate`) and the volumes; the booleans are
+  :mod:`reach.maps.boolean`.
 
 Limits: ``d_max <= 20`` (keys fit in int64 for d = 3). Resolution at the
 surface is ``(hi - lo) / 2**d_max`` metres per axis. Points outside B0 are
@@ -31,10 +32,15 @@ import numpy as np
 
 from reach.errors import TreeError, UnknownPolicy
 from reach.maps.box import Box
+from reach.maps.kinds import FINAL, INNER, KIND_NAMES, OUTER, PARENT
+from reach.maps.locate import Locator
 from reach.maps.protocol import POLICIES, Policy, Stored
 
-OUTER, INNER, PARENT, FINAL = 0, 1, 2, 3
-KIND_NAMES = ("outer", "inner", "parent", "final")
+__all__ = [
+    "FINAL", "INNER", "KIND_NAMES", "MAX_DEPTH", "OUTER", "PARENT", "Lattice", "VATree", "VertexTable", "bfs_children",
+    "corner_offsets",
+]
+
 MAX_DEPTH = 20
 
 
@@ -77,6 +83,10 @@ class Lattice:
     def vertex_count(self) -> int:
         """(2**d_max + 1)**dim: every vertex of the full lattice."""
         return int((self.cells + 1) ** self.dim)
+
+    def cell_size(self, depth: np.ndarray) -> np.ndarray:
+        """(n, dim) edges [m] of nodes at the given depths."""
+        return self.box.size[None, :] / (1 << depth.astype(np.int64))[:, None]  # type: ignore[no-any-return]
 
     def keys(self, coords: np.ndarray) -> np.ndarray:
         return coords @ self.strides  # type: ignore[no-any-return]
@@ -207,10 +217,6 @@ class VATree:
             out[d] = {name: int(np.count_nonzero(at == k)) for k, name in enumerate(KIND_NAMES)}
         return out
 
-    def cell_size(self, depth: np.ndarray) -> np.ndarray:
-        """(n, dim) edges [m] of nodes at the given depths."""
-        return self.box.size[None, :] / (1 << depth.astype(np.int64))[:, None]  # type: ignore[no-any-return]
-
     def volume(self, kind: int = INNER) -> float:
         """Total volume [m^3] (area [m^2] in 2-D) of nodes of one kind."""
         sel = self.kind == kind
@@ -222,7 +228,7 @@ class VATree:
         if not np.any(sel):
             return None
         lo = self.lattice.points(self.corner[sel])
-        hi = lo + self.cell_size(self.depth[sel])
+        hi = lo + self.lattice.cell_size(self.depth[sel])
         return lo.min(axis=0), hi.max(axis=0)
 
     def reachable_extent(self) -> tuple[np.ndarray, np.ndarray] | None:
@@ -247,86 +253,24 @@ class VATree:
         return out
 
     # -- queries -----------------------------------------------------------
-    def locate(self, points: np.ndarray) -> np.ndarray:
-        """Index of the leaf containing each point, -1 outside B0.
-
-        A dense table gives the node at a coarse depth in one gather; the
-        rest is a vectorised descent, one numpy pass per depth, never a loop
-        over points.
-        """
-        pts = np.asarray(points, dtype=float)
-        if pts.ndim != 2 or pts.shape[1] != self.dim:
-            raise TreeError(f"points must have shape (N, {self.dim}), got {pts.shape}", what="points")
-        if pts.shape[0] == 1:
-            return np.array([self._locate_one(pts[0].tolist())], np.int64)
-        cells, inside = self.lattice.cell_of(pts)
-        level, table = self._lookup_table()
-        shift = self.d_max - level
-        node = table[(cells >> shift) @ ((1 << level) ** np.arange(self.dim, dtype=np.int64))].astype(np.int64)
-        active = np.nonzero(self.kind[node] == PARENT)[0]
-        node = self._descend(cells, node, active, level)
-        node[~inside] = -1
-        return node
-
-    def _locate_one(self, point: list[float]) -> int:
-        """locate() for a single point in plain Python: a server's per-request path,
-        where numpy's per-call overhead would dominate (the same descent as
-        :meth:`_descend`, kept apart on purpose: it halved the server's latency tail)."""
-        lo, size, n = self.box.lo.tolist(), self.box.size.tolist(), 1 << self.d_max
-        cell = []
-        for p, a, w in zip(point, lo, size, strict=True):
-            rel = (p - a) / w
-            if not 0.0 <= rel <= 1.0:  # also false for NaN
-                return -1
-            cell.append(min(int(rel * n), n - 1))
-        kind, child = self.kind, self.child
-        node, depth = 0, 0
-        while kind[node] == PARENT:
-            shift = self.d_max - depth - 1
-            node = int(child[node]) + sum(((c >> shift) & 1) << i for i, c in enumerate(cell))
-            depth += 1
-        return node
-
-    def _descend(self, cells: np.ndarray, node: np.ndarray, active: np.ndarray, depth: int,
-                 stop: int | None = None) -> np.ndarray:
-        """Walk the active rows from their nodes (at depth) down to leaves, or to depth stop."""
-        weights = 1 << np.arange(self.dim, dtype=np.int64)
-        while active.size and (stop is None or depth < stop):
-            bits = ((cells[active] >> (self.d_max - depth - 1)) & 1) @ weights
-            node[active] = self.child[node[active]] + bits
-            active = active[self.kind[node[active]] == PARENT]
-            depth += 1
-        return node
+    @property
+    def locator(self) -> Locator:
+        """The tree's point queries, made once for its nodes as they are (a tree whose arrays are replaced gets a
+        new one)."""
+        cached = self.__dict__.get("_locator")
+        if cached is None or cached[1] is not self.kind:
+            cached = (Locator(self), self.kind)
+            self.__dict__["_locator"] = cached
+        return cached[0]  # type: ignore[no-any-return]
 
     def prepare(self) -> VATree:
         """Build the lookup table of batch queries now (a server does at load), not on the first batch."""
-        self._lookup_table()
+        self.locator.table()
         return self
-
-    def _lookup_table(self) -> tuple[int, np.ndarray]:
-        """Dense table of the node covering each cell at a coarse depth (cached).
-
-        The depth is the largest whose table has at most 2**21 entries, so
-        the table costs at most 8 MB.
-        """
-        cached = self.__dict__.get("_table")
-        if cached is not None and cached[2] is self.kind:
-            return cached[0], cached[1]
-        level = min(self.d_max, 21 // self.dim)
-        n = 1 << level
-        grid = np.stack(np.meshgrid(*[np.arange(n)] * self.dim, indexing="ij"), axis=-1).reshape(-1, self.dim)
-        # Row order must match the key used in locate: axis i has weight n**i.
-        grid = grid[:, ::-1] if self.dim > 1 else grid
-        cells = grid.astype(np.int64) << (self.d_max - level)
-        node = np.zeros(cells.shape[0], np.int64)
-        node = self._descend(cells, node, np.nonzero(self.kind[node] == PARENT)[0], 0, stop=level)
-        table = node.astype(np.int32)
-        self.__dict__["_table"] = (level, table, self.kind)
-        return level, table
 
     def classify(self, points: np.ndarray) -> np.ndarray:
         """Kind (OUTER, INNER or FINAL) of the leaf holding each point; outer outside B0."""
-        node = self.locate(points)
+        node = self.locator.locate(points)
         return np.where(node >= 0, self.kind[np.maximum(node, 0)], OUTER).astype(np.uint8)
 
     def contains(self, points: np.ndarray, policy: Policy = "conservative") -> np.ndarray:
@@ -350,30 +294,19 @@ class VATree:
         elif policy == "vertex":
             fin = np.nonzero(kinds == FINAL)[0]
             if fin.size:
-                result[fin] = self.nearest_vertex_verdict(pts[fin])
+                result[fin] = self.locator.vertex_verdicts(pts[fin])
         return result
 
     def contains_one(self, point: list[float], policy: Policy = "conservative") -> bool:
         """contains() for one point in plain Python (the server's per-request path)."""
-        node = self._locate_one(point)
+        node = self.locator.one(point)
         kind = OUTER if node < 0 else int(self.kind[node])
         if kind != FINAL or policy == "conservative":
             return kind == INNER
         if policy == "optimistic":
             return True
-        row = self.nearest_vertex_row(point)
+        row = self.locator.vertex_row(point)
         return bool(row >= 0 and self.vertices.reachable[row])
-
-    def nearest_vertex_row(self, point: list[float]) -> int:
-        """Vertex-table row of the finest-lattice vertex nearest to one point, -1 if never evaluated (plain Python)."""
-        lat = self.lattice
-        key = 0
-        for p, lo, res, stride in zip(point, self.box.lo.tolist(), lat.resolution.tolist(), lat.strides.tolist(),
-                                      strict=True):
-            key += min(max(round((p - lo) / res), 0), lat.cells) * stride
-        keys = self.vertices.keys
-        row = int(np.searchsorted(keys, key))
-        return row if row < keys.shape[0] and keys[row] == key else -1
 
     # -- the ReachMap protocol (reach.maps.protocol): ids are vertex rows --------
     @property
@@ -394,7 +327,7 @@ class VATree:
         return self.vertices.posture[ids]  # type: ignore[no-any-return]
 
     def nearest_stored(self, point: list[float]) -> int:
-        row = self.nearest_vertex_row(point)
+        row = self.locator.vertex_row(point)
         return row if row >= 0 and self.vertices.posture is not None and bool(self.vertices.reachable[row]) else -1
 
     def unreached(self) -> np.ndarray:
@@ -404,27 +337,6 @@ class VATree:
     def index_at(self, points: np.ndarray, held: bool = True) -> np.ndarray:
         """NaN: a bare tree has no index (:class:`reach.maps.index.IndexedTree` adds it)."""
         return np.full(len(np.asarray(points, float).reshape(-1, self.dim)), np.nan)
-
-    def nearest_vertex_verdict(self, points: np.ndarray) -> np.ndarray:
-        """Verdict of the finest-lattice vertex nearest to each point (False if never evaluated)."""
-        lat = self.lattice
-        coords = np.rint((points - self.box.lo) / lat.resolution).astype(np.int64)
-        np.clip(coords, 0, lat.cells, out=coords)
-        row = self.vertices.index(lat.keys(coords))
-        return np.where(row >= 0, self.vertices.reachable[np.maximum(row, 0)], False)
-
-    # -- booleans ----------------------------------------------------------
-    def intersection(self, other: VATree) -> VATree:
-        """Cells inside both trees (the paper's Figure 9)."""
-        return combine(self, other, "intersection")
-
-    def union(self, other: VATree) -> VATree:
-        """Cells inside either tree."""
-        return combine(self, other, "union")
-
-    def difference(self, other: VATree) -> VATree:
-        """Cells inside this tree and not the other."""
-        return combine(self, other, "difference")
 
 
 def bfs_children(kind: np.ndarray, dim: int) -> np.ndarray:
@@ -437,81 +349,3 @@ def bfs_children(kind: np.ndarray, dim: int) -> np.ndarray:
     parents = np.nonzero(kind == PARENT)[0]
     child[parents] = 1 + np.arange(parents.size, dtype=np.int64) * (1 << dim)
     return child
-
-
-# Leaf-kind truth tables for booleans; FINAL is "unknown", i.e. boundary.
-_NOT = np.array([INNER, OUTER, PARENT, FINAL], np.uint8)
-
-
-def _combine_kinds(a: np.ndarray, b: np.ndarray, mode: str) -> np.ndarray:
-    if mode == "difference":
-        b = _NOT[b]
-        mode = "intersection"
-    if mode == "intersection":
-        out = np.where((a == OUTER) | (b == OUTER), OUTER, np.where((a == INNER) & (b == INNER), INNER, FINAL))
-    else:
-        out = np.where((a == INNER) | (b == INNER), INNER, np.where((a == OUTER) & (b == OUTER), OUTER, FINAL))
-    return out.astype(np.uint8)
-
-
-def combine(a: VATree, b: VATree, mode: str) -> VATree:
-    """Boolean of two trees over the same B0 and lattice, as a new tree.
-
-    Both trees are walked together level by level; where one is a leaf and the
-    other a parent, the leaf stands for all its would-be children. Vertex
-    verdicts of the result combine the verdicts of both trees (a vertex one
-    tree never evaluated takes that tree's answer under the vertex policy).
-    """
-    if mode not in ("intersection", "union", "difference"):
-        raise TreeError(f"unknown boolean {mode!r}", what="mode")
-    if a.box != b.box or a.d_max != b.d_max:
-        raise TreeError(
-            f"booleans need the same B0 and D_max; got {a.box.to_dict()} D_max {a.d_max} "
-            f"and {b.box.to_dict()} D_max {b.d_max}"
-        )
-    dim, nchild = a.dim, 1 << a.dim
-    offsets = corner_offsets(dim)
-    depth_l, corner_l, kind_l = [], [], []
-    ia, ib = np.zeros(1, np.int64), np.zeros(1, np.int64)
-    corners = np.zeros((1, dim), np.int64)
-    d = 0
-    while ia.size:
-        ka, kb = a.kind[ia], b.kind[ib]
-        # A parent side is "unknown" (FINAL) here: where the leaf side alone
-        # decides the result no descent is needed, otherwise the pair splits.
-        kinds = _combine_kinds(np.where(ka == PARENT, FINAL, ka), np.where(kb == PARENT, FINAL, kb), mode)
-        split = (ka == PARENT) | (kb == PARENT)
-        kinds = np.where(split & (kinds == FINAL), PARENT, kinds).astype(np.uint8)
-        depth_l.append(np.full(ia.size, d, np.uint8))
-        corner_l.append(corners)
-        kind_l.append(kinds)
-        par = np.nonzero(kinds == PARENT)[0]
-        step = 1 << (a.d_max - d - 1) if d < a.d_max else 0
-        ca = np.where(ka[par] == PARENT, a.child[ia[par]], -1)
-        cb = np.where(kb[par] == PARENT, b.child[ib[par]], -1)
-        j = np.arange(nchild)
-        ia = np.where(ca[:, None] >= 0, ca[:, None] + j, ia[par][:, None]).reshape(-1)
-        ib = np.where(cb[:, None] >= 0, cb[:, None] + j, ib[par][:, None]).reshape(-1)
-        corners = (corners[par][:, None, :] + offsets[None] * step).reshape(-1, dim)
-        d += 1
-    kind = np.concatenate(kind_l)
-    vertices = _combine_vertices(a, b, mode)
-    meta = {"boolean": {"mode": mode, "a": a.meta.get("name"), "b": b.meta.get("name")}}
-    return VATree(
-        a.box, min(a.d_min, b.d_min), a.d_max, np.concatenate(depth_l), np.concatenate(corner_l), kind,
-        bfs_children(kind, dim), vertices, meta,
-    )
-
-
-def _combine_vertices(a: VATree, b: VATree, mode: str) -> VertexTable:
-    keys = np.union1d(a.vertices.keys, b.vertices.keys)
-    pts = a.lattice.points(a.lattice.coords(keys))
-
-    def verdict(t: VATree) -> np.ndarray:
-        row = t.vertices.index(keys)
-        known = t.vertices.reachable[np.maximum(row, 0)]
-        return np.where(row >= 0, known, t.contains(pts, "vertex"))
-
-    va, vb = verdict(a), verdict(b)
-    ok = va & vb if mode == "intersection" else (va | vb if mode == "union" else va & ~vb)
-    return VertexTable(keys, ok, np.zeros(keys.shape[0]), None, ())

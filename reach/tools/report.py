@@ -32,6 +32,7 @@ from reach.answers.audit import lacking
 from reach.answers.evaluate import Target
 from reach.answers.place import Ranking
 from reach.maps.atlas import Atlas
+from reach.maps.boolean import difference, intersection
 from reach.maps.index import summary as index_summary
 from reach.maps.protocol import ReachMap, raster
 from reach.maps.tree import FINAL, INNER, VATree
@@ -70,9 +71,9 @@ def tables(atlas: Atlas) -> dict[str, Any]:
             if ta.box != tb.box or ta.d_max != tb.d_max:
                 continue
             pairs.append({
-                "a": a, "b": b, "intersection": ta.intersection(tb).volume(INNER),
-                "a_minus_b": ta.difference(tb).volume(INNER),
-                "b_minus_a": tb.difference(ta).volume(INNER),
+                "a": a, "b": b, "intersection": intersection(ta, tb).volume(INNER),
+                "a_minus_b": difference(ta, tb).volume(INNER),
+                "b_minus_a": difference(tb, ta).volume(INNER),
             })
     for n, lines in lacking(atlas).items():
         if n in per:

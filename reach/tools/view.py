@@ -98,7 +98,7 @@ class Cells:
     @classmethod
     def of(cls, tree: VATree) -> Cells:
         rows = np.nonzero((tree.kind == INNER) | (tree.kind == FINAL))[0]
-        size = tree.cell_size(tree.depth[rows])
+        size = tree.lattice.cell_size(tree.depth[rows])
         lo = tree.lattice.points(tree.corner[rows])
         return cls(lo + 0.5 * size, size, tree.kind[rows] == INNER)
 
