@@ -183,7 +183,7 @@ def test_a_tab_gives_one_line_naming_the_place(tmp_path):
 
 def test_a_bodys_oracle_defaults_to_casadi_ik():
     """A URDF config without `oracle:` was refused ("required key is missing")."""
-    from reach.building.config import read_yaml
+    from reach.building.documents import read_yaml
 
     path = Path(__file__).resolve().parents[1] / "configs" / "examples" / "arm7_table.yaml"
     data = read_yaml(path)
@@ -247,8 +247,8 @@ def test_box_auto_is_derived_when_first_asked_for_not_when_the_config_is_read(mo
     from reach.building import config as module
 
     calls = []
-    derive = module._derive_box
-    monkeypatch.setattr(module, "_derive_box", lambda *a, **k: calls.append(1) or derive(*a, **k))
+    derive = module.derive_box
+    monkeypatch.setattr(module, "derive_box", lambda *a, **k: calls.append(1) or derive(*a, **k))
     raw = {"name": "arm", "body": {"urdf": str(ROOT / "configs" / "urdf" / "ur5.urdf")}, "box": "auto",
            "depth": {"min": 1, "max": 2},
            "strategies": [{"name": "flange", "effector": "ee_link", "joints": ["*_joint"],

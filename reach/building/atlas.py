@@ -39,8 +39,9 @@ from oracles.protocol import (
     Tunable,
     Verifying,
 )
+from reach.building.autobox import grown
 from reach.building.checkpoint import load_state, save_state
-from reach.building.config import Config, StrategySpec, grown
+from reach.building.config import Config, StrategySpec
 from reach.building.executor import Executor, InlineExecutor
 from reach.building.index import compute_index
 from reach.building.mirror import MirrorOracle

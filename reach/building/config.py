@@ -36,9 +36,10 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import yaml
 
-from oracles.protocol import Diagnosed, Floored, Oracle, OracleSpec, Oriented, Probing, ReachBound, Tunable, body_params
+from oracles.protocol import Diagnosed, Oracle, OracleSpec, Oriented, ReachBound, Tunable, body_params
+from reach.building.autobox import derive_box
+from reach.building.documents import read_yaml
 from reach.building.executor import CHUNK_SIZE
 from reach.building.tree import Refine
 from reach.errors import ConfigError, ModelError, ReachError, TreeError
@@ -112,7 +113,7 @@ class Config:
             return self.given_box, None
         assert self.auto is not None
         oracles = [s.oracle.create() for s in self.strategies]
-        return _derive_box(_Checker(self.source), oracles, self.auto, any(s.mirror_of for s in self.strategies))
+        return derive_box(self.source, oracles, self.auto, any(s.mirror_of for s in self.strategies))
 
     @property
     def box(self) -> Box:
@@ -396,210 +397,6 @@ def _auto_box(check: _Checker, value: Any) -> dict[str, Any] | None:
             raise check.fail("box.auto.floor", f"expected auto, true or false, got {floor!r}")
         return {"margin": float(margin), "floor": floor}
     return None
-
-
-# of a probed extent, added on each side: the 26 probes find the extremes along their own directions only
-PROBE_PAD = 0.15
-
-
-def _derive_box(check: _Checker, oracles: list[Oracle], auto: dict[str, Any], symmetric: bool) -> tuple[Box, Box]:
-    """B0 from the bodies' size, and the provable bound it may grow to (see :func:`grown`).
-
-    Each strategy's reach bound (a ball about its fixed anchor) bounds its
-    volume; where the oracle can probe its extent (:class:`~oracles.protocol.Probing`),
-    the probed extent padded by ``PROBE_PAD`` of itself and the margin,
-    within the ball, sizes its box instead (a standing body's ball about a
-    foot is 4 m wide; its reach is not).
-    """
-    lows, highs, limit_lo, limit_hi = [], [], [], []
-    for o in oracles:
-        bound = o.reach_bound() if isinstance(o, ReachBound) else None
-        if bound is None:
-            raise check.fail("box", "box: auto needs body strategies whose reach is bounded (a fixed root, or feet "
-                                    "on the floor); give box.min and box.max")
-        centre, radius = bound
-        ball_lo, ball_hi = np.asarray(centre - radius - auto["margin"],
-                                      float), np.asarray(centre + radius + auto["margin"], float)
-        # The floor z = 0 cuts a strategy's box where the strategy itself keeps its effector above it (auto),
-        # or everywhere (true); a robot without a floor task reaches below its base's plane.
-        floor = (o.lowest() if isinstance(o, Floored) else None) if auto["floor"] == "auto" else (0.0
-            if auto["floor"] else None)
-        if floor is not None:
-            ball_lo[2] = max(ball_lo[2], floor)
-        low, high = ball_lo.copy(), ball_hi.copy()
-        extent = o.reach_extent() if isinstance(o, Probing) else None
-        if extent is not None:
-            pad = PROBE_PAD * (extent[1] - extent[0]) + auto["margin"]
-            low, high = np.maximum(extent[0] - pad, ball_lo), np.minimum(extent[1] + pad, ball_hi)
-        lows.append(low)
-        highs.append(high)
-        limit_lo.append(ball_lo)
-        limit_hi.append(ball_hi)
-    lo, hi = np.min(lows, axis=0), np.max(highs, axis=0)
-    top_lo, top_hi = np.min(limit_lo, axis=0), np.max(limit_hi, axis=0)
-    if symmetric:
-        for a, b in ((lo, hi), (top_lo, top_hi)):
-            half = max(-a[1], b[1])
-            a[1], b[1] = -half, half
-    return Box(np.round(lo, 4), np.round(hi, 4)), Box(np.round(top_lo, 4), np.round(top_hi, 4))
-
-
-GROW = 0.25  # of the box's extent, by which a face that reachable vertices lie on moves out (within the limit)
-
-
-def grown(box: Box, limit: Box, faces: set[str]) -> Box | None:
-    """B0 with each named face (``x-``, ``z+`` ...) moved out by ``GROW`` of the box's extent, within limit; None if
-    none can move."""
-    lo, hi = box.lo.copy(), box.hi.copy()
-    size = hi - lo
-    for face in faces:
-        axis = "xyz".index(face[0])
-        if face[1] == "-":
-            lo[axis] = max(limit.lo[axis], lo[axis] - GROW * size[axis])
-        else:
-            hi[axis] = min(limit.hi[axis], hi[axis] + GROW * size[axis])
-    if np.array_equal(lo, box.lo) and np.array_equal(hi, box.hi):
-        return None
-    return Box(np.round(lo, 4), np.round(hi, 4))
-
-
-def _merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
-    """Mappings merge key by key; anything else in over replaces base."""
-    out = dict(base)
-    for k, v in over.items():
-        out[k] = _merge(out[k], v) if isinstance(v, Mapping) and isinstance(out.get(k), Mapping) else v
-    return out
-
-
-class _DuplicateKey(Exception):
-    def __init__(self, key: str, line: int) -> None:
-        super().__init__(key)
-        self.key, self.line = key, line
-
-
-class _StrictLoader(yaml.SafeLoader):
-    """PyYAML's safe loader, refusing a mapping that gives a key twice (PyYAML keeps the last silently)."""
-
-    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
-        seen: set[Any] = set()
-        for key_node, _ in node.value:
-            key = self.construct_object(key_node, deep=deep)  # type: ignore[no-untyped-call]
-            if key in seen:
-                raise _DuplicateKey(str(key), key_node.start_mark.line + 1)
-            seen.add(key)
-        return super().construct_mapping(node, deep)  # type: ignore[no-any-return]
-
-    def construct_yaml_int(self, node: yaml.ScalarNode) -> int:
-        digits = sum(c.isdigit() for c in str(node.value))
-        if digits > MAX_DIGITS:
-            raise _TooLong(node.start_mark.line + 1, digits)
-        return super().construct_yaml_int(node)  # type: ignore[no-untyped-call,no-any-return]
-
-
-# The most digits of a whole number in a config: no key takes more than a seed's (a 400-digit stature overflowed the
-# float it becomes; one of 4,301 digits is past Python's own limit for reading an int)
-MAX_DIGITS = 20
-
-
-class _TooLong(Exception):
-    def __init__(self, line: int, digits: int) -> None:
-        super().__init__(line, digits)
-        self.line, self.digits = line, digits
-
-
-_StrictLoader.add_constructor("tag:yaml.org,2002:int", _StrictLoader.construct_yaml_int)
-
-
-# The most nodes a config may hold with its aliases expanded: the largest shipped config has about 1,500; a "billion
-# laughs" of nested aliases (796 bytes) expands past 10^8 and took 2.7 GB before failing.
-MAX_NODES = 200_000
-
-
-class _TooLarge(Exception):
-    pass
-
-
-def _expanded(node: yaml.Node) -> None:
-    """Count the nodes a composed document holds with every alias expanded, raising _TooLarge past MAX_NODES (each
-    node's count computed once: linear in the document, not in its expansion)."""
-    sizes: dict[int, int] = {}
-    stack: list[tuple[yaml.Node, bool]] = [(node, False)]
-    while stack:
-        n, done = stack.pop()
-        if id(n) in sizes:
-            continue
-        children = ([c for pair in n.value for c in pair] if isinstance(n, yaml.MappingNode)
-                    else list(n.value) if isinstance(n, yaml.SequenceNode) else [])
-        if done:
-            sizes[id(n)] = 1 + sum(sizes[id(c)] for c in children)
-            if sizes[id(n)] > MAX_NODES:
-                raise _TooLarge
-        else:
-            stack.append((n, True))
-            stack.extend((c, False) for c in children if id(c) not in sizes)
-
-
-def _one_line(exc: yaml.YAMLError) -> str:
-    """A YAML error as one line: what is wrong, and where (PyYAML's own message spans several lines)."""
-    problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-    mark = getattr(exc, "problem_mark", None)
-    where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
-    hint = " (YAML indents with spaces, not tabs)" if "'\\t'" in str(problem) else ""
-    return f"{problem}{where}{hint}"
-
-
-def read_yaml(path: Path, seen: tuple[Path, ...] = ()) -> Any:
-    """A config document, with its ``base`` (a config it extends) merged under it.
-
-    Relative paths (``base``, ``body.urdf``) are relative to the file naming them.
-    """
-    try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ConfigError(path, "", f"cannot read: {exc.strerror or exc}") from exc
-    except UnicodeDecodeError as exc:
-        raise ConfigError(path, "", f"not UTF-8 text (byte {exc.start}): a config is a YAML file in UTF-8") from None
-    loader = _StrictLoader(text)  # a SafeLoader subclass: safe
-    try:
-        node = loader.get_single_node()
-        # Aliases are counted expanded before anything is built from them (a few nested ones multiply).
-        if node is not None:
-            _expanded(node)
-        data = loader.construct_document(node) if node is not None else None
-    except _DuplicateKey as exc:
-        raise ConfigError(path, exc.key, f"duplicate key (line {exc.line}); give each key once") from None
-    except _TooLong as exc:
-        raise ConfigError(path, "", f"line {exc.line}: a whole number of {exc.digits} digits; no key takes more than "
-                                    f"{MAX_DIGITS}") from None
-    except _TooLarge:
-        raise ConfigError(path, "", f"holds over {MAX_NODES:,} values with its aliases (&name, *name) expanded; a "
-                                    "config that large is a mistake or an attack") from None
-    except RecursionError:
-        raise ConfigError(path, "", "nested too deeply") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(path, "", f"not valid YAML: {_one_line(exc)}") from None
-    finally:
-        loader.dispose()
-    if not isinstance(data, Mapping):
-        return data
-    data = dict(data)
-    body = data.get("body")
-    for key in ("urdf", "srdf"):  # files beside the config
-        if isinstance(body, Mapping) and isinstance(body.get(key), str) and not Path(body[key]).is_absolute():
-            body = data["body"] = {**body, key: str((path.parent / body[key]).resolve())}
-    if "base" in data:
-        if not isinstance(data["base"], str):
-            raise ConfigError(path, "base", f"expected the path of a config to extend, got {data['base']!r}")
-        base_path = (path.parent / data.pop("base")).resolve()
-        if base_path in seen:
-            raise ConfigError(path, "base", f"{base_path} extends itself")
-        if not base_path.is_file():
-            raise ConfigError(path, "base", f"{base_path}: no such config to extend")
-        base = read_yaml(base_path, (*seen, path.resolve()))
-        if not isinstance(base, Mapping):
-            raise ConfigError(base_path, "", "expected a mapping")
-        data = _merge({k: v for k, v in base.items() if k != "name"}, data)
-    return data
 
 
 def load_config(path: str | Path) -> Config:

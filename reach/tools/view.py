@@ -31,7 +31,6 @@ Python API the tests drive.
 from __future__ import annotations
 
 import threading
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -39,7 +38,6 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from oracles.protocol import Furnished, OracleSpec, Shaped
 from reach.answers.answer import posture_vector
 from reach.answers.select import Selector
 from reach.errors import InputError, MotionError, ServerError, ServerUnavailable
@@ -48,18 +46,16 @@ from reach.maps.protocol import DEFAULT_POLICY, POLICIES
 from reach.maps.tree import FINAL, INNER, VATree
 from reach.motion.planner import Planner
 from reach.serving.client import Client
+from reach.tools import panel
 from reach.tools.gate import Gate, guarded_websockets
+from reach.tools.panel import SLICE_AXES
+from reach.tools.playback import Playback
 
 # Strategy colours (RGB), in priority order: matplotlib's tab10, the report's palette.
 PALETTE = np.array([(31, 119, 180), (255, 127, 14), (44, 160, 44), (214, 39, 40), (148, 103, 189),
                     (140, 86, 75), (227, 119, 194), (127, 127, 127), (188, 189, 34), (23, 190, 207)], np.uint8)
-BODY = (230, 200, 170)  # skin
-FURNITURE = (140, 140, 148)  # a seat, a table: grey
 UNREACHABLE = (200, 0, 0)
 BOUNDARY_SHADE = 0.75  # boundary (final) cells are drawn this much darker than inner ones
-STYLES = ("boxes", "dots", "wireframe")
-CELLS = ("inner", "boundary", "both")
-SLICE_AXES = ("none", "x", "y", "z")
 
 
 def cube() -> tuple[np.ndarray, np.ndarray]:
@@ -136,6 +132,28 @@ class Viewer:
             dark 0, yellow 1) where it is at least the panel's threshold.
     """
 
+    # The panel's controls and the scene's goal handles (viser's), made by reach.tools.panel.build.
+    effector_box: Any
+    goal_box: Any
+    policy_box: Any
+    answer_box: Any
+    plan_button: Any
+    play_button: Any
+    frame_slider: Any
+    speed_slider: Any
+    motion_box: Any
+    style_box: Any
+    cells_box: Any
+    first_box: Any
+    index_box: Any
+    slice_axis: Any
+    slice_at: Any
+    accommodation_box: Any
+    accommodation_at: Any
+    layer_boxes: dict[tuple[int, str], Any]
+    gizmo: Any
+    goal_markers: list[Any]
+
     def __init__(self, atlases: Sequence[Atlas], host: str = "127.0.0.1", port: int = 8080, connect: str | None = None,
                  spacing: float = 1.5, policy: str = DEFAULT_POLICY, refine: bool = True,
                  accommodation: tuple[np.ndarray, np.ndarray] | None = None) -> None:
@@ -187,12 +205,11 @@ class Viewer:
         self.motion: dict[str, Any] | None = None
         self._path: Any = None
         self._planner: Any = None
-        self._player: threading.Thread | None = None
-        self._stop = threading.Event()
+        self.playback = Playback()
         self.frame = 0  # the motion's frame shown
-        self._gui()
+        panel.build(self)
         for k, scene in enumerate(self.scenes):
-            self._body(k, scene)
+            panel.add_body(self, k, scene)
         self.draw()
         self.draw_accommodation()
         self.set_goal(self.goal)
@@ -201,100 +218,6 @@ class Viewer:
     @property
     def url(self) -> str:
         return f"http://{self.host}:{self.port}"
-
-    def _gui(self) -> None:
-        gui = self.server.gui
-        with gui.add_folder("Goal"):
-            self.effector_box = gui.add_dropdown("effector", self.selectors[0].effectors, initial_value=self.effector)
-            self.goal_box = gui.add_vector3("goal [m]", tuple(self.goal), step=0.01)
-            self.policy_box = gui.add_dropdown("policy", list(POLICIES), initial_value=self.policy,
-                                               disabled=self.client is not None,
-                                               hint="the server's own policy applies with --connect" if self.client
-                                               else None)
-            self.answer_box = gui.add_markdown("")
-        with gui.add_folder("Motion"):
-            self.plan_button = gui.add_button("plan the reach motion", hint="from the reference posture to the "
-                "answer (the first atlas)")
-            self.play_button = gui.add_button("play / pause", disabled=True)
-            self.frame_slider = gui.add_slider("frame", 0, 1, 1, 0, disabled=True)
-            self.speed_slider = gui.add_slider("speed", 0.1, 1.0, 0.05, 1.0, hint="playback speed: 1 is real time")
-            self.motion_box = gui.add_markdown("")
-        with gui.add_folder("Volumes"):
-            self.style_box = gui.add_dropdown("style", list(STYLES), initial_value="boxes")
-            self.cells_box = gui.add_dropdown("cells", list(CELLS), initial_value="boundary")
-            self.first_box = gui.add_checkbox("first strategy by priority", False, hint="each cell in the colour of "
-                "the first strategy that holds it (the paper's Figure 8)")
-            self.index_box = gui.add_checkbox("reachability index", False, hint="colour the cells of strategies "
-                "built with `directions: N` by the share "
-                                              "of approach directions reached (viridis: dark 0, yellow 1)")
-            self.slice_axis = gui.add_dropdown("slice axis", list(SLICE_AXES), initial_value="none")
-            lo, hi = (self.scenes[0].atlas.trees[next(iter(self.scenes[0].atlas.trees))].box.lo,
-                      self.scenes[0].atlas.trees[next(iter(self.scenes[0].atlas.trees))].box.hi)
-            self.slice_at = gui.add_slider("slice at [m]", float(lo.min()), float(hi.max()), 0.01, 1.0)
-            if self.accommodation is not None:
-                self.accommodation_box = gui.add_checkbox("accommodation", True, hint="the share of the population's "
-                    "members whose trees hold each point (viridis: dark 0, yellow 1)")
-                self.accommodation_at = gui.add_slider("reached by at least [%]", 5, 100, 5, 5)
-                self.accommodation_box.on_update(lambda _e: self.draw_accommodation())
-                self.accommodation_at.on_update(lambda _e: self.draw_accommodation())
-            self.layer_boxes: dict[tuple[int, str], Any] = {}
-            for k, scene in enumerate(self.scenes):
-                label = scene.atlas.manifest.get("name", f"atlas {k}")
-                gui.add_markdown(f"**{label}**")
-                first = next((n for n, t in scene.atlas.trees.items() if t.meta.get("effector") == self.effector), None)
-                for i, name in enumerate(scene.atlas.trees):
-                    r, g, b = (int(c) for c in scene.colours[i])
-                    box = gui.add_checkbox(name, name == first, hint=f"colour rgb({r}, {g}, {b})")
-                    box.on_update(lambda _e: self.draw())
-                    self.layer_boxes[(k, name)] = box
-        for handle in (self.style_box, self.cells_box, self.first_box, self.index_box, self.slice_axis, self.slice_at):
-            handle.on_update(lambda _e: self.draw())
-        self.goal_box.on_update(lambda e: self._from_panel())
-        self.plan_button.on_click(lambda _e: self._plan_clicked())
-        self.play_button.on_click(lambda _e: self.pause() if self.playing else self.play())
-        self.frame_slider.on_update(lambda _e: self.show_frame(int(self.frame_slider.value)))
-        self.effector_box.on_update(lambda e: self.set_effector(self.effector_box.value))
-        self.policy_box.on_update(lambda e: self.set_policy(self.policy_box.value))
-        self.gizmo = self.server.scene.add_transform_controls("/goal", scale=0.25, disable_rotations=True,
-                                                              position=tuple(self.goal))
-        # One marker per atlas: the gizmo's own for the first, the same goal beside each other body.
-        self.goal_markers = [self.server.scene.add_icosphere("/goal/marker", radius=0.025, color=(20, 20, 20))]
-        self.goal_markers += [self.server.scene.add_icosphere(f"/atlas{k}/goal", radius=0.025, color=(20, 20, 20))
-                              for k in range(1, len(self.scenes))]
-        self.gizmo.on_update(lambda _e: self._from_gizmo())
-        self.server.scene.add_grid("/floor", width=3.0, height=3.0 + self.scenes[-1].offset[1], cell_size=0.25,
-                                   position=(0.2, 0.5 * self.scenes[-1].offset[1], 0.0))
-        middle = 0.5 * self.scenes[-1].offset[1]
-
-        @self.server.on_client_connect
-        def _camera(client: Any) -> None:  # in front of the body, to its right, looking at the chest
-            client.camera.up_direction = (0.0, 0.0, 1.0)
-            client.camera.position = (2.2, -1.9 + middle, 1.7)
-            client.camera.look_at = (0.2, middle, 1.0)
-
-    def _body(self, k: int, scene: Scene) -> None:
-        """The body's capsules, one mesh each, moved to postures by their transforms."""
-        # trimesh only when meshes are read or written
-        import trimesh
-
-        spec = next(iter(scene.atlas.trees.values())).meta["oracle"]
-        shaper = OracleSpec.from_dict(spec).create()
-        if not isinstance(shaper, Shaped):
-            return  # an oracle without a body to draw
-        scene.shaper = shaper
-        names, caps = shaper.shape(shaper.reference_posture())
-        for name, cap in zip(names, caps, strict=True):
-            length = float(np.linalg.norm(cap[3:6] - cap[:3]))
-            mesh = trimesh.creation.capsule(height=max(length, 1e-6), radius=float(cap[6]), count=[12, 12])
-            scene.capsules.append(self.server.scene.add_mesh_simple(
-                f"/atlas{k}/body/{name}", np.asarray(mesh.vertices, np.float32), np.asarray(mesh.faces, np.uint32),
-                color=BODY))
-        self._pose(scene, caps)
-        if isinstance(shaper, Furnished):
-            for name, box in zip(*shaper.furniture(), strict=True):
-                scene.furniture.append(self.server.scene.add_box(
-                    f"/atlas{k}/furniture/{name}", color=FURNITURE, dimensions=tuple(2 * box[3:6]),
-                    wxyz=tuple(box[6:10]), position=tuple(box[:3] + scene.offset), opacity=0.6))
 
     def _pose(self, scene: Scene, caps: np.ndarray) -> None:
         for handle, cap in zip(scene.capsules, caps, strict=True):
@@ -335,16 +258,12 @@ class Viewer:
             mask &= np.abs(cells.centre[:, axis] - at) <= 0.5 * cells.size[:, axis]
         return cells.select(mask)
 
-    def _settings(self) -> tuple[Any, ...]:
-        return (self.style_box.value, self.cells_box.value, self.first_box.value, self.index_box.value,
-                self.slice_axis.value, self.slice_at.value,
-                self.policy)
-
     def draw(self) -> None:
         """Bring every layer in line with the panel: a layer drawn with today's settings is only shown or
         hidden (nothing is sent again); one drawn with others, or never, is sent anew."""
         with self._lock:
-            settings = self._settings()
+            settings = (self.style_box.value, self.cells_box.value, self.first_box.value, self.index_box.value,
+                        self.slice_axis.value, self.slice_at.value, self.policy)
             for k, scene in enumerate(self.scenes):
                 for i, name in enumerate(scene.atlas.trees):
                     visible = bool(self.layer_boxes[(k, name)].value)
@@ -403,14 +322,6 @@ class Viewer:
         self.draw()
 
     # -- answers --------------------------------------------------------------
-    def _from_gizmo(self) -> None:
-        self.set_goal(np.array(self.gizmo.position))
-
-    def _from_panel(self) -> None:
-        goal = np.array(self.goal_box.value, float)
-        if not np.allclose(goal, self.goal):
-            self.set_goal(goal)
-
     def set_effector(self, effector: str) -> None:
         self.effector = effector
         self.set_goal(self.goal)
@@ -478,7 +389,7 @@ class Viewer:
     # -- motion -----------------------------------------------------------------
     @property
     def playing(self) -> bool:
-        return self._player is not None and self._player.is_alive()
+        return self.playback.playing
 
     def plan_motion(self) -> dict[str, Any]:
         """Plan the motion to the goal on the first atlas (its planner, or the server's ``motion``), draw the
@@ -519,9 +430,6 @@ class Viewer:
         self.show_frame(0)
         return data
 
-    def _plan_clicked(self) -> None:
-        self.plan_motion()
-
     def show_frame(self, k: int) -> None:
         """Pose the first atlas's body at frame k of the planned motion."""
         if self.motion is None:
@@ -535,24 +443,16 @@ class Viewer:
         """Play the motion at its rate from the slider's frame (from the start when at the end)."""
         if self.motion is None or self.playing:
             return
-        self._stop.clear()
-        start = 0 if int(self.frame_slider.value) >= len(self.motion["postures"]) - 1 else int(self.frame_slider.value)
-        self._player = threading.Thread(target=self._play, args=(start,), daemon=True)
-        self._player.start()
+        last = len(self.motion["postures"]) - 1
+        start = 0 if int(self.frame_slider.value) >= last else int(self.frame_slider.value)
 
-    def _play(self, start: int) -> None:
-        assert self.motion is not None
-        rate, t0 = float(self.motion["rate"]) * float(self.speed_slider.value), time.monotonic()
-        for k in range(start, len(self.motion["postures"])):
-            if self._stop.wait(max(0.0, t0 + (k - start) / rate - time.monotonic())):
-                return
+        def show(k: int) -> None:
             self.frame_slider.value = k  # type: ignore[misc]  # settable at run time; its update poses the body
 
+        self.playback.start(start, last, float(self.motion["rate"]) * float(self.speed_slider.value), show)
+
     def pause(self) -> None:
-        self._stop.set()
-        if self._player is not None:
-            self._player.join(timeout=5)
-        self._player = None
+        self.playback.stop()
 
     def close(self) -> None:
         self.pause()

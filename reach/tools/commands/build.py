@@ -243,7 +243,7 @@ def _config_body(config: Any, spec: str) -> tuple[Any, dict[str, Any], list[str]
     """A config's body, each strategy's description and the config's warnings."""
     from oracles.bodies.body import load_body
     from oracles.protocol import Described
-    from reach.building.config import read_yaml
+    from reach.building.documents import read_yaml
 
     data = read_yaml(Path(spec))
     if not isinstance(data, dict) or "body" not in data:

@@ -6,6 +6,8 @@ import argparse
 import json
 import math
 import os
+import sys
+from pathlib import Path
 from typing import Any
 
 from reach.answers.defaults import HANDOVER, MISS, MISSES
@@ -83,3 +85,73 @@ def add_executor_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("-j", "--workers", type=int, help="worker processes (default: all cores; 1 runs inline)")
     p.add_argument("--dask", action="store_true", help="run on a Dask LocalCluster of --workers processes")
     p.add_argument("--scheduler", metavar="ADDR", help="run on the Dask cluster at ADDR, e.g. tcp://10.0.0.5:8786")
+
+
+def goals_file(source: str, with_atlas: bool, values: list[str]) -> tuple[str | None, list[list[float]]]:
+    """``--goals FILE`` (or ``-``, standard input): one goal a line, X Y [Z] [m] separated by commas or spaces; blank
+    lines, ``#`` comments and a header line of words are skipped. The positional values then hold the atlas alone
+    (nothing with --connect)."""
+    if len(values) != (1 if with_atlas else 0):
+        raise InputError("goal", "with --goals, give the atlas alone" if with_atlas
+                                 else "with --goals and --connect, give no goal on the command line")
+    try:
+        text = sys.stdin.read() if source == "-" else Path(source).read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError("--goals", f"cannot read {source}: {exc}") from None
+    goals: list[list[float]] = []
+    seen = False  # a line with content came before (only the first may be a header)
+    for k, line in enumerate(text.splitlines(), start=1):
+        goal = _goal_line(source, k, line, header=not seen)
+        seen = seen or goal is not None
+        if goal:
+            goals.append(goal)
+    if not goals:
+        raise InputError("--goals", f"{source} holds no goal")
+    return (values[0] if with_atlas else None), goals
+
+
+def goal_values(values: list[str], with_atlas: bool) -> tuple[str | None, list[float]]:
+    expected = "ATLAS X Y [Z]" if with_atlas else "X Y [Z] (with --connect)"
+    need = (3, 4) if with_atlas else (2, 3)
+    if len(values) not in need:
+        raise InputError("goal", f"query takes {expected}, got {len(values)} values")
+    atlas = values[0] if with_atlas else None
+    coords = values[1:] if with_atlas else values
+    try:
+        return atlas, [float(v) for v in coords]
+    except ValueError as exc:
+        raise InputError("goal", f"coordinates must be numbers in metres ({exc})") from exc
+
+
+def from_posture(value: str | None) -> dict[str, float] | None:
+    """--from: a JSON object of joint name -> value, or a file holding one."""
+    if value is None:
+        return None
+    text = Path(value).read_text() if not value.lstrip().startswith("{") and Path(value).is_file() else value
+    try:
+        data = json.loads(text)
+    except ValueError as exc:
+        raise InputError("--from", "expected a JSON object of joint name -> value [rad or m] or a file holding one "
+                                   f"({exc})") from exc
+    if not isinstance(data, dict) or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                             for v in data.values()):
+        raise InputError("--from", f"expected a JSON object of joint name -> number, got {text[:80]!r}")
+    return {str(k): float(v) for k, v in data.items()}
+
+
+def _goal_line(source: str, k: int, line: str, header: bool) -> list[float] | None:
+    """The goal on line k of a goals file: None for a blank line or a comment, [] for a header of words where
+    ``header`` (no line with content came before it)."""
+    fields = line.split("#")[0].replace(",", " ").split()
+    if not fields:
+        return None
+    shown = line.strip()[:80]
+    try:
+        goal = [float(f) for f in fields]
+    except ValueError:
+        if header:
+            return []
+        raise InputError("--goals", f"{source} line {k}: expected X Y [Z] in metres, got {shown!r}") from None
+    if len(goal) not in (2, 3) or not all(math.isfinite(v) for v in goal):
+        raise InputError("--goals", f"{source} line {k}: expected 2 or 3 finite numbers, got {shown!r}")
+    return goal
