@@ -56,12 +56,16 @@ class Passes:
             self._pass(g, items, aims, deadline, done, None)
             for i, name, _ in items:
                 rest, below = pending[i]
-                q, _, outcome = done[i][name]
                 rest.pop(0)
-                if outcome == TIMEOUT or (outcome == REFINED and (below is None or len(self.limits(name, q)) < below)):
+                if self._settled(*done[i][name], name, below):
                     rest.clear()  # answered, or out of time: no further strategy is tried
             pending = {i: p for i, p in pending.items() if p[0]}
         return done, late
+
+    def _settled(self, q: np.ndarray, residual: float | None, outcome: str, name: str, below: int | None) -> bool:
+        """Whether a goal's refinement by a strategy ends its passes: out of time, or reached (with fewer than
+        ``below`` limits near, for a handover)."""
+        return outcome == TIMEOUT or (outcome == REFINED and (below is None or len(self.limits(name, q)) < below))
 
     def _left(self, first: list[Item], held: list[list[str]],
               done: list[Prefetched]) -> dict[int, tuple[list[str], int | None]]:
@@ -95,15 +99,18 @@ class Passes:
         first pass (``late`` given) marks its goals late; a later pass records them ``timeout``."""
         for name in dict.fromkeys(name for _, name, _ in items):
             mine = [(i, row) for i, other, row in items if other == name and row is not None]
-            if not mine:
-                continue
-            if late is not None and deadline is not None and time.perf_counter() > deadline:
+            if mine and late is not None and deadline is not None and time.perf_counter() > deadline:
                 late[[i for i, _ in mine]] = True
-                continue
-            idx = np.array([i for i, _ in mine])
-            stored = self.stored.maps[name].postures(np.array([row for _, (row, _) in mine]))
-            gaps = [float(np.linalg.norm(g[i] - reached)) for i, (_, reached) in mine]
-            found = self.refiner.refine_many(name, g[idx], stored, [gap if np.isfinite(gap) else None for gap in gaps],
-                                             [aims[i] for i in idx], deadline)
-            for i, refined in zip(idx, found, strict=True):
-                done[i][name] = refined
+            elif mine:
+                self._refine(g, name, mine, aims, deadline, done)
+
+    def _refine(self, g: np.ndarray, name: str, mine: list[tuple[int, Nearest]], aims: list[np.ndarray | None],
+                deadline: float | None, done: list[Prefetched]) -> None:
+        """One strategy's goals of a pass refined in one call, each from its nearest stored posture."""
+        idx = np.array([i for i, _ in mine])
+        stored = self.stored.maps[name].postures(np.array([row for _, (row, _) in mine]))
+        gaps = [float(np.linalg.norm(g[i] - reached)) for i, (_, reached) in mine]
+        found = self.refiner.refine_many(name, g[idx], stored, [gap if np.isfinite(gap) else None for gap in gaps],
+                                         [aims[i] for i in idx], deadline)
+        for i, refined in zip(idx, found, strict=True):
+            done[i][name] = refined

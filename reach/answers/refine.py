@@ -160,18 +160,23 @@ class Refiner:
         tuned, budget, reserve = self._tuned(name, m, aims[0], purse)
         if budget < LEAST_SOLVE * self.budget:
             return [(q, r, TIMEOUT) for q, r in zip(stored, residuals, strict=True)]
-        liked = ([self._best_liked(name, tuned, goal, q) for goal, q in zip(goals, stored, strict=True)]
-                 if isinstance(tuned, Preferring) else [])
-        seeds = stored[:, None]
-        if any(q is not None for q in liked):
-            seeds = np.stack([stored,
-                              np.array([np.full(stored.shape[1], np.nan) if q is None else q for q in liked])], axis=1)
+        seeds = self._seeds(name, tuned, goals, stored)
         t0 = time.perf_counter()
         targets = {} if aims[0] is None else {"orientation": np.stack(aims)}  # type: ignore[arg-type]
         v = tuned.evaluate(Goals(goals, targets, None, seeds))
         over = self._spent(v, budget, t0, purse, reserve)
         return [(v.posture[k], float(v.residual[k]), REFINED) if v.reachable[k] and v.posture is not None
                 else (stored[k], residuals[k], TIMEOUT if over[k] else FAILED) for k in range(m)]
+
+    def _seeds(self, name: str, oracle: Oracle, goals: np.ndarray, stored: np.ndarray) -> np.ndarray:
+        """Each goal's starts (m, k, nq): its stored posture, and the best-liked one near it where the oracle likes
+        another better (NaN rows: none)."""
+        liked = ([self._best_liked(name, oracle, goal, q) for goal, q in zip(goals, stored, strict=True)]
+                 if isinstance(oracle, Preferring) else [])
+        if not any(q is not None for q in liked):
+            return stored[:, None]
+        return np.stack([stored, np.array([np.full(stored.shape[1], np.nan) if q is None else q for q in liked])],
+                        axis=1)
 
     def _best_liked(self, name: str, oracle: Preferring, goal: np.ndarray, q: np.ndarray) -> np.ndarray | None:
         """The stored posture the oracle likes best among the ``SEEDS`` reachable vertices nearest the goal,

@@ -24,10 +24,7 @@ def check_start(maps: Mapping[str, ReachMap], oracle: Callable[[str], Oracle], n
 
     Raises InputError naming ``from``.
     """
-    quat = [start[f"root_q{c}"] for c in "xyzw" if f"root_q{c}" in start]
-    if any(abs(v) > FROM_QUATERNION for v in quat):  # 1e300 overflowed where the quaternion is normalised
-        raise InputError("from", f"the root's quaternion components must be within +-{FROM_QUATERNION:g} (a unit "
-                                 f"quaternion, normalised if off by a little), got {quat}")
+    _check_quaternion(start)
     posed = [s for s in names if maps[s].posture_names]
     known = {n for s in posed for n in joint_names(maps[s].posture_names)}
     unknown = sorted(set(start) - known)
@@ -38,6 +35,14 @@ def check_start(maps: Mapping[str, ReachMap], oracle: Callable[[str], Oracle], n
         _check_ranges(maps[bounded].posture_names, oracle(bounded), start)
     if any(abs(start.get(f"root_{c}", 0.0)) > FROM_REACH for c in "xyz"):
         raise InputError("from", f"the root's position must be within {FROM_REACH:g} m of the world origin")
+
+
+def _check_quaternion(start: dict[str, float]) -> None:
+    """A ``from`` root quaternion's components are not huge, and not all zero."""
+    quat = [start[f"root_q{c}"] for c in "xyzw" if f"root_q{c}" in start]
+    if any(abs(v) > FROM_QUATERNION for v in quat):  # 1e300 overflowed where the quaternion is normalised
+        raise InputError("from", f"the root's quaternion components must be within +-{FROM_QUATERNION:g} (a unit "
+                                 f"quaternion, normalised if off by a little), got {quat}")
     if len(quat) == 4 and math.hypot(*quat) < 1e-9:
         raise InputError("from", "the root's quaternion (root_qx, root_qy, root_qz, root_qw) must not be zero")
 

@@ -6,6 +6,7 @@ together, hold at most the queued work docs/protocol.md's limits allow (``busy``
 
 from __future__ import annotations
 
+import math
 import time
 from collections import deque
 from dataclasses import dataclass
@@ -101,6 +102,14 @@ class Ledger:
                       default=now)
         retry = max(0.1, round(soonest - now, 1))
         raise P.ProtocolError(P.BUSY, f"{what}; retry in about {retry:g} s, when some of it is answered", rid)
+
+    def wait(self, busy: bool) -> float:
+        """How long [s] a broker's loop may wait for messages: none when requests are expiring or it is ``busy``
+        (publishing), else until the soonest deadline, at most a poll's timeout."""
+        if self.expiring or busy:
+            return 0.0
+        soonest = min((p.deadline for p in self.pending.values()), default=math.inf)
+        return max(0.0, min(P.POLL_MS / 1000.0, soonest - time.monotonic()))
 
     def pop(self, seq: int) -> Pending:
         """Forget an answered request, and its share of its client's held work."""

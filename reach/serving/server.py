@@ -35,7 +35,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, cast
 
@@ -229,16 +229,10 @@ class Server:
                     poller.unregister(backend)
                 backend = self.pool.backend
                 poller.register(backend, zmq.POLLIN)
-            soonest = min((p.deadline for p in self.pending.values()), default=math.inf)
-            wait = (0.0 if self.ledger.expiring or self.publisher.queue
-                    else max(0.0, min(P.POLL_MS / 1000.0, soonest - time.monotonic())))
+            wait = self.ledger.wait(bool(self.publisher.queue))
             events = dict(poller.poll(int(math.ceil(wait * 1000))))
-            if self.router in events:
-                for _ in range(64):  # clients first: a stored answer never waits behind workers' results
-                    try:
-                        frames = self.router.recv_multipart(zmq.NOBLOCK)
-                    except zmq.Again:
-                        break
+            if self.router in events:  # clients first: a stored answer never waits behind workers' results
+                for frames in _received(self.router):
                     self.handle(frames)
             while backend in events and backend.poll(0):  # everything the workers have sent
                 got = self.pool.receive()
@@ -375,12 +369,7 @@ class Server:
             take = _whole_parts(pending, missing, budget)
             budget -= sum(pending.bounds[part][1] - pending.bounds[part][0] for part in take)
             try:
-                index = np.concatenate([np.arange(*pending.bounds[part]) for part in take])
-                answers = stored_answers(self.selector, pending.request, index, TIMEOUT)
-                k = 0
-                for part in take:
-                    a, b = pending.bounds[part]
-                    pending.parts[part], k = answers[k : k + b - a], k + b - a
+                _from_store(self.selector, pending, take)
             except Exception as exc:  # noqa: BLE001 - this request's error reply; the others go on
                 expiring.popleft()
                 self.answer_now(seq, self.faults.reply(exc, pending.request.id))
@@ -411,3 +400,22 @@ def _whole_parts(pending: Pending, missing: list[int], budget: int) -> list[int]
         take.append(part)
         goals += size
     return take
+
+
+def _from_store(selector: Selector, pending: Pending, take: list[int]) -> None:
+    """Fill an expired query's parts ``take`` with their goals' stored answers, marked ``timeout`` (one lookup)."""
+    index = np.concatenate([np.arange(*pending.bounds[part]) for part in take])
+    answers = stored_answers(selector, pending.request, index, TIMEOUT)
+    k = 0
+    for part in take:
+        a, b = pending.bounds[part]
+        pending.parts[part], k = answers[k : k + b - a], k + b - a
+
+
+def _received(socket: zmq.Socket, limit: int = 64) -> Iterator[list[bytes]]:  # type: ignore[type-arg]
+    """The messages a socket holds now, at most ``limit``."""
+    for _ in range(limit):
+        try:
+            yield socket.recv_multipart(zmq.NOBLOCK)
+        except zmq.Again:
+            return

@@ -209,12 +209,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
                                                                         "--direct only; built atlases answer here")
     if args.direct or any(_is_population(a) for a in args.atlas):
         return _accommodation(args, at)
-    for a in args.atlas:
-        if Path(a).is_file() and Path(a).suffix in (".yaml", ".yml"):
-            raise InputError("atlas", f"{a} is a config, not an atlas folder: give --direct to solve its strategies "
-                                      f"for the targets without trees, or build it first (reach build {a}) and "
-                                      "evaluate the folder it writes (out/NAME)")
-    atlases = [load_atlas(a) for a in args.atlas]
+    atlases = [load_atlas(_atlas_folder(a)) for a in args.atlas]
     results = evaluate(atlases, load_targets(args.targets), args.effector, args.policy, refine=not args.no_refine,
                        placements=at)
     if args.figure:
@@ -229,6 +224,15 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         if args.figure:
             print(f"wrote {args.figure}")
     return 0
+
+
+def _atlas_folder(path: str) -> str:
+    """An atlas folder to evaluate, or InputError for a config given in its place."""
+    if Path(path).is_file() and Path(path).suffix in (".yaml", ".yml"):
+        raise InputError("atlas", f"{path} is a config, not an atlas folder: give --direct to solve its strategies "
+                                  f"for the targets without trees, or build it first (reach build {path}) and "
+                                  "evaluate the folder it writes (out/NAME)")
+    return path
 
 
 def _is_population(path: str) -> bool:
@@ -317,13 +321,7 @@ def cmd_place(args: argparse.Namespace) -> int:
 
     atlases, members = _atlases(args.atlas)
     targets = load_targets(args.targets)
-    weights = {}
-    for item in args.weight or []:
-        name, _, value = item.partition("=")
-        try:
-            weights[name] = float(value)
-        except ValueError:
-            raise InputError("--weight", f"expected STRATEGY=NUMBER, got {item!r}") from None
+    weights = _weights(args.weight or [])
     space = Space(tuple(args.x), tuple(args.y), tuple(args.z), (math.radians(args.yaw[0]), math.radians(args.yaw[1])),
                   args.step, math.radians(args.yaw_step))
     ranking = rank(atlases, targets, space, args.effector, args.policy, weights, body_weights=members,
@@ -338,8 +336,27 @@ def cmd_place(args: argparse.Namespace) -> int:
     if args.json:
         print_json({"candidates": len(ranking.placements), "accommodating": len(kept), "ranked": rows,
                     "verified": ranking.verified})
-        return 0
-    print(f"{len(ranking.placements)} placements of {len(atlases)} bodies against {len(targets)} targets (trees' "
+    else:
+        _print_ranking(args, ranking, len(atlases), len(targets), kept, rows)
+    return 0
+
+
+def _weights(items: list[str]) -> dict[str, float]:
+    """--weight STRATEGY=NUMBER, each."""
+    weights = {}
+    for item in items:
+        name, _, value = item.partition("=")
+        try:
+            weights[name] = float(value)
+        except ValueError:
+            raise InputError("--weight", f"expected STRATEGY=NUMBER, got {item!r}") from None
+    return weights
+
+
+def _print_ranking(args: argparse.Namespace, ranking: Any, bodies: int, targets: int, kept: list[int],
+                   rows: list[dict[str, Any]]) -> None:
+    """A placement ranking as a table for a person, and its verified placements."""
+    print(f"{len(ranking.placements)} placements of {bodies} bodies against {targets} targets (trees' "
           "word; best first)" + (f"; {len(kept)} accommodate at least {100 * args.accommodate:.0f}% of the bodies"
                                  if args.accommodate > 0 else ""))
     print(f"{'rank':>4}  {'x [m]':>7} {'y [m]':>7} {'z [m]':>7} {'yaw':>6}  {'bodies':>7} {'targets':>7} "
@@ -356,7 +373,6 @@ def cmd_place(args: argparse.Namespace) -> int:
               f"(trees: {100 * v['claimed_reached']:.0f}%{moved})")
     if args.figure:
         print(f"figure: {args.figure}")
-    return 0
 
 
 def _atlases(paths: list[str]) -> tuple[list[Any], np.ndarray | None]:

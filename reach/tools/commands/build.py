@@ -25,24 +25,28 @@ from reach.tools.commands.common import (
 )
 
 
+def _with_options(config: Any, args: argparse.Namespace) -> Any:
+    """The config, its warnings said (errors with --strict), with the command line's refinement options."""
+    for note in config.notes:
+        print(f"warning: {config.source}: {note}", file=sys.stderr, flush=True)
+    if args.strict and config.notes:
+        raise ConfigError(config.source, "", f"{len(config.notes)} warning(s) above, and --strict makes them errors")
+    if not (args.refine_centres or args.refine_faces or args.retry_isolated):
+        return config
+    # loaded when the command runs: `reach --help` starts without the answers' machinery
+    from reach.building.tree import Refine
+
+    r = config.refine
+    return dataclasses.replace(config, refine=Refine(r.centres or args.refine_centres, r.faces or args.refine_faces,
+                                                     r.isolated or args.retry_isolated))
+
+
 def cmd_build(args: argparse.Namespace) -> int:
     # loaded when the command runs: `reach --help` starts without the answers' machinery
     from reach.building.atlas import build_atlas
     from reach.building.config import load_config
 
-    config = load_config(args.config)
-    for note in config.notes:
-        print(f"warning: {config.source}: {note}", file=sys.stderr, flush=True)
-    if args.strict and config.notes:
-        raise ConfigError(config.source, "", f"{len(config.notes)} warning(s) above, and --strict makes them errors")
-    if args.refine_centres or args.refine_faces or args.retry_isolated:
-        # loaded when the command runs: `reach --help` starts without the answers' machinery
-        from reach.building.tree import Refine
-
-        r = config.refine
-        config = dataclasses.replace(config,
-                                     refine=Refine(r.centres or args.refine_centres, r.faces or args.refine_faces,
-                                                   r.isolated or args.retry_isolated))
+    config = _with_options(load_config(args.config), args)
     out = Path(args.output) if args.output else Path("out") / config.name
     factory, client, how = executor_factory(args, config.chunk_size)
 

@@ -36,43 +36,48 @@ def cmd_info(args: argparse.Namespace) -> int:
         return 0
     print(f"atlas {info['name']} at {info['path']}")
     for name, s in info["strategies"].items():
-        ext = s["extent"]
-        print(
-            f"  {name} (effector {s['effector']}, priority {s['priority']}): "
-            f"inner volume {s['volume']['inner']:.6g}, boundary {s['volume']['boundary']:.6g}, "
-            + (f"mirrored from {s['mirrored_from']} (no oracle call)" if s["mirrored_from"]
-               else f"{s['oracle_calls']} oracle calls of {s['lattice_vertices']} lattice vertices")
-            + (f", {s['inherited_vertices']} reachable vertices inherited from {s['inherited_from']}"
-               if s.get("inherited_from") else "")
-            + (f", {s['turned_vertices']} vertices given their twin's verdict a quarter turn away"
-               if s.get("turned_vertices") else "")
-        )
-        if ext:
-            print(f"    inner and boundary cells span min {np.round(ext['min'], 4).tolist()} max "
-                  f"{np.round(ext['max'], 4).tolist()} [m]")
-        if s["reachable_extent"]:
-            r = s["reachable_extent"]
-            print(f"    reachable vertices span min {np.round(r['min'], 4).tolist()} max "
-                  f"{np.round(r['max'], 4).tolist()} [m]")
-        if s.get("index"):
-            i = s["index"]
-            print(f"    reachability index over {i['directions']} directions: mean {i['mean']:.3f}, quartiles "
-                  f"{i['quartiles']} at reachable vertices"
-                  + (f" ({i['goals']} goals solved, {i['seconds']:.1f} s)" if i.get("goals") is not None else ""))
-        g = s.get("motion_graph")
-        if g is not None:
-            print(f"    motion graph: {g['reached_from_reference']} of {g['stored']} stored postures reached from the "
-                  f"reference, {g['edges']} motions between them" if g["state"] == "ok" else
-                  f"    motion graph: {g['state']} (reach build --resume makes it; motions are planned without it)")
-        if s["on_faces"]:
-            print(f"    warning: {face_text(s['on_faces'])}")
-        for line in s.get("audit_warnings", []):
-            print(f"    warning: {line}")
+        _print_strategy(name, s, face_text)
     for note in info.get("config_warnings", []):
         print(f"  warning (config): {note}")
     for note in info.get("audit_warnings", []):
         print(f"  warning (audit): {note}")
     return 0
+
+
+def _print_strategy(name: str, s: dict[str, Any], face_text: Any) -> None:
+    """One strategy's lines of ``reach info``."""
+    ext = s["extent"]
+    print(
+        f"  {name} (effector {s['effector']}, priority {s['priority']}): "
+        f"inner volume {s['volume']['inner']:.6g}, boundary {s['volume']['boundary']:.6g}, "
+        + (f"mirrored from {s['mirrored_from']} (no oracle call)" if s["mirrored_from"]
+           else f"{s['oracle_calls']} oracle calls of {s['lattice_vertices']} lattice vertices")
+        + (f", {s['inherited_vertices']} reachable vertices inherited from {s['inherited_from']}"
+           if s.get("inherited_from") else "")
+        + (f", {s['turned_vertices']} vertices given their twin's verdict a quarter turn away"
+           if s.get("turned_vertices") else "")
+    )
+    if ext:
+        print(f"    inner and boundary cells span min {np.round(ext['min'], 4).tolist()} max "
+              f"{np.round(ext['max'], 4).tolist()} [m]")
+    if s["reachable_extent"]:
+        r = s["reachable_extent"]
+        print(f"    reachable vertices span min {np.round(r['min'], 4).tolist()} max "
+              f"{np.round(r['max'], 4).tolist()} [m]")
+    if s.get("index"):
+        i = s["index"]
+        print(f"    reachability index over {i['directions']} directions: mean {i['mean']:.3f}, quartiles "
+              f"{i['quartiles']} at reachable vertices"
+              + (f" ({i['goals']} goals solved, {i['seconds']:.1f} s)" if i.get("goals") is not None else ""))
+    g = s.get("motion_graph")
+    if g is not None:
+        print(f"    motion graph: {g['reached_from_reference']} of {g['stored']} stored postures reached from the "
+              f"reference, {g['edges']} motions between them" if g["state"] == "ok" else
+              f"    motion graph: {g['state']} (reach build --resume makes it; motions are planned without it)")
+    if s["on_faces"]:
+        print(f"    warning: {face_text(s['on_faces'])}")
+    for line in s.get("audit_warnings", []):
+        print(f"    warning: {line}")
 
 
 def add_info(sub: Any) -> None:
