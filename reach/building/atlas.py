@@ -184,63 +184,87 @@ def _build_locked(
     say: Callable[[str], None], resume: bool, mirror: bool, inherit: bool,
 ) -> Atlas:
     """build_atlas's work, with the folder locked."""
-    entries = []
-    warnings: list[dict[str, Any]] = []
-    built: dict[str, VATree] = {}
     t0 = time.perf_counter()
+    job = _AtlasBuild(config, out, executor_factory, progress, say, resume)
     # Mirror sources first, so that their trees exist when their images are made.
     order = sorted(config.strategies, key=lambda s: s.mirror_of is not None)
-    made: dict[str, Oracle] = {}  # each strategy's oracle, made once for this build (a body each)
+    job.by_name = {s.name: s for s in order}
+    job.subs = sub_strategies(order, job.oracle_of) if inherit else {}
+    entries = [job.strategy(s, mirror) for s in order]
+    _finish(config, out, entries, job.built, job.warnings, time.perf_counter() - t0)
+    return load_atlas(out)
 
-    def oracle_of(s: StrategySpec) -> Oracle:
-        if s.name not in made:
-            made[s.name] = s.oracle.create()
-        return made[s.name]
 
-    by_name = {s.name: s for s in order}
-    subs = sub_strategies(order, oracle_of) if inherit else {}
-    prints: dict[str, str] = {}
-    graphs: dict[str, MotionGraph | None] = {}
-    for s in order:
-        path, partial = out / f"{s.name}.npz", out / PARTIAL / f"{s.name}.npz"
-        fp = fingerprint(config, s, oracle_of(s))
-        if s.name in subs:  # the tree depends on its sub-strategy's too
-            fp = hashlib.sha256(f"{fp} {prints[subs[s.name]]}".encode()).hexdigest()[:16]
-        prints[s.name] = fp
-        meta: dict[str, Any] = {"name": s.name, "atlas": config.name, "effector": s.effector, "priority": s.priority,
-                                "oracle": s.oracle.to_dict(), "fingerprint": fp}
-        tree, index = _kept(s, path, fp, oracle_of(s), say) if resume and path.is_file() else (None, None)
-        source = (_mirror_source(s, built, lambda name: oracle_of(by_name[name]), say) if tree is None and mirror
-                  else None)
-        if tree is None and source is not None:
-            tree = _mirrored(config, s, meta, source, oracle_of(s), say)
-        if tree is None:
-            sub = subs.get(s.name)
-            parent = (sub, built[sub]) if sub is not None and sub in built else None
-            tree = _build_one(config, s, meta, partial, fp, executor_factory, progress, resume, parent, oracle_of(s))
-            say(_built_text(s.name, tree, sub))
+@dataclasses.dataclass
+class _AtlasBuild:
+    """One build of an atlas's strategies, one after the other: what each needs of those before it."""
+
+    config: Config
+    out: Path
+    executor_factory: Callable[[OracleSpec], Executor] | None
+    progress: bool
+    say: Callable[[str], None]
+    resume: bool
+    by_name: dict[str, StrategySpec] = dataclasses.field(default_factory=dict)
+    subs: dict[str, str] = dataclasses.field(default_factory=dict)  # a strategy -> the sub-strategy it inherits from
+    built: dict[str, VATree] = dataclasses.field(default_factory=dict)
+    warnings: list[dict[str, Any]] = dataclasses.field(default_factory=list)
+    made: dict[str, Oracle] = dataclasses.field(default_factory=dict)  # each strategy's oracle, made once
+    prints: dict[str, str] = dataclasses.field(default_factory=dict)
+    graphs: dict[str, MotionGraph | None] = dataclasses.field(default_factory=dict)
+
+    def oracle_of(self, s: StrategySpec) -> Oracle:
+        if s.name not in self.made:
+            self.made[s.name] = s.oracle.create()
+        return self.made[s.name]
+
+    def strategy(self, s: StrategySpec, mirror: bool) -> dict[str, Any]:
+        """Build (or keep, or mirror) one strategy's tree, its index and its motion graph; its manifest entry."""
+        path, partial = self.out / f"{s.name}.npz", self.out / PARTIAL / f"{s.name}.npz"
+        fp = fingerprint(self.config, s, self.oracle_of(s))
+        if s.name in self.subs:  # the tree depends on its sub-strategy's too
+            fp = hashlib.sha256(f"{fp} {self.prints[self.subs[s.name]]}".encode()).hexdigest()[:16]
+        self.prints[s.name] = fp
+        tree, index = self._tree(s, path, partial, fp, mirror)
         if s.directions and index is None and tree.vertices.posture is not None:
-            tree, index = _index_one(config, s, tree, executor_factory, progress, oracle_of(s))
+            tree, index = _index_one(self.config, s, tree, self.executor_factory, self.progress, self.oracle_of(s))
             i = tree.meta["index"]
-            say(f"{s.name}: reachability index over {s.directions} directions: {i['goals']} goals solved, mean "
-                f"{i['mean']:.3f} at reachable vertices, {i['seconds']:.2f} s")
+            self.say(f"{s.name}: reachability index over {s.directions} directions: {i['goals']} goals solved, mean "
+                     f"{i['mean']:.3f} at reachable vertices, {i['seconds']:.2f} s")
         save_tree(tree, path, index)
         partial.unlink(missing_ok=True)
-        built[s.name] = tree
-        if config.motion_graph:
+        self.built[s.name] = tree
+        if self.config.motion_graph:
             source = tree.meta["build"].get("mirrored_from")
-            graphs[s.name] = _graph_one(s, tree, path, oracle_of(s), say,
-                                        (graphs.get(source), built[source]) if source in built else None,
-                                        executor_factory)
+            self.graphs[s.name] = _graph_one(s, tree, path, self.oracle_of(s), self.say,
+                                             (self.graphs.get(source), self.built[source]) if source in self.built
+                                             else None, self.executor_factory)
         faces = tree.faces()
         if faces:
-            warnings.append({"strategy": s.name, "faces": faces})
-            say(f"warning: {s.name}: {face_text(faces)}")
-        entries.append({"name": s.name, "effector": s.effector, "priority": s.priority, "file": path.name,
-                        "oracle": s.oracle.to_dict(), "fingerprint": fp,
-                        "digest": tree.meta["digest"]})
-    _finish(config, out, entries, built, warnings, time.perf_counter() - t0)
-    return load_atlas(out)
+            self.warnings.append({"strategy": s.name, "faces": faces})
+            self.say(f"warning: {s.name}: {face_text(faces)}")
+        return {"name": s.name, "effector": s.effector, "priority": s.priority, "file": path.name,
+                "oracle": s.oracle.to_dict(), "fingerprint": fp, "digest": tree.meta["digest"]}
+
+    def _tree(self, s: StrategySpec, path: Path, partial: Path, fp: str, mirror: bool) -> tuple[VATree, Any]:
+        """The strategy's tree and index: kept from an earlier build (resume), mirrored from its source's, or
+        built."""
+        tree, index = _kept(s, path, fp, self.oracle_of(s), self.say) if self.resume and path.is_file() else (None,
+                                                                                                            None)
+        if tree is not None:
+            return tree, index
+        source = (_mirror_source(s, self.built, lambda name: self.oracle_of(self.by_name[name]), self.say) if mirror
+                  else None)
+        meta: dict[str, Any] = {"name": s.name, "atlas": self.config.name, "effector": s.effector,
+                                "priority": s.priority, "oracle": s.oracle.to_dict(), "fingerprint": fp}
+        if source is not None:
+            return _mirrored(self.config, s, meta, source, self.oracle_of(s), self.say), None
+        sub = self.subs.get(s.name)
+        parent = (sub, self.built[sub]) if sub is not None and sub in self.built else None
+        tree = _build_one(self.config, s, meta, partial, fp, self.executor_factory, self.progress, self.resume,
+                          parent, self.oracle_of(s))
+        self.say(_built_text(s.name, tree, sub))
+        return tree, None
 
 
 def _finish(config: Config, out: Path, entries: list[dict[str, Any]], built: dict[str, VATree],

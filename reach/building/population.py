@@ -80,18 +80,22 @@ def read_manifest(folder: str | Path) -> dict[str, Any]:
     if not isinstance(doc, dict) or doc.get("format") != FORMAT or not isinstance(doc.get("members"), list):
         raise TreeError(f"{path}: expected a population manifest (format {FORMAT}, a members list)")
     for i, m in enumerate(doc["members"]):
-        ok = isinstance(m, dict) and all(isinstance(m.get(k), str) and 0 < len(m[k]) <= MAX_NAME
-                                         for k in ("name", "atlas"))
-        if not ok or "/" in m["atlas"] or m["atlas"].startswith("."):
-            raise TreeError(f"{path}: members[{i}]: expected a name and an atlas folder name (at most {MAX_NAME} "
-                            "characters, no '/', not starting with '.'), a sex and a weight")
-        weight = m.get("weight")
-        # (json reads 1e999 as inf and 10**400 as an int no float holds)
-        if (isinstance(weight, bool) or not isinstance(weight, (int, float)) or not 0 <= weight <= MAX_WEIGHT
-                or not math.isfinite(weight)):
-            raise TreeError(f"{path}: members[{i}]: weight: expected a number from 0 to {MAX_WEIGHT:g}, got "
-                            f"{str(weight)[:40]}")
+        _check_member(path, i, m)
     return doc
+
+
+def _check_member(path: Path, i: int, m: Any) -> None:
+    """A manifest's member i: a name, an atlas folder name inside the population's folder, and a weight."""
+    ok = isinstance(m, dict) and all(isinstance(m.get(k), str) and 0 < len(m[k]) <= MAX_NAME for k in ("name", "atlas"))
+    if not ok or "/" in m["atlas"] or m["atlas"].startswith("."):
+        raise TreeError(f"{path}: members[{i}]: expected a name and an atlas folder name (at most {MAX_NAME} "
+                        "characters, no '/', not starting with '.'), a sex and a weight")
+    weight = m.get("weight")
+    # (json reads 1e999 as inf and 10**400 as an int no float holds)
+    if (isinstance(weight, bool) or not isinstance(weight, (int, float)) or not 0 <= weight <= MAX_WEIGHT
+            or not math.isfinite(weight)):
+        raise TreeError(f"{path}: members[{i}]: weight: expected a number from 0 to {MAX_WEIGHT:g}, got "
+                        f"{str(weight)[:40]}")
 
 
 def build_population(config: Config, out: str | Path, build: Callable[[Config, Path], Any],

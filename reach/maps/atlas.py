@@ -156,13 +156,17 @@ def _check_strategies(path: Path, folder: Path, manifest: dict[str, Any]) -> Non
     twice = sorted({n for n in names if not isinstance(n, str) or names.count(n) > 1}, key=str)
     if twice:
         raise StoreError(path, f"strategy {twice[0]!r} is listed twice (or is not a name); rebuild the atlas")
-    for s in strategies:
-        # A tree file is a plain name inside the atlas folder: a path out of it (../, absolute, a link) is refused
-        # unread.
-        name = s["file"]
-        if not isinstance(name, str) or Path(name).name != name or name in (".", "..") or (folder / name).is_symlink():
-            raise StoreError(path, f"strategy {s.get('name')!r}: 'file' must name a file inside the atlas folder, "
-                                   f"got {name!r}")
+    # A tree file is a plain name inside the atlas folder: a path out of it (../, absolute, a link) is refused unread.
+    outside = next((s for s in strategies if not _inside(folder, s["file"])), None)
+    if outside is not None:
+        raise StoreError(path, f"strategy {outside.get('name')!r}: 'file' must name a file inside the atlas folder, "
+                               f"got {outside['file']!r}")
+
+
+def _inside(folder: Path, name: Any) -> bool:
+    """Whether a manifest's file name is a plain name inside the folder (not a path, not a link)."""
+    return isinstance(name, str) and Path(name).name == name and name not in (".", "..") and not (
+        folder / name).is_symlink()
 
 
 def accept_manifest(folder: str | Path) -> Atlas:

@@ -206,7 +206,12 @@ def load_graph(path: Path) -> MotionGraph:
     rows, home, edges = arrays["rows"], arrays["home"], arrays["edges"]
     if rows.dtype != np.int64 or home.dtype != bool or rows.ndim != 1 or rows.shape != home.shape:
         raise StoreError(path, "rows and home: expected int64 and bool arrays of one length")
-    if edges.dtype != np.int32 or edges.ndim != 2 or edges.shape[1] != 2 or (
-            edges.size and (edges.min() < 0 or edges.max() >= len(rows))):
+    if not _edges_into(edges, len(rows)):
         raise StoreError(path, f"edges: expected (E, 2) int32 indices into rows (0 to {len(rows) - 1})")
     return MotionGraph(rows, home, edges, meta)
+
+
+def _edges_into(edges: np.ndarray, n: int) -> bool:
+    """Whether edges are (E, 2) int32 indices into n rows."""
+    shaped = edges.dtype == np.int32 and edges.ndim == 2 and edges.shape[1] == 2
+    return bool(shaped and (not edges.size or (edges.min() >= 0 and edges.max() < n)))

@@ -103,26 +103,7 @@ def read_arrays(path: Path, members: frozenset[str] | None = None) -> dict[str, 
     if not zipfile.is_zipfile(path):
         raise StoreError(path, "not a readable tree file (not an .npz zip archive; truncated or corrupt?)")
     try:
-        # Sizes read from the archive's directory before anything is inflated: a member of gigabytes of zeros
-        # compresses to a few megabytes, and every member was decompressed on load.
-        wanted: list[str] = []
-        total = 0
-        with zipfile.ZipFile(path) as archive:
-            infos = [i for i in archive.infolist() if members is None  # others are never inflated
-                     or (i.filename.endswith(".npy") and i.filename.removesuffix(".npy") in members)]
-            strange = [i.filename for i in infos if not i.filename.endswith(".npy")]
-            if strange:
-                raise StoreError(path, f"member {strange[0]!r} is not an .npy array")
-            for info in infos:
-                name = info.filename.removesuffix(".npy")
-                if info.file_size > MAX_MEMBER_BYTES:
-                    raise StoreError(path, f"member {info.filename!r} inflates to {info.file_size} bytes, more than "
-                                           f"the {MAX_MEMBER_BYTES} a tree's array may hold")
-                total += info.file_size
-                if total > MAX_TOTAL_BYTES:
-                    raise StoreError(path, f"its arrays inflate to over {MAX_TOTAL_BYTES} bytes together, more than a "
-                                           "tree file holds")
-                wanted.append(name)
+        wanted = _bounded_members(path, members)
         with np.load(path, allow_pickle=False) as data:
             return {name: data[name] for name in wanted}
     except StoreError:
@@ -135,6 +116,30 @@ def read_arrays(path: Path, members: frozenset[str] | None = None) -> dict[str, 
         raise StoreError(path, f"cannot read: {exc}") from exc
     except Exception as exc:  # zlib.error, struct.error and friends from a damaged member
         raise StoreError(path, f"corrupt tree file ({type(exc).__name__}: {exc})") from exc
+
+
+def _bounded_members(path: Path, members: frozenset[str] | None) -> list[str]:
+    """The archive's arrays to read (``members``, all when None), once their sizes, read from its directory, are
+    within bounds: a member of gigabytes of zeros compresses to a few megabytes, and every member was decompressed
+    on load."""
+    wanted: list[str] = []
+    total = 0
+    with zipfile.ZipFile(path) as archive:
+        infos = [i for i in archive.infolist() if members is None  # others are never inflated
+                 or (i.filename.endswith(".npy") and i.filename.removesuffix(".npy") in members)]
+    strange = [i.filename for i in infos if not i.filename.endswith(".npy")]
+    if strange:
+        raise StoreError(path, f"member {strange[0]!r} is not an .npy array")
+    for info in infos:
+        if info.file_size > MAX_MEMBER_BYTES:
+            raise StoreError(path, f"member {info.filename!r} inflates to {info.file_size} bytes, more than the "
+                                   f"{MAX_MEMBER_BYTES} a tree's array may hold")
+        total += info.file_size
+        if total > MAX_TOTAL_BYTES:
+            raise StoreError(path, f"its arrays inflate to over {MAX_TOTAL_BYTES} bytes together, more than a tree "
+                                   "file holds")
+        wanted.append(info.filename.removesuffix(".npy"))
+    return wanted
 
 
 def read_header(path: Path, raw: bytes, fmt: str, version: int, what: str) -> dict[str, Any]:
@@ -232,18 +237,23 @@ def _tree_problems(dim: int, d_max: int, depth: np.ndarray, corner: np.ndarray, 
         problems.append("node kinds, depths or parent count are inconsistent")
     if not (keys.shape == reach_.shape == residual.shape) or (keys.size > 1 and np.any(np.diff(keys) <= 0)):
         problems.append("vertex table arrays disagree in length or keys are not sorted")
-    if posture is not None and posture.shape != (keys.shape[0], len(names)):
-        problems.append(f"postures {posture.shape} do not match {keys.shape[0]} vertices x {len(names)} names")
-    elif posture is not None and not np.all(np.isfinite(posture)):
-        problems.append(f"{int(np.sum(~np.all(np.isfinite(posture), axis=1)))} stored postures hold NaN or infinite "
-                        "values")
-    elif posture is not None and posture.size and np.abs(posture).max() > MAX_COORDINATE:
-        problems.append(f"stored postures hold values up to {np.abs(posture).max():.3g}, past {MAX_COORDINATE:g} "
-                        "(rad or m)")
+    if posture is not None:
+        problems += _posture_problems(posture, keys.shape[0], names)
     if residual.shape == keys.shape and not np.all(np.isfinite(residual) | ~reach_.astype(bool)):
         problems.append(f"{int(np.sum(~np.isfinite(residual) & reach_.astype(bool)))} reachable vertices have NaN or "
                         "infinite residuals")
     return problems
+
+
+def _posture_problems(posture: np.ndarray, vertices: int, names: tuple[str, ...]) -> list[str]:
+    """What is wrong with a tree's stored postures (none: an empty list): their shape, or values no posture takes."""
+    if posture.shape != (vertices, len(names)):
+        return [f"postures {posture.shape} do not match {vertices} vertices x {len(names)} names"]
+    if not np.all(np.isfinite(posture)):
+        return [f"{int(np.sum(~np.all(np.isfinite(posture), axis=1)))} stored postures hold NaN or infinite values"]
+    if posture.size and np.abs(posture).max() > MAX_COORDINATE:
+        return [f"stored postures hold values up to {np.abs(posture).max():.3g}, past {MAX_COORDINATE:g} (rad or m)"]
+    return []
 
 
 def _labels_contradicting_verdicts(lattice: Lattice, depth: np.ndarray, corner: np.ndarray, kind: np.ndarray,
