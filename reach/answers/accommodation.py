@@ -20,7 +20,7 @@ people they were drawn from; a boundary family is not a sample, and its interval
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -59,21 +59,25 @@ def table(members: Sequence[dict[str, Any]], targets: list[str], strategies: lis
     other strategies that reach it), as :func:`reach.answers.evaluate.evaluate` gives them.
     """
     weights = np.array([m["weight"] for m in members], float)
-    out = []
-    for t, name in enumerate(targets):
-        rows = [m["rows"][t] for m in members]
-        reached = np.array([r["reachable"] for r in rows], bool)
-        per = {s: weighted_share(weights, np.array([r["reachable"] and (r["strategy"] == s or s in r["also"])
-                                                    for r in rows], bool)) for s in strategies}
-        chosen = {s: weighted_share(weights, np.array([r["reachable"] and r["strategy"] == s for r in rows], bool))
-                  ["share"] for s in strategies}
-        out.append({"target": name, **weighted_share(weights, reached), "members": len(rows),
-                    "unreached": [m["name"] for m, ok in zip(members, reached, strict=True) if not ok][:20],
-                    "by_strategy": per, "chosen": chosen})
+    out = [_target_row(members, weights, t, name, strategies) for t, name in enumerate(targets)]
     verdicts = [{"name": m["name"], "weight": m["weight"], "reached": [bool(r["reachable"]) for r in m["rows"]],
                  "strategy": [r["strategy"] for r in m["rows"]]} for m in members]
     return {"targets": out, "members": len(members), "strategies": strategies, "by_member": verdicts,
             "effective_n": round(float(weights.sum() ** 2 / (weights * weights).sum()), 1) if len(members) else 0}
+
+
+def _target_row(members: Sequence[dict[str, Any]], weights: np.ndarray, t: int, name: str,
+                strategies: list[str]) -> dict[str, Any]:
+    """Target t's shares: reached by any strategy, by each, and chosen by each."""
+    rows = [m["rows"][t] for m in members]
+    reached = np.array([r["reachable"] for r in rows], bool)
+    per = {s: weighted_share(weights, np.array([r["reachable"] and (r["strategy"] == s or s in r["also"])
+                                                for r in rows], bool)) for s in strategies}
+    chosen = {s: weighted_share(weights, np.array([r["reachable"] and r["strategy"] == s for r in rows], bool))
+              ["share"] for s in strategies}
+    return {"target": name, **weighted_share(weights, reached), "members": len(rows),
+            "unreached": [m["name"] for m, ok in zip(members, reached, strict=True) if not ok][:20],
+            "by_strategy": per, "chosen": chosen}
 
 
 def load_members(folder: str | Path) -> tuple[list[Atlas], np.ndarray, list[str]]:
@@ -164,13 +168,7 @@ def direct(config: Any, targets: list[Target], effector: str | None = None,
     points = np.array([t.point for t in targets], float).reshape(-1, 3)
     if placement is not None:
         points = to_body(points, np.asarray(placement, float).reshape(1, 4))[0]
-    effs = [t.effector or effector for t in targets]
-    known = sorted({s.effector for s in config.strategies})
-    for t, e in zip(targets, effs, strict=True):
-        if e is None and len(known) != 1:
-            raise ConfigError("targets", t.name, f"no effector: give an effector column or --effector (one of "
-                                                 f"{', '.join(known)})")
-    effs = [e or known[0] for e in effs]
+    effs = _effectors(targets, effector, sorted({s.effector for s in config.strategies}))
     strategies = [(s.name, s.effector, s.oracle.name, s.oracle.params) for s in config.strategies
                   if s.effector in set(effs)]
     members = members_of(config)
@@ -182,22 +180,38 @@ def direct(config: Any, targets: list[Target], effector: str | None = None,
     size = math.ceil(len(members) / max(count, 1))
     runs = [members[k : k + size] for k in range(0, len(members), size)]
     jobs = [([m.body(config.raw.get("body")) for m in run], strategies, points, effs, verify, targets) for run in runs]
+    results = _logged(_solved(jobs, workers, client), members, log)
+    table_members = [{"name": m.name, "weight": m.weight, "rows": rows} for m, (rows, _) in zip(members, results,
+                                                                                                 strict=True)]
+    return {"population": config.name, "way": "direct", "refuted_by_check": sum(r for _, r in results),
+            **table(table_members, [t.name for t in targets], [name for name, *_ in strategies])}
+
+
+def _effectors(targets: list[Target], effector: str | None, known: list[str]) -> list[str]:
+    """Each target's effector: its own, else ``effector``, else the config's only one (ConfigError when none)."""
+    effs = [t.effector or effector for t in targets]
+    for t, e in zip(targets, effs, strict=True):
+        if e is None and len(known) != 1:
+            raise ConfigError("targets", t.name, f"no effector: give an effector column or --effector (one of "
+                                                 f"{', '.join(known)})")
+    return [e or known[0] for e in effs]
+
+
+def _solved(jobs: list[Any], workers: int, client: Any) -> Iterator[tuple[list[dict[str, Any]], int]]:
+    """Each member's answers and refuted count, in order: runs of members solved on a Dask cluster, in processes,
+    or here."""
     if client is not None:
         futures = client.map(_members, jobs, pure=False)
-        results = _logged((r for f in futures for r in f.result()), members, log)
-    elif workers > 1 and len(runs) > 1:
+        yield from (r for f in futures for r in f.result())
+    elif workers > 1 and len(jobs) > 1:
         from concurrent.futures import ProcessPoolExecutor
 
         from reach.building.executor import build_worker
 
         with ProcessPoolExecutor(max_workers=workers, initializer=build_worker) as pool:
-            results = _logged((r for run in pool.map(_members, jobs) for r in run), members, log)
+            yield from (r for run in pool.map(_members, jobs) for r in run)
     else:
-        results = _logged((r for job in jobs for r in _members(job)), members, log)
-    table_members = [{"name": m.name, "weight": m.weight, "rows": rows} for m, (rows, _) in zip(members, results,
-                                                                                                 strict=True)]
-    return {"population": config.name, "way": "direct", "refuted_by_check": sum(r for _, r in results),
-            **table(table_members, [t.name for t in targets], [name for name, *_ in strategies])}
+        yield from (r for job in jobs for r in _members(job))
 
 
 def _logged(results: Any, members: list[Any], log: Any) -> list[tuple[list[dict[str, Any]], int]]:
@@ -236,7 +250,6 @@ def _members(job: tuple[Any, ...]) -> list[tuple[list[dict[str, Any]], int]]:
 def _member(oracles: dict[str, Any], strategies: list[tuple[Any, ...]], points: np.ndarray, effs: list[str],
             verify: bool) -> tuple[list[dict[str, Any]], int]:
     """One member's rows and refuted count (see :func:`_members`), by its strategies' oracles."""
-    from oracles.protocol import Goals, Verifying
 
     rows: list[dict[str, Any]] = [{"reachable": False, "strategy": None, "also": []} for _ in points]
     refuted = 0
@@ -248,31 +261,48 @@ def _member(oracles: dict[str, Any], strategies: list[tuple[Any, ...]], points: 
     for name, eff, _, _ in strategies:
         pick = [i for i, e in enumerate(effs) if e == eff]
         oracle = oracles[name]
-        v = oracle.evaluate(Goals.of(points[pick]))
-        again = [k for k, i in enumerate(pick) if not v.reachable[k] and i in found]
-        if again and v.posture is not None:  # asked again from the posture found, only where the cold search missed
-            w = oracle.evaluate(Goals(points[pick][again], seeds=np.array([found[pick[k]] for k in again])))
-            reachable, residual = np.array(v.reachable, bool), np.array(v.residual, float)
-            posture = np.array(v.posture, float)
-            reachable[again], residual[again], posture[again] = w.reachable, w.residual, w.posture
-            v = v._replace(reachable=reachable, residual=residual, posture=posture)
-        ok = np.asarray(v.reachable, bool)
-        if verify and ok.any() and isinstance(oracle, Verifying) and v.posture is not None:
-            checked = oracle.verify(points[pick][ok], np.asarray(v.posture)[ok])
-            refuted += int(np.sum(~checked))
-            ok[np.flatnonzero(ok)[~checked]] = False
-        if v.posture is not None:
-            for i, hit, q in zip(pick, ok, np.asarray(v.posture, float), strict=True):
-                if hit:
-                    found.setdefault(i, q)
-        for i, hit in zip(pick, ok, strict=True):
-            if hit:
-                row = rows[i]
-                if row["reachable"]:
-                    row["also"].append(name)
-                else:
-                    row["reachable"], row["strategy"] = True, name
+        v = _solved_from(oracle, points[pick], [found.get(i) for i in pick])
+        ok, wrong = _checked(oracle, points[pick], v) if verify else (np.asarray(v.reachable, bool), 0)
+        refuted += wrong
+        postures = np.asarray(v.posture, float) if v.posture is not None else [None] * len(pick)
+        for i, q in ((i, q) for i, hit, q in zip(pick, ok, postures, strict=True) if hit):
+            if q is not None:
+                found.setdefault(i, q)
+            row = rows[i]
+            if row["reachable"]:
+                row["also"].append(name)
+            else:
+                row["reachable"], row["strategy"] = True, name
     return rows, refuted
+
+
+def _checked(oracle: Any, points: np.ndarray, v: Any) -> tuple[np.ndarray, int]:
+    """Which verdicts say reached and pass the oracle's own forward-kinematics check (:class:`Verifying`), and how
+    many reached ones failed it."""
+    from oracles.protocol import Verifying
+
+    ok = np.asarray(v.reachable, bool)
+    if not (ok.any() and isinstance(oracle, Verifying) and v.posture is not None):
+        return ok, 0
+    checked = oracle.verify(points[ok], np.asarray(v.posture)[ok])
+    ok[np.flatnonzero(ok)[~checked]] = False
+    return ok, int(np.sum(~checked))
+
+
+def _solved_from(oracle: Any, points: np.ndarray, found: list[np.ndarray | None]) -> Any:
+    """The oracle's verdicts on the points, asked cold, then again from the posture ``found`` for a point (by an
+    earlier strategy) where the cold search missed it."""
+    from oracles.protocol import Goals
+
+    v = oracle.evaluate(Goals.of(points))
+    again = [k for k, q in enumerate(found) if not v.reachable[k] and q is not None]
+    if not again or v.posture is None:
+        return v
+    w = oracle.evaluate(Goals(points[again], seeds=np.array([found[k] for k in again])))
+    reachable, residual = np.array(v.reachable, bool), np.array(v.residual, float)
+    posture = np.array(v.posture, float)
+    reachable[again], residual[again], posture[again] = w.reachable, w.residual, w.posture
+    return v._replace(reachable=reachable, residual=residual, posture=posture)
 
 
 def text(result: dict[str, Any]) -> str:

@@ -40,7 +40,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -183,39 +183,15 @@ def rank(atlases: Sequence[Atlas], targets: Sequence[Target], space: Space, effe
         if deadline is not None and time.perf_counter() > deadline:
             raise PastDeadline("the placement was not ranked by its deadline")
 
-    if not atlases or not targets:
-        raise InputError("targets" if atlases else "atlases", "expected at least one atlas and one target")
-    on_body = [t.name for t in targets if t.relative_to]
-    if on_body:
-        # A target on the body moves with it: no placement brings it nearer.
-        raise InputError("targets", f"{on_body[0]} is given on the body (relative_to), which moves with the body: "
-                                    "placement ranks targets in the layout's frame only")
-    if policy not in POLICIES:
-        raise InputError("policy", f"expected one of {', '.join(POLICIES)}, got {policy!r}")
+    _check_request(atlases, targets, policy)
     placements = space.candidates()
     points = np.array([t.point for t in targets], float)
     body = to_body(points, placements).reshape(-1, 3)
     n_c, n_t = len(placements), len(targets)
     taken = np.full((n_c, len(atlases), n_t), -1, np.int16)
     weight = np.zeros((n_c, len(atlases), n_t))
-    all_names: list[list[str]] = []
-    for b, atlas in enumerate(atlases):
-        names_b: list[str] = []
-        for eff in sorted({t.effector or effector or "" for t in targets}):
-            if not eff:
-                raise InputError("effector", "a target has no effector: give an effector column or --effector")
-            cols = np.array([k for k, t in enumerate(targets) if (t.effector or effector) == eff])
-            names, w = weights_of(atlas, eff, weights)
-            sub = body.reshape(n_c, n_t, 3)[:, cols].reshape(-1, 3)
-            open_ = np.ones((n_c, len(cols)), bool)
-            for k, name in enumerate(names):
-                in_time()
-                held = atlas.maps[name].contains(sub, policy).reshape(n_c, len(cols)) & open_
-                taken[:, b, cols] = np.where(held, len(names_b) + k, taken[:, b, cols])
-                weight[:, b, cols] = np.where(held, w[k], weight[:, b, cols])
-                open_ &= ~held
-            names_b += names
-        all_names.append(names_b)
+    all_names = [_held_by(atlas, targets, body.reshape(n_c, n_t, 3), effector, weights, policy, in_time,
+                          taken[:, b], weight[:, b]) for b, atlas in enumerate(atlases)]
     reached_bt = taken >= 0
     w = _body_weights(body_weights, len(atlases))
     accommodated = _accommodated(reached_bt, need) @ w
@@ -225,10 +201,7 @@ def rank(atlases: Sequence[Atlas], targets: Sequence[Target], space: Space, effe
     # (positions, and headings on the circle).
     key = np.round(np.stack([accommodated, reached, preference], axis=1), 9)
     top = np.all(key == key[np.lexsort(key.T[::-1])[-1]], axis=1)
-    centre = placements[top, :3].mean(axis=0)
-    heading = math.atan2(np.sin(placements[top, 3]).mean(), np.cos(placements[top, 3]).mean())
-    spread = np.linalg.norm(placements[:, :3] - centre,
-                            axis=1) + 0.1 * np.abs(np.angle(np.exp(1j * (placements[:, 3] - heading))))
+    spread = _spread(placements, top)
     margin = np.full(n_c, np.nan)
     tied = np.nonzero(top)[0]
     tied = tied[np.argsort(spread[tied], kind="stable")][:max(1, min(MARGIN_TIES, MARGIN_QUERIES // n_t))]
@@ -237,6 +210,53 @@ def rank(atlases: Sequence[Atlas], targets: Sequence[Target], space: Space, effe
     order = np.lexsort((spread, -np.nan_to_num(margin, nan=-np.inf), -preference, -reached, -accommodated))
     return Ranking(placements[order], accommodated[order], reached[order], preference[order], taken[order], all_names,
                    margin[order])
+
+
+def _check_request(atlases: Sequence[Atlas], targets: Sequence[Target], policy: str) -> None:
+    """A ranking's atlases, targets and policy, or InputError naming the field."""
+    if not atlases or not targets:
+        raise InputError("targets" if atlases else "atlases", "expected at least one atlas and one target")
+    on_body = [t.name for t in targets if t.relative_to]
+    if on_body:
+        # A target on the body moves with it: no placement brings it nearer.
+        raise InputError("targets", f"{on_body[0]} is given on the body (relative_to), which moves with the body: "
+                                    "placement ranks targets in the layout's frame only")
+    if policy not in POLICIES:
+        raise InputError("policy", f"expected one of {', '.join(POLICIES)}, got {policy!r}")
+
+
+def _held_by(atlas: Atlas, targets: Sequence[Target], body: np.ndarray, effector: str | None,
+             weights: dict[str, float] | None, policy: Policy, in_time: Callable[[], None], taken: np.ndarray,
+             weight: np.ndarray) -> list[str]:
+    """Which strategy of one atlas first holds each target at each candidate (``taken`` (C, T), -1: none) and its
+    weight (``weight`` (C, T)), filled in place from the targets in the body's frame ``body`` (C, T, 3); the
+    atlas's strategies in the order ``taken`` counts them."""
+    n_c = len(body)
+    names_b: list[str] = []
+    for eff in sorted({t.effector or effector or "" for t in targets}):
+        if not eff:
+            raise InputError("effector", "a target has no effector: give an effector column or --effector")
+        cols = np.array([k for k, t in enumerate(targets) if (t.effector or effector) == eff])
+        names, w = weights_of(atlas, eff, weights)
+        sub = body[:, cols].reshape(-1, 3)
+        open_ = np.ones((n_c, len(cols)), bool)
+        for k, name in enumerate(names):
+            in_time()
+            held = atlas.maps[name].contains(sub, policy).reshape(n_c, len(cols)) & open_
+            taken[:, cols] = np.where(held, len(names_b) + k, taken[:, cols])
+            weight[:, cols] = np.where(held, w[k], weight[:, cols])
+            open_ &= ~held
+        names_b += names
+    return names_b
+
+
+def _spread(placements: np.ndarray, top: np.ndarray) -> np.ndarray:
+    """Each candidate's distance from the centroid of the ``top`` ones: positions [m], and headings on the circle
+    (a tenth of a radian's weight)."""
+    centre = placements[top, :3].mean(axis=0)
+    heading = math.atan2(np.sin(placements[top, 3]).mean(), np.cos(placements[top, 3]).mean())
+    return np.linalg.norm(placements[:, :3] - centre,  # type: ignore[no-any-return]
+                          axis=1) + 0.1 * np.abs(np.angle(np.exp(1j * (placements[:, 3] - heading))))
 
 
 def _body_weights(body_weights: np.ndarray | None, n: int) -> np.ndarray:
