@@ -93,15 +93,7 @@ def markdown(t: dict[str, Any], title: str) -> str:
         lines.append(f"| {n} | {s['effector']} | {s['priority']} | {f(s['volume_inner'])} | "
                      f"{f(s['volume_boundary'])} | {f(s.get('highest'))} | {f(s.get('lowest'))} | {f(s['forward'])} "
                      f"| {f(s['left'])} | {f(s['right'])} |")
-    cut = {n: s["on_faces"] for n, s in t["strategies"].items() if s.get("on_faces")}
-    if cut:
-        lines += ["", "**Warning: the box cuts these volumes** (reachable vertices on its faces; enlarge the box "
-                      "there):", ""]
-        lines += [f"- {n}: " + ", ".join(f"{k} on {f}" for f, k in faces.items()) for n, faces in cut.items()]
-    lacks = {n: s["audit_warnings"] for n, s in t["strategies"].items() if s.get("audit_warnings")}
-    if lacks:
-        lines += ["", "**Warning: regions the trees lack**, by the atlas's last `reach audit` (`audit.json`):", ""]
-        lines += [f"- {n}: {w}" for n, ws in lacks.items() for w in ws]
+    lines += _warnings(t["strategies"])
     indexed = {n: s["index"] for n, s in t["strategies"].items() if s.get("index")}
     if indexed:
         lines += ["", "Reachability index (share of approach directions reached at the reachable vertices; "
@@ -114,6 +106,21 @@ def markdown(t: dict[str, Any], title: str) -> str:
     for p in t["pairs"]:
         lines.append(f"| {p['a']} | {p['b']} | {p['intersection']:.3f} | {p['a_minus_b']:.3f} | {p['b_minus_a']:.3f} |")
     return "\n".join(lines) + "\n"
+
+
+def _warnings(strategies: dict[str, Any]) -> list[str]:
+    """The report's warnings: volumes the box cuts, and regions the last audit found the trees lack."""
+    lines = []
+    cut = {n: s["on_faces"] for n, s in strategies.items() if s.get("on_faces")}
+    if cut:
+        lines += ["", "**Warning: the box cuts these volumes** (reachable vertices on its faces; enlarge the box "
+                      "there):", ""]
+        lines += [f"- {n}: " + ", ".join(f"{k} on {f}" for f, k in faces.items()) for n, faces in cut.items()]
+    lacks = {n: s["audit_warnings"] for n, s in strategies.items() if s.get("audit_warnings")}
+    if lacks:
+        lines += ["", "**Warning: regions the trees lack**, by the atlas's last `reach audit` (`audit.json`):", ""]
+        lines += [f"- {n}: {w}" for n, ws in lacks.items() for w in ws]
+    return lines
 
 
 def _axes3d(fig: Any, pos: int, title: str, tree: VATree) -> Any:
@@ -173,7 +180,18 @@ def figures(atlas: Atlas, out: Path, level: int = 4, names: list[str] | None = N
         x, y, z = np.meshgrid(*edges, indexing="ij")
         ax.voxels(x, y, z, occ, facecolors=COLOURS[k % len(COLOURS)], edgecolors="k", linewidth=0.2, alpha=0.8)
         written.append(_save(fig, out / f"strategy_{n}.png"))
-    # Figure 8: each cell in the colour of the first strategy, by priority, that holds it.
+    written.append(_figure8(plt, trees, names, grids, out / "figure8.png"))
+    written.append(_figure11(plt, trees, grids, out / "figure11.png"))
+    written.append(slices(trees, out / "slices.png", level, *planes))
+    written += [heat_map(n, atlas.map(n), out / f"index_{n}.png", level, *planes,
+                         directions=len(atlas.indexes[n].directions))
+                for n in trees if n in atlas.indexes]
+    return written
+
+
+def _figure8(plt: Any, trees: dict[str, VATree], names: list[str], grids: dict[str, Any], path: Path) -> Path:
+    """The paper's Figure 8: each cell in the colour of the first strategy, by priority, that holds it."""
+    first = trees[names[0]]
     ordered = sorted(names, key=lambda n: trees[n].meta.get("priority", 0))
     fig = plt.figure(figsize=(7, 7))
     ax = _axes3d(fig, 111, "Strategies in colours (first by priority)", first)
@@ -187,13 +205,18 @@ def figures(atlas: Atlas, out: Path, level: int = 4, names: list[str] | None = N
                       alpha=0.7)
     ax.legend(handles=[plt.Rectangle((0, 0), 1, 1, color=COLOURS[names.index(n) % len(COLOURS)]) for n in ordered],
               labels=ordered, fontsize=7, loc="upper left")
-    written.append(_save(fig, out / "figure8.png"))
-    # Figure 11: boxes, dots and a wireframe together.
+    return _save(fig, path)
+
+
+def _figure11(plt: Any, trees: dict[str, VATree], grids: dict[str, Any], path: Path) -> Path:
+    """The paper's Figure 11: boxes, dots and a wireframe together, a strategy each."""
+    first = next(iter(trees.values()))
     overlay = overlay_names(trees)
     fig = plt.figure(figsize=(7, 7))
     ax = _axes3d(fig, 111,
                  "Overlay: " + ", ".join(f"{n} ({s})"
                                          for n, s in zip(overlay, ("boxes", "dots", "wireframe"), strict=False)), first)
+    x, y, z = np.meshgrid(*grids[next(iter(trees))][1], indexing="ij")
     for k, n in enumerate(overlay):
         occ, edges = grids[n]
         colour = COLOURS[k % len(COLOURS)]
@@ -205,12 +228,7 @@ def figures(atlas: Atlas, out: Path, level: int = 4, names: list[str] | None = N
             ax.scatter(cx[occ], cy[occ], cz[occ], s=3, color=colour)
         else:
             ax.voxels(x, y, z, occ, facecolors=(0, 0, 0, 0), edgecolors=colour, linewidth=0.3)
-    written.append(_save(fig, out / "figure11.png"))
-    written.append(slices(trees, out / "slices.png", level, *planes))
-    written += [heat_map(n, atlas.map(n), out / f"index_{n}.png", level, *planes,
-                         directions=len(atlas.indexes[n].directions))
-                for n in trees if n in atlas.indexes]
-    return written
+    return _save(fig, path)
 
 
 def heat_map(name: str, tree: ReachMap, path: Path, level: int, z: float | None = None, y: float | None = None,

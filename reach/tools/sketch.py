@@ -116,6 +116,29 @@ def from_row(row: np.ndarray) -> Box:
                tuple(tuple(float(v) for v in r) for r in rotation))  # type: ignore[arg-type,misc]
 
 
+def _slice_image(ax: Any, matplotlib: Any, atlas: Any, names: list[str], colour: dict[str, Any], i: int, j: int,
+                 shoulder: np.ndarray, resolution: float) -> None:
+    """The volumes' slice on axes (i, j) through the shoulder: each cell in the colour of the first strategy, by
+    priority, that holds it."""
+    tree0 = atlas.trees[names[0]]
+    lo, hi = tree0.box.lo, tree0.box.hi
+    u = np.arange(lo[i], hi[i], resolution) + 0.5 * resolution
+    v = np.arange(lo[j], hi[j], resolution) + 0.5 * resolution
+    gu, gv = np.meshgrid(u, v, indexing="ij")
+    pts = np.zeros((gu.size, 3))
+    pts[:, i], pts[:, j] = gu.ravel(), gv.ravel()
+    pts[:, 3 - i - j] = shoulder[3 - i - j]
+    taken = np.zeros(gu.size, bool)
+    image = np.ones((*gu.shape, 4))
+    image[..., 3] = 0.0
+    for n in names:
+        held = atlas.trees[n].contains(pts, "vertex") & ~taken
+        taken |= held
+        image.reshape(-1, 4)[held] = matplotlib.colors.to_rgba(colour[n], 0.35)
+    ax.imshow(np.transpose(image, (1, 0, 2)), origin="lower", extent=(lo[i], hi[i], lo[j], hi[j]), zorder=1,
+              interpolation="nearest")
+
+
 def layout_figure(atlases: Sequence[Any], results: dict[str, Any], path: Any, resolution: float = 0.01) -> Any:
     """Per atlas (a row): side and top views of the body in its reference posture, its furniture, the volumes' slices
     through the right shoulder (each cell in the colour of the first strategy, by priority, that holds it), and the
@@ -143,24 +166,7 @@ def layout_figure(atlases: Sequence[Any], results: dict[str, Any], path: Any, re
         for col, view in enumerate(AXES):
             ax = axes[row, col]
             i, j = AXES[view]
-            tree0 = atlas.trees[names[0]]
-            lo, hi = tree0.box.lo, tree0.box.hi
-            u = np.arange(lo[i], hi[i], resolution) + 0.5 * resolution
-            v = np.arange(lo[j], hi[j], resolution) + 0.5 * resolution
-            gu, gv = np.meshgrid(u, v, indexing="ij")
-            pts = np.zeros((gu.size, 3))
-            pts[:, i], pts[:, j] = gu.ravel(), gv.ravel()
-            pts[:, 3 - i - j] = shoulder[3 - i - j]
-            taken = np.zeros(gu.size, bool)
-            image = np.ones((*gu.shape, 4))
-            image[..., 3] = 0.0
-            for n in names:
-                held = atlas.trees[n].contains(pts, "vertex") & ~taken
-                taken |= held
-                rgba = matplotlib.colors.to_rgba(colour[n], 0.35)
-                image.reshape(-1, 4)[held] = rgba
-            ax.imshow(np.transpose(image, (1, 0, 2)), origin="lower", extent=(lo[i], hi[i], lo[j], hi[j]), zorder=1,
-                      interpolation="nearest")
+            _slice_image(ax, matplotlib, atlas, names, colour, i, j, shoulder, resolution)
             draw_boxes(ax, boxes, view)
             draw_capsules(ax, capsules, view)
             for r, p in zip(result["rows"], points, strict=True):
