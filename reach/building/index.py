@@ -24,6 +24,29 @@ def vertex_levels(coords: np.ndarray, d_max: int) -> np.ndarray:
     return out
 
 
+def _from_corners(tree: VATree, k: int, sel: np.ndarray, at: np.ndarray, known: np.ndarray, reached: np.ndarray,
+                  posed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For vertices ``sel`` (lattice coordinates ``at``) first at depth k: the directions their cell's corners agree
+    on, set in ``reached``; which directions are left to solve (m, n); and each one's hint, a corner's posture that
+    reached it (NaN: none)."""
+    v, lattice, n = tree.vertices, tree.lattice, reached.shape[1]
+    step = 1 << (tree.d_max - k + 1)
+    corner_rows = v.index(lattice.keys((at // step * step)[:, None, :] + corner_offsets(tree.dim)[None] * step))
+    safe = np.maximum(corner_rows, 0)  # (m, 2**dim)
+    # (m, 2**dim): the corners whose directions are known
+    usable = (corner_rows >= 0) & v.reachable[safe] & known[safe]
+    corner = reached[safe] & usable[:, :, None]  # (m, 2**dim, n)
+    some = corner.any(axis=1)
+    every = corner.sum(axis=1) == usable.sum(axis=1)[:, None]
+    agree = (usable.sum(axis=1) >= AGREE * usable.shape[1])[:, None] & (every | ~some)
+    reached[sel] = agree & every
+    # A corner's posture for the same direction, when one reached it.
+    first = np.argmax(corner, axis=1)  # (m, n) the first corner that reached each direction
+    hint = posed[np.take_along_axis(safe, first, axis=1), np.arange(n)[None, :]].astype(float)
+    hint[~some] = np.nan
+    return ~agree, hint
+
+
 def compute_index(tree: VATree, executor: Executor, directions: np.ndarray,
                   progress: Callable[[int], None] | None = None) -> tuple[ReachIndex, int]:
     """The index of a tree's reachable vertices, by an executor of the strategy's ``index`` variant; and the number
@@ -46,7 +69,6 @@ def compute_index(tree: VATree, executor: Executor, directions: np.ndarray,
     known = np.zeros(len(v), bool)
     # the posture that reached each direction (a hint for the finer vertices)
     posed = np.full((len(v), n, v.posture.shape[1]), np.nan, np.float32)
-    offsets = corner_offsets(tree.dim)
     solved = 0
     for k in np.unique(levels):
         sel = rows[levels == k]
@@ -54,21 +76,7 @@ def compute_index(tree: VATree, executor: Executor, directions: np.ndarray,
         todo = np.ones((len(sel), n), bool)
         hint = np.full((len(sel), n, v.posture.shape[1]), np.nan)
         if k > 0:
-            step = 1 << (tree.d_max - k + 1)
-            corner_rows = v.index(lattice.keys((at // step * step)[:, None, :] + offsets[None] * step))  # (m, 2**dim)
-            safe = np.maximum(corner_rows, 0)
-            # (m, 2**dim): the corners whose directions are known
-            usable = (corner_rows >= 0) & v.reachable[safe] & known[safe]
-            corner = reached[safe] & usable[:, :, None]  # (m, 2**dim, n)
-            some = corner.any(axis=1)
-            every = corner.sum(axis=1) == usable.sum(axis=1)[:, None]
-            agree = (usable.sum(axis=1) >= AGREE * usable.shape[1])[:, None] & (every | ~some)
-            reached[sel] = agree & every
-            todo = ~agree
-            # A corner's posture for the same direction, when one reached it.
-            first = np.argmax(corner, axis=1)  # (m, n) the first corner that reached each direction
-            hint = posed[np.take_along_axis(safe, first, axis=1), np.arange(n)[None, :]].astype(float)
-            hint[~some] = np.nan
+            todo, hint = _from_corners(tree, int(k), sel, at, known, reached, posed)
         base = v.posture[sel]
         for j in range(n):
             pick = np.nonzero(todo[:, j])[0]
