@@ -291,6 +291,28 @@ def anthropometry(sex: Sex = "male", stature: float | None = None, percentile: f
     An ``ansur`` body's dimensions not given are ANSUR II's regression on those given (:mod:`oracles.bodies.ansur`);
     the URDF puts its joint centres where the landmarks imply (this module's constants, each with its source).
     """
+    _check_asked(sex, stature, percentile, mass, proportions)
+    if proportions == "de_leva":
+        if dims or subject is not None:
+            raise ModelError("de_leva proportions scale stature alone: no dimensions or subject",
+                             key="human.proportions")
+        return _de_leva(sex, stature, percentile, mass)
+    survey = ansur.sample(sex)
+    given: dict[str, float] = dict(survey.subject(subject)) if subject is not None else {}
+    asked = _asked_dims(sex, stature, percentile, mass, dims or {}, subject is None)
+    for name, value in asked.items():
+        key = "stature" if name == "stature" else "mass" if name == ansur.MASS else name
+        try:
+            survey.check(name, value)
+        except ModelError as exc:
+            raise ModelError(str(exc).split(": ", 1)[-1], key=f"human.{key}") from None
+    given.update(asked)
+    dims_built, spread = survey.predict(given)
+    return _measured(sex, dims_built, asked if subject is None else given, spread)
+
+
+def _check_asked(sex: str, stature: Any, percentile: Any, mass: Any, proportions: str) -> None:
+    """The sex, stature, percentile, mass and proportions asked for, or ModelError naming the key."""
     if sex not in DE_LEVA:
         raise ModelError(f"sex must be 'male' or 'female', got {sex!r}", name="sex")
     for key, value, unit in (("stature", stature, "m"), ("percentile", percentile, ""), ("mass", mass, "kg")):
@@ -300,15 +322,14 @@ def anthropometry(sex: Sex = "male", stature: float | None = None, percentile: f
         raise ModelError("give stature or percentile, not both", name="stature")
     if proportions not in PROPORTIONS:
         raise ModelError(f"expected one of {', '.join(PROPORTIONS)}, got {proportions!r}", key="human.proportions")
-    if proportions == "de_leva":
-        if dims or subject is not None:
-            raise ModelError("de_leva proportions scale stature alone: no dimensions or subject",
-                             key="human.proportions")
-        return _de_leva(sex, stature, percentile, mass)
-    survey = ansur.sample(sex)
-    given: dict[str, float] = dict(survey.subject(subject)) if subject is not None else {}
+
+
+def _asked_dims(sex: Sex, stature: float | None, percentile: float | None, mass: float | None,
+                dims: dict[str, float], no_subject: bool) -> dict[str, float]:
+    """The survey's dimensions asked for by name [m] (mass [kg]): the given ones, the stature (or its percentile's),
+    and the median stature when nothing at all is given."""
     asked: dict[str, float] = {}
-    for name, value in (dims or {}).items():
+    for name, value in dims.items():
         if name not in ansur.COLUMNS or name == ansur.MASS:
             known = ", ".join(c for c in ansur.COLUMNS if c != ansur.MASS)
             raise ModelError(f"unknown dimension; ANSUR II's are {known} (and mass [kg])", key=f"human.{name}")
@@ -321,17 +342,9 @@ def anthropometry(sex: Sex = "male", stature: float | None = None, percentile: f
         asked["stature"] = float(stature)
     if mass is not None:
         asked[ansur.MASS] = float(mass)
-    if not asked and subject is None:
+    if not asked and no_subject:
         asked["stature"] = stature_at_percentile(sex, 50.0)
-    for name, value in asked.items():
-        key = "stature" if name == "stature" else "mass" if name == ansur.MASS else name
-        try:
-            survey.check(name, value)
-        except ModelError as exc:
-            raise ModelError(str(exc).split(": ", 1)[-1], key=f"human.{key}") from None
-    given.update(asked)
-    dims_built, spread = survey.predict(given)
-    return _measured(sex, dims_built, asked if subject is None else given, spread)
+    return asked
 
 
 # The survey's dimensions a measured body is built from (what _measured reads; its capsules' girths aside): the rest

@@ -46,11 +46,9 @@ Either body takes
 
 from __future__ import annotations
 
-import fnmatch
 import hashlib
 import json
 import math
-import xml.etree.ElementTree as ET
 from dataclasses import asdict, dataclass, replace
 from functools import cached_property
 from pathlib import Path
@@ -66,10 +64,19 @@ from oracles.bodies.collision import Capsule, CollisionModel, urdf_capsules
 from oracles.bodies.environment import Box
 from oracles.bodies.human import human_capsules, human_urdf, root_height
 from oracles.bodies.seat import KNEE_MOST, KNEE_STEP, Seated, fit, parse_seat, seated
+from oracles.bodies.urdf import (
+    add_frames,
+    apply_ranges,
+    check_limits,
+    disabled_pairs,
+    no_doctype,
+    numbers,
+    parse,
+    root_rotation,
+    set_reference,
+)
 from oracles.errors import ModelError
 from oracles.protocol import COS, SIN
-
-ROOT = "root"
 
 
 @dataclass
@@ -214,17 +221,22 @@ class Body:
             info["proportions"] = self.anthropometry.proportions
         human = self.spec.get("human") or {}
         if human.get("posture") == "seated" and self.anthropometry is not None:
-            seat = fit(self.anthropometry, parse_seat(human.get("seat")))
-            fitted = seat.feet_x is not None and math.isnan(seat.feet_x)  # with the legs: where the heel came to rest
-            if fitted:
-                knee = float(self.q_ref[self.model.joints[self.model.getJointId("right_knee_flexion")].idx_q])
-                seat = replace(seat, feet_x=round(float(info["frames"]["right_heel"][0]), 4), knee=knee)
-            angles = ("back_angle", "ankle", "knee")  # [deg] in the description; the knee only where it fitted a heel
-            info["seat"] = {k: round(math.degrees(v), 3) if k in angles and v is not None else v
-                            for k, v in asdict(seat).items() if k != "knee" or fitted}
+            info["seat"] = self._seat(human.get("seat"), info["frames"]["right_heel"])
         if self.furniture:
             info["furniture"] = [b.to_dict() for b in self.furniture]
         return info
+
+    def _seat(self, seat_spec: Any, heel: list[float]) -> dict[str, Any]:
+        """The seat a seated human sits on, as fitted to the body: angles [deg], lengths [m]."""
+        assert self.anthropometry is not None
+        seat = fit(self.anthropometry, parse_seat(seat_spec))
+        fitted = seat.feet_x is not None and math.isnan(seat.feet_x)  # with the legs: where the heel came to rest
+        if fitted:
+            knee = float(self.q_ref[self.model.joints[self.model.getJointId("right_knee_flexion")].idx_q])
+            seat = replace(seat, feet_x=round(float(heel[0]), 4), knee=knee)
+        angles = ("back_angle", "ankle", "knee")  # [deg] in the description; the knee only where it fitted a heel
+        return {k: round(math.degrees(v), 3) if k in angles and v is not None else v
+                for k, v in asdict(seat).items() if k != "knee" or fitted}
 
     @property
     def continuous(self) -> frozenset[str]:
@@ -252,188 +264,11 @@ def _continuous(joint: pin.JointModel) -> bool:
     return bool(joint.nq == 2 and joint.nv == 1)
 
 
-def _no_doctype(text: str, source: Any, kind: str) -> None:
-    """Refuse a document type declaration: its entities could name local files or expand without bound, and a URDF
-    or SRDF needs none (neither is resolved: the file is refused before any parser sees it)."""
-    if "<!DOCTYPE" in text or "<!ENTITY" in text:
-        raise ModelError(f"a document type declaration (<!DOCTYPE ...> or <!ENTITY ...>): refused, never resolved; "
-                         f"a {kind} needs none", source=source)
-
-
-def _check_xml(urdf: str, source: str) -> None:
-    """What urdfdom accepts silently or reports over many lines: not XML, a negative or non-finite mass, a zero
-    joint axis. Each is one line naming the link or joint."""
-    try:
-        root = ET.fromstring(urdf)
-    except ET.ParseError as exc:
-        raise ModelError(f"not a valid URDF (XML: {exc})", source=source) from None
-    for link in root.iter("link"):
-        mass = link.find("inertial/mass")
-        if mass is not None:
-            try:
-                value = float(mass.get("value", "nan"))
-            except ValueError:
-                value = math.nan
-            if not (math.isfinite(value) and value >= 0):
-                raise ModelError(f"link {link.get('name')!r}: mass {mass.get('value')!r}; expected a finite number "
-                                 ">= 0 [kg]", source=source)
-    for joint in root.iter("joint"):
-        axis = joint.find("axis")
-        if axis is not None and joint.get("type") in ("revolute", "continuous", "prismatic"):
-            try:
-                xyz = [float(v) for v in axis.get("xyz", "1 0 0").split()]
-            except ValueError:
-                xyz = []
-            if len(xyz) != 3 or not all(math.isfinite(v) for v in xyz) or math.hypot(*xyz) < 1e-9:
-                raise ModelError(f"joint {joint.get('name')!r}: axis {axis.get('xyz')!r}; expected three finite "
-                                 "numbers, not all zero", source=source)
-
-
-def _parse(urdf: str, source: str) -> pin.Model:
-    _check_xml(urdf, source)
-    try:
-        return pin.buildModelFromXML(urdf, pin.JointModelFreeFlyer(), ROOT)
-    except (RuntimeError, ValueError, IndexError) as exc:
-        raise ModelError(f"not a valid URDF ({exc})", source=source) from exc
-
-
-def _apply_ranges(model: pin.Model, ranges: dict[str, Any], source: str) -> None:
-    names = [str(n) for n in model.names[2:]]
-    for pattern, value in ranges.items():
-        hits = [n for n in names if fnmatch.fnmatchcase(n, pattern)]
-        if not hits:
-            raise ModelError(f"no joint matches; joints are: {', '.join(names)}", source=source,
-                             key=f"ranges.{pattern}")
-        for n in hits:
-            jm = model.joints[model.getJointId(n)]
-            if jm.nq != 1:
-                raise ModelError(f"joint {n!r} has {jm.nq} coordinates; only 1-coordinate joints take ranges",
-                                 source=source, key=f"ranges.{pattern}")
-            i = jm.idx_q
-            if (isinstance(value, dict) and set(value) == {"scale"} and isinstance(value["scale"], (int, float))
-                and 0 < value["scale"] <= 1):
-                model.lowerPositionLimit[i] *= value["scale"]
-                model.upperPositionLimit[i] *= value["scale"]
-            elif (isinstance(value, (list, tuple)) and len(value) == 2
-                  and all(isinstance(v, (int, float)) for v in value) and value[0] <= value[1]):
-                model.lowerPositionLimit[i], model.upperPositionLimit[i] = float(value[0]), float(value[1])
-            else:
-                raise ModelError(f"expected [lower, upper] in radians or {{scale: f}} with 0 < f <= 1, got {value!r}",
-                                 source=source, key=f"ranges.{pattern}")
-
-
-def _check_limits(model: pin.Model, source: str) -> None:
-    """Every one-coordinate joint's limits are numbers with lower <= upper (a URDF may say otherwise)."""
-    for j in range(2, model.njoints):
-        jm = model.joints[j]
-        if jm.nq != 1:
-            continue
-        lo, hi = float(model.lowerPositionLimit[jm.idx_q]), float(model.upperPositionLimit[jm.idx_q])
-        if np.isnan(lo) or np.isnan(hi) or lo > hi:
-            name = str(model.names[j])
-            raise ModelError(f"joint {name!r} has limits lower {lo} > upper {hi}; expected lower <= upper [rad or m]",
-                             source=source, name=name)
-
-
-# A model's own axes, as ``up`` and ``forward`` name them.
-AXES = {"x": (1.0, 0.0, 0.0), "-x": (-1.0, 0.0, 0.0), "y": (0.0, 1.0, 0.0), "-y": (0.0, -1.0, 0.0),
-        "z": (0.0, 0.0, 1.0), "-z": (0.0, 0.0, -1.0)}
-
-
-def _numbers(value: Any, n: int, key: str, unit: str, source: str) -> np.ndarray:
-    if (not isinstance(value, (list, tuple)) or len(value) != n
-            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) for v in value)):
-        raise ModelError(f"expected {n} numbers [{unit}], got {value!r}", source=source, key=key)
-    return np.array(value, float)
-
-
-def _root_rotation(spec: dict[str, Any], source: str) -> np.ndarray:
-    """The root's orientation: the model's ``up`` onto the world's z and its ``forward`` onto x, then ``root_rpy``."""
-    up = spec.get("up", "z")
-    if up not in AXES:
-        raise ModelError(f"expected one of {', '.join(AXES)} (the model's own up axis), got {up!r}", source=source,
-                         key="up")
-    u = np.array(AXES[up])
-    # By default the model's x stays forward, or its z for a model whose x is up.
-    forward = spec.get("forward", "x" if up not in ("x", "-x") else "z")
-    if forward not in AXES or abs(float(np.dot(AXES[forward], u))) > 0.5:
-        raise ModelError(f"expected one of {', '.join(a for a in AXES if abs(float(np.dot(AXES[a], u))) < 0.5)} (the "
-                         f"model's own forward axis, perpendicular to up {up}), got {forward!r}", source=source,
-                         key="forward")
-    f = np.array(AXES[forward])
-    turn = np.stack([f, np.cross(u, f), u])  # rows: model axes that become the world's x, y, z
-    rpy = _numbers(spec.get("root_rpy", [0, 0, 0]), 3, "root_rpy", "rad", source)
-    return np.asarray(pin.rpy.rpyToMatrix(*rpy) @ turn)
-
-
-def _add_frames(model: pin.Model, frames: Any, source: str) -> None:
-    """Frames the spec adds on existing ones (fixed placements: grip points, tool centre points, sole corners)."""
-    if not isinstance(frames, dict):
-        raise ModelError(f"expected a mapping of name to {{parent, xyz, rpy}}, got {frames!r}", source=source,
-                         key="frames")
-    for name, raw in frames.items():
-        key = f"frames.{name}"
-        if not isinstance(raw, dict) or "parent" not in raw or set(raw) - {"parent", "xyz", "rpy"}:
-            raise ModelError(f"expected {{parent: FRAME, xyz: [x, y, z], rpy: [r, p, y]}}, got {raw!r}",
-                             source=source, key=key)
-        if model.existFrame(str(name)):
-            raise ModelError(f"the model already has a frame {name!r}; choose another name", source=source, key=key)
-        parent = raw["parent"]
-        if not isinstance(parent, str) or not model.existFrame(parent):
-            known = sorted({str(f.name) for f in model.frames} - {"universe"})
-            raise ModelError(f"no frame {parent!r}; frames are: {', '.join(known)}", source=source, key=f"{key}.parent")
-        xyz = _numbers(raw.get("xyz", [0, 0, 0]), 3, f"{key}.xyz", "m", source)
-        rpy = _numbers(raw.get("rpy", [0, 0, 0]), 3, f"{key}.rpy", "rad", source)
-        pid = model.getFrameId(parent)
-        on = model.frames[pid]
-        placement = on.placement * pin.SE3(pin.rpy.rpyToMatrix(*rpy), xyz)
-        model.addFrame(pin.Frame(str(name), on.parentJoint, pid, placement, pin.FrameType.OP_FRAME))
-
-
-def _reference(model: pin.Model, q: np.ndarray, reference: Any, source: str) -> list[str]:
-    """Set q's joints to the reference posture; the notes say which joints zero had to be clipped for."""
-    lower, upper = model.lowerPositionLimit, model.upperPositionLimit
-    if reference is None or reference in ("zero", "middle", "auto"):
-        given: dict[str, Any] = {}
-    elif isinstance(reference, dict):
-        given = dict(reference)
-    else:
-        raise ModelError("expected zero, middle, auto or a mapping of joint name to value [rad or m], got "
-                         f"{reference!r}", source=source, key="reference")
-    names = [str(n) for n in model.names[2:]]
-    for name in given:
-        if name not in names:
-            raise ModelError(f"no such joint; joints are: {', '.join(names)}", source=source, key=f"reference.{name}")
-    notes = []
-    for j in range(2, model.njoints):
-        name, jm = str(model.names[j]), model.joints[j]
-        i = jm.idx_q
-        if name in given:
-            value = given[name]
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
-                raise ModelError(f"expected a number [rad or m], got {value!r}", source=source, key=f"reference.{name}")
-            if jm.nq == 2:  # an unbounded revolute, stored as (cos, sin)
-                q[i:i + 2] = np.cos(value), np.sin(value)
-            elif jm.nq == 1 and not lower[i] - 1e-9 <= value <= upper[i] + 1e-9:
-                raise ModelError(f"{value} is outside the joint's range [{lower[i]:.6g}, {upper[i]:.6g}]",
-                                 source=source, key=f"reference.{name}")
-            elif jm.nq == 1:
-                q[i] = value
-        elif jm.nq == 1 and reference in ("middle", "auto"):
-            q[i] = 0.5 * (lower[i] + upper[i])
-        elif jm.nq == 1 and not lower[i] <= q[i] <= upper[i]:
-            clipped = float(np.clip(q[i], lower[i], upper[i]))
-            notes.append(f"reference: joint {name!r} at 0 is outside its range [{lower[i]:.6g}, {upper[i]:.6g}]; "
-                         f"it stands at {clipped:.6g} (give body.reference to choose)")
-            q[i] = clipped
-    return notes
-
-
 def _finish(model: pin.Model, urdf: str, source: str, spec: dict[str, Any], root: np.ndarray, capsules: list[Capsule],
             anthro: Anthropometry | None = None, sitting: Seated | None = None) -> Body:
-    _check_limits(model, source)
-    _apply_ranges(model, dict(spec.get("ranges", {})), source)
-    _add_frames(model, spec.get("frames", {}), source)
+    check_limits(model, source)
+    apply_ranges(model, dict(spec.get("ranges", {})), source)
+    add_frames(model, spec.get("frames", {}), source)
     # The free flyer's translation has no meaningful limits; bound it so
     # that random configurations and solvers stay finite.
     model.lowerPositionLimit[:3] = root - 2.0
@@ -443,10 +278,10 @@ def _finish(model: pin.Model, urdf: str, source: str, spec: dict[str, Any], root
     q = pin.neutral(model)
     q[:3] = root
     if sitting is None:
-        q[3:7] = pin.Quaternion(_root_rotation(spec, source)).coeffs()
+        q[3:7] = pin.Quaternion(root_rotation(spec, source)).coeffs()
     else:
         q = _seated_q(model, sitting)
-    notes = _reference(model, q, spec.get("reference"), source)
+    notes = set_reference(model, q, spec.get("reference"), source)
     return Body(model, q, source, spec, urdf, anthro, tuple(capsules), tuple(notes), () if sitting is None
                 else sitting.furniture)
 
@@ -459,35 +294,46 @@ def human_body(sex: str | None = None, stature: float | None = None, percentile:
     """The generated human (see :mod:`oracles.bodies.human`), standing on z = 0, facing +x; or seated (``posture:
     seated``) on a seat (see :mod:`oracles.bodies.seat`). ``dims``: ANSUR II dimensions by name [m]; ``ansur``:
     ``{sex, subject}``, a surveyed person."""
-    subject = None
-    if ansur is not None:
-        if not isinstance(ansur, dict) or set(ansur) - {"sex", "subject"} or "subject" not in ansur:
-            raise ModelError(f"expected {{sex: male|female, subject: ID}}, got {ansur!r}", source="human",
-                             key="human.ansur")
-        subject = ansur["subject"]
-        if isinstance(subject, bool) or not isinstance(subject, int):
-            raise ModelError(f"expected a subject id (an integer), got {subject!r}", source="human",
-                             key="human.ansur.subject")
-        if sex is not None and ansur.get("sex", sex) != sex:
-            raise ModelError(f"the subject's sex {ansur.get('sex')!r} is not human.sex {sex!r}", source="human",
-                             key="human.ansur.sex")
-        sex = ansur.get("sex", sex)
-    sex = "male" if sex is None else sex
+    sex, subject = _subject(ansur, sex)
     anthro = anthropometry(sex, stature, percentile, mass, dims, subject, proportions)  # type: ignore[arg-type]
     human = {"sex": sex, "stature": stature, "percentile": percentile, "mass": mass, "posture": posture, "seat": seat,
              "ansur": ansur, "proportions": proportions, **(dims or {})}
     spec: dict[str, Any] = {"human": {k: v for k, v in human.items() if v is not None}}
     spec.update(_given(ranges=ranges, frames=frames, reference=reference))
     urdf = human_urdf(anthro)
-    model = _parse(urdf, "human")
     if posture not in (None, "standing", "seated"):
         raise ModelError(f"expected standing or seated, got {posture!r}", source="human", key="human.posture")
     if posture != "seated":
         if seat is not None:
             raise ModelError("a seat needs posture: seated", source="human", key="human.seat")
-        return _finish(model, urdf, "human", spec, np.array([0.0, 0.0, root_height(anthro)]), human_capsules(anthro),
-                       anthro)
-    chosen = parse_seat(seat)
+        root = np.array([0.0, 0.0, root_height(anthro)])
+        return _finish(parse(urdf, "human"), urdf, "human", spec, root, human_capsules(anthro), anthro)
+    return _seated_body(anthro, urdf, spec, parse_seat(seat))
+
+
+def _subject(ansur: dict[str, Any] | None, sex: str | None) -> tuple[str, int | None]:
+    """The body's sex and ANSUR II subject id (None: none) from ``human.ansur`` ``{sex, subject}`` and ``human.sex``
+    (male by default)."""
+    if ansur is None:
+        return ("male" if sex is None else sex), None
+    if not isinstance(ansur, dict) or set(ansur) - {"sex", "subject"} or "subject" not in ansur:
+        raise ModelError(f"expected {{sex: male|female, subject: ID}}, got {ansur!r}", source="human",
+                         key="human.ansur")
+    subject = ansur["subject"]
+    if isinstance(subject, bool) or not isinstance(subject, int):
+        raise ModelError(f"expected a subject id (an integer), got {subject!r}", source="human",
+                         key="human.ansur.subject")
+    if sex is not None and ansur.get("sex", sex) != sex:
+        raise ModelError(f"the subject's sex {ansur.get('sex')!r} is not human.sex {sex!r}", source="human",
+                         key="human.ansur.sex")
+    sex = ansur.get("sex", sex)
+    return ("male" if sex is None else sex), subject
+
+
+def _seated_body(anthro: Anthropometry, urdf: str, spec: dict[str, Any], chosen: Any) -> Body:
+    """The human seated on the seat: a driver whose calf meets the cushion's edge sits closer, the knee flexed
+    more, until the seat fits."""
+    model = parse(urdf, "human")
     while True:
         sitting = seated(anthro, chosen)
         _frames_at(model, sitting)
@@ -505,7 +351,7 @@ def human_body(sex: str | None = None, stature: float | None = None, percentile:
                              key="human.seat")
         # the calf on the cushion's edge: the driver sits closer, the knee flexed more (oracles/bodies/seat.py)
         chosen = replace(chosen, knee=chosen.knee + KNEE_STEP)
-        model = _parse(urdf, "human")
+        model = parse(urdf, "human")
 
 
 def _frames_at(model: pin.Model, sitting: Seated) -> None:
@@ -577,7 +423,7 @@ def urdf_body(path: str | Path, root_position: list[float] | None = None, ranges
             raise ModelError(f"{size} bytes: a URDF is at most {URDF_MAX_BYTES} bytes here (meshes live in their own "
                              "files)", source=path)
         urdf = path.read_text(encoding="utf-8")
-        _no_doctype(urdf, path, "URDF")
+        no_doctype(urdf, path, "URDF")
     except OSError as exc:
         raise ModelError(f"cannot read URDF ({exc.strerror or exc})", source=path) from exc
     except UnicodeDecodeError as exc:
@@ -586,42 +432,11 @@ def urdf_body(path: str | Path, root_position: list[float] | None = None, ranges
     spec.update(_given(root_position=None if root_position is None else list(root_position), ranges=ranges,
                        package_dirs=None if package_dirs is None else list(package_dirs), up=up, forward=forward,
                        root_rpy=root_rpy, frames=frames, reference=reference, srdf=srdf))
-    root = np.zeros(3) if root_position is None else _numbers(root_position, 3, "root_position", "m", str(path))
+    root = np.zeros(3) if root_position is None else numbers(root_position, 3, "root_position", "m", str(path))
     capsules = urdf_capsules(urdf, str(path), path.parent, package_dirs or ())
-    model = _parse(urdf, str(path))
+    model = parse(urdf, str(path))
     body = _finish(model, urdf, str(path), spec, root, capsules)
     return body if srdf is None else replace(body, disabled=disabled_pairs(srdf, model))
-
-
-SRDF_MAX_BYTES = 16 * 1024 * 1024  # an SRDF's XML (example-robot-data's are under 100 kB)
-
-
-def disabled_pairs(srdf: str | Path, model: pin.Model) -> frozenset[frozenset[str]]:
-    """The pairs of links an SRDF's ``<disable_collisions link1=... link2=...>`` elements name (MoveIt's convention:
-    adjacent links, links that never or always collide), each a link of the model."""
-    path = Path(srdf)
-    try:
-        if path.exists() and not path.is_file():
-            raise ModelError("not a regular file: an SRDF is an XML file", source=path, key="srdf")
-        if path.stat().st_size > SRDF_MAX_BYTES:
-            raise ModelError(f"larger than {SRDF_MAX_BYTES} bytes: not an SRDF", source=path, key="srdf")
-        text = path.read_text(encoding="utf-8")
-        _no_doctype(text, path, "SRDF")
-        root = ET.fromstring(text)
-    except OSError as exc:
-        raise ModelError(f"cannot read the SRDF ({exc.strerror or exc})", source=path, key="srdf") from exc
-    except (ET.ParseError, UnicodeDecodeError) as exc:
-        raise ModelError(f"not an SRDF (not well-formed XML in UTF-8: {exc})", source=path, key="srdf") from None
-    links = {str(f.name) for f in model.frames if f.type == pin.FrameType.BODY}
-    out: set[frozenset[str]] = set()
-    for k, element in enumerate(root.iter("disable_collisions")):
-        pair = [element.get("link1") or "", element.get("link2") or ""]
-        for name in pair:
-            if name not in links:
-                raise ModelError(f"disable_collisions #{k + 1} names link {name!r}, which the URDF does not have "
-                                 f"(links: {', '.join(sorted(links))})", source=path, key="srdf")
-        out.add(frozenset(pair))
-    return frozenset(out)
 
 
 BODY_KEYS = {"human", "urdf", "root_position", "ranges", "package_dirs", "up", "forward", "root_rpy", "frames",
@@ -644,21 +459,8 @@ def load_body(spec: dict[str, Any]) -> Body:
     if ranges is not None and not isinstance(ranges, dict):
         raise ModelError(f"expected a mapping of joint name to range, got {ranges!r}", key="ranges")
     if "human" in spec:
-        human = spec["human"] or {}
-        if not isinstance(human, dict):
-            raise ModelError(f"expected a mapping with keys among {sorted(HUMAN_KEYS)}, got {human!r}", key="human")
-        strange = sorted(set(human) - HUMAN_KEYS - DIMENSIONS)
-        if strange:
-            raise ModelError(f"unknown key; a human takes {', '.join(sorted(HUMAN_KEYS))} and ANSUR II's dimensions "
-                             f"by name [m]: {', '.join(sorted(DIMENSIONS))}", key=f"human.{strange[0]}")
-        dims = {k: v for k, v in human.items() if k in DIMENSIONS}
-        human = {k: v for k, v in human.items() if k in HUMAN_KEYS}
-        if dims:
-            human["dims"] = dims
-        placed = sorted(set(spec) & URDF_ONLY)
-        if placed:
-            raise ModelError("a URDF body's key; the generated human stands on z = 0 facing +x", key=placed[0])
-        return human_body(ranges=ranges, frames=spec.get("frames"), reference=spec.get("reference"), **human)
+        return human_body(ranges=ranges, frames=spec.get("frames"), reference=spec.get("reference"),
+                          **_human_keys(spec))
     dirs = spec.get("package_dirs")
     if dirs is not None and (not isinstance(dirs, list) or not all(isinstance(d, str) for d in dirs)):
         raise ModelError(f"expected a list of folders, got {dirs!r}", key="package_dirs")
@@ -669,3 +471,22 @@ def load_body(spec: dict[str, Any]) -> Body:
                      forward=spec.get("forward"), root_rpy=spec.get("root_rpy"),
                      frames=spec.get("frames"), reference=spec.get("reference"), srdf=srdf)
 
+
+def _human_keys(spec: dict[str, Any]) -> dict[str, Any]:
+    """A human spec's keys as :func:`human_body` takes them (its ANSUR II dimensions as ``dims``), or ModelError
+    naming the key it does not take."""
+    human = spec["human"] or {}
+    if not isinstance(human, dict):
+        raise ModelError(f"expected a mapping with keys among {sorted(HUMAN_KEYS)}, got {human!r}", key="human")
+    strange = sorted(set(human) - HUMAN_KEYS - DIMENSIONS)
+    if strange:
+        raise ModelError(f"unknown key; a human takes {', '.join(sorted(HUMAN_KEYS))} and ANSUR II's dimensions "
+                         f"by name [m]: {', '.join(sorted(DIMENSIONS))}", key=f"human.{strange[0]}")
+    dims = {k: v for k, v in human.items() if k in DIMENSIONS}
+    human = {k: v for k, v in human.items() if k in HUMAN_KEYS}
+    if dims:
+        human["dims"] = dims
+    placed = sorted(set(spec) & URDF_ONLY)
+    if placed:
+        raise ModelError("a URDF body's key; the generated human stands on z = 0 facing +x", key=placed[0])
+    return human

@@ -18,7 +18,8 @@ import casadi as ca
 import numpy as np
 import pinocchio as pin
 
-from oracles.bodies.body import ROOT, Body
+from oracles.bodies.body import Body
+from oracles.bodies.urdf import ROOT
 from oracles.errors import ModelError
 from oracles.ik.strategy import Strategy
 from oracles.tasks import Numeric, Reference

@@ -34,7 +34,8 @@ from typing import Any
 
 import numpy as np
 
-from oracles.bodies.body import ROOT, Body
+from oracles.bodies.body import Body
+from oracles.bodies.urdf import ROOT
 from oracles.errors import ModelError, OracleError, TaskError
 from oracles.tasks import TASKS, FeetTask, HardTask, ReachTask, Scope, SoftTask, Task
 from oracles.tasks.base import matching

@@ -16,8 +16,9 @@ from typing import Any
 import numpy as np
 import pinocchio as pin
 
-from oracles.bodies.body import ROOT, Body
+from oracles.bodies.body import Body
 from oracles.bodies.posed import PosedBody
+from oracles.bodies.urdf import ROOT
 from oracles.ik.problem import ReachProblem
 from oracles.ik.search import Search
 from oracles.ik.solvers.dls import DampedLeastSquares

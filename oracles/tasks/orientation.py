@@ -36,7 +36,7 @@ import casadi as ca
 import numpy as np
 import pinocchio as pin
 
-from oracles.bodies.body import AXES
+from oracles.bodies.urdf import AXES
 from oracles.errors import TaskError
 from oracles.tasks.base import BUFFER, Constraint, HardTask, Numeric, Reference, Row, Scope, Symbolic, number
 
