@@ -1094,14 +1094,20 @@ def test_an_operation_the_workers_answer_is_added_as_a_service(balls, monkeypatc
     op = P.Operation("held", fields, "which strategies hold a point, from a worker",
                      worker=P.Service("helpers:strategies_service", cost=0.01))
 
-    class Held(Whole):
-        late, failed = "not answered in time", "could not be answered"
+    class Held:
+        frames, late, failed = 1, "not answered in time", "could not be answered"
+
+        def answer(self, server, req):  # noqa: ANN001, ANN202
+            raise NotImplementedError("answered only in the workers")
 
         def job(self, server, req):  # noqa: ANN001, ANN202
             return [req["goal"]], {}
 
+        def reply(self, server, req, frames):  # noqa: ANN001, ANN202
+            return frames[0]
+
     monkeypatch.setitem(P.OPERATIONS, "held", op)
-    monkeypatch.setitem(HANDLERS, "held", Held())
+    monkeypatch.setitem(HANDLERS, "held", Whole(Held()))
     r = Running(balls, workers=1)
     sock = _dealer(r.server.endpoint)
     sock.setsockopt(zmq.RCVTIMEO, 60_000)

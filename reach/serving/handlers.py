@@ -196,26 +196,36 @@ class Query(Handler):
         server.ledger.expiring.append(seq)
 
 
+class WholeWork(Protocol):
+    """An operation one worker answers whole (:class:`Whole`): in ``frames`` frames of JSON, whose reply
+    :meth:`reply` makes; ``late`` and ``failed`` begin its timeout's and its failure's messages."""
+
+    frames: int
+    late: str
+    failed: str
+
+    def answer(self, server: Broker, req: P.Request) -> dict[str, Any] | bytes: ...
+
+    def job(self, server: Broker, req: P.Request) -> tuple[list[list[float]], dict[str, Any]]: ...
+
+    def reply(self, server: Broker, req: P.Request, frames: list[bytes]) -> bytes: ...
+
+
 class Whole(Handler):
-    """An operation one worker answers whole, in ``frames`` frames of JSON (:meth:`reply` makes the reply of them);
-    it counts as a request, not as goals, against what a client may hold."""
+    """A :class:`WholeWork` handed to one worker whole (answered in the loop without workers); it counts as a
+    request, not as goals, against what a client may hold."""
 
-    frames = 1
-    late = "it was not answered"  # the timeout's message, before "by its deadline"
-    failed = "it could not be answered"  # the reply to a worker's internal failure
+    def __init__(self, work: WholeWork) -> None:
+        self.work = work
 
-    def job(self, server: Broker, req: P.Request) -> tuple[list[list[float]], dict[str, Any]]:
-        """The task's goals and options, once what a worker could refuse is checked here."""
-        return [], {}
-
-    def reply(self, server: Broker, req: P.Request, frames: list[bytes]) -> bytes:
-        return frames[0]
+    def answer(self, server: Broker, req: P.Request) -> dict[str, Any] | bytes:
+        return self.work.answer(server, req)
 
     def defer(self, server: Broker, req: P.Request, envelope: list[bytes]) -> bool:
         service = P.OPERATIONS[req.op].worker
         if server.pool is None or service is None:
             return False
-        goals, options = self.job(server, req)
+        goals, options = self.work.job(server, req)
         seq = server.ledger.pend(req, envelope, MAX_WAIT, [(0, 1)], 0)
         if seq is not None:
             server.pool.submit(Task(seq, 0, req.args.get("effector") or "", goals, req.args.get("from"),
@@ -228,14 +238,14 @@ class Whole(Handler):
         ``timeout``."""
         rid = pending.request.id
         if frames == [EXPIRED]:
-            server.answer_now(seq, P.error_reply(P.TIMEOUT, f"{self.late} by its deadline", rid))
-        elif len(frames) == self.frames and frames[0].startswith(b"{"):
-            server.answer_now(seq, P.ok_reply(self.reply(server, pending.request, frames), rid))
+            server.answer_now(seq, P.error_reply(P.TIMEOUT, f"{self.work.late} by its deadline", rid))
+        elif len(frames) == self.work.frames and frames[0].startswith(b"{"):
+            server.answer_now(seq, P.ok_reply(self.work.reply(server, pending.request, frames), rid))
         else:
             code, _, message = b"".join(frames)[len(WORKER_FAILED):].decode(errors="replace").strip().partition(": ")
             if code not in P.WORKER_ERRORS:
                 log.error("worker failed: %s", message[:500])
-                code, message = P.INTERNAL, self.failed
+                code, message = P.INTERNAL, self.work.failed
             server.faults.count += 1
             server.answer_now(seq, P.error_reply(code, message, rid))
 
@@ -243,7 +253,7 @@ class Whole(Handler):
         self.finish(server, seq, pending, [EXPIRED], 0)
 
 
-class Motion(Whole):
+class Motion:
     """The timed reach motion: two frames, its summary (published) and the whole motion (the reply)."""
 
     frames, late, failed = 2, "the motion was not planned", "the motion could not be planned"
@@ -269,11 +279,11 @@ class Motion(Whole):
         return frames[1]
 
 
-class Place(Whole):
+class Place:
     """Placements of the served body ranked by its trees against the request's targets (reach.answers.place); with
     workers a worker answers it (seconds at its limit, which held the loop)."""
 
-    late, failed = "the placements were not ranked", "the placements could not be ranked"
+    frames, late, failed = 1, "the placements were not ranked", "the placements could not be ranked"
 
     def answer(self, server: Broker, req: P.Request) -> dict[str, Any]:
         return placements(server.selector.atlas, req.args, server.selector.policy)  # type: ignore[arg-type]
@@ -281,6 +291,9 @@ class Place(Whole):
     def job(self, server: Broker, req: P.Request) -> tuple[list[list[float]], dict[str, Any]]:
         place_space(req.args)  # too many candidates: bad_request now, not a timeout after a busy worker
         return [], {"fields": req.args}
+
+    def reply(self, server: Broker, req: P.Request, frames: list[bytes]) -> bytes:
+        return frames[0]
 
 
 class Accommodation(Handler):
@@ -364,7 +377,7 @@ class Reload(Handler):
 
 
 HANDLERS: dict[str, Handler] = {
-    "query": Query(), "motion": Motion(), "place": Place(), "accommodation": Accommodation(),
+    "query": Query(), "motion": Whole(Motion()), "place": Whole(Place()), "accommodation": Accommodation(),
     "strategies": Strategies(), "cells": Cells(), "health": Health(), "hello": Hello(), "reload": Reload(),
     "version": Version(),
 }
