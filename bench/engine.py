@@ -14,7 +14,7 @@
   tree's code and by the code of git revision REV (checked out in a temporary
   worktree), alternately, ``--repeat`` times each, every build in a fresh
   process on all cores: wall and CPU seconds, reachable vertices per tree.
-  The engine's own before and after, in one run (docs/history.md).
+  The engine's own before and after, in one run (docs/decisions/0008).
 * **where the rounds go** (``--rounds``): the config's atlas built in this
   process, one oracle a strategy, and each oracle's counts: goals, reached,
   reach rounds (one start's iteration) spent on goals reached and on goals

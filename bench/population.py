@@ -1,4 +1,4 @@
-"""A population's cost and agreement (docs/history.md): JSON lines.
+"""A population's cost and agreement (docs/population.md): JSON lines.
 
 * ``direct``: ``reach evaluate --direct`` of ``configs/targets/workstation_right.csv`` for the first ``--direct``
   members of ``configs/population.yaml``'s draw widened to that many (the same seed and mix), wall and CPU seconds;

@@ -46,7 +46,7 @@ BODIES = (("female", 5), ("male", 50), ("male", 95))
 # The dimensions that set reach: a body built from these alone.
 GIVEN = ansur.REACH
 CHECKED = ("thumbtipreach", "acromialheight", "sittingheight", "buttockkneelength")  # the subject check
-TOLERANCE = 0.015  # [m] p95 of a subject body's errors (a choice; its measurement not found again in docs/history.md)
+TOLERANCE = 0.015  # [m] p95 of a subject body's errors (a choice; its measurement not found again)
 # Dimensions the public files give in tenths of a millimetre (interpupillary breadth: 550-750 there, people's
 # 55-75 mm; the files' README names the tenths of a kilogram of weightkg alone).
 TENTHS = {"interpupillarybreadth": 10.0}

@@ -1,4 +1,4 @@
-"""A population (docs/history.md): members from ANSUR II, their atlases, and the share that reaches each target."""
+"""A population (docs/population.md): members from ANSUR II, their atlases, and the share that reaches each target."""
 
 from __future__ import annotations
 

@@ -67,7 +67,7 @@ def _check_step(oracle: IKOracle, goal: np.ndarray, q: np.ndarray) -> None:
 
 def test_a_step_reaches_farther_ahead_than_the_planted_body_and_every_answer_holds(stepping, planted):
     """Goals straight ahead of the right shoulder at hand height: the step's farthest reached goal lies at least
-    25 cm beyond the planted whole body's (docs/history.md), and each step answer passes our own checks."""
+    25 cm beyond the planted whole body's (docs/decisions/0021), and each step answer passes our own checks."""
     xs = np.arange(0.6, 1.7, 0.05)
     goals = np.column_stack([xs, np.full(len(xs), -0.15), np.full(len(xs), HAND_HEIGHT)])
     feet_planted = planted.evaluate(Goals(goals))

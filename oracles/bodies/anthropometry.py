@@ -122,7 +122,7 @@ EYE_FORWARD = 0.055
 EYE_Y = 0.018
 # de_leva bodies' grip (their one hand frame): beyond MET3 and palmar of the
 # hand's long axis, 1.40 and 0.25 hand lengths (WJC-MET3) from the wrist: a
-# pinch point more than a grip (docs/history.md), kept for trees built with it.
+# pinch point more than a grip (docs/decisions/0015), kept for trees built with it.
 GRIP_ALONG = 1.40
 GRIP_PALMAR = 0.25
 # Foot points, fractions of foot length from the heel: the ankle (LMAL)
@@ -178,7 +178,7 @@ RANGES: dict[str, tuple[float, float]] = {
 # model's overhead reach, arm and shoulder girdle free within their ranges, within 12-20 mm of the survey's at the
 # stature percentiles (bench/validation.py). Rab, G., Petuskey, K. & Bagley, A. (2002), Gait & Posture 15:113-119, put
 # it 17 % of the biacromial breadth below the acromion marker (as quoted, not read in its source here): 71 mm for the
-# 50th-percentile man, which left the overhead reach 59 mm short (docs/history.md).
+# 50th-percentile man, which left the overhead reach 59 mm short (docs/decisions/0015).
 SJC_BELOW_ACROMION = 0.040  # [m]
 # Elbow and wrist: the elbow centre at radiale, the wrist centre at stylion (modelling choices: both landmarks lie
 # within about a centimetre of the joints' axes). The hanging arm then puts the wrist within 10 mm of ANSUR's mean
@@ -450,7 +450,7 @@ def legacy_body(spec: Any) -> tuple[Any, str | None]:
     """A stored body spec as this version rebuilds the body it was written with, and a note when it changed.
 
     A human spec without ``proportions`` was written before bodies were built from ANSUR II measures
-    (docs/history.md): its body is the stature-scaled ``de_leva`` one, whose URDF this version still writes.
+    (docs/decisions/0015): its body is the stature-scaled ``de_leva`` one, whose URDF this version still writes.
     """
     if not isinstance(spec, dict) or not isinstance(spec.get("human"), dict) or "proportions" in spec["human"]:
         return spec, None

@@ -4,7 +4,7 @@
 programs, damped least squares) is the other. An oracle holds one Search;
 ``variant(purpose)`` replaces it and shares everything else (body, problem,
 compiled programs). The measurements behind the defaults and the shipped
-configs' choices are in docs/history.md.
+configs' choices are in docs/decisions/0002 and 0007.
 """
 
 from __future__ import annotations

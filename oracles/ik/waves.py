@@ -45,10 +45,10 @@ RANDOM_SPREAD = 0.5  # a floating body's random starts: this share of the way fr
 # [m] a goal whose best start ends this near (but does not reach) is polished by the interior-point programs:
 # at the volume's boundary a Gauss-Newton step slows down where fatrop's second derivatives still find the way
 # (right whole body at D_max 4: 35.2 % of the vertices reachable polishing within 3 cm, 35.7 % within 10 cm,
-# fatrop alone 36.0 %; 34 s and 37 s of CPU against fatrop's 50 s, docs/history.md).
+# fatrop alone 36.0 %; 34 s and 37 s of CPU against fatrop's 50 s, docs/decisions/0008).
 POLISH_NEAR = 0.1
 # [m] a staged goal's random starts run when its placed ones ended this near. Replaying the demo
-# build's calls (D_max 5; docs/history.md): at 0.1 / 0.15 / 0.2 m, 2.4 / 1.3 / 0.0 % fewer of the crouch's
+# build's calls (D_max 5; docs/decisions/0008): at 0.1 / 0.15 / 0.2 m, 2.4 / 1.3 / 0.0 % fewer of the crouch's
 # goals reached than with every start together (+0.4 / +0.9 % of the whole body's), at 0.76 / 0.75 / 0.80 of the CPU.
 RANDOM_NEAR = 0.2
 WAVE_NEAR = 0.25  # [m] the random wave is for goals the K starts ended this near (farther: outside, as a rule)
@@ -148,7 +148,7 @@ def batch_starts(oracle: Searched, k: int, goal: np.ndarray, hint: np.ndarray | 
     # A standing body's first random starts move every joint only part of the way into its range (RANDOM_SPREAD):
     # uniform hips and ankles throw the held feet metres off, which most starts do not come back from in 40
     # steps; the second wave's are uniform, for the far basins (a reach behind the back, measured in
-    # docs/history.md).
+    # docs/decisions/0001).
     spread = spread if oracle.strategy.floating and wave == 0 else 1.0
     count = max(k - len(placed), 0) if wave == 0 else WAVE * k
     if targeted and wave == 0:

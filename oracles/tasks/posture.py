@@ -69,7 +69,7 @@ ENERGY = 5.0
 # Default weight of the displacement from the character's current posture: a
 # 10 deg change of one joint then costs about as much as a 3 cm rise of the
 # forearm, so that 1-cm goal steps move the joints by degrees, not tens of them
-# (the least pull that kept 1-cm neighbours under 10 deg: docs/history.md).
+# (the least pull that kept 1-cm neighbours under 10 deg: docs/decisions/0007).
 START = 10.0
 LIMIT_POWER = 8
 DLS_GAIN = 0.1

@@ -26,7 +26,7 @@ Candidates are ranked, best first, by
    nearest stored vertex its strategy's tree does not reach (the surface is
    within half a cell of it). The middle of the tie is not preferred: on a
    robot's table it stood the base among the targets, where the trees'
-   boundary cells claim what no posture reaches (docs/history.md);
+   boundary cells claim what no posture reaches (docs/decisions/0024);
 5. then the nearness to the centroid of the tied candidates.
 
 The best few are then verified: each target is asked of the selector, refined

@@ -34,7 +34,7 @@ LEAST_SOLVE = 0.25
 # A refinement without `from` also starts from the best-liked of this many
 # nearest stored postures (when it is not the nearest's): the nearest can sit
 # in a worse basin of the posture task than its neighbours, and two goals 1 cm
-# apart then ended in different basins (not found again in docs/history.md or the commits: as first written).
+# apart then ended in different basins (its measurement not found again: as first written).
 SEEDS = 8
 
 

@@ -84,7 +84,7 @@ MAX_MEMBER_BYTES = 2**31
 
 
 # The largest value a stored posture may hold (a joint's angle [rad], a root's position [m]): postures of 1e308 were
-# accepted (not found again in docs/history.md or the commits: as first written).
+# accepted (its measurement not found again: as first written).
 MAX_COORDINATE = 1e4
 
 # The members a tree file holds (save_tree); others are never inflated.

@@ -437,7 +437,7 @@ OPERATIONS: dict[str, Operation] = {op.name: op for op in (
         Field("top", "int", _top, f"placements returned, 1 to {MAX_TOP} (default 10)", default=10),
     ), "where to place the body to reach the targets: placements ranked by the trees (candidates x targets at most "
        f"{MAX_PLACE_POINTS:,})",
-        # A placement's cost: 1.9-2.8 s at its limit (not found again in docs/history.md or the commits: as first
+        # A placement's cost: 1.9-2.8 s at its limit (its measurement not found again: as first
         # written).
         worker=Service("run_place", cost=1.0)),
     Operation("accommodation", (

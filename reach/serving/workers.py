@@ -38,9 +38,9 @@ READY = b"READY"
 # sockets, wakes ahead of them for a stored answer, and they still get their
 # share of a machine other processes keep busy. At Linux's idle class
 # (SCHED_IDLE), as before, two CPU-bound processes beside a one-worker server
-# left refined queries 1.0 s at the median and 2 of 16 timed out (docs/history.md);
+# left refined queries 1.0 s at the median and 2 of 16 timed out (docs/decisions/0018);
 # at nice 5 they took 8 ms (max 20), all ok, and another client's stored
-# queries waited 9 ms at p99 (docs/history.md).
+# queries waited 9 ms at p99 (docs/decisions/0018).
 NICE = 5
 EXPIRED = b"expired"
 # the back-end socket's folder in the temporary directory: reach-serve-<server pid>-<random>

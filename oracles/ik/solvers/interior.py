@@ -35,7 +35,7 @@ from oracles.tasks import HardTask, Numeric, SoftTask
 
 # fatrop's initial barrier parameter for a settled reach stage (see Search.settle):
 # its start is a neighbour's posture a few centimetres off, which a smaller
-# barrier leaves less (docs/history.md: 17-24 % fewer iterations, same verdicts).
+# barrier leaves less (docs/decisions/0007: 17-24 % fewer iterations, same verdicts).
 SETTLE_MU = 1e-6
 # Lazy tasks' cuts (see oracles.tasks.base.HardTask): how many one program
 # holds, how many rounds of cutting a stage may take, how near its bound a row
@@ -265,7 +265,7 @@ class InteriorPoint(SingleSolver):
         if solver == "fatrop":
             # No structure detection: the problem is one stage, not an
             # optimal-control horizon. A small initial barrier parameter suits
-            # warm starts, which most build solves are (docs/history.md).
+            # warm starts, which most build solves are (docs/decisions/0007).
             return {"print_time": 0, "structure_detection": "none", "fatrop.print_level": 0, "fatrop.tol": 1e-6,
                     "fatrop.mu_init": 1e-4, "fatrop.max_iter": max_iter}
         seconds = self.room.search.max_seconds
