@@ -19,7 +19,8 @@ from pathlib import Path
 
 from reach.answers.audit import audit
 from reach.building.atlas import build_atlas
-from reach.building.config import parse_config, read_yaml
+from reach.building.config import parse_config
+from reach.building.documents import read_yaml
 from reach.building.executor import ProcessExecutor
 from reach.building.tree import Refine
 

@@ -24,7 +24,8 @@ from pathlib import Path
 import numpy as np
 
 from reach.building.atlas import build_atlas
-from reach.building.config import load_config, parse_config, read_yaml
+from reach.building.config import load_config, parse_config
+from reach.building.documents import read_yaml
 from reach.building.executor import DaskExecutor, ProcessExecutor
 from reach.maps.atlas import load_atlas
 from reach.maps.tree import FINAL, VATree

@@ -42,7 +42,8 @@ import pinocchio as pin
 
 from oracles.protocol import Goals, OracleSpec
 from reach.building.atlas import build_atlas
-from reach.building.config import load_config, parse_config, read_yaml
+from reach.building.config import load_config, parse_config
+from reach.building.documents import read_yaml
 from reach.building.executor import InlineExecutor, ProcessExecutor
 
 ROOT = Path(__file__).resolve().parents[1]

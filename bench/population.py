@@ -38,7 +38,8 @@ sys.path.insert(0, str(ROOT))
 
 from reach.answers.accommodation import direct, from_atlases  # noqa: E402
 from reach.answers.evaluate import Target, load_targets  # noqa: E402
-from reach.building.config import parse_config, read_yaml  # noqa: E402
+from reach.building.config import parse_config  # noqa: E402
+from reach.building.documents import read_yaml  # noqa: E402
 
 TARGETS = ROOT / "configs" / "targets" / "workstation_right.csv"
 # [m] world frame (x ahead, y left, z up, the feet at the origin): ahead and to the right of a standing body, floor

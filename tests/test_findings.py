@@ -13,7 +13,8 @@ import pytest
 
 from oracles.ik.search import Search
 from reach.building.atlas import build_atlas
-from reach.building.config import load_config, parse_config, read_yaml
+from reach.building.config import load_config, parse_config
+from reach.building.documents import read_yaml
 from reach.building.executor import ProcessExecutor
 from reach.maps.tree import FINAL, INNER
 from reach.tools.report import extents

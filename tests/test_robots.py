@@ -220,7 +220,7 @@ def test_a_box_that_cuts_the_volume_grows_within_its_limit(tmp_path):
     """box: auto's B0 grows on the faces reachable vertices lie on, up to the provable bound, and the atlas is built
     again."""
     from reach.building.atlas import build_atlas
-    from reach.building.config import grown
+    from reach.building.autobox import grown
     from reach.maps.box import Box
 
     raw = {"box": {"min": [-1.2, -1.2, -1.2], "max": [1.2, 1.2, 1.2]}, "depth": {"min": 1, "max": 3},
