@@ -241,16 +241,23 @@ def test_a_motions_frames_are_held_as_one_batch(whole):
             assert coal_capsule_distance(a[:3], a[3:6], a[6], b[:3], b[3:6], b[6]) >= pair.floor - 1e-6
 
 
-def test_an_iteration_starts_only_when_one_as_long_as_the_last_ends_before_the_deadline(monkeypatch):
-    """The batched engine's pace (on a clock of our own, not the wall's): with iterations of 3 s and a deadline at
-    10 s, the iterations that start at 3 and 6 s end by 9 s; the one that would start at 9 s would end at 12 and does
-    not start. Checking the deadline alone started it (the overrun a refinement's answer paid)."""
-    clock = iter([0.0, 3.0, 6.0, 9.0, 9.5, 20.0])
+def test_the_clock_only_guards_a_work_budget_and_a_stall_does_not_cut_it(monkeypatch):
+    """A meter's rounds are paid by work; the clock cuts them only once its guard has passed (on a clock of our own,
+    not the wall's). A round after a stall (the process descheduled for 5 s of a 10 s guard) is still paid: looking
+    one round ahead by the last round's time cut refinements beside two CPU-bound processes well inside the guard,
+    and the same request got another answer."""
+    clock = iter([3.0, 8.0, 9.9, 10.5, 11.0, 12.0, 13.0])
     monkeypatch.setattr(budget.time, "perf_counter", lambda: next(clock))
-    pace = budget.Pace(10.0)
-    assert [pace.out(), pace.out(), pace.out()] == [False, False, True]
-    assert pace.step == 3.0
-    assert not budget.Pace(float("inf")).out()  # a build has no deadline: every iteration runs
+    meter = budget.Meter(np.array([1.0, 1.0]), deadline=10.0)
+    goals = np.array([0, 1])
+    assert meter.pay(goals, 0.1).all()  # at 3 s
+    assert meter.pay(goals, 0.1).all()  # at 8 s, after a 5 s stall
+    assert meter.pay(goals, 0.1).all()  # at 9.9 s
+    assert not meter.pay(goals, 0.1).any() and meter.cut.all()  # at 10.5 s: past the guard
+    assert meter.left == pytest.approx([0.7, 0.7])
+    assert meter.late()  # at 11 s
+    free = budget.Meter.unlimited(2)  # a build: no budget, no guard
+    assert free.pay(goals, 1e9).all() and not free.late()
 
 
 def test_a_strategys_spread_scales_its_first_random_starts_and_is_written_only_when_given(whole):

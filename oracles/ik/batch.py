@@ -679,7 +679,7 @@ def _restore(program: BatchProgram, y: np.ndarray, state: State, params: np.ndar
     """A few reach steps that bring the lower-refined postures y (in place) that drifted back onto the goal and the
     hard rows; y's evaluation."""
     for _ in range(RESTORE_ITER):
-        if meter.pace.out():
+        if meter.late():
             break  # (a lower-refined posture left off the goal keeps its reach posture; these few steps back to the
             # goal are not priced: the clock's guard alone)
         d, v = np.linalg.norm(state.e, axis=1), program.violation(state)

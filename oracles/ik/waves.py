@@ -441,7 +441,7 @@ class Waves:
         """One fatrop solve of goal i from ``guess``, kept when it reaches or comes nearer; whether it reached."""
         oracle = self.oracle
         q = self.solver.polish.solve(self.pts[i], guess, oracle.search.secondary,
-                                  Call(self.start, self.meter.pace.deadline, target_i))
+                                  Call(self.start, self.meter.deadline, target_i))
         oracle.stats["polished"] = oracle.stats.get("polished", 0) + 1
         self.polishes[i] += 1
         check = oracle.problem.check(q, self.pts[i], oracle.data, target_i)
