@@ -3,7 +3,7 @@
 The paper leaves "the timing of motion in order to get more smooth and
 realistic reaching animations ... an interpolation scheme ... storing
 postural data in each reachable node of the tree" as future work (section
-6). :class:`Planner` does it in four steps:
+6). :class:`Planner` does it in three steps:
 
 1. **The end posture** is the selector's answer for the goal, refined from
    the start posture (the query's ``from``): the strategy is chosen as a
@@ -15,13 +15,15 @@ postural data in each reachable node of the tree" as future work (section
    analysis for a functional response", Technometrics 39(3):254-261, fitted
    reach trajectories). Where a frame breaks a hard task (a collision, a
    foot that drifts, the balance), the oracle's ``hold`` moves it to the
-   nearest posture that keeps the hand where it was and every hard task;
-   where that fails, the path is routed through the postures stored at the
-   tree's reachable vertices (the paper's stored postural data): a shortest
-   path over neighbouring vertices in posture distance, edges checked
-   lazily (:mod:`reach.motion.routes`), then shortened by dropping every waypoint a direct segment can
-   skip, its corners rounded (quadratic Bezier curves on the configuration
-   space) where the rounded frames can be held.
+   nearest posture that keeps the hand where it was and every hard task
+   (:mod:`reach.motion.holding`); where that fails, the path is routed
+   through the postures stored at the tree's reachable vertices (the paper's
+   stored postural data, :mod:`reach.motion.routes`): a shortest path over
+   neighbouring vertices in posture distance, edges checked lazily, then
+   shortened by dropping every waypoint a direct segment can skip, its
+   corners rounded (quadratic Bezier curves on the configuration space)
+   where the rounded frames can be held. A strategy whose atlas carries a
+   motion graph goes through it first (:mod:`reach.maps.graph`).
 3. **The duration and the timing** (:mod:`reach.motion.timing`): MTM-1's
    movement times for the hand's path and the body's motions, minimum jerk
    along the hand's path.

@@ -20,7 +20,7 @@ from reach.errors import MotionError
 from reach.maps.atlas import Atlas
 from reach.maps.graph import REACH, MotionGraph, graph_of
 from reach.maps.tree import VATree
-from reach.motion.holding import HOLD_STEP, Holding
+from reach.motion.holding import EDGE_HOLD, HOLD_STEP, Holding
 from reach.motion.paths import Body, rounded
 from reach.motion.timing import Frames, Timing, timed
 
@@ -235,12 +235,11 @@ class Routes:
         return None
 
     def _entries(self, name: str, point: np.ndarray, q: np.ndarray, oracle: Body, first: bool,
-                 limit: float | None = None) -> list[int]:
+                 limit: float = EDGE_HOLD) -> list[int]:
         """Stored vertices near ``point`` linked to ``q`` by a segment that holds (from q when ``first``, else to it),
         nearest in posture first: one for the route's start, up to three for its end."""
         _, postures, _, _ = self.near(name)
-        kw = {} if limit is None else {"limit": limit}
         linked = (i for i in self._nearby(name, point, q)
-                  if (self.holding.clear(oracle, q, postures[i], **kw) if first
-                      else self.holding.clear(oracle, postures[i], q, **kw)))
+                  if (self.holding.clear(oracle, q, postures[i], limit) if first
+                      else self.holding.clear(oracle, postures[i], q, limit)))
         return list(itertools.islice(linked, 1 if first else 3))
