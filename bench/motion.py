@@ -93,7 +93,7 @@ def in_process(planner: Planner, groups: dict[str, np.ndarray]) -> None:
                 planner.plan(EFFECTOR, goal)
             except MotionError:
                 pass
-        held = dict(planner.holds)
+        held = dict(planner.holding.counts)
         for goal in goals:
             t0 = time.perf_counter()
             try:
@@ -119,7 +119,8 @@ def in_process(planner: Planner, groups: dict[str, np.ndarray]) -> None:
              broken_frames=broken, failed=failed,
              path_ratio_median=round(float(np.median(ratios)), 3) if ratios else None,
              path_ratio_max=round(float(np.max(ratios)), 3) if ratios else None,
-             held_in_batch=planner.holds["batch"] - held["batch"], held_alone=planner.holds["alone"] - held["alone"])
+             held_in_batch=planner.holding.counts["batch"] - held["batch"],
+             held_alone=planner.holding.counts["alone"] - held["alone"])
 
 
 @contextlib.contextmanager

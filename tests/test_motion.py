@@ -586,12 +586,12 @@ def test_a_paths_broken_frames_are_held_as_one_batch_by_the_batched_engine(plann
     alone = []
     monkeypatch.setattr(batch, "hold", lambda q, before=None: alone.append(q) or fatrop.hold(q, before))
     monkeypatch.setattr(planner.holding, "deadline", time.perf_counter() + 60.0)
-    counted = dict(planner.holds)
+    counted = dict(planner.holding.counts)
     held = planner.holding.hold_path(batch, frames)
     assert held is not None and held[1] == len(broken)
     # the planner's counts (bench/motion.py's held_in_batch, held_alone) are what happened
-    assert planner.holds["alone"] - counted["alone"] == len(alone)
-    assert planner.holds["batch"] - counted["batch"] == len(broken) - len(alone)
+    assert planner.holding.counts["alone"] - counted["alone"] == len(alone)
+    assert planner.holding.counts["batch"] - counted["batch"] == len(broken) - len(alone)
     # here 18 of 44 held alone (unheld by the batch, or moved too far), 26 in one batch
     assert len(alone) <= 0.5 * len(broken)
     assert not any(fatrop.faults(held[0]))

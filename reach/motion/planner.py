@@ -165,8 +165,6 @@ class Planner:
         self.selector = selector.with_budget(budget)
         self.holding = Holding()
         self.routes = Routes(selector.atlas, self.holding, graph)
-        # Frames that broke a task and were held, by the batched hold or one at a time (bench/motion.py reads them).
-        self.holds = self.holding.counts
 
     def plan(self, effector: str, goal: np.ndarray | list[float], start: dict[str, float] | None = None, *,
              rate: float = RATE,

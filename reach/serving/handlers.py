@@ -55,7 +55,6 @@ class Broker(Protocol):
     publisher: Publisher
     pool: Pool | None
     ledger: Ledger
-    pending: dict[int, Pending]
     faults: Faults
     reloads: Reloads
     refine: bool
@@ -159,7 +158,7 @@ class Query(Handler):
         each = server.budget if req["orientation"] is None else max(server.budget, ORIENTED_BUDGET)
         seq = server.ledger.pend(req, envelope, min(n * each + SLACK, MAX_WAIT) if refine else MAX_WAIT, bounds, n)
         if seq is not None:
-            deadline, orientation = server.pending[seq].deadline, req["orientation"]
+            deadline, orientation = server.ledger.pending[seq].deadline, req["orientation"]
             run = P.OPERATIONS[req.op].worker.run  # type: ignore[union-attr]
 
             def make(part: int) -> Task:
@@ -229,7 +228,7 @@ class Whole(Handler):
         seq = server.ledger.pend(req, envelope, MAX_WAIT, [(0, 1)], 0)
         if seq is not None:
             server.pool.submit(Task(seq, 0, req.args.get("effector") or "", goals, req.args.get("from"),
-                                    server.pending[seq].deadline, None, envelope[0], req.op, options,
+                                    server.ledger.pending[seq].deadline, None, envelope[0], req.op, options,
                                     whole_cost=service.cost, run=service.run))
         return True
 
@@ -345,7 +344,7 @@ class Health(Handler):
             "status": "serving", "protocol": P.VERSION, "atlas": str(server.atlas_path),
             "strategies": len(server.selector.order),
             "uptime": time.monotonic() - server.started, "requests": server.requests, "errors": server.faults.count,
-            "workers": 0 if pool is None else pool.size, "pending": len(server.pending),
+            "workers": 0 if pool is None else pool.size, "pending": len(server.ledger.pending),
             "resends": server.ledger.resends, "worker_restarts": 0 if pool is None else pool.restarts,
             "workers_ready": 0 if pool is None else pool.ready,
             "workers_stalled": 0 if pool is None else len(pool.stalled),

@@ -144,7 +144,6 @@ class Server:
         self.requests = 0
         self.faults = Faults()
         self.ledger = Ledger()  # the requests the workers answer
-        self.pending = self.ledger.pending
         self._planner: Planner | None = None  # motions without workers, made on the first
 
     # -- lifecycle ---------------------------------------------------------
@@ -324,8 +323,8 @@ class Server:
         selector = served.selector
         if self.pool is not None:
             # The workers hold the old atlas: answer their requests from the store, and start new ones.
-            for seq in list(self.pending):
-                self.pending[seq].deadline = 0.0
+            for seq in list(self.ledger.pending):
+                self.ledger.pending[seq].deadline = 0.0
             self._expire(slice_goals=sys.maxsize)  # all at once: the old atlas's workers go
             self.pool.close()
             self.pool = Pool(self.context, path, self.options, self.pool.size)
@@ -333,7 +332,7 @@ class Server:
 
     # -- requests the workers answer -------------------------------------------------
     def _finished(self, task: Task, frames: list[bytes]) -> None:
-        pending = self.pending.get(task.request)
+        pending = self.ledger.pending.get(task.request)
         if pending is None:
             return  # answered already (its deadline passed)
         HANDLERS[pending.request.op].finish(self, task.request, pending, frames, task.part)
@@ -351,7 +350,7 @@ class Server:
         ``slice_goals`` at a time, one slice a pass of the loop (a vectorised lookup of 10,000 goals still held the
         loop 1.4 s): the request's reply goes when its last slice is in."""
         now = time.monotonic()
-        for seq, due in [(s, p) for s, p in self.pending.items() if p.deadline <= now]:
+        for seq, due in [(s, p) for s, p in self.ledger.pending.items() if p.deadline <= now]:
             assert self.pool is not None
             self.pool.cancel(seq)
             HANDLERS[due.request.op].expire(self, seq, due)
@@ -359,7 +358,7 @@ class Server:
         expiring = self.ledger.expiring
         while expiring and budget > 0:
             seq = expiring[0]
-            pending = self.pending.get(seq)
+            pending = self.ledger.pending.get(seq)
             missing = [] if pending is None else [part for part, done in enumerate(pending.parts) if done is None]
             if pending is None or not missing:
                 expiring.popleft()
