@@ -277,9 +277,9 @@ def echo_beside(address: str, payload: bytes) -> tuple[subprocess.Popen, str, in
 CHUNK: list[str] = []  # the servers' --chunk option, when given
 
 
-def serve(atlas: Path, workers: int) -> tuple[subprocess.Popen, str]:
+def serve(atlas: Path, workers: int, *extra: str) -> tuple[subprocess.Popen, str]:
     return start([sys.executable, "-m", "reach.tools.cli", "serve", str(atlas), "--bind", "tcp://127.0.0.1:*",
-                  "--pub", "none", "--budget-ms", "20", "--workers", str(workers), *CHUNK])
+                  "--pub", "none", "--budget-ms", "20", "--workers", str(workers), *CHUNK, *extra])
 
 
 def _ready(address: str) -> None:
@@ -499,9 +499,10 @@ def heavy_bench(atlas: Path, repeats: int = 10) -> None:
         server.wait(timeout=30)
 
 
-def watch(address: str, pid: int, stop: Any, out: Any) -> None:
+def watch(address: str, pid: int, stop: Any, out: Any, patience: float = 5.0, started: Any = None) -> None:
     """The attacks' watcher (a process of its own): stored queries without pause until ``stop``; puts its waits [s],
-    the requests it lost (no reply in 5 s) and the server's largest resident memory [bytes] on ``out``."""
+    the requests it lost (no reply in ``patience`` s) and the server's largest resident memory [bytes] on ``out``;
+    sets ``started`` (an Event) once its first query is answered."""
     sock = zmq.Context.instance().socket(zmq.REQ)
     sock.setsockopt(zmq.LINGER, 0)
     sock.connect(address)
@@ -511,9 +512,11 @@ def watch(address: str, pid: int, stop: Any, out: Any) -> None:
     while not stop.is_set():
         t0 = time.perf_counter()
         sock.send(payload)
-        if sock.poll(5000):
+        if sock.poll(int(patience * 1000)):
             sock.recv()
             waits.append(time.perf_counter() - t0)
+            if started is not None:
+                started.set()
         else:
             lost += 1
             sock.close(linger=0)

@@ -233,3 +233,12 @@ def test_a_mesh_path_too_long_for_the_system_is_a_one_line_error(tmp_path, capsy
     assert main(["model", str(urdf)]) == 2
     err = [line for line in capsys.readouterr().err.splitlines() if line.startswith("reach: error: ")]
     assert len(err) == 1 and len(err[0]) < 1000 and "not found" in err[0]
+
+
+def test_a_urdf_nested_too_deeply_is_a_one_line_error(tmp_path, capsys):
+    """urdfdom's parser printed three lines of its own for 100,000 nested elements; refused before it sees them."""
+    urdf = tmp_path / "deep.urdf"
+    urdf.write_text('<robot name="r">' + "<a>" * 100_000 + "</a>" * 100_000 + "</robot>")
+    assert main(["model", str(urdf)]) == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert len(err) == 1 and "nested over 100 levels" in err[0] and str(urdf) in err[0]

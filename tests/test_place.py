@@ -271,3 +271,37 @@ def test_a_ranking_keeps_its_deadline_and_bounds_its_margins(balls, monkeypatch)
     with pytest.raises(place.PastDeadline) as err:
         rank([balls], targets, space, deadline=time.perf_counter() - 1.0)
     assert err.value.code == "timeout"
+
+
+def test_a_repeated_target_is_measured_once_and_a_late_deadline_stops_the_lookups(balls, monkeypatch):
+    """1,000 identical targets held a server's worker in one k-d tree query; the trees' lookups of 1.68 M points
+    read no deadline (a worker answered 1.1 s past it beside two CPU-bound processes). A layout's repeated point is
+    queried once, the ranking is the one target's, and the lookups stop at a deadline between their chunks."""
+    import reach.answers.place as place
+
+    space = Space((-0.2, 0.2), (-0.2, 0.2), step=0.01, yaw=(0.0, 0.0))
+    one = rank([balls], [Target("t", (0.05, 0.02, 0.0), "hand")], space)
+    queried = []
+    real = place.cKDTree
+
+    class Counting(real):  # type: ignore[misc, valid-type]
+        def query(self, x, *args, **kwargs):  # noqa: ANN001, ANN002, ANN003, ANN202 - counts the margins' queries
+            queried.append(len(x))
+            return super().query(x, *args, **kwargs)
+
+    monkeypatch.setattr(place, "cKDTree", Counting)
+    many = rank([balls], [Target(f"t{k}", (0.05, 0.02, 0.0), "hand") for k in range(1000)], space)
+    assert np.array_equal(many.placements, one.placements) and np.array_equal(many.margin, one.margin, equal_nan=True)
+    assert sum(queried) == np.count_nonzero(~np.isnan(one.margin))  # one point a tied candidate
+    # a clock that passes the deadline after the first chunk's look: the lookups stop at the second
+    looks = []
+
+    def clock() -> float:
+        looks.append(1)
+        return 0.0 if len(looks) < 2 else 10.0
+
+    monkeypatch.setattr(place.time, "perf_counter", clock)
+    monkeypatch.setattr(place, "CONTAINS_CHUNK", 100)
+    with pytest.raises(place.PastDeadline):
+        rank([balls], [Target("t", (0.05, 0.02, 0.0), "hand")], space, deadline=5.0)
+    assert len(looks) == 2

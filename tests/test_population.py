@@ -22,6 +22,7 @@ from reach.answers.evaluate import Target
 from reach.building.config import parse_config
 from reach.building.population import members_of
 from reach.errors import ConfigError
+from reach.serving import protocol as P
 from reach.tools.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -556,3 +557,95 @@ def test_a_target_on_the_body_from_a_built_populations_atlases(built, tmp_path, 
     assert [m["reached"] for m in from_trees["by_member"]] == [[True, False]] * 4
     config = parse_config(json.loads(config_path.read_text()), str(config_path))
     assert [m["reached"] for m in direct(config, _on_body_targets())["by_member"]] == [[True, False]] * 4
+
+
+# Values a client or a file might hold where something else is expected; "RAW:" ones are JSON text that json.dumps
+# cannot write (numbers past a double, non-standard constants, deep nesting).
+WEIRD = [None, True, -1, 0, 1.5, 1e308, -1e308, 10**30, "", "x" * 5000, [], {}, [[[]]], [1, 2], {"a": 1}, "NaN",
+         "RAW:1e999", "RAW:-Infinity", "RAW:NaN", "RAW:1" + "0" * 400, "RAW:" + "[" * 5000 + "]" * 5000]
+CODES = {P.BAD_FRAMES, P.TOO_LARGE, P.BAD_JSON, P.BAD_REQUEST, P.UNKNOWN_OP, P.UNKNOWN_EFFECTOR, P.UNKNOWN_STRATEGY,
+         P.FORBIDDEN, P.UNREACHABLE, P.NO_MOTION, P.TIMEOUT, P.BUSY}
+
+
+def _with(doc: dict, path: list, value: object) -> bytes:
+    """``doc`` as JSON with the key at ``path`` set to ``value`` (a WEIRD one), or removed for the value ``...``."""
+    doc = json.loads(json.dumps(doc))
+    node = doc
+    for key in path[:-1]:
+        node = node[key]
+    if value is ...:
+        if isinstance(node, list):
+            del node[path[-1]]
+        else:
+            node.pop(path[-1], None)
+        return json.dumps(doc).encode()
+    raw = isinstance(value, str) and value.startswith("RAW:")
+    node[path[-1]] = "__RAW__" if raw else value
+    text = json.dumps(doc)
+    return (text.replace('"__RAW__"', value[4:]) if raw else text).encode()  # type: ignore[index]
+
+
+def test_fuzzed_requests_to_a_population_server_get_a_documented_code_and_never_internal(built):
+    from reach.serving.server import Server
+
+    _, out, _ = built
+    doc = json.loads((out / "population.json").read_text())
+    point = [0.4, -0.3, 1.1]
+    templates = {
+        "query": {"op": "query", "effector": "right_hand", "goal": point},
+        "motion": {"op": "motion", "effector": "right_hand", "goal": point},
+        "place": {"op": "place", "targets": [{"point": point, "effector": "right_hand"}], "x": [0, 0.1],
+                  "y": [0, 0.1], "yaw": [0, 0]},
+        "accommodation": {"op": "accommodation", "effector": "right_hand", "goals": [point]},
+    }
+    rng = np.random.default_rng(63)
+    server = Server(out / doc["members"][0]["atlas"], "tcp://127.0.0.1:*", None, population=out, budget=0.05)
+    codes: dict[str, int] = {}
+    try:
+        for _ in range(400):
+            op = str(rng.choice(P.OPS))
+            template = templates.get(op, {"op": op})
+            keys = ["id", "op", "unknown", *template, *(f.name for f in P.OPERATIONS[op].fields)]
+            path: list = [str(rng.choice(keys))]
+            if path[0] in ("goal", "goals", "targets", "x") and path[0] in template and rng.random() < 0.5:
+                path.append(0)  # inside a list
+            value = ... if rng.random() < 0.15 else WEIRD[int(rng.integers(len(WEIRD)))]
+            reply = json.loads(server.respond(_with(template, path, value)))  # type: ignore[arg-type]
+            code = "ok" if reply["ok"] else reply["error"]["code"]
+            assert code == "ok" or code in CODES, (op, path, value, reply)
+            codes[code] = codes.get(code, 0) + 1
+        assert json.loads(server.respond(b'{"op": "health"}'))["ok"]  # type: ignore[arg-type]
+    finally:
+        server.close()
+    assert codes.get(P.BAD_REQUEST, 0) > 100 and codes.get("ok", 0) > 10, codes  # both kinds drawn
+
+
+def test_fuzzed_population_folders_are_refused_in_one_line_naming_the_file(built, tmp_path):
+    from reach.answers.accommodation import load_members
+    from reach.errors import ReachError
+
+    _, out, _ = built
+    doc = json.loads((out / "population.json").read_text())
+    rng = np.random.default_rng(64)
+    refused = 0
+    for k in range(80):
+        folder = tmp_path / f"p{k}"
+        folder.mkdir()
+        for m in doc["members"]:
+            (folder / m["atlas"]).symlink_to(out / m["atlas"])
+        where = rng.choice(["top", "member"])
+        path: list = ([str(rng.choice(["format", "members", "name", "population"]))] if where == "top" else
+                      ["members", int(rng.integers(len(doc["members"]))),
+                       str(rng.choice(["name", "atlas", "weight", "sex"]))])
+        value = ... if rng.random() < 0.2 else WEIRD[int(rng.integers(len(WEIRD)))]
+        (folder / "population.json").write_bytes(_with(doc, path, value))
+        try:
+            atlases, weights, names = load_members(folder)
+        except ReachError as exc:
+            refused += 1
+            message = str(exc)
+            assert "\n" not in message and len(message) < 600 and "population.json" in message, (path, value, message)
+            continue
+        # taken: a valid manifest (a value that does not matter, or one that is valid)
+        assert len(atlases) == len(doc["members"]) and np.isclose(weights.sum(), 1.0) and all(names), (path, value)
+    assert refused > 40

@@ -943,8 +943,14 @@ def requests(draw):
 
 
 @pytest.mark.slow
-def test_generated_requests_get_the_same_kind_of_reply_with_workers_and_without_and_no_server_dies(human):
-    servers = [Running(human, budget=0.05, workers=0), Running(human, budget=0.05, workers=1)]
+def test_generated_requests_get_the_same_kind_of_reply_with_workers_and_without_and_no_server_dies(human, tmp_path):
+    # a population of two (the atlas twice) served too: accommodation is drawn against it
+    members = [{"name": f"m{k}", "atlas": f"m{k}", "sex": "male", "weight": 1.0} for k in range(2)]
+    for m in members:
+        (tmp_path / m["atlas"]).symlink_to(human)
+    (tmp_path / "population.json").write_text(json.dumps({"format": 1, "name": "two", "members": members}))
+    servers = [Running(human, budget=0.05, workers=0, population=tmp_path),
+               Running(human, budget=0.05, workers=1, population=tmp_path)]
     socks = [_dealer(r.server.endpoint) for r in servers]
     for sock in socks:
         sock.setsockopt(zmq.RCVTIMEO, 30_000)
@@ -1121,3 +1127,75 @@ def test_an_operation_the_workers_answer_is_added_as_a_service(balls, monkeypatc
     finally:
         sock.close(linger=0)
         r.stop()
+
+
+def test_large_requests_wait_in_a_bounded_backlog_while_small_ones_are_answered_at_once():
+    """Reading (docs/protocol.md): a small request is answered as it is read, large ones (64 KiB or more) wait in
+    the backlog, at most PER_CLIENT a client (more are answered busy, unread), and are answered client by client."""
+    from reach.serving.intake import LARGE, PER_CLIENT, Intake
+
+    ctx = zmq.Context.instance()
+    router = ctx.socket(zmq.ROUTER)
+    router.bind("inproc://intake-test")
+    flood, quiet, other = (ctx.socket(zmq.DEALER) for _ in range(3))
+    for sock, name in ((flood, b"flood"), (quiet, b"quiet"), (other, b"other")):
+        sock.setsockopt(zmq.ROUTING_ID, name)
+        sock.connect("inproc://intake-test")
+    handled: list[tuple[bytes, bytes, bool]] = []
+    sent: list[tuple[list[bytes], dict]] = []
+    intake = Intake(router, lambda frames, later: handled.append((frames[0], frames[-1][:12], later)),
+                    lambda envelope, reply: sent.append((envelope, json.loads(reply))))
+    big = b'{"op": "health", "pad": "' + b"x" * LARGE + b'"}'
+    try:
+        for _ in range(PER_CLIENT + 4):
+            flood.send_multipart([b"", big])
+        other.send_multipart([b"", big])
+        quiet.send_multipart([b"", b'{"op": "health"}'])
+        end = time.monotonic() + 10
+        while len(handled) + intake.held + len(sent) < PER_CLIENT + 6 and time.monotonic() < end:
+            intake.read()
+        # the quiet client's request answered as it was read, behind none of the large ones
+        assert handled == [(b"quiet", b'{"op": "heal', False)]
+        # the flood's requests past its share refused busy, unread (no id); the others held
+        assert intake.held == PER_CLIENT + 1 and len(sent) == 4 and intake.refused == 4
+        assert all(e[0] == b"flood" and r["error"]["code"] == P.BUSY and r["id"] is None for e, r in sent)
+        while intake:
+            intake.run()
+        order = [who for who, _, later in handled[1:]]
+        assert all(later for _, _, later in handled[1:]) and len(order) == PER_CLIENT + 1
+        # client by client: the other client's one is the second answered, not the seventeenth
+        assert order[:2] == [b"flood", b"other"] and intake.bytes == 0
+    finally:
+        for sock in (flood, quiet, other, router):
+            sock.close(linger=0)
+
+
+def test_a_batch_is_taken_only_while_every_queued_querys_store_answers_fit_before_its_deadline():
+    """Six 10,000-goal batches with 3.5 s deadlines were all taken, each stopping its workers 3 s early for its own
+    goals alone; the loop then answered 60,000 goals from the store, 9 s of work, and replies came late. Each
+    request's workers now stop the store's time for every query due before it, and one that cannot fit is busy."""
+    from reach.errors import ProtocolError
+    from reach.serving.ledger import STORED_RESERVE, Ledger
+
+    def query(goals: int, deadline: float) -> P.Request:
+        return P.parse_request(json.dumps({"op": "query", "effector": "right_hand", "goals": [[0.4, -0.3, 1.1]] * goals,
+                                           "deadline": deadline}).encode())
+
+    ledger = Ledger()
+    first = ledger.pending[ledger.pend(query(10_000, 3.5), [b"a"], 60.0, [(0, 10_000)], 10_000)]
+    assert first.due - first.deadline == pytest.approx(10_000 * STORED_RESERVE)
+    with pytest.raises(ProtocolError) as busy:
+        ledger.pend(query(10_000, 3.5), [b"b"], 60.0, [(0, 10_000)], 10_000)
+    assert busy.value.code == P.BUSY and "retry in about" in str(busy.value) and len(ledger.pending) == 1
+    # its own goals alone past its deadline: timeout, as before
+    with pytest.raises(ProtocolError) as late:
+        ledger.pend(query(10_000, 2.0), [b"c"], 60.0, [(0, 10_000)], 10_000)
+    assert late.value.code == P.TIMEOUT
+    # a small query due before the batch is taken, and the batch's workers stop its goals' time sooner
+    stop = first.deadline
+    small = ledger.pending[ledger.pend(query(100, 3.0), [b"d"], 60.0, [(0, 100)], 100)]
+    assert small.due - small.deadline == pytest.approx(100 * STORED_RESERVE)
+    assert first.deadline == pytest.approx(stop - 100 * STORED_RESERVE)
+    # both past their stop: the one due soonest is answered from the store first
+    ledger.expiring.extend(ledger.pending)
+    assert ledger.pending[ledger.soonest_expiring()] is small

@@ -19,6 +19,7 @@ import pinocchio as pin
 from oracles.errors import ModelError
 
 ROOT = "root"
+MAX_DEPTH = 100  # levels of elements a URDF may nest (robot, link, visual, geometry, mesh: 5; Gazebo's tags a few more)
 
 
 def no_doctype(text: str, source: Any, kind: str) -> None:
@@ -36,6 +37,9 @@ def _check_xml(urdf: str, source: str) -> None:
         root = ET.fromstring(urdf)
     except ET.ParseError as exc:
         raise ModelError(f"not a valid URDF (XML: {exc})", source=source) from None
+    if _depth(root) > MAX_DEPTH:
+        # urdfdom's parser (tinyxml2) stops at 500 levels, over three lines of its own on stderr
+        raise ModelError(f"elements nested over {MAX_DEPTH} levels deep: not a URDF", source=source)
     for link in root.iter("link"):
         mass = link.find("inertial/mass")
         if mass is not None and not _number_at_least(mass.get("value", "nan"), 0.0):
@@ -47,6 +51,16 @@ def _check_xml(urdf: str, source: str) -> None:
                 axis.get("xyz", "1 0 0")):
             raise ModelError(f"joint {joint.get('name')!r}: axis {axis.get('xyz')!r}; expected three finite "
                              "numbers, not all zero", source=source)
+
+
+def _depth(root: ET.Element) -> int:
+    """How deep an XML tree's elements nest (without recursion: a hostile file nests 100,000 deep)."""
+    deepest, stack = 0, [(root, 1)]
+    while stack:
+        node, depth = stack.pop()
+        deepest = max(deepest, depth)
+        stack.extend((child, depth + 1) for child in node)
+    return deepest
 
 
 def _number_at_least(text: str, least: float) -> bool:

@@ -90,12 +90,13 @@ def load_members(folder: str | Path) -> tuple[list[Atlas], np.ndarray, list[str]
     for m in doc["members"]:
         path = Path(folder) / m["atlas"]
         if not (path / "manifest.json").is_file():
-            raise ConfigError(str(path), "", f"member {m['name']} is not built yet: run reach build --resume on the "
-                                             "population's config")
+            raise ConfigError(str(Path(folder) / "population.json"), "", f"member {m['name']}: its atlas {path} is not "
+                                                                    "built yet: run reach build --resume on the "
+                                                                    "population's config")
         atlases.append(load_atlas(path))
     w = np.array([m["weight"] for m in doc["members"]], float)
     if not len(w) or w.sum() <= 0:
-        raise ConfigError(str(folder), "members", "no member with a weight above 0")
+        raise ConfigError(str(Path(folder) / "population.json"), "members", "no member with a weight above 0")
     return atlases, w / w.sum(), [str(m["name"]) for m in doc["members"]]
 
 

@@ -62,6 +62,10 @@ MARGIN_TIES = 5000  # tied best candidates whose margin is measured at most (eac
 # k-d tree queries of the margins at most (tied candidates x targets): 1,681 tied candidates x 1,000 targets held a
 # server's worker for over 1,000 s (measured with commit 0059659); this many take about 0.1 s
 MARGIN_QUERIES = 200_000
+# points a tree's lookup (0.3 s for 1.68 M quiet; 1 s beside two CPU-bound processes, a worker's nice 5) or a k-d tree
+# query takes at once between two looks at the deadline
+CONTAINS_CHUNK = 100_000
+KD_CHUNK = 20_000
 
 
 class PastDeadline(ReachError):
@@ -174,7 +178,8 @@ def rank(atlases: Sequence[Atlas], targets: Sequence[Target], space: Space, effe
          deadline: float | None = None, body_weights: np.ndarray | None = None, need: float = 1.0) -> Ranking:
     """Score every candidate of the space against the targets by the trees (see the module docstring); best first.
 
-    ``deadline`` (``time.perf_counter()``): checked between strategies and in the margins; past it, PastDeadline.
+    ``deadline`` (``time.perf_counter()``): checked between chunks of the trees' lookups and of the margins' queries;
+    past it, PastDeadline.
     ``body_weights`` (B,): the bodies' weights (default equal); ``need``: the share of targets a body must reach to be
     accommodated (default all).
     """
@@ -204,7 +209,8 @@ def rank(atlases: Sequence[Atlas], targets: Sequence[Target], space: Space, effe
     spread = _spread(placements, top)
     margin = np.full(n_c, np.nan)
     tied = np.nonzero(top)[0]
-    tied = tied[np.argsort(spread[tied], kind="stable")][:max(1, min(MARGIN_TIES, MARGIN_QUERIES // n_t))]
+    distinct = len(np.unique(points, axis=0))  # a repeated target's margin is queried once (``margins``)
+    tied = tied[np.argsort(spread[tied], kind="stable")][:max(1, min(MARGIN_TIES, MARGIN_QUERIES // distinct))]
     in_time()
     margin[tied] = margins(atlases, all_names, taken[tied], body.reshape(n_c, n_t, 3)[tied], in_time)
     order = np.lexsort((spread, -np.nan_to_num(margin, nan=-np.inf), -preference, -reached, -accommodated))
@@ -241,8 +247,11 @@ def _held_by(atlas: Atlas, targets: Sequence[Target], body: np.ndarray, effector
         sub = body[:, cols].reshape(-1, 3)
         open_ = np.ones((n_c, len(cols)), bool)
         for k, name in enumerate(names):
-            in_time()
-            held = atlas.maps[name].contains(sub, policy).reshape(n_c, len(cols)) & open_
+            held = np.empty(len(sub), bool)
+            for a in range(0, len(sub), CONTAINS_CHUNK):  # the deadline looked at between chunks
+                in_time()
+                held[a : a + CONTAINS_CHUNK] = atlas.maps[name].contains(sub[a : a + CONTAINS_CHUNK], policy)
+            held = held.reshape(n_c, len(cols)) & open_
             taken[:, cols] = np.where(held, len(names_b) + k, taken[:, cols])
             weight[:, cols] = np.where(held, w[k], weight[:, cols])
             open_ &= ~held
@@ -288,10 +297,15 @@ def margins(atlases: Sequence[Atlas], names: list[list[str]], taken: np.ndarray,
             outside = atlas.maps[name].unreached()
             if not len(outside):
                 continue
-            if in_time is not None:
-                in_time()
-            depth, _ = cKDTree(outside).query(points[c, t])
-            np.minimum.at(out, c, depth)
+            # A layout's repeated point is asked once (1,000 identical targets held a worker in one query), and the
+            # rest in chunks with the deadline looked at between them.
+            asked, back = np.unique(points[c, t], axis=0, return_inverse=True)
+            tree, depth = cKDTree(outside), np.empty(len(asked))
+            for a in range(0, len(asked), KD_CHUNK):
+                if in_time is not None:
+                    in_time()
+                depth[a : a + KD_CHUNK] = tree.query(asked[a : a + KD_CHUNK])[0]
+            np.minimum.at(out, c, depth[back.ravel()])
     return out
 
 

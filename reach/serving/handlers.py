@@ -34,6 +34,7 @@ from reach.motion.timing import Timing
 from reach.serving import cells
 from reach.serving import protocol as P
 from reach.serving.faults import Faults
+from reach.serving.intake import Intake
 from reach.serving.ledger import Ledger, Pending
 from reach.serving.publishing import Publisher
 from reach.serving.reloading import Reloads
@@ -55,6 +56,7 @@ class Broker(Protocol):
     publisher: Publisher
     pool: Pool | None
     ledger: Ledger
+    intake: Intake
     faults: Faults
     reloads: Reloads
     refine: bool
@@ -80,6 +82,10 @@ class Broker(Protocol):
 class Handler:
     """How the server answers one operation. Answered in the loop by default; a handler that hands its requests
     over says so in :meth:`defer` and answers them in :meth:`finish` and :meth:`expire`."""
+
+    # An answer that costs the loop milliseconds waits in the intake's backlog and is answered in its slices, between
+    # other clients' requests (reach.serving.intake).
+    costly = False
 
     def answer(self, server: Broker, req: P.Request) -> dict[str, Any] | bytes:
         """The result object of a valid request (or its encoding), answered now."""
@@ -285,7 +291,9 @@ class Place:
     frames, late, failed = 1, "the placements were not ranked", "the placements could not be ranked"
 
     def answer(self, server: Broker, req: P.Request) -> dict[str, Any]:
-        return placements(server.selector.atlas, req.args, server.selector.policy)  # type: ignore[arg-type]
+        # Without workers the loop ranks; a deadline stops it (a timeout error), as a worker's does.
+        return placements(server.selector.atlas, req.args, server.selector.policy,  # type: ignore[arg-type]
+                          _deadline(req))
 
     def job(self, server: Broker, req: P.Request) -> tuple[list[list[float]], dict[str, Any]]:
         place_space(req.args)  # too many candidates: bad_request now, not a timeout after a busy worker
@@ -297,6 +305,8 @@ class Place:
 
 class Accommodation(Handler):
     """The share of the served population whose trees hold each goal (reach.answers.accommodation.held)."""
+
+    costly = True  # about 20 ms of the loop at its limit (100 members x 2 trees x 1,000 goals, bench/attacks.py)
 
     def answer(self, server: Broker, req: P.Request) -> dict[str, Any]:
         if server.population is None:
@@ -347,7 +357,9 @@ class Health(Handler):
             "workers": 0 if pool is None else pool.size, "pending": len(server.ledger.pending),
             "resends": server.ledger.resends, "worker_restarts": 0 if pool is None else pool.restarts,
             "workers_ready": 0 if pool is None else pool.ready,
+            "workers_busy": 0 if pool is None else len(pool.busy),
             "workers_stalled": 0 if pool is None else len(pool.stalled),
+            "large_held": server.intake.held, "large_refused": server.intake.refused,
         }
 
 

@@ -435,6 +435,8 @@ OPERATIONS: dict[str, Operation] = {op.name: op for op in (
         Field("step", "m", _positive, "position step (default 0.05)", default=0.05),
         Field("yaw_step", "deg", _positive, "heading step (default 15)", default=15.0),
         Field("top", "int", _top, f"placements returned, 1 to {MAX_TOP} (default 10)", default=10),
+        Field("deadline", "s", _deadline, f"answer within this many seconds of arrival (0 to {MAX_DEADLINE:g}; "
+                                          "default 60)"),
     ), "where to place the body to reach the targets: placements ranked by the trees (candidates x targets at most "
        f"{MAX_PLACE_POINTS:,})",
         # A placement's cost: 1.9-2.8 s at its limit (its measurement not found again: as first

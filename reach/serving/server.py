@@ -35,7 +35,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, cast
 
@@ -53,6 +53,7 @@ from reach.serving import cells
 from reach.serving import protocol as P
 from reach.serving.faults import Faults
 from reach.serving.handlers import HANDLERS, stored_answers
+from reach.serving.intake import Intake, envelope_of
 from reach.serving.ledger import Ledger, Pending
 from reach.serving.publishing import Publisher
 from reach.serving.reloading import Reloads
@@ -137,6 +138,7 @@ class Server:
         self.pub_endpoint = (None if publisher is None
                              else cast(bytes, publisher.getsockopt(zmq.LAST_ENDPOINT)).decode())
         self.publisher = Publisher(publisher, sliced=self.pool is not None)
+        self.intake = Intake(self.router, self.handle, self._send)
         self._stop = threading.Event()
         # set by SIGINT/SIGTERM: a handler that only assigns can never deadlock (Event.set locks)
         self._signalled = False
@@ -204,11 +206,13 @@ class Server:
                 self.router.setsockopt(zmq.RCVTIMEO, P.POLL_MS)
                 while self.running:
                     try:
-                        frames = self.router.recv_multipart()
+                        # No wait while large requests are held: they are read in slices between others.
+                        first = self.router.recv_multipart(zmq.NOBLOCK if self.intake else 0, copy=False)
                     except zmq.Again:
-                        frames = None
-                    if frames is not None:
-                        self.handle(frames)
+                        first = None
+                    if first is not None:
+                        self.intake.read(first)
+                    self.intake.run()
                     self._swap()
             else:
                 self._broker()
@@ -228,11 +232,11 @@ class Server:
                     poller.unregister(backend)
                 backend = self.pool.backend
                 poller.register(backend, zmq.POLLIN)
-            wait = self.ledger.wait(bool(self.publisher.queue))
+            wait = self.ledger.wait(bool(self.publisher.queue) or bool(self.intake))
             events = dict(poller.poll(int(math.ceil(wait * 1000))))
             if self.router in events:  # clients first: a stored answer never waits behind workers' results
-                for frames in _received(self.router):
-                    self.handle(frames)
+                self.intake.read()
+            self.intake.run()
             while backend in events and backend.poll(0):  # everything the workers have sent
                 got = self.pool.receive()
                 if got is not None:
@@ -247,20 +251,17 @@ class Server:
             self._swap()
 
     # -- one request -------------------------------------------------------
-    def handle(self, frames: list[bytes]) -> None:
-        """Answer one multipart message; never raises for anything a client sent."""
-        identity, rest = frames[0], frames[1:]
-        envelope = [identity]
-        if rest and rest[0] == b"" and len(rest) >= 2:
-            envelope.append(b"")  # a REQ client's delimiter, echoed back
-            rest = rest[1:]
+    def handle(self, frames: list[bytes], later: bool = False) -> None:
+        """Answer one multipart message (``later``: taken from the intake's backlog, answered now whatever its cost);
+        never raises for anything a client sent."""
+        envelope, rest = envelope_of(frames)
         self.requests += 1
         try:
             if len(rest) != 1:
                 reply: bytes | None = P.error_reply(P.BAD_FRAMES, "expected one payload frame after the envelope, "
                                                                   f"got {len(rest)}")
             else:
-                reply = self.respond(rest[0], envelope)
+                reply = self.respond(rest[0], envelope, later)
         except Exception as exc:  # noqa: BLE001 - the last guard: respond() catches, but nothing may end the loop
             self.faults.internal(exc)
             reply = P.error_reply(P.INTERNAL, "the reply could not be made")
@@ -274,18 +275,29 @@ class Server:
         except zmq.ZMQError as exc:  # the peer vanished, or its queue is full
             log.warning("reply dropped: %s", exc)
 
-    def respond(self, payload: bytes, envelope: list[bytes] | None = None) -> bytes | None:
-        """The reply to one payload, or None when the workers will answer it."""
+    def respond(self, payload: bytes, envelope: list[bytes] | None = None, later: bool = False) -> bytes | None:
+        """The reply to one payload, or None when the workers, the background or a later slice of the loop will
+        answer it."""
         rid = None
         try:
             req = P.parse_request(payload)
             rid = req.id
             if envelope is not None and HANDLERS[req.op].defer(self, req, envelope):
                 return None  # the workers or the background answer it
-            result = HANDLERS[req.op].answer(self, req)  # answered now by its operation's handler
-            return P.ok_reply(result if isinstance(result, bytes) else P.encode(result), rid)
+            if envelope is not None and not later and HANDLERS[req.op].costly:
+                self.intake.hold(envelope, lambda: self._send(envelope, self._answer(req)), len(payload), rid)
+                return None
+            return self._answer(req)
         except Exception as exc:  # noqa: BLE001 - nothing a client sends may stop the server
             return self.faults.reply(exc, rid)
+
+    def _answer(self, req: P.Request) -> bytes:
+        """A parsed request's reply, answered now by its operation's handler."""
+        try:
+            result = HANDLERS[req.op].answer(self, req)
+            return P.ok_reply(result if isinstance(result, bytes) else P.encode(result), req.id)
+        except Exception as exc:  # noqa: BLE001 - nothing a client sends may stop the server
+            return self.faults.reply(exc, req.id)
 
     @property
     def planner(self) -> Planner:
@@ -357,11 +369,11 @@ class Server:
         budget = slice_goals
         expiring = self.ledger.expiring
         while expiring and budget > 0:
-            seq = expiring[0]
+            seq = self.ledger.soonest_expiring()
             pending = self.ledger.pending.get(seq)
             missing = [] if pending is None else [part for part, done in enumerate(pending.parts) if done is None]
             if pending is None or not missing:
-                expiring.popleft()
+                expiring.remove(seq)
                 if pending is not None:
                     self.reply_pending(seq)
                 continue
@@ -370,7 +382,7 @@ class Server:
             try:
                 _from_store(self.selector, pending, take)
             except Exception as exc:  # noqa: BLE001 - this request's error reply; the others go on
-                expiring.popleft()
+                expiring.remove(seq)
                 self.answer_now(seq, self.faults.reply(exc, pending.request.id))
 
     def reply_pending(self, seq: int) -> None:
@@ -409,12 +421,3 @@ def _from_store(selector: Selector, pending: Pending, take: list[int]) -> None:
     for part in take:
         a, b = pending.bounds[part]
         pending.parts[part], k = answers[k : k + b - a], k + b - a
-
-
-def _received(socket: zmq.Socket, limit: int = 64) -> Iterator[list[bytes]]:  # type: ignore[type-arg]
-    """The messages a socket holds now, at most ``limit``."""
-    for _ in range(limit):
-        try:
-            yield socket.recv_multipart(zmq.NOBLOCK)
-        except zmq.Again:
-            return
