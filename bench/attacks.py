@@ -98,13 +98,21 @@ def health(sock: zmq.Socket) -> dict[str, Any]:  # type: ignore[type-arg]
     return reply
 
 
-def workers_free(address: str, since: float, seconds: float = 60.0) -> float:
-    """Milliseconds from ``since`` until the server's workers are all idle (health polled every 10 ms)."""
+def workers_free(address: str, since: float, seconds: float = 60.0) -> float | None:
+    """Milliseconds from ``since`` until the server's workers are all idle (health polled every 10 ms); None from a
+    server whose ``health`` does not say (before ``workers_busy``)."""
     sock = dealer(address)
     end = time.monotonic() + seconds
-    while time.monotonic() < end and health(sock)["workers_busy"]:
-        time.sleep(0.01)
-    sock.close()
+    try:
+        while time.monotonic() < end:
+            busy = health(sock).get("workers_busy")
+            if busy is None:
+                return None
+            if not busy:
+                break
+            time.sleep(0.01)
+    finally:
+        sock.close()
     return round(1e3 * (time.perf_counter() - since), 1)
 
 
@@ -162,7 +170,12 @@ def place_deadline(address: str) -> dict[str, Any]:
                              "step": 0.01, "deadline": 0.3}, 120_000)
     sock.close()
     return {"reply": None if reply is None else ("ok" if reply["ok"] else reply["error"]["code"]),
-            "past_deadline_ms": round(1e3 * (took - 0.3), 1), "workers_free_ms": workers_free(address, t0) - 300.0}
+            "past_deadline_ms": round(1e3 * (took - 0.3), 1),
+            "workers_free_ms": _less(workers_free(address, t0), 300.0)}
+
+
+def _less(value: float | None, by: float) -> float | None:
+    return None if value is None else round(value - by, 1)
 
 
 def place_identical(address: str) -> dict[str, Any]:

@@ -179,7 +179,7 @@ def test_the_best_placement_has_margin_not_the_middle_of_the_tie_and_verifies(ta
     # Without the margin the middle of the tie came first; verifying re-ranks it below a placement that IK confirms.
     import reach.answers.place as place
 
-    monkeypatch.setattr(place, "margins", lambda atlases, names, taken, points, in_time=None: np.zeros(len(points)))
+    monkeypatch.setattr(place, "margins", lambda atlases, names, taken, points, *rest: np.zeros(len(points)))
     plain = rank([table_arm], targets, space)
     assert np.allclose(plain.placements[0, :2], [0.0, 0.0])
     again = verify(plain, [table_arm], targets, best=3)

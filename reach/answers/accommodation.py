@@ -20,9 +20,9 @@ people they were drawn from; a boundary family is not a sample, and its interval
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Sequence
+from collections.abc import Generator, Iterator, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -111,6 +111,12 @@ def shares(atlases: Sequence[Atlas], weights: np.ndarray, points: np.ndarray,
     """By the trees' word (``vertex`` policy), per point (N, 3): per strategy name the weighted share of members whose
     tree of that name holds it, and under :data:`ANY` the share one of whose strategies does (only the ``effector``'s
     strategies when given). ``weights`` sum to 1."""
+    return run_steps(sharing(atlases, weights, points, effector))
+
+
+def sharing(atlases: Sequence[Atlas], weights: np.ndarray, points: np.ndarray,
+            effector: str | None = None) -> Generator[None, None, dict[str, np.ndarray]]:
+    """:func:`shares` a member at a time: yields after each member (a server answers between them), returns them."""
     out: dict[str, np.ndarray] = {}
     some = np.zeros(len(points))
     for atlas, w in zip(atlases, weights, strict=True):
@@ -122,13 +128,27 @@ def shares(atlases: Sequence[Atlas], weights: np.ndarray, points: np.ndarray,
             out[name] = out.get(name, np.zeros(len(points))) + w * inside
             held_here |= inside
         some += w * held_here
+        yield
     return {ANY: some, **out}
 
 
-def held(atlases: Sequence[Atlas], weights: np.ndarray, effector: str, goals: np.ndarray) -> dict[str, Any]:
-    """Per goal, the share of members one of whose ``effector`` strategies holds it (:func:`shares`), with its Wilson
-    interval at Kish's effective n, and per strategy name its share."""
-    found = shares(atlases, weights, goals, effector)
+T = TypeVar("T")
+
+
+def run_steps(steps: Generator[None, None, T]) -> T:
+    """A stepwise computation's result, its steps taken at once."""
+    while True:
+        try:
+            next(steps)
+        except StopIteration as done:
+            return done.value  # type: ignore[no-any-return]
+
+
+def held(atlases: Sequence[Atlas], weights: np.ndarray, effector: str,
+         goals: np.ndarray) -> Generator[None, None, dict[str, Any]]:
+    """Per goal, the share of members one of whose ``effector`` strategies holds it (:func:`sharing`, a member a
+    step), with its Wilson interval at Kish's effective n, and per strategy name its share."""
+    found = yield from sharing(atlases, weights, goals, effector)
     w = np.asarray(weights, float)
     n_eff = float(w.sum() ** 2 / (w * w).sum())
     bounds = [wilson(float(p), n_eff) for p in found[ANY]]

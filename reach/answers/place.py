@@ -209,10 +209,10 @@ def rank(atlases: Sequence[Atlas], targets: Sequence[Target], space: Space, effe
     spread = _spread(placements, top)
     margin = np.full(n_c, np.nan)
     tied = np.nonzero(top)[0]
-    distinct = len(np.unique(points, axis=0))  # a repeated target's margin is queried once (``margins``)
-    tied = tied[np.argsort(spread[tied], kind="stable")][:max(1, min(MARGIN_TIES, MARGIN_QUERIES // distinct))]
+    distinct, same = np.unique(points, axis=0, return_inverse=True)  # a repeated target is queried once
+    tied = tied[np.argsort(spread[tied], kind="stable")][:max(1, min(MARGIN_TIES, MARGIN_QUERIES // len(distinct)))]
     in_time()
-    margin[tied] = margins(atlases, all_names, taken[tied], body.reshape(n_c, n_t, 3)[tied], in_time)
+    margin[tied] = margins(atlases, all_names, taken[tied], body.reshape(n_c, n_t, 3)[tied], in_time, same.ravel())
     order = np.lexsort((spread, -np.nan_to_num(margin, nan=-np.inf), -preference, -reached, -accommodated))
     return Ranking(placements[order], accommodated[order], reached[order], preference[order], taken[order], all_names,
                    margin[order])
@@ -284,10 +284,12 @@ def _accommodated(reached: np.ndarray, need: float) -> np.ndarray:
 
 
 def margins(atlases: Sequence[Atlas], names: list[list[str]], taken: np.ndarray, points: np.ndarray,
-            in_time: Any = None) -> np.ndarray:
+            in_time: Any = None, same: np.ndarray | None = None) -> np.ndarray:
     """Per candidate, the least distance [m] from a reached target (its point in the body's frame, ``points``
     (C, T, 3)) to the nearest vertex of its strategy's tree that does not reach (``taken``: (C, B, T), see
-    :class:`Ranking`); inf when no reached target's tree has such a vertex."""
+    :class:`Ranking`); inf when no reached target's tree has such a vertex. ``same`` (T,): targets at one point share
+    a number (default: each its own)."""
+    same = np.arange(points.shape[1]) if same is None else same
     out = np.full(len(points), np.inf)
     for b, atlas in enumerate(atlases):
         for s, name in enumerate(names[b]):
@@ -297,10 +299,11 @@ def margins(atlases: Sequence[Atlas], names: list[list[str]], taken: np.ndarray,
             outside = atlas.maps[name].unreached()
             if not len(outside):
                 continue
-            # A layout's repeated point is asked once (1,000 identical targets held a worker in one query), and the
-            # rest in chunks with the deadline looked at between them.
-            asked, back = np.unique(points[c, t], axis=0, return_inverse=True)
-            tree, depth = cKDTree(outside), np.empty(len(asked))
+            # A layout's repeated point is asked once a candidate (1,000 identical targets held a worker in one
+            # query), and the rest in chunks with the deadline looked at between them.
+            pairs, first, back = np.unique(c * len(same) + same[t], return_index=True, return_inverse=True)
+            asked = points[c[first], t[first]]
+            tree, depth = cKDTree(outside), np.empty(len(pairs))
             for a in range(0, len(asked), KD_CHUNK):
                 if in_time is not None:
                     in_time()

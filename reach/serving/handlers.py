@@ -17,14 +17,14 @@ import dataclasses
 import logging
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Generator
 from pathlib import Path
 from typing import Any, Protocol
 
 import numpy as np
 
 from reach import __version__
-from reach.answers.accommodation import held
+from reach.answers.accommodation import held, run_steps
 from reach.answers.answer import ERROR, SKIPPED, Answer, orientation_of
 from reach.answers.refine import ORIENTED_BUDGET
 from reach.answers.select import Selector
@@ -84,8 +84,13 @@ class Handler:
     over says so in :meth:`defer` and answers them in :meth:`finish` and :meth:`expire`."""
 
     # An answer that costs the loop milliseconds waits in the intake's backlog and is answered in its slices, between
-    # other clients' requests (reach.serving.intake).
+    # other clients' requests (reach.serving.intake), a step at a time (:meth:`steps`).
     costly = False
+
+    def steps(self, server: Broker, req: P.Request) -> Generator[None, None, dict[str, Any] | bytes]:
+        """A costly request's answer a step at a time (the loop answers others between them); by default one."""
+        yield
+        return self.answer(server, req)
 
     def answer(self, server: Broker, req: P.Request) -> dict[str, Any] | bytes:
         """The result object of a valid request (or its encoding), answered now."""
@@ -309,6 +314,10 @@ class Accommodation(Handler):
     costly = True  # about 20 ms of the loop at its limit (100 members x 2 trees x 1,000 goals, bench/attacks.py)
 
     def answer(self, server: Broker, req: P.Request) -> dict[str, Any]:
+        return run_steps(self.steps(server, req))
+
+    def steps(self, server: Broker, req: P.Request) -> Generator[None, None, dict[str, Any]]:
+        """The checks, then a member a step (about 0.2 ms at the limit)."""
         if server.population is None:
             raise P.ProtocolError(P.FORBIDDEN, "this server serves no population; start it with reach serve ATLAS "
                                                "--population FOLDER", req.id)
@@ -324,7 +333,8 @@ class Accommodation(Handler):
             raise P.ProtocolError(P.TOO_LARGE, f"{len(goals)} goals x {trees} member trees is over the "
                                                f"{P.MAX_ACCOMMODATION_LOOKUPS:,} lookups one accommodation may take; "
                                                "send fewer goals a request", req.id)
-        return {"members": len(atlases), **held(atlases, weights, effector, goals)}
+        found = yield from held(atlases, weights, effector, goals)
+        return {"members": len(atlases), **found}
 
 
 class Strategies(Handler):

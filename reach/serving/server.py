@@ -53,7 +53,7 @@ from reach.serving import cells
 from reach.serving import protocol as P
 from reach.serving.faults import Faults
 from reach.serving.handlers import HANDLERS, stored_answers
-from reach.serving.intake import Intake, envelope_of
+from reach.serving.intake import Intake, Work, envelope_of
 from reach.serving.ledger import Ledger, Pending
 from reach.serving.publishing import Publisher
 from reach.serving.reloading import Reloads
@@ -285,11 +285,29 @@ class Server:
             if envelope is not None and HANDLERS[req.op].defer(self, req, envelope):
                 return None  # the workers or the background answer it
             if envelope is not None and not later and HANDLERS[req.op].costly:
-                self.intake.hold(envelope, lambda: self._send(envelope, self._answer(req)), len(payload), rid)
+                self.intake.hold(envelope, self._stepper(envelope, req), len(payload), rid)
                 return None
             return self._answer(req)
         except Exception as exc:  # noqa: BLE001 - nothing a client sends may stop the server
             return self.faults.reply(exc, rid)
+
+    def _stepper(self, envelope: list[bytes], req: P.Request) -> Work:
+        """A costly request's answer as the intake's work: a step a call, then the reply."""
+        steps = HANDLERS[req.op].steps(self, req)
+
+        def step() -> Work | None:
+            try:
+                next(steps)
+                return step
+            except StopIteration as done:
+                result = done.value
+                reply = P.ok_reply(result if isinstance(result, bytes) else P.encode(result), req.id)
+            except Exception as exc:  # noqa: BLE001 - nothing a client sends may stop the server
+                reply = self.faults.reply(exc, req.id)
+            self._send(envelope, reply)
+            return None
+
+        return step
 
     def _answer(self, req: P.Request) -> bytes:
         """A parsed request's reply, answered now by its operation's handler."""
