@@ -293,15 +293,16 @@ def test_a_repeated_target_is_measured_once_and_a_late_deadline_stops_the_lookup
     many = rank([balls], [Target(f"t{k}", (0.05, 0.02, 0.0), "hand") for k in range(1000)], space)
     assert np.array_equal(many.placements, one.placements) and np.array_equal(many.margin, one.margin, equal_nan=True)
     assert sum(queried) == np.count_nonzero(~np.isnan(one.margin))  # one point a tied candidate
-    # a clock that passes the deadline after the first chunk's look: the lookups stop at the second
+    # a clock past the deadline from its third look (the first before the targets are moved into the body's frame,
+    # the second at the first chunk of lookups): the lookups stop at their second chunk
     looks = []
 
     def clock() -> float:
         looks.append(1)
-        return 0.0 if len(looks) < 2 else 10.0
+        return 0.0 if len(looks) < 3 else 10.0
 
     monkeypatch.setattr(place.time, "perf_counter", clock)
     monkeypatch.setattr(place, "CONTAINS_CHUNK", 100)
     with pytest.raises(place.PastDeadline):
         rank([balls], [Target("t", (0.05, 0.02, 0.0), "hand")], space, deadline=5.0)
-    assert len(looks) == 2
+    assert len(looks) == 3

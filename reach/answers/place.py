@@ -191,6 +191,7 @@ def rank(atlases: Sequence[Atlas], targets: Sequence[Target], space: Space, effe
     _check_request(atlases, targets, policy)
     placements = space.candidates()
     points = np.array([t.point for t in targets], float)
+    in_time()
     body = to_body(points, placements).reshape(-1, 3)
     n_c, n_t = len(placements), len(targets)
     taken = np.full((n_c, len(atlases), n_t), -1, np.int16)
