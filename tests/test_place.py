@@ -293,8 +293,8 @@ def test_a_repeated_target_is_measured_once_and_a_late_deadline_stops_the_lookup
     many = rank([balls], [Target(f"t{k}", (0.05, 0.02, 0.0), "hand") for k in range(1000)], space)
     assert np.array_equal(many.placements, one.placements) and np.array_equal(many.margin, one.margin, equal_nan=True)
     assert sum(queried) == np.count_nonzero(~np.isnan(one.margin))  # one point a tied candidate
-    # a clock past the deadline from its third look (the first before the targets are moved into the body's frame,
-    # the second at the first chunk of lookups): the lookups stop at their second chunk
+    # a clock past the deadline from its third look: with chunks of 100 points, the ranking stops at its third chunk
+    # of work (the targets moved into the body's frame, then the trees' lookups, each chunk looking at the deadline)
     looks = []
 
     def clock() -> float:

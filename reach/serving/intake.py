@@ -5,7 +5,7 @@ each sending 1 MiB requests, a quiet client's stored query waited behind about a
 its p99 was 0.97 s (bench/attacks.py ``memory``, 2 cores). Reading a message without copying it costs tens of
 microseconds, parsing a large one milliseconds: so the loop reads every message that waits, answers the small ones
 at once, and keeps the large ones (``LARGE`` bytes or more) in a backlog, one queue a client, which it parses in turn
-for at most ``SLICE`` seconds a pass. The backlog is bounded (``BACKLOG`` bytes, ``PER_CLIENT`` requests a client): a
+for about ``SLICE`` seconds a pass. The backlog is bounded (``BACKLOG`` bytes, ``PER_CLIENT`` requests a client): a
 large message beyond it is answered ``busy`` unread. A client's small request may so be answered before its earlier
 large one (docs/protocol.md: a DEALER client matches replies by ``id``). A request whose answer costs the loop
 milliseconds (``accommodation``) waits in the backlog the same way, once parsed.
@@ -34,6 +34,9 @@ PER_CLIENT = 16  # ... and the requests of one client in it
 READ_AT_MOST = 128
 
 Frames = list[bytes]
+FULL_MESSAGE = (f"the server holds as many large or costly requests as it may ({BACKLOG >> 20} MiB, {PER_CLIENT} a "
+                "client): retry later")
+FULL = P.error_reply(P.BUSY, FULL_MESSAGE)
 
 
 def envelope_of(frames: Frames) -> tuple[list[bytes], Frames]:
@@ -101,9 +104,8 @@ class Intake:
         queue = self.backlog.get(client)
         if self.bytes + size > BACKLOG or (queue is not None and len(queue) >= PER_CLIENT):
             self.refused += 1
-            self.send(envelope, P.error_reply(P.BUSY, f"the server holds {self.held} large or costly requests "
-                                                      f"({self.bytes} bytes; at most {BACKLOG}, {PER_CLIENT} requests "
-                                                      "a client): retry later", rid))
+            # one reply made once for the unread (a flood's refusals are most of what the loop sends)
+            self.send(envelope, FULL if rid is None else P.error_reply(P.BUSY, FULL_MESSAGE, rid))
             return
         self.backlog.setdefault(client, deque()).append((work, size))
         self.held += 1
