@@ -192,12 +192,12 @@ def rank(atlases: Sequence[Atlas], targets: Sequence[Target], space: Space, effe
     placements = space.candidates()
     points = np.array([t.point for t in targets], float)
     n_c, n_t = len(placements), len(targets)
-    body = np.empty((n_c, n_t, 3))
+    moved = np.empty((n_c, n_t, 3))
     step = max(1, CONTAINS_CHUNK // n_t)
     for a in range(0, n_c, step):  # 1.68 M points moved at once held a worker 0.3 s (its first call), 2 s beside load
         in_time()
-        body[a : a + step] = to_body(points, placements[a : a + step])
-    body = body.reshape(-1, 3)
+        moved[a : a + step] = to_body(points, placements[a : a + step])
+    body = moved.reshape(-1, 3)
     taken = np.full((n_c, len(atlases), n_t), -1, np.int16)
     weight = np.zeros((n_c, len(atlases), n_t))
     all_names = [_held_by(atlas, targets, body.reshape(n_c, n_t, 3), effector, weights, policy, in_time,
