@@ -202,36 +202,31 @@ def place_too_large(address: str) -> dict[str, Any]:
             "reply_ms": round(1e3 * took, 1)}
 
 
-def memory(address: str) -> dict[str, Any]:
-    payload = b'{"op": "health", "pad": "' + b"x" * ((1 << 20) - 64) + b'"}'  # refused (unknown field) once read
-    socks = [dealer(address) for _ in range(100)]
+def flood(address: str, payload: bytes, clients: int, each: int) -> dict[str, int]:
+    """``clients`` DEALERs each send ``payload`` ``each`` times at once; the replies' codes, counted."""
+    socks = [dealer(address) for _ in range(clients)]
     for sock in socks:
-        for _ in range(16):
+        for _ in range(each):
             sock.send_multipart([b"", payload], copy=False)
     codes = []
     for sock in socks:
-        for _ in range(16):
+        for _ in range(each):
             if sock.poll(30_000):
                 codes.append(code_of(sock.recv_multipart()[-1]))
         sock.close()
-    return {"requests": 1600, "replies": {c: codes.count(c) for c in set(codes)}}
+    return {c: codes.count(c) for c in set(codes)}
+
+
+def memory(address: str) -> dict[str, Any]:
+    payload = b'{"op": "health", "pad": "' + b"x" * ((1 << 20) - 64) + b'"}'  # refused (unknown field) once read
+    return {"requests": 1600, "replies": flood(address, payload, 100, 16)}
 
 
 def accommodation(address: str) -> dict[str, Any]:
     request = json.dumps({"op": "accommodation", "effector": "right_hand", "goals": GOALS[:1000]}).encode()
-    socks = [dealer(address) for _ in range(20)]
     t0 = time.perf_counter()
-    for sock in socks:
-        for _ in range(10):
-            sock.send_multipart([b"", request])
-    codes = []
-    for sock in socks:
-        for _ in range(10):
-            if sock.poll(30_000):
-                codes.append(code_of(sock.recv_multipart()[-1]))
-        sock.close()
-    return {"requests": 200, "replies": {c: codes.count(c) for c in set(codes)},
-            "all_answered_s": round(time.perf_counter() - t0, 2)}
+    replies = flood(address, request, 20, 10)
+    return {"requests": 200, "replies": replies, "all_answered_s": round(time.perf_counter() - t0, 2)}
 
 
 def heavy(address: str) -> dict[str, Any]:

@@ -246,6 +246,22 @@ def test_absurd_steps_and_ranges_are_bad_input_not_an_overflow():
     assert len(Space(x=(-1.0, 1.0), y=(0.0, 0.0)).candidates()) == 41
 
 
+def counting_queries(monkeypatch) -> list[int]:
+    """The points of each k-d tree query the margins make, counted from now on (the module's cKDTree wrapped)."""
+    import reach.answers.place as place
+
+    queried: list[int] = []
+    real = place.cKDTree
+
+    class Counting(real):  # type: ignore[misc, valid-type]
+        def query(self, x, *args, **kwargs):  # noqa: ANN001, ANN002, ANN003, ANN202 - counts the margins' queries
+            queried.append(len(x))
+            return super().query(x, *args, **kwargs)
+
+    monkeypatch.setattr(place, "cKDTree", Counting)
+    return queried
+
+
 def test_a_ranking_keeps_its_deadline_and_bounds_its_margins(balls, monkeypatch):
     """1,681 candidates x 1,000 targets near the centre of a ball (all tied) held a server's worker
     over 1,000 s: the margins' k-d tree queries were one per tied candidate and target, and no step read the deadline.
@@ -256,15 +272,7 @@ def test_a_ranking_keeps_its_deadline_and_bounds_its_margins(balls, monkeypatch)
 
     targets = [Target(f"t{k}", (0.01 * (k % 10), 0.01 * (k // 10 % 10), 0.001 * k), "hand") for k in range(1000)]
     space = Space((-0.2, 0.2), (-0.2, 0.2), step=0.01, yaw=(0.0, 0.0))  # 41 x 41 = 1,681 candidates
-    queried = []
-    real = place.cKDTree
-
-    class Counting(real):  # type: ignore[misc, valid-type]
-        def query(self, x, *args, **kwargs):  # noqa: ANN001, ANN002, ANN003, ANN202 - counts the margins' queries
-            queried.append(len(x))
-            return super().query(x, *args, **kwargs)
-
-    monkeypatch.setattr(place, "cKDTree", Counting)
+    queried = counting_queries(monkeypatch)
     r = rank([balls], targets, space)
     assert len(r.placements) == 1681 and r.accommodated[0] == 1.0
     assert 0 < sum(queried) <= place.MARGIN_QUERIES
@@ -281,15 +289,7 @@ def test_a_repeated_target_is_measured_once_and_a_late_deadline_stops_the_lookup
 
     space = Space((-0.2, 0.2), (-0.2, 0.2), step=0.01, yaw=(0.0, 0.0))
     one = rank([balls], [Target("t", (0.05, 0.02, 0.0), "hand")], space)
-    queried = []
-    real = place.cKDTree
-
-    class Counting(real):  # type: ignore[misc, valid-type]
-        def query(self, x, *args, **kwargs):  # noqa: ANN001, ANN002, ANN003, ANN202 - counts the margins' queries
-            queried.append(len(x))
-            return super().query(x, *args, **kwargs)
-
-    monkeypatch.setattr(place, "cKDTree", Counting)
+    queried = counting_queries(monkeypatch)
     many = rank([balls], [Target(f"t{k}", (0.05, 0.02, 0.0), "hand") for k in range(1000)], space)
     assert np.array_equal(many.placements, one.placements) and np.array_equal(many.margin, one.margin, equal_nan=True)
     assert sum(queried) == np.count_nonzero(~np.isnan(one.margin))  # one point a tied candidate
