@@ -308,8 +308,6 @@ def margins(atlases: Sequence[Atlas], names: list[list[str]], taken: np.ndarray,
             # query), and the rest in chunks with the deadline looked at between them.
             pairs, first, back = np.unique(c * len(same) + same[t], return_index=True, return_inverse=True)
             asked = points[c[first], t[first]]
-            if in_time is not None:
-                in_time()
             tree, depth = cKDTree(outside), np.empty(len(pairs))
             for a in range(0, len(asked), KD_CHUNK):
                 if in_time is not None:

@@ -66,13 +66,17 @@ class Intake:
                  send: Callable[[list[bytes], bytes], None]) -> None:
         self.router, self.handle, self.send = router, handle, send
         self.backlog: OrderedDict[bytes, deque[tuple[Work, int]]] = OrderedDict()
-        self.held = 0  # requests in the backlog
-        self.bytes = 0  # ... and their messages' bytes
+        self.bytes = 0  # the backlog's messages' bytes
         self.refused = 0  # large or costly requests answered busy (health)
 
     def __bool__(self) -> bool:
         """Whether work waits in the backlog (the loop then polls without waiting)."""
-        return self.held > 0
+        return bool(self.backlog)
+
+    @property
+    def held(self) -> int:
+        """Requests in the backlog (health)."""
+        return sum(len(queue) for queue in self.backlog.values())
 
     def read(self, first: list[zmq.Frame] | None = None) -> None:
         """Answer the small messages waiting now (``first``, one the loop has read already, before them); the large
@@ -108,7 +112,6 @@ class Intake:
             self.send(envelope, FULL if rid is None else P.error_reply(P.BUSY, FULL_MESSAGE, rid))
             return
         self.backlog.setdefault(client, deque()).append((work, size))
-        self.held += 1
         self.bytes += size
 
     def run(self) -> None:
@@ -123,7 +126,6 @@ class Intake:
                 queue[0] = (more, size)
             else:
                 queue.popleft()
-                self.held -= 1
                 self.bytes -= size
                 if queue:
                     self.backlog.move_to_end(client)  # the next client's turn

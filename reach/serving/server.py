@@ -287,7 +287,7 @@ class Server:
             if envelope is not None and not later and HANDLERS[req.op].costly:
                 self.intake.hold(envelope, self._stepper(envelope, req), len(payload), rid)
                 return None
-            return self._answer(req)
+            return _ok(HANDLERS[req.op].answer(self, req), rid)  # answered now by its operation's handler
         except Exception as exc:  # noqa: BLE001 - nothing a client sends may stop the server
             return self.faults.reply(exc, rid)
 
@@ -300,22 +300,13 @@ class Server:
                 next(steps)
                 return step
             except StopIteration as done:
-                result = done.value
-                reply = P.ok_reply(result if isinstance(result, bytes) else P.encode(result), req.id)
+                reply = _ok(done.value, req.id)
             except Exception as exc:  # noqa: BLE001 - nothing a client sends may stop the server
                 reply = self.faults.reply(exc, req.id)
             self._send(envelope, reply)
             return None
 
         return step
-
-    def _answer(self, req: P.Request) -> bytes:
-        """A parsed request's reply, answered now by its operation's handler."""
-        try:
-            result = HANDLERS[req.op].answer(self, req)
-            return P.ok_reply(result if isinstance(result, bytes) else P.encode(result), req.id)
-        except Exception as exc:  # noqa: BLE001 - nothing a client sends may stop the server
-            return self.faults.reply(exc, req.id)
 
     @property
     def planner(self) -> Planner:
@@ -415,6 +406,11 @@ class Server:
         except Exception as exc:  # a bug must not stop the server
             self.faults.internal(exc)
             self._send(pending.envelope, P.error_reply(P.INTERNAL, "the reply could not be made", pending.request.id))
+
+
+def _ok(result: dict[str, Any] | bytes, rid: Any) -> bytes:
+    """The reply of a handler's result (its object, or its encoding already made)."""
+    return P.ok_reply(result if isinstance(result, bytes) else P.encode(result), rid)
 
 
 def _whole_parts(pending: Pending, missing: list[int], budget: int) -> list[int]:
