@@ -14,10 +14,16 @@
   tip ahead of the wall behind the shoulders), each sex of the whole survey: per distance the share of the model
   people reaching it with the arm alone and with the shoulder girdle, beside the survey's own share whose thumb-tip
   reach is at least that distance; and the distance 95 % of the women and 5 % of the men reach (linear between the
-  targets) against the standard's 5th-percentile woman and 95th-percentile man (``MIL_STD``).
+  targets) against the standard's 5th-percentile woman and 95th-percentile man (``MIL_STD``);
+* ``--overhead-reach``: overhead fingertip reach sitting, a dimension no body is built from, asked the same way
+  (``configs/examples/overhead_reach_sitting_{women,men}.yaml``, ``configs/targets/overhead_reach_sitting.csv``: the
+  right middle fingertip at heights above each person's own seat, seated upright, arm and shoulder girdle free): per
+  height the model people's share reaching it with its Wilson interval, beside the survey's share whose measured
+  overhead reach is at least that high, and whether it lies in the model's interval.
 
     python bench/population.py [--direct 500] [--build 4 | --folder out/population] [--random 20] [--workers 2]
     python bench/population.py --functional-reach [--workers 2]
+    python bench/population.py --overhead-reach [--workers 2]
 """
 
 from __future__ import annotations
@@ -29,6 +35,7 @@ import platform
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -54,30 +61,68 @@ STRATEGIES = {"functional": "right_arm_pinch", "extended": "right_girdle_pinch"}
 
 def functional_reach(workers: int) -> None:
     """See the module docstring."""
-    from oracles.bodies import ansur
-
-    targets = load_targets(ROOT / "configs" / "targets" / "functional_reach.csv")
-    ahead = np.array([t.point[0] for t in targets])
-    for sex, (functional, extended, share) in MIL_STD.items():
-        name = {"female": "women", "male": "men"}[sex]
-        config = parse_config(read_yaml(ROOT / "configs" / "examples" / f"functional_reach_{name}.yaml"),
-                              f"configs/examples/functional_reach_{name}.yaml", name)
-        t0, c0 = time.monotonic(), cpu()
-        result = direct(config, targets, workers=workers)
-        wall, spent = time.monotonic() - t0, cpu() - c0
-        reach = ansur.sample(sex).column("thumbtipreach")  # type: ignore[arg-type]
-        by = {k: np.array([t["by_strategy"][s]["share"] for t in result["targets"]]) for k, s in STRATEGIES.items()}
-        for i, t in enumerate(targets):
-            emit(bench="functional_reach", sex=sex, target=t.name, ahead_m=float(ahead[i]),
-                 functional_share=float(by["functional"][i]), extended_share=float(by["extended"][i]),
-                 survey_thumbtip_share=round(float(np.mean(reach >= ahead[i] - 1e-9)), 4))
+    for sex, ahead, by, result, spent in survey_check("functional_reach", "thumbtipreach", 0, STRATEGIES, workers):
+        functional, extended, share = MIL_STD[sex]
+        reach = survey_column(sex, "thumbtipreach")
         for kind, published in (("functional", functional), ("extended", extended)):
             # shares fall with the distance: the distance at which the model's share passes `share`
             d = float(np.interp(-share, -by[kind], ahead))
             emit(bench="functional_reach_at", sex=sex, kind=kind, share=share, model_m=round(d, 4),
                  mil_std_m=published, deviation_mm=round(1000 * (d - published), 1),
-                 sd_mm=round(1000 * float(reach.std()), 1), members=result["members"], wall_s=round(wall, 1),
-                 cpu_s=round(spent, 1), refuted_by_check=result["refuted_by_check"])
+                 sd_mm=round(1000 * float(reach.std()), 1), members=result["members"], wall_s=spent[0],
+                 cpu_s=spent[1], refuted_by_check=result["refuted_by_check"])
+
+
+def overhead_reach(workers: int) -> None:
+    """See the module docstring."""
+    for sex, _, by, result, spent in survey_check("overhead_reach_sitting", "overheadfingertipreachsitting", 2,
+                                                  {"overhead": "right_girdle_fingertip"}, workers):
+        column = survey_column(sex, "overheadfingertipreachsitting")
+        emit(bench="overhead_reach_sitting", sex=sex, members=result["members"], wall_s=spent[0], cpu_s=spent[1],
+             refuted_by_check=result["refuted_by_check"],
+             survey_p05_p50_p95_m=np.round(np.percentile(column, [5, 50, 95]), 4).tolist(),
+             within_interval=int(np.sum(by["within"])), targets=len(by["within"]))
+
+
+def survey_column(sex: str, column: str) -> np.ndarray:
+    from oracles.bodies import ansur
+
+    return ansur.sample(sex).column(column)  # type: ignore[arg-type]
+
+
+def survey_check(stem: str, column: str, axis: int, strategies: dict[str, str],
+                 workers: int) -> Iterator[tuple[str, np.ndarray, dict, dict, tuple[float, float]]]:
+    """Each sex of the whole survey asked ``configs/examples/{stem}_{women,men}.yaml``'s targets
+    (``configs/targets/{stem}.csv``, each at a distance along ``axis`` from a landmark of each person's own body): per
+    target and strategy the share of the model people reaching it, with its Wilson interval, beside the share of the
+    survey's people whose measured ``column`` is at least that distance (with its own). Yields, a sex at a time, the
+    targets' distances, each strategy's shares (and ``within``: whether the survey's share lies in the model's
+    interval, for the first strategy), the result and (wall, CPU) seconds."""
+    from reach.answers.accommodation import wilson
+
+    targets = load_targets(ROOT / "configs" / "targets" / f"{stem}.csv")
+    distance = np.array([t.point[axis] for t in targets])
+    for sex in ("female", "male"):
+        name = {"female": "women", "male": "men"}[sex]
+        config = parse_config(read_yaml(ROOT / "configs" / "examples" / f"{stem}_{name}.yaml"),
+                              f"configs/examples/{stem}_{name}.yaml", name)
+        t0, c0 = time.monotonic(), cpu()
+        result = direct(config, targets, workers=workers)
+        spent = (round(time.monotonic() - t0, 1), round(cpu() - c0, 1))
+        measured = survey_column(sex, column)
+        rows = [{k: t["by_strategy"][s] for k, s in strategies.items()} for t in result["targets"]]
+        by = {k: np.array([r[k]["share"] for r in rows]) for k in strategies}
+        first = next(iter(strategies))
+        within = []
+        for i, t in enumerate(targets):
+            survey = float(np.mean(measured >= distance[i] - 1e-9))
+            model = rows[i][first]
+            within.append(model["low"] <= survey <= model["high"])
+            emit(bench=stem, sex=sex, target=t.name, distance_m=float(distance[i]),
+                 **{f"{k}_share": [r["share"], r["low"], r["high"]] for k, r in rows[i].items()},
+                 survey_share=[round(survey, 4), *(round(v, 4) for v in wilson(survey, len(measured)))],
+                 survey_in_model_interval=within[-1])
+        yield sex, distance, {**by, "within": np.array(within)}, result, spent
 
 
 def emit(**fields: object) -> None:
@@ -106,11 +151,16 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=47, help="the random targets' seed (default 47)")
     parser.add_argument("--functional-reach", action="store_true", help="MIL-STD-1472G's functional reach on the "
                         "whole survey's own bodies instead (see the module docstring)")
+    parser.add_argument("--overhead-reach", action="store_true", help="overhead fingertip reach sitting on the whole "
+                        "survey's own bodies instead (see the module docstring)")
     args = parser.parse_args()
     emit(bench="machine", python=platform.python_version(), processor=platform.processor() or platform.machine(),
          cores=os.cpu_count())
     if args.functional_reach:
         functional_reach(args.workers)
+        return
+    if args.overhead_reach:
+        overhead_reach(args.workers)
         return
     if args.random:
         points = np.random.default_rng(args.seed).uniform(RANDOM_BOX[0], RANDOM_BOX[1], (args.random, 3))
@@ -130,7 +180,8 @@ def main() -> None:
         from reach.building.population import read_manifest
 
         n = len(read_manifest(args.folder)["members"])
-        agreement(from_atlases(args.folder, targets), direct(config_of(n), targets, workers=args.workers))
+        agreement(from_atlases(args.folder, targets), direct(config_of(n), targets, workers=args.workers),
+                  args.folder, targets)
     elif args.build:
         from reach.building.atlas import build_atlas
         from reach.building.executor import ProcessExecutor
@@ -146,11 +197,14 @@ def main() -> None:
             emit(bench="build", members=args.build, strategies=len(config.strategies), d_max=config.d_max,
                  workers=args.workers, wall_s=round(wall, 1), cpu_s=round(spent, 1),
                  per_member_wall_s=round(wall / args.build, 1))
-            agreement(from_atlases(out, targets), direct(config, targets, workers=args.workers))
+            agreement(from_atlases(out, targets), direct(config, targets, workers=args.workers), out, targets)
 
 
-def agreement(trees: dict, by_ik: dict) -> None:
-    """Member x target pairs on which the atlases' verdicts (refined) and the direct solves agree."""
+def agreement(trees: dict, by_ik: dict, folder: str | Path | None = None, targets: list[Target] | None = None) -> None:
+    """Member x target pairs on which the atlases' verdicts (refined) and the direct solves agree; then per strategy
+    (``folder`` and ``targets`` given): each way's share and the pairs on which they differ, by the kind of the
+    member's tree's cell at the target (a boundary cell's verdict is the boundary policy's, within its stated
+    error: half a cell; an inner or outer cell's differs beyond it)."""
     names = [t["target"] for t in trees["targets"]]
     pairs = [(m["name"], t, a, b) for m, n in zip(trees["by_member"], by_ik["by_member"], strict=True)
              for t, a, b in zip(names, m["reached"], n["reached"], strict=True)]
@@ -159,6 +213,30 @@ def agreement(trees: dict, by_ik: dict) -> None:
          atlas_reached=sum(a for *_, a, _ in pairs), direct_reached=sum(b for *_, b in pairs),
          shares_atlases={t["target"]: t["share"] for t in trees["targets"]},
          shares_direct={t["target"]: t["share"] for t in by_ik["targets"]})
+    if folder is None or targets is None:
+        return
+    from reach.answers.accommodation import load_members
+    from reach.maps.kinds import FINAL, INNER, OUTER
+
+    atlases, _, _ = load_members(folder)
+    points = np.array([t.point for t in targets], float)
+    kinds = {OUTER: "outer", INNER: "inner", FINAL: "boundary"}
+    for strategy in trees["strategies"]:
+        differ: dict[str, list] = {"inner": [], "boundary": [], "outer": []}
+        for atlas, m, n in zip(atlases, trees["by_member"], by_ik["by_member"], strict=True):
+            cells = atlas.trees[strategy].classify(points)
+            for i, name in enumerate(names):
+                a, b = (strategy == x["strategy"][i] or strategy in x["also"][i] for x in (m, n))
+                if a != b:
+                    differ[kinds[int(cells[i])]].append({"member": m["name"], "target": name, "atlas": a, "direct": b})
+        share = {way: {t["target"]: t["by_strategy"].get(strategy, {}).get("share") for t in result["targets"]}
+                 for way, result in (("atlases", trees), ("direct", by_ik))}
+        gap = {t: round(abs((share["atlases"][t] or 0) - (share["direct"][t] or 0)), 4) for t in names}
+        worst = max(gap, key=gap.__getitem__)
+        emit(bench="agreement_by_strategy", strategy=strategy, pairs=len(pairs),
+             differ={k: len(v) for k, v in differ.items()}, largest_gap=gap[worst], largest_gap_target=worst,
+             shares_atlases=share["atlases"], shares_direct=share["direct"], beyond_boundary=differ["inner"]
+             + differ["outer"], in_boundary_cells=differ["boundary"])
 
 
 if __name__ == "__main__":

@@ -196,6 +196,13 @@ def test_accommodation_from_atlases_agrees_with_direct_ik_checked_by_pinocchio(b
     assert agree == 4 * len(TARGETS)
     shares = {t["target"]: t["share"] for t in from_trees["targets"]}
     assert shares["chest"] == 1.0 and shares["high"] == 0.0  # the table holds both ends, not one answer for all
+    # each member's row says every strategy that reaches a target: the strategies' shares counted from them again
+    for result in (from_trees, by_ik):
+        for t, row in enumerate(result["targets"]):
+            for name, share in row["by_strategy"].items():
+                hits = [m["reached"][t] and (m["strategy"][t] == name or name in m["also"][t])
+                        for m in result["by_member"]]
+                assert share["share"] == pytest.approx(np.mean(hits), abs=1e-4)
 
 
 def test_placement_of_a_population_weighs_its_members_and_the_share_of_targets(built, capsys):

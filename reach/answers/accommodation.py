@@ -61,7 +61,8 @@ def table(members: Sequence[dict[str, Any]], targets: list[str], strategies: lis
     weights = np.array([m["weight"] for m in members], float)
     out = [_target_row(members, weights, t, name, strategies) for t, name in enumerate(targets)]
     verdicts = [{"name": m["name"], "weight": m["weight"], "reached": [bool(r["reachable"]) for r in m["rows"]],
-                 "strategy": [r["strategy"] for r in m["rows"]]} for m in members]
+                 "strategy": [r["strategy"] for r in m["rows"]], "also": [list(r["also"]) for r in m["rows"]]}
+                for m in members]
     return {"targets": out, "members": len(members), "strategies": strategies, "by_member": verdicts,
             "effective_n": round(float(weights.sum() ** 2 / (weights * weights).sum()), 1) if len(members) else 0}
 
