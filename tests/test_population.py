@@ -163,6 +163,21 @@ def test_a_population_builds_one_atlas_per_member_and_resumes(built, capsys):
     assert "a population of 4" in listing and all(n in listing for n in names)
 
 
+def test_prepare_takes_a_population_folder_and_its_first_member_serves_all(built, capsys, tmp_path):
+    _, out, _ = built
+    capsys.readouterr()
+    assert main(["prepare", str(out)]) == 0
+    first = json.loads((out / "population.json").read_text())["members"][0]["name"]
+    assert f"its first member, {first}, for all 4" in capsys.readouterr().out
+    # a member not built yet: one line naming the manifest and the fix
+    broken = tmp_path / "pop"
+    broken.mkdir()
+    (broken / "population.json").write_text((out / "population.json").read_text())
+    assert main(["prepare", str(broken)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "population.json" in err and "reach build --resume" in err and len(err.splitlines()) == 1
+
+
 def test_accommodation_from_atlases_agrees_with_direct_ik_checked_by_pinocchio(built, capsys):
     config_path, out, targets = built
     capsys.readouterr()

@@ -143,15 +143,27 @@ def add_accept(sub: Any) -> None:
 def cmd_prepare(args: argparse.Namespace) -> int:
     # loaded when the command runs: `reach --help` starts without the answers' machinery
     from reach.answers.select import Selector
+    from reach.building.population import is_population
     from reach.maps.atlas import load_atlas
 
     t0 = time.perf_counter()
-    selector = Selector(load_atlas(args.atlas))
-    names = selector.strategies_for(args.effector) if args.effector else list(selector.atlas.maps)
+    folder, whom = Path(args.atlas), ""
+    if is_population(folder):
+        # The members' programs are one a strategy (their bodies' numbers are the programs' parameters): the first
+        # member's serve every member.
+        from reach.answers.accommodation import load_members
+
+        atlases, _, names = load_members(folder)
+        atlas, whom = atlases[0], f" (its first member, {names[0]}, for all {len(names)})"
+    else:
+        atlas = load_atlas(folder)
+    selector = Selector(atlas)
+    strategies = selector.strategies_for(args.effector) if args.effector else list(selector.atlas.maps)
     selector.warm_up(args.effector)
-    stored = [n for n in names if selector.atlas.maps[n].posture_names]
-    print(f"{args.atlas}: the refinement programs of {len(stored)} strategies ready ({', '.join(stored) or 'none'}; "
-          f"{time.perf_counter() - t0:.1f} s): queries, motions and serve compile nothing more for them")
+    stored = [n for n in strategies if selector.atlas.maps[n].posture_names]
+    print(f"{args.atlas}: the refinement programs of {len(stored)} strategies ready{whom} "
+          f"({', '.join(stored) or 'none'}; {time.perf_counter() - t0:.1f} s): queries, motions, evaluate's "
+          "refinements and serve compile nothing more for them")
     return 0
 
 
@@ -163,7 +175,8 @@ def add_prepare(sub: Any) -> None:
                                    "so that the first query, motion or serve does not compile (evaluate's thorough "
                                    "solve of a target no tree holds compiles its own). Safe to run again: compiled "
                                    "programs are kept in the cache.")
-    p.add_argument("atlas", help="atlas folder written by 'reach build'")
+    p.add_argument("atlas", help="atlas folder written by 'reach build', or a population's folder (its members share "
+                                 "their programs)")
     p.add_argument("--effector", help="only this effector's strategies")
     p.set_defaults(func=cmd_prepare)
 
