@@ -23,7 +23,8 @@
 * ``--boundary-coverage``: the 95 % boundary family of both sexes (``{boundary: {sex: both, coverage: 0.95}}``, 30
   manikins) asked the functional reach targets 5 mm apart; the layout set at its limit (the farthest target every
   manikin reaches, each strategy), then the share of the whole survey (its model people, each sex weighted to half)
-  reaching that target: the family's coverage against its nominal 95 % (Jung 2013 measured 90.9 % for a 90 % family).
+  reaching that target: the family's coverage against its nominal 95 % (docs/population.md, "Checks against the
+  survey").
 
     python bench/population.py [--direct 500] [--build 4 | --folder out/population] [--random 20] [--workers 2]
     python bench/population.py --functional-reach [--workers 2]
