@@ -144,6 +144,11 @@ def test_a_population_builds_one_atlas_per_member_and_resumes(built, capsys):
     doc = json.loads((out / "population.json").read_text())  # read with json: our manifest, an independent parser
     names = [m["name"] for m in doc["members"]]
     assert len(names) == 4 and all((out / n / "manifest.json").is_file() for n in names)
+    # a member's atlas answers shares and placements: no motion graph unless the config asks for one
+    assert not list(out.glob("*/*.graph.npz"))
+    raw = small({"ansur": {"n": 4, "sex": "mixed", "seed": 3}})
+    assert not parse_config(raw, "pop.yaml").motion_graph
+    assert parse_config({**raw, "build": {"motion_graph": True}}, "pop.yaml").motion_graph
     assert doc["population"] == {"ansur": {"n": 4, "sex": "mixed", "seed": 3}}
     capsys.readouterr()
     assert main(["build", str(config), "-o", str(out), "--quiet", "-j", "1"]) == 2

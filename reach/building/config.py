@@ -218,7 +218,7 @@ def parse_config(data: Any, source: str = "<mapping>", default_name: str = "atla
     strategies: list[StrategySpec] = []
     for i, item in enumerate(raw_strategies):
         strategies.append(_strategy(check, item, i, default, body, "body" in top, {s.name for s in strategies}))
-    chunk, refine, twins, motion_graph = _build_options(check, top.get("build", {}))
+    chunk, refine, twins, motion_graph = _build_options(check, top.get("build", {}), population is not None)
     oracles = _check_oracles(check, strategies, box.dim)
     _check_directions(check, strategies, oracles)
     notes = _diagnose(strategies, oracles)
@@ -297,15 +297,17 @@ def _strategy(check: _Checker, item: Any, i: int, default: OracleSpec, body: Any
     return StrategySpec(sname, effector, priority, oracle, str(s.get("description", "")), mirror_of, directions)
 
 
-def _build_options(check: _Checker, raw: Any) -> tuple[int, Refine, bool, bool]:
-    """``build:``'s chunk size, refinements of the vertex rule, twins and motion graphs."""
+def _build_options(check: _Checker, raw: Any, population: bool = False) -> tuple[int, Refine, bool, bool]:
+    """``build:``'s chunk size, refinements of the vertex rule, twins and motion graphs (by default not for a
+    population's members: their atlases answer shares and placements, and a motion graph cost a quarter of a member's
+    build, 90 CPU s of the demo's four strategies; docs/population.md)."""
     build = check.mapping(raw, "build", BUILD_KEYS)
     chunk = check.integer(build.get("chunk_size", CHUNK_SIZE), "build.chunk_size", 1, 10**7)
     refine_raw = check.mapping(build.get("refine", {}), "build.refine", REFINE_KEYS)
     for k, v in refine_raw.items():
         if not isinstance(v, bool):
             raise check.fail(f"build.refine.{k}", f"expected true or false, got {v!r}")
-    flags = {k: build.get(k, True) for k in ("twins", "motion_graph")}
+    flags = {"twins": build.get("twins", True), "motion_graph": build.get("motion_graph", not population)}
     for k, v in flags.items():
         if not isinstance(v, bool):
             raise check.fail(f"build.{k}", f"expected true or false, got {v!r}")

@@ -43,6 +43,8 @@ def member_config(config: Config, member: Member) -> Config:
     """The config of one member: the population's config with the member's body, named after the member."""
     data = {k: v for k, v in config.raw.items() if k != "population"}
     data["body"], data["name"] = member.body(config.raw.get("body")), member.name
+    # the population's own default for motion graphs (none unless asked), which a config of one body would not take
+    data["build"] = {**(data.get("build") or {}), "motion_graph": config.motion_graph}
     return parse_config(data, f"{config.source} (member {member.name})", member.name)
 
 
