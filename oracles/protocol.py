@@ -239,9 +239,9 @@ class Landmarked(Protocol):
     """An oracle on a body whose frames can be named: targets given on a person's own body (a point ahead of the
     acromion, above the seat) are placed from them."""
 
-    def landmarks(self, names: list[str]) -> dict[str, np.ndarray]:
-        """World positions [m] (3,) of the named frames in the body's reference posture; an unknown name raises an
-        error listing the frames."""
+    def landmarks(self, names: list[str] | None) -> dict[str, np.ndarray]:
+        """World positions [m] (3,) of the named frames in the body's reference posture (None: every frame of the
+        body); an unknown name raises an error listing the frames."""
         ...
 
 

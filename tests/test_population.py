@@ -344,11 +344,49 @@ def test_the_server_answers_accommodation_over_zeromq(built):
                           ({"effector": "right_hand"}, P.BAD_REQUEST)):
             sock.send(json.dumps({"op": "accommodation", **bad}).encode())
             assert json.loads(sock.recv())["error"]["code"] == code
+        # goals on each member's own body: offsets from its right acromion, placed where Pinocchio puts that member's
+        # frame on the body its manifest names (read here with json, the body built again)
+        offsets = [[0.45, -0.05, 0.0], [0.6, -0.05, 0.0], [0.2, -0.1, -0.3], [0.05, -0.7, 0.0]]
+        sock.send(json.dumps({"op": "accommodation", "effector": "right_hand", "goals": offsets,
+                              "relative_to": "right_acromion"}).encode())
+        reply = json.loads(sock.recv())
+        held = []
+        for m, tree in zip(doc["members"], trees, strict=True):
+            at = load_body(m["body"]).frame_positions(names=["right_acromion"])["right_acromion"]
+            held.append(tree.contains(np.array(offsets) + at, "vertex"))
+        assert reply["ok"] and np.allclose(reply["share"], np.mean(held, axis=0))
+        assert not np.allclose(np.mean(held, axis=0), np.mean([t.contains(np.array(offsets), "vertex")
+                                                               for t in trees], axis=0))  # not the offsets as points
+        sock.send(json.dumps({"op": "accommodation", "effector": "right_hand", "goals": offsets,
+                              "relative_to": "third_eye"}).encode())
+        error = json.loads(sock.recv())["error"]
+        assert error["code"] == P.BAD_REQUEST and "third_eye" in error["message"] and "right_acromion" in error["message"]
     finally:
         sock.close(linger=0)
         server.stop()
         thread.join(timeout=5)
         server.close()
+
+
+def test_a_members_landmarks_are_its_bodys_frames_and_bad_ones_are_named(built):
+    import dataclasses
+
+    from reach.errors import StoreError
+    from reach.maps.atlas import load_atlas
+
+    _, out, _ = built
+    member = json.loads((out / "population.json").read_text())["members"][1]
+    atlas = load_atlas(out / member["atlas"])
+    frames = load_body(member["body"]).frame_positions()  # every frame, by Pinocchio on the body built again
+    assert set(atlas.manifest["landmarks"]) == set(frames)
+    assert np.allclose(atlas.landmark("eyes"), frames["eyes"], atol=1e-12)
+    for landmarks, match in ((None, "reach build --resume"), ([1, 2], "expected an object"),
+                             ({"eyes": [0, "x", 1]}, r"landmarks\.eyes: expected \[x, y, z\]")):
+        manifest = {k: v for k, v in atlas.manifest.items() if k != "landmarks"}
+        if landmarks is not None:
+            manifest["landmarks"] = landmarks
+        with pytest.raises(StoreError, match=match):
+            dataclasses.replace(atlas, manifest=manifest).landmark("eyes")
 
 
 def test_seated_members_each_get_their_seat_fitted():

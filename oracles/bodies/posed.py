@@ -54,9 +54,10 @@ class PosedBody:
     def reference_posture(self) -> np.ndarray:
         return self.body.q_ref.copy()
 
-    def landmarks(self, names: list[str]) -> dict[str, np.ndarray]:
-        """The named frames' world positions [m] in the body's reference posture (an unknown name: ModelError)."""
-        return self.body.frame_positions(None, list(names))
+    def landmarks(self, names: list[str] | None) -> dict[str, np.ndarray]:
+        """The named frames' world positions [m] in the body's reference posture (None: every frame; an unknown name:
+        ModelError)."""
+        return self.body.frame_positions(None, None if names is None else list(names))
 
     def effector_positions(self, postures: np.ndarray) -> np.ndarray:
         """Effector positions [m] (N, 3) of postures (N, nq), by Pinocchio."""

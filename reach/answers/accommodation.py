@@ -115,17 +115,19 @@ def shares(atlases: Sequence[Atlas], weights: np.ndarray, points: np.ndarray,
     return run_steps(sharing(atlases, weights, points, effector))
 
 
-def sharing(atlases: Sequence[Atlas], weights: np.ndarray, points: np.ndarray,
-            effector: str | None = None) -> Generator[None, None, dict[str, np.ndarray]]:
-    """:func:`shares` a member at a time: yields after each member (a server answers between them), returns them."""
+def sharing(atlases: Sequence[Atlas], weights: np.ndarray, points: np.ndarray, effector: str | None = None,
+            shift: np.ndarray | None = None) -> Generator[None, None, dict[str, np.ndarray]]:
+    """:func:`shares` a member at a time: yields after each member (a server answers between them), returns them.
+    ``shift`` (M, 3) [m]: each member's points moved by its own row (targets given on each person's body)."""
     out: dict[str, np.ndarray] = {}
     some = np.zeros(len(points))
-    for atlas, w in zip(atlases, weights, strict=True):
+    for k, (atlas, w) in enumerate(zip(atlases, weights, strict=True)):
+        mine = points if shift is None else points + shift[k]
         held_here = np.zeros(len(points), bool)
         for name, tree in atlas.trees.items():
             if effector is not None and tree.meta.get("effector") != effector:
                 continue
-            inside = tree.contains(points, "vertex")
+            inside = tree.contains(mine, "vertex")
             out[name] = out.get(name, np.zeros(len(points))) + w * inside
             held_here |= inside
         some += w * held_here
@@ -145,11 +147,14 @@ def run_steps(steps: Generator[None, None, T]) -> T:
             return done.value  # type: ignore[no-any-return]
 
 
-def held(atlases: Sequence[Atlas], weights: np.ndarray, effector: str,
-         goals: np.ndarray) -> Generator[None, None, dict[str, Any]]:
+def held(atlases: Sequence[Atlas], weights: np.ndarray, effector: str, goals: np.ndarray,
+         relative_to: str | None = None) -> Generator[None, None, dict[str, Any]]:
     """Per goal, the share of members one of whose ``effector`` strategies holds it (:func:`sharing`, a member a
-    step), with its Wilson interval at Kish's effective n, and per strategy name its share."""
-    found = yield from sharing(atlases, weights, goals, effector)
+    step), with its Wilson interval at Kish's effective n, and per strategy name its share. ``relative_to``: the goals
+    are offsets (world axes) from that frame of each member's body in its reference posture, as its build recorded it
+    (:meth:`Atlas.landmark`)."""
+    shift = None if relative_to is None else np.array([a.landmark(relative_to) for a in atlases], float)
+    found = yield from sharing(atlases, weights, goals, effector, shift)
     w = np.asarray(weights, float)
     n_eff = float(w.sum() ** 2 / (w * w).sum())
     bounds = [wilson(float(p), n_eff) for p in found[ANY]]

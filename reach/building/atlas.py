@@ -30,6 +30,7 @@ import numpy as np
 from oracles.protocol import (
     Described,
     KeepOut,
+    Landmarked,
     Mirrorable,
     ModelHashed,
     Oracle,
@@ -191,8 +192,17 @@ def _build_locked(
     job.by_name = {s.name: s for s in order}
     job.subs = sub_strategies(order, job.oracle_of) if inherit else {}
     entries = [job.strategy(s, mirror) for s in order]
-    _finish(config, out, entries, job.built, job.warnings, time.perf_counter() - t0)
+    _finish(config, out, entries, job.built, job.warnings, time.perf_counter() - t0,
+            _landmarks(job.oracle_of(order[0])))
     return load_atlas(out)
+
+
+def _landmarks(oracle: Oracle) -> dict[str, list[float]] | None:
+    """Every frame of the strategies' body in its reference posture [m] (they share one body), for targets given on
+    it where no oracle is made (a server's ``accommodation``); None for a body without named frames."""
+    if not isinstance(oracle, Landmarked):
+        return None
+    return {name: [float(v) for v in p] for name, p in oracle.landmarks(None).items()}
 
 
 @dataclasses.dataclass
@@ -268,7 +278,7 @@ class _AtlasBuild:
 
 
 def _finish(config: Config, out: Path, entries: list[dict[str, Any]], built: dict[str, VATree],
-            warnings: list[dict[str, Any]], seconds: float) -> None:
+            warnings: list[dict[str, Any]], seconds: float, landmarks: dict[str, list[float]] | None = None) -> None:
     """The atlas's manifest written, by priority, and the folder of partial trees removed when empty."""
     entries.sort(key=lambda e: (e["priority"], e["name"]))
     manifest = {
@@ -280,6 +290,8 @@ def _finish(config: Config, out: Path, entries: list[dict[str, Any]], built: dic
         "versions": package_versions(), "build_seconds": seconds,
         "warnings": {"config": list(config.notes), "faces": warnings},
     }
+    if landmarks is not None:
+        manifest["landmarks"] = landmarks
     write_manifest(out, manifest)
     if (out / PARTIAL).is_dir() and not any((out / PARTIAL).iterdir()):
         (out / PARTIAL).rmdir()

@@ -9,6 +9,7 @@ from __future__ import annotations
 import fcntl
 import hashlib
 import json
+import math
 import os
 import stat
 import time
@@ -18,7 +19,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from reach.errors import StoreError, UnknownStrategy
+from reach.errors import StoreError, UnknownName, UnknownStrategy
 from reach.maps.index import IndexedTree, ReachIndex
 from reach.maps.protocol import ReachMap
 from reach.maps.store import atomic_write, load_indexed, read_header
@@ -68,6 +69,25 @@ class Atlas:
         if name not in self.trees:
             raise UnknownStrategy(name, list(self.trees))
         return self.trees[name]
+
+    def landmark(self, name: str) -> list[float]:
+        """A frame's position [m] in the body's reference posture, as the build recorded it (the manifest's
+        ``landmarks``). StoreError when it recorded none (an atlas built before they were, or of a shape without named
+        frames; ``reach build --resume`` records them, keeping the trees); UnknownName for a frame the body lacks."""
+        path = self.path / MANIFEST
+        found = self.manifest.get("landmarks")
+        if found is None:
+            raise StoreError(path, "no landmarks recorded (built before they were, or a body without named frames): "
+                                   "run reach build --resume on its config to record them")
+        if not isinstance(found, dict):
+            raise StoreError(path, "landmarks: expected an object of frame name -> [x, y, z]")
+        if name not in found:
+            raise UnknownName(name, sorted(found), "relative_to")
+        point = found[name]
+        if not (isinstance(point, list) and len(point) == 3 and all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in point)):
+            raise StoreError(path, f"landmarks.{name}: expected [x, y, z] in metres")
+        return [float(v) for v in point]
 
     def select(self, names: list[str] | None) -> list[str]:
         """The names asked for (every strategy for None), each checked to exist."""

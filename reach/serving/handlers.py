@@ -28,6 +28,7 @@ from reach.answers.accommodation import held, run_steps
 from reach.answers.answer import ERROR, SKIPPED, Answer, orientation_of
 from reach.answers.refine import ORIENTED_BUDGET
 from reach.answers.select import Selector
+from reach.errors import StoreError, UnknownName
 from reach.motion.planner import Planner
 from reach.motion.rig import with_bones
 from reach.motion.timing import Timing
@@ -333,7 +334,13 @@ class Accommodation(Handler):
             raise P.ProtocolError(P.TOO_LARGE, f"{len(goals)} goals x {trees} member trees is over the "
                                                f"{P.MAX_ACCOMMODATION_LOOKUPS:,} lookups one accommodation may take; "
                                                "send fewer goals a request", req.id)
-        found = yield from held(atlases, weights, effector, goals)
+        try:
+            found = yield from held(atlases, weights, effector, goals, req["relative_to"])
+        except UnknownName as exc:
+            raise P.ProtocolError(P.BAD_REQUEST, str(exc), req.id) from None
+        except StoreError as exc:
+            raise P.ProtocolError(P.BAD_REQUEST, f"relative_to: a member's atlas cannot place it: {exc}",
+                                  req.id) from None
         return {"members": len(atlases), **found}
 
 

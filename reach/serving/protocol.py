@@ -446,6 +446,9 @@ OPERATIONS: dict[str, Operation] = {op.name: op for op in (
         Field("effector", "string", _string(MAX_NAME), "the effector's frame, e.g. `right_hand`", required=True),
         Field("goals", "[[x, y, z], ...] m", _accommodation_goals, f"at most {MAX_ACCOMMODATION_GOALS} goals in the "
                                                                    "members' world frame", required=True),
+        Field("relative_to", "string", _string(MAX_NAME), "a frame of the members' bodies (`back`, `right_acromion`, "
+                                                          "`eyes`, ...): the goals are offsets from it on each "
+                                                          "member's own body, in the world's axes"),
     ), "the share of the served population (`reach serve --population`) whose trees hold each goal, with its 95 % "
        "interval, and per strategy"),
     Operation("strategies", (), "the atlas's strategies, effectors, boxes and world frame"),
