@@ -153,6 +153,12 @@ def test_a_population_builds_one_atlas_per_member_and_resumes(built, capsys):
     capsys.readouterr()
     assert main(["build", str(config), "-o", str(out), "--quiet", "-j", "1"]) == 2
     assert "give --resume" in capsys.readouterr().err
+    # an atlas built before its manifest kept landmarks: --resume records them, keeping its trees
+    from reach.maps.atlas import read_manifest as read_atlas_manifest
+    from reach.maps.atlas import write_manifest as write_atlas_manifest
+
+    older = {k: v for k, v in read_atlas_manifest(out / names[0]).items() if k != "landmarks"}
+    write_atlas_manifest(out / names[0], older)
     # a killed build: one member's folder lost; --resume builds it again and keeps the others
     lost = out / names[2]
     for f in lost.iterdir():
@@ -163,6 +169,7 @@ def test_a_population_builds_one_atlas_per_member_and_resumes(built, capsys):
     log = capsys.readouterr().out
     assert (lost / "manifest.json").is_file()
     assert log.count("kept the finished tree") == 3 and log.count("oracle calls") == 1
+    assert "eyes" in read_atlas_manifest(out / names[0])["landmarks"]
     assert main(["model", str(config)]) == 0
     listing = capsys.readouterr().out
     assert "a population of 4" in listing and all(n in listing for n in names)
