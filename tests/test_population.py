@@ -367,7 +367,8 @@ def test_the_server_answers_accommodation_over_zeromq(built):
         sock.send(json.dumps({"op": "accommodation", "effector": "right_hand", "goals": offsets,
                               "relative_to": "third_eye"}).encode())
         error = json.loads(sock.recv())["error"]
-        assert error["code"] == P.BAD_REQUEST and "third_eye" in error["message"] and "right_acromion" in error["message"]
+        assert error["code"] == P.BAD_REQUEST
+        assert "third_eye" in error["message"] and "right_acromion" in error["message"]
     finally:
         sock.close(linger=0)
         server.stop()
