@@ -224,11 +224,10 @@ def main() -> None:
              refuted_by_check=result["refuted_by_check"],
              shares={t["target"]: [t["share"], t["low"], t["high"]] for t in result["targets"]})
     if args.folder:
-        from reach.building.population import read_manifest
-
-        n = len(read_manifest(args.folder)["members"])
-        agreement(from_atlases(args.folder, targets), direct(config_of(n), targets, workers=args.workers),
-                  args.folder, targets)
+        with tempfile.TemporaryDirectory() as tmp:
+            folder, members = built_part(Path(args.folder), Path(tmp))
+            agreement(from_atlases(folder, targets), direct(config_of(len(members)), targets, workers=args.workers,
+                                                            members=members), folder, targets)
     elif args.build:
         from reach.building.atlas import build_atlas
         from reach.building.executor import ProcessExecutor
@@ -245,6 +244,24 @@ def main() -> None:
                  workers=args.workers, wall_s=round(wall, 1), cpu_s=round(spent, 1),
                  per_member_wall_s=round(wall / args.build, 1))
             agreement(from_atlases(out, targets), direct(config, targets, workers=args.workers), out, targets)
+
+
+def built_part(folder: Path, tmp: Path) -> tuple[Path, list]:
+    """A population folder's built members: the folder itself when all are, else a population of those alone in
+    ``tmp`` (their atlases linked), with the members as ``direct`` takes them (a build still running)."""
+    from oracles.bodies.population import Member
+    from reach.building.population import MANIFEST, read_manifest
+
+    doc = read_manifest(folder)
+    done = [m for m in doc["members"] if (folder / m["atlas"] / "manifest.json").is_file()]
+    members = [Member(m["name"], m["body"]["human"], m["sex"], m["weight"]) for m in done]
+    if len(done) == len(doc["members"]):
+        return folder, members
+    for m in done:
+        (tmp / m["atlas"]).symlink_to((folder / m["atlas"]).resolve())
+    (tmp / MANIFEST).write_text(json.dumps({**doc, "members": done}))
+    emit(bench="agreement_members", built=len(done), of=len(doc["members"]))
+    return tmp, members
 
 
 def agreement(trees: dict, by_ik: dict, folder: str | Path | None = None, targets: list[Target] | None = None) -> None:

@@ -182,13 +182,14 @@ def from_atlases(folder: str | Path, targets: list[Target], effector: str | None
 
 def direct(config: Any, targets: list[Target], effector: str | None = None,
            placement: np.ndarray | None = None, verify: bool = True,
-           log: Any = None, workers: int = 1, client: Any = None) -> dict[str, Any]:
+           log: Any = None, workers: int = 1, client: Any = None, members: list[Any] | None = None) -> dict[str, Any]:
     """Accommodation by solving every member x target with the members' strategies' oracles (no tree).
 
     Every reached target is checked by the strategy's own forward-kinematics check of the posture on that member's
     model (``Verifying``); one that fails it counts as not reached, and the count is reported. ``workers`` > 1 solves
     members in that many processes (each dies with this one); a Dask ``client`` (``distributed.Client``) solves them
-    on its cluster's workers instead. The answers depend on neither.
+    on its cluster's workers instead. The answers depend on neither. ``members``
+    (:class:`oracles.bodies.population.Member`): these instead of the config's population.
     """
     from reach.building.population import members_of
 
@@ -198,7 +199,7 @@ def direct(config: Any, targets: list[Target], effector: str | None = None,
     effs = _effectors(targets, effector, sorted({s.effector for s in config.strategies}))
     strategies = [(s.name, s.effector, s.oracle.name, s.oracle.params) for s in config.strategies
                   if s.effector in set(effs)]
-    members = members_of(config)
+    members = members_of(config) if members is None else members
     # Members in runs of CHUNK, each run in one process with one program a strategy (the body's numbers its
     # parameters: oracles.ik.parameters), built for the run's first member and shared by the others.
     if client is not None:
