@@ -905,6 +905,7 @@ POINT = st.lists(st.floats(-1.5, 2.5), min_size=1, max_size=4)
 FIELD_VALUES = {
     "effector": st.sampled_from(["right_hand", "left_hand", "", "x" * 300]),
     "goal": POINT, "goals": st.lists(POINT, min_size=0, max_size=4),
+    "relative_to": st.sampled_from(["back", "right_acromion", "third_eye", "", "x" * 300]),
     "refine": st.booleans(),
     "bones": st.booleans(),
     "return": st.booleans(),
