@@ -81,8 +81,6 @@ def functional_reach(workers: int) -> None:
 
 def boundary_coverage(workers: int, coverage: float = 0.95) -> None:
     """See the module docstring."""
-    from oracles.bodies import ansur
-
     data = read_yaml(ROOT / "configs" / "examples" / "functional_reach.yaml")
     data["population"] = {"boundary": {"sex": "both", "coverage": coverage, "components": 3}}
     family = parse_config(data, "configs/examples/functional_reach.yaml (the boundary family)", "family")
@@ -107,8 +105,7 @@ def boundary_coverage(workers: int, coverage: float = 0.95) -> None:
     for kind, d in limits.items():
         # the family stands for a 50:50 mix of the sexes: the survey weighted so
         model = 0.5 * shares[kind]["female"] + 0.5 * shares[kind]["male"]
-        measured = {sex: float(np.mean(ansur.sample(sex).column("thumbtipreach") >= d - 1e-9))  # type: ignore[arg-type]
-                    for sex in ("female", "male")}
+        measured = {sex: float(np.mean(survey_column(sex, "thumbtipreach") >= d - 1e-9)) for sex in ("female", "male")}
         emit(bench="boundary_coverage", kind=kind, nominal=coverage, manikins=result["members"], limit_m=round(d, 3),
              model_share=round(model, 4), model_by_sex=shares[kind],
              survey_thumbtip_share=round(0.5 * measured["female"] + 0.5 * measured["male"], 4)

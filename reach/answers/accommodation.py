@@ -83,22 +83,30 @@ def _target_row(members: Sequence[dict[str, Any]], weights: np.ndarray, t: int, 
 
 def load_members(folder: str | Path) -> tuple[list[Atlas], np.ndarray, list[str]]:
     """A built population's member atlases, their weights (summing to 1) and names; an unbuilt member is an error."""
-    from reach.building.population import read_manifest
     from reach.maps.atlas import load_atlas
 
+    paths, weights, names = member_atlases(folder)
+    return [load_atlas(path) for path in paths], weights, names
+
+
+def member_atlases(folder: str | Path) -> tuple[list[Path], np.ndarray, list[str]]:
+    """A built population's member atlas folders (not loaded), their weights (summing to 1) and names; an unbuilt
+    member is an error."""
+    from reach.building.population import read_manifest
+
     doc = read_manifest(folder)
-    atlases = []
+    paths = []
     for m in doc["members"]:
         path = Path(folder) / m["atlas"]
         if not (path / "manifest.json").is_file():
             raise ConfigError(str(Path(folder) / "population.json"), "", f"member {m['name']}: its atlas {path} is not "
                                                                     "built yet: run reach build --resume on the "
                                                                     "population's config")
-        atlases.append(load_atlas(path))
+        paths.append(path)
     w = np.array([m["weight"] for m in doc["members"]], float)
     if not len(w) or w.sum() <= 0:
         raise ConfigError(str(Path(folder) / "population.json"), "members", "no member with a weight above 0")
-    return atlases, w / w.sum(), [str(m["name"]) for m in doc["members"]]
+    return paths, w / w.sum(), [str(m["name"]) for m in doc["members"]]
 
 
 ANY = "any"  # the share of members that some strategy of theirs holds

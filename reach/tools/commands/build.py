@@ -151,10 +151,10 @@ def cmd_prepare(args: argparse.Namespace) -> int:
     if is_population(folder):
         # The members' programs are one a strategy (their bodies' numbers are the programs' parameters): the first
         # member's serve every member.
-        from reach.answers.accommodation import load_members
+        from reach.answers.accommodation import member_atlases
 
-        atlases, _, names = load_members(folder)
-        atlas, whom = atlases[0], f" (its first member, {names[0]}, for all {len(names)})"
+        paths, _, names = member_atlases(folder)
+        atlas, whom = load_atlas(paths[0]), f" (its first member, {names[0]}, for all {len(names)})"
     else:
         atlas = load_atlas(folder)
     selector = Selector(atlas)
