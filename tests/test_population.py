@@ -512,6 +512,32 @@ def test_a_strategy_with_more_freedom_reaches_what_its_sub_strategy_reaches_dire
     assert np.all(by["right_whole_body"][by["right_upper_body"] | by["right_arm"]])
 
 
+def test_a_target_an_earlier_strategy_reached_costs_the_next_no_solve():
+    """The upper body is asked only for the workstation targets the arm's postures do not hold by its own check: the
+    others are its too (its joints a superset, its other joints at the reference), each posture passing the upper
+    body's Pinocchio check, with no search (the whole body and the crouch of a population's direct answers then
+    solve only what the arm and the upper body missed)."""
+    from reach.answers.accommodation import _member
+    from reach.building.config import load_config
+
+    config = load_config(Path(__file__).resolve().parents[1] / "configs" / "demo.yaml")
+    rows = list(csv.DictReader(open(Path(__file__).resolve().parents[1] / "configs/targets/workstation_right.csv")))
+    points = np.array([[float(r["x"]), float(r["y"]), float(r["z"])] for r in rows])
+    oracles, strategies = {}, []
+    for name in ("right_arm", "right_upper_body"):
+        spec = config.strategy(name).oracle
+        params = {**spec.params, "jit": False}
+        oracles[name] = OracleSpec(spec.name, params).create()
+        strategies.append((name, "right_hand", spec.name, params))
+    found, refuted = _member(oracles, strategies, points, ["right_hand"] * len(points), True)
+    arm = np.array([r["strategy"] == "right_arm" for r in found])
+    upper = np.array([r["strategy"] == "right_upper_body" or "right_upper_body" in r["also"] for r in found])
+    assert refuted == 0 and 0 < arm.sum() < len(points)
+    assert np.all(upper[arm])  # what the arm reaches, the upper body reaches
+    assert oracles["right_upper_body"].stats["points"] == len(points) - arm.sum()  # ... without being asked
+    assert upper.sum() > arm.sum()  # and it reaches more by its own search
+
+
 def test_a_population_manifest_that_is_not_one_is_refused_in_one_line(tmp_path):
     """population.json as an attacker writes it: deeply nested, a member without a name, a weight of 10**400, of
     Infinity or 1e999, a name of 5,000 characters, a FIFO, a link to /dev/zero. Each is a TreeError naming the file

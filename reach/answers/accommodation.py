@@ -297,11 +297,14 @@ def _member(oracles: dict[str, Any], strategies: list[tuple[Any, ...]], points: 
     for name, eff, _, _ in strategies:
         pick = [i for i, e in enumerate(effs) if e == eff]
         oracle = oracles[name]
-        v = _solved_from(oracle, points[pick], [found.get(i) for i in pick])
-        ok, wrong = _checked(oracle, points[pick], v) if verify else (np.asarray(v.reachable, bool), 0)
+        # A target an earlier strategy reached is this one's too when that posture passes this strategy's own check:
+        # no solve (the whole body and the crouch then solve only what the arm and upper body missed).
+        held = _held(oracle, points, pick, found)
+        rest = [i for i in pick if i not in held]
+        ok, postures, wrong = _reached(oracle, points[rest], [found.get(i) for i in rest], verify)
         refuted += wrong
-        postures = np.asarray(v.posture, float) if v.posture is not None else [None] * len(pick)
-        for i, q in ((i, q) for i, hit, q in zip(pick, ok, postures, strict=True) if hit):
+        reached = [*held.items(), *((i, q) for i, hit, q in zip(rest, ok, postures, strict=True) if hit)]
+        for i, q in sorted(reached, key=lambda iq: iq[0]):
             if q is not None:
                 found.setdefault(i, q)
             row = rows[i]
@@ -310,6 +313,29 @@ def _member(oracles: dict[str, Any], strategies: list[tuple[Any, ...]], points: 
             else:
                 row["reachable"], row["strategy"] = True, name
     return rows, refuted
+
+
+def _reached(oracle: Any, points: np.ndarray, found: list[np.ndarray | None], verify: bool) -> tuple[
+        np.ndarray, Sequence[np.ndarray | None], int]:
+    """Which points the oracle reaches (:func:`_solved_from`; with ``verify``, by postures that pass its own check),
+    their postures, and how many reached ones that check refuted."""
+    if not len(points):
+        return np.zeros(0, bool), [], 0
+    v = _solved_from(oracle, points, found)
+    ok, wrong = _checked(oracle, points, v) if verify else (np.asarray(v.reachable, bool), 0)
+    return ok, (list(np.asarray(v.posture, float)) if v.posture is not None else [None] * len(points)), wrong
+
+
+def _held(oracle: Any, points: np.ndarray, pick: list[int], found: dict[int, np.ndarray]) -> dict[int, np.ndarray]:
+    """Of the targets ``pick``, those whose posture ``found`` by an earlier strategy passes this oracle's own
+    forward-kinematics check (:class:`Verifying`), with that posture."""
+    from oracles.protocol import Verifying
+
+    mine = [i for i in pick if i in found]
+    if not mine or not isinstance(oracle, Verifying):
+        return {}
+    ok = oracle.verify(points[mine], np.array([found[i] for i in mine]))
+    return {i: found[i] for i, hit in zip(mine, ok, strict=True) if hit}
 
 
 def _checked(oracle: Any, points: np.ndarray, v: Any) -> tuple[np.ndarray, int]:
