@@ -60,7 +60,7 @@ entry point works everywhere a built-in one does.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Generator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal, NamedTuple, Protocol, cast, runtime_checkable
 
@@ -399,6 +399,46 @@ class Sharing(Protocol):
     def share_programs(self, other: Any) -> bool:
         """Take ``other``'s programs when they serve this body too; whether it did."""
         ...
+
+
+@runtime_checkable
+class Joining(Protocol):
+    """An oracle whose calls can run joined with other oracles' calls of the same programs (a population's members,
+    each its own body with one program's parameters): a call as steps, and the steps of several run together."""
+
+    def evaluate_steps(self, goals: Goals | np.ndarray) -> Generator[Any, Any, Verdicts]:
+        """:meth:`Oracle.evaluate` as a generator: it yields the work it needs done, takes each result back, and
+        returns the verdicts."""
+        ...
+
+    def run_joined(self, requests: list[Any]) -> list[Any]:
+        """The results of work that several oracles' :meth:`evaluate_steps` yielded, in order."""
+        ...
+
+
+def evaluate_together(oracles: Sequence[Oracle], goals: Sequence[Goals | np.ndarray]) -> list[Verdicts]:
+    """Each oracle's verdicts on its goals, as its ``evaluate`` gives them; where every oracle is :class:`Joining`,
+    their work is run joined (one batch for calls of one program), each call's steps in turn."""
+    if len(oracles) < 2 or not all(isinstance(o, Joining) for o in oracles):
+        return [o.evaluate(Goals.of(g)) for o, g in zip(oracles, goals, strict=True)]
+    joining = cast(Sequence[Joining], oracles)
+    steps = [o.evaluate_steps(g) for o, g in zip(joining, goals, strict=True)]
+    out: list[Verdicts | None] = [None] * len(steps)
+    pending: dict[int, Any] = {}
+
+    def advance(k: int, result: Any) -> None:
+        try:
+            pending[k] = next(steps[k]) if result is None else steps[k].send(result)
+        except StopIteration as done:
+            out[k] = done.value
+
+    for k in range(len(steps)):
+        advance(k, None)
+    while pending:
+        asked, pending = pending, {}
+        for k, result in zip(asked, joining[0].run_joined(list(asked.values())), strict=True):
+            advance(k, result)
+    return [v for v in out if v is not None]
 
 
 @runtime_checkable

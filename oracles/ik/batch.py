@@ -198,10 +198,17 @@ class BatchProgram:
 
     def with_bounds(self, lower_bound: np.ndarray, upper_bound: np.ndarray) -> BatchProgram:
         """This program with other coordinate bounds (another body's, its functions taking that body's numbers as
-        parameters: :mod:`oracles.ik.parameters`)."""
+        parameters: :mod:`oracles.ik.parameters`): (n,), or (B, n) a row of the batch each (the members of a
+        population solved together, :mod:`oracles.ik.joined`)."""
         twin = copy.copy(self)
         twin.lower_bound, twin.upper_bound, twin.span = lower_bound, upper_bound, upper_bound - lower_bound
         return twin
+
+    def at(self, rows: np.ndarray) -> BatchProgram:
+        """This program for some rows of its batch: itself, or with those rows' bounds when each row has its own."""
+        if np.ndim(self.lower_bound) == 1:
+            return self
+        return self.with_bounds(self.lower_bound[rows], self.upper_bound[rows])
 
     # -- evaluation -----------------------------------------------------------
     def evaluate(self, x: np.ndarray, p: np.ndarray, lower: bool = False, guard: np.ndarray | None = None) -> State:
@@ -504,6 +511,27 @@ class Ends(NamedTuple):
     blocked: np.ndarray
 
 
+class Starts(NamedTuple):
+    """One batch of starts to iterate: the arguments of :func:`run_starts` (a call the waves ask for, run alone or
+    joined with other oracles' of the same program, :mod:`oracles.ik.joined`)."""
+
+    program: BatchProgram
+    x0: np.ndarray
+    params: np.ndarray
+    goal_of: np.ndarray
+    tolerance: float
+    lower: bool
+    start: np.ndarray | None
+    meter: Meter
+    stats: dict[str, int]
+    decisive: np.ndarray | None = None
+    give_up: float = np.inf
+    lower_iter: int = LOWER_ITER
+
+    def run(self) -> Ends:
+        return run_starts(*self)
+
+
 def run_starts(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goal_of: np.ndarray, tolerance: float,
                lower: bool, start: np.ndarray | None, meter: Meter, stats: dict[str, int],
                decisive: np.ndarray | None = None, give_up: float = np.inf, lower_iter: int = LOWER_ITER) -> Ends:
@@ -580,8 +608,9 @@ def _reach_rounds(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goa
             break
         sub = np.nonzero(keep & ~newly)[0]
         moving = live[sub]
-        x[moving] = program.reach_step(x[moving], state.take(sub), None if starts is None else starts[moving],
-                                       start_weight[moving], radius[moving])
+        x[moving] = program.at(moving).reach_step(x[moving], state.take(sub),
+                                                  None if starts is None else starts[moving], start_weight[moving],
+                                                  radius[moving])
         live = live[keep]
     return x, dist, viol, given_up, rounds, guarded
 
@@ -629,6 +658,7 @@ def _lower_rounds(program: BatchProgram, x: np.ndarray, dist: np.ndarray, viol: 
     if not reached.size:
         return  # (no start reached: nothing to like)
     y, p_low, s_low = x[reached].copy(), params[reached], None if starts is None else starts[reached]
+    program = program.at(reached)
     w_low, r_low = start_weight[reached], np.full(len(reached), MAX_STEP)
     state = program.evaluate(y, p_low, lower=True)
     assert state.f is not None
@@ -647,9 +677,10 @@ def _lower_rounds(program: BatchProgram, x: np.ndarray, dist: np.ndarray, viol: 
         # (Each start's steps depend on itself alone: the same goal gets the same posture in any batch.)
         on = np.nonzero(r_low >= MIN_RADIUS)[0]
         stats["iterations"] = stats.get("iterations", 0) + 2 * int(on.size)
-        trial = program.lower_step(y[on], state.take_lower(on), r_low[on])
-        trial = program.reach_step(trial, program.evaluate(trial, p_low[on]), None if s_low is None else s_low[on],
-                                   w_low[on], np.full(len(on), MAX_STEP))
+        here = program.at(on)
+        trial = here.lower_step(y[on], state.take_lower(on), r_low[on])
+        trial = here.reach_step(trial, program.evaluate(trial, p_low[on]), None if s_low is None else s_low[on],
+                                w_low[on], np.full(len(on), MAX_STEP))
         after = program.evaluate(trial, p_low[on], lower=True)
         assert after.f is not None
         better = (after.f < best[on]) & (np.linalg.norm(after.e,
@@ -686,7 +717,7 @@ def _restore(program: BatchProgram, y: np.ndarray, state: State, params: np.ndar
         off = np.nonzero((d > 0.5 * tolerance) | (v > HARD_TOL))[0]
         if not off.size:
             break
-        y[off] = program.reach_step(y[off], state.take(off), None if starts is None else starts[off],
-                                    start_weight[off], np.full(len(off), MAX_STEP))
+        y[off] = program.at(off).reach_step(y[off], state.take(off), None if starts is None else starts[off],
+                                            start_weight[off], np.full(len(off), MAX_STEP))
         state = program.evaluate(y, params, lower=True)
     return state

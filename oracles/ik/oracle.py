@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+from collections.abc import Generator
 from typing import Any
 
 import numpy as np
@@ -22,6 +23,7 @@ import pinocchio as pin
 from oracles.bodies.anthropometry import legacy_body
 from oracles.bodies.body import load_body
 from oracles.errors import ModelError, OracleError
+from oracles.ik.joined import run_joined
 from oracles.ik.problem import ReachProblem
 from oracles.ik.rounds import NO_CALL, Call
 from oracles.ik.search import Search
@@ -314,6 +316,27 @@ class IKOracle(TaskedBody):
         """Verdicts for goals [m] (see :class:`oracles.protocol.Goals`): held to their targets, warm-started from
         their seeds ((N, nq), or (N, k, nq) tried in order), or from the current posture with a small cost on
         displacement from it."""
+        return self.solver.evaluate(*self._asked(goals))
+
+    def evaluate_steps(self, goals: Goals | np.ndarray) -> Generator[Any, Any, Verdicts]:
+        """:meth:`evaluate` as steps (see :class:`oracles.protocol.Joining`): the batched engine's batches of starts
+        yielded to be run joined with other oracles' (:func:`run_joined`); another engine's call has none."""
+        asked = self._asked(goals)
+        steps = getattr(self.solver, "evaluate_steps", None)
+        if steps is not None:
+            return steps(*asked)  # type: ignore[no-any-return]
+        return _no_steps(self.solver.evaluate(*asked))
+
+    @staticmethod
+    def run_joined(requests: list[Any]) -> list[Any]:
+        """The ends of batches of starts that :meth:`evaluate_steps` of several oracles yielded, those of one program
+        iterated as one (:mod:`oracles.ik.joined`)."""
+        return run_joined(requests)
+
+    def _asked(self, goals: Goals | np.ndarray) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None,
+                                                        np.ndarray | None]:
+        """What the solver is asked for goals: points, seeds, the current posture as x, targets (see
+        :meth:`evaluate`)."""
         g = Goals.of(goals)
         n, nq = len(g), len(self.posture_names)
         targets = self.strategy.target_rows(g.targets, n) if g.targets else None
@@ -329,7 +352,13 @@ class IKOracle(TaskedBody):
             seeds = np.tile(current, (n, 1)) if seeds is None else seeds
         if n:
             self._seek_home()
-        return self.solver.evaluate(g.points, seeds, start, targets)
+        return g.points, seeds, start, targets
+
+
+def _no_steps(verdicts: Verdicts) -> Generator[Any, Any, Verdicts]:
+    """A call with no batch of starts to yield: its verdicts."""
+    return verdicts
+    yield  # (a generator)
 
 
 def dls(**params: Any) -> IKOracle:

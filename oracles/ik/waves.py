@@ -26,12 +26,13 @@ from __future__ import annotations
 
 import time
 import zlib
+from collections.abc import Generator
 from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 import pinocchio as pin
 
-from oracles.ik.batch import BatchProgram, run_starts
+from oracles.ik.batch import BatchProgram, Ends, Starts
 from oracles.ik.budget import GUARD, POLISH_COST, WAVE_ROUNDS, Meter, reach_cost
 from oracles.ik.problem import ReachProblem
 from oracles.ik.rounds import NO_CALL, Call, unsolved_residuals
@@ -230,6 +231,11 @@ class Waves:
 
     def run(self) -> Verdicts:
         """The waves, the polishes, the verdicts."""
+        return run_alone(self.steps())
+
+    def steps(self) -> Generator[Starts, Ends, Verdicts]:
+        """:meth:`run`, yielding each batch of starts for its caller to iterate (alone, or joined with other calls'
+        of the same program: :mod:`oracles.ik.joined`) and taking their ends."""
         oracle, search, n = self.oracle, self.oracle.search, len(self.pts)
         if not self.todo.size:
             return Verdicts(self.reach, self.residual, self.posture, None if search.max_seconds is None
@@ -243,7 +249,7 @@ class Waves:
             found = self._wave(wave)
             if found is None:
                 continue
-            run = self._run(*found)
+            run = yield from self._run(*found)
             self._keep_reaching(run)
             # A staged goal is polished after each of its waves, before the next (fatrop from the placed starts' near
             # miss reached a fifth of the goals it was tried on, without the random starts); the others after all.
@@ -254,7 +260,7 @@ class Waves:
         self._polish_missed(runs, ~self.staged)
         found = self._near_wave()
         if found is not None:
-            last = self._run(*found)
+            last = yield from self._run(*found)
             self._keep_reaching(last)
             self._polish_missed([last], np.ones(n, bool))
             spent.append(last)
@@ -311,8 +317,10 @@ class Waves:
                   for i in goals]
         return goals, starts, None
 
-    def _run(self, goals: np.ndarray, starts: list[list[np.ndarray]], decisive: np.ndarray | None) -> Wave:
-        """The goals' starts iterated together (:func:`oracles.ik.batch.run_starts`)."""
+    def _run(self, goals: np.ndarray, starts: list[list[np.ndarray]],
+             decisive: np.ndarray | None) -> Generator[Starts, Ends, Wave]:
+        """The goals' starts iterated together (:func:`oracles.ik.batch.run_starts`, by the caller of
+        :meth:`steps`)."""
         oracle, start, targets = self.oracle, self.start, self.targets
         p, search = oracle.problem, oracle.search
         owner = np.concatenate([np.full(len(s), i) for i, s in zip(goals, starts, strict=True)])
@@ -327,9 +335,9 @@ class Waves:
         if decisive is not None and decisive.any():
             first_start = np.zeros(b, bool)
             first_start[offsets[:-1][decisive[goals]]] = True
-        x, dist, viol, liked, _, rounds, blocked = run_starts(
+        x, dist, viol, liked, _, rounds, blocked = yield Starts(
             self.solver.batch_program(), x0, params, owner, oracle.strategy.tolerance, search.secondary, start,
-            self.meter,            oracle.stats, first_start, search.give_up_distance, self.solver.lower_iter)
+            self.meter, oracle.stats, first_start, search.give_up_distance, self.solver.lower_iter)
         span = p.upper - p.lower
         scored = np.isfinite(liked)
         if scored.any():
@@ -458,3 +466,13 @@ class Waves:
             stats["rounds_reached"] = stats.get("rounds_reached", 0) + int(used[reach[run.goals]].sum())
             stats["rounds_missed"] = stats.get("rounds_missed", 0) + int(used[~reach[run.goals]].sum())
         stats["polished_missed"] = stats.get("polished_missed", 0) + int(self.polishes[~reach].sum())
+
+
+def run_alone(steps: Generator[Starts, Ends, Verdicts]) -> Verdicts:
+    """The verdicts of a call's :meth:`Waves.steps`, each batch of starts iterated alone."""
+    try:
+        request = next(steps)
+        while True:
+            request = steps.send(request.run())
+    except StopIteration as done:
+        return done.value  # type: ignore[no-any-return]

@@ -110,7 +110,11 @@ def member_atlases(folder: str | Path) -> tuple[list[Path], np.ndarray, list[str
 
 
 ANY = "any"  # the share of members that some strategy of theirs holds
-CHUNK = 25  # at most this many members a process answers with one program a strategy (direct; building one: 1.2 s)
+CHUNK = 24  # at most this many members a process answers with one program a strategy (direct; building one: 1.2 s)
+# members whose solves run joined (oracles.ik.joined), in groups fixed by their order (a run of CHUNK holds whole
+# groups), so that the answers depend on neither the processes nor the cluster: 40 members x 7 targets, one process,
+# 15.0-16.9 s alone, 11.9-12.9 s joined (measured here, the same answers)
+JOIN = 8
 # the engines' option that makes one program serve every member (oracles.ik.parameters); answers do not depend on it
 SHARED = {"casadi-ik": {"body_parameters": True}}
 
@@ -213,7 +217,7 @@ def direct(config: Any, targets: list[Target], effector: str | None = None,
     if client is not None:
         workers = max(workers, len(client.scheduler_info().get("workers", {})))
     count = max(math.ceil(len(members) / CHUNK), min(workers, len(members)))  # every process at work
-    size = math.ceil(len(members) / max(count, 1))
+    size = JOIN * math.ceil(math.ceil(len(members) / max(count, 1)) / JOIN)  # whole groups
     runs = [members[k : k + size] for k in range(0, len(members), size)]
     jobs = [([m.body(config.raw.get("body")) for m in run], strategies, points, effs, verify, targets) for run in runs]
     results = _logged(_solved(jobs, workers, client), members, log)
@@ -269,61 +273,76 @@ def _members(job: tuple[Any, ...]) -> list[tuple[list[dict[str, Any]], int]]:
     bodies, strategies, points, effs, verify, targets = job
     first: dict[str, Any] = {}
     out = []  # a list, not a generator: a worker process sends it back whole
-    for body in bodies:
-        oracles = {}
-        for name, _, oracle_name, params in strategies:
-            oracle = OracleSpec(oracle_name, {**params, **SHARED.get(oracle_name, {}), "body": body}).create()
-            if name in first and isinstance(oracle, Sharing):
-                oracle.share_programs(first[name])
-            first.setdefault(name, oracle)
-            oracles[name] = oracle
-        # a target on the body where it lies on this member's body (every strategy's oracle holds the same body)
-        mine = on_body(targets, next(iter(oracles.values()), None), points)
-        out.append(_member(oracles, strategies, mine, effs, verify))
+    for k in range(0, len(bodies), JOIN):
+        group, mine = [], []
+        for body in bodies[k : k + JOIN]:
+            oracles = {}
+            for name, _, oracle_name, params in strategies:
+                oracle = OracleSpec(oracle_name, {**params, **SHARED.get(oracle_name, {}), "body": body}).create()
+                if name in first and isinstance(oracle, Sharing):
+                    oracle.share_programs(first[name])
+                first.setdefault(name, oracle)
+                oracles[name] = oracle
+            group.append(oracles)
+            # a target on the body where it lies on this member's body (every strategy's oracle holds the same body)
+            mine.append(on_body(targets, next(iter(oracles.values()), None), points))
+        out += _group(group, strategies, mine, effs, verify)
     return out
 
 
 def _member(oracles: dict[str, Any], strategies: list[tuple[Any, ...]], points: np.ndarray, effs: list[str],
             verify: bool) -> tuple[list[dict[str, Any]], int]:
     """One member's rows and refuted count (see :func:`_members`), by its strategies' oracles."""
+    return _group([oracles], strategies, [points], effs, verify)[0]
 
-    rows: list[dict[str, Any]] = [{"reachable": False, "strategy": None, "also": []} for _ in points]
-    refuted = 0
+
+def _group(oracles: list[dict[str, Any]], strategies: list[tuple[Any, ...]], points: list[np.ndarray],
+           effs: list[str], verify: bool) -> list[tuple[list[dict[str, Any]], int]]:
+    """Each member's rows and refuted count (see :func:`_members`), by its strategies' oracles (``oracles``, a
+    member's by strategy name, ``points`` where the targets lie on each), the members' solves joined."""
+    rows: list[list[dict[str, Any]]] = [[{"reachable": False, "strategy": None, "also": []} for _ in p] for p in points]
+    refuted = [0] * len(oracles)
     # Each target's posture from the first strategy that reached it (a full posture of this member's body): the next
     # strategies start from it. A strategy with more freedom holds every posture of one with less (its other joints at
     # the reference), but its own cold search may not find one: the whole body and the crouch reached the
     # workstation's chest button for 95 and 97.5 % of configs/population.yaml's members, the arm alone for 100 %.
-    found: dict[int, np.ndarray] = {}  # target index -> the first reaching posture
+    found: list[dict[int, np.ndarray]] = [{} for _ in oracles]  # target index -> the first reaching posture
     for name, eff, _, _ in strategies:
         pick = [i for i, e in enumerate(effs) if e == eff]
-        oracle = oracles[name]
+        mine = [m[name] for m in oracles]
         # A target an earlier strategy reached is this one's too when that posture passes this strategy's own check:
         # no solve (the whole body and the crouch then solve only what the arm and upper body missed).
-        held = _held(oracle, points, pick, found)
-        rest = [i for i in pick if i not in held]
-        ok, postures, wrong = _reached(oracle, points[rest], [found.get(i) for i in rest], verify)
-        refuted += wrong
-        reached = [*held.items(), *((i, q) for i, hit, q in zip(rest, ok, postures, strict=True) if hit)]
-        for i, q in sorted(reached, key=lambda iq: iq[0]):
-            if q is not None:
-                found.setdefault(i, q)
-            row = rows[i]
-            if row["reachable"]:
-                row["also"].append(name)
-            else:
-                row["reachable"], row["strategy"] = True, name
-    return rows, refuted
+        held = [_held(o, p, pick, f) for o, p, f in zip(mine, points, found, strict=True)]
+        rest = [[i for i in pick if i not in h] for h in held]
+        solved = _reached(mine, [p[r] for p, r in zip(points, rest, strict=True)],
+                          [[f.get(i) for i in r] for f, r in zip(found, rest, strict=True)], verify)
+        for m, (ok, postures, wrong) in enumerate(solved):
+            refuted[m] += wrong
+            reached = [*held[m].items(), *((i, q) for i, hit, q in zip(rest[m], ok, postures, strict=True) if hit)]
+            for i, q in sorted(reached, key=lambda iq: iq[0]):
+                if q is not None:
+                    found[m].setdefault(i, q)
+                row = rows[m][i]
+                if row["reachable"]:
+                    row["also"].append(name)
+                else:
+                    row["reachable"], row["strategy"] = True, name
+    return list(zip(rows, refuted, strict=True))
 
 
-def _reached(oracle: Any, points: np.ndarray, found: list[np.ndarray | None], verify: bool) -> tuple[
-        np.ndarray, Sequence[np.ndarray | None], int]:
-    """Which points the oracle reaches (:func:`_solved_from`; with ``verify``, by postures that pass its own check),
-    their postures, and how many reached ones that check refuted."""
-    if not len(points):
-        return np.zeros(0, bool), [], 0
-    v = _solved_from(oracle, points, found)
-    ok, wrong = _checked(oracle, points, v) if verify else (np.asarray(v.reachable, bool), 0)
-    return ok, (list(np.asarray(v.posture, float)) if v.posture is not None else [None] * len(points)), wrong
+def _reached(oracles: list[Any], points: list[np.ndarray], found: list[list[np.ndarray | None]],
+             verify: bool) -> list[tuple[np.ndarray, Sequence[np.ndarray | None], int]]:
+    """For each oracle, which of its points it reaches (:func:`_solved_from`; with ``verify``, by postures that pass
+    its own check), their postures, and how many reached ones that check refuted."""
+    solved = _solved_from(oracles, points, found)
+    out: list[tuple[np.ndarray, Sequence[np.ndarray | None], int]] = []
+    for oracle, p, v in zip(oracles, points, solved, strict=True):
+        if v is None:
+            out.append((np.zeros(0, bool), [], 0))
+            continue
+        ok, wrong = _checked(oracle, p, v) if verify else (np.asarray(v.reachable, bool), 0)
+        out.append((ok, list(np.asarray(v.posture, float)) if v.posture is not None else [None] * len(p), wrong))
+    return out
 
 
 def _held(oracle: Any, points: np.ndarray, pick: list[int], found: dict[int, np.ndarray]) -> dict[int, np.ndarray]:
@@ -351,20 +370,30 @@ def _checked(oracle: Any, points: np.ndarray, v: Any) -> tuple[np.ndarray, int]:
     return ok, int(np.sum(~checked))
 
 
-def _solved_from(oracle: Any, points: np.ndarray, found: list[np.ndarray | None]) -> Any:
-    """The oracle's verdicts on the points, asked cold, then again from the posture ``found`` for a point (by an
-    earlier strategy) where the cold search missed it."""
-    from oracles.protocol import Goals
+def _solved_from(oracles: list[Any], points: list[np.ndarray], found: list[list[np.ndarray | None]]) -> list[Any]:
+    """Each oracle's verdicts on its points (None where it has none), asked cold, then again from the posture
+    ``found`` for a point (by an earlier strategy) where the cold search missed it; the oracles' calls run joined
+    (:func:`oracles.protocol.evaluate_together`)."""
+    from oracles.protocol import Goals, evaluate_together
 
-    v = oracle.evaluate(Goals.of(points))
-    again = [k for k, q in enumerate(found) if not v.reachable[k] and q is not None]
-    if not again or v.posture is None:
-        return v
-    w = oracle.evaluate(Goals(points[again], seeds=np.array([found[k] for k in again])))
-    reachable, residual = np.array(v.reachable, bool), np.array(v.residual, float)
-    posture = np.array(v.posture, float)
-    reachable[again], residual[again], posture[again] = w.reachable, w.residual, w.posture
-    return v._replace(reachable=reachable, residual=residual, posture=posture)
+    asked = [m for m, p in enumerate(points) if len(p)]
+    out: list[Any] = [None] * len(oracles)
+    for m, v in zip(asked, evaluate_together([oracles[m] for m in asked], [Goals.of(points[m]) for m in asked]),
+                    strict=True):
+        out[m] = v
+    again = {m: [k for k, q in enumerate(found[m]) if not out[m].reachable[k] and q is not None] for m in asked
+             if out[m].posture is not None}
+    again = {m: ks for m, ks in again.items() if ks}
+    retried = evaluate_together([oracles[m] for m in again],
+                                [Goals(points[m][ks], seeds=np.array([found[m][k] for k in ks]))
+                                 for m, ks in again.items()])
+    for (m, ks), w in zip(again.items(), retried, strict=True):
+        v = out[m]
+        reachable, residual = np.array(v.reachable, bool), np.array(v.residual, float)
+        posture = np.array(v.posture, float)
+        reachable[ks], residual[ks], posture[ks] = w.reachable, w.residual, w.posture
+        out[m] = v._replace(reachable=reachable, residual=residual, posture=posture)
+    return out
 
 
 def text(result: dict[str, Any]) -> str:

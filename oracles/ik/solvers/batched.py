@@ -11,12 +11,13 @@ from __future__ import annotations
 
 import copy
 import zlib
+from collections.abc import Generator
 from typing import Any
 
 import numpy as np
 
 from oracles.errors import OracleError
-from oracles.ik.batch import LOWER_ITER, REFINE_LOWER_ITER, BatchProgram, run_starts
+from oracles.ik.batch import LOWER_ITER, REFINE_LOWER_ITER, BatchProgram, Ends, Starts, run_starts
 from oracles.ik.budget import Meter
 from oracles.ik.rounds import NO_CALL, Call
 from oracles.ik.solvers.interior import REFINE_SECONDARY_ITER, InteriorPoint
@@ -166,6 +167,11 @@ class Batched:
     def evaluate(self, points: np.ndarray, hints: np.ndarray | None, start: np.ndarray | None,
                  targets: np.ndarray | None) -> Verdicts:
         return Waves(self.room, self, points, hints, start, targets).run()
+
+    def evaluate_steps(self, points: np.ndarray, hints: np.ndarray | None, start: np.ndarray | None,
+                       targets: np.ndarray | None) -> Generator[Starts, Ends, Verdicts]:
+        """:meth:`evaluate`, yielding its batches of starts for the caller to iterate (:mod:`oracles.ik.joined`)."""
+        return Waves(self.room, self, points, hints, start, targets).steps()
 
     def hold_many(self, postures: np.ndarray, deadline: float = np.inf) -> np.ndarray:
         """Every posture's reach steps from itself, all together, towards its own effector position with its hard rows
