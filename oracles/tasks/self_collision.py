@@ -55,7 +55,6 @@ from oracles.tasks.base import (
     Symbolic,
     moved,
     number,
-    relative_motion,
     rows_of_cuts,
     world_point,
 )
@@ -139,16 +138,23 @@ def _candidates(model: Any, scope: Scope, excluded: set[frozenset[str]],
     SRDF), one of them in ``only`` when given, and moving relative to each other by the strategy's joints."""
     pm = scope.body.model
     bearing = {p.joint for p in model.placed}
+    # Each joint's active ancestors (itself included) as bits: an active joint moves a relative to b when it lies on
+    # the path between them, the ancestors one of them has and the other has not (relative_motion, for every pair at
+    # once: 600 pairs of the human's capsules took 7 ms a strategy, a population's member four times).
+    moving = [0] * pm.njoints
+    for j in range(1, pm.njoints):
+        moving[j] = moving[int(pm.parents[j])] | ((1 << j) if str(pm.names[j]) in scope.active else 0)
     candidates = []
     for i, pi in enumerate(model.placed):
         for j in range(i + 1, len(model.placed)):
             pj = model.placed[j]
+            if not moving[pi.joint] ^ moving[pj.joint]:
+                continue
             if (frozenset((pi.name, pj.name)) in excluded or _adjacent(pm, bearing, pi.joint, pj.joint)
                     or frozenset((pi.capsule.link, pj.capsule.link)) in scope.body.disabled
                     or (only is not None and pi.name not in only and pj.name not in only)):
                 continue
-            if relative_motion(pm, pi.joint, pj.joint, scope.active):
-                candidates.append((i, j))
+            candidates.append((i, j))
     return candidates
 
 

@@ -110,7 +110,9 @@ def member_atlases(folder: str | Path) -> tuple[list[Path], np.ndarray, list[str
 
 
 ANY = "any"  # the share of members that some strategy of theirs holds
-CHUNK = 24  # at most this many members a process answers with one program a strategy (direct; building one: 1.2 s)
+# at most this many members a process answers with one program a strategy (direct; building one costs 1.2 s: the whole
+# survey in runs of 24 built 253 of them)
+CHUNK = 96
 # members whose solves run joined (oracles.ik.joined), in groups fixed by their order (a run of CHUNK holds whole
 # groups), so that the answers depend on neither the processes nor the cluster: 40 members x 7 targets, one process,
 # 15.0-16.9 s alone, 11.9-12.9 s joined (measured here, the same answers)
