@@ -78,6 +78,7 @@ GROUP = 8  # lazy rows per compiled Jacobian (a group is evaluated only where on
 # hand a few cm)
 SCREEN = 0.05
 HARD_TOL = 1e-6  # [m or rad] a hard row this far past its bound still holds (the interior-point programs' tolerance)
+FAR = 1e3  # [m] what a lazy row is, in a joined call's posture, where its own call has it near no posture: inactive
 
 
 @dataclass(frozen=True)
@@ -169,6 +170,7 @@ class BatchProgram:
             f += LOWER_WEIGHT**k * term
         hess, grad = ca.hessian(f, x)
         self.lower_bound, self.upper_bound, self.span = lower_bound, upper_bound, span
+        self.groups: np.ndarray | None = None  # each row's call when several run joined (see :meth:`joined`)
         self.has_lower = bool(lower)
         outs = [g, jg, reach, je]
         functions.append(ca.Function(f"{name}_reach", [x, params], [ca.densify(o) for o in outs]))
@@ -204,11 +206,31 @@ class BatchProgram:
         twin.lower_bound, twin.upper_bound, twin.span = lower_bound, upper_bound, upper_bound - lower_bound
         return twin
 
+    def joined(self, groups: np.ndarray) -> BatchProgram:
+        """This program for a batch of several calls' rows joined (:mod:`oracles.ik.joined`), ``groups`` (B,) each
+        row's call: what a step reads of the batch's other rows (the lazy rows near some posture, the padding of the
+        active rows) it reads of its own call's alone, so each call's rows step as they would alone."""
+        twin = copy.copy(self)
+        twin.groups = np.asarray(groups, int)
+        return twin
+
     def at(self, rows: np.ndarray) -> BatchProgram:
-        """This program for some rows of its batch: itself, or with those rows' bounds when each row has its own."""
-        if np.ndim(self.lower_bound) == 1:
+        """This program for some rows of its batch: itself, or with those rows' bounds and calls when each row has
+        its own."""
+        if np.ndim(self.lower_bound) == 1 and self.groups is None:
             return self
-        return self.with_bounds(self.lower_bound[rows], self.upper_bound[rows])
+        twin = self.with_bounds(self.lower_bound[rows], self.upper_bound[rows]) if np.ndim(self.lower_bound) == 2 \
+            else copy.copy(self)
+        twin.groups = None if self.groups is None else self.groups[rows]
+        return twin
+
+    def _by_call(self, flags: np.ndarray) -> np.ndarray:
+        """flags (B, k): for each row, whether the flag is set in some row of its call (of the batch alone)."""
+        if self.groups is None:
+            return np.broadcast_to(flags.any(axis=0), flags.shape)
+        calls = np.zeros((int(self.groups.max()) + 1, flags.shape[1]), bool)
+        np.logical_or.at(calls, self.groups, flags)
+        return calls[self.groups]
 
     # -- evaluation -----------------------------------------------------------
     def evaluate(self, x: np.ndarray, p: np.ndarray, lower: bool = False, guard: np.ndarray | None = None) -> State:
@@ -225,6 +247,11 @@ class BatchProgram:
             if guard is not None:
                 near &= guard[:, None]
             cols = np.nonzero(near.any(axis=0))[0]
+            if cols.size and self.groups is not None:
+                # A lazy row is a row of the postures of the calls it is near in, as when each call runs alone.
+                seen = self._by_call(near[:, cols])
+                values = values.copy()
+                values[:, cols] = np.where(seen, values[:, cols], FAR)
             if cols.size:
                 jac = np.zeros((len(x), cols.size, self.n))
                 for k, group in self._lazy_groups:
@@ -232,6 +259,8 @@ class BatchProgram:
                     some = np.nonzero(near[:, cols[mine]].any(axis=1))[0] if mine.size else mine
                     if some.size:
                         jac[some[:, None], mine] = group(x[some], p[some])[0][:, cols[mine] - k]
+                if self.groups is not None:
+                    jac *= seen[..., None]
                 g, jg = np.concatenate([g, values[:, cols]], axis=1), np.concatenate([jg, jac], axis=1)
                 rows = Rows(np.concatenate([rows.lower, self.lazy_rows.lower[cols]]),
                             np.concatenate([rows.upper, self.lazy_rows.upper[cols]]))
@@ -274,7 +303,7 @@ class BatchProgram:
         Woodbury identity and the constraints by their Schur complement S = C H^-1 C': a few small batched
         products and one (m, m) solve per posture instead of an (n + m) one.
         """
-        c, r = self._gathered(state, ahead, buffer, extra)
+        c, r, active = self._gathered(state, ahead, buffer, extra)
         h_inv = _h_inverse(diag, jac, fixed)
         dx_g = -h_inv(gradient[..., None])[..., 0]  # the objective's part of the step
         dx_r = np.zeros_like(dx_g)  # the constraints' part (the KKT step is linear in the gradient and the rows' need)
@@ -284,7 +313,7 @@ class BatchProgram:
             schur = c @ hc
             # A row whose gradient vanishes here (a coupling at its apex) has a zero Schur row: the floor keeps its
             # multiplier finite, and its zero gradient makes it move nothing.
-            scale = np.maximum(np.abs(np.einsum("bii->b", schur)) / m, 1e-12)
+            scale = np.maximum(np.abs(np.einsum("bii->b", schur)) / np.maximum(self._padded(active, m), 1), 1e-12)
             schur += (REGULAR * scale)[:, None, None] * np.eye(m)
             nu = np.linalg.solve(schur, np.stack([(c @ dx_g[..., None])[..., 0], r], axis=2))
             dx_g = dx_g - (hc @ nu[..., :1])[..., 0]
@@ -300,11 +329,20 @@ class BatchProgram:
         dx = dx_r * np.minimum(1.0, MAX_STEP / np.maximum(n_r, 1e-300)) + room * dx_g
         return np.where(np.isfinite(dx).all(axis=1, keepdims=True), dx, 0.0)  # a singular solve moves nothing
 
+    def _padded(self, active: np.ndarray, m: int) -> np.ndarray | int:
+        """The step's row count m as each row's call alone pads it: its posture with the most active rows (``active``,
+        (B,)), the batch's most being ``m`` less the rows every posture has."""
+        if self.groups is None:
+            return m
+        most = np.zeros(int(self.groups.max()) + 1, int)
+        np.maximum.at(most, self.groups, active)
+        return most[self.groups] + (m - int(active.max(initial=0)))
+
     def _gathered(self, state: State, ahead: np.ndarray | None, buffer: float,
-                  extra: tuple[np.ndarray, np.ndarray] | None) -> tuple[np.ndarray, np.ndarray]:
+                  extra: tuple[np.ndarray, np.ndarray] | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The step's rows C (B, k, n) and their need r (B, k): each posture's active hard rows first, as many as the
         posture with the most (a padding row is a zero row, which the Schur complement's floor keeps harmless: about
-        half the rows are active in any posture of the batch), then ``extra``'s."""
+        half the rows are active in any posture of the batch), then ``extra``'s; and each posture's active rows (B,)."""
         act, need = self.active(state, ahead, buffer)
         k = int(act.sum(axis=1).max(initial=0))
         order = np.argsort(~act, axis=1, kind="stable")[:, :k]
@@ -314,7 +352,7 @@ class BatchProgram:
         if extra is not None:
             cs.append(extra[0])
             rs.append(extra[1])
-        return np.concatenate(cs, axis=1), np.concatenate(rs, axis=1)
+        return np.concatenate(cs, axis=1), np.concatenate(rs, axis=1), act.sum(axis=1)
 
     def clamped_step(self, x: np.ndarray, diag: np.ndarray, jac: np.ndarray | None, gradient: np.ndarray, state: State,
                      radius: np.ndarray, extra: tuple[np.ndarray, np.ndarray] | None = None,
@@ -330,8 +368,8 @@ class BatchProgram:
         if again.size:
             sub = state.take(again)
             ex = None if extra is None else (extra[0][again], extra[1][again])
-            dx[again] = self.step(diag[again], None if jac is None else jac[again], gradient[again], sub, over[again],
-                                  radius[again], ex, ahead[again], buffer)
+            dx[again] = self.at(again).step(diag[again], None if jac is None else jac[again], gradient[again], sub,
+                                            over[again], radius[again], ex, ahead[again], buffer)
         return np.clip(x + dx, self.lower_bound, self.upper_bound)
 
     def reach_step(self, x: np.ndarray, state: State, start: np.ndarray | None, start_weight: np.ndarray,
@@ -587,7 +625,7 @@ def _reach_rounds(program: BatchProgram, x0: np.ndarray, params: np.ndarray, goa
         live = live[meter.pay(owner[live], price)] if live.size else live
         if not live.size:
             break
-        state = program.evaluate(x[live], params[live], guard=guarded[live])
+        state = program.at(live).evaluate(x[live], params[live], guard=guarded[live])
         stats["iterations"] = stats.get("iterations", 0) + int(live.size)
         rounds[live] += 1
         d, v = np.linalg.norm(state.e, axis=1), program.violation(state)
@@ -658,9 +696,9 @@ def _lower_rounds(program: BatchProgram, x: np.ndarray, dist: np.ndarray, viol: 
     if not reached.size:
         return  # (no start reached: nothing to like)
     y, p_low, s_low = x[reached].copy(), params[reached], None if starts is None else starts[reached]
-    program = program.at(reached)
+    low = program.at(reached)
     w_low, r_low = start_weight[reached], np.full(len(reached), MAX_STEP)
-    state = program.evaluate(y, p_low, lower=True)
+    state = low.evaluate(y, p_low, lower=True)
     assert state.f is not None
     best = state.f.copy()
     low_cost = lower_cost(program.n)
@@ -677,19 +715,19 @@ def _lower_rounds(program: BatchProgram, x: np.ndarray, dist: np.ndarray, viol: 
         # (Each start's steps depend on itself alone: the same goal gets the same posture in any batch.)
         on = np.nonzero(r_low >= MIN_RADIUS)[0]
         stats["iterations"] = stats.get("iterations", 0) + 2 * int(on.size)
-        here = program.at(on)
+        here = low.at(on)
         trial = here.lower_step(y[on], state.take_lower(on), r_low[on])
-        trial = here.reach_step(trial, program.evaluate(trial, p_low[on]), None if s_low is None else s_low[on],
+        trial = here.reach_step(trial, here.evaluate(trial, p_low[on]), None if s_low is None else s_low[on],
                                 w_low[on], np.full(len(on), MAX_STEP))
-        after = program.evaluate(trial, p_low[on], lower=True)
+        after = here.evaluate(trial, p_low[on], lower=True)
         assert after.f is not None
         better = (after.f < best[on]) & (np.linalg.norm(after.e,
                                                         axis=1) <= tolerance) & (program.violation(after) <= 1e-4)
         y[on[better]], best[on[better]] = trial[better], after.f[better]
         r_low[on] = np.where(better, np.minimum(MAX_STEP, 1.5 * r_low[on]), 0.5 * r_low[on])
         if better.any():  # state is y's evaluation throughout
-            state = program.evaluate(y, p_low, lower=True)
-    state = _restore(program, y, state, p_low, s_low, w_low, tolerance, meter)
+            state = low.evaluate(y, p_low, lower=True)
+    state = _restore(low, y, state, p_low, s_low, w_low, tolerance, meter)
     d, v = np.linalg.norm(state.e, axis=1), program.violation(state)
     # The lower tasks never cost the verdict: a start whose lower steps leave the goal or a hard row keeps its reach
     # posture.
@@ -700,7 +738,7 @@ def _lower_rounds(program: BatchProgram, x: np.ndarray, dist: np.ndarray, viol: 
     # Every other reaching start is scored where it stands, so that "liked" compares them all.
     rest = np.nonzero((dist <= tolerance) & (viol <= HARD_TOL) & ~np.isfinite(f))[0]
     if rest.size:
-        back = program.evaluate(x[rest], params[rest], lower=True)
+        back = program.at(rest).evaluate(x[rest], params[rest], lower=True)
         assert back.f is not None
         f[rest] = back.f
 

@@ -8,10 +8,12 @@ and each call takes back its own rows' ends. A batched step costs about the same
 CasADi's calls, not their arithmetic: a member's 7 targets x 8 starts took 71-111 ms a wave alone, 45-54 ms a member
 joined with 7 others; measured here), so a population's direct answers cost less joined.
 
-A row's steps depend on its own posture and numbers; which lazy rows (collisions) a step screens depends on the batch
-(a row near its bound in any posture of the batch is evaluated for all): a joined call's answers are those of its
-group, which its caller keeps fixed (``reach.answers.accommodation``: groups of members by their order, whatever the
-processes).
+What a step reads of a batch's other rows (the lazy rows, collisions, near their bound in some posture are evaluated
+for all; the active rows are padded to the posture with the most) it reads of its own call's rows alone
+(:meth:`BatchProgram.joined`): each call's verdicts and postures are those it gets alone (to 1e-9;
+tests/test_joined.py). Read of the whole joined batch, one of 3,500 member x target pairs (500 members) lost a
+verdict alone it had. The caller still keeps its groups fixed (``reach.answers.accommodation``: groups of members by
+their order, whatever the processes).
 """
 
 from __future__ import annotations
@@ -63,6 +65,7 @@ def _joined(requests: list[Starts]) -> list[Ends]:
                                                                                                     strict=True)])
     same = bool(np.all(lower == lower[:1]) and np.all(upper == upper[:1]))
     program = first.with_bounds(lower[0].copy(), upper[0].copy()) if same else first.with_bounds(lower, upper)
+    program = program.joined(np.repeat(np.arange(len(requests)), rows))
     meter = Meter(np.concatenate([r.meter.left for r in requests]), requests[0].meter.deadline)
     meter.cut = np.concatenate([r.meter.cut for r in requests])
     decisive = None
