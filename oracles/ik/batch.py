@@ -225,9 +225,8 @@ class BatchProgram:
         return twin
 
     def _by_call(self, flags: np.ndarray) -> np.ndarray:
-        """flags (B, k): for each row, whether the flag is set in some row of its call (of the batch alone)."""
-        if self.groups is None:
-            return np.broadcast_to(flags.any(axis=0), flags.shape)
+        """flags (B, k): for each row of a joined batch, whether the flag is set in some row of its call."""
+        assert self.groups is not None
         calls = np.zeros((int(self.groups.max()) + 1, flags.shape[1]), bool)
         np.logical_or.at(calls, self.groups, flags)
         return calls[self.groups]

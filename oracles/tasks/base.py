@@ -191,19 +191,20 @@ def world_point(sym: Symbolic, joint: int, local: np.ndarray | ca.SX) -> ca.SX:
     return rot @ (local if isinstance(local, ca.SX) else ca.SX(np.asarray(local, float).reshape(3, 1))) + pos
 
 
+def active_ancestors(model: pin.Model, active: frozenset[str]) -> list[int]:
+    """Each joint's active ancestors, itself included, as the bits of an integer (bit j: joint j). An active joint
+    moves joint a relative to joint b when it lies on the tree path between them: the ancestors one has and the other
+    has not, ``masks[a] ^ masks[b]``."""
+    masks = [0] * model.njoints
+    for j in range(1, model.njoints):
+        masks[j] = masks[int(model.parents[j])] | ((1 << j) if str(model.names[j]) in active else 0)
+    return masks
+
+
 def relative_motion(model: pin.Model, a: int, b: int, active: frozenset[str]) -> bool:
     """Whether an active joint moves joint a relative to joint b (one lies on the tree path between them)."""
-    def up(j: int) -> list[int]:
-        out = [j]
-        while out[-1] != 0:
-            out.append(int(model.parents[out[-1]]))
-        return out
-
-    pa, pb = up(a), up(b)
-    common = next(j for j in pa if j in pb)
-    path = pa[: pa.index(common)] + pb[: pb.index(common)]
-    names = {str(model.names[j]) for j in path}
-    return bool(names & active)
+    masks = active_ancestors(model, active)
+    return bool(masks[a] ^ masks[b])
 
 
 def moved(model: pin.Model, joint: int, active: frozenset[str]) -> bool:

@@ -53,6 +53,7 @@ from oracles.tasks.base import (
     Row,
     Scope,
     Symbolic,
+    active_ancestors,
     moved,
     number,
     rows_of_cuts,
@@ -138,12 +139,9 @@ def _candidates(model: Any, scope: Scope, excluded: set[frozenset[str]],
     SRDF), one of them in ``only`` when given, and moving relative to each other by the strategy's joints."""
     pm = scope.body.model
     bearing = {p.joint for p in model.placed}
-    # Each joint's active ancestors (itself included) as bits: an active joint moves a relative to b when it lies on
-    # the path between them, the ancestors one of them has and the other has not (relative_motion, for every pair at
-    # once: 600 pairs of the human's capsules took 7 ms a strategy, a population's member four times).
-    moving = [0] * pm.njoints
-    for j in range(1, pm.njoints):
-        moving[j] = moving[int(pm.parents[j])] | ((1 << j) if str(pm.names[j]) in scope.active else 0)
+    # relative_motion's masks made once for every pair (600 pairs of the human's capsules, each walking its two
+    # chains to the root, took 7 ms a strategy; a population's member pays it four times)
+    moving = active_ancestors(pm, scope.active)
     candidates = []
     for i, pi in enumerate(model.placed):
         for j in range(i + 1, len(model.placed)):

@@ -383,9 +383,8 @@ def _solved_from(oracles: list[Any], points: list[np.ndarray], found: list[list[
     for m, v in zip(asked, evaluate_together([oracles[m] for m in asked], [Goals.of(points[m]) for m in asked]),
                     strict=True):
         out[m] = v
-    again = {m: [k for k, q in enumerate(found[m]) if not out[m].reachable[k] and q is not None] for m in asked
-             if out[m].posture is not None}
-    again = {m: ks for m, ks in again.items() if ks}
+    again = {m: ks for m in asked if out[m].posture is not None
+             and (ks := [k for k, q in enumerate(found[m]) if not out[m].reachable[k] and q is not None])}
     retried = evaluate_together([oracles[m] for m in again],
                                 [Goals(points[m][ks], seeds=np.array([found[m][k] for k in ks]))
                                  for m, ks in again.items()])
