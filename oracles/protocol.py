@@ -51,7 +51,9 @@ Oracles may also offer optional capabilities, each a protocol of its own;
   queries' ``orientation`` and the reachability index;
 * :class:`Articulated`: the body's skeleton (its joints grouped into bones)
   and each bone's world transform at postures, for animation files (BVH,
-  glTF).
+  glTF);
+* :class:`Sharing`, :class:`Joining`, :class:`Sibling`: a population's members, one program serving every body
+  of one shape, their calls run joined, a member's strategies built on one loaded body.
 
 ``reach`` asks nothing else: not an oracle's parameters, registry names or
 internals, so a third-party oracle registered through the ``reach.oracles``
@@ -399,6 +401,27 @@ class Sharing(Protocol):
     def share_programs(self, other: Any) -> bool:
         """Take ``other``'s programs when they serve this body too; whether it did."""
         ...
+
+
+@runtime_checkable
+class Sibling(Protocol):
+    """An oracle that builds another strategy's oracle on its own body without loading the body again (a population's
+    member asked with each of its strategies: loading a generated human costs about 9 ms)."""
+
+    def sibling(self, spec: OracleSpec) -> Oracle | None:
+        """The oracle of ``spec`` on this oracle's body, or None when ``spec`` names another body or engine."""
+        ...
+
+
+def create_siblings(specs: Sequence[OracleSpec]) -> list[Oracle]:
+    """Each spec's oracle (:meth:`OracleSpec.create`); a spec of the first's body is built by the first's
+    :meth:`Sibling.sibling` when it can, the same oracle without loading the body again."""
+    out: list[Oracle] = []
+    for spec in specs:
+        first = out[0] if out else None
+        made = first.sibling(spec) if isinstance(first, Sibling) else None
+        out.append(made if made is not None else spec.create())
+    return out
 
 
 @runtime_checkable

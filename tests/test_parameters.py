@@ -142,3 +142,27 @@ def test_seated_drivers_share_their_belted_program():
     small, large, own = driver("female", 5, True), driver("male", 95, True), driver("male", 95, False)
     assert large.solver.polish.formulation.numbers.lift and large.share_programs(small)
     same_rows(small, large, own)
+
+
+def test_a_members_strategies_built_on_one_loaded_body_answer_as_each_built_alone():
+    """``create_siblings``: the strategies after the first are built on its loaded body (not loaded again); each
+    answers as the oracle its spec builds, and a strategy with ranges of its own (another body) is built from its
+    spec."""
+    from oracles.protocol import Sibling, create_siblings
+
+    arm = {"body": SMALL, "effector": "right_hand", "tasks": [{"type": "reach"}, {"type": "self_collision"}],
+           "joints": ["right_shoulder_*", "right_elbow_*", "right_forearm_*", "right_wrist_*"], "restarts": 1,
+           "seed": 0}
+    whole = {**arm, "joints": JOINTS, "tasks": TASKS}
+    squat = {**whole, "ranges": {"*_knee_*": [0.0, 2.7]}}
+    specs = [OracleSpec("casadi-ik", p) for p in (arm, whole, squat)]
+    made, alone = create_siblings(specs), [s.create() for s in specs]
+    assert isinstance(made[0], Sibling)
+    assert made[1].body.model is made[0].body.model  # one loaded body
+    assert made[2].body.model is not made[0].body.model  # its own ranges: its own body
+    assert made[0].sibling(OracleSpec("sphere", {"radius": 1.0})) is None
+    for mine, own in zip(made, alone, strict=True):
+        assert mine.model_hash == own.model_hash
+        a, b = mine.evaluate(Goals(GOALS[:4])), own.evaluate(Goals(GOALS[:4]))
+        np.testing.assert_array_equal(a.reachable, b.reachable)
+        np.testing.assert_array_equal(a.posture, b.posture)

@@ -21,7 +21,7 @@ import numpy as np
 import pinocchio as pin
 
 from oracles.bodies.anthropometry import legacy_body
-from oracles.bodies.body import load_body
+from oracles.bodies.body import Body, load_body
 from oracles.errors import ModelError, OracleError
 from oracles.ik.joined import run_joined
 from oracles.ik.problem import ReachProblem
@@ -42,6 +42,8 @@ SETTLE_ITER = 30
 # Batched starts of the search for a home (ReachProblem.x_home; fatrop or IPOPT take half as many random restarts):
 # the squat's was found for its hand where it hangs standing from 64, not from the 16 of a cold goal (docs/results.md).
 HOME_STARTS = 64
+# The registry names whose factories build an IKOracle, and what each adds to a spec's params (``sibling``).
+SIBLINGS: dict[str, dict[str, Any]] = {"casadi-ik": {}, "dls": {"solver": "dls"}}
 
 
 def fresh_stats() -> dict[str, int]:
@@ -90,17 +92,19 @@ class IKOracle(TaskedBody):
     def __init__(self, body: dict[str, Any], effector: str, joints: list[str],
                  tasks: list[dict[str, Any]] | None = None,
                  search: Search | None = None, ranges: dict[str, Any] | None = None, solver: str = "batch",
-                 **options: Any) -> None:
+                 loaded: Body | None = None, **options: Any) -> None:
         self.search = search if search is not None else Search()
         params: dict[str, Any] = {"body": body, "effector": effector, "joints": joints, "tasks": tasks,
                                   **({"ranges": ranges} if ranges else {})}
         own = strategy_ranges(body, ranges)
-        try:
-            loaded = load_body(own)
-        except ModelError as exc:
-            # an error in the strategy's own ranges names them, not the body's
-            mine = bool(ranges) and (exc.key or "").startswith("ranges.") and (exc.key or "")[7:] in (ranges or {})
-            raise exc if mine else exc.under("body") from None
+        if loaded is None:
+            try:
+                loaded = load_body(own)
+            except ModelError as exc:
+                # an error in the strategy's own ranges names them, not the body's
+                mine = bool(ranges) and (exc.key or "").startswith("ranges.") and (exc.key or "")[7:] in (ranges or {})
+                raise exc if mine else exc.under("body") from None
+        self._loaded = loaded  # the body as its spec loads it (``sibling``), before any reference of this strategy
         super().__init__(loaded, parse_strategy(loaded, effector, joints, tasks), own, params)
         self.stats = fresh_stats()
         self._transits: dict[tuple[str, ...], IKOracle | None] = {}  # motions' twins by the tasks a start breaks
@@ -151,6 +155,19 @@ class IKOracle(TaskedBody):
     def use_reference(self, q: np.ndarray) -> None:
         super().use_reference(q)
         self.solver = self.solver.twin(self)  # the reference's numbers (contacts, polygon) are the new posture's
+
+    def sibling(self, spec: OracleSpec) -> IKOracle | None:
+        """Another strategy's oracle on this oracle's body, the body not loaded again (see
+        :class:`oracles.protocol.Sibling`): None when ``spec`` is not this room's or its body (with its strategy's own
+        ranges) is another."""
+        engine = SIBLINGS.get(spec.name)
+        if engine is None:
+            return None
+        search, rest = Search.split({**spec.params, **engine})
+        body = rest.get("body")
+        if not isinstance(body, dict) or strategy_ranges(body, rest.get("ranges")) != self._body_spec:
+            return None
+        return type(self)(search=search, loaded=self._loaded, **rest)
 
     @classmethod
     def from_params(cls, **params: Any) -> IKOracle:

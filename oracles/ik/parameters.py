@@ -17,6 +17,7 @@ shapes: bodies of one signature share programs.
 from __future__ import annotations
 
 import hashlib
+import math
 from collections.abc import Mapping
 
 import casadi as ca
@@ -57,13 +58,13 @@ class BodyParameters:
         flat = np.concatenate([a.ravel() for a in given]) if given else np.zeros(0)
         for t in TRIVIAL:
             flat[np.abs(flat - t) < SNAP] = t
-        sizes = [int(np.prod(self._shapes[k])) for k in arrays]
+        sizes = [math.prod(self._shapes[k]) for k in arrays]
         starts = np.concatenate([[0], np.cumsum(sizes)]).astype(int)
         self._start = dict(zip(arrays, starts[:-1].tolist(), strict=True))
         mask = ~np.isin(flat, TRIVIAL)
         for k in arrays:
             if k in fixed or k in dense:
-                mask[self._start[k] : self._start[k] + int(np.prod(self._shapes[k]))] = k in dense
+                mask[self._start[k] : self._start[k] + math.prod(self._shapes[k])] = k in dense
         self._flat, self._mask = flat, mask
         self.values = flat[mask]
         self._index = np.cumsum(mask) - 1  # the parameter of each lifted entry
@@ -83,7 +84,7 @@ class BodyParameters:
 
     def number(self, name: str) -> np.ndarray:
         """The array's value for this body (as a column or matrix)."""
-        a, n = self._start[name], int(np.prod(self._shapes[name]))
+        a, n = self._start[name], math.prod(self._shapes[name])
         return self._flat[a : a + n].reshape(self._shapes[name])
 
     def sx(self, name: str) -> ca.SX:
@@ -94,7 +95,7 @@ class BodyParameters:
             if not self.lift:
                 found = ca.SX(value)
             else:
-                a, n = self._start[name], int(np.prod(self._shapes[name]))
+                a, n = self._start[name], math.prod(self._shapes[name])
                 mask = self._mask[a : a + n].reshape(value.shape)
                 found = ca.SX(np.where(mask, 0.0, value))
                 rows, cols = np.nonzero(mask)  # row by row, as the flat vector

@@ -116,7 +116,7 @@ CHUNK = 96
 # members whose solves run joined (oracles.ik.joined), in groups fixed by their order (a run of CHUNK holds whole
 # groups), so that the answers depend on neither the processes nor the cluster: 40 members x 7 targets, one process,
 # 15.0-16.9 s alone, 11.9-12.9 s joined (measured here, the same answers)
-JOIN = 8
+JOIN = 16
 # the engines' option that makes one program serve every member (oracles.ik.parameters); answers do not depend on it
 SHARED = {"casadi-ik": {"body_parameters": True}}
 
@@ -270,7 +270,7 @@ def _members(job: tuple[Any, ...]) -> list[tuple[list[dict[str, Any]], int]]:
     """Each member's rows of a run of members (a row per target: reached, the strategy chosen by priority, the others
     that reach it) and the count of reached answers its forward-kinematics check refuted. A strategy's oracle of the
     run's first member lends its programs to the others' (``share_programs``): they are built once a run."""
-    from oracles.protocol import OracleSpec, Sharing
+    from oracles.protocol import OracleSpec, Sharing, create_siblings
 
     bodies, strategies, points, effs, verify, targets = job
     first: dict[str, Any] = {}
@@ -279,8 +279,10 @@ def _members(job: tuple[Any, ...]) -> list[tuple[list[dict[str, Any]], int]]:
         group, mine = [], []
         for body in bodies[k : k + JOIN]:
             oracles = {}
-            for name, _, oracle_name, params in strategies:
-                oracle = OracleSpec(oracle_name, {**params, **SHARED.get(oracle_name, {}), "body": body}).create()
+            # the member's strategies on one loaded body (Sibling)
+            made = create_siblings([OracleSpec(oracle_name, {**params, **SHARED.get(oracle_name, {}), "body": body})
+                                    for _, _, oracle_name, params in strategies])
+            for (name, *_), oracle in zip(strategies, made, strict=True):
                 if name in first and isinstance(oracle, Sharing):
                     oracle.share_programs(first[name])
                 first.setdefault(name, oracle)
