@@ -113,9 +113,10 @@ ANY = "any"  # the share of members that some strategy of theirs holds
 # at most this many members a process answers with one program a strategy (direct; building one costs 1.2 s: the whole
 # survey in runs of 24 built 253 of them)
 CHUNK = 96
-# members whose solves run joined (oracles.ik.joined), in groups fixed by their order (a run of CHUNK holds whole
-# groups), so that the answers depend on neither the processes nor the cluster: 40 members x 7 targets, one process,
-# 15.0-16.9 s alone, 11.9-12.9 s joined (measured here, the same answers)
+# members whose solves run joined (oracles.ik.joined), in groups fixed by their order (a run holds whole groups), so
+# that the answers depend on neither the processes nor the cluster: 40 members x 7 targets, one process, 15.0-16.9 s
+# alone, 11.9-12.9 s joined 8 at a time; 192 members, 52.9 and 59.8 s 8 at a time, 49.8 and 51.9 s 16 (measured
+# here, one after the other, the same answers; more than 16 gained nothing beyond this machine's noise)
 JOIN = 16
 # the engines' option that makes one program serve every member (oracles.ik.parameters); answers do not depend on it
 SHARED = {"casadi-ik": {"body_parameters": True}}
@@ -218,15 +219,23 @@ def direct(config: Any, targets: list[Target], effector: str | None = None,
     # parameters: oracles.ik.parameters), built for the run's first member and shared by the others.
     if client is not None:
         workers = max(workers, len(client.scheduler_info().get("workers", {})))
-    count = max(math.ceil(len(members) / CHUNK), min(workers, len(members)))  # every process at work
-    size = JOIN * math.ceil(math.ceil(len(members) / max(count, 1)) / JOIN)  # whole groups
-    runs = [members[k : k + size] for k in range(0, len(members), size)]
+    runs = _runs(members, workers)
     jobs = [([m.body(config.raw.get("body")) for m in run], strategies, points, effs, verify, targets) for run in runs]
     results = _logged(_solved(jobs, workers, client), members, log)
     table_members = [{"name": m.name, "weight": m.weight, "rows": rows} for m, (rows, _) in zip(members, results,
                                                                                                  strict=True)]
     return {"population": config.name, "way": "direct", "refuted_by_check": sum(r for _, r in results),
             **table(table_members, [t.name for t in targets], [name for name, *_ in strategies])}
+
+
+def _runs(members: list[Any], workers: int) -> list[list[Any]]:
+    """The members in runs of whole groups of ``JOIN`` (by their order), at most ``CHUNK`` a run, as many runs as
+    processes at least, their sizes as even as whole groups allow (500 members on 2 processes: 6 runs of 80-96
+    members, not 5 of 96 and one of 20, which left a process idle)."""
+    groups = [members[k : k + JOIN] for k in range(0, len(members), JOIN)]
+    count = min(max(math.ceil(len(members) / CHUNK), workers), len(groups))  # every process at work
+    cut = np.linspace(0, len(groups), max(count, 1) + 1).round().astype(int)
+    return [[m for g in groups[a:b] for m in g] for a, b in zip(cut[:-1], cut[1:], strict=True) if b > a]
 
 
 def _effectors(targets: list[Target], effector: str | None, known: list[str]) -> list[str]:
