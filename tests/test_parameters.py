@@ -68,6 +68,17 @@ def test_a_capsule_that_is_a_sphere_at_one_body_and_a_segment_at_another_shares_
     same_rows(small, lent, own)
 
 
+def test_a_subject_whose_number_is_1_by_chance_shares_the_program(three):
+    """ANSUR II man 11103's pelvis is 1.000 m high in the reference: a constant in a program of his own, a parameter
+    in the one every other body shares (``BodyParameters.adopted``), computing what his own does."""
+    small = three[0]
+    chance = {"human": {"ansur": {"sex": "male", "subject": 11103}}}
+    lent, own = oracle(chance, True), oracle(chance, False)
+    assert lent.solver.polish.formulation.numbers.signature != small.solver.polish.formulation.numbers.signature
+    assert lent.share_programs(small)
+    same_rows(small, lent, own)
+
+
 def same_rows(small, large, own):
     """The programs of ``large`` (lent by ``small``) against ``own`` (``large``'s body, constants) at random
     postures."""
@@ -123,6 +134,23 @@ def test_unlifted_numbers_are_constants_and_the_signature_ignores_lifted_values(
     assert d.signature != b.signature
     fixed = BodyParameters({"q": np.array([0.3, 0.5])}, lift=True, fixed=frozenset({"q"}))
     assert fixed.symbols.numel() == 0 and fixed.sx("q").is_constant()
+
+
+def test_a_number_trivial_by_chance_is_lifted_where_the_other_bodies_lift_it():
+    """``adopted``: a body whose number is 1 where the others' is not takes their signature, that number a parameter;
+    a body whose constant differs (a zero that is a number there) cannot."""
+    typical = BodyParameters({"p": np.array([0.3, 0.0, 0.93]), "R": np.eye(3)}, lift=True)
+    chance = BodyParameters({"p": np.array([0.2, 0.0, 1.0]), "R": np.eye(3)}, lift=True)
+    assert chance.signature != typical.signature
+    lent = chance.adopted(typical)
+    assert lent is not None and lent.signature == typical.signature
+    assert list(lent.values) == [0.2, 1.0] and lent.sx("p").shape == typical.sx("p").shape
+    assert not lent.sx("p")[2].is_constant()
+    assert typical.adopted(chance) is None  # 0.93 is no constant 1
+    other = BodyParameters({"p": np.array([0.3, 0.1, 0.93]), "R": np.eye(3)}, lift=True)
+    assert other.adopted(typical) is None  # a number where the typical body's is a constant zero
+    assert typical.adopted(other) is not None  # ... the other way, a zero by chance: lifted
+    assert BodyParameters({"p": np.array([0.3, 0.0, 0.93])}, lift=True).adopted(typical) is None  # other arrays
 
 
 @pytest.mark.slow

@@ -10,10 +10,12 @@ joined with 7 others; measured here), so a population's direct answers cost less
 
 What a step reads of a batch's other rows (the lazy rows, collisions, near their bound in some posture are evaluated
 for all; the active rows are padded to the posture with the most) it reads of its own call's rows alone
-(:meth:`BatchProgram.joined`): each call's verdicts and postures are those it gets alone (to 1e-9;
-tests/test_joined.py). Read of the whole joined batch, one of 3,500 member x target pairs (500 members) lost a
-verdict alone it had. The caller still keeps its groups fixed (``reach.answers.accommodation``: groups of members by
-their order, whatever the processes).
+(:meth:`BatchProgram.joined`): each call's rows step as they would alone, to rounding (tests/test_joined.py). A
+larger batch's linear algebra rounds differently (postures 1e-10 to 1e-6 apart for 16 members' crouch asked alone
+and joined), and a search near a basin's edge may then end in another: 96 members x 7 targets x 4 strategies alone
+and joined 16 at a time, 1 verdict of 2,688 differed (a crouch to the floor item). Read of the whole joined batch,
+one of 3,500 member x target pairs (500 members) lost a verdict alone it had. So the caller keeps its groups fixed
+(``reach.answers.accommodation``: groups of members by their order, whatever the processes).
 """
 
 from __future__ import annotations

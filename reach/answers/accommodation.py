@@ -216,7 +216,7 @@ def direct(config: Any, targets: list[Target], effector: str | None = None,
                   if s.effector in set(effs)]
     members = members_of(config) if members is None else members
     # Members in runs of CHUNK, each run in one process with one program a strategy (the body's numbers its
-    # parameters: oracles.ik.parameters), built for the run's first member and shared by the others.
+    # parameters: oracles.ik.parameters), built for the run's first member and shared by the others (see _members).
     if client is not None:
         workers = max(workers, len(client.scheduler_info().get("workers", {})))
     runs = _runs(members, workers)
@@ -278,11 +278,12 @@ def _logged(results: Any, members: list[Any], log: Any) -> list[tuple[list[dict[
 def _members(job: tuple[Any, ...]) -> list[tuple[list[dict[str, Any]], int]]:
     """Each member's rows of a run of members (a row per target: reached, the strategy chosen by priority, the others
     that reach it) and the count of reached answers its forward-kinematics check refuted. A strategy's oracle of the
-    run's first member lends its programs to the others' (``share_programs``): they are built once a run."""
+    run's first member lends its programs to the others' (``share_programs``): they are built once a run. A member
+    they cannot serve (a body of another shape) lends its own to the members after it."""
     from oracles.protocol import OracleSpec, Sharing, create_siblings
 
     bodies, strategies, points, effs, verify, targets = job
-    first: dict[str, Any] = {}
+    lenders: dict[str, list[Any]] = {}  # by strategy, the oracles whose programs the run's others take
     out = []  # a list, not a generator: a worker process sends it back whole
     for k in range(0, len(bodies), JOIN):
         group, mine = [], []
@@ -292,9 +293,10 @@ def _members(job: tuple[Any, ...]) -> list[tuple[list[dict[str, Any]], int]]:
             made = create_siblings([OracleSpec(oracle_name, {**params, **SHARED.get(oracle_name, {}), "body": body})
                                     for _, _, oracle_name, params in strategies])
             for (name, *_), oracle in zip(strategies, made, strict=True):
-                if name in first and isinstance(oracle, Sharing):
-                    oracle.share_programs(first[name])
-                first.setdefault(name, oracle)
+                # the first lender whose programs serve this body, else this one lends its own to the next
+                lent = isinstance(oracle, Sharing) and any(oracle.share_programs(o) for o in lenders.get(name, []))
+                if not lent:
+                    lenders.setdefault(name, []).append(oracle)
                 oracles[name] = oracle
             group.append(oracles)
             # a target on the body where it lies on this member's body (every strategy's oracle holds the same body)

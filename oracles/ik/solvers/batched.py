@@ -205,8 +205,8 @@ class Batched:
         return out
 
     def share(self, other: Solver) -> bool:
-        mine = self.program_key()
-        if not isinstance(other, Batched) or mine is None or mine != other.program_key():
+        if not isinstance(other, Batched) or not self.polish.formulation.shares_programs(
+                self.options(), other.polish.formulation, other.options()):
             return False
         self.polish._cache, self._batch_cache = other.polish._cache, other._batch_cache
         return True

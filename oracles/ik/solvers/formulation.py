@@ -88,6 +88,19 @@ class Formulation:
         engine = {k: v for k, v in options.items() if k not in ("jit", "blocked_starts", "spread")}
         return self.numbers.signature, self._joints, repr(strategy), repr(sorted(engine.items()))
 
+    def shares_programs(self, options: dict[str, Any], other: Formulation, their_options: dict[str, Any]) -> bool:
+        """Whether one program serves this body and ``other``'s (:meth:`program_key`), this body's numbers lifted where
+        ``other``'s are when only their constants differ (:meth:`BodyParameters.adopted`)."""
+        mine, theirs = self.program_key(options), other.program_key(their_options)
+        if mine is None or theirs is None or mine[1:] != theirs[1:]:
+            return False
+        if mine[0] != theirs[0]:
+            adopted = self.numbers.adopted(other.numbers)
+            if adopted is None:
+                return False
+            self._numbers = (self.room.problem, adopted)
+        return True
+
     @property
     def _joints(self) -> tuple[tuple[str, str, int], ...]:
         """The body's joints: names, kinds and parents (what the programs' structure follows)."""

@@ -208,8 +208,7 @@ class InteriorPoint(SingleSolver):
         member's programs, built once."""
         if not isinstance(other, InteriorPoint):
             return False
-        mine = self.formulation.program_key(self.options())
-        if mine is None or mine != other.formulation.program_key(other.options()):
+        if not self.formulation.shares_programs(self.options(), other.formulation, other.options()):
             return False
         self._cache = other._cache
         return True
