@@ -63,6 +63,7 @@ from oracles.bodies.anthropometry import Anthropometry, anthropometry
 from oracles.bodies.collision import Capsule, CollisionModel, urdf_capsules
 from oracles.bodies.environment import Box
 from oracles.bodies.human import human_capsules, human_urdf, root_height
+from oracles.bodies.kinematics import model_arrays
 from oracles.bodies.seat import KNEE_MOST, KNEE_STEP, Seated, fit, parse_seat, seated
 from oracles.bodies.urdf import (
     add_frames,
@@ -111,6 +112,19 @@ class Body:
     def collision(self) -> CollisionModel:
         """The capsules placed on the model's joints, with coal geometry (built once)."""
         return CollisionModel(self.model, self.capsules, self.source)
+
+    @cached_property
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The model's numbers the kinematics read (:func:`oracles.bodies.kinematics.model_arrays`), read once: a
+        population member's strategies share one body (1.6 ms a strategy read again)."""
+        return model_arrays(self.model)
+
+    @cached_property
+    def structure(self) -> tuple[tuple[str, str, int], ...]:
+        """The joints' names, kinds and parents: what a program built on the model follows."""
+        model = self.model
+        return tuple((str(model.names[j]), model.joints[j].shortname(), int(model.parents[j]))
+                     for j in range(model.njoints))
 
     def capsules_at(self, q: np.ndarray | None = None) -> np.ndarray:
         """The collision capsules (K, 7: end points a, b [m], radius [m]; world frame) at a posture (the reference by

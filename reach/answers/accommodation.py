@@ -110,9 +110,9 @@ def member_atlases(folder: str | Path) -> tuple[list[Path], np.ndarray, list[str
 
 
 ANY = "any"  # the share of members that some strategy of theirs holds
-# at most this many members a process answers with one program a strategy (direct; building one costs 1.2 s: the whole
-# survey in runs of 24 built 253 of them)
-CHUNK = 96
+# at most this many members a process answers with one program a strategy (direct; building one costs about 1.3 s:
+# the whole survey in runs of 24 built 253 of them, in runs of 96, 64)
+CHUNK = 192
 # members whose solves run joined (oracles.ik.joined), in groups fixed by their order (a run holds whole groups), so
 # that the answers depend on neither the processes nor the cluster: 40 members x 7 targets, one process, 15.0-16.9 s
 # alone, 11.9-12.9 s joined 8 at a time; 192 members, 52.9 and 59.8 s 8 at a time, 49.8 and 51.9 s 16 (measured
@@ -229,11 +229,12 @@ def direct(config: Any, targets: list[Target], effector: str | None = None,
 
 
 def _runs(members: list[Any], workers: int) -> list[list[Any]]:
-    """The members in runs of whole groups of ``JOIN`` (by their order), at most ``CHUNK`` a run, as many runs as
-    processes at least, their sizes as even as whole groups allow (500 members on 2 processes: 6 runs of 80-96
-    members, not 5 of 96 and one of 20, which left a process idle)."""
+    """The members in runs of whole groups of ``JOIN`` (by their order), at most ``CHUNK`` a run, as many as a
+    multiple of the processes, their sizes as even as whole groups allow (500 members on 2 processes: 4 runs of
+    112-128 members, not 5 of 96 and one of 20, which left a process idle)."""
     groups = [members[k : k + JOIN] for k in range(0, len(members), JOIN)]
-    count = min(max(math.ceil(len(members) / CHUNK), workers), len(groups))  # every process at work
+    workers = max(workers, 1)
+    count = min(workers * math.ceil(len(members) / (CHUNK * workers)), len(groups))  # every process at work
     cut = np.linspace(0, len(groups), max(count, 1) + 1).round().astype(int)
     return [[m for g in groups[a:b] for m in g] for a, b in zip(cut[:-1], cut[1:], strict=True) if b > a]
 

@@ -14,7 +14,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from oracles.bodies.kinematics import SymbolicKinematics, model_arrays
+from oracles.bodies.kinematics import SymbolicKinematics
 from oracles.ik.parameters import BodyParameters
 from oracles.ik.rounds import Call
 from oracles.ik.solvers.protocol import Room
@@ -68,7 +68,7 @@ class Formulation:
         """The body's numbers as the programs take them (lifted when :attr:`lifted`; only lifted programs read them)."""
         room = self.room
         if self._numbers is None or self._numbers[0] is not room.problem:
-            arrays = {**model_arrays(room.body.model), **room.problem.arrays()}
+            arrays = {**room.body.arrays, **room.problem.arrays()}
             tasks = {f"task{k}.{name}": v for k, t in enumerate(room.strategy.tasks) for name, v in t.numbers().items()}
             # The tasks' numbers lifted whole: their zeros are a body's (a capsule a sphere at one member, a segment
             # at the next: 3 of 20 ANSUR II members had another program).
@@ -86,7 +86,7 @@ class Formulation:
         # jit changes how the programs run, not what they are (the caches below key it apart): `jit: auto` and `true`
         # name the same compiled library; the search's rescues change neither
         engine = {k: v for k, v in options.items() if k not in ("jit", "blocked_starts", "spread")}
-        return self.numbers.signature, self._joints, repr(strategy), repr(sorted(engine.items()))
+        return self.numbers.signature, self.room.body.structure, repr(strategy), repr(sorted(engine.items()))
 
     def shares_programs(self, options: dict[str, Any], other: Formulation, their_options: dict[str, Any]) -> bool:
         """Whether one program serves this body and ``other``'s (:meth:`program_key`), this body's numbers lifted where
@@ -100,13 +100,6 @@ class Formulation:
                 return False
             self._numbers = (self.room.problem, adopted)
         return True
-
-    @property
-    def _joints(self) -> tuple[tuple[str, str, int], ...]:
-        """The body's joints: names, kinds and parents (what the programs' structure follows)."""
-        model = self.room.body.model
-        return tuple((str(model.names[j]), model.joints[j].shortname(), int(model.parents[j]))
-                     for j in range(model.njoints))
 
     def with_body(self, params: np.ndarray) -> np.ndarray:
         """Parameters (B, k) or (k,) of the goal, start and targets, with the body's lifted numbers after them."""
