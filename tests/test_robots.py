@@ -234,8 +234,14 @@ def test_a_box_that_cuts_the_volume_grows_within_its_limit(tmp_path):
     atlas = build_atlas(config.with_box(small, limit=config.box), tmp_path / "a", log=lines.append)
     tree = atlas.tree("ball")
     assert tree.box.lo[0] == pytest.approx(-1.05) and tree.faces() == {}
-    assert any("B0 grows to min [-1.05, -1.2, -1.2]" in line for line in lines)
+    # stopped at the first depth whose reachable vertices met the face (the face's centre, depth 1), not after the
+    # whole tree
+    assert any("B0 grows to min [-1.05, -1.2, -1.2]" in line and "(found at depth 1 of ball)" in line
+               for line in lines)
     assert atlas.manifest["warnings"]["faces"] == []
+    # the same tree as a build of the grown box from the start
+    direct = build_atlas(config.with_box(tree.box, limit=config.box), tmp_path / "b").tree("ball")
+    assert direct.meta["digest"] == tree.meta["digest"] and len(direct) == len(tree)
 
 
 def test_box_auto_probes_a_standing_body_instead_of_a_ball_about_its_foot():

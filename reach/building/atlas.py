@@ -46,15 +46,16 @@ from reach.building.config import Config, StrategySpec
 from reach.building.executor import Executor, InlineExecutor
 from reach.building.index import compute_index
 from reach.building.mirror import MirrorOracle
-from reach.building.tree import Inherited, build_tree
+from reach.building.tree import BuildState, Inherited, build_tree
 from reach.building.twins import Twins
 from reach.errors import ModelError, StoreError
 from reach.maps.atlas import Atlas, build_lock, load_atlas, write_manifest
+from reach.maps.box import Box
 from reach.maps.graph import MotionGraph, build_graph, graph_of, graph_path, mirror_graph, save_graph
 from reach.maps.index import ReachIndex, spiral
 from reach.maps.index import summary as index_summary
 from reach.maps.store import load_indexed, save_tree
-from reach.maps.tree import FINAL, INNER, VATree
+from reach.maps.tree import FINAL, INNER, Lattice, VATree, faces_of
 
 PARTIAL = ".partial"
 
@@ -164,29 +165,48 @@ def build_atlas(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     with build_lock(out):
-        atlas = _build_locked(config, out, executor_factory, progress, say, resume, mirror, inherit)
-        for _ in range(GROWS if config.limit is not None else 0):
-            cut = {f for w in atlas.manifest["warnings"]["faces"] for f in w["faces"]}
-            if any(s.mirror_of for s in config.strategies) and cut & {"y-", "y+"}:
-                cut |= {"y-", "y+"}  # a mirrored atlas keeps its box symmetric about y = 0
-            box = grown(config.box, config.limit, cut) if cut and config.limit is not None else None
+        for grows in range(GROWS + 1):
+            # box: auto: a build stops at the first depth whose reachable vertices lie on a face B0 may grow past
+            # (_Cut), not after every strategy: 5 of configs/population.yaml's 40 members grew, and their first
+            # builds were a quarter of the population's build time (docs/population.md)
+            growing = config.limit is not None and grows < GROWS
+            try:
+                atlas = _build_locked(config, out, executor_factory, progress, say, resume, mirror, inherit, growing)
+                cut, where = {f for w in atlas.manifest["warnings"]["faces"] for f in w["faces"]}, ""
+            except _Cut as stopped:
+                cut, where = stopped.faces, f" (found at depth {stopped.depth} of {stopped.strategy})"
+            box = _grown(config, cut) if growing else None
             if box is None:
-                break
-            say(f"box: auto: reachable vertices lie on {', '.join(sorted(cut))}; B0 grows to min {box.lo.tolist()} "
-                f"max {box.hi.tolist()} [m], "
-                "and every strategy is built again")
+                return atlas
+            say(f"box: auto: reachable vertices lie on {', '.join(sorted(cut))}{where}; B0 grows to min "
+                f"{box.lo.tolist()} max {box.hi.tolist()} [m], and every strategy is built again")
             config = config.with_box(box)
-            atlas = _build_locked(config, out, executor_factory, progress, say, resume, mirror, inherit)
-        return atlas
+        raise AssertionError("unreachable: the last pass does not grow")
+
+
+class _Cut(Exception):  # noqa: N818 (a signal, not an error)
+    """A build stopped at a depth whose reachable vertices lie on faces of B0 that box: auto may grow past."""
+
+    def __init__(self, strategy: str, depth: int, faces: set[str]) -> None:
+        super().__init__(f"{strategy}: reachable vertices on {sorted(faces)} at depth {depth}")
+        self.strategy, self.depth, self.faces = strategy, depth, faces
+
+
+def _grown(config: Config, cut: set[str]) -> Box | None:
+    """B0 grown past the faces ``cut`` (a mirrored atlas's both y faces), or None when none can grow."""
+    if any(s.mirror_of for s in config.strategies) and cut & {"y-", "y+"}:
+        cut = cut | {"y-", "y+"}  # a mirrored atlas keeps its box symmetric about y = 0
+    return grown(config.box, config.limit, cut) if cut and config.limit is not None else None
 
 
 def _build_locked(
     config: Config, out: Path, executor_factory: Callable[[OracleSpec], Executor] | None, progress: bool,
-    say: Callable[[str], None], resume: bool, mirror: bool, inherit: bool,
+    say: Callable[[str], None], resume: bool, mirror: bool, inherit: bool, growing: bool = False,
 ) -> Atlas:
-    """build_atlas's work, with the folder locked."""
+    """build_atlas's work, with the folder locked; ``growing``: stopped (_Cut) at the first depth whose reachable
+    vertices lie on a face B0 can grow past."""
     t0 = time.perf_counter()
-    job = _AtlasBuild(config, out, executor_factory, progress, say, resume)
+    job = _AtlasBuild(config, out, executor_factory, progress, say, resume, growing)
     # Mirror sources first, so that their trees exist when their images are made.
     order = sorted(config.strategies, key=lambda s: s.mirror_of is not None)
     job.by_name = {s.name: s for s in order}
@@ -215,6 +235,7 @@ class _AtlasBuild:
     progress: bool
     say: Callable[[str], None]
     resume: bool
+    growing: bool = False  # stop (_Cut) at a depth whose reachable vertices lie on a face B0 can grow past
     by_name: dict[str, StrategySpec] = dataclasses.field(default_factory=dict)
     subs: dict[str, str] = dataclasses.field(default_factory=dict)  # a strategy -> the sub-strategy it inherits from
     built: dict[str, VATree] = dataclasses.field(default_factory=dict)
@@ -272,7 +293,7 @@ class _AtlasBuild:
         sub = self.subs.get(s.name)
         parent = (sub, self.built[sub]) if sub is not None and sub in self.built else None
         tree = _build_one(self.config, s, meta, partial, fp, self.executor_factory, self.progress, self.resume,
-                          parent, self.oracle_of(s))
+                          parent, self.oracle_of(s), self.growing)
         self.say(_built_text(s.name, tree, sub))
         return tree, None
 
@@ -375,8 +396,17 @@ def _build_one(
     executor_factory: Callable[[OracleSpec], Executor] | None, progress: bool, resume: bool,
     parent: tuple[str, VATree] | None = None,
     oracle: Oracle | None = None,
+    growing: bool = False,
 ) -> VATree:
     state = load_state(partial, fp) if resume and partial.is_file() else None
+    lattice = Lattice(config.box, config.d_max)
+
+    def level(st: BuildState) -> None:
+        save_state(st, partial, fp)
+        cut = set(faces_of(lattice, st.vertices.keys[st.vertices.reachable])) if growing else set()
+        if cut and _grown(config, cut) is not None:
+            raise _Cut(s.name, st.depth - 1, cut)
+
     ex: Executor = executor_factory(s.oracle) if executor_factory else InlineExecutor(oracle or s.oracle,
         config.chunk_size)
     try:
@@ -389,7 +419,7 @@ def _build_one(
         return build_tree(
             s.oracle, config.box, config.d_min, config.d_max, executor=ex, progress=s.name if progress else False,
             meta=meta, state=state,
-            on_level=lambda st: save_state(st, partial, fp), refine=config.refine, keep_out=_keep_out(ex.oracle),
+            on_level=level, refine=config.refine, keep_out=_keep_out(ex.oracle),
             inherit=inherit, twins=Twins.of(ex.oracle) if config.twins else None,
         )
     finally:

@@ -113,6 +113,19 @@ class Lattice:
         return self.keys(verts)
 
 
+def faces_of(lattice: Lattice, keys: np.ndarray) -> dict[str, int]:
+    """The faces of the lattice's box (``x-``, ``x+``, ``y-`` ...) that the vertices ``keys`` lie on, and how many
+    lie on each."""
+    coords = lattice.coords(keys)
+    out = {}
+    for axis, name in enumerate("xyz"[: lattice.dim]):
+        for side, at in (("-", 0), ("+", lattice.cells)):
+            n = int(np.count_nonzero(coords[:, axis] == at))
+            if n:
+                out[f"{name}{side}"] = n
+    return out
+
+
 @dataclass
 class VertexTable:
     """Verdicts of every evaluated vertex, sorted by key.
@@ -243,14 +256,7 @@ class VATree:
         """The faces of B0 that reachable vertices lie on (``x-``, ``x+``, ``y-`` ...) and how many lie on each:
         the box cuts the volume there, where the paper asks that it contain it."""
         v = self.vertices
-        coords = self.lattice.coords(v.keys[v.reachable])
-        out = {}
-        for axis, name in enumerate("xyz"[: self.dim]):
-            for side, at in (("-", 0), ("+", self.lattice.cells)):
-                n = int(np.count_nonzero(coords[:, axis] == at))
-                if n:
-                    out[f"{name}{side}"] = n
-        return out
+        return faces_of(self.lattice, v.keys[v.reachable])
 
     # -- queries -----------------------------------------------------------
     @property
