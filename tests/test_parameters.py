@@ -176,6 +176,7 @@ def test_a_members_strategies_built_on_one_loaded_body_answer_as_each_built_alon
     """``create_siblings``: the strategies after the first are built on its loaded body (not loaded again); each
     answers as the oracle its spec builds, and a strategy with ranges of its own (another body) is built from its
     spec."""
+    from oracles.errors import OracleError
     from oracles.protocol import Sibling, create_siblings
 
     arm = {"body": SMALL, "effector": "right_hand", "tasks": [{"type": "reach"}, {"type": "self_collision"}],
@@ -189,6 +190,12 @@ def test_a_members_strategies_built_on_one_loaded_body_answer_as_each_built_alon
     assert made[1].body.model is made[0].body.model  # one loaded body
     assert made[2].body.model is not made[0].body.model  # its own ranges: its own body
     assert made[0].sibling(OracleSpec("sphere", {"radius": 1.0})) is None
+    bad = OracleSpec("casadi-ik", {**arm, "colour": "red"})
+    with pytest.raises(OracleError) as alone_error:
+        bad.create()
+    with pytest.raises(OracleError) as sibling_error:  # the error a spec's build gives
+        create_siblings([specs[0], bad])
+    assert str(sibling_error.value) == str(alone_error.value) and "colour" in str(alone_error.value)
     for mine, own in zip(made, alone, strict=True):
         assert mine.model_hash == own.model_hash
         a, b = mine.evaluate(Goals(GOALS[:4])), own.evaluate(Goals(GOALS[:4]))
