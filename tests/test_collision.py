@@ -85,6 +85,32 @@ def test_coal_agrees_with_our_distances_on_the_human():
             assert ours == pytest.approx(d, abs=1e-6)
 
 
+def test_a_collision_check_with_each_pairs_floor_as_margin_agrees_with_the_distances():
+    """``CollisionModel.clear`` (coal's collision check, each pair's floor its security margin) against the pairs'
+    distances (our own segment distances agree with those above): pair by pair, at postures near the reference and
+    across the ranges, floors of both signs (a pair overlapping at the reference keeps that overlap)."""
+    body = human_body()
+    model = body.collision
+    pairs = [(i, j) for i in range(len(model.placed)) for j in range(i + 1, len(model.placed))][::7]
+    rng = np.random.default_rng(2)
+    lo, hi = body.model.lowerPositionLimit[7:], body.model.upperPositionLimit[7:]
+    checked = {True: 0, False: 0}
+    for spread in (0.05, 0.3, 1.0):
+        for _ in range(15):
+            q = body.q_ref.copy()
+            q[7:] += spread * (rng.uniform(lo, hi) - q[7:])
+            d = model.distances(q, pairs)
+            floors = d + rng.choice([-0.004, 0.004], len(d))  # each pair 4 mm on either side of its floor
+            for k, pair in enumerate(pairs):
+                apart = bool(model.clear(q, (pair,), floors[k : k + 1]))
+                assert apart == (d[k] >= floors[k]), (pair, d[k], floors[k])
+                checked[apart] += 1
+            assert model.clear(q, tuple(pairs), floors) == bool(np.all(d >= floors))
+            assert model.clear(q, tuple(pairs), d - 0.004)  # every pair just beyond its floor
+    assert min(checked.values()) > 100  # both verdicts, many times
+    assert model.clear(body.q_ref, (), np.zeros(0))
+
+
 def test_pairs_skip_adjacent_and_rigidly_joined_segments():
     body = human_body()
     s = parse_strategy(body, "right_hand", ARM, [{"type": "reach"}, {"type": "self_collision"}])

@@ -306,6 +306,5 @@ class SelfCollisionTask(HardTask):
         return rows_of_cuts(self.cuts(num, BUFFER))
 
     def holds(self, num: Numeric) -> bool:
-        if not self.pairs:
-            return True
-        return bool(np.all(self.distances(num.q) >= self._floors))
+        assert self._model is not None
+        return self._model.clear(num.q, self._ids, self._floors)
