@@ -118,6 +118,9 @@ CHUNK = 192
 # alone, 11.9-12.9 s joined 8 at a time; 192 members, 52.9 and 59.8 s 8 at a time, 49.8 and 51.9 s 16 (measured
 # here, one after the other, the same answers; more than 16 gained nothing beyond this machine's noise)
 JOIN = 16
+# at most this many oracles a strategy lend their programs in a run: a body no program serves is rare (none of the
+# survey's once its numbers 0 or 1 by chance are lifted), and a run of such bodies keeps no more than these alive
+LENDERS = 4
 # the engines' option that makes one program serve every member (oracles.ik.parameters); answers do not depend on it
 SHARED = {"casadi-ik": {"body_parameters": True}}
 
@@ -295,9 +298,10 @@ def _members(job: tuple[Any, ...]) -> list[tuple[list[dict[str, Any]], int]]:
                                     for _, _, oracle_name, params in strategies])
             for (name, *_), oracle in zip(strategies, made, strict=True):
                 # the first lender whose programs serve this body, else this one lends its own to the next
-                lent = isinstance(oracle, Sharing) and any(oracle.share_programs(o) for o in lenders.get(name, []))
-                if not lent:
-                    lenders.setdefault(name, []).append(oracle)
+                lending = lenders.setdefault(name, [])
+                if isinstance(oracle, Sharing) and not any(oracle.share_programs(o) for o in lending) \
+                        and len(lending) < LENDERS:
+                    lending.append(oracle)
                 oracles[name] = oracle
             group.append(oracles)
             # a target on the body where it lies on this member's body (every strategy's oracle holds the same body)
