@@ -107,13 +107,14 @@ class CollisionModel:
             self.placed.append(Placed(c, int(frame.parentJoint), m.act(np.asarray(c.a, float)),
                                       m.act(np.asarray(c.b, float))))
         self.index = {p.name: i for i, p in enumerate(self.placed)}
+        # The geometry of each pair set, built once: a self-collision task's distances at the reference and its
+        # verdict's check (:meth:`clear`) ask about one set, with the floors last set as its security margins.
         self._checks: dict[tuple[tuple[int, int], ...], tuple[pin.GeometryModel, pin.GeometryData, pin.Data]] = {}
+        self._margins: dict[tuple[tuple[int, int], ...], bytes] = {}
         # The last answer per pair set: an IK engine's cut loop and the verdict's
         # independent check ask about the same posture one after the other.
         self._last: dict[tuple[tuple[int, int], ...], tuple[bytes, np.ndarray]] = {}
-        # :meth:`clear`'s checks, by pair set and floors
-        self._clears: dict[tuple[tuple[tuple[int, int], ...], bytes],
-                           tuple[pin.GeometryModel, pin.GeometryData, pin.Data]] = {}
+        self._adjacent: dict[tuple[int, int], bool] = {}
         self.geometry = pin.GeometryModel()
         for p in self.placed:
             shape = coal.Capsule(p.radius, float(np.linalg.norm(p.b - p.a)))
@@ -144,9 +145,7 @@ class CollisionModel:
         last = self._last.get(key)
         if last is not None and last[0] == q.tobytes():
             return last[1].copy()
-        if key not in self._checks:  # built once per pair set: the verdict asks at every solve
-            self._checks[key] = self._paired(key)
-        geom, gdata, data = self._checks[key]
+        geom, gdata, data = self._paired(key)
         pin.computeDistances(self.model, data, geom, gdata, q)
         out = np.array([r.min_distance for r in gdata.distanceResults])
         self._last[key] = (q.tobytes(), out)
@@ -159,23 +158,47 @@ class CollisionModel:
         :meth:`distances` on 238,000 pairs at 2,000 postures (tests/test_collision.py)."""
         if not pairs:
             return True
-        key = (pairs, np.asarray(floors, float).tobytes())
-        if key not in self._clears:
-            geom, gdata, data = self._paired(pairs)
-            for k, floor in enumerate(np.asarray(floors, float)):
+        geom, gdata, data = self._paired(pairs)
+        floors = np.asarray(floors, float)
+        if self._margins.get(pairs) != floors.tobytes():
+            for k, floor in enumerate(floors):
                 gdata.collisionRequests[k].security_margin = float(floor)
-            self._clears[key] = (geom, gdata, data)
-        geom, gdata, data = self._clears[key]
+            self._margins[pairs] = floors.tobytes()
         return not pin.computeCollisions(self.model, data, geom, gdata, np.asarray(q, float), True)
 
-    def _paired(self, pairs: Sequence[tuple[int, int]]) -> tuple[pin.GeometryModel, pin.GeometryData, pin.Data]:
+    def adjacent(self, a: int, b: int) -> bool:
+        """Whether joints a and b are one, or one an ancestor of the other with no capsule-bearing joint between
+        them (remembered: a population member's four strategies ask about the same joints)."""
+        key = (min(a, b), max(a, b))
+        found = self._adjacent.get(key)
+        if found is None:
+            found = self._adjacent[key] = _adjacent(self.model, {p.joint for p in self.placed}, a, b)
+        return found
+
+    def _paired(self, pairs: tuple[tuple[int, int], ...]) -> tuple[pin.GeometryModel, pin.GeometryData, pin.Data]:
         """The capsules' geometry with these pairs, its data and the model's (built once per pair set)."""
-        geom = pin.GeometryModel()
-        for o in self.geometry.geometryObjects:
-            geom.addGeometryObject(o)
-        for i, j in pairs:
-            geom.addCollisionPair(pin.CollisionPair(i, j))
-        return geom, pin.GeometryData(geom), self.model.createData()
+        found = self._checks.get(pairs)
+        if found is None:
+            geom = pin.GeometryModel()
+            for o in self.geometry.geometryObjects:
+                geom.addGeometryObject(o)
+            for i, j in pairs:
+                geom.addCollisionPair(pin.CollisionPair(i, j))
+            found = self._checks[pairs] = (geom, pin.GeometryData(geom), self.model.createData())
+        return found
+
+
+def _adjacent(model: pin.Model, bearing: set[int], a: int, b: int) -> bool:
+    """One joint, or one an ancestor of the other with no joint of ``bearing`` between them."""
+    if a == b:
+        return True
+    for lo, hi in ((a, b), (b, a)):
+        j = int(model.parents[lo])
+        while j > 0 and j != hi and j not in bearing:
+            j = int(model.parents[j])
+        if j == hi:
+            return True
+    return False
 
 
 def nearest_points(p: np.ndarray, q: np.ndarray, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:

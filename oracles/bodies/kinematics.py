@@ -15,7 +15,7 @@ free flyer (x, y, z, qx, qy, qz, qw), planar (x, y, cos, sin), spherical
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Protocol
 
 import casadi as ca
@@ -31,6 +31,30 @@ class Numbers(Protocol):
     """Named numbers as expressions (:class:`oracles.ik.parameters.BodyParameters`)."""
 
     def sx(self, name: str) -> ca.SX: ...
+
+
+class Stacked:
+    """Named arrays as one flat vector, each row by row (a vector a column, a number 1 x 1): what
+    :class:`oracles.ik.parameters.BodyParameters` reads. A body's model arrays are stacked once and shared by its
+    strategies' parameters (a population member's ~400 small arrays stacked again took 0.7 ms a strategy).
+
+    Attributes:
+        shapes: Each array's shape (rows, columns), in order.
+        flat: The entries, in that order.
+    """
+
+    def __init__(self, arrays: Mapping[str, np.ndarray]) -> None:
+        given = [np.asarray(v, float) for v in arrays.values()]
+        self.shapes: dict[str, tuple[int, int]] = {k: (a.size, 1) if a.ndim <= 1 else (a.shape[0], a.shape[1])
+                                                   for k, a in zip(arrays, given, strict=True)}
+        self.flat = np.concatenate([a.ravel() for a in given]) if given else np.zeros(0)
+
+    def __add__(self, other: Stacked) -> Stacked:
+        if self.shapes.keys() & other.shapes.keys():
+            raise ValueError(f"arrays named twice: {sorted(self.shapes.keys() & other.shapes.keys())}")
+        out = Stacked({})
+        out.shapes, out.flat = {**self.shapes, **other.shapes}, np.concatenate([self.flat, other.flat])
+        return out
 
 
 def model_arrays(model: pin.Model) -> dict[str, np.ndarray]:

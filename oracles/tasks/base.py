@@ -19,7 +19,9 @@ Engines and the verdict compose tasks; they hold no task-specific branch.
 from __future__ import annotations
 
 import fnmatch
+import functools
 import math
+import re
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -245,7 +247,18 @@ def frame(scope: Scope, value: Any, where: str) -> str:
 
 
 def matching(names: Sequence[str], pattern: str) -> list[str]:
-    return [n for n in names if fnmatch.fnmatchcase(n, pattern)]
+    """The names that match a glob pattern, case-sensitively (as :func:`fnmatch.fnmatchcase`)."""
+    # A plain name is looked up, a pattern compiled once (a population member's four strategies match ~400 names and
+    # patterns, which name by name took 1.4 ms, and compiling each pattern again 1 ms).
+    if not any(c in pattern for c in "*?["):
+        return [n for n in names if n == pattern]
+    match = _glob(pattern)
+    return [n for n in names if match(n)]
+
+
+@functools.lru_cache(maxsize=1024)
+def _glob(pattern: str) -> Callable[[str], Any]:
+    return re.compile(fnmatch.translate(pattern)).match
 
 
 # -- the tasks ---------------------------------------------------------------

@@ -79,19 +79,6 @@ class Pair:
     floor: float  # [m] the least coal distance the verdict accepts
 
 
-def _adjacent(model: pin.Model, bearing: set[int], a: int, b: int) -> bool:
-    """One joint, or one an ancestor of the other with no capsule-bearing joint between them."""
-    if a == b:
-        return True
-    for lo, hi in ((a, b), (b, a)):
-        j = int(model.parents[lo])
-        while j > 0 and j != hi and j not in bearing:
-            j = int(model.parents[j])
-        if j == hi:
-            return True
-    return False
-
-
 def _keep_out(scope: Scope, model: CollisionModel, pairs: list[Pair]) -> tuple[int, ...]:
     """Capsules that no active joint moves and that a capsule holding the effector point is kept from.
 
@@ -138,7 +125,6 @@ def _candidates(model: Any, scope: Scope, excluded: set[frozenset[str]],
     """The capsule pairs (i, j) that may collide: neither excluded (by the config, as adjacent, or by the body's
     SRDF), one of them in ``only`` when given, and moving relative to each other by the strategy's joints."""
     pm = scope.body.model
-    bearing = {p.joint for p in model.placed}
     # relative_motion's masks made once for every pair (600 pairs of the human's capsules, each walking its two
     # chains to the root, took 7 ms a strategy; a population's member pays it four times)
     moving = active_ancestors(pm, scope.active)
@@ -148,7 +134,7 @@ def _candidates(model: Any, scope: Scope, excluded: set[frozenset[str]],
             pj = model.placed[j]
             if not moving[pi.joint] ^ moving[pj.joint]:
                 continue
-            if (frozenset((pi.name, pj.name)) in excluded or _adjacent(pm, bearing, pi.joint, pj.joint)
+            if (frozenset((pi.name, pj.name)) in excluded or model.adjacent(pi.joint, pj.joint)
                     or frozenset((pi.capsule.link, pj.capsule.link)) in scope.body.disabled
                     or (only is not None and pi.name not in only and pj.name not in only)):
                 continue

@@ -14,7 +14,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from oracles.bodies.kinematics import SymbolicKinematics
+from oracles.bodies.kinematics import Stacked, SymbolicKinematics
 from oracles.ik.parameters import BodyParameters
 from oracles.ik.rounds import Call
 from oracles.ik.solvers.protocol import Room
@@ -68,12 +68,11 @@ class Formulation:
         """The body's numbers as the programs take them (lifted when :attr:`lifted`; only lifted programs read them)."""
         room = self.room
         if self._numbers is None or self._numbers[0] is not room.problem:
-            arrays = {**room.body.arrays, **room.problem.arrays()}
             tasks = {f"task{k}.{name}": v for k, t in enumerate(room.strategy.tasks) for name, v in t.numbers().items()}
             # The tasks' numbers lifted whole: their zeros are a body's (a capsule a sphere at one member, a segment
             # at the next: 3 of 20 ANSUR II members had another program).
-            numbers = BodyParameters({**arrays, **tasks}, self.lifted, fixed=frozenset({"root_ref"}),
-                                     dense=frozenset(tasks))
+            numbers = BodyParameters(room.body.arrays + Stacked({**room.problem.arrays(), **tasks}), self.lifted,
+                                     fixed=frozenset({"root_ref"}), dense=frozenset(tasks))
             self._numbers = (room.problem, numbers)
         return self._numbers[1]
 
