@@ -7,6 +7,7 @@ import xml.etree.ElementTree as ET
 
 import coal
 import numpy as np
+import pinocchio as pin
 import pytest
 from helpers import ARM
 
@@ -109,6 +110,34 @@ def test_a_collision_check_with_each_pairs_floor_as_margin_agrees_with_the_dista
             assert model.clear(q, tuple(pairs), d - 0.004)  # every pair just beyond its floor
     assert min(checked.values()) > 100  # both verdicts, many times
     assert model.clear(body.q_ref, (), np.zeros(0))
+
+
+def test_the_floor_check_by_coal_agrees_with_the_capsules_end_points():
+    """``CollisionModel.above_floor`` (coal's collision test against the floor's half-space) against our own reading:
+    each capsule's end points at least its radius less the tolerance above z = 0, capsule by capsule, the body lowered
+    and turned so that both verdicts come often, tolerances of both signs."""
+    body = human_body()
+    model = body.collision
+    data = body.model.createData()
+    rng = np.random.default_rng(3)
+    lo, hi = body.model.lowerPositionLimit[7:], body.model.upperPositionLimit[7:]
+    checked = {True: 0, False: 0}
+    for _ in range(60):
+        q = body.q_ref.copy()
+        q[7:] += rng.uniform(0.0, 1.0) * (rng.uniform(lo, hi) - q[7:])
+        q[2] -= rng.uniform(0.0, 0.6)
+        pin.forwardKinematics(body.model, data, q)
+        tol = float(rng.choice([1e-4, 0.0, -0.01, 0.02]))
+        lowest = [min(a[2], b[2]) - p.radius for p, (a, b) in
+                  ((p, model.world(data, i)) for i, p in enumerate(model.placed))]
+        for i, z in enumerate(lowest):
+            if abs(z + tol) > 1e-9:
+                assert model.above_floor(q, (i,), tol) == (z >= -tol), (model.placed[i].name, z, tol)
+                checked[z >= -tol] += 1
+        every = tuple(range(len(lowest)))
+        assert model.above_floor(q, every, tol) == (min(lowest) >= -tol)
+    assert min(checked.values()) > 100
+    assert model.above_floor(body.q_ref, (), 0.0)
 
 
 def test_pairs_skip_adjacent_and_rigidly_joined_segments():

