@@ -30,8 +30,12 @@ class Body(Moving, Shaped, EffectorPositions, Protocol):
 
 def segment(oracle: Body, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The postures of the segment a -> b that are checked, ends included: ``EDGE_STEP`` apart, three at least."""
-    n = max(3, int(math.ceil(np.linalg.norm(b - a) / EDGE_STEP)) + 1)
-    return oracle.interpolate(a, b, np.linspace(0.0, 1.0, n))
+    return oracle.interpolate(a, b, fractions(a, b))
+
+
+def fractions(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Where :func:`segment`'s postures lie along a -> b, from 0 to 1."""
+    return np.linspace(0.0, 1.0, max(3, int(math.ceil(np.linalg.norm(b - a) / EDGE_STEP)) + 1))
 
 
 def reaches(oracle: Body, goal: np.ndarray, end: np.ndarray, point: np.ndarray) -> bool:
