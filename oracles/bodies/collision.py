@@ -26,6 +26,7 @@ import xml.etree.ElementTree as ET
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import casadi as ca
 import coal
@@ -108,15 +109,16 @@ class CollisionModel:
                                       m.act(np.asarray(c.b, float))))
         self.index = {p.name: i for i, p in enumerate(self.placed)}
         # The geometry of each pair set, built once: a self-collision task's distances at the reference and its
-        # verdict's check (:meth:`clear`) ask about one set, with the floors last set as its security margins.
+        # verdict's check (:meth:`clear`) ask about one set.
         self._checks: dict[tuple[tuple[int, int], ...], tuple[pin.GeometryModel, pin.GeometryData, pin.Data]] = {}
-        self._margins: dict[tuple[tuple[int, int], ...], bytes] = {}
+        # the security margins last set on a geometry's collision requests, by its key (see _margined)
+        self._margins: dict[tuple[Any, ...], bytes] = {}
         # The last answer per pair set: an IK engine's cut loop and the verdict's
         # independent check ask about the same posture one after the other.
         self._last: dict[tuple[tuple[int, int], ...], tuple[bytes, np.ndarray]] = {}
-        self._adjacent: dict[tuple[int, int], bool] = {}
-        # :meth:`above_floor`'s geometry by capsule set, with the security margin last set
-        self._floors: dict[tuple[int, ...], tuple[pin.GeometryModel, pin.GeometryData, pin.Data, float]] = {}
+        self._adjacency: dict[tuple[int, int], bool] = {}
+        # :meth:`above_floor`'s geometry by capsule set
+        self._floors: dict[tuple[int, ...], tuple[pin.GeometryModel, pin.GeometryData, pin.Data]] = {}
         self.geometry = pin.GeometryModel()
         for p in self.placed:
             shape = coal.Capsule(p.radius, float(np.linalg.norm(p.b - p.a)))
@@ -161,11 +163,7 @@ class CollisionModel:
         if not pairs:
             return True
         geom, gdata, data = self._paired(pairs)
-        floors = np.asarray(floors, float)
-        if self._margins.get(pairs) != floors.tobytes():
-            for k, floor in enumerate(floors):
-                gdata.collisionRequests[k].security_margin = float(floor)
-            self._margins[pairs] = floors.tobytes()
+        self._margined(pairs, gdata, np.asarray(floors, float))
         return not pin.computeCollisions(self.model, data, geom, gdata, np.asarray(q, float), True)
 
     def above_floor(self, q: np.ndarray, capsules: tuple[int, ...], tol: float) -> bool:
@@ -185,22 +183,26 @@ class CollisionModel:
                                                       coal.Halfspace(np.array([0.0, 0.0, 1.0]), 0.0)))
             for k in range(len(capsules)):
                 geom.addCollisionPair(pin.CollisionPair(k, len(capsules)))
-            found = self._floors[capsules] = (geom, pin.GeometryData(geom), self.model.createData(), math.nan)
-        geom, gdata, data, margin = found
-        if margin != -tol:
-            for request in gdata.collisionRequests:
-                request.security_margin = -float(tol)
-            self._floors[capsules] = (geom, gdata, data, -float(tol))
+            found = self._floors[capsules] = (geom, pin.GeometryData(geom), self.model.createData())
+        geom, gdata, data = found
+        self._margined(capsules, gdata, np.full(len(capsules), -float(tol)))
         return not pin.computeCollisions(self.model, data, geom, gdata, np.asarray(q, float), True)
 
     def adjacent(self, a: int, b: int) -> bool:
         """Whether joints a and b are one, or one an ancestor of the other with no capsule-bearing joint between
         them (remembered: a population member's four strategies ask about the same joints)."""
         key = (min(a, b), max(a, b))
-        found = self._adjacent.get(key)
+        found = self._adjacency.get(key)
         if found is None:
-            found = self._adjacent[key] = _adjacent(self.model, {p.joint for p in self.placed}, a, b)
+            found = self._adjacency[key] = _adjacent(self.model, {p.joint for p in self.placed}, a, b)
         return found
+
+    def _margined(self, key: tuple[Any, ...], gdata: pin.GeometryData, margins: np.ndarray) -> None:
+        """The collision requests' security margins set to ``margins``, unless they are those set last."""
+        if self._margins.get(key) != margins.tobytes():
+            for request, margin in zip(gdata.collisionRequests, margins, strict=True):
+                request.security_margin = float(margin)
+            self._margins[key] = margins.tobytes()
 
     def _paired(self, pairs: tuple[tuple[int, int], ...]) -> tuple[pin.GeometryModel, pin.GeometryData, pin.Data]:
         """The capsules' geometry with these pairs, its data and the model's (built once per pair set)."""
