@@ -810,3 +810,80 @@ def test_the_graph_made_on_two_processes_is_the_one_made_inline(planner):
     inline = load_graph(planner.selector.atlas.path / "whole.graph.npz")
     assert made is not None and made.meta["samples"] == inline.meta["samples"] > 0
     assert np.array_equal(made.home, inline.home) and np.array_equal(made.edges, inline.edges)
+
+
+def test_the_least_shift_is_the_projection_onto_the_polygon_and_the_pelvis_bounds():
+    """oracles.ik.balancing.least_shift against the answers worked by hand on a square (|x|, |y| <= 0.1 m): the
+    shortest move of the root that puts the centre of mass (moved GAIN times as far) DEPTH inside."""
+    from oracles.ik.balancing import DEPTH, GAIN, least_shift
+
+    square = np.array([[1, 0, -0.1], [-1, 0, -0.1], [0, 1, -0.1], [0, -1, -0.1]], float)
+    inside = 0.1 - DEPTH
+    # beyond a corner: to the corner; beyond an edge: straight back to it; inside: no move
+    np.testing.assert_allclose(least_shift(square, None, np.array([0.15, 0.12]), np.zeros(2)),
+                               (np.array([inside, inside]) - [0.15, 0.12]) / GAIN, atol=1e-12)
+    np.testing.assert_allclose(least_shift(square, None, np.array([0.0, -0.13]), np.zeros(2)),
+                               [0.0, (0.13 - inside) / GAIN], atol=1e-12)
+    assert not least_shift(square, None, np.array([0.05, -0.09]), np.zeros(2)).any()
+    # the pelvis (the root) may not go past x = 0.02: the move to the edge's line is cut there, and y takes the rest
+    pelvis = np.array([[1.0, 0.0, -0.02]])
+    d = least_shift(square, pelvis, np.array([0.12, 0.0]), np.zeros(2))
+    assert d[0] <= 0.02 - DEPTH + 1e-12
+    np.testing.assert_allclose(d, [(inside - 0.12) / GAIN, 0.0], atol=1e-12)  # moving back is allowed
+    d = least_shift(square, np.array([[-1.0, 0.0, -0.01]]), np.array([0.12, 0.0]), np.zeros(2))
+    assert not d.any()  # the pelvis may not move back past x = -0.01: no move brings the centre of mass inside
+
+
+def test_a_standing_path_is_kept_over_the_feet_by_moving_the_root_continuously(planner, body):
+    """Between stored postures of a standing strategy, the oracle's interpolation moves the root aside
+    where the plain path (Pinocchio's, the feet held) takes the centre of mass out of the soles' polygon: checked by
+    our own forward kinematics and scipy's hull of the sole corners shrunk by the balance margin. Every moved posture
+    whose feet stand where they stood is balanced; the path has no jump; and a posture's correction is the same
+    whichever fractions of the path are asked, to the legs' holds' tolerance (a motion's frames are the graph's
+    samples)."""
+    from scipy.spatial import ConvexHull
+
+    from oracles.bodies.posed import PosedBody
+
+    oracle = planner.body("whole")
+    rows, points, postures = planner.selector.atlas.trees["whole"].stored()
+    data = body.model.createData()
+    corners = [body.frame_id(f"{side}_{end}_{edge}") for side in ("right", "left") for end in ("heel", "toe")
+               for edge in ("inner", "outer")]
+    pin.framesForwardKinematics(body.model, data, np.asarray(oracle.reference_posture(), float))
+    soles = np.array([data.oMf[f].translation for f in corners])
+    hull = ConvexHull(soles[:, :2]).equations
+    margin = oracle.strategy.task("balance").margin
+
+    def outside(q):  # [m] past the shrunk polygon (> 0: out)
+        pin.framesForwardKinematics(body.model, data, q)
+        return float(np.max(hull[:, :2] @ pin.centerOfMass(body.model, data, q)[:2] + hull[:, 2] + margin))
+
+    def standing(q):
+        pin.framesForwardKinematics(body.model, data, q)
+        return np.abs(np.array([data.oMf[f].translation for f in corners]) - soles).max() <= 2e-4
+
+    s = np.linspace(0.0, 1.0, 41)
+    plain_out = moved = balanced = mended = 0
+    # stored postures paired at random: farther apart than neighbours, their plain paths leave the polygon more often
+    for a, b in np.random.default_rng(0).choice(len(postures), (150, 2)):
+        qa, qb = postures[a], postures[b]
+        if outside(qa) > 1e-5 or outside(qb) > 1e-5:
+            continue
+        plain = oracle._held(qa, qb, PosedBody.interpolate(oracle, qa, qb, s))
+        if max(outside(q) for q in plain) <= 1e-5:
+            continue
+        plain_out += 1
+        path = oracle.interpolate(qa, qb, s)
+        # (the legs' holds start from the previous posture's and stop within their tolerance: not to rounding)
+        np.testing.assert_allclose(oracle.interpolate(qa, qb, s[3::7]), path[3::7], atol=2e-3)
+        # no jump: the root's steps along the corrected path stay within the plain path's and a few millimetres
+        step = np.linalg.norm(np.diff(path[:, :3], axis=0), axis=1).max()
+        assert step <= np.linalg.norm(np.diff(plain[:, :3], axis=0), axis=1).max() + 0.005
+        for q, p in zip(path, plain, strict=True):
+            if np.abs(q[:2] - p[:2]).max() > 0 and standing(q):
+                moved += 1
+                balanced += outside(q) <= 1e-5
+        mended += not any(oracle.faults(path))
+    assert plain_out >= 3 and moved >= 10, (plain_out, moved)
+    assert balanced == moved and mended >= 1, (balanced, moved, mended)

@@ -125,9 +125,11 @@ def _swing(oracle: Any, model: pin.Model, leg: list[int], fid: int, q_shift: np.
     return frames
 
 
-def planted(model: pin.Model, frame: int, q0: np.ndarray, q1: np.ndarray, postures: np.ndarray) -> np.ndarray:
+def planted(model: pin.Model, frame: int, q0: np.ndarray, q1: np.ndarray, postures: np.ndarray,
+            iterations: int = LEG_ITER) -> np.ndarray:
     """Postures between q0 and q1 with the stepping foot (``frame``) kept where both put it, when they put it at one
-    place (within 0.1 mm and 1 mrad): the leg's own inverse kinematics at each; else the postures as they are."""
+    place (within 0.1 mm and 1 mrad): the leg's own inverse kinematics at each (at most ``iterations`` steps); else
+    the postures as they are."""
     data = model.createData()
     ends = []
     for q in (q0, q1):
@@ -147,9 +149,9 @@ def planted(model: pin.Model, frame: int, q0: np.ndarray, q1: np.ndarray, postur
             continue
         guess = q.copy()
         guess[rows] += shift
-        held = _leg_ik(model, leg, frame, guess, ends[0], data)
+        held = _leg_ik(model, leg, frame, guess, ends[0], data, iterations)
         if held is None and shift.any():
-            held = _leg_ik(model, leg, frame, q, ends[0], data)
+            held = _leg_ik(model, leg, frame, q, ends[0], data, iterations)
         if held is not None:
             shift = held[rows] - q[rows]
             out[k] = held
@@ -183,7 +185,7 @@ def _placed(model: pin.Model, data: Any, frame: int, q: np.ndarray, target: pin.
 
 
 def _leg_ik(model: pin.Model, leg: list[int], frame: int, q: np.ndarray, target: pin.SE3,
-            data: Any = None) -> np.ndarray | None:
+            data: Any = None, iterations: int = LEG_ITER) -> np.ndarray | None:
     """q with the leg's joints moved (damped Newton on the frame's 6-D error, within the joints' ranges) until the
     frame reaches ``target`` (within 0.1 mm and 1 mrad, the contacts' own checks), or None when it cannot."""
     q = np.asarray(q, float).copy()
@@ -191,12 +193,15 @@ def _leg_ik(model: pin.Model, leg: list[int], frame: int, q: np.ndarray, target:
     cols = [model.joints[j].idx_v for j in leg]
     rows = [model.joints[j].idx_q for j in leg]
     lo, hi = model.lowerPositionLimit[rows], model.upperPositionLimit[rows]
-    for _ in range(LEG_ITER):
+    damping = LEG_DAMPING**2 * np.eye(6)
+    for _ in range(iterations):
         pin.framesForwardKinematics(model, data, q)
         err = pin.log6(data.oMf[frame].actInv(target)).vector
-        if np.linalg.norm(err[:3]) <= 1e-4 and np.linalg.norm(err[3:]) <= 1e-3:
+        if err[:3] @ err[:3] <= 1e-8 and err[3:] @ err[3:] <= 1e-6:  # 0.1 mm and 1 mrad
             return q
         jac = pin.computeFrameJacobian(model, data, q, frame, pin.LOCAL)[:, cols]
-        step = jac.T @ np.linalg.solve(jac @ jac.T + LEG_DAMPING**2 * np.eye(6), err)
-        q[rows] = np.clip(q[rows] + step, lo, hi)
+        moved = np.clip(q[rows] + jac.T @ np.linalg.solve(jac @ jac.T + damping, err), lo, hi)
+        if np.array_equal(moved, q[rows]):
+            return None  # the ranges hold the leg where it is: every further iteration would be this one
+        q[rows] = moved
     return None

@@ -19,13 +19,14 @@ import pinocchio as pin
 from oracles.bodies.body import Body
 from oracles.bodies.posed import PosedBody
 from oracles.bodies.urdf import ROOT
+from oracles.ik import balancing
 from oracles.ik.problem import ReachProblem
 from oracles.ik.search import Search
 from oracles.ik.solvers.dls import DampedLeastSquares
-from oracles.ik.stepping import chain, planted, swing_frames
+from oracles.ik.stepping import LEG_ITER, chain, planted, swing_frames
 from oracles.ik.strategy import Strategy
 from oracles.protocol import Ball, check_points
-from oracles.tasks import ContactsTask, FloorTask, Numeric, ObstaclesTask, OrientationTask, StepTask
+from oracles.tasks import BalanceTask, ContactsTask, FloorTask, Numeric, ObstaclesTask, OrientationTask, StepTask
 
 # tasks that hold something fixed in the world, which a turn would move
 WORLD_FIXED = frozenset({"obstacles", "tether"})
@@ -174,13 +175,35 @@ class TaskedBody(PosedBody):
         """As :meth:`PosedBody.interpolate`; every other foot held fixed (a hard task's ``fixed`` contact, the step's
         foot) that stands at one place at both ends is kept there too, by its leg's own inverse kinematics at each
         posture: interpolated, the second foot slid (up to 1 cm while a step's body reached over it) and every frame
-        of a standing reach broke the feet, to be held by a solve. ``exact=False``: as it slid (the feet's legs move
-        neither the effector nor the root)."""
-        out = super().interpolate(q0, q1, s)
+        of a standing reach broke the feet, to be held by a solve. A strategy with a balance task (and no step) has each
+        posture whose centre of mass (or pelvis) leaves its bounds moved back by the root, its feet held again
+        (:mod:`oracles.ik.balancing`). ``exact=False``: as it slid (the feet's legs move neither the effector nor the
+        root)."""
         a, b = np.asarray(q0, float), np.asarray(q1, float)
-        for foot in planted_frames(self.body, self.strategy, self.problem, self.anchor) if exact else ():
-            out = planted(self.body.model, self.body.frame_id(foot), a, b, out)
-        return out
+        s = np.atleast_1d(np.asarray(s, float))
+        out = super().interpolate(a, b, s)
+        if not exact:
+            return out
+        out = self._held(a, b, out)
+        balance = self.strategy.task("balance")
+        if not isinstance(balance, BalanceTask) or self.anchor is None or self.strategy.task("step") is not None:
+            return out
+        # the centre of mass (and pelvis) kept within the balance's bounds (oracles.ik.balancing)
+        return balancing.balanced(self.body.model, self._data, a, b, s, out, balance.polygon,
+                                  balance.hull if balance.pelvis else None, self._held_moved)
+
+    def _held(self, a: np.ndarray, b: np.ndarray, postures: np.ndarray, anchor: bool = False,
+              iterations: int = LEG_ITER) -> np.ndarray:
+        """Postures between a and b with every planted foot held by its leg, the anchor's too with ``anchor`` (a root
+        moved aside moved it)."""
+        feet = planted_frames(self.body, self.strategy, self.problem, self.anchor)
+        for foot in [self.anchor, *feet] if anchor and self.anchor is not None else feet:
+            postures = planted(self.body.model, self.body.frame_id(foot), a, b, postures, iterations)
+        return postures
+
+    def _held_moved(self, a: np.ndarray, b: np.ndarray, postures: np.ndarray) -> np.ndarray:
+        """:meth:`_held` of postures whose root the balance moved aside (oracles.ik.balancing), the anchor's leg too."""
+        return self._held(a, b, postures, anchor=True, iterations=balancing.HOLD_ITER)
 
     def swing(self, q0: np.ndarray, q1: np.ndarray, count: int) -> np.ndarray | None:
         """A step's frames from q0 to the foot set down where q1 puts it (see :mod:`oracles.ik.stepping`)."""
