@@ -47,12 +47,15 @@ def balanced(model: pin.Model, data: pin.Data, a: np.ndarray, b: np.ndarray, s: 
     ``polygon`` and ``hull``: rows (a_x, a_y, c), a . p + c <= 0 inside (the balance task's, for the centre of mass
     and the pelvis)."""
     com = com_xy(model, data, plain)
-    shifts = np.array([least_shift(polygon, hull, com[k], plain[k, :2]) for k in range(len(plain))])
-    moved = np.flatnonzero(np.any(shifts != 0.0, axis=1))
+    out_of = np.max(com @ polygon[:, :2].T + polygon[:, 2], axis=1) > BALANCE_TOL
+    if hull is not None and len(hull):
+        out_of |= np.max(plain[:, :2] @ hull[:, :2].T + hull[:, 2], axis=1) > BALANCE_TOL
+    shifts = {k: least_shift(polygon, hull, com[k], plain[k, :2]) for k in np.flatnonzero(out_of)}
+    moved = np.array([k for k, d in shifts.items() if d.any()], int)
     if not moved.size:
         return plain
     out = np.array(plain, float, copy=True)
-    out[moved, :2] += shifts[moved]
+    out[moved, :2] += np.array([shifts[k] for k in moved])
     out[moved] = hold(a, b, out[moved])
     return out
 
