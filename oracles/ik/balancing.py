@@ -29,10 +29,6 @@ GAIN = 0.8
 # than 10, while those that failed took every step given; 10 steps cost the crouch's graph 39 of its 5,266 edges for
 # about 5 % less CPU, 50 none (measured)
 HOLD_ITER = 50
-# moves of a path's postures (a second from where the first ended, for a posture whose legs carried the centre of
-# mass back past its bound: 37 more whole-body and 34 more crouch graph edges, but a posture whose legs failed was held
-# in vain again, and a crouch motion's shortcut checks then took 0.4 s; docs/decisions/0028)
-ROUNDS = 1
 
 Hold = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
 
@@ -50,19 +46,17 @@ def balanced(model: pin.Model, data: pin.Data, a: np.ndarray, b: np.ndarray, s: 
 
     ``polygon`` and ``hull``: rows (a_x, a_y, c), a . p + c <= 0 inside (the balance task's, for the centre of mass
     and the pelvis)."""
-    out = plain
-    for _ in range(ROUNDS):
-        com = com_xy(model, data, out)
-        out_of = np.max(com @ polygon[:, :2].T + polygon[:, 2], axis=1) > BALANCE_TOL
-        if hull is not None and len(hull):
-            out_of |= np.max(out[:, :2] @ hull[:, :2].T + hull[:, 2], axis=1) > BALANCE_TOL
-        shifts = {k: least_shift(polygon, hull, com[k], out[k, :2]) for k in np.flatnonzero(out_of)}
-        moved = np.array([k for k, d in shifts.items() if d.any()], int)
-        if not moved.size:
-            break
-        out = np.array(out, float, copy=True)
-        out[moved, :2] += np.array([shifts[k] for k in moved])
-        out[moved] = hold(a, b, out[moved])
+    com = com_xy(model, data, plain)
+    out_of = np.max(com @ polygon[:, :2].T + polygon[:, 2], axis=1) > BALANCE_TOL
+    if hull is not None and len(hull):
+        out_of |= np.max(plain[:, :2] @ hull[:, :2].T + hull[:, 2], axis=1) > BALANCE_TOL
+    shifts = {k: least_shift(polygon, hull, com[k], plain[k, :2]) for k in np.flatnonzero(out_of)}
+    moved = np.array([k for k, d in shifts.items() if d.any()], int)
+    if not moved.size:
+        return plain
+    out = np.array(plain, float, copy=True)
+    out[moved, :2] += np.array([shifts[k] for k in moved])
+    out[moved] = hold(a, b, out[moved])
     return out
 
 
